@@ -1,0 +1,28 @@
+//! pcuvd — pulse-coded ultrafast vector Doppler: the science.
+//!
+//! One module per pipeline stage, in the order data flows through them:
+//! [`probe`] and [`sequence`] describe an acquisition, [`hadamard`] its code, [`geometry`] the one
+//! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
+//! demodulates; [`beamform`] forms per-angle IQ images; [`clutter`] removes tissue; [`doppler`]
+//! measures power and projection velocity; [`vector`] solves for (Vx, Vz).
+//!
+//! Units are SI throughout (m, s, Hz, m/s). No printing, no file formats, no plotting here.
+
+pub mod beamform;
+pub mod channel;
+pub mod clutter;
+pub mod decode;
+pub mod doppler;
+pub mod error;
+pub mod geometry;
+pub mod hadamard;
+pub mod iq;
+pub mod probe;
+pub mod sequence;
+pub mod vector;
+
+pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
+pub use error::{Error, Result};
+pub use hadamard::Hadamard;
+pub use probe::Probe;
+pub use sequence::{Coding, Sequence};
