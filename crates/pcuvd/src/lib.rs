@@ -17,8 +17,11 @@ pub mod error;
 pub mod geometry;
 pub mod hadamard;
 pub mod iq;
+pub mod phantom;
+pub mod pipeline;
 pub mod probe;
 pub mod sequence;
+pub mod simulate;
 pub mod vector;
 
 pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};

@@ -1,0 +1,249 @@
+//! The whole processing chain, stage by stage: decode → IQ → beamform → clutter filter →
+//! Doppler → vector velocity. Front ends (the CLI, bindings) call [`process`].
+
+use std::time::Instant;
+
+use ndarray::{Array2, Array3, Axis, Zip};
+use num_complex::Complex32;
+
+use crate::beamform::{self, DasParams, Grid};
+use crate::channel::ChannelData;
+use crate::clutter::{self, ClutterParams, ClutterReport};
+use crate::decode;
+use crate::doppler::{self, Autocorrelation};
+use crate::error::{Result, invalid};
+use crate::iq;
+use crate::vector::{self, Estimator, IrlsParams, VectorField};
+
+/// Settings of every stage of [`process`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProcessParams {
+    /// Pixel grid (m).
+    pub grid: Grid,
+    /// Delay-and-sum settings.
+    pub das: DasParams,
+    /// SVD clutter filter, applied to each angle's series separately.
+    pub clutter: ClutterParams,
+    /// Spatial averaging box (rows, cols) of the autocorrelation; odd sizes.
+    pub doppler_kernel: (usize, usize),
+    /// IRLS settings of the PC-UVD estimator.
+    pub irls: IrlsParams,
+    /// IQ low-pass cut-off (Hz); `None` picks [`iq::default_cutoff`].
+    pub iq_cutoff: Option<f64>,
+}
+
+/// Pipeline stages, in order, as reported to a progress callback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Hadamard decoding / angle separation.
+    Decode,
+    /// IQ demodulation and delay-and-sum, one step per angle.
+    Beamform,
+    /// SVD clutter filtering, one step per angle.
+    Clutter,
+    /// Autocorrelation Doppler and vector solve.
+    Doppler,
+}
+
+impl Stage {
+    /// Name shown to people.
+    pub fn label(self) -> &'static str {
+        match self {
+            Stage::Decode => "decode",
+            Stage::Beamform => "demodulate + beamform",
+            Stage::Clutter => "clutter filter",
+            Stage::Doppler => "Doppler + vector",
+        }
+    }
+}
+
+/// Everything the pipeline measured, on the grid, shape (nz, nx) for maps; SI units.
+#[derive(Debug, Clone)]
+pub struct ProcessOutput {
+    /// The grid of every map.
+    pub grid: Grid,
+    /// B-mode of the compounded, unfiltered series (dB, 0 at the brightest pixel).
+    pub bmode_db: Array2<f64>,
+    /// Power Doppler of the compounded, clutter-filtered series (linear, |IQ|² units).
+    pub power_doppler: Array2<f64>,
+    /// Colour Doppler: axial velocity from the compounded series (m/s, positive = away from the probe).
+    pub color_doppler: Array2<f64>,
+    /// Per-angle power Doppler (angles, nz, nx).
+    pub power_per_angle: Array3<f64>,
+    /// Per-angle projection velocities V_θ (angles, nz, nx), m/s.
+    pub projections: Array3<f64>,
+    /// Vector field by least squares (UVD); `None` with a single angle.
+    pub vector_ls: Option<VectorField>,
+    /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
+    pub vector_irls: Option<VectorField>,
+    /// Nyquist velocity of each projection (m/s).
+    pub nyquist_velocity: f64,
+    /// Clutter-filter cut-offs per angle.
+    pub clutter: Vec<ClutterReport>,
+    /// Clutter-filtered per-angle IQ series (angles) of shape (nz, nx, frames), kept for dynamics.
+    pub filtered: Vec<Array3<Complex32>>,
+    /// Wall-clock seconds per stage.
+    pub timings: Vec<(Stage, f64)>,
+}
+
+/// Runs the pipeline on a recording. `progress(stage, done, total)` is called as work completes.
+pub fn process(
+    data: &ChannelData,
+    params: &ProcessParams,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<ProcessOutput> {
+    data.validate()?;
+    let acq = &data.acquisition;
+    check_grid_depth(data, &params.grid)?;
+    let angles = &acq.sequence.angles;
+    let n = angles.len();
+    let mut timings = Vec::new();
+
+    let clock = Instant::now();
+    progress(Stage::Decode, 0, 1);
+    let per_angle = decode::decode(data)?;
+    progress(Stage::Decode, 1, 1);
+    timings.push((Stage::Decode, clock.elapsed().as_secs_f64()));
+
+    let clock = Instant::now();
+    let mut images = Vec::with_capacity(n);
+    for (k, &angle) in angles.iter().enumerate() {
+        progress(Stage::Beamform, k, n);
+        let channels = iq::demodulate(
+            &per_angle,
+            k,
+            acq.t0,
+            acq.sampling_frequency,
+            acq.probe.center_frequency,
+            params.iq_cutoff,
+        )?;
+        images.push(beamform::beamform(
+            &channels,
+            &acq.probe,
+            angle,
+            &params.grid,
+            &params.das,
+        )?);
+    }
+    drop(per_angle);
+    progress(Stage::Beamform, n, n);
+    timings.push((Stage::Beamform, clock.elapsed().as_secs_f64()));
+    let bmode_db = beamform::bmode_db(beamform::compound(&images)?.view());
+
+    let clock = Instant::now();
+    let mut reports = Vec::with_capacity(n);
+    for (k, image) in images.iter_mut().enumerate() {
+        progress(Stage::Clutter, k, n);
+        reports.push(clutter::svd_filter(image, &params.clutter)?);
+    }
+    progress(Stage::Clutter, n, n);
+    timings.push((Stage::Clutter, clock.elapsed().as_secs_f64()));
+
+    let clock = Instant::now();
+    progress(Stage::Doppler, 0, 1);
+    let frame_rate = acq.frame_rate();
+    let (c, f0) = (acq.sound_speed, acq.probe.center_frequency);
+    let (nz, nx) = params.grid.shape();
+    let mut projections = Array3::<f64>::zeros((n, nz, nx));
+    let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
+    for (k, image) in images.iter().enumerate() {
+        let ac = doppler::autocorrelation(image.view(), params.doppler_kernel)?;
+        projections
+            .index_axis_mut(Axis(0), k)
+            .assign(&doppler::projection_velocity(&ac.r1, c, frame_rate, f0)?);
+        power_per_angle.index_axis_mut(Axis(0), k).assign(&ac.power);
+    }
+    let compound = beamform::compound(&images)?;
+    let Autocorrelation { power, r1 } =
+        doppler::autocorrelation(compound.view(), params.doppler_kernel)?;
+    // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
+    // angle sets): rescale its projection to the axial velocity.
+    let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
+    let axial =
+        doppler::projection_velocity(&r1, c, frame_rate, f0)?.mapv(|v| 2.0 * v / (1.0 + mean_cos));
+    let (vector_ls, vector_irls) = if n >= 2 {
+        (
+            Some(vector::vector_velocity(
+                angles,
+                projections.view(),
+                &Estimator::LeastSquares,
+            )?),
+            Some(vector::vector_velocity(
+                angles,
+                projections.view(),
+                &Estimator::Irls(params.irls),
+            )?),
+        )
+    } else {
+        (None, None)
+    };
+    progress(Stage::Doppler, 1, 1);
+    timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
+
+    Ok(ProcessOutput {
+        grid: params.grid.clone(),
+        bmode_db,
+        power_doppler: power,
+        color_doppler: axial,
+        power_per_angle,
+        projections,
+        vector_ls,
+        vector_irls,
+        nyquist_velocity: doppler::nyquist_velocity(c, frame_rate, f0),
+        clutter: reports,
+        filtered: images,
+        timings,
+    })
+}
+
+/// Deepest depth (m) whose straight-down echo lies inside the record.
+pub fn recorded_depth(data: &ChannelData) -> f64 {
+    let acq = &data.acquisition;
+    let (_, _, ns) = data.samples.dim();
+    let t_end = acq.t0 + (ns - 1) as f64 / acq.sampling_frequency;
+    (0.5 * t_end * acq.sound_speed).max(0.0)
+}
+
+/// The default grid: the array's lateral extent, from just below the first recorded depth to the
+/// last, with a step of half a wavelength (rounded to 0.01 mm), capped near 400 × 400 pixels.
+pub fn default_grid(data: &ChannelData) -> Result<Grid> {
+    let acq = &data.acquisition;
+    let (x0, x1) = acq.probe.aperture();
+    let z_first = (0.5 * acq.t0 * acq.sound_speed).max(0.0);
+    let z0 = z_first.max(1e-3);
+    let z1 = recorded_depth(data);
+    if z1 <= z0 {
+        return Err(invalid(
+            "grid",
+            "the record is too short to cover any depth beyond 1 mm",
+        ));
+    }
+    let mut step = (acq.probe.wavelength(acq.sound_speed) / 2.0 * 1e5).round() / 1e5;
+    let extent = (x1 - x0).max(z1 - z0);
+    step = step.max(extent / 400.0).max(1e-5);
+    Grid::new(x0, x1, z0, z1, step)
+}
+
+/// A grid deeper than the record can say nothing: refuse it rather than return zeros.
+fn check_grid_depth(data: &ChannelData, grid: &Grid) -> Result<()> {
+    let deepest = recorded_depth(data);
+    let z_min = grid.z.first().copied().unwrap_or(0.0);
+    if z_min >= deepest {
+        return Err(invalid(
+            "grid",
+            format!(
+                "the grid starts at z = {:.2} mm, below the deepest recorded depth {:.2} mm",
+                z_min * 1e3,
+                deepest * 1e3
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Per-pixel mean of `f(vx, vz)` ... helper kept for front ends: speed map of a field.
+pub fn speed_map(field: &VectorField) -> Array2<f64> {
+    Zip::from(&field.vx)
+        .and(&field.vz)
+        .map_collect(|&x, &z| x.hypot(z))
+}
