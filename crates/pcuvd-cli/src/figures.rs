@@ -1,0 +1,139 @@
+//! Figures of processed maps: what a person looks at (units: mm, mm/s, dB).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use ndarray::{Array2, Zip};
+use pcuvd::beamform::Grid;
+use pcuvd::pipeline::ProcessOutput;
+use pcuvd::vector::VectorField;
+use pcuvd_render::{Colormap, Figure, ImagePanel, Panel, VectorOverlay, render_png};
+
+/// Pixels whose power is below this (dB under the strong reference) are shown as B-mode, not flow.
+pub const FLOW_MASK_DB: f64 = -25.0;
+
+/// The `q`-quantile (0..1) of the finite values of `values`.
+pub fn quantile(values: impl Iterator<Item = f64>, q: f64) -> f64 {
+    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
+
+/// Power in dB relative to its 99.9th percentile (robust to a few very bright pixels).
+pub fn power_db(power: &Array2<f64>) -> Array2<f64> {
+    let reference = quantile(power.iter().copied(), 0.999).max(f64::MIN_POSITIVE);
+    power.mapv(|p| 10.0 * (p.max(reference * 1e-12) / reference).log10())
+}
+
+/// B-mode in dB mapped to [0, 1] grey over a 60 dB dynamic range, as a background.
+pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
+    bmode_db.mapv(|v| ((v + 60.0) / 60.0).clamp(0.0, 1.0))
+}
+
+/// An image panel of `data` on `grid` with the usual axes in mm.
+pub fn map_panel(title: &str, data: Array2<f64>, grid: &Grid, colormap: Colormap, range: (f64, f64), label: &str) -> ImagePanel {
+    ImagePanel {
+        title: title.to_string(),
+        data,
+        x_mm: (grid.x[0] * 1e3, grid.x[grid.x.len() - 1] * 1e3),
+        z_mm: (grid.z[0] * 1e3, grid.z[grid.z.len() - 1] * 1e3),
+        colormap,
+        range,
+        colorbar_label: label.to_string(),
+        mask: None,
+        background: None,
+        arrows: None,
+        lines: vec![],
+    }
+}
+
+/// Triangles along the flow, every `stride` pixels where `mask` holds, coloured by speed (mm/s).
+pub fn vector_overlay(field: &VectorField, grid: &Grid, mask: &Array2<bool>, speed_max_mm_s: f64) -> VectorOverlay {
+    let (nz, nx) = grid.shape();
+    let stride = (nx.max(nz) / 28).max(1);
+    let step_mm = (grid.x.get(1).copied().unwrap_or(grid.x[0]) - grid.x[0]).abs() * 1e3;
+    let mut overlay = VectorOverlay {
+        x_mm: vec![],
+        z_mm: vec![],
+        vx: vec![],
+        vz: vec![],
+        scale_mm: (stride as f64 * step_mm * 0.9).max(1e-3),
+        colormap: Colormap::Viridis,
+        speed_range: (0.0, speed_max_mm_s.max(1e-9)),
+    };
+    for iz in (stride / 2..nz).step_by(stride) {
+        for ix in (stride / 2..nx).step_by(stride) {
+            if !mask[[iz, ix]] || !field.vx[[iz, ix]].is_finite() {
+                continue;
+            }
+            overlay.x_mm.push(grid.x[ix] * 1e3);
+            overlay.z_mm.push(grid.z[iz] * 1e3);
+            overlay.vx.push(field.vx[[iz, ix]] * 1e3);
+            overlay.vz.push(field.vz[[iz, ix]] * 1e3);
+        }
+    }
+    overlay
+}
+
+/// Flow pixels: power above [`FLOW_MASK_DB`].
+pub fn flow_mask(power: &Array2<f64>) -> Array2<bool> {
+    power_db(power).mapv(|v| v >= FLOW_MASK_DB)
+}
+
+fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
+    let fig = Figure { title: title.to_string(), panels, ncols, panel_size_px: (560, 480) };
+    render_png(&fig, path).with_context(|| format!("cannot draw {}", path.display()))?;
+    Ok(path.to_path_buf())
+}
+
+/// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
+pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
+    let grid = &out.grid;
+    let mut written = Vec::new();
+    let bmode = map_panel("B-mode", out.bmode_db.clone(), grid, Colormap::Gray, (-60.0, 0.0), "dB");
+    written.push(save(&dir.join("bmode.png"), &format!("{name}: B-mode"), vec![Panel::Image(bmode)], 1)?);
+
+    let pd = map_panel("Power Doppler", power_db(&out.power_doppler), grid, Colormap::Hot, (-40.0, 0.0), "dB");
+    written.push(save(&dir.join("power_doppler.png"), &format!("{name}: power Doppler"), vec![Panel::Image(pd)], 1)?);
+
+    let mask = flow_mask(&out.power_doppler);
+    let background = bmode_background(&out.bmode_db);
+    // Red = toward the probe (upward), as in the paper's colour maps.
+    let upward_mm_s = out.color_doppler.mapv(|v| -v * 1e3);
+    let vmax = out.nyquist_velocity * 1e3;
+    let mut cd = map_panel(
+        "Colour Doppler (red: toward the probe)",
+        upward_mm_s,
+        grid,
+        Colormap::RedBlue,
+        (-vmax, vmax),
+        "axial velocity toward probe (mm/s)",
+    );
+    cd.mask = Some(mask.clone());
+    cd.background = Some(background.clone());
+    written.push(save(&dir.join("color_doppler.png"), &format!("{name}: colour Doppler"), vec![Panel::Image(cd)], 1)?);
+
+    if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+        let panels = [("UVD (least squares)", ls), ("PC-UVD estimator (IRLS-WLS)", irls)]
+            .into_iter()
+            .map(|(title, field)| vector_panel(title, field, grid, &mask, &background))
+            .collect();
+        written.push(save(&dir.join("vector.png"), &format!("{name}: vector Doppler"), panels, 2)?);
+    }
+    Ok(written)
+}
+
+/// Speed map under triangles pointing along the flow, masked to flow pixels.
+pub fn vector_panel(title: &str, field: &VectorField, grid: &Grid, mask: &Array2<bool>, background: &Array2<f64>) -> Panel {
+    let speed_mm_s = Zip::from(&field.vx).and(&field.vz).map_collect(|&x, &z| x.hypot(z) * 1e3);
+    let masked = Zip::from(&speed_mm_s).and(mask).map_collect(|&s, &m| if m { s } else { f64::NAN });
+    let vmax = quantile(masked.iter().copied(), 0.99).max(1e-6);
+    let mut panel = map_panel(title, speed_mm_s, grid, Colormap::Viridis, (0.0, vmax), "speed (mm/s)");
+    panel.arrows = Some(vector_overlay(field, grid, mask, vmax));
+    panel.mask = Some(mask.clone());
+    panel.background = Some(background.clone());
+    Panel::Image(panel)
+}

@@ -1,0 +1,117 @@
+//! Command-line options shared by the commands that process recordings.
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use pcuvd::ChannelData;
+use pcuvd::beamform::{Apodization, DasParams, Grid};
+use pcuvd::clutter::{ClutterParams, RankCut};
+use pcuvd::pipeline::{self, ProcessParams};
+use pcuvd::vector::IrlsParams;
+
+/// Processing options (grid, beamforming, clutter filter, Doppler, IRLS).
+#[derive(Args, Debug, Clone)]
+pub struct ProcessingOptions {
+    /// Imaging grid XMIN,XMAX,ZMIN,ZMAX,STEP in mm (e.g. --grid=-12.5,12.5,10,35,0.1); default: the
+    /// array's width, from 1 mm to the recorded depth, half-wavelength step.
+    #[arg(long, allow_hyphen_values = true, value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP")]
+    pub grid: Option<String>,
+    /// Receive f-number (depth / active aperture width).
+    #[arg(long, default_value_t = 1.5)]
+    pub f_number: f64,
+    /// SVD clutter filter: tissue components removed: "auto", "off" or a number.
+    #[arg(long, default_value = "auto")]
+    pub svd_low: String,
+    /// SVD clutter filter: first noise component removed: "off", "auto" or a number.
+    #[arg(long, default_value = "off")]
+    pub svd_high: String,
+    /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd), e.g. 3x3.
+    #[arg(long, default_value = "1x1")]
+    pub doppler_kernel: String,
+    /// IRLS regularisation λ (mm/s) of the weights 1/(|residual| + λ).
+    #[arg(long, default_value_t = 0.01)]
+    pub irls_lambda: f64,
+    /// IRLS convergence threshold on the largest weight change.
+    #[arg(long, default_value_t = 1e-4)]
+    pub irls_epsilon: f64,
+    /// IRLS iteration cap.
+    #[arg(long, default_value_t = 50)]
+    pub irls_max_iterations: usize,
+}
+
+fn rank_cut(text: &str, option: &str) -> Result<RankCut> {
+    match text {
+        "auto" => Ok(RankCut::Auto),
+        "off" | "none" => Ok(RankCut::Off),
+        n => n.parse::<usize>().map(RankCut::Fixed).with_context(|| {
+            format!("--{option} must be \"auto\", \"off\" or a whole number, got {n:?}")
+        }),
+    }
+}
+
+/// Parses "XMIN,XMAX,ZMIN,ZMAX,STEP" in mm into a grid in m.
+pub fn parse_grid(text: &str) -> Result<Grid> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .with_context(|| format!("--grid {text:?}: expected five numbers in mm: XMIN,XMAX,ZMIN,ZMAX,STEP"))?;
+    let [x0, x1, z0, z1, step] = values[..] else {
+        bail!("--grid {text:?}: expected five numbers in mm (XMIN,XMAX,ZMIN,ZMAX,STEP), got {}", values.len());
+    };
+    Grid::new(x0 * 1e-3, x1 * 1e-3, z0 * 1e-3, z1 * 1e-3, step * 1e-3).with_context(|| format!("--grid {text:?}"))
+}
+
+impl ProcessingOptions {
+    /// Stage settings for `data`.
+    pub fn params(&self, data: &ChannelData) -> Result<ProcessParams> {
+        let grid = match &self.grid {
+            Some(text) => parse_grid(text)?,
+            None => pipeline::default_grid(data)?,
+        };
+        let kernel = {
+            let parts: Vec<&str> = self.doppler_kernel.split(['x', 'X', ',']).collect();
+            match parts[..] {
+                [r, c] => (r.trim().parse::<usize>().ok(), c.trim().parse::<usize>().ok()),
+                _ => (None, None),
+            }
+        };
+        let (Some(rows), Some(cols)) = kernel else {
+            bail!("--doppler-kernel {:?}: expected ROWSxCOLS, e.g. 3x3", self.doppler_kernel);
+        };
+        Ok(ProcessParams {
+            grid,
+            das: DasParams {
+                f_number: self.f_number,
+                apodization: Apodization::Hann,
+                sound_speed: data.acquisition.sound_speed,
+            },
+            clutter: ClutterParams {
+                low: rank_cut(&self.svd_low, "svd-low")?,
+                high: rank_cut(&self.svd_high, "svd-high")?,
+                ..ClutterParams::default()
+            },
+            doppler_kernel: (rows, cols),
+            irls: IrlsParams {
+                lambda_mm_s: self.irls_lambda,
+                epsilon: self.irls_epsilon,
+                max_iterations: self.irls_max_iterations,
+            },
+            iq_cutoff: None,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_accepts_negative_mm() {
+        let g = parse_grid("-12.5,12.5,10,35,0.1").unwrap();
+        assert_eq!(g.shape(), (251, 251));
+        assert!((g.x[0] + 12.5e-3).abs() < 1e-12);
+        assert!(parse_grid("1,2,3").is_err());
+        assert!(parse_grid("a,2,3,4,5").is_err());
+        assert!(parse_grid("0,1,1,2,-0.1").is_err());
+    }
+}

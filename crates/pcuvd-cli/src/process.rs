@@ -1,0 +1,147 @@
+//! `pcuvd process`: a recording in, maps, numbers and figures out.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use ndarray::Array1;
+use pcuvd::ChannelData;
+use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
+use serde_json::json;
+
+use crate::figures;
+use crate::options::ProcessingOptions;
+use crate::progress::PipelineProgress;
+
+/// Arguments of `pcuvd process`.
+#[derive(Args, Debug)]
+pub struct ProcessArgs {
+    /// Recording: a MUST-style MATLAB v5 file (.mat, variables RF and param) or a pcuvd recording manifest (.toml).
+    pub input: PathBuf,
+    /// Output folder (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub options: ProcessingOptions,
+}
+
+/// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest).
+pub fn read_input(path: &Path) -> Result<ChannelData> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let data = match ext.as_str() {
+        "mat" => pcuvd_io::read_must_mat(path)?,
+        "toml" => pcuvd_io::read_manifest(path)?,
+        _ => bail!(
+            "{}: unknown recording type: expected a MUST-style .mat file or a pcuvd manifest .toml",
+            path.display()
+        ),
+    };
+    Ok(data)
+}
+
+/// Creates `dir` (and parents), with a message naming it on failure.
+pub fn create_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the output folder", dir.display()))
+}
+
+/// Runs `pcuvd process`.
+pub fn run(args: &ProcessArgs) -> Result<()> {
+    let data = read_input(&args.input)?;
+    let params = args.options.params(&data)?;
+    create_dir(&args.out)?;
+    let progress = PipelineProgress::new("");
+    let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
+        .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    let summary = write_outputs(&args.out, &data, &params, &out, json!({ "input": args.input.display().to_string() }))?;
+    let name = args.input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let pngs = figures::process_figures(&args.out, &out, &name)?;
+    println!(
+        "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
+        args.input.display(),
+        data.acquisition.sequence.n_angles(),
+        data.n_frames(),
+        data.acquisition.frame_rate(),
+        out.nyquist_velocity * 1e3,
+        out.grid.z.len(),
+        out.grid.x.len()
+    );
+    println!("wrote maps (.npy), summary.json and {} figures to {}", pngs.len(), args.out.display());
+    let _ = summary;
+    Ok(())
+}
+
+fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {
+    pcuvd_io::write_npy(&dir.join(name), arr)?;
+    Ok(())
+}
+
+/// Writes the maps as .npy (SI units) and `summary.json`; returns the summary.
+pub fn write_outputs(
+    dir: &Path,
+    data: &ChannelData,
+    params: &ProcessParams,
+    out: &ProcessOutput,
+    extra: serde_json::Value,
+) -> Result<serde_json::Value> {
+    pcuvd_io::write_npy(&dir.join("x.npy"), &Array1::from(out.grid.x.clone()))?;
+    pcuvd_io::write_npy(&dir.join("z.npy"), &Array1::from(out.grid.z.clone()))?;
+    npy(dir, "bmode_db.npy", &out.bmode_db)?;
+    npy(dir, "power_doppler.npy", &out.power_doppler)?;
+    npy(dir, "color_doppler.npy", &out.color_doppler)?;
+    pcuvd_io::write_npy(&dir.join("projections.npy"), &out.projections)?;
+    if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+        npy(dir, "vx.npy", &irls.vx)?;
+        npy(dir, "vz.npy", &irls.vz)?;
+        npy(dir, "speed.npy", &irls.speed())?;
+        npy(dir, "vx_ls.npy", &ls.vx)?;
+        npy(dir, "vz_ls.npy", &ls.vz)?;
+        npy(dir, "speed_ls.npy", &ls.speed())?;
+    }
+    let summary = summary_json(data, params, out, extra);
+    pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
+    Ok(summary)
+}
+
+/// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
+pub fn summary_json(data: &ChannelData, params: &ProcessParams, out: &ProcessOutput, extra: serde_json::Value) -> serde_json::Value {
+    let acq = &data.acquisition;
+    let probe = &acq.probe;
+    let seq = &acq.sequence;
+    let coding = match seq.coding {
+        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
+        pcuvd::Coding::Hadamard { slot_delay } => json!({ "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay }),
+    };
+    let timings: serde_json::Map<String, serde_json::Value> =
+        out.timings.iter().map(|(s, t)| (s.label().to_string(), json!(t))).collect();
+    json!({
+        "units": "SI (m, s, Hz, m/s); colour Doppler and Vz positive = moving away from the probe (deeper)",
+        "source": extra,
+        "probe": {
+            "name": probe.name, "n_elements": probe.n_elements, "pitch_m": probe.pitch,
+            "element_width_m": probe.element_width, "center_frequency_hz": probe.center_frequency,
+            "bandwidth": probe.bandwidth,
+        },
+        "acquisition": {
+            "sampling_frequency_hz": acq.sampling_frequency, "sound_speed_m_s": acq.sound_speed,
+            "t0_s": acq.t0, "event_prf_hz": seq.event_prf,
+            "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
+            "coding": coding, "frames": data.n_frames(), "frame_rate_hz": acq.frame_rate(),
+        },
+        "grid": {
+            "x_min_m": out.grid.x[0], "x_max_m": out.grid.x[out.grid.x.len() - 1],
+            "z_min_m": out.grid.z[0], "z_max_m": out.grid.z[out.grid.z.len() - 1],
+            "step_m": out.grid.x.get(1).map(|x| x - out.grid.x[0]).or_else(|| out.grid.z.get(1).map(|z| z - out.grid.z[0])),
+            "nx": out.grid.x.len(), "nz": out.grid.z.len(),
+        },
+        "beamforming": { "f_number": params.das.f_number, "apodization": format!("{:?}", params.das.apodization) },
+        "clutter_filter": {
+            "low": format!("{:?}", params.clutter.low), "high": format!("{:?}", params.clutter.high),
+            "tissue_frequency_fraction": params.clutter.tissue_frequency,
+            "cut_offs_per_angle": out.clutter.iter().map(|r| json!({"low": r.low, "high": r.high})).collect::<Vec<_>>(),
+        },
+        "doppler": { "kernel": [params.doppler_kernel.0, params.doppler_kernel.1] },
+        "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
+        "nyquist_velocity_m_s": out.nyquist_velocity,
+        "timings_s": timings,
+    })
+}
