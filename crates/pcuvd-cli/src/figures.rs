@@ -34,7 +34,14 @@ pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
 }
 
 /// An image panel of `data` on `grid` with the usual axes in mm.
-pub fn map_panel(title: &str, data: Array2<f64>, grid: &Grid, colormap: Colormap, range: (f64, f64), label: &str) -> ImagePanel {
+pub fn map_panel(
+    title: &str,
+    data: Array2<f64>,
+    grid: &Grid,
+    colormap: Colormap,
+    range: (f64, f64),
+    label: &str,
+) -> ImagePanel {
     ImagePanel {
         title: title.to_string(),
         data,
@@ -51,7 +58,12 @@ pub fn map_panel(title: &str, data: Array2<f64>, grid: &Grid, colormap: Colormap
 }
 
 /// Triangles along the flow, every `stride` pixels where `mask` holds, coloured by speed (mm/s).
-pub fn vector_overlay(field: &VectorField, grid: &Grid, mask: &Array2<bool>, speed_max_mm_s: f64) -> VectorOverlay {
+pub fn vector_overlay(
+    field: &VectorField,
+    grid: &Grid,
+    mask: &Array2<bool>,
+    speed_max_mm_s: f64,
+) -> VectorOverlay {
     let (nz, nx) = grid.shape();
     let stride = (nx.max(nz) / 28).max(1);
     let step_mm = (grid.x.get(1).copied().unwrap_or(grid.x[0]) - grid.x[0]).abs() * 1e3;
@@ -84,7 +96,12 @@ pub fn flow_mask(power: &Array2<f64>) -> Array2<bool> {
 }
 
 fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
-    let fig = Figure { title: title.to_string(), panels, ncols, panel_size_px: (560, 480) };
+    let fig = Figure {
+        title: title.to_string(),
+        panels,
+        ncols,
+        panel_size_px: (560, 480),
+    };
     render_png(&fig, path).with_context(|| format!("cannot draw {}", path.display()))?;
     Ok(path.to_path_buf())
 }
@@ -93,11 +110,35 @@ fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<Pa
 pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
     let grid = &out.grid;
     let mut written = Vec::new();
-    let bmode = map_panel("B-mode", out.bmode_db.clone(), grid, Colormap::Gray, (-60.0, 0.0), "dB");
-    written.push(save(&dir.join("bmode.png"), &format!("{name}: B-mode"), vec![Panel::Image(bmode)], 1)?);
+    let bmode = map_panel(
+        "B-mode",
+        out.bmode_db.clone(),
+        grid,
+        Colormap::Gray,
+        (-60.0, 0.0),
+        "dB",
+    );
+    written.push(save(
+        &dir.join("bmode.png"),
+        &format!("{name}: B-mode"),
+        vec![Panel::Image(bmode)],
+        1,
+    )?);
 
-    let pd = map_panel("Power Doppler", power_db(&out.power_doppler), grid, Colormap::Hot, (-40.0, 0.0), "dB");
-    written.push(save(&dir.join("power_doppler.png"), &format!("{name}: power Doppler"), vec![Panel::Image(pd)], 1)?);
+    let pd = map_panel(
+        "Power Doppler",
+        power_db(&out.power_doppler),
+        grid,
+        Colormap::Hot,
+        (-40.0, 0.0),
+        "dB",
+    );
+    written.push(save(
+        &dir.join("power_doppler.png"),
+        &format!("{name}: power Doppler"),
+        vec![Panel::Image(pd)],
+        1,
+    )?);
 
     let mask = flow_mask(&out.power_doppler);
     let background = bmode_background(&out.bmode_db);
@@ -114,24 +155,54 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     );
     cd.mask = Some(mask.clone());
     cd.background = Some(background.clone());
-    written.push(save(&dir.join("color_doppler.png"), &format!("{name}: colour Doppler"), vec![Panel::Image(cd)], 1)?);
+    written.push(save(
+        &dir.join("color_doppler.png"),
+        &format!("{name}: colour Doppler"),
+        vec![Panel::Image(cd)],
+        1,
+    )?);
 
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
-        let panels = [("UVD (least squares)", ls), ("PC-UVD estimator (IRLS-WLS)", irls)]
-            .into_iter()
-            .map(|(title, field)| vector_panel(title, field, grid, &mask, &background))
-            .collect();
-        written.push(save(&dir.join("vector.png"), &format!("{name}: vector Doppler"), panels, 2)?);
+        let panels = [
+            ("UVD (least squares)", ls),
+            ("PC-UVD estimator (IRLS-WLS)", irls),
+        ]
+        .into_iter()
+        .map(|(title, field)| vector_panel(title, field, grid, &mask, &background))
+        .collect();
+        written.push(save(
+            &dir.join("vector.png"),
+            &format!("{name}: vector Doppler"),
+            panels,
+            2,
+        )?);
     }
     Ok(written)
 }
 
 /// Speed map under triangles pointing along the flow, masked to flow pixels.
-pub fn vector_panel(title: &str, field: &VectorField, grid: &Grid, mask: &Array2<bool>, background: &Array2<f64>) -> Panel {
-    let speed_mm_s = Zip::from(&field.vx).and(&field.vz).map_collect(|&x, &z| x.hypot(z) * 1e3);
-    let masked = Zip::from(&speed_mm_s).and(mask).map_collect(|&s, &m| if m { s } else { f64::NAN });
+pub fn vector_panel(
+    title: &str,
+    field: &VectorField,
+    grid: &Grid,
+    mask: &Array2<bool>,
+    background: &Array2<f64>,
+) -> Panel {
+    let speed_mm_s = Zip::from(&field.vx)
+        .and(&field.vz)
+        .map_collect(|&x, &z| x.hypot(z) * 1e3);
+    let masked = Zip::from(&speed_mm_s)
+        .and(mask)
+        .map_collect(|&s, &m| if m { s } else { f64::NAN });
     let vmax = quantile(masked.iter().copied(), 0.99).max(1e-6);
-    let mut panel = map_panel(title, speed_mm_s, grid, Colormap::Viridis, (0.0, vmax), "speed (mm/s)");
+    let mut panel = map_panel(
+        title,
+        speed_mm_s,
+        grid,
+        Colormap::Viridis,
+        (0.0, vmax),
+        "speed (mm/s)",
+    );
     panel.arrows = Some(vector_overlay(field, grid, mask, vmax));
     panel.mask = Some(mask.clone());
     panel.background = Some(background.clone());

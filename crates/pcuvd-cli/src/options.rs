@@ -13,7 +13,11 @@ use pcuvd::vector::IrlsParams;
 pub struct ProcessingOptions {
     /// Imaging grid XMIN,XMAX,ZMIN,ZMAX,STEP in mm (e.g. --grid=-12.5,12.5,10,35,0.1); default: the
     /// array's width, from 1 mm to the recorded depth, half-wavelength step.
-    #[arg(long, allow_hyphen_values = true, value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP")]
+    #[arg(
+        long,
+        allow_hyphen_values = true,
+        value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP"
+    )]
     pub grid: Option<String>,
     /// Receive f-number (depth / active aperture width).
     #[arg(long, default_value_t = 1.5)]
@@ -54,11 +58,17 @@ pub fn parse_grid(text: &str) -> Result<Grid> {
         .split(',')
         .map(|v| v.trim().parse::<f64>())
         .collect::<std::result::Result<_, _>>()
-        .with_context(|| format!("--grid {text:?}: expected five numbers in mm: XMIN,XMAX,ZMIN,ZMAX,STEP"))?;
+        .with_context(|| {
+            format!("--grid {text:?}: expected five numbers in mm: XMIN,XMAX,ZMIN,ZMAX,STEP")
+        })?;
     let [x0, x1, z0, z1, step] = values[..] else {
-        bail!("--grid {text:?}: expected five numbers in mm (XMIN,XMAX,ZMIN,ZMAX,STEP), got {}", values.len());
+        bail!(
+            "--grid {text:?}: expected five numbers in mm (XMIN,XMAX,ZMIN,ZMAX,STEP), got {}",
+            values.len()
+        );
     };
-    Grid::new(x0 * 1e-3, x1 * 1e-3, z0 * 1e-3, z1 * 1e-3, step * 1e-3).with_context(|| format!("--grid {text:?}"))
+    Grid::new(x0 * 1e-3, x1 * 1e-3, z0 * 1e-3, z1 * 1e-3, step * 1e-3)
+        .with_context(|| format!("--grid {text:?}"))
 }
 
 impl ProcessingOptions {
@@ -71,12 +81,18 @@ impl ProcessingOptions {
         let kernel = {
             let parts: Vec<&str> = self.doppler_kernel.split(['x', 'X', ',']).collect();
             match parts[..] {
-                [r, c] => (r.trim().parse::<usize>().ok(), c.trim().parse::<usize>().ok()),
+                [r, c] => (
+                    r.trim().parse::<usize>().ok(),
+                    c.trim().parse::<usize>().ok(),
+                ),
                 _ => (None, None),
             }
         };
         let (Some(rows), Some(cols)) = kernel else {
-            bail!("--doppler-kernel {:?}: expected ROWSxCOLS, e.g. 3x3", self.doppler_kernel);
+            bail!(
+                "--doppler-kernel {:?}: expected ROWSxCOLS, e.g. 3x3",
+                self.doppler_kernel
+            );
         };
         Ok(ProcessParams {
             grid,

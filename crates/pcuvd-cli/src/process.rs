@@ -27,7 +27,11 @@ pub struct ProcessArgs {
 
 /// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest).
 pub fn read_input(path: &Path) -> Result<ChannelData> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     let data = match ext.as_str() {
         "mat" => pcuvd_io::read_must_mat(path)?,
         "toml" => pcuvd_io::read_manifest(path)?,
@@ -41,7 +45,8 @@ pub fn read_input(path: &Path) -> Result<ChannelData> {
 
 /// Creates `dir` (and parents), with a message naming it on failure.
 pub fn create_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the output folder", dir.display()))
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the output folder", dir.display()))
 }
 
 /// Runs `pcuvd process`.
@@ -52,8 +57,18 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    let summary = write_outputs(&args.out, &data, &params, &out, json!({ "input": args.input.display().to_string() }))?;
-    let name = args.input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let summary = write_outputs(
+        &args.out,
+        &data,
+        &params,
+        &out,
+        json!({ "input": args.input.display().to_string() }),
+    )?;
+    let name = args
+        .input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let pngs = figures::process_figures(&args.out, &out, &name)?;
     println!(
         "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
@@ -65,7 +80,11 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         out.grid.z.len(),
         out.grid.x.len()
     );
-    println!("wrote maps (.npy), summary.json and {} figures to {}", pngs.len(), args.out.display());
+    println!(
+        "wrote maps (.npy), summary.json and {} figures to {}",
+        pngs.len(),
+        args.out.display()
+    );
     let _ = summary;
     Ok(())
 }
@@ -103,16 +122,26 @@ pub fn write_outputs(
 }
 
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
-pub fn summary_json(data: &ChannelData, params: &ProcessParams, out: &ProcessOutput, extra: serde_json::Value) -> serde_json::Value {
+pub fn summary_json(
+    data: &ChannelData,
+    params: &ProcessParams,
+    out: &ProcessOutput,
+    extra: serde_json::Value,
+) -> serde_json::Value {
     let acq = &data.acquisition;
     let probe = &acq.probe;
     let seq = &acq.sequence;
     let coding = match seq.coding {
         pcuvd::Coding::Conventional => json!({ "kind": "none" }),
-        pcuvd::Coding::Hadamard { slot_delay } => json!({ "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay }),
+        pcuvd::Coding::Hadamard { slot_delay } => {
+            json!({ "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay })
+        }
     };
-    let timings: serde_json::Map<String, serde_json::Value> =
-        out.timings.iter().map(|(s, t)| (s.label().to_string(), json!(t))).collect();
+    let timings: serde_json::Map<String, serde_json::Value> = out
+        .timings
+        .iter()
+        .map(|(s, t)| (s.label().to_string(), json!(t)))
+        .collect();
     json!({
         "units": "SI (m, s, Hz, m/s); colour Doppler and Vz positive = moving away from the probe (deeper)",
         "source": extra,

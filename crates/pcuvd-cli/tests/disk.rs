@@ -1,0 +1,124 @@
+//! Real data: the rotating-disk recording (Verasonics, 32 unsteered plane waves) through
+//! `pcuvd process` with default settings. A rigid rotation makes the axial velocity linear in x.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use ndarray::{Array1, Array2};
+use ndarray_npy::read_npy;
+
+fn disk_file() -> Option<PathBuf> {
+    let path = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/PWI_disk.mat"
+    ));
+    path.exists().then_some(path)
+}
+
+#[test]
+fn rotating_disk_colour_doppler_is_linear_in_x() {
+    let Some(input) = disk_file() else {
+        eprintln!("shared/data/PWI_disk.mat not found beside the repository: skipped");
+        return;
+    };
+    let out = tempfile::tempdir().unwrap();
+    let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .arg("process")
+        .arg(&input)
+        .arg("--out")
+        .arg(out.path())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let x: Array1<f64> = read_npy(out.path().join("x.npy")).unwrap();
+    let z: Array1<f64> = read_npy(out.path().join("z.npy")).unwrap();
+    let v: Array2<f64> = read_npy(out.path().join("color_doppler.npy")).unwrap();
+    let bmode: Array2<f64> = read_npy(out.path().join("bmode_db.npy")).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("summary.json")).unwrap())
+            .unwrap();
+    let nyquist = summary["nyquist_velocity_m_s"].as_f64().unwrap();
+    for name in ["bmode.png", "power_doppler.png", "color_doppler.png"] {
+        assert!(out.path().join(name).exists(), "{name} missing");
+    }
+
+    // Find the disk from the image itself: the bright region in the documented box.
+    let (mut n, mut sx, mut sz) = (0.0, 0.0, 0.0);
+    for ((iz, ix), &b) in bmode.indexed_iter() {
+        let (px, pz) = (x[ix], z[iz]);
+        if (-12.5e-3..=12.5e-3).contains(&px) && (10e-3..=35e-3).contains(&pz) && b > -12.0 {
+            n += 1.0;
+            sx += px;
+            sz += pz;
+        }
+    }
+    let step = x[1] - x[0];
+    let (cx, cz) = (sx / n, sz / n);
+    let radius = (n * step * step / std::f64::consts::PI).sqrt();
+    assert!(
+        radius > 8e-3 && radius < 11e-3,
+        "disk radius {radius} m (2 cm diameter expected)"
+    );
+
+    // Least-squares plane v = a + b·x + c·z over the disk's inner part.
+    let mut rows = Vec::new();
+    for ((iz, ix), &vel) in v.indexed_iter() {
+        if (x[ix] - cx).hypot(z[iz] - cz) < 0.85 * radius {
+            rows.push((x[ix] - cx, z[iz] - cz, vel));
+        }
+    }
+    let mut ata = [[0.0f64; 3]; 3];
+    let mut atb = [0.0f64; 3];
+    for &(px, pz, vel) in &rows {
+        let basis = [1.0, px, pz];
+        for i in 0..3 {
+            atb[i] += basis[i] * vel;
+            for j in 0..3 {
+                ata[i][j] += basis[i] * basis[j];
+            }
+        }
+    }
+    let coef = solve3(ata, atb);
+    let mean = rows.iter().map(|r| r.2).sum::<f64>() / rows.len() as f64;
+    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
+    for &(px, pz, vel) in &rows {
+        let fit = coef[0] + coef[1] * px + coef[2] * pz;
+        ss_res += (vel - fit).powi(2);
+        ss_tot += (vel - mean).powi(2);
+    }
+    let r2 = 1.0 - ss_res / ss_tot;
+    let max_abs = rows.iter().map(|r| r.2.abs()).fold(0.0, f64::max);
+    eprintln!(
+        "disk centre ({:.2}, {:.2}) mm, radius {:.2} mm, {} pixels, R² = {r2:.4}, slope dv/dx = {:.1} s⁻¹, dv/dz = {:.1} s⁻¹, max |v| = {:.3} m/s, Nyquist {:.3} m/s",
+        cx * 1e3,
+        cz * 1e3,
+        radius * 1e3,
+        rows.len(),
+        coef[1],
+        coef[2],
+        max_abs,
+        nyquist
+    );
+    assert!(r2 >= 0.98, "R² = {r2}");
+    assert!(max_abs < nyquist, "max |v| {max_abs} ≥ Nyquist {nyquist}");
+    // Rigid rotation: the gradient is lateral, not axial.
+    assert!(coef[2].abs() < 0.1 * coef[1].abs());
+}
+
+fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    let mut x = [0.0; 3];
+    for (k, xk) in x.iter_mut().enumerate() {
+        let mut m = a;
+        for i in 0..3 {
+            m[i][k] = b[i];
+        }
+        *xk = det(m) / d;
+    }
+    x
+}
