@@ -1,0 +1,23 @@
+//! pcuvd-io — reading and writing pcuvd recordings and results.
+//!
+//! - [`mat`]: a MATLAB v5 MAT-file reader (numeric, logical, char, struct, cell; compressed or not)
+//!   and a small writer;
+//! - [`must`]: MUST/PyMUST-style recordings (`RF` + `param`) as [`pcuvd::ChannelData`];
+//! - [`manifest`]: the "pcuvd-recording" TOML manifest + `.npy` samples, read and write;
+//! - [`npy`]: thin `.npy`/JSON writers for results.
+//!
+//! Every error is an [`IoError`] whose message names the file, the field and the problem.
+
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod manifest;
+pub mod mat;
+pub mod must;
+pub mod npy;
+
+pub use error::IoError;
+pub use manifest::{Recording, read_manifest, read_recording, write_recording};
+pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
+pub use must::read_must_mat;
+pub use npy::{write_json, write_npy};

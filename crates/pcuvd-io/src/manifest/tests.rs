@@ -1,0 +1,304 @@
+use super::*;
+use ndarray::{Array, Array4};
+use num_complex::Complex32;
+
+fn acquisition(n_angles: usize, coding: Coding, probe: Probe) -> Acquisition {
+    Acquisition {
+        probe,
+        sequence: Sequence {
+            angles: Sequence::evenly_spaced_angles(n_angles, 15f64.to_radians()),
+            event_prf: 14.4e3,
+            coding,
+            pulse_cycles: 2.0,
+        },
+        sampling_frequency: 62.5e6,
+        sound_speed: 1540.0,
+        t0: 1.3e-7,
+    }
+}
+
+fn small_probe() -> Probe {
+    Probe {
+        name: "tiny test array".into(),
+        n_elements: 6,
+        pitch: 2.1e-4,
+        element_width: 1.9e-4,
+        center_frequency: 7.1e6,
+        bandwidth: 0.61,
+    }
+}
+
+fn rf(events: usize, ch: usize, s: usize) -> Array3<f32> {
+    Array::from_shape_fn((events, ch, s), |(e, c, k)| {
+        ((e * 131 + c * 17 + k * 7) % 97) as f32 * 0.37 - 11.0
+    })
+}
+
+#[test]
+fn round_trip_rf_and_iq_coded_and_conventional() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut prov = toml::Table::new();
+    prov.insert("seed".into(), toml::Value::Integer(7));
+    let mut sub = toml::Table::new();
+    sub.insert("noise_snr_db".into(), toml::Value::Float(20.0));
+    prov.insert("noise".into(), toml::Value::Table(sub));
+    let cases = [
+        (
+            acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe()),
+            true,
+        ),
+        (acquisition(3, Coding::Conventional, small_probe()), false),
+        (acquisition(3, Coding::Conventional, small_probe()), true),
+        (
+            acquisition(8, Coding::Hadamard { slot_delay: 1e-6 }, Probe::l22_14vx()),
+            false,
+        ),
+    ];
+    for (i, (acq, iq)) in cases.into_iter().enumerate() {
+        let n = acq.sequence.n_angles();
+        let ch = acq.probe.n_elements;
+        let r = rf(2 * n, ch, 9);
+        let samples = if iq {
+            Samples::Iq {
+                data: r.mapv(|v| Complex32::new(v, -0.5 * v)),
+                demod_frequency: 7.1e6,
+            }
+        } else {
+            Samples::Rf(r)
+        };
+        let data = ChannelData {
+            acquisition: acq,
+            samples,
+        };
+        let stem = format!("rec{i}");
+        let path = write_recording(dir.path(), &stem, &data, &prov).unwrap();
+        assert_eq!(path, dir.path().join(format!("{stem}.toml")));
+        let back = read_recording(&path).unwrap();
+        assert_eq!(
+            back.data,
+            data,
+            "case {i}:\n{}",
+            std::fs::read_to_string(&path).unwrap()
+        );
+        assert_eq!(back.provenance, prov);
+        assert_eq!(back.data_path, dir.path().join(format!("{stem}.npy")));
+        assert_eq!(read_manifest(&path).unwrap(), data);
+        // The npy is frames × angles × channels × samples.
+        let arr = crate::npy::read_npy(&back.data_path).unwrap();
+        assert_eq!(arr.shape(), &[2, n, ch, 9]);
+    }
+    // Empty provenance: no table written, empty table read.
+    let data = ChannelData {
+        acquisition: acquisition(2, Coding::Conventional, small_probe()),
+        samples: Samples::Rf(rf(2, 6, 4)),
+    };
+    let path = write_recording(dir.path(), "bare", &data, &toml::Table::new()).unwrap();
+    assert!(read_recording(&path).unwrap().provenance.is_empty());
+    assert!(write_recording(dir.path(), "a/b", &data, &prov).is_err());
+    let mut bad = data.clone();
+    bad.acquisition.sound_speed = -1.0;
+    assert!(write_recording(dir.path(), "bad", &bad, &prov).is_err());
+}
+
+/// Writes the example manifest next to a generated rf.npy; returns the manifest path.
+fn example_in(dir: &Path, shape: (usize, usize, usize, usize)) -> PathBuf {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/recording.toml"
+    ))
+    .unwrap();
+    let path = dir.join("recording.toml");
+    std::fs::write(&path, text).unwrap();
+    let a = Array4::from_shape_fn(shape, |(f, a, c, s)| (f + 2 * a + 3 * c + 5 * s) as f32);
+    write_npy(&dir.join("rf.npy"), &a).unwrap();
+    path
+}
+
+#[test]
+fn the_example_manifest_parses() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_in(dir.path(), (2, 8, 128, 16));
+    let rec = read_recording(&path).unwrap();
+    let a = &rec.data.acquisition;
+    assert_eq!(a.probe, Probe::l22_14vx());
+    assert_eq!(a.sequence.n_angles(), 8);
+    assert!((a.sequence.angles[0] + 15f64.to_radians()).abs() < 1e-15);
+    assert_eq!(a.sequence.coding, Coding::Hadamard { slot_delay: 1e-6 });
+    assert_eq!(rec.data.samples.dim(), (16, 128, 16));
+    assert_eq!(rec.data.n_frames(), 2);
+    assert_eq!(rec.provenance["seed"].as_integer(), Some(42));
+    // events = frame · n_angles + angle.
+    if let Samples::Rf(x) = &rec.data.samples {
+        let (f, an, c, s) = (1, 3, 10, 4);
+        assert_eq!(x[[f * 8 + an, c, s]], (f + 2 * an + 3 * c + 5 * s) as f32);
+    }
+}
+
+#[test]
+fn any_axis_order_and_dtype() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_in(dir.path(), (2, 8, 128, 16));
+    let reference = read_manifest(&path).unwrap();
+    let Samples::Rf(r) = &reference.samples else {
+        unreachable!()
+    };
+    let r4 = r.clone().into_shape_with_order((2, 8, 128, 16)).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    // samples, channels, angles, frames stored as f64.
+    let p = r4.view().permuted_axes([3, 2, 1, 0]).mapv(f64::from);
+    write_npy(&dir.path().join("rf.npy"), &p).unwrap();
+    let t2 = text.replace(
+        "axes = [\"frames\", \"angles\", \"channels\", \"samples\"]",
+        "axes = [\"samples\", \"channels\", \"angles\", \"frames\"]",
+    );
+    std::fs::write(&path, &t2).unwrap();
+    assert_eq!(read_manifest(&path).unwrap(), reference);
+    // events × samples × channels as i16.
+    let e = r.view().permuted_axes([0, 2, 1]).mapv(|v| v as i16);
+    write_npy(&dir.path().join("rf.npy"), &e).unwrap();
+    let t3 = text.replace(
+        "axes = [\"frames\", \"angles\", \"channels\", \"samples\"]",
+        "axes = [\"events\", \"samples\", \"channels\"]",
+    );
+    std::fs::write(&path, &t3).unwrap();
+    assert_eq!(read_manifest(&path).unwrap(), reference);
+}
+
+#[test]
+fn errors_name_the_file_and_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_in(dir.path(), (2, 8, 128, 16));
+    let text = std::fs::read_to_string(&path).unwrap();
+    let check = |edit: &dyn Fn(&str) -> String, wants: &[&str]| {
+        let t = edit(&text);
+        assert_ne!(t, text, "edit changed nothing (wanted {wants:?})");
+        std::fs::write(&path, t).unwrap();
+        let e = read_manifest(&path).unwrap_err().to_string();
+        assert!(e.starts_with(&path.display().to_string()), "{e}");
+        for w in wants {
+            assert!(e.contains(w), "{e} (wanted {w})");
+        }
+    };
+    let line_of = |needle: &str| {
+        format!(
+            "line {}",
+            text.lines().position(|l| l.starts_with(needle)).unwrap() + 1
+        )
+    };
+    let colour_line = format!(
+        "line {}",
+        text.lines()
+            .position(|l| l.starts_with("n_elements"))
+            .unwrap()
+            + 2
+    );
+    let rep = |a: &'static str, b: &'static str| move |t: &str| t.replacen(a, b, 1);
+    check(
+        &rep("format = \"pcuvd-recording\"", "format = \"other\""),
+        &["format is \"other\""],
+    );
+    check(&rep("version = 1 ", "version = 2 "), &["version is 2"]);
+    check(
+        &rep("format = \"pcuvd-recording\"", ""),
+        &["has no key 'format'"],
+    );
+    check(
+        &rep("n_elements = 128", "n_elements = 128\ncolour = 3"),
+        &["unknown field `colour`", &colour_line],
+    );
+    check(
+        &rep("sound_speed_m_s = 1540.0", ""),
+        &["table [acquisition] has no key 'sound_speed_m_s'"],
+    );
+    check(
+        &|t: &str| {
+            t.replacen("preset = \"L22-14vX\"\n", "", 1)
+                .replacen("pitch_m = 1.0e-4", "", 1)
+        },
+        &["table [probe] has no key 'pitch_m'"],
+    );
+    check(
+        &rep("preset = \"L22-14vX\"", "preset = \"L99\""),
+        &["[probe].preset", "L99"],
+    );
+    check(
+        &rep(
+            "\"frames\", \"angles\", \"channels\", \"samples\"]\n# demod",
+            "\"frames\", \"angle\", \"channels\", \"samples\"]\n# demod",
+        ),
+        &["[data].axes is"],
+    );
+    check(
+        &rep(
+            "axes = [\"frames\", \"angles\", \"channels\", \"samples\"]\n# demod",
+            "axes = [\"events\", \"channels\", \"samples\"]\n# demod",
+        ),
+        &["[data].axes names 3 axes", "has 4"],
+    );
+    check(
+        &|t: &str| {
+            t.replacen("angles_deg = [-15.0, ", "angles_deg = [", 1)
+                .replacen("coding = \"hadamard\"", "coding = \"none\"", 1)
+                .replacen("slot_delay_s = 1.0e-6", "", 1)
+        },
+        &["lists 7 angles", "has 8"],
+    );
+    check(
+        &rep("angles_deg = [-15.0, ", "angles_deg = ["),
+        &["no Hadamard matrix of order 7"],
+    );
+    check(
+        &rep("n_elements = 128", "n_elements = 64"),
+        &["[probe].n_elements is 64", "has 128"],
+    );
+    check(
+        &rep("file = \"rf.npy\"", "file = \"nope.npy\""),
+        &["[data].file", "nope.npy", "does not exist"],
+    );
+    check(
+        &rep("kind = \"rf\"", "kind = \"iq\""),
+        &["demod_frequency_hz"],
+    );
+    check(
+        &rep("kind = \"rf\"", "kind = \"iq\"\ndemod_frequency_hz = 1.0e6"),
+        &["holds real values"],
+    );
+    check(
+        &rep("coding = \"hadamard\"", "coding = \"fancy\""),
+        &["[acquisition].coding"],
+    );
+    check(
+        &rep("coding = \"hadamard\"", "coding = \"none\""),
+        &["slot_delay_s"],
+    );
+    check(
+        &rep(
+            "sampling_frequency_hz = 62.5e6",
+            "sampling_frequency_hz = -62.5e6",
+        ),
+        &["sampling frequency"],
+    );
+    check(
+        &rep("t0_s = 0.0", "t0_s = \"zero\""),
+        &[&line_of("t0_s"), "invalid type"],
+    );
+    check(&rep("[data]", "[data"), &["line"]);
+    let e = read_manifest(&dir.path().join("absent.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("absent.toml") && e.contains("cannot read"),
+        "{e}"
+    );
+}
+
+#[test]
+fn truncated_npy_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_in(dir.path(), (2, 8, 128, 16));
+    let npy = dir.path().join("rf.npy");
+    let bytes = std::fs::read(&npy).unwrap();
+    std::fs::write(&npy, &bytes[..bytes.len() - 4]).unwrap();
+    let e = read_manifest(&path).unwrap_err().to_string();
+    assert!(e.starts_with(&npy.display().to_string()), "{e}");
+}

@@ -1,0 +1,168 @@
+//! NumPy `.npy` and JSON files: thin writers for results, and a reader that accepts several dtypes.
+
+use std::path::Path;
+
+use ndarray::{ArrayBase, ArrayD, Data, Dimension};
+use ndarray_npy::npy::header::Header;
+use ndarray_npy::{ReadNpyExt, WritableElement, WriteNpyError};
+use num_complex::{Complex32, Complex64};
+
+use crate::error::IoError;
+
+/// Writes an array to a `.npy` file (C order, the element's own dtype).
+pub fn write_npy<A, S, D>(path: &Path, arr: &ArrayBase<S, D>) -> Result<(), IoError>
+where
+    A: WritableElement,
+    S: Data<Elem = A>,
+    D: Dimension,
+{
+    ndarray_npy::write_npy(path, arr).map_err(|e| match e {
+        WriteNpyError::Io(source) => IoError::io(path, "write", source),
+        other => IoError::malformed(path, format!("cannot write the array: {other}")),
+    })
+}
+
+/// Writes a JSON value to a file, pretty-printed, with a final newline.
+pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), IoError> {
+    let mut text = serde_json::to_string_pretty(value)
+        .map_err(|e| IoError::malformed(path, format!("cannot format JSON: {e}")))?;
+    text.push('\n');
+    std::fs::write(path, text).map_err(|e| IoError::io(path, "write", e))
+}
+
+/// An array read from a `.npy` file: real values as f32, or complex values as complex64.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NpyArray {
+    /// float32, float64, int16 or int32 data, converted to f32.
+    Real(ArrayD<f32>),
+    /// complex64 or complex128 data, converted to complex64.
+    Complex(ArrayD<Complex32>),
+}
+
+impl NpyArray {
+    /// Shape of the array.
+    pub fn shape(&self) -> &[usize] {
+        match self {
+            NpyArray::Real(a) => a.shape(),
+            NpyArray::Complex(a) => a.shape(),
+        }
+    }
+}
+
+/// Reads a `.npy` file of dtype f4, f8, i2, i4 (→ [`NpyArray::Real`]) or c8, c16
+/// (→ [`NpyArray::Complex`]), either byte order, C or Fortran order.
+pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "read", e))?;
+    let mut rest: &[u8] = &bytes;
+    let header = Header::from_reader(&mut rest)
+        .map_err(|e| IoError::malformed(path, format!("not a valid .npy file ({e})")))?;
+    let descr = header
+        .type_descriptor
+        .as_string()
+        .cloned()
+        .unwrap_or_else(|| header.type_descriptor.to_string());
+    let code = descr.trim_start_matches(['<', '>', '=', '|']);
+    let item = match code {
+        "f4" | "i4" | "c8" => 4 * if code == "c8" { 2 } else { 1 },
+        "f8" | "c16" => 8 * if code == "c16" { 2 } else { 1 },
+        "i2" => 2,
+        _ => {
+            return Err(IoError::malformed(
+                path,
+                format!(
+                    "dtype '{descr}' is not supported (use float32, float64, int16, int32, complex64 or complex128)"
+                ),
+            ));
+        }
+    };
+    let expected = header
+        .shape
+        .iter()
+        .try_fold(item, |acc: usize, &d| acc.checked_mul(d));
+    if expected != Some(rest.len()) {
+        return Err(IoError::malformed(
+            path,
+            format!(
+                "the header announces shape {:?} of '{descr}' but the file holds {} data bytes",
+                header.shape,
+                rest.len()
+            ),
+        ));
+    }
+    let bad = |e: ndarray_npy::ReadNpyError| {
+        IoError::malformed(path, format!("cannot read the array ({e})"))
+    };
+    let r: &[u8] = &bytes;
+    Ok(match code {
+        "f4" => NpyArray::Real(ArrayD::<f32>::read_npy(r).map_err(bad)?),
+        "f8" => NpyArray::Real(ArrayD::<f64>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
+        "i2" => NpyArray::Real(ArrayD::<i16>::read_npy(r).map_err(bad)?.mapv(f32::from)),
+        "i4" => NpyArray::Real(ArrayD::<i32>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
+        "c8" => NpyArray::Complex(ArrayD::<Complex32>::read_npy(r).map_err(bad)?),
+        _ => NpyArray::Complex(
+            ArrayD::<Complex64>::read_npy(r)
+                .map_err(bad)?
+                .mapv(|v| Complex32::new(v.re as f32, v.im as f32)),
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array2, array};
+
+    #[test]
+    fn write_and_read_each_dtype() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        let a: Array2<f64> = array![[1.0, 2.0], [3.0, 4.5]];
+        write_npy(&p, &a).unwrap();
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Real(a.mapv(|v| v as f32).into_dyn())
+        );
+        write_npy(&p, &a.t()).unwrap(); // not C-contiguous: still written in logical order
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Real(a.t().mapv(|v| v as f32).into_dyn())
+        );
+        let i: Array2<i16> = array![[1, -2]];
+        write_npy(&p, &i).unwrap();
+        assert_eq!(read_npy(&p).unwrap().shape(), &[1, 2]);
+        let c = array![Complex64::new(1.0, -1.0)];
+        write_npy(&p, &c).unwrap();
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Complex(array![Complex32::new(1.0, -1.0)].into_dyn())
+        );
+        let u = array![1u8, 2];
+        write_npy(&p, &u).unwrap();
+        assert!(
+            read_npy(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("not supported")
+        );
+        // Truncated data, bad header: errors, not panics.
+        write_npy(&p, &a).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        for cut in 0..bytes.len() {
+            std::fs::write(&p, &bytes[..cut]).unwrap();
+            let e = read_npy(&p).unwrap_err().to_string();
+            assert!(e.starts_with(&p.display().to_string()), "{e}");
+        }
+        let e = write_npy(&dir.path().join("no/such/dir.npy"), &a).unwrap_err();
+        assert!(e.to_string().contains("cannot write"), "{e}");
+    }
+
+    #[test]
+    fn json() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("r.json");
+        write_json(&p, &serde_json::json!({"rmse_m_s": 0.01})).unwrap();
+        let back: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        assert_eq!(back["rmse_m_s"], 0.01);
+    }
+}
