@@ -1,0 +1,553 @@
+//! Dynamics stage against analytic truth: PSV/EDV/RI of known waveforms, cardiac-period detection,
+//! sliding vector Doppler on synthetic pulsatile IQ series, the compounded spectrogram, and every
+//! refusal of bad input.
+
+use std::f64::consts::PI;
+
+use ndarray::Array3;
+use num_complex::Complex32;
+use pcuvd::Error;
+use pcuvd::doppler::velocity_scale;
+use pcuvd::dynamics::{
+    self, ARTERIOLE, BACKGROUND, DynamicsParams, SpectrogramParams, VENULE, VelocitySeries,
+    estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps, sliding_vectors,
+    spectrogram,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+const C: f64 = 1540.0;
+const FRAME_RATE: f64 = 1800.0;
+const F0: f64 = 15.625e6;
+
+fn paper_angles() -> Vec<f64> {
+    (0..8)
+        .map(|i| (-15.0 + 30.0 * i as f64 / 7.0_f64).to_radians())
+        .collect()
+}
+
+/// Pulsatile speed: EDV at end-diastole, PSV at systole, a raised cosine at `hr` Hz.
+fn pulsatile(t: f64, hr: f64, psv: f64, edv: f64) -> f64 {
+    edv + (psv - edv) * 0.5 * (1.0 - (2.0 * PI * hr * t).cos())
+}
+
+/// A vessel pixel: speed waveform (PSV, EDV, m/s) along a fixed unit direction (ux, uz).
+struct Vessel {
+    pixel: (usize, usize),
+    psv: f64,
+    edv: f64,
+    dir: (f64, f64),
+}
+
+impl Vessel {
+    fn velocity(&self, t: f64, hr: f64) -> (f64, f64) {
+        let s = pulsatile(t, hr, self.psv, self.edv);
+        (s * self.dir.0, s * self.dir.1)
+    }
+}
+
+/// Per-angle IQ series (nz, nx, frames): unit-amplitude Doppler phase ramps at the vessel pixels
+/// (phase step −V_θ/scale per frame, V_θ = (Vx sin θ + Vz (cos θ + 1))/2), complex white noise of
+/// power `noise_power` everywhere.
+fn synthetic_iq(
+    vessels: &[Vessel],
+    shape: (usize, usize),
+    frames: usize,
+    hr: f64,
+    noise_power: f64,
+    seed: u64,
+) -> Vec<Array3<Complex32>> {
+    let angles = paper_angles();
+    let scale = velocity_scale(C, FRAME_RATE, F0).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let sigma = (noise_power / 2.0).sqrt();
+    angles
+        .iter()
+        .map(|&theta| {
+            let mut series = Array3::<Complex32>::zeros((shape.0, shape.1, frames));
+            for v in series.iter_mut() {
+                let re: f64 = StandardNormal.sample(&mut rng);
+                let im: f64 = StandardNormal.sample(&mut rng);
+                *v = Complex32::new((sigma * re) as f32, (sigma * im) as f32);
+            }
+            for vessel in vessels {
+                let mut phase = 0.3 * theta;
+                for t in 0..frames {
+                    let (iz, ix) = vessel.pixel;
+                    series[[iz, ix, t]] += Complex32::from_polar(1.0, phase as f32);
+                    let (vx, vz) = vessel.velocity((t as f64 + 0.5) / FRAME_RATE, hr);
+                    let v_theta = 0.5 * (vx * theta.sin() + vz * (theta.cos() + 1.0));
+                    phase -= v_theta / scale;
+                }
+            }
+            series
+        })
+        .collect()
+}
+
+fn unit(deg: f64, up: bool) -> (f64, f64) {
+    let a = deg.to_radians();
+    (a.sin(), if up { -a.cos() } else { a.cos() })
+}
+
+#[test]
+fn rat_defaults_are_valid() {
+    let p = DynamicsParams::rat();
+    assert_eq!((p.window, p.step), (36, 9));
+    assert_eq!(p, DynamicsParams::default());
+    p.validate(FRAME_RATE).unwrap();
+    assert_eq!(SpectrogramParams::default(), SpectrogramParams::rat());
+}
+
+#[test]
+fn resistivity_index_exact_on_analytic_waveform() {
+    // v(t) = EDV + (PSV − EDV)·max(0, sin 2πft)³, 200 samples per cycle: peaks and troughs sampled.
+    let (f, fs, psv, edv) = (6.0, 1200.0, 0.021, 0.0065);
+    let n = 680; // 3.4 cycles
+    let times: Vec<f64> = (0..n).map(|i| i as f64 / fs).collect();
+    let v: Vec<f64> = times
+        .iter()
+        .map(|&t| edv + (psv - edv) * (2.0 * PI * f * t).sin().max(0.0).powi(3))
+        .collect();
+    let truth = (psv - edv) / psv;
+    assert!((resistivity_index(psv, edv) - truth).abs() < 1e-15);
+    for hr in [Some(f), None] {
+        let cycles = find_cycles(&v, &times, hr).unwrap();
+        assert_eq!(cycles.len(), 3, "{hr:?}: {cycles:?}");
+        assert!(cycles.iter().all(|&(a, b)| b - a == 200), "{cycles:?}");
+        let (p, e) = psv_edv(&v, &cycles).unwrap();
+        assert!(
+            (p - psv).abs() < 1e-12 && (e - edv).abs() < 1e-12,
+            "{p} {e}"
+        );
+        assert!((resistivity_index(p, e) - truth).abs() < 1e-9);
+    }
+    assert!(resistivity_index(0.0, 0.0).is_nan());
+    assert!(resistivity_index(-1.0, 0.0).is_nan());
+    assert!(resistivity_index(f64::NAN, 0.0).is_nan());
+    assert!(psv_edv(&v, &[]).is_err());
+    assert!(psv_edv(&v, &[(600, 700)]).is_err());
+}
+
+#[test]
+fn cycle_detection_recovers_heart_rate() {
+    // An arterial-like waveform (fast upstroke, slow decay) at 5.5 Hz on a drift, sampled every
+    // 5 ms (the window series of the rat preset) over 0.65 s, with small deterministic noise.
+    let (hr, dt) = (5.5, 0.005);
+    let times: Vec<f64> = (0..130).map(|i| 0.01 + i as f64 * dt).collect();
+    let v: Vec<f64> = times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let phase = (hr * t + 0.9).fract();
+            let w = if phase < 0.15 {
+                phase / 0.15
+            } else {
+                (-(phase - 0.15) / 0.25).exp()
+            };
+            0.008 + 0.012 * w + 0.004 * t + 2e-4 * ((i * 7919) % 13) as f64 / 13.0
+        })
+        .collect();
+    let est = estimate_heart_rate(&v, &times).unwrap();
+    assert!((est - hr).abs() / hr < 0.03, "estimated {est} Hz");
+    let cycles = find_cycles(&v, &times, None).unwrap();
+    assert_eq!(cycles.len(), 3, "{cycles:?}");
+    for &(a, b) in &cycles {
+        assert!((b - a) as f64 * dt * hr > 0.97 && ((b - a) as f64 * dt * hr) < 1.03);
+    }
+    // Cycles start at systolic peaks: the first sample of each cycle is within 1 sample of its max.
+    for &(a, b) in &cycles {
+        let peak = (a..b).max_by(|&i, &j| v[i].total_cmp(&v[j])).unwrap();
+        assert!(peak <= a + 1, "cycle [{a}, {b}) peaks at {peak}");
+    }
+}
+
+/// 2.5 cycles at 6 Hz and 1.8 kHz: an upward arteriole (RI 0.7) and a downward venule (RI 0.3).
+fn pulsatile_case() -> (Vec<Array3<Complex32>>, Vec<Vessel>, f64) {
+    let hr = 6.0;
+    let frames = (2.5 * FRAME_RATE / hr) as usize; // 750
+    let vessels = vec![
+        Vessel {
+            pixel: (0, 0),
+            psv: 0.020,
+            edv: 0.006,
+            dir: unit(20.0, true),
+        },
+        Vessel {
+            pixel: (1, 2),
+            psv: 0.015,
+            edv: 0.0105,
+            dir: unit(-30.0, false),
+        },
+    ];
+    let iq = synthetic_iq(&vessels, (2, 3), frames, hr, 4e-4, 7);
+    (iq, vessels, hr)
+}
+
+#[test]
+fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
+    let (iq, vessels, hr) = pulsatile_case();
+    let angles = paper_angles();
+    let mut params = DynamicsParams::rat();
+    params.heart_rate_hz = None;
+    let series = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &params).unwrap();
+    assert_eq!(series.len(), (750 - 36) / 9 + 1);
+    assert_eq!(series.vx.dim(), (series.len(), 2, 3));
+    assert!((series.times_s[0] - 17.5 / FRAME_RATE).abs() < 1e-12);
+    assert!((series.step_s - 0.005).abs() < 1e-12 && (series.window_s - 0.02).abs() < 1e-12);
+
+    // The window estimates follow the window-averaged truth.
+    for vessel in &vessels {
+        let (iz, ix) = vessel.pixel;
+        let mut sq = 0.0;
+        for (k, &tc) in series.times_s.iter().enumerate() {
+            let (mut tx, mut tz) = (0.0, 0.0);
+            for j in 0..35 {
+                let (x, z) = vessel.velocity(tc + (j as f64 - 17.0) / FRAME_RATE, hr);
+                tx += x / 35.0;
+                tz += z / 35.0;
+            }
+            sq += (series.vx[[k, iz, ix]] - tx).powi(2) + (series.vz[[k, iz, ix]] - tz).powi(2);
+        }
+        let rms = (sq / series.len() as f64).sqrt();
+        assert!(rms < 5e-4, "pixel {:?}: RMS error {rms} m/s", vessel.pixel);
+    }
+
+    let maps = ri_maps(&series, &params).unwrap();
+    assert!(
+        (maps.heart_rate_hz - hr).abs() / hr < 0.03,
+        "{}",
+        maps.heart_rate_hz
+    );
+    assert_eq!(maps.cycles.len(), 2);
+    for (vessel, class, up) in [(&vessels[0], ARTERIOLE, true), (&vessels[1], VENULE, false)] {
+        let p = vessel.pixel;
+        let ri = (vessel.psv - vessel.edv) / vessel.psv;
+        let (psv, edv) = (maps.psv[p], maps.edv[p]);
+        assert!((psv - vessel.psv).abs() < 0.03 * vessel.psv, "PSV {psv}");
+        assert!((edv - vessel.edv).abs() < 0.03 * vessel.psv, "EDV {edv}");
+        assert!((maps.ri[p] - ri).abs() < 0.03, "RI {} vs {ri}", maps.ri[p]);
+        assert_eq!(maps.vessel_class[p], class);
+        assert_eq!(maps.flow_up[p], up);
+    }
+    for p in [(0, 1), (0, 2), (1, 0), (1, 1)] {
+        assert_eq!(maps.vessel_class[p], BACKGROUND);
+        assert!(maps.ri[p].is_nan() && !maps.flow_up[p]);
+    }
+
+    // A given heart rate gives the same maps (to within the cycle placement).
+    params.heart_rate_hz = Some(hr);
+    let given = ri_maps(&series, &params).unwrap();
+    assert_eq!(given.vessel_class, maps.vessel_class);
+    assert!((given.ri[[0, 0]] - maps.ri[[0, 0]]).abs() < 0.02);
+
+    // Deterministic: the same input gives bit-identical output.
+    let again = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &params).unwrap();
+    assert_eq!(again, series);
+
+    // The compounded spectrogram's mean velocity follows the vector Vz (paper Fig. 8b).
+    let spec = spectrogram(
+        &iq,
+        &angles,
+        (0, 0),
+        FRAME_RATE,
+        C,
+        F0,
+        &SpectrogramParams::rat(),
+    )
+    .unwrap();
+    assert_eq!(spec.times_s, series.times_s);
+    // With lateral flow the angles' Doppler lines differ and beat in the coherent sum, so the
+    // colour estimate only follows the vector Vz in step (as in the paper), not to the sample.
+    let colour = &spec.mean_velocity_m_s;
+    let vector: Vec<f64> = (0..colour.len()).map(|k| series.vz[[k, 0, 0]]).collect();
+    let n = colour.len() as f64;
+    let (mc, mv) = (
+        colour.iter().sum::<f64>() / n,
+        vector.iter().sum::<f64>() / n,
+    );
+    let (mut cov, mut vc, mut vv, mut sq) = (0.0, 0.0, 0.0, 0.0);
+    for (&a, &b) in colour.iter().zip(&vector) {
+        cov += (a - mc) * (b - mv);
+        vc += (a - mc).powi(2);
+        vv += (b - mv).powi(2);
+        sq += (a - b).powi(2);
+    }
+    let corr = cov / (vc * vv).sqrt();
+    let rms = (sq / n).sqrt();
+    assert!(
+        corr > 0.98 && rms < 8e-4,
+        "colour vs vector Vz: correlation {corr}, RMS {rms} m/s"
+    );
+}
+
+#[test]
+fn rat_preset_measures_one_cycle_in_a_fifth_of_a_second() {
+    // The paper's recording: 360 frames (0.2 s) at 1.8 kHz, ≈ 1.1 cycles at 5.5 Hz.
+    let vessel = Vessel {
+        pixel: (0, 0),
+        psv: 0.02,
+        edv: 0.008,
+        dir: unit(10.0, true),
+    };
+    let iq = synthetic_iq(&[vessel], (1, 2), 360, 5.5, 4e-4, 11);
+    let params = DynamicsParams::rat();
+    let series = sliding_vectors(&iq, &paper_angles(), FRAME_RATE, C, F0, &params).unwrap();
+    assert_eq!(series.len(), 37);
+    let maps = ri_maps(&series, &params).unwrap();
+    assert_eq!(maps.cycles.len(), 1);
+    assert!(
+        (maps.ri[[0, 0]] - 0.6).abs() < 0.03,
+        "RI {}",
+        maps.ri[[0, 0]]
+    );
+    assert_eq!(maps.vessel_class[[0, 0]], ARTERIOLE);
+    assert!(maps.flow_up[[0, 0]]);
+    // Too short to measure the heart rate from the data, and shorter than a 5 Hz cycle.
+    let measure = DynamicsParams {
+        heart_rate_hz: None,
+        ..params
+    };
+    is_invalid(ri_maps(&series, &measure), "give the heart rate");
+    let slow = DynamicsParams {
+        heart_rate_hz: Some(5.0),
+        ..params
+    };
+    is_invalid(ri_maps(&series, &slow), "shorter than one cardiac cycle");
+}
+
+#[test]
+fn spectrogram_of_uniform_axial_flow() {
+    let v0 = 0.012; // m/s, moving deeper
+    let vessel = Vessel {
+        pixel: (0, 1),
+        psv: v0,
+        edv: v0,
+        dir: (0.0, 1.0),
+    };
+    let iq = synthetic_iq(&[vessel], (1, 2), 300, 6.0, 1e-4, 3);
+    let angles = paper_angles();
+    let params = SpectrogramParams {
+        window: 64,
+        step: 16,
+        nfft: 256,
+    };
+    let spec = spectrogram(&iq, &angles, (0, 1), FRAME_RATE, C, F0, &params).unwrap();
+    let nv = spec.velocities_m_s.len();
+    assert_eq!(nv, 256);
+    assert_eq!(spec.power_db.dim(), (spec.times_s.len(), 256));
+    assert!(spec.velocities_m_s.windows(2).all(|w| w[1] > w[0]));
+    let dv = spec.velocities_m_s[1] - spec.velocities_m_s[0];
+    assert!((spec.velocities_m_s[nv - 1] - spec.nyquist_m_s).abs() < 1e-12);
+    assert!((spec.velocities_m_s[0] + spec.nyquist_m_s - dv).abs() < 1e-12);
+    for (k, row) in spec.power_db.outer_iter().enumerate() {
+        let peak = (0..nv).max_by(|&i, &j| row[i].total_cmp(&row[j])).unwrap();
+        assert!(
+            (spec.velocities_m_s[peak] - v0).abs() <= 1.5 * dv,
+            "peak at {} m/s",
+            spec.velocities_m_s[peak]
+        );
+        assert!((spec.mean_velocity_m_s[k] - v0).abs() < 0.02 * v0);
+        assert!(row.iter().all(|&p| p <= 1e-12 && p >= -200.0));
+    }
+    // Flow toward the probe lands on the negative side.
+    let up = Vessel {
+        pixel: (0, 0),
+        psv: v0,
+        edv: v0,
+        dir: (0.0, -1.0),
+    };
+    let iq = synthetic_iq(&[up], (1, 1), 128, 6.0, 1e-4, 4);
+    let spec = spectrogram(&iq, &angles, (0, 0), FRAME_RATE, C, F0, &params).unwrap();
+    assert!(
+        spec.mean_velocity_m_s
+            .iter()
+            .all(|&v| (v + v0).abs() < 0.02 * v0)
+    );
+}
+
+fn is_invalid(r: Result<impl std::fmt::Debug, Error>, needle: &str) {
+    match r {
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(msg.contains(needle), "message {msg:?} lacks {needle:?}");
+        }
+        Ok(v) => panic!("expected an error containing {needle:?}, got {v:?}"),
+    }
+}
+
+#[test]
+fn bad_input_is_refused_with_clear_errors() {
+    let angles = paper_angles();
+    let iq = synthetic_iq(
+        &[Vessel {
+            pixel: (0, 0),
+            psv: 0.02,
+            edv: 0.006,
+            dir: (0.0, 1.0),
+        }],
+        (1, 2),
+        400,
+        6.0,
+        1e-4,
+        1,
+    );
+    let run = |p: DynamicsParams| sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &p);
+    let base = DynamicsParams {
+        heart_rate_hz: None,
+        ..DynamicsParams::rat()
+    };
+    is_invalid(
+        run(DynamicsParams {
+            window: 500,
+            ..base
+        }),
+        "longer than the recording",
+    );
+    is_invalid(
+        run(DynamicsParams { window: 1, ..base }),
+        "at least 2 frames",
+    );
+    is_invalid(run(DynamicsParams { step: 0, ..base }), "step");
+    is_invalid(
+        run(DynamicsParams {
+            kernel: (2, 1),
+            ..base
+        }),
+        "odd",
+    );
+    is_invalid(
+        run(DynamicsParams {
+            vein_ri_max: 0.7,
+            ..base
+        }),
+        "RI thresholds",
+    );
+    // 40 Hz: a 45-frame period is shorter than two 36-frame windows.
+    is_invalid(
+        run(DynamicsParams {
+            heart_rate_hz: Some(40.0),
+            ..base
+        }),
+        "2 windows",
+    );
+    // Above the Nyquist rate of windows 100 frames apart (9 Hz).
+    is_invalid(
+        run(DynamicsParams {
+            heart_rate_hz: Some(10.0),
+            window: 20,
+            step: 100,
+            ..base
+        }),
+        "Nyquist",
+    );
+    is_invalid(
+        run(DynamicsParams {
+            heart_rate_hz: Some(-5.0),
+            ..base
+        }),
+        "heart rate",
+    );
+    // 400 frames = 0.22 s: less than one 3 Hz cycle.
+    is_invalid(
+        run(DynamicsParams {
+            heart_rate_hz: Some(3.0),
+            ..base
+        }),
+        "shorter than one cardiac cycle",
+    );
+    // Empty, mismatched and non-finite series.
+    is_invalid(
+        sliding_vectors(&[], &[], FRAME_RATE, C, F0, &base),
+        "no angle series",
+    );
+    assert!(matches!(
+        sliding_vectors(&iq, &angles[..4], FRAME_RATE, C, F0, &base),
+        Err(Error::Shape(_))
+    ));
+    let mut odd = iq.clone();
+    odd[3] = Array3::zeros((1, 2, 399));
+    assert!(matches!(
+        sliding_vectors(&odd, &angles, FRAME_RATE, C, F0, &base),
+        Err(Error::Shape(_))
+    ));
+    let empty = vec![Array3::<Complex32>::zeros((0, 2, 400)); 8];
+    is_invalid(
+        sliding_vectors(&empty, &angles, FRAME_RATE, C, F0, &base),
+        "empty",
+    );
+    let mut nan = iq.clone();
+    nan[1][[0, 1, 5]] = Complex32::new(f32::NAN, 0.0);
+    assert!(matches!(
+        sliding_vectors(&nan, &angles, FRAME_RATE, C, F0, &base),
+        Err(Error::NonFinite(_))
+    ));
+    is_invalid(
+        sliding_vectors(&iq, &angles, 0.0, C, F0, &base),
+        "frame rate",
+    );
+    is_invalid(
+        sliding_vectors(&iq[..1], &angles[..1], FRAME_RATE, C, F0, &base),
+        "at least 2 angles",
+    );
+
+    // The cycle finder.
+    let t: Vec<f64> = (0..30).map(|i| i as f64 * 0.005).collect();
+    let v: Vec<f64> = t.iter().map(|&t| pulsatile(t, 6.0, 0.02, 0.01)).collect();
+    is_invalid(
+        find_cycles(&v, &t, Some(5.0)),
+        "shorter than one cardiac cycle",
+    );
+    is_invalid(find_cycles(&v, &t, None), "too short");
+    is_invalid(find_cycles(&v, &t, Some(150.0)), "Nyquist");
+    assert!(matches!(
+        find_cycles(&v, &t[..10], Some(6.0)),
+        Err(Error::Shape(_))
+    ));
+    let mut uneven = t.clone();
+    uneven[4] += 0.001;
+    is_invalid(find_cycles(&v, &uneven, Some(6.0)), "uniformly spaced");
+    let flat = vec![0.01; 120];
+    let tf: Vec<f64> = (0..120).map(|i| i as f64 * 0.005).collect();
+    is_invalid(estimate_heart_rate(&flat, &tf), "constant");
+
+    // RI maps: a short series and a series without any vessel.
+    let series = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &base).unwrap();
+    is_invalid(
+        ri_maps(
+            &series,
+            &DynamicsParams {
+                heart_rate_hz: Some(3.5),
+                ..base
+            },
+        ),
+        "shorter than one cardiac cycle",
+    );
+    let dark = VelocitySeries {
+        power: series.power.mapv(|_| 0.0),
+        ..series.clone()
+    };
+    is_invalid(ri_maps(&dark, &base), "no vessel");
+
+    // The spectrogram.
+    let sp = SpectrogramParams::rat();
+    let spec = |p: &SpectrogramParams, px: (usize, usize)| {
+        dynamics::spectrogram(&iq, &angles, px, FRAME_RATE, C, F0, p)
+    };
+    is_invalid(spec(&sp, (1, 0)), "outside");
+    is_invalid(
+        spec(&SpectrogramParams { nfft: 16, ..sp }, (0, 0)),
+        "FFT length",
+    );
+    is_invalid(
+        spec(&SpectrogramParams { window: 1000, ..sp }, (0, 0)),
+        "longer than the recording",
+    );
+    is_invalid(spec(&SpectrogramParams { step: 0, ..sp }, (0, 0)), "step");
+    let zeros = vec![Array3::<Complex32>::zeros((1, 1, 100)); 8];
+    is_invalid(
+        dynamics::spectrogram(&zeros, &angles, (0, 0), FRAME_RATE, C, F0, &sp),
+        "no Doppler signal",
+    );
+}
