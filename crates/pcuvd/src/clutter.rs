@@ -241,7 +241,7 @@ mod tests {
                 let b = Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng));
                 for f in 0..nf {
                     tissue[[z, x, f]] = t;
-                    if x >= 8 && x < 12 {
+                    if (8..12).contains(&x) {
                         // A whole number of cycles over the frames: orthogonal to the still tissue.
                         blood[[z, x, f]] = b * Complex32::from_polar(
                             1.0,

@@ -35,7 +35,7 @@ impl TraceShifter {
         // Odd length: no Nyquist bin, so a real trace stays real and shifts invert exactly.
         // The zero pad absorbs the wrap-around of the circular shift and the sinc tails.
         let mut fft_len = len + max_shift.abs().ceil() as usize + 64;
-        if fft_len % 2 == 0 {
+        if fft_len.is_multiple_of(2) {
             fft_len += 1;
         }
         let mut planner = FftPlanner::new();

@@ -32,7 +32,7 @@ pub fn autocorrelation(
             format!("needs at least 2 frames, got {nf}"),
         ));
     }
-    if kernel.0 % 2 == 0 || kernel.1 % 2 == 0 {
+    if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
         return Err(invalid(
             "Doppler averaging kernel",
             format!("sizes must be odd, got {kernel:?}"),

@@ -43,7 +43,10 @@ impl Hadamard {
 }
 
 fn is_prime(q: usize) -> bool {
-    q >= 2 && (2..).take_while(|d| d * d <= q).all(|d| q % d != 0)
+    q >= 2
+        && (2..)
+            .take_while(|d| d * d <= q)
+            .all(|d| !q.is_multiple_of(d))
 }
 
 /// Legendre symbol χ(a) over the prime field F_q: 0, +1 (quadratic residue) or −1.
@@ -76,7 +79,7 @@ fn build(n: usize) -> Option<Vec<Vec<i8>>> {
         0 => None,
         1 => Some(vec![vec![1]]),
         2 => Some(vec![vec![1, 1], vec![1, -1]]),
-        _ if n % 4 != 0 => None,
+        _ if !n.is_multiple_of(4) => None,
         _ if n.is_power_of_two() => build(n / 2).map(|h| sylvester_double(&h)),
         _ if is_prime(n - 1) && (n - 1) % 4 == 3 => Some(paley_one(n - 1)),
         _ if is_prime(n / 2 - 1) && (n / 2 - 1) % 4 == 1 => Some(paley_two(n / 2 - 1)),

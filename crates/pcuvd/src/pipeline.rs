@@ -3,11 +3,11 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, Axis, Zip};
+use ndarray::{Array2, Array3, Axis};
 use num_complex::Complex32;
 
 use crate::beamform::{self, DasParams, Grid};
-use crate::channel::ChannelData;
+use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::decode;
 use crate::doppler::{self, Autocorrelation};
@@ -83,8 +83,11 @@ pub struct ProcessOutput {
     /// Clutter-filtered per-angle IQ series (angles) of shape (nz, nx, frames), kept for dynamics.
     pub filtered: Vec<Array3<Complex32>>,
     /// Wall-clock seconds per stage.
-    pub timings: Vec<(Stage, f64)>,
+    pub timings: Timings,
 }
+
+/// Wall-clock seconds per stage.
+pub type Timings = Vec<(Stage, f64)>;
 
 /// Runs the pipeline on a recording. `progress(stage, done, total)` is called as work completes.
 pub fn process(
@@ -92,6 +95,21 @@ pub fn process(
     params: &ProcessParams,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<ProcessOutput> {
+    let (images, mut timings) = form_images(data, params, progress)?;
+    let mut out = analyse(&data.acquisition, images, params, progress)?;
+    timings.append(&mut out.timings);
+    out.timings = timings;
+    Ok(out)
+}
+
+/// The linear part of the chain: decode, demodulate and beamform every angle. Returns the
+/// per-angle IQ image series (nz, nx, frames) and the stage timings. Because every step is linear
+/// in the channel data, images of signal and of noise may be formed apart and added later.
+pub fn form_images(
+    data: &ChannelData,
+    params: &ProcessParams,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<(Vec<Array3<Complex32>>, Timings)> {
     data.validate()?;
     let acq = &data.acquisition;
     check_grid_depth(data, &params.grid)?;
@@ -125,11 +143,29 @@ pub fn process(
             &params.das,
         )?);
     }
-    drop(per_angle);
     progress(Stage::Beamform, n, n);
     timings.push((Stage::Beamform, clock.elapsed().as_secs_f64()));
-    let bmode_db = beamform::bmode_db(beamform::compound(&images)?.view());
+    Ok((images, timings))
+}
 
+/// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
+/// series (nz, nx, frames) acquired with `acq`.
+pub fn analyse(
+    acq: &Acquisition,
+    mut images: Vec<Array3<Complex32>>,
+    params: &ProcessParams,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<ProcessOutput> {
+    let angles = &acq.sequence.angles;
+    let n = angles.len();
+    if images.len() != n {
+        return Err(crate::error::Error::Shape(format!(
+            "{} image series for {n} angles",
+            images.len()
+        )));
+    }
+    let mut timings = Vec::new();
+    let bmode_db = beamform::bmode_db(beamform::compound(&images)?.view());
     let clock = Instant::now();
     let mut reports = Vec::with_capacity(n);
     for (k, image) in images.iter_mut().enumerate() {
@@ -239,11 +275,4 @@ fn check_grid_depth(data: &ChannelData, grid: &Grid) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// Per-pixel mean of `f(vx, vz)` ... helper kept for front ends: speed map of a field.
-pub fn speed_map(field: &VectorField) -> Array2<f64> {
-    Zip::from(&field.vx)
-        .and(&field.vz)
-        .map_collect(|&x, &z| x.hypot(z))
 }

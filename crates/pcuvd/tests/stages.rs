@@ -30,7 +30,7 @@ fn random_traces(
     for k in 0..n {
         for c in 0..channels {
             let tones: Vec<(f64, f64, f64)> = (0..6)
-                .map(|_| (0.1 + 0.25 * next(), next() * 6.28, next()))
+                .map(|_| (0.1 + 0.25 * next(), next() * std::f64::consts::TAU, next()))
                 .collect();
             for t in 0..samples {
                 // A Gaussian envelope: smooth, so its spectrum is band-limited to float precision.
