@@ -2,6 +2,7 @@
 
 mod figures;
 mod options;
+// mod paper;
 mod process;
 mod progress;
 
@@ -21,19 +22,37 @@ struct Cli {
 enum Command {
     /// Process a recording (MUST-style .mat or pcuvd manifest .toml) into B-mode, power, colour and vector Doppler maps.
     Process(process::ProcessArgs),
+    // /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
+    // Paper(paper::PaperArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Process(args) => process::run(&args),
+        // Command::Paper(args) => paper::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            // `{:#}` prints the whole cause chain on one line and never the captured backtrace.
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", one_line(&error));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The cause chain on one line, without the captured backtrace, skipping a cause whose text an
+/// outer message already quotes.
+fn one_line(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if !line.contains(&text) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&text);
+        }
+    }
+    line
 }
