@@ -1,0 +1,627 @@
+//! Physics checks of the RF simulator and the phantoms, at reduced sizes.
+
+use ndarray::{Array4, s};
+use num_complex::Complex64;
+use pcuvd::channel::AngleSamples;
+use pcuvd::decode::decode;
+use pcuvd::phantom::{
+    BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, Phantom, PointPhantom, SpiralPhantom,
+    SpiralSpec, TubePhantom, TubeSpec,
+};
+use pcuvd::simulate::{
+    EchoWaveform, NOISE_DEFINITION, NoiseSpec, SimParams, echo_time, paper_spiral_params, simulate,
+};
+use pcuvd::{ChannelData, Coding, Probe, Samples, Sequence};
+use rustfft::FftPlanner;
+
+const FS: f64 = 65e6;
+const C: f64 = 1540.0;
+
+fn no_progress(_: usize, _: usize) {}
+
+/// The L22-14vX cut down to `n` elements (same pitch, width, frequency, bandwidth).
+fn probe(n: usize) -> Probe {
+    Probe {
+        n_elements: n,
+        ..Probe::l22_14vx()
+    }
+}
+
+fn sequence(angles_deg: &[f64], coding: Coding) -> Sequence {
+    Sequence {
+        angles: angles_deg.iter().map(|a| a.to_radians()).collect(),
+        event_prf: 14.4e3,
+        coding,
+        pulse_cycles: 2.0,
+    }
+}
+
+fn rf(data: &ChannelData) -> &ndarray::Array3<f32> {
+    match &data.samples {
+        Samples::Rf(a) => a,
+        _ => panic!("the simulator returns RF"),
+    }
+}
+
+fn per_angle(data: &ChannelData) -> Array4<f32> {
+    match decode(data).expect("decode") {
+        AngleSamples::Rf(a) => a,
+        _ => panic!("RF in, RF out"),
+    }
+}
+
+/// Envelope (|analytic signal|) of a real trace.
+fn envelope(trace: &[f32]) -> Vec<f64> {
+    let n = trace.len();
+    let mut planner = FftPlanner::<f64>::new();
+    let mut buf: Vec<Complex64> = trace
+        .iter()
+        .map(|&v| Complex64::new(v as f64, 0.0))
+        .collect();
+    planner.plan_fft_forward(n).process(&mut buf);
+    for (k, v) in buf.iter_mut().enumerate() {
+        if k == 0 || (n.is_multiple_of(2) && k == n / 2) {
+            continue;
+        }
+        *v *= if k < n.div_ceil(2) { 2.0 } else { 0.0 };
+    }
+    planner.plan_fft_inverse(n).process(&mut buf);
+    buf.iter().map(|v| v.norm()).collect()
+}
+
+fn argmax(v: &[f64], range: std::ops::Range<usize>) -> usize {
+    range
+        .max_by(|&a, &b| v[a].total_cmp(&v[b]))
+        .expect("non-empty range")
+}
+
+fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        num += (*x as f64 - *y as f64).powi(2);
+        den += (*y as f64).powi(2);
+    }
+    (num / den).sqrt()
+}
+
+#[test]
+fn noise_definition_is_one_sentence() {
+    assert!(NOISE_DEFINITION.contains("0°"));
+    assert!(NOISE_DEFINITION.contains("RMS"));
+}
+
+#[test]
+fn echo_waveform_is_centred_and_band_limited() {
+    let p = Probe::l22_14vx();
+    let wf = EchoWaveform::new(&p, 2.0, FS).unwrap();
+    assert!(wf.peak_offset().abs() < 1.0 / FS / 10.0);
+    assert!((wf.value(0.0) - 1.0).abs() < 1e-9);
+    assert!(
+        wf.taps().is_multiple_of(8) && wf.taps() <= 32,
+        "taps {}",
+        wf.taps()
+    );
+    // Even about its origin, negligible beyond its half duration.
+    for i in 1..40 {
+        let t = i as f64 / (4.0 * FS);
+        assert!((wf.value(t) - wf.value(-t)).abs() < 1e-9);
+    }
+    assert!(wf.value(wf.half_duration() + 2.0 / FS).abs() < 3e-4);
+}
+
+#[test]
+fn point_echo_arrives_at_time_of_flight() {
+    // Inside the insonified strip of every angle (the 64-element aperture spans ±3.2 mm).
+    let (x, z) = (1.3e-3, 6e-3);
+    let point = PointPhantom::single(x, z).unwrap();
+    let n_el = 64;
+    let elements = probe(n_el).element_x();
+    // Uncoded, one angle at a time.
+    for angle in [-15.0, 0.0, 15.0] {
+        let params = SimParams::new(
+            probe(n_el),
+            sequence(&[angle], Coding::Conventional),
+            FS,
+            C,
+            (2e-3, 10e-3),
+        )
+        .unwrap();
+        let wf = EchoWaveform::new(&params.probe, 2.0, FS).unwrap();
+        let data = simulate(&point, &params, 1, &no_progress).unwrap();
+        let rf = rf(&data);
+        for (e, &xe) in elements.iter().enumerate() {
+            let env = envelope(rf.slice(s![0, e, ..]).as_slice().unwrap());
+            let expected =
+                (echo_time(&params, x, z, angle.to_radians(), 0.0, xe) + wf.peak_offset()) * FS;
+            let got = argmax(&env, 0..env.len()) as f64;
+            assert!(
+                (got - expected).abs() <= 1.0,
+                "angle {angle}°, element {e}: peak at {got}, expected {expected:.2}"
+            );
+        }
+    }
+    // Coded: all four slots in one event, each at its slot offset + time of flight.
+    let angles = [-15.0, -5.0, 5.0, 15.0];
+    let params = SimParams::new(
+        probe(n_el),
+        sequence(&angles, Coding::Hadamard { slot_delay: 1e-6 }),
+        FS,
+        C,
+        (2e-3, 10e-3),
+    )
+    .unwrap();
+    let data = simulate(&point, &params, 1, &no_progress).unwrap();
+    let rf = rf(&data);
+    for event in 0..4 {
+        let pulses = params.sequence.event_pulses(event);
+        for (e, &xe) in elements.iter().enumerate() {
+            let trace = rf.slice(s![event, e, ..]);
+            let env = envelope(trace.as_slice().unwrap());
+            for &(k, polarity, offset) in &pulses {
+                let expected = echo_time(&params, x, z, angles[k].to_radians(), offset, xe) * FS;
+                let lo = (expected - 20.0).max(0.0) as usize;
+                let hi = ((expected + 20.0) as usize).min(env.len());
+                let got = argmax(&env, lo..hi);
+                assert!(
+                    (got as f64 - expected).abs() <= 1.0,
+                    "event {event} slot {k} element {e}: peak at {got}, expected {expected:.2}"
+                );
+                // The echo carries the slot's polarity: the waveform is +1 at its centre.
+                let centre = trace[expected.round() as usize];
+                let neighbours = [trace[got.saturating_sub(1)], trace[got], trace[got + 1]];
+                let peak = neighbours
+                    .iter()
+                    .copied()
+                    .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+                    .unwrap();
+                assert_eq!(
+                    peak.signum(),
+                    polarity,
+                    "event {event} slot {k} element {e}"
+                );
+                assert!(centre.abs() > 0.0);
+            }
+        }
+    }
+}
+
+/// (coded params, conventional params) sharing one receive window.
+fn coded_and_conventional(n: usize, slot_delay: f64, n_el: usize) -> (SimParams, SimParams) {
+    let angles = Sequence::evenly_spaced_angles(n, 15f64.to_radians());
+    let deg: Vec<f64> = angles.iter().map(|a| a.to_degrees()).collect();
+    let coded = SimParams::new(
+        probe(n_el),
+        sequence(&deg, Coding::Hadamard { slot_delay }),
+        FS,
+        C,
+        (3e-3, 9e-3),
+    )
+    .unwrap();
+    let mut conventional = coded.clone();
+    conventional.sequence.coding = Coding::Conventional;
+    (coded, conventional)
+}
+
+fn block(velocity: [f64; 2], density_per_mm2: f64, seed: u64) -> BlockPhantom {
+    BlockPhantom::new(
+        BlockSpec {
+            x: (-1e-3, 1e-3),
+            z: (5e-3, 7e-3),
+            velocity,
+            density: density_per_mm2 * 1e6,
+        },
+        seed,
+    )
+    .unwrap()
+}
+
+/// Relative L2 difference between decoded coded RF / n and conventional per-angle RF.
+fn coded_vs_conventional(phantom: &dyn Phantom, n: usize, slot_delay: f64) -> f64 {
+    let (coded, conventional) = coded_and_conventional(n, slot_delay, 24);
+    let dc = per_angle(&simulate(phantom, &coded, 1, &no_progress).unwrap()) / n as f32;
+    let du = per_angle(&simulate(phantom, &conventional, 1, &no_progress).unwrap());
+    assert_eq!(dc.dim(), du.dim());
+    rel_l2(dc.as_slice().unwrap(), du.as_slice().unwrap())
+}
+
+#[test]
+fn decoded_still_medium_equals_n_times_conventional() {
+    let still = block([0.0, 0.0], 100.0, 3);
+    for n in [4, 8] {
+        for slot_delay in [1e-6, 0.77e-6] {
+            let err = coded_vs_conventional(&still, n, slot_delay);
+            eprintln!("still medium, n = {n}, Δτ = {slot_delay:e} s: relative L2 {err:e}");
+            assert!(
+                err < 1e-4,
+                "n = {n}, Δτ = {} µs: relative L2 {err:e}",
+                slot_delay * 1e6
+            );
+        }
+    }
+}
+
+#[test]
+fn motion_breaks_hadamard_decoding() {
+    let moving = block([0.0, 25e-3], 100.0, 3);
+    let err = coded_vs_conventional(&moving, 8, 1e-6);
+    eprintln!("25 mm/s block, n = 8: decoded vs conventional relative L2 {err:.3}");
+    assert!(err > 0.01, "decoded vs conventional differ by only {err}");
+}
+
+#[test]
+fn coding_gain_is_ten_log_n() {
+    let n = 8;
+    let (mut coded, mut conventional) = coded_and_conventional(n, 1e-6, 32);
+    let still = block([0.0, 0.0], 100.0, 5);
+    let run = |params: &SimParams| per_angle(&simulate(&still, params, 1, &no_progress).unwrap());
+    let clean_c = run(&coded);
+    let clean_u = run(&conventional);
+    coded.noise = Some(NoiseSpec::new(-10.0));
+    conventional.noise = Some(NoiseSpec::new(-10.0));
+    coded.seed = 11;
+    conventional.seed = 12;
+    let noisy_c = run(&coded);
+    let noisy_u = run(&conventional);
+    // Only samples every decoded slot still has (slot k loses its last k·Δτ·f_s samples).
+    let valid = coded.n_samples - ((n - 1) as f64 * 1e-6 * FS).ceil() as usize;
+    let snr = |clean: &Array4<f32>, noisy: &Array4<f32>| {
+        let c = clean.slice(s![.., .., .., ..valid]);
+        let d = noisy.slice(s![.., .., .., ..valid]);
+        let ps: f64 = c.iter().map(|&v| (v as f64).powi(2)).sum();
+        let pn: f64 = c
+            .iter()
+            .zip(d.iter())
+            .map(|(&a, &b)| (b as f64 - a as f64).powi(2))
+            .sum();
+        10.0 * (ps / pn).log10()
+    };
+    let gain = snr(&clean_c, &noisy_c) - snr(&clean_u, &noisy_u);
+    eprintln!("measured Hadamard coding gain (n = 8): {gain:.3} dB");
+    assert!(
+        (gain - 10.0 * 8f64.log10()).abs() < 0.3,
+        "coding gain {gain:.3} dB, expected 9.03 dB"
+    );
+    // The noise level itself: −10 dB relative to the 0° echo over the whole window.
+    let mut zero = conventional.clone();
+    zero.sequence.angles = vec![0.0];
+    zero.noise = None;
+    let clean0 = simulate(&still, &zero, 1, &no_progress).unwrap();
+    zero.noise = Some(NoiseSpec::new(-10.0));
+    let noisy0 = simulate(&still, &zero, 1, &no_progress).unwrap();
+    let rms =
+        |a: &[f32]| (a.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+    let (c0, n0) = (
+        rf(&clean0).as_slice().unwrap(),
+        rf(&noisy0).as_slice().unwrap(),
+    );
+    let diff: Vec<f32> = n0.iter().zip(c0).map(|(a, b)| a - b).collect();
+    let level = 20.0 * (rms(&diff) / rms(c0)).log10();
+    assert!((level + 10.0).abs() < 0.2, "noise level {level:.2} dB");
+}
+
+#[test]
+fn same_seed_same_bytes_whatever_the_threads() {
+    let moving = block([5e-3, 10e-3], 60.0, 9);
+    let (mut coded, _) = coded_and_conventional(4, 0.77e-6, 16);
+    coded.noise = Some(NoiseSpec::new(-6.0));
+    coded.seed = 42;
+    let run = |threads: usize, params: &SimParams| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| simulate(&moving, params, 2, &no_progress).unwrap())
+    };
+    let one = run(1, &coded);
+    let two = run(2, &coded);
+    let bits = |d: &ChannelData| rf(d).iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&one), bits(&two));
+    coded.seed = 43;
+    let other = run(2, &coded);
+    let err = rel_l2(rf(&other).as_slice().unwrap(), rf(&one).as_slice().unwrap());
+    assert!(err > 0.1, "a different seed changed the data by only {err}");
+}
+
+#[test]
+fn progress_counts_every_event() {
+    let still = block([0.0, 0.0], 20.0, 1);
+    let (coded, _) = coded_and_conventional(4, 1e-6, 8);
+    let count = std::sync::atomic::AtomicUsize::new(0);
+    let data = simulate(&still, &coded, 3, &|done, total| {
+        assert_eq!(total, 12);
+        count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        assert!(done <= total);
+    })
+    .unwrap();
+    assert_eq!(count.into_inner(), 12);
+    assert_eq!(data.samples.dim(), (12, 8, coded.n_samples));
+    data.validate().unwrap();
+    assert_eq!(data.acquisition, coded.acquisition());
+}
+
+#[test]
+fn bad_parameters_are_errors() {
+    let still = block([0.0, 0.0], 20.0, 1);
+    let (coded, _) = coded_and_conventional(8, 1e-6, 8);
+    assert!(simulate(&still, &coded, 0, &no_progress).is_err());
+    let mut p = coded.clone();
+    p.noise = Some(NoiseSpec::new(f64::NAN));
+    assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    let mut p = coded.clone();
+    p.noise = Some(NoiseSpec {
+        level_db: -10.0,
+        band_hz: (1e6, 40e6),
+    });
+    assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    let mut p = coded.clone();
+    p.sequence.coding = Coding::Hadamard { slot_delay: 9.9e-6 };
+    let err = simulate(&still, &p, 1, &no_progress)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("slot delay makes pulses overlap the next event's receive window"),
+        "{err}"
+    );
+    let mut p = coded.clone();
+    p.n_samples = 10_000; // 154 µs, longer than the 69 µs event period
+    assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    let mut p = coded.clone();
+    p.sampling_frequency = 20e6;
+    assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    let mut p = coded;
+    p.attenuation_db_cm_mhz = -1.0;
+    assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    assert!(
+        SimParams::new(
+            probe(8),
+            sequence(&[0.0], Coding::Conventional),
+            FS,
+            C,
+            (5e-3, 1e-3)
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn paper_presets() {
+    let coded = paper_spiral_params(true).unwrap();
+    let conventional = paper_spiral_params(false).unwrap();
+    coded.validate().unwrap();
+    conventional.validate().unwrap();
+    assert_eq!(coded.n_samples, conventional.n_samples);
+    assert_eq!(coded.t0, 0.0);
+    assert_eq!(coded.sequence.n_angles(), 8);
+    assert_eq!(coded.noise, Some(NoiseSpec::new(-10.0)));
+    assert!(matches!(conventional.sequence.coding, Coding::Conventional));
+    // The window holds a 14 mm deep echo of the last slot on the farthest element.
+    let (x0, _) = coded.probe.aperture();
+    let last = echo_time(&coded, -x0, 14e-3, coded.sequence.angles[7], 7e-6, x0);
+    assert!(last * FS < coded.n_samples as f64);
+}
+
+// ----------------------------------------------------------------------------------------------
+// Phantoms
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn spiral_matches_the_paper() {
+    let spiral = SpiralPhantom::paper(7).unwrap();
+    let spec = spiral.spec().clone();
+    // ≈ 45 mm² of vessel at 300 scatterers/mm².
+    let area_mm2 = spec.area() * 1e6;
+    assert!((area_mm2 - 45.08).abs() < 0.05, "area {area_mm2}");
+    let density = spiral.n_scatterers() as f64 / area_mm2;
+    assert!((density - 300.0).abs() < 0.5, "density {density}/mm²");
+    // Truth on the centreline: 25 mm/s along the tangent.
+    for alpha in [0.3, 2.0, 7.5, 12.0] {
+        let [x, z] = spec.position(alpha, 0.0);
+        let truth = spiral.truth(&[x], &[z], 0.0);
+        assert!(truth.mask[[0, 0]]);
+        let v = [truth.vx[[0, 0]], truth.vz[[0, 0]]];
+        assert!((v[0].hypot(v[1]) - 25e-3).abs() < 1e-12);
+        // Moving along increasing α: the position a little further along.
+        let [x2, z2] = spec.position(alpha + 1e-6, 0.0);
+        let dot = v[0] * (x2 - x) + v[1] * (z2 - z);
+        assert!(dot > 0.0);
+        // Half a radius off the centreline: 3/4 of the peak.
+        let [x3, z3] = spec.position(alpha, 0.3e-3);
+        let t3 = spiral.truth(&[x3], &[z3], 0.0);
+        assert!((t3.speed()[[0, 0]] - 0.75 * 25e-3).abs() < 1e-9);
+    }
+    // Outside the vessel: between turns and at the centre.
+    let [x, z] = spec.position(5.0, 0.8e-3);
+    assert!(!spiral.truth(&[x], &[z], 0.0).mask[[0, 0]]);
+    assert!(!spiral.truth(&[spec.centre[0]], &[spec.centre[1]], 0.0).mask[[0, 0]]);
+    // Scatterers stay inside the vessel, however long they flow.
+    let mut pos = Vec::new();
+    for t in [0.0, 1e-3, 0.37, 12.3] {
+        spiral.positions_at(t, &mut pos);
+        assert_eq!(pos.len(), spiral.n_scatterers());
+        for p in &pos {
+            let (_, l) = spec
+                .vessel_coordinates(p[0], p[1])
+                .unwrap_or_else(|| panic!("scatterer at {p:?} outside the vessel at t = {t}"));
+            assert!(l.abs() <= spec.radius * (1.0 + 1e-9));
+        }
+    }
+    // Speed: displacement over 1 ms matches u within 0.5 % (chord ≈ arc over 25 µm).
+    let mut p0 = Vec::new();
+    let mut p1 = Vec::new();
+    spiral.positions_at(0.2, &mut p0);
+    spiral.positions_at(0.201, &mut p1);
+    let mut checked = 0;
+    for i in 0..spiral.n_scatterers() {
+        let u = spiral.speeds()[i];
+        if u < 2e-3 || spiral.alpha_at(i, 0.201) < spiral.alpha_at(i, 0.2) {
+            continue; // too slow to measure well, or restarted at α = 0
+        }
+        let d = (p1[i][0] - p0[i][0]).hypot(p1[i][1] - p0[i][1]) / 1e-3;
+        assert!((d / u - 1.0).abs() < 5e-3, "scatterer {i}: {d} vs {u}");
+        checked += 1;
+    }
+    assert!(checked > spiral.n_scatterers() / 2);
+    // Integration is exact: arc length from α0 to α(t) is u·t.
+    let l = spiral.offsets()[0];
+    let (a0, a1) = (spiral.alpha_at(0, 0.0), spiral.alpha_at(0, 0.01));
+    if a1 > a0 {
+        let s = spec.arc_length(a1, l) - spec.arc_length(a0, l);
+        assert!((s - spiral.speeds()[0] * 0.01).abs() < 1e-12);
+    }
+    // Same seed, same phantom; another seed, another one.
+    let again = SpiralPhantom::paper(7).unwrap();
+    assert_eq!(again.amplitudes(), spiral.amplitudes());
+    assert_ne!(
+        SpiralPhantom::paper(8).unwrap().amplitudes(),
+        spiral.amplitudes()
+    );
+    assert!(
+        SpiralPhantom::new(
+            SpiralSpec {
+                radius: 2e-3,
+                ..SpiralSpec::paper()
+            },
+            1
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn tube_truth_and_wrap_around() {
+    let angle = 30f64.to_radians();
+    let spec = TubeSpec {
+        centre: [0.5e-3, 6e-3],
+        angle,
+        length: 6e-3,
+        radius: 0.5e-3,
+        peak_speed: 20e-3,
+        density: 200e6,
+    };
+    let tube = TubePhantom::new(spec.clone(), 4).unwrap();
+    assert_eq!(tube.n_scatterers(), (200.0 * 6.0 * 1.0f64).round() as usize);
+    let (d, nrm) = ([angle.cos(), angle.sin()], [-angle.sin(), angle.cos()]);
+    let at = |s: f64, l: f64| {
+        [
+            spec.centre[0] + s * d[0] + l * nrm[0],
+            spec.centre[1] + s * d[1] + l * nrm[1],
+        ]
+    };
+    let [x0, z0] = at(1e-3, 0.0);
+    let [x1, z1] = at(-2e-3, 0.25e-3);
+    let [x2, z2] = at(0.0, 0.7e-3);
+    let [x3, z3] = at(3.5e-3, 0.0);
+    for ([x, z], expected) in [
+        ([x0, z0], Some(20e-3)),
+        ([x1, z1], Some(15e-3)),
+        ([x2, z2], None),
+        ([x3, z3], None),
+    ] {
+        let t = tube.truth(&[x], &[z], 0.0);
+        match expected {
+            Some(u) => {
+                assert!(t.mask[[0, 0]]);
+                assert!((t.vx[[0, 0]] - u * d[0]).abs() < 1e-12);
+                assert!((t.vz[[0, 0]] - u * d[1]).abs() < 1e-12);
+            }
+            None => assert!(!t.mask[[0, 0]]),
+        }
+    }
+    let mut pos = Vec::new();
+    for t in [0.0, 0.1, 10.0] {
+        tube.positions_at(t, &mut pos);
+        assert_eq!(pos.len(), tube.n_scatterers());
+        for p in &pos {
+            let (dx, dz) = (p[0] - spec.centre[0], p[1] - spec.centre[1]);
+            let s = dx * d[0] + dz * d[1];
+            let l = dx * nrm[0] + dz * nrm[1];
+            assert!(s.abs() <= 0.5 * spec.length + 1e-12 && l.abs() <= spec.radius + 1e-12);
+        }
+    }
+}
+
+#[test]
+fn block_and_disk_truth() {
+    let b = block([3e-3, -4e-3], 50.0, 2);
+    let t = 0.5;
+    let grid_x = [0.0, 1.2e-3, 2.4e-3];
+    let grid_z = [3.5e-3, 5.5e-3];
+    let truth = b.truth(&grid_x, &grid_z, t);
+    // At t = 0.5 s the block spans x ∈ [0.5, 2.5] mm, z ∈ [3, 5] mm.
+    assert_eq!(truth.mask.dim(), (2, 3));
+    assert!(!truth.mask[[0, 0]] && truth.mask[[0, 1]] && truth.mask[[0, 2]]);
+    assert!(!truth.mask[[1, 1]]);
+    assert_eq!((truth.vx[[0, 1]], truth.vz[[0, 1]]), (3e-3, -4e-3));
+    let mut p0 = Vec::new();
+    let mut p1 = Vec::new();
+    b.positions_at(0.0, &mut p0);
+    b.positions_at(t, &mut p1);
+    for (a, c) in p0.iter().zip(&p1) {
+        assert!((c[0] - a[0] - 1.5e-3).abs() < 1e-15 && (c[1] - a[1] + 2e-3).abs() < 1e-15);
+    }
+
+    let disk = DiskPhantom::new(
+        DiskSpec {
+            centre: [0.0, 8e-3],
+            radius: 2e-3,
+            angular_velocity: 3.0,
+            density: 100e6,
+        },
+        1,
+    )
+    .unwrap();
+    let truth = disk.truth(&[1e-3, 0.0, 3e-3], &[8e-3, 9e-3], 0.0);
+    assert!((truth.vz[[0, 0]] - 3e-3).abs() < 1e-15 && truth.vx[[0, 0]].abs() < 1e-15);
+    assert!((truth.vx[[1, 1]] + 3e-3).abs() < 1e-15);
+    assert!(!truth.mask[[0, 2]]);
+    disk.positions_at(0.1, &mut p0);
+    for p in &p0 {
+        assert!(p[0].hypot(p[1] - 8e-3) <= 2e-3 + 1e-12);
+    }
+    assert!(PointPhantom::new(vec![[0.0, 1e-3]], vec![], [0.0, 0.0]).is_err());
+    assert!(
+        BlockPhantom::new(
+            BlockSpec {
+                x: (1.0, 0.0),
+                z: (0.0, 1.0),
+                velocity: [0.0, 0.0],
+                density: 1.0
+            },
+            0
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn moving_block_echo_phase_follows_motion() {
+    // A scatterer moving away from the probe delays its echo by 2·vz·Δt/c per event (0° plane wave).
+    let vz = 25e-3;
+    let point = PointPhantom::new(vec![[0.0, 6e-3]], vec![1.0], [0.0, vz]).unwrap();
+    let params = SimParams::new(
+        probe(8),
+        sequence(&[0.0], Coding::Conventional),
+        FS,
+        C,
+        (3e-3, 9e-3),
+    )
+    .unwrap();
+    let data = simulate(&point, &params, 40, &no_progress).unwrap();
+    let rf = rf(&data);
+    let centroid = |event: usize| {
+        let env = envelope(rf.slice(s![event, 3, ..]).as_slice().unwrap());
+        let (num, den) = env.iter().enumerate().fold((0.0, 0.0), |(n, d), (i, &e)| {
+            (n + i as f64 * e * e, d + e * e)
+        });
+        num / den
+    };
+    let shift = (centroid(39) - centroid(0)) / FS;
+    let elapsed = 39.0 / params.sequence.event_prf;
+    let xe = probe(8).element_x()[3];
+    let expected = echo_time(&params, 0.0, 6e-3 + vz * elapsed, 0.0, 0.0, xe)
+        - echo_time(&params, 0.0, 6e-3, 0.0, 0.0, xe);
+    assert!(
+        (shift - expected).abs() < 0.02 * expected,
+        "echo moved {shift:e} s, expected {expected:e} s"
+    );
+}
