@@ -625,3 +625,23 @@ fn moving_block_echo_phase_follows_motion() {
         "echo moved {shift:e} s, expected {expected:e} s"
     );
 }
+
+/// The noise alone equals what `simulate` adds: noisy − noiseless, to f32 rounding.
+#[test]
+fn noise_alone_is_what_simulate_adds() {
+    let (mut coded, _) = coded_and_conventional(4, 1e-6, 16);
+    let phantom = block([0.01, -0.005], 50.0, 3);
+    let clean = simulate(&phantom, &coded, 2, &no_progress).unwrap();
+    coded.noise = Some(pcuvd::simulate::NoiseSpec::new(-6.0));
+    coded.seed = 11;
+    let noisy = simulate(&phantom, &coded, 2, &no_progress).unwrap();
+    let noise = pcuvd::simulate::simulate_noise(&phantom, &coded, 2).unwrap();
+    let difference = rf(&noisy) - rf(&clean);
+    let err = rel_l2(
+        difference.as_slice().unwrap(),
+        rf(&noise).as_slice().unwrap(),
+    );
+    assert!(err < 1e-5, "relative difference {err}");
+    coded.noise = None;
+    assert!(pcuvd::simulate::simulate_noise(&phantom, &coded, 2).is_err());
+}

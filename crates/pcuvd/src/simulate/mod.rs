@@ -31,6 +31,7 @@ mod noise;
 mod waveform;
 
 use ndarray::{Array3, Axis};
+use rayon::prelude::*;
 
 use self::kernel::{Simulator, Slot};
 pub use self::waveform::EchoWaveform;
@@ -349,10 +350,48 @@ pub fn simulate(
         Ok(())
     };
 
-    let noise = match &params.noise {
+    let noise = noise_generator(phantom, params, &sim, &mut positions, &load)?;
+
+    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
+    for (event, out) in rf.axis_iter_mut(Axis(0)).enumerate() {
+        let t = event as f64 / params.sequence.event_prf;
+        load(t, &mut positions)?;
+        let slots: Vec<Slot> = params
+            .sequence
+            .event_pulses(event)
+            .into_iter()
+            .map(|(k, polarity, offset)| Slot {
+                angle: params.sequence.angles[k],
+                polarity,
+                offset,
+            })
+            .collect();
+        let streams = noise
+            .as_ref()
+            .map(|g| (g, event as u64 * n_channels as u64));
+        sim.render_event(&positions, phantom.amplitudes(), &slots, out, streams);
+        progress(event + 1, n_events);
+    }
+    Ok(ChannelData {
+        acquisition: params.acquisition(),
+        samples: Samples::Rf(rf),
+    })
+}
+
+/// The noise source of `params` (see [`NOISE_DEFINITION`]): its RMS is set from the noiseless,
+/// uncoded 0° echo of `phantom` at t = 0. `None` when `params.noise` is `None`.
+fn noise_generator(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    sim: &Simulator,
+    positions: &mut Vec<[f64; 2]>,
+    load: &dyn Fn(f64, &mut Vec<[f64; 2]>) -> Result<()>,
+) -> Result<Option<noise::NoiseGenerator>> {
+    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
+    Ok(match &params.noise {
         None => None,
         Some(spec) => {
-            load(0.0, &mut positions)?;
+            load(0.0, positions)?;
             let mut reference = ndarray::Array2::<f32>::zeros((n_channels, ns));
             let slot = Slot {
                 angle: 0.0,
@@ -360,7 +399,7 @@ pub fn simulate(
                 offset: 0.0,
             };
             sim.render_event(
-                &positions,
+                positions,
                 phantom.amplitudes(),
                 &[slot],
                 reference.view_mut(),
@@ -385,28 +424,48 @@ pub fn simulate(
                 params.seed,
             )
         }
-    };
+    })
+}
 
-    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
-    for (event, out) in rf.axis_iter_mut(Axis(0)).enumerate() {
-        let t = event as f64 / params.sequence.event_prf;
-        load(t, &mut positions)?;
-        let slots: Vec<Slot> = params
-            .sequence
-            .event_pulses(event)
-            .into_iter()
-            .map(|(k, polarity, offset)| Slot {
-                angle: params.sequence.angles[k],
-                polarity,
-                offset,
-            })
-            .collect();
-        let streams = noise
-            .as_ref()
-            .map(|g| (g, event as u64 * n_channels as u64));
-        sim.render_event(&positions, phantom.amplitudes(), &slots, out, streams);
-        progress(event + 1, n_events);
+/// The receiver noise alone that [`simulate`] adds to each event with the same `params` (same
+/// seed, same streams, same level relative to the phantom's echo), shape (events, channels,
+/// samples). Since every processing step up to the Doppler estimate is linear, echoes and noise
+/// can be processed apart and added at any scale, e.g. for a sweep of noise levels.
+pub fn simulate_noise(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+) -> Result<ChannelData> {
+    params.validate()?;
+    if n_frames == 0 {
+        return Err(invalid("number of frames", "must be at least 1"));
     }
+    if params.noise.is_none() {
+        return Err(invalid(
+            "noise level",
+            "simulate_noise needs a noise specification",
+        ));
+    }
+    let sim = Simulator::new(params)?;
+    let mut positions = Vec::with_capacity(phantom.n_scatterers());
+    let load = |t: f64, out: &mut Vec<[f64; 2]>| -> Result<()> {
+        phantom.positions_at(t, out);
+        Ok(())
+    };
+    let generator =
+        noise_generator(phantom, params, &sim, &mut positions, &load)?.expect("noise is specified");
+    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
+    let n_events = n_frames * params.sequence.n_angles();
+    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
+    rf.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(event, mut out)| {
+            for (channel, mut trace) in out.axis_iter_mut(Axis(0)).enumerate() {
+                let trace = trace.as_slice_mut().expect("standard layout");
+                generator.add(trace, (event * n_channels + channel) as u64);
+            }
+        });
     Ok(ChannelData {
         acquisition: params.acquisition(),
         samples: Samples::Rf(rf),
