@@ -1,0 +1,111 @@
+//! `pcuvd simulate` writes recordings that `pcuvd process` reads; bad input is refused clearly.
+
+use std::process::Command;
+
+fn pcuvd(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr,
+    )
+}
+
+#[test]
+fn simulated_tube_round_trips_through_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, stderr) = pcuvd(&[
+        "simulate", "--preset", "tube", "--mode", "coded", "--frames", "6", "--angles", "4",
+        "--out", d,
+    ]);
+    assert!(ok, "{stderr}");
+    for f in [
+        "coded.toml",
+        "coded.npy",
+        "truth_vx.npy",
+        "truth_vz.npy",
+        "truth_mask.npy",
+    ] {
+        assert!(dir.path().join(f).exists(), "{f} missing");
+    }
+    let manifest = std::fs::read_to_string(dir.path().join("coded.toml")).unwrap();
+    assert!(
+        manifest.contains("pcuvd-recording")
+            && manifest.contains("hadamard")
+            && manifest.contains("noise_definition")
+    );
+    let out = dir.path().join("out");
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        dir.path().join("coded.toml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--grid=-2,2,6,10,0.1",
+        "--svd-low",
+        "off",
+    ]);
+    assert!(ok, "{stderr}");
+    for f in [
+        "vx.npy",
+        "vz.npy",
+        "speed.npy",
+        "vector.png",
+        "summary.json",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+}
+
+#[test]
+fn bad_simulation_requests_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let cases: [(&[&str], &str); 5] = [
+        (&["simulate", "--preset", "nope", "--out", d], "nope"),
+        (&["simulate", "--frames", "0", "--out", d], "--frames"),
+        (
+            &[
+                "simulate", "--mode", "coded", "--angles", "6", "--frames", "1", "--out", d,
+            ],
+            "Hadamard",
+        ),
+        (
+            &[
+                "simulate",
+                "--mode",
+                "coded",
+                "--slot-delay-us",
+                "6",
+                "--frames",
+                "1",
+                "--out",
+                d,
+            ],
+            "overlap",
+        ),
+        (
+            &[
+                "simulate",
+                "--frames",
+                "1",
+                "--out",
+                "/proc/pcuvd-cannot-write-here",
+            ],
+            "pcuvd-cannot-write-here",
+        ),
+    ];
+    for (args, needle) in cases {
+        let (ok, _, stderr) = pcuvd(args);
+        assert!(!ok, "{args:?} should fail");
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: {needle:?} missing from {stderr}"
+        );
+    }
+}
