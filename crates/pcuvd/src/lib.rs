@@ -13,6 +13,7 @@ pub mod channel;
 pub mod clutter;
 pub mod decode;
 pub mod doppler;
+pub mod dynamics;
 pub mod error;
 pub mod geometry;
 pub mod hadamard;

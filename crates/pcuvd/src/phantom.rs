@@ -740,3 +740,30 @@ impl Phantom for PointPhantom {
         truth
     }
 }
+
+/// A phantom held still within each compound frame: the positions of `inner` sampled at the start of
+/// the frame. This is the motion model of simulations that move scatterers once per frame (as the
+/// PC-UVD paper's Field II study did, Δt = frame period); it hides the error Hadamard decoding makes
+/// when blood moves between the events of a frame, and exists to measure that error.
+pub struct FrameHeld<'a> {
+    /// The moving phantom.
+    pub inner: &'a dyn Phantom,
+    /// Compound-frame period (s): n angles / event PRF.
+    pub frame_period: f64,
+}
+
+impl Phantom for FrameHeld<'_> {
+    fn amplitudes(&self) -> &[f64] {
+        self.inner.amplitudes()
+    }
+
+    fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>) {
+        // Event times are i / PRF: the tiny margin keeps frame starts from rounding down a frame.
+        let frame = (t / self.frame_period + 1e-9).floor();
+        self.inner.positions_at(frame * self.frame_period, out);
+    }
+
+    fn truth(&self, x: &[f64], z: &[f64], t: f64) -> Truth {
+        self.inner.truth(x, z, t)
+    }
+}

@@ -349,7 +349,7 @@ fn spectrogram_of_uniform_axial_flow() {
             spec.velocities_m_s[peak]
         );
         assert!((spec.mean_velocity_m_s[k] - v0).abs() < 0.02 * v0);
-        assert!(row.iter().all(|&p| p <= 1e-12 && p >= -200.0));
+        assert!(row.iter().all(|&p| (-200.0..=1e-12).contains(&p)));
     }
     // Flow toward the probe lands on the negative side.
     let up = Vessel {

@@ -378,6 +378,9 @@ pub fn simulate(
     })
 }
 
+/// Fills the scatterer positions at a time (s), checking them.
+type PositionLoader<'a> = dyn Fn(f64, &mut Vec<[f64; 2]>) -> Result<()> + 'a;
+
 /// The noise source of `params` (see [`NOISE_DEFINITION`]): its RMS is set from the noiseless,
 /// uncoded 0° echo of `phantom` at t = 0. `None` when `params.noise` is `None`.
 fn noise_generator(
@@ -385,7 +388,7 @@ fn noise_generator(
     params: &SimParams,
     sim: &Simulator,
     positions: &mut Vec<[f64; 2]>,
-    load: &dyn Fn(f64, &mut Vec<[f64; 2]>) -> Result<()>,
+    load: &PositionLoader,
 ) -> Result<Option<noise::NoiseGenerator>> {
     let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
     Ok(match &params.noise {
