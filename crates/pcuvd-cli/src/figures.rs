@@ -204,7 +204,8 @@ pub fn vector_panel(
         "speed (mm/s)",
     );
     panel.arrows = Some(vector_overlay(field, grid, mask, vmax));
-    panel.mask = Some(mask.clone());
+    // B-mode under triangles coloured by speed: a speed-coloured underlay would hide them.
+    panel.mask = Some(Array2::from_elem(mask.dim(), false));
     panel.background = Some(background.clone());
     Panel::Image(panel)
 }

@@ -2,9 +2,10 @@
 
 mod figures;
 mod options;
-// mod paper;
+mod paper;
 mod process;
 mod progress;
+mod simulate;
 
 use std::process::ExitCode;
 
@@ -22,15 +23,18 @@ struct Cli {
 enum Command {
     /// Process a recording (MUST-style .mat or pcuvd manifest .toml) into B-mode, power, colour and vector Doppler maps.
     Process(process::ProcessArgs),
-    // /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
-    // Paper(paper::PaperArgs),
+    /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
+    Simulate(simulate::SimulateArgs),
+    /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
+    Paper(paper::PaperArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Process(args) => process::run(&args),
-        // Command::Paper(args) => paper::run(&args),
+        Command::Simulate(args) => simulate::run(&args),
+        Command::Paper(args) => paper::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -71,6 +71,22 @@ pub fn parse_grid(text: &str) -> Result<Grid> {
         .with_context(|| format!("--grid {text:?}"))
 }
 
+/// Parses "ROWSxCOLS" (e.g. "3x3") into an averaging-kernel size.
+pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
+    let parts: Vec<&str> = text.split(['x', 'X', ',']).collect();
+    let parsed = match parts[..] {
+        [r, c] => (
+            r.trim().parse::<usize>().ok(),
+            c.trim().parse::<usize>().ok(),
+        ),
+        _ => (None, None),
+    };
+    let (Some(rows), Some(cols)) = parsed else {
+        bail!("--doppler-kernel {text:?}: expected ROWSxCOLS, e.g. 3x3");
+    };
+    Ok((rows, cols))
+}
+
 impl ProcessingOptions {
     /// Stage settings for `data`.
     pub fn params(&self, data: &ChannelData) -> Result<ProcessParams> {
@@ -78,22 +94,7 @@ impl ProcessingOptions {
             Some(text) => parse_grid(text)?,
             None => pipeline::default_grid(data)?,
         };
-        let kernel = {
-            let parts: Vec<&str> = self.doppler_kernel.split(['x', 'X', ',']).collect();
-            match parts[..] {
-                [r, c] => (
-                    r.trim().parse::<usize>().ok(),
-                    c.trim().parse::<usize>().ok(),
-                ),
-                _ => (None, None),
-            }
-        };
-        let (Some(rows), Some(cols)) = kernel else {
-            bail!(
-                "--doppler-kernel {:?}: expected ROWSxCOLS, e.g. 3x3",
-                self.doppler_kernel
-            );
-        };
+        let (rows, cols) = parse_kernel(&self.doppler_kernel)?;
         Ok(ProcessParams {
             grid,
             das: DasParams {
