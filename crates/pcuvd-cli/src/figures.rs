@@ -65,14 +65,14 @@ pub fn vector_overlay(
     speed_max_mm_s: f64,
 ) -> VectorOverlay {
     let (nz, nx) = grid.shape();
-    let stride = (nx.max(nz) / 28).max(1);
+    let stride = (nx.max(nz) / 22).max(1);
     let step_mm = (grid.x.get(1).copied().unwrap_or(grid.x[0]) - grid.x[0]).abs() * 1e3;
     let mut overlay = VectorOverlay {
         x_mm: vec![],
         z_mm: vec![],
         vx: vec![],
         vz: vec![],
-        scale_mm: (stride as f64 * step_mm * 0.9).max(1e-3),
+        scale_mm: (stride as f64 * step_mm * 1.4).max(1e-3),
         colormap: Colormap::Viridis,
         speed_range: (0.0, speed_max_mm_s.max(1e-9)),
     };
@@ -194,7 +194,7 @@ pub fn vector_panel(
     let masked = Zip::from(&speed_mm_s)
         .and(mask)
         .map_collect(|&s, &m| if m { s } else { f64::NAN });
-    let vmax = quantile(masked.iter().copied(), 0.99).max(1e-6);
+    let vmax = quantile(masked.iter().copied(), 0.95).max(1e-6);
     let mut panel = map_panel(
         title,
         speed_mm_s,
