@@ -12,6 +12,10 @@ use pcuvd_render::{Colormap, Figure, ImagePanel, Panel, VectorOverlay, render_pn
 /// Pixels whose power is below this (dB under the strong reference) are shown as B-mode, not flow.
 pub const FLOW_MASK_DB: f64 = -25.0;
 
+/// Vector glyphs are drawn only where power is above this (dB): velocity vectors from weak,
+/// noise-dominated pixels are random and would swamp the figure and its colour scale.
+pub const VECTOR_MASK_DB: f64 = -15.0;
+
 /// The `q`-quantile (0..1) of the finite values of `values`.
 pub fn quantile(values: impl Iterator<Item = f64>, q: f64) -> f64 {
     let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
@@ -92,7 +96,12 @@ pub fn vector_overlay(
 
 /// Flow pixels: power above [`FLOW_MASK_DB`].
 pub fn flow_mask(power: &Array2<f64>) -> Array2<bool> {
-    power_db(power).mapv(|v| v >= FLOW_MASK_DB)
+    power_mask(power, FLOW_MASK_DB)
+}
+
+/// Pixels whose power is at least `threshold_db` relative to the strong reference.
+pub fn power_mask(power: &Array2<f64>, threshold_db: f64) -> Array2<bool> {
+    power_db(power).mapv(|v| v >= threshold_db)
 }
 
 fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
@@ -168,7 +177,15 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
             ("PC-UVD estimator (IRLS-WLS)", irls),
         ]
         .into_iter()
-        .map(|(title, field)| vector_panel(title, field, grid, &mask, &background))
+        .map(|(title, field)| {
+            vector_panel(
+                title,
+                field,
+                grid,
+                &power_mask(&out.power_doppler, VECTOR_MASK_DB),
+                &background,
+            )
+        })
         .collect();
         written.push(save(
             &dir.join("vector.png"),
