@@ -54,13 +54,9 @@ fn rank_cut(text: &str, option: &str) -> Result<RankCut> {
 
 /// Parses "XMIN,XMAX,ZMIN,ZMAX,STEP" in mm into a grid in m.
 pub fn parse_grid(text: &str) -> Result<Grid> {
-    let values: Vec<f64> = text
-        .split(',')
-        .map(|v| v.trim().parse::<f64>())
-        .collect::<std::result::Result<_, _>>()
-        .with_context(|| {
-            format!("--grid {text:?}: expected five numbers in mm: XMIN,XMAX,ZMIN,ZMAX,STEP")
-        })?;
+    let values = parse_numbers(text).with_context(|| {
+        format!("--grid {text:?}: expected five numbers in mm: XMIN,XMAX,ZMIN,ZMAX,STEP")
+    })?;
     let [x0, x1, z0, z1, step] = values[..] else {
         bail!(
             "--grid {text:?}: expected five numbers in mm (XMIN,XMAX,ZMIN,ZMAX,STEP), got {}",
@@ -69,6 +65,18 @@ pub fn parse_grid(text: &str) -> Result<Grid> {
     };
     Grid::new(x0 * 1e-3, x1 * 1e-3, z0 * 1e-3, z1 * 1e-3, step * 1e-3)
         .with_context(|| format!("--grid {text:?}"))
+}
+
+/// Parses a comma-separated list of finite numbers.
+pub fn parse_numbers(text: &str) -> Result<Vec<f64>> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()?;
+    if values.iter().any(|v| !v.is_finite()) {
+        bail!("every number must be finite");
+    }
+    Ok(values)
 }
 
 /// Parses "ROWSxCOLS" (e.g. "3x3") into an averaging-kernel size.

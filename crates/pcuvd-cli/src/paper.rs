@@ -144,17 +144,8 @@ fn rmse(field: &VectorField, truth: &Truth) -> Rmse {
 }
 
 fn parse_levels(text: &str) -> Result<Vec<f64>> {
-    let levels: Vec<f64> = text
-        .split(',')
-        .map(|v| v.trim().parse::<f64>())
-        .collect::<std::result::Result<_, _>>()
-        .with_context(|| {
-            format!("--sweep {text:?}: expected comma-separated noise levels in dB")
-        })?;
-    if levels.is_empty() || levels.iter().any(|l| !l.is_finite()) {
-        bail!("--sweep {text:?}: expected finite noise levels in dB");
-    }
-    Ok(levels)
+    crate::options::parse_numbers(text)
+        .with_context(|| format!("--sweep {text:?}: expected comma-separated noise levels in dB"))
 }
 
 /// Runs `pcuvd paper`.
