@@ -58,6 +58,7 @@ pub fn map_panel(
         background: None,
         arrows: None,
         lines: vec![],
+        axes: None,
     }
 }
 

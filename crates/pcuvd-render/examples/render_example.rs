@@ -80,6 +80,7 @@ fn main() -> Result<(), RenderError> {
             dashed: true,
             rgb: (0, 200, 0),
         }],
+        axes: None,
     };
 
     let r: Vec<f64> = (0..=20).map(|k| -3.0 + 0.3 * k as f64).collect();

@@ -1,4 +1,5 @@
-//! Image panels: letterboxed map in mm, colour bar, mask/underlay, vector glyphs, polylines.
+//! Image panels: letterboxed map in mm (or a filled/upward plot with custom axes),
+//! colour bar, mask/underlay, vector glyphs, polylines.
 
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
 use crate::colormap::{Lut, colormap_rgb};
@@ -14,8 +15,10 @@ pub(crate) struct ImageLayout {
     plot: Rect,
     /// Colour-bar rectangle, integer-aligned.
     cbar: Rect,
-    /// Image edges in mm: (x_lo, x_hi, z_lo, z_hi); z_lo is drawn at the top.
+    /// Image edges in mm: (x_lo, x_hi, z_lo, z_hi); z_lo is drawn at the top unless `y_up`.
     ext: (f64, f64, f64, f64),
+    /// z_hi is drawn at the top (plot-style vertical axis).
+    y_up: bool,
     xt: Vec<Tick>,
     zt: Vec<Tick>,
     ct: Vec<Tick>,
@@ -30,9 +33,13 @@ impl ImageLayout {
     }
     fn px_z(&self, z_mm: f64) -> f64 {
         let (_, _, z0, z1) = self.ext;
-        self.plot.y0 + (z_mm - z0) / (z1 - z0) * self.plot.h()
+        if self.y_up {
+            self.plot.y1 - (z_mm - z0) / (z1 - z0) * self.plot.h()
+        } else {
+            self.plot.y0 + (z_mm - z0) / (z1 - z0) * self.plot.h()
+        }
     }
-    /// Supersampled pixels per mm (equal on both axes).
+    /// Supersampled pixels per mm (horizontal units; equal on both axes unless filled).
     fn px_per_mm(&self) -> f64 {
         self.plot.w() / (self.ext.1 - self.ext.0)
     }
@@ -211,11 +218,21 @@ pub(crate) fn layout(
             "panel too small for its labels".into(),
         ));
     }
-    let s = (aw / w_mm).min(ah / h_mm);
+    let (y_up, fill) = ip
+        .axes
+        .as_ref()
+        .map_or((false, false), |a| (a.y_up, a.fill));
     // Snap to whole output pixels so edges and frames stay crisp after downsampling.
-    let (pw, ph) = (snap((w_mm * s).max(2.0)), snap((h_mm * s).max(2.0)));
-    let px0 = snap(ax0 + (aw - pw) / 2.0);
-    let py0 = snap(ay0 + (ah - ph) / 2.0);
+    let (px0, py0, pw, ph) = if fill {
+        let (px0, py0) = (snap(ax0), snap(ay0));
+        (px0, py0, snap(ax1) - px0, snap(ay1) - py0)
+    } else {
+        let s = (aw / w_mm).min(ah / h_mm);
+        let (pw, ph) = (snap((w_mm * s).max(2.0)), snap((h_mm * s).max(2.0)));
+        let px0 = snap(ax0 + (aw - pw) / 2.0);
+        let py0 = snap(ay0 + (ah - ph) / 2.0);
+        (px0, py0, pw, ph)
+    };
     let plot = Rect::new(px0, py0, pw, ph);
     // The colour bar spans the image height, but at least ~150 px (within the free area).
     let cb_h = snap(ph.max(st.px(150.0).min(ah)));
@@ -237,6 +254,7 @@ pub(crate) fn layout(
         plot,
         cbar,
         ext,
+        y_up,
         xt,
         zt,
         ct,
@@ -264,7 +282,11 @@ pub(crate) fn fill(ip: &ImagePanel, l: &ImageLayout, buf: &mut [u8], buf_w: usiz
             .collect()
     };
     let cols = index(nx, ip.x_mm, l.ext.0, l.ext.1, pw);
-    let rows = index(nz, ip.z_mm, l.ext.2, l.ext.3, ph);
+    let mut rows = index(nz, ip.z_mm, l.ext.2, l.ext.3, ph);
+    if l.y_up {
+        // Screen row 0 shows the largest coordinate.
+        rows.reverse();
+    }
     let mut row_rgb = vec![0u8; pw * 3];
     for (py, &r) in rows.iter().enumerate() {
         for (px, &c) in cols.iter().enumerate() {
@@ -355,8 +377,11 @@ pub(crate) fn draw(
             false,
         )?;
     }
+    let (x_label, y_label) = ip.axes.as_ref().map_or(("x (mm)", "z (mm)"), |a| {
+        (a.x_label.as_str(), a.y_label.as_str())
+    });
     c.text(
-        "x (mm)",
+        x_label,
         (plot.x0 + plot.x1) / 2.0,
         plot.y1 + tick_len + gap + ts * 0.8 + st.px(8.0),
         ls,
@@ -366,7 +391,7 @@ pub(crate) fn draw(
         false,
     )?;
 
-    // z axis (depth downward).
+    // z axis (depth downward, or upward with `y_up`).
     for t in &l.zt {
         let y = l.px_z(t.value);
         c.polyline(&[(plot.x0 - tick_len, y), (plot.x0, y)], INK, 1.0, lw)?;
@@ -382,7 +407,7 @@ pub(crate) fn draw(
         )?;
     }
     c.text(
-        "z (mm)",
+        y_label,
         plot.x0 - tick_len - gap - l.zt_w - st.px(5.0) - ls * 0.4,
         (plot.y0 + plot.y1) / 2.0,
         ls,
@@ -469,6 +494,7 @@ fn draw_glyphs(
             continue;
         }
         let (ux, uz) = (vx / speed, vz / speed);
+        let uz = if l.y_up { -uz } else { uz };
         let (nx, nz) = (-uz, ux);
         let half_w = (0.17 * len).max(st.px(0.9));
         let (cx, cz) = (l.px_x(x), l.px_z(z));

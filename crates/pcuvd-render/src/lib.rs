@@ -68,9 +68,10 @@ pub struct ImagePanel {
     pub title: String,
     /// Values, shape (nz, nx): row = depth index, column = lateral index.
     pub data: ndarray::Array2<f64>,
-    /// Lateral positions (mm) of the first and last column centres.
+    /// Lateral positions (mm) of the first and last column centres (data units with `axes`).
     pub x_mm: (f64, f64),
-    /// Depth positions (mm) of the first and last row centres; depth increases downward.
+    /// Depth positions (mm) of the first and last row centres; depth increases downward
+    /// (data units with `axes`, drawn upward when `y_up`).
     pub z_mm: (f64, f64),
     /// Colour map used for `data`.
     pub colormap: Colormap,
@@ -86,6 +87,25 @@ pub struct ImagePanel {
     pub arrows: Option<VectorOverlay>,
     /// Lines (in mm) drawn over the image, e.g. a profile line.
     pub lines: Vec<Polyline>,
+    /// Non-spatial axes; None = a depth map in mm (x right, z down, equal aspect).
+    pub axes: Option<ImageAxes>,
+}
+
+/// Axes of an image that is not a depth map (e.g. a spectrogram: time × velocity).
+///
+/// With `ImagePanel::axes = Some(..)`, the panel's `x_mm` / `z_mm` hold the
+/// horizontal / vertical coordinates of the first and last column / row
+/// centres in data units, and overlays (`lines`, `arrows`) use the same units.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImageAxes {
+    /// Label under the horizontal axis, e.g. "time (ms)".
+    pub x_label: String,
+    /// Label beside the vertical axis, e.g. "velocity (mm/s)".
+    pub y_label: String,
+    /// Larger vertical values drawn higher (plots), instead of lower (depth maps).
+    pub y_up: bool,
+    /// Stretch the image to fill the panel instead of keeping equal units on both axes.
+    pub fill: bool,
 }
 
 /// Velocity vectors drawn as slender triangles pointing along (vx, vz), coloured by speed.
@@ -97,9 +117,10 @@ pub struct VectorOverlay {
     pub z_mm: Vec<f64>,
     /// Lateral velocity components (caller units, e.g. mm/s); positive points right.
     pub vx: Vec<f64>,
-    /// Axial velocity components (caller units); positive points down (deeper).
+    /// Axial velocity components (caller units); positive points toward larger z
+    /// (down, deeper; up when the panel's axes have `y_up`).
     pub vz: Vec<f64>,
-    /// Glyph length in mm at speed == `speed_range.1` (longer speeds are clamped to it).
+    /// Glyph length in mm (horizontal-axis units) at speed == `speed_range.1` (longer speeds are clamped to it).
     pub scale_mm: f64,
     /// Colour map for speed.
     pub colormap: Colormap,

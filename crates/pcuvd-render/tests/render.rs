@@ -591,3 +591,148 @@ fn report_embeds_rendered_png() {
     assert!(html.contains("<figcaption>Figure &lt;1&gt;</figcaption>"));
     assert_eq!(html.matches("<tr><td>").count(), 2);
 }
+
+/// A spectrogram-like panel: 40 time columns (0..390 ms), 20 velocity rows
+/// (-950..950 mm/s, i.e. edges at ±1000); the row with the largest velocity is
+/// +1 (red), every other row -1 (blue).
+fn spectrogram_panel(y_up: bool, fill: bool, lines: Vec<Polyline>) -> ImagePanel {
+    let (nv, nt) = (20, 40);
+    let mut data = Array2::<f64>::from_elem((nv, nt), -1.0);
+    data.row_mut(nv - 1).fill(1.0);
+    ImagePanel {
+        title: "spectrogram".into(),
+        data,
+        x_mm: (0.0, 390.0),
+        z_mm: (-950.0, 950.0),
+        colormap: Colormap::RedBlue,
+        range: (-1.0, 1.0),
+        colorbar_label: "dB".into(),
+        lines,
+        axes: Some(ImageAxes {
+            x_label: "time (ms)".into(),
+            y_label: "velocity (mm/s)".into(),
+            y_up,
+            fill,
+        }),
+        ..Default::default()
+    }
+}
+
+fn rgb_img(fig: &Figure) -> Img {
+    let (w, h, rgb) = render_rgb(fig).unwrap();
+    Img {
+        w: w as usize,
+        h: h as usize,
+        rgb,
+    }
+}
+
+/// Bounding boxes (inclusive, output pixels) of the red (top data row) and blue
+/// (all other rows) regions of a rendered `spectrogram_panel`.
+type Bbox = (usize, usize, usize, usize);
+fn red_blue_boxes(img: &Img) -> (Bbox, Bbox) {
+    let red = colormap_rgb(Colormap::RedBlue, 1.0);
+    let blue = colormap_rgb(Colormap::RedBlue, 0.0);
+    let r = bbox(img, |p| p == red).expect("no red row");
+    let b = bbox(img, |p| p == blue).expect("no blue area");
+    (r, b)
+}
+
+#[test]
+fn spectrogram_y_up_puts_largest_velocity_on_top() {
+    let img = rgb_img(&figure(
+        vec![Panel::Image(spectrogram_panel(true, true, vec![]))],
+        1,
+        "",
+    ));
+    let ((rx0, ry0, rx1, ry1), (bx0, by0, bx1, by1)) = red_blue_boxes(&img);
+    // The red row is directly above the blue area (at most one blended pixel row
+    // between them), spanning the same columns.
+    assert_eq!((rx0, rx1), (bx0, bx1), "red and blue columns differ");
+    assert!(
+        ry1 < by0 && by0 - ry1 <= 2,
+        "red {ry0}..{ry1} not just above blue {by0}..{by1}"
+    );
+    // It is one of 20 rows: about a twentieth of the plot height, at its top.
+    let plot_h = (by1 - ry0 + 1) as f64;
+    let red_h = (ry1 - ry0 + 1) as f64;
+    assert!(
+        (red_h - plot_h / 20.0).abs() <= 1.5,
+        "red row {red_h} px of {plot_h}"
+    );
+
+    // Without y_up the same row is drawn at the bottom (depth-map convention).
+    let img = rgb_img(&figure(
+        vec![Panel::Image(spectrogram_panel(false, true, vec![]))],
+        1,
+        "",
+    ));
+    let ((_, ry0, _, _), (_, _, _, by1)) = red_blue_boxes(&img);
+    assert!(
+        ry0 > by1,
+        "without y_up the red row should be below the blue area"
+    );
+}
+
+#[test]
+fn spectrogram_fill_uses_the_whole_axes_area() {
+    let plot_box = |fill: bool| {
+        let img = rgb_img(&figure(
+            vec![Panel::Image(spectrogram_panel(true, fill, vec![]))],
+            1,
+            "",
+        ));
+        let ((rx0, ry0, rx1, _), (bx0, _, bx1, by1)) = red_blue_boxes(&img);
+        assert_eq!((rx0, rx1), (bx0, bx1));
+        ((bx1 - bx0 + 1) as f64, (by1 - ry0 + 1) as f64)
+    };
+    // Extent 400 ms x 2000 mm/s: at equal aspect the image is 5x taller than wide.
+    let (ew, eh) = plot_box(false);
+    assert!((eh / ew - 5.0).abs() < 0.2, "equal aspect {ew}x{eh}");
+    let (fw, fh) = plot_box(true);
+    assert!(
+        fh >= eh - 1.0,
+        "filled height {fh} < equal-aspect height {eh}"
+    );
+    assert!(
+        fw > 3.0 * ew,
+        "filled width {fw} not much wider than equal-aspect {ew}"
+    );
+    // Filled: wider than tall in a 400x360 cell, and most of the cell.
+    assert!(fw > fh && fw > 0.6 * 400.0 && fh > 0.6 * 360.0, "{fw}x{fh}");
+}
+
+#[test]
+fn spectrogram_polyline_follows_the_upward_axis() {
+    // A horizontal line at +500 mm/s: a quarter of the way down from the top
+    // edge (+1000) to the bottom edge (-1000).
+    let line = Polyline {
+        x_mm: vec![-100.0, 500.0],
+        z_mm: vec![500.0, 500.0],
+        dashed: false,
+        rgb: (0, 255, 0),
+    };
+    let img = rgb_img(&figure(
+        vec![Panel::Image(spectrogram_panel(true, true, vec![line]))],
+        1,
+        "",
+    ));
+    let ((_, ry0, _, _), (bx0, _, bx1, by1)) = red_blue_boxes(&img);
+    let (top, bottom) = (ry0 as f64, (by1 + 1) as f64);
+    let expected = top + 0.25 * (bottom - top);
+    let x = (bx0 + bx1) / 2;
+    // Green-weighted centroid of the line in the middle column.
+    let (mut acc, mut wsum) = (0.0, 0.0);
+    for y in ry0..=by1 {
+        let p = img.px(x, y);
+        let w = (p.1 as f64 - p.0.max(p.2) as f64).max(0.0);
+        acc += w * (y as f64 + 0.5);
+        wsum += w;
+    }
+    assert!(wsum > 100.0, "no green line found in column {x}");
+    let got = acc / wsum;
+    assert!(
+        (got - expected).abs() < 1.0,
+        "line at row {got:.2}, expected {expected:.2} (plot {top}..{bottom})"
+    );
+}
