@@ -5,7 +5,9 @@
 use num_complex::Complex64;
 use pcuvd::beamform::{DasParams, Grid, beamform};
 use pcuvd::decode::decode;
-use pcuvd::doppler::{autocorrelation, velocity_scale};
+use pcuvd::doppler::{
+    AxialSampling, autocorrelation, axial_autocorrelation, loupas_velocity, velocity_scale,
+};
 use pcuvd::phantom::{BlockPhantom, BlockSpec, Phantom, PointPhantom};
 use pcuvd::simulate::{SimParams, simulate};
 use pcuvd::{Coding, Probe, Sequence, iq};
@@ -99,32 +101,44 @@ fn simulated_point_beamforms_back_to_its_position() {
     }
 }
 
-/// Issue target: every projection within 3 %. Measured (F# 3, no attenuation, seed 5): ratios 0.98
-/// at −12°, 0.95 at 0°, 0.944 at +12°, the same for all four directions of motion; other seeds move
-/// them by ±1.5 % around a ≈ 4 % underestimate not yet explained. Kept as the target, ignored.
+/// Every projection within 3 % with the Loupas 2-D autocorrelation, which divides the lag-1 phase by
+/// the mean RF frequency measured on the image itself, on three consecutive seeds. Measured (F# 3,
+/// no attenuation): ratios 0.974–1.017 over seeds 1–3, 0.974–1.020 over seeds 1–12.
 #[test]
-#[ignore = "known: projections about 4 % low, see the note on issue 3"]
 fn translating_block_projections_within_three_percent() {
-    block_projections(0.03);
+    for seed in 1..=3 {
+        block_projections(seed, Estimator::Loupas, 0.03);
+    }
 }
 
-/// What holds today: the right sign in all four directions, magnitudes within 6 %.
+/// The lag-1 estimator scaled by f_0 reads low: in a 2-D image of diffuse scatterers each echo
+/// frequency f counts in proportion to its lateral beam width (∝ 1/f), so the image's mean frequency
+/// is the harmonic mean of the echo spectrum, 0.969 f_0 here, and it varies ±2–3 % with the speckle.
+/// Measured ratios 0.94–1.02 (seeds 1–12). What holds: the right sign everywhere, within 7 %.
 #[test]
 fn translating_block_gives_projection_velocities_in_all_four_directions() {
-    block_projections(0.06);
+    block_projections(5, Estimator::Lag1, 0.07);
 }
 
-fn block_projections(tolerance: f64) {
+#[derive(Debug, Clone, Copy)]
+enum Estimator {
+    /// arg R(0, 1) scaled by f_0 (Kasai).
+    Lag1,
+    /// arg R(0, 1) scaled by the mean frequency from R(1, 0) (Loupas).
+    Loupas,
+}
+
+fn block_projections(seed: u64, estimator: Estimator, tolerance: f64) {
     let angles = [-12.0f64, 0.0, 12.0];
     let p = params(&angles, Coding::Conventional, 64);
     let frames = 12;
     let grid = Grid::new(-0.8e-3, 0.8e-3, 5.4e-3, 6.6e-3, 0.05e-3).unwrap();
-    let scale = velocity_scale(
+    let (c, frame_rate, f0) = (
         p.sound_speed,
         p.sequence.frame_rate(),
         p.probe.center_frequency,
-    )
-    .unwrap();
+    );
+    let scale = velocity_scale(c, frame_rate, f0).unwrap();
     for velocity in [
         [0.012, 0.008],
         [-0.012, 0.008],
@@ -138,23 +152,35 @@ fn block_projections(tolerance: f64) {
                 velocity,
                 density: 200e6,
             },
-            5,
+            seed,
         )
         .unwrap();
         // The model 2·V_θ = Vx·sin θ + Vz·(cos θ + 1) assumes a straight receive path; a receive
         // aperture of half-angle φ scales the receive part by the mean cos φ (≈ 0.98 at F# 1.5,
         // which alone takes 2 % off). F# 3 keeps the model error well inside the 3 % tolerance.
         for (k, image) in images(&block, &p, frames, &grid, 3.0).iter().enumerate() {
-            // Lag-1 autocorrelation summed over the block's interior: one robust phase per angle.
+            // Autocorrelations summed over the block's interior: one robust phase per angle.
             let ac = autocorrelation(image.view(), (1, 1)).unwrap();
             let r: Complex64 = ac.r1.iter().sum();
-            let measured = -scale * r.arg();
             let theta = angles[k].to_radians();
+            let measured = match estimator {
+                Estimator::Lag1 => -scale * r.arg(),
+                Estimator::Loupas => {
+                    let ra: Complex64 = axial_autocorrelation(image.view(), (1, 1))
+                        .unwrap()
+                        .iter()
+                        .sum();
+                    let axial = AxialSampling::new(grid.z[1] - grid.z[0], theta, c, f0).unwrap();
+                    loupas_velocity(r, ra, c, frame_rate, &axial)
+                }
+            };
             let expected = 0.5 * (velocity[0] * theta.sin() + velocity[1] * (theta.cos() + 1.0));
             assert!(
                 (measured - expected).abs() < tolerance * expected.abs(),
-                "v = {velocity:?}, angle {}°: V_θ {measured:.5} m/s, expected {expected:.5}",
-                angles[k]
+                "seed {seed}, {estimator:?}, v = {velocity:?}, angle {}°: V_θ {measured:.5} m/s, \
+                 expected {expected:.5} (ratio {:.4})",
+                angles[k],
+                measured / expected
             );
         }
     }
