@@ -18,6 +18,7 @@ pub mod error;
 pub mod geometry;
 pub mod hadamard;
 pub mod iq;
+pub mod network;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;

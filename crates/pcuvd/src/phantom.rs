@@ -83,15 +83,15 @@ pub trait Phantom: Sync {
     }
 }
 
-fn rng(seed: u64) -> ChaCha8Rng {
+pub(crate) fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }
 
-fn normal_amplitudes(rng: &mut ChaCha8Rng, n: usize) -> Vec<f64> {
+pub(crate) fn normal_amplitudes(rng: &mut ChaCha8Rng, n: usize) -> Vec<f64> {
     (0..n).map(|_| StandardNormal.sample(rng)).collect()
 }
 
-fn require_finite(name: &str, v: f64) -> Result<()> {
+pub(crate) fn require_finite(name: &str, v: f64) -> Result<()> {
     if v.is_finite() {
         Ok(())
     } else {
@@ -100,7 +100,7 @@ fn require_finite(name: &str, v: f64) -> Result<()> {
 }
 
 /// Scatterer count for `density` (1/m²) over `area` (m²), checked against [`MAX_SCATTERERS`].
-fn scatterer_count(density: f64, area: f64) -> Result<usize> {
+pub(crate) fn scatterer_count(density: f64, area: f64) -> Result<usize> {
     require_positive("scatterer density", density)?;
     let n = (density * area).round();
     if !n.is_finite() || n > MAX_SCATTERERS as f64 {
@@ -117,7 +117,7 @@ fn scatterer_count(density: f64, area: f64) -> Result<usize> {
 
 /// Parabolic (laminar) profile: peak·(1 − (l/R)²) for |l| ≤ R, 0 outside (m/s).
 #[inline]
-fn parabolic(peak: f64, l: f64, radius: f64) -> f64 {
+pub(crate) fn parabolic(peak: f64, l: f64, radius: f64) -> f64 {
     let q = l / radius;
     if q.abs() <= 1.0 {
         peak * (1.0 - q * q)
