@@ -5,9 +5,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use ndarray::{Array2, Zip};
 use pcuvd::beamform::Grid;
+use pcuvd::dynamics::{ARTERIOLE, DynamicsParams, RiMaps, VENULE, VelocitySeries};
 use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;
-use pcuvd_render::{Colormap, Figure, ImagePanel, Panel, VectorOverlay, render_png};
+use pcuvd_render::{
+    Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Series, SeriesStyle, VectorOverlay,
+    render_png,
+};
 
 /// Pixels whose power is below this (dB under the strong reference) are shown as B-mode, not flow.
 pub const FLOW_MASK_DB: f64 = -25.0;
@@ -226,4 +230,122 @@ pub fn vector_panel(
     panel.mask = Some(Array2::from_elem(mask.dim(), false));
     panel.background = Some(background.clone());
     Panel::Image(panel)
+}
+
+/// A class map for display: +PSV (mm/s) where the flow goes up, −PSV where it goes down, NaN
+/// elsewhere (red up, blue down, as in the paper's Fig. 8c–d).
+pub fn class_map(
+    psv: &Array2<f64>,
+    class: &Array2<u8>,
+    up: &Array2<bool>,
+    which: u8,
+) -> Array2<f64> {
+    Zip::from(psv).and(class).and(up).map_collect(|&p, &c, &u| {
+        if c == which && p.is_finite() {
+            if u { p * 1e3 } else { -p * 1e3 }
+        } else {
+            f64::NAN
+        }
+    })
+}
+
+/// A map panel showing `data` where it is finite, black elsewhere.
+pub fn finite_panel(
+    title: &str,
+    data: Array2<f64>,
+    grid: &Grid,
+    colormap: Colormap,
+    range: (f64, f64),
+    label: &str,
+) -> Panel {
+    let mask = data.mapv(f64::is_finite);
+    let mut panel = map_panel(title, data, grid, colormap, range, label);
+    panel.mask = Some(mask);
+    panel.background = Some(Array2::zeros(grid.shape()));
+    Panel::Image(panel)
+}
+
+/// `ri.png` (RI map, arteriole and venule maps) and `waveform.png` (mean vessel speed over time
+/// with the cardiac cycles used) of the dynamics stage.
+pub fn dynamics_figures(
+    dir: &Path,
+    maps: &RiMaps,
+    series: &VelocitySeries,
+    params: &DynamicsParams,
+    grid: &Grid,
+    name: &str,
+) -> Result<Vec<PathBuf>> {
+    let vmax = quantile(maps.psv.iter().map(|v| v * 1e3), 0.95).max(1e-6);
+    let panels = vec![
+        finite_panel(
+            "Resistivity index (PSV − EDV)/PSV",
+            maps.ri.clone(),
+            grid,
+            Colormap::Viridis,
+            (0.0, 1.0),
+            "RI",
+        ),
+        finite_panel(
+            &format!("Arterioles (RI ≥ {})", params.artery_ri_min),
+            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, ARTERIOLE),
+            grid,
+            Colormap::RedBlue,
+            (-vmax, vmax),
+            "PSV (mm/s), red up, blue down",
+        ),
+        finite_panel(
+            &format!("Venules (RI ≤ {})", params.vein_ri_max),
+            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, VENULE),
+            grid,
+            Colormap::RedBlue,
+            (-vmax, vmax),
+            "PSV (mm/s), red up, blue down",
+        ),
+    ];
+    let mut written = vec![save(
+        &dir.join("ri.png"),
+        &format!(
+            "{name}: resistivity index, heart rate {:.2} Hz",
+            maps.heart_rate_hz
+        ),
+        panels,
+        3,
+    )?];
+    let mask = series.vessel_mask(params.min_power_db);
+    let mean: Vec<f64> = series.mean_speed(&mask).iter().map(|v| v * 1e3).collect();
+    let t_ms: Vec<f64> = series.times_s.iter().map(|t| t * 1e3).collect();
+    let markers = maps
+        .cycles
+        .iter()
+        .flat_map(|&(start, end)| [start, end - 1])
+        .map(|k| Marker {
+            x: t_ms[k],
+            y: mean[k],
+            label: String::new(),
+            rgb: (214, 39, 40),
+        })
+        .collect();
+    let plot = PlotPanel {
+        title: "Mean speed over vessel pixels (red marks: first and last window of each cycle)"
+            .into(),
+        x_label: "time (ms)".into(),
+        y_label: "speed (mm/s)".into(),
+        series: vec![Series {
+            label: "mean vessel speed".into(),
+            x: t_ms,
+            y: mean,
+            y_err: None,
+            style: SeriesStyle::LinePoints,
+            rgb: Some((31, 119, 180)),
+        }],
+        markers,
+        ..Default::default()
+    };
+    written.push(save(
+        &dir.join("waveform.png"),
+        &format!("{name}: cardiac waveform"),
+        vec![Panel::Plot(plot)],
+        1,
+    )?);
+    Ok(written)
 }

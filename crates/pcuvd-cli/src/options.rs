@@ -5,8 +5,9 @@ use clap::Args;
 use pcuvd::ChannelData;
 use pcuvd::beamform::{Apodization, DasParams, Grid};
 use pcuvd::clutter::{ClutterParams, RankCut};
+use pcuvd::dynamics::DynamicsParams;
 use pcuvd::pipeline::{self, ProcessParams};
-use pcuvd::vector::IrlsParams;
+use pcuvd::vector::{Estimator, IrlsParams};
 
 /// Processing options (grid, beamforming, clutter filter, Doppler, IRLS).
 #[derive(Args, Debug, Clone)]
@@ -93,6 +94,102 @@ pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
         bail!("--doppler-kernel {text:?}: expected ROWSxCOLS, e.g. 3x3");
     };
     Ok((rows, cols))
+}
+
+/// Whether `pcuvd process` runs the dynamics stage (cardiac cycle, PSV/EDV/RI maps).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DynamicsChoice {
+    /// When the recording holds a cardiac cycle and several angles; otherwise skipped with a note.
+    Auto,
+    /// Always: a recording that cannot give RI maps is an error.
+    On,
+    /// Never.
+    Off,
+}
+
+/// Options of the dynamics stage of `pcuvd process`.
+#[derive(Args, Debug, Clone)]
+pub struct DynamicsOptions {
+    /// Sliding-window vector velocity, PSV/EDV/RI and artery/vein maps: "auto" (when the recording
+    /// holds a cardiac cycle), "on" (required) or "off".
+    #[arg(long, value_enum, default_value = "auto")]
+    pub dynamics: DynamicsChoice,
+    /// Heart rate (Hz); default: measured from the data, which needs about 1.5 cycles or more.
+    #[arg(long)]
+    pub heart_rate: Option<f64>,
+    /// Sliding-window length (ms); default 20 ms (36 frames at the rat's 1.8 kHz).
+    #[arg(long)]
+    pub window_ms: Option<f64>,
+    /// Time between window starts (ms); default 5 ms.
+    #[arg(long)]
+    pub window_step_ms: Option<f64>,
+    /// Smallest RI of an arteriole (paper: arterioles 0.55–0.9).
+    #[arg(long, default_value_t = 0.55)]
+    pub artery_ri_min: f64,
+    /// Largest RI of a venule (paper: below 0.5).
+    #[arg(long, default_value_t = 0.5)]
+    pub vein_ri_max: f64,
+    /// Vessel threshold for the RI maps (dB re. the brightest pixel's mean power).
+    #[arg(long, default_value_t = -30.0, allow_hyphen_values = true)]
+    pub vessel_threshold_db: f64,
+    /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
+    /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
+    /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
+    #[arg(long, default_value = "5x5")]
+    pub dynamics_kernel: String,
+}
+
+impl DynamicsOptions {
+    /// True when the user set any dynamics setting (then a recording that cannot honour it is an
+    /// error even with `--dynamics auto`).
+    pub fn explicit(&self) -> bool {
+        self.dynamics == DynamicsChoice::On
+            || self.heart_rate.is_some()
+            || self.window_ms.is_some()
+            || self.window_step_ms.is_some()
+    }
+
+    /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
+    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls`, the averaging kernel of
+    /// `--dynamics-kernel`.
+    pub fn params(&self, frame_rate: f64, irls: IrlsParams) -> Result<DynamicsParams> {
+        let kernel = parse_kernel(&self.dynamics_kernel)
+            .map_err(|e| anyhow::anyhow!("{e}").context("--dynamics-kernel"))?;
+        let frames = |ms: f64, option: &str| -> Result<usize> {
+            if !(ms.is_finite() && ms > 0.0) {
+                bail!("--{option} {ms}: must be a positive number of ms");
+            }
+            Ok((ms * 1e-3 * frame_rate).round() as usize)
+        };
+        let window = frames(self.window_ms.unwrap_or(20.0), "window-ms")?;
+        if window < 2 {
+            bail!(
+                "--window-ms {}: {window} frame(s) at the compound rate {frame_rate:.0} Hz; a window needs at least 2",
+                self.window_ms.unwrap_or(20.0)
+            );
+        }
+        let step = frames(self.window_step_ms.unwrap_or(5.0), "window-step-ms")?.max(1);
+        if let Some(hr) = self.heart_rate
+            && !(hr.is_finite() && hr > 0.0)
+        {
+            bail!("--heart-rate {hr}: must be a positive number of Hz");
+        }
+        let params = DynamicsParams {
+            window,
+            step,
+            heart_rate_hz: self.heart_rate,
+            estimator: Estimator::Irls(irls),
+            kernel,
+            artery_ri_min: self.artery_ri_min,
+            vein_ri_max: self.vein_ri_max,
+            min_power_db: self.vessel_threshold_db,
+            ..DynamicsParams::rat()
+        };
+        params
+            .validate_thresholds()
+            .context("--artery-ri-min / --vein-ri-max / --vessel-threshold-db")?;
+        Ok(params)
+    }
 }
 
 impl ProcessingOptions {

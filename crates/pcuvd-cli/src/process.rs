@@ -6,11 +6,12 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ndarray::Array1;
 use pcuvd::ChannelData;
+use pcuvd::dynamics::{self, RiMaps, VelocitySeries};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde_json::json;
 
 use crate::figures;
-use crate::options::ProcessingOptions;
+use crate::options::{DynamicsChoice, DynamicsOptions, ProcessingOptions};
 use crate::progress::PipelineProgress;
 
 /// Arguments of `pcuvd process`.
@@ -23,6 +24,8 @@ pub struct ProcessArgs {
     pub out: PathBuf,
     #[command(flatten)]
     pub options: ProcessingOptions,
+    #[command(flatten)]
+    pub dynamics: DynamicsOptions,
 }
 
 /// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest).
@@ -57,7 +60,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    let summary = write_outputs(
+    let mut summary = write_outputs(
         &args.out,
         &data,
         &params,
@@ -69,7 +72,11 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let pngs = figures::process_figures(&args.out, &out, &name)?;
+    let mut pngs = figures::process_figures(&args.out, &out, &name)?;
+    let (dynamics, mut dynamic_pngs) = run_dynamics(args, &data, &params, &out, &name)?;
+    pngs.append(&mut dynamic_pngs);
+    summary["dynamics"] = dynamics;
+    pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
     println!(
         "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
         args.input.display(),
@@ -85,8 +92,97 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         pngs.len(),
         args.out.display()
     );
-    let _ = summary;
     Ok(())
+}
+
+/// The dynamics stage of `pcuvd process`: sliding-window vectors, PSV/EDV/RI maps and classes,
+/// written as .npy and figures. Returns its summary.json entry and the figures written. With
+/// `--dynamics auto` and no dynamics setting given, a recording that cannot give RI maps (too
+/// short, one angle) is skipped with a note; otherwise that is an error.
+fn run_dynamics(
+    args: &ProcessArgs,
+    data: &ChannelData,
+    params: &ProcessParams,
+    out: &ProcessOutput,
+    name: &str,
+) -> Result<(serde_json::Value, Vec<PathBuf>)> {
+    let options = &args.dynamics;
+    if options.dynamics == DynamicsChoice::Off {
+        return Ok((json!({ "skipped": "--dynamics off" }), vec![]));
+    }
+    let acq = &data.acquisition;
+    let frame_rate = acq.frame_rate();
+    let dparams = options.params(frame_rate, params.irls)?;
+    let attempt = || -> Result<(VelocitySeries, RiMaps)> {
+        if acq.sequence.n_angles() < 2 {
+            bail!("vector velocity needs two or more steering angles; the recording has one");
+        }
+        dparams.validate(frame_rate)?;
+        let series = dynamics::sliding_vectors(
+            &out.filtered,
+            &acq.sequence.angles,
+            frame_rate,
+            acq.sound_speed,
+            acq.probe.center_frequency,
+            &dparams,
+        )?;
+        let maps = dynamics::ri_maps(&series, &dparams)?;
+        Ok((series, maps))
+    };
+    let (series, maps) = match attempt() {
+        Ok(result) => result,
+        Err(e) if !options.explicit() => {
+            let reason = format!("{e:#}");
+            eprintln!("note: no RI maps: {reason} (use --dynamics off to silence this)");
+            return Ok((json!({ "skipped": reason }), vec![]));
+        }
+        Err(e) => {
+            return Err(e.context(format!("{}: dynamics (RI maps)", args.input.display())));
+        }
+    };
+    let dir = &args.out;
+    npy(dir, "ri.npy", &maps.ri)?;
+    npy(dir, "psv.npy", &maps.psv)?;
+    npy(dir, "edv.npy", &maps.edv)?;
+    pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
+    pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
+    pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
+    pcuvd_io::write_npy(
+        &dir.join("times.npy"),
+        &Array1::from(series.times_s.clone()),
+    )?;
+    let pngs = figures::dynamics_figures(dir, &maps, &series, &dparams, &out.grid, name)?;
+    let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
+    let summary = json!({
+        "heart_rate_hz": maps.heart_rate_hz,
+        "heart_rate_given": dparams.heart_rate_hz.is_some(),
+        "window_frames": dparams.window,
+        "step_frames": dparams.step,
+        "window_s": series.window_s,
+        "step_s": series.step_s,
+        "harmonics": dparams.harmonics.unwrap_or_else(|| dynamics::auto_harmonics(maps.heart_rate_hz, series.window_s)),
+        "estimator": "IRLS-WLS (PC-UVD)",
+        "kernel": [dparams.kernel.0, dparams.kernel.1],
+        "artery_ri_min": dparams.artery_ri_min,
+        "vein_ri_max": dparams.vein_ri_max,
+        "vessel_threshold_db": dparams.min_power_db,
+        "cycles_windows": maps.cycles,
+        "pixels": {
+            "arteriole": count(dynamics::ARTERIOLE),
+            "venule": count(dynamics::VENULE),
+            "undetermined": count(dynamics::UNDETERMINED),
+        },
+        "class_codes": { "background": dynamics::BACKGROUND, "arteriole": dynamics::ARTERIOLE, "venule": dynamics::VENULE, "undetermined": dynamics::UNDETERMINED },
+    });
+    println!(
+        "RI maps: heart rate {:.2} Hz, {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
+        maps.heart_rate_hz,
+        maps.cycles.len(),
+        count(dynamics::ARTERIOLE),
+        count(dynamics::VENULE),
+        count(dynamics::UNDETERMINED)
+    );
+    Ok((summary, pngs))
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {
