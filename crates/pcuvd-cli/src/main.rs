@@ -1,6 +1,7 @@
 //! `pcuvd`: simulate, process and quantify ultrafast vector Doppler acquisitions.
 
 mod figures;
+mod network_study;
 mod options;
 mod paper;
 mod process;

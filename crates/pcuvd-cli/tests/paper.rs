@@ -14,6 +14,8 @@ fn reduced_paper_study_orders_the_methods() {
     let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
         .args([
             "paper",
+            "--part",
+            "spiral",
             "--frames",
             "12",
             "--grid-step",
@@ -102,6 +104,10 @@ fn paper_rejects_bad_arguments() {
         vec!["--frames", "1"],
         vec!["--sweep", "a,b"],
         vec!["--grid-step", "0"],
+        vec!["--part", "network", "--network-frames", "100"],
+        vec!["--part", "network", "--heart-rate", "0"],
+        vec!["--part", "network", "--heart-rate", "400"],
+        vec!["--part", "network", "--network-noise-db", "inf"],
     ] {
         let out = tempfile::tempdir().unwrap();
         let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
