@@ -10,8 +10,10 @@
 //! Speed: the sum over elements is memory-bound unless blocked. Pixels go in tiles (a z band,
 //! tiles of a band in parallel); within a tile, a group of elements and a run of frames at a time,
 //! so that the samples they need are reused from L2 by all the tile's pixels; the run of frames of
-//! one pixel stays in registers across the group (AVX2 + FMA kernel, software prefetch a few
-//! elements ahead). Delays and weights are computed by a vectorised loop over the elements.
+//! one pixel stays in registers across the group (AVX2 + FMA kernel, two sums per vector so that
+//! the complex products need no shuffle, software prefetch a few elements ahead), and the next
+//! pass's samples are prefetched into L2 while one runs. Delays and weights are computed by a
+//! vectorised loop over the elements, into one flat table per tile and group.
 
 use ndarray::{Array3, ArrayView3, Axis};
 use num_complex::Complex32;
@@ -126,8 +128,11 @@ pub fn beamform(
             probe.n_elements
         )));
     }
-    if n_samples > i32::MAX as usize {
-        return Err(Error::Shape(format!("{n_samples} samples per channel")));
+    // The kernel's tables index rows of frames (channel, sample) in 32 bits.
+    if channels.saturating_mul(n_samples) > i32::MAX as usize {
+        return Err(Error::Shape(format!(
+            "{channels} channels × {n_samples} samples per channel"
+        )));
     }
     let (nz, nx) = grid.shape();
     let mut image = Array3::<Complex32>::zeros((nz, nx, frames));
@@ -153,33 +158,62 @@ pub fn beamform(
                 tiles[ix / TILE_X].push((grid.x[ix], z, pixel));
             }
         }
-        tiles
-            .into_par_iter()
-            .for_each_init(Vec::<Taps>::new, |taps, mut pixels| {
-                taps.resize_with(pixels.len(), || Taps::new(GROUP));
-                // Within a tile, one group of elements and one run of frames at a time: the
-                // samples they need (a few hundred KB) are reused from L2 by all the pixels.
-                for group in (0..channels).step_by(GROUP) {
-                    let elements = group..(group + GROUP).min(channels);
-                    for ((x, z, _), taps) in pixels.iter().zip(taps.iter_mut()) {
-                        setup.taps(*x, *z, elements.clone(), kernel, taps);
-                    }
-                    for frames in &chunks {
-                        for p in 0..pixels.len() {
-                            // The next pixel's first samples are fetched while this one is summed.
-                            let next = (p + 1).min(pixels.len() - 1);
-                            kernel.accumulate(
-                                &mut pixels[p].2[frames.clone()],
-                                frames.start,
-                                data,
-                                &setup,
-                                &taps[p],
-                                &taps[next],
-                            );
+        tiles.into_par_iter().for_each_init(
+            || (Taps::default(), Vec::new()),
+            |(taps, rows), mut pixels| {
+                let extent = |f: fn(&(f64, f64, &mut [Complex32])) -> f64| {
+                    let v = pixels.iter().map(f);
+                    (
+                        v.clone().fold(f64::INFINITY, f64::min),
+                        v.fold(f64::NEG_INFINITY, f64::max),
+                    )
+                };
+                setup.tile_rows(extent(|p| p.0), extent(|p| p.1), rows);
+                // Within a tile, one group of elements and one run of frames at a time (a
+                // pass): the samples they need (a few hundred KB) are reused from L2 by all
+                // the pixels. While a pass runs, the next one's samples are prefetched a few
+                // rows per pixel, so that they come from L2 rather than from memory.
+                let passes: Vec<_> = (0..channels)
+                    .step_by(GROUP)
+                    .flat_map(|g| {
+                        chunks
+                            .iter()
+                            .map(move |f| (g..(g + GROUP).min(channels), f.clone()))
+                    })
+                    .collect();
+                for (i, (elements, frames)) in passes.iter().enumerate() {
+                    if frames.start == 0 {
+                        taps.clear();
+                        for (x, z, _) in pixels.iter() {
+                            setup.taps(*x, *z, elements.clone(), kernel, taps);
                         }
+                        taps.finish();
+                    }
+                    let mut ahead = passes
+                        .get(i + 1)
+                        .map(|(e, f)| Ahead::new(e.clone(), f.clone(), rows))
+                        .unwrap_or_default();
+                    let quota = ahead.rows.div_ceil(pixels.len());
+                    for p in 0..pixels.len() {
+                        ahead.issue(quota, data, &setup, rows);
+                        if taps.spans[p].len == 0 {
+                            continue;
+                        }
+                        // The next pixel's sums are fetched while this one is summed.
+                        let next = pixels[(p + 1).min(pixels.len() - 1)].2[frames.clone()].as_ptr();
+                        kernel.accumulate(
+                            &mut pixels[p].2[frames.clone()],
+                            frames.start,
+                            data,
+                            &setup,
+                            taps,
+                            p,
+                            next,
+                        );
                     }
                 }
-            });
+            },
+        );
     }
     Ok(image)
 }
@@ -225,31 +259,147 @@ struct Setup {
     frames: usize,
 }
 
-/// Delays and weights of one pixel for the elements `first..first + len`: sample index i0 and the
-/// rotated interpolation weights c0, c1 of samples i0 and i0 + 1.
-/// Invariant (checked where filled): 0 ≤ i0 and i0 + 1 < n_samples.
+/// Delays and weights of the pixels of a tile for one group of elements, in flat arrays so that
+/// the kernel runs from one pixel's taps into the next one's: pixel p's taps are
+/// `spans[p].start..spans[p].start + spans[p].len`. Per tap: `rows`, the index
+/// element · n_samples + i0 of its element's row of frames at sample i0, and the rotated
+/// interpolation weights c0, c1 of samples i0 and i0 + 1.
+/// Invariant (by construction where filled): 0 ≤ i0 and i0 + 1 < n_samples; `rows` has `PF`
+/// more entries than there are taps (zeros), so that the kernel may read ahead to prefetch.
+#[derive(Default)]
 struct Taps {
-    first: usize,
-    len: usize,
-    i0: Vec<i32>,
+    spans: Vec<Span>,
+    /// 32 bits (the caller checks that every row index fits) so that the delay loop fills them
+    /// vectorised, along with the weights.
+    rows: Vec<u32>,
     c0_re: Vec<f32>,
     c0_im: Vec<f32>,
     c1_re: Vec<f32>,
     c1_im: Vec<f32>,
 }
 
-impl Taps {
-    fn new(capacity: usize) -> Taps {
-        Taps {
-            first: 0,
-            len: 0,
-            i0: vec![0; capacity],
-            c0_re: vec![0.0; capacity],
-            c0_im: vec![0.0; capacity],
-            c1_re: vec![0.0; capacity],
-            c1_im: vec![0.0; capacity],
+/// The lines of one pass (elements × their rows for a tile × a run of frames), prefetched a
+/// few rows at a time while the previous pass runs.
+#[derive(Default)]
+struct Ahead {
+    elements: std::ops::Range<usize>,
+    frames: std::ops::Range<usize>,
+    /// The next row to prefetch: element `e`, sample `r`.
+    e: usize,
+    r: usize,
+    /// Rows in all.
+    rows: usize,
+}
+
+impl Ahead {
+    fn new(
+        elements: std::ops::Range<usize>,
+        frames: std::ops::Range<usize>,
+        rows: &[(usize, usize)],
+    ) -> Ahead {
+        let total = rows[elements.clone()]
+            .iter()
+            .map(|&(lo, hi)| hi + 1 - lo)
+            .sum();
+        Ahead {
+            e: elements.start,
+            r: rows[elements.start].0,
+            elements,
+            frames,
+            rows: total,
         }
     }
+
+    /// Prefetches the next `n` rows' lines.
+    fn issue(&mut self, n: usize, data: &[Complex32], setup: &Setup, rows: &[(usize, usize)]) {
+        let row = setup.frames;
+        for _ in 0..n {
+            if self.e >= self.elements.end {
+                return;
+            }
+            let start = (self.e * setup.n_samples + self.r) * row;
+            let lines = data[start + self.frames.start..start + self.frames.end].as_ptr_range();
+            let mut a = lines.start.cast::<u8>();
+            while a < lines.end.cast() {
+                prefetch_far(a);
+                a = a.wrapping_add(64);
+            }
+            // The last line, when the run does not start on a line boundary.
+            prefetch_far(lines.end.cast::<u8>().wrapping_sub(1));
+            self.r += 1;
+            if self.r > rows[self.e].1 {
+                self.e += 1;
+                if self.e < self.elements.end {
+                    self.r = rows[self.e].0;
+                }
+            }
+        }
+    }
+}
+
+/// Asks for the line at `a` ahead of its use (a hint: never faults).
+#[inline(always)]
+fn prefetch_far(a: *const u8) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetches never fault, whatever the address; SSE is part of x86_64.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T1 }>(a.cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = a;
+}
+
+/// Where one pixel's taps lie in the arrays of [`Taps`].
+#[derive(Debug, Clone, Copy, Default)]
+struct Span {
+    start: usize,
+    len: usize,
+}
+
+impl Taps {
+    /// Empties the tables, keeping their allocations for the next group.
+    fn clear(&mut self) {
+        self.spans.clear();
+        self.rows.clear();
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.clear();
+        }
+    }
+
+    /// Room for `len` more taps of a new pixel; returns where they start.
+    fn push(&mut self, len: usize) -> usize {
+        let start = self.rows.len();
+        self.spans.push(Span { start, len });
+        let end = start + len;
+        self.rows.resize(end, 0);
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.resize(end, 0.0);
+        }
+        start
+    }
+
+    /// Pads `rows` for the kernel's look-ahead once all pixels are in.
+    fn finish(&mut self) {
+        self.rows.extend([0; PF]);
+    }
+}
+/// One pixel's slices of the [`Taps`] arrays, for the delay loop to fill.
+struct TapsMut<'a> {
+    rows: &'a mut [u32],
+    c0_re: &'a mut [f32],
+    c0_im: &'a mut [f32],
+    c1_re: &'a mut [f32],
+    c1_im: &'a mut [f32],
 }
 
 impl Setup {
@@ -273,8 +423,33 @@ impl Setup {
         }
     }
 
-    /// Fills `taps` for pixel (x, z) and those of `elements` in its aperture. Elements whose echo
-    /// falls outside the record keep zero weights (and a valid sample index): they add nothing.
+    /// Per element, the sample rows (first, last) that pixels in [x0, x1] × [z0, z1] may read,
+    /// clamped to the record: a superset, used only for prefetching. The delay grows with depth
+    /// and is convex in x, so its minimum is at z0 where its x derivative vanishes (or at the
+    /// nearer edge) and its maximum at a corner of depth z1.
+    fn tile_rows(
+        &self,
+        (x0, x1): (f64, f64),
+        (z0, z1): (f64, f64),
+        rows: &mut Vec<(usize, usize)>,
+    ) {
+        let delay = |x: f64, z: f64, xe: f64| {
+            geometry::round_trip_delay(x, z, self.angle, xe, self.aperture, self.c)
+        };
+        let last = self.n_samples - 1;
+        let sample = |tau: f64| ((tau - self.t0) * self.fs).floor().max(0.0) as usize;
+        rows.clear();
+        rows.extend(self.element_x.iter().map(|&xe| {
+            let x_min = (xe - z0 * self.angle.tan()).clamp(x0, x1);
+            let lo = sample(delay(x_min, z0, xe)).min(last - 1);
+            let hi = sample(delay(x0, z1, xe).max(delay(x1, z1, xe))) + 1;
+            (lo, hi.clamp(lo + 1, last))
+        }));
+    }
+
+    /// Appends to `taps` a pixel (x, z) with those of `elements` in its aperture. Elements whose
+    /// echo falls outside the record keep zero weights (and a valid sample index): they add
+    /// nothing.
     fn taps(
         &self,
         x: f64,
@@ -295,42 +470,64 @@ impl Setup {
         } else {
             (elements.start, elements.end)
         };
-        taps.first = first;
-        taps.len = end - first;
+        let len = end - first;
+        let start = taps.push(len);
+        let span = start..start + len;
+        let element_x = &self.element_x[first..end];
+        let out = TapsMut {
+            rows: &mut taps.rows[span.clone()],
+            c0_re: &mut taps.c0_re[span.clone()],
+            c0_im: &mut taps.c0_im[span.clone()],
+            c1_re: &mut taps.c1_re[span.clone()],
+            c1_im: &mut taps.c1_im[span.clone()],
+        };
         match kernel {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Kernel::Avx2` is only constructed after detecting AVX2 and FMA.
-            Kernel::Avx2 => unsafe { self.taps_avx2(x, z, half_aperture, taps) },
-            Kernel::Portable => self.taps_portable(x, z, half_aperture, taps),
+            Kernel::Avx2 => unsafe { self.taps_avx2(x, z, half_aperture, first, element_x, out) },
+            Kernel::Portable => self.taps_portable(x, z, half_aperture, first, element_x, out),
         }
-        let last = self.n_samples - 1;
-        let in_record = taps.i0[..taps.len]
-            .iter()
-            .fold(true, |ok, &i| ok & (i >= 0) & ((i as usize) < last));
-        assert!(in_record, "sample index outside the record");
     }
 
     /// The same code as [`Setup::taps_portable`], compiled for AVX2 so that the element loop is
     /// vectorised four wide in f64.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn taps_avx2(&self, x: f64, z: f64, half_aperture: f64, taps: &mut Taps) {
-        self.taps_portable(x, z, half_aperture, taps)
+    unsafe fn taps_avx2(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
+        self.taps_portable(x, z, half_aperture, first, element_x, out)
     }
 
     /// Branch-free over the elements so that it vectorises: no calls but sqrt and floor.
+    /// `element_x` are the positions of elements `first..`.
     #[inline(always)]
-    fn taps_portable(&self, x: f64, z: f64, half_aperture: f64, taps: &mut Taps) {
+    fn taps_portable(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
         let tx = geometry::transmit_delay(x, z, self.angle, self.aperture, self.c);
         let last = (self.n_samples - 1) as f64;
         let hann = self.apodization == Apodization::Hann;
-        let (first, len) = (taps.first, taps.len);
-        let element_x = &self.element_x[first..first + len];
-        let i0 = &mut taps.i0[..len];
-        let c0_re = &mut taps.c0_re[..len];
-        let c0_im = &mut taps.c0_im[..len];
-        let c1_re = &mut taps.c1_re[..len];
-        let c1_im = &mut taps.c1_im[..len];
+        let len = element_x.len();
+        let rows = &mut out.rows[..len];
+        // Row indices fit in u32 (checked by the caller).
+        let (n_samples, first_row) = (self.n_samples as u32, (first * self.n_samples) as u32);
+        let c0_re = &mut out.c0_re[..len];
+        let c0_im = &mut out.c0_im[..len];
+        let c1_re = &mut out.c1_re[..len];
+        let c1_im = &mut out.c1_im[..len];
         for k in 0..len {
             let xe = element_x[k];
             let dx = (x - xe).abs();
@@ -340,6 +537,9 @@ impl Setup {
             let pos = if valid { pos } else { 0.0 };
             let i = pos as i32;
             let w = pos - i as f64;
+            // A no-op, as 0 ≤ pos < last here (and NaN fails `valid`), which makes the
+            // invariant of `Taps` hold by construction whatever the inputs.
+            let i = i.clamp(0, n_samples as i32 - 2) as u32;
             // Hann: ½(1 + cos(π dx / h)), i.e. the cosine of dx / 2h cycles.
             let apod = if hann {
                 0.5 * (1.0 + cis_cycles(0.5 * dx / half_aperture).0)
@@ -350,7 +550,7 @@ impl Setup {
             let (cos, sin) = cis_cycles(self.demod_frequency * tau);
             let (re, im) = (apod * cos, apod * sin);
             let (w0, w1) = ((1.0 - w) as f32, w as f32);
-            i0[k] = i;
+            rows[k] = first_row + k as u32 * n_samples + i;
             c0_re[k] = re * w0;
             c0_im[k] = im * w0;
             c1_re[k] = re * w1;
@@ -406,8 +606,10 @@ impl Kernel {
         Kernel::Portable
     }
 
-    /// Adds to `out`, frames `f0..f0 + out.len()` of one pixel, Σ over the taps' elements of
-    /// c0·a + c1·b, a and b being the element's frames at samples i0 and i0 + 1.
+    /// Adds to `out`, frames `f0..f0 + out.len()` of pixel `p`, Σ over its taps of c0·a + c1·b,
+    /// a and b being the tap element's frames at samples i0 and i0 + 1. `next` (the next
+    /// pixel's sums) is only prefetched.
+    #[allow(clippy::too_many_arguments)]
     fn accumulate(
         self,
         out: &mut [Complex32],
@@ -415,22 +617,28 @@ impl Kernel {
         data: &[Complex32],
         setup: &Setup,
         taps: &Taps,
-        next: &Taps,
+        p: usize,
+        next: *const Complex32,
     ) {
         let (frames, n_samples) = (setup.frames, setup.n_samples);
-        let (row, chan) = (frames, n_samples * frames);
-        assert!(f0 + out.len() <= frames && data.len() >= (taps.first + taps.len) * chan);
+        let row = frames;
+        let Span { start, len } = taps.spans[p];
+        let end = start + len;
+        assert!(f0 + out.len() <= frames && data.len() >= setup.element_x.len() * n_samples * row);
+        assert!(taps.rows.len() >= end + PF && taps.c1_im.len() >= end);
         #[cfg(target_arch = "x86_64")]
         if self == Kernel::Avx2 && out.len().is_multiple_of(4) && out.len() <= 4 * MAX_VECTORS {
-            // SAFETY: AVX2 and FMA were detected. Reads stay within `data`: elements below
-            // first + len (asserted above), rows i0 + 1 < n_samples (the `Taps` invariant),
-            // frames below f0 + out.len() ≤ frames (asserted above).
-            unsafe { avx2::pixel_chunk(out, data, f0, chan, row, taps, next) };
+            // SAFETY: AVX2 and FMA were detected. Reads stay within `data`: each row index is
+            // that of an element below the channel count and a sample i0 with
+            // i0 + 1 < n_samples (the `Taps` invariant), frames below f0 + out.len() ≤ frames
+            // (asserted above); the tap arrays hold `end` entries and `rows` PF more (asserted
+            // above).
+            unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len) };
             return;
         }
         let n = out.len();
-        for k in 0..taps.len {
-            let base = (taps.first + k) * chan + taps.i0[k] as usize * row + f0;
+        for k in start..end {
+            let base = taps.rows[k] as usize * row + f0;
             accumulate(
                 out,
                 Complex32::new(taps.c0_re[k], taps.c0_im[k]),
@@ -442,8 +650,10 @@ impl Kernel {
     }
 }
 
-/// The most 4-frame vectors of one pixel whose sums stay in registers across the element loop.
-const MAX_VECTORS: usize = 8;
+/// The most 4-frame vectors of one pixel whose sums stay in registers across the element loop:
+/// two sums per vector (see [`avx2::run`]) and four weights leave no register to spare at 6.
+const MAX_VECTORS: usize = 5;
+/// Taps ahead whose samples are prefetched.
 const PF: usize = 3;
 
 #[cfg(target_arch = "x86_64")]
@@ -455,36 +665,36 @@ mod avx2 {
     /// Dispatches a run of 1..=MAX_VECTORS vectors to its register-resident instance.
     ///
     /// # Safety
-    /// AVX2 and FMA must be available; for every tap k, elements first + k, rows i0[k] and
-    /// i0[k] + 1, frames f0..f0 + acc.len() must lie within `data` (strides `chan`, `row`).
+    /// AVX2 and FMA must be available; for every tap k in `start..start + len`,
+    /// (rows[k] + 1)·row + f0 + acc.len() must lie within `data`; `taps.rows` must hold PF
+    /// entries beyond them.
+    #[allow(clippy::too_many_arguments)]
     #[inline]
     pub(super) unsafe fn pixel_chunk(
         acc: &mut [Complex32],
+        next: *const Complex32,
         data: &[Complex32],
         f0: usize,
-        chan: usize,
         row: usize,
         taps: &Taps,
-        next: &Taps,
+        start: usize,
+        len: usize,
     ) {
         debug_assert!(acc.len().is_multiple_of(4) && acc.len() / 4 <= MAX_VECTORS);
         // SAFETY: forwarded from the caller.
         unsafe {
             match acc.len() / 4 {
-                1 => run::<1>(acc, data, f0, chan, row, taps, next),
-                2 => run::<2>(acc, data, f0, chan, row, taps, next),
-                3 => run::<3>(acc, data, f0, chan, row, taps, next),
-                4 => run::<4>(acc, data, f0, chan, row, taps, next),
-                5 => run::<5>(acc, data, f0, chan, row, taps, next),
-                6 => run::<6>(acc, data, f0, chan, row, taps, next),
-                7 => run::<7>(acc, data, f0, chan, row, taps, next),
-                8 => run::<8>(acc, data, f0, chan, row, taps, next),
+                1 => run::<1>(acc, next, data, f0, row, taps, start, len),
+                2 => run::<2>(acc, next, data, f0, row, taps, start, len),
+                3 => run::<3>(acc, next, data, f0, row, taps, start, len),
+                4 => run::<4>(acc, next, data, f0, row, taps, start, len),
+                5 => run::<5>(acc, next, data, f0, row, taps, start, len),
                 _ => {}
             }
         }
     }
 
-    /// Asks for the lines of N vectors at `a` and one row further into L1.
+    /// Asks for the lines of N vectors at `a` and, if `row` > 0, one row further into L1.
     #[inline(always)]
     fn prefetch<const N: usize>(a: *const f32, row: usize) {
         let a = a.cast::<i8>();
@@ -494,62 +704,71 @@ mod avx2 {
             // SAFETY: prefetches never fault, whatever the address.
             unsafe {
                 _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
-                _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
+                if row > 0 {
+                    _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
+                }
             }
             l += 64;
         }
     }
 
-    /// acc += Σ_k c0[k]·a_k + c1[k]·b_k on interleaved (re, im) pairs: with c = (p, q) and
-    /// a = (u, v), c·a = (p u − q v, p v + q u) = p·(u, v) + (−q, q)·(v, u).
+    /// acc += Σ_k c0[k]·a_k + c1[k]·b_k on interleaved (re, im) pairs. With c = (p, q) and
+    /// a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums p·a and q·a in two registers
+    /// per vector, and the swap and sign of the second are applied once, after the loop, so
+    /// that each tap costs four FMAs per vector and no shuffle.
+    #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn run<const N: usize>(
         acc: &mut [Complex32],
+        next: *const Complex32,
         data: &[Complex32],
         f0: usize,
-        chan: usize,
         row: usize,
         taps: &Taps,
-        next: &Taps,
+        start: usize,
+        len: usize,
     ) {
         let out = acc.as_mut_ptr().cast::<f32>();
         // SAFETY: acc holds 4·N complex values.
-        let mut sum: [__m256; N] =
+        let mut sp: [__m256; N] =
             std::array::from_fn(|j| unsafe { _mm256_loadu_ps(out.add(8 * j)) });
-        let sign = _mm256_setr_ps(-0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0);
-        let base = data.as_ptr().cast::<f32>();
-        for k in 0..taps.len {
-            let offset = (taps.first + k) * chan + taps.i0[k] as usize * row + f0;
-            // SAFETY: within `data` by the caller's contract; Complex32 is two packed f32.
-            let a = unsafe { base.add(2 * offset) };
-            let b = unsafe { a.add(2 * row) };
-            // Prefetch PF elements ahead, running on into the next pixel.
-            let (t, kk) = if k + PF < taps.len {
-                (taps, k + PF)
-            } else {
-                (next, k + PF - taps.len)
-            };
-            if kk < t.len {
-                let o = (t.first + kk) * chan + t.i0[kk] as usize * row + f0;
-                prefetch::<N>(base.wrapping_add(2 * o), row);
-            }
-            let c0r = _mm256_set1_ps(taps.c0_re[k]);
-            let c0i = _mm256_xor_ps(_mm256_set1_ps(taps.c0_im[k]), sign);
-            let c1r = _mm256_set1_ps(taps.c1_re[k]);
-            let c1i = _mm256_xor_ps(_mm256_set1_ps(taps.c1_im[k]), sign);
-            for (j, s) in sum.iter_mut().enumerate() {
-                // SAFETY: 8 floats = 4 frames, inside the run of frames.
-                let (u, v) =
-                    unsafe { (_mm256_loadu_ps(a.add(8 * j)), _mm256_loadu_ps(b.add(8 * j))) };
-                let mut t = _mm256_fmadd_ps(u, c0r, *s);
-                t = _mm256_fmadd_ps(_mm256_permute_ps(u, 0b1011_0001), c0i, t);
-                t = _mm256_fmadd_ps(v, c1r, t);
-                *s = _mm256_fmadd_ps(_mm256_permute_ps(v, 0b1011_0001), c1i, t);
+        let mut sq: [__m256; N] = [_mm256_setzero_ps(); N];
+        prefetch::<N>(next.cast::<f32>(), 0);
+        // SAFETY (all pointer arithmetic below): the caller guarantees the tap arrays hold
+        // start + len entries, `rows` PF more, and that every tap's rows lie within `data`.
+        let base = unsafe { data.as_ptr().add(f0).cast::<f32>() };
+        let rows = unsafe { taps.rows.as_ptr().add(start) };
+        let c0r = unsafe { taps.c0_re.as_ptr().add(start) };
+        let c0i = unsafe { taps.c0_im.as_ptr().add(start) };
+        let c1r = unsafe { taps.c1_re.as_ptr().add(start) };
+        let c1i = unsafe { taps.c1_im.as_ptr().add(start) };
+        for k in 0..len {
+            unsafe {
+                let a = base.add(2 * row * *rows.add(k) as usize);
+                let b = a.add(2 * row);
+                // Prefetch PF taps ahead, running on into the next pixel's.
+                prefetch::<N>(base.wrapping_add(2 * row * *rows.add(k + PF) as usize), row);
+                let p0 = _mm256_broadcast_ss(&*c0r.add(k));
+                let q0 = _mm256_broadcast_ss(&*c0i.add(k));
+                let p1 = _mm256_broadcast_ss(&*c1r.add(k));
+                let q1 = _mm256_broadcast_ss(&*c1i.add(k));
+                for j in 0..N {
+                    // 8 floats = 4 frames, inside the run of frames.
+                    let u = _mm256_loadu_ps(a.add(8 * j));
+                    let v = _mm256_loadu_ps(b.add(8 * j));
+                    sp[j] = _mm256_fmadd_ps(u, p0, sp[j]);
+                    sq[j] = _mm256_fmadd_ps(u, q0, sq[j]);
+                    sp[j] = _mm256_fmadd_ps(v, p1, sp[j]);
+                    sq[j] = _mm256_fmadd_ps(v, q1, sq[j]);
+                }
             }
         }
-        for (j, s) in sum.iter().enumerate() {
+        let sign = _mm256_setr_ps(-0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0);
+        for j in 0..N {
+            // (q u, q v) → (−q v, q u).
+            let t = _mm256_xor_ps(_mm256_permute_ps(sq[j], 0b1011_0001), sign);
             // SAFETY: acc holds 4·N complex values.
-            unsafe { _mm256_storeu_ps(out.add(8 * j), *s) };
+            unsafe { _mm256_storeu_ps(out.add(8 * j), _mm256_add_ps(sp[j], t)) };
         }
     }
 }
@@ -730,22 +949,40 @@ mod tests {
             frames,
         };
         let mut r = noise(11);
-        let mut taps = Taps::new(4);
-        taps.first = 1;
-        taps.len = 4;
+        // One pixel with four taps, on elements 1..5.
+        let mut taps = Taps::default();
+        let start = taps.push(4);
         for k in 0..4 {
-            taps.i0[k] = (k * 9 + 3) as i32;
-            taps.c0_re[k] = r();
-            taps.c0_im[k] = r();
-            taps.c1_re[k] = r();
-            taps.c1_im[k] = r();
+            let i0 = k * 9 + 3;
+            taps.rows[start + k] = ((1 + k) * samples + i0) as u32;
+            taps.c0_re[start + k] = r();
+            taps.c0_im[start + k] = r();
+            taps.c1_re[start + k] = r();
+            taps.c1_im[start + k] = r();
         }
+        taps.finish();
         for range in frame_chunks(frames, Kernel::detect()) {
             let mut r = noise(range.start as u64);
             let start: Vec<Complex32> = range.clone().map(|_| Complex32::new(r(), r())).collect();
             let (mut fast, mut slow) = (start.clone(), start);
-            Kernel::detect().accumulate(&mut fast, range.start, data, &setup, &taps, &taps);
-            Kernel::Portable.accumulate(&mut slow, range.start, data, &setup, &taps, &taps);
+            Kernel::detect().accumulate(
+                &mut fast,
+                range.start,
+                data,
+                &setup,
+                &taps,
+                0,
+                data.as_ptr(),
+            );
+            Kernel::Portable.accumulate(
+                &mut slow,
+                range.start,
+                data,
+                &setup,
+                &taps,
+                0,
+                data.as_ptr(),
+            );
             for (a, b) in fast.iter().zip(&slow) {
                 assert!((a - b).norm() <= 1e-5 * b.norm().max(1.0), "{a} vs {b}");
             }
