@@ -67,17 +67,20 @@ pub fn check_args(args: &PaperArgs) -> Result<()> {
     params
         .validate(frame_rate)
         .with_context(|| format!("--heart-rate {} Hz", args.heart_rate))?;
+    // The dynamics stage needs one cycle of window samples: round(period / step) windows.
     let period_frames = frame_rate / args.heart_rate;
-    let needed = (period_frames + params.window as f64).ceil() as usize;
+    let cycle_windows = ((period_frames / params.step as f64).round() as usize).max(2);
+    let needed = (cycle_windows - 1) * params.step + params.window;
     if args.network_frames < needed {
         bail!(
             "--network-frames {}: a cardiac cycle at {} Hz lasts {:.0} frames at {:.0} Hz, and RI \
-             needs one whole cycle of {}-frame windows: at least {needed} frames",
+             needs one whole cycle of {}-frame windows {} frames apart: at least {needed} frames",
             args.network_frames,
             args.heart_rate,
             period_frames,
             frame_rate,
-            params.window
+            params.window,
+            params.step
         );
     }
     Ok(())
