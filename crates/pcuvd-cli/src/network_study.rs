@@ -23,7 +23,7 @@ use pcuvd::vector::{Estimator, IrlsParams, VectorField};
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 use serde_json::{Map, Value, json};
 
-use crate::figures::{class_map, map_panel, power_mask, vector_panel};
+use crate::figures::{class_map, map_panel, vector_panel};
 use crate::paper::{
     Mode, PaperArgs, Part, Rendered, TRUTH_RGB, UVD_RGB, line, mean_power, process_params, render,
     simulate_and_form, snr_by_depth,
@@ -514,6 +514,16 @@ impl Roi {
     }
 }
 
+/// Flow pixels for display: power Doppler at least [`DISPLAY_FLOW_DB`] above the mode's own noise
+/// floor. A threshold relative to the brightest pixel lets the receiver noise through at +5 dB
+/// (then colour and vector maps show noise everywhere and the glyph scale follows it).
+fn flow_above_noise(power: &Array2<f64>, noise: &Array2<f64>) -> Array2<bool> {
+    db_above(power, noise).mapv(|d| d >= DISPLAY_FLOW_DB)
+}
+
+/// Display threshold of flow maps (dB above the noise floor).
+const DISPLAY_FLOW_DB: f64 = 6.0;
+
 fn db_above(power: &Array2<f64>, noise: &Array2<f64>) -> Array2<f64> {
     let floor = noise.mean().unwrap_or(1.0).max(f64::MIN_POSITIVE);
     power.mapv(|p| 10.0 * (p.max(floor * 1e-3) / floor).log10())
@@ -552,7 +562,7 @@ fn network_figures(
             (0.0, 40.0),
             "dB above noise",
         )));
-        let flow = power_mask(&r.out.power_doppler, DynamicsParams::rat().min_power_db);
+        let flow = flow_above_noise(&r.out.power_doppler, &r.noise_power);
         let mut cd = map_panel(
             &format!("{name}: colour Doppler (red: up)"),
             r.out.color_doppler.mapv(|v| -v * 1e3),
@@ -572,7 +582,7 @@ fn network_figures(
             &black,
         ));
     }
-    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels within 30 dB of the strongest.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", args.network_noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
+    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", args.network_noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
     progress.inc(1);
 
     // Figure 6 (g, h): PD profiles along a shallow horizontal line and a vertical line, SNR by depth.
@@ -649,7 +659,7 @@ fn network_figures(
     ];
     let mut panels = Vec::new();
     for r in results {
-        let flow = power_mask(&r.out.power_doppler, DynamicsParams::rat().min_power_db);
+        let flow = flow_above_noise(&r.out.power_doppler, &r.noise_power);
         for (k, &(x, z)) in rois.iter().enumerate() {
             let roi = Roi::new(grid, x, z)?;
             let field = VectorField {
