@@ -231,7 +231,6 @@ impl Simulator {
                 || vec![[0.0f32; FARROW_TERMS]; self.n_samples + self.wf.taps() + 1],
                 |impulses, (e, mut row)| {
                     let trace = row.as_slice_mut().expect("rows of a standard-layout array");
-                    impulses.fill([0.0; FARROW_TERMS]);
                     self.render_channel(self.element_x[e], &ev, impulses, trace);
                     if let Some((generator, first)) = noise {
                         generator.add(trace, first + e as u64);
@@ -241,7 +240,8 @@ impl Simulator {
     }
 
     /// Writes into `trace` the echoes of every scatterer of `ev` received on the element at `xe`
-    /// (m), using `impulses` (n_samples + taps + 1 rows, zeroed) as the Farrow accumulator.
+    /// (m), using `impulses` (n_samples + taps + 1 rows, zero, and left zero) as the Farrow
+    /// accumulator.
     fn render_channel(
         &self,
         xe: f64,
@@ -256,8 +256,9 @@ impl Simulator {
             unsafe { self.render_channel_avx2(xe, ev, impulses, trace) };
             return;
         }
-        self.accumulate(xe, ev, impulses, Insert::Portable);
-        self.convolve(impulses, trace);
+        let rows = self.accumulate(xe, ev, impulses, Insert::Portable);
+        self.convolve(impulses, rows.clone(), trace);
+        impulses[rows].fill([0.0; FARROW_TERMS]);
     }
 
     /// [`Self::render_channel`] compiled for AVX2 and FMA, with an explicit transpose in the
@@ -273,13 +274,15 @@ impl Simulator {
         impulses: &mut [[f32; FARROW_TERMS]],
         trace: &mut [f32],
     ) {
-        self.accumulate(xe, ev, impulses, Insert::Avx2);
-        self.convolve(impulses, trace);
+        let rows = self.accumulate(xe, ev, impulses, Insert::Avx2);
+        self.convolve(impulses, rows.clone(), trace);
+        impulses[rows].fill([0.0; FARROW_TERMS]);
     }
 
     /// Adds every echo of `ev` on the element at `xe` (m) to the Farrow accumulator: an echo whose
     /// row starts at buffer index n with sub-sample delay μ adds a·(μ − ½)^q to `impulses[n][q]`.
     /// Each stage is a branch-free loop over a block of scatterers in f32, so that it runs 8 wide.
+    /// Returns the range of rows that may have been written.
     #[inline(always)]
     fn accumulate(
         &self,
@@ -287,7 +290,8 @@ impl Simulator {
         ev: &EventScatterers,
         impulses: &mut [[f32; FARROW_TERMS]],
         insert: Insert,
-    ) {
+    ) -> std::ops::Range<usize> {
+        let (mut first, mut last) = (i32::MAX, -1i32);
         let nk = ev.slots;
         let taps = self.wf.taps();
         // Largest row start whose row ends inside the padded trace.
@@ -309,7 +313,7 @@ impl Simulator {
         let mut fac = [0.0f32; BLOCK];
         let mut start = [0i32; BLOCK];
         let mut mu = [0.0f32; BLOCK];
-        let mut powers = [[0.0f32; BLOCK]; FARROW_TERMS];
+        let mut amp = [0.0f32; BLOCK];
 
         for (block, (bx, bz)) in ev.xs.chunks(BLOCK).zip(ev.zs.chunks(BLOCK)).enumerate() {
             let m = bx.len();
@@ -364,7 +368,7 @@ impl Simulator {
                     .zip(&rx[..m])
                     .zip(&fac[..m])
                     .zip(&mut start[..m])
-                    .zip(mu[..m].iter_mut().zip(&mut powers[0][..m]))
+                    .zip(mu[..m].iter_mut().zip(&mut amp[..m]))
                 {
                     // n0 = round(pos − ½) ∈ {⌊pos⌋, ⌊pos⌋ − 1 at exact integers}: the delay
                     // pos − n0 ∈ [0, 1] is exact for 0 ≤ pos < 2²² (farther echoes are dropped).
@@ -376,37 +380,48 @@ impl Simulator {
                     *st = if inside { s } else { 0 };
                     *mu = (pos - n0f) - 0.5;
                 }
-                // a·(μ − ½)^q, one power at a time.
-                for q in 1..FARROW_TERMS {
-                    let (done, rest) = powers.split_at_mut(q);
-                    for ((p, prev), mu) in
-                        rest[0][..m].iter_mut().zip(&done[q - 1][..m]).zip(&mu[..m])
-                    {
-                        *p = prev * mu;
-                    }
+                for (st, a) in start[..m].iter().zip(&amp[..m]) {
+                    let used = *a != 0.0;
+                    first = first.min(if used { *st } else { i32::MAX });
+                    last = last.max(if used { *st } else { -1 });
                 }
                 match insert {
                     #[cfg(target_arch = "x86_64")]
                     // SAFETY: `Insert::Avx2` is only passed from the AVX2-enabled path.
-                    Insert::Avx2 => unsafe { insert_avx2(impulses, &start[..m], &powers, m) },
-                    Insert::Portable => insert_portable(impulses, &start[..m], &powers, 0, m),
+                    Insert::Avx2 => unsafe {
+                        insert_avx2(impulses, &start[..m], &amp[..m], &mu[..m])
+                    },
+                    Insert::Portable => {
+                        insert_portable(impulses, &start[..m], &amp[..m], &mu[..m], 0)
+                    }
                 }
             }
+        }
+        if last < first {
+            0..0
+        } else {
+            first as usize..last as usize + 1
         }
     }
 
     /// The trace from the Farrow accumulator: trace[i] = Σ_j Σ_q c[j][q]·impulses[i + taps − j][q]
-    /// (buffer index i + taps is sample i; the row of tap j starts j samples before it).
+    /// (buffer index i + taps is sample i; the row of tap j starts j samples before it). Only
+    /// `rows` may be non-zero: samples that read none of them are set to 0 without arithmetic.
     #[inline(always)]
-    fn convolve(&self, impulses: &[[f32; FARROW_TERMS]], trace: &mut [f32]) {
+    fn convolve(
+        &self,
+        impulses: &[[f32; FARROW_TERMS]],
+        rows: std::ops::Range<usize>,
+        trace: &mut [f32],
+    ) {
         let coeffs = self.wf.farrow();
         match coeffs.len() {
-            16 => convolve_taps::<16>(coeffs, impulses, trace),
-            24 => convolve_taps::<24>(coeffs, impulses, trace),
-            32 => convolve_taps::<32>(coeffs, impulses, trace),
-            40 => convolve_taps::<40>(coeffs, impulses, trace),
-            48 => convolve_taps::<48>(coeffs, impulses, trace),
-            _ => convolve_taps::<0>(coeffs, impulses, trace),
+            16 => convolve_taps::<16>(coeffs, impulses, rows, trace),
+            24 => convolve_taps::<24>(coeffs, impulses, rows, trace),
+            32 => convolve_taps::<32>(coeffs, impulses, rows, trace),
+            40 => convolve_taps::<40>(coeffs, impulses, rows, trace),
+            48 => convolve_taps::<48>(coeffs, impulses, rows, trace),
+            _ => convolve_taps::<0>(coeffs, impulses, rows, trace),
         }
     }
 }
@@ -421,26 +436,29 @@ enum Insert {
     Portable,
 }
 
-/// impulses[start[i]][q] += powers[q][i] for scatterers i in `from..to`, in order.
+/// impulses[start[i]][q] += amp[i]·mu[i]^q (the power built by repeated multiplication) for
+/// scatterers i from `from` on, in order.
 #[inline(always)]
 fn insert_portable(
     impulses: &mut [[f32; FARROW_TERMS]],
     start: &[i32],
-    powers: &[[f32; BLOCK]; FARROW_TERMS],
+    amp: &[f32],
+    mu: &[f32],
     from: usize,
-    to: usize,
 ) {
-    for i in from..to {
-        let row = &mut impulses[start[i] as usize];
-        for q in 0..FARROW_TERMS {
-            row[q] += powers[q][i];
+    for ((&s, &a), &mu) in start.iter().zip(amp).zip(mu).skip(from) {
+        let row = &mut impulses[s as usize];
+        let mut p = a;
+        for v in row.iter_mut() {
+            *v += p;
+            p *= mu;
         }
     }
 }
 
-/// [`insert_portable`] for all `m` scatterers: eight at a time, an 8 × 8 transpose turns the eight
-/// power vectors into one row per scatterer, added with one 8-wide add. The same additions in the
-/// same order, so bit-identical to the portable loop.
+/// [`insert_portable`] eight scatterers at a time: the eight power vectors a·μ^q are built in
+/// registers (across scatterers), an 8 × 8 transpose turns them into one row per scatterer, added
+/// with one 8-wide add. The same operations in the same order, so bit-identical to the portable loop.
 ///
 /// # Safety
 /// The CPU must support AVX2.
@@ -449,35 +467,37 @@ fn insert_portable(
 unsafe fn insert_avx2(
     impulses: &mut [[f32; FARROW_TERMS]],
     start: &[i32],
-    powers: &[[f32; BLOCK]; FARROW_TERMS],
-    m: usize,
+    amp: &[f32],
+    mu: &[f32],
 ) {
     use std::arch::x86_64::*;
+    let m = start.len().min(amp.len()).min(mu.len());
     let full = m / 8 * 8;
     let len = impulses.len();
     let base = impulses.as_mut_ptr() as *mut f32;
     for i in (0..full).step_by(8) {
-        // SAFETY: i + 8 ≤ m ≤ BLOCK, so each load reads 8 floats inside `powers[q]`.
-        let r = unsafe {
-            [
-                _mm256_loadu_ps(powers[0].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[1].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[2].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[3].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[4].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[5].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[6].as_ptr().add(i)),
-                _mm256_loadu_ps(powers[7].as_ptr().add(i)),
-            ]
+        // SAFETY: i + 8 ≤ m, so each load reads 8 floats inside `amp` and `mu`.
+        let (a, x) = unsafe {
+            (
+                _mm256_loadu_ps(amp.as_ptr().add(i)),
+                _mm256_loadu_ps(mu.as_ptr().add(i)),
+            )
         };
-        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
-        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
-        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
-        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
-        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
-        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
-        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
-        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let r1 = _mm256_mul_ps(a, x);
+        let r2 = _mm256_mul_ps(r1, x);
+        let r3 = _mm256_mul_ps(r2, x);
+        let r4 = _mm256_mul_ps(r3, x);
+        let r5 = _mm256_mul_ps(r4, x);
+        let r6 = _mm256_mul_ps(r5, x);
+        let r7 = _mm256_mul_ps(r6, x);
+        let t0 = _mm256_unpacklo_ps(a, r1);
+        let t1 = _mm256_unpackhi_ps(a, r1);
+        let t2 = _mm256_unpacklo_ps(r2, r3);
+        let t3 = _mm256_unpackhi_ps(r2, r3);
+        let t4 = _mm256_unpacklo_ps(r4, r5);
+        let t5 = _mm256_unpackhi_ps(r4, r5);
+        let t6 = _mm256_unpacklo_ps(r6, r7);
+        let t7 = _mm256_unpackhi_ps(r6, r7);
         let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
         let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
         let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
@@ -506,7 +526,7 @@ unsafe fn insert_avx2(
             }
         }
     }
-    insert_portable(impulses, start, powers, full, m);
+    insert_portable(impulses, &start[..m], &amp[..m], &mu[..m], full);
 }
 
 /// [`Simulator::convolve`] for `T` taps (`T` = 0: any count, known at run time): eight outputs at
@@ -515,6 +535,7 @@ unsafe fn insert_avx2(
 fn convolve_taps<const T: usize>(
     coeffs: &[[f32; FARROW_TERMS]],
     impulses: &[[f32; FARROW_TERMS]],
+    rows: std::ops::Range<usize>,
     trace: &mut [f32],
 ) {
     let taps = if T == 0 { coeffs.len() } else { T };
@@ -526,8 +547,13 @@ fn convolve_taps<const T: usize>(
         let h = [h[0] + h[2], h[1] + h[3]];
         h[0] + h[1]
     };
-    let mut i = 0;
-    while i + 8 <= ns {
+    // Sample i reads rows i + 1 ..= i + taps.
+    let lo = rows.start.saturating_sub(taps).min(ns);
+    let hi = rows.end.saturating_sub(1).clamp(lo, ns);
+    trace[..lo].fill(0.0);
+    trace[hi..].fill(0.0);
+    let mut i = lo;
+    while i + 8 <= hi {
         let mut acc = [[0.0f32; FARROW_TERMS]; 8];
         // Output i + o reads rows i + o + taps − j, j = 0..taps: rows i + 1 ..= i + taps + 7.
         let rows = &impulses[i + 1..i + taps + 8];
@@ -544,7 +570,7 @@ fn convolve_taps<const T: usize>(
         }
         i += 8;
     }
-    for (i, out) in trace.iter_mut().enumerate().skip(i) {
+    for (i, out) in trace.iter_mut().enumerate().take(hi).skip(i) {
         let mut acc = [0.0f32; FARROW_TERMS];
         for (j, c) in coeffs.iter().enumerate() {
             let row = &impulses[i + taps - j];
