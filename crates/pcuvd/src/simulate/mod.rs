@@ -13,18 +13,26 @@
 //!   shadow line). Attenuation over the path z / cos θ.
 //! * **Receive amplitude**: element directivity sinc(π w sin φ / λ)·cos φ (soft baffle), 2-D
 //!   cylindrical spreading √(1 mm / r) (r ≥ λ/2), attenuation over r.
-//! * **Attenuation**: α·f_c (dB/cm/MHz × MHz) applied as an amplitude factor at f_c (no
-//!   frequency-dependent pulse distortion).
+//! * **Attenuation**: α·f_c (dB/cm/MHz × MHz) applied as an amplitude factor at f_c. This is an
+//!   approximation: real frequency-dependent attenuation also lowers the echo's centre frequency
+//!   with depth — for a Gaussian spectrum by α·σ_f²·(round-trip path), about 0.8 MHz (5 %) at
+//!   1 cm depth for the L22-14vX echo (σ_f ≈ 2.6 MHz, 0.5 dB/cm/MHz) — which is not modelled:
+//!   every echo keeps the same spectrum. (On real data this downshift is one more reason to
+//!   prefer the mean-frequency Doppler estimator, `doppler::projection_velocity_loupas`.)
 //! * **Coding**: a coded event superposes all n slots of `Sequence::event_pulses` with their
 //!   polarity and slot delay; event i is simulated at its own time i / PRF.
 //! * **Noise**: see [`NOISE_DEFINITION`]; added to every recorded event, before any decoding.
 //!
 //! # Speed and determinism
 //! Transmit delay and amplitude are computed once per scatterer and slot; receive delay and
-//! amplitude once per scatterer–element pair (shared by all slots). Each echo is then one scaled
-//! vector add of two interpolated rows of a polyphase table. Channels run in parallel (rayon), each
-//! channel's trace owned by one task, and the noise of (event, channel) comes from its own
-//! ChaCha8 stream: the same seed gives bit-identical output whatever the number of threads.
+//! amplitude once per scatterer–element pair (shared by all slots), 8 wide in f32 (delays to
+//! ~3·10⁻⁵ sample). Echoes are then *accumulated*, not drawn (a Farrow structure): the echo of a
+//! scatterer whose row starts at sample n with sub-sample delay μ adds a·(μ − ½)^q, q = 0..7, to
+//! row n of an 8-wide accumulator — one vector add per echo and slot — and one convolution per
+//! channel with the waveform's Farrow coefficients (each tap a degree-7 polynomial of μ, within
+//! 2·10⁻⁷ of the waveform) gives the trace. Channels run in parallel (rayon), each channel's trace
+//! owned by one task, and the noise of (event, channel) comes from its own ChaCha8 stream: the
+//! same seed gives bit-identical output whatever the number of threads.
 
 mod kernel;
 mod noise;
