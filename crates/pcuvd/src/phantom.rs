@@ -365,7 +365,7 @@ impl Phantom for SpiralPhantom {
 
     /// Batched form of [`SpiralPhantom::alpha_at`] + [`SpiralSpec::position`]: the arc-length
     /// inversion is a fixed number of Newton steps in branch-free loops over chunks of scatterers
-    /// (with [`ln_vectorisable`]), so that it runs 4 wide; the result matches the scalar path to
+    /// (with `ln_vectorisable`), so that it runs 4 wide; the result matches the scalar path to
     /// rounding (below 10⁻¹⁵ m).
     fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>) {
         const CHUNK: usize = 512;
