@@ -64,6 +64,78 @@ pub struct DynamicsParams {
     /// (PSV up, EDV down), which inflates RI most where it is small (venules); the fit keeps the
     /// waveform and drops the window-to-window estimation noise.
     pub harmonics: Option<usize>,
+    /// Pools each pixel's normalised waveform with those of its same-vessel neighbours before PSV
+    /// and EDV are read ([`VesselPooling`]); `None` reads every pixel alone.
+    pub pooling: Option<VesselPooling>,
+}
+
+/// Which neighbours share a pixel's cardiac waveform: those within `radius` pixels whose
+/// time-mean flow direction is within `max_angle` of the pixel's.
+///
+/// Why: RI = 1 − EDV/PSV does not change when a waveform is scaled, and across a vessel's lumen
+/// the velocity profile scales the waveform without changing its shape, so every pixel of a
+/// vessel segment carries the same normalised waveform. Averaging it over N neighbours divides
+/// the window-to-window jitter by about √N without biasing RI. The pooled waveform is the
+/// weighted sum of the neighbours' speed series over the same weighted sum of their time means,
+/// with weights the square of each pixel's time-mean Doppler power: pixels at the edge of the
+/// vessel mask that hold mostly noise have a large mean |V| and a flat waveform, and would
+/// otherwise flatten the pool (on the vessel network at +5 dB, plain weights gave a deep
+/// arteriole RI 0.49 instead of 0.7; power² weights 0.69). Flow direction tells vessels
+/// apart: an arteriole and a venule side by side flow opposite ways (the common case in the
+/// cortex, penetrating arterioles down and venules up), and vessels that cross meet at an angle.
+/// Two vessels of different RI side by side, flowing the same way within `max_angle`, would be
+/// mixed where they are closer than `radius`.
+///
+/// Pooling averages speeds |V|, so it cuts the jitter but keeps the noise bias of |V| (the Rice
+/// mean, about |V| + σ²/2|V| for errors σ per component), which raises EDV more than PSV and
+/// lowers RI. Pooling the velocity vectors before |V| removes that bias, but on the network
+/// phantom it scored worse (PC-UVD 91 % of pixels rightly classed instead of 96 %: the slow,
+/// oblique venules read RI 0.44 instead of 0.40), so speeds are pooled.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VesselPooling {
+    /// Neighbourhood radius (pixels).
+    pub radius: usize,
+    /// Largest angle (rad) between the time-mean flow directions of the pixel and a neighbour.
+    pub max_angle: f64,
+}
+
+impl VesselPooling {
+    /// Default neighbourhood radius (m): 0.5 mm, a few diameters of the small vessels of the rat
+    /// brain. On the vessel-network phantom (+5 dB, 7 × 7 kernel) radii of 0.5–0.7 mm all gave
+    /// PC-UVD median |ΔRI| 0.034–0.038 and 96 % of vessel pixels rightly classed.
+    pub const DEFAULT_RADIUS_M: f64 = 0.5e-3;
+    /// Default largest flow-direction difference (degrees) between pooled pixels.
+    pub const DEFAULT_MAX_ANGLE_DEG: f64 = 30.0;
+
+    /// Pooling within `radius_m` (m) on a grid of `grid_step_m` (m) pixels, among neighbours whose
+    /// mean flow directions differ by at most `max_angle_deg` (degrees); `None` when the radius
+    /// is below half a pixel (nothing to pool).
+    pub fn from_metres(
+        radius_m: f64,
+        max_angle_deg: f64,
+        grid_step_m: f64,
+    ) -> Result<Option<Self>> {
+        require_positive("grid step", grid_step_m)?;
+        if !(radius_m.is_finite() && radius_m >= 0.0) {
+            return Err(invalid(
+                "vessel pooling",
+                format!("the radius must be a finite length ≥ 0, got {radius_m} m"),
+            ));
+        }
+        if !(max_angle_deg.is_finite() && (0.0..=180.0).contains(&max_angle_deg)) {
+            return Err(invalid(
+                "vessel pooling",
+                format!(
+                    "the largest flow-direction difference must be within 0–180°, got {max_angle_deg}°"
+                ),
+            ));
+        }
+        let radius = (radius_m / grid_step_m).round() as usize;
+        Ok((radius > 0).then_some(VesselPooling {
+            radius,
+            max_angle: max_angle_deg.to_radians(),
+        }))
+    }
 }
 
 impl DynamicsParams {
@@ -95,6 +167,7 @@ impl DynamicsParams {
             vein_ri_max: 0.5,
             min_power_db: -30.0,
             harmonics: None,
+            pooling: None,
         }
     }
 
@@ -126,6 +199,18 @@ impl DynamicsParams {
                 format!(
                     "need finite vein_ri_max ≤ artery_ri_min, got vein_ri_max = {} and artery_ri_min = {}",
                     self.vein_ri_max, self.artery_ri_min
+                ),
+            ));
+        }
+        if let Some(pooling) = self.pooling
+            && !(pooling.max_angle.is_finite()
+                && (0.0..=std::f64::consts::PI).contains(&pooling.max_angle))
+        {
+            return Err(invalid(
+                "vessel pooling",
+                format!(
+                    "the largest flow-direction difference must be within 0–180°, got {}°",
+                    pooling.max_angle.to_degrees()
                 ),
             ));
         }
@@ -230,6 +315,21 @@ impl VelocitySeries {
         ndarray::Zip::from(&self.vx)
             .and(&self.vz)
             .map_collect(|&x, &z| x.hypot(z))
+    }
+
+    /// Time-mean velocity (m/s) per pixel over the finite windows, (Vx, Vz) maps of shape (nz, nx);
+    /// zero where no window is finite.
+    pub fn mean_velocity(&self) -> (Array2<f64>, Array2<f64>) {
+        let mean = |v: &Array3<f64>| {
+            v.map_axis(Axis(0), |lane| {
+                let (sum, count) = lane
+                    .iter()
+                    .filter(|x| x.is_finite())
+                    .fold((0.0, 0usize), |(s, c), &x| (s + x, c + 1));
+                if count > 0 { sum / count as f64 } else { 0.0 }
+            })
+        };
+        (mean(&self.vx), mean(&self.vz))
     }
 
     /// Number of windows (time samples).
@@ -760,6 +860,84 @@ impl HarmonicFit {
     }
 }
 
+/// Each `mask` pixel's speed series replaced by its pooled waveform (see [`VesselPooling`]): the
+/// sum of the series of its same-vessel neighbours (itself included) over the sum of their time
+/// means, times its own time mean, so that its mean speed is kept and its shape is the pooled one.
+/// `speed` is (time, nz, nx); `mean_vx`, `mean_vz` are the time-mean velocities (nz, nx) that give
+/// each pixel's flow direction. Pixels without a finite series, or outside the mask, are kept as
+/// they are and pooled by none.
+fn pool_waveforms(
+    speed: &Array3<f64>,
+    mask: &Array2<bool>,
+    mean_vx: &Array2<f64>,
+    mean_vz: &Array2<f64>,
+    weight: &Array2<f64>,
+    pooling: &VesselPooling,
+) -> Array3<f64> {
+    let (nt, nz, nx) = speed.dim();
+    let r = pooling.radius as isize;
+    let offsets: Vec<(isize, isize)> = (-r..=r)
+        .flat_map(|dz| (-r..=r).map(move |dx| (dz, dx)))
+        .filter(|&(dz, dx)| dz * dz + dx * dx <= r * r)
+        .collect();
+    let min_cos = pooling.max_angle.cos();
+    // Per pixel: the unit flow direction and the time mean, or None when it cannot take part.
+    let members: Vec<Option<([f64; 2], f64, f64)>> = (0..nz * nx)
+        .map(|p| {
+            let (iz, ix) = (p / nx, p % nx);
+            let lane = speed.slice(s![.., iz, ix]);
+            let norm = mean_vx[[iz, ix]].hypot(mean_vz[[iz, ix]]);
+            if !mask[[iz, ix]]
+                || norm.is_nan()
+                || norm <= 0.0
+                || lane.iter().any(|v| !v.is_finite())
+            {
+                return None;
+            }
+            let unit = [mean_vx[[iz, ix]] / norm, mean_vz[[iz, ix]] / norm];
+            Some((unit, lane.sum() / nt as f64, weight[[iz, ix]]))
+        })
+        .collect();
+    let pooled: Vec<Option<Vec<f64>>> = (0..nz * nx)
+        .into_par_iter()
+        .map(|p| {
+            let (unit, own_mean, _) = members[p]?;
+            let (iz, ix) = ((p / nx) as isize, (p % nx) as isize);
+            let mut sum = vec![0.0; nt];
+            let mut mean_sum = 0.0;
+            for &(dz, dx) in &offsets {
+                let (qz, qx) = (iz + dz, ix + dx);
+                if qz < 0 || qx < 0 || qz >= nz as isize || qx >= nx as isize {
+                    continue;
+                }
+                let q = qz as usize * nx + qx as usize;
+                let Some((u, mean, w)) = members[q] else {
+                    continue;
+                };
+                if u[0] * unit[0] + u[1] * unit[1] < min_cos {
+                    continue;
+                }
+                for (acc, &v) in sum
+                    .iter_mut()
+                    .zip(speed.slice(s![.., qz as usize, qx as usize]))
+                {
+                    *acc += w * v;
+                }
+                mean_sum += w * mean;
+            }
+            (mean_sum > 0.0).then(|| sum.iter().map(|v| v / mean_sum * own_mean).collect())
+        })
+        .collect();
+    let mut out = speed.clone();
+    for (p, lane) in pooled.into_iter().enumerate() {
+        if let Some(lane) = lane {
+            out.slice_mut(s![.., p / nx, p % nx])
+                .assign(&ndarray::Array1::from(lane));
+        }
+    }
+    out
+}
+
 /// Resistivity index RI = (PSV − EDV)/PSV (dimensionless, eq. 16); NaN when PSV ≤ 0 or not finite.
 pub fn resistivity_index(psv: f64, edv: f64) -> f64 {
     if psv.is_finite() && edv.is_finite() && psv > 0.0 {
@@ -830,7 +1008,16 @@ pub fn ri_maps(series: &VelocitySeries, params: &DynamicsParams) -> Result<RiMap
     let (cycles, hr) = cycles_and_rate(&waveform, &series.times_s, params.heart_rate_hz)?;
     check_period_vs_window(hr, series.window_s)?;
 
-    let speed = series.speed();
+    let mut speed = series.speed();
+    if let Some(pooling) = params.pooling {
+        let (mx, mz) = series.mean_velocity();
+        let mean_power = series
+            .power
+            .mean_axis(Axis(0))
+            .unwrap_or_else(|| Array2::zeros((nz, nx)));
+        let weight = mean_power.mapv(|p| p * p);
+        speed = pool_waveforms(&speed, &mask, &mx, &mz, &weight, &pooling);
+    }
     let harmonics = params
         .harmonics
         .unwrap_or_else(|| auto_harmonics(hr, series.window_s));

@@ -10,8 +10,8 @@ use pcuvd::Error;
 use pcuvd::doppler::velocity_scale;
 use pcuvd::dynamics::{
     self, ARTERIOLE, BACKGROUND, DynamicsParams, SpectrogramParams, VENULE, VelocitySeries,
-    estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps, sliding_vectors,
-    spectrogram,
+    VesselPooling, estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps,
+    sliding_vectors, spectrogram,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -588,4 +588,163 @@ fn harmonic_fit_removes_the_outward_bias_of_noisy_extremes() {
     assert_eq!(dynamics::auto_harmonics(hr, series.window_s), 2);
     assert!(raw - 0.3 > 0.05, "raw extremes: RI {raw}");
     assert!((fitted - 0.3).abs() < 0.03, "harmonic fit: RI {fitted}");
+}
+
+#[test]
+fn vessel_pooling_cuts_ri_jitter_without_mixing_opposite_flows() {
+    // Window velocities of an arteriole (RI 0.7, flowing down at 20°) in rows 0–3 against a
+    // venule (RI 0.3, flowing up at 20°) in rows 4–7, each row scaled by its own lumen-profile
+    // factor, with independent Gaussian errors on Vx and Vz per pixel and window (σ = 1.5 mm/s,
+    // as a 20 ms window gives at low SNR). Each pixel's RI jitters; the pool of a pixel's
+    // same-direction neighbours (about 20 pixels within radius 3) should divide that spread by
+    // about √20, and the two vessels, 140° apart in direction, must not leak into each other.
+    let hr = 5.5;
+    let (nz, nx, nt) = (8, 24, 37);
+    let step_s = 9.0 / FRAME_RATE;
+    let times_s: Vec<f64> = (0..nt).map(|i| (i as f64 + 2.0) * step_s).collect();
+    let profile = [0.8, 0.9, 1.0, 0.85, 0.85, 0.95, 1.0, 0.8];
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let sigma = 3e-3;
+    let mut vx = Array3::<f64>::zeros((nt, nz, nx));
+    let mut vz = Array3::<f64>::zeros((nt, nz, nx));
+    for (((it, iz, _), x), z) in vx.indexed_iter_mut().zip(vz.iter_mut()) {
+        let artery = iz < 4;
+        let vessel = Vessel {
+            pixel: (iz, 0),
+            psv: if artery { 0.025 } else { 0.012 },
+            edv: if artery { 0.0075 } else { 0.0084 },
+            dir: unit(20.0, !artery),
+        };
+        let (tx, tz) = vessel.velocity(times_s[it], hr);
+        let ex: f64 = StandardNormal.sample(&mut rng);
+        let ez: f64 = StandardNormal.sample(&mut rng);
+        *x = profile[iz] * tx + sigma * ex;
+        *z = profile[iz] * tz + sigma * ez;
+    }
+    let series = VelocitySeries {
+        times_s,
+        vx,
+        vz,
+        power: Array3::from_elem((nt, nz, nx), 1.0),
+        window_s: 36.0 / FRAME_RATE,
+        step_s,
+    };
+    let params = DynamicsParams::rat();
+    let maps = |pooling| ri_maps(&series, &DynamicsParams { pooling, ..params }).unwrap();
+    let alone = maps(None);
+    let pooling = VesselPooling::from_metres(0.15e-3, 30.0, 0.05e-3)
+        .unwrap()
+        .unwrap();
+    assert_eq!(pooling.radius, 3);
+    let pooled = maps(Some(pooling));
+    // Median and spread (median absolute deviation from the median) of a band's RI.
+    let band_stats = |m: &dynamics::RiMaps, rows: std::ops::Range<usize>| {
+        let mut ri: Vec<f64> = rows.flat_map(|iz| m.ri.row(iz).to_vec()).collect();
+        ri.sort_by(|a, b| a.total_cmp(b));
+        let median = ri[ri.len() / 2];
+        let mut dev: Vec<f64> = ri.iter().map(|r| (r - median).abs()).collect();
+        dev.sort_by(|a, b| a.total_cmp(b));
+        (median, dev[dev.len() / 2])
+    };
+    // Pooling averages speeds, so it keeps the noise bias of |V|: the expected speed is the Rice
+    // mean, and the RI it should read is that of the Rice means of PSV and EDV.
+    let expected_ri = |iz: usize| {
+        let (psv, edv) = if iz < 4 {
+            (0.025, 0.0075)
+        } else {
+            (0.012, 0.0084)
+        };
+        1.0 - rice_mean(profile[iz] * edv, sigma) / rice_mean(profile[iz] * psv, sigma)
+    };
+    for (rows, truth) in [(0..4, 0.7), (4..8, 0.3)] {
+        let mut expected: Vec<f64> = rows.clone().map(expected_ri).collect();
+        expected.sort_by(|a, b| a.total_cmp(b));
+        let expected = 0.5 * (expected[1] + expected[2]);
+        assert!(
+            (expected - truth).abs() < 0.05,
+            "Rice bias {expected} vs {truth}"
+        );
+        let (median_alone, spread_alone) = band_stats(&alone, rows.clone());
+        let (median_pooled, spread_pooled) = band_stats(&pooled, rows.clone());
+        assert!(
+            spread_alone > 0.02,
+            "the case must be noisy: {spread_alone}"
+        );
+        assert!(
+            spread_pooled < 0.4 * spread_alone,
+            "rows {rows:?}: RI spread {spread_pooled} pooled vs {spread_alone} alone"
+        );
+        // Neighbouring pools overlap, so a band of 96 pixels holds about 5 independent pools: its
+        // median RI is uncertain by about 0.01 at this noise.
+        assert!(
+            (median_pooled - expected).abs() < 0.03,
+            "rows {rows:?}: median RI {median_pooled} (alone {median_alone}, Rice {expected})"
+        );
+    }
+    for ((iz, ix), &class) in pooled.vessel_class.indexed_iter() {
+        let want = if iz < 4 { ARTERIOLE } else { VENULE };
+        assert_eq!(
+            class,
+            want,
+            "pixel ({iz}, {ix}): RI {}",
+            pooled.ri[[iz, ix]]
+        );
+    }
+    // The rows that touch the other vessel read like the rows far from it: nothing leaks across.
+    let row_median = |iz: usize| {
+        let mut row: Vec<f64> = pooled.ri.row(iz).to_vec();
+        row.sort_by(|a, b| a.total_cmp(b));
+        row[row.len() / 2]
+    };
+    for (border, far) in [(3, 0), (4, 7)] {
+        let (b, f) = (row_median(border), row_median(far));
+        assert!(
+            (b - f).abs() < 0.03,
+            "border row {border}: median RI {b} vs {f} in row {far}"
+        );
+    }
+    // PSV keeps each pixel's own scale: the pooled shape times the pixel's own mean speed.
+    for iz in [0, 2, 5] {
+        let psv = pooled.psv.row(iz).mean().unwrap();
+        let want = rice_mean(profile[iz] * if iz < 4 { 0.025 } else { 0.012 }, sigma);
+        assert!(
+            (psv - want).abs() < 0.05 * want,
+            "row {iz}: PSV {psv}, Rice {want}"
+        );
+    }
+
+    // Bad settings are refused.
+    is_invalid(VesselPooling::from_metres(-1e-3, 30.0, 0.05e-3), "radius");
+    is_invalid(VesselPooling::from_metres(0.5e-3, 200.0, 0.05e-3), "0–180");
+    assert_eq!(
+        VesselPooling::from_metres(0.01e-3, 30.0, 0.05e-3).unwrap(),
+        None
+    );
+    let bad = DynamicsParams {
+        pooling: Some(VesselPooling {
+            radius: 2,
+            max_angle: f64::NAN,
+        }),
+        ..params
+    };
+    is_invalid(ri_maps(&series, &bad), "vessel pooling");
+}
+
+/// Mean of |v + n| (m/s) for a 2-D velocity v of magnitude `v` and Gaussian errors of standard
+/// deviation `sigma` on each component (the Rice mean): σ√(π/2)·L½(−v²/2σ²).
+fn rice_mean(v: f64, sigma: f64) -> f64 {
+    // Modified Bessel functions I0, I1 by their power series (arguments here stay below 20).
+    let bessel = |order: i32, x: f64| {
+        let (mut term, mut sum) = (if order == 0 { 1.0 } else { x / 2.0 }, 0.0);
+        for k in 0..200 {
+            sum += term;
+            let k = k as f64;
+            term *= (x / 2.0).powi(2) / ((k + 1.0) * (k + 1.0 + order as f64));
+        }
+        sum
+    };
+    let x = -v * v / (2.0 * sigma * sigma);
+    let laguerre_half =
+        (x / 2.0).exp() * ((1.0 - x) * bessel(0, -x / 2.0) - x * bessel(1, -x / 2.0));
+    sigma * (PI / 2.0).sqrt() * laguerre_half
 }
