@@ -5,7 +5,7 @@ use clap::Args;
 use pcuvd::ChannelData;
 use pcuvd::beamform::{Apodization, DasParams, Grid};
 use pcuvd::clutter::{ClutterParams, RankCut};
-use pcuvd::dynamics::DynamicsParams;
+use pcuvd::dynamics::{DynamicsParams, VesselPooling};
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::vector::{Estimator, IrlsParams};
 
@@ -134,9 +134,18 @@ pub struct DynamicsOptions {
     pub vessel_threshold_db: f64,
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
-    /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
-    #[arg(long, default_value = "5x5")]
+    /// (PSV, EDV) of a jittery waveform inflate RI; 7x7 is 0.35 mm on a 0.05 mm grid.
+    #[arg(long, default_value = "7x7")]
     pub dynamics_kernel: String,
+    /// Vessel pooling radius (mm) for the RI maps: each pixel's waveform shape is averaged over
+    /// same-direction neighbours within this radius (RI does not change with the lumen's velocity
+    /// profile, only the jitter does); 0 turns it off.
+    #[arg(long, default_value_t = VesselPooling::DEFAULT_RADIUS_M * 1e3)]
+    pub pool_radius_mm: f64,
+    /// Largest angle (degrees) between the mean flow directions of pooled pixels: keeps an
+    /// arteriole and a venule side by side, flowing opposite ways, apart.
+    #[arg(long, default_value_t = VesselPooling::DEFAULT_MAX_ANGLE_DEG)]
+    pub pool_max_angle_deg: f64,
 }
 
 impl DynamicsOptions {
@@ -151,8 +160,13 @@ impl DynamicsOptions {
 
     /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
     /// frames, the PC-UVD estimator (IRLS-WLS) with `irls`, the averaging kernel of
-    /// `--dynamics-kernel`.
-    pub fn params(&self, frame_rate: f64, irls: IrlsParams) -> Result<DynamicsParams> {
+    /// `--dynamics-kernel`, vessel pooling converted from mm to pixels of `grid_step_m` (m).
+    pub fn params(
+        &self,
+        frame_rate: f64,
+        irls: IrlsParams,
+        grid_step_m: f64,
+    ) -> Result<DynamicsParams> {
         let kernel = parse_kernel(&self.dynamics_kernel)
             .map_err(|e| anyhow::anyhow!("{e}").context("--dynamics-kernel"))?;
         let frames = |ms: f64, option: &str| -> Result<usize> {
@@ -174,6 +188,12 @@ impl DynamicsOptions {
         {
             bail!("--heart-rate {hr}: must be a positive number of Hz");
         }
+        let pooling = VesselPooling::from_metres(
+            self.pool_radius_mm * 1e-3,
+            self.pool_max_angle_deg,
+            grid_step_m,
+        )
+        .context("--pool-radius-mm / --pool-max-angle-deg")?;
         let params = DynamicsParams {
             window,
             step,
@@ -183,6 +203,7 @@ impl DynamicsOptions {
             artery_ri_min: self.artery_ri_min,
             vein_ri_max: self.vein_ri_max,
             min_power_db: self.vessel_threshold_db,
+            pooling,
             ..DynamicsParams::rat()
         };
         params

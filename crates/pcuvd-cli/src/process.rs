@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ndarray::Array1;
 use pcuvd::ChannelData;
-use pcuvd::dynamics::{self, RiMaps, VelocitySeries};
+use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde_json::json;
 
@@ -112,7 +112,7 @@ fn run_dynamics(
     }
     let acq = &data.acquisition;
     let frame_rate = acq.frame_rate();
-    let dparams = options.params(frame_rate, params.irls)?;
+    let dparams = options.params(frame_rate, params.irls, out.grid.step())?;
     let attempt = || -> Result<(VelocitySeries, RiMaps)> {
         if acq.sequence.n_angles() < 2 {
             bail!("vector velocity needs two or more steering angles; the recording has one");
@@ -166,6 +166,7 @@ fn run_dynamics(
         "artery_ri_min": dparams.artery_ri_min,
         "vein_ri_max": dparams.vein_ri_max,
         "vessel_threshold_db": dparams.min_power_db,
+        "vessel_pooling": pooling_summary(&dparams, out.grid.step()),
         "cycles_windows": maps.cycles,
         "pixels": {
             "arteriole": count(dynamics::ARTERIOLE),
@@ -183,6 +184,20 @@ fn run_dynamics(
         count(dynamics::UNDETERMINED)
     );
     Ok((summary, pngs))
+}
+
+/// The summary.json entry of the vessel pooling in `params` on a grid of `grid_step_m` (m).
+pub fn pooling_summary(params: &DynamicsParams, grid_step_m: f64) -> serde_json::Value {
+    match params.pooling {
+        None => json!("off"),
+        Some(p) => json!({
+            "radius_px": p.radius,
+            "radius_mm": p.radius as f64 * grid_step_m * 1e3,
+            "max_angle_deg": p.max_angle.to_degrees(),
+            "weights": "time-mean Doppler power squared",
+            "pooled": "speed |V| series; the pooled shape scaled to each pixel's own mean speed",
+        }),
+    }
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {

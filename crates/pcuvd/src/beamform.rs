@@ -77,6 +77,15 @@ impl Grid {
     pub fn shape(&self) -> (usize, usize) {
         (self.z.len(), self.x.len())
     }
+
+    /// Pixel spacing (m): the lateral one, or the axial one when the grid is one column wide.
+    pub fn step(&self) -> f64 {
+        match (self.x.as_slice(), self.z.as_slice()) {
+            ([x0, x1, ..], _) => x1 - x0,
+            (_, [z0, z1, ..]) => z1 - z0,
+            _ => f64::NAN,
+        }
+    }
 }
 
 /// Receive apodisation window across the active aperture.
