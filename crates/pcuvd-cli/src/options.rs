@@ -134,8 +134,8 @@ pub struct DynamicsOptions {
     pub vessel_threshold_db: f64,
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
-    /// (PSV, EDV) of a jittery waveform inflate RI; 7x7 is 0.35 mm on a 0.05 mm grid.
-    #[arg(long, default_value = "7x7")]
+    /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
+    #[arg(long, default_value = "5x5")]
     pub dynamics_kernel: String,
     /// Vessel pooling radius (mm) for the RI maps: each pixel's waveform shape is averaged over
     /// same-direction neighbours within this radius (RI does not change with the lumen's velocity

@@ -117,7 +117,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["dynamics"]["heart_rate_hz"], 12.0);
     let pooling = &summary["dynamics"]["vessel_pooling"];
-    assert_eq!(pooling["radius_px"], 5, "{pooling}");
+    assert_eq!(pooling["radius_px"], 7, "{pooling}");
     assert!(
         (pooling["max_angle_deg"].as_f64().unwrap() - 30.0).abs() < 1e-9,
         "{pooling}"
