@@ -201,7 +201,15 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
         let dparams = dynamics_params(args, mode)?;
         let (c, f0) = (acquisition.sound_speed, acquisition.probe.center_frequency);
         let angles = &acquisition.sequence.angles;
-        let series = dynamics::sliding_vectors(&out.filtered, angles, frame_rate, c, f0, &dparams)?;
+        let series = dynamics::sliding_vectors(
+            &out.filtered,
+            angles,
+            Some(out.coverage.view()),
+            frame_rate,
+            c,
+            f0,
+            &dparams,
+        )?;
         let ri = dynamics::ri_maps(&series, &dparams)?;
         let spectrograms = sites
             .iter()

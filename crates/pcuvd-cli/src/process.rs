@@ -121,6 +121,7 @@ fn run_dynamics(
         let series = dynamics::sliding_vectors(
             &out.filtered,
             &acq.sequence.angles,
+            Some(out.coverage.view()),
             frame_rate,
             acq.sound_speed,
             acq.probe.center_frequency,

@@ -18,7 +18,7 @@
 
 use faer::Mat;
 use faer::linalg::solvers::SolveLstsq;
-use ndarray::{Array2, Array3, Axis, s};
+use ndarray::{Array2, Array3, ArrayView3, Axis, Zip, s};
 use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
@@ -469,13 +469,16 @@ fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
 /// Vector velocity in sliding windows over slow time: per angle, the lag-1 autocorrelation of each
 /// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`.
 ///
-/// `filtered`: clutter-filtered IQ per angle, shape (nz, nx, frames); `angles` (rad);
-/// `frame_rate`: compound frame rate (Hz); `sound_speed` (m/s); `center_frequency` (Hz).
+/// `filtered`: clutter-filtered IQ per angle, shape (nz, nx, frames); `angles` (rad); `coverage`:
+/// per angle the pixels its plane wave reaches (angles, nz, nx), as
+/// [`pipeline::angle_coverage`](crate::pipeline::angle_coverage) gives, or `None` to use every
+/// angle everywhere; `frame_rate`: compound frame rate (Hz); `sound_speed` (m/s); `center_frequency` (Hz).
 /// Windows run in parallel; each is computed independently, so the output does not depend on the
 /// number of threads.
 pub fn sliding_vectors(
     filtered: &[Array3<Complex32>],
     angles: &[f64],
+    coverage: Option<ArrayView3<bool>>,
     frame_rate: f64,
     sound_speed: f64,
     center_frequency: f64,
@@ -487,6 +490,15 @@ pub fn sliding_vectors(
     let (nz, nx, frames) = check_series(filtered, angles)?;
     if angles.len() < 2 {
         return Err(invalid("angles", "vector Doppler needs at least 2 angles"));
+    }
+    if let Some(c) = coverage
+        && c.dim() != (angles.len(), nz, nx)
+    {
+        return Err(Error::Shape(format!(
+            "angle coverage {:?} for {} angles of {nz} × {nx} pixels",
+            c.dim(),
+            angles.len()
+        )));
     }
     let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
     params.validate(frame_rate)?;
@@ -516,6 +528,13 @@ pub fn sliding_vectors(
                 power += &ac.power;
             }
             power /= n as f64;
+            if let Some(c) = coverage {
+                Zip::from(&mut projections).and(c).for_each(|v, &seen| {
+                    if !seen {
+                        *v = f64::NAN;
+                    }
+                });
+            }
             let field = vector::vector_velocity(angles, projections.view(), &params.estimator)?;
             Ok((field.vx, field.vz, power))
         })

@@ -21,6 +21,16 @@ pub fn element_firing_delay(element_x: f64, angle: f64, aperture: (f64, f64), c:
     transmit_delay(element_x, 0.0, angle, aperture, c)
 }
 
+/// True when (x, z) (m) lies in the geometric shadow-free beam of a plane wave steered by `angle`
+/// (rad) from an array spanning `aperture` (m): the ray along (sin θ, cos θ) through (x, z) starts
+/// on the array face. Outside it only the edge wave arrives, and that angle's Doppler there is
+/// noise or leakage from elsewhere.
+#[inline]
+pub fn insonified(x: f64, z: f64, angle: f64, aperture: (f64, f64)) -> bool {
+    let foot = x - z * angle.tan();
+    foot >= aperture.0 && foot <= aperture.1
+}
+
 /// Time (s) for an echo to travel from (x, z) back to the element at `element_x` (m).
 #[inline]
 pub fn receive_delay(x: f64, z: f64, element_x: f64, c: f64) -> f64 {
@@ -69,5 +79,22 @@ mod tests {
         // Across it, no change.
         let t3 = transmit_delay(1e-3 * a.cos(), 10e-3 - 1e-3 * a.sin(), a, ap, c);
         assert!((t3 - t1).abs() < 1e-15);
+    }
+
+    #[test]
+    fn plane_wave_reaches_the_parallelogram_under_the_array() {
+        let ap = (-6.35e-3, 6.35e-3);
+        let a = 15f64.to_radians();
+        // Straight down: the band under the array, at any depth.
+        assert!(insonified(6.3e-3, 20e-3, 0.0, ap));
+        assert!(!insonified(6.4e-3, 1e-3, 0.0, ap));
+        // Tilted toward +x by 15°: at 8.5 mm depth the beam spans x ∈ [−6.35, 6.35] + 8.5·tan 15°
+        // = [−4.07, 8.63] mm, so x = 5 mm is reached by +15° and missed by −15°.
+        let shift = 8.5e-3 * a.tan();
+        assert!(insonified(5e-3, 8.5e-3, a, ap));
+        assert!(!insonified(5e-3, 8.5e-3, -a, ap));
+        assert!(insonified(ap.1 - shift - 1e-6, 8.5e-3, -a, ap));
+        assert!(!insonified(ap.1 - shift + 1e-6, 8.5e-3, -a, ap));
+        assert!(!insonified(ap.0 + shift - 1e-6, 8.5e-3, a, ap));
     }
 }

@@ -85,6 +85,18 @@ fn weighted_solve(angles: &[f64], v_theta: &[f64], w: &[f64]) -> Option<(f64, f6
 
 /// Solves one pixel: (Vx, Vz) in m/s from projections `v_theta` (m/s) at `angles` (rad).
 pub fn solve_pixel(angles: &[f64], v_theta: &[f64], estimator: &Estimator) -> (f64, f64) {
+    if v_theta.iter().any(|v| !v.is_finite()) {
+        let (kept_angles, kept): (Vec<f64>, Vec<f64>) = angles
+            .iter()
+            .zip(v_theta)
+            .filter(|(_, v)| v.is_finite())
+            .map(|(&a, &v)| (a, v))
+            .unzip();
+        if kept.len() < 2 {
+            return (f64::NAN, f64::NAN);
+        }
+        return solve_pixel(&kept_angles, &kept, estimator);
+    }
     let n = angles.len();
     let mut w = vec![1.0 / n as f64; n];
     let Some(mut v) = weighted_solve(angles, v_theta, &w) else {
@@ -191,6 +203,31 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn angles_without_a_projection_are_left_out() {
+        // Projections that are NaN (the angle's plane wave misses the pixel) are dropped: the
+        // rest still solve exactly; fewer than two left give no vector.
+        let angles = paper_angles();
+        let (vx, vz) = (-0.017, 0.009);
+        let mut p = projections(&angles, vx, vz);
+        p[0] = f64::NAN;
+        p[1] = f64::NAN;
+        for est in [
+            Estimator::LeastSquares,
+            Estimator::Irls(IrlsParams::default()),
+        ] {
+            let (ex, ez) = solve_pixel(&angles, &p, &est);
+            assert!(
+                (ex - vx).abs() < 1e-9 && (ez - vz).abs() < 1e-9,
+                "{est:?}: {ex} {ez}"
+            );
+        }
+        let mut lone = vec![f64::NAN; angles.len()];
+        lone[3] = p[3];
+        let (ex, ez) = solve_pixel(&angles, &lone, &Estimator::LeastSquares);
+        assert!(ex.is_nan() && ez.is_nan());
     }
 
     #[test]

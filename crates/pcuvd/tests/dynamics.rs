@@ -191,7 +191,7 @@ fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     let angles = paper_angles();
     let mut params = DynamicsParams::rat();
     params.heart_rate_hz = None;
-    let series = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
     assert_eq!(series.len(), (750 - 36) / 9 + 1);
     assert_eq!(series.vx.dim(), (series.len(), 2, 3));
     assert!((series.times_s[0] - 17.5 / FRAME_RATE).abs() < 1e-12);
@@ -243,7 +243,7 @@ fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     assert!((given.ri[[0, 0]] - maps.ri[[0, 0]]).abs() < 0.02);
 
     // Deterministic: the same input gives bit-identical output.
-    let again = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &params).unwrap();
+    let again = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
     assert_eq!(again, series);
 
     // The compounded spectrogram's mean velocity follows the vector Vz (paper Fig. 8b).
@@ -293,7 +293,7 @@ fn rat_preset_measures_one_cycle_in_a_fifth_of_a_second() {
     };
     let iq = synthetic_iq(&[vessel], (1, 2), 360, 5.5, 4e-4, 11);
     let params = DynamicsParams::rat();
-    let series = sliding_vectors(&iq, &paper_angles(), FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&iq, &paper_angles(), None, FRAME_RATE, C, F0, &params).unwrap();
     assert_eq!(series.len(), 37);
     let maps = ri_maps(&series, &params).unwrap();
     assert_eq!(maps.cycles.len(), 1);
@@ -378,6 +378,79 @@ fn is_invalid(r: Result<impl std::fmt::Debug, Error>, needle: &str) {
 }
 
 #[test]
+fn angles_that_miss_a_pixel_are_left_out_of_its_vectors() {
+    // The two widest negative angles see only noise at pixel (0, 0) (as near the lateral edge of
+    // the field, where their plane waves do not reach): told so by the coverage map, the vectors
+    // there follow the flow; not told, the noise drags them off.
+    let (mut iq, vessels, hr) = pulsatile_case();
+    let angles = paper_angles();
+    let (iz, ix) = (0, 0);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for series in iq.iter_mut().take(2) {
+        for v in series.slice_mut(ndarray::s![iz, ix, ..]) {
+            let re: f64 = StandardNormal.sample(&mut rng);
+            let im: f64 = StandardNormal.sample(&mut rng);
+            *v = Complex32::new(re as f32, im as f32);
+        }
+    }
+    let mut coverage = Array3::from_elem((angles.len(), 2, 3), true);
+    coverage[[0, iz, ix]] = false;
+    coverage[[1, iz, ix]] = false;
+    let params = DynamicsParams::rat();
+    let vessel = vessels.iter().find(|v| v.pixel == (iz, ix)).unwrap();
+    let rms = |series: &VelocitySeries| {
+        let sq: f64 = series
+            .times_s
+            .iter()
+            .enumerate()
+            .map(|(k, &tc)| {
+                // The window-averaged truth.
+                let (mut tx, mut tz) = (0.0, 0.0);
+                for j in 0..35 {
+                    let (x, z) = vessel.velocity(tc + (j as f64 - 17.0) / FRAME_RATE, hr);
+                    tx += x / 35.0;
+                    tz += z / 35.0;
+                }
+                (series.vx[[k, iz, ix]] - tx).powi(2) + (series.vz[[k, iz, ix]] - tz).powi(2)
+            })
+            .sum();
+        (sq / series.len() as f64).sqrt()
+    };
+    let covered = sliding_vectors(
+        &iq,
+        &angles,
+        Some(coverage.view()),
+        FRAME_RATE,
+        C,
+        F0,
+        &params,
+    )
+    .unwrap();
+    let blind = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
+    let (good, bad) = (rms(&covered), rms(&blind));
+    assert!(good < 5e-4, "with coverage: RMS error {good} m/s");
+    assert!(
+        bad > 3.0 * good,
+        "without coverage: RMS error {bad} m/s vs {good}"
+    );
+    // The other pixels are untouched.
+    assert_eq!(covered.vx[[0, 1, 2]], blind.vx[[0, 1, 2]]);
+    assert_eq!(covered.vz[[5, 1, 2]], blind.vz[[5, 1, 2]]);
+    is_invalid(
+        sliding_vectors(
+            &iq,
+            &angles,
+            Some(coverage.slice(ndarray::s![..4, .., ..])),
+            FRAME_RATE,
+            C,
+            F0,
+            &params,
+        ),
+        "coverage",
+    );
+}
+
+#[test]
 fn bad_input_is_refused_with_clear_errors() {
     let angles = paper_angles();
     let iq = synthetic_iq(
@@ -393,7 +466,7 @@ fn bad_input_is_refused_with_clear_errors() {
         1e-4,
         1,
     );
-    let run = |p: DynamicsParams| sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &p);
+    let run = |p: DynamicsParams| sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &p);
     let base = DynamicsParams {
         heart_rate_hz: None,
         ..DynamicsParams::rat()
@@ -459,36 +532,36 @@ fn bad_input_is_refused_with_clear_errors() {
     );
     // Empty, mismatched and non-finite series.
     is_invalid(
-        sliding_vectors(&[], &[], FRAME_RATE, C, F0, &base),
+        sliding_vectors(&[], &[], None, FRAME_RATE, C, F0, &base),
         "no angle series",
     );
     assert!(matches!(
-        sliding_vectors(&iq, &angles[..4], FRAME_RATE, C, F0, &base),
+        sliding_vectors(&iq, &angles[..4], None, FRAME_RATE, C, F0, &base),
         Err(Error::Shape(_))
     ));
     let mut odd = iq.clone();
     odd[3] = Array3::zeros((1, 2, 399));
     assert!(matches!(
-        sliding_vectors(&odd, &angles, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&odd, &angles, None, FRAME_RATE, C, F0, &base),
         Err(Error::Shape(_))
     ));
     let empty = vec![Array3::<Complex32>::zeros((0, 2, 400)); 8];
     is_invalid(
-        sliding_vectors(&empty, &angles, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&empty, &angles, None, FRAME_RATE, C, F0, &base),
         "empty",
     );
     let mut nan = iq.clone();
     nan[1][[0, 1, 5]] = Complex32::new(f32::NAN, 0.0);
     assert!(matches!(
-        sliding_vectors(&nan, &angles, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&nan, &angles, None, FRAME_RATE, C, F0, &base),
         Err(Error::NonFinite(_))
     ));
     is_invalid(
-        sliding_vectors(&iq, &angles, 0.0, C, F0, &base),
+        sliding_vectors(&iq, &angles, None, 0.0, C, F0, &base),
         "frame rate",
     );
     is_invalid(
-        sliding_vectors(&iq[..1], &angles[..1], FRAME_RATE, C, F0, &base),
+        sliding_vectors(&iq[..1], &angles[..1], None, FRAME_RATE, C, F0, &base),
         "at least 2 angles",
     );
 
@@ -513,7 +586,7 @@ fn bad_input_is_refused_with_clear_errors() {
     is_invalid(estimate_heart_rate(&flat, &tf), "constant");
 
     // RI maps: a short series and a series without any vessel.
-    let series = sliding_vectors(&iq, &angles, FRAME_RATE, C, F0, &base).unwrap();
+    let series = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &base).unwrap();
     is_invalid(
         ri_maps(
             &series,
@@ -568,7 +641,7 @@ fn harmonic_fit_removes_the_outward_bias_of_noisy_extremes() {
         .collect();
     let iq = synthetic_iq(&vessels, (1, 40), 360, hr, 0.1, 11);
     let params = DynamicsParams::rat();
-    let series = sliding_vectors(&iq, &paper_angles(), FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&iq, &paper_angles(), None, FRAME_RATE, C, F0, &params).unwrap();
     let median_ri = |harmonics| {
         let maps = ri_maps(
             &series,

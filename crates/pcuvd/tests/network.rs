@@ -117,6 +117,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> R
     let series = dynamics::sliding_vectors(
         &out.filtered,
         &acq.sequence.angles,
+        Some(out.coverage.view()),
         acq.frame_rate(),
         acq.sound_speed,
         acq.probe.center_frequency,
