@@ -10,9 +10,12 @@
 //! Speed: the sum over elements is memory-bound unless blocked. Pixels go in tiles (a z band,
 //! tiles of a band in parallel); within a tile, a group of elements and a run of frames at a time,
 //! so that the samples they need are reused from L2 by all the tile's pixels; the run of frames of
-//! one pixel stays in registers across the group (AVX2 + FMA kernel, two sums per vector so that
-//! the complex products need no shuffle, software prefetch a few elements ahead), and the next
-//! pass's samples are prefetched into L2 while one runs. Delays and weights are computed by a
+//! one pixel stays in registers across the group (AVX-512 kernel, 8 frames per vector and up to
+//! 104 frames in registers, the last vector masked; else AVX2 + FMA, 4 frames per vector and 20
+//! in registers, leftover frames in plain Rust; two sums per vector so that the complex products
+//! need no shuffle, software prefetch a few elements ahead), and the next pass's samples are
+//! prefetched into L2 while one runs. The kernel is picked at run time from the CPU's features,
+//! so one build runs everywhere. Delays and weights are computed by a
 //! vectorised loop over the elements, into one flat table per tile and group.
 
 use ndarray::{Array3, ArrayView3, Axis};
@@ -740,7 +743,7 @@ mod avx2 {
     ///
     /// # Safety
     /// AVX2 and FMA must be available; for every tap k in `start..start + len`,
-    /// (rows[k] + 1)·row + f0 + acc.len() must lie within `data`; `taps.rows` must hold PF
+    /// `(rows[k] + 1)·row + f0 + acc.len()` must lie within `data`; `taps.rows` must hold PF
     /// entries beyond them.
     #[allow(clippy::too_many_arguments)]
     #[inline]
@@ -917,7 +920,7 @@ mod avx512 {
         }
     }
 
-    /// acc += Σ_k c0[k]·a_k + c1[k]·b_k on interleaved (re, im) pairs, as [`super::avx2`]'s
+    /// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs, as [`super::avx2`]'s
     /// `run` (two sums per vector, the swap and sign applied once after the loop), 16 floats
     /// per vector; the last vector is masked to the frames of `acc`, so that no frame is left
     /// to a scalar tail and nothing beyond them is read or written.
