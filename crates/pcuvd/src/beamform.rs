@@ -10,9 +10,12 @@
 //! Speed: the sum over elements is memory-bound unless blocked. Pixels go in tiles (a z band,
 //! tiles of a band in parallel); within a tile, a group of elements and a run of frames at a time,
 //! so that the samples they need are reused from L2 by all the tile's pixels; the run of frames of
-//! one pixel stays in registers across the group (AVX2 + FMA kernel, two sums per vector so that
-//! the complex products need no shuffle, software prefetch a few elements ahead), and the next
-//! pass's samples are prefetched into L2 while one runs. Delays and weights are computed by a
+//! one pixel stays in registers across the group (AVX-512 kernel, 8 frames per vector and up to
+//! 104 frames in registers, the last vector masked; else AVX2 + FMA, 4 frames per vector and 20
+//! in registers, leftover frames in plain Rust; two sums per vector so that the complex products
+//! need no shuffle, software prefetch a few elements ahead), and the next pass's samples are
+//! prefetched into L2 while one runs. The kernel is picked at run time from the CPU's features,
+//! so one build runs everywhere. Delays and weights are computed by a
 //! vectorised loop over the elements, into one flat table per tile and group.
 
 use ndarray::{Array3, ArrayView3, Axis};
@@ -128,6 +131,19 @@ pub fn beamform(
     grid: &Grid,
     params: &DasParams,
 ) -> Result<Array3<Complex32>> {
+    beamform_with(Kernel::detect(), iq, probe, angle, grid, params)
+}
+
+/// [`beamform`] with a given accumulation kernel, so that tests can run each one this CPU
+/// supports.
+fn beamform_with(
+    kernel: Kernel,
+    iq: &IqChannels,
+    probe: &Probe,
+    angle: f64,
+    grid: &Grid,
+    params: &DasParams,
+) -> Result<Array3<Complex32>> {
     require_positive("f-number", params.f_number)?;
     require_positive("speed of sound", params.sound_speed)?;
     let (channels, n_samples, frames) = iq.data.dim();
@@ -152,7 +168,6 @@ pub fn beamform(
     let setup = Setup::new(iq, probe, angle, params);
     let data = iq.data.as_standard_layout();
     let data = data.as_slice().expect("standard layout");
-    let kernel = Kernel::detect();
     let chunks = frame_chunks(frames, kernel);
     let out = image.as_slice_mut().expect("standard layout");
     // z bands outermost, x tiles of a band in parallel: both threads then sweep the same band of
@@ -233,20 +248,34 @@ const TILE_X: usize = 32;
 /// Elements per pass over a tile.
 const GROUP: usize = 16;
 
-/// Runs of frames that the kernel keeps in registers, of near-equal lengths, then the frames
-/// left over from whole vectors.
+/// Runs of frames that the kernel keeps in registers, of near-equal whole numbers of vectors and
+/// at most its register budget each; then, for a kernel without masked loads, the frames left
+/// over from whole vectors (summed by the portable loop). With masks, the last run ends in a
+/// partial vector instead.
 fn frame_chunks(frames: usize, kernel: Kernel) -> Vec<std::ops::Range<usize>> {
-    let vectors = match kernel {
+    let simd = match kernel {
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 => frames / 4,
-        Kernel::Portable => 0,
+        Kernel::Avx512 => Some((8, avx512::MAX_VECTORS, true)),
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => Some((4, MAX_VECTORS, false)),
+        Kernel::Portable => None,
     };
-    let n = vectors.div_ceil(MAX_VECTORS);
+    let Some((width, max, masked)) = simd else {
+        // One run of all the frames (not a list of its frame indices).
+        #[allow(clippy::single_range_in_vec_init)]
+        return vec![0..frames];
+    };
+    let vectors = if masked {
+        frames.div_ceil(width)
+    } else {
+        frames / width
+    };
+    let n = vectors.div_ceil(max);
     let mut chunks: Vec<_> = (0..n)
-        .map(|i| 4 * (i * vectors / n)..4 * ((i + 1) * vectors / n))
+        .map(|i| width * (i * vectors / n)..(width * ((i + 1) * vectors / n)).min(frames))
         .collect();
-    if 4 * vectors < frames {
-        chunks.push(4 * vectors..frames);
+    if width * vectors < frames {
+        chunks.push(width * vectors..frames);
     }
     chunks
 }
@@ -492,6 +521,12 @@ impl Setup {
         };
         match kernel {
             #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::Avx512` is only constructed after detecting AVX-512F/DQ, AVX2
+            // and FMA.
+            Kernel::Avx512 => unsafe {
+                self.taps_avx512(x, z, half_aperture, first, element_x, out)
+            },
+            #[cfg(target_arch = "x86_64")]
             // SAFETY: `Kernel::Avx2` is only constructed after detecting AVX2 and FMA.
             Kernel::Avx2 => unsafe { self.taps_avx2(x, z, half_aperture, first, element_x, out) },
             Kernel::Portable => self.taps_portable(x, z, half_aperture, first, element_x, out),
@@ -503,6 +538,22 @@ impl Setup {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn taps_avx2(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
+        self.taps_portable(x, z, half_aperture, first, element_x, out)
+    }
+
+    /// The same code as [`Setup::taps_portable`], compiled for AVX-512 so that the element loop
+    /// is vectorised eight wide in f64.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+    unsafe fn taps_avx512(
         &self,
         x: f64,
         z: f64,
@@ -592,6 +643,10 @@ fn cis_cycles(cycles: f64) -> (f32, f32) {
 /// The accumulation kernel in use: chosen once per call from the running CPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kernel {
+    /// Explicit AVX-512 (F, DQ) on interleaved complex frames, eight frames per vector, the last
+    /// vector of a run masked.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
     /// Explicit AVX2 + FMA on interleaved complex frames.
     #[cfg(target_arch = "x86_64")]
     Avx2,
@@ -600,19 +655,33 @@ enum Kernel {
 }
 
 impl Kernel {
-    fn detect() -> Kernel {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::sync::OnceLock;
-            static AVX2: OnceLock<bool> = OnceLock::new();
-            let avx2 = *AVX2.get_or_init(|| {
-                is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
-            });
-            if avx2 {
-                return Kernel::Avx2;
+    /// The kernels this CPU runs, fastest first; the portable loop is always last.
+    fn supported() -> &'static [Kernel] {
+        use std::sync::OnceLock;
+        static SUPPORTED: OnceLock<Vec<Kernel>> = OnceLock::new();
+        SUPPORTED.get_or_init(|| {
+            let mut kernels = Vec::new();
+            #[cfg(target_arch = "x86_64")]
+            {
+                let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+                if avx2
+                    && is_x86_feature_detected!("avx512f")
+                    && is_x86_feature_detected!("avx512dq")
+                {
+                    kernels.push(Kernel::Avx512);
+                }
+                if avx2 {
+                    kernels.push(Kernel::Avx2);
+                }
             }
-        }
-        Kernel::Portable
+            kernels.push(Kernel::Portable);
+            kernels
+        })
+    }
+
+    /// The fastest kernel this CPU runs.
+    fn detect() -> Kernel {
+        Kernel::supported()[0]
     }
 
     /// Adds to `out`, frames `f0..f0 + out.len()` of pixel `p`, Σ over its taps of c0·a + c1·b,
@@ -635,6 +704,14 @@ impl Kernel {
         let end = start + len;
         assert!(f0 + out.len() <= frames && data.len() >= setup.element_x.len() * n_samples * row);
         assert!(taps.rows.len() >= end + PF && taps.c1_im.len() >= end);
+        #[cfg(target_arch = "x86_64")]
+        if self == Kernel::Avx512 && !out.is_empty() && out.len() <= 8 * avx512::MAX_VECTORS {
+            // SAFETY: AVX-512F/DQ, AVX2 and FMA were detected. Reads stay within `data` as for
+            // AVX2 below; the masked last vector reads and writes only frames below
+            // f0 + out.len().
+            unsafe { avx512::pixel_chunk(out, next, data, f0, row, taps, start, len) };
+            return;
+        }
         #[cfg(target_arch = "x86_64")]
         if self == Kernel::Avx2 && out.len().is_multiple_of(4) && out.len() <= 4 * MAX_VECTORS {
             // SAFETY: AVX2 and FMA were detected. Reads stay within `data`: each row index is
@@ -675,7 +752,7 @@ mod avx2 {
     ///
     /// # Safety
     /// AVX2 and FMA must be available; for every tap k in `start..start + len`,
-    /// (rows[k] + 1)·row + f0 + acc.len() must lie within `data`; `taps.rows` must hold PF
+    /// `(rows[k] + 1)·row + f0 + acc.len()` must lie within `data`; `taps.rows` must hold PF
     /// entries beyond them.
     #[allow(clippy::too_many_arguments)]
     #[inline]
@@ -778,6 +855,163 @@ mod avx2 {
             let t = _mm256_xor_ps(_mm256_permute_ps(sq[j], 0b1011_0001), sign);
             // SAFETY: acc holds 4·N complex values.
             unsafe { _mm256_storeu_ps(out.add(8 * j), _mm256_add_ps(sp[j], t)) };
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{PF, Taps};
+    use num_complex::Complex32;
+    use std::arch::x86_64::*;
+
+    /// The most 8-frame vectors of one pixel whose sums stay in registers across the element
+    /// loop: two sums per vector and four broadcast weights take 30 of the 32 registers at 13,
+    /// leaving two for the samples. 13 vectors hold 104 frames, so a typical 100-frame ensemble
+    /// is one run and each tap's rows are read once per pass.
+    pub(super) const MAX_VECTORS: usize = 13;
+
+    /// Dispatches a run of 1..=8·MAX_VECTORS frames to its register-resident instance.
+    ///
+    /// # Safety
+    /// AVX-512F, AVX-512DQ, AVX2 and FMA must be available; `acc` must not be empty; for every
+    /// tap k in `start..start + len`, (rows[k] + 1)·row + f0 + acc.len() must lie within
+    /// `data`; `taps.rows` must hold PF entries beyond them.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub(super) unsafe fn pixel_chunk(
+        acc: &mut [Complex32],
+        next: *const Complex32,
+        data: &[Complex32],
+        f0: usize,
+        row: usize,
+        taps: &Taps,
+        start: usize,
+        len: usize,
+    ) {
+        debug_assert!(!acc.is_empty() && acc.len().div_ceil(8) <= MAX_VECTORS);
+        // SAFETY: forwarded from the caller.
+        unsafe {
+            match acc.len().div_ceil(8) {
+                1 => run::<1>(acc, next, data, f0, row, taps, start, len),
+                2 => run::<2>(acc, next, data, f0, row, taps, start, len),
+                3 => run::<3>(acc, next, data, f0, row, taps, start, len),
+                4 => run::<4>(acc, next, data, f0, row, taps, start, len),
+                5 => run::<5>(acc, next, data, f0, row, taps, start, len),
+                6 => run::<6>(acc, next, data, f0, row, taps, start, len),
+                7 => run::<7>(acc, next, data, f0, row, taps, start, len),
+                8 => run::<8>(acc, next, data, f0, row, taps, start, len),
+                9 => run::<9>(acc, next, data, f0, row, taps, start, len),
+                10 => run::<10>(acc, next, data, f0, row, taps, start, len),
+                11 => run::<11>(acc, next, data, f0, row, taps, start, len),
+                12 => run::<12>(acc, next, data, f0, row, taps, start, len),
+                13 => run::<13>(acc, next, data, f0, row, taps, start, len),
+                _ => {}
+            }
+        }
+    }
+
+    /// Asks for the lines of N vectors at `a` and, if `row` > 0, one row further into L1.
+    #[inline(always)]
+    fn prefetch<const N: usize>(a: *const f32, row: usize) {
+        let a = a.cast::<i8>();
+        let b = a.wrapping_add(8 * row);
+        let mut l = 0;
+        while l < 64 * N + 63 {
+            // SAFETY: prefetches never fault, whatever the address.
+            unsafe {
+                _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
+                if row > 0 {
+                    _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
+                }
+            }
+            l += 64;
+        }
+    }
+
+    /// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs, as [`super::avx2`]'s
+    /// `run` (two sums per vector, the swap and sign applied once after the loop), 16 floats
+    /// per vector; the last vector is masked to the frames of `acc`, so that no frame is left
+    /// to a scalar tail and nothing beyond them is read or written.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+    unsafe fn run<const N: usize>(
+        acc: &mut [Complex32],
+        next: *const Complex32,
+        data: &[Complex32],
+        f0: usize,
+        row: usize,
+        taps: &Taps,
+        start: usize,
+        len: usize,
+    ) {
+        // Frames in the last vector, 1..=8, two floats each.
+        let last = acc.len() - 8 * (N - 1);
+        let tail: __mmask16 = if last == 8 {
+            u16::MAX
+        } else {
+            (1 << (2 * last)) - 1
+        };
+        let out = acc.as_mut_ptr().cast::<f32>();
+        // SAFETY: acc holds 8·(N − 1) + `last` complex values, and the last load is masked.
+        let mut sp: [__m512; N] = std::array::from_fn(|j| unsafe {
+            if j + 1 < N {
+                _mm512_loadu_ps(out.add(16 * j))
+            } else {
+                _mm512_maskz_loadu_ps(tail, out.add(16 * j))
+            }
+        });
+        let mut sq: [__m512; N] = [_mm512_setzero_ps(); N];
+        prefetch::<N>(next.cast::<f32>(), 0);
+        // SAFETY (all pointer arithmetic below): the caller guarantees the tap arrays hold
+        // start + len entries, `rows` PF more, and that every tap's rows lie within `data`;
+        // the last vector's loads are masked to the frames of `acc`.
+        let base = unsafe { data.as_ptr().add(f0).cast::<f32>() };
+        let rows = unsafe { taps.rows.as_ptr().add(start) };
+        let c0r = unsafe { taps.c0_re.as_ptr().add(start) };
+        let c0i = unsafe { taps.c0_im.as_ptr().add(start) };
+        let c1r = unsafe { taps.c1_re.as_ptr().add(start) };
+        let c1i = unsafe { taps.c1_im.as_ptr().add(start) };
+        for k in 0..len {
+            unsafe {
+                let a = base.add(2 * row * *rows.add(k) as usize);
+                let b = a.add(2 * row);
+                // Prefetch PF taps ahead, running on into the next pixel's.
+                prefetch::<N>(base.wrapping_add(2 * row * *rows.add(k + PF) as usize), row);
+                let p0 = _mm512_set1_ps(*c0r.add(k));
+                let q0 = _mm512_set1_ps(*c0i.add(k));
+                let p1 = _mm512_set1_ps(*c1r.add(k));
+                let q1 = _mm512_set1_ps(*c1i.add(k));
+                for j in 0..N {
+                    // 16 floats = 8 frames, inside the run of frames (masked in the last).
+                    let (u, v) = if j + 1 < N {
+                        (
+                            _mm512_loadu_ps(a.add(16 * j)),
+                            _mm512_loadu_ps(b.add(16 * j)),
+                        )
+                    } else {
+                        (
+                            _mm512_maskz_loadu_ps(tail, a.add(16 * j)),
+                            _mm512_maskz_loadu_ps(tail, b.add(16 * j)),
+                        )
+                    };
+                    sp[j] = _mm512_fmadd_ps(u, p0, sp[j]);
+                    sq[j] = _mm512_fmadd_ps(u, q0, sq[j]);
+                    sp[j] = _mm512_fmadd_ps(v, p1, sp[j]);
+                    sq[j] = _mm512_fmadd_ps(v, q1, sq[j]);
+                }
+            }
+        }
+        let sign = _mm512_setr_ps(
+            -0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0,
+        );
+        for j in 0..N {
+            // (q u, q v) → (−q v, q u).
+            let t = _mm512_xor_ps(_mm512_permute_ps::<0b1011_0001>(sq[j]), sign);
+            let sum = _mm512_add_ps(sp[j], t);
+            let mask = if j + 1 < N { u16::MAX } else { tail };
+            // SAFETY: acc holds 8·(N − 1) + `last` complex values; the store is masked to them.
+            unsafe { _mm512_mask_storeu_ps(out.add(16 * j), mask, sum) };
         }
     }
 }
@@ -935,66 +1169,115 @@ mod tests {
         }
     }
 
-    #[test]
-    fn fast_kernel_matches_portable_loop() {
-        if Kernel::detect() == Kernel::Portable {
-            return;
-        }
-        let (channels, samples, frames) = (5, 40, 37);
-        let iq = random_iq(channels, samples, frames, 3);
-        let data = iq.data.as_slice().unwrap();
-        let setup = Setup {
-            element_x: vec![0.0; channels],
-            sorted: true,
-            angle: 0.0,
-            aperture: (0.0, 0.0),
-            c: 1540.0,
-            fs: 1.0,
-            t0: 0.0,
-            demod_frequency: 1.0,
-            f_number: 1.0,
-            apodization: Apodization::Boxcar,
-            n_samples: samples,
-            frames,
-        };
-        let mut r = noise(11);
-        // One pixel with four taps, on elements 1..5.
-        let mut taps = Taps::default();
-        let start = taps.push(4);
-        for k in 0..4 {
-            let i0 = k * 9 + 3;
-            taps.rows[start + k] = ((1 + k) * samples + i0) as u32;
-            taps.c0_re[start + k] = r();
-            taps.c0_im[start + k] = r();
-            taps.c1_re[start + k] = r();
-            taps.c1_im[start + k] = r();
-        }
-        taps.finish();
-        for range in frame_chunks(frames, Kernel::detect()) {
-            let mut r = noise(range.start as u64);
-            let start: Vec<Complex32> = range.clone().map(|_| Complex32::new(r(), r())).collect();
-            let (mut fast, mut slow) = (start.clone(), start);
-            Kernel::detect().accumulate(
-                &mut fast,
-                range.start,
-                data,
-                &setup,
-                &taps,
-                0,
-                data.as_ptr(),
-            );
-            Kernel::Portable.accumulate(
-                &mut slow,
-                range.start,
-                data,
-                &setup,
-                &taps,
-                0,
-                data.as_ptr(),
-            );
-            for (a, b) in fast.iter().zip(&slow) {
-                assert!((a - b).norm() <= 1e-5 * b.norm().max(1.0), "{a} vs {b}");
+    /// Runs `kernel`'s accumulation against the portable loop's on random taps and data, over
+    /// every run of frames it is given for several frame counts (whole vectors, partial last
+    /// vectors, more than one run), and on a whole image. Both sum the same f32 products in a
+    /// different order and with or without FMA, so they differ by rounding only: a few ulps of
+    /// the largest partial sum (here |sum| ≲ 8·|terms|), hence a relative bound of 1e-5 of the
+    /// sum's size, or of 1 where the sum nearly cancels.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    fn kernel_matches_portable_loop(kernel: Kernel) {
+        for frames in [1, 3, 8, 37, 100, 104, 105, 230] {
+            let (channels, samples) = (5, 40);
+            let iq = random_iq(channels, samples, frames, 3);
+            let data = iq.data.as_slice().unwrap();
+            let setup = Setup {
+                element_x: vec![0.0; channels],
+                sorted: true,
+                angle: 0.0,
+                aperture: (0.0, 0.0),
+                c: 1540.0,
+                fs: 1.0,
+                t0: 0.0,
+                demod_frequency: 1.0,
+                f_number: 1.0,
+                apodization: Apodization::Boxcar,
+                n_samples: samples,
+                frames,
+            };
+            let mut r = noise(11);
+            // Two pixels, with four and three taps, on elements 1..5; the first tap of the
+            // second reads the last sample pair of its element.
+            let mut taps = Taps::default();
+            for (n, offset) in [(4, 3), (3, 38)] {
+                let start = taps.push(n);
+                for k in 0..n {
+                    let i0 = (k * 9 + offset).min(samples - 2);
+                    taps.rows[start + k] = ((1 + k) * samples + i0) as u32;
+                    taps.c0_re[start + k] = r();
+                    taps.c0_im[start + k] = r();
+                    taps.c1_re[start + k] = r();
+                    taps.c1_im[start + k] = r();
+                }
+            }
+            taps.finish();
+            let chunks = frame_chunks(frames, kernel);
+            assert_eq!(chunks.first().map(|c| c.start), Some(0));
+            assert_eq!(chunks.last().map(|c| c.end), Some(frames));
+            assert!(chunks.windows(2).all(|w| w[0].end == w[1].start));
+            for p in 0..2 {
+                for range in chunks.clone() {
+                    let mut r = noise(range.start as u64);
+                    let start: Vec<Complex32> =
+                        range.clone().map(|_| Complex32::new(r(), r())).collect();
+                    let (mut fast, mut slow) = (start.clone(), start);
+                    let next = data.as_ptr();
+                    kernel.accumulate(&mut fast, range.start, data, &setup, &taps, p, next);
+                    Kernel::Portable.accumulate(
+                        &mut slow,
+                        range.start,
+                        data,
+                        &setup,
+                        &taps,
+                        p,
+                        next,
+                    );
+                    for (a, b) in fast.iter().zip(&slow) {
+                        assert!(
+                            (a - b).norm() <= 1e-5 * b.norm().max(1.0),
+                            "{kernel:?}, {frames} frames: {a} vs {b}"
+                        );
+                    }
+                }
             }
         }
+        // A whole image, 21 frames (a partial last vector for either kernel), against the
+        // portable kernel's.
+        let probe = Probe::l22_14vx();
+        let grid = Grid::new(-1e-3, 1e-3, 3e-3, 4e-3, 0.1e-3).unwrap();
+        let iq = random_iq(probe.n_elements, 400, 21, 5);
+        let params = DasParams::new(1540.0);
+        let fast = beamform_with(kernel, &iq, &probe, 0.1, &grid, &params).unwrap();
+        let slow = beamform_with(Kernel::Portable, &iq, &probe, 0.1, &grid, &params).unwrap();
+        let scale = slow.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+        assert!(scale > 1.0);
+        for (a, b) in fast.iter().zip(slow.iter()) {
+            assert!((a - b).norm() <= 1e-5 * scale, "{kernel:?}: {a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn avx512_kernel_matches_portable_loop() {
+        #[cfg(target_arch = "x86_64")]
+        if Kernel::supported().contains(&Kernel::Avx512) {
+            return kernel_matches_portable_loop(Kernel::Avx512);
+        }
+        eprintln!("skipped: this CPU has no AVX-512F/DQ (or no AVX2 + FMA)");
+    }
+
+    #[test]
+    fn avx2_kernel_matches_portable_loop() {
+        #[cfg(target_arch = "x86_64")]
+        if Kernel::supported().contains(&Kernel::Avx2) {
+            return kernel_matches_portable_loop(Kernel::Avx2);
+        }
+        eprintln!("skipped: this CPU has no AVX2 + FMA");
+    }
+
+    #[test]
+    fn detect_picks_the_first_supported_kernel() {
+        let supported = Kernel::supported();
+        assert_eq!(Kernel::detect(), supported[0]);
+        assert_eq!(supported.last(), Some(&Kernel::Portable));
     }
 }
