@@ -300,13 +300,23 @@ pub fn dynamics_figures(
     series: &VelocitySeries,
     params: &DynamicsParams,
     grid: &Grid,
+    power_doppler: &Array2<f64>,
     name: &str,
 ) -> Result<Vec<PathBuf>> {
-    let vmax = quantile(maps.psv.iter().map(|v| v * 1e3), 0.95).max(1e-6);
+    // Shown where the whole recording's power Doppler marks flow, as in the colour-Doppler figure:
+    // the RI stage's threshold acts on 20 ms windows, whose power lets noise pixels in, and their
+    // PSV would set the colour scale.
+    let flow = flow_mask(power_doppler);
+    let shown = |data: Array2<f64>| {
+        Zip::from(&data)
+            .and(&flow)
+            .map_collect(|&v, &f| if f { v } else { f64::NAN })
+    };
+    let vmax = quantile(shown(maps.psv.clone()).iter().map(|v| v * 1e3), 0.95).max(1e-6);
     let panels = vec![
         finite_panel(
             "Resistivity index (PSV − EDV)/PSV",
-            maps.ri.clone(),
+            shown(maps.ri.clone()),
             grid,
             Colormap::Viridis,
             (0.0, 1.0),
@@ -314,7 +324,12 @@ pub fn dynamics_figures(
         ),
         finite_panel(
             &format!("Arterioles (RI ≥ {})", params.artery_ri_min),
-            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, ARTERIOLE),
+            shown(class_map(
+                &maps.psv,
+                &maps.vessel_class,
+                &maps.flow_up,
+                ARTERIOLE,
+            )),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
@@ -322,7 +337,12 @@ pub fn dynamics_figures(
         ),
         finite_panel(
             &format!("Venules (RI ≤ {})", params.vein_ri_max),
-            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, VENULE),
+            shown(class_map(
+                &maps.psv,
+                &maps.vessel_class,
+                &maps.flow_up,
+                VENULE,
+            )),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),

@@ -152,7 +152,15 @@ fn run_dynamics(
         &dir.join("times.npy"),
         &Array1::from(series.times_s.clone()),
     )?;
-    let pngs = figures::dynamics_figures(dir, &maps, &series, &dparams, &out.grid, name)?;
+    let pngs = figures::dynamics_figures(
+        dir,
+        &maps,
+        &series,
+        &dparams,
+        &out.grid,
+        &out.power_doppler,
+        name,
+    )?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     let summary = json!({
         "heart_rate_hz": maps.heart_rate_hz,
