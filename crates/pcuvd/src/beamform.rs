@@ -387,6 +387,27 @@ fn prefetch_far(a: *const u8) {
     let _ = a;
 }
 
+/// Asks for the cache lines of the `bytes` at `a` and, if `row` > 0, of the same span `row`
+/// complex samples further, into L1: the two rows a tap interpolates between, for the SIMD kernels.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn prefetch_near(a: *const f32, bytes: usize, row: usize) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    let a = a.cast::<i8>();
+    let b = a.wrapping_add(8 * row);
+    let mut l = 0;
+    while l < bytes + 63 {
+        // SAFETY: prefetches never fault, whatever the address; SSE is part of x86_64.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
+            if row > 0 {
+                _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
+            }
+        }
+        l += 64;
+    }
+}
+
 /// Where one pixel's taps lie in the arrays of [`Taps`].
 #[derive(Debug, Clone, Copy, Default)]
 struct Span {
@@ -780,22 +801,10 @@ mod avx2 {
         }
     }
 
-    /// Asks for the lines of N vectors at `a` and, if `row` > 0, one row further into L1.
+    /// Asks for the lines of N 8-float vectors at `a` and, if `row` > 0, one row further into L1.
     #[inline(always)]
     fn prefetch<const N: usize>(a: *const f32, row: usize) {
-        let a = a.cast::<i8>();
-        let b = a.wrapping_add(8 * row);
-        let mut l = 0;
-        while l < 32 * N + 63 {
-            // SAFETY: prefetches never fault, whatever the address.
-            unsafe {
-                _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
-                if row > 0 {
-                    _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
-                }
-            }
-            l += 64;
-        }
+        super::prefetch_near(a, 32 * N, row);
     }
 
     /// acc += Σ_k c0[k]·a_k + c1[k]·b_k on interleaved (re, im) pairs. With c = (p, q) and
@@ -911,22 +920,10 @@ mod avx512 {
         }
     }
 
-    /// Asks for the lines of N vectors at `a` and, if `row` > 0, one row further into L1.
+    /// Asks for the lines of N 16-float vectors at `a` and, if `row` > 0, one row further into L1.
     #[inline(always)]
     fn prefetch<const N: usize>(a: *const f32, row: usize) {
-        let a = a.cast::<i8>();
-        let b = a.wrapping_add(8 * row);
-        let mut l = 0;
-        while l < 64 * N + 63 {
-            // SAFETY: prefetches never fault, whatever the address.
-            unsafe {
-                _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
-                if row > 0 {
-                    _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
-                }
-            }
-            l += 64;
-        }
+        super::prefetch_near(a, 64 * N, row);
     }
 
     /// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs, as [`super::avx2`]'s

@@ -18,7 +18,7 @@
 
 use faer::Mat;
 use faer::linalg::solvers::SolveLstsq;
-use ndarray::{Array2, Array3, ArrayView3, Axis, Zip, s};
+use ndarray::{Array2, Array3, ArrayView3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
@@ -124,19 +124,27 @@ impl VesselPooling {
                 format!("the radius must be a finite length ≥ 0, got {radius_m} m"),
             ));
         }
-        if !(max_angle_deg.is_finite() && (0.0..=180.0).contains(&max_angle_deg)) {
-            return Err(invalid(
+        let pooling = VesselPooling {
+            radius: (radius_m / grid_step_m).round() as usize,
+            max_angle: max_angle_deg.to_radians(),
+        };
+        pooling.check_max_angle()?;
+        Ok((pooling.radius > 0).then_some(pooling))
+    }
+
+    /// Refuses a largest flow-direction difference outside 0–180° (or NaN).
+    fn check_max_angle(&self) -> Result<()> {
+        if self.max_angle.is_finite() && (0.0..=std::f64::consts::PI).contains(&self.max_angle) {
+            Ok(())
+        } else {
+            Err(invalid(
                 "vessel pooling",
                 format!(
-                    "the largest flow-direction difference must be within 0–180°, got {max_angle_deg}°"
+                    "the largest flow-direction difference must be within 0–180°, got {}°",
+                    self.max_angle.to_degrees()
                 ),
-            ));
+            ))
         }
-        let radius = (radius_m / grid_step_m).round() as usize;
-        Ok((radius > 0).then_some(VesselPooling {
-            radius,
-            max_angle: max_angle_deg.to_radians(),
-        }))
     }
 }
 
@@ -204,17 +212,8 @@ impl DynamicsParams {
                 ),
             ));
         }
-        if let Some(pooling) = self.pooling
-            && !(pooling.max_angle.is_finite()
-                && (0.0..=std::f64::consts::PI).contains(&pooling.max_angle))
-        {
-            return Err(invalid(
-                "vessel pooling",
-                format!(
-                    "the largest flow-direction difference must be within 0–180°, got {}°",
-                    pooling.max_angle.to_degrees()
-                ),
-            ));
+        if let Some(pooling) = self.pooling {
+            pooling.check_max_angle()?;
         }
         if !(self.min_power_db.is_finite() && self.min_power_db <= 0.0) {
             return Err(invalid(
@@ -529,11 +528,7 @@ pub fn sliding_vectors(
             }
             power /= n as f64;
             if let Some(c) = coverage {
-                Zip::from(&mut projections).and(c).for_each(|v, &seen| {
-                    if !seen {
-                        *v = f64::NAN;
-                    }
-                });
+                vector::drop_unreached(&mut projections, c);
             }
             let field = vector::vector_velocity(angles, projections.view(), &params.estimator)?;
             Ok((field.vx, field.vz, power))

@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, Axis, Zip};
+use ndarray::{Array2, Array3, Axis};
 use num_complex::Complex32;
 
 use crate::beamform::{self, DasParams, Grid};
@@ -201,13 +201,7 @@ pub fn analyse(
     let axial =
         doppler::projection_velocity(&r1, c, frame_rate, f0)?.mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = angle_coverage(acq, &params.grid);
-    Zip::from(&mut projections)
-        .and(&coverage)
-        .for_each(|v, &seen| {
-            if !seen {
-                *v = f64::NAN;
-            }
-        });
+    vector::drop_unreached(&mut projections, coverage.view());
     let (vector_ls, vector_irls) = if n >= 2 {
         (
             Some(vector::vector_velocity(

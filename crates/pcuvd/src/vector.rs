@@ -6,7 +6,7 @@
 //! w_i = 1/(|r_i| + λ) with r_i in mm/s (eq. 11–12), normalised to sum 1, until max|Δw| < ε
 //! (eq. 13) or an iteration cap.
 
-use ndarray::{Array2, ArrayView3, Axis, Zip};
+use ndarray::{Array2, Array3, ArrayView3, Axis, Zip};
 
 use crate::error::{Error, Result, invalid};
 
@@ -133,6 +133,16 @@ pub fn solve_pixel(angles: &[f64], v_theta: &[f64], estimator: &Estimator) -> (f
     v
 }
 
+/// Marks as missing (NaN) the projections of `v_theta` (angles, nz, nx) whose angle does not
+/// reach the pixel by `coverage` (same shape, true = reached); [`solve_pixel`] leaves them out.
+pub fn drop_unreached(v_theta: &mut Array3<f64>, coverage: ArrayView3<bool>) {
+    Zip::from(v_theta).and(coverage).for_each(|v, &reached| {
+        if !reached {
+            *v = f64::NAN;
+        }
+    });
+}
+
 /// Vector field from projection maps `v_theta` of shape (angles, nz, nx) (m/s) at `angles` (rad).
 pub fn vector_velocity(
     angles: &[f64],
@@ -191,17 +201,21 @@ mod tests {
     fn exact_on_noiseless_projections() {
         let angles = paper_angles();
         for &(vx, vz) in &[(0.02, 0.0), (-0.013, 0.004), (0.0, -0.025), (0.007, 0.019)] {
-            let p = projections(&angles, vx, vz);
-            for est in [
-                Estimator::LeastSquares,
-                Estimator::Irls(IrlsParams::default()),
-            ] {
-                let (ex, ez) = solve_pixel(&angles, &p, &est);
-                assert!(
-                    (ex - vx).abs() < 1e-9 && (ez - vz).abs() < 1e-9,
-                    "{est:?}: {ex} {ez}"
-                );
-            }
+            solves_exactly(&angles, &projections(&angles, vx, vz), (vx, vz));
+        }
+    }
+
+    /// Both estimators give back (vx, vz) (m/s) from `p` within 1e-9 m/s.
+    fn solves_exactly(angles: &[f64], p: &[f64], (vx, vz): (f64, f64)) {
+        for est in [
+            Estimator::LeastSquares,
+            Estimator::Irls(IrlsParams::default()),
+        ] {
+            let (ex, ez) = solve_pixel(angles, p, &est);
+            assert!(
+                (ex - vx).abs() < 1e-9 && (ez - vz).abs() < 1e-9,
+                "{est:?}: {ex} {ez}"
+            );
         }
     }
 
@@ -214,16 +228,7 @@ mod tests {
         let mut p = projections(&angles, vx, vz);
         p[0] = f64::NAN;
         p[1] = f64::NAN;
-        for est in [
-            Estimator::LeastSquares,
-            Estimator::Irls(IrlsParams::default()),
-        ] {
-            let (ex, ez) = solve_pixel(&angles, &p, &est);
-            assert!(
-                (ex - vx).abs() < 1e-9 && (ez - vz).abs() < 1e-9,
-                "{est:?}: {ex} {ez}"
-            );
-        }
+        solves_exactly(&angles, &p, (vx, vz));
         let mut lone = vec![f64::NAN; angles.len()];
         lone[3] = p[3];
         let (ex, ez) = solve_pixel(&angles, &lone, &Estimator::LeastSquares);
