@@ -30,6 +30,21 @@ pub fn quantile(values: impl Iterator<Item = f64>, q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
 }
 
+/// Median of `v` (the mean of the two middle values for an even count, NaNs sorted last);
+/// NaN when `v` is empty.
+pub fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
 /// Power in dB relative to its 99.9th percentile (robust to a few very bright pixels).
 pub fn power_db(power: &Array2<f64>) -> Array2<f64> {
     let reference = quantile(power.iter().copied(), 0.999).max(f64::MIN_POSITIVE);
@@ -87,15 +102,6 @@ pub fn vector_overlay(
         scale_mm: (stride as f64 * step_mm * 1.4).max(1e-3),
         colormap: Colormap::Viridis,
         speed_range: (0.0, speed_max_mm_s.max(1e-9)),
-    };
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(|a, b| a.total_cmp(b));
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        }
     };
     for z0 in (0..nz).step_by(stride) {
         for x0 in (0..nx).step_by(stride) {

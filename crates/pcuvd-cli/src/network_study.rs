@@ -23,7 +23,7 @@ use pcuvd::vector::{Estimator, IrlsParams, VectorField};
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 use serde_json::{Map, Value, json};
 
-use crate::figures::{class_map, map_panel, vector_panel};
+use crate::figures::{class_map, map_panel, median, vector_panel};
 use crate::paper::{
     Mode, PaperArgs, Part, Rendered, TRUTH_RGB, UVD_RGB, line, mean_power, process_params, render,
     simulate_and_form, snr_by_depth,
@@ -368,19 +368,6 @@ impl Scores {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Scores over the pixels where `select(vessel index)` holds; see [`RI_SCORE_DEFINITION`].
 fn score_where(est: &RiMaps, truth: &NetworkTruth, select: impl Fn(usize) -> bool) -> Score {
     let (mut errors, mut ris) = (vec![], vec![]);
@@ -514,7 +501,7 @@ impl Roi {
         if rows.len() < 2 || cols.len() < 2 {
             bail!("region of interest {x:?} × {z:?} m holds no pixels of the grid");
         }
-        let step = grid.x[1] - grid.x[0];
+        let step = grid.step();
         let sub = Grid::new(
             grid.x[cols.start],
             grid.x[cols.end - 1],
@@ -569,10 +556,15 @@ fn network_figures(
     let mut figs = Vec::new();
     let black = Array2::<f64>::zeros(grid.shape());
     let vmax = 30.0;
+    // Flow pixels of each mode, for every flow map below.
+    let flows: Vec<Array2<bool>> = results
+        .iter()
+        .map(|r| flow_above_noise(&r.out.power_doppler, &r.noise_power))
+        .collect();
 
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD.
     let mut panels = Vec::new();
-    for r in results {
+    for (r, flow) in results.iter().zip(&flows) {
         let name = r.estimator_name();
         panels.push(Panel::Image(map_panel(
             &format!("{name}: power Doppler"),
@@ -582,7 +574,6 @@ fn network_figures(
             (0.0, 40.0),
             "dB above noise",
         )));
-        let flow = flow_above_noise(&r.out.power_doppler, &r.noise_power);
         let mut cd = map_panel(
             &format!("{name}: colour Doppler (red: up)"),
             r.out.color_doppler.mapv(|v| -v * 1e3),
@@ -598,7 +589,7 @@ fn network_figures(
             &format!("{name}: vector Doppler"),
             r.field(),
             grid,
-            &flow,
+            flow,
             &black,
         ));
     }
@@ -678,8 +669,7 @@ fn network_figures(
         ((-1.8e-3, 3.6e-3), (10.0e-3, 12.4e-3)),
     ];
     let mut panels = Vec::new();
-    for r in results {
-        let flow = flow_above_noise(&r.out.power_doppler, &r.noise_power);
+    for (r, flow) in results.iter().zip(&flows) {
         for (k, &(x, z)) in rois.iter().enumerate() {
             let roi = Roi::new(grid, x, z)?;
             let field = VectorField {
@@ -690,7 +680,7 @@ fn network_figures(
                 &format!("{}: ROI {}", r.estimator_name(), k + 1),
                 &field,
                 &roi.grid,
-                &roi.cut(&flow),
+                &roi.cut(flow),
                 &roi.cut(&black),
             ));
         }
@@ -701,10 +691,9 @@ fn network_figures(
     // Figure 8 (a, c, d): RI maps and arteriole / venule maps, shown where there is flow: the
     // RI stage's vessel mask (−30 dB re. the brightest pixel) lets noise through at +5 dB, and
     // pooled noise paints smooth blobs that look like vessels. Scores are over the true lumen.
-    let shown = |values: &Array2<f64>, r: &ModeResult| {
-        let flow = flow_above_noise(&r.out.power_doppler, &r.noise_power);
+    let shown = |values: &Array2<f64>, flow: &Array2<bool>| {
         Zip::from(values)
-            .and(&flow)
+            .and(flow)
             .map_collect(|v, &f| f && v.is_finite())
     };
     let mut panels = vec![{
@@ -720,7 +709,7 @@ fn network_figures(
         p.background = Some(black.clone());
         Panel::Image(p)
     }];
-    for (r, sc) in results.iter().zip(scores) {
+    for ((r, sc), flow) in results.iter().zip(scores).zip(&flows) {
         let mut p = map_panel(
             &format!(
                 "{}: RI (median |error| {:.3})",
@@ -733,7 +722,7 @@ fn network_figures(
             (0.0, 1.0),
             "RI",
         );
-        p.mask = Some(shown(&r.ri.ri, r));
+        p.mask = Some(shown(&r.ri.ri, flow));
         p.background = Some(black.clone());
         panels.push(Panel::Image(p));
     }
@@ -749,13 +738,13 @@ fn network_figures(
                 "PSV (mm/s), red up, blue down",
             );
             p.mask = Some(match flow {
-                Some(r) => shown(&data, r),
+                Some(flow) => shown(&data, flow),
                 None => finite_mask(&data),
             });
             p.background = Some(black.clone());
             Panel::Image(p)
         };
-    for r in results.iter().rev() {
+    for (r, flow) in results.iter().zip(&flows).rev() {
         let (name, ri) = (r.estimator_name(), &r.ri);
         panels.push(class_panel(
             &format!("{name}: arterioles (RI ≥ 0.55)"),
@@ -763,7 +752,7 @@ fn network_figures(
             &ri.vessel_class,
             &ri.flow_up,
             ARTERIOLE,
-            Some(r),
+            Some(flow),
         ));
         panels.push(class_panel(
             &format!("{name}: venules (RI ≤ 0.5)"),
@@ -771,7 +760,7 @@ fn network_figures(
             &ri.vessel_class,
             &ri.flow_up,
             VENULE,
-            Some(r),
+            Some(flow),
         ));
         panels.push(class_panel(
             &format!(

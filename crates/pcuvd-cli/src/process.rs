@@ -279,7 +279,7 @@ pub fn summary_json(
         "grid": {
             "x_min_m": out.grid.x[0], "x_max_m": out.grid.x[out.grid.x.len() - 1],
             "z_min_m": out.grid.z[0], "z_max_m": out.grid.z[out.grid.z.len() - 1],
-            "step_m": out.grid.x.get(1).map(|x| x - out.grid.x[0]).or_else(|| out.grid.z.get(1).map(|z| z - out.grid.z[0])),
+            "step_m": out.grid.step(),
             "nx": out.grid.x.len(), "nz": out.grid.z.len(),
         },
         "beamforming": { "f_number": params.das.f_number, "apodization": format!("{:?}", params.das.apodization) },
