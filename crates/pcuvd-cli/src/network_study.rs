@@ -96,8 +96,8 @@ fn frame_rate() -> Result<f64> {
 /// at the default 0.05 mm grid. Per-pixel window speeds jitter (a 20 ms window sees few speckle
 /// renewals) and the extremes of a jittery waveform inflate RI; on this network, at noise +5 dB
 /// and without pooling, the PC-UVD median RI error was 0.12 with 1 × 1, 0.097 with 3 × 3 and 0.078
-/// with 5 × 5 (2 harmonics). With vessel pooling (0.7 mm, seeds 1–3), 5 × 5 gave 0.030–0.036 and
-/// 95.3–97.7 % rightly classed, 7 × 7 0.032–0.040 and 95.2–98.5 %.
+/// with 5 × 5 (2 harmonics). With vessel pooling (0.7 mm, seeds 1–3, before angle coverage),
+/// 5 × 5 gave 0.030–0.036 and 95.3–97.7 % rightly classed, 7 × 7 0.032–0.040 and 95.2–98.5 %.
 const DYNAMICS_KERNEL: (usize, usize) = (5, 5);
 
 /// Dynamics settings: the rat preset with the study's heart rate, the mode's estimator and the
