@@ -271,6 +271,44 @@ pub fn projection_velocity(
     }))
 }
 
+/// Fraction of a depth row's pixels below the noise floor estimate ([`noise_floor_by_depth`]).
+pub const NOISE_FLOOR_QUANTILE: f64 = 0.3;
+
+/// Noise power of each depth row (row `iz` of `power`, same units): the 30th percentile of the
+/// row's finite power-Doppler values.
+///
+/// Why a per-row low percentile: the noise power of a beamformed image changes with depth (the
+/// receive aperture grows, time-gain compensation lifts deep rows, attenuation does not act on
+/// noise), but along a row it is nearly flat, and vessels fill a minority of any row, so the lower
+/// part of the row's distribution is noise. On the simulated rat vessel network (+5 dB) it reads
+/// the true noise power (imaged apart) within 2 dB at every depth. Where flow fills more than
+/// ~70 % of a row (a dense perfused cortex) it reads the perfusion level instead, and a mask
+/// built on it keeps what stands out of the perfused tissue: the larger vessels.
+pub fn noise_floor_by_depth(power: &Array2<f64>) -> Vec<f64> {
+    power
+        .outer_iter()
+        .map(|row| {
+            let mut values: Vec<f64> = row.iter().copied().filter(|p| p.is_finite()).collect();
+            if values.is_empty() {
+                return f64::NAN;
+            }
+            values.sort_by(|a, b| a.total_cmp(b));
+            values[((values.len() - 1) as f64 * NOISE_FLOOR_QUANTILE).round() as usize]
+        })
+        .collect()
+}
+
+/// Flow pixels of a power-Doppler image: power at least `margin_db` (dB) above the noise floor of
+/// its depth row ([`noise_floor_by_depth`]), and above zero.
+pub fn above_noise_floor(power: &Array2<f64>, margin_db: f64) -> Array2<bool> {
+    let gain = 10f64.powf(margin_db / 10.0);
+    let floor = noise_floor_by_depth(power);
+    Array2::from_shape_fn(power.dim(), |(iz, ix)| {
+        let p = power[[iz, ix]];
+        p.is_finite() && p > 0.0 && p >= floor[iz] * gain
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -330,5 +368,51 @@ mod tests {
         assert!(
             axial_autocorrelation(Array3::<Complex32>::zeros((1, 3, 4)).view(), (1, 1)).is_err()
         );
+    }
+
+    #[test]
+    fn noise_floor_follows_depth_and_the_mask_keeps_vessels_only() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Gamma};
+        // Power Doppler averaged over 60 independent frames (gamma-distributed, shape 60) on a
+        // noise floor rising 20 dB from the top row to the bottom one; every fifth column a
+        // vessel 10 dB above its row's floor.
+        let (nz, nx, frames) = (40, 200, 60.0);
+        let floor = |iz: usize| 1e-3 * 10f64.powf(2.0 * iz as f64 / (nz - 1) as f64);
+        let vessel = |ix: usize| ix.is_multiple_of(5);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let speckle = Gamma::new(frames, 1.0 / frames).unwrap();
+        let power = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+            let signal = if vessel(ix) { 10.0 * floor(iz) } else { 0.0 };
+            (signal + floor(iz)) * speckle.sample(&mut rng)
+        });
+        // The 30th percentile of the noise alone sits 0.5 dB below its mean (gamma, shape 60).
+        for (iz, &estimate) in noise_floor_by_depth(&power).iter().enumerate() {
+            let error_db = 10.0 * (estimate / floor(iz)).log10();
+            assert!(error_db.abs() < 1.0, "row {iz}: floor off by {error_db} dB");
+        }
+        let mask = above_noise_floor(&power, 6.0);
+        let (mut missed, mut false_alarms) = (0, 0);
+        for ((_, ix), &m) in mask.indexed_iter() {
+            missed += usize::from(vessel(ix) && !m);
+            false_alarms += usize::from(!vessel(ix) && m);
+        }
+        assert_eq!(missed, 0);
+        assert!(
+            false_alarms < nz * nx / 200,
+            "{false_alarms} noise pixels in the mask"
+        );
+        // A fixed threshold re. the brightest pixel cannot do this: −25 dB from the deep vessels'
+        // power lets in the noise of every row deeper than the first quarter.
+        let brightest = power.iter().copied().fold(0.0, f64::max);
+        let fixed = power
+            .iter()
+            .filter(|&&p| p >= brightest * 10f64.powf(-2.5))
+            .count();
+        assert!(fixed > nz * nx / 2, "{fixed}");
+        // Rows without finite power have no floor and no flow.
+        let blank = Array2::from_elem((2, 3), f64::NAN);
+        assert!(noise_floor_by_depth(&blank).iter().all(|f| f.is_nan()));
+        assert!(!above_noise_floor(&blank, 0.0).iter().any(|&m| m));
     }
 }
