@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use ndarray::{Array2, Zip};
 use pcuvd::beamform::Grid;
-use pcuvd::dynamics::{ARTERIOLE, DynamicsParams, RiMaps, VENULE, VelocitySeries};
+use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, VENULE, VelocitySeries};
 use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;
 use pcuvd_render::{
@@ -306,23 +306,14 @@ pub fn dynamics_figures(
     series: &VelocitySeries,
     params: &DynamicsParams,
     grid: &Grid,
-    power_doppler: &Array2<f64>,
     name: &str,
 ) -> Result<Vec<PathBuf>> {
-    // Shown where the whole recording's power Doppler marks flow, as in the colour-Doppler figure:
-    // the RI stage's threshold acts on 20 ms windows, whose power lets noise pixels in, and their
-    // PSV would set the colour scale.
-    let flow = flow_mask(power_doppler);
-    let shown = |data: Array2<f64>| {
-        Zip::from(&data)
-            .and(&flow)
-            .map_collect(|&v, &f| if f { v } else { f64::NAN })
-    };
-    let vmax = quantile(shown(maps.psv.clone()).iter().map(|v| v * 1e3), 0.95).max(1e-6);
+    let vessels = maps.vessel_class.mapv(|c| c != BACKGROUND);
+    let vmax = quantile(maps.psv.iter().map(|v| v * 1e3), 0.95).max(1e-6);
     let panels = vec![
         finite_panel(
             "Resistivity index (PSV − EDV)/PSV",
-            shown(maps.ri.clone()),
+            maps.ri.clone(),
             grid,
             Colormap::Viridis,
             (0.0, 1.0),
@@ -330,12 +321,7 @@ pub fn dynamics_figures(
         ),
         finite_panel(
             &format!("Arterioles (RI ≥ {})", params.artery_ri_min),
-            shown(class_map(
-                &maps.psv,
-                &maps.vessel_class,
-                &maps.flow_up,
-                ARTERIOLE,
-            )),
+            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, ARTERIOLE),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
@@ -343,12 +329,7 @@ pub fn dynamics_figures(
         ),
         finite_panel(
             &format!("Venules (RI ≤ {})", params.vein_ri_max),
-            shown(class_map(
-                &maps.psv,
-                &maps.vessel_class,
-                &maps.flow_up,
-                VENULE,
-            )),
+            class_map(&maps.psv, &maps.vessel_class, &maps.flow_up, VENULE),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
@@ -364,8 +345,11 @@ pub fn dynamics_figures(
         panels,
         3,
     )?];
-    let mask = series.vessel_mask(params.min_power_db);
-    let mean: Vec<f64> = series.mean_speed(&mask).iter().map(|v| v * 1e3).collect();
+    let mean: Vec<f64> = series
+        .mean_speed(&vessels)
+        .iter()
+        .map(|v| v * 1e3)
+        .collect();
     let t_ms: Vec<f64> = series.times_s.iter().map(|t| t * 1e3).collect();
     let markers = maps
         .cycles

@@ -5,7 +5,7 @@ use clap::Args;
 use pcuvd::ChannelData;
 use pcuvd::beamform::{Apodization, DasParams, Grid};
 use pcuvd::clutter::{ClutterParams, RankCut};
-use pcuvd::dynamics::{DynamicsParams, VesselPooling};
+use pcuvd::dynamics::{self, DynamicsParams, VesselPooling};
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::vector::{Estimator, IrlsParams};
 
@@ -80,6 +80,17 @@ pub fn parse_numbers(text: &str) -> Result<Vec<f64>> {
     Ok(values)
 }
 
+/// Parses a margin in dB, or "off" (−∞ dB: every pixel with power passes).
+pub fn parse_margin_db(text: &str) -> Result<f64> {
+    if text.trim().eq_ignore_ascii_case("off") {
+        return Ok(f64::NEG_INFINITY);
+    }
+    match text.trim().parse::<f64>() {
+        Ok(db) if db.is_finite() => Ok(db),
+        _ => bail!("{text:?}: give a number of dB or \"off\""),
+    }
+}
+
 /// Parses "ROWSxCOLS" (e.g. "3x3") into an averaging-kernel size.
 pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
     let parts: Vec<&str> = text.split(['x', 'X', ',']).collect();
@@ -132,16 +143,26 @@ pub struct DynamicsOptions {
     /// Vessel threshold for the RI maps (dB re. the brightest pixel's mean power).
     #[arg(long, default_value_t = -30.0, allow_hyphen_values = true)]
     pub vessel_threshold_db: f64,
+    /// Vessel pixels of the RI maps must also have a whole-recording power Doppler at least this
+    /// many dB above the noise floor of their depth (the 30th percentile of the row); "off" leaves
+    /// only --vessel-threshold-db.
+    #[arg(long, default_value_t = dynamics::VESSEL_MARGIN_DB.to_string(), allow_hyphen_values = true)]
+    pub vessel_margin_db: String,
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
     /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
     #[arg(long, default_value = "5x5")]
     pub dynamics_kernel: String,
-    /// Vessel pooling radius (mm) for the RI maps: each pixel's waveform shape is averaged over
-    /// same-direction neighbours within this radius (RI does not change with the lumen's velocity
-    /// profile, only the jitter does); 0 turns it off.
-    #[arg(long, default_value_t = VesselPooling::DEFAULT_RADIUS_M * 1e3)]
-    pub pool_radius_mm: f64,
+    /// Vessel pooling for the RI maps, half-length (mm) along the flow: each pixel's waveform
+    /// shape is averaged over same-direction neighbours in an ellipse aligned with its flow (RI
+    /// does not change with the lumen's velocity profile nor along a vessel, only the jitter
+    /// does); 0 with --pool-across-mm 0 turns it off.
+    #[arg(long, default_value_t = VesselPooling::DEFAULT_ALONG_M * 1e3)]
+    pub pool_along_mm: f64,
+    /// Vessel pooling half-width (mm) across the flow: parallel vessels farther apart than this
+    /// are never pooled together.
+    #[arg(long, default_value_t = VesselPooling::DEFAULT_ACROSS_M * 1e3)]
+    pub pool_across_mm: f64,
     /// Largest angle (degrees) between the mean flow directions of pooled pixels: keeps an
     /// arteriole and a venule side by side, flowing opposite ways, apart.
     #[arg(long, default_value_t = VesselPooling::DEFAULT_MAX_ANGLE_DEG)]
@@ -156,6 +177,11 @@ impl DynamicsOptions {
             || self.heart_rate.is_some()
             || self.window_ms.is_some()
             || self.window_step_ms.is_some()
+    }
+
+    /// The vessel margin (dB above the noise floor) of `--vessel-margin-db`; −∞ when "off".
+    pub fn vessel_margin_db(&self) -> Result<f64> {
+        parse_margin_db(&self.vessel_margin_db).context("--vessel-margin-db")
     }
 
     /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
@@ -189,11 +215,12 @@ impl DynamicsOptions {
             bail!("--heart-rate {hr}: must be a positive number of Hz");
         }
         let pooling = VesselPooling::from_metres(
-            self.pool_radius_mm * 1e-3,
+            self.pool_along_mm * 1e-3,
+            self.pool_across_mm * 1e-3,
             self.pool_max_angle_deg,
             grid_step_m,
         )
-        .context("--pool-radius-mm / --pool-max-angle-deg")?;
+        .context("--pool-along-mm / --pool-across-mm / --pool-max-angle-deg")?;
         let params = DynamicsParams {
             window,
             step,

@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ndarray::Array1;
 use pcuvd::ChannelData;
+use pcuvd::doppler;
 use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde_json::json;
@@ -113,6 +114,7 @@ fn run_dynamics(
     let acq = &data.acquisition;
     let frame_rate = acq.frame_rate();
     let dparams = options.params(frame_rate, params.irls, out.grid.step())?;
+    let margin_db = options.vessel_margin_db()?;
     let attempt = || -> Result<(VelocitySeries, RiMaps)> {
         if acq.sequence.n_angles() < 2 {
             bail!("vector velocity needs two or more steering angles; the recording has one");
@@ -127,7 +129,8 @@ fn run_dynamics(
             acq.probe.center_frequency,
             &dparams,
         )?;
-        let maps = dynamics::ri_maps(&series, &dparams)?;
+        let flow = doppler::above_noise_floor(&out.power_doppler, margin_db);
+        let maps = dynamics::ri_maps_where(&series, &dparams, Some(&flow))?;
         Ok((series, maps))
     };
     let (series, maps) = match attempt() {
@@ -152,15 +155,7 @@ fn run_dynamics(
         &dir.join("times.npy"),
         &Array1::from(series.times_s.clone()),
     )?;
-    let pngs = figures::dynamics_figures(
-        dir,
-        &maps,
-        &series,
-        &dparams,
-        &out.grid,
-        &out.power_doppler,
-        name,
-    )?;
+    let pngs = figures::dynamics_figures(dir, &maps, &series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     let summary = json!({
         "heart_rate_hz": maps.heart_rate_hz,
@@ -175,6 +170,8 @@ fn run_dynamics(
         "artery_ri_min": dparams.artery_ri_min,
         "vein_ri_max": dparams.vein_ri_max,
         "vessel_threshold_db": dparams.min_power_db,
+        "vessel_margin_db": if margin_db.is_finite() { json!(margin_db) } else { json!("off") },
+        "vessel_margin_reference": "noise floor of each depth row of the power Doppler: its 30th percentile (doppler::noise_floor_by_depth)",
         "vessel_pooling": pooling_summary(&dparams, out.grid.step()),
         "cycles_windows": maps.cycles,
         "pixels": {
@@ -200,13 +197,20 @@ pub fn pooling_summary(params: &DynamicsParams, grid_step_m: f64) -> serde_json:
     match params.pooling {
         None => json!("off"),
         Some(p) => json!({
-            "radius_px": p.radius,
-            "radius_mm": p.radius as f64 * grid_step_m * 1e3,
-            "max_angle_deg": p.max_angle.to_degrees(),
+            "half_length_along_flow_mm": thousandths(p.along * grid_step_m * 1e3),
+            "half_width_across_flow_mm": thousandths(p.across * grid_step_m * 1e3),
+            "half_length_along_flow_px": thousandths(p.along),
+            "half_width_across_flow_px": thousandths(p.across),
+            "max_angle_deg": thousandths(p.max_angle.to_degrees()),
             "weights": "time-mean Doppler power squared",
             "pooled": "speed |V| series; the pooled shape scaled to each pixel's own mean speed",
         }),
     }
+}
+
+/// `value` rounded to 0.001: settings converted between mm, pixels and degrees print as set.
+fn thousandths(value: f64) -> f64 {
+    (value * 1e3).round() / 1e3
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {

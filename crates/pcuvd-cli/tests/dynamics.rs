@@ -117,7 +117,9 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["dynamics"]["heart_rate_hz"], 12.0);
     let pooling = &summary["dynamics"]["vessel_pooling"];
-    assert_eq!(pooling["radius_px"], 7, "{pooling}");
+    // Default ellipse: 2 mm along the flow, 0.25 mm across, on the 0.1 mm grid.
+    assert_eq!(pooling["half_length_along_flow_px"], 20.0, "{pooling}");
+    assert_eq!(pooling["half_width_across_flow_px"], 2.5, "{pooling}");
     assert!(
         (pooling["max_angle_deg"].as_f64().unwrap() - 30.0).abs() < 1e-9,
         "{pooling}"
@@ -172,7 +174,11 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         &["--heart-rate", "12", "--pool-max-angle-deg", "200"],
         "0–180",
     );
-    refuse(&["--heart-rate", "12", "--pool-radius-mm=-1"], "radius");
+    refuse(&["--heart-rate", "12", "--pool-along-mm=-1"], "half-length");
+    refuse(
+        &["--heart-rate", "12", "--vessel-margin-db", "loud"],
+        "--vessel-margin-db",
+    );
 
     // Without dynamics settings, a recording that cannot give RI maps is processed with a note.
     let (ok, _, stderr) = pcuvd(&base);

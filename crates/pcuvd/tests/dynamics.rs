@@ -671,44 +671,28 @@ fn vessel_pooling_cuts_ri_jitter_without_mixing_opposite_flows() {
     // as a 20 ms window gives at low SNR). Each pixel's RI jitters; the pool of a pixel's
     // same-direction neighbours (about 20 pixels within radius 3) should divide that spread by
     // about √20, and the two vessels, 140° apart in direction, must not leak into each other.
-    let hr = 5.5;
-    let (nz, nx, nt) = (8, 24, 37);
-    let step_s = 9.0 / FRAME_RATE;
-    let times_s: Vec<f64> = (0..nt).map(|i| (i as f64 + 2.0) * step_s).collect();
     let profile = [0.8, 0.9, 1.0, 0.85, 0.85, 0.95, 1.0, 0.8];
-    let mut rng = ChaCha8Rng::seed_from_u64(9);
     let sigma = 3e-3;
-    let mut vx = Array3::<f64>::zeros((nt, nz, nx));
-    let mut vz = Array3::<f64>::zeros((nt, nz, nx));
-    for (((it, iz, _), x), z) in vx.indexed_iter_mut().zip(vz.iter_mut()) {
-        let artery = iz < 4;
-        let vessel = Vessel {
-            pixel: (iz, 0),
-            psv: if artery { 0.025 } else { 0.012 },
-            edv: if artery { 0.0075 } else { 0.0084 },
-            dir: unit(20.0, !artery),
-        };
-        let (tx, tz) = vessel.velocity(times_s[it], hr);
-        let ex: f64 = StandardNormal.sample(&mut rng);
-        let ez: f64 = StandardNormal.sample(&mut rng);
-        *x = profile[iz] * tx + sigma * ex;
-        *z = profile[iz] * tz + sigma * ez;
-    }
-    let series = VelocitySeries {
-        times_s,
-        vx,
-        vz,
-        power: Array3::from_elem((nt, nz, nx), 1.0),
-        window_s: 36.0 / FRAME_RATE,
-        step_s,
-    };
+    let rows: Vec<Row> = profile
+        .iter()
+        .enumerate()
+        .map(|(iz, &scale)| {
+            let artery = iz < 4;
+            Row {
+                psv: scale * if artery { 0.025 } else { 0.012 },
+                edv: scale * if artery { 0.0075 } else { 0.0084 },
+                dir: unit(20.0, !artery),
+            }
+        })
+        .collect();
+    let series = noisy_window_series(&rows, 24, sigma, 9);
     let params = DynamicsParams::rat();
     let maps = |pooling| ri_maps(&series, &DynamicsParams { pooling, ..params }).unwrap();
     let alone = maps(None);
-    let pooling = VesselPooling::from_metres(0.15e-3, 30.0, 0.05e-3)
+    let pooling = VesselPooling::from_metres(0.15e-3, 0.15e-3, 30.0, 0.05e-3)
         .unwrap()
         .unwrap();
-    assert_eq!(pooling.radius, 3);
+    assert!((pooling.along - 3.0).abs() < 1e-9 && (pooling.across - 3.0).abs() < 1e-9);
     let pooled = maps(Some(pooling));
     // Median and spread (median absolute deviation from the median) of a band's RI.
     let band_stats = |m: &dynamics::RiMaps, rows: std::ops::Range<usize>| {
@@ -787,20 +771,147 @@ fn vessel_pooling_cuts_ri_jitter_without_mixing_opposite_flows() {
     }
 
     // Bad settings are refused.
-    is_invalid(VesselPooling::from_metres(-1e-3, 30.0, 0.05e-3), "radius");
-    is_invalid(VesselPooling::from_metres(0.5e-3, 200.0, 0.05e-3), "0–180");
-    assert_eq!(
-        VesselPooling::from_metres(0.01e-3, 30.0, 0.05e-3).unwrap(),
-        None
-    );
-    let bad = DynamicsParams {
-        pooling: Some(VesselPooling {
-            radius: 2,
-            max_angle: f64::NAN,
-        }),
+    let from_mm = |along: f64, across: f64, angle| {
+        VesselPooling::from_metres(along * 1e-3, across * 1e-3, angle, 0.05e-3)
+    };
+    is_invalid(from_mm(-1.0, 0.3, 30.0), "half-length");
+    is_invalid(from_mm(1.0, f64::NAN, 30.0), "half-width");
+    is_invalid(from_mm(0.5, 0.3, 200.0), "0–180");
+    assert_eq!(from_mm(0.01, 0.01, 30.0).unwrap(), None);
+    let bad = |pooling| DynamicsParams {
+        pooling: Some(pooling),
         ..params
     };
-    is_invalid(ri_maps(&series, &bad), "vessel pooling");
+    let nan_angle = VesselPooling {
+        along: 2.0,
+        across: 2.0,
+        max_angle: f64::NAN,
+    };
+    is_invalid(ri_maps(&series, &bad(nan_angle)), "vessel pooling");
+    let negative = VesselPooling {
+        along: -2.0,
+        ..pooling
+    };
+    is_invalid(ri_maps(&series, &bad(negative)), "vessel pooling");
+}
+
+#[test]
+fn vessel_pooling_follows_the_vessel_and_keeps_parallel_vessels_apart() {
+    // An arteriole (RI 0.7, rows 0–2) and a venule (RI 0.3, rows 7–9), both flowing along +x
+    // (the worst case for direction: same way, side by side), 4 rows of background between them,
+    // with the window-velocity errors of the test above. An ellipse 8 pixels long down the flow
+    // and 2 across pools each vessel over ~30 of its own pixels and never reaches the other one
+    // (7 rows away); a disc of radius 8 reaches across and must mix them.
+    let sigma = 3e-3;
+    let artery = Row {
+        psv: 0.025,
+        edv: 0.0075,
+        dir: unit(90.0, false),
+    };
+    let vein = Row {
+        psv: 0.012,
+        edv: 0.0084,
+        dir: unit(90.0, false),
+    };
+    let still = Row {
+        psv: 0.0,
+        edv: 0.0,
+        dir: unit(90.0, false),
+    };
+    let rows = [
+        artery, artery, artery, still, still, still, still, vein, vein, vein,
+    ];
+    let mut series = noisy_window_series(&rows, 40, sigma, 21);
+    for iz in 3..7 {
+        series.power.slice_mut(ndarray::s![.., iz, ..]).fill(0.0);
+    }
+    let params = DynamicsParams::rat();
+    let maps = |along, across| {
+        let pooling = VesselPooling {
+            along,
+            across,
+            max_angle: 30f64.to_radians(),
+        };
+        ri_maps(
+            &series,
+            &DynamicsParams {
+                pooling: Some(pooling),
+                ..params
+            },
+        )
+        .unwrap()
+    };
+    let median_ri = |m: &dynamics::RiMaps, rows: std::ops::Range<usize>| {
+        let mut ri: Vec<f64> = rows.flat_map(|iz| m.ri.row(iz).to_vec()).collect();
+        ri.sort_by(|a, b| a.total_cmp(b));
+        ri[ri.len() / 2]
+    };
+    let alone = ri_maps(&series, &params).unwrap();
+    let ellipse = maps(8.0, 2.0);
+    let disc = maps(8.0, 8.0);
+    let rice_ri = |r: &Row| 1.0 - rice_mean(r.edv, sigma) / rice_mean(r.psv, sigma);
+    for (rows, row, want) in [(0..3, artery, ARTERIOLE), (7..10, vein, VENULE)] {
+        let expected = rice_ri(&row);
+        let got = median_ri(&ellipse, rows.clone());
+        assert!(
+            (got - expected).abs() < 0.03,
+            "rows {rows:?}: ellipse RI {got}, Rice {expected} (alone {})",
+            median_ri(&alone, rows.clone())
+        );
+        for iz in rows.clone() {
+            for ix in 0..40 {
+                assert_eq!(ellipse.vessel_class[[iz, ix]], want, "pixel ({iz}, {ix})");
+            }
+        }
+        let mixed = median_ri(&disc, rows.clone());
+        assert!(
+            (mixed - expected).abs() > 0.05,
+            "rows {rows:?}: a disc should mix the two vessels, RI {mixed} vs {expected}"
+        );
+    }
+}
+
+/// One row of a synthetic vessel: peak and end-diastolic speeds (m/s) and the flow direction.
+#[derive(Clone, Copy)]
+struct Row {
+    psv: f64,
+    edv: f64,
+    dir: (f64, f64),
+}
+
+/// Window velocities (37 windows of 36 frames, 9 apart, at 5.5 Hz) of `rows`, `nx` pixels each,
+/// with independent Gaussian errors of `sigma` (m/s) on Vx and Vz per pixel and window, as a
+/// 20 ms window gives at low SNR; unit power everywhere.
+fn noisy_window_series(rows: &[Row], nx: usize, sigma: f64, seed: u64) -> VelocitySeries {
+    let hr = 5.5;
+    let (nz, nt) = (rows.len(), 37);
+    let step_s = 9.0 / FRAME_RATE;
+    let times_s: Vec<f64> = (0..nt).map(|i| (i as f64 + 2.0) * step_s).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut vx = Array3::<f64>::zeros((nt, nz, nx));
+    let mut vz = Array3::<f64>::zeros((nt, nz, nx));
+    for (((it, iz, _), x), z) in vx.indexed_iter_mut().zip(vz.iter_mut()) {
+        let row = rows[iz];
+        let vessel = Vessel {
+            pixel: (iz, 0),
+            psv: row.psv,
+            edv: row.edv,
+            dir: row.dir,
+        };
+        let (tx, tz) = vessel.velocity(times_s[it], hr);
+        let ex: f64 = StandardNormal.sample(&mut rng);
+        let ez: f64 = StandardNormal.sample(&mut rng);
+        *x = tx + sigma * ex;
+        *z = tz + sigma * ez;
+    }
+    VelocitySeries {
+        times_s,
+        vx,
+        vz,
+        power: Array3::from_elem((nt, nz, nx), 1.0),
+        window_s: 36.0 / FRAME_RATE,
+        step_s,
+    }
 }
 
 /// Mean of |v + n| (m/s) for a 2-D velocity v of magnitude `v` and Gaussian errors of standard
