@@ -57,6 +57,15 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let data = read_input(&args.input)?;
     let params = args.options.params(&data)?;
+    // Dynamics settings are checked before the long processing, not after it.
+    if args.dynamics.dynamics != DynamicsChoice::Off {
+        args.dynamics.params(
+            data.acquisition.frame_rate(),
+            params.irls,
+            params.grid.step(),
+        )?;
+        args.dynamics.vessel_margin_db()?;
+    }
     create_dir(&args.out)?;
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
