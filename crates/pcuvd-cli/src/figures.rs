@@ -20,15 +20,7 @@ pub const FLOW_MASK_DB: f64 = -25.0;
 /// noise-dominated pixels are random and would swamp the figure and its colour scale.
 pub const VECTOR_MASK_DB: f64 = -15.0;
 
-/// The `q`-quantile (0..1) of the finite values of `values`.
-pub fn quantile(values: impl Iterator<Item = f64>, q: f64) -> f64 {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
-}
+pub use pcuvd::stats::quantile;
 
 /// Median of `v` (the mean of the two middle values for an even count, NaNs sorted last);
 /// NaN when `v` is empty.

@@ -21,6 +21,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result, invalid, require_positive};
+use crate::stats::quantile;
 
 /// Power and lag-1 autocorrelation per pixel, shape (nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -287,14 +288,7 @@ pub const NOISE_FLOOR_QUANTILE: f64 = 0.3;
 pub fn noise_floor_by_depth(power: &Array2<f64>) -> Vec<f64> {
     power
         .outer_iter()
-        .map(|row| {
-            let mut values: Vec<f64> = row.iter().copied().filter(|p| p.is_finite()).collect();
-            if values.is_empty() {
-                return f64::NAN;
-            }
-            values.sort_by(|a, b| a.total_cmp(b));
-            values[((values.len() - 1) as f64 * NOISE_FLOOR_QUANTILE).round() as usize]
-        })
+        .map(|row| quantile(row.iter().copied(), NOISE_FLOOR_QUANTILE))
         .collect()
 }
 

@@ -24,6 +24,7 @@ pub mod pipeline;
 pub mod probe;
 pub mod sequence;
 pub mod simulate;
+pub mod stats;
 pub mod vector;
 
 pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
