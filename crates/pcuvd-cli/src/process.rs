@@ -57,15 +57,19 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let data = read_input(&args.input)?;
     let params = args.options.params(&data)?;
-    // Dynamics settings are checked before the long processing, not after it.
-    if args.dynamics.dynamics != DynamicsChoice::Off {
-        args.dynamics.params(
-            data.acquisition.frame_rate(),
-            params.irls,
-            params.grid.step(),
-        )?;
-        args.dynamics.vessel_margin_db()?;
-    }
+    // Dynamics settings are read (and refused) before the long processing, not after it.
+    let dynamics_settings = if args.dynamics.dynamics == DynamicsChoice::Off {
+        None
+    } else {
+        Some(DynamicsSettings {
+            params: args.dynamics.params(
+                data.acquisition.frame_rate(),
+                params.irls,
+                params.grid.step(),
+            )?,
+            margin_db: args.dynamics.vessel_margin_db()?,
+        })
+    };
     create_dir(&args.out)?;
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
@@ -83,7 +87,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let mut pngs = figures::process_figures(&args.out, &out, &name)?;
-    let (dynamics, mut dynamic_pngs) = run_dynamics(args, &data, &params, &out, &name)?;
+    let (dynamics, mut dynamic_pngs) =
+        run_dynamics(args, &data, dynamics_settings.as_ref(), &out, &name)?;
     pngs.append(&mut dynamic_pngs);
     summary["dynamics"] = dynamics;
     pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
@@ -105,6 +110,13 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     Ok(())
 }
 
+/// The dynamics stage's settings as read from the command line: `None` with `--dynamics off`.
+struct DynamicsSettings {
+    params: DynamicsParams,
+    /// Vessel margin (dB) above the power Doppler's noise floor; −∞ when "off".
+    margin_db: f64,
+}
+
 /// The dynamics stage of `pcuvd process`: sliding-window vectors, PSV/EDV/RI maps and classes,
 /// written as .npy and figures. Returns its summary.json entry and the figures written. With
 /// `--dynamics auto` and no dynamics setting given, a recording that cannot give RI maps (too
@@ -112,18 +124,20 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
 fn run_dynamics(
     args: &ProcessArgs,
     data: &ChannelData,
-    params: &ProcessParams,
+    settings: Option<&DynamicsSettings>,
     out: &ProcessOutput,
     name: &str,
 ) -> Result<(serde_json::Value, Vec<PathBuf>)> {
     let options = &args.dynamics;
-    if options.dynamics == DynamicsChoice::Off {
+    let Some(&DynamicsSettings {
+        params: dparams,
+        margin_db,
+    }) = settings
+    else {
         return Ok((json!({ "skipped": "--dynamics off" }), vec![]));
-    }
+    };
     let acq = &data.acquisition;
     let frame_rate = acq.frame_rate();
-    let dparams = options.params(frame_rate, params.irls, out.grid.step())?;
-    let margin_db = options.vessel_margin_db()?;
     let attempt = || -> Result<(VelocitySeries, RiMaps)> {
         if acq.sequence.n_angles() < 2 {
             bail!("vector velocity needs two or more steering angles; the recording has one");
