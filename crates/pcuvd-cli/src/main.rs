@@ -23,7 +23,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Process a recording (MUST-style .mat or pcuvd manifest .toml) into B-mode, power, colour and vector Doppler maps.
-    Process(process::ProcessArgs),
+    Process(Box<process::ProcessArgs>),
     /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
     Simulate(simulate::SimulateArgs),
     /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.

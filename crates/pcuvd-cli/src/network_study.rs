@@ -12,7 +12,6 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use ndarray::{Array2, Axis, Zip, s};
 use pcuvd::beamform::Grid;
-use pcuvd::doppler;
 use pcuvd::dynamics::{
     self, ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, Spectrogram, SpectrogramParams, VENULE,
     VelocitySeries, VesselPooling,
@@ -186,6 +185,7 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
             args.network_frames,
             args.network_noise_db,
             args.motion,
+            args.event_alignment.into(),
             &grid,
             &label,
             &mut timing,
@@ -199,7 +199,7 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
         let acquisition = formed.acquisition.clone();
         let images = formed.at_gain(1.0);
         drop(formed);
-        let process = process_params(&grid, &acquisition, (1, 1));
+        let process = process_params(&grid, &acquisition, (1, 1), args.event_alignment.into());
         let out = pipeline::analyse(&acquisition, images, &process, &|_, _, _| {})?;
         let dparams = dynamics_params(args, mode)?;
         let (c, f0) = (acquisition.sound_speed, acquisition.probe.center_frequency);
@@ -213,7 +213,7 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
             f0,
             &dparams,
         )?;
-        let flow = doppler::above_noise_floor(&out.power_doppler, dynamics::VESSEL_MARGIN_DB);
+        let flow = dynamics::VesselTests::default().flow_mask(&out.power_doppler, grid.step());
         let ri = dynamics::ri_maps_where(&series, &dparams, Some(&flow))?;
         let spectrograms = sites
             .iter()
@@ -293,6 +293,8 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
             "frame_rate_hz": frame_rate,
             "noise_db": args.network_noise_db,
             "heart_rate_hz": args.heart_rate,
+            "motion": format!("{:?}", args.motion),
+            "event_alignment": args.event_alignment.label(),
             "seed": args.seed,
             "scatterers": phantom.n_scatterers(),
             "vessel_pixels": truth.mask().iter().filter(|&&m| m).count(),
@@ -321,6 +323,8 @@ pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
                 "vein_ri_max": DynamicsParams::rat().vein_ri_max,
                 "min_power_db": DynamicsParams::rat().min_power_db,
                 "vessel_margin_db": dynamics::VESSEL_MARGIN_DB,
+                "vessel_local_db": dynamics::VESSEL_LOCAL_DB,
+                "vessel_local_radius_m": dynamics::VESSEL_LOCAL_RADIUS_M,
                 "kernel": [DYNAMICS_KERNEL.0, DYNAMICS_KERNEL.1],
                 "vessel_pooling": pooling_summary(&dynamics_params(args, Mode::Coded)?, args.grid_step * 1e-3),
                 "cycles_windows": results.iter().map(|r| r.ri.cycles.clone()).collect::<Vec<_>>(),
@@ -923,18 +927,20 @@ pub fn report_section(report: &mut Report, study: &NetworkStudy, args: &PaperArg
     };
     report.heading("In-vivo-like vessel network over a cardiac cycle (paper §4, Fig. 6–8)");
     report.paragraph(&format!(
-        "The paper's rat setting (L22-14vX at 15.625 MHz, 8 plane waves from −15° to 15°, Hadamard order 8 with 1 µs slots, event PRF 14.4 kHz, 1.8 kHz compound rate) over {} compound frames, on a phantom with ground truth: eight straight vessels 1–13 mm deep at several orientations, four arterioles (RI 0.7, peak 20–30 mm/s, radius 0.15 mm) and four venules (RI 0.3, peak 10–14 mm/s, radius 0.2 mm), flowing up and down, parabolic profiles, pulsatile waveform w(t) = (1 − RI) + RI·((1 + cos 2πf_h t)/2)³ at {} Hz, scatterers moving at every transmit event ({:?}). Attenuation 0.5 dB/cm/MHz makes the echoes, and the SNR, fall with depth. Noise {} dB ({}). No clutter filter (no tissue). Seed {}.",
-        args.network_frames, args.heart_rate, args.motion, args.network_noise_db, pcuvd::simulate::NOISE_DEFINITION, args.seed
+        "The paper's rat setting (L22-14vX at 15.625 MHz, 8 plane waves from −15° to 15°, Hadamard order 8 with 1 µs slots, event PRF 14.4 kHz, 1.8 kHz compound rate) over {} compound frames, on a phantom with ground truth: eight straight vessels 1–13 mm deep at several orientations, four arterioles (RI 0.7, peak 20–30 mm/s, radius 0.15 mm) and four venules (RI 0.3, peak 10–14 mm/s, radius 0.2 mm), flowing up and down, parabolic profiles, pulsatile waveform w(t) = (1 − RI) + RI·((1 + cos 2πf_h t)/2)³ at {} Hz, {}; decoding: {}. Attenuation 0.5 dB/cm/MHz makes the echoes, and the SNR, fall with depth. Noise {} dB ({}). No clutter filter (no tissue). Seed {}.",
+        args.network_frames, args.heart_rate, crate::paper::motion_text(args.motion), crate::paper::alignment_text(args.event_alignment), args.network_noise_db, pcuvd::simulate::NOISE_DEFINITION, args.seed
     ));
     report.paragraph(&format!(
-        "Dynamics: vector velocity in {}-frame windows every {} frames, autocorrelation averaged over {} × {} pixels, each pixel's waveform shape pooled with its same-direction neighbours ({}; dynamics::VesselPooling), then fitted by a mean plus the first cardiac harmonics (dynamics::auto_harmonics) (UVD: least squares on the conventional recording; PC-UVD: IRLS-WLS on the coded one); PSV and EDV per pixel over the complete cardiac cycle (heart rate given: the recording holds about one beat); RI = (PSV − EDV)/PSV; arteriole if RI ≥ 0.55, venule if RI ≤ 0.5; vessel pixels: window power within {} dB of the strongest and whole-recording power Doppler at least {} dB above the noise floor of its depth (doppler::above_noise_floor). Scores: {RI_SCORE_DEFINITION}.",
+        "Dynamics: vector velocity in {}-frame windows every {} frames, autocorrelation averaged over {} × {} pixels, each pixel's waveform shape pooled with its same-direction neighbours ({}; dynamics::VesselPooling), then fitted by a mean plus the first cardiac harmonics (dynamics::auto_harmonics) (UVD: least squares on the conventional recording; PC-UVD: IRLS-WLS on the coded one); PSV and EDV per pixel over the complete cardiac cycle (heart rate given: the recording holds about one beat); RI = (PSV − EDV)/PSV; arteriole if RI ≥ 0.55, venule if RI ≤ 0.5; vessel pixels: window power within {} dB of the strongest and whole-recording power Doppler at least {} dB above the noise floor of its depth (doppler::above_noise_floor) and within {} dB of the brightest pixel within {} mm (doppler::near_local_peak). Scores: {RI_SCORE_DEFINITION}.",
         DynamicsParams::rat().window,
         DynamicsParams::rat().step,
         DYNAMICS_KERNEL.0,
         DYNAMICS_KERNEL.1,
         pooling_text,
         -DynamicsParams::rat().min_power_db,
-        dynamics::VESSEL_MARGIN_DB
+        dynamics::VESSEL_MARGIN_DB,
+        dynamics::VESSEL_LOCAL_DB,
+        dynamics::VESSEL_LOCAL_RADIUS_M * 1e3
     ));
     let rows = vec![
         vec![

@@ -5,7 +5,7 @@ use clap::Args;
 use pcuvd::ChannelData;
 use pcuvd::beamform::{Apodization, DasParams, Grid};
 use pcuvd::clutter::{ClutterParams, RankCut};
-use pcuvd::dynamics::{self, DynamicsParams, VesselPooling};
+use pcuvd::dynamics::{self, DynamicsParams, VesselPooling, VesselTests};
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::vector::{Estimator, IrlsParams};
 
@@ -41,6 +41,38 @@ pub struct ProcessingOptions {
     /// IRLS iteration cap.
     #[arg(long, default_value_t = 50)]
     pub irls_max_iterations: usize,
+    /// How coded (Hadamard) events are decoded: "mid-frame" (each event's slow-time series
+    /// resampled to the frame's mid-event time first, so moving blood does not leak angles into
+    /// each other) or "simultaneous" (the paper's decoding: the events of a frame taken as
+    /// simultaneous). Conventional recordings are not affected.
+    #[arg(long, value_enum, default_value = "mid-frame")]
+    pub event_alignment: Alignment,
+}
+
+/// How coded events are aligned in slow time before decoding ([`EventAlignment`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+pub enum Alignment {
+    /// Each event resampled to the frame's mid-event time (exact for Doppler below half the
+    /// frame rate).
+    MidFrame,
+    /// The events of a frame taken as simultaneous (the paper's decoding).
+    Simultaneous,
+}
+
+impl Alignment {
+    /// The option's value, as written on the command line and in reports.
+    pub fn label(self) -> &'static str {
+        pcuvd::decode::EventAlignment::from(self).label()
+    }
+}
+
+impl From<Alignment> for pcuvd::decode::EventAlignment {
+    fn from(a: Alignment) -> Self {
+        match a {
+            Alignment::MidFrame => Self::MidFrame,
+            Alignment::Simultaneous => Self::Simultaneous,
+        }
+    }
 }
 
 fn rank_cut(text: &str, option: &str) -> Result<RankCut> {
@@ -148,6 +180,14 @@ pub struct DynamicsOptions {
     /// only --vessel-threshold-db.
     #[arg(long, default_value_t = dynamics::VESSEL_MARGIN_DB.to_string(), allow_hyphen_values = true)]
     pub vessel_margin_db: String,
+    /// Vessel pixels of the RI maps must also have a whole-recording power Doppler within this
+    /// many dB of the brightest pixel within --vessel-local-radius-mm: drops the side-lobe haze
+    /// that bright vessels cast over their surroundings in clean recordings; "off" drops the test.
+    #[arg(long, default_value_t = dynamics::VESSEL_LOCAL_DB.to_string(), allow_hyphen_values = true)]
+    pub vessel_local_db: String,
+    /// Half-width (mm) of the square searched for the local peak of --vessel-local-db.
+    #[arg(long, default_value_t = dynamics::VESSEL_LOCAL_RADIUS_M * 1e3)]
+    pub vessel_local_radius_mm: f64,
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
     /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
@@ -179,9 +219,23 @@ impl DynamicsOptions {
             || self.window_step_ms.is_some()
     }
 
-    /// The vessel margin (dB above the noise floor) of `--vessel-margin-db`; −∞ when "off".
-    pub fn vessel_margin_db(&self) -> Result<f64> {
-        parse_margin_db(&self.vessel_margin_db).context("--vessel-margin-db")
+    /// The whole-recording vessel tests of `--vessel-margin-db`, `--vessel-local-db` and
+    /// `--vessel-local-radius-mm`.
+    pub fn vessel_tests(&self) -> Result<VesselTests> {
+        let margin_db = parse_margin_db(&self.vessel_margin_db).context("--vessel-margin-db")?;
+        let local_db = match parse_margin_db(&self.vessel_local_db).context("--vessel-local-db")? {
+            db if db == f64::NEG_INFINITY => f64::INFINITY,
+            db => db,
+        };
+        let tests = VesselTests {
+            margin_db,
+            local_db,
+            local_radius_m: self.vessel_local_radius_mm * 1e-3,
+        };
+        tests
+            .validate()
+            .context("--vessel-local-db / --vessel-local-radius-mm")?;
+        Ok(tests)
     }
 
     /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
@@ -267,6 +321,7 @@ impl ProcessingOptions {
                 max_iterations: self.irls_max_iterations,
             },
             iq_cutoff: None,
+            event_alignment: self.event_alignment.into(),
         })
     }
 }

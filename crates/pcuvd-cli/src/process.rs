@@ -6,8 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ndarray::Array1;
 use pcuvd::ChannelData;
-use pcuvd::doppler;
-use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries};
+use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde_json::json;
 
@@ -67,7 +66,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
                 params.irls,
                 params.grid.step(),
             )?,
-            margin_db: args.dynamics.vessel_margin_db()?,
+            vessel: args.dynamics.vessel_tests()?,
         })
     };
     create_dir(&args.out)?;
@@ -113,8 +112,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
 /// The dynamics stage's settings as read from the command line: `None` with `--dynamics off`.
 struct DynamicsSettings {
     params: DynamicsParams,
-    /// Vessel margin (dB) above the power Doppler's noise floor; −∞ when "off".
-    margin_db: f64,
+    /// Whole-recording vessel tests (noise-floor margin, local peak).
+    vessel: VesselTests,
 }
 
 /// The dynamics stage of `pcuvd process`: sliding-window vectors, PSV/EDV/RI maps and classes,
@@ -131,7 +130,7 @@ fn run_dynamics(
     let options = &args.dynamics;
     let Some(&DynamicsSettings {
         params: dparams,
-        margin_db,
+        vessel,
     }) = settings
     else {
         return Ok((json!({ "skipped": "--dynamics off" }), vec![]));
@@ -152,7 +151,7 @@ fn run_dynamics(
             acq.probe.center_frequency,
             &dparams,
         )?;
-        let flow = doppler::above_noise_floor(&out.power_doppler, margin_db);
+        let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
         let maps = dynamics::ri_maps_where(&series, &dparams, Some(&flow))?;
         Ok((series, maps))
     };
@@ -193,8 +192,10 @@ fn run_dynamics(
         "artery_ri_min": dparams.artery_ri_min,
         "vein_ri_max": dparams.vein_ri_max,
         "vessel_threshold_db": dparams.min_power_db,
-        "vessel_margin_db": if margin_db.is_finite() { json!(margin_db) } else { json!("off") },
+        "vessel_margin_db": if vessel.margin_db.is_finite() { json!(vessel.margin_db) } else { json!("off") },
         "vessel_margin_reference": "noise floor of each depth row of the power Doppler: its 30th percentile (doppler::noise_floor_by_depth)",
+        "vessel_local_db": if vessel.local_db.is_finite() { json!(vessel.local_db) } else { json!("off") },
+        "vessel_local_radius_mm": vessel.local_radius_m * 1e3,
         "vessel_pooling": pooling_summary(&dparams, out.grid.step()),
         "cycles_windows": maps.cycles,
         "pixels": {
@@ -280,9 +281,10 @@ pub fn summary_json(
     let seq = &acq.sequence;
     let coding = match seq.coding {
         pcuvd::Coding::Conventional => json!({ "kind": "none" }),
-        pcuvd::Coding::Hadamard { slot_delay } => {
-            json!({ "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay })
-        }
+        pcuvd::Coding::Hadamard { slot_delay } => json!({
+            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
+            "event_alignment": params.event_alignment.label(),
+        }),
     };
     let timings: serde_json::Map<String, serde_json::Value> = out
         .timings

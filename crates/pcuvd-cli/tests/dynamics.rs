@@ -124,6 +124,8 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         (pooling["max_angle_deg"].as_f64().unwrap() - 30.0).abs() < 1e-9,
         "{pooling}"
     );
+    assert_eq!(summary["dynamics"]["vessel_local_db"], 20.0);
+    assert_eq!(summary["dynamics"]["vessel_local_radius_mm"], 1.0);
     // The accuracy of the RI maps under noise is checked in the library's network test and by
     // `pcuvd paper`; this small noise-free 4-angle recording checks the command with its default
     // kernel and vessel pooling, and that both vessels read their RI everywhere in the lumen. (With
@@ -178,6 +180,14 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     refuse(
         &["--heart-rate", "12", "--vessel-margin-db", "loud"],
         "--vessel-margin-db",
+    );
+    refuse(
+        &["--heart-rate", "12", "--vessel-local-db=-5"],
+        "--vessel-local-db",
+    );
+    refuse(
+        &["--heart-rate", "12", "--vessel-local-radius-mm=-1"],
+        "local radius",
     );
 
     // Without dynamics settings, a recording that cannot give RI maps is processed with a note.

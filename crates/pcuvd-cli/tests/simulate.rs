@@ -60,6 +60,12 @@ fn simulated_tube_round_trips_through_process() {
     ] {
         assert!(out.join(f).exists(), "{f} missing");
     }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(
+        summary["acquisition"]["coding"]["event_alignment"], "mid-frame",
+        "coded events are aligned to mid-frame by default"
+    );
 }
 
 #[test]

@@ -2,14 +2,18 @@
 //!
 //! DAS: 256 × 256 pixels, 128 channels, 100 frames, full receive aperture (every channel
 //! contributes to every pixel, so every counted pixel·channel·frame point is real work).
+//! Decoding: a coded RF recording of 8 angles × 100 frames, 128 channels, 1000 samples, with the
+//! events taken as simultaneous and aligned to mid-frame (the extra slow-time resampling).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::Array3;
 use num_complex::Complex32;
-use pcuvd::Probe;
 use pcuvd::beamform::{Apodization, DasParams, Grid, beamform};
+use pcuvd::channel::{Acquisition, ChannelData, Samples};
 use pcuvd::clutter::{ClutterParams, RankCut, svd_filter};
+use pcuvd::decode::{EventAlignment, decode_aligned};
 use pcuvd::iq::IqChannels;
+use pcuvd::{Coding, Probe, Sequence};
 
 fn das_input(probe: &Probe, frames: usize) -> IqChannels {
     let samples = 1500;
@@ -74,5 +78,43 @@ fn clutter(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, das, clutter);
+fn decode(c: &mut Criterion) {
+    let (n, frames, samples) = (8usize, 100usize, 1000usize);
+    let probe = Probe::l22_14vx();
+    let events = Array3::from_shape_fn((n * frames, probe.n_elements, samples), |(e, c, s)| {
+        ((e * 13 + c * 7 + s * 3) as f32 * 0.1).sin()
+    });
+    let data = ChannelData {
+        acquisition: Acquisition {
+            probe,
+            sequence: Sequence {
+                angles: Sequence::evenly_spaced_angles(n, 15f64.to_radians()),
+                event_prf: 14.4e3,
+                coding: Coding::Hadamard { slot_delay: 1e-6 },
+                pulse_cycles: 2.0,
+            },
+            sampling_frequency: 62.5e6,
+            sound_speed: 1540.0,
+            t0: 0.0,
+        },
+        samples: Samples::Rf(events),
+    };
+    let mut group = c.benchmark_group("decode");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements((n * frames * samples * 128) as u64));
+    for (name, alignment) in [
+        (
+            "simultaneous_8x100fr_128ch_1000s",
+            EventAlignment::Simultaneous,
+        ),
+        ("mid_frame_8x100fr_128ch_1000s", EventAlignment::MidFrame),
+    ] {
+        group.bench_function(name, |b| {
+            b.iter(|| decode_aligned(&data, alignment).unwrap())
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, das, clutter, decode);
 criterion_main!(benches);

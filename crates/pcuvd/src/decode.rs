@@ -6,10 +6,18 @@
 //! integer the advance is a band-limited fractional shift (FFT phase ramp). For a still medium
 //! decode(encode(x)) = n·x; moving scatterers break the assumption (see DESIGN.md, "Coding and motion").
 //! Conventional sequences are only split: event i of a frame is angle i.
+//!
+//! Motion between the events: event i of every frame fires i event periods after the frame's first,
+//! so moving blood has changed its echo phase from one event to the next and Hᵀ·M no longer
+//! cancels the other angles (it leaks each into the others, in proportion to the speed). With
+//! [`EventAlignment::MidFrame`] each event's slow-time series (one sample per frame, at the frame
+//! rate) is first resampled, band-limited, to the frame's mid-event time. All n events then see
+//! the medium at one instant and decoding is exact again for every echo whose Doppler frequency is
+//! below half the frame rate, which is what Doppler needs anyway (the Nyquist velocity).
 
 use std::sync::Arc;
 
-use ndarray::{Array3, Array4, ArrayView3, Axis, s};
+use ndarray::{Array2, Array3, Array4, ArrayView3, Axis, s};
 use num_complex::Complex32;
 use num_traits::Zero;
 use rayon::prelude::*;
@@ -98,8 +106,37 @@ fn shift_integer<T: Copy>(trace: &mut [T], shift: isize, zero: T) {
     }
 }
 
+/// How decoding treats blood that moves between the n events of a coded compound frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum EventAlignment {
+    /// The paper's decoding (eq. 2): the n events of a frame are taken as simultaneous, so moving
+    /// blood leaks each angle into the others.
+    Simultaneous,
+    /// Each event's slow-time series is first resampled (band-limited) to the frame's mid-event
+    /// time, so that decoding is exact for echoes whose Doppler is below half the frame rate.
+    #[default]
+    MidFrame,
+}
+
+impl EventAlignment {
+    /// Its name in settings and reports: "simultaneous" or "mid-frame".
+    pub fn label(self) -> &'static str {
+        match self {
+            EventAlignment::Simultaneous => "simultaneous",
+            EventAlignment::MidFrame => "mid-frame",
+        }
+    }
+}
+
 /// Separates a recording into one record per angle: shape (angles, frames, channels, samples).
+/// Coded frames are decoded as if their events were simultaneous ([`EventAlignment::Simultaneous`]).
 pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
+    decode_aligned(data, EventAlignment::Simultaneous)
+}
+
+/// As [`decode`], with coded events aligned in slow time as `alignment` says (conventional
+/// sequences are only split: each angle's record is already one event per frame).
+pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<AngleSamples> {
     data.validate()?;
     let acq = &data.acquisition;
     let n = acq.sequence.n_angles();
@@ -107,15 +144,27 @@ pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
         Coding::Conventional => None,
         Coding::Hadamard { slot_delay } => Some(slot_delay * acq.sampling_frequency),
     };
+    let frames = data.n_frames();
+    let aligner = match alignment {
+        EventAlignment::MidFrame if n > 1 && frames > 1 => Some(SlowTimeAligner::new(frames, n)),
+        _ => None,
+    };
+    let aligner = aligner.as_ref();
     match &data.samples {
         Samples::Rf(rf) => {
             let out = match slot_shift {
                 None => split(rf.view(), n),
-                Some(shift) => {
-                    decode_events(rf.view(), &Hadamard::new(n)?, shift, |shifter, tr, s| {
-                        shifter.shift_real(tr, s)
-                    })
-                }
+                Some(shift) => decode_events(
+                    rf.view(),
+                    &Hadamard::new(n)?,
+                    shift,
+                    |shifter, tr, s| shifter.shift_real(tr, s),
+                    |block| {
+                        if let Some(a) = aligner {
+                            a.align_real(block)
+                        }
+                    },
+                ),
             };
             Ok(AngleSamples::Rf(out))
         }
@@ -127,15 +176,23 @@ pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
             let fs = acq.sampling_frequency;
             let out = match slot_shift {
                 None => split(iq.view(), n),
-                Some(shift) => {
-                    decode_events(iq.view(), &Hadamard::new(n)?, shift, |shifter, tr, s| {
+                Some(shift) => decode_events(
+                    iq.view(),
+                    &Hadamard::new(n)?,
+                    shift,
+                    |shifter, tr, s| {
                         shifter.shift_complex(tr, s);
                         // Baseband of an advanced analytic signal: IQ(t + τ)·exp(+2πi f_d τ).
                         let phase = 2.0 * std::f64::consts::PI * fd * s / fs;
                         let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
                         tr.iter_mut().for_each(|v| *v *= rot);
-                    })
-                }
+                    },
+                    |block| {
+                        if let Some(a) = aligner {
+                            a.align_complex(block)
+                        }
+                    },
+                ),
             };
             Ok(AngleSamples::Iq {
                 data: out,
@@ -156,37 +213,169 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
     out
 }
 
-/// Decodes coded events: for every frame, Hᵀ·M, then slot k advanced by k·`slot_shift` samples.
-fn decode_events<T, F>(events: ArrayView3<T>, h: &Hadamard, slot_shift: f64, shift: F) -> Array4<T>
+/// Resamples, per channel, the slow-time series of each event of a coded frame to the frame's
+/// mid-event time: event i (of n) is advanced by ((n − 1)/2 − i)/n frame periods.
+///
+/// Band-limited interpolation by an FFT phase ramp over the frames. The series is first extended
+/// by its mirror image, so that its periodic continuation has no jump at the ends of the recording
+/// (a jump would ring through the first and last frames); the first and last frame or two are then
+/// only approximately aligned (they are extrapolated as if the signal were reflected there).
+pub struct SlowTimeAligner {
+    frames: usize,
+    events_per_frame: usize,
+    fft_len: usize,
+    forward: Arc<dyn Fft<f32>>,
+    inverse: Arc<dyn Fft<f32>>,
+    /// Per event of the frame: the spectral factor of its advance, with the 1/L of the inverse FFT.
+    factors: Vec<Vec<Complex32>>,
+}
+
+impl SlowTimeAligner {
+    /// An aligner for recordings of `frames` compound frames of `events_per_frame` events each.
+    pub fn new(frames: usize, events_per_frame: usize) -> Self {
+        let fft_len = 2 * frames;
+        let mut planner = FftPlanner::new();
+        let centre = (events_per_frame as f64 - 1.0) / 2.0;
+        let factors = (0..events_per_frame)
+            .map(|i| {
+                let advance = (centre - i as f64) / events_per_frame as f64;
+                (0..fft_len)
+                    .map(|m| {
+                        let scale = 1.0 / fft_len as f64;
+                        if 2 * m == fft_len {
+                            // The Nyquist bin: a real factor keeps a real series real.
+                            let c = (std::f64::consts::PI * advance).cos() * scale;
+                            return Complex32::new(c as f32, 0.0);
+                        }
+                        let freq = if 2 * m < fft_len {
+                            m as f64
+                        } else {
+                            m as f64 - fft_len as f64
+                        };
+                        let phase = 2.0 * std::f64::consts::PI * freq * advance / fft_len as f64;
+                        Complex32::new((phase.cos() * scale) as f32, (phase.sin() * scale) as f32)
+                    })
+                    .collect()
+            })
+            .collect();
+        SlowTimeAligner {
+            frames,
+            events_per_frame,
+            fft_len,
+            forward: planner.plan_fft_forward(fft_len),
+            inverse: planner.plan_fft_inverse(fft_len),
+            factors,
+        }
+    }
+
+    /// Shifts every series of `buf` (consecutive runs of `fft_len`, the first `frames` samples
+    /// filled) by event `event`'s advance, after mirroring each into its second half.
+    fn shift_series(&self, buf: &mut [Complex32], event: usize) {
+        let (f, len) = (self.frames, self.fft_len);
+        for series in buf.chunks_exact_mut(len) {
+            for k in 0..f {
+                series[len - 1 - k] = series[k];
+            }
+        }
+        self.forward.process(buf);
+        for series in buf.chunks_exact_mut(len) {
+            series
+                .iter_mut()
+                .zip(&self.factors[event])
+                .for_each(|(v, g)| *v *= g);
+        }
+        self.inverse.process(buf);
+    }
+
+    /// Aligns one channel's complex block, shape (events, samples), in place.
+    fn align_complex(&self, block: &mut Array2<Complex32>) {
+        let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
+        let ns = block.ncols();
+        let mut buf = vec![Complex32::new(0.0, 0.0); ns * len];
+        for event in 0..n {
+            for frame in 0..f {
+                for (s, &v) in block.row(frame * n + event).iter().enumerate() {
+                    buf[s * len + frame] = v;
+                }
+            }
+            self.shift_series(&mut buf, event);
+            for frame in 0..f {
+                for (s, v) in block.row_mut(frame * n + event).iter_mut().enumerate() {
+                    *v = buf[s * len + frame];
+                }
+            }
+        }
+    }
+
+    /// Aligns one channel's real block, shape (events, samples), in place. The shift's impulse
+    /// response is real, so two real series travel as the real and imaginary parts of one.
+    fn align_real(&self, block: &mut Array2<f32>) {
+        let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
+        let ns = block.ncols();
+        let pairs = ns.div_ceil(2);
+        let mut buf = vec![Complex32::new(0.0, 0.0); pairs * len];
+        for event in 0..n {
+            for frame in 0..f {
+                let row = block.row(frame * n + event);
+                for p in 0..pairs {
+                    let im = row.get(2 * p + 1).copied().unwrap_or(0.0);
+                    buf[p * len + frame] = Complex32::new(row[2 * p], im);
+                }
+            }
+            self.shift_series(&mut buf, event);
+            for frame in 0..f {
+                let mut row = block.row_mut(frame * n + event);
+                for p in 0..pairs {
+                    let v = buf[p * len + frame];
+                    row[2 * p] = v.re;
+                    if let Some(x) = row.get_mut(2 * p + 1) {
+                        *x = v.im;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Decodes coded events: per channel, the events aligned by `align` (which may do nothing), then
+/// for every frame Hᵀ·M, and slot k advanced by k·`slot_shift` samples.
+fn decode_events<T, F, A>(
+    events: ArrayView3<T>,
+    h: &Hadamard,
+    slot_shift: f64,
+    shift: F,
+    align: A,
+) -> Array4<T>
 where
     T: Copy + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
     F: Fn(&TraceShifter, &mut [T], f64) + Sync,
+    A: Fn(&mut Array2<T>) + Sync,
 {
     let n = h.order();
     let (ne, nc, ns) = events.dim();
     let frames = ne / n;
     let shifter = TraceShifter::new(ns, slot_shift * (n - 1) as f64);
     let mut out = Array4::<T>::from_elem((n, frames, nc, ns), T::zero());
-    out.axis_iter_mut(Axis(1))
+    out.axis_iter_mut(Axis(2))
         .into_par_iter()
         .enumerate()
-        .for_each(|(f, mut frame_out)| {
-            for k in 0..n {
-                let mut acc = Array3::<T>::from_elem((1, nc, ns), T::zero());
-                for i in 0..n {
-                    let sign = h.get(i, k);
-                    let ev = events.slice(s![f * n + i, .., ..]);
-                    acc.slice_mut(s![0, .., ..])
-                        .zip_mut_with(&ev, |a, &m| *a += m * sign);
-                }
-                let mut dest = frame_out.slice_mut(s![k, .., ..]);
-                for (mut row, acc_row) in dest
-                    .outer_iter_mut()
-                    .zip(acc.slice(s![0, .., ..]).outer_iter())
-                {
-                    let mut trace = acc_row.to_vec();
+        .for_each(|(c, mut channel_out)| {
+            let mut block = events.slice(s![.., c, ..]).to_owned();
+            align(&mut block);
+            let mut trace = vec![T::zero(); ns];
+            for f in 0..frames {
+                for k in 0..n {
+                    trace.fill(T::zero());
+                    for i in 0..n {
+                        let sign = h.get(i, k);
+                        for (a, &m) in trace.iter_mut().zip(block.row(f * n + i)) {
+                            *a += m * sign;
+                        }
+                    }
                     shift(&shifter, &mut trace, k as f64 * slot_shift);
-                    row.assign(&ndarray::ArrayView1::from(&trace));
+                    channel_out
+                        .slice_mut(s![k, f, ..])
+                        .assign(&ndarray::ArrayView1::from(&trace));
                 }
             }
         });

@@ -30,6 +30,8 @@ pub struct ProcessParams {
     pub irls: IrlsParams,
     /// IQ low-pass cut-off (Hz); `None` picks [`iq::default_cutoff`].
     pub iq_cutoff: Option<f64>,
+    /// How coded events are aligned in slow time before decoding (see [`decode::EventAlignment`]).
+    pub event_alignment: decode::EventAlignment,
 }
 
 /// Pipeline stages, in order, as reported to a progress callback.
@@ -122,7 +124,7 @@ pub fn form_images(
 
     let clock = Instant::now();
     progress(Stage::Decode, 0, 1);
-    let per_angle = decode::decode(data)?;
+    let per_angle = decode::decode_aligned(data, params.event_alignment)?;
     progress(Stage::Decode, 1, 1);
     timings.push((Stage::Decode, clock.elapsed().as_secs_f64()));
 

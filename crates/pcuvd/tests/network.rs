@@ -97,6 +97,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> R
         doppler_kernel: (1, 1),
         irls: IrlsParams::default(),
         iq_cutoff: None,
+        event_alignment: Default::default(),
     };
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
     let acq = &data.acquisition;

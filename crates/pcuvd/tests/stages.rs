@@ -4,7 +4,7 @@ use ndarray::{Array3, Array4};
 use num_complex::Complex32;
 use pcuvd::beamform::{self, DasParams, Grid};
 use pcuvd::channel::{Acquisition, AngleSamples, ChannelData, Samples};
-use pcuvd::decode::{decode, encode};
+use pcuvd::decode::{EventAlignment, decode, decode_aligned, encode};
 use pcuvd::geometry::round_trip_delay;
 use pcuvd::{Coding, Hadamard, Probe, Sequence, iq};
 use proptest::prelude::*;
@@ -199,4 +199,154 @@ fn compound_needs_matching_shapes() {
         beamform::compound(&[a.clone(), a]).unwrap().dim(),
         (2, 2, 2)
     );
+}
+
+/// Coded events of per-angle echoes that change in slow time as `echo(angle, t, channel, sample)`,
+/// each event sampled at its own firing time (event e fires at e / event PRF); slot k fires k
+/// samples after slot 0, so its echo arrives k samples later.
+fn moving_coded_events<T, E>(n: usize, frames: usize, shape: (usize, usize), echo: E) -> Array3<T>
+where
+    T: Copy + num_traits::Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
+    E: Fn(usize, f64, usize, usize) -> T,
+{
+    let h = Hadamard::new(n).unwrap();
+    let prf = 1e4;
+    Array3::from_shape_fn((n * frames, shape.0, shape.1), |(e, c, s)| {
+        let t = e as f64 / prf;
+        let mut sum = T::zero();
+        for k in 0..n.min(s + 1) {
+            sum += echo(k, t, c, s - k) * h.get(e % n, k);
+        }
+        sum
+    })
+}
+
+/// Relative L2 error of decoded angles against n × each angle's echo at its frame's mid-event
+/// time, over `frames` and the samples that every slot's echo fills.
+fn mid_frame_error<T, E>(
+    decoded: &Array4<T>,
+    n: usize,
+    frames: std::ops::Range<usize>,
+    echo: E,
+) -> f64
+where
+    T: Copy + Into<Complex32>,
+    E: Fn(usize, f64, usize, usize) -> T,
+{
+    let prf = 1e4;
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((k, f, c, s), &got) in decoded.indexed_iter() {
+        if !frames.contains(&f) || s + n > decoded.dim().3 {
+            continue;
+        }
+        let t = (f as f64 * n as f64 + (n as f64 - 1.0) / 2.0) / prf;
+        let want: Complex32 = echo(k, t, c, s).into() * n as f32;
+        num += (got.into() - want).norm_sqr() as f64;
+        den += want.norm_sqr() as f64;
+    }
+    (num / den).sqrt()
+}
+
+fn decode_both(mut rec: ChannelData) -> (AngleSamples, AngleSamples) {
+    let fs = rec.acquisition.sampling_frequency;
+    rec.acquisition.sequence.coding = Coding::Hadamard {
+        slot_delay: 1.0 / fs,
+    };
+    rec.acquisition.sequence.event_prf = 1e4;
+    let still = decode_aligned(&rec, EventAlignment::Simultaneous).unwrap();
+    let aligned = decode_aligned(&rec, EventAlignment::MidFrame).unwrap();
+    (still, aligned)
+}
+
+/// Moving echoes (a different Doppler tone per angle, up to 0.4 × the frame rate, under a smooth
+/// slow-time envelope): the paper's decoding leaks angles into each other; mid-frame alignment
+/// recovers each angle's echo at the frame's mid-event time, as the still-medium decoding would.
+#[test]
+fn mid_frame_alignment_undoes_the_leak_of_moving_echoes() {
+    let (n, frames) = (8usize, 96usize);
+    let frame_rate = 1e4 / n as f64;
+    let span = frames as f64 / frame_rate;
+    let echo = |k: usize, t: f64, c: usize, s: usize| -> Complex32 {
+        let doppler = (k as f64 - 3.5) * 0.11 * frame_rate;
+        let u = (t - span / 2.0) / (span / 9.0);
+        let amplitude = (-0.5 * u * u).exp() * (1.0 + 0.3 * ((c * 7 + s * 3 + k) % 5) as f64);
+        let phase = std::f64::consts::TAU * doppler * t + 0.7 * (c + 2 * s) as f64;
+        Complex32::new(
+            (amplitude * phase.cos()) as f32,
+            (amplitude * phase.sin()) as f32,
+        )
+    };
+    let events = moving_coded_events(n, frames, (2, 13), echo);
+    let mut rec = coded_recording(Array3::zeros((1, 2, 13)), n, 1.0, 65e6);
+    rec.acquisition.probe.n_elements = 2;
+    // Demodulated at f_s, so that advancing a slot by whole samples turns no phase.
+    rec.samples = Samples::Iq {
+        data: events,
+        demod_frequency: 65e6,
+    };
+    let (still, aligned) = decode_both(rec);
+    let (AngleSamples::Iq { data: still, .. }, AngleSamples::Iq { data: aligned, .. }) =
+        (still, aligned)
+    else {
+        unreachable!()
+    };
+    let leak = mid_frame_error(&still, n, 0..frames, echo);
+    let err = mid_frame_error(&aligned, n, 0..frames, echo);
+    eprintln!("leak {leak}, aligned {err}");
+    assert!(
+        leak > 0.3,
+        "the moving echoes should leak without alignment: {leak}"
+    );
+    assert!(
+        err < 1e-4,
+        "aligned decoding error {err} (without alignment {leak})"
+    );
+}
+
+/// Real RF with an odd number of samples (two real series share one complex FFT, and the last
+/// travels alone) and Doppler tones that do not fade at the ends of the recording: away from the
+/// first and last few frames the alignment is as good, and a still medium is decoded exactly.
+#[test]
+fn mid_frame_alignment_of_rf_at_the_recording_ends() {
+    let (n, frames) = (4usize, 80usize);
+    let frame_rate = 1e4 / n as f64;
+    let echo = |k: usize, t: f64, c: usize, s: usize| -> f32 {
+        let doppler = (k as f64 + 0.5) * 0.1 * frame_rate;
+        let phase = std::f64::consts::TAU * doppler * t + 0.9 * (c + 3 * s + k) as f64;
+        (phase.cos() * (1.0 + 0.2 * s as f64)) as f32
+    };
+    let events = moving_coded_events(n, frames, (3, 7), echo);
+    let mut rec = coded_recording(events, n, 1.0, 65e6);
+    rec.acquisition.probe.n_elements = 3;
+    let (still, aligned) = decode_both(rec.clone());
+    let (AngleSamples::Rf(still), AngleSamples::Rf(aligned)) = (still, aligned) else {
+        unreachable!()
+    };
+    let inner = 8..frames - 8;
+    let leak = mid_frame_error(&still, n, inner.clone(), echo);
+    let err = mid_frame_error(&aligned, n, inner, echo);
+    let whole = mid_frame_error(&aligned, n, 0..frames, echo);
+    eprintln!("leak {leak}, inner {err}, whole {whole}");
+    assert!(
+        leak > 0.2,
+        "the moving echoes should leak without alignment: {leak}"
+    );
+    assert!(
+        err < 1e-2,
+        "aligned decoding error {err} (without alignment {leak})"
+    );
+    assert!(
+        whole < leak / 3.0,
+        "aligned error over all frames {whole} vs {leak}"
+    );
+
+    // A still medium: every event of a frame sees the same echo, and alignment changes nothing.
+    let still_echo = |k: usize, _t: f64, c: usize, s: usize| echo(k, 0.0, c, s);
+    rec.samples = Samples::Rf(moving_coded_events(n, frames, (3, 7), still_echo));
+    let (_, aligned) = decode_both(rec);
+    let AngleSamples::Rf(aligned) = aligned else {
+        unreachable!()
+    };
+    let err = mid_frame_error(&aligned, n, 0..frames, still_echo);
+    assert!(err < 1e-5, "still medium, aligned decoding error {err}");
 }
