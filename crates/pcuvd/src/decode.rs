@@ -218,8 +218,11 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
 ///
 /// Band-limited interpolation by an FFT phase ramp over the frames. The series is first extended
 /// by its mirror image, so that its periodic continuation has no jump at the ends of the recording
-/// (a jump would ring through the first and last frames); the first and last frame or two are then
-/// only approximately aligned (they are extrapolated as if the signal were reflected there).
+/// (a jump would ring through the whole series). Near the ends the events are extrapolated as if
+/// the signal were reflected there, which is poor for fast flow: for a steady Doppler tone at
+/// 0.3 × the frame rate the error is 60 % of the echo on the last frame, 13 % on the one before,
+/// 1 % five frames in and 0.002 % mid-recording (at 0.1 × the frame rate: 17 %, 3 %, 0.2 %).
+/// Discard the first and last few frames where they matter.
 pub struct SlowTimeAligner {
     frames: usize,
     events_per_frame: usize,
@@ -291,17 +294,24 @@ impl SlowTimeAligner {
     fn align_complex(&self, block: &mut Array2<Complex32>) {
         let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
         let ns = block.ncols();
-        let mut buf = vec![Complex32::new(0.0, 0.0); ns * len];
+        let data = block.as_slice_mut().expect("an owned array is contiguous");
+        let mut buf = vec![Complex32::new(0.0, 0.0); TILE * len];
         for event in 0..n {
-            for frame in 0..f {
-                for (s, &v) in block.row(frame * n + event).iter().enumerate() {
-                    buf[s * len + frame] = v;
+            for s0 in (0..ns).step_by(TILE) {
+                let width = TILE.min(ns - s0);
+                let buf = &mut buf[..width * len];
+                for frame in 0..f {
+                    let start = (frame * n + event) * ns + s0;
+                    for (j, &v) in data[start..start + width].iter().enumerate() {
+                        buf[j * len + frame] = v;
+                    }
                 }
-            }
-            self.shift_series(&mut buf, event);
-            for frame in 0..f {
-                for (s, v) in block.row_mut(frame * n + event).iter_mut().enumerate() {
-                    *v = buf[s * len + frame];
+                self.shift_series(buf, event);
+                for frame in 0..f {
+                    let start = (frame * n + event) * ns + s0;
+                    for (j, v) in data[start..start + width].iter_mut().enumerate() {
+                        *v = buf[j * len + frame];
+                    }
                 }
             }
         }
@@ -312,30 +322,41 @@ impl SlowTimeAligner {
     fn align_real(&self, block: &mut Array2<f32>) {
         let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
         let ns = block.ncols();
-        let pairs = ns.div_ceil(2);
-        let mut buf = vec![Complex32::new(0.0, 0.0); pairs * len];
+        let data = block.as_slice_mut().expect("an owned array is contiguous");
+        let mut buf = vec![Complex32::new(0.0, 0.0); TILE * len];
         for event in 0..n {
-            for frame in 0..f {
-                let row = block.row(frame * n + event);
-                for p in 0..pairs {
-                    let im = row.get(2 * p + 1).copied().unwrap_or(0.0);
-                    buf[p * len + frame] = Complex32::new(row[2 * p], im);
+            for s0 in (0..ns).step_by(2 * TILE) {
+                let samples = (2 * TILE).min(ns - s0);
+                let width = samples.div_ceil(2);
+                let buf = &mut buf[..width * len];
+                for frame in 0..f {
+                    let start = (frame * n + event) * ns + s0;
+                    let row = &data[start..start + samples];
+                    for (j, pair) in row.chunks(2).enumerate() {
+                        buf[j * len + frame] =
+                            Complex32::new(pair[0], pair.get(1).copied().unwrap_or(0.0));
+                    }
                 }
-            }
-            self.shift_series(&mut buf, event);
-            for frame in 0..f {
-                let mut row = block.row_mut(frame * n + event);
-                for p in 0..pairs {
-                    let v = buf[p * len + frame];
-                    row[2 * p] = v.re;
-                    if let Some(x) = row.get_mut(2 * p + 1) {
-                        *x = v.im;
+                self.shift_series(buf, event);
+                for frame in 0..f {
+                    let start = (frame * n + event) * ns + s0;
+                    let row = &mut data[start..start + samples];
+                    for (j, pair) in row.chunks_mut(2).enumerate() {
+                        let v = buf[j * len + frame];
+                        pair[0] = v.re;
+                        if let Some(x) = pair.get_mut(1) {
+                            *x = v.im;
+                        }
                     }
                 }
             }
         }
     }
 }
+
+/// Series resampled together by [`SlowTimeAligner`]: enough for the FFTs to run back to back, few
+/// enough that the buffer stays in cache while it is transposed in and out.
+const TILE: usize = 16;
 
 /// Decodes coded events: per channel, the events aligned by `align` (which may do nothing), then
 /// for every frame Hᵀ·M, and slot k advanced by k·`slot_shift` samples.
@@ -360,22 +381,35 @@ where
         .into_par_iter()
         .enumerate()
         .for_each(|(c, mut channel_out)| {
-            let mut block = events.slice(s![.., c, ..]).to_owned();
+            // Gathered and summed through plain slices: ndarray's strided copies and row
+            // iterators made decoding 2.4 times slower.
+            let mut block = Array2::from_elem((ne, ns), T::zero());
+            for (e, mut row) in block.outer_iter_mut().enumerate() {
+                let source = events.slice(s![e, c, ..]);
+                match (row.as_slice_mut(), source.as_slice()) {
+                    (Some(dst), Some(src)) => dst.copy_from_slice(src),
+                    _ => row.assign(&source),
+                }
+            }
             align(&mut block);
+            let block = block.as_slice().expect("an owned array is contiguous");
             let mut trace = vec![T::zero(); ns];
             for f in 0..frames {
                 for k in 0..n {
                     trace.fill(T::zero());
                     for i in 0..n {
                         let sign = h.get(i, k);
-                        for (a, &m) in trace.iter_mut().zip(block.row(f * n + i)) {
+                        let event = &block[(f * n + i) * ns..(f * n + i + 1) * ns];
+                        for (a, &m) in trace.iter_mut().zip(event) {
                             *a += m * sign;
                         }
                     }
                     shift(&shifter, &mut trace, k as f64 * slot_shift);
-                    channel_out
-                        .slice_mut(s![k, f, ..])
-                        .assign(&ndarray::ArrayView1::from(&trace));
+                    let mut dest = channel_out.slice_mut(s![k, f, ..]);
+                    match dest.as_slice_mut() {
+                        Some(dest) => dest.copy_from_slice(&trace),
+                        None => dest.assign(&ndarray::ArrayView1::from(&trace)),
+                    }
                 }
             }
         });

@@ -276,8 +276,9 @@ fn mid_frame_alignment_undoes_the_leak_of_moving_echoes() {
             (amplitude * phase.sin()) as f32,
         )
     };
-    let events = moving_coded_events(n, frames, (2, 13), echo);
-    let mut rec = coded_recording(Array3::zeros((1, 2, 13)), n, 1.0, 65e6);
+    // 37 samples: the aligner's tiles of 16 series, and a partial one.
+    let events = moving_coded_events(n, frames, (2, 37), echo);
+    let mut rec = coded_recording(Array3::zeros((1, 2, 37)), n, 1.0, 65e6);
     rec.acquisition.probe.n_elements = 2;
     // Demodulated at f_s, so that advancing a slot by whole samples turns no phase.
     rec.samples = Samples::Iq {
@@ -304,7 +305,7 @@ fn mid_frame_alignment_undoes_the_leak_of_moving_echoes() {
 }
 
 /// Real RF with an odd number of samples (two real series share one complex FFT, and the last
-/// travels alone) and Doppler tones that do not fade at the ends of the recording: away from the
+/// travels alone; 71 samples span three tiles of the aligner) and Doppler tones that do not fade at the ends of the recording: away from the
 /// first and last few frames the alignment is as good, and a still medium is decoded exactly.
 #[test]
 fn mid_frame_alignment_of_rf_at_the_recording_ends() {
@@ -315,7 +316,7 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
         let phase = std::f64::consts::TAU * doppler * t + 0.9 * (c + 3 * s + k) as f64;
         (phase.cos() * (1.0 + 0.2 * s as f64)) as f32
     };
-    let events = moving_coded_events(n, frames, (3, 7), echo);
+    let events = moving_coded_events(n, frames, (3, 71), echo);
     let mut rec = coded_recording(events, n, 1.0, 65e6);
     rec.acquisition.probe.n_elements = 3;
     let (still, aligned) = decode_both(rec.clone());
@@ -342,7 +343,7 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
 
     // A still medium: every event of a frame sees the same echo, and alignment changes nothing.
     let still_echo = |k: usize, _t: f64, c: usize, s: usize| echo(k, 0.0, c, s);
-    rec.samples = Samples::Rf(moving_coded_events(n, frames, (3, 7), still_echo));
+    rec.samples = Samples::Rf(moving_coded_events(n, frames, (3, 71), still_echo));
     let (_, aligned) = decode_both(rec);
     let AngleSamples::Rf(aligned) = aligned else {
         unreachable!()
