@@ -1,6 +1,6 @@
 //! Hadamard decoding: from coded transmit events back to one record per steering angle.
 //!
-//! In event i of a compound frame, slot k fired angle θ_k with polarity H[i][k] after τ_k = k·Δτ.
+//! In event i of a compound frame, slot k fired angle θ_k with polarity `H[i][k]` after τ_k = k·Δτ.
 //! Decoding is RF = Hᵀ·M over the n events of the frame (eq. 2), then each slot k is advanced by
 //! τ_k (eq. 3) so that every angle's record has the same time origin t0. When τ_k·f_s is not an
 //! integer the advance is a band-limited fractional shift (FFT phase ramp). For a still medium
@@ -28,7 +28,7 @@ use crate::error::{Error, Result};
 use crate::hadamard::Hadamard;
 use crate::sequence::Coding;
 
-/// Advances traces of a fixed length by a (possibly fractional) number of samples: y[t] = x[t + shift].
+/// Advances traces of a fixed length by a (possibly fractional) number of samples: `y[t] = x[t + shift]`.
 /// Samples shifted in from beyond the end are zero.
 pub struct TraceShifter {
     len: usize,
@@ -223,7 +223,7 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
 /// 0.3 × the frame rate the error is 60 % of the echo on the last frame, 13 % on the one before,
 /// 1 % five frames in and 0.002 % mid-recording (at 0.1 × the frame rate: 17 %, 3 %, 0.2 %).
 /// Discard the first and last few frames where they matter.
-pub struct SlowTimeAligner {
+struct SlowTimeAligner {
     frames: usize,
     events_per_frame: usize,
     fft_len: usize,
@@ -235,7 +235,7 @@ pub struct SlowTimeAligner {
 
 impl SlowTimeAligner {
     /// An aligner for recordings of `frames` compound frames of `events_per_frame` events each.
-    pub fn new(frames: usize, events_per_frame: usize) -> Self {
+    fn new(frames: usize, events_per_frame: usize) -> Self {
         let fft_len = 2 * frames;
         let mut planner = FftPlanner::new();
         let centre = (events_per_frame as f64 - 1.0) / 2.0;
@@ -417,7 +417,7 @@ where
 }
 
 /// Encodes per-angle records (angles, channels, samples) into the n events of one coded compound
-/// frame (events, channels, samples): event i = Σ_k H[i][k]·x_k delayed by k·`slot_shift` samples.
+/// frame (events, channels, samples): event i = `Σ_k H[i][k]·x_k` delayed by k·`slot_shift` samples.
 /// The inverse of [`decode`] for a still medium, up to the factor n.
 pub fn encode(per_angle: ArrayView3<f32>, h: &Hadamard, slot_shift: f64) -> Result<Array3<f32>> {
     let (n, nc, ns) = per_angle.dim();

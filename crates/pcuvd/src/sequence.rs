@@ -9,7 +9,7 @@ pub enum Coding {
     /// Conventional: event i of a compound frame fires angle i alone.
     Conventional,
     /// Hadamard pulse coding: every event fires all n angles; slot k fires after `slot_delay`·k (s)
-    /// with the polarity H_n[i][k] in event i of a compound frame.
+    /// with the polarity `H_n[i][k]` in event i of a compound frame.
     Hadamard {
         /// Delay Δτ between successive pulse slots in an event (s); the paper uses 1 µs.
         slot_delay: f64,
