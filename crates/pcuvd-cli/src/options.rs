@@ -112,13 +112,13 @@ pub fn parse_numbers(text: &str) -> Result<Vec<f64>> {
     Ok(values)
 }
 
-/// Parses a margin in dB, or "off" (−∞ dB: every pixel with power passes).
-pub fn parse_margin_db(text: &str) -> Result<f64> {
+/// Parses a level in dB, or "off" (`None`: the test it sets is dropped).
+pub fn parse_db_or_off(text: &str) -> Result<Option<f64>> {
     if text.trim().eq_ignore_ascii_case("off") {
-        return Ok(f64::NEG_INFINITY);
+        return Ok(None);
     }
     match text.trim().parse::<f64>() {
-        Ok(db) if db.is_finite() => Ok(db),
+        Ok(db) if db.is_finite() => Ok(Some(db)),
         _ => bail!("{text:?}: give a number of dB or \"off\""),
     }
 }
@@ -222,11 +222,13 @@ impl DynamicsOptions {
     /// The whole-recording vessel tests of `--vessel-margin-db`, `--vessel-local-db` and
     /// `--vessel-local-radius-mm`.
     pub fn vessel_tests(&self) -> Result<VesselTests> {
-        let margin_db = parse_margin_db(&self.vessel_margin_db).context("--vessel-margin-db")?;
-        let local_db = match parse_margin_db(&self.vessel_local_db).context("--vessel-local-db")? {
-            db if db == f64::NEG_INFINITY => f64::INFINITY,
-            db => db,
-        };
+        // "off" is a margin every pixel clears, and a local level every pixel is within.
+        let margin_db = parse_db_or_off(&self.vessel_margin_db)
+            .context("--vessel-margin-db")?
+            .unwrap_or(f64::NEG_INFINITY);
+        let local_db = parse_db_or_off(&self.vessel_local_db)
+            .context("--vessel-local-db")?
+            .unwrap_or(f64::INFINITY);
         let tests = VesselTests {
             margin_db,
             local_db,

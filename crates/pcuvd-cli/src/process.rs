@@ -192,9 +192,9 @@ fn run_dynamics(
         "artery_ri_min": dparams.artery_ri_min,
         "vein_ri_max": dparams.vein_ri_max,
         "vessel_threshold_db": dparams.min_power_db,
-        "vessel_margin_db": if vessel.margin_db.is_finite() { json!(vessel.margin_db) } else { json!("off") },
+        "vessel_margin_db": db_or_off(vessel.margin_db),
         "vessel_margin_reference": "noise floor of each depth row of the power Doppler: its 30th percentile (doppler::noise_floor_by_depth)",
-        "vessel_local_db": if vessel.local_db.is_finite() { json!(vessel.local_db) } else { json!("off") },
+        "vessel_local_db": db_or_off(vessel.local_db),
         "vessel_local_radius_mm": vessel.local_radius_m * 1e3,
         "vessel_pooling": pooling_summary(&dparams, out.grid.step()),
         "cycles_windows": maps.cycles,
@@ -229,6 +229,15 @@ pub fn pooling_summary(params: &DynamicsParams, grid_step_m: f64) -> serde_json:
             "weights": "time-mean Doppler power squared",
             "pooled": "speed |V| series; the pooled shape scaled to each pixel's own mean speed",
         }),
+    }
+}
+
+/// A vessel-test level (dB) as set: "off" for the infinite level that stands for it.
+fn db_or_off(db: f64) -> serde_json::Value {
+    if db.is_finite() {
+        json!(db)
+    } else {
+        json!("off")
     }
 }
 

@@ -159,11 +159,7 @@ pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<A
                     &Hadamard::new(n)?,
                     shift,
                     |shifter, tr, s| shifter.shift_real(tr, s),
-                    |block| {
-                        if let Some(a) = aligner {
-                            a.align_real(block)
-                        }
-                    },
+                    aligner,
                 ),
             };
             Ok(AngleSamples::Rf(out))
@@ -187,11 +183,7 @@ pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<A
                         let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
                         tr.iter_mut().for_each(|v| *v *= rot);
                     },
-                    |block| {
-                        if let Some(a) = aligner {
-                            a.align_complex(block)
-                        }
-                    },
+                    aligner,
                 ),
             };
             Ok(AngleSamples::Iq {
@@ -290,63 +282,34 @@ impl SlowTimeAligner {
         self.inverse.process(buf);
     }
 
-    /// Aligns one channel's complex block, shape (events, samples), in place.
-    fn align_complex(&self, block: &mut Array2<Complex32>) {
-        let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
+    /// Aligns one channel's block, shape (events, samples), in place.
+    fn align<T: SlowTimeSample>(&self, block: &mut Array2<T>) {
+        let (n, f, len, per) = (
+            self.events_per_frame,
+            self.frames,
+            self.fft_len,
+            T::PER_LANE,
+        );
         let ns = block.ncols();
         let data = block.as_slice_mut().expect("an owned array is contiguous");
         let mut buf = vec![Complex32::new(0.0, 0.0); TILE * len];
         for event in 0..n {
-            for s0 in (0..ns).step_by(TILE) {
-                let width = TILE.min(ns - s0);
-                let buf = &mut buf[..width * len];
-                for frame in 0..f {
-                    let start = (frame * n + event) * ns + s0;
-                    for (j, &v) in data[start..start + width].iter().enumerate() {
-                        buf[j * len + frame] = v;
-                    }
-                }
-                self.shift_series(buf, event);
-                for frame in 0..f {
-                    let start = (frame * n + event) * ns + s0;
-                    for (j, v) in data[start..start + width].iter_mut().enumerate() {
-                        *v = buf[j * len + frame];
-                    }
-                }
-            }
-        }
-    }
-
-    /// Aligns one channel's real block, shape (events, samples), in place. The shift's impulse
-    /// response is real, so two real series travel as the real and imaginary parts of one.
-    fn align_real(&self, block: &mut Array2<f32>) {
-        let (n, f, len) = (self.events_per_frame, self.frames, self.fft_len);
-        let ns = block.ncols();
-        let data = block.as_slice_mut().expect("an owned array is contiguous");
-        let mut buf = vec![Complex32::new(0.0, 0.0); TILE * len];
-        for event in 0..n {
-            for s0 in (0..ns).step_by(2 * TILE) {
-                let samples = (2 * TILE).min(ns - s0);
-                let width = samples.div_ceil(2);
-                let buf = &mut buf[..width * len];
+            for s0 in (0..ns).step_by(per * TILE) {
+                let samples = (per * TILE).min(ns - s0);
+                let buf = &mut buf[..samples.div_ceil(per) * len];
                 for frame in 0..f {
                     let start = (frame * n + event) * ns + s0;
                     let row = &data[start..start + samples];
-                    for (j, pair) in row.chunks(2).enumerate() {
-                        buf[j * len + frame] =
-                            Complex32::new(pair[0], pair.get(1).copied().unwrap_or(0.0));
+                    for (j, lane) in row.chunks(per).enumerate() {
+                        buf[j * len + frame] = T::pack(lane);
                     }
                 }
                 self.shift_series(buf, event);
                 for frame in 0..f {
                     let start = (frame * n + event) * ns + s0;
                     let row = &mut data[start..start + samples];
-                    for (j, pair) in row.chunks_mut(2).enumerate() {
-                        let v = buf[j * len + frame];
-                        pair[0] = v.re;
-                        if let Some(x) = pair.get_mut(1) {
-                            *x = v.im;
-                        }
+                    for (j, lane) in row.chunks_mut(per).enumerate() {
+                        T::unpack(buf[j * len + frame], lane);
                     }
                 }
             }
@@ -354,23 +317,56 @@ impl SlowTimeAligner {
     }
 }
 
+/// A sample type the [`SlowTimeAligner`] resamples, carried in the lanes of complex FFTs.
+trait SlowTimeSample: Copy {
+    /// Samples per complex lane: two real ones travel as the real and imaginary parts of one
+    /// (the shift's impulse response is real, so they do not mix), a complex one alone.
+    const PER_LANE: usize;
+    /// Packs up to `PER_LANE` samples into a lane (a missing last one as zero).
+    fn pack(samples: &[Self]) -> Complex32;
+    /// Unpacks a lane into the samples it was packed from.
+    fn unpack(lane: Complex32, samples: &mut [Self]);
+}
+
+impl SlowTimeSample for f32 {
+    const PER_LANE: usize = 2;
+    fn pack(samples: &[f32]) -> Complex32 {
+        Complex32::new(samples[0], samples.get(1).copied().unwrap_or(0.0))
+    }
+    fn unpack(lane: Complex32, samples: &mut [f32]) {
+        samples[0] = lane.re;
+        if let Some(im) = samples.get_mut(1) {
+            *im = lane.im;
+        }
+    }
+}
+
+impl SlowTimeSample for Complex32 {
+    const PER_LANE: usize = 1;
+    fn pack(samples: &[Complex32]) -> Complex32 {
+        samples[0]
+    }
+    fn unpack(lane: Complex32, samples: &mut [Complex32]) {
+        samples[0] = lane;
+    }
+}
+
 /// Series resampled together by [`SlowTimeAligner`]: enough for the FFTs to run back to back, few
 /// enough that the buffer stays in cache while it is transposed in and out.
 const TILE: usize = 16;
 
-/// Decodes coded events: per channel, the events aligned by `align` (which may do nothing), then
-/// for every frame Hᵀ·M, and slot k advanced by k·`slot_shift` samples.
-fn decode_events<T, F, A>(
+/// Decodes coded events: per channel, the events aligned by `aligner` if given, then for every
+/// frame Hᵀ·M, and slot k advanced by k·`slot_shift` samples.
+fn decode_events<T, F>(
     events: ArrayView3<T>,
     h: &Hadamard,
     slot_shift: f64,
     shift: F,
-    align: A,
+    aligner: Option<&SlowTimeAligner>,
 ) -> Array4<T>
 where
-    T: Copy + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
+    T: SlowTimeSample + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
     F: Fn(&TraceShifter, &mut [T], f64) + Sync,
-    A: Fn(&mut Array2<T>) + Sync,
 {
     let n = h.order();
     let (ne, nc, ns) = events.dim();
@@ -391,7 +387,9 @@ where
                     _ => row.assign(&source),
                 }
             }
-            align(&mut block);
+            if let Some(aligner) = aligner {
+                aligner.align(&mut block);
+            }
             let block = block.as_slice().expect("an owned array is contiguous");
             let mut trace = vec![T::zero(); ns];
             for f in 0..frames {

@@ -305,8 +305,9 @@ fn mid_frame_alignment_undoes_the_leak_of_moving_echoes() {
 }
 
 /// Real RF with an odd number of samples (two real series share one complex FFT, and the last
-/// travels alone; 71 samples span three tiles of the aligner) and Doppler tones that do not fade at the ends of the recording: away from the
-/// first and last few frames the alignment is as good, and a still medium is decoded exactly.
+/// travels alone; 71 samples span three tiles of the aligner) and Doppler tones that do not fade
+/// at the ends of the recording: away from the first and last few frames the alignment is as
+/// good, and a still medium is decoded exactly.
 #[test]
 fn mid_frame_alignment_of_rf_at_the_recording_ends() {
     let (n, frames) = (4usize, 80usize);
