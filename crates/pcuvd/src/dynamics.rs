@@ -18,13 +18,14 @@
 
 use faer::Mat;
 use faer::linalg::solvers::SolveLstsq;
-use ndarray::{Array2, Array3, ArrayView3, Axis, s};
+use ndarray::{Array2, Array3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
 
 use crate::doppler;
 use crate::error::{Error, Result, invalid, require_positive};
+use crate::images::AngleImages;
 use crate::vector::{self, Estimator, IrlsParams};
 
 /// Vessel class code of a background pixel (power below `min_power_db`).
@@ -186,6 +187,51 @@ pub struct VesselPooling {
     pub across: f64,
     /// Largest angle (rad) between the time-mean flow directions of the pixel and a neighbour.
     pub max_angle: f64,
+}
+
+/// Vessel pooling as reported in summaries: "off", or its size in mm and pixels.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum PoolingSummary {
+    /// No pooling: serialised as "off".
+    Off(&'static str),
+    /// The pooling ellipse and what it pools.
+    On {
+        /// Half-length along the flow (mm).
+        half_length_along_flow_mm: f64,
+        /// Half-width across the flow (mm).
+        half_width_across_flow_mm: f64,
+        /// Half-length along the flow (pixels).
+        half_length_along_flow_px: f64,
+        /// Half-width across the flow (pixels).
+        half_width_across_flow_px: f64,
+        /// Largest angle between pooled flow directions (degrees).
+        max_angle_deg: f64,
+        /// Weight of each neighbour.
+        weights: &'static str,
+        /// What is pooled.
+        pooled: &'static str,
+    },
+}
+
+impl PoolingSummary {
+    /// The summary of `pooling` on a grid of `grid_step_m` (m); settings converted between mm,
+    /// pixels and degrees are rounded to 0.001 so that they print as set.
+    pub fn new(pooling: Option<VesselPooling>, grid_step_m: f64) -> Self {
+        let thousandths = |value: f64| (value * 1e3).round() / 1e3;
+        match pooling {
+            None => PoolingSummary::Off("off"),
+            Some(p) => PoolingSummary::On {
+                half_length_along_flow_mm: thousandths(p.along * grid_step_m * 1e3),
+                half_width_across_flow_mm: thousandths(p.across * grid_step_m * 1e3),
+                half_length_along_flow_px: thousandths(p.along),
+                half_width_across_flow_px: thousandths(p.across),
+                max_angle_deg: thousandths(p.max_angle.to_degrees()),
+                weights: "time-mean Doppler power squared",
+                pooled: "speed |V| series; the pooled shape scaled to each pixel's own mean speed",
+            },
+        }
+    }
 }
 
 impl VesselPooling {
@@ -592,21 +638,19 @@ fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
 /// Vector velocity in sliding windows over slow time: per angle, the lag-1 autocorrelation of each
 /// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`.
 ///
-/// `filtered`: clutter-filtered IQ per angle, shape (nz, nx, frames); `angles` (rad); `coverage`:
-/// per angle the pixels its plane wave reaches (angles, nz, nx), as
-/// [`pipeline::angle_coverage`](crate::pipeline::angle_coverage) gives, or `None` to use every
-/// angle everywhere; `frame_rate`: compound frame rate (Hz); `sound_speed` (m/s); `center_frequency` (Hz).
+/// `images`: clutter-filtered IQ per angle, each (nz, nx, frames), with their angles, compound
+/// frame rate, sound speed and demodulation frequency; an angle is used only where its
+/// `coverage` says its plane wave reaches the pixel (every angle everywhere without coverage).
 /// Windows run in parallel; each is computed independently, so the output does not depend on the
 /// number of threads.
-pub fn sliding_vectors(
-    filtered: &[Array3<Complex32>],
-    angles: &[f64],
-    coverage: Option<ArrayView3<bool>>,
-    frame_rate: f64,
-    sound_speed: f64,
-    center_frequency: f64,
-    params: &DynamicsParams,
-) -> Result<VelocitySeries> {
+pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<VelocitySeries> {
+    let (filtered, angles) = (&images.series[..], &images.angles[..]);
+    let coverage = images.coverage.as_ref().map(|c| c.view());
+    let (frame_rate, sound_speed, center_frequency) = (
+        images.frame_rate,
+        images.sound_speed,
+        images.demodulation_frequency,
+    );
     require_positive("frame rate", frame_rate)?;
     require_positive("speed of sound", sound_speed)?;
     require_positive("centre frequency", center_frequency)?;
@@ -1277,17 +1321,19 @@ pub struct Spectrogram {
 ///
 /// Doppler frequency f (Hz) maps to axial velocity Vz = −c·f/(f0·(1 + mean cos θ)) (m/s): the
 /// compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric angle
-/// sets), as in the pipeline's colour Doppler. `frame_rate` (Hz), `sound_speed` (m/s),
-/// `center_frequency` (Hz), `angles` (rad).
+/// sets), as in the pipeline's colour Doppler, with the images' sound speed and demodulation
+/// frequency f0; the slow-time rate is their frame rate.
 pub fn spectrogram(
-    filtered: &[Array3<Complex32>],
-    angles: &[f64],
+    images: &AngleImages,
     pixel: (usize, usize),
-    frame_rate: f64,
-    sound_speed: f64,
-    center_frequency: f64,
     params: &SpectrogramParams,
 ) -> Result<Spectrogram> {
+    let (filtered, angles) = (&images.series[..], &images.angles[..]);
+    let (frame_rate, sound_speed, center_frequency) = (
+        images.frame_rate,
+        images.sound_speed,
+        images.demodulation_frequency,
+    );
     require_positive("frame rate", frame_rate)?;
     require_positive("speed of sound", sound_speed)?;
     require_positive("centre frequency", center_frequency)?;

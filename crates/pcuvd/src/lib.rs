@@ -17,7 +17,10 @@ pub mod dynamics;
 pub mod error;
 pub mod geometry;
 pub mod hadamard;
+pub mod images;
 pub mod iq;
+pub mod masks;
+pub mod metrics;
 pub mod network;
 pub mod phantom;
 pub mod pipeline;
@@ -25,6 +28,7 @@ pub mod probe;
 pub mod sequence;
 pub mod simulate;
 pub mod stats;
+pub mod study;
 pub mod vector;
 
 pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};

@@ -4,14 +4,15 @@
 use std::time::Instant;
 
 use ndarray::{Array2, Array3, Axis};
-use num_complex::Complex32;
 
 use crate::beamform::{self, DasParams, Grid};
 use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::decode;
 use crate::doppler::{self, Autocorrelation};
+use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use crate::error::{Result, invalid};
+use crate::images::AngleImages;
 use crate::iq;
 use crate::vector::{self, Estimator, IrlsParams, VectorField};
 
@@ -85,8 +86,9 @@ pub struct ProcessOutput {
     pub nyquist_velocity: f64,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
-    /// Clutter-filtered per-angle IQ series (angles) of shape (nz, nx, frames), kept for dynamics.
-    pub filtered: Vec<Array3<Complex32>>,
+    /// Clutter-filtered per-angle IQ series, each (nz, nx, frames), with their metadata; kept
+    /// for the dynamics stage and spectrograms.
+    pub filtered: AngleImages,
     /// Wall-clock seconds per stage.
     pub timings: Timings,
 }
@@ -101,20 +103,21 @@ pub fn process(
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<ProcessOutput> {
     let (images, mut timings) = form_images(data, params, progress)?;
-    let mut out = analyse(&data.acquisition, images, params, progress)?;
+    let mut out = analyse(images, params, progress)?;
     timings.append(&mut out.timings);
     out.timings = timings;
     Ok(out)
 }
 
 /// The linear part of the chain: decode, demodulate and beamform every angle. Returns the
-/// per-angle IQ image series (nz, nx, frames) and the stage timings. Because every step is linear
-/// in the channel data, images of signal and of noise may be formed apart and added later.
+/// per-angle IQ image series (nz, nx, frames) with their metadata and the stage timings. Because
+/// every step is linear in the channel data, images of signal and of noise may be formed apart
+/// and added later.
 pub fn form_images(
     data: &ChannelData,
     params: &ProcessParams,
     progress: &dyn Fn(Stage, usize, usize),
-) -> Result<(Vec<Array3<Complex32>>, Timings)> {
+) -> Result<(AngleImages, Timings)> {
     data.validate()?;
     let acq = &data.acquisition;
     check_grid_depth(data, &params.grid)?;
@@ -150,30 +153,39 @@ pub fn form_images(
     }
     progress(Stage::Beamform, n, n);
     timings.push((Stage::Beamform, clock.elapsed().as_secs_f64()));
+    let images = AngleImages {
+        grid: params.grid.clone(),
+        angles: angles.clone(),
+        frame_rate: acq.frame_rate(),
+        sound_speed: acq.sound_speed,
+        demodulation_frequency: acq.probe.center_frequency,
+        coverage: Some(angle_coverage(acq, &params.grid)),
+        series: images,
+    };
     Ok((images, timings))
 }
 
 /// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
-/// series (nz, nx, frames) acquired with `acq`.
+/// series (nz, nx, frames) on `params.grid`.
 pub fn analyse(
-    acq: &Acquisition,
-    mut images: Vec<Array3<Complex32>>,
+    mut images: AngleImages,
     params: &ProcessParams,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<ProcessOutput> {
-    let angles = &acq.sequence.angles;
-    let n = angles.len();
-    if images.len() != n {
-        return Err(crate::error::Error::Shape(format!(
-            "{} image series for {n} angles",
-            images.len()
-        )));
+    images.validate()?;
+    if images.grid != params.grid {
+        return Err(invalid(
+            "grid",
+            "the images were formed on another grid than the processing settings'",
+        ));
     }
+    let angles = images.angles.clone();
+    let n = angles.len();
     let mut timings = Vec::new();
-    let bmode_db = beamform::bmode_db(beamform::compound(&images)?.view());
+    let bmode_db = beamform::bmode_db(beamform::compound(&images.series)?.view());
     let clock = Instant::now();
     let mut reports = Vec::with_capacity(n);
-    for (k, image) in images.iter_mut().enumerate() {
+    for (k, image) in images.series.iter_mut().enumerate() {
         progress(Stage::Clutter, k, n);
         reports.push(clutter::svd_filter(image, &params.clutter)?);
     }
@@ -182,19 +194,19 @@ pub fn analyse(
 
     let clock = Instant::now();
     progress(Stage::Doppler, 0, 1);
-    let frame_rate = acq.frame_rate();
-    let (c, f0) = (acq.sound_speed, acq.probe.center_frequency);
+    let frame_rate = images.frame_rate;
+    let (c, f0) = (images.sound_speed, images.demodulation_frequency);
     let (nz, nx) = params.grid.shape();
     let mut projections = Array3::<f64>::zeros((n, nz, nx));
     let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
-    for (k, image) in images.iter().enumerate() {
+    for (k, image) in images.series.iter().enumerate() {
         let ac = doppler::autocorrelation(image.view(), params.doppler_kernel)?;
         projections
             .index_axis_mut(Axis(0), k)
             .assign(&doppler::projection_velocity(&ac.r1, c, frame_rate, f0)?);
         power_per_angle.index_axis_mut(Axis(0), k).assign(&ac.power);
     }
-    let compound = beamform::compound(&images)?;
+    let compound = beamform::compound(&images.series)?;
     let Autocorrelation { power, r1 } =
         doppler::autocorrelation(compound.view(), params.doppler_kernel)?;
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
@@ -202,17 +214,20 @@ pub fn analyse(
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
     let axial =
         doppler::projection_velocity(&r1, c, frame_rate, f0)?.mapv(|v| 2.0 * v / (1.0 + mean_cos));
-    let coverage = angle_coverage(acq, &params.grid);
+    let coverage = images
+        .coverage
+        .clone()
+        .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
     let (vector_ls, vector_irls) = if n >= 2 {
         (
             Some(vector::vector_velocity(
-                angles,
+                &angles,
                 projections.view(),
                 &Estimator::LeastSquares,
             )?),
             Some(vector::vector_velocity(
-                angles,
+                &angles,
                 projections.view(),
                 &Estimator::Irls(params.irls),
             )?),
@@ -238,6 +253,28 @@ pub fn analyse(
         filtered: images,
         timings,
     })
+}
+
+/// The dynamics stage on a processed recording: vector velocity in sliding windows over the
+/// clutter-filtered series (`params`), the whole-recording vessel mask of `vessel` on its power
+/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels. `process`, the
+/// vessel-network study and the tests all run it through here.
+pub fn dynamics(
+    out: &ProcessOutput,
+    params: &DynamicsParams,
+    vessel: &VesselTests,
+) -> Result<(VelocitySeries, RiMaps)> {
+    if out.filtered.n_angles() < 2 {
+        return Err(invalid(
+            "angles",
+            "vector velocity needs two or more steering angles; the recording has one",
+        ));
+    }
+    params.validate(out.filtered.frame_rate)?;
+    let series = dynamics::sliding_vectors(&out.filtered, params)?;
+    let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
+    let maps = dynamics::ri_maps_where(&series, params, Some(&flow))?;
+    Ok((series, maps))
 }
 
 /// Per steering angle, the pixels of `grid` that its plane wave reaches (angles, nz, nx): those

@@ -7,12 +7,14 @@ use std::f64::consts::PI;
 use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::Error;
+use pcuvd::beamform::Grid;
 use pcuvd::doppler::velocity_scale;
 use pcuvd::dynamics::{
     self, ARTERIOLE, BACKGROUND, DynamicsParams, SpectrogramParams, VENULE, VelocitySeries,
     VesselPooling, estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps,
     sliding_vectors, spectrogram,
 };
+use pcuvd::images::AngleImages;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -20,6 +22,29 @@ use rand_distr::{Distribution, StandardNormal};
 const C: f64 = 1540.0;
 const FRAME_RATE: f64 = 1800.0;
 const F0: f64 = 15.625e6;
+
+/// `iq` (per angle, (nz, nx, frames)) with the test's sound speed and centre frequency, at
+/// `frame_rate` (Hz), on a 0.1 mm grid of its shape.
+fn images(
+    iq: &[Array3<Complex32>],
+    angles: &[f64],
+    frame_rate: f64,
+    coverage: Option<Array3<bool>>,
+) -> AngleImages {
+    let (nz, nx, _) = iq.first().map_or((0, 0, 0), |s| s.dim());
+    AngleImages {
+        grid: Grid {
+            x: (0..nx).map(|i| i as f64 * 1e-4).collect(),
+            z: (0..nz).map(|i| 1e-3 + i as f64 * 1e-4).collect(),
+        },
+        angles: angles.to_vec(),
+        frame_rate,
+        sound_speed: C,
+        demodulation_frequency: F0,
+        coverage,
+        series: iq.to_vec(),
+    }
+}
 
 fn paper_angles() -> Vec<f64> {
     (0..8)
@@ -191,7 +216,7 @@ fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     let angles = paper_angles();
     let mut params = DynamicsParams::rat();
     params.heart_rate_hz = None;
-    let series = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &params).unwrap();
     assert_eq!(series.len(), (750 - 36) / 9 + 1);
     assert_eq!(series.vx.dim(), (series.len(), 2, 3));
     assert!((series.times_s[0] - 17.5 / FRAME_RATE).abs() < 1e-12);
@@ -243,17 +268,13 @@ fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     assert!((given.ri[[0, 0]] - maps.ri[[0, 0]]).abs() < 0.02);
 
     // Deterministic: the same input gives bit-identical output.
-    let again = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
+    let again = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &params).unwrap();
     assert_eq!(again, series);
 
     // The compounded spectrogram's mean velocity follows the vector Vz (paper Fig. 8b).
     let spec = spectrogram(
-        &iq,
-        &angles,
+        &images(&iq, &angles, FRAME_RATE, None),
         (0, 0),
-        FRAME_RATE,
-        C,
-        F0,
         &SpectrogramParams::rat(),
     )
     .unwrap();
@@ -293,7 +314,7 @@ fn rat_preset_measures_one_cycle_in_a_fifth_of_a_second() {
     };
     let iq = synthetic_iq(&[vessel], (1, 2), 360, 5.5, 4e-4, 11);
     let params = DynamicsParams::rat();
-    let series = sliding_vectors(&iq, &paper_angles(), None, FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&images(&iq, &paper_angles(), FRAME_RATE, None), &params).unwrap();
     assert_eq!(series.len(), 37);
     let maps = ri_maps(&series, &params).unwrap();
     assert_eq!(maps.cycles.len(), 1);
@@ -333,7 +354,7 @@ fn spectrogram_of_uniform_axial_flow() {
         step: 16,
         nfft: 256,
     };
-    let spec = spectrogram(&iq, &angles, (0, 1), FRAME_RATE, C, F0, &params).unwrap();
+    let spec = spectrogram(&images(&iq, &angles, FRAME_RATE, None), (0, 1), &params).unwrap();
     let nv = spec.velocities_m_s.len();
     assert_eq!(nv, 256);
     assert_eq!(spec.power_db.dim(), (spec.times_s.len(), 256));
@@ -359,7 +380,7 @@ fn spectrogram_of_uniform_axial_flow() {
         dir: (0.0, -1.0),
     };
     let iq = synthetic_iq(&[up], (1, 1), 128, 6.0, 1e-4, 4);
-    let spec = spectrogram(&iq, &angles, (0, 0), FRAME_RATE, C, F0, &params).unwrap();
+    let spec = spectrogram(&images(&iq, &angles, FRAME_RATE, None), (0, 0), &params).unwrap();
     assert!(
         spec.mean_velocity_m_s
             .iter()
@@ -417,16 +438,11 @@ fn angles_that_miss_a_pixel_are_left_out_of_its_vectors() {
         (sq / series.len() as f64).sqrt()
     };
     let covered = sliding_vectors(
-        &iq,
-        &angles,
-        Some(coverage.view()),
-        FRAME_RATE,
-        C,
-        F0,
+        &images(&iq, &angles, FRAME_RATE, Some(coverage.clone())),
         &params,
     )
     .unwrap();
-    let blind = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &params).unwrap();
+    let blind = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &params).unwrap();
     let (good, bad) = (rms(&covered), rms(&blind));
     assert!(good < 5e-4, "with coverage: RMS error {good} m/s");
     assert!(
@@ -438,12 +454,12 @@ fn angles_that_miss_a_pixel_are_left_out_of_its_vectors() {
     assert_eq!(covered.vz[[5, 1, 2]], blind.vz[[5, 1, 2]]);
     is_invalid(
         sliding_vectors(
-            &iq,
-            &angles,
-            Some(coverage.slice(ndarray::s![..4, .., ..])),
-            FRAME_RATE,
-            C,
-            F0,
+            &images(
+                &iq,
+                &angles,
+                FRAME_RATE,
+                Some(coverage.slice(ndarray::s![..4, .., ..]).to_owned()),
+            ),
             &params,
         ),
         "coverage",
@@ -466,7 +482,7 @@ fn bad_input_is_refused_with_clear_errors() {
         1e-4,
         1,
     );
-    let run = |p: DynamicsParams| sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &p);
+    let run = |p: DynamicsParams| sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &p);
     let base = DynamicsParams {
         heart_rate_hz: None,
         ..DynamicsParams::rat()
@@ -532,36 +548,36 @@ fn bad_input_is_refused_with_clear_errors() {
     );
     // Empty, mismatched and non-finite series.
     is_invalid(
-        sliding_vectors(&[], &[], None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&[], &[], FRAME_RATE, None), &base),
         "no angle series",
     );
     assert!(matches!(
-        sliding_vectors(&iq, &angles[..4], None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&iq, &angles[..4], FRAME_RATE, None), &base),
         Err(Error::Shape(_))
     ));
     let mut odd = iq.clone();
     odd[3] = Array3::zeros((1, 2, 399));
     assert!(matches!(
-        sliding_vectors(&odd, &angles, None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&odd, &angles, FRAME_RATE, None), &base),
         Err(Error::Shape(_))
     ));
     let empty = vec![Array3::<Complex32>::zeros((0, 2, 400)); 8];
     is_invalid(
-        sliding_vectors(&empty, &angles, None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&empty, &angles, FRAME_RATE, None), &base),
         "empty",
     );
     let mut nan = iq.clone();
     nan[1][[0, 1, 5]] = Complex32::new(f32::NAN, 0.0);
     assert!(matches!(
-        sliding_vectors(&nan, &angles, None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&nan, &angles, FRAME_RATE, None), &base),
         Err(Error::NonFinite(_))
     ));
     is_invalid(
-        sliding_vectors(&iq, &angles, None, 0.0, C, F0, &base),
+        sliding_vectors(&images(&iq, &angles, 0.0, None), &base),
         "frame rate",
     );
     is_invalid(
-        sliding_vectors(&iq[..1], &angles[..1], None, FRAME_RATE, C, F0, &base),
+        sliding_vectors(&images(&iq[..1], &angles[..1], FRAME_RATE, None), &base),
         "at least 2 angles",
     );
 
@@ -586,7 +602,7 @@ fn bad_input_is_refused_with_clear_errors() {
     is_invalid(estimate_heart_rate(&flat, &tf), "constant");
 
     // RI maps: a short series and a series without any vessel.
-    let series = sliding_vectors(&iq, &angles, None, FRAME_RATE, C, F0, &base).unwrap();
+    let series = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &base).unwrap();
     is_invalid(
         ri_maps(
             &series,
@@ -606,7 +622,7 @@ fn bad_input_is_refused_with_clear_errors() {
     // The spectrogram.
     let sp = SpectrogramParams::rat();
     let spec = |p: &SpectrogramParams, px: (usize, usize)| {
-        dynamics::spectrogram(&iq, &angles, px, FRAME_RATE, C, F0, p)
+        dynamics::spectrogram(&images(&iq, &angles, FRAME_RATE, None), px, p)
     };
     is_invalid(spec(&sp, (1, 0)), "outside");
     is_invalid(
@@ -620,7 +636,7 @@ fn bad_input_is_refused_with_clear_errors() {
     is_invalid(spec(&SpectrogramParams { step: 0, ..sp }, (0, 0)), "step");
     let zeros = vec![Array3::<Complex32>::zeros((1, 1, 100)); 8];
     is_invalid(
-        dynamics::spectrogram(&zeros, &angles, (0, 0), FRAME_RATE, C, F0, &sp),
+        dynamics::spectrogram(&images(&zeros, &angles, FRAME_RATE, None), (0, 0), &sp),
         "no Doppler signal",
     );
 }
@@ -641,7 +657,7 @@ fn harmonic_fit_removes_the_outward_bias_of_noisy_extremes() {
         .collect();
     let iq = synthetic_iq(&vessels, (1, 40), 360, hr, 0.1, 11);
     let params = DynamicsParams::rat();
-    let series = sliding_vectors(&iq, &paper_angles(), None, FRAME_RATE, C, F0, &params).unwrap();
+    let series = sliding_vectors(&images(&iq, &paper_angles(), FRAME_RATE, None), &params).unwrap();
     let median_ri = |harmonics| {
         let maps = ri_maps(
             &series,

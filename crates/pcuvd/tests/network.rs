@@ -2,11 +2,11 @@
 //! conventionally and with Hadamard coding, processed, and their RI maps scored against the
 //! phantom's ground truth (the ordering the paper reports: PC-UVD no worse than UVD).
 
-use ndarray::Zip;
 use pcuvd::beamform::{DasParams, Grid};
 use pcuvd::clutter::{ClutterParams, RankCut};
-use pcuvd::dynamics::{self, BACKGROUND, DynamicsParams, RiMaps};
-use pcuvd::network::{self, NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind, VesselSpec};
+use pcuvd::dynamics::{DynamicsParams, RiMaps, VesselTests};
+use pcuvd::metrics::score_ri;
+use pcuvd::network::{self, NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::simulate::{self, NoiseSpec, SimParams};
 use pcuvd::vector::{Estimator, IrlsParams};
@@ -54,35 +54,6 @@ fn sim_params(coded: bool, noise_db: f64) -> SimParams {
     p
 }
 
-struct Scores {
-    median_abs_error: f64,
-    classification_accuracy: f64,
-}
-
-fn score(est: &RiMaps, truth: &NetworkTruth) -> Scores {
-    let (mut errors, mut correct) = (vec![], 0usize);
-    Zip::from(&est.ri)
-        .and(&est.vessel_class)
-        .and(&truth.ri)
-        .and(&truth.vessel_class)
-        .for_each(|&ri, &class, &true_ri, &true_class| {
-            if true_class != BACKGROUND {
-                errors.push(if ri.is_finite() {
-                    (ri - true_ri).abs()
-                } else {
-                    1.0
-                });
-                correct += usize::from(class == true_class);
-            }
-        });
-    let n = errors.len();
-    errors.sort_by(|a, b| a.total_cmp(b));
-    Scores {
-        median_abs_error: errors[n / 2],
-        classification_accuracy: correct as f64 / n as f64,
-    }
-}
-
 fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> RiMaps {
     let data =
         simulate::simulate(phantom, &sim_params(coded, noise_db), FRAMES, &|_, _| {}).unwrap();
@@ -100,7 +71,6 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> R
         event_alignment: Default::default(),
     };
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
-    let acq = &data.acquisition;
     let dparams = DynamicsParams {
         // 0.3 mm, as the CLI's 5 × 5 at 0.05 mm: per-pixel window speeds are too jittery alone.
         kernel: (3, 3),
@@ -115,17 +85,9 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> R
         },
         ..DynamicsParams::rat()
     };
-    let series = dynamics::sliding_vectors(
-        &out.filtered,
-        &acq.sequence.angles,
-        Some(out.coverage.view()),
-        acq.frame_rate(),
-        acq.sound_speed,
-        acq.probe.center_frequency,
-        &dparams,
-    )
-    .unwrap();
-    dynamics::ri_maps(&series, &dparams).unwrap()
+    // The chain `pcuvd process` and the network study run, with their whole-recording vessel tests.
+    let (_, maps) = pipeline::dynamics(&out, &dparams, &VesselTests::default()).unwrap();
+    maps
 }
 
 #[test]
@@ -134,8 +96,8 @@ fn pc_uvd_ri_maps_match_the_truth_no_worse_than_uvd() {
     let grid = Grid::new(-2.5e-3, 2.5e-3, 5e-3, 8e-3, 0.1e-3).unwrap();
     let truth = phantom.cycle_truth(&grid.x, &grid.z);
     let noise_db = 10.0;
-    let uvd = score(&ri_of(&phantom, &grid, false, noise_db), &truth);
-    let pc = score(&ri_of(&phantom, &grid, true, noise_db), &truth);
+    let uvd = score_ri(&ri_of(&phantom, &grid, false, noise_db), &truth);
+    let pc = score_ri(&ri_of(&phantom, &grid, true, noise_db), &truth);
     eprintln!(
         "RI median |error| UVD {:.3}, PC-UVD {:.3}; classification UVD {:.3}, PC-UVD {:.3}",
         uvd.median_abs_error,

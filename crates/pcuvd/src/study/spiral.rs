@@ -1,0 +1,455 @@
+//! The paper's spiral-flow study (§2.3, §3, Fig. 2–5) and a noise sweep.
+//!
+//! Conventional and Hadamard-coded acquisitions of the same spiral (same scatterers, same motion,
+//! same noise statistics) are simulated, processed with no clutter filter (the phantom has no
+//! tissue, as in the paper) and compared with the ground truth. The noise sweep re-runs only the
+//! Doppler and vector stages on S + g·N (see [`super`]), so every level sees the same scatterers
+//! and the same noise realisation.
+
+use std::time::Instant;
+
+use ndarray::Array2;
+use serde::Serialize;
+
+use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
+use crate::beamform::{self, Grid};
+use crate::decode::EventAlignment;
+use crate::error::{Result, invalid};
+use crate::metrics::{
+    self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, mean_power, snr_by_depth,
+};
+use crate::phantom::{Phantom, SpiralPhantom, Truth};
+use crate::pipeline::{self, ProcessOutput};
+use crate::simulate::{self, NOISE_DEFINITION};
+use crate::vector::VectorField;
+
+/// Field of view of the spiral study (m): x from, x to, z from, z to.
+pub const FIELD_M: (f64, f64, f64, f64) = (-6.4e-3, 6.4e-3, 1.0e-3, 13.2e-3);
+
+/// The paper's results on the spiral, to print beside pcuvd's.
+pub mod paper {
+    /// SNR gain of coding (dB).
+    pub const SNR_GAIN_DB: f64 = 8.7;
+    /// UVD RMSE Vx, Vz (mm/s).
+    pub const UVD_RMSE_MM_S: (f64, f64) = (5.70, 2.28);
+    /// PC-UVD RMSE Vx, Vz (mm/s).
+    pub const PCUVD_RMSE_MM_S: (f64, f64) = (3.22, 1.59);
+    /// Improvement of PC-UVD over UVD in Vx, Vz (%).
+    pub const IMPROVEMENT_PCT: (f64, f64) = (43.51, 30.26);
+}
+
+/// Settings of the spiral study; `Default` is the paper's set-up.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SpiralSettings {
+    /// Compound frames per acquisition (the paper: 100).
+    pub frames: usize,
+    /// Seed of the scatterers and of the noise.
+    pub seed: u64,
+    /// Noise level of the main study (dB, [`NOISE_DEFINITION`]); the paper: −10.
+    pub noise_db: f64,
+    /// Noise levels (dB) of the RMSE sweep.
+    pub sweep_db: Vec<f64>,
+    /// When scatterers move.
+    pub motion: Motion,
+    /// How coded events are decoded.
+    #[serde(serialize_with = "alignment_label")]
+    pub event_alignment: EventAlignment,
+    /// Spatial averaging of the autocorrelation (rows, cols) pixels, odd.
+    pub doppler_kernel: (usize, usize),
+    /// Pixel size of the imaging grid (m).
+    pub grid_step_m: f64,
+}
+
+/// Serialises an event alignment as its option value ("mid-frame", "simultaneous").
+pub(crate) fn alignment_label<S: serde::Serializer>(
+    alignment: &EventAlignment,
+    serializer: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    serializer.serialize_str(alignment.label())
+}
+
+impl Default for SpiralSettings {
+    fn default() -> Self {
+        SpiralSettings {
+            frames: simulate::PAPER_FRAMES,
+            seed: 1,
+            noise_db: -10.0,
+            sweep_db: vec![-30.0, -20.0, -10.0, 0.0, 5.0, 10.0, 15.0, 20.0],
+            motion: Motion::PerEvent,
+            event_alignment: EventAlignment::MidFrame,
+            doppler_kernel: (1, 1),
+            grid_step_m: 0.05e-3,
+        }
+    }
+}
+
+impl SpiralSettings {
+    /// Refuses settings that cannot work, before anything is simulated.
+    pub fn validate(&self) -> Result<()> {
+        if self.frames < 2 {
+            return Err(invalid(
+                "frames",
+                format!("{}: the Doppler estimate needs at least 2", self.frames),
+            ));
+        }
+        if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
+            return Err(invalid("noise level", "every level must be a finite dB"));
+        }
+        let (r, c) = self.doppler_kernel;
+        if r % 2 == 0 || c % 2 == 0 {
+            return Err(invalid(
+                "Doppler kernel",
+                format!("{r} × {c}: both sizes must be odd"),
+            ));
+        }
+        self.grid().map(|_| ())
+    }
+
+    /// The imaging grid: [`FIELD_M`] at `grid_step_m`.
+    pub fn grid(&self) -> Result<Grid> {
+        Grid::new(FIELD_M.0, FIELD_M.1, FIELD_M.2, FIELD_M.3, self.grid_step_m)
+    }
+}
+
+/// RMSE of the four estimator–recording pairs (mm/s).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct EstimatorRmse {
+    /// Conventional recording, least squares (UVD).
+    pub uvd_ls: Rmse,
+    /// Conventional recording, IRLS-WLS.
+    pub uvd_irls: Rmse,
+    /// Coded recording, least squares.
+    pub pcuvd_ls: Rmse,
+    /// Coded recording, IRLS-WLS (PC-UVD).
+    pub pcuvd_irls: Rmse,
+}
+
+impl EstimatorRmse {
+    /// The four pairs, named, in the order above.
+    pub fn named(&self) -> [(&'static str, Rmse); 4] {
+        [
+            ("conventional + LS (UVD)", self.uvd_ls),
+            ("conventional + IRLS", self.uvd_irls),
+            ("coded + LS", self.pcuvd_ls),
+            ("coded + IRLS (PC-UVD)", self.pcuvd_irls),
+        ]
+    }
+}
+
+/// One noise level of the sweep.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SweepRow {
+    /// Noise level (dB).
+    pub noise_db: f64,
+    /// RMSE of each estimator at this level.
+    #[serde(flatten)]
+    pub rmse: EstimatorRmse,
+}
+
+/// A quantity of (Vx, Vz), e.g. an improvement in percent.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PerComponent {
+    /// Of Vx.
+    pub vx: f64,
+    /// Of Vz.
+    pub vz: f64,
+}
+
+/// SNR gain of coding per depth band.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GainByDepth {
+    /// Band centres (m).
+    pub depth_m: Vec<f64>,
+    /// Coded minus conventional SNR (dB).
+    pub gain_db: Vec<f64>,
+}
+
+/// SNR per depth band of both modes.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SnrByDepth {
+    /// Band centres (m).
+    pub depth_m: Vec<f64>,
+    /// Conventional SNR (dB).
+    pub conventional: Vec<f64>,
+    /// Coded SNR (dB).
+    pub coded: Vec<f64>,
+}
+
+impl SnrByDepth {
+    /// Pairs the two modes' bands (both measured on the same vessel mask, so the same bands).
+    pub fn new(conventional: &[DepthSnr], coded: &[DepthSnr]) -> Self {
+        SnrByDepth {
+            depth_m: conventional.iter().map(|r| r.depth_m).collect(),
+            conventional: conventional.iter().map(|r| r.snr_db).collect(),
+            coded: coded.iter().map(|r| r.snr_db).collect(),
+        }
+    }
+}
+
+/// Extent of a study's grid.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GridExtent {
+    /// First and last lateral pixel (m).
+    pub x_m: [f64; 2],
+    /// First and last depth pixel (m).
+    pub z_m: [f64; 2],
+    /// Pixel size (m).
+    pub step_m: f64,
+}
+
+impl GridExtent {
+    /// The extent of `grid`, whose step was set to `step_m`.
+    pub fn new(grid: &Grid, step_m: f64) -> Self {
+        GridExtent {
+            x_m: [grid.x[0], grid.x[grid.x.len() - 1]],
+            z_m: [grid.z[0], grid.z[grid.z.len() - 1]],
+            step_m,
+        }
+    }
+}
+
+/// The spiral study's numbers, as `metrics.json` holds them.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SpiralMetrics {
+    /// SNR gain of coding, mean over depth bands (dB).
+    pub snr_gain_db: f64,
+    /// SNR gain per depth band.
+    pub snr_gain_db_by_depth: GainByDepth,
+    /// SNR per depth band of both modes.
+    pub snr_db_by_depth: SnrByDepth,
+    /// Theoretical gain of Hadamard coding, 10·log10(n) (dB).
+    pub snr_gain_theory_db: f64,
+    /// How SNR is measured.
+    pub snr_definition: &'static str,
+    /// RMSE of every estimator at the main noise level.
+    pub rmse_mm_s: EstimatorRmse,
+    /// How RMSE counts.
+    pub rmse_definition: &'static str,
+    /// Improvement of PC-UVD (coded + IRLS) over UVD (conventional + LS), percent.
+    pub improvement_pct: PerComponent,
+    /// RMSE at every level of the sweep.
+    pub noise_sweep: Vec<SweepRow>,
+    /// Main noise level (dB).
+    pub noise_db: f64,
+    /// What the noise level is relative to.
+    pub noise_definition: &'static str,
+    /// Compound frames.
+    pub frames: usize,
+    /// When scatterers moved.
+    pub motion: Motion,
+    /// How coded events were decoded.
+    pub event_alignment: &'static str,
+    /// Autocorrelation averaging (rows, cols).
+    pub doppler_kernel: (usize, usize),
+    /// Seed.
+    pub seed: u64,
+    /// Nyquist velocity of each projection (m/s).
+    pub nyquist_velocity_m_s: f64,
+    /// Pixels inside the true vessel.
+    pub vessel_pixels: usize,
+    /// The grid.
+    pub grid: GridExtent,
+    /// Wall-clock seconds per step.
+    pub timing_s: Timings,
+}
+
+/// Everything the spiral study produced: its numbers and what its figures draw.
+#[derive(Debug, Clone)]
+pub struct SpiralStudy {
+    /// The settings it ran with.
+    pub settings: SpiralSettings,
+    /// The numbers.
+    pub metrics: SpiralMetrics,
+    /// The phantom (for its vessel coordinates).
+    pub phantom: SpiralPhantom,
+    /// The imaging grid.
+    pub grid: Grid,
+    /// Ground-truth velocity and vessel mask on the grid.
+    pub truth: Truth,
+    /// Processed conventional recording at the main noise level.
+    pub conventional: ProcessOutput,
+    /// Processed coded recording at the main noise level.
+    pub coded: ProcessOutput,
+    /// Time-mean power of the noise-only images, conventional then coded.
+    pub noise_power: [Array2<f64>; 2],
+    /// SNR by depth, conventional then coded.
+    pub snr: [Vec<DepthSnr>; 2],
+}
+
+impl SpiralStudy {
+    /// UVD's vector field: conventional recording, least squares.
+    pub fn uvd(&self) -> &VectorField {
+        self.conventional
+            .vector_ls
+            .as_ref()
+            .expect("the spiral sequence has 8 angles")
+    }
+
+    /// PC-UVD's vector field: coded recording, IRLS-WLS.
+    pub fn pcuvd(&self) -> &VectorField {
+        self.coded
+            .vector_irls
+            .as_ref()
+            .expect("the spiral sequence has 8 angles")
+    }
+}
+
+/// The four estimators' RMSE of two processed recordings (conventional, coded).
+fn estimator_rmse(conv: &ProcessOutput, coded: &ProcessOutput, truth: &Truth) -> EstimatorRmse {
+    let r = |o: &ProcessOutput, irls: bool| {
+        let field = if irls {
+            o.vector_irls.as_ref()
+        } else {
+            o.vector_ls.as_ref()
+        };
+        metrics::rmse(field.expect("8 angles"), truth)
+    };
+    EstimatorRmse {
+        uvd_ls: r(conv, false),
+        uvd_irls: r(conv, true),
+        pcuvd_ls: r(coded, false),
+        pcuvd_irls: r(coded, true),
+    }
+}
+
+/// Runs the spiral study: simulation, processing, noise sweep and scores.
+pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralStudy> {
+    settings.validate()?;
+    let started = Instant::now();
+    let mut timing = Timings::new();
+
+    let clock = Instant::now();
+    let phantom = SpiralPhantom::paper(settings.seed)?;
+    let grid = settings.grid()?;
+    let truth = phantom.truth(&grid.x, &grid.z, 0.0);
+    timing.insert("phantom_s".into(), clock.elapsed().as_secs_f64());
+
+    let mut formed: Vec<Formed> = Vec::new();
+    for mode in Mode::BOTH {
+        let mut params = simulate::paper_spiral_params(mode == Mode::Coded)?;
+        params.seed = settings.seed;
+        formed.push(simulate_and_form(
+            Acquire {
+                phantom: &phantom,
+                params,
+                frames: settings.frames,
+                noise_db: settings.noise_db,
+                motion: settings.motion,
+                alignment: settings.event_alignment,
+                label: mode.label(),
+            },
+            &grid,
+            &mut timing,
+            progress,
+        )?);
+    }
+
+    // Main study at the requested noise level.
+    let clock = Instant::now();
+    let params = process_params(
+        &grid,
+        &formed[0].acquisition,
+        settings.doppler_kernel,
+        settings.event_alignment,
+    );
+    let quiet = |_: pipeline::Stage, _: usize, _: usize| {};
+    let mut main: Vec<ProcessOutput> = formed
+        .iter()
+        .map(|f| pipeline::analyse(f.at_gain(1.0), &params, &quiet))
+        .collect::<Result<_>>()?;
+    let compound_power = |images: &crate::images::AngleImages| {
+        beamform::compound(&images.series).map(|c| mean_power(&c))
+    };
+    let noise_power: Vec<Array2<f64>> = formed
+        .iter()
+        .map(|f| compound_power(&f.noise))
+        .collect::<Result<_>>()?;
+    let echo_power: Vec<Array2<f64>> = formed
+        .iter()
+        .map(|f| compound_power(&f.signal))
+        .collect::<Result<_>>()?;
+
+    // Noise sweep: four estimators at every level.
+    let task = "noise sweep";
+    let mut noise_sweep = Vec::new();
+    for (i, &level) in settings.sweep_db.iter().enumerate() {
+        progress(task, i, settings.sweep_db.len());
+        let gain = 10f64.powf((level - settings.noise_db) / 20.0) as f32;
+        let rmse = if level == settings.noise_db {
+            // The main study's level is already analysed: reuse it.
+            estimator_rmse(&main[0], &main[1], &truth)
+        } else {
+            let conv = pipeline::analyse(formed[0].at_gain(gain), &params, &quiet)?;
+            let coded = pipeline::analyse(formed[1].at_gain(gain), &params, &quiet)?;
+            estimator_rmse(&conv, &coded, &truth)
+        };
+        noise_sweep.push(SweepRow {
+            noise_db: level,
+            rmse,
+        });
+    }
+    progress(task, settings.sweep_db.len(), settings.sweep_db.len());
+    timing.insert(
+        "doppler_vector_and_sweep_s".into(),
+        clock.elapsed().as_secs_f64(),
+    );
+
+    // Numbers.
+    let n_angles = formed[1].acquisition.sequence.n_angles();
+    let theory = metrics::power_to_db(n_angles as f64);
+    let snr = [
+        snr_by_depth(&echo_power[0], &noise_power[0], &truth.mask, &grid),
+        snr_by_depth(&echo_power[1], &noise_power[1], &truth.mask, &grid),
+    ];
+    let gain_db: Vec<f64> = snr[0]
+        .iter()
+        .zip(&snr[1])
+        .map(|(a, b)| b.snr_db - a.snr_db)
+        .collect();
+    let gain_mean = gain_db.iter().sum::<f64>() / gain_db.len().max(1) as f64;
+    let rmse = estimator_rmse(&main[0], &main[1], &truth);
+    let improvement = |a: f64, b: f64| 100.0 * (a - b) / a;
+    timing.insert("total_s".into(), started.elapsed().as_secs_f64());
+    let coded = main.pop().expect("two modes");
+    let conventional = main.pop().expect("two modes");
+    let metrics = SpiralMetrics {
+        snr_gain_db: gain_mean,
+        snr_gain_db_by_depth: GainByDepth {
+            depth_m: snr[0].iter().map(|r| r.depth_m).collect(),
+            gain_db,
+        },
+        snr_db_by_depth: SnrByDepth::new(&snr[0], &snr[1]),
+        snr_gain_theory_db: theory,
+        snr_definition: SNR_DEFINITION,
+        rmse_mm_s: rmse,
+        rmse_definition: RMSE_DEFINITION,
+        improvement_pct: PerComponent {
+            vx: improvement(rmse.uvd_ls.vx, rmse.pcuvd_irls.vx),
+            vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
+        },
+        noise_sweep,
+        noise_db: settings.noise_db,
+        noise_definition: NOISE_DEFINITION,
+        frames: settings.frames,
+        motion: settings.motion,
+        event_alignment: settings.event_alignment.label(),
+        doppler_kernel: settings.doppler_kernel,
+        seed: settings.seed,
+        nyquist_velocity_m_s: coded.nyquist_velocity,
+        vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
+        grid: GridExtent::new(&grid, settings.grid_step_m),
+        timing_s: timing,
+    };
+    let [noise_conv, noise_coded]: [Array2<f64>; 2] = noise_power.try_into().expect("two modes");
+    Ok(SpiralStudy {
+        settings: settings.clone(),
+        metrics,
+        phantom,
+        grid,
+        truth,
+        conventional,
+        coded,
+        noise_power: [noise_conv, noise_coded],
+        snr,
+    })
+}
