@@ -6,42 +6,62 @@ use anyhow::{Context, Result};
 use ndarray::{Array2, Zip};
 use pcuvd::beamform::Grid;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, VENULE, VelocitySeries};
+use pcuvd::masks;
 use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;
 use pcuvd_render::{
     Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Series, SeriesStyle, VectorOverlay,
-    render_png,
+    render_png, render_png_bytes,
 };
 
-/// Pixels whose power is below this (dB under the strong reference) are shown as B-mode, not flow.
-pub const FLOW_MASK_DB: f64 = -25.0;
+pub use pcuvd::stats::{median, quantile};
 
-/// Vector glyphs are drawn only where power is above this (dB): velocity vectors from weak,
-/// noise-dominated pixels are random and would swamp the figure and its colour scale.
-pub const VECTOR_MASK_DB: f64 = -15.0;
+/// A rendered figure: file name, caption, PNG bytes.
+pub struct Rendered {
+    /// File name inside the output folder.
+    pub file: String,
+    /// Caption for the report.
+    pub caption: String,
+    /// The PNG file's bytes.
+    pub png: Vec<u8>,
+}
 
-pub use pcuvd::stats::quantile;
+/// Draws `fig` into `dir/file` and keeps its bytes for the report.
+pub fn render(dir: &Path, file: &str, caption: &str, fig: Figure) -> Result<Rendered> {
+    let png = render_png_bytes(&fig).with_context(|| format!("cannot draw {file}"))?;
+    std::fs::write(dir.join(file), &png)
+        .with_context(|| format!("{}: cannot write", dir.join(file).display()))?;
+    Ok(Rendered {
+        file: file.to_string(),
+        caption: caption.to_string(),
+        png,
+    })
+}
 
-/// Median of `v` (the mean of the two middle values for an even count, NaNs sorted last);
-/// NaN when `v` is empty.
-pub fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
+/// A line series of one colour.
+pub fn line(
+    label: &str,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    style: SeriesStyle,
+    rgb: (u8, u8, u8),
+) -> Series {
+    Series {
+        label: label.to_string(),
+        x,
+        y,
+        y_err: None,
+        style,
+        rgb: Some(rgb),
     }
 }
 
-/// Power in dB relative to its 99.9th percentile (robust to a few very bright pixels).
-pub fn power_db(power: &Array2<f64>) -> Array2<f64> {
-    let reference = quantile(power.iter().copied(), 0.999).max(f64::MIN_POSITIVE);
-    power.mapv(|p| 10.0 * (p.max(reference * 1e-12) / reference).log10())
-}
+/// Colour of the ground truth in plots.
+pub const TRUTH_RGB: (u8, u8, u8) = (31, 119, 180);
+/// Colour of UVD (conventional) in plots.
+pub const UVD_RGB: (u8, u8, u8) = (230, 159, 0);
+/// Colour of PC-UVD (coded) in plots.
+pub const PCUVD_RGB: (u8, u8, u8) = (214, 39, 40);
 
 /// B-mode in dB mapped to [0, 1] grey over a 60 dB dynamic range, as a background.
 pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
@@ -124,16 +144,6 @@ pub fn vector_overlay(
     overlay
 }
 
-/// Flow pixels: power above [`FLOW_MASK_DB`].
-pub fn flow_mask(power: &Array2<f64>) -> Array2<bool> {
-    power_mask(power, FLOW_MASK_DB)
-}
-
-/// Pixels whose power is at least `threshold_db` relative to the strong reference.
-pub fn power_mask(power: &Array2<f64>, threshold_db: f64) -> Array2<bool> {
-    power_db(power).mapv(|v| v >= threshold_db)
-}
-
 fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
     let fig = Figure {
         title: title.to_string(),
@@ -166,7 +176,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
 
     let pd = map_panel(
         "Power Doppler",
-        power_db(&out.power_doppler),
+        masks::power_db_re_peak(&out.power_doppler),
         grid,
         Colormap::Hot,
         (-40.0, 0.0),
@@ -179,7 +189,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         1,
     )?);
 
-    let mask = flow_mask(&out.power_doppler);
+    let mask = masks::within_db_of_peak(&out.power_doppler, masks::FLOW_FIGURE_DB);
     let background = bmode_background(&out.bmode_db);
     // Red = toward the probe (upward), as in the paper's colour maps.
     let upward_mm_s = out.color_doppler.mapv(|v| -v * 1e3);
@@ -212,7 +222,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
                 title,
                 field,
                 grid,
-                &power_mask(&out.power_doppler, VECTOR_MASK_DB),
+                &masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB),
                 &background,
             )
         })

@@ -1,445 +1,26 @@
-//! `pcuvd paper`, in-vivo-like part (paper §4, Fig. 6–8): a pulsatile vessel network in the rat
-//! setting, imaged conventionally (UVD) and with Hadamard coding (PC-UVD) over one cardiac cycle,
-//! with ground truth for PSV, EDV, RI and artery/vein class that the paper's rat did not have.
-//!
-//! Per mode: echoes and noise are simulated and beamformed apart (for SNR by depth) and added; the
-//! whole recording gives the power, colour and vector Doppler maps (Fig. 6–7); sliding windows give
-//! the vector velocity over time, whose per-pixel PSV, EDV and RI are compared with the truth
-//! (Fig. 8); compounded Doppler spectrograms are drawn at four pixels (Fig. 8b).
+//! `pcuvd paper`, in-vivo-like part (paper §4, Fig. 6–8): the figures and report section of the
+//! vessel-network study ([`pcuvd::study::network`]).
 
-use std::time::Instant;
+use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use ndarray::{Array2, Axis, Zip, s};
 use pcuvd::beamform::Grid;
-use pcuvd::dynamics::{
-    self, ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, Spectrogram, SpectrogramParams, VENULE,
-    VelocitySeries, VesselPooling,
+use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, Spectrogram, VENULE};
+use pcuvd::masks;
+use pcuvd::metrics::DepthSnr;
+use pcuvd::network::{NetworkPhantom, NetworkTruth};
+use pcuvd::study::describe_alignment;
+use pcuvd::study::network::{
+    DYNAMICS_KERNEL, ModeResult, NetworkMetrics, NetworkSettings, NetworkStudy, Site,
 };
-use pcuvd::network::{self, NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
-use pcuvd::phantom::Phantom;
-use pcuvd::pipeline::{self, ProcessOutput};
-use pcuvd::vector::{Estimator, IrlsParams, VectorField};
+use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
-use serde_json::{Map, Value, json};
 
-use crate::figures::{class_map, map_panel, median, vector_panel};
-use crate::paper::{
-    Mode, PaperArgs, Part, Rendered, TRUTH_RGB, UVD_RGB, line, mean_power, process_params, render,
-    simulate_and_form, snr_by_depth,
+use crate::figures::{
+    Rendered, TRUTH_RGB, UVD_RGB, class_map, line, map_panel, render, vector_panel,
 };
-use crate::process::pooling_summary;
-use crate::progress::bar;
-
-/// Field of view of the network study (m): the probe's aperture, 1–13 mm deep.
-const FIELD: (f64, f64, f64, f64) = (-6.4e-3, 6.4e-3, 1.0e-3, 13.0e-3);
-
-/// How the RI maps are scored against the truth.
-pub const RI_SCORE_DEFINITION: &str = "over every vessel pixel of the ground truth (the lumen of \
-every vessel on the grid): median_abs_error = median of |RI_estimated − RI_true|, where a pixel the \
-estimator leaves without an RI (not a vessel pixel by its power thresholds) counts as an error of 1; \
-classification_accuracy = fraction of vessel pixels classed as the right kind (arteriole or venule; \
-undetermined or background count as wrong); coverage = fraction of vessel pixels with an RI";
-
-/// What the network study hands back to `pcuvd paper`.
-pub struct NetworkStudy {
-    /// Keys merged into metrics.json (`ri`, `network`).
-    pub metrics: Map<String, Value>,
-    /// Figures, in report order.
-    pub figs: Vec<Rendered>,
-}
-
-/// Refuses network settings that cannot work, before anything is simulated.
-pub fn check_args(args: &PaperArgs) -> Result<()> {
-    if args.part == Part::Spiral {
-        return Ok(());
-    }
-    if !args.network_noise_db.is_finite() {
-        bail!("--network-noise-db must be a finite number of dB");
-    }
-    if !(args.heart_rate.is_finite() && args.heart_rate > 0.0) {
-        bail!(
-            "--heart-rate {}: must be a positive number of Hz",
-            args.heart_rate
-        );
-    }
-    let frame_rate = frame_rate()?;
-    let params = dynamics_params(args, Mode::Coded)?;
-    params
-        .validate(frame_rate)
-        .with_context(|| format!("--heart-rate {} Hz", args.heart_rate))?;
-    // The dynamics stage needs one cycle of window samples: round(period / step) windows.
-    let period_frames = frame_rate / args.heart_rate;
-    let cycle_windows = ((period_frames / params.step as f64).round() as usize).max(2);
-    let needed = (cycle_windows - 1) * params.step + params.window;
-    if args.network_frames < needed {
-        bail!(
-            "--network-frames {}: a cardiac cycle at {} Hz lasts {:.0} frames at {:.0} Hz, and RI \
-             needs one whole cycle of {}-frame windows {} frames apart: at least {needed} frames",
-            args.network_frames,
-            args.heart_rate,
-            period_frames,
-            frame_rate,
-            params.window,
-            params.step
-        );
-    }
-    Ok(())
-}
-
-fn frame_rate() -> Result<f64> {
-    let params = network::rat_params(false)?;
-    Ok(params.sequence.event_prf / params.sequence.n_angles() as f64)
-}
-
-/// Spatial averaging of the dynamics stage (pixels): as `pcuvd process --dynamics-kernel`, 0.25 mm
-/// at the default 0.05 mm grid. Per-pixel window speeds jitter (a 20 ms window sees few speckle
-/// renewals) and the extremes of a jittery waveform inflate RI; on this network, at noise +5 dB
-/// and without pooling, the PC-UVD median RI error was 0.12 with 1 × 1, 0.097 with 3 × 3 and 0.078
-/// with 5 × 5 (2 harmonics). With vessel pooling (a disc of radius 0.7 mm, seeds 1–3, before angle
-/// coverage and the ellipse),
-/// 5 × 5 gave 0.030–0.036 and 95.3–97.7 % rightly classed, 7 × 7 0.032–0.040 and 95.2–98.5 %.
-const DYNAMICS_KERNEL: (usize, usize) = (5, 5);
-
-/// Dynamics settings: the rat preset with the study's heart rate, the mode's estimator and the
-/// default vessel pooling of `pcuvd process` on a grid of `grid_step_mm` (mm).
-fn dynamics_params(args: &PaperArgs, mode: Mode) -> Result<DynamicsParams> {
-    let pooling = VesselPooling::from_metres(
-        VesselPooling::DEFAULT_ALONG_M,
-        VesselPooling::DEFAULT_ACROSS_M,
-        VesselPooling::DEFAULT_MAX_ANGLE_DEG,
-        args.grid_step * 1e-3,
-    )
-    .context("--grid-step")?;
-    Ok(DynamicsParams {
-        kernel: DYNAMICS_KERNEL,
-        heart_rate_hz: Some(args.heart_rate),
-        estimator: match mode {
-            Mode::Conventional => Estimator::LeastSquares,
-            Mode::Coded => Estimator::Irls(IrlsParams::default()),
-        },
-        pooling,
-        ..DynamicsParams::rat()
-    })
-}
-
-/// One transmit mode's results.
-struct ModeResult {
-    mode: Mode,
-    out: ProcessOutput,
-    series: VelocitySeries,
-    ri: RiMaps,
-    echo_power: Array2<f64>,
-    noise_power: Array2<f64>,
-    spectrograms: Vec<Spectrogram>,
-}
-
-impl ModeResult {
-    fn estimator_name(&self) -> &'static str {
-        match self.mode {
-            Mode::Conventional => "UVD",
-            Mode::Coded => "PC-UVD",
-        }
-    }
-
-    fn field(&self) -> &VectorField {
-        match self.mode {
-            Mode::Conventional => self.out.vector_ls.as_ref(),
-            Mode::Coded => self.out.vector_irls.as_ref(),
-        }
-        .expect("the rat sequence has 8 angles")
-    }
-}
-
-/// A pixel where a spectrogram is drawn, with what it shows.
-struct Site {
-    label: String,
-    vessel: usize,
-    pixel: (usize, usize),
-}
-
-/// Runs the network study: simulation, processing, dynamics, scores and figures.
-pub fn run(args: &PaperArgs) -> Result<NetworkStudy> {
-    let started = Instant::now();
-    let mut timing = Map::new();
-    let spec = NetworkSpec {
-        heart_rate_hz: args.heart_rate,
-        ..NetworkSpec::rat()
-    };
-    let phantom = NetworkPhantom::new(spec, args.seed)?;
-    let grid = Grid::new(FIELD.0, FIELD.1, FIELD.2, FIELD.3, args.grid_step * 1e-3)
-        .context("--grid-step")?;
-    let truth = phantom.cycle_truth(&grid.x, &grid.z);
-    let motion_truth = phantom.truth(&grid.x, &grid.z, 0.0);
-    let sites = spectrogram_pixels(&phantom, &truth, &grid);
-    let frame_rate = frame_rate()?;
-
-    let mut results = Vec::new();
-    for mode in [Mode::Conventional, Mode::Coded] {
-        let mut params = network::rat_params(mode == Mode::Coded)?;
-        params.seed = args.seed;
-        let label = format!("network_{}", mode.label());
-        let formed = simulate_and_form(
-            &phantom,
-            params,
-            args.network_frames,
-            args.network_noise_db,
-            args.motion,
-            args.event_alignment.into(),
-            &grid,
-            &label,
-            &mut timing,
-        )?;
-        let clock = Instant::now();
-        let compound_power = |series: &[ndarray::Array3<num_complex::Complex32>]| {
-            pcuvd::beamform::compound(series).map(|c| mean_power(&c))
-        };
-        let echo_power = compound_power(&formed.signal)?;
-        let noise_power = compound_power(&formed.noise)?;
-        let acquisition = formed.acquisition.clone();
-        let images = formed.at_gain(1.0);
-        drop(formed);
-        let process = process_params(&grid, &acquisition, (1, 1), args.event_alignment.into());
-        let out = pipeline::analyse(&acquisition, images, &process, &|_, _, _| {})?;
-        let dparams = dynamics_params(args, mode)?;
-        let (c, f0) = (acquisition.sound_speed, acquisition.probe.center_frequency);
-        let angles = &acquisition.sequence.angles;
-        let series = dynamics::sliding_vectors(
-            &out.filtered,
-            angles,
-            Some(out.coverage.view()),
-            frame_rate,
-            c,
-            f0,
-            &dparams,
-        )?;
-        let flow = dynamics::VesselTests::default().flow_mask(&out.power_doppler, grid.step());
-        let ri = dynamics::ri_maps_where(&series, &dparams, Some(&flow))?;
-        let spectrograms = sites
-            .iter()
-            .map(|p| {
-                dynamics::spectrogram(
-                    &out.filtered,
-                    angles,
-                    p.pixel,
-                    frame_rate,
-                    c,
-                    f0,
-                    &SpectrogramParams::rat(),
-                )
-            })
-            .collect::<pcuvd::Result<Vec<_>>>()?;
-        timing.insert(
-            format!("{label}_analysis_s"),
-            json!(clock.elapsed().as_secs_f64()),
-        );
-        results.push(ModeResult {
-            mode,
-            out,
-            series,
-            ri,
-            echo_power,
-            noise_power,
-            spectrograms,
-        });
-    }
-
-    let scores: Vec<Scores> = results.iter().map(|r| score(&r.ri, &truth)).collect();
-    let snr: Vec<Vec<(f64, f64)>> = results
-        .iter()
-        .map(|r| snr_by_depth(&r.echo_power, &r.noise_power, &motion_truth, &grid))
-        .collect();
-    let figure_bar = bar("network figures", 5);
-    let figs = network_figures(
-        args,
-        &phantom,
-        &truth,
-        &grid,
-        &results,
-        &scores,
-        &snr,
-        &sites,
-        &figure_bar,
-    )?;
-    figure_bar.finish();
-    timing.insert(
-        "network_total_s".into(),
-        json!(started.elapsed().as_secs_f64()),
-    );
-
-    let (uvd, pc) = (&scores[0], &scores[1]);
-    println!(
-        "network: RI median |error| UVD {:.3}, PC-UVD {:.3}; artery/vein correct UVD {:.1} %, PC-UVD {:.1} % ({:.0} s)",
-        uvd.median_abs_error,
-        pc.median_abs_error,
-        100.0 * uvd.classification_accuracy,
-        100.0 * pc.classification_accuracy,
-        started.elapsed().as_secs_f64()
-    );
-    let spec = phantom.spec();
-    let mut metrics = Map::new();
-    metrics.insert(
-        "ri".into(),
-        json!({
-            "uvd": uvd.to_json(),
-            "pcuvd": pc.to_json(),
-            "definition": RI_SCORE_DEFINITION,
-        }),
-    );
-    metrics.insert(
-        "network".into(),
-        json!({
-            "frames": args.network_frames,
-            "frame_rate_hz": frame_rate,
-            "noise_db": args.network_noise_db,
-            "heart_rate_hz": args.heart_rate,
-            "motion": format!("{:?}", args.motion),
-            "event_alignment": args.event_alignment.label(),
-            "seed": args.seed,
-            "scatterers": phantom.n_scatterers(),
-            "vessel_pixels": truth.mask().iter().filter(|&&m| m).count(),
-            "vessels": spec.vessels.iter().enumerate().map(|(i, v)| json!({
-                "name": v.name,
-                "kind": format!("{:?}", v.kind).to_lowercase(),
-                "flows_up": v.flows_up(),
-                "centre_m": v.centre,
-                "angle_deg": v.angle.to_degrees(),
-                "length_m": v.length,
-                "radius_m": v.radius,
-                "psv_m_s": v.psv,
-                "ri": v.ri,
-                "uvd": uvd.per_vessel[i].to_json(),
-                "pcuvd": pc.per_vessel[i].to_json(),
-            })).collect::<Vec<_>>(),
-            "snr_db_by_depth": {
-                "depth_m": snr[0].iter().map(|r| r.0).collect::<Vec<_>>(),
-                "conventional": snr[0].iter().map(|r| r.1).collect::<Vec<_>>(),
-                "coded": snr[1].iter().map(|r| r.1).collect::<Vec<_>>(),
-            },
-            "dynamics": {
-                "window_frames": DynamicsParams::rat().window,
-                "step_frames": DynamicsParams::rat().step,
-                "artery_ri_min": DynamicsParams::rat().artery_ri_min,
-                "vein_ri_max": DynamicsParams::rat().vein_ri_max,
-                "min_power_db": DynamicsParams::rat().min_power_db,
-                "vessel_margin_db": dynamics::VESSEL_MARGIN_DB,
-                "vessel_local_db": dynamics::VESSEL_LOCAL_DB,
-                "vessel_local_radius_m": dynamics::VESSEL_LOCAL_RADIUS_M,
-                "kernel": [DYNAMICS_KERNEL.0, DYNAMICS_KERNEL.1],
-                "vessel_pooling": pooling_summary(&dynamics_params(args, Mode::Coded)?, args.grid_step * 1e-3),
-                "cycles_windows": results.iter().map(|r| r.ri.cycles.clone()).collect::<Vec<_>>(),
-            },
-            "timing_s": timing,
-        }),
-    );
-    Ok(NetworkStudy { metrics, figs })
-}
-
-/// RI scores of one vessel or of the whole network.
-#[derive(Clone, Copy, Debug, Default)]
-struct Score {
-    median_abs_error: f64,
-    classification_accuracy: f64,
-    coverage: f64,
-    median_ri: f64,
-    pixels: usize,
-}
-
-impl Score {
-    fn to_json(self) -> Value {
-        json!({
-            "median_abs_error": self.median_abs_error,
-            "classification_accuracy": self.classification_accuracy,
-            "coverage": self.coverage,
-            "median_ri": self.median_ri,
-            "pixels": self.pixels,
-        })
-    }
-}
-
-/// Network-wide scores with a breakdown per vessel.
-struct Scores {
-    median_abs_error: f64,
-    classification_accuracy: f64,
-    coverage: f64,
-    direction_accuracy: f64,
-    per_vessel: Vec<Score>,
-}
-
-impl Scores {
-    fn to_json(&self) -> Value {
-        json!({
-            "median_abs_error": self.median_abs_error,
-            "classification_accuracy": self.classification_accuracy,
-            "coverage": self.coverage,
-            "direction_accuracy": self.direction_accuracy,
-        })
-    }
-}
-
-/// Scores over the pixels where `select(vessel index)` holds; see [`RI_SCORE_DEFINITION`].
-fn score_where(est: &RiMaps, truth: &NetworkTruth, select: impl Fn(usize) -> bool) -> Score {
-    let (mut errors, mut ris) = (vec![], vec![]);
-    let (mut correct, mut covered) = (0usize, 0usize);
-    Zip::from(&est.ri)
-        .and(&est.vessel_class)
-        .and(&truth.ri)
-        .and(&truth.vessel_class)
-        .and(&truth.vessel_index)
-        .for_each(|&ri, &class, &true_ri, &true_class, &vessel| {
-            if true_class == BACKGROUND || !select(vessel) {
-                return;
-            }
-            if ri.is_finite() {
-                errors.push((ri - true_ri).abs());
-                ris.push(ri);
-                covered += 1;
-            } else {
-                errors.push(1.0);
-            }
-            if class == true_class {
-                correct += 1;
-            }
-        });
-    let n = errors.len();
-    Score {
-        median_abs_error: median(errors),
-        classification_accuracy: correct as f64 / n.max(1) as f64,
-        coverage: covered as f64 / n.max(1) as f64,
-        median_ri: median(ris),
-        pixels: n,
-    }
-}
-
-fn score(est: &RiMaps, truth: &NetworkTruth) -> Scores {
-    let all = score_where(est, truth, |_| true);
-    let vessels = truth
-        .vessel_index
-        .iter()
-        .filter(|&&i| i != usize::MAX)
-        .max()
-        .map_or(0, |&m| m + 1);
-    let (mut right, mut n) = (0usize, 0usize);
-    Zip::from(&est.flow_up)
-        .and(&est.vessel_class)
-        .and(&truth.flow_up)
-        .and(&truth.vessel_class)
-        .for_each(|&up, &class, &true_up, &true_class| {
-            if true_class != BACKGROUND && class != BACKGROUND {
-                n += 1;
-                right += usize::from(up == true_up);
-            }
-        });
-    Scores {
-        median_abs_error: all.median_abs_error,
-        classification_accuracy: all.classification_accuracy,
-        coverage: all.coverage,
-        direction_accuracy: right as f64 / n.max(1) as f64,
-        per_vessel: (0..vessels)
-            .map(|v| score_where(est, truth, |i| i == v))
-            .collect(),
-    }
-}
+use crate::progress::TaskProgress;
 
 /// The grid pixel nearest to (x, z) (m).
 fn nearest_pixel(grid: &Grid, x: f64, z: f64) -> (usize, usize) {
@@ -450,43 +31,6 @@ fn nearest_pixel(grid: &Grid, x: f64, z: f64) -> (usize, usize) {
             .map_or(0, |(i, _)| i)
     };
     (nearest(&grid.z, z), nearest(&grid.x, x))
-}
-
-/// One pixel on the axis of the first vessel of each kind and direction (Fig. 8b's four panels).
-fn spectrogram_pixels(phantom: &NetworkPhantom, truth: &NetworkTruth, grid: &Grid) -> Vec<Site> {
-    let mut sites = Vec::new();
-    for (kind, up) in [
-        (VesselKind::Arteriole, true),
-        (VesselKind::Arteriole, false),
-        (VesselKind::Venule, true),
-        (VesselKind::Venule, false),
-    ] {
-        let found = phantom
-            .spec()
-            .vessels
-            .iter()
-            .enumerate()
-            .find(|(_, v)| v.kind == kind && v.flows_up() == up);
-        if let Some((i, v)) = found {
-            let pixel = nearest_pixel(grid, v.centre[0], v.centre[1]);
-            if truth.vessel_index[pixel] == i {
-                sites.push(Site {
-                    label: format!(
-                        "{}: {}, flowing {}",
-                        v.name,
-                        match kind {
-                            VesselKind::Arteriole => "arteriole",
-                            VesselKind::Venule => "venule",
-                        },
-                        if up { "up" } else { "down" }
-                    ),
-                    vessel: i,
-                    pixel,
-                });
-            }
-        }
-    }
-    sites
 }
 
 /// Rows/columns of `grid` inside [lo, hi] (m).
@@ -530,54 +74,43 @@ impl Roi {
     }
 }
 
-/// Flow pixels for display: power Doppler at least [`DISPLAY_FLOW_DB`] above the mode's own noise
-/// floor. A threshold relative to the brightest pixel lets the receiver noise through at +5 dB
-/// (then colour and vector maps show noise everywhere and the glyph scale follows it).
-fn flow_above_noise(power: &Array2<f64>, noise: &Array2<f64>) -> Array2<bool> {
-    db_above(power, noise).mapv(|d| d >= DISPLAY_FLOW_DB)
-}
-
-/// Display threshold of flow maps (dB above the noise floor).
-const DISPLAY_FLOW_DB: f64 = 6.0;
-
-fn db_above(power: &Array2<f64>, noise: &Array2<f64>) -> Array2<f64> {
-    let floor = noise.mean().unwrap_or(1.0).max(f64::MIN_POSITIVE);
-    power.mapv(|p| 10.0 * (p.max(floor * 1e-3) / floor).log10())
-}
-
 fn finite_mask(a: &Array2<f64>) -> Array2<bool> {
     a.mapv(f64::is_finite)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn network_figures(
-    args: &PaperArgs,
-    phantom: &NetworkPhantom,
-    truth: &NetworkTruth,
-    grid: &Grid,
-    results: &[ModeResult],
-    scores: &[Scores],
-    snr: &[Vec<(f64, f64)>],
-    sites: &[Site],
-    progress: &indicatif::ProgressBar,
+/// Figures 6–8 of the network study, drawn into `dir`.
+pub fn network_figures(
+    dir: &Path,
+    study: &NetworkStudy,
+    progress: &TaskProgress,
 ) -> Result<Vec<Rendered>> {
-    let dir = &args.out;
+    let (phantom, truth, grid) = (&study.phantom, &study.truth, &study.grid);
+    let (results, scores, snr, sites) = (&study.modes, &study.scores, &study.snr, &study.sites);
+    let settings = &study.settings;
+    let task = "network figures";
+    progress.update(task, 0, 5);
     let mut figs = Vec::new();
     let black = Array2::<f64>::zeros(grid.shape());
     let vmax = 30.0;
     // Flow pixels of each mode, for every flow map below.
     let flows: Vec<Array2<bool>> = results
         .iter()
-        .map(|r| flow_above_noise(&r.out.power_doppler, &r.noise_power))
+        .map(|r| {
+            masks::above_noise_image(
+                &r.out.power_doppler,
+                &r.noise_power,
+                masks::FLOW_ABOVE_NOISE_DB,
+            )
+        })
         .collect();
 
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD.
     let mut panels = Vec::new();
     for (r, flow) in results.iter().zip(&flows) {
-        let name = r.estimator_name();
+        let name = r.mode.method();
         panels.push(Panel::Image(map_panel(
             &format!("{name}: power Doppler"),
-            db_above(&r.out.power_doppler, &r.noise_power),
+            masks::db_above_noise(&r.out.power_doppler, &r.noise_power),
             grid,
             Colormap::Hot,
             (0.0, 40.0),
@@ -602,8 +135,8 @@ fn network_figures(
             &black,
         ));
     }
-    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", args.network_noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
-    progress.inc(1);
+    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
+    progress.update(task, 1, 5);
 
     // Figure 6 (g, h): PD profiles along a shallow horizontal line and a vertical line, SNR by depth.
     let (z_line, x_line) = (5.0e-3, 4.2e-3);
@@ -618,7 +151,7 @@ fn network_figures(
             .iter()
             .enumerate()
             .map(|(k, r)| {
-                let db = db_above(&r.out.power_doppler, &r.noise_power);
+                let db = masks::db_above_noise(&r.out.power_doppler, &r.noise_power);
                 let (xs, ys) = if horizontal {
                     (x_mm.clone(), db.row(row).to_vec())
                 } else {
@@ -628,7 +161,7 @@ fn network_figures(
             })
             .collect()
     };
-    let depth = |rows: &Vec<(f64, f64)>| rows.iter().map(|r| r.0 * 1e3).collect::<Vec<_>>();
+    let depth = |rows: &[DepthSnr]| rows.iter().map(|r| r.depth_m * 1e3).collect::<Vec<_>>();
     let panels = vec![
         Panel::Plot(PlotPanel {
             title: format!("PD along z = {:.1} mm", grid.z[row] * 1e3),
@@ -652,14 +185,14 @@ fn network_figures(
                 line(
                     "PD",
                     depth(&snr[0]),
-                    snr[0].iter().map(|r| r.1).collect(),
+                    snr[0].iter().map(|r| r.snr_db).collect(),
                     SeriesStyle::LinePoints,
                     UVD_RGB,
                 ),
                 line(
                     "PC-PD",
                     depth(&snr[1]),
-                    snr[1].iter().map(|r| r.1).collect(),
+                    snr[1].iter().map(|r| r.snr_db).collect(),
                     SeriesStyle::LinePoints,
                     TRUTH_RGB,
                 ),
@@ -669,7 +202,7 @@ fn network_figures(
         }),
     ];
     figs.push(render(dir, "fig6gh_network_profiles.png", "Figure 6 (g, h) analogue: power Doppler in dB above the noise floor along a horizontal line at 5 mm depth and a vertical line at x = 4.2 mm, and SNR versus depth (echo and noise images formed apart). The echoes weaken with depth (attenuation 0.5 dB/cm/MHz), so the deep vessels are where coding matters.", Figure { title: "Vessel network: signal and SNR".into(), panels, ncols: 3, panel_size_px: (520, 420) })?);
-    progress.inc(1);
+    progress.update(task, 2, 5);
 
     // Figure 7: vector maps in three regions at increasing depth.
     let rois = [
@@ -686,7 +219,7 @@ fn network_figures(
                 vz: roi.cut(&r.field().vz),
             };
             panels.push(vector_panel(
-                &format!("{}: ROI {}", r.estimator_name(), k + 1),
+                &format!("{}: ROI {}", r.mode.method(), k + 1),
                 &field,
                 &roi.grid,
                 &roi.cut(flow),
@@ -695,7 +228,7 @@ fn network_figures(
         }
     }
     figs.push(render(dir, "fig7_network_rois.png", "Figure 7 analogue: vector velocity (triangles point along the flow, colour = speed) in three regions at increasing depth; UVD (top) and PC-UVD (bottom).", Figure { title: "Vector velocity in three regions".into(), panels, ncols: 3, panel_size_px: (460, 440) })?);
-    progress.inc(1);
+    progress.update(task, 3, 5);
 
     // Figure 8 (a, c, d): RI maps and arteriole / venule maps, shown where there is flow: the
     // RI stage's vessel mask (−30 dB re. the brightest pixel) lets noise through at +5 dB, and
@@ -722,7 +255,7 @@ fn network_figures(
         let mut p = map_panel(
             &format!(
                 "{}: RI (median |error| {:.3})",
-                r.estimator_name(),
+                r.mode.method(),
                 sc.median_abs_error
             ),
             r.ri.ri.clone(),
@@ -754,7 +287,7 @@ fn network_figures(
             Panel::Image(p)
         };
     for (r, flow) in results.iter().zip(&flows).rev() {
-        let (name, ri) = (r.estimator_name(), &r.ri);
+        let (name, ri) = (r.mode.method(), &r.ri);
         panels.push(class_panel(
             &format!("{name}: arterioles (RI ≥ 0.55)"),
             &ri.psv,
@@ -785,8 +318,8 @@ fn network_figures(
             None,
         ));
     }
-    figs.push(render(dir, "fig8_ri_maps.png", "Figure 8 (a, c, d) analogue: resistivity-index maps (truth, UVD, PC-UVD), then for PC-UVD and UVD the arteriole and venule maps (PSV, red = flowing up, blue = down) and the vessel pixels whose kind was missed (shown with their true PSV). Estimates are shown where power Doppler is at least 6 dB above the mode's noise floor; the scores count every pixel of the true lumen.", Figure { title: format!("Resistivity index over one cardiac cycle ({} Hz)", args.heart_rate), panels, ncols: 3, panel_size_px: (480, 470) })?);
-    progress.inc(1);
+    figs.push(render(dir, "fig8_ri_maps.png", "Figure 8 (a, c, d) analogue: resistivity-index maps (truth, UVD, PC-UVD), then for PC-UVD and UVD the arteriole and venule maps (PSV, red = flowing up, blue = down) and the vessel pixels whose kind was missed (shown with their true PSV). Estimates are shown where power Doppler is at least 6 dB above the mode's noise floor; the scores count every pixel of the true lumen.", Figure { title: format!("Resistivity index over one cardiac cycle ({} Hz)", settings.heart_rate_hz), panels, ncols: 3, panel_size_px: (480, 470) })?);
+    progress.update(task, 4, 5);
 
     // Figure 8 (b): compounded Doppler spectrograms at four pixels, PC-UVD.
     let coded = &results[1];
@@ -797,7 +330,7 @@ fn network_figures(
         )));
     }
     figs.push(render(dir, "fig8b_spectrograms.png", "Figure 8 (b) analogue: PC-UVD compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of an arteriole and a venule flowing up and down. Dashed white: mean Doppler velocity (colour-Doppler estimate); solid cyan: vector speed with the sign of the flow's Vz; thin green: true speed; red and yellow ticks: the PSV and EDV the RI uses.", Figure { title: "PC-UVD spectrograms over the cardiac cycle".into(), panels, ncols: 2, panel_size_px: (620, 420) })?);
-    progress.inc(1);
+    progress.update(task, 5, 5);
     Ok(figs)
 }
 
@@ -896,31 +429,37 @@ fn spectrogram_panel(
 }
 
 /// The network part of report.html.
-pub fn report_section(report: &mut Report, study: &NetworkStudy, args: &PaperArgs) {
-    let m = &study.metrics;
-    let get = |path: &[&str]| -> String {
-        let mut v = m.get(path[0]).unwrap_or(&Value::Null);
-        for p in &path[1..] {
-            v = &v[*p];
+/// The network part of report.html.
+pub fn report_section(
+    report: &mut Report,
+    m: &NetworkMetrics,
+    settings: &NetworkSettings,
+    figs: &[Rendered],
+) {
+    let rat = pcuvd::dynamics::DynamicsParams::rat();
+    let dynamics = &m.network.dynamics;
+    let get = |x: f64| {
+        if x.is_finite() {
+            format!("{x:.3}")
+        } else {
+            "–".into()
         }
-        v.as_f64()
-            .map(|x| format!("{x:.3}"))
-            .unwrap_or_else(|| "–".into())
     };
-    let pct = |path: &[&str]| -> String {
-        let mut v = m.get(path[0]).unwrap_or(&Value::Null);
-        for p in &path[1..] {
-            v = &v[*p];
+    let pct = |x: f64| {
+        if x.is_finite() {
+            format!("{:.1} %", 100.0 * x)
+        } else {
+            "–".into()
         }
-        v.as_f64()
-            .map(|x| format!("{:.1} %", 100.0 * x))
-            .unwrap_or_else(|| "–".into())
     };
-    let pooling_text = match dynamics_params(args, Mode::Coded).map(|p| p.pooling) {
+    let pooling_text = match settings
+        .dynamics_params(pcuvd::study::Mode::Coded)
+        .map(|p| p.pooling)
+    {
         Ok(Some(p)) => format!(
             "an ellipse aligned with each pixel's mean flow, half-length {:.2} mm along it and half-width {:.2} mm across, flow directions within {:.0}°, weights the squared mean Doppler power, speeds |V| pooled and rescaled to each pixel's own mean",
-            p.along * args.grid_step,
-            p.across * args.grid_step,
+            p.along * settings.grid_step_m * 1e3,
+            p.across * settings.grid_step_m * 1e3,
             p.max_angle.to_degrees()
         ),
         _ => "off".into(),
@@ -928,73 +467,86 @@ pub fn report_section(report: &mut Report, study: &NetworkStudy, args: &PaperArg
     report.heading("In-vivo-like vessel network over a cardiac cycle (paper §4, Fig. 6–8)");
     report.paragraph(&format!(
         "The paper's rat setting (L22-14vX at 15.625 MHz, 8 plane waves from −15° to 15°, Hadamard order 8 with 1 µs slots, event PRF 14.4 kHz, 1.8 kHz compound rate) over {} compound frames, on a phantom with ground truth: eight straight vessels 1–13 mm deep at several orientations, four arterioles (RI 0.7, peak 20–30 mm/s, radius 0.15 mm) and four venules (RI 0.3, peak 10–14 mm/s, radius 0.2 mm), flowing up and down, parabolic profiles, pulsatile waveform w(t) = (1 − RI) + RI·((1 + cos 2πf_h t)/2)³ at {} Hz, {}; decoding: {}. Attenuation 0.5 dB/cm/MHz makes the echoes, and the SNR, fall with depth. Noise {} dB ({}). No clutter filter (no tissue). Seed {}.",
-        args.network_frames, args.heart_rate, crate::paper::motion_text(args.motion), crate::paper::alignment_text(args.event_alignment), args.network_noise_db, pcuvd::simulate::NOISE_DEFINITION, args.seed
+        settings.frames,
+        settings.heart_rate_hz,
+        settings.motion.describe(),
+        describe_alignment(settings.event_alignment),
+        settings.noise_db,
+        pcuvd::simulate::NOISE_DEFINITION,
+        settings.seed
     ));
     report.paragraph(&format!(
-        "Dynamics: vector velocity in {}-frame windows every {} frames, autocorrelation averaged over {} × {} pixels, each pixel's waveform shape pooled with its same-direction neighbours ({}; dynamics::VesselPooling), then fitted by a mean plus the first cardiac harmonics (dynamics::auto_harmonics) (UVD: least squares on the conventional recording; PC-UVD: IRLS-WLS on the coded one); PSV and EDV per pixel over the complete cardiac cycle (heart rate given: the recording holds about one beat); RI = (PSV − EDV)/PSV; arteriole if RI ≥ 0.55, venule if RI ≤ 0.5; vessel pixels: window power within {} dB of the strongest and whole-recording power Doppler at least {} dB above the noise floor of its depth (doppler::above_noise_floor) and within {} dB of the brightest pixel within {} mm (doppler::near_local_peak). Scores: {RI_SCORE_DEFINITION}.",
-        DynamicsParams::rat().window,
-        DynamicsParams::rat().step,
+        "Dynamics: vector velocity in {}-frame windows every {} frames, autocorrelation averaged over {} × {} pixels, each pixel's waveform shape pooled with its same-direction neighbours ({}; dynamics::VesselPooling), then fitted by a mean plus the first cardiac harmonics (dynamics::auto_harmonics) (UVD: least squares on the conventional recording; PC-UVD: IRLS-WLS on the coded one); PSV and EDV per pixel over the complete cardiac cycle (heart rate given: the recording holds about one beat); RI = (PSV − EDV)/PSV; arteriole if RI ≥ {}, venule if RI ≤ {}; vessel pixels: window power within {} dB of the strongest and whole-recording power Doppler at least {} dB above the noise floor of its depth (doppler::above_noise_floor) and within {} dB of the brightest pixel within {} mm (doppler::near_local_peak). Scores: {}.",
+        dynamics.window_frames,
+        dynamics.step_frames,
         DYNAMICS_KERNEL.0,
         DYNAMICS_KERNEL.1,
         pooling_text,
-        -DynamicsParams::rat().min_power_db,
-        dynamics::VESSEL_MARGIN_DB,
-        dynamics::VESSEL_LOCAL_DB,
-        dynamics::VESSEL_LOCAL_RADIUS_M * 1e3
+        rat.artery_ri_min,
+        rat.vein_ri_max,
+        -dynamics.min_power_db,
+        dynamics.vessel_margin_db,
+        dynamics.vessel_local_db,
+        dynamics.vessel_local_radius_m * 1e3,
+        m.ri.definition
     ));
+    let (uvd, pc) = (&m.ri.uvd, &m.ri.pcuvd);
     let rows = vec![
         vec![
             "RI median |error| over vessel pixels".into(),
-            get(&["ri", "uvd", "median_abs_error"]),
-            get(&["ri", "pcuvd", "median_abs_error"]),
+            get(uvd.median_abs_error),
+            get(pc.median_abs_error),
             "≤ 0.05".into(),
         ],
         vec![
             "artery/vein classification correct".into(),
-            pct(&["ri", "uvd", "classification_accuracy"]),
-            pct(&["ri", "pcuvd", "classification_accuracy"]),
+            pct(uvd.classification_accuracy),
+            pct(pc.classification_accuracy),
             "≥ 95 %".into(),
         ],
         vec![
             "vessel pixels with an RI (coverage)".into(),
-            pct(&["ri", "uvd", "coverage"]),
-            pct(&["ri", "pcuvd", "coverage"]),
+            pct(uvd.coverage),
+            pct(pc.coverage),
             String::new(),
         ],
         vec![
             "flow direction correct (pixels with an RI)".into(),
-            pct(&["ri", "uvd", "direction_accuracy"]),
-            pct(&["ri", "pcuvd", "direction_accuracy"]),
+            pct(uvd.direction_accuracy),
+            pct(pc.direction_accuracy),
             String::new(),
         ],
     ];
     report.table(&["quantity", "UVD", "PC-UVD", "target"], &rows);
-    let vessels = m
-        .get("network")
-        .and_then(|n| n["vessels"].as_array().cloned())
-        .unwrap_or_default();
-    let per_vessel: Vec<Vec<String>> = vessels
+    let f = |x: f64| {
+        if x.is_finite() {
+            format!("{x:.2}")
+        } else {
+            "–".into()
+        }
+    };
+    let p = |x: f64| {
+        if x.is_finite() {
+            format!("{:.0} %", 100.0 * x)
+        } else {
+            "–".into()
+        }
+    };
+    let per_vessel: Vec<Vec<String>> = m
+        .network
+        .vessels
         .iter()
         .map(|v| {
-            let f = |x: &Value| x.as_f64().map_or("–".into(), |x| format!("{x:.2}"));
-            let p = |x: &Value| {
-                x.as_f64()
-                    .map_or("–".into(), |x| format!("{:.0} %", 100.0 * x))
-            };
             vec![
-                v["name"].as_str().unwrap_or("").to_string(),
-                v["kind"].as_str().unwrap_or("").to_string(),
-                if v["flows_up"].as_bool().unwrap_or(false) {
-                    "up".into()
-                } else {
-                    "down".into()
-                },
-                format!("{:.1}", v["centre_m"][1].as_f64().unwrap_or(f64::NAN) * 1e3),
-                f(&v["ri"]),
-                f(&v["uvd"]["median_ri"]),
-                f(&v["pcuvd"]["median_ri"]),
-                p(&v["uvd"]["classification_accuracy"]),
-                p(&v["pcuvd"]["classification_accuracy"]),
+                v.name.clone(),
+                v.kind.clone(),
+                if v.flows_up { "up" } else { "down" }.into(),
+                format!("{:.1}", v.centre_m[1] * 1e3),
+                f(v.ri),
+                f(v.uvd.median_ri),
+                f(v.pcuvd.median_ri),
+                p(v.uvd.classification_accuracy),
+                p(v.pcuvd.classification_accuracy),
             ]
         })
         .collect();
@@ -1013,7 +565,7 @@ pub fn report_section(report: &mut Report, study: &NetworkStudy, args: &PaperArg
         &per_vessel,
     );
     report.heading("Network: figures");
-    for fig in &study.figs {
+    for fig in figs {
         report.image_png(&format!("{} ({})", fig.caption, fig.file), &fig.png);
     }
 }

@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use ndarray::Array1;
 use pcuvd::ChannelData;
-use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
+use pcuvd::dynamics::{self, DynamicsParams, PoolingSummary, RiMaps, VelocitySeries, VesselTests};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde_json::json;
 
@@ -86,8 +86,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let mut pngs = figures::process_figures(&args.out, &out, &name)?;
-    let (dynamics, mut dynamic_pngs) =
-        run_dynamics(args, &data, dynamics_settings.as_ref(), &out, &name)?;
+    let (dynamics, mut dynamic_pngs) = run_dynamics(args, dynamics_settings.as_ref(), &out, &name)?;
     pngs.append(&mut dynamic_pngs);
     summary["dynamics"] = dynamics;
     pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
@@ -122,7 +121,6 @@ struct DynamicsSettings {
 /// short, one angle) is skipped with a note; otherwise that is an error.
 fn run_dynamics(
     args: &ProcessArgs,
-    data: &ChannelData,
     settings: Option<&DynamicsSettings>,
     out: &ProcessOutput,
     name: &str,
@@ -135,26 +133,8 @@ fn run_dynamics(
     else {
         return Ok((json!({ "skipped": "--dynamics off" }), vec![]));
     };
-    let acq = &data.acquisition;
-    let frame_rate = acq.frame_rate();
-    let attempt = || -> Result<(VelocitySeries, RiMaps)> {
-        if acq.sequence.n_angles() < 2 {
-            bail!("vector velocity needs two or more steering angles; the recording has one");
-        }
-        dparams.validate(frame_rate)?;
-        let series = dynamics::sliding_vectors(
-            &out.filtered,
-            &acq.sequence.angles,
-            Some(out.coverage.view()),
-            frame_rate,
-            acq.sound_speed,
-            acq.probe.center_frequency,
-            &dparams,
-        )?;
-        let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
-        let maps = dynamics::ri_maps_where(&series, &dparams, Some(&flow))?;
-        Ok((series, maps))
-    };
+    let attempt =
+        || -> Result<(VelocitySeries, RiMaps)> { Ok(pipeline::dynamics(out, &dparams, &vessel)?) };
     let (series, maps) = match attempt() {
         Ok(result) => result,
         Err(e) if !options.explicit() => {
@@ -196,7 +176,7 @@ fn run_dynamics(
         "vessel_margin_reference": "noise floor of each depth row of the power Doppler: its 30th percentile (doppler::noise_floor_by_depth)",
         "vessel_local_db": db_or_off(vessel.local_db),
         "vessel_local_radius_mm": vessel.local_radius_m * 1e3,
-        "vessel_pooling": pooling_summary(&dparams, out.grid.step()),
+        "vessel_pooling": PoolingSummary::new(dparams.pooling, out.grid.step()),
         "cycles_windows": maps.cycles,
         "pixels": {
             "arteriole": count(dynamics::ARTERIOLE),
@@ -216,22 +196,6 @@ fn run_dynamics(
     Ok((summary, pngs))
 }
 
-/// The summary.json entry of the vessel pooling in `params` on a grid of `grid_step_m` (m).
-pub fn pooling_summary(params: &DynamicsParams, grid_step_m: f64) -> serde_json::Value {
-    match params.pooling {
-        None => json!("off"),
-        Some(p) => json!({
-            "half_length_along_flow_mm": thousandths(p.along * grid_step_m * 1e3),
-            "half_width_across_flow_mm": thousandths(p.across * grid_step_m * 1e3),
-            "half_length_along_flow_px": thousandths(p.along),
-            "half_width_across_flow_px": thousandths(p.across),
-            "max_angle_deg": thousandths(p.max_angle.to_degrees()),
-            "weights": "time-mean Doppler power squared",
-            "pooled": "speed |V| series; the pooled shape scaled to each pixel's own mean speed",
-        }),
-    }
-}
-
 /// A vessel-test level (dB) as set: "off" for the infinite level that stands for it.
 fn db_or_off(db: f64) -> serde_json::Value {
     if db.is_finite() {
@@ -239,11 +203,6 @@ fn db_or_off(db: f64) -> serde_json::Value {
     } else {
         json!("off")
     }
-}
-
-/// `value` rounded to 0.001: settings converted between mm, pixels and degrees print as set.
-fn thousandths(value: f64) -> f64 {
-    (value * 1e3).round() / 1e3
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {

@@ -15,9 +15,43 @@ pub fn bar(label: &str, total: u64) -> ProgressBar {
     bar
 }
 
+/// Progress of tasks named as they go (a study's [`pcuvd::study::Progress`]): one bar per task,
+/// a new bar whenever the task label changes.
+pub struct TaskProgress {
+    bar: std::sync::Mutex<ProgressBar>,
+}
+
+impl Default for TaskProgress {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl TaskProgress {
+    /// No bar until the first task reports.
+    pub fn new() -> Self {
+        TaskProgress {
+            bar: std::sync::Mutex::new(ProgressBar::hidden()),
+        }
+    }
+
+    /// Reports that task `label` has done `done` of `total` steps.
+    pub fn update(&self, label: &str, done: usize, total: usize) {
+        let mut current = self.bar.lock().unwrap_or_else(|e| e.into_inner());
+        if current.prefix() != label {
+            current.finish();
+            *current = bar(label, total as u64);
+        }
+        current.set_position(done as u64);
+        if done == total {
+            current.finish();
+        }
+    }
+}
+
 /// A callback for [`pcuvd::pipeline::process`] that shows one bar per stage.
 pub struct PipelineProgress {
-    bar: std::sync::Mutex<ProgressBar>,
+    tasks: TaskProgress,
     tag: String,
 }
 
@@ -25,22 +59,14 @@ impl PipelineProgress {
     /// Bars prefixed by `tag` (e.g. the recording's name).
     pub fn new(tag: &str) -> Self {
         PipelineProgress {
-            bar: std::sync::Mutex::new(ProgressBar::hidden()),
+            tasks: TaskProgress::new(),
             tag: tag.to_string(),
         }
     }
 
     /// Reports that `stage` has done `done` of `total` steps.
     pub fn update(&self, stage: Stage, done: usize, total: usize) {
-        let label = format!("{}{}", self.tag, stage.label());
-        let mut current = self.bar.lock().unwrap_or_else(|e| e.into_inner());
-        if current.prefix() != label {
-            current.finish();
-            *current = bar(&label, total as u64);
-        }
-        current.set_position(done as u64);
-        if done == total {
-            current.finish();
-        }
+        self.tasks
+            .update(&format!("{}{}", self.tag, stage.label()), done, total);
     }
 }
