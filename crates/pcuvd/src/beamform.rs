@@ -24,72 +24,10 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result, invalid, require_positive};
 use crate::geometry;
+// The pixel grid has its own module; re-exported so that `beamform::Grid` paths keep working.
+pub use crate::grid::Grid;
 use crate::iq::IqChannels;
 use crate::probe::Probe;
-
-/// A rectangular pixel grid: lateral positions `x` and depths `z` (m), both increasing.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Grid {
-    /// Lateral pixel positions (m).
-    pub x: Vec<f64>,
-    /// Depth pixel positions (m).
-    pub z: Vec<f64>,
-}
-
-impl Grid {
-    /// A grid spanning [x_min, x_max] × [z_min, z_max] (m) with spacing `step` (m) on both axes.
-    pub fn new(x_min: f64, x_max: f64, z_min: f64, z_max: f64, step: f64) -> Result<Grid> {
-        require_positive("grid step", step)?;
-        for (name, v) in [
-            ("x_min", x_min),
-            ("x_max", x_max),
-            ("z_min", z_min),
-            ("z_max", z_max),
-        ] {
-            if !v.is_finite() {
-                return Err(invalid("grid", format!("{name} = {v} is not finite")));
-            }
-        }
-        if x_max < x_min || z_max < z_min {
-            return Err(invalid(
-                "grid",
-                format!("empty extent x [{x_min}, {x_max}] m, z [{z_min}, {z_max}] m"),
-            ));
-        }
-        if z_min < 0.0 {
-            return Err(invalid(
-                "grid",
-                format!("z_min = {z_min} m lies behind the probe face (z < 0)"),
-            ));
-        }
-        let axis = |lo: f64, hi: f64| -> Vec<f64> {
-            let n = ((hi - lo) / step + 1e-9).floor() as usize + 1;
-            (0..n).map(|i| lo + i as f64 * step).collect()
-        };
-        let (x, z) = (axis(x_min, x_max), axis(z_min, z_max));
-        if x.len() * z.len() > 50_000_000 {
-            return Err(invalid(
-                "grid",
-                format!("{} × {} pixels is too many", z.len(), x.len()),
-            ));
-        }
-        Ok(Grid { x, z })
-    }
-
-    /// (nz, nx).
-    pub fn shape(&self) -> (usize, usize) {
-        (self.z.len(), self.x.len())
-    }
-
-    /// Pixel spacing (m): the lateral one, or the axial one when the grid is one column wide.
-    pub fn step(&self) -> f64 {
-        match (self.x.as_slice(), self.z.as_slice()) {
-            ([x0, x1, ..], _) => x1 - x0,
-            (_, [z0, z1, ..]) => z1 - z0,
-            _ => f64::NAN,
-        }
-    }
-}
 
 /// Receive apodisation window across the active aperture.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
