@@ -48,7 +48,7 @@ fn prefetch<const N: usize>(a: *const f32, row: usize) {
     prefetch_near(a, 32 * N, row);
 }
 
-/// acc += Σ_k c0[k]·a_k + c1[k]·b_k on interleaved (re, im) pairs. With c = (p, q) and
+/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs. With c = (p, q) and
 /// a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums p·a and q·a in two registers
 /// per vector, and the swap and sign of the second are applied once, after the loop, so
 /// that each tap costs four FMAs per vector and no shuffle.

@@ -17,7 +17,7 @@ pub(super) const MAX_VECTORS: usize = 13;
 ///
 /// # Safety
 /// AVX-512F, AVX-512DQ, AVX2 and FMA must be available; `acc` must not be empty; for every
-/// tap k in `start..start + len`, (rows[k] + 1)·row + f0 + acc.len() must lie within
+/// tap k in `start..start + len`, `(rows[k] + 1)·row + f0 + acc.len()` must lie within
 /// `data`; `taps.rows` must hold PF entries beyond them.
 #[allow(clippy::too_many_arguments)]
 #[inline]
