@@ -4,8 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use ndarray::{Array2, Zip};
-use pcuvd::beamform::Grid;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, VENULE, VelocitySeries};
+use pcuvd::grid::Grid;
 use pcuvd::masks;
 use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;

@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use ndarray::{Array2, Axis, Zip, s};
-use pcuvd::beamform::Grid;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, Spectrogram, VENULE};
+use pcuvd::grid::Roi;
 use pcuvd::masks;
 use pcuvd::metrics::DepthSnr;
 use pcuvd::network::{NetworkPhantom, NetworkTruth};
@@ -21,58 +21,6 @@ use crate::figures::{
     Rendered, TRUTH_RGB, UVD_RGB, class_map, line, map_panel, render, vector_panel,
 };
 use crate::progress::TaskProgress;
-
-/// The grid pixel nearest to (x, z) (m).
-fn nearest_pixel(grid: &Grid, x: f64, z: f64) -> (usize, usize) {
-    let nearest = |axis: &[f64], v: f64| {
-        axis.iter()
-            .enumerate()
-            .min_by(|a, b| (a.1 - v).abs().total_cmp(&(b.1 - v).abs()))
-            .map_or(0, |(i, _)| i)
-    };
-    (nearest(&grid.z, z), nearest(&grid.x, x))
-}
-
-/// Rows/columns of `grid` inside [lo, hi] (m).
-fn index_range(axis: &[f64], lo: f64, hi: f64) -> std::ops::Range<usize> {
-    let start = axis.iter().position(|&v| v >= lo).unwrap_or(axis.len());
-    let end = axis.iter().rposition(|&v| v <= hi).map_or(start, |e| e + 1);
-    start..end.max(start)
-}
-
-/// A rectangular part of a grid and of the maps on it.
-struct Roi {
-    grid: Grid,
-    rows: std::ops::Range<usize>,
-    cols: std::ops::Range<usize>,
-}
-
-impl Roi {
-    fn new(grid: &Grid, x: (f64, f64), z: (f64, f64)) -> Result<Roi> {
-        let rows = index_range(&grid.z, z.0, z.1);
-        let cols = index_range(&grid.x, x.0, x.1);
-        if rows.len() < 2 || cols.len() < 2 {
-            bail!("region of interest {x:?} × {z:?} m holds no pixels of the grid");
-        }
-        let step = grid.step();
-        let sub = Grid::new(
-            grid.x[cols.start],
-            grid.x[cols.end - 1],
-            grid.z[rows.start],
-            grid.z[rows.end - 1],
-            step,
-        )?;
-        Ok(Roi {
-            grid: sub,
-            rows,
-            cols,
-        })
-    }
-
-    fn cut<T: Clone>(&self, a: &Array2<T>) -> Array2<T> {
-        a.slice(s![self.rows.clone(), self.cols.clone()]).to_owned()
-    }
-}
 
 fn finite_mask(a: &Array2<f64>) -> Array2<bool> {
     a.mapv(f64::is_finite)
@@ -140,8 +88,8 @@ pub fn network_figures(
 
     // Figure 6 (g, h): PD profiles along a shallow horizontal line and a vertical line, SNR by depth.
     let (z_line, x_line) = (5.0e-3, 4.2e-3);
-    let row = nearest_pixel(grid, 0.0, z_line).0;
-    let col = nearest_pixel(grid, x_line, 0.0).1;
+    let row = grid.nearest_pixel(0.0, z_line).0;
+    let col = grid.nearest_pixel(x_line, 0.0).1;
     let x_mm: Vec<f64> = grid.x.iter().map(|x| x * 1e3).collect();
     let z_mm: Vec<f64> = grid.z.iter().map(|z| z * 1e3).collect();
     let rgb = [UVD_RGB, TRUTH_RGB];

@@ -3,9 +3,10 @@
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use pcuvd::ChannelData;
-use pcuvd::beamform::{Apodization, DasParams, Grid};
+use pcuvd::beamform::{Apodization, DasParams};
 use pcuvd::clutter::{ClutterParams, RankCut};
 use pcuvd::dynamics::{self, DynamicsParams, VesselPooling, VesselTests};
+use pcuvd::grid::Grid;
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::vector::{Estimator, IrlsParams};
 

@@ -1,53 +1,15 @@
 //! Figure layout, rasterisation and PNG encoding.
 
 use crate::canvas::{Canvas, Rect, ensure_font};
+use crate::style::{INK, SS, Style};
 use crate::{Figure, Panel, RenderError, image_panel, plot_panel};
 use std::path::Path;
 
 /// Height in output pixels of the figure-title band added on top when `Figure::title` is non-empty.
 pub const FIGURE_TITLE_BAND_PX: u32 = 40;
 
-/// Supersampling factor (figures are drawn at SS x SS and box-filtered down).
-pub(crate) const SS: u32 = 2;
-
 /// Largest figure accepted, in output pixels.
 const MAX_PIXELS: u64 = 60_000_000;
-
-/// Size and spacing constants of one panel, in supersampled pixels.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Style {
-    /// Supersampled pixels per logical unit (SS x panel scale).
-    pub u: f64,
-}
-
-impl Style {
-    fn for_panel(w_px: u32, h_px: u32) -> Self {
-        let f = (w_px as f64 / 480.0)
-            .min(h_px as f64 / 400.0)
-            .clamp(0.7, 2.5);
-        Style { u: SS as f64 * f }
-    }
-    pub(crate) fn title(&self) -> f64 {
-        15.0 * self.u
-    }
-    pub(crate) fn label(&self) -> f64 {
-        13.0 * self.u
-    }
-    pub(crate) fn tick(&self) -> f64 {
-        11.5 * self.u
-    }
-    pub(crate) fn px(&self, v: f64) -> f64 {
-        v * self.u
-    }
-}
-
-/// Round a supersampled coordinate to a whole output pixel.
-pub(crate) fn snap(v: f64) -> f64 {
-    (v / SS as f64).round() * SS as f64
-}
-
-/// Colour of axes, frames and text.
-pub(crate) const INK: (u8, u8, u8) = (30, 30, 30);
 
 enum Layout {
     Image(image_panel::ImageLayout),

@@ -3,7 +3,7 @@
 
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
 use crate::colormap::{Lut, colormap_rgb};
-use crate::figure::{INK, SS, Style, snap};
+use crate::style::{INK, SS, Style, snap};
 use crate::ticks::{Tick, linear_ticks};
 use crate::{ImagePanel, RenderError, VectorOverlay};
 

@@ -18,6 +18,7 @@ mod figure;
 mod image_panel;
 mod plot_panel;
 mod report;
+mod style;
 mod ticks;
 
 pub use colormap::{Colormap, colormap_rgb};

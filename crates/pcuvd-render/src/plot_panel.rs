@@ -2,7 +2,7 @@
 //! annotations, markers and an optional y = x reference.
 
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
-use crate::figure::{INK, Style, snap};
+use crate::style::{INK, Style, snap};
 use crate::ticks::{Tick, linear_ticks, log_ticks};
 use crate::{PlotPanel, RenderError, Series, SeriesStyle};
 

@@ -9,10 +9,11 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::Array3;
 use num_complex::Complex32;
-use pcuvd::beamform::{Apodization, DasParams, Grid, beamform};
+use pcuvd::beamform::{Apodization, DasParams, beamform};
 use pcuvd::channel::{Acquisition, ChannelData, Samples};
 use pcuvd::clutter::{ClutterParams, RankCut, svd_filter};
 use pcuvd::decode::{EventAlignment, decode_aligned};
+use pcuvd::grid::Grid;
 use pcuvd::iq::IqChannels;
 use pcuvd::{Coding, Probe, Sequence};
 

@@ -6,8 +6,8 @@
 use ndarray::Array3;
 use num_complex::Complex32;
 
-use crate::beamform::Grid;
 use crate::error::{Error, Result, invalid};
+use crate::grid::Grid;
 
 /// Beamformed IQ image series, one per steering angle, each (nz, nx, frames) with frames
 /// contiguous, and the acquisition facts that give them meaning.

@@ -3,8 +3,8 @@
 //! One module per pipeline stage, in the order data flows through them:
 //! [`probe`] and [`sequence`] describe an acquisition, [`hadamard`] its code, [`geometry`] the one
 //! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
-//! demodulates; [`beamform`] forms per-angle IQ images; [`clutter`] removes tissue; [`doppler`]
-//! measures power and projection velocity; [`vector`] solves for (Vx, Vz).
+//! demodulates; [`beamform`] forms per-angle IQ images on a [`grid`] of pixels; [`clutter`] removes
+//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz).
 //!
 //! Units are SI throughout (m, s, Hz, m/s). No printing, no file formats, no plotting here.
 
@@ -16,6 +16,7 @@ pub mod doppler;
 pub mod dynamics;
 pub mod error;
 pub mod geometry;
+pub mod grid;
 pub mod hadamard;
 pub mod images;
 pub mod iq;

@@ -5,8 +5,8 @@ use ndarray::{Array2, Array3, Axis, Zip};
 use num_complex::Complex32;
 use serde::Serialize;
 
-use crate::beamform::Grid;
 use crate::dynamics::{BACKGROUND, RiMaps};
+use crate::grid::Grid;
 use crate::network::NetworkTruth;
 use crate::phantom::Truth;
 use crate::vector::VectorField;

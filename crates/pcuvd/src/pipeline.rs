@@ -5,13 +5,14 @@ use std::time::Instant;
 
 use ndarray::{Array2, Array3, Axis};
 
-use crate::beamform::{self, DasParams, Grid};
+use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::decode;
 use crate::doppler::{self, Autocorrelation};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use crate::error::{Result, invalid};
+use crate::grid::Grid;
 use crate::images::AngleImages;
 use crate::iq;
 use crate::vector::{self, Estimator, IrlsParams, VectorField};

@@ -7,13 +7,13 @@ use std::f64::consts::PI;
 use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::Error;
-use pcuvd::beamform::Grid;
 use pcuvd::doppler::velocity_scale;
 use pcuvd::dynamics::{
     self, ARTERIOLE, BACKGROUND, DynamicsParams, SpectrogramParams, VENULE, VelocitySeries,
     VesselPooling, estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps,
     sliding_vectors, spectrogram,
 };
+use pcuvd::grid::Grid;
 use pcuvd::images::AngleImages;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

@@ -2,9 +2,10 @@
 //! conventionally and with Hadamard coding, processed, and their RI maps scored against the
 //! phantom's ground truth (the ordering the paper reports: PC-UVD no worse than UVD).
 
-use pcuvd::beamform::{DasParams, Grid};
+use pcuvd::beamform::DasParams;
 use pcuvd::clutter::{ClutterParams, RankCut};
 use pcuvd::dynamics::{DynamicsParams, RiMaps, VesselTests};
+use pcuvd::grid::Grid;
 use pcuvd::metrics::score_ri;
 use pcuvd::network::{self, NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
 use pcuvd::pipeline::{self, ProcessParams};

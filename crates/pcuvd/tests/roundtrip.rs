@@ -3,11 +3,12 @@
 //! directions of motion.
 
 use num_complex::Complex64;
-use pcuvd::beamform::{DasParams, Grid, beamform};
+use pcuvd::beamform::{DasParams, beamform};
 use pcuvd::decode::decode;
 use pcuvd::doppler::{
     AxialSampling, autocorrelation, axial_autocorrelation, loupas_velocity, velocity_scale,
 };
+use pcuvd::grid::Grid;
 use pcuvd::phantom::{BlockPhantom, BlockSpec, Phantom, PointPhantom};
 use pcuvd::simulate::{SimParams, simulate};
 use pcuvd::{Coding, Probe, Sequence, iq};

@@ -2,10 +2,11 @@
 
 use ndarray::{Array3, Array4};
 use num_complex::Complex32;
-use pcuvd::beamform::{self, DasParams, Grid};
+use pcuvd::beamform::{self, DasParams};
 use pcuvd::channel::{Acquisition, AngleSamples, ChannelData, Samples};
 use pcuvd::decode::{EventAlignment, decode, decode_aligned, encode};
 use pcuvd::geometry::round_trip_delay;
+use pcuvd::grid::Grid;
 use pcuvd::{Coding, Hadamard, Probe, Sequence, iq};
 use proptest::prelude::*;
 

@@ -29,11 +29,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::beamform::{DasParams, Grid};
+use crate::beamform::DasParams;
 use crate::channel::Acquisition;
 use crate::clutter::{ClutterParams, RankCut};
 use crate::decode::EventAlignment;
 use crate::error::Result;
+use crate::grid::Grid;
 use crate::images::AngleImages;
 use crate::phantom::{FrameHeld, Phantom};
 use crate::pipeline::{self, ProcessParams};

@@ -14,13 +14,14 @@ use serde::Serialize;
 
 use super::spiral::{SnrByDepth, alignment_label};
 use super::{Acquire, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform::{self, Grid};
+use crate::beamform;
 use crate::decode::EventAlignment;
 use crate::dynamics::{
     self, DynamicsParams, PoolingSummary, RiMaps, Spectrogram, SpectrogramParams, VelocitySeries,
     VesselPooling, VesselTests,
 };
 use crate::error::{Result, invalid};
+use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores, mean_power};
 use crate::network::{self, NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
 use crate::phantom::Phantom;
@@ -329,7 +330,7 @@ pub fn spectrogram_sites(phantom: &NetworkPhantom, truth: &NetworkTruth, grid: &
             .enumerate()
             .find(|(_, v)| v.kind == kind && v.flows_up() == up);
         if let Some((i, v)) = found {
-            let pixel = nearest_pixel(grid, v.centre[0], v.centre[1]);
+            let pixel = grid.nearest_pixel(v.centre[0], v.centre[1]);
             if truth.vessel_index[pixel] == i {
                 sites.push(Site {
                     label: format!(
@@ -348,17 +349,6 @@ pub fn spectrogram_sites(phantom: &NetworkPhantom, truth: &NetworkTruth, grid: &
         }
     }
     sites
-}
-
-/// The grid pixel (row, col) nearest to (x, z) (m).
-fn nearest_pixel(grid: &Grid, x: f64, z: f64) -> (usize, usize) {
-    let nearest = |axis: &[f64], v: f64| {
-        axis.iter()
-            .enumerate()
-            .min_by(|a, b| (a.1 - v).abs().total_cmp(&(b.1 - v).abs()))
-            .map_or(0, |(i, _)| i)
-    };
-    (nearest(&grid.z, z), nearest(&grid.x, x))
 }
 
 /// Runs the network study: simulation, processing, dynamics and scores.

@@ -12,9 +12,10 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform::{self, Grid};
+use crate::beamform;
 use crate::decode::EventAlignment;
 use crate::error::{Result, invalid};
+use crate::grid::Grid;
 use crate::metrics::{
     self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, mean_power, snr_by_depth,
 };

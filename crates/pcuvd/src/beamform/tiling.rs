@@ -1,0 +1,546 @@
+//! The blocked pixel loop of [`beamform`](super::beamform) and the tables it feeds the kernels:
+//! pixels in tiles (a z band, the tiles of a band in parallel), within a tile a group of elements
+//! and a run of frames at a time (a pass), the next pass's samples prefetched into L2 while one
+//! runs; per tile and group, the delays and rotated interpolation weights of every pixel's
+//! elements in one flat table ([`Taps`]), filled by a loop over the elements that vectorises.
+
+use ndarray::Array3;
+use num_complex::Complex32;
+use rayon::prelude::*;
+
+#[cfg(target_arch = "x86_64")]
+use super::avx2;
+#[cfg(target_arch = "x86_64")]
+use super::avx512;
+use super::kernel::Kernel;
+use super::{Apodization, DasParams};
+use crate::error::{Error, Result, require_positive};
+use crate::geometry;
+use crate::grid::Grid;
+use crate::iq::IqChannels;
+use crate::probe::Probe;
+
+/// [`beamform`](super::beamform) with a given accumulation kernel, so that tests can run each
+/// one this CPU supports.
+pub(super) fn beamform_with(
+    kernel: Kernel,
+    iq: &IqChannels,
+    probe: &Probe,
+    angle: f64,
+    grid: &Grid,
+    params: &DasParams,
+) -> Result<Array3<Complex32>> {
+    require_positive("f-number", params.f_number)?;
+    require_positive("speed of sound", params.sound_speed)?;
+    let (channels, n_samples, frames) = iq.data.dim();
+    if channels != probe.n_elements {
+        return Err(Error::Shape(format!(
+            "{channels} channels for a probe of {} elements",
+            probe.n_elements
+        )));
+    }
+    // The kernel's tables index rows of frames (channel, sample) in 32 bits.
+    if channels.saturating_mul(n_samples) > i32::MAX as usize {
+        return Err(Error::Shape(format!(
+            "{channels} channels × {n_samples} samples per channel"
+        )));
+    }
+    let (nz, nx) = grid.shape();
+    let mut image = Array3::<Complex32>::zeros((nz, nx, frames));
+    // Interpolation needs two samples; with fewer, no pixel gets a contribution.
+    if n_samples < 2 || frames == 0 || nz == 0 || nx == 0 || channels == 0 {
+        return Ok(image);
+    }
+    let setup = Setup::new(iq, probe, angle, params);
+    let data = iq.data.as_standard_layout();
+    let data = data.as_slice().expect("standard layout");
+    let chunks = frame_chunks(frames, kernel);
+    let out = image.as_slice_mut().expect("standard layout");
+    // z bands outermost, x tiles of a band in parallel: both threads then sweep the same band of
+    // depths, so the channel samples it needs stay in L3 while they are in use.
+    for (band, out_band) in out.chunks_mut(TILE_Z * nx * frames).enumerate() {
+        let iz0 = band * TILE_Z;
+        let mut tiles: Vec<Vec<(f64, f64, &mut [Complex32])>> = (0..nx.div_ceil(TILE_X))
+            .map(|_| Vec::with_capacity(TILE_Z * TILE_X))
+            .collect();
+        for (row, &z) in out_band.chunks_mut(nx * frames).zip(&grid.z[iz0..]) {
+            for (ix, pixel) in row.chunks_mut(frames).enumerate() {
+                tiles[ix / TILE_X].push((grid.x[ix], z, pixel));
+            }
+        }
+        tiles.into_par_iter().for_each_init(
+            || (Taps::default(), Vec::new()),
+            |(taps, rows), mut pixels| {
+                let extent = |f: fn(&(f64, f64, &mut [Complex32])) -> f64| {
+                    let v = pixels.iter().map(f);
+                    (
+                        v.clone().fold(f64::INFINITY, f64::min),
+                        v.fold(f64::NEG_INFINITY, f64::max),
+                    )
+                };
+                setup.tile_rows(extent(|p| p.0), extent(|p| p.1), rows);
+                // Within a tile, one group of elements and one run of frames at a time (a
+                // pass): the samples they need (a few hundred KB) are reused from L2 by all
+                // the pixels. While a pass runs, the next one's samples are prefetched a few
+                // rows per pixel, so that they come from L2 rather than from memory.
+                let passes: Vec<_> = (0..channels)
+                    .step_by(GROUP)
+                    .flat_map(|g| {
+                        chunks
+                            .iter()
+                            .map(move |f| (g..(g + GROUP).min(channels), f.clone()))
+                    })
+                    .collect();
+                for (i, (elements, frames)) in passes.iter().enumerate() {
+                    if frames.start == 0 {
+                        taps.clear();
+                        for (x, z, _) in pixels.iter() {
+                            setup.taps(*x, *z, elements.clone(), kernel, taps);
+                        }
+                        taps.finish();
+                    }
+                    let mut ahead = passes
+                        .get(i + 1)
+                        .map(|(e, f)| Ahead::new(e.clone(), f.clone(), rows))
+                        .unwrap_or_default();
+                    let quota = ahead.rows.div_ceil(pixels.len());
+                    for p in 0..pixels.len() {
+                        ahead.issue(quota, data, &setup, rows);
+                        if taps.spans[p].len == 0 {
+                            continue;
+                        }
+                        // The next pixel's sums are fetched while this one is summed.
+                        let next = pixels[(p + 1).min(pixels.len() - 1)].2[frames.clone()].as_ptr();
+                        kernel.accumulate(
+                            &mut pixels[p].2[frames.clone()],
+                            frames.start,
+                            data,
+                            &setup,
+                            taps,
+                            p,
+                            next,
+                        );
+                    }
+                }
+            },
+        );
+    }
+    Ok(image)
+}
+
+/// Depths per band and lateral positions per tile of the blocked pixel loop.
+const TILE_Z: usize = 8;
+const TILE_X: usize = 32;
+/// Elements per pass over a tile.
+const GROUP: usize = 16;
+
+/// Runs of frames that the kernel keeps in registers, of near-equal whole numbers of vectors and
+/// at most its register budget each; then, for a kernel without masked loads, the frames left
+/// over from whole vectors (summed by the portable loop). With masks, the last run ends in a
+/// partial vector instead.
+pub(super) fn frame_chunks(frames: usize, kernel: Kernel) -> Vec<std::ops::Range<usize>> {
+    let simd = match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => Some((8, avx512::MAX_VECTORS, true)),
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => Some((4, avx2::MAX_VECTORS, false)),
+        Kernel::Portable => None,
+    };
+    let Some((width, max, masked)) = simd else {
+        // One run of all the frames (not a list of its frame indices).
+        #[allow(clippy::single_range_in_vec_init)]
+        return vec![0..frames];
+    };
+    let vectors = if masked {
+        frames.div_ceil(width)
+    } else {
+        frames / width
+    };
+    let n = vectors.div_ceil(max);
+    let mut chunks: Vec<_> = (0..n)
+        .map(|i| width * (i * vectors / n)..(width * ((i + 1) * vectors / n)).min(frames))
+        .collect();
+    if width * vectors < frames {
+        chunks.push(width * vectors..frames);
+    }
+    chunks
+}
+
+/// Taps ahead whose samples are prefetched.
+pub(super) const PF: usize = 3;
+
+/// Everything the per-pixel delay and weight computation needs, fixed for one call.
+pub(super) struct Setup {
+    pub(super) element_x: Vec<f64>,
+    /// Whether element positions increase, so that each aperture is a contiguous element range.
+    pub(super) sorted: bool,
+    pub(super) angle: f64,
+    pub(super) aperture: (f64, f64),
+    pub(super) c: f64,
+    pub(super) fs: f64,
+    pub(super) t0: f64,
+    pub(super) demod_frequency: f64,
+    pub(super) f_number: f64,
+    pub(super) apodization: Apodization,
+    pub(super) n_samples: usize,
+    pub(super) frames: usize,
+}
+
+/// Delays and weights of the pixels of a tile for one group of elements, in flat arrays so that
+/// the kernel runs from one pixel's taps into the next one's: pixel p's taps are
+/// `spans[p].start..spans[p].start + spans[p].len`. Per tap: `rows`, the index
+/// element · n_samples + i0 of its element's row of frames at sample i0, and the rotated
+/// interpolation weights c0, c1 of samples i0 and i0 + 1.
+/// Invariant (by construction where filled): 0 ≤ i0 and i0 + 1 < n_samples; `rows` has `PF`
+/// more entries than there are taps (zeros), so that the kernel may read ahead to prefetch.
+#[derive(Default)]
+pub(super) struct Taps {
+    pub(super) spans: Vec<Span>,
+    /// 32 bits (the caller checks that every row index fits) so that the delay loop fills them
+    /// vectorised, along with the weights.
+    pub(super) rows: Vec<u32>,
+    pub(super) c0_re: Vec<f32>,
+    pub(super) c0_im: Vec<f32>,
+    pub(super) c1_re: Vec<f32>,
+    pub(super) c1_im: Vec<f32>,
+}
+
+/// The lines of one pass (elements × their rows for a tile × a run of frames), prefetched a
+/// few rows at a time while the previous pass runs.
+#[derive(Default)]
+struct Ahead {
+    elements: std::ops::Range<usize>,
+    frames: std::ops::Range<usize>,
+    /// The next row to prefetch: element `e`, sample `r`.
+    e: usize,
+    r: usize,
+    /// Rows in all.
+    rows: usize,
+}
+
+impl Ahead {
+    fn new(
+        elements: std::ops::Range<usize>,
+        frames: std::ops::Range<usize>,
+        rows: &[(usize, usize)],
+    ) -> Ahead {
+        let total = rows[elements.clone()]
+            .iter()
+            .map(|&(lo, hi)| hi + 1 - lo)
+            .sum();
+        Ahead {
+            e: elements.start,
+            r: rows[elements.start].0,
+            elements,
+            frames,
+            rows: total,
+        }
+    }
+
+    /// Prefetches the next `n` rows' lines.
+    fn issue(&mut self, n: usize, data: &[Complex32], setup: &Setup, rows: &[(usize, usize)]) {
+        let row = setup.frames;
+        for _ in 0..n {
+            if self.e >= self.elements.end {
+                return;
+            }
+            let start = (self.e * setup.n_samples + self.r) * row;
+            let lines = data[start + self.frames.start..start + self.frames.end].as_ptr_range();
+            let mut a = lines.start.cast::<u8>();
+            while a < lines.end.cast() {
+                prefetch_far(a);
+                a = a.wrapping_add(64);
+            }
+            // The last line, when the run does not start on a line boundary.
+            prefetch_far(lines.end.cast::<u8>().wrapping_sub(1));
+            self.r += 1;
+            if self.r > rows[self.e].1 {
+                self.e += 1;
+                if self.e < self.elements.end {
+                    self.r = rows[self.e].0;
+                }
+            }
+        }
+    }
+}
+
+/// Asks for the line at `a` ahead of its use (a hint: never faults).
+#[inline(always)]
+fn prefetch_far(a: *const u8) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetches never fault, whatever the address; SSE is part of x86_64.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T1 }>(a.cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = a;
+}
+
+/// Where one pixel's taps lie in the arrays of [`Taps`].
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Span {
+    pub(super) start: usize,
+    pub(super) len: usize,
+}
+
+impl Taps {
+    /// Empties the tables, keeping their allocations for the next group.
+    fn clear(&mut self) {
+        self.spans.clear();
+        self.rows.clear();
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.clear();
+        }
+    }
+
+    /// Room for `len` more taps of a new pixel; returns where they start.
+    pub(super) fn push(&mut self, len: usize) -> usize {
+        let start = self.rows.len();
+        self.spans.push(Span { start, len });
+        let end = start + len;
+        self.rows.resize(end, 0);
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.resize(end, 0.0);
+        }
+        start
+    }
+
+    /// Pads `rows` for the kernel's look-ahead once all pixels are in.
+    pub(super) fn finish(&mut self) {
+        self.rows.extend([0; PF]);
+    }
+}
+
+/// One pixel's slices of the [`Taps`] arrays, for the delay loop to fill.
+struct TapsMut<'a> {
+    rows: &'a mut [u32],
+    c0_re: &'a mut [f32],
+    c0_im: &'a mut [f32],
+    c1_re: &'a mut [f32],
+    c1_im: &'a mut [f32],
+}
+
+impl Setup {
+    fn new(iq: &IqChannels, probe: &Probe, angle: f64, params: &DasParams) -> Setup {
+        let element_x = probe.element_x();
+        let sorted = element_x.windows(2).all(|w| w[0] <= w[1]);
+        let (_, n_samples, frames) = iq.data.dim();
+        Setup {
+            element_x,
+            sorted,
+            angle,
+            aperture: probe.aperture(),
+            c: params.sound_speed,
+            fs: iq.sampling_frequency,
+            t0: iq.t0,
+            demod_frequency: iq.demod_frequency,
+            f_number: params.f_number,
+            apodization: params.apodization,
+            n_samples,
+            frames,
+        }
+    }
+
+    /// Per element, the sample rows (first, last) that pixels in [x0, x1] × [z0, z1] may read,
+    /// clamped to the record: a superset, used only for prefetching. The delay grows with depth
+    /// and is convex in x, so its minimum is at z0 where its x derivative vanishes (or at the
+    /// nearer edge) and its maximum at a corner of depth z1.
+    fn tile_rows(
+        &self,
+        (x0, x1): (f64, f64),
+        (z0, z1): (f64, f64),
+        rows: &mut Vec<(usize, usize)>,
+    ) {
+        let delay = |x: f64, z: f64, xe: f64| {
+            geometry::round_trip_delay(x, z, self.angle, xe, self.aperture, self.c)
+        };
+        let last = self.n_samples - 1;
+        let sample = |tau: f64| ((tau - self.t0) * self.fs).floor().max(0.0) as usize;
+        rows.clear();
+        rows.extend(self.element_x.iter().map(|&xe| {
+            let x_min = (xe - z0 * self.angle.tan()).clamp(x0, x1);
+            let lo = sample(delay(x_min, z0, xe)).min(last - 1);
+            let hi = sample(delay(x0, z1, xe).max(delay(x1, z1, xe))) + 1;
+            (lo, hi.clamp(lo + 1, last))
+        }));
+    }
+
+    /// Appends to `taps` a pixel (x, z) with those of `elements` in its aperture. Elements whose
+    /// echo falls outside the record keep zero weights (and a valid sample index): they add
+    /// nothing.
+    fn taps(
+        &self,
+        x: f64,
+        z: f64,
+        elements: std::ops::Range<usize>,
+        kernel: Kernel,
+        taps: &mut Taps,
+    ) {
+        let half_aperture = z / (2.0 * self.f_number);
+        let inside = |xe: f64| (x - xe).abs() <= half_aperture;
+        let (first, end) = if self.sorted {
+            // |x − x_e| is monotone on either side of x, so with sorted elements the aperture is
+            // a contiguous range.
+            let element_x = &self.element_x[elements.clone()];
+            let first = element_x.partition_point(|&xe| xe < x && !inside(xe));
+            let len = element_x[first..].partition_point(|&xe| inside(xe));
+            (elements.start + first, elements.start + first + len)
+        } else {
+            (elements.start, elements.end)
+        };
+        let len = end - first;
+        let start = taps.push(len);
+        let span = start..start + len;
+        let element_x = &self.element_x[first..end];
+        let out = TapsMut {
+            rows: &mut taps.rows[span.clone()],
+            c0_re: &mut taps.c0_re[span.clone()],
+            c0_im: &mut taps.c0_im[span.clone()],
+            c1_re: &mut taps.c1_re[span.clone()],
+            c1_im: &mut taps.c1_im[span.clone()],
+        };
+        match kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::Avx512` is only constructed after detecting AVX-512F/DQ, AVX2
+            // and FMA.
+            Kernel::Avx512 => unsafe {
+                self.taps_avx512(x, z, half_aperture, first, element_x, out)
+            },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::Avx2` is only constructed after detecting AVX2 and FMA.
+            Kernel::Avx2 => unsafe { self.taps_avx2(x, z, half_aperture, first, element_x, out) },
+            Kernel::Portable => self.taps_portable(x, z, half_aperture, first, element_x, out),
+        }
+    }
+
+    /// The same code as [`Setup::taps_portable`], compiled for AVX2 so that the element loop is
+    /// vectorised four wide in f64.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn taps_avx2(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
+        self.taps_portable(x, z, half_aperture, first, element_x, out)
+    }
+
+    /// The same code as [`Setup::taps_portable`], compiled for AVX-512 so that the element loop
+    /// is vectorised eight wide in f64.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+    unsafe fn taps_avx512(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
+        self.taps_portable(x, z, half_aperture, first, element_x, out)
+    }
+
+    /// Branch-free over the elements so that it vectorises: no calls but sqrt and floor.
+    /// `element_x` are the positions of elements `first..`.
+    #[inline(always)]
+    fn taps_portable(
+        &self,
+        x: f64,
+        z: f64,
+        half_aperture: f64,
+        first: usize,
+        element_x: &[f64],
+        out: TapsMut,
+    ) {
+        let tx = geometry::transmit_delay(x, z, self.angle, self.aperture, self.c);
+        let last = (self.n_samples - 1) as f64;
+        let hann = self.apodization == Apodization::Hann;
+        let len = element_x.len();
+        let rows = &mut out.rows[..len];
+        // Row indices fit in u32 (checked by the caller).
+        let (n_samples, first_row) = (self.n_samples as u32, (first * self.n_samples) as u32);
+        let c0_re = &mut out.c0_re[..len];
+        let c0_im = &mut out.c0_im[..len];
+        let c1_re = &mut out.c1_re[..len];
+        let c1_im = &mut out.c1_im[..len];
+        for k in 0..len {
+            let xe = element_x[k];
+            let dx = (x - xe).abs();
+            let tau = tx + geometry::receive_delay(x, z, xe, self.c);
+            let pos = (tau - self.t0) * self.fs;
+            let valid = dx <= half_aperture && pos >= 0.0 && pos < last;
+            let pos = if valid { pos } else { 0.0 };
+            let i = pos as i32;
+            let w = pos - i as f64;
+            // A no-op, as 0 ≤ pos < last here (and NaN fails `valid`), which makes the
+            // invariant of `Taps` hold by construction whatever the inputs.
+            let i = i.clamp(0, n_samples as i32 - 2) as u32;
+            // Hann: ½(1 + cos(π dx / h)), i.e. the cosine of dx / 2h cycles.
+            let apod = if hann {
+                0.5 * (1.0 + cis_cycles(0.5 * dx / half_aperture).0)
+            } else {
+                1.0
+            };
+            let apod = if valid { apod } else { 0.0 };
+            let (cos, sin) = cis_cycles(self.demod_frequency * tau);
+            let (re, im) = (apod * cos, apod * sin);
+            let (w0, w1) = ((1.0 - w) as f32, w as f32);
+            rows[k] = first_row + k as u32 * n_samples + i;
+            c0_re[k] = re * w0;
+            c0_im[k] = im * w0;
+            c1_re[k] = re * w1;
+            c1_im[k] = im * w1;
+        }
+    }
+}
+
+/// (cos, sin) of 2π·`cycles`. The turn count is removed in f64, where it is exact to far below
+/// f32 resolution; the remaining octant [−π/4, π/4] gets f32 Taylor polynomials (error < 1e-7).
+#[inline(always)]
+fn cis_cycles(cycles: f64) -> (f32, f32) {
+    let quarter = (4.0 * cycles + 0.5).floor();
+    let t = ((cycles - 0.25 * quarter) * std::f64::consts::TAU) as f32;
+    let t2 = t * t;
+    let s = t
+        * (1.0
+            + t2 * (-1.0 / 6.0
+                + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (1.0 / 362880.0)))));
+    let c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0))));
+    let q = quarter - 4.0 * (0.25 * quarter).floor();
+    // Quarter turns q = 0, 1, 2, 3 map (c, s) to (c, s), (−s, c), (−c, −s), (s, −c).
+    let odd = q == 1.0 || q == 3.0;
+    let (cos, sin) = if odd { (s, c) } else { (c, s) };
+    let cos = if q == 1.0 || q == 2.0 { -cos } else { cos };
+    let sin = if q >= 2.0 { -sin } else { sin };
+    (cos, sin)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cis_cycles_is_accurate() {
+        for i in -20000..20000 {
+            let cycles = i as f64 * 0.0137 + 0.001;
+            let (c, s) = cis_cycles(cycles);
+            let (s0, c0) = (std::f64::consts::TAU * cycles).sin_cos();
+            assert!((c as f64 - c0).abs() < 3e-7 && (s as f64 - s0).abs() < 3e-7);
+        }
+    }
+}
