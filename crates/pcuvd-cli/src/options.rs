@@ -22,7 +22,7 @@ pub struct ProcessingOptions {
     )]
     pub grid: Option<String>,
     /// Receive f-number (depth / active aperture width).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = DasParams::DEFAULT_F_NUMBER)]
     pub f_number: f64,
     /// SVD clutter filter: tissue components removed: "auto", "off" or a number.
     #[arg(long, default_value = "auto")]
@@ -34,13 +34,13 @@ pub struct ProcessingOptions {
     #[arg(long, default_value = "1x1")]
     pub doppler_kernel: String,
     /// IRLS regularisation λ (mm/s) of the weights 1/(|residual| + λ).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = IrlsParams::default().lambda_mm_s)]
     pub irls_lambda: f64,
     /// IRLS convergence threshold on the largest weight change.
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(long, default_value_t = IrlsParams::default().epsilon)]
     pub irls_epsilon: f64,
     /// IRLS iteration cap.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = IrlsParams::default().max_iterations)]
     pub irls_max_iterations: usize,
     /// How coded (Hadamard) events are decoded: "mid-frame" (each event's slow-time series
     /// resampled to the frame's mid-event time first, so moving blood does not leak angles into
@@ -124,6 +124,14 @@ pub fn parse_db_or_off(text: &str) -> Result<Option<f64>> {
     }
 }
 
+/// Default sliding-window length of `--window-ms` (ms).
+const DEFAULT_WINDOW_MS: f64 = dynamics::DEFAULT_WINDOW_S * 1e3;
+
+/// An averaging-kernel size as "ROWSxCOLS", the form [`parse_kernel`] reads.
+fn kernel_text((rows, cols): (usize, usize)) -> String {
+    format!("{rows}x{cols}")
+}
+
 /// Parses "ROWSxCOLS" (e.g. "3x3") into an averaging-kernel size.
 pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
     let parts: Vec<&str> = text.split(['x', 'X', ',']).collect();
@@ -168,13 +176,13 @@ pub struct DynamicsOptions {
     #[arg(long)]
     pub window_step_ms: Option<f64>,
     /// Smallest RI of an arteriole (paper: arterioles 0.55–0.9).
-    #[arg(long, default_value_t = 0.55)]
+    #[arg(long, default_value_t = DynamicsParams::rat().artery_ri_min)]
     pub artery_ri_min: f64,
     /// Largest RI of a venule (paper: below 0.5).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = DynamicsParams::rat().vein_ri_max)]
     pub vein_ri_max: f64,
     /// Vessel threshold for the RI maps (dB re. the brightest pixel's mean power).
-    #[arg(long, default_value_t = -30.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = DynamicsParams::rat().min_power_db, allow_hyphen_values = true)]
     pub vessel_threshold_db: f64,
     /// Vessel pixels of the RI maps must also have a whole-recording power Doppler at least this
     /// many dB above the noise floor of their depth (the 30th percentile of the row); "off" leaves
@@ -192,7 +200,7 @@ pub struct DynamicsOptions {
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
     /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
-    #[arg(long, default_value = "5x5")]
+    #[arg(long, default_value_t = kernel_text(dynamics::RI_KERNEL))]
     pub dynamics_kernel: String,
     /// Vessel pooling for the RI maps, half-length (mm) along the flow: each pixel's waveform
     /// shape is averaged over same-direction neighbours in an ellipse aligned with its flow (RI
@@ -258,14 +266,19 @@ impl DynamicsOptions {
             }
             Ok((ms * 1e-3 * frame_rate).round() as usize)
         };
-        let window = frames(self.window_ms.unwrap_or(20.0), "window-ms")?;
+        let window = frames(self.window_ms.unwrap_or(DEFAULT_WINDOW_MS), "window-ms")?;
         if window < 2 {
             bail!(
                 "--window-ms {}: {window} frame(s) at the compound rate {frame_rate:.0} Hz; a window needs at least 2",
-                self.window_ms.unwrap_or(20.0)
+                self.window_ms.unwrap_or(DEFAULT_WINDOW_MS)
             );
         }
-        let step = frames(self.window_step_ms.unwrap_or(5.0), "window-step-ms")?.max(1);
+        let step = frames(
+            self.window_step_ms
+                .unwrap_or(dynamics::DEFAULT_STEP_S * 1e3),
+            "window-step-ms",
+        )?
+        .max(1);
         if let Some(hr) = self.heart_rate
             && !(hr.is_finite() && hr > 0.0)
         {

@@ -61,10 +61,13 @@ pub struct DasParams {
 }
 
 impl DasParams {
-    /// F# 1.5 with Hann apodisation at sound speed `c` (m/s).
+    /// Default receive f-number (depth / active aperture width).
+    pub const DEFAULT_F_NUMBER: f64 = 1.5;
+
+    /// F# [`Self::DEFAULT_F_NUMBER`] with Hann apodisation at sound speed `c` (m/s).
     pub fn new(sound_speed: f64) -> Self {
         DasParams {
-            f_number: 1.5,
+            f_number: Self::DEFAULT_F_NUMBER,
             apodization: Apodization::Hann,
             sound_speed,
         }

@@ -31,11 +31,8 @@ use crate::vector::{Estimator, IrlsParams, VectorField};
 /// Field of view of the network study (m): the probe's aperture, 1–13 mm deep.
 pub const FIELD_M: (f64, f64, f64, f64) = (-6.4e-3, 6.4e-3, 1.0e-3, 13.0e-3);
 
-/// Spatial averaging of the dynamics stage (pixels), as `pcuvd process --dynamics-kernel`: 0.25 mm
-/// at the default 0.05 mm grid. A 20 ms window sees few speckle renewals, so per-pixel window
-/// speeds jitter, and the extremes of a jittery waveform inflate RI; averaging the
-/// autocorrelation over a small box cuts the jitter at the cost of resolution across thin vessels.
-pub const DYNAMICS_KERNEL: (usize, usize) = (5, 5);
+/// Spatial averaging of the dynamics stage (pixels): as `pcuvd process --dynamics-kernel`.
+pub const DYNAMICS_KERNEL: (usize, usize) = dynamics::RI_KERNEL;
 
 /// Settings of the vessel-network study; `Default` is the paper's rat set-up.
 #[derive(Debug, Clone, PartialEq, Serialize)]
