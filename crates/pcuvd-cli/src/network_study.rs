@@ -9,7 +9,7 @@ use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, Spectrogram, VENULE};
 use pcuvd::grid::Roi;
 use pcuvd::masks;
 use pcuvd::metrics::DepthSnr;
-use pcuvd::network::{NetworkPhantom, NetworkTruth};
+use pcuvd::phantom::network::{NetworkPhantom, NetworkTruth};
 use pcuvd::study::describe_alignment;
 use pcuvd::study::network::{
     DYNAMICS_KERNEL, ModeResult, NetworkMetrics, NetworkSettings, NetworkStudy, Site,

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use ndarray::Array1;
-use pcuvd::network::{self, NetworkPhantom};
+use pcuvd::phantom::network::NetworkPhantom;
 use pcuvd::phantom::{Phantom, SpiralPhantom, TubePhantom, TubeSpec};
 use pcuvd::pipeline;
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
@@ -118,7 +118,7 @@ pub struct SimulateArgs {
 /// Runs `pcuvd simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let frames = args.frames.unwrap_or(match args.preset {
-        Preset::RatNetwork => network::RAT_FRAMES,
+        Preset::RatNetwork => simulate::RAT_FRAMES,
         _ => simulate::PAPER_FRAMES,
     });
     if frames == 0 {
@@ -164,7 +164,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let recordings: Vec<&str> = modes.iter().map(|&coded| recording_name(coded)).collect();
     for (mode_index, coded) in modes.into_iter().enumerate() {
         let mut params: SimParams = match args.preset {
-            Preset::RatNetwork => network::rat_params(true)?,
+            Preset::RatNetwork => simulate::rat_params(true)?,
             _ => simulate::paper_spiral_params(true)?,
         };
         params.sequence = Sequence {

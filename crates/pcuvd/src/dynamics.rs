@@ -28,14 +28,8 @@ use crate::error::{Error, Result, invalid, require_positive};
 use crate::images::AngleImages;
 use crate::vector::{self, Estimator, IrlsParams};
 
-/// Vessel class code of a background pixel (power below `min_power_db`).
-pub const BACKGROUND: u8 = 0;
-/// Vessel class code of an arteriole (RI ≥ `artery_ri_min`).
-pub const ARTERIOLE: u8 = 1;
-/// Vessel class code of a venule (RI ≤ `vein_ri_max`).
-pub const VENULE: u8 = 2;
-/// Vessel class code of a vessel pixel whose RI is between the thresholds or undefined.
-pub const UNDETERMINED: u8 = 3;
+// The class codes are shared with the phantoms' ground truth, which must not depend on this stage.
+pub use crate::vessel::{ARTERIOLE, BACKGROUND, UNDETERMINED, VENULE};
 
 /// Default margin (dB) above the noise floor of the recording's power Doppler
 /// ([`crate::doppler::above_noise_floor`]) of a vessel pixel for [`ri_maps_where`]. Why: the power

@@ -4,7 +4,13 @@
 //! [`probe`] and [`sequence`] describe an acquisition, [`hadamard`] its code, [`geometry`] the one
 //! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
 //! demodulates; [`beamform`] forms per-angle IQ images on a [`grid`] of pixels; [`clutter`] removes
-//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz).
+//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz);
+//! [`dynamics`] follows it over the cardiac cycle (PSV, EDV, RI, [`vessel`] classes). [`images`]
+//! carries per-angle image series with their metadata; [`pipeline`] runs the chain in order.
+//!
+//! [`phantom`] and [`simulate`] make recordings with ground truth; [`metrics`] and [`masks`] score
+//! estimates against it, each measure with its written definition; [`study`] runs the paper's two
+//! studies (spiral, vessel network) end to end with settings and typed results.
 //!
 //! Units are SI throughout (m, s, Hz, m/s). No printing, no file formats, no plotting here.
 
@@ -22,7 +28,6 @@ pub mod images;
 pub mod iq;
 pub mod masks;
 pub mod metrics;
-pub mod network;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;
@@ -31,6 +36,7 @@ pub mod simulate;
 pub mod stats;
 pub mod study;
 pub mod vector;
+pub mod vessel;
 
 pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
 pub use error::{Error, Result};

@@ -7,8 +7,8 @@ use serde::Serialize;
 
 use crate::dynamics::{BACKGROUND, RiMaps};
 use crate::grid::Grid;
-use crate::network::NetworkTruth;
 use crate::phantom::Truth;
+use crate::phantom::network::NetworkTruth;
 use crate::vector::VectorField;
 
 pub use crate::stats::median;

@@ -7,7 +7,7 @@ use pcuvd::clutter::{ClutterParams, RankCut};
 use pcuvd::dynamics::{DynamicsParams, RiMaps, VesselTests};
 use pcuvd::grid::Grid;
 use pcuvd::metrics::score_ri;
-use pcuvd::network::{self, NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
+use pcuvd::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
 use pcuvd::pipeline::{self, ProcessParams};
 use pcuvd::simulate::{self, NoiseSpec, SimParams};
 use pcuvd::vector::{Estimator, IrlsParams};
@@ -48,7 +48,7 @@ fn reduced_network() -> NetworkPhantom {
 }
 
 fn sim_params(coded: bool, noise_db: f64) -> SimParams {
-    let mut p = network::rat_params(coded).unwrap();
+    let mut p = simulate::rat_params(coded).unwrap();
     p = SimParams::new(p.probe, p.sequence, 65e6, 1540.0, (4.5e-3, 8.5e-3)).unwrap();
     p.noise = Some(NoiseSpec::new(noise_db));
     p.seed = 9;

@@ -36,12 +36,14 @@
 
 mod kernel;
 mod noise;
+mod presets;
 mod waveform;
 
 use ndarray::{Array3, Axis};
 use rayon::prelude::*;
 
 use self::kernel::{Simulator, Slot};
+pub use self::presets::{PAPER_FRAMES, RAT_FRAMES, paper_spiral_params, rat_params};
 pub use self::waveform::EchoWaveform;
 use crate::channel::{Acquisition, ChannelData, Samples};
 use crate::error::{Error, Result, invalid, require_positive};
@@ -55,9 +57,6 @@ pub const NOISE_DEFINITION: &str = "noise level D dB: band-limited white Gaussia
 10^(D/20) times the RMS of the noiseless, uncoded, single-plane-wave (0°) echo of the same phantom at \
 t = 0, taken over all channels and the whole receive window; the same noise is added to every \
 recorded event before any decoding.";
-
-/// Frames of the paper's spiral simulation.
-pub const PAPER_FRAMES: usize = 100;
 
 /// Receiver noise: band-limited white Gaussian noise at a level relative to the echo (see
 /// [`NOISE_DEFINITION`]).
@@ -286,28 +285,6 @@ pub fn receive_window(
     let t0 = ((t_min * fs).floor() / fs).max(0.0);
     let samples = ((t_max - t0) * fs).ceil() as usize + 1;
     Ok((t0, samples))
-}
-
-/// The paper's spiral acquisition (section 2.3): L22-14vX, 15.625 MHz, 2-cycle pulse, f_s 65 MHz,
-/// c 1540 m/s, 8 angles evenly spaced in [−15°, 15°], event PRF 14.4 kHz, noise −10 dB (1–22 MHz),
-/// Hadamard coding with 1 µs slot delay when `coded`, else conventional. Both variants share the
-/// coded receive window (z ∈ [0, 14 mm] for every slot), so that the noise level — relative to the
-/// echo RMS over that window — is the same. Simulate [`PAPER_FRAMES`] frames.
-pub fn paper_spiral_params(coded: bool) -> Result<SimParams> {
-    let probe = Probe::l22_14vx();
-    let mut sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding: Coding::Hadamard { slot_delay: 1e-6 },
-        pulse_cycles: 2.0,
-    };
-    let mut params = SimParams::new(probe, sequence.clone(), 65e6, 1540.0, (0.0, 14e-3))?;
-    if !coded {
-        sequence.coding = Coding::Conventional;
-        params.sequence = sequence;
-    }
-    params.noise = Some(NoiseSpec::new(-10.0));
-    Ok(params)
 }
 
 /// Simulates `n_frames` compound frames (n_frames × n_angles transmit events) of `phantom` with

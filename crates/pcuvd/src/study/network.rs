@@ -23,9 +23,10 @@ use crate::dynamics::{
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores, mean_power};
-use crate::network::{self, NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
 use crate::phantom::Phantom;
+use crate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
 use crate::pipeline::{self, ProcessOutput};
+use crate::simulate;
 use crate::vector::{Estimator, IrlsParams, VectorField};
 
 /// Field of view of the network study (m): the probe's aperture, 1–13 mm deep.
@@ -59,7 +60,7 @@ pub struct NetworkSettings {
 impl Default for NetworkSettings {
     fn default() -> Self {
         NetworkSettings {
-            frames: network::RAT_FRAMES,
+            frames: simulate::RAT_FRAMES,
             seed: 1,
             noise_db: 5.0,
             heart_rate_hz: 5.5,
@@ -72,7 +73,7 @@ impl Default for NetworkSettings {
 
 /// Compound frame rate of the rat acquisition (Hz).
 pub fn frame_rate() -> Result<f64> {
-    let params = network::rat_params(false)?;
+    let params = simulate::rat_params(false)?;
     Ok(params.sequence.event_prf / params.sequence.n_angles() as f64)
 }
 
@@ -366,7 +367,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
 
     let mut results = Vec::new();
     for mode in Mode::BOTH {
-        let mut params = network::rat_params(mode == Mode::Coded)?;
+        let mut params = simulate::rat_params(mode == Mode::Coded)?;
         params.seed = settings.seed;
         let label = format!("network_{}", mode.label());
         let formed = simulate_and_form(

@@ -16,14 +16,9 @@
 use ndarray::Array2;
 use rand::RngExt;
 
-use crate::dynamics::{ARTERIOLE, BACKGROUND, VENULE};
+use super::{Phantom, Truth, normal_amplitudes, parabolic, require_finite, rng, scatterer_count};
 use crate::error::{Result, invalid, require_positive};
-use crate::phantom::{
-    Phantom, Truth, normal_amplitudes, parabolic, require_finite, rng, scatterer_count,
-};
-use crate::probe::Probe;
-use crate::sequence::{Coding, Sequence};
-use crate::simulate::{NoiseSpec, SimParams};
+use crate::vessel::{ARTERIOLE, BACKGROUND, VENULE};
 
 /// Fourier coefficients of the systolic pulse p(θ) = ((1 + cos θ)/2)³ (cos kθ, k = 0..3).
 const PULSE_COS: [f64; 4] = [5.0 / 16.0, 15.0 / 32.0, 3.0 / 16.0, 1.0 / 32.0];
@@ -447,29 +442,6 @@ impl Phantom for NetworkPhantom {
         })
     }
 }
-
-/// The paper's rat acquisition (Table 1): L22-14vX, f_c 15.625 MHz, 2-cycle pulse, f_s 65 MHz,
-/// c 1540 m/s, 8 angles in [−15°, 15°], event PRF 14.4 kHz (1.8 kHz compound), Hadamard order 8
-/// with 1 µs slot delay when `coded`, receive window 0–13 mm, attenuation 0.5 dB/cm/MHz (so the
-/// echoes, and the SNR, fall with depth), noise −10 dB.
-pub fn rat_params(coded: bool) -> Result<SimParams> {
-    let sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding: if coded {
-            Coding::Hadamard { slot_delay: 1e-6 }
-        } else {
-            Coding::Conventional
-        },
-        pulse_cycles: 2.0,
-    };
-    let mut params = SimParams::new(Probe::l22_14vx(), sequence, 65e6, 1540.0, (0.0, 13e-3))?;
-    params.noise = Some(NoiseSpec::new(-10.0));
-    Ok(params)
-}
-
-/// Compound frames of the paper's rat recordings (0.2 s at 1.8 kHz).
-pub const RAT_FRAMES: usize = 360;
 
 #[cfg(test)]
 mod tests {

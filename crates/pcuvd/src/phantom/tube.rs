@@ -1,0 +1,107 @@
+//! A straight tube with a parabolic (laminar) profile.
+
+use rand::RngExt;
+
+use super::{Phantom, Truth, normal_amplitudes, parabolic, require_finite, rng, scatterer_count};
+use crate::error::{Result, require_positive};
+
+/// A straight tube with a parabolic (laminar) profile, SI units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TubeSpec {
+    /// Centre of the tube (x, z) (m).
+    pub centre: [f64; 2],
+    /// Flow direction (rad), measured from +x toward +z (0: flow toward +x; π/2: flow deeper).
+    pub angle: f64,
+    /// Length along the axis (m).
+    pub length: f64,
+    /// Radius (m).
+    pub radius: f64,
+    /// Centreline speed (m/s); negative reverses the flow.
+    pub peak_speed: f64,
+    /// Scatterer density (scatterers/m²).
+    pub density: f64,
+}
+
+/// A straight tube; scatterers that leave one end re-enter at the other, so the count is constant.
+#[derive(Debug, Clone)]
+pub struct TubePhantom {
+    spec: TubeSpec,
+    amplitudes: Vec<f64>,
+    /// Per scatterer: axial coordinate at t = 0 in [−L/2, L/2) (m), lateral offset (m), speed (m/s).
+    axial0: Vec<f64>,
+    offset: Vec<f64>,
+    speed: Vec<f64>,
+}
+
+impl TubePhantom {
+    /// Draws the scatterers of `spec` with the random stream of `seed`.
+    pub fn new(spec: TubeSpec, seed: u64) -> Result<Self> {
+        require_finite("tube centre x", spec.centre[0])?;
+        require_finite("tube centre z", spec.centre[1])?;
+        require_finite("tube angle", spec.angle)?;
+        require_positive("tube length", spec.length)?;
+        require_positive("tube radius", spec.radius)?;
+        require_finite("tube peak speed", spec.peak_speed)?;
+        let n = scatterer_count(spec.density, spec.length * 2.0 * spec.radius)?;
+        let mut rng = rng(seed);
+        let mut axial0 = Vec::with_capacity(n);
+        let mut offset = Vec::with_capacity(n);
+        for _ in 0..n {
+            axial0.push(rng.random_range(-0.5 * spec.length..0.5 * spec.length));
+            offset.push(rng.random_range(-spec.radius..spec.radius));
+        }
+        let speed = offset
+            .iter()
+            .map(|&l| parabolic(spec.peak_speed, l, spec.radius))
+            .collect();
+        let amplitudes = normal_amplitudes(&mut rng, n);
+        Ok(TubePhantom {
+            spec,
+            amplitudes,
+            axial0,
+            offset,
+            speed,
+        })
+    }
+
+    /// The geometry and flow parameters.
+    pub fn spec(&self) -> &TubeSpec {
+        &self.spec
+    }
+
+    fn axes(&self) -> ([f64; 2], [f64; 2]) {
+        let (s, c) = self.spec.angle.sin_cos();
+        ([c, s], [-s, c])
+    }
+}
+
+impl Phantom for TubePhantom {
+    fn amplitudes(&self) -> &[f64] {
+        &self.amplitudes
+    }
+
+    fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>) {
+        let (d, n) = self.axes();
+        let (len, c) = (self.spec.length, self.spec.centre);
+        out.clear();
+        out.extend((0..self.amplitudes.len()).map(|i| {
+            let s = (self.axial0[i] + self.speed[i] * t + 0.5 * len).rem_euclid(len) - 0.5 * len;
+            let l = self.offset[i];
+            [c[0] + s * d[0] + l * n[0], c[1] + s * d[1] + l * n[1]]
+        }));
+    }
+
+    fn truth(&self, x: &[f64], z: &[f64], _t: f64) -> Truth {
+        let (d, n) = self.axes();
+        let spec = &self.spec;
+        Truth::from_fn(x, z, |x, z| {
+            let (dx, dz) = (x - spec.centre[0], z - spec.centre[1]);
+            let s = dx * d[0] + dz * d[1];
+            let l = dx * n[0] + dz * n[1];
+            (s.abs() <= 0.5 * spec.length && l.abs() <= spec.radius).then(|| {
+                let u = parabolic(spec.peak_speed, l, spec.radius);
+                [u * d[0], u * d[1]]
+            })
+        })
+    }
+}
