@@ -173,14 +173,15 @@ impl AxialSampling {
                 format!("{angle} rad is not within (−π/2, π/2)"),
             ));
         }
-        let step_delay = (1.0 + angle.cos()) * axial_step / sound_speed;
+        let axial_weight = crate::vector::projection_weights(angle).1;
+        let step_delay = axial_weight * axial_step / sound_speed;
         if 0.5 / step_delay < 0.25 * reference_frequency {
             return Err(invalid(
                 "axial pixel step",
                 format!(
                     "{:.1} µm is too coarse to measure the mean frequency (at most {:.1} µm at {:.2} MHz)",
                     axial_step * 1e6,
-                    2.0 * sound_speed / ((1.0 + angle.cos()) * reference_frequency) * 1e6,
+                    2.0 * sound_speed / (axial_weight * reference_frequency) * 1e6,
                     reference_frequency * 1e-6
                 ),
             ));

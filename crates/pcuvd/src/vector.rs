@@ -65,11 +65,17 @@ impl VectorField {
     }
 }
 
+/// The paper's projection geometry, the one place it is written: a plane wave steered by θ (rad)
+/// and received straight sees V_θ = (Vx·sin θ + Vz·(1 + cos θ))/2. Returns (sin θ, 1 + cos θ).
+pub fn projection_weights(theta: f64) -> (f64, f64) {
+    (theta.sin(), theta.cos() + 1.0)
+}
+
 /// Weighted least-squares solution (Vx, Vz) of A·v = 2·V_θ with weights `w`.
 fn weighted_solve(angles: &[f64], v_theta: &[f64], w: &[f64]) -> Option<(f64, f64)> {
     let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for ((&th, &v), &wi) in angles.iter().zip(v_theta).zip(w) {
-        let (s, c) = (th.sin(), th.cos() + 1.0);
+        let (s, c) = projection_weights(th);
         a11 += wi * s * s;
         a12 += wi * s * c;
         a22 += wi * c * c;
@@ -110,7 +116,8 @@ pub fn solve_pixel(angles: &[f64], v_theta: &[f64], estimator: &Estimator) -> (f
             .iter()
             .zip(v_theta)
             .map(|(&th, &vt)| {
-                let residual_mm_s = (2.0 * vt - v.1 * (th.cos() + 1.0) - v.0 * th.sin()) * 1e3;
+                let (s, c) = projection_weights(th);
+                let residual_mm_s = (2.0 * vt - v.1 * c - v.0 * s) * 1e3;
                 1.0 / (residual_mm_s.abs() + p.lambda_mm_s)
             })
             .collect();
@@ -193,7 +200,10 @@ mod tests {
     fn projections(angles: &[f64], vx: f64, vz: f64) -> Vec<f64> {
         angles
             .iter()
-            .map(|&t| 0.5 * (vx * t.sin() + vz * (t.cos() + 1.0)))
+            .map(|&t| {
+                let (s, c) = projection_weights(t);
+                0.5 * (vx * s + vz * c)
+            })
             .collect()
     }
 
