@@ -1,6 +1,6 @@
 //! `pcuvd simulate`: RF recordings of flow phantoms, conventional and Hadamard-coded, with ground truth.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
@@ -13,6 +13,56 @@ use pcuvd::{Coding, Sequence};
 
 use crate::process::create_dir;
 use crate::progress::bar;
+
+/// Ground-truth files every preset writes (on the default processing grid).
+const TRUTH_FILES: [&str; 5] = [
+    "truth_x.npy",
+    "truth_z.npy",
+    "truth_vx.npy",
+    "truth_vz.npy",
+    "truth_mask.npy",
+];
+/// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
+const NETWORK_TRUTH_FILES: [&str; 5] = [
+    "truth_ri.npy",
+    "truth_psv.npy",
+    "truth_edv.npy",
+    "truth_vessel_class.npy",
+    "truth_flow_up.npy",
+];
+/// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
+const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
+
+/// Removes the files of `pcuvd simulate`'s own naming in `dir` that this run will not rewrite, so
+/// that a folder reused for another preset or mode holds no stale truth or recording beside the new
+/// ones (a `truth_ri.npy` of an earlier network run beside a tube would be read as the tube's truth).
+/// Files of any other name are left alone.
+fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) -> Result<()> {
+    let stale_recordings = RECORDING_NAMES
+        .iter()
+        .filter(|name| !recordings.contains(name))
+        .flat_map(|name| [format!("{name}.toml"), format!("{name}.npy")]);
+    let stale_truth = NETWORK_TRUTH_FILES
+        .iter()
+        .filter(|_| !network_truth)
+        .map(|name| name.to_string());
+    for name in stale_recordings.chain(stale_truth) {
+        let path = dir.join(name);
+        match std::fs::remove_file(&path) {
+            Ok(()) => println!(
+                "removed {} (stale: this run does not write it)",
+                path.display()
+            ),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(e).with_context(|| {
+                    format!("{}: cannot remove this stale output", path.display())
+                });
+            }
+        }
+    }
+    Ok(())
+}
 
 /// Built-in simulation set-ups.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -110,30 +160,16 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         ModeChoice::Conventional => vec![false],
         ModeChoice::Both => vec![false, true],
     };
-    for coded in modes {
-        let mut params: SimParams = match args.preset {
-            Preset::RatNetwork => network::rat_params(true)?,
-            _ => simulate::paper_spiral_params(true)?,
-        };
-        params.sequence = Sequence {
-            angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
-            coding: if coded {
-                Coding::Hadamard {
-                    slot_delay: args.slot_delay_us * 1e-6,
-                }
-            } else {
-                Coding::Conventional
-            },
-            ..params.sequence
-        };
-        params
-            .sequence
-            .validate()
-            .context("--angles / --slot-delay-us")?;
-        params.seed = args.seed;
-        params.noise = noise_db.map(NoiseSpec::new);
-        params.validate().context("--slot-delay-us")?;
-        let name = if coded { "coded" } else { "conventional" };
+    let recording_name = |coded: bool| if coded { "coded" } else { "conventional" };
+    let recordings: Vec<&str> = modes.iter().map(|&coded| recording_name(coded)).collect();
+    // Every mode's settings are checked before anything is simulated or written, so that a
+    // refused `--mode both` request (--angles 6: no Hadamard order) writes and deletes nothing.
+    let mode_params = modes
+        .iter()
+        .map(|&coded| mode_params(args, coded, noise_db))
+        .collect::<Result<Vec<SimParams>>>()?;
+    for (mode_index, (coded, params)) in modes.into_iter().zip(mode_params).enumerate() {
+        let name = recording_name(coded);
         let events = frames * params.sequence.n_angles();
         let progress = bar(&format!("simulate {name}"), events as u64);
         let data = simulate::simulate(phantom.as_ref(), &params, frames, &|done, _| {
@@ -153,6 +189,10 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             "attenuation_db_cm_mhz".into(),
             params.attenuation_db_cm_mhz.into(),
         );
+        if mode_index == 0 {
+            // Only once a new recording is ready: a run refused or failed before it deletes nothing.
+            remove_stale_outputs(&args.out, &recordings, vessel_network.is_some())?;
+        }
         let manifest = pcuvd_io::write_recording(&args.out, name, &data, &provenance)?;
         println!(
             "wrote {} ({} events of {} channels × {} samples)",
@@ -161,27 +201,26 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             params.probe.n_elements,
             params.n_samples
         );
-        if !args.out.join("truth_vx.npy").exists() {
+        // The truth is the same for every mode (same phantom, same default grid): write it once,
+        // whatever an earlier run left in the folder.
+        if mode_index == 0 {
             let grid = pipeline::default_grid(&data)?;
             let truth = phantom.truth(&grid.x, &grid.z, 0.0);
-            pcuvd_io::write_npy(&args.out.join("truth_x.npy"), &Array1::from(grid.x.clone()))?;
-            pcuvd_io::write_npy(&args.out.join("truth_z.npy"), &Array1::from(grid.z.clone()))?;
-            pcuvd_io::write_npy(&args.out.join("truth_vx.npy"), &truth.vx)?;
-            pcuvd_io::write_npy(&args.out.join("truth_vz.npy"), &truth.vz)?;
-            pcuvd_io::write_npy(&args.out.join("truth_mask.npy"), &truth.mask.mapv(u8::from))?;
+            let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
+            pcuvd_io::write_npy(&x, &Array1::from(grid.x.clone()))?;
+            pcuvd_io::write_npy(&z, &Array1::from(grid.z.clone()))?;
+            pcuvd_io::write_npy(&vx, &truth.vx)?;
+            pcuvd_io::write_npy(&vz, &truth.vz)?;
+            pcuvd_io::write_npy(&mask, &truth.mask.mapv(u8::from))?;
             if let Some(network) = &vessel_network {
                 let cycle = network.cycle_truth(&grid.x, &grid.z);
-                pcuvd_io::write_npy(&args.out.join("truth_ri.npy"), &cycle.ri)?;
-                pcuvd_io::write_npy(&args.out.join("truth_psv.npy"), &cycle.psv)?;
-                pcuvd_io::write_npy(&args.out.join("truth_edv.npy"), &cycle.edv)?;
-                pcuvd_io::write_npy(
-                    &args.out.join("truth_vessel_class.npy"),
-                    &cycle.vessel_class,
-                )?;
-                pcuvd_io::write_npy(
-                    &args.out.join("truth_flow_up.npy"),
-                    &cycle.flow_up.mapv(u8::from),
-                )?;
+                let [ri, psv, edv, vessel_class, flow_up] =
+                    NETWORK_TRUTH_FILES.map(|name| args.out.join(name));
+                pcuvd_io::write_npy(&ri, &cycle.ri)?;
+                pcuvd_io::write_npy(&psv, &cycle.psv)?;
+                pcuvd_io::write_npy(&edv, &cycle.edv)?;
+                pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
+                pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
             }
             println!(
                 "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
@@ -190,4 +229,31 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
+fn mode_params(args: &SimulateArgs, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
+    let mut params: SimParams = match args.preset {
+        Preset::RatNetwork => network::rat_params(true)?,
+        _ => simulate::paper_spiral_params(true)?,
+    };
+    params.sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
+        coding: if coded {
+            Coding::Hadamard {
+                slot_delay: args.slot_delay_us * 1e-6,
+            }
+        } else {
+            Coding::Conventional
+        },
+        ..params.sequence
+    };
+    params
+        .sequence
+        .validate()
+        .context("--angles / --slot-delay-us")?;
+    params.seed = args.seed;
+    params.noise = noise_db.map(NoiseSpec::new);
+    params.validate().context("--slot-delay-us")?;
+    Ok(params)
 }

@@ -115,3 +115,99 @@ fn bad_simulation_requests_are_refused() {
         );
     }
 }
+
+#[test]
+fn a_reused_folder_keeps_no_stale_truth_or_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let small = ["--frames", "1", "--angles", "2", "--noise-db", "off"];
+    let (ok, _, stderr) = pcuvd(
+        &[
+            &[
+                "simulate",
+                "--preset",
+                "rat-network",
+                "--mode",
+                "both",
+                "--out",
+                d,
+            ][..],
+            &small,
+        ]
+        .concat(),
+    );
+    assert!(ok, "{stderr}");
+    for f in [
+        "truth_ri.npy",
+        "truth_vessel_class.npy",
+        "conventional.toml",
+        "coded.npy",
+    ] {
+        assert!(
+            dir.path().join(f).exists(),
+            "{f} missing after the network run"
+        );
+    }
+    let network_z = std::fs::read(dir.path().join("truth_z.npy")).unwrap();
+    // A request refused for its second mode (6 angles: no Hadamard order) touches nothing.
+    let conventional = std::fs::read(dir.path().join("conventional.toml")).unwrap();
+    let (ok, _, stderr) = pcuvd(
+        &[
+            &["simulate", "--preset", "tube", "--mode", "both", "--out", d][..],
+            &["--frames", "1", "--angles", "6", "--noise-db", "off"],
+        ]
+        .concat(),
+    );
+    assert!(!ok && stderr.contains("Hadamard"), "{stderr}");
+    assert!(dir.path().join("truth_ri.npy").exists());
+    assert_eq!(
+        std::fs::read(dir.path().join("conventional.toml")).unwrap(),
+        conventional
+    );
+    // A user's files, including one that looks like a truth file but is not of simulate's naming.
+    std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
+    std::fs::write(dir.path().join("truth_extra.npy"), "mine too").unwrap();
+
+    let (ok, stdout, stderr) = pcuvd(
+        &[
+            &[
+                "simulate", "--preset", "tube", "--mode", "coded", "--out", d,
+            ][..],
+            &small,
+        ]
+        .concat(),
+    );
+    assert!(ok, "{stderr}");
+    for f in [
+        "truth_ri.npy",
+        "truth_psv.npy",
+        "truth_edv.npy",
+        "truth_vessel_class.npy",
+        "truth_flow_up.npy",
+        "conventional.toml",
+        "conventional.npy",
+    ] {
+        assert!(!dir.path().join(f).exists(), "stale {f} left behind");
+        assert!(
+            stdout.contains(f),
+            "the removal of {f} is not reported: {stdout}"
+        );
+    }
+    for f in ["coded.toml", "coded.npy", "truth_vx.npy", "truth_mask.npy"] {
+        assert!(
+            dir.path().join(f).exists(),
+            "{f} missing after the tube run"
+        );
+    }
+    // The network's receive window (0–13 mm) is not the tube's: its truth grid was rewritten.
+    let tube_z = std::fs::read(dir.path().join("truth_z.npy")).unwrap();
+    assert_ne!(tube_z, network_z, "truth_z.npy is still the network's");
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("notes.txt")).unwrap(),
+        "mine"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("truth_extra.npy")).unwrap(),
+        "mine too"
+    );
+}
