@@ -418,6 +418,24 @@ fn bad_parameters_are_errors() {
         band_hz: (1e6, 40e6),
     });
     assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    // A band between two FFT bins of the noise would give noiseless data: refused, by both
+    // simulate and simulate_noise (which used to panic on it).
+    let mut p = coded.clone();
+    let bin_hz = p.sampling_frequency / p.n_samples.next_power_of_two().max(64) as f64;
+    p.noise = Some(NoiseSpec {
+        level_db: -10.0,
+        band_hz: (100.25 * bin_hz, 100.75 * bin_hz),
+    });
+    for err in [
+        simulate(&still, &p, 1, &no_progress).unwrap_err(),
+        pcuvd::simulate::simulate_noise(&still, &p, 1).unwrap_err(),
+    ] {
+        let err = err.to_string();
+        assert!(
+            err.contains("noise band") && err.contains("kHz apart"),
+            "{err}"
+        );
+    }
     let mut p = coded.clone();
     p.sequence.coding = Coding::Hadamard { slot_delay: 9.9e-6 };
     let err = simulate(&still, &p, 1, &no_progress)

@@ -198,6 +198,8 @@ impl SimParams {
                     ),
                 ));
             }
+            // A band holding no FFT bin of the noise would silently give noiseless data.
+            noise::band_bins(self.n_samples, fs, noise.band_hz)?;
         }
         let period = 1.0 / self.sequence.event_prf;
         if let Coding::Hadamard { slot_delay } = self.sequence.coding {
@@ -427,13 +429,13 @@ fn noise_generator(
                 ));
             }
             let noise_rms = rms * 10f64.powf(spec.level_db / 20.0);
-            noise::NoiseGenerator::new(
+            Some(noise::NoiseGenerator::new(
                 ns,
                 params.sampling_frequency,
                 spec.band_hz,
                 noise_rms,
                 params.seed,
-            )
+            )?)
         }
     })
 }
