@@ -211,10 +211,10 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
 /// Band-limited interpolation by an FFT phase ramp over the frames. The series is first extended
 /// by its mirror image, so that its periodic continuation has no jump at the ends of the recording
 /// (a jump would ring through the whole series). Near the ends the events are extrapolated as if
-/// the signal were reflected there, which is poor for fast flow: for a steady Doppler tone at
-/// 0.3 × the frame rate the error is 60 % of the echo on the last frame, 13 % on the one before,
-/// 1 % five frames in and 0.002 % mid-recording (at 0.1 × the frame rate: 17 %, 3 %, 0.2 %).
-/// Discard the first and last few frames where they matter.
+/// the signal were reflected there, which is poor for fast flow: a steady Doppler tone is not
+/// mirror-symmetric, so the error is a large fraction of the echo on the last frame, falls by
+/// several times each frame inward, and grows with the Doppler frequency; mid-recording the
+/// alignment is close to exact. Discard the first and last few frames where they matter.
 struct SlowTimeAligner {
     frames: usize,
     events_per_frame: usize,

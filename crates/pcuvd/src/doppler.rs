@@ -281,10 +281,9 @@ pub const NOISE_FLOOR_QUANTILE: f64 = 0.3;
 /// Why a per-row low percentile: the noise power of a beamformed image changes with depth (the
 /// receive aperture grows, time-gain compensation lifts deep rows, attenuation does not act on
 /// noise), but along a row it is nearly flat, and vessels fill a minority of any row, so the lower
-/// part of the row's distribution is noise. On the simulated rat vessel network (+5 dB) it reads
-/// the true noise power (imaged apart) within 2 dB at every depth. Where flow fills more than
-/// ~70 % of a row (a dense perfused cortex) it reads the perfusion level instead, and a mask
-/// built on it keeps what stands out of the perfused tissue: the larger vessels.
+/// part of the row's distribution is noise. Where flow fills more than 70 % of a row (a dense
+/// perfused cortex) the 30th percentile is a flow pixel, so it reads the perfusion level instead,
+/// and a mask built on it keeps what stands out of the perfused tissue: the larger vessels.
 pub fn noise_floor_by_depth(power: &Array2<f64>) -> Vec<f64> {
     power
         .outer_iter()
@@ -309,9 +308,9 @@ pub fn above_noise_floor(power: &Array2<f64>, margin_db: f64) -> Array2<bool> {
 /// Why: a bright vessel is seen through the side lobes of plane-wave images tens of dB below
 /// itself, over a millimetre or more around it, and that haze stands well above the noise floor
 /// of a clean recording; a vessel's own lumen lies within a few dB of its brightest pixel, and a
-/// weak vessel away from the bright one is its own local peak. On the simulated rat network at
-/// −10 dB, 1 mm and 20 dB keep every lumen pixel and drop two thirds of the flow pixels outside
-/// the lumens.
+/// weak vessel away from the bright one is its own local peak. A radius of about 1 mm spans a
+/// small vessel's haze, and 20 dB keeps a lumen's edges (whose power is a few dB below its centre)
+/// while dropping side lobes tens of dB down.
 pub fn near_local_peak(power: &Array2<f64>, radius: usize, within_db: f64) -> Array2<bool> {
     let (nz, nx) = power.dim();
     let finite = power.mapv(|p| if p.is_finite() { p } else { 0.0 });

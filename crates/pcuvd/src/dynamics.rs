@@ -37,12 +37,13 @@ pub const VENULE: u8 = 2;
 pub const UNDETERMINED: u8 = 3;
 
 /// Default margin (dB) above the noise floor of the recording's power Doppler
-/// ([`crate::doppler::above_noise_floor`]) of a vessel pixel for [`ri_maps_where`]. The power of
-/// a 20 ms window is too unsteady to tell noise from weak flow: on the vessel network at +5 dB,
-/// the −30 dB window threshold alone let in four times as many pixels as the lumens hold, and
-/// noise pixels that joined a pool flattened its waveform. With this margin as well, PC-UVD
-/// classed 98.4–99.5 % of vessel pixels rightly over seeds 1–5 (98.1–99.1 % without), UVD
-/// 89.6–96.7 % (89.4–90.5 %); 6 dB dropped UVD's deep vessels (81–89 %).
+/// ([`crate::doppler::above_noise_floor`]) of a vessel pixel for [`ri_maps_where`]. Why: the power
+/// of a 20 ms window is too unsteady to tell noise from weak flow, so a window threshold alone lets
+/// in many noise pixels around the lumens, and a noise pixel that joins a pool flattens its
+/// waveform (lowers its RI). The recording's power Doppler averages over every frame, and a margin
+/// above its noise floor removes those pixels. The margin is kept low because attenuation lowers
+/// the echoes, not the noise, with depth: the deep vessels of a low-SNR recording stand only a few
+/// dB above the noise floor, and a larger margin drops them first.
 pub const VESSEL_MARGIN_DB: f64 = 3.0;
 
 /// Default for [`VesselTests::local_db`]: a vessel pixel's power Doppler is within 20 dB of the
@@ -160,9 +161,8 @@ pub struct DynamicsParams {
 /// jitter by about √N without biasing RI. The pooled waveform is the weighted sum of the
 /// neighbours' speed series over the same weighted sum of their time means, with weights the
 /// square of each pixel's time-mean Doppler power: pixels at the edge of the vessel mask that
-/// hold mostly noise have a large mean |V| and a flat waveform, and would otherwise flatten the
-/// pool (on the vessel network at +5 dB, plain weights gave a deep arteriole RI 0.49 instead of
-/// 0.7; power² weights 0.69).
+/// hold mostly noise have a large mean |V| and a flat waveform, and with plain weights they would
+/// flatten the pool (lower its RI), most of all in deep, low-SNR vessels.
 ///
 /// The neighbourhood is long and narrow because a vessel is: a disc holds few pixels of a thin
 /// vessel and many of whatever lies beside it. Down the vessel it gathers the pixels that share
@@ -175,9 +175,9 @@ pub struct DynamicsParams {
 ///
 /// Pooling averages speeds |V|, so it cuts the jitter but keeps the noise bias of |V| (the Rice
 /// mean, about |V| + σ²/2|V| for errors σ per component), which raises EDV more than PSV and
-/// lowers RI. Pooling the velocity vectors before |V| removes that bias, but on the network
-/// phantom it scored worse (PC-UVD 91 % of pixels rightly classed instead of 96 %, with a disc
-/// of 0.7 mm: the slow, oblique venules read RI 0.44 instead of 0.40), so speeds are pooled.
+/// lowers RI. Pooling the velocity vectors before |V| removes that bias, but on the
+/// vessel-network phantom it classed fewer pixels rightly than pooling speeds (the slow, oblique
+/// venules read a higher RI), so speeds are pooled.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VesselPooling {
     /// Half-length (pixels) of the neighbourhood along the pixel's time-mean flow direction.
@@ -193,11 +193,9 @@ impl VesselPooling {
     /// segment; bends sharper than `max_angle` over that length end the pool.
     pub const DEFAULT_ALONG_M: f64 = 2.0e-3;
     /// Default half-width (m) across the flow: 0.25 mm, a little more than the radius of the
-    /// rat's small vessels (0.15–0.2 mm). On the vessel-network phantom (+5 dB, 5 × 5 kernel,
-    /// PC-UVD, vessels by the −30 dB window threshold alone, seeds 1–4) this ellipse classed
-    /// 98.1–99.1 % of vessel pixels rightly, against 94.6–98.1 % with a disc of radius 0.7 mm;
-    /// 1.5 × 0.35 mm gave 97.2–99.1 %, 1.5 × 0.25 mm 97.0–99.1 %, 2 × 0.35 mm 98.1–99.2 %
-    /// (seeds 2–3). Seed 5, held out while choosing: 98.1 % (the disc 97.3 %).
+    /// rat's small vessels (0.15–0.2 mm), so that the pool spans one lumen and its blur but not a
+    /// parallel neighbour. Chosen on the vessel-network phantom against discs and other ellipses,
+    /// and checked on a seed held out while choosing (the README's network study).
     pub const DEFAULT_ACROSS_M: f64 = 0.25e-3;
     /// Default largest flow-direction difference (degrees) between pooled pixels.
     pub const DEFAULT_MAX_ANGLE_DEG: f64 = 30.0;
@@ -936,8 +934,8 @@ fn psv_edv_unchecked(speed: &[f64], cycles: &[(usize, usize)]) -> (f64, f64) {
 /// harmonics are already blurred by the window, and fitting them mostly fits estimation noise: the
 /// overlapping windows give only about one independent estimate per window length, and that noise
 /// is concentrated at low frequencies, where the harmonics are. At least 1; 2 for the rat preset
-/// (5.5 Hz, 20 ms windows: 11 Hz ≤ 12.5 Hz). On the vessel-network phantom this beat 3 harmonics
-/// (RI median error 0.078 against 0.095 at noise +5 dB, 5 × 5 kernel).
+/// (5.5 Hz, 20 ms windows: 11 Hz ≤ 12.5 Hz), where fitting a third harmonic (blurred by the
+/// window to sinc(16.5 Hz · 20 ms) ≈ 0.83) gave larger RI errors on the vessel-network phantom.
 pub fn auto_harmonics(heart_rate_hz: f64, window_s: f64) -> usize {
     let k = (0.25 / (window_s * heart_rate_hz)).floor();
     if k.is_finite() && k >= 1.0 {
