@@ -162,29 +162,13 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     };
     let recording_name = |coded: bool| if coded { "coded" } else { "conventional" };
     let recordings: Vec<&str> = modes.iter().map(|&coded| recording_name(coded)).collect();
-    for (mode_index, coded) in modes.into_iter().enumerate() {
-        let mut params: SimParams = match args.preset {
-            Preset::RatNetwork => simulate::rat_params(true)?,
-            _ => simulate::paper_spiral_params(true)?,
-        };
-        params.sequence = Sequence {
-            angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
-            coding: if coded {
-                Coding::Hadamard {
-                    slot_delay: args.slot_delay_us * 1e-6,
-                }
-            } else {
-                Coding::Conventional
-            },
-            ..params.sequence
-        };
-        params
-            .sequence
-            .validate()
-            .context("--angles / --slot-delay-us")?;
-        params.seed = args.seed;
-        params.noise = noise_db.map(NoiseSpec::new);
-        params.validate().context("--slot-delay-us")?;
+    // Every mode's settings are checked before anything is simulated or written, so that a
+    // refused `--mode both` request (--angles 6: no Hadamard order) writes and deletes nothing.
+    let mode_params = modes
+        .iter()
+        .map(|&coded| mode_params(args, coded, noise_db))
+        .collect::<Result<Vec<SimParams>>>()?;
+    for (mode_index, (coded, params)) in modes.into_iter().zip(mode_params).enumerate() {
         let name = recording_name(coded);
         let events = frames * params.sequence.n_angles();
         let progress = bar(&format!("simulate {name}"), events as u64);
@@ -206,7 +190,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             params.attenuation_db_cm_mhz.into(),
         );
         if mode_index == 0 {
-            // Only once a new recording is ready, so that a refused or failed run deletes nothing.
+            // Only once a new recording is ready: a run refused or failed before it deletes nothing.
             remove_stale_outputs(&args.out, &recordings, vessel_network.is_some())?;
         }
         let manifest = pcuvd_io::write_recording(&args.out, name, &data, &provenance)?;
@@ -245,4 +229,31 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
+fn mode_params(args: &SimulateArgs, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
+    let mut params: SimParams = match args.preset {
+        Preset::RatNetwork => simulate::rat_params(true)?,
+        _ => simulate::paper_spiral_params(true)?,
+    };
+    params.sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
+        coding: if coded {
+            Coding::Hadamard {
+                slot_delay: args.slot_delay_us * 1e-6,
+            }
+        } else {
+            Coding::Conventional
+        },
+        ..params.sequence
+    };
+    params
+        .sequence
+        .validate()
+        .context("--angles / --slot-delay-us")?;
+    params.seed = args.seed;
+    params.noise = noise_db.map(NoiseSpec::new);
+    params.validate().context("--slot-delay-us")?;
+    Ok(params)
 }

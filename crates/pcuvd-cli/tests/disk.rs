@@ -7,20 +7,25 @@ use std::process::Command;
 use ndarray::{Array1, Array2};
 use ndarray_npy::read_npy;
 
-fn disk_file() -> Option<PathBuf> {
+/// The recording, which lives beside the repository (`shared/data/`), not in it. Missing, the
+/// test fails: a real-data test that passes without its data would hide that it never ran.
+fn disk_file() -> PathBuf {
     let path = PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../../shared/data/PWI_disk.mat"
     ));
-    path.exists().then_some(path)
+    assert!(
+        path.exists(),
+        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
+         (shared/data/ beside the repository; see shared/data/README.md for its source)",
+        path.display()
+    );
+    path
 }
 
 #[test]
 fn rotating_disk_colour_doppler_is_linear_in_x() {
-    let Some(input) = disk_file() else {
-        eprintln!("shared/data/PWI_disk.mat not found beside the repository: skipped");
-        return;
-    };
+    let input = disk_file();
     let out = tempfile::tempdir().unwrap();
     let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
         .arg("process")

@@ -149,6 +149,21 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
         );
     }
     let network_z = std::fs::read(dir.path().join("truth_z.npy")).unwrap();
+    // A request refused for its second mode (6 angles: no Hadamard order) touches nothing.
+    let conventional = std::fs::read(dir.path().join("conventional.toml")).unwrap();
+    let (ok, _, stderr) = pcuvd(
+        &[
+            &["simulate", "--preset", "tube", "--mode", "both", "--out", d][..],
+            &["--frames", "1", "--angles", "6", "--noise-db", "off"],
+        ]
+        .concat(),
+    );
+    assert!(!ok && stderr.contains("Hadamard"), "{stderr}");
+    assert!(dir.path().join("truth_ri.npy").exists());
+    assert_eq!(
+        std::fs::read(dir.path().join("conventional.toml")).unwrap(),
+        conventional
+    );
     // A user's files, including one that looks like a truth file but is not of simulate's naming.
     std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
     std::fs::write(dir.path().join("truth_extra.npy"), "mine too").unwrap();

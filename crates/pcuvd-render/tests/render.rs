@@ -332,8 +332,10 @@ fn nan_is_dark_grey_and_mask_shows_background() {
     assert!(gy0.abs_diff(by0) <= 1 && gy1.abs_diff(by1) <= 1);
 }
 
+/// A 512 × 512 map renders (its speed is measured by `cargo bench -p pcuvd-render`, not here:
+/// a timed test fails on a busy machine and passes on a fast one whatever the code does).
 #[test]
-fn large_image_renders_fast() {
+fn large_image_renders() {
     let n = 512;
     let data = Array2::from_shape_fn((n, n), |(i, j)| {
         ((i as f64) * 0.05).sin() * ((j as f64) * 0.03).cos()
@@ -347,12 +349,8 @@ fn large_image_renders_fast() {
         ncols: 1,
         panel_size_px: (800, 700),
     };
-    let t = std::time::Instant::now();
-    let bytes = render_png_bytes(&fig).unwrap();
-    let dt = t.elapsed().as_secs_f64();
-    eprintln!("512x512 panel rendered in {dt:.3} s");
-    assert!(dt < 2.0, "too slow: {dt} s");
-    assert!(bytes.len() > 1000);
+    let img = decode(&render_png_bytes(&fig).unwrap());
+    assert_eq!((img.w, img.h), (800, 700 + FIGURE_TITLE_BAND_PX as usize));
 }
 
 fn plot_panel() -> PlotPanel {

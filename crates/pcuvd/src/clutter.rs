@@ -324,4 +324,73 @@ mod tests {
             .is_err()
         );
     }
+
+    /// The automatic high cut-off on an analytic case. S (P pixels × N frames) is complex white
+    /// noise of variance σ² per sample plus rank-1 components u·vᴴ of energy ℓ·Pσ² (tissue: still;
+    /// blood: a Doppler tone, orthogonal to it). Without them the eigenvalues of SᴴS fill the
+    /// Marchenko–Pastur bulk, whose upper edge is Pσ²(1 + √y)², y = N/P. A component with ℓ > √y
+    /// stands out of the bulk at about Pσ²(ℓ + 1)(1 + y/ℓ); one with ℓ < √y stays inside it
+    /// (Baik–Ben Arous–Péché), where no filter can tell it from noise. So the cut-off must keep
+    /// exactly the tissue and the strong blood, and cut the weak blood with the noise.
+    #[test]
+    fn auto_high_cut_is_at_the_marchenko_pastur_edge() {
+        let (nz, nx, nf) = (48, 48, 32);
+        let pixels = nz * nx;
+        let y = nf as f64 / pixels as f64;
+        let sigma2 = 1.0f64;
+        // (ℓ, cycles over the recording): tissue, strong blood, weak blood (ℓ < √y ≈ 0.118).
+        let components = [(1000.0, 0.0), (3.0, 4.0), (0.05, 9.0)];
+        assert!(components[2].0 < y.sqrt());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        // Complex Gaussian of variance v: real and imaginary parts of variance v/2 each.
+        let mut gaussian = |variance: f64| {
+            let normal = Normal::new(0.0, (variance / 2.0).sqrt()).unwrap();
+            Complex32::new(
+                normal.sample(&mut rng) as f32,
+                normal.sample(&mut rng) as f32,
+            )
+        };
+        let noise = Array3::from_shape_simple_fn((nz, nx, nf), || gaussian(sigma2));
+        let mut signal = Array3::<Complex32>::zeros((nz, nx, nf));
+        for &(ell, cycles) in &components {
+            // Per-pixel amplitude of variance ℓσ²/N over N frames: energy ℓPσ² on average.
+            for z in 0..nz {
+                for x in 0..nx {
+                    let a = gaussian(ell * sigma2 / nf as f64);
+                    for f in 0..nf {
+                        let phase = 2.0 * std::f32::consts::PI * cycles * f as f32 / nf as f32;
+                        signal[[z, x, f]] += a * Complex32::from_polar(1.0, phase);
+                    }
+                }
+            }
+        }
+        let params = ClutterParams {
+            low: RankCut::Off,
+            high: RankCut::Auto,
+            tissue_frequency: 0.0,
+        };
+        let bulk_edge = pixels as f64 * sigma2 * (1.0 + y.sqrt()).powi(2);
+
+        let report = svd_filter(&mut (&noise + &signal), &params).unwrap();
+        assert_eq!(report.high, 2, "tissue and strong blood kept, the rest cut");
+        let eigenvalues: Vec<f64> = report.singular_values.iter().map(|s| s * s).collect();
+        let spike = |ell: f64| pixels as f64 * sigma2 * (ell + 1.0) * (1.0 + y / ell);
+        for (k, &(ell, _)) in components[..2].iter().enumerate() {
+            let ratio = eigenvalues[k] / spike(ell);
+            // The amplitudes are drawn, so each energy is ℓPσ² within a few 1/√P (2 %).
+            assert!((ratio - 1.0).abs() < 0.1, "component {k}: {ratio}");
+        }
+        // Everything cut lies within the noise bulk of the true σ² (to the definition's 5 %).
+        assert!(
+            eigenvalues[2] < 1.05 * bulk_edge,
+            "{} vs edge {bulk_edge}",
+            eigenvalues[2]
+        );
+
+        // Noise alone: nothing stands out; the cut-off keeps its floor of one component.
+        let report = svd_filter(&mut noise.clone(), &params).unwrap();
+        assert_eq!(report.high, 1);
+        let largest = report.singular_values[0].powi(2);
+        assert!(largest < 1.05 * bulk_edge, "{largest} vs edge {bulk_edge}");
+    }
 }
