@@ -84,6 +84,30 @@ fn reduced_paper_study_orders_the_methods() {
             "{c}: IRLS worse than LS at high noise"
         );
     }
+    // Each method's own bound at this set-up (12 frames, +5 dB, 0.1 mm grid, seed 4), where noise
+    // dominates: measured UVD 46.7 / 4.6 mm/s, PC-UVD 14.5 / 2.2 mm/s (Vx / Vz). Coding raises the
+    // SNR by 10·log10(8) = 9 dB, which should cut a noise-limited phase error by about √8 ≈ 2.8:
+    // PC-UVD must at least halve UVD's error, and neither may regress by more than a third.
+    for (est, vx_max, vz_max) in [("uvd_ls", 62.0, 6.1), ("pcuvd_irls", 19.4, 2.9)] {
+        assert!(
+            r(est, "vx") <= vx_max && r(est, "vz") <= vz_max,
+            "{est}: RMSE {} / {} mm/s above {vx_max} / {vz_max}",
+            r(est, "vx"),
+            r(est, "vz")
+        );
+    }
+    for c in ["vx", "vz"] {
+        assert!(
+            r("pcuvd_irls", c) <= 0.5 * r("uvd_ls", c),
+            "{c}: PC-UVD {} vs UVD {}: coding's 9 dB should at least halve a noise-limited error",
+            r("pcuvd_irls", c),
+            r("uvd_ls", c)
+        );
+    }
+    assert!(
+        !m["rmse_definition"].is_null(),
+        "metrics.json lacks the RMSE definition"
+    );
     for name in [
         "report.html",
         "fig2_power_doppler_snr.png",

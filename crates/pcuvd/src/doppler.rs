@@ -407,7 +407,7 @@ mod tests {
         });
         // The 30th percentile of the noise alone sits 0.5 dB below its mean (gamma, shape 60).
         for (iz, &estimate) in noise_floor_by_depth(&power).iter().enumerate() {
-            let error_db = 10.0 * (estimate / floor(iz)).log10();
+            let error_db = crate::metrics::power_to_db(estimate / floor(iz));
             assert!(error_db.abs() < 1.0, "row {iz}: floor off by {error_db} dB");
         }
         let mask = above_noise_floor(&power, 6.0);

@@ -1,0 +1,273 @@
+//! Vector velocity in sliding windows over slow time.
+
+use super::*;
+
+/// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VelocitySeries {
+    /// Window centres (s) from the first frame.
+    pub times_s: Vec<f64>,
+    /// Lateral velocity (m/s), positive toward +x.
+    pub vx: Array3<f64>,
+    /// Axial velocity (m/s), positive moving deeper (away from the probe).
+    pub vz: Array3<f64>,
+    /// Power Doppler per window, mean over angles (|IQ|² units).
+    pub power: Array3<f64>,
+    /// Duration of each window (s).
+    pub window_s: f64,
+    /// Time between consecutive windows (s).
+    pub step_s: f64,
+}
+
+impl VelocitySeries {
+    /// Speed |V| = √(Vx² + Vz²) (m/s), shape (time, nz, nx).
+    pub fn speed(&self) -> Array3<f64> {
+        ndarray::Zip::from(&self.vx)
+            .and(&self.vz)
+            .map_collect(|&x, &z| x.hypot(z))
+    }
+
+    /// Time-mean velocity (m/s) per pixel over the finite windows, (Vx, Vz) maps of shape (nz, nx);
+    /// zero where no window is finite.
+    pub fn mean_velocity(&self) -> (Array2<f64>, Array2<f64>) {
+        let mean = |v: &Array3<f64>| {
+            v.map_axis(Axis(0), |lane| {
+                let (sum, count) = lane
+                    .iter()
+                    .filter(|x| x.is_finite())
+                    .fold((0.0, 0usize), |(s, c), &x| (s + x, c + 1));
+                if count > 0 { sum / count as f64 } else { 0.0 }
+            })
+        };
+        (mean(&self.vx), mean(&self.vz))
+    }
+
+    /// Number of windows (time samples).
+    pub fn len(&self) -> usize {
+        self.times_s.len()
+    }
+
+    /// True when there are no windows.
+    pub fn is_empty(&self) -> bool {
+        self.times_s.is_empty()
+    }
+
+    /// Time-mean power (dB re. the brightest pixel, 0 dB at the maximum), shape (nz, nx).
+    pub fn mean_power_db(&self) -> Array2<f64> {
+        let mean = self
+            .power
+            .mean_axis(Axis(0))
+            .unwrap_or_else(|| Array2::zeros((self.power.dim().1, self.power.dim().2)));
+        let peak = mean
+            .iter()
+            .copied()
+            .filter(|p| p.is_finite())
+            .fold(0.0, f64::max);
+        mean.mapv(|p| {
+            if peak > 0.0 && p > 0.0 {
+                power_to_db(p / peak)
+            } else {
+                f64::NEG_INFINITY
+            }
+        })
+    }
+
+    /// Vessel pixels: time-mean power at or above `min_power_db` (dB re. the brightest pixel).
+    pub fn vessel_mask(&self, min_power_db: f64) -> Array2<bool> {
+        self.mean_power_db().mapv(|p| p >= min_power_db)
+    }
+
+    /// Spatial mean speed (m/s) over the `mask` pixels at each time (finite values only).
+    pub fn mean_speed(&self, mask: &Array2<bool>) -> Vec<f64> {
+        let speed = self.speed();
+        speed
+            .outer_iter()
+            .map(|frame| {
+                let (mut sum, mut count) = (0.0, 0usize);
+                for (&v, &m) in frame.iter().zip(mask.iter()) {
+                    if m && v.is_finite() {
+                        sum += v;
+                        count += 1;
+                    }
+                }
+                if count > 0 {
+                    sum / count as f64
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect()
+    }
+}
+
+/// Checks the per-angle series: non-empty, one per angle, equal shapes, finite; returns (nz, nx, frames).
+pub(super) fn check_series(
+    filtered: &[Array3<Complex32>],
+    angles: &[f64],
+) -> Result<(usize, usize, usize)> {
+    let Some(first) = filtered.first() else {
+        return Err(invalid("filtered IQ series", "no angle series given"));
+    };
+    if filtered.len() != angles.len() {
+        return Err(Error::Shape(format!(
+            "{} filtered IQ series for {} angles",
+            filtered.len(),
+            angles.len()
+        )));
+    }
+    let dim = first.dim();
+    if dim.0 == 0 || dim.1 == 0 || dim.2 == 0 {
+        return Err(invalid(
+            "filtered IQ series",
+            format!("empty series of shape {dim:?} (nz, nx, frames)"),
+        ));
+    }
+    for (k, series) in filtered.iter().enumerate() {
+        if series.dim() != dim {
+            return Err(Error::Shape(format!(
+                "angle {k} series has shape {:?}, angle 0 has {dim:?} (nz, nx, frames)",
+                series.dim()
+            )));
+        }
+        if series
+            .iter()
+            .any(|v| !(v.re.is_finite() && v.im.is_finite()))
+        {
+            return Err(Error::NonFinite(format!("filtered IQ series of angle {k}")));
+        }
+    }
+    if angles.iter().any(|a| !a.is_finite()) {
+        return Err(Error::NonFinite("steering angles".into()));
+    }
+    Ok(dim)
+}
+
+/// Number of windows of `window` frames, `step` apart, in `frames` frames; errors when none fits.
+pub(super) fn window_count(
+    frames: usize,
+    window: usize,
+    step: usize,
+    frame_rate: f64,
+) -> Result<usize> {
+    check_window_step(window, step)?;
+    if window > frames {
+        return Err(invalid(
+            "window",
+            format!(
+                "{window} frames ({:.1} ms) is longer than the recording ({frames} frames, {:.1} ms)",
+                window as f64 / frame_rate * 1e3,
+                frames as f64 / frame_rate * 1e3
+            ),
+        ));
+    }
+    Ok((frames - window) / step + 1)
+}
+
+/// Samples per cardiac cycle in a series of `n` samples `dt` apart; errors when one cycle does not fit.
+pub(super) fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
+    let period = 1.0 / (hr * dt);
+    let len = (period.round() as usize).max(2);
+    if n < len {
+        return Err(invalid(
+            "recording",
+            format!(
+                "shorter than one cardiac cycle: its {n} windows span {:.1} ms, a cycle at {hr:.2} Hz \
+                 spans {:.1} ms ({len} windows); record at least one full cycle — PSV, EDV and RI \
+                 need one",
+                n as f64 * dt * 1e3,
+                1e3 / hr
+            ),
+        ));
+    }
+    Ok((period, len))
+}
+
+/// Vector velocity in sliding windows over slow time: per angle, the lag-1 autocorrelation of each
+/// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`.
+///
+/// `images`: clutter-filtered IQ per angle, each (nz, nx, frames), with their angles, compound
+/// frame rate, sound speed and demodulation frequency; an angle is used only where its
+/// `coverage` says its plane wave reaches the pixel (every angle everywhere without coverage).
+/// Windows run in parallel; each is computed independently, so the output does not depend on the
+/// number of threads.
+pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<VelocitySeries> {
+    let (filtered, angles) = (&images.series[..], &images.angles[..]);
+    let coverage = images.coverage.as_ref().map(|c| c.view());
+    let (frame_rate, sound_speed, center_frequency) = (
+        images.frame_rate,
+        images.sound_speed,
+        images.demodulation_frequency,
+    );
+    require_positive("frame rate", frame_rate)?;
+    require_positive("speed of sound", sound_speed)?;
+    require_positive("centre frequency", center_frequency)?;
+    let (nz, nx, frames) = check_series(filtered, angles)?;
+    if angles.len() < 2 {
+        return Err(invalid("angles", "vector Doppler needs at least 2 angles"));
+    }
+    if let Some(c) = coverage
+        && c.dim() != (angles.len(), nz, nx)
+    {
+        return Err(Error::Shape(format!(
+            "angle coverage {:?} for {} angles of {nz} × {nx} pixels",
+            c.dim(),
+            angles.len()
+        )));
+    }
+    let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
+    params.validate(frame_rate)?;
+    let dt = params.step as f64 / frame_rate;
+    if let Some(hr) = params.heart_rate_hz {
+        cycle_length(n_windows, dt, hr)?;
+    }
+
+    let n = angles.len();
+    let maps = (0..n_windows)
+        .into_par_iter()
+        .map(|k| {
+            let start = k * params.step;
+            let mut projections = Array3::<f64>::zeros((n, nz, nx));
+            let mut power = Array2::<f64>::zeros((nz, nx));
+            for (a, series) in filtered.iter().enumerate() {
+                let window = series.slice(s![.., .., start..start + params.window]);
+                let ac = doppler::autocorrelation(window, params.kernel)?;
+                projections
+                    .index_axis_mut(Axis(0), a)
+                    .assign(&doppler::projection_velocity(
+                        &ac.r1,
+                        sound_speed,
+                        frame_rate,
+                        center_frequency,
+                    )?);
+                power += &ac.power;
+            }
+            power /= n as f64;
+            if let Some(c) = coverage {
+                vector::drop_unreached(&mut projections, c);
+            }
+            let field = vector::vector_velocity(angles, projections.view(), &params.estimator)?;
+            Ok((field.vx, field.vz, power))
+        })
+        .collect::<Result<Vec<_>>>()?;
+
+    let mut vx = Array3::<f64>::zeros((n_windows, nz, nx));
+    let mut vz = Array3::<f64>::zeros((n_windows, nz, nx));
+    let mut power = Array3::<f64>::zeros((n_windows, nz, nx));
+    for (k, (x, z, p)) in maps.into_iter().enumerate() {
+        vx.index_axis_mut(Axis(0), k).assign(&x);
+        vz.index_axis_mut(Axis(0), k).assign(&z);
+        power.index_axis_mut(Axis(0), k).assign(&p);
+    }
+    let half = (params.window - 1) as f64 / 2.0;
+    let times_s = (0..n_windows)
+        .map(|k| ((k * params.step) as f64 + half) / frame_rate)
+        .collect();
+    Ok(VelocitySeries {
+        times_s,
+        vx,
+        vz,
+        power,
+        window_s: params.window as f64 / frame_rate,
+        step_s: dt,
+    })
+}
