@@ -10,7 +10,9 @@ use pcuvd_io::{MatValue, write_mat};
 /// Runs `pcuvd process INPUT --out …` with extra args; returns (success, stderr).
 fn process(input: &Path, extra: &[&str]) -> (bool, String) {
     let out = tempfile::tempdir().unwrap();
+    // --quiet: progress lines (printed when stderr is not a terminal) would precede the error.
     let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .arg("--quiet")
         .arg("process")
         .arg(input)
         .arg("--out")

@@ -127,3 +127,55 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {
     }
     x
 }
+
+/// Outside a terminal (here stderr is a pipe, as in a log file, a notebook or a job scheduler),
+/// progress comes as plain lines with the stage and its completion; `--quiet` silences them.
+#[test]
+fn progress_is_plain_lines_outside_a_terminal_and_quiet_silences_it() {
+    let input = disk_file();
+    let run = |quiet: bool| {
+        let out = tempfile::tempdir().unwrap();
+        let mut command = Command::new(env!("CARGO_BIN_EXE_pcuvd"));
+        if quiet {
+            command.arg("--quiet");
+        }
+        let result = command
+            .arg("process")
+            .arg(&input)
+            .arg("--out")
+            .arg(out.path())
+            .output()
+            .unwrap();
+        assert!(result.status.success());
+        String::from_utf8_lossy(&result.stderr).into_owned()
+    };
+    let stderr = run(false);
+    for stage in [
+        "decode",
+        "demodulate + beamform",
+        "clutter filter",
+        "Doppler + vector",
+    ] {
+        assert!(
+            stderr
+                .lines()
+                .any(|l| l.starts_with(&format!("{stage}: 0 % ("))),
+            "no start line for {stage}: {stderr}"
+        );
+        assert!(
+            stderr
+                .lines()
+                .any(|l| l.starts_with(&format!("{stage}: done, ")) && l.ends_with(" s")),
+            "no completion line for {stage}: {stderr}"
+        );
+    }
+    assert!(
+        !stderr.contains('\r') && !stderr.contains('\u{1b}'),
+        "terminal control codes: {stderr:?}"
+    );
+    let quiet = run(true);
+    assert!(
+        !quiet.contains("decode"),
+        "--quiet printed progress: {quiet}"
+    );
+}

@@ -15,7 +15,9 @@ use pcuvd::{Coding, Probe, Sequence};
 const HEART_RATE: f64 = 12.0;
 
 fn pcuvd(args: &[&str]) -> (bool, String, String) {
+    // --quiet: progress lines (printed when stderr is not a terminal) would precede an error.
     let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .arg("--quiet")
         .args(args)
         .env("RUST_BACKTRACE", "1")
         .output()
