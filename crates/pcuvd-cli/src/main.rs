@@ -3,6 +3,7 @@
 mod figures;
 mod network_study;
 mod options;
+mod outputs;
 mod paper;
 mod process;
 mod progress;

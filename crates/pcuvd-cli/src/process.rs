@@ -12,6 +12,7 @@ use serde_json::json;
 
 use crate::figures;
 use crate::options::{DynamicsChoice, DynamicsOptions, ProcessingOptions};
+use crate::outputs;
 use crate::progress::PipelineProgress;
 
 /// Arguments of `pcuvd process`.
@@ -19,31 +20,42 @@ use crate::progress::PipelineProgress;
 pub struct ProcessArgs {
     /// Recording: a MUST-style MATLAB v5 file (.mat, variables RF and param) or a pcuvd recording manifest (.toml).
     pub input: PathBuf,
-    /// Output folder (created if needed).
+    /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]
     pub out: PathBuf,
+    /// Reuse a non-empty output folder: pcuvd's own outputs of an earlier run there are removed
+    /// first (no stale map beside the new summary.json); other files are never touched.
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub options: ProcessingOptions,
     #[command(flatten)]
     pub dynamics: DynamicsOptions,
 }
 
-/// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest).
-pub fn read_input(path: &Path) -> Result<ChannelData> {
+/// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest). Returns
+/// the data and every file it was read from (the manifest and its samples).
+pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
-    let data = match ext.as_str() {
-        "mat" => pcuvd_io::read_must_mat(path)?,
-        "toml" => pcuvd_io::read_manifest(path)?,
+    let (data, files) = match ext.as_str() {
+        "mat" => (pcuvd_io::read_must_mat(path)?, vec![path.to_path_buf()]),
+        "toml" => {
+            let recording = pcuvd_io::read_recording(path)?;
+            (
+                recording.data,
+                vec![path.to_path_buf(), recording.data_path],
+            )
+        }
         _ => bail!(
             "{}: unknown recording type: expected a MUST-style .mat file or a pcuvd manifest .toml",
             path.display()
         ),
     };
-    Ok(data)
+    Ok((data, files))
 }
 
 /// Creates `dir` (and parents), with a message naming it on failure.
@@ -54,7 +66,7 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
-    let data = read_input(&args.input)?;
+    let (data, input_files) = read_input(&args.input)?;
     let params = args.options.params(&data)?;
     // Dynamics settings are read (and refused) before the long processing, not after it.
     let dynamics_settings = if args.dynamics.dynamics == DynamicsChoice::Off {
@@ -69,7 +81,12 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             vessel: args.dynamics.vessel_tests()?,
         })
     };
-    create_dir(&args.out)?;
+    outputs::prepare(
+        &args.out,
+        outputs::PROCESS_OUTPUTS,
+        &input_files,
+        args.force,
+    )?;
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
@@ -89,6 +106,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let (dynamics, mut dynamic_pngs) = run_dynamics(args, dynamics_settings.as_ref(), &out, &name)?;
     pngs.append(&mut dynamic_pngs);
     summary["dynamics"] = dynamics;
+    // Written last: a folder without summary.json is visibly incomplete.
     pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
     println!(
         "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
@@ -210,7 +228,8 @@ fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {
     Ok(())
 }
 
-/// Writes the maps as .npy (SI units) and `summary.json`; returns the summary.
+/// Writes the maps as .npy (SI units); returns the summary, for the caller to complete and write
+/// last.
 pub fn write_outputs(
     dir: &Path,
     data: &ChannelData,
@@ -232,9 +251,7 @@ pub fn write_outputs(
         npy(dir, "vz_ls.npy", &ls.vz)?;
         npy(dir, "speed_ls.npy", &ls.speed())?;
     }
-    let summary = summary_json(data, params, out, extra);
-    pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
-    Ok(summary)
+    Ok(summary_json(data, params, out, extra))
 }
 
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.

@@ -179,3 +179,52 @@ fn progress_is_plain_lines_outside_a_terminal_and_quiet_silences_it() {
         "--quiet printed progress: {quiet}"
     );
 }
+
+/// An output folder is never mixed: a used one is refused without --force, --force replaces
+/// pcuvd's own outputs and keeps the user's files, and an output never lands on the input.
+#[test]
+fn used_output_folders_are_refused_unless_forced_and_inputs_are_never_overwritten() {
+    let input = disk_file();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let run = |extra: &[&str], out: &std::path::Path| {
+        let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .arg("--quiet")
+            .arg("process")
+            .arg(&input)
+            .arg("--out")
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr).into_owned();
+        (result.status.success(), stderr)
+    };
+    assert!(run(&[], &out).0);
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    // A stale output of pcuvd's naming that this run does not write (the disk has one angle).
+    std::fs::write(out.join("vx.npy"), "stale").unwrap();
+    let (ok, stderr) = run(&[], &out);
+    assert!(
+        !ok && stderr.contains("--force") && stderr.lines().count() == 1,
+        "{stderr}"
+    );
+    let (ok, stderr) = run(&["--force"], &out);
+    assert!(ok, "{stderr}");
+    assert!(
+        !out.join("vx.npy").exists(),
+        "stale vx.npy left beside a new summary.json"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+        "mine"
+    );
+    assert!(out.join("summary.json").exists() && out.join("power_doppler.npy").exists());
+    // No temporary file is left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".part"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}

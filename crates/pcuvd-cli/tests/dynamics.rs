@@ -159,7 +159,17 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     assert!((times[1] - times[0] - 0.005).abs() < 1e-9);
 
     // Refusals: one line, naming the problem.
-    let base = ["process", input, "--out", o, grid, "--svd-low", "off"];
+    // --force: each run reuses the folder of the first (the earlier run's outputs are replaced).
+    let base = [
+        "process",
+        input,
+        "--out",
+        o,
+        grid,
+        "--svd-low",
+        "off",
+        "--force",
+    ];
     let refuse = |extra: &[&str], needle: &str| {
         let args: Vec<&str> = base.iter().chain(extra).copied().collect();
         let (ok, _, stderr) = pcuvd(&args);

@@ -66,6 +66,30 @@ fn simulated_tube_round_trips_through_process() {
         summary["acquisition"]["coding"]["event_alignment"], "mid-frame",
         "coded events are aligned to mid-frame by default"
     );
+
+    // A recording whose samples file is named like an output, processed into its own folder: the
+    // output would overwrite the input, so pcuvd refuses, --force or not, and the samples stay.
+    let toml = std::fs::read_to_string(dir.path().join("coded.toml")).unwrap();
+    std::fs::rename(dir.path().join("coded.npy"), dir.path().join("speed.npy")).unwrap();
+    std::fs::write(
+        dir.path().join("coded.toml"),
+        toml.replace("\"coded.npy\"", "\"speed.npy\""),
+    )
+    .unwrap();
+    let before = std::fs::read(dir.path().join("speed.npy")).unwrap();
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "process",
+        dir.path().join("coded.toml").to_str().unwrap(),
+        "--out",
+        dir.path().to_str().unwrap(),
+        "--force",
+    ]);
+    assert!(
+        !ok && stderr.contains("would overwrite the input"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(dir.path().join("speed.npy")).unwrap(), before);
 }
 
 #[test]

@@ -9,25 +9,49 @@ use num_complex::{Complex32, Complex64};
 
 use crate::error::IoError;
 
-/// Writes an array to a `.npy` file (C order, the element's own dtype).
+/// Writes `path` atomically: `write` fills a temporary file beside it (`.NAME.part`), which is
+/// then renamed over `path`, so that an interrupted or failed write never leaves a truncated file
+/// under the final name (a rename within one folder is atomic).
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), IoError>,
+) -> Result<(), IoError> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| IoError::malformed(path, "not a file path"))?;
+    let partial = path.with_file_name(format!(".{name}.part"));
+    let result = write(&partial)
+        .and_then(|()| std::fs::rename(&partial, path).map_err(|e| IoError::io(path, "write", e)));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    result
+}
+
+/// Writes an array to a `.npy` file (C order, the element's own dtype), atomically.
 pub fn write_npy<A, S, D>(path: &Path, arr: &ArrayBase<S, D>) -> Result<(), IoError>
 where
     A: WritableElement,
     S: Data<Elem = A>,
     D: Dimension,
 {
-    ndarray_npy::write_npy(path, arr).map_err(|e| match e {
-        WriteNpyError::Io(source) => IoError::io(path, "write", source),
-        other => IoError::malformed(path, format!("cannot write the array: {other}")),
+    write_atomically(path, |partial| {
+        ndarray_npy::write_npy(partial, arr).map_err(|e| match e {
+            WriteNpyError::Io(source) => IoError::io(path, "write", source),
+            other => IoError::malformed(path, format!("cannot write the array: {other}")),
+        })
     })
 }
 
-/// Writes a JSON value to a file, pretty-printed, with a final newline.
+/// Writes a JSON value to a file, pretty-printed, with a final newline, atomically.
 pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), IoError> {
     let mut text = serde_json::to_string_pretty(value)
         .map_err(|e| IoError::malformed(path, format!("cannot format JSON: {e}")))?;
     text.push('\n');
-    std::fs::write(path, text).map_err(|e| IoError::io(path, "write", e))
+    write_atomically(path, |partial| {
+        std::fs::write(partial, text).map_err(|e| IoError::io(path, "write", e))
+    })
 }
 
 /// An array read from a `.npy` file: real values as f32, or complex values as complex64.

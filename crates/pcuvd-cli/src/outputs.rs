@@ -1,0 +1,143 @@
+//! Output folders that never lose data: no input is ever overwritten or deleted, a folder holding
+//! other files is refused unless `--force`, and `--force` removes only pcuvd's own outputs of an
+//! earlier run (so no stale map sits beside a new `summary.json`), never anything else.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+
+/// Every file `pcuvd process` may write into its output folder.
+pub const PROCESS_OUTPUTS: &[&str] = &[
+    "summary.json",
+    "x.npy",
+    "z.npy",
+    "bmode_db.npy",
+    "power_doppler.npy",
+    "color_doppler.npy",
+    "projections.npy",
+    "vx.npy",
+    "vz.npy",
+    "speed.npy",
+    "vx_ls.npy",
+    "vz_ls.npy",
+    "speed_ls.npy",
+    "ri.npy",
+    "psv.npy",
+    "edv.npy",
+    "vessel_class.npy",
+    "flow_up.npy",
+    "speed_series.npy",
+    "times.npy",
+    "bmode.png",
+    "power_doppler.png",
+    "color_doppler.png",
+    "vector.png",
+    "ri.png",
+    "waveform.png",
+];
+
+/// The same file, whether or not either path exists yet: canonical when it exists, else the
+/// canonical folder joined with the name.
+fn resolved(path: &Path) -> PathBuf {
+    if let Ok(p) = path.canonicalize() {
+        return p;
+    }
+    match (path.parent(), path.file_name()) {
+        (Some(dir), Some(name)) => dir
+            .canonicalize()
+            .map(|d| d.join(name))
+            .unwrap_or_else(|_| path.to_path_buf()),
+        _ => path.to_path_buf(),
+    }
+}
+
+/// Makes `dir` ready for a run that writes the files named `own`: refuses when one of them would
+/// land on one of `inputs`; creates the folder; refuses a folder that holds anything unless
+/// `force`, and with `force` removes the files of `own` left there by an earlier run (only those).
+pub fn prepare(dir: &Path, own: &[&str], inputs: &[PathBuf], force: bool) -> Result<()> {
+    let inputs: Vec<PathBuf> = inputs.iter().map(|p| resolved(p)).collect();
+    for name in own {
+        let target = resolved(&dir.join(name));
+        if inputs.contains(&target) {
+            bail!(
+                "{}: the output {name} would overwrite the input {}; choose another --out folder",
+                dir.display(),
+                target.display()
+            );
+        }
+    }
+    if dir.exists() && !dir.is_dir() {
+        bail!("{}: --out is a file, not a folder", dir.display());
+    }
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
+    let entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("{}: cannot read the output folder", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    if entries.is_empty() {
+        return Ok(());
+    }
+    if !force {
+        bail!(
+            "{}: the output folder is not empty ({} entries); choose an empty or new folder, or \
+             pass --force to replace pcuvd's own outputs of an earlier run there (other files are \
+             never touched)",
+            dir.display(),
+            entries.len()
+        );
+    }
+    for name in own {
+        let path = dir.join(name);
+        if path.is_file() {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("{}: cannot remove the earlier output", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refuses_a_used_folder_and_force_removes_only_own_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        prepare(&out, PROCESS_OUTPUTS, &[], false).unwrap();
+        assert!(out.is_dir());
+        std::fs::write(out.join("ri.npy"), "old").unwrap();
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let refused = prepare(&out, PROCESS_OUTPUTS, &[], false).unwrap_err();
+        assert!(format!("{refused:#}").contains("--force"), "{refused:#}");
+        assert!(out.join("ri.npy").exists());
+        prepare(&out, PROCESS_OUTPUTS, &[], true).unwrap();
+        assert!(!out.join("ri.npy").exists());
+        assert_eq!(
+            std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+            "mine"
+        );
+    }
+
+    #[test]
+    fn never_writes_over_an_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("speed.npy");
+        std::fs::write(&input, "samples").unwrap();
+        for force in [false, true] {
+            let err = prepare(
+                dir.path(),
+                PROCESS_OUTPUTS,
+                std::slice::from_ref(&input),
+                force,
+            )
+            .unwrap_err();
+            assert!(
+                format!("{err:#}").contains("would overwrite the input"),
+                "{err:#}"
+            );
+        }
+        assert_eq!(std::fs::read_to_string(&input).unwrap(), "samples");
+    }
+}
