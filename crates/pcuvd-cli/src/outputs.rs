@@ -97,6 +97,34 @@ pub fn prepare(dir: &Path, own: &[&str], inputs: &[PathBuf], force: bool) -> Res
     Ok(())
 }
 
+/// Size (bytes) and SHA-256 (hex) of a file, read in 8 MiB blocks so that a recording of any
+/// length hashes in bounded memory.
+pub fn fingerprint(path: &Path) -> Result<(u64, String)> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)
+        .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
+    let mut hasher = Sha256::new();
+    let mut buffer = vec![0u8; 8 << 20];
+    let mut size = 0u64;
+    loop {
+        let n = file
+            .read(&mut buffer)
+            .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
+        if n == 0 {
+            break;
+        }
+        size += n as u64;
+        hasher.update(&buffer[..n]);
+    }
+    let hex = hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<String>();
+    Ok((size, hex))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -117,6 +145,21 @@ mod tests {
         assert_eq!(
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"
+        );
+    }
+
+    #[test]
+    fn fingerprint_is_the_sha256_of_the_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("abc");
+        std::fs::write(&path, "abc").unwrap();
+        // FIPS 180-2, appendix B.1.
+        assert_eq!(
+            fingerprint(&path).unwrap(),
+            (
+                3,
+                "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad".to_string()
+            )
         );
     }
 

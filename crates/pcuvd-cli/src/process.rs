@@ -66,7 +66,9 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
+    let clock = std::time::Instant::now();
     let (data, input_files) = read_input(&args.input)?;
+    let read_s = clock.elapsed().as_secs_f64();
     let params = args.options.params(&data)?;
     // Dynamics settings are read (and refused) before the long processing, not after it.
     let dynamics_settings = if args.dynamics.dynamics == DynamicsChoice::Off {
@@ -90,13 +92,11 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    let mut summary = write_outputs(
-        &args.out,
-        &data,
-        &params,
-        &out,
-        json!({ "input": args.input.display().to_string() }),
-    )?;
+    let clock = std::time::Instant::now();
+    let source = provenance(args, &input_files)?;
+    let checksum_s = clock.elapsed().as_secs_f64();
+    let clock = std::time::Instant::now();
+    let mut summary = write_outputs(&args.out, &data, &params, &out, source)?;
     let name = args
         .input
         .file_name()
@@ -106,6 +106,9 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let (dynamics, mut dynamic_pngs) = run_dynamics(args, dynamics_settings.as_ref(), &out, &name)?;
     pngs.append(&mut dynamic_pngs);
     summary["dynamics"] = dynamics;
+    summary["timings_s"]["read"] = json!(read_s);
+    summary["timings_s"]["checksum"] = json!(checksum_s);
+    summary["timings_s"]["maps_figures_and_dynamics"] = json!(clock.elapsed().as_secs_f64());
     // Written last: a folder without summary.json is visibly incomplete.
     pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
     println!(
@@ -124,6 +127,33 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Where the results came from: pcuvd's version, the command line, and every input file with its
+/// size and SHA-256, the format and the reader that read it.
+fn provenance(args: &ProcessArgs, input_files: &[PathBuf]) -> Result<serde_json::Value> {
+    let (format, reader) = match input_files.len() {
+        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
+        _ => (
+            "pcuvd recording manifest (.toml) + NumPy .npy",
+            "pcuvd_io::read_recording",
+        ),
+    };
+    let files = input_files
+        .iter()
+        .map(|path| {
+            let (size, sha256) = outputs::fingerprint(path)?;
+            Ok(json!({ "path": path.display().to_string(), "size_bytes": size, "sha256": sha256 }))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(json!({
+        "input": args.input.display().to_string(),
+        "format": format,
+        "reader": reader,
+        "files": files,
+        "pcuvd_version": env!("CARGO_PKG_VERSION"),
+        "command_line": std::env::args().collect::<Vec<_>>(),
+    }))
 }
 
 /// The dynamics stage's settings as read from the command line: `None` with `--dynamics off`.

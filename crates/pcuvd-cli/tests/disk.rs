@@ -35,6 +35,23 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         .status()
         .unwrap();
     assert!(status.success());
+    // Provenance: the input, its size and checksum, the reader, the version and the command line.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("summary.json")).unwrap())
+            .unwrap();
+    let source = &summary["source"];
+    assert_eq!(
+        source["files"][0]["size_bytes"].as_u64(),
+        Some(std::fs::metadata(&input).unwrap().len())
+    );
+    assert_eq!(
+        source["files"][0]["sha256"].as_str().map(str::len),
+        Some(64)
+    );
+    assert_eq!(source["reader"], "pcuvd_io::read_must_mat");
+    assert_eq!(source["pcuvd_version"], env!("CARGO_PKG_VERSION"));
+    assert!(source["command_line"][1] == "process", "{source}");
+    assert!(summary["timings_s"]["read"].as_f64().unwrap() >= 0.0);
     let x: Array1<f64> = read_npy(out.path().join("x.npy")).unwrap();
     let z: Array1<f64> = read_npy(out.path().join("z.npy")).unwrap();
     let v: Array2<f64> = read_npy(out.path().join("color_doppler.npy")).unwrap();
