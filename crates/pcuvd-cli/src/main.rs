@@ -1,6 +1,7 @@
 //! `pcuvd`: simulate, process and quantify ultrafast vector Doppler acquisitions.
 
 mod figures;
+mod info;
 mod network_study;
 mod options;
 mod outputs;
@@ -30,6 +31,8 @@ enum Command {
     Process(Box<process::ProcessArgs>),
     /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
     Simulate(simulate::SimulateArgs),
+    /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
+    Info(info::InfoArgs),
     /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),
 }
@@ -41,6 +44,7 @@ fn main() -> ExitCode {
         Command::Process(args) => process::run(&args),
         Command::Simulate(args) => simulate::run(&args),
         Command::Paper(args) => paper::run(&args),
+        Command::Info(args) => info::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

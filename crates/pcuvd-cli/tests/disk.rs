@@ -245,3 +245,46 @@ fn used_output_folders_are_refused_unless_forced_and_inputs_are_never_overwritte
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
+
+/// `pcuvd info` reports what the reader understood, in text and as JSON, without processing.
+#[test]
+fn info_reports_the_acquisition_without_processing() {
+    let input = disk_file();
+    let run = |extra: &[&str]| {
+        let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .arg("info")
+            .arg(&input)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(result.status.success());
+        String::from_utf8_lossy(&result.stdout).into_owned()
+    };
+    let text = run(&[]);
+    assert!(
+        text.contains("32 events × 128 channels × 334 samples"),
+        "{text}"
+    );
+    assert!(text.contains("band-pass sampled"), "{text}");
+    let info: serde_json::Value = serde_json::from_str(&run(&["--json"])).unwrap();
+    let acq = &info["acquisition"];
+    // 32 unsteered plane waves at 10 kHz, one angle: frame rate = PRF, and the projection Nyquist
+    // velocity c·f_frame/(4 f_c) = 1480 · 10⁴ / (4 · 5·10⁶) = 0.74 m/s.
+    assert_eq!(acq["frames"], 32);
+    assert!(
+        (acq["frame_rate_hz"].as_f64().unwrap() - 1e4).abs() < 1e-6,
+        "{acq}"
+    );
+    assert!(
+        (acq["nyquist_velocity_m_s"].as_f64().unwrap() - 0.74).abs() < 1e-9,
+        "{acq}"
+    );
+    // Recorded depth: c·(t0 + (n − 1)/f_s)/2.
+    let (c, t0, fs) = (
+        acq["sound_speed_m_s"].as_f64().unwrap(),
+        acq["t0_s"].as_f64().unwrap(),
+        acq["sampling_frequency_hz"].as_f64().unwrap(),
+    );
+    let depth = 0.5 * c * (t0 + 333.0 / fs);
+    assert!((acq["recorded_depth_m"].as_f64().unwrap() - depth).abs() < 1e-12);
+}

@@ -40,9 +40,13 @@ impl Acquisition {
         self.sequence.frame_rate()
     }
 
-    /// Largest unaliased projection velocity V_θ (m/s): c · frame rate / (4 f_c).
+    /// Largest unaliased projection velocity V_θ (m/s) ([`crate::doppler::nyquist_velocity`]).
     pub fn nyquist_velocity(&self) -> f64 {
-        self.sound_speed * self.frame_rate() / (4.0 * self.probe.center_frequency)
+        crate::doppler::nyquist_velocity(
+            self.sound_speed,
+            self.frame_rate(),
+            self.probe.center_frequency,
+        )
     }
 }
 

@@ -1,0 +1,178 @@
+//! `pcuvd info`: what pcuvd understood of a recording, without processing it.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use pcuvd::{Coding, Samples};
+use serde_json::json;
+
+use crate::process::read_input;
+
+/// Arguments of `pcuvd info`.
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// Recording: a MUST-style MATLAB v5 file (.mat) or a pcuvd recording manifest (.toml).
+    pub input: PathBuf,
+    /// Print JSON (for programs) instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Slowest blood speed (m/s) a recording is expected to measure without aliasing: below this
+/// projection Nyquist velocity, arterioles and larger vessels alias.
+const LOW_NYQUIST_M_S: f64 = 20e-3;
+
+/// Runs `pcuvd info`.
+pub fn run(args: &InfoArgs) -> Result<()> {
+    let (data, files) = read_input(&args.input)?;
+    let acq = &data.acquisition;
+    let (probe, seq) = (&acq.probe, &acq.sequence);
+    let (events, channels, samples) = data.samples.dim();
+    let (kind, bytes_per_sample, demod) = match &data.samples {
+        Samples::Rf(_) => ("RF (real)", 4usize, None),
+        Samples::Iq {
+            demod_frequency, ..
+        } => ("IQ (complex)", 8usize, Some(*demod_frequency)),
+    };
+    let frames = data.n_frames();
+    let n_angles = seq.n_angles();
+    let depth = pcuvd::pipeline::recorded_depth(&data);
+    let grid = pcuvd::pipeline::default_grid(&data).ok();
+    let (nz, nx) = grid.as_ref().map_or((0, 0), |g| g.shape());
+    // The whole-recording path holds the samples, the decoded per-angle copy and its IQ (about
+    // three times the input as f32), and per angle the beamformed and filtered image series
+    // (complex64, twice), on the default grid.
+    let input_bytes = events * channels * samples * bytes_per_sample;
+    let image_bytes = 2 * nz * nx * frames * n_angles * 8;
+    let memory_bytes = 3 * events * channels * samples * 4 + image_bytes;
+    let f_max = probe.center_frequency * (1.0 + probe.bandwidth / 2.0);
+    let mut warnings = Vec::new();
+    if demod.is_none() && acq.sampling_frequency < 2.0 * f_max {
+        warnings.push(format!(
+            "f_s {:.2} MHz is below 2 × {:.2} MHz (twice the band's top): the RF is band-pass \
+             sampled; pcuvd demodulates it as such, but check that the band does not fold onto itself",
+            acq.sampling_frequency * 1e-6,
+            f_max * 1e-6
+        ));
+    }
+    if acq.nyquist_velocity() < LOW_NYQUIST_M_S {
+        warnings.push(format!(
+            "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases (raise the PRF or \
+             use fewer angles)",
+            acq.nyquist_velocity() * 1e3
+        ));
+    }
+    if frames < 2 {
+        warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
+    }
+    let coding = match seq.coding {
+        Coding::Conventional => json!({ "kind": "none" }),
+        Coding::Hadamard { slot_delay } => {
+            json!({ "kind": "hadamard", "order": n_angles, "slot_delay_s": slot_delay })
+        }
+    };
+    let report = json!({
+        "input": args.input.display().to_string(),
+        "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "samples": {
+            "kind": kind,
+            "shape_events_channels_samples": [events, channels, samples],
+            "bytes_in_memory": input_bytes,
+            "demodulation_frequency_hz": demod,
+        },
+        "probe": {
+            "name": probe.name, "n_elements": probe.n_elements, "pitch_m": probe.pitch,
+            "element_width_m": probe.element_width, "center_frequency_hz": probe.center_frequency,
+            "bandwidth": probe.bandwidth,
+        },
+        "acquisition": {
+            "sampling_frequency_hz": acq.sampling_frequency,
+            "sound_speed_m_s": acq.sound_speed,
+            "t0_s": acq.t0,
+            "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
+            "coding": coding,
+            "event_prf_hz": seq.event_prf,
+            "frames": frames,
+            "frame_rate_hz": acq.frame_rate(),
+            "duration_s": frames as f64 / acq.frame_rate(),
+            "nyquist_velocity_m_s": acq.nyquist_velocity(),
+            "recorded_depth_m": depth,
+        },
+        "processing": {
+            "default_grid_nz_nx": [nz, nx],
+            "memory_estimate_bytes": memory_bytes,
+            "memory_estimate_rule": "3 × samples × 4 bytes (input, decoded, IQ) + 2 × pixels × frames × angles × 8 bytes (image series, filtered series), default grid",
+        },
+        "warnings": warnings,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    let size = |b: usize| {
+        if b >= 1_000_000_000 {
+            format!("{:.2} GB", b as f64 / 1e9)
+        } else {
+            format!("{:.1} MB", b as f64 / 1e6)
+        }
+    };
+    println!("{}", args.input.display());
+    println!(
+        "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} in memory){}",
+        size(input_bytes),
+        demod.map_or(String::new(), |f| format!(
+            ", demodulated at {:.3} MHz",
+            f * 1e-6
+        ))
+    );
+    println!(
+        "  probe        {} ({} elements, pitch {:.3} mm, f_c {:.3} MHz, bandwidth {:.0} %)",
+        probe.name,
+        probe.n_elements,
+        probe.pitch * 1e3,
+        probe.center_frequency * 1e-6,
+        probe.bandwidth * 100.0
+    );
+    println!(
+        "  sampling     f_s {:.3} MHz, c {:.1} m/s, t0 {:.3} µs",
+        acq.sampling_frequency * 1e-6,
+        acq.sound_speed,
+        acq.t0 * 1e6
+    );
+    let angles: Vec<String> = seq
+        .angles
+        .iter()
+        .map(|a| format!("{:.2}", a.to_degrees()))
+        .collect();
+    println!("  angles (°)   {}", angles.join(", "));
+    println!(
+        "  coding       {}",
+        match seq.coding {
+            Coding::Conventional => "none (one angle per event)".to_string(),
+            Coding::Hadamard { slot_delay } => format!(
+                "Hadamard order {n_angles}, slot delay {:.3} µs",
+                slot_delay * 1e6
+            ),
+        }
+    );
+    println!(
+        "  timing       event PRF {:.1} Hz, {frames} frames at {:.1} Hz ({:.3} s)",
+        seq.event_prf,
+        acq.frame_rate(),
+        frames as f64 / acq.frame_rate()
+    );
+    println!(
+        "  Doppler      projection Nyquist velocity {:.1} mm/s; recorded depth {:.2} mm",
+        acq.nyquist_velocity() * 1e3,
+        depth * 1e3
+    );
+    println!(
+        "  processing   default grid {nz} × {nx} pixels; about {} of memory",
+        size(memory_bytes)
+    );
+    for w in &warnings {
+        println!("  warning: {w}");
+    }
+    Ok(())
+}
