@@ -212,20 +212,15 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     )?);
 
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+        let mask = masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB);
+        // One speed scale for both estimators, so that their colours compare.
+        let vmax = speed_scale(&[(ls, &mask), (irls, &mask)]);
         let panels = [
             ("UVD (least squares)", ls),
             ("PC-UVD estimator (IRLS-WLS)", irls),
         ]
         .into_iter()
-        .map(|(title, field)| {
-            vector_panel(
-                title,
-                field,
-                grid,
-                &masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB),
-                &background,
-            )
-        })
+        .map(|(title, field)| vector_panel(title, field, grid, &mask, &background, vmax))
         .collect();
         written.push(save(
             &dir.join("vector.png"),
@@ -237,21 +232,32 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     Ok(written)
 }
 
-/// Speed map under triangles pointing along the flow, masked to flow pixels.
+/// The top of a speed colour scale (mm/s) shared by several vector maps: the 95th percentile of
+/// the speed over every map's flow pixels, so that one colour means one speed in all of them.
+pub fn speed_scale(fields: &[(&VectorField, &Array2<bool>)]) -> f64 {
+    let speeds = fields.iter().flat_map(|(field, mask)| {
+        Zip::from(&field.vx)
+            .and(&field.vz)
+            .and(*mask)
+            .map_collect(|&x, &z, &m| if m { x.hypot(z) * 1e3 } else { f64::NAN })
+            .into_iter()
+    });
+    quantile(speeds, 0.95).max(1e-6)
+}
+
+/// Speed map under triangles pointing along the flow, masked to flow pixels, with the speed colour
+/// scale 0..`vmax` mm/s (from [`speed_scale`], shared by the maps a reader compares).
 pub fn vector_panel(
     title: &str,
     field: &VectorField,
     grid: &Grid,
     mask: &Array2<bool>,
     background: &Array2<f64>,
+    vmax: f64,
 ) -> Panel {
     let speed_mm_s = Zip::from(&field.vx)
         .and(&field.vz)
         .map_collect(|&x, &z| x.hypot(z) * 1e3);
-    let masked = Zip::from(&speed_mm_s)
-        .and(mask)
-        .map_collect(|&s, &m| if m { s } else { f64::NAN });
-    let vmax = quantile(masked.iter().copied(), 0.95).max(1e-6);
     let mut panel = map_panel(
         title,
         speed_mm_s,

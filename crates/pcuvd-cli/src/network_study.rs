@@ -52,6 +52,15 @@ pub fn network_figures(
         })
         .collect();
 
+    // One speed scale for every vector map of Fig. 6 and 7 (both modes), so colours compare.
+    let speed_max = crate::figures::speed_scale(
+        &results
+            .iter()
+            .zip(&flows)
+            .map(|(r, flow)| (r.field(), flow))
+            .collect::<Vec<_>>(),
+    );
+
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD.
     let mut panels = Vec::new();
     for (r, flow) in results.iter().zip(&flows) {
@@ -81,6 +90,7 @@ pub fn network_figures(
             grid,
             flow,
             &black,
+            speed_max,
         ));
     }
     figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
@@ -172,6 +182,7 @@ pub fn network_figures(
                 &roi.grid,
                 &roi.cut(flow),
                 &roi.cut(&black),
+                speed_max,
             ));
         }
     }
