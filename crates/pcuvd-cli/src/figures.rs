@@ -63,6 +63,16 @@ pub const UVD_RGB: (u8, u8, u8) = (230, 159, 0);
 /// Colour of PC-UVD (coded) in plots.
 pub const PCUVD_RGB: (u8, u8, u8) = (214, 39, 40);
 
+/// Colour-bar label of an axial velocity drawn positive toward the probe with
+/// [`Colormap::RedBlue`]: red is flow toward the probe (up), in every figure, as in the paper.
+pub const TOWARD_PROBE_LABEL: &str = "axial velocity (mm/s): red = toward probe (up), blue = away";
+/// Colour-bar label of Vz (positive deeper) drawn with [`Colormap::BlueRed`]: red = up.
+pub const VZ_LABEL: &str = "Vz (mm/s, + = deeper): red = toward probe (up), blue = away";
+/// Colour-bar label of Vx drawn with [`Colormap::RedBlue`].
+pub const VX_LABEL: &str = "Vx (mm/s): red = toward +x (right), blue = toward −x";
+/// Colour-bar label of a [`class_map`] of PSV.
+pub const PSV_UP_LABEL: &str = "PSV (mm/s): red = flowing up (toward probe), blue = down";
+
 /// B-mode in dB mapped to [0, 1] grey over a 60 dB dynamic range, as a background.
 pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
     bmode_db.mapv(|v| ((v + 60.0) / 60.0).clamp(0.0, 1.0))
@@ -195,12 +205,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     let upward_mm_s = out.color_doppler.mapv(|v| -v * 1e3);
     let vmax = out.nyquist_velocity * 1e3;
     let mut cd = map_panel(
-        "Colour Doppler (red: toward the probe)",
+        "Colour Doppler",
         upward_mm_s,
         grid,
         Colormap::RedBlue,
         (-vmax, vmax),
-        "axial velocity toward probe (mm/s)",
+        TOWARD_PROBE_LABEL,
     );
     cd.mask = Some(mask.clone());
     cd.background = Some(background.clone());
@@ -333,7 +343,7 @@ pub fn dynamics_figures(
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "PSV (mm/s), red up, blue down",
+            PSV_UP_LABEL,
         ),
         finite_panel(
             &format!("Venules (RI ≤ {})", params.vein_ri_max),
@@ -341,7 +351,7 @@ pub fn dynamics_figures(
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "PSV (mm/s), red up, blue down",
+            PSV_UP_LABEL,
         ),
     ];
     let mut written = vec![save(

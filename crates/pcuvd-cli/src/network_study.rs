@@ -18,7 +18,8 @@ use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
 use crate::figures::{
-    Rendered, TRUTH_RGB, UVD_RGB, class_map, line, map_panel, render, vector_panel,
+    PSV_UP_LABEL, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB, class_map, line, map_panel,
+    render, vector_panel,
 };
 use crate::progress::TaskProgress;
 
@@ -74,12 +75,12 @@ pub fn network_figures(
             "dB above noise",
         )));
         let mut cd = map_panel(
-            &format!("{name}: colour Doppler (red: up)"),
+            &format!("{name}: colour Doppler"),
             r.out.color_doppler.mapv(|v| -v * 1e3),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "axial velocity toward probe (mm/s)",
+            TOWARD_PROBE_LABEL,
         );
         cd.mask = Some(flow.clone());
         cd.background = Some(black.clone());
@@ -236,7 +237,7 @@ pub fn network_figures(
                 grid,
                 Colormap::RedBlue,
                 (-vmax, vmax),
-                "PSV (mm/s), red up, blue down",
+                PSV_UP_LABEL,
             );
             p.mask = Some(match flow {
                 Some(flow) => shown(&data, flow),

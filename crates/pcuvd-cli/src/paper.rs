@@ -16,7 +16,8 @@ use pcuvd_render::{Colormap, Figure, Marker, Panel, PlotPanel, Report, Series, S
 use serde::Serialize;
 
 use crate::figures::{
-    self, PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, line, map_panel, render, vector_overlay,
+    self, PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line, map_panel, render,
+    vector_overlay,
 };
 use crate::options::Alignment;
 use crate::process::create_dir;
@@ -337,15 +338,17 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "Vx (mm/s)",
+            VX_LABEL,
         )));
+        // Vz is positive deeper: the reversed map keeps red = toward the probe (up), as in
+        // every other figure and in the paper.
         panels.push(Panel::Image(map_panel(
-            &format!("{name}: Vz (+ = deeper)"),
+            &format!("{name}: Vz"),
             masked(&field.vz, &truth.mask, 1e3),
             grid,
-            Colormap::RedBlue,
+            Colormap::BlueRed,
             (-vmax, vmax),
-            "Vz (mm/s)",
+            VZ_LABEL,
         )));
         panels.push(Panel::Image(map_panel(
             &format!("{name}: speed"),
@@ -368,7 +371,7 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         vec_panel.mask = Some(Array2::from_elem(truth.mask.dim(), false));
         panels.push(Panel::Image(vec_panel));
     }
-    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx, Vz, speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
+    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx (red = toward +x), Vz (red = toward the probe, up, as in every figure), speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
 
     // Figure 4: profiles across the vessel at a deep crossing (flow mostly lateral) and a side crossing (flow mostly axial).
     let spec = phantom.spec();
