@@ -73,6 +73,17 @@ pub const VX_LABEL: &str = "Vx (mm/s): red = toward +x (right), blue = toward âˆ
 /// Colour-bar label of a [`class_map`] of PSV.
 pub const PSV_UP_LABEL: &str = "PSV (mm/s): red = flowing up (toward probe), blue = down";
 
+/// A colour range (0, top) in dB shared by maps a reader compares, from their data: the top is
+/// the largest 99.9th percentile of the maps, rounded up to 5 dB, so that no map saturates.
+pub fn shared_db_range(maps: &[&Array2<f64>]) -> (f64, f64) {
+    let top = maps
+        .iter()
+        .map(|m| quantile(m.iter().copied(), 0.999))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    (0.0, ((top / 5.0).ceil() * 5.0).max(5.0))
+}
+
 /// B-mode in dB mapped to [0, 1] grey over a 60 dB dynamic range, as a background.
 pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
     bmode_db.mapv(|v| ((v + 60.0) / 60.0).clamp(0.0, 1.0))

@@ -19,7 +19,7 @@ use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Repo
 
 use crate::figures::{
     PSV_UP_LABEL, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB, class_map, line, map_panel,
-    render, vector_panel,
+    render, shared_db_range, vector_panel,
 };
 use crate::progress::TaskProgress;
 
@@ -62,16 +62,21 @@ pub fn network_figures(
             .collect::<Vec<_>>(),
     );
 
-    // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD.
+    // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD; one PD range from the data.
+    let pd_db: Vec<Array2<f64>> = results
+        .iter()
+        .map(|r| masks::db_above_noise(&r.out.power_doppler, &r.noise_power))
+        .collect();
+    let pd_range = shared_db_range(&pd_db.iter().collect::<Vec<_>>());
     let mut panels = Vec::new();
-    for (r, flow) in results.iter().zip(&flows) {
+    for ((r, flow), db) in results.iter().zip(&flows).zip(pd_db) {
         let name = r.mode.method();
         panels.push(Panel::Image(map_panel(
             &format!("{name}: power Doppler"),
-            masks::db_above_noise(&r.out.power_doppler, &r.noise_power),
+            db,
             grid,
             Colormap::Hot,
-            (0.0, 40.0),
+            pd_range,
             "dB above noise",
         )));
         let mut cd = map_panel(

@@ -12,7 +12,7 @@ use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
 use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
 use pcuvd::study::{Motion as StudyMotion, describe_alignment};
 use pcuvd::vector::VectorField;
-use pcuvd_render::{Colormap, Figure, Marker, Panel, PlotPanel, Report, Series, SeriesStyle};
+use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Report, Series, SeriesStyle};
 use serde::Serialize;
 
 use crate::figures::{
@@ -264,16 +264,22 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
 
     // Figure 2: PD and PC-PD, in dB above each image's own noise floor, and SNR versus depth.
     let mut panels = Vec::new();
-    for (o, noise, title) in [
-        (conv, &noise_power[0], "PD (conventional)"),
-        (coded, &noise_power[1], "PC-PD (Hadamard-coded)"),
-    ] {
+    let pd_db = [
+        masks::db_above_noise(&conv.power_doppler, &noise_power[0]),
+        masks::db_above_noise(&coded.power_doppler, &noise_power[1]),
+    ];
+    // One range for both, from the data: neither map clips at its top.
+    let pd_range = figures::shared_db_range(&[&pd_db[0], &pd_db[1]]);
+    for (db, title) in pd_db
+        .into_iter()
+        .zip(["PD (conventional)", "PC-PD (Hadamard-coded)"])
+    {
         panels.push(Panel::Image(map_panel(
             title,
-            masks::db_above_noise(&o.power_doppler, noise),
+            db,
             grid,
             Colormap::Hot,
-            (0.0, 35.0),
+            pd_range,
             "dB above noise",
         )));
     }
@@ -517,17 +523,27 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
                 line(label, levels.clone(), y, style, rgb)
             })
             .collect();
+        // The main study's level: a vertical dashed line over the plot's height (a marker at
+        // RMSE 0 looked like a data point).
+        let mut series: Vec<Series> = series;
+        let top = series
+            .iter()
+            .flat_map(|s| s.y.iter().copied())
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        let main = study.settings.noise_db;
+        series.push(line(
+            &format!("main study ({main} dB)"),
+            vec![main, main],
+            vec![0.0, top],
+            SeriesStyle::DashedLine,
+            (120, 120, 120),
+        ));
         panels.push(Panel::Plot(PlotPanel {
             title: format!("RMSE of {component} versus noise level"),
             x_label: "noise level (dB, see definition)".into(),
             y_label: format!("RMSE {component} (mm/s)"),
             series,
-            markers: vec![Marker {
-                x: study.settings.noise_db,
-                y: 0.0,
-                label: "main study".into(),
-                rgb: (90, 90, 90),
-            }],
             ..Default::default()
         }));
     }

@@ -16,6 +16,7 @@ mod canvas;
 mod colormap;
 mod figure;
 mod image_panel;
+mod placement;
 mod plot_panel;
 mod report;
 mod style;
