@@ -289,12 +289,15 @@ pub fn network_figures(
     // Figure 8 (b): compounded Doppler spectrograms at four pixels, PC-UVD.
     let coded = &results[1];
     let mut panels = Vec::new();
-    for (site, spec) in sites.iter().zip(&coded.spectrograms) {
-        panels.push(Panel::Image(spectrogram_panel(
-            site, spec, coded, phantom, truth,
-        )));
+    for (k, (site, spec)) in sites.iter().zip(&coded.spectrograms).enumerate() {
+        let mut panel = spectrogram_panel(site, spec, coded, phantom, truth);
+        // One legend for the figure (the first panel's): the lines mean the same in every panel.
+        if k > 0 {
+            panel.lines.iter_mut().for_each(|l| l.label.clear());
+        }
+        panels.push(Panel::Image(panel));
     }
-    figs.push(render(dir, "fig8b_spectrograms.png", "Figure 8 (b) analogue: PC-UVD compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of an arteriole and a venule flowing up and down. Dashed white: mean Doppler velocity (colour-Doppler estimate); solid cyan: vector speed with the sign of the flow's Vz; thin green: true speed; red and yellow ticks: the PSV and EDV the RI uses.", Figure { title: "PC-UVD spectrograms over the cardiac cycle".into(), panels, ncols: 2, panel_size_px: (620, 420) })?);
+    figs.push(render(dir, "fig8b_spectrograms.png", "Figure 8 (b) analogue: PC-UVD compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of an arteriole and a venule flowing up and down. The legend (first panel) holds for every panel: dashed white, mean Doppler velocity (colour-Doppler estimate); cyan, vector speed with the sign of the flow's Vz; green, true speed; red and yellow ticks, the PSV and EDV the RI uses.", Figure { title: "PC-UVD spectrograms over the cardiac cycle".into(), panels, ncols: 2, panel_size_px: (620, 420) })?);
     progress.update(task, 5, 5);
     Ok(figs)
 }
@@ -336,18 +339,21 @@ fn spectrogram_panel(
             z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
             dashed: true,
             rgb: (255, 255, 255),
+            label: "mean Doppler velocity (colour Doppler)".into(),
         },
         Polyline {
             x_mm: series.times_s.iter().map(|t| t * 1e3).collect(),
             z_mm: true_speed,
             dashed: false,
             rgb: (60, 200, 90),
+            label: "true speed".into(),
         },
         Polyline {
             x_mm: series.times_s.iter().map(|t| t * 1e3).collect(),
             z_mm: speed.clone(),
             dashed: false,
             rgb: (80, 220, 255),
+            label: "vector speed, sign of the flow's Vz".into(),
         },
     ];
     // PSV (red) and EDV (yellow) of each cycle: a short vertical tick at the sample used.
@@ -356,7 +362,10 @@ fn spectrogram_panel(
         let lane = &speed[start..end.min(speed.len())];
         let abs_max = (0..lane.len()).max_by(|&a, &b| lane[a].abs().total_cmp(&lane[b].abs()));
         let abs_min = (0..lane.len()).min_by(|&a, &b| lane[a].abs().total_cmp(&lane[b].abs()));
-        for (at, rgb) in [(abs_max, (230, 40, 40)), (abs_min, (250, 210, 40))] {
+        for (at, rgb, label) in [
+            (abs_max, (230, 40, 40), "PSV (peak systolic) used for RI"),
+            (abs_min, (250, 210, 40), "EDV (end diastolic) used for RI"),
+        ] {
             if let Some(k) = at {
                 let (t, v) = (series.times_s[start + k] * 1e3, lane[k]);
                 lines.push(Polyline {
@@ -364,6 +373,7 @@ fn spectrogram_panel(
                     z_mm: vec![v - tick, v + tick],
                     dashed: false,
                     rgb,
+                    label: label.into(),
                 });
             }
         }

@@ -87,7 +87,7 @@ pub struct ImagePanel {
     pub background: Option<ndarray::Array2<f64>>,
     /// Optional vector glyphs drawn over the image.
     pub arrows: Option<VectorOverlay>,
-    /// Lines (in mm) drawn over the image, e.g. a profile line.
+    /// Lines (in mm) drawn over the image, e.g. a profile line; labelled ones get a legend.
     pub lines: Vec<Polyline>,
     /// Non-spatial axes; None = a depth map in mm (x right, z down, equal aspect).
     pub axes: Option<ImageAxes>,
@@ -141,6 +141,9 @@ pub struct Polyline {
     pub dashed: bool,
     /// Line colour (sRGB).
     pub rgb: (u8, u8, u8),
+    /// Legend entry; empty = not in the legend. Lines of one label share one entry, and the
+    /// panel's legend goes in the corner of the image that its lines and glyphs leave free.
+    pub label: String,
 }
 
 /// One data series of a plot panel.

@@ -491,6 +491,7 @@ fn errors_not_panics() {
         z_mm: vec![0.0],
         dashed: false,
         rgb: (0, 0, 0),
+        label: String::new(),
     });
     let fig = figure(vec![Panel::Image(p)], 1, "");
     assert!(matches!(
@@ -711,6 +712,7 @@ fn spectrogram_polyline_follows_the_upward_axis() {
         z_mm: vec![500.0, 500.0],
         dashed: false,
         rgb: (0, 255, 0),
+        label: String::new(),
     };
     let img = rgb_img(&figure(
         vec![Panel::Image(spectrogram_panel(true, true, vec![line]))],
@@ -734,5 +736,27 @@ fn spectrogram_polyline_follows_the_upward_axis() {
     assert!(
         (got - expected).abs() < 1.0,
         "line at row {got:.2}, expected {expected:.2} (plot {top}..{bottom})"
+    );
+}
+
+#[test]
+fn labelled_lines_get_a_legend_clear_of_them() {
+    // A line along the top of the image: the legend goes to a lower corner.
+    let mut p = image_panel(Array2::from_elem((20, 20), 1.0), Colormap::Gray, (0.0, 1.0));
+    p.lines.push(Polyline {
+        x_mm: vec![-10.0, 10.0],
+        z_mm: vec![1.0, 1.0],
+        dashed: false,
+        rgb: (0, 255, 0),
+        label: "green line".into(),
+    });
+    let img = decode(&render_png_bytes(&figure(vec![Panel::Image(p)], 1, "")).unwrap());
+    // The legend's dark box on the white image, below the line.
+    let dark = bbox(&img, |(r, g, b)| r < 120 && g < 120 && b < 120 && r > 60).expect("legend");
+    let line = bbox(&img, |(r, g, b)| g > 200 && r < 80 && b < 80).expect("line");
+    // (The legend's own green sample may extend the line's box downward; its top is the line.)
+    assert!(
+        dark.1 > line.1 + 5,
+        "legend {dark:?} overlaps the line {line:?}"
     );
 }
