@@ -63,6 +63,12 @@ pub const UVD_RGB: (u8, u8, u8) = (230, 159, 0);
 /// Colour of PC-UVD (coded) in plots.
 pub const PCUVD_RGB: (u8, u8, u8) = (214, 39, 40);
 
+/// Colour of the lines drawn on maps where a profile figure takes its values (cyan: apart from
+/// the hot and red-blue maps' colours).
+pub const PROFILE_LINE_RGB: (u8, u8, u8) = (0, 220, 255);
+/// Colour of the outlines drawn on maps around the regions another figure enlarges.
+pub const ROI_BOX_RGB: (u8, u8, u8) = (120, 255, 120);
+
 /// Colour-bar label of an axial velocity drawn positive toward the probe with
 /// [`Colormap::RedBlue`]: red is flow toward the probe (up), in every figure, as in the paper.
 pub const TOWARD_PROBE_LABEL: &str = "axial velocity (mm/s): red = toward probe (up), blue = away";

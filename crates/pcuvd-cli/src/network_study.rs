@@ -18,8 +18,8 @@ use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
 use crate::figures::{
-    PSV_UP_LABEL, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB, class_map, line, map_panel,
-    render, shared_db_range, vector_panel,
+    PROFILE_LINE_RGB, PSV_UP_LABEL, ROI_BOX_RGB, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB,
+    class_map, line, map_panel, render, shared_db_range, vector_panel,
 };
 use crate::progress::TaskProgress;
 
@@ -62,6 +62,47 @@ pub fn network_figures(
             .collect::<Vec<_>>(),
     );
 
+    // Fig. 6gh's profile lines (a horizontal and a vertical line) and Fig. 7's regions, drawn
+    // on Fig. 6's power Doppler maps.
+    let (z_line, x_line) = (5.0e-3, 4.2e-3);
+    let row = grid.nearest_pixel(0.0, z_line).0;
+    let col = grid.nearest_pixel(x_line, 0.0).1;
+    let rois = [
+        ((-5.8e-3, -1.6e-3), (2.0e-3, 5.0e-3)),
+        ((3.4e-3, 6.4e-3), (5.8e-3, 9.4e-3)),
+        ((-1.8e-3, 3.6e-3), (10.0e-3, 12.4e-3)),
+    ];
+    let (x_ends, z_ends) = (
+        (grid.x[0] * 1e3, grid.x[grid.x.len() - 1] * 1e3),
+        (grid.z[0] * 1e3, grid.z[grid.z.len() - 1] * 1e3),
+    );
+    let mut guides = vec![
+        Polyline {
+            x_mm: vec![x_ends.0, x_ends.1],
+            z_mm: vec![grid.z[row] * 1e3; 2],
+            dashed: false,
+            rgb: PROFILE_LINE_RGB,
+            label: "profiles of Fig. 6 g, h".into(),
+        },
+        Polyline {
+            x_mm: vec![grid.x[col] * 1e3; 2],
+            z_mm: vec![z_ends.0, z_ends.1],
+            dashed: false,
+            rgb: PROFILE_LINE_RGB,
+            label: "profiles of Fig. 6 g, h".into(),
+        },
+    ];
+    for &((x0, x1), (z0, z1)) in &rois {
+        let (x0, x1, z0, z1) = (x0 * 1e3, x1 * 1e3, z0 * 1e3, z1 * 1e3);
+        guides.push(Polyline {
+            x_mm: vec![x0, x1, x1, x0, x0],
+            z_mm: vec![z0, z0, z1, z1, z0],
+            dashed: true,
+            rgb: ROI_BOX_RGB,
+            label: "regions of Fig. 7".into(),
+        });
+    }
+
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD; one PD range from the data.
     let pd_db: Vec<Array2<f64>> = results
         .iter()
@@ -71,14 +112,16 @@ pub fn network_figures(
     let mut panels = Vec::new();
     for ((r, flow), db) in results.iter().zip(&flows).zip(pd_db) {
         let name = r.mode.method();
-        panels.push(Panel::Image(map_panel(
+        let mut pd = map_panel(
             &format!("{name}: power Doppler"),
             db,
             grid,
             Colormap::Hot,
             pd_range,
             "dB above noise",
-        )));
+        );
+        pd.lines = guides.clone();
+        panels.push(Panel::Image(pd));
         let mut cd = map_panel(
             &format!("{name}: colour Doppler"),
             r.out.color_doppler.mapv(|v| -v * 1e3),
@@ -99,13 +142,10 @@ pub fn network_figures(
             speed_max,
         ));
     }
-    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
+    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor; cyan: the lines of Fig. 6 g, h's profiles; dashed green: the regions of Fig. 7, ROI 1 the shallowest, ROI 3 the deepest), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
     progress.update(task, 1, 5);
 
     // Figure 6 (g, h): PD profiles along a shallow horizontal line and a vertical line, SNR by depth.
-    let (z_line, x_line) = (5.0e-3, 4.2e-3);
-    let row = grid.nearest_pixel(0.0, z_line).0;
-    let col = grid.nearest_pixel(x_line, 0.0).1;
     let x_mm: Vec<f64> = grid.x.iter().map(|x| x * 1e3).collect();
     let z_mm: Vec<f64> = grid.z.iter().map(|z| z * 1e3).collect();
     let rgb = [UVD_RGB, TRUTH_RGB];
@@ -169,11 +209,6 @@ pub fn network_figures(
     progress.update(task, 2, 5);
 
     // Figure 7: vector maps in three regions at increasing depth.
-    let rois = [
-        ((-5.8e-3, -1.6e-3), (2.0e-3, 5.0e-3)),
-        ((3.4e-3, 6.4e-3), (5.8e-3, 9.4e-3)),
-        ((-1.8e-3, 3.6e-3), (10.0e-3, 12.4e-3)),
-    ];
     let mut panels = Vec::new();
     for (r, flow) in results.iter().zip(&flows) {
         for (k, &(x, z)) in rois.iter().enumerate() {
@@ -403,7 +438,6 @@ fn spectrogram_panel(
     }
 }
 
-/// The network part of report.html.
 /// The network part of report.html.
 pub fn report_section(
     report: &mut Report,

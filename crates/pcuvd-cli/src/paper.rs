@@ -12,12 +12,12 @@ use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
 use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
 use pcuvd::study::{Motion as StudyMotion, describe_alignment};
 use pcuvd::vector::VectorField;
-use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Report, Series, SeriesStyle};
+use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, Series, SeriesStyle};
 use serde::Serialize;
 
 use crate::figures::{
-    self, PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line, map_panel, render,
-    vector_overlay,
+    self, PCUVD_RGB, PROFILE_LINE_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line,
+    map_panel, render, vector_overlay,
 };
 use crate::options::Alignment;
 use crate::process::create_dir;
@@ -262,6 +262,37 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
     let noise_power = &study.noise_power;
     let sweep = &study.metrics.noise_sweep;
 
+    // Fig. 4's profiles: across the vessel at a deep crossing (flow mostly lateral) and a side
+    // crossing (flow mostly axial), at polar angle α0, over the offsets l of its bins.
+    let spec = phantom.spec();
+    let sections = [
+        (
+            "Vx across the vessel at x ≈ 0, z ≈ 10 mm",
+            2.5 * std::f64::consts::PI,
+            0usize,
+        ),
+        (
+            "Vz across the vessel at x ≈ 4.5 mm, z ≈ 7 mm",
+            4.0 * std::f64::consts::PI,
+            1usize,
+        ),
+    ];
+    const PROFILE_HALF_WIDTH_M: f64 = 0.6e-3;
+    let profile_lines: Vec<Polyline> = sections
+        .iter()
+        .map(|&(_, alpha0, _)| {
+            let ends =
+                [-PROFILE_HALF_WIDTH_M, PROFILE_HALF_WIDTH_M].map(|l| spec.position(alpha0, l));
+            Polyline {
+                x_mm: ends.iter().map(|p| p[0] * 1e3).collect(),
+                z_mm: ends.iter().map(|p| p[1] * 1e3).collect(),
+                dashed: false,
+                rgb: PROFILE_LINE_RGB,
+                label: "profiles of Fig. 4".into(),
+            }
+        })
+        .collect();
+
     // Figure 2: PD and PC-PD, in dB above each image's own noise floor, and SNR versus depth.
     let mut panels = Vec::new();
     let pd_db = [
@@ -274,14 +305,9 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         .into_iter()
         .zip(["PD (conventional)", "PC-PD (Hadamard-coded)"])
     {
-        panels.push(Panel::Image(map_panel(
-            title,
-            db,
-            grid,
-            Colormap::Hot,
-            pd_range,
-            "dB above noise",
-        )));
+        let mut panel = map_panel(title, db, grid, Colormap::Hot, pd_range, "dB above noise");
+        panel.lines = profile_lines.clone();
+        panels.push(Panel::Image(panel));
     }
     let depth_mm = |rows: &[pcuvd::metrics::DepthSnr]| {
         rows.iter().map(|r| r.depth_m * 1e3).collect::<Vec<_>>()
@@ -320,7 +346,7 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         annotations: vec!["SNR: echo power in vessel / noise power".into()],
         ..Default::default()
     }));
-    out.push(render(dir, "fig2_power_doppler_snr.png", "Figure 2 analogue: conventional power Doppler (PD) and pulse-coded power Doppler (PC-PD), each in dB above its own noise floor, and SNR versus depth.", Figure { title: format!("Power Doppler, noise {} dB", study.settings.noise_db), panels, ncols: 3, panel_size_px: (520, 470) })?);
+    out.push(render(dir, "fig2_power_doppler_snr.png", "Figure 2 analogue: conventional power Doppler (PD) and pulse-coded power Doppler (PC-PD), each in dB above its own noise floor (cyan: the lines across the vessel along which Fig. 4's profiles are taken), and SNR versus depth.", Figure { title: format!("Power Doppler, noise {} dB", study.settings.noise_db), panels, ncols: 3, panel_size_px: (520, 470) })?);
 
     // Figure 3: truth / UVD / PC-UVD × Vx, Vz, speed, vector map.
     let vmax = 25.0;
@@ -379,24 +405,11 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
     }
     out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx (red = toward +x), Vz (red = toward the probe, up, as in every figure), speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
 
-    // Figure 4: profiles across the vessel at a deep crossing (flow mostly lateral) and a side crossing (flow mostly axial).
-    let spec = phantom.spec();
-    let sections = [
-        (
-            "Vx across the vessel at x ≈ 0, z ≈ 10 mm",
-            2.5 * std::f64::consts::PI,
-            0usize,
-        ),
-        (
-            "Vz across the vessel at x ≈ 4.5 mm, z ≈ 7 mm",
-            4.0 * std::f64::consts::PI,
-            1usize,
-        ),
-    ];
+    // Figure 4: the profiles (drawn as lines on Fig. 2).
     let mut panels = Vec::new();
     for (title, alpha0, component) in sections {
         let bins: Vec<f64> = (0..24)
-            .map(|i| -0.6e-3 + (i as f64 + 0.5) * 0.05e-3)
+            .map(|i| -PROFILE_HALF_WIDTH_M + (i as f64 + 0.5) * 0.05e-3)
             .collect();
         let mut sums = vec![[0.0f64; 4]; bins.len()];
         for (iz, &z) in grid.z.iter().enumerate() {
@@ -407,7 +420,8 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
                 if (alpha - alpha0).abs() > 0.1 || !truth.mask[[iz, ix]] {
                     continue;
                 }
-                let b = (((l + 0.6e-3) / 0.05e-3).floor() as usize).min(bins.len() - 1);
+                let b =
+                    (((l + PROFILE_HALF_WIDTH_M) / 0.05e-3).floor() as usize).min(bins.len() - 1);
                 let pick = |f: &VectorField| {
                     if component == 0 {
                         f.vx[[iz, ix]]
