@@ -171,12 +171,21 @@ pub fn vector_overlay(
     overlay
 }
 
-fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
+/// Width (px) of one map of `pcuvd process`'s figures.
+const PROCESS_PANEL_WIDTH_PX: u32 = 560;
+
+fn save(
+    path: &Path,
+    title: &str,
+    panels: Vec<Panel>,
+    ncols: usize,
+    panel_size_px: (u32, u32),
+) -> Result<PathBuf> {
     let fig = Figure {
         title: title.to_string(),
         panels,
         ncols,
-        panel_size_px: (560, 480),
+        panel_size_px,
     };
     render_png(&fig, path).with_context(|| format!("cannot draw {}", path.display()))?;
     Ok(path.to_path_buf())
@@ -194,11 +203,15 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         (-60.0, 0.0),
         "dB",
     );
+    // Every map of the result has the grid's extent: one cell size, fitted to its aspect ratio.
+    let size = pcuvd_render::fitted_panel_size(&bmode, PROCESS_PANEL_WIDTH_PX)
+        .context("cannot lay out the figures")?;
     written.push(save(
         &dir.join("bmode.png"),
         &format!("{name}: B-mode"),
         vec![Panel::Image(bmode)],
         1,
+        size,
     )?);
 
     let pd = map_panel(
@@ -214,6 +227,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         &format!("{name}: power Doppler"),
         vec![Panel::Image(pd)],
         1,
+        size,
     )?);
 
     let mask = masks::within_db_of_peak(&out.power_doppler, masks::FLOW_FIGURE_DB);
@@ -236,6 +250,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         &format!("{name}: colour Doppler"),
         vec![Panel::Image(cd)],
         1,
+        size,
     )?);
 
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
@@ -254,6 +269,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
             &format!("{name}: vector Doppler"),
             panels,
             2,
+            size,
         )?);
     }
     Ok(written)
@@ -379,6 +395,18 @@ pub fn dynamics_figures(
         ),
         panels,
         3,
+        pcuvd_render::fitted_panel_size(
+            &map_panel(
+                "",
+                maps.ri.clone(),
+                grid,
+                Colormap::Viridis,
+                (0.0, 1.0),
+                "RI",
+            ),
+            PROCESS_PANEL_WIDTH_PX,
+        )
+        .context("cannot lay out the figures")?,
     )?];
     let mean: Vec<f64> = series
         .mean_speed(&vessels)
@@ -418,6 +446,7 @@ pub fn dynamics_figures(
         &format!("{name}: cardiac waveform"),
         vec![Panel::Plot(plot)],
         1,
+        (PROCESS_PANEL_WIDTH_PX, 480),
     )?);
     Ok(written)
 }

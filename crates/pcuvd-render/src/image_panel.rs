@@ -4,7 +4,7 @@
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
 use crate::colormap::{Lut, colormap_rgb};
 use crate::placement::{LEGEND_ORDER, Occupied, place};
-use crate::style::{INK, SS, Style, snap};
+use crate::style::{INK, MIN_HEIGHT_PER_480, SS, Style, snap};
 use crate::ticks::{Tick, linear_ticks};
 use crate::{ImagePanel, Polyline, RenderError, VectorOverlay};
 
@@ -25,6 +25,8 @@ pub(crate) struct ImageLayout {
     ct: Vec<Tick>,
     /// Widest z tick label (px), for placing the rotated axis label.
     zt_w: f64,
+    /// Height of the cell around the image area: title, labels and margins (px).
+    margin_v: f64,
 }
 
 impl ImageLayout {
@@ -260,7 +262,43 @@ pub(crate) fn layout(
         zt,
         ct,
         zt_w,
+        margin_v: title_h + top_pad + bottom,
     })
+}
+
+/// Size (w, h) in output pixels of a figure cell `width_px` wide in which `ip`'s image fills the
+/// width: the height follows the image's aspect ratio (equal mm on both axes) plus the title,
+/// labels and margins (at most twice the width), so that a wide, shallow region gets no tall
+/// empty frame. Panels with `axes.fill` keep a 4:3 cell. Errors as rendering the panel would.
+pub(crate) fn fitted_size(ip: &ImagePanel, width_px: u32) -> Result<(u32, u32), RenderError> {
+    if ip.axes.as_ref().is_some_and(|a| a.fill) {
+        return Ok((width_px, (width_px * 3 / 4).max(100)));
+    }
+    let mut scratch = vec![0u8; 3];
+    let m = Canvas::new(&mut scratch, 1, 1)?;
+    let mut h = width_px;
+    // The text sizes scale with the cell, so iterate to a fixed point (a few steps suffice).
+    for _ in 0..4 {
+        let st = Style::for_panel(width_px, h);
+        // A cell tall enough that the image is limited by its width.
+        let cell = Rect::new(
+            0.0,
+            0.0,
+            (width_px * SS) as f64,
+            (width_px * SS * 64) as f64,
+        );
+        let l = layout(ip, cell, &st, &m)?;
+        let need = ((l.margin_v + l.plot.h()) / SS as f64).ceil() as u32;
+        // Room for a readable colour bar, and at least the smallest panel accepted.
+        // At least the height below which the text would shrink, and room for a readable
+        // colour bar; at most twice the width.
+        let text_min = (MIN_HEIGHT_PER_480 * width_px as f64 / 480.0).ceil() as u32;
+        h = need
+            .max(text_min)
+            .max((st.px(190.0) / SS as f64) as u32)
+            .clamp(100, 2 * width_px);
+    }
+    Ok((width_px, h))
 }
 
 /// Fill the image and colour-bar pixels of a laid-out panel into an RGB buffer `buf_w` wide.

@@ -26,6 +26,15 @@ pub use colormap::{Colormap, colormap_rgb};
 pub use figure::{FIGURE_TITLE_BAND_PX, render_png, render_png_bytes, render_rgb};
 pub use report::Report;
 
+/// Size (w, h) in output pixels of a figure cell `width_px` wide that fits `panel`'s image with
+/// equal mm on both axes, plus its title, labels and margins: use it as
+/// [`Figure::panel_size_px`] so that a wide, shallow region is not drawn in a tall, mostly empty
+/// frame (nor a deep, narrow one in a wide frame). Errors as rendering the panel would.
+pub fn fitted_panel_size(panel: &ImagePanel, width_px: u32) -> Result<(u32, u32), RenderError> {
+    canvas::ensure_font()?;
+    image_panel::fitted_size(panel, width_px)
+}
+
 use std::path::PathBuf;
 
 /// Errors from building or writing a figure or report.
