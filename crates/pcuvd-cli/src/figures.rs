@@ -171,6 +171,14 @@ pub fn vector_overlay(
     overlay
 }
 
+/// The figures [`process_figures`] writes.
+pub const PROCESS_FIGURES: [&str; 4] = [
+    "bmode.png",
+    "power_doppler.png",
+    "color_doppler.png",
+    "vector.png",
+];
+
 /// Width (px) of one map of `pcuvd process`'s figures.
 const PROCESS_PANEL_WIDTH_PX: u32 = 560;
 

@@ -23,6 +23,15 @@ use crate::figures::{
 };
 use crate::progress::TaskProgress;
 
+/// The figures the network part writes into the output folder.
+pub const NETWORK_FIGURES: [&str; 5] = [
+    "fig6_network_doppler.png",
+    "fig6gh_network_profiles.png",
+    "fig7_network_rois.png",
+    "fig8_ri_maps.png",
+    "fig8b_spectrograms.png",
+];
+
 fn finite_mask(a: &Array2<f64>) -> Array2<bool> {
     a.mapv(f64::is_finite)
 }

@@ -178,6 +178,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         .then(|| args.network_settings())
         .transpose()?;
     create_dir(&args.out)?;
+    remove_other_part(&args.out, args.part)?;
     let started = Instant::now();
     let progress = TaskProgress::new();
     let report_progress =
@@ -246,6 +247,59 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         args.out.display(),
         started.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+/// The figures the spiral part writes into the output folder.
+pub const SPIRAL_FIGURES: [&str; 5] = [
+    "fig2_power_doppler_snr.png",
+    "fig3_vector_maps.png",
+    "fig4_profiles.png",
+    "fig5_accuracy.png",
+    "fig_noise_sweep.png",
+];
+/// The subfolders where the spiral part draws each mode's maps ([`figures::PROCESS_FIGURES`]).
+const MODE_FOLDERS: [&str; 2] = ["conventional", "coded"];
+
+/// Removes the figures that the part not run now wrote into `dir` in an earlier run, so that the
+/// folder holds no figure that its report.html leaves out. Only files of pcuvd's own naming go;
+/// a mode subfolder goes only when nothing else is left in it.
+fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
+    let mut stale: Vec<std::path::PathBuf> = Vec::new();
+    if part == Part::Network {
+        stale.extend(SPIRAL_FIGURES.iter().map(|f| dir.join(f)));
+        for folder in MODE_FOLDERS {
+            stale.extend(
+                figures::PROCESS_FIGURES
+                    .iter()
+                    .map(|f| dir.join(folder).join(f)),
+            );
+        }
+    }
+    if part == Part::Spiral {
+        stale.extend(
+            crate::network_study::NETWORK_FIGURES
+                .iter()
+                .map(|f| dir.join(f)),
+        );
+    }
+    for path in stale {
+        match std::fs::remove_file(&path) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(e).with_context(|| {
+                    format!("{}: cannot remove this earlier figure", path.display())
+                });
+            }
+        }
+    }
+    if part == Part::Network {
+        for folder in MODE_FOLDERS {
+            // Fails, and is meant to, where the folder holds anything else.
+            let _ = std::fs::remove_dir(dir.join(folder));
+        }
+    }
     Ok(())
 }
 
@@ -564,7 +618,7 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
     out.push(render(dir, "fig_noise_sweep.png", "Beyond the paper: RMSE of Vx and Vz versus channel noise level for conventional and coded transmission, each with least squares and IRLS-WLS (same scatterers and noise realisation at every level).", Figure { title: "Noise sweep".into(), panels, ncols: 2, panel_size_px: (560, 440) })?);
 
     // The maps of each mode, as `pcuvd process` would draw them.
-    for (o, mode) in [(conv, "conventional"), (coded, "coded")] {
+    for (o, mode) in [conv, coded].into_iter().zip(MODE_FOLDERS) {
         let sub = dir.join(mode);
         create_dir(&sub)?;
         figures::process_figures(&sub, o, &format!("spiral, {mode}"))?;
