@@ -63,6 +63,33 @@ pub const UVD_RGB: (u8, u8, u8) = (230, 159, 0);
 /// Colour of PC-UVD (coded) in plots.
 pub const PCUVD_RGB: (u8, u8, u8) = (214, 39, 40);
 
+/// Colour of the lines drawn on maps where a profile figure takes its values (cyan: apart from
+/// the hot and red-blue maps' colours).
+pub const PROFILE_LINE_RGB: (u8, u8, u8) = (0, 220, 255);
+/// Colour of the outlines drawn on maps around the regions another figure enlarges.
+pub const ROI_BOX_RGB: (u8, u8, u8) = (120, 255, 120);
+
+/// Colour-bar label of an axial velocity drawn positive toward the probe with
+/// [`Colormap::RedBlue`]: red is flow toward the probe (up), in every figure, as in the paper.
+pub const TOWARD_PROBE_LABEL: &str = "axial velocity (mm/s): red = toward probe (up), blue = away";
+/// Colour-bar label of Vz (positive deeper) drawn with [`Colormap::BlueRed`]: red = up.
+pub const VZ_LABEL: &str = "Vz (mm/s, + = deeper): red = toward probe (up), blue = away";
+/// Colour-bar label of Vx drawn with [`Colormap::RedBlue`].
+pub const VX_LABEL: &str = "Vx (mm/s): red = toward +x (right), blue = toward −x";
+/// Colour-bar label of a [`class_map`] of PSV.
+pub const PSV_UP_LABEL: &str = "PSV (mm/s): red = flowing up (toward probe), blue = down";
+
+/// A colour range (0, top) in dB shared by maps a reader compares, from their data: the top is
+/// the largest 99.9th percentile of the maps, rounded up to 5 dB, so that no map saturates.
+pub fn shared_db_range(maps: &[&Array2<f64>]) -> (f64, f64) {
+    let top = maps
+        .iter()
+        .map(|m| quantile(m.iter().copied(), 0.999))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    (0.0, ((top / 5.0).ceil() * 5.0).max(5.0))
+}
+
 /// B-mode in dB mapped to [0, 1] grey over a 60 dB dynamic range, as a background.
 pub fn bmode_background(bmode_db: &Array2<f64>) -> Array2<f64> {
     bmode_db.mapv(|v| ((v + 60.0) / 60.0).clamp(0.0, 1.0))
@@ -144,12 +171,29 @@ pub fn vector_overlay(
     overlay
 }
 
-fn save(path: &Path, title: &str, panels: Vec<Panel>, ncols: usize) -> Result<PathBuf> {
+/// The figures [`process_figures`] writes.
+pub const PROCESS_FIGURES: [&str; 4] = [
+    "bmode.png",
+    "power_doppler.png",
+    "color_doppler.png",
+    "vector.png",
+];
+
+/// Width (px) of one map of `pcuvd process`'s figures.
+const PROCESS_PANEL_WIDTH_PX: u32 = 560;
+
+fn save(
+    path: &Path,
+    title: &str,
+    panels: Vec<Panel>,
+    ncols: usize,
+    panel_size_px: (u32, u32),
+) -> Result<PathBuf> {
     let fig = Figure {
         title: title.to_string(),
         panels,
         ncols,
-        panel_size_px: (560, 480),
+        panel_size_px,
     };
     render_png(&fig, path).with_context(|| format!("cannot draw {}", path.display()))?;
     Ok(path.to_path_buf())
@@ -167,11 +211,15 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         (-60.0, 0.0),
         "dB",
     );
+    // Every map of the result has the grid's extent: one cell size, fitted to its aspect ratio.
+    let size = pcuvd_render::fitted_panel_size(&bmode, PROCESS_PANEL_WIDTH_PX)
+        .context("cannot lay out the figures")?;
     written.push(save(
         &dir.join("bmode.png"),
         &format!("{name}: B-mode"),
         vec![Panel::Image(bmode)],
         1,
+        size,
     )?);
 
     let pd = map_panel(
@@ -187,6 +235,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         &format!("{name}: power Doppler"),
         vec![Panel::Image(pd)],
         1,
+        size,
     )?);
 
     let mask = masks::within_db_of_peak(&out.power_doppler, masks::FLOW_FIGURE_DB);
@@ -195,12 +244,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     let upward_mm_s = out.color_doppler.mapv(|v| -v * 1e3);
     let vmax = out.nyquist_velocity * 1e3;
     let mut cd = map_panel(
-        "Colour Doppler (red: toward the probe)",
+        "Colour Doppler",
         upward_mm_s,
         grid,
         Colormap::RedBlue,
         (-vmax, vmax),
-        "axial velocity toward probe (mm/s)",
+        TOWARD_PROBE_LABEL,
     );
     cd.mask = Some(mask.clone());
     cd.background = Some(background.clone());
@@ -209,49 +258,57 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         &format!("{name}: colour Doppler"),
         vec![Panel::Image(cd)],
         1,
+        size,
     )?);
 
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+        let mask = masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB);
+        // One speed scale for both estimators, so that their colours compare.
+        let vmax = speed_scale(&[(ls, &mask), (irls, &mask)]);
         let panels = [
             ("UVD (least squares)", ls),
             ("PC-UVD estimator (IRLS-WLS)", irls),
         ]
         .into_iter()
-        .map(|(title, field)| {
-            vector_panel(
-                title,
-                field,
-                grid,
-                &masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB),
-                &background,
-            )
-        })
+        .map(|(title, field)| vector_panel(title, field, grid, &mask, &background, vmax))
         .collect();
         written.push(save(
             &dir.join("vector.png"),
             &format!("{name}: vector Doppler"),
             panels,
             2,
+            size,
         )?);
     }
     Ok(written)
 }
 
-/// Speed map under triangles pointing along the flow, masked to flow pixels.
+/// The top of a speed colour scale (mm/s) shared by several vector maps: the 95th percentile of
+/// the speed over every map's flow pixels, so that one colour means one speed in all of them.
+pub fn speed_scale(fields: &[(&VectorField, &Array2<bool>)]) -> f64 {
+    let speeds = fields.iter().flat_map(|(field, mask)| {
+        Zip::from(&field.vx)
+            .and(&field.vz)
+            .and(*mask)
+            .map_collect(|&x, &z, &m| if m { x.hypot(z) * 1e3 } else { f64::NAN })
+            .into_iter()
+    });
+    quantile(speeds, 0.95).max(1e-6)
+}
+
+/// Speed map under triangles pointing along the flow, masked to flow pixels, with the speed colour
+/// scale 0..`vmax` mm/s (from [`speed_scale`], shared by the maps a reader compares).
 pub fn vector_panel(
     title: &str,
     field: &VectorField,
     grid: &Grid,
     mask: &Array2<bool>,
     background: &Array2<f64>,
+    vmax: f64,
 ) -> Panel {
     let speed_mm_s = Zip::from(&field.vx)
         .and(&field.vz)
         .map_collect(|&x, &z| x.hypot(z) * 1e3);
-    let masked = Zip::from(&speed_mm_s)
-        .and(mask)
-        .map_collect(|&s, &m| if m { s } else { f64::NAN });
-    let vmax = quantile(masked.iter().copied(), 0.95).max(1e-6);
     let mut panel = map_panel(
         title,
         speed_mm_s,
@@ -327,7 +384,7 @@ pub fn dynamics_figures(
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "PSV (mm/s), red up, blue down",
+            PSV_UP_LABEL,
         ),
         finite_panel(
             &format!("Venules (RI ≤ {})", params.vein_ri_max),
@@ -335,7 +392,7 @@ pub fn dynamics_figures(
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "PSV (mm/s), red up, blue down",
+            PSV_UP_LABEL,
         ),
     ];
     let mut written = vec![save(
@@ -346,6 +403,18 @@ pub fn dynamics_figures(
         ),
         panels,
         3,
+        pcuvd_render::fitted_panel_size(
+            &map_panel(
+                "",
+                maps.ri.clone(),
+                grid,
+                Colormap::Viridis,
+                (0.0, 1.0),
+                "RI",
+            ),
+            PROCESS_PANEL_WIDTH_PX,
+        )
+        .context("cannot lay out the figures")?,
     )?];
     let mean: Vec<f64> = series
         .mean_speed(&vessels)
@@ -385,6 +454,7 @@ pub fn dynamics_figures(
         &format!("{name}: cardiac waveform"),
         vec![Panel::Plot(plot)],
         1,
+        (PROCESS_PANEL_WIDTH_PX, 480),
     )?);
     Ok(written)
 }

@@ -18,9 +18,19 @@ use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
 use crate::figures::{
-    Rendered, TRUTH_RGB, UVD_RGB, class_map, line, map_panel, render, vector_panel,
+    PROFILE_LINE_RGB, PSV_UP_LABEL, ROI_BOX_RGB, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB,
+    class_map, line, map_panel, render, shared_db_range, vector_panel,
 };
 use crate::progress::TaskProgress;
+
+/// The figures the network part writes into the output folder.
+pub const NETWORK_FIGURES: [&str; 5] = [
+    "fig6_network_doppler.png",
+    "fig6gh_network_profiles.png",
+    "fig7_network_rois.png",
+    "fig8_ri_maps.png",
+    "fig8b_spectrograms.png",
+];
 
 fn finite_mask(a: &Array2<f64>) -> Array2<bool> {
     a.mapv(f64::is_finite)
@@ -52,25 +62,82 @@ pub fn network_figures(
         })
         .collect();
 
-    // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD.
+    // One speed scale for every vector map of Fig. 6 and 7 (both modes), so colours compare.
+    let speed_max = crate::figures::speed_scale(
+        &results
+            .iter()
+            .zip(&flows)
+            .map(|(r, flow)| (r.field(), flow))
+            .collect::<Vec<_>>(),
+    );
+
+    // Fig. 6gh's profile lines (a horizontal and a vertical line) and Fig. 7's regions, drawn
+    // on Fig. 6's power Doppler maps.
+    let (z_line, x_line) = (5.0e-3, 4.2e-3);
+    let row = grid.nearest_pixel(0.0, z_line).0;
+    let col = grid.nearest_pixel(x_line, 0.0).1;
+    let rois = [
+        ((-5.8e-3, -1.6e-3), (2.0e-3, 5.0e-3)),
+        ((3.4e-3, 6.4e-3), (5.8e-3, 9.4e-3)),
+        ((-1.8e-3, 3.6e-3), (10.0e-3, 12.4e-3)),
+    ];
+    let (x_ends, z_ends) = (
+        (grid.x[0] * 1e3, grid.x[grid.x.len() - 1] * 1e3),
+        (grid.z[0] * 1e3, grid.z[grid.z.len() - 1] * 1e3),
+    );
+    let mut guides = vec![
+        Polyline {
+            x_mm: vec![x_ends.0, x_ends.1],
+            z_mm: vec![grid.z[row] * 1e3; 2],
+            dashed: false,
+            rgb: PROFILE_LINE_RGB,
+            label: "profiles of Fig. 6 g, h".into(),
+        },
+        Polyline {
+            x_mm: vec![grid.x[col] * 1e3; 2],
+            z_mm: vec![z_ends.0, z_ends.1],
+            dashed: false,
+            rgb: PROFILE_LINE_RGB,
+            label: "profiles of Fig. 6 g, h".into(),
+        },
+    ];
+    for &((x0, x1), (z0, z1)) in &rois {
+        let (x0, x1, z0, z1) = (x0 * 1e3, x1 * 1e3, z0 * 1e3, z1 * 1e3);
+        guides.push(Polyline {
+            x_mm: vec![x0, x1, x1, x0, x0],
+            z_mm: vec![z0, z0, z1, z1, z0],
+            dashed: true,
+            rgb: ROI_BOX_RGB,
+            label: "regions of Fig. 7".into(),
+        });
+    }
+
+    // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD; one PD range from the data.
+    let pd_db: Vec<Array2<f64>> = results
+        .iter()
+        .map(|r| masks::db_above_noise(&r.out.power_doppler, &r.noise_power))
+        .collect();
+    let pd_range = shared_db_range(&pd_db.iter().collect::<Vec<_>>());
     let mut panels = Vec::new();
-    for (r, flow) in results.iter().zip(&flows) {
+    for ((r, flow), db) in results.iter().zip(&flows).zip(pd_db) {
         let name = r.mode.method();
-        panels.push(Panel::Image(map_panel(
+        let mut pd = map_panel(
             &format!("{name}: power Doppler"),
-            masks::db_above_noise(&r.out.power_doppler, &r.noise_power),
+            db,
             grid,
             Colormap::Hot,
-            (0.0, 40.0),
+            pd_range,
             "dB above noise",
-        )));
+        );
+        pd.lines = guides.clone();
+        panels.push(Panel::Image(pd));
         let mut cd = map_panel(
-            &format!("{name}: colour Doppler (red: up)"),
+            &format!("{name}: colour Doppler"),
             r.out.color_doppler.mapv(|v| -v * 1e3),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "axial velocity toward probe (mm/s)",
+            TOWARD_PROBE_LABEL,
         );
         cd.mask = Some(flow.clone());
         cd.background = Some(black.clone());
@@ -81,15 +148,13 @@ pub fn network_figures(
             grid,
             flow,
             &black,
+            speed_max,
         ));
     }
-    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
+    figs.push(render(dir, "fig6_network_doppler.png", "Figure 6 analogue: power Doppler (dB above each mode's own noise floor; cyan: the lines of Fig. 6 g, h's profiles; dashed green: the regions of Fig. 7, ROI 1 the shallowest, ROI 3 the deepest), colour Doppler and vector Doppler of the vessel network over the whole recording; conventional UVD (top) and PC-UVD (bottom). Flow maps show pixels at least 6 dB above the noise floor.", Figure { title: format!("Vessel network, noise {} dB: UVD (top) and PC-UVD (bottom)", settings.noise_db), panels, ncols: 3, panel_size_px: (520, 500) })?);
     progress.update(task, 1, 5);
 
     // Figure 6 (g, h): PD profiles along a shallow horizontal line and a vertical line, SNR by depth.
-    let (z_line, x_line) = (5.0e-3, 4.2e-3);
-    let row = grid.nearest_pixel(0.0, z_line).0;
-    let col = grid.nearest_pixel(x_line, 0.0).1;
     let x_mm: Vec<f64> = grid.x.iter().map(|x| x * 1e3).collect();
     let z_mm: Vec<f64> = grid.z.iter().map(|z| z * 1e3).collect();
     let rgb = [UVD_RGB, TRUTH_RGB];
@@ -153,11 +218,6 @@ pub fn network_figures(
     progress.update(task, 2, 5);
 
     // Figure 7: vector maps in three regions at increasing depth.
-    let rois = [
-        ((-5.8e-3, -1.6e-3), (2.0e-3, 5.0e-3)),
-        ((3.4e-3, 6.4e-3), (5.8e-3, 9.4e-3)),
-        ((-1.8e-3, 3.6e-3), (10.0e-3, 12.4e-3)),
-    ];
     let mut panels = Vec::new();
     for (r, flow) in results.iter().zip(&flows) {
         for (k, &(x, z)) in rois.iter().enumerate() {
@@ -172,6 +232,7 @@ pub fn network_figures(
                 &roi.grid,
                 &roi.cut(flow),
                 &roi.cut(&black),
+                speed_max,
             ));
         }
     }
@@ -225,7 +286,7 @@ pub fn network_figures(
                 grid,
                 Colormap::RedBlue,
                 (-vmax, vmax),
-                "PSV (mm/s), red up, blue down",
+                PSV_UP_LABEL,
             );
             p.mask = Some(match flow {
                 Some(flow) => shown(&data, flow),
@@ -272,12 +333,15 @@ pub fn network_figures(
     // Figure 8 (b): compounded Doppler spectrograms at four pixels, PC-UVD.
     let coded = &results[1];
     let mut panels = Vec::new();
-    for (site, spec) in sites.iter().zip(&coded.spectrograms) {
-        panels.push(Panel::Image(spectrogram_panel(
-            site, spec, coded, phantom, truth,
-        )));
+    for (k, (site, spec)) in sites.iter().zip(&coded.spectrograms).enumerate() {
+        let mut panel = spectrogram_panel(site, spec, coded, phantom, truth);
+        // One legend for the figure (the first panel's): the lines mean the same in every panel.
+        if k > 0 {
+            panel.lines.iter_mut().for_each(|l| l.label.clear());
+        }
+        panels.push(Panel::Image(panel));
     }
-    figs.push(render(dir, "fig8b_spectrograms.png", "Figure 8 (b) analogue: PC-UVD compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of an arteriole and a venule flowing up and down. Dashed white: mean Doppler velocity (colour-Doppler estimate); solid cyan: vector speed with the sign of the flow's Vz; thin green: true speed; red and yellow ticks: the PSV and EDV the RI uses.", Figure { title: "PC-UVD spectrograms over the cardiac cycle".into(), panels, ncols: 2, panel_size_px: (620, 420) })?);
+    figs.push(render(dir, "fig8b_spectrograms.png", "Figure 8 (b) analogue: PC-UVD compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of an arteriole and a venule flowing up and down. The legend (first panel) holds for every panel: dashed white, mean Doppler velocity (colour-Doppler estimate); cyan, vector speed with the sign of the flow's Vz; green, true speed; red and yellow ticks, the PSV and EDV the RI uses.", Figure { title: "PC-UVD spectrograms over the cardiac cycle".into(), panels, ncols: 2, panel_size_px: (620, 420) })?);
     progress.update(task, 5, 5);
     Ok(figs)
 }
@@ -319,18 +383,21 @@ fn spectrogram_panel(
             z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
             dashed: true,
             rgb: (255, 255, 255),
+            label: "mean Doppler velocity (colour Doppler)".into(),
         },
         Polyline {
             x_mm: series.times_s.iter().map(|t| t * 1e3).collect(),
             z_mm: true_speed,
             dashed: false,
             rgb: (60, 200, 90),
+            label: "true speed".into(),
         },
         Polyline {
             x_mm: series.times_s.iter().map(|t| t * 1e3).collect(),
             z_mm: speed.clone(),
             dashed: false,
             rgb: (80, 220, 255),
+            label: "vector speed, sign of the flow's Vz".into(),
         },
     ];
     // PSV (red) and EDV (yellow) of each cycle: a short vertical tick at the sample used.
@@ -339,7 +406,10 @@ fn spectrogram_panel(
         let lane = &speed[start..end.min(speed.len())];
         let abs_max = (0..lane.len()).max_by(|&a, &b| lane[a].abs().total_cmp(&lane[b].abs()));
         let abs_min = (0..lane.len()).min_by(|&a, &b| lane[a].abs().total_cmp(&lane[b].abs()));
-        for (at, rgb) in [(abs_max, (230, 40, 40)), (abs_min, (250, 210, 40))] {
+        for (at, rgb, label) in [
+            (abs_max, (230, 40, 40), "PSV (peak systolic) used for RI"),
+            (abs_min, (250, 210, 40), "EDV (end diastolic) used for RI"),
+        ] {
             if let Some(k) = at {
                 let (t, v) = (series.times_s[start + k] * 1e3, lane[k]);
                 lines.push(Polyline {
@@ -347,6 +417,7 @@ fn spectrogram_panel(
                     z_mm: vec![v - tick, v + tick],
                     dashed: false,
                     rgb,
+                    label: label.into(),
                 });
             }
         }
@@ -376,7 +447,6 @@ fn spectrogram_panel(
     }
 }
 
-/// The network part of report.html.
 /// The network part of report.html.
 pub fn report_section(
     report: &mut Report,

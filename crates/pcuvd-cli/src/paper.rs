@@ -12,11 +12,12 @@ use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
 use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
 use pcuvd::study::{Motion as StudyMotion, describe_alignment};
 use pcuvd::vector::VectorField;
-use pcuvd_render::{Colormap, Figure, Marker, Panel, PlotPanel, Report, Series, SeriesStyle};
+use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, Series, SeriesStyle};
 use serde::Serialize;
 
 use crate::figures::{
-    self, PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, line, map_panel, render, vector_overlay,
+    self, PCUVD_RGB, PROFILE_LINE_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line,
+    map_panel, render, vector_overlay,
 };
 use crate::options::Alignment;
 use crate::process::create_dir;
@@ -177,6 +178,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         .then(|| args.network_settings())
         .transpose()?;
     create_dir(&args.out)?;
+    remove_other_part(&args.out, args.part)?;
     let started = Instant::now();
     let progress = TaskProgress::new();
     let report_progress =
@@ -248,6 +250,59 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     Ok(())
 }
 
+/// The figures the spiral part writes into the output folder.
+pub const SPIRAL_FIGURES: [&str; 5] = [
+    "fig2_power_doppler_snr.png",
+    "fig3_vector_maps.png",
+    "fig4_profiles.png",
+    "fig5_accuracy.png",
+    "fig_noise_sweep.png",
+];
+/// The subfolders where the spiral part draws each mode's maps ([`figures::PROCESS_FIGURES`]).
+const MODE_FOLDERS: [&str; 2] = ["conventional", "coded"];
+
+/// Removes the figures that the part not run now wrote into `dir` in an earlier run, so that the
+/// folder holds no figure that its report.html leaves out. Only files of pcuvd's own naming go;
+/// a mode subfolder goes only when nothing else is left in it.
+fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
+    let mut stale: Vec<std::path::PathBuf> = Vec::new();
+    if part == Part::Network {
+        stale.extend(SPIRAL_FIGURES.iter().map(|f| dir.join(f)));
+        for folder in MODE_FOLDERS {
+            stale.extend(
+                figures::PROCESS_FIGURES
+                    .iter()
+                    .map(|f| dir.join(folder).join(f)),
+            );
+        }
+    }
+    if part == Part::Spiral {
+        stale.extend(
+            crate::network_study::NETWORK_FIGURES
+                .iter()
+                .map(|f| dir.join(f)),
+        );
+    }
+    for path in stale {
+        match std::fs::remove_file(&path) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(e).with_context(|| {
+                    format!("{}: cannot remove this earlier figure", path.display())
+                });
+            }
+        }
+    }
+    if part == Part::Network {
+        for folder in MODE_FOLDERS {
+            // Fails, and is meant to, where the folder holds anything else.
+            let _ = std::fs::remove_dir(dir.join(folder));
+        }
+    }
+    Ok(())
+}
+
 fn masked(values: &Array2<f64>, mask: &Array2<bool>, scale: f64) -> Array2<f64> {
     Zip::from(values)
         .and(mask)
@@ -261,20 +316,52 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
     let noise_power = &study.noise_power;
     let sweep = &study.metrics.noise_sweep;
 
+    // Fig. 4's profiles: across the vessel at a deep crossing (flow mostly lateral) and a side
+    // crossing (flow mostly axial), at polar angle α0, over the offsets l of its bins.
+    let spec = phantom.spec();
+    let sections = [
+        (
+            "Vx across the vessel at x ≈ 0, z ≈ 10 mm",
+            2.5 * std::f64::consts::PI,
+            0usize,
+        ),
+        (
+            "Vz across the vessel at x ≈ 4.5 mm, z ≈ 7 mm",
+            4.0 * std::f64::consts::PI,
+            1usize,
+        ),
+    ];
+    const PROFILE_HALF_WIDTH_M: f64 = 0.6e-3;
+    let profile_lines: Vec<Polyline> = sections
+        .iter()
+        .map(|&(_, alpha0, _)| {
+            let ends =
+                [-PROFILE_HALF_WIDTH_M, PROFILE_HALF_WIDTH_M].map(|l| spec.position(alpha0, l));
+            Polyline {
+                x_mm: ends.iter().map(|p| p[0] * 1e3).collect(),
+                z_mm: ends.iter().map(|p| p[1] * 1e3).collect(),
+                dashed: false,
+                rgb: PROFILE_LINE_RGB,
+                label: "profiles of Fig. 4".into(),
+            }
+        })
+        .collect();
+
     // Figure 2: PD and PC-PD, in dB above each image's own noise floor, and SNR versus depth.
     let mut panels = Vec::new();
-    for (o, noise, title) in [
-        (conv, &noise_power[0], "PD (conventional)"),
-        (coded, &noise_power[1], "PC-PD (Hadamard-coded)"),
-    ] {
-        panels.push(Panel::Image(map_panel(
-            title,
-            masks::db_above_noise(&o.power_doppler, noise),
-            grid,
-            Colormap::Hot,
-            (0.0, 35.0),
-            "dB above noise",
-        )));
+    let pd_db = [
+        masks::db_above_noise(&conv.power_doppler, &noise_power[0]),
+        masks::db_above_noise(&coded.power_doppler, &noise_power[1]),
+    ];
+    // One range for both, from the data: neither map clips at its top.
+    let pd_range = figures::shared_db_range(&[&pd_db[0], &pd_db[1]]);
+    for (db, title) in pd_db
+        .into_iter()
+        .zip(["PD (conventional)", "PC-PD (Hadamard-coded)"])
+    {
+        let mut panel = map_panel(title, db, grid, Colormap::Hot, pd_range, "dB above noise");
+        panel.lines = profile_lines.clone();
+        panels.push(Panel::Image(panel));
     }
     let depth_mm = |rows: &[pcuvd::metrics::DepthSnr]| {
         rows.iter().map(|r| r.depth_m * 1e3).collect::<Vec<_>>()
@@ -313,7 +400,7 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         annotations: vec!["SNR: echo power in vessel / noise power".into()],
         ..Default::default()
     }));
-    out.push(render(dir, "fig2_power_doppler_snr.png", "Figure 2 analogue: conventional power Doppler (PD) and pulse-coded power Doppler (PC-PD), each in dB above its own noise floor, and SNR versus depth.", Figure { title: format!("Power Doppler, noise {} dB", study.settings.noise_db), panels, ncols: 3, panel_size_px: (520, 470) })?);
+    out.push(render(dir, "fig2_power_doppler_snr.png", "Figure 2 analogue: conventional power Doppler (PD) and pulse-coded power Doppler (PC-PD), each in dB above its own noise floor (cyan: the lines across the vessel along which Fig. 4's profiles are taken), and SNR versus depth.", Figure { title: format!("Power Doppler, noise {} dB", study.settings.noise_db), panels, ncols: 3, panel_size_px: (520, 470) })?);
 
     // Figure 3: truth / UVD / PC-UVD × Vx, Vz, speed, vector map.
     let vmax = 25.0;
@@ -337,15 +424,17 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
-            "Vx (mm/s)",
+            VX_LABEL,
         )));
+        // Vz is positive deeper: the reversed map keeps red = toward the probe (up), as in
+        // every other figure and in the paper.
         panels.push(Panel::Image(map_panel(
-            &format!("{name}: Vz (+ = deeper)"),
+            &format!("{name}: Vz"),
             masked(&field.vz, &truth.mask, 1e3),
             grid,
-            Colormap::RedBlue,
+            Colormap::BlueRed,
             (-vmax, vmax),
-            "Vz (mm/s)",
+            VZ_LABEL,
         )));
         panels.push(Panel::Image(map_panel(
             &format!("{name}: speed"),
@@ -368,26 +457,13 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         vec_panel.mask = Some(Array2::from_elem(truth.mask.dim(), false));
         panels.push(Panel::Image(vec_panel));
     }
-    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx, Vz, speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
+    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx (red = toward +x), Vz (red = toward the probe, up, as in every figure), speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
 
-    // Figure 4: profiles across the vessel at a deep crossing (flow mostly lateral) and a side crossing (flow mostly axial).
-    let spec = phantom.spec();
-    let sections = [
-        (
-            "Vx across the vessel at x ≈ 0, z ≈ 10 mm",
-            2.5 * std::f64::consts::PI,
-            0usize,
-        ),
-        (
-            "Vz across the vessel at x ≈ 4.5 mm, z ≈ 7 mm",
-            4.0 * std::f64::consts::PI,
-            1usize,
-        ),
-    ];
+    // Figure 4: the profiles (drawn as lines on Fig. 2).
     let mut panels = Vec::new();
     for (title, alpha0, component) in sections {
         let bins: Vec<f64> = (0..24)
-            .map(|i| -0.6e-3 + (i as f64 + 0.5) * 0.05e-3)
+            .map(|i| -PROFILE_HALF_WIDTH_M + (i as f64 + 0.5) * 0.05e-3)
             .collect();
         let mut sums = vec![[0.0f64; 4]; bins.len()];
         for (iz, &z) in grid.z.iter().enumerate() {
@@ -398,7 +474,8 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
                 if (alpha - alpha0).abs() > 0.1 || !truth.mask[[iz, ix]] {
                     continue;
                 }
-                let b = (((l + 0.6e-3) / 0.05e-3).floor() as usize).min(bins.len() - 1);
+                let b =
+                    (((l + PROFILE_HALF_WIDTH_M) / 0.05e-3).floor() as usize).min(bins.len() - 1);
                 let pick = |f: &VectorField| {
                     if component == 0 {
                         f.vx[[iz, ix]]
@@ -514,24 +591,34 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
                 line(label, levels.clone(), y, style, rgb)
             })
             .collect();
+        // The main study's level: a vertical dashed line over the plot's height (a marker at
+        // RMSE 0 looked like a data point).
+        let mut series: Vec<Series> = series;
+        let top = series
+            .iter()
+            .flat_map(|s| s.y.iter().copied())
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        let main = study.settings.noise_db;
+        series.push(line(
+            &format!("main study ({main} dB)"),
+            vec![main, main],
+            vec![0.0, top],
+            SeriesStyle::DashedLine,
+            (120, 120, 120),
+        ));
         panels.push(Panel::Plot(PlotPanel {
             title: format!("RMSE of {component} versus noise level"),
             x_label: "noise level (dB, see definition)".into(),
             y_label: format!("RMSE {component} (mm/s)"),
             series,
-            markers: vec![Marker {
-                x: study.settings.noise_db,
-                y: 0.0,
-                label: "main study".into(),
-                rgb: (90, 90, 90),
-            }],
             ..Default::default()
         }));
     }
     out.push(render(dir, "fig_noise_sweep.png", "Beyond the paper: RMSE of Vx and Vz versus channel noise level for conventional and coded transmission, each with least squares and IRLS-WLS (same scatterers and noise realisation at every level).", Figure { title: "Noise sweep".into(), panels, ncols: 2, panel_size_px: (560, 440) })?);
 
     // The maps of each mode, as `pcuvd process` would draw them.
-    for (o, mode) in [(conv, "conventional"), (coded, "coded")] {
+    for (o, mode) in [conv, coded].into_iter().zip(MODE_FOLDERS) {
         let sub = dir.join(mode);
         create_dir(&sub)?;
         figures::process_figures(&sub, o, &format!("spiral, {mode}"))?;

@@ -10,6 +10,10 @@ fn get<'a>(m: &'a serde_json::Value, path: &[&str]) -> &'a serde_json::Value {
 #[test]
 fn reduced_paper_study_orders_the_methods() {
     let out = tempfile::tempdir().unwrap();
+    // An earlier full run's network figure is removed (the report would leave it out); a file
+    // pcuvd did not name stays.
+    std::fs::write(out.path().join("fig7_network_rois.png"), b"old").unwrap();
+    std::fs::write(out.path().join("notes.png"), b"mine").unwrap();
     // High noise, where coding and robust estimation must matter.
     let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
         .args([
@@ -118,6 +122,8 @@ fn reduced_paper_study_orders_the_methods() {
     ] {
         assert!(out.path().join(name).exists(), "{name} missing");
     }
+    assert!(!out.path().join("fig7_network_rois.png").exists());
+    assert!(out.path().join("notes.png").exists());
     let html = std::fs::read_to_string(out.path().join("report.html")).unwrap();
     assert!(html.contains("data:image/png;base64,") && html.contains("3.22"));
 }

@@ -79,6 +79,7 @@ fn main() -> Result<(), RenderError> {
             z_mm: vec![20.0 + 3.0 * ax, 20.0 - 3.0 * ax],
             dashed: true,
             rgb: (0, 200, 0),
+            label: String::new(),
         }],
         axes: None,
     };

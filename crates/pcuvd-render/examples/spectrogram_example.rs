@@ -52,12 +52,14 @@ fn main() -> Result<(), RenderError> {
                 z_mm: trace_v,
                 dashed: true,
                 rgb: (230, 60, 40),
+                label: String::new(),
             },
             Polyline {
                 x_mm: vec![0.0, t_end],
                 z_mm: vec![0.0, 0.0],
                 dashed: false,
                 rgb: (80, 160, 255),
+                label: String::new(),
             },
         ],
         axes: Some(ImageAxes {

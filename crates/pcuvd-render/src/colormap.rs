@@ -14,6 +14,10 @@ pub enum Colormap {
     RedBlue,
     /// Perceptually uniform black to light yellow via purple.
     Magma,
+    /// Diverging, [`Colormap::RedBlue`] reversed: red for 0 (negative), white for 0.5 (zero),
+    /// blue for 1 (positive); e.g. an axial velocity positive away from the probe, drawn with
+    /// red = toward it.
+    BlueRed,
 }
 
 /// Colour shown for NaN values (dark grey).
@@ -45,6 +49,7 @@ pub fn colormap_rgb(cmap: Colormap, t: f64) -> (u8, u8, u8) {
         Colormap::Magma => colorous::MAGMA.eval_continuous(t).as_tuple(),
         // colorous RED_BLUE runs red (0) -> blue (1); flip so negative = blue.
         Colormap::RedBlue => colorous::RED_BLUE.eval_continuous(1.0 - t).as_tuple(),
+        Colormap::BlueRed => colorous::RED_BLUE.eval_continuous(t).as_tuple(),
     }
 }
 
@@ -131,6 +136,12 @@ mod tests {
         assert!(b > r + 40, "RedBlue(0) should be blue");
         let (r, _, b) = colormap_rgb(Colormap::RedBlue, 1.0);
         assert!(r > b + 40, "RedBlue(1) should be red");
+        for t in [0.0, 0.3, 0.5, 0.8, 1.0] {
+            assert_eq!(
+                colormap_rgb(Colormap::BlueRed, t),
+                colormap_rgb(Colormap::RedBlue, 1.0 - t)
+            );
+        }
     }
 
     #[test]
@@ -141,6 +152,7 @@ mod tests {
             Colormap::Viridis,
             Colormap::RedBlue,
             Colormap::Magma,
+            Colormap::BlueRed,
         ] {
             assert_eq!(colormap_rgb(c, f64::NAN), NAN_RGB);
         }

@@ -3,9 +3,10 @@
 
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
 use crate::colormap::{Lut, colormap_rgb};
-use crate::style::{INK, SS, Style, snap};
+use crate::placement::{LEGEND_ORDER, Occupied, place};
+use crate::style::{INK, MIN_HEIGHT_PER_480, SS, Style, snap};
 use crate::ticks::{Tick, linear_ticks};
-use crate::{ImagePanel, RenderError, VectorOverlay};
+use crate::{ImagePanel, Polyline, RenderError, VectorOverlay};
 
 /// Geometry of one laid-out image panel (supersampled pixels).
 pub(crate) struct ImageLayout {
@@ -24,6 +25,8 @@ pub(crate) struct ImageLayout {
     ct: Vec<Tick>,
     /// Widest z tick label (px), for placing the rotated axis label.
     zt_w: f64,
+    /// Height of the cell around the image area: title, labels and margins (px).
+    margin_v: f64,
 }
 
 impl ImageLayout {
@@ -259,7 +262,43 @@ pub(crate) fn layout(
         zt,
         ct,
         zt_w,
+        margin_v: title_h + top_pad + bottom,
     })
+}
+
+/// Size (w, h) in output pixels of a figure cell `width_px` wide in which `ip`'s image fills the
+/// width: the height follows the image's aspect ratio (equal mm on both axes) plus the title,
+/// labels and margins (at most twice the width), so that a wide, shallow region gets no tall
+/// empty frame. Panels with `axes.fill` keep a 4:3 cell. Errors as rendering the panel would.
+pub(crate) fn fitted_size(ip: &ImagePanel, width_px: u32) -> Result<(u32, u32), RenderError> {
+    if ip.axes.as_ref().is_some_and(|a| a.fill) {
+        return Ok((width_px, (width_px * 3 / 4).max(100)));
+    }
+    let mut scratch = vec![0u8; 3];
+    let m = Canvas::new(&mut scratch, 1, 1)?;
+    let mut h = width_px;
+    // The text sizes scale with the cell, so iterate to a fixed point (a few steps suffice).
+    for _ in 0..4 {
+        let st = Style::for_panel(width_px, h);
+        // A cell tall enough that the image is limited by its width.
+        let cell = Rect::new(
+            0.0,
+            0.0,
+            (width_px * SS) as f64,
+            (width_px * SS * 64) as f64,
+        );
+        let l = layout(ip, cell, &st, &m)?;
+        let need = ((l.margin_v + l.plot.h()) / SS as f64).ceil() as u32;
+        // Room for a readable colour bar, and at least the smallest panel accepted.
+        // At least the height below which the text would shrink, and room for a readable
+        // colour bar; at most twice the width.
+        let text_min = (MIN_HEIGHT_PER_480 * width_px as f64 / 480.0).ceil() as u32;
+        h = need
+            .max(text_min)
+            .max((st.px(190.0) / SS as f64) as u32)
+            .clamp(100, 2 * width_px);
+    }
+    Ok((width_px, h))
 }
 
 /// Fill the image and colour-bar pixels of a laid-out panel into an RGB buffer `buf_w` wide.
@@ -351,6 +390,7 @@ pub(crate) fn draw(
     if let Some(v) = &ip.arrows {
         draw_glyphs(v, l, st, c)?;
     }
+    draw_legend(ip, l, st, c)?;
 
     // Frame, just outside the image so no data pixel is hidden.
     let t = snap(lw).max(SS as f64);
@@ -507,6 +547,80 @@ fn draw_glyphs(
         ];
         let rgb = colormap_rgb(v.colormap, (speed - s_lo) / (s_hi - s_lo));
         c.polygon_clipped(&tri, l.plot, rgb, 1.0)?;
+    }
+    Ok(())
+}
+
+/// A legend of the labelled lines (one entry per label) on a dark translucent box, in the corner
+/// of the image that the lines and glyphs leave free.
+fn draw_legend(
+    ip: &ImagePanel,
+    l: &ImageLayout,
+    st: &Style,
+    c: &Canvas,
+) -> Result<(), RenderError> {
+    let mut entries: Vec<&Polyline> = Vec::new();
+    for line in &ip.lines {
+        if !line.label.is_empty() && !entries.iter().any(|e| e.label == line.label) {
+            entries.push(line);
+        }
+    }
+    if entries.is_empty() {
+        return Ok(());
+    }
+    let mut occupied = Occupied::default();
+    for line in &ip.lines {
+        let pts: Vec<(f64, f64)> = line
+            .x_mm
+            .iter()
+            .zip(&line.z_mm)
+            .map(|(&x, &z)| (l.px_x(x), l.px_z(z)))
+            .collect();
+        occupied.polyline(&pts, st.px(3.0));
+    }
+    if let Some(v) = &ip.arrows {
+        for (&x, &z) in v.x_mm.iter().zip(&v.z_mm) {
+            occupied.point((l.px_x(x), l.px_z(z)));
+        }
+    }
+    let fs = st.tick();
+    let row_h = fs * 1.5;
+    let pad = st.px(5.0);
+    let sample_w = st.px(24.0);
+    let text_w = entries
+        .iter()
+        .map(|e| c.text_width(&e.label, fs))
+        .fold(0.0, f64::max);
+    let size = (
+        sample_w + st.px(6.0) + text_w + 2.0 * pad,
+        row_h * entries.len() as f64 + pad,
+    );
+    let bx = place(
+        l.plot,
+        st.px(6.0),
+        size,
+        &LEGEND_ORDER,
+        &occupied,
+        &[],
+        st.px(3.0),
+    );
+    c.fill_rect(bx, (0, 0, 0), 0.6)?;
+    c.stroke_rect(bx, (150, 150, 150), st.px(1.0))?;
+    for (k, e) in entries.iter().enumerate() {
+        let cy = bx.y0 + pad / 2.0 + row_h * (k as f64 + 0.5);
+        let (sx0, sx1) = (bx.x0 + pad, bx.x0 + pad + sample_w);
+        let dash = e.dashed.then(|| (st.px(6.0), st.px(4.0)));
+        c.polyline_clipped(&[(sx0, cy), (sx1, cy)], bx, e.rgb, st.px(1.8), dash)?;
+        c.text(
+            &e.label,
+            sx1 + st.px(6.0),
+            cy,
+            fs,
+            HAlign::Left,
+            VAlign::Center,
+            (240, 240, 240),
+            false,
+        )?;
     }
     Ok(())
 }

@@ -16,6 +16,7 @@ mod canvas;
 mod colormap;
 mod figure;
 mod image_panel;
+mod placement;
 mod plot_panel;
 mod report;
 mod style;
@@ -24,6 +25,15 @@ mod ticks;
 pub use colormap::{Colormap, colormap_rgb};
 pub use figure::{FIGURE_TITLE_BAND_PX, render_png, render_png_bytes, render_rgb};
 pub use report::Report;
+
+/// Size (w, h) in output pixels of a figure cell `width_px` wide that fits `panel`'s image with
+/// equal mm on both axes, plus its title, labels and margins: use it as
+/// [`Figure::panel_size_px`] so that a wide, shallow region is not drawn in a tall, mostly empty
+/// frame (nor a deep, narrow one in a wide frame). Errors as rendering the panel would.
+pub fn fitted_panel_size(panel: &ImagePanel, width_px: u32) -> Result<(u32, u32), RenderError> {
+    canvas::ensure_font()?;
+    image_panel::fitted_size(panel, width_px)
+}
 
 use std::path::PathBuf;
 
@@ -86,7 +96,7 @@ pub struct ImagePanel {
     pub background: Option<ndarray::Array2<f64>>,
     /// Optional vector glyphs drawn over the image.
     pub arrows: Option<VectorOverlay>,
-    /// Lines (in mm) drawn over the image, e.g. a profile line.
+    /// Lines (in mm) drawn over the image, e.g. a profile line; labelled ones get a legend.
     pub lines: Vec<Polyline>,
     /// Non-spatial axes; None = a depth map in mm (x right, z down, equal aspect).
     pub axes: Option<ImageAxes>,
@@ -140,6 +150,9 @@ pub struct Polyline {
     pub dashed: bool,
     /// Line colour (sRGB).
     pub rgb: (u8, u8, u8),
+    /// Legend entry; empty = not in the legend. Lines of one label share one entry, and the
+    /// panel's legend goes in the corner of the image that its lines and glyphs leave free.
+    pub label: String,
 }
 
 /// One data series of a plot panel.

@@ -2,6 +2,7 @@
 //! annotations, markers and an optional y = x reference.
 
 use crate::canvas::{Canvas, HAlign, Rect, VAlign};
+use crate::placement::{ANNOTATION_ORDER, LEGEND_ORDER, Occupied, place};
 use crate::style::{INK, Style, snap};
 use crate::ticks::{Tick, linear_ticks, log_ticks};
 use crate::{PlotPanel, RenderError, Series, SeriesStyle};
@@ -511,44 +512,20 @@ pub(crate) fn draw(
         INK,
     )?;
 
-    // Annotations (upper left) and legend (upper right), on translucent boxes.
+    // Legend and annotations on translucent boxes, each in the corner that hides the fewest
+    // drawn points (legend preferably upper right, annotations upper left).
     let fs = ts;
     let row_h = fs * 1.5;
     let pad = st.px(6.0);
     let inset = st.px(8.0);
-    if !pp.annotations.is_empty() {
-        let w = pp
-            .annotations
-            .iter()
-            .map(|a| c.text_width(a, fs))
-            .fold(0.0, f64::max);
-        let bx = Rect::new(
-            plot.x0 + inset,
-            plot.y0 + inset,
-            w + 2.0 * pad,
-            row_h * pp.annotations.len() as f64 + pad,
-        );
-        c.fill_rect(bx, (255, 255, 255), 0.8)?;
-        for (i, a) in pp.annotations.iter().enumerate() {
-            let cy = bx.y0 + pad / 2.0 + row_h * (i as f64 + 0.5);
-            c.text(
-                a,
-                bx.x0 + pad,
-                cy,
-                fs,
-                HAlign::Left,
-                VAlign::Center,
-                INK,
-                false,
-            )?;
-        }
-    }
+    let occupied = occupied(pp, l, st);
     let entries: Vec<(usize, &Series)> = pp
         .series
         .iter()
         .enumerate()
         .filter(|(_, s)| !s.label.is_empty())
         .collect();
+    let mut taken = Vec::new();
     if !entries.is_empty() {
         let sample_w = st.px(26.0);
         let w = entries
@@ -557,7 +534,16 @@ pub(crate) fn draw(
             .fold(0.0, f64::max);
         let bw = sample_w + st.px(6.0) + w + 2.0 * pad;
         let bh = row_h * entries.len() as f64 + pad;
-        let bx = Rect::new(plot.x1 - inset - bw, plot.y0 + inset, bw, bh);
+        let bx = place(
+            plot,
+            inset,
+            (bw, bh),
+            &LEGEND_ORDER,
+            &occupied,
+            &[],
+            st.px(3.0),
+        );
+        taken.push(bx);
         c.fill_rect(bx, (255, 255, 255), 0.82)?;
         c.stroke_rect(bx, (190, 190, 190), lw)?;
         for (k, (si, s)) in entries.iter().enumerate() {
@@ -592,5 +578,89 @@ pub(crate) fn draw(
             )?;
         }
     }
+    if !pp.annotations.is_empty() {
+        let w = pp
+            .annotations
+            .iter()
+            .map(|a| c.text_width(a, fs))
+            .fold(0.0, f64::max);
+        let size = (w + 2.0 * pad, row_h * pp.annotations.len() as f64 + pad);
+        let bx = place(
+            plot,
+            inset,
+            size,
+            &ANNOTATION_ORDER,
+            &occupied,
+            &taken,
+            st.px(3.0),
+        );
+        c.fill_rect(bx, (255, 255, 255), 0.8)?;
+        for (i, a) in pp.annotations.iter().enumerate() {
+            let cy = bx.y0 + pad / 2.0 + row_h * (i as f64 + 0.5);
+            c.text(
+                a,
+                bx.x0 + pad,
+                cy,
+                fs,
+                HAlign::Left,
+                VAlign::Center,
+                INK,
+                false,
+            )?;
+        }
+    }
     Ok(())
+}
+
+/// Where the panel draws data (pixels): lines, points, error bars, the y = x line and markers.
+fn occupied(pp: &PlotPanel, l: &PlotLayout, st: &Style) -> Occupied {
+    let mut occ = Occupied::default();
+    let step = st.px(3.0);
+    for s in &pp.series {
+        let pts: Vec<(f64, f64)> =
+            s.x.iter()
+                .zip(&s.y)
+                .map(|(&x, &y)| {
+                    if x.is_finite() {
+                        l.pt(x, y)
+                    } else {
+                        (f64::NAN, f64::NAN)
+                    }
+                })
+                .collect();
+        match s.style {
+            SeriesStyle::Points => pts.iter().for_each(|&p| occ.point(p)),
+            _ => occ.polyline(&pts, step),
+        }
+        if let Some(err) = &s.y_err {
+            for ((&x, &y), &e) in s.x.iter().zip(&s.y).zip(err) {
+                if x.is_finite() && e.is_finite() {
+                    let (lo, hi) = (y - e.abs(), y + e.abs());
+                    let lo = if l.log_y && lo <= 0.0 {
+                        10f64.powf(l.yr.0)
+                    } else {
+                        lo
+                    };
+                    occ.polyline(&[l.pt(x, lo), l.pt(x, hi)], step);
+                }
+            }
+        }
+    }
+    if pp.diagonal {
+        let lo =
+            l.xr.0
+                .max(if l.log_y { 10f64.powf(l.yr.0) } else { l.yr.0 });
+        let hi =
+            l.xr.1
+                .min(if l.log_y { 10f64.powf(l.yr.1) } else { l.yr.1 });
+        if lo < hi {
+            occ.polyline(&[l.pt(lo, lo), l.pt(hi, hi)], step);
+        }
+    }
+    for mk in &pp.markers {
+        let p = l.pt(mk.x, mk.y);
+        // The marker's arrow and label reach up to ~40 px above or below it.
+        occ.polyline(&[(p.0, p.1 - st.px(40.0)), (p.0, p.1 + st.px(40.0))], step);
+    }
+    occ
 }

@@ -5,6 +5,9 @@
 /// Supersampling factor (figures are drawn at SS x SS and box-filtered down).
 pub(crate) const SS: u32 = 2;
 
+/// Panel height (px) per 480 px of width below which text shrinks with the height.
+pub(crate) const MIN_HEIGHT_PER_480: f64 = 240.0;
+
 /// Size and spacing constants of one panel, in supersampled pixels.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Style {
@@ -13,11 +16,12 @@ pub(crate) struct Style {
 }
 
 impl Style {
-    /// The style of a panel of `w_px` × `h_px` output pixels: sizes scale with the panel,
-    /// within 0.7 to 2.5 times those of a 480 × 400 panel.
+    /// The style of a panel of `w_px` × `h_px` output pixels: sizes scale with the panel's
+    /// width, within 0.7 to 2.5 times those of a 480-pixel-wide panel, and with its height where
+    /// it is less than half its width (a short panel keeps room for its image).
     pub(crate) fn for_panel(w_px: u32, h_px: u32) -> Self {
         let f = (w_px as f64 / 480.0)
-            .min(h_px as f64 / 400.0)
+            .min(h_px as f64 / MIN_HEIGHT_PER_480)
             .clamp(0.7, 2.5);
         Style { u: SS as f64 * f }
     }

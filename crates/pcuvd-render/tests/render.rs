@@ -489,6 +489,7 @@ fn errors_not_panics() {
         z_mm: vec![0.0],
         dashed: false,
         rgb: (0, 0, 0),
+        label: String::new(),
     });
     let fig = figure(vec![Panel::Image(p)], 1, "");
     assert!(matches!(
@@ -709,6 +710,7 @@ fn spectrogram_polyline_follows_the_upward_axis() {
         z_mm: vec![500.0, 500.0],
         dashed: false,
         rgb: (0, 255, 0),
+        label: String::new(),
     };
     let img = rgb_img(&figure(
         vec![Panel::Image(spectrogram_panel(true, true, vec![line]))],
@@ -732,5 +734,58 @@ fn spectrogram_polyline_follows_the_upward_axis() {
     assert!(
         (got - expected).abs() < 1.0,
         "line at row {got:.2}, expected {expected:.2} (plot {top}..{bottom})"
+    );
+}
+
+#[test]
+fn fitted_panel_size_follows_the_image_aspect() {
+    // 40 mm wide, 10 mm deep: a short cell, not a tall, mostly empty one.
+    let mut wide = image_panel(Array2::zeros((11, 41)), Colormap::Gray, (0.0, 1.0));
+    wide.x_mm = (-20.0, 20.0);
+    wide.z_mm = (0.0, 10.0);
+    let (w, h) = fitted_panel_size(&wide, 560).unwrap();
+    assert_eq!(w, 560);
+    assert!((250..400).contains(&h), "wide: {h} px tall");
+    // 10 mm wide, 30 mm deep: taller than wide, at most twice the width.
+    let mut deep = image_panel(Array2::zeros((31, 11)), Colormap::Gray, (0.0, 1.0));
+    deep.x_mm = (-5.0, 5.0);
+    deep.z_mm = (0.0, 30.0);
+    let (_, h_deep) = fitted_panel_size(&deep, 560).unwrap();
+    assert!(h_deep > 560 && h_deep <= 1120, "deep: {h_deep} px tall");
+    // The image then fills the width: few white columns inside the image row.
+    let fig = Figure {
+        title: String::new(),
+        panels: vec![Panel::Image(wide)],
+        ncols: 1,
+        panel_size_px: (w, h),
+    };
+    let img = decode(&render_png_bytes(&fig).unwrap());
+    assert_eq!((img.w, img.h), (w as usize, h as usize));
+    let black = bbox(&img, |p| p == (0, 0, 0)).expect("image drawn");
+    assert!(
+        black.2 - black.0 > w as usize / 2,
+        "image too narrow: {black:?}"
+    );
+}
+
+#[test]
+fn labelled_lines_get_a_legend_clear_of_them() {
+    // A line along the top of the image: the legend goes to a lower corner.
+    let mut p = image_panel(Array2::from_elem((20, 20), 1.0), Colormap::Gray, (0.0, 1.0));
+    p.lines.push(Polyline {
+        x_mm: vec![-10.0, 10.0],
+        z_mm: vec![1.0, 1.0],
+        dashed: false,
+        rgb: (0, 255, 0),
+        label: "green line".into(),
+    });
+    let img = decode(&render_png_bytes(&figure(vec![Panel::Image(p)], 1, "")).unwrap());
+    // The legend's dark box on the white image, below the line.
+    let dark = bbox(&img, |(r, g, b)| r < 120 && g < 120 && b < 120 && r > 60).expect("legend");
+    let line = bbox(&img, |(r, g, b)| g > 200 && r < 80 && b < 80).expect("line");
+    // (The legend's own green sample may extend the line's box downward; its top is the line.)
+    assert!(
+        dark.1 > line.1 + 5,
+        "legend {dark:?} overlaps the line {line:?}"
     );
 }
