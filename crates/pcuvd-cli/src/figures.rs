@@ -11,7 +11,7 @@ use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;
 use pcuvd_render::{
     Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Series, SeriesStyle, VectorOverlay,
-    render_png, render_png_bytes,
+    render_png_bytes,
 };
 
 pub use pcuvd::stats::{median, quantile};
@@ -29,8 +29,7 @@ pub struct Rendered {
 /// Draws `fig` into `dir/file` and keeps its bytes for the report.
 pub fn render(dir: &Path, file: &str, caption: &str, fig: Figure) -> Result<Rendered> {
     let png = render_png_bytes(&fig).with_context(|| format!("cannot draw {file}"))?;
-    std::fs::write(dir.join(file), &png)
-        .with_context(|| format!("{}: cannot write", dir.join(file).display()))?;
+    write_file(&dir.join(file), &png)?;
     Ok(Rendered {
         file: file.to_string(),
         caption: caption.to_string(),
@@ -195,8 +194,18 @@ fn save(
         ncols,
         panel_size_px,
     };
-    render_png(&fig, path).with_context(|| format!("cannot draw {}", path.display()))?;
+    let png = render_png_bytes(&fig).with_context(|| format!("cannot draw {}", path.display()))?;
+    write_file(path, &png)?;
     Ok(path.to_path_buf())
+}
+
+/// Writes `bytes` to `path` atomically (a temporary name, then a rename): an interrupted run
+/// never leaves a truncated figure or report under its final name.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    pcuvd_io::write_atomically(path, |partial| {
+        std::fs::write(partial, bytes).map_err(|e| pcuvd_io::IoError::io(path, "write", e))
+    })?;
+    Ok(())
 }
 
 /// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.

@@ -642,10 +642,7 @@ fn write_report(
     }
     report.heading("Every number and parameter (metrics.json)");
     report.preformatted(&serde_json::to_string_pretty(metrics).unwrap_or_default());
-    report
-        .write(&dir.join("report.html"))
-        .with_context(|| format!("{}: cannot write", dir.join("report.html").display()))?;
-    Ok(())
+    crate::figures::write_file(&dir.join("report.html"), report.to_html().as_bytes())
 }
 
 fn spiral_report(

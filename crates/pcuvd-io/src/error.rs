@@ -65,7 +65,8 @@ impl IoError {
         }
     }
 
-    pub(crate) fn io(path: &std::path::Path, action: &'static str, source: std::io::Error) -> Self {
+    /// An I/O failure while doing `action` ("read", "write"...) on `path`.
+    pub fn io(path: &std::path::Path, action: &'static str, source: std::io::Error) -> Self {
         IoError::Io {
             path: path.to_path_buf(),
             action,

@@ -541,7 +541,9 @@ pub fn write_recording(
         t.push('\n');
         t.push_str(&prov);
     }
-    std::fs::write(&manifest_path, t).map_err(|e| IoError::io(&manifest_path, "write", e))?;
+    crate::npy::write_atomically(&manifest_path, |partial| {
+        std::fs::write(partial, t).map_err(|e| IoError::io(&manifest_path, "write", e))
+    })?;
     Ok(manifest_path)
 }
 
