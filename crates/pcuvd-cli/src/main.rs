@@ -40,6 +40,17 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     progress::set_quiet(cli.quiet);
+    // Ctrl-C stops at once. Every output is written under a temporary name and renamed when
+    // complete, and summary.json / metrics.json / manifests come last, so what is left looks
+    // incomplete; the temporary files of writes in progress are removed.
+    let _ = ctrlc::set_handler(|| {
+        pcuvd_io::remove_partial_files();
+        eprintln!(
+            "interrupted: stopped before the end; what was written is incomplete (summary.json, \
+             metrics.json and manifests are written last)"
+        );
+        std::process::exit(130);
+    });
     let result = match cli.command {
         Command::Process(args) => process::run(&args),
         Command::Simulate(args) => simulate::run(&args),

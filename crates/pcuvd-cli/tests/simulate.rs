@@ -235,3 +235,62 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
         "mine too"
     );
 }
+
+/// Ctrl-C (SIGINT) during a long simulation stops it within a second, and leaves nothing that
+/// looks complete: no manifest, no temporary file.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_stops_within_a_second_and_leaves_nothing_that_looks_complete() {
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args([
+            "--quiet",
+            "simulate",
+            "--preset",
+            "paper-spiral",
+            "--mode",
+            "both",
+        ])
+        .arg("--out")
+        .arg(dir.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the simulation ended before the interrupt"
+    );
+    let sent = Instant::now();
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            sent.elapsed() < Duration::from_secs(1),
+            "still running 1 s after Ctrl-C"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(130));
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    assert!(stderr.contains("interrupted"), "{stderr}");
+    let left: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !left
+            .iter()
+            .any(|name| name.ends_with(".toml") || name.ends_with(".part")),
+        "{left:?}"
+    );
+}

@@ -20,4 +20,4 @@ pub use error::IoError;
 pub use manifest::{Recording, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
 pub use must::read_must_mat;
-pub use npy::{write_atomically, write_json, write_npy};
+pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};

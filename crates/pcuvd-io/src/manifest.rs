@@ -434,6 +434,14 @@ pub fn write_recording(
     let npy_name = format!("{stem}.npy");
     let npy_path = dir.join(&npy_name);
     std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, "create", e))?;
+    // An earlier manifest of this name goes first: if writing stops between the samples and the
+    // new manifest, no manifest describes samples it was not written for.
+    match std::fs::remove_file(&manifest_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(IoError::io(&manifest_path, "remove", e));
+        }
+        _ => {}
+    }
 
     let n_angles = acq.sequence.n_angles();
     let (events, channels, samples) = data.samples.dim();

@@ -21,12 +21,28 @@ pub fn write_atomically(
         .map(|n| n.to_string_lossy().into_owned())
         .ok_or_else(|| IoError::malformed(path, "not a file path"))?;
     let partial = path.with_file_name(format!(".{name}.part"));
+    in_progress().push(partial.clone());
     let result = write(&partial)
         .and_then(|()| std::fs::rename(&partial, path).map_err(|e| IoError::io(path, "write", e)));
     if result.is_err() {
         let _ = std::fs::remove_file(&partial);
     }
+    in_progress().retain(|p| p != &partial);
     result
+}
+
+/// Temporary files of [`write_atomically`] being written now.
+fn in_progress() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
+    static PARTIAL: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+    PARTIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Removes the temporary files of writes still in progress: for an interrupt handler, just
+/// before the process exits, so that an interrupted run leaves no `.NAME.part` behind.
+pub fn remove_partial_files() {
+    for partial in in_progress().drain(..) {
+        let _ = std::fs::remove_file(partial);
+    }
 }
 
 /// Writes an array to a `.npy` file (C order, the element's own dtype), atomically.
