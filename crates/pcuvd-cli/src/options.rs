@@ -318,6 +318,13 @@ impl ProcessingOptions {
             None => pipeline::default_grid(data)?,
         };
         let (rows, cols) = parse_kernel(&self.doppler_kernel)?;
+        let irls = IrlsParams {
+            lambda_mm_s: self.irls_lambda,
+            epsilon: self.irls_epsilon,
+            max_iterations: self.irls_max_iterations,
+        };
+        irls.validate()
+            .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
         Ok(ProcessParams {
             grid,
             das: DasParams {
@@ -331,11 +338,7 @@ impl ProcessingOptions {
                 ..ClutterParams::default()
             },
             doppler_kernel: (rows, cols),
-            irls: IrlsParams {
-                lambda_mm_s: self.irls_lambda,
-                epsilon: self.irls_epsilon,
-                max_iterations: self.irls_max_iterations,
-            },
+            irls,
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
         })

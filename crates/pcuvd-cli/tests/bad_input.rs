@@ -154,6 +154,17 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
     );
     expect_error(&ok, &["--grid", "1,2,3"], &["--grid", "five numbers"]);
     expect_error(&ok, &["--svd-low", "many"], &["--svd-low"]);
+    // Absurd sizes are refused before any allocation (a 1e-300 m step used to overflow the pixel
+    // count and panic), and absurd estimator settings before any processing.
+    expect_error(&ok, &["--grid=-1,1,5,6,1e-300"], &["--grid", "too many"]);
+    expect_error(
+        &ok,
+        &["--grid=-1e308,1e308,5,6,0.1"],
+        &["--grid", "too many"],
+    );
+    expect_error(&ok, &["--irls-lambda", "inf"], &["--irls-lambda", "λ"]);
+    expect_error(&ok, &["--irls-epsilon", "0"], &["--irls-epsilon", "ε"]);
+    expect_error(&ok, &["--irls-max-iterations", "0"], &["iteration cap"]);
 }
 
 #[test]

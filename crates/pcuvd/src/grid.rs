@@ -9,6 +9,9 @@ use ndarray::{Array2, s};
 
 use crate::error::{Result, invalid, require_positive};
 
+/// Most pixels a grid may hold.
+pub const MAX_PIXELS: usize = 50_000_000;
+
 /// A rectangular pixel grid: lateral positions `x` and depths `z` (m), both increasing.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Grid {
@@ -44,18 +47,26 @@ impl Grid {
                 format!("z_min = {z_min} m lies behind the probe face (z < 0)"),
             ));
         }
-        let axis = |lo: f64, hi: f64| -> Vec<f64> {
-            let n = ((hi - lo) / step + 1e-9).floor() as usize + 1;
-            (0..n).map(|i| lo + i as f64 * step).collect()
-        };
-        let (x, z) = (axis(x_min, x_max), axis(z_min, z_max));
-        if x.len() * z.len() > 50_000_000 {
+        // Counted in floating point and checked before any allocation: an extent of 1e300 m or a
+        // step of 1e-300 m would overflow an integer count.
+        let count = |lo: f64, hi: f64| ((hi - lo) / step + 1e-9).floor() + 1.0;
+        let (nx, nz) = (count(x_min, x_max), count(z_min, z_max));
+        if nx * nz > MAX_PIXELS as f64 {
             return Err(invalid(
                 "grid",
-                format!("{} × {} pixels is too many", z.len(), x.len()),
+                format!(
+                    "{nz:.3e} × {nx:.3e} pixels is too many (at most {MAX_PIXELS}): check the extent \
+                     and the step ({step:.3e} m)"
+                ),
             ));
         }
-        Ok(Grid { x, z })
+        let axis = |lo: f64, n: f64| -> Vec<f64> {
+            (0..n as usize).map(|i| lo + i as f64 * step).collect()
+        };
+        Ok(Grid {
+            x: axis(x_min, nx),
+            z: axis(z_min, nz),
+        })
     }
 
     /// (nz, nx).
@@ -208,6 +219,21 @@ mod tests {
         assert_eq!(roi.grid.z, [0.25, 0.5]);
         let map = Array2::from_shape_fn((3, 5), |(r, c)| 10 * r + c);
         assert_eq!(roi.cut(&map), ndarray::array![[11, 12, 13], [21, 22, 23]]);
+    }
+
+    #[test]
+    fn absurd_extents_and_steps_are_refused_before_allocating() {
+        for (x0, x1, step) in [
+            (-1e-3, 1e-3, 1e-300),
+            (-1e300, 1e300, 1e-4),
+            (-1e308, 1e308, 1e-4),
+        ] {
+            let err = Grid::new(x0, x1, 5e-3, 6e-3, step).unwrap_err();
+            assert!(err.to_string().contains("too many"), "{err}");
+        }
+        // Exactly at the cap is allowed: 5000 × 10000 pixels.
+        let g = Grid::new(0.0, 9999.0, 0.0, 4999.0, 1.0).unwrap();
+        assert_eq!(g.shape(), (5000, 10000));
     }
 
     #[test]

@@ -21,6 +21,24 @@ pub struct IrlsParams {
     pub max_iterations: usize,
 }
 
+impl IrlsParams {
+    /// Refuses a λ or ε that is not finite and positive, and an iteration cap of 0.
+    pub fn validate(&self) -> Result<()> {
+        for (name, value) in [("IRLS λ", self.lambda_mm_s), ("IRLS ε", self.epsilon)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(invalid(
+                    name,
+                    format!("must be finite and > 0, got {value}"),
+                ));
+            }
+        }
+        if self.max_iterations == 0 {
+            return Err(invalid("IRLS iteration cap", "must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
 impl Default for IrlsParams {
     fn default() -> Self {
         IrlsParams {
@@ -166,13 +184,8 @@ pub fn vector_velocity(
     if n < 2 {
         return Err(invalid("angles", "vector Doppler needs at least 2 angles"));
     }
-    if let Estimator::Irls(p) = estimator
-        && !(p.lambda_mm_s > 0.0 && p.epsilon > 0.0 && p.max_iterations > 0)
-    {
-        return Err(invalid(
-            "IRLS parameters",
-            format!("λ, ε and the iteration cap must be > 0, got {p:?}"),
-        ));
+    if let Estimator::Irls(p) = estimator {
+        p.validate()?;
     }
     let mut vx = Array2::<f64>::zeros((nz, nx));
     let mut vz = Array2::<f64>::zeros((nz, nx));
@@ -243,6 +256,35 @@ mod tests {
         lone[3] = p[3];
         let (ex, ez) = solve_pixel(&angles, &lone, &Estimator::LeastSquares);
         assert!(ex.is_nan() && ez.is_nan());
+    }
+
+    #[test]
+    fn irls_settings_must_be_finite_and_positive() {
+        assert!(IrlsParams::default().validate().is_ok());
+        for bad in [
+            IrlsParams {
+                lambda_mm_s: f64::INFINITY,
+                ..Default::default()
+            },
+            IrlsParams {
+                lambda_mm_s: -1.0,
+                ..Default::default()
+            },
+            IrlsParams {
+                epsilon: 0.0,
+                ..Default::default()
+            },
+            IrlsParams {
+                epsilon: f64::NAN,
+                ..Default::default()
+            },
+            IrlsParams {
+                max_iterations: 0,
+                ..Default::default()
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
     }
 
     #[test]
