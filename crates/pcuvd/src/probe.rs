@@ -71,6 +71,19 @@ impl Probe {
         require_positive("element width", self.element_width)?;
         require_positive("centre frequency", self.center_frequency)?;
         require_positive("bandwidth", self.bandwidth)?;
+        // A fraction of the centre frequency: at 2 (200 %) the band already reaches 0 Hz, so a
+        // larger value is a percentage given where a fraction is meant (67 for 0.67).
+        if self.bandwidth >= 2.0 {
+            return Err(invalid(
+                "bandwidth",
+                format!(
+                    "{} is a fraction of the centre frequency and must be below 2 (200 %); \
+                     did you mean {}?",
+                    self.bandwidth,
+                    self.bandwidth / 100.0
+                ),
+            ));
+        }
         Ok(())
     }
 

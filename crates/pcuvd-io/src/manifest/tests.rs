@@ -198,6 +198,16 @@ fn errors_name_the_file_and_the_field() {
         &["format is \"other\""],
     );
     check(&rep("version = 1 ", "version = 2 "), &["version is 2"]);
+    // A percentage where a fraction is meant is refused, with the fraction suggested.
+    let bandwidth_line = text
+        .lines()
+        .find(|l| l.starts_with("bandwidth"))
+        .unwrap()
+        .to_string();
+    check(
+        &|t: &str| t.replacen(&bandwidth_line, "bandwidth = 67", 1),
+        &["bandwidth", "did you mean 0.67"],
+    );
     check(
         &rep("format = \"pcuvd-recording\"", ""),
         &["has no key 'format'"],
