@@ -40,12 +40,10 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let depth = pcuvd::pipeline::recorded_depth(&data);
     let grid = pcuvd::pipeline::default_grid(&data).ok();
     let (nz, nx) = grid.as_ref().map_or((0, 0), |g| g.shape());
-    // The whole-recording path holds the samples, the decoded per-angle copy and its IQ (about
-    // three times the input as f32), and per angle the beamformed and filtered image series
-    // (complex64, twice), on the default grid.
     let input_bytes = events * channels * samples * bytes_per_sample;
-    let image_bytes = 2 * nz * nx * frames * n_angles * 8;
-    let memory_bytes = 3 * events * channels * samples * 4 + image_bytes;
+    let memory_bytes = grid.as_ref().map_or(0, |g| {
+        usize::try_from(pcuvd::pipeline::memory_estimate(&data, g)).unwrap_or(usize::MAX)
+    });
     let f_max = probe.center_frequency * (1.0 + probe.bandwidth / 2.0);
     let mut warnings = Vec::new();
     if demod.is_none() && acq.sampling_frequency < 2.0 * f_max {
@@ -102,7 +100,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         "processing": {
             "default_grid_nz_nx": [nz, nx],
             "memory_estimate_bytes": memory_bytes,
-            "memory_estimate_rule": "3 × samples × 4 bytes (input, decoded, IQ) + 2 × pixels × frames × angles × 8 bytes (image series, filtered series), default grid",
+            "memory_estimate_rule": pcuvd::pipeline::MEMORY_ESTIMATE_RULE,
         },
         "warnings": warnings,
     });

@@ -27,6 +27,10 @@ pub struct ProcessArgs {
     /// first (no stale map beside the new summary.json); other files are never touched.
     #[arg(long)]
     pub force: bool,
+    /// Memory processing may use (GB); default: what the machine has available now. Set it on a
+    /// shared node whose job limit is below the machine's free memory (a Slurm --mem, say).
+    #[arg(long)]
+    pub max_memory_gb: Option<f64>,
     #[command(flatten)]
     pub options: ProcessingOptions,
     #[command(flatten)]
@@ -83,6 +87,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             vessel: args.dynamics.vessel_tests()?,
         })
     };
+    check_memory(&data, &params, args.max_memory_gb)?;
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
@@ -127,6 +132,37 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Refuses, before any work, a recording and grid whose processing would need more memory than
+/// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
+fn check_memory(data: &ChannelData, params: &ProcessParams, limit_gb: Option<f64>) -> Result<()> {
+    let available = match limit_gb {
+        Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
+        Some(gb) => bail!("--max-memory-gb {gb}: must be a positive number of GB"),
+        None => available_memory().map(|b| b as f64),
+    };
+    let needed = pipeline::memory_estimate(data, &params.grid) as f64;
+    if let Some(available) = available
+        && needed > available
+    {
+        bail!(
+            "processing needs about {:.3} GB ({}) but {:.3} GB are available: use a coarser or \
+             smaller --grid, or a shorter recording",
+            needed / 1e9,
+            pipeline::MEMORY_ESTIMATE_RULE,
+            available / 1e9
+        );
+    }
+    Ok(())
+}
+
+/// Memory available to a new process (bytes): `MemAvailable` of /proc/meminfo, where there is one.
+fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 /// Where the results came from: pcuvd's version, the command line, and every input file with its

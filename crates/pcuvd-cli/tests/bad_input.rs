@@ -165,6 +165,15 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
     expect_error(&ok, &["--irls-lambda", "inf"], &["--irls-lambda", "λ"]);
     expect_error(&ok, &["--irls-epsilon", "0"], &["--irls-epsilon", "ε"]);
     expect_error(&ok, &["--irls-max-iterations", "0"], &["iteration cap"]);
+    // More memory than allowed: refused before any work, with the estimate and its rule. The
+    // 64 × 4 × 2 recording on a 1 µm grid over 10 × 1 mm: 10001 × 1001 pixels × 2 frames × 1
+    // angle × 16 bytes ≈ 0.32 GB.
+    expect_error(
+        &ok,
+        &["--grid=-5,5,1,2,0.001", "--max-memory-gb", "0.1"],
+        &["needs about 0.3", "0.100 GB are available", "--grid"],
+    );
+    expect_error(&ok, &["--max-memory-gb=-1"], &["--max-memory-gb"]);
 }
 
 #[test]

@@ -297,6 +297,21 @@ pub fn angle_coverage(acq: &Acquisition, grid: &Grid) -> Array3<bool> {
     })
 }
 
+/// How [`memory_estimate`] counts.
+pub const MEMORY_ESTIMATE_RULE: &str = "3 × samples × 4 bytes (the input, its decoded per-angle \
+copy and its IQ) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image \
+series, complex64)";
+
+/// Bytes the whole-recording chain ([`process`]) needs for `data` on `grid`, by
+/// [`MEMORY_ESTIMATE_RULE`]: a rule of thumb from the buffers it holds at its peak.
+pub fn memory_estimate(data: &ChannelData, grid: &Grid) -> u128 {
+    let (events, channels, samples) = data.samples.dim();
+    let (nz, nx) = grid.shape();
+    let frames = data.n_frames() as u128;
+    let angles = data.acquisition.sequence.n_angles() as u128;
+    3 * (events * channels * samples) as u128 * 4 + 2 * (nz * nx) as u128 * frames * angles * 8
+}
+
 /// Deepest depth (m) whose straight-down echo lies inside the record.
 pub fn recorded_depth(data: &ChannelData) -> f64 {
     let acq = &data.acquisition;

@@ -353,3 +353,17 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
     let err = mid_frame_error(&aligned, n, 0..frames, still_echo);
     assert!(err < 1e-5, "still medium, aligned decoding error {err}");
 }
+
+/// The memory estimate by hand: 8 events (4 angles × 2 frames) × 16 channels × 100 samples, and a
+/// 3 × 5 pixel grid: 3 × 12,800 × 4 bytes + 2 × 15 pixels × 2 frames × 4 angles × 8 bytes.
+#[test]
+fn memory_estimate_counts_samples_and_image_series() {
+    let rec = coded_recording(Array3::zeros((8, 16, 100)), 4, 1e-6, 20e6);
+    assert_eq!(rec.n_frames(), 2);
+    let grid = Grid::new(0.0, 0.4e-3, 1e-3, 1.2e-3, 0.1e-3).unwrap();
+    assert_eq!(grid.shape(), (3, 5));
+    assert_eq!(
+        pcuvd::pipeline::memory_estimate(&rec, &grid),
+        3 * 8 * 16 * 100 * 4 + 2 * 15 * 2 * 4 * 8
+    );
+}
