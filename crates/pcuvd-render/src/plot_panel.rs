@@ -374,17 +374,7 @@ pub(crate) fn draw(
                 }
             }
         }
-        let pts: Vec<(f64, f64)> =
-            s.x.iter()
-                .zip(&s.y)
-                .map(|(&x, &y)| {
-                    if x.is_finite() {
-                        l.pt(x, y)
-                    } else {
-                        (f64::NAN, f64::NAN)
-                    }
-                })
-                .collect();
+        let pts = series_pixels(s, l);
         match s.style {
             SeriesStyle::Line | SeriesStyle::LinePoints => {
                 c.polyline_clipped(&pts, plot, col, st.px(1.6), None)?
@@ -612,22 +602,26 @@ pub(crate) fn draw(
     Ok(())
 }
 
+/// A series' points in pixels; NaN where x is not finite (a gap in the line).
+fn series_pixels(s: &Series, l: &PlotLayout) -> Vec<(f64, f64)> {
+    s.x.iter()
+        .zip(&s.y)
+        .map(|(&x, &y)| {
+            if x.is_finite() {
+                l.pt(x, y)
+            } else {
+                (f64::NAN, f64::NAN)
+            }
+        })
+        .collect()
+}
+
 /// Where the panel draws data (pixels): lines, points, error bars, the y = x line and markers.
 fn occupied(pp: &PlotPanel, l: &PlotLayout, st: &Style) -> Occupied {
     let mut occ = Occupied::default();
     let step = st.px(3.0);
     for s in &pp.series {
-        let pts: Vec<(f64, f64)> =
-            s.x.iter()
-                .zip(&s.y)
-                .map(|(&x, &y)| {
-                    if x.is_finite() {
-                        l.pt(x, y)
-                    } else {
-                        (f64::NAN, f64::NAN)
-                    }
-                })
-                .collect();
+        let pts = series_pixels(s, l);
         match s.style {
             SeriesStyle::Points => pts.iter().for_each(|&p| occ.point(p)),
             _ => occ.polyline(&pts, step),
