@@ -88,6 +88,17 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         })
     };
     check_memory(&data, &params, args.max_memory_gb)?;
+    let clock = std::time::Instant::now();
+    let source = provenance(args, &input_files)?;
+    let checksum_s = clock.elapsed().as_secs_f64();
+    if !args.force && already_done(&args.out, &source) {
+        println!(
+            "{}: already processed from the same input (checksums) with the same options and \
+             pcuvd version (summary.json); skipped (--force redoes it)",
+            args.out.display()
+        );
+        return Ok(());
+    }
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
@@ -97,9 +108,6 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    let clock = std::time::Instant::now();
-    let source = provenance(args, &input_files)?;
-    let checksum_s = clock.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
     let mut summary = write_outputs(&args.out, &data, &params, &out, source)?;
     let name = args
@@ -189,7 +197,32 @@ fn provenance(args: &ProcessArgs, input_files: &[PathBuf]) -> Result<serde_json:
         "files": files,
         "pcuvd_version": env!("CARGO_PKG_VERSION"),
         "command_line": std::env::args().collect::<Vec<_>>(),
+        "options": format!("{:?} {:?}", args.options, args.dynamics),
     }))
+}
+
+/// True when `out` holds a complete earlier run (its summary.json) of the same input files (by
+/// size and SHA-256), options (every processing and dynamics setting, defaults included) and
+/// pcuvd version as `source` describes: a batch re-run can skip it.
+fn already_done(out: &Path, source: &serde_json::Value) -> bool {
+    let Ok(text) = std::fs::read_to_string(out.join("summary.json")) else {
+        return false;
+    };
+    let Ok(summary) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return false;
+    };
+    let earlier = &summary["source"];
+    let fingerprints = |s: &serde_json::Value| -> Option<Vec<(u64, String)>> {
+        s["files"]
+            .as_array()?
+            .iter()
+            .map(|f| Some((f["size_bytes"].as_u64()?, f["sha256"].as_str()?.to_string())))
+            .collect()
+    };
+    fingerprints(earlier).is_some()
+        && fingerprints(earlier) == fingerprints(source)
+        && earlier["options"] == source["options"]
+        && earlier["pcuvd_version"] == source["pcuvd_version"]
 }
 
 /// The dynamics stage's settings as read from the command line: `None` with `--dynamics off`.

@@ -218,15 +218,28 @@ fn used_output_folders_are_refused_unless_forced_and_inputs_are_never_overwritte
         (result.status.success(), stderr)
     };
     assert!(run(&[], &out).0);
+    let summary = std::fs::read(out.join("summary.json")).unwrap();
+    // The same input and options again (a batch re-run): skipped, the folder untouched.
+    let again = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["--quiet", "process"])
+        .arg(&input)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(again.status.success());
+    assert!(String::from_utf8_lossy(&again.stdout).contains("skipped"));
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), summary);
     std::fs::write(out.join("notes.txt"), "mine").unwrap();
     // A stale output of pcuvd's naming that this run does not write (the disk has one angle).
     std::fs::write(out.join("vx.npy"), "stale").unwrap();
-    let (ok, stderr) = run(&[], &out);
+    // Other options into the used folder: refused without --force.
+    let (ok, stderr) = run(&["--f-number", "2"], &out);
     assert!(
         !ok && stderr.contains("--force") && stderr.lines().count() == 1,
         "{stderr}"
     );
-    let (ok, stderr) = run(&["--force"], &out);
+    let (ok, stderr) = run(&["--f-number", "2", "--force"], &out);
     assert!(ok, "{stderr}");
     assert!(
         !out.join("vx.npy").exists(),
