@@ -46,7 +46,7 @@ pub struct ProcessingOptions {
     /// resampled to the frame's mid-event time first, so moving blood does not leak angles into
     /// each other) or "simultaneous" (the paper's decoding: the events of a frame taken as
     /// simultaneous). Conventional recordings are not affected.
-    #[arg(long, value_enum, default_value = "mid-frame")]
+    #[arg(long, value_enum, default_value_t = Alignment::from(pcuvd::decode::EventAlignment::default()))]
     pub event_alignment: Alignment,
 }
 
@@ -64,6 +64,15 @@ impl Alignment {
     /// The option's value, as written on the command line and in reports.
     pub fn label(self) -> &'static str {
         pcuvd::decode::EventAlignment::from(self).label()
+    }
+}
+
+impl From<pcuvd::decode::EventAlignment> for Alignment {
+    fn from(a: pcuvd::decode::EventAlignment) -> Self {
+        match a {
+            pcuvd::decode::EventAlignment::MidFrame => Self::MidFrame,
+            pcuvd::decode::EventAlignment::Simultaneous => Self::Simultaneous,
+        }
     }
 }
 
@@ -128,7 +137,7 @@ pub fn parse_db_or_off(text: &str) -> Result<Option<f64>> {
 const DEFAULT_WINDOW_MS: f64 = dynamics::DEFAULT_WINDOW_S * 1e3;
 
 /// An averaging-kernel size as "ROWSxCOLS", the form [`parse_kernel`] reads.
-fn kernel_text((rows, cols): (usize, usize)) -> String {
+pub fn kernel_text((rows, cols): (usize, usize)) -> String {
     format!("{rows}x{cols}")
 }
 

@@ -44,15 +44,15 @@ pub struct PaperArgs {
     pub sweep: String,
     /// Scatterer motion: "per-event" (physical: blood moves between the events of a frame) or
     /// "per-frame" (held still within each compound frame, as the paper's simulation assumed).
-    #[arg(long, value_enum, default_value = "per-event")]
+    #[arg(long, value_enum, default_value_t = Motion::from(SpiralSettings::default().motion))]
     pub motion: Motion,
     /// How coded events are decoded: "mid-frame" (each event's slow-time series resampled to the
     /// frame's mid-event time first, so moving blood does not leak angles into each other) or
     /// "simultaneous" (the paper's decoding, which takes the events of a frame as simultaneous).
-    #[arg(long, value_enum, default_value = "mid-frame")]
+    #[arg(long, value_enum, default_value_t = Alignment::from(SpiralSettings::default().event_alignment))]
     pub event_alignment: Alignment,
     /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd).
-    #[arg(long, default_value = "1x1")]
+    #[arg(long, default_value_t = crate::options::kernel_text(SpiralSettings::default().doppler_kernel))]
     pub doppler_kernel: String,
     /// Pixel size of the imaging grid (mm).
     #[arg(long, default_value_t = SpiralSettings::default().grid_step_m * 1e3)]
@@ -101,6 +101,15 @@ pub enum Motion {
     PerEvent,
     /// Once per compound frame (the paper's simulation; Hadamard decoding then sees a still medium).
     PerFrame,
+}
+
+impl From<StudyMotion> for Motion {
+    fn from(m: StudyMotion) -> Self {
+        match m {
+            StudyMotion::PerEvent => Motion::PerEvent,
+            StudyMotion::PerFrame => Motion::PerFrame,
+        }
+    }
 }
 
 impl From<Motion> for StudyMotion {
