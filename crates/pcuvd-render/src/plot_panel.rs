@@ -323,14 +323,10 @@ pub(crate) fn draw(
     }
 
     // y = x reference.
-    if pp.diagonal {
-        let lo =
-            l.xr.0
-                .max(if l.log_y { 10f64.powf(l.yr.0) } else { l.yr.0 });
-        let hi =
-            l.xr.1
-                .min(if l.log_y { 10f64.powf(l.yr.1) } else { l.yr.1 });
-        if lo < hi {
+    if pp.diagonal
+        && let Some((lo, hi)) = diagonal_span(l)
+    {
+        {
             let n = if l.log_y { 200 } else { 2 };
             let pts: Vec<(f64, f64)> = (0..n)
                 .map(|i| {
@@ -602,6 +598,13 @@ pub(crate) fn draw(
     Ok(())
 }
 
+/// The stretch [lo, hi] of the y = x line inside both axis ranges (data units), if any.
+fn diagonal_span(l: &PlotLayout) -> Option<(f64, f64)> {
+    let y_range = |v: f64| if l.log_y { 10f64.powf(v) } else { v };
+    let (lo, hi) = (l.xr.0.max(y_range(l.yr.0)), l.xr.1.min(y_range(l.yr.1)));
+    (lo < hi).then_some((lo, hi))
+}
+
 /// A series' points in pixels; NaN where x is not finite (a gap in the line).
 fn series_pixels(s: &Series, l: &PlotLayout) -> Vec<(f64, f64)> {
     s.x.iter()
@@ -640,14 +643,10 @@ fn occupied(pp: &PlotPanel, l: &PlotLayout, st: &Style) -> Occupied {
             }
         }
     }
-    if pp.diagonal {
-        let lo =
-            l.xr.0
-                .max(if l.log_y { 10f64.powf(l.yr.0) } else { l.yr.0 });
-        let hi =
-            l.xr.1
-                .min(if l.log_y { 10f64.powf(l.yr.1) } else { l.yr.1 });
-        if lo < hi {
+    if pp.diagonal
+        && let Some((lo, hi)) = diagonal_span(l)
+    {
+        {
             occ.polyline(&[l.pt(lo, lo), l.pt(hi, hi)], step);
         }
     }

@@ -143,6 +143,12 @@ impl Formed {
     }
 }
 
+/// Time-mean power of the compounded (angle-summed) image series, shape (nz, nx): the power
+/// Doppler of echo-only or noise-only images that SNR by depth compares.
+pub fn compound_mean_power(images: &AngleImages) -> Result<ndarray::Array2<f64>> {
+    crate::beamform::compound(&images.series).map(|c| crate::metrics::mean_power(&c))
+}
+
 /// Processing settings of the studies: the pipeline's defaults on `grid` with no clutter filter
 /// (the phantoms hold no tissue, as in the paper).
 pub fn process_params(

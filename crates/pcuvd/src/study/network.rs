@@ -14,7 +14,6 @@ use serde::Serialize;
 
 use super::spiral::{SnrByDepth, alignment_label};
 use super::{Acquire, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform;
 use crate::decode::EventAlignment;
 use crate::dynamics::{
     self, DynamicsParams, PoolingSummary, RiMaps, Spectrogram, SpectrogramParams, VelocitySeries,
@@ -22,7 +21,7 @@ use crate::dynamics::{
 };
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
-use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores, mean_power};
+use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores};
 use crate::phantom::Phantom;
 use crate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
 use crate::pipeline::{self, ProcessOutput};
@@ -385,11 +384,8 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             progress,
         )?;
         let clock = Instant::now();
-        let compound_power = |images: &crate::images::AngleImages| {
-            beamform::compound(&images.series).map(|c| mean_power(&c))
-        };
-        let echo_power = compound_power(&formed.signal)?;
-        let noise_power = compound_power(&formed.noise)?;
+        let echo_power = super::compound_mean_power(&formed.signal)?;
+        let noise_power = super::compound_mean_power(&formed.noise)?;
         let acquisition = formed.acquisition.clone();
         let images = formed.at_gain(1.0);
         drop(formed);

@@ -12,13 +12,10 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform;
 use crate::decode::EventAlignment;
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
-use crate::metrics::{
-    self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, mean_power, snr_by_depth,
-};
+use crate::metrics::{self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, snr_by_depth};
 use crate::phantom::{Phantom, SpiralPhantom, Truth};
 use crate::pipeline::{self, ProcessOutput};
 use crate::simulate::{self, NOISE_DEFINITION};
@@ -358,16 +355,13 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         .iter()
         .map(|f| pipeline::analyse(f.at_gain(1.0), &params, &quiet))
         .collect::<Result<_>>()?;
-    let compound_power = |images: &crate::images::AngleImages| {
-        beamform::compound(&images.series).map(|c| mean_power(&c))
-    };
     let noise_power: Vec<Array2<f64>> = formed
         .iter()
-        .map(|f| compound_power(&f.noise))
+        .map(|f| super::compound_mean_power(&f.noise))
         .collect::<Result<_>>()?;
     let echo_power: Vec<Array2<f64>> = formed
         .iter()
-        .map(|f| compound_power(&f.signal))
+        .map(|f| super::compound_mean_power(&f.signal))
         .collect::<Result<_>>()?;
 
     // Noise sweep: four estimators at every level.
