@@ -73,23 +73,23 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
     let (data, input_files) = read_input(&args.input)?;
     let read_s = clock.elapsed().as_secs_f64();
-    let params = args.options.params(&data)?;
-    // Dynamics settings are read (and refused) before the long processing, not after it.
-    let dynamics_settings = if args.dynamics.dynamics == DynamicsChoice::Off {
-        None
-    } else {
-        Some(DynamicsSettings {
-            params: args.dynamics.params(
-                data.acquisition.frame_rate(),
-                params.irls,
-                params.grid.step(),
-            )?,
-            vessel: args.dynamics.vessel_tests()?,
-        })
-    };
-    check_memory(&data, &params, args.max_memory_gb)?;
+    let plan = Plan::new(&args.options, &args.dynamics, &data)?;
+    check_memory(&data, &plan.params, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
-    let source = provenance(args, &input_files)?;
+    let (format, reader) = match input_files.len() {
+        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
+        _ => (
+            "pcuvd recording manifest (.toml) + NumPy .npy",
+            "pcuvd_io::read_recording",
+        ),
+    };
+    let source = provenance(
+        &args.input.display().to_string(),
+        &input_files,
+        (format, reader),
+        &plan.options_text,
+        std::env::args().collect(),
+    )?;
     let checksum_s = clock.elapsed().as_secs_f64();
     if !args.force && already_done(&args.out, &source) {
         println!(
@@ -105,34 +105,33 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         &input_files,
         args.force,
     )?;
-    let progress = PipelineProgress::new("");
-    let out = pipeline::process(&data, &params, &|s, d, t| progress.update(s, d, t))
-        .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    let clock = std::time::Instant::now();
-    let mut summary = write_outputs(&args.out, &data, &params, &out, source)?;
     let name = args
         .input
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let mut pngs = figures::process_figures(&args.out, &out, &name)?;
-    let (dynamics, mut dynamic_pngs) = run_dynamics(args, dynamics_settings.as_ref(), &out, &name)?;
-    pngs.append(&mut dynamic_pngs);
-    summary["dynamics"] = dynamics;
-    summary["timings_s"]["read"] = json!(read_s);
-    summary["timings_s"]["checksum"] = json!(checksum_s);
-    summary["timings_s"]["maps_figures_and_dynamics"] = json!(clock.elapsed().as_secs_f64());
-    // Written last: a folder without summary.json is visibly incomplete.
-    pcuvd_io::write_json(&args.out.join("summary.json"), &summary)?;
+    let progress = PipelineProgress::new("");
+    let processed = compute(&data, &plan, &|s, d, t| progress.update(s, d, t))
+        .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    let extra_timings = [("read", read_s), ("checksum", checksum_s)];
+    let pngs = save(
+        &args.out,
+        &data,
+        &plan,
+        &processed,
+        source,
+        &name,
+        &extra_timings,
+    )?;
     println!(
         "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
         args.input.display(),
         data.acquisition.sequence.n_angles(),
         data.n_frames(),
         data.acquisition.frame_rate(),
-        out.nyquist_velocity * 1e3,
-        out.grid.z.len(),
-        out.grid.x.len()
+        processed.out.nyquist_velocity * 1e3,
+        processed.out.grid.z.len(),
+        processed.out.grid.x.len()
     );
     println!(
         "wrote maps (.npy), summary.json and {} figures to {}",
@@ -140,6 +139,136 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Every setting of a `process` run, read and checked before any work: the pipeline's, the
+/// dynamics stage's, and the options as text (what summary.json records and a re-run compares).
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// Settings of the decoding-to-vectors chain.
+    pub params: ProcessParams,
+    /// Settings of the dynamics stage; `None` with `--dynamics off`.
+    pub dynamics: Option<DynamicsSettings>,
+    /// True when a dynamics setting was given, so that a recording that cannot honour it is an
+    /// error rather than a skipped stage.
+    pub dynamics_required: bool,
+    /// Every processing and dynamics option, defaults included, as one line of text.
+    pub options_text: String,
+}
+
+impl Plan {
+    /// Reads and checks the options against the recording `data`, before the long processing.
+    pub fn new(
+        options: &ProcessingOptions,
+        dynamics: &DynamicsOptions,
+        data: &ChannelData,
+    ) -> Result<Plan> {
+        let params = options.params(data)?;
+        let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
+            None
+        } else {
+            Some(DynamicsSettings {
+                params: dynamics.params(
+                    data.acquisition.frame_rate(),
+                    params.irls,
+                    params.grid.step(),
+                )?,
+                vessel: dynamics.vessel_tests()?,
+            })
+        };
+        Ok(Plan {
+            params,
+            dynamics: dynamics_settings,
+            dynamics_required: dynamics.explicit(),
+            options_text: format!("{options:?} {dynamics:?}"),
+        })
+    }
+}
+
+/// What the dynamics stage gave: RI maps and the velocity series they came from, or why not.
+#[derive(Debug, Clone)]
+pub enum DynamicsOutcome {
+    /// The stage ran.
+    Done {
+        /// Vector velocity in sliding windows.
+        series: Box<VelocitySeries>,
+        /// PSV, EDV, RI, classes and flow directions.
+        maps: Box<RiMaps>,
+    },
+    /// The stage was skipped (off, or the recording cannot give RI maps); the reason.
+    Skipped(String),
+}
+
+/// Everything `process` computed, before anything is written.
+#[derive(Debug, Clone)]
+pub struct Processed {
+    /// The maps of the decoding-to-vectors chain.
+    pub out: ProcessOutput,
+    /// The dynamics stage's result.
+    pub dynamics: DynamicsOutcome,
+    /// Wall-clock seconds the dynamics stage took.
+    pub dynamics_s: f64,
+}
+
+/// Runs the chain and the dynamics stage on `data` as `plan` says. With `--dynamics auto` and no
+/// dynamics setting given, a recording that cannot give RI maps (too short, one angle) skips the
+/// stage with a note; otherwise that is an error.
+pub fn compute(
+    data: &ChannelData,
+    plan: &Plan,
+    progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
+) -> Result<Processed> {
+    let out = pipeline::process(data, &plan.params, progress)?;
+    let clock = std::time::Instant::now();
+    let dynamics = match &plan.dynamics {
+        None => DynamicsOutcome::Skipped("--dynamics off".into()),
+        Some(settings) => match pipeline::dynamics(&out, &settings.params, &settings.vessel) {
+            Ok((series, maps)) => DynamicsOutcome::Done {
+                series: Box::new(series),
+                maps: Box::new(maps),
+            },
+            Err(e) if !plan.dynamics_required => {
+                let reason = format!("{e:#}");
+                eprintln!("note: no RI maps: {reason} (use --dynamics off to silence this)");
+                DynamicsOutcome::Skipped(reason)
+            }
+            Err(e) => return Err(anyhow::Error::from(e).context("dynamics (RI maps)")),
+        },
+    };
+    Ok(Processed {
+        out,
+        dynamics,
+        dynamics_s: clock.elapsed().as_secs_f64(),
+    })
+}
+
+/// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
+/// figures, dynamics maps, and `summary.json` last with `source` as its provenance and
+/// `extra_timings` (seconds) beside the stages'. `name` labels the figures. Returns the figures.
+pub fn save(
+    dir: &Path,
+    data: &ChannelData,
+    plan: &Plan,
+    processed: &Processed,
+    source: serde_json::Value,
+    name: &str,
+    extra_timings: &[(&str, f64)],
+) -> Result<Vec<PathBuf>> {
+    let clock = std::time::Instant::now();
+    let out = &processed.out;
+    let mut summary = write_outputs(dir, data, &plan.params, out, source)?;
+    let mut pngs = figures::process_figures(dir, out, name)?;
+    let (dynamics, mut dynamic_pngs) = write_dynamics(dir, plan, processed, name)?;
+    pngs.append(&mut dynamic_pngs);
+    summary["dynamics"] = dynamics;
+    for (key, seconds) in extra_timings {
+        summary["timings_s"][*key] = json!(seconds);
+    }
+    summary["timings_s"]["maps_figures_and_dynamics"] =
+        json!(processed.dynamics_s + clock.elapsed().as_secs_f64());
+    // Written last: a folder without summary.json is visibly incomplete.
+    pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
+    Ok(pngs)
 }
 
 /// Refuses, before any work, a recording and grid whose processing would need more memory than
@@ -173,16 +302,15 @@ fn available_memory() -> Option<u64> {
     Some(kb * 1024)
 }
 
-/// Where the results came from: pcuvd's version, the command line, and every input file with its
-/// size and SHA-256, the format and the reader that read it.
-fn provenance(args: &ProcessArgs, input_files: &[PathBuf]) -> Result<serde_json::Value> {
-    let (format, reader) = match input_files.len() {
-        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
-        _ => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::read_recording",
-        ),
-    };
+/// Where the results came from: pcuvd's version, the command line, every input file with its
+/// size and SHA-256, the format and the reader (`format_reader`) that read it, and the options.
+pub fn provenance(
+    input: &str,
+    input_files: &[PathBuf],
+    format_reader: (&str, &str),
+    options_text: &str,
+    command_line: Vec<String>,
+) -> Result<serde_json::Value> {
     let files = input_files
         .iter()
         .map(|path| {
@@ -191,13 +319,13 @@ fn provenance(args: &ProcessArgs, input_files: &[PathBuf]) -> Result<serde_json:
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(json!({
-        "input": args.input.display().to_string(),
-        "format": format,
-        "reader": reader,
+        "input": input,
+        "format": format_reader.0,
+        "reader": format_reader.1,
         "files": files,
         "pcuvd_version": env!("CARGO_PKG_VERSION"),
-        "command_line": std::env::args().collect::<Vec<_>>(),
-        "options": format!("{:?} {:?}", args.options, args.dynamics),
+        "command_line": command_line,
+        "options": options_text,
     }))
 }
 
@@ -225,45 +353,34 @@ fn already_done(out: &Path, source: &serde_json::Value) -> bool {
         && earlier["pcuvd_version"] == source["pcuvd_version"]
 }
 
-/// The dynamics stage's settings as read from the command line: `None` with `--dynamics off`.
-struct DynamicsSettings {
-    params: DynamicsParams,
+/// The dynamics stage's settings as read from the options.
+#[derive(Debug, Clone)]
+pub struct DynamicsSettings {
+    /// Sliding windows, heart rate, RI thresholds, pooling.
+    pub params: DynamicsParams,
     /// Whole-recording vessel tests (noise-floor margin, local peak).
-    vessel: VesselTests,
+    pub vessel: VesselTests,
 }
 
-/// The dynamics stage of `pcuvd process`: sliding-window vectors, PSV/EDV/RI maps and classes,
-/// written as .npy and figures. Returns its summary.json entry and the figures written. With
-/// `--dynamics auto` and no dynamics setting given, a recording that cannot give RI maps (too
-/// short, one angle) is skipped with a note; otherwise that is an error.
-fn run_dynamics(
-    args: &ProcessArgs,
-    settings: Option<&DynamicsSettings>,
-    out: &ProcessOutput,
+/// Writes the dynamics stage's maps and figures into `dir`; returns its summary.json entry and
+/// the figures written.
+fn write_dynamics(
+    dir: &Path,
+    plan: &Plan,
+    processed: &Processed,
     name: &str,
 ) -> Result<(serde_json::Value, Vec<PathBuf>)> {
-    let options = &args.dynamics;
-    let Some(&DynamicsSettings {
-        params: dparams,
-        vessel,
-    }) = settings
-    else {
-        return Ok((json!({ "skipped": "--dynamics off" }), vec![]));
-    };
-    let attempt =
-        || -> Result<(VelocitySeries, RiMaps)> { Ok(pipeline::dynamics(out, &dparams, &vessel)?) };
-    let (series, maps) = match attempt() {
-        Ok(result) => result,
-        Err(e) if !options.explicit() => {
-            let reason = format!("{e:#}");
-            eprintln!("note: no RI maps: {reason} (use --dynamics off to silence this)");
+    let out = &processed.out;
+    let (settings, series, maps) = match (&plan.dynamics, &processed.dynamics) {
+        (Some(settings), DynamicsOutcome::Done { series, maps }) => (settings, series, maps),
+        (_, DynamicsOutcome::Skipped(reason)) => {
             return Ok((json!({ "skipped": reason }), vec![]));
         }
-        Err(e) => {
-            return Err(e.context(format!("{}: dynamics (RI maps)", args.input.display())));
+        (None, DynamicsOutcome::Done { .. }) => {
+            bail!("dynamics results without dynamics settings: an internal inconsistency")
         }
     };
-    let dir = &args.out;
+    let (dparams, vessel) = (settings.params, settings.vessel);
     npy(dir, "ri.npy", &maps.ri)?;
     npy(dir, "psv.npy", &maps.psv)?;
     npy(dir, "edv.npy", &maps.edv)?;
@@ -274,7 +391,7 @@ fn run_dynamics(
         &dir.join("times.npy"),
         &Array1::from(series.times_s.clone()),
     )?;
-    let pngs = figures::dynamics_figures(dir, &maps, &series, &dparams, &out.grid, name)?;
+    let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     let summary = json!({
         "heart_rate_hz": maps.heart_rate_hz,

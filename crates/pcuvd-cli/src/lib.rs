@@ -1,0 +1,85 @@
+//! The `pcuvd` command as a library: every subcommand's options, checks, computation and outputs,
+//! so that other front ends (the Python package) run exactly what the command runs.
+
+pub mod figures;
+pub mod info;
+pub mod network_study;
+pub mod options;
+pub mod outputs;
+pub mod paper;
+pub mod process;
+pub mod progress;
+pub mod simulate;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Pulse-coded ultrafast vector Doppler (PC-UVD) and conventional UVD, from channel data to velocity vectors.
+#[derive(Parser)]
+#[command(name = "pcuvd", version, about, long_about = None)]
+struct Cli {
+    /// No progress reports on stderr (errors and notes still print).
+    #[arg(long, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Process a recording (MUST-style .mat or pcuvd manifest .toml) into B-mode, power, colour and vector Doppler maps.
+    Process(Box<process::ProcessArgs>),
+    /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
+    Simulate(simulate::SimulateArgs),
+    /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
+    Info(info::InfoArgs),
+    /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
+    Paper(paper::PaperArgs),
+}
+
+/// Runs the `pcuvd` command on the process's own arguments; the exit code to return.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    progress::set_quiet(cli.quiet);
+    // Ctrl-C stops at once. Every output is written under a temporary name and renamed when
+    // complete, and summary.json / metrics.json / manifests come last, so what is left looks
+    // incomplete; the temporary files of writes in progress are removed.
+    let _ = ctrlc::set_handler(|| {
+        pcuvd_io::remove_partial_files();
+        eprintln!(
+            "interrupted: stopped before the end; what was written is incomplete (summary.json, \
+             metrics.json and manifests are written last)"
+        );
+        std::process::exit(130);
+    });
+    let result = match cli.command {
+        Command::Process(args) => process::run(&args),
+        Command::Simulate(args) => simulate::run(&args),
+        Command::Paper(args) => paper::run(&args),
+        Command::Info(args) => info::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {}", one_line(&error));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The cause chain on one line, without the captured backtrace, skipping a cause whose text an
+/// outer message already quotes.
+pub fn one_line(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if !line.contains(&text) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&text);
+        }
+    }
+    line
+}
