@@ -17,6 +17,7 @@ pub struct ProcessingOptions {
     /// array's width, from 1 mm to the recorded depth, half-wavelength step.
     #[arg(
         long,
+        visible_alias = "grid-mm",
         allow_hyphen_values = true,
         value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP"
     )]
@@ -176,7 +177,7 @@ pub struct DynamicsOptions {
     #[arg(long, value_enum, default_value = "auto")]
     pub dynamics: DynamicsChoice,
     /// Heart rate (Hz); default: measured from the data, which needs about 1.5 cycles or more.
-    #[arg(long)]
+    #[arg(long, visible_alias = "heart-rate-hz")]
     pub heart_rate: Option<f64>,
     /// Sliding-window length (ms); default 20 ms (36 frames at the rat's 1.8 kHz).
     #[arg(long)]

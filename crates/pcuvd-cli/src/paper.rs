@@ -30,6 +30,16 @@ pub struct PaperArgs {
     /// Output folder (created if needed).
     #[arg(long)]
     pub out: std::path::PathBuf,
+    /// Which study to run: all, spiral (Fig. 2–5) or network (in-vivo-like, Fig. 6–8, RI maps).
+    #[arg(long, value_enum, default_value = "all")]
+    pub part: Part,
+    #[command(flatten)]
+    pub study: StudyOptions,
+}
+
+/// The studies' settings as options; every default is the library's.
+#[derive(Args, Debug, Clone)]
+pub struct StudyOptions {
     /// Compound frames per acquisition (the paper: 100).
     #[arg(long, default_value_t = SpiralSettings::default().frames)]
     pub frames: usize,
@@ -57,9 +67,6 @@ pub struct PaperArgs {
     /// Pixel size of the imaging grid (mm).
     #[arg(long, default_value_t = SpiralSettings::default().grid_step_m * 1e3)]
     pub grid_step: f64,
-    /// Which study to run: all, spiral (Fig. 2–5) or network (in-vivo-like, Fig. 6–8, RI maps).
-    #[arg(long, value_enum, default_value = "all")]
-    pub part: Part,
     /// Compound frames of each vessel-network recording (the paper's rat: 360 = 0.2 s at 1.8 kHz).
     #[arg(long, default_value_t = NetworkSettings::default().frames)]
     pub network_frames: usize,
@@ -121,9 +128,9 @@ impl From<Motion> for StudyMotion {
     }
 }
 
-impl PaperArgs {
-    /// The spiral study's settings.
-    fn spiral_settings(&self) -> Result<SpiralSettings> {
+impl StudyOptions {
+    /// The spiral study's settings, checked.
+    pub fn spiral_settings(&self) -> Result<SpiralSettings> {
         let sweep_db = crate::options::parse_numbers(&self.sweep).with_context(|| {
             format!(
                 "--sweep {:?}: expected comma-separated noise levels in dB",
@@ -146,8 +153,8 @@ impl PaperArgs {
         Ok(settings)
     }
 
-    /// The network study's settings.
-    fn network_settings(&self) -> Result<NetworkSettings> {
+    /// The network study's settings, checked.
+    pub fn network_settings(&self) -> Result<NetworkSettings> {
         let settings = NetworkSettings {
             frames: self.network_frames,
             seed: self.seed,
@@ -181,10 +188,10 @@ struct PaperMetrics<'a> {
 pub fn run(args: &PaperArgs) -> Result<()> {
     // Every setting is checked before the first study starts.
     let spiral_settings = (args.part != Part::Network)
-        .then(|| args.spiral_settings())
+        .then(|| args.study.spiral_settings())
         .transpose()?;
     let network_settings = (args.part != Part::Spiral)
-        .then(|| args.network_settings())
+        .then(|| args.study.network_settings())
         .transpose()?;
     create_dir(&args.out)?;
     remove_other_part(&args.out, args.part)?;

@@ -256,11 +256,10 @@ pub fn save(
 ) -> Result<Vec<PathBuf>> {
     let clock = std::time::Instant::now();
     let out = &processed.out;
-    let mut summary = write_outputs(dir, data, &plan.params, out, source)?;
+    write_maps(dir, out)?;
+    let mut summary = summary(data, plan, processed, source);
     let mut pngs = figures::process_figures(dir, out, name)?;
-    let (dynamics, mut dynamic_pngs) = write_dynamics(dir, plan, processed, name)?;
-    pngs.append(&mut dynamic_pngs);
-    summary["dynamics"] = dynamics;
+    pngs.append(&mut write_dynamics(dir, plan, processed, name)?);
     for (key, seconds) in extra_timings {
         summary["timings_s"][*key] = json!(seconds);
     }
@@ -273,7 +272,11 @@ pub fn save(
 
 /// Refuses, before any work, a recording and grid whose processing would need more memory than
 /// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
-fn check_memory(data: &ChannelData, params: &ProcessParams, limit_gb: Option<f64>) -> Result<()> {
+pub fn check_memory(
+    data: &ChannelData,
+    params: &ProcessParams,
+    limit_gb: Option<f64>,
+) -> Result<()> {
     let available = match limit_gb {
         Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
         Some(gb) => bail!("--max-memory-gb {gb}: must be a positive number of GB"),
@@ -362,38 +365,32 @@ pub struct DynamicsSettings {
     pub vessel: VesselTests,
 }
 
-/// Writes the dynamics stage's maps and figures into `dir`; returns its summary.json entry and
-/// the figures written.
-fn write_dynamics(
-    dir: &Path,
+/// The summary.json of a `process` run (without the writing timings): every parameter used, the
+/// Nyquist velocity, clutter cut-offs, per-stage timings, the dynamics stage, and `source`.
+pub fn summary(
+    data: &ChannelData,
     plan: &Plan,
     processed: &Processed,
-    name: &str,
-) -> Result<(serde_json::Value, Vec<PathBuf>)> {
+    source: serde_json::Value,
+) -> serde_json::Value {
+    let mut summary = summary_json(data, &plan.params, &processed.out, source);
+    summary["dynamics"] = dynamics_summary(plan, processed);
+    summary
+}
+
+/// The dynamics stage's entry of summary.json.
+fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
     let out = &processed.out;
     let (settings, series, maps) = match (&plan.dynamics, &processed.dynamics) {
         (Some(settings), DynamicsOutcome::Done { series, maps }) => (settings, series, maps),
-        (_, DynamicsOutcome::Skipped(reason)) => {
-            return Ok((json!({ "skipped": reason }), vec![]));
-        }
+        (_, DynamicsOutcome::Skipped(reason)) => return json!({ "skipped": reason }),
         (None, DynamicsOutcome::Done { .. }) => {
-            bail!("dynamics results without dynamics settings: an internal inconsistency")
+            return json!({ "skipped": "--dynamics off" });
         }
     };
     let (dparams, vessel) = (settings.params, settings.vessel);
-    npy(dir, "ri.npy", &maps.ri)?;
-    npy(dir, "psv.npy", &maps.psv)?;
-    npy(dir, "edv.npy", &maps.edv)?;
-    pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
-    pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
-    pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
-    pcuvd_io::write_npy(
-        &dir.join("times.npy"),
-        &Array1::from(series.times_s.clone()),
-    )?;
-    let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
-    let summary = json!({
+    json!({
         "heart_rate_hz": maps.heart_rate_hz,
         "heart_rate_given": dparams.heart_rate_hz.is_some(),
         "window_frames": dparams.window,
@@ -418,7 +415,36 @@ fn write_dynamics(
             "undetermined": count(dynamics::UNDETERMINED),
         },
         "class_codes": { "background": dynamics::BACKGROUND, "arteriole": dynamics::ARTERIOLE, "venule": dynamics::VENULE, "undetermined": dynamics::UNDETERMINED },
-    });
+    })
+}
+
+/// Writes the dynamics stage's maps and figures into `dir` (nothing when it was skipped);
+/// returns the figures written.
+fn write_dynamics(
+    dir: &Path,
+    plan: &Plan,
+    processed: &Processed,
+    name: &str,
+) -> Result<Vec<PathBuf>> {
+    let (Some(settings), DynamicsOutcome::Done { series, maps }) =
+        (&plan.dynamics, &processed.dynamics)
+    else {
+        return Ok(vec![]);
+    };
+    let out = &processed.out;
+    let dparams = settings.params;
+    npy(dir, "ri.npy", &maps.ri)?;
+    npy(dir, "psv.npy", &maps.psv)?;
+    npy(dir, "edv.npy", &maps.edv)?;
+    pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
+    pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
+    pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
+    pcuvd_io::write_npy(
+        &dir.join("times.npy"),
+        &Array1::from(series.times_s.clone()),
+    )?;
+    let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
+    let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     println!(
         "RI maps: heart rate {:.2} Hz, {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
         maps.heart_rate_hz,
@@ -427,7 +453,7 @@ fn write_dynamics(
         count(dynamics::VENULE),
         count(dynamics::UNDETERMINED)
     );
-    Ok((summary, pngs))
+    Ok(pngs)
 }
 
 /// A vessel-test level (dB) as set: "off" for the infinite level that stands for it.
@@ -444,15 +470,8 @@ fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {
     Ok(())
 }
 
-/// Writes the maps as .npy (SI units); returns the summary, for the caller to complete and write
-/// last.
-pub fn write_outputs(
-    dir: &Path,
-    data: &ChannelData,
-    params: &ProcessParams,
-    out: &ProcessOutput,
-    extra: serde_json::Value,
-) -> Result<serde_json::Value> {
+/// Writes the maps as .npy (SI units).
+pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     pcuvd_io::write_npy(&dir.join("x.npy"), &Array1::from(out.grid.x.clone()))?;
     pcuvd_io::write_npy(&dir.join("z.npy"), &Array1::from(out.grid.z.clone()))?;
     npy(dir, "bmode_db.npy", &out.bmode_db)?;
@@ -467,7 +486,7 @@ pub fn write_outputs(
         npy(dir, "vz_ls.npy", &ls.vz)?;
         npy(dir, "speed_ls.npy", &ls.speed())?;
     }
-    Ok(summary_json(data, params, out, extra))
+    Ok(())
 }
 
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.

@@ -86,9 +86,9 @@ pub enum ModeChoice {
     Both,
 }
 
-/// Arguments of `pcuvd simulate`.
-#[derive(Args, Debug)]
-pub struct SimulateArgs {
+/// What to simulate: every option of `pcuvd simulate` but the output folder.
+#[derive(Args, Debug, Clone)]
+pub struct SimulationOptions {
     /// The set-up to simulate.
     #[arg(long, value_enum, default_value = "paper-spiral")]
     pub preset: Preset,
@@ -110,88 +110,176 @@ pub struct SimulateArgs {
     /// Hadamard slot delay (µs).
     #[arg(long, default_value_t = 1.0)]
     pub slot_delay_us: f64,
+}
+
+/// Arguments of `pcuvd simulate`.
+#[derive(Args, Debug)]
+pub struct SimulateArgs {
+    #[command(flatten)]
+    pub options: SimulationOptions,
     /// Output folder (created if needed).
     #[arg(long)]
     pub out: PathBuf,
 }
 
-/// Runs `pcuvd simulate`.
-pub fn run(args: &SimulateArgs) -> Result<()> {
-    let frames = args.frames.unwrap_or(match args.preset {
-        Preset::RatNetwork => simulate::RAT_FRAMES,
-        _ => simulate::PAPER_FRAMES,
-    });
-    if frames == 0 {
-        bail!("--frames must be at least 1");
+/// A simulation, set up and checked before anything is simulated: the phantom and each transmit
+/// mode's settings.
+pub struct Simulation {
+    /// The options it was set up from.
+    pub options: SimulationOptions,
+    /// Compound frames per recording.
+    pub frames: usize,
+    /// Noise level (dB), `None` for none.
+    pub noise_db: Option<f64>,
+    /// The flow phantom.
+    pub phantom: Box<dyn Phantom>,
+    /// The vessel network, for its cardiac-cycle truth (the `rat-network` preset only).
+    pub network: Option<NetworkPhantom>,
+    /// Each recording to simulate: its name ("conventional", "coded") and settings.
+    pub modes: Vec<(&'static str, SimParams)>,
+}
+
+/// The ground truth of a simulation on the recording's default processing grid (m, m/s).
+pub struct SimulatedTruth {
+    /// Pixel columns (m).
+    pub x: Vec<f64>,
+    /// Pixel rows (m).
+    pub z: Vec<f64>,
+    /// Velocity and flow mask at t = 0, shape (nz, nx).
+    pub truth: pcuvd::phantom::Truth,
+    /// The vessel network's cardiac-cycle truth (RI, PSV, EDV, classes), when it is one.
+    pub cycle: Option<pcuvd::phantom::network::NetworkTruth>,
+}
+
+impl Simulation {
+    /// Sets up the simulation `options` describe; every mode's settings are checked, so that a
+    /// refused request (`--mode both --angles 6`: no Hadamard order) fails before any work.
+    pub fn new(options: &SimulationOptions) -> Result<Simulation> {
+        let args = options;
+        let frames = args.frames.unwrap_or(match args.preset {
+            Preset::RatNetwork => simulate::RAT_FRAMES,
+            _ => simulate::PAPER_FRAMES,
+        });
+        if frames == 0 {
+            bail!("--frames must be at least 1");
+        }
+        let noise_db = match args.noise_db.as_str() {
+            "off" | "none" => None,
+            text => Some(
+                text.parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .with_context(|| {
+                        format!("--noise-db {text:?}: expected a number of dB or \"off\"")
+                    })?,
+            ),
+        };
+        let network = match args.preset {
+            Preset::RatNetwork => Some(NetworkPhantom::rat(args.seed)?),
+            _ => None,
+        };
+        let phantom: Box<dyn Phantom> = match (args.preset, &network) {
+            (_, Some(network)) => Box::new(network.clone()),
+            (Preset::PaperSpiral, None) => Box::new(SpiralPhantom::paper(args.seed)?),
+            (_, None) => Box::new(TubePhantom::new(
+                TubeSpec {
+                    centre: [0.0, 8e-3],
+                    angle: 30f64.to_radians(),
+                    length: 16e-3,
+                    radius: 0.5e-3,
+                    peak_speed: 25e-3,
+                    density: 300e6,
+                },
+                args.seed,
+            )?),
+        };
+        let coded_modes: Vec<bool> = match args.mode {
+            ModeChoice::Coded => vec![true],
+            ModeChoice::Conventional => vec![false],
+            ModeChoice::Both => vec![false, true],
+        };
+        let modes = coded_modes
+            .into_iter()
+            .map(|coded| {
+                let name = if coded { "coded" } else { "conventional" };
+                Ok((name, mode_params(args, coded, noise_db)?))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Simulation {
+            options: options.clone(),
+            frames,
+            noise_db,
+            phantom,
+            network,
+            modes,
+        })
     }
-    let noise_db = match args.noise_db.as_str() {
-        "off" | "none" => None,
-        text => Some(
-            text.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .with_context(|| {
-                    format!("--noise-db {text:?}: expected a number of dB or \"off\"")
-                })?,
-        ),
-    };
-    let vessel_network = match args.preset {
-        Preset::RatNetwork => Some(NetworkPhantom::rat(args.seed)?),
-        _ => None,
-    };
-    let phantom: Box<dyn Phantom> = match (args.preset, &vessel_network) {
-        (_, Some(network)) => Box::new(network.clone()),
-        (Preset::PaperSpiral, None) => Box::new(SpiralPhantom::paper(args.seed)?),
-        (_, None) => Box::new(TubePhantom::new(
-            TubeSpec {
-                centre: [0.0, 8e-3],
-                angle: 30f64.to_radians(),
-                length: 16e-3,
-                radius: 0.5e-3,
-                peak_speed: 25e-3,
-                density: 300e6,
-            },
-            args.seed,
-        )?),
-    };
-    create_dir(&args.out)?;
-    let modes: Vec<bool> = match args.mode {
-        ModeChoice::Coded => vec![true],
-        ModeChoice::Conventional => vec![false],
-        ModeChoice::Both => vec![false, true],
-    };
-    let recording_name = |coded: bool| if coded { "coded" } else { "conventional" };
-    let recordings: Vec<&str> = modes.iter().map(|&coded| recording_name(coded)).collect();
-    // Every mode's settings are checked before anything is simulated or written, so that a
-    // refused `--mode both` request (--angles 6: no Hadamard order) writes and deletes nothing.
-    let mode_params = modes
-        .iter()
-        .map(|&coded| mode_params(args, coded, noise_db))
-        .collect::<Result<Vec<SimParams>>>()?;
-    for (mode_index, (coded, params)) in modes.into_iter().zip(mode_params).enumerate() {
-        let name = recording_name(coded);
-        let events = frames * params.sequence.n_angles();
-        let progress = bar(&format!("simulate {name}"), events as u64);
-        let data = simulate::simulate(phantom.as_ref(), &params, frames, &|done, _| {
-            progress.set_position(done as u64)
-        })?;
-        progress.finish();
+
+    /// Simulates recording `index` of [`Self::modes`]; `progress(events done, events)`.
+    pub fn recording(
+        &self,
+        index: usize,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<pcuvd::ChannelData> {
+        let params = &self.modes[index].1;
+        Ok(simulate::simulate(
+            self.phantom.as_ref(),
+            params,
+            self.frames,
+            progress,
+        )?)
+    }
+
+    /// The `[provenance]` a recording of mode `index` carries: simulator, preset, seed, noise.
+    pub fn provenance(&self, index: usize) -> toml::Table {
+        let params = &self.modes[index].1;
         let mut provenance = toml::Table::new();
         provenance.insert("simulator".into(), "pcuvd simulate".into());
-        provenance.insert("preset".into(), format!("{:?}", args.preset).into());
-        provenance.insert("seed".into(), (args.seed as i64).into());
+        provenance.insert("preset".into(), format!("{:?}", self.options.preset).into());
+        provenance.insert("seed".into(), (self.options.seed as i64).into());
         provenance.insert(
             "noise_db".into(),
-            noise_db.map_or(toml::Value::from("off"), toml::Value::from),
+            self.noise_db
+                .map_or(toml::Value::from("off"), toml::Value::from),
         );
         provenance.insert("noise_definition".into(), NOISE_DEFINITION.into());
         provenance.insert(
             "attenuation_db_cm_mhz".into(),
             params.attenuation_db_cm_mhz.into(),
         );
+        provenance
+    }
+
+    /// The ground truth on `data`'s default processing grid (the same for every mode).
+    pub fn truth(&self, data: &pcuvd::ChannelData) -> Result<SimulatedTruth> {
+        let grid = pipeline::default_grid(data)?;
+        Ok(SimulatedTruth {
+            truth: self.phantom.truth(&grid.x, &grid.z, 0.0),
+            cycle: self
+                .network
+                .as_ref()
+                .map(|network| network.cycle_truth(&grid.x, &grid.z)),
+            x: grid.x,
+            z: grid.z,
+        })
+    }
+}
+
+/// Runs `pcuvd simulate`.
+pub fn run(args: &SimulateArgs) -> Result<()> {
+    let simulation = Simulation::new(&args.options)?;
+    create_dir(&args.out)?;
+    let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
+    for (mode_index, (name, params)) in simulation.modes.iter().enumerate() {
+        let events = simulation.frames * params.sequence.n_angles();
+        let progress = bar(&format!("simulate {name}"), events as u64);
+        let data =
+            simulation.recording(mode_index, &|done, _| progress.set_position(done as u64))?;
+        progress.finish();
+        let provenance = simulation.provenance(mode_index);
         if mode_index == 0 {
             // Only once a new recording is ready: a run refused or failed before it deletes nothing.
-            remove_stale_outputs(&args.out, &recordings, vessel_network.is_some())?;
+            remove_stale_outputs(&args.out, &recordings, simulation.network.is_some())?;
         }
         let manifest = pcuvd_io::write_recording(&args.out, name, &data, &provenance)?;
         println!(
@@ -204,16 +292,14 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         // The truth is the same for every mode (same phantom, same default grid): write it once,
         // whatever an earlier run left in the folder.
         if mode_index == 0 {
-            let grid = pipeline::default_grid(&data)?;
-            let truth = phantom.truth(&grid.x, &grid.z, 0.0);
+            let truth = simulation.truth(&data)?;
             let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
-            pcuvd_io::write_npy(&x, &Array1::from(grid.x.clone()))?;
-            pcuvd_io::write_npy(&z, &Array1::from(grid.z.clone()))?;
-            pcuvd_io::write_npy(&vx, &truth.vx)?;
-            pcuvd_io::write_npy(&vz, &truth.vz)?;
-            pcuvd_io::write_npy(&mask, &truth.mask.mapv(u8::from))?;
-            if let Some(network) = &vessel_network {
-                let cycle = network.cycle_truth(&grid.x, &grid.z);
+            pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
+            pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
+            pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
+            pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
+            pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
+            if let Some(cycle) = &truth.cycle {
                 let [ri, psv, edv, vessel_class, flow_up] =
                     NETWORK_TRUTH_FILES.map(|name| args.out.join(name));
                 pcuvd_io::write_npy(&ri, &cycle.ri)?;
@@ -232,7 +318,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
 }
 
 /// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
-fn mode_params(args: &SimulateArgs, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
+fn mode_params(args: &SimulationOptions, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
     let mut params: SimParams = match args.preset {
         Preset::RatNetwork => simulate::rat_params(true)?,
         _ => simulate::paper_spiral_params(true)?,

@@ -139,18 +139,51 @@ pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
 pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<AngleSamples> {
     data.validate()?;
     let acq = &data.acquisition;
-    let n = acq.sequence.n_angles();
     let slot_shift = match acq.sequence.coding {
         Coding::Conventional => None,
         Coding::Hadamard { slot_delay } => Some(slot_delay * acq.sampling_frequency),
     };
-    let frames = data.n_frames();
+    decode_samples(
+        &data.samples,
+        acq.sequence.n_angles(),
+        slot_shift,
+        acq.sampling_frequency,
+        alignment,
+    )
+}
+
+/// As [`decode_aligned`], on bare samples (events, channels, samples) of `n` angles per compound
+/// frame: Hadamard-coded with pulse slots `slot_shift` samples apart (`None`: conventional, only
+/// split), sampled at `sampling_frequency` (Hz; it rotates the phase of shifted IQ).
+pub fn decode_samples(
+    samples: &Samples,
+    n: usize,
+    slot_shift: Option<f64>,
+    sampling_frequency: f64,
+    alignment: EventAlignment,
+) -> Result<AngleSamples> {
+    let (events, _, _) = samples.dim();
+    if n == 0 || events < n || events % n != 0 {
+        return Err(crate::error::Error::Shape(format!(
+            "{events} transmit events is not a whole number of compound frames of {n} events"
+        )));
+    }
+    if let Some(shift) = slot_shift
+        && !(shift.is_finite() && shift >= 0.0)
+    {
+        return Err(crate::error::invalid(
+            "slot delay",
+            format!("must be finite and ≥ 0 samples, got {shift}"),
+        ));
+    }
+    crate::error::require_positive("sampling frequency", sampling_frequency)?;
+    let frames = events / n;
     let aligner = match alignment {
         EventAlignment::MidFrame if n > 1 && frames > 1 => Some(SlowTimeAligner::new(frames, n)),
         _ => None,
     };
     let aligner = aligner.as_ref();
-    match &data.samples {
+    match samples {
         Samples::Rf(rf) => {
             let out = match slot_shift {
                 None => split(rf.view(), n),
@@ -169,7 +202,7 @@ pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<A
             demod_frequency,
         } => {
             let fd = *demod_frequency;
-            let fs = acq.sampling_frequency;
+            let fs = sampling_frequency;
             let out = match slot_shift {
                 None => split(iq.view(), n),
                 Some(shift) => decode_events(
