@@ -101,6 +101,20 @@ impl Sequence {
                 ),
             ));
         }
+        // A repeated angle adds no direction to the vector fit and, coded, would decode two slots
+        // onto one record: in a recording it is a mistake in the angle list.
+        for (k, a) in self.angles.iter().enumerate() {
+            if let Some(j) = self.angles[..k].iter().position(|b| b == a) {
+                return Err(invalid(
+                    "angles",
+                    format!(
+                        "slots {j} and {k} have the same steering angle {:.4}°: each slot must \
+                         fire a different angle",
+                        a.to_degrees()
+                    ),
+                ));
+            }
+        }
         require_positive("event PRF", self.event_prf)?;
         require_positive("pulse cycles", self.pulse_cycles)?;
         if let Coding::Hadamard { slot_delay } = self.coding {

@@ -1,0 +1,142 @@
+"""`pcuvd.process`: the chain of `pcuvd process`, with its defaults, from Python."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _checks, _pcuvd
+from ._recording import Recording, read_recording
+
+# What each array of a result is, for docs and `to_xarray`: (dimensions, description).
+MAPS: dict[str, tuple[tuple[str, ...], str]] = {
+    "x": (("x",), "pixel columns (m)"),
+    "z": (("z",), "pixel rows, depth (m)"),
+    "bmode_db": (("z", "x"), "B-mode (dB, 0 at the brightest pixel)"),
+    "power_doppler": (("z", "x"), "power Doppler of the compounded, filtered series (|IQ|²)"),
+    "color_doppler": (("z", "x"), "axial velocity (m/s, > 0 moving away from the probe)"),
+    "projections": (("angle", "z", "x"), "per-angle projection velocity V_θ (m/s; NaN unreached)"),
+    "vx": (("z", "x"), "lateral velocity, PC-UVD IRLS-WLS (m/s, > 0 toward +x)"),
+    "vz": (("z", "x"), "axial velocity, PC-UVD IRLS-WLS (m/s, > 0 deeper)"),
+    "speed": (("z", "x"), "speed, PC-UVD IRLS-WLS (m/s)"),
+    "vx_ls": (("z", "x"), "lateral velocity, UVD least squares (m/s)"),
+    "vz_ls": (("z", "x"), "axial velocity, UVD least squares (m/s)"),
+    "speed_ls": (("z", "x"), "speed, UVD least squares (m/s)"),
+    "ri": (("z", "x"), "resistivity index (PSV − EDV)/PSV (NaN outside vessels)"),
+    "psv": (("z", "x"), "peak systolic speed (m/s)"),
+    "edv": (("z", "x"), "end-diastolic speed (m/s)"),
+    "vessel_class": (("z", "x"), "0 background, 1 arteriole, 2 venule, 3 undetermined"),
+    "flow_up": (("z", "x"), "1 where the mean flow is toward the probe"),
+    "speed_series": (("time", "z", "x"), "speed in sliding windows (m/s)"),
+    "times": (("time",), "window centres (s)"),
+}
+
+
+def process_option_names() -> list[str]:
+    """The keyword options `process` accepts (the CLI's option names with `_` for `-`)."""
+    return sorted(n.replace("-", "_") for n in _pcuvd.process_option_names())
+
+
+class ProcessResult:
+    """What `process` returns: the maps (numpy, SI units), the summary, `save` and `to_xarray`.
+
+    Maps are attributes named as the files `pcuvd process` writes: `bmode_db`, `power_doppler`,
+    `color_doppler` (nz, nx); `projections` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
+    `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `ri`, `psv`, `edv`,
+    `vessel_class`, `flow_up` (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
+    dynamics stage ran; `x` (nx) and `z` (nz) in m.
+    """
+
+    def __init__(self, native: Any):
+        self._native = native
+        self._arrays: dict[str, np.ndarray] | None = None
+
+    @property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every map by name (a dict of numpy arrays)."""
+        if self._arrays is None:
+            self._arrays = dict(self._native.arrays())
+        return self._arrays
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        arrays = self.arrays
+        if name in arrays:
+            return arrays[name]
+        if name in MAPS:
+            raise AttributeError(
+                f"this result has no {name!r} ({MAPS[name][1]}): see summary['dynamics'] "
+                "or the angle count"
+            )
+        raise AttributeError(name)
+
+    def __dir__(self) -> list[str]:
+        return sorted(set(super().__dir__()) | set(self.arrays))
+
+    @property
+    def summary(self) -> dict:
+        """The summary.json `save` writes (every parameter, Nyquist velocity, clutter cut-offs,
+        stage timings, dynamics, provenance), as a dict."""
+        return json.loads(self._native.summary_json())
+
+    def save(self, folder: str | os.PathLike, force: bool = False) -> list[Path]:
+        """Writes exactly what `pcuvd process` writes into `folder`: maps as .npy, figures,
+        summary.json last. A folder that holds anything is refused unless `force`, which first
+        removes pcuvd's own outputs there (never other files). Returns the figures written."""
+        return [Path(p) for p in self._native.save(os.fspath(folder), bool(force))]
+
+    def to_xarray(self) -> Any:
+        """The maps as an `xarray.Dataset` with coordinates x, z (m), angle (rad), time (s)."""
+        try:
+            import xarray as xr
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise ImportError("to_xarray needs xarray: pip install xarray") from e
+        arrays = self.arrays
+        summary = self.summary
+        coords: dict[str, Any] = {"x": ("x", arrays["x"]), "z": ("z", arrays["z"])}
+        coords["angle"] = ("angle", np.radians(summary["acquisition"]["angles_deg"]))
+        if "times" in arrays:
+            coords["time"] = ("time", arrays["times"])
+        data_vars = {
+            name: (MAPS[name][0], value, {"description": MAPS[name][1]})
+            for name, value in arrays.items()
+            if name not in ("x", "z", "times")
+        }
+        return xr.Dataset(data_vars, coords=coords, attrs={"summary": json.dumps(summary)})
+
+    def __repr__(self) -> str:
+        maps = ", ".join(sorted(k for k in self.arrays if k not in ("x", "z")))
+        nz, nx = len(self.arrays["z"]), len(self.arrays["x"])
+        return f"<pcuvd.ProcessResult {nz}×{nx} pixels: {maps}>"
+
+
+def process(
+    recording: Recording | str | os.PathLike, *, quiet: bool = False, **options: Any
+) -> ProcessResult:
+    """Runs `pcuvd process`'s chain (decode, demodulate, beamform, SVD clutter filter, power /
+    colour / vector Doppler, dynamics) on a recording, with the CLI's defaults.
+
+    recording: a `Recording` or a path (read with `read_recording`). options: the CLI's options
+    with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
+    mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
+    `dynamics="off"`, `heart_rate_hz=5.5`, `window_ms=20`; see `process_option_names()`.
+    Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
+    for a bad option or recording, before any work where the CLI would.
+    """
+    if not isinstance(recording, Recording):
+        recording = read_recording(recording)
+    options = dict(options)
+    if "grid_m" in options:
+        grid_m = options.pop("grid_m")
+        if "grid_mm" in options or "grid" in options:
+            raise TypeError("process(): give one of grid_m, grid_mm")
+        if grid_m is not None:
+            values = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
+            options["grid_mm"] = [v * 1e3 for v in values]
+    args = _checks.to_args("process", options, _pcuvd.process_option_names())
+    return ProcessResult(_pcuvd.process(recording._native, args, bool(quiet)))

@@ -1,0 +1,229 @@
+"""The chain's stages on plain numpy arrays: each is the function `process` runs."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from . import _checks, _pcuvd
+
+FRAME_AXES = ("frames", "channels", "samples")
+SERIES_AXES = ("z", "x", "frames")
+
+
+def decode_hadamard(
+    rf: Any,
+    n_angles: int,
+    *,
+    slot_delay_s: float,
+    sampling_freq_hz: float,
+    alignment: str = "mid-frame",
+    axes: Sequence[str] = ("events", "channels", "samples"),
+) -> np.ndarray:
+    """Decodes Hadamard-coded RF into one record per angle.
+
+    rf: (events, channels, samples) real (axes in the order `axes` names), events = frames ×
+    n_angles; every event fires all `n_angles` slots `slot_delay_s` apart with the polarities
+    of the Hadamard matrix's rows. alignment: "mid-frame" (each event's slow-time series first
+    resampled to its frame's mid-event time) or "simultaneous" (the paper's eq. 2).
+    Returns float32 (angles, frames, channels, samples): Hᵀ·M, i.e. n × each angle's record for
+    a still medium (the coherent sum that is coding's SNR gain), each advanced to its own slot's
+    time origin.
+    """
+    array = _checks.reorder("rf", np.asarray(rf), axes, ("events", "channels", "samples"))
+    rf32 = _checks.real32("rf", array, ("events", "channels", "samples"))
+    fs = _checks.finite_number("sampling_freq_hz", sampling_freq_hz)
+    delay = _checks.finite_number("slot_delay_s", slot_delay_s, positive=False)
+    if int(n_angles) != n_angles or n_angles < 1:
+        raise ValueError(f"n_angles: expected a whole number ≥ 1, got {n_angles!r}")
+    return _pcuvd.decode_hadamard_rf(rf32, int(n_angles), delay, fs, alignment)
+
+
+def rf_to_iq(
+    rf: Any,
+    *,
+    sampling_freq_hz: float,
+    demod_freq_hz: float,
+    t0_s: float = 0.0,
+    cutoff_hz: float | None = None,
+    axes: Sequence[str] = FRAME_AXES,
+) -> np.ndarray:
+    """IQ demodulation as the pipeline does it: mixing with exp(−2πi f_d t), t = t0 + n/f_s,
+    then a zero-phase Hamming-windowed low-pass (default cut-off: halfway to the nearest alias
+    of −2 f_d, at most f_d) with gain 2.
+
+    rf: (frames, channels, samples) real, or (channels, samples). Returns complex64 of the same
+    shape, in the order (frames, channels, samples).
+    """
+    array = np.asarray(rf)
+    if array.ndim == 2:
+        array = array[None]
+        axes = FRAME_AXES
+    array = _checks.reorder("rf", array, axes, FRAME_AXES)
+    rf32 = _checks.real32("rf", array, FRAME_AXES)
+    iq = _pcuvd.rf_to_iq(
+        rf32,
+        _checks.finite_number("sampling_freq_hz", sampling_freq_hz),
+        _checks.finite_number("demod_freq_hz", demod_freq_hz),
+        _checks.finite_number("t0_s", t0_s, positive=False),
+        None if cutoff_hz is None else _checks.finite_number("cutoff_hz", cutoff_hz),
+    )
+    return iq[0] if np.asarray(rf).ndim == 2 else iq
+
+
+def beamform(
+    iq: Any,
+    *,
+    probe: str | dict,
+    angle_rad: float,
+    sampling_freq_hz: float,
+    demod_freq_hz: float,
+    t0_s: float,
+    grid_m: Sequence[float] | None = None,
+    x_m: Any = None,
+    z_m: Any = None,
+    sound_speed_m_s: float = 1540.0,
+    f_number: float = _pcuvd.DEFAULT_F_NUMBER,
+    apodization: str = "hann",
+    axes: Sequence[str] = FRAME_AXES,
+) -> np.ndarray:
+    """Delay-and-sum of one steered plane wave's IQ channel data onto a pixel grid.
+
+    iq: (frames, channels, samples) complex baseband (from `rf_to_iq`). probe: a preset name or
+    the dict of `Recording.probe`. The pixel grid: grid_m = (x_min, x_max, z_min, z_max, step)
+    in m, or the pixel positions x_m (nx) and z_m (nz) in m (e.g. a result's `x`, `z`). Receive
+    f-number `f_number` (depth / aperture), Hann or boxcar apodisation.
+    Returns the complex image series (nz, nx, frames), complex64.
+    """
+    import json
+
+    array = _checks.reorder("iq", np.asarray(iq), axes, FRAME_AXES)
+    data = _checks.complex64("iq", array, FRAME_AXES)
+    grid = None
+    if grid_m is not None:
+        grid = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
+        if len(grid) != 5:
+            raise ValueError(
+                f"grid_m: expected (x_min, x_max, z_min, z_max, step), got {grid_m!r}"
+            )
+    x = None if x_m is None else _checks.float64("x_m", x_m, ("x",)).tolist()
+    z = None if z_m is None else _checks.float64("z_m", z_m, ("z",)).tolist()
+    return _pcuvd.beamform_iq(
+        data,
+        json.dumps(probe),
+        _checks.finite_number("angle_rad", angle_rad, positive=False),
+        _checks.finite_number("sampling_freq_hz", sampling_freq_hz),
+        _checks.finite_number("demod_freq_hz", demod_freq_hz),
+        _checks.finite_number("t0_s", t0_s, positive=False),
+        _checks.finite_number("sound_speed_m_s", sound_speed_m_s),
+        grid,
+        x,
+        z,
+        _checks.finite_number("f_number", f_number),
+        apodization,
+    )
+
+
+def svd_filter(
+    series: Any,
+    *,
+    low: int | str = "auto",
+    high: int | str = "off",
+    tissue_frequency: float = _pcuvd.DEFAULT_TISSUE_FREQUENCY,
+) -> tuple[np.ndarray, dict]:
+    """SVD clutter filter of an image series (nz, nx, frames).
+
+    low: leading (tissue) components removed: a number, "auto" (from the tissue frequency
+    limit `tissue_frequency` × frame rate) or "off"; high: first trailing (noise) component
+    removed, a number, "auto" (Marchenko–Pastur edge) or "off".
+    Returns the filtered series (complex64) and {"low", "high", "singular_values"}.
+    """
+    data = _checks.complex64("series", series, SERIES_AXES)
+    filtered, low_used, high_used, values = _pcuvd.svd_filter(
+        data, str(low), str(high), _checks.finite_number("tissue_frequency", tissue_frequency)
+    )
+    return filtered, {"low": low_used, "high": high_used, "singular_values": np.array(values)}
+
+
+def _kernel(kernel: Sequence[int]) -> tuple[int, int]:
+    rows, cols = (int(k) for k in kernel)
+    if rows < 1 or cols < 1 or rows % 2 == 0 or cols % 2 == 0:
+        raise ValueError(f"kernel: expected odd sizes (rows, cols), got {tuple(kernel)!r}")
+    return rows, cols
+
+
+def power_doppler(series: Any, *, kernel: Sequence[int] = (1, 1)) -> np.ndarray:
+    """Power Doppler: mean |S|² over frames of a series (nz, nx, frames), averaged over a
+    (rows, cols) box of pixels. Returns float64 (nz, nx)."""
+    data = _checks.complex64("series", series, SERIES_AXES)
+    return _pcuvd.power_doppler(data, _kernel(kernel))
+
+
+def kasai(
+    series: Any,
+    *,
+    sound_speed_m_s: float,
+    frame_rate_hz: float,
+    center_freq_hz: float,
+    kernel: Sequence[int] = (1, 1),
+) -> np.ndarray:
+    """Lag-1 autocorrelation (Kasai) projection velocity of a series (nz, nx, frames):
+    V = −c·f_frame/(4π f_c) · arg R(1) in m/s, > 0 where the echo path lengthens (moving away).
+    Returns float64 (nz, nx)."""
+    data = _checks.complex64("series", series, SERIES_AXES)
+    return _pcuvd.kasai(
+        data,
+        _checks.finite_number("sound_speed_m_s", sound_speed_m_s),
+        _checks.finite_number("frame_rate_hz", frame_rate_hz),
+        _checks.finite_number("center_freq_hz", center_freq_hz),
+        _kernel(kernel),
+    )
+
+
+def _projections(projections: Any, angles_rad: Sequence[float]) -> tuple[np.ndarray, list]:
+    data = _checks.float64("projections", projections, ("angles", "z", "x"))
+    angles = [_checks.finite_number("angles_rad", a, positive=False) for a in angles_rad]
+    if len(angles) != data.shape[0]:
+        raise ValueError(
+            f"projections: {data.shape[0]} maps for {len(angles)} angles (angles_rad)"
+        )
+    return data, angles
+
+
+def vector_ls(projections: Any, angles_rad: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Conventional UVD: least-squares (vx, vz) in m/s from projections (angles, nz, nx) in m/s
+    at `angles_rad`, with V_θ = (vx·sin θ + vz·(1 + cos θ))/2. NaN projections are left out."""
+    data, angles = _projections(projections, angles_rad)
+    return _pcuvd.vector_fit(data, angles, None)
+
+
+def vector_irls(
+    projections: Any,
+    angles_rad: Sequence[float],
+    *,
+    lambda_mm_s: float = _pcuvd.DEFAULT_IRLS_LAMBDA_MM_S,
+    epsilon: float = _pcuvd.DEFAULT_IRLS_EPSILON,
+    max_iterations: int = _pcuvd.DEFAULT_IRLS_MAX_ITERATIONS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """PC-UVD: iteratively reweighted least squares (vx, vz) in m/s, weights 1/(|residual| + λ)
+    (λ in mm/s), stopped when no weight changes by more than `epsilon` or after
+    `max_iterations`."""
+    data, angles = _projections(projections, angles_rad)
+    irls = (
+        _checks.finite_number("lambda_mm_s", lambda_mm_s),
+        _checks.finite_number("epsilon", epsilon),
+        int(max_iterations),
+    )
+    if irls[2] < 1:
+        raise ValueError(f"max_iterations: expected ≥ 1, got {max_iterations!r}")
+    return _pcuvd.vector_fit(data, angles, irls)
+
+
+def resistivity_index(psv: Any, edv: Any) -> np.ndarray:
+    """Resistivity index (PSV − EDV)/PSV of two speed maps (nz, nx) in m/s (NaN where PSV is
+    not positive or either is NaN)."""
+    a = _checks.float64("psv", psv, ("z", "x"))
+    b = _checks.float64("edv", edv, ("z", "x"))
+    return _pcuvd.resistivity_index(a, b)

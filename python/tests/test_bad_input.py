@@ -1,0 +1,194 @@
+"""Bad input raises ValueError / OSError / TypeError with the CLI's message, never crashes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import pcuvd
+from conftest import run_cli
+
+
+def _cli_error(cli, *args) -> str:
+    done = run_cli(cli, *args)
+    assert done.returncode != 0
+    line = done.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: "), done.stderr
+    return line.removeprefix("error: ")
+
+
+def test_a_bad_option_value_gives_the_cli_message(disk, cli, tmp_path):
+    expected = _cli_error(cli, "process", disk, "--out", tmp_path / "o", "--svd-low=banana")
+    with pytest.raises(ValueError) as raised:
+        pcuvd.process(disk, svd_low="banana")
+    assert str(raised.value) == expected
+
+
+def test_a_grid_beyond_the_recording_gives_the_cli_message(disk, cli, tmp_path):
+    grid = "-5,5,200,210,0.1"
+    expected = _cli_error(cli, "process", disk, "--out", tmp_path / "o", f"--grid={grid}")
+    with pytest.raises(ValueError) as raised:
+        pcuvd.process(disk, grid_mm=(-5, 5, 200, 210, 0.1), quiet=True)
+    assert str(raised.value) == expected
+
+
+def test_a_memory_bomb_grid_is_refused_before_any_work(disk):
+    with pytest.raises(ValueError, match="too many"):
+        pcuvd.process(disk, grid_m=(-1, 1, 0, 1, 1e-6))
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        ({"svd_lo": "auto"}, TypeError, "unexpected keyword 'svd_lo'"),
+        ({"f_number": -1}, ValueError, "f-number|f_number|F#"),
+        ({"doppler_kernel": (2, 2)}, ValueError, "odd"),
+        ({"irls_max_iterations": 0}, ValueError, "iteration"),
+        ({"dynamics": "sometimes"}, ValueError, "sometimes"),
+        ({"max_memory_gb": -3}, ValueError, "max-memory-gb"),
+        ({"grid_m": (0, 1)}, ValueError, "five numbers|expected"),
+        ({"grid_m": (-1, 1, 0, 1, 0.1), "grid_mm": (-1, 1, 0, 1, 0.1)}, TypeError, "one of"),
+    ],
+)
+def test_bad_process_options(disk, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        pcuvd.process(disk, quiet=True, **kwargs)
+
+
+def test_files_that_cannot_be_recordings(tmp_path):
+    with pytest.raises(OSError, match="no-such.mat"):
+        pcuvd.read_recording(tmp_path / "no-such.mat")
+    (tmp_path / "folder.mat").mkdir()
+    with pytest.raises(OSError, match="folder.mat"):
+        pcuvd.read_recording(tmp_path / "folder.mat")
+    (tmp_path / "empty.mat").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.mat"):
+        pcuvd.read_recording(tmp_path / "empty.mat")
+    (tmp_path / "garbage.mat").write_bytes(b"MATLAB 5.0" + bytes(range(256)) * 3)
+    with pytest.raises(ValueError, match="garbage.mat"):
+        pcuvd.read_recording(tmp_path / "garbage.mat")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(ValueError, match="notes.txt"):
+        pcuvd.read_recording(tmp_path / "notes.txt")
+
+
+GOOD = dict(
+    probe="L22-14vX",
+    sampling_freq_hz=62.5e6,
+    t0_s=0.0,
+    event_prf_hz=10e3,
+    angles_rad=[-0.1, 0.0, 0.1, 0.2],
+)
+
+
+def _rf(events=8, channels=128, samples=64):
+    return np.random.default_rng(0).normal(size=(events, channels, samples)).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "samples, changes, match",
+    [
+        (_rf(channels=64), {}, "64 channels"),
+        (_rf(events=6), {}, "whole number of compound frames"),
+        (_rf(), {"sampling_freq_hz": 0.0}, "sampling"),
+        (_rf(), {"event_prf_hz": -1.0}, "PRF|prf"),
+        (_rf(), {"sound_speed_m_s": float("inf")}, "sound"),
+        (_rf(), {"angles_rad": [0.1, 0.1, 0.2, 0.3]}, "angle"),
+        (_rf(), {"coding": "hadamard"}, "slot_delay_s"),
+        (_rf(events=6), {"coding": "hadamard", "slot_delay_s": 1e-6, "angles_rad": [0, 0.1, 0.2]}, "Hadamard|order|frames"),
+        (_rf(), {"probe": "no-such-probe"}, "probe"),
+        (_rf(), {"probe": {"preset": "L22-14vX", "pitch_m": -1e-4}}, "pitch"),
+        (_rf(), {"probe": {"preset": "L22-14vX", "colour": "red"}}, "colour"),
+        (np.full((8, 128, 64), np.nan, np.float32), {}, "NaN"),
+        (np.zeros((8, 128), np.float32), {}, "3 dimensions"),
+        (np.zeros((8, 128, 0), np.float32), {}, "empty"),
+        (np.array([["a"]]), {}, "not numeric|dimensions"),
+        (_rf().astype(np.int64) * 2**30, {}, "2\\*\\*24"),
+    ],
+)
+def test_bad_arrays_for_a_recording(samples, changes, match):
+    with pytest.raises(ValueError, match=match):
+        pcuvd.Recording.from_arrays(samples, **{**GOOD, **changes})
+
+
+def test_bad_arrays_for_stage_functions():
+    series = np.ones((4, 5, 6), np.complex64)
+    with pytest.raises(ValueError, match="complex"):
+        pcuvd.rf_to_iq(series, sampling_freq_hz=40e6, demod_freq_hz=5e6)
+    with pytest.raises(ValueError, match="demod_freq_hz"):
+        pcuvd.rf_to_iq(np.ones((2, 3, 40)), sampling_freq_hz=40e6, demod_freq_hz=0)
+    with pytest.raises(ValueError, match="cut-off"):
+        pcuvd.rf_to_iq(np.ones((2, 3, 40)), sampling_freq_hz=40e6, demod_freq_hz=5e6, cutoff_hz=30e6)
+    with pytest.raises(ValueError, match="odd"):
+        pcuvd.power_doppler(series, kernel=(2, 1))
+    with pytest.raises(ValueError, match="2 frames"):
+        pcuvd.kasai(series[..., :1], sound_speed_m_s=1540, frame_rate_hz=1e3, center_freq_hz=5e6)
+    with pytest.raises(ValueError, match="low"):
+        pcuvd.svd_filter(series, low="many")
+    with pytest.raises(ValueError, match="3 maps for 2 angles"):
+        pcuvd.vector_ls(np.zeros((3, 2, 2)), [0.0, 0.1])
+    with pytest.raises(ValueError, match="2 angles"):
+        pcuvd.vector_irls(np.zeros((1, 2, 2)), [0.0])
+    with pytest.raises(ValueError, match="max_iterations"):
+        pcuvd.vector_irls(np.zeros((2, 2, 2)), [0.0, 0.1], max_iterations=0)
+    with pytest.raises(ValueError, match="order|Hadamard"):
+        pcuvd.decode_hadamard(np.zeros((6, 2, 8)), 3, slot_delay_s=0, sampling_freq_hz=1e6)
+    with pytest.raises(ValueError, match="whole number"):
+        pcuvd.decode_hadamard(np.zeros((6, 2, 8)), 4, slot_delay_s=0, sampling_freq_hz=1e6)
+    with pytest.raises(ValueError, match="alignment"):
+        pcuvd.decode_hadamard(np.zeros((8, 2, 8)), 4, slot_delay_s=0, sampling_freq_hz=1e6, alignment="late")
+    iq = np.ones((2, 128, 50), np.complex64)
+    beam = dict(probe="L22-14vX", angle_rad=0, sampling_freq_hz=62.5e6, demod_freq_hz=15.625e6, t0_s=0)
+    with pytest.raises(ValueError, match="behind the probe"):
+        pcuvd.beamform(iq, grid_m=(-1e-3, 1e-3, -1e-3, 1e-3, 1e-4), **beam)
+    with pytest.raises(ValueError, match="grid"):
+        pcuvd.beamform(iq, **beam)
+    with pytest.raises(ValueError, match="64 channels"):
+        pcuvd.beamform(iq[:, :64], grid_m=(-1e-3, 1e-3, 1e-3, 2e-3, 1e-4), **beam)
+    with pytest.raises(ValueError, match="apodization"):
+        pcuvd.beamform(iq, grid_m=(-1e-3, 1e-3, 1e-3, 2e-3, 1e-4), apodization="tukey", **beam)
+    with pytest.raises(ValueError, match="shape"):
+        pcuvd.resistivity_index(np.ones((2, 2)), np.ones((2, 3)))
+
+
+def test_bad_simulation_requests():
+    with pytest.raises(ValueError, match="nowhere"):
+        pcuvd.simulate("nowhere")
+    with pytest.raises(ValueError, match="angles|Hadamard"):
+        pcuvd.simulate("tube", "coded", frames=2, angles=6)
+    with pytest.raises(ValueError, match="frames"):
+        pcuvd.simulate("tube", "coded", frames=0)
+    with pytest.raises(TypeError, match="unexpected keyword 'colour'"):
+        pcuvd.simulate("tube", colour="red")
+
+
+def test_nothing_crashes_the_interpreter(disk):
+    """A battery of bad calls in a fresh interpreter: it ends normally, having raised each time."""
+    script = f"""
+import numpy as np, pcuvd
+calls = [
+    lambda: pcuvd.read_recording({str(disk)!r}, t0_s=float('nan')),
+    lambda: pcuvd.process({str(disk)!r}, grid_mm=(1e300, 1e301, 0, 1, 1e-300)),
+    lambda: pcuvd.process({str(disk)!r}, window_ms=-5, dynamics='on'),
+    lambda: pcuvd.kasai(np.ones((2, 2, 3)), sound_speed_m_s=0, frame_rate_hz=1, center_freq_hz=1),
+    lambda: pcuvd.svd_filter(np.ones((1, 1, 2)), low=10**30),
+    lambda: pcuvd.vector_irls(np.full((2, 1, 1), np.inf), [0.0, 0.1], lambda_mm_s=float('nan')),
+    lambda: pcuvd.beamform(np.ones((1, 128, 4)), probe={{'preset': 'L22-14vX', 'n_elements': 10**12}},
+                           angle_rad=0, sampling_freq_hz=1e7, demod_freq_hz=5e6, t0_s=0,
+                           grid_m=(0, 1e-3, 1e-3, 2e-3, 1e-4)),
+]
+for call in calls:
+    try:
+        call()
+    except (ValueError, TypeError, OSError, OverflowError):
+        pass
+    else:
+        raise SystemExit("a bad call did not raise")
+print("survived")
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "survived" in done.stdout

@@ -1,0 +1,161 @@
+"""`pcuvd.process` against `pcuvd process`: the same arrays, summary and figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pcuvd
+from conftest import assert_same_array, run_cli
+
+
+def _outputs(folder: Path) -> dict[str, np.ndarray]:
+    return {p.stem: np.load(p) for p in sorted(folder.glob("*.npy"))}
+
+
+def _without_run_details(summary: dict) -> dict:
+    """The summary less what differs between two runs of the same work: timings, command line."""
+    summary = json.loads(json.dumps(summary))
+    summary.pop("timings_s")
+    summary["source"].pop("command_line")
+    return summary
+
+
+@pytest.fixture(scope="module")
+def tube(tmp_path_factory, cli) -> Path:
+    """A small coded tube recording (8 angles) written by `pcuvd simulate`."""
+    folder = tmp_path_factory.mktemp("tube")
+    done = run_cli(
+        cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "10", "--out", folder
+    )
+    assert done.returncode == 0, done.stderr
+    return folder / "coded.toml"
+
+
+@pytest.mark.parametrize("which", ["disk", "tube"])
+def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
+    source = {"disk": disk, "tube": tube}[which]
+    options = ["--grid=-3,3,4,10,0.1", "--dynamics=off"] if which == "tube" else []
+    by_cli = tmp_path / "cli"
+    done = run_cli(cli, "process", source, "--out", by_cli, *options)
+    assert done.returncode == 0, done.stderr
+
+    kwargs = {"grid_mm": (-3, 3, 4, 10, 0.1), "dynamics": "off"} if which == "tube" else {}
+    result = pcuvd.process(source, quiet=True, **kwargs)
+    by_python = tmp_path / "python"
+    figures = result.save(by_python)
+
+    cli_arrays, py_arrays = _outputs(by_cli), _outputs(by_python)
+    assert set(cli_arrays) == set(py_arrays)
+    assert {"bmode_db", "power_doppler", "color_doppler", "projections", "x", "z"} <= set(
+        cli_arrays
+    )
+    if which == "tube":
+        assert {"vx", "vz", "speed", "vx_ls", "vz_ls", "speed_ls"} <= set(cli_arrays)
+    for name in cli_arrays:
+        assert_same_array(py_arrays[name], cli_arrays[name], name)
+        # The in-memory maps are the saved ones.
+        assert_same_array(np.asarray(getattr(result, name)), cli_arrays[name], name)
+    assert sorted(p.name for p in by_cli.glob("*.png")) == sorted(p.name for p in figures)
+
+    cli_summary = json.loads((by_cli / "summary.json").read_text())
+    py_summary = json.loads((by_python / "summary.json").read_text())
+    assert _without_run_details(py_summary) == _without_run_details(cli_summary)
+    # The summary in memory is the saved one, less the timings of reading and writing.
+    assert _without_run_details(result.summary) == _without_run_details(py_summary)
+
+
+def test_save_refuses_a_used_folder_unless_forced(disk, tmp_path):
+    result = pcuvd.process(disk, quiet=True)
+    result.save(tmp_path)
+    with pytest.raises(ValueError, match="--force"):
+        result.save(tmp_path)
+    (tmp_path / "mine.txt").write_text("kept")
+    result.save(tmp_path, force=True)
+    assert (tmp_path / "mine.txt").read_text() == "kept"
+    assert (tmp_path / "summary.json").is_file()
+
+
+def test_recording_describes_the_disk(disk):
+    recording = pcuvd.read_recording(disk)
+    assert recording.shape == recording.samples.shape == (32, 128, 334)
+    assert recording.samples.dtype == np.float32
+    assert not recording.samples.flags.writeable
+    assert recording.n_frames == 32 and recording.n_angles == 1
+    assert recording.coding == "none"
+    assert recording.probe["n_elements"] == 128
+    assert recording.frame_rate_hz == recording.event_prf_hz
+    # The Nyquist velocity is c·f_frame/(4 f_c), computed here independently.
+    expected = recording.sound_speed_m_s * recording.frame_rate_hz / (
+        4 * recording.probe["center_freq_hz"]
+    )
+    assert recording.nyquist_velocity_m_s == pytest.approx(expected, rel=1e-12)
+    assert recording.files == [str(disk)]
+
+
+def test_overrides_change_the_acquisition(disk):
+    recording = pcuvd.read_recording(disk, sound_speed_m_s=1480.0, t0_s=0.0)
+    assert recording.sound_speed_m_s == 1480.0 and recording.t0_s == 0.0
+    with pytest.raises(ValueError, match="unknown acquisition field"):
+        pcuvd.read_recording(disk, speed_of_sound=1480.0)
+
+
+def test_from_arrays_equals_the_file(disk):
+    recording = pcuvd.read_recording(disk)
+    samples = np.transpose(recording.samples, (2, 0, 1))  # (samples, events, channels)
+    again = pcuvd.Recording.from_arrays(
+        samples,
+        axes=("samples", "events", "channels"),
+        probe=recording.probe,
+        sampling_freq_hz=recording.sampling_freq_hz,
+        t0_s=recording.t0_s,
+        event_prf_hz=recording.event_prf_hz,
+        angles_rad=recording.angles_rad,
+        sound_speed_m_s=recording.sound_speed_m_s,
+    )
+    a, b = pcuvd.process(recording, quiet=True), pcuvd.process(again, quiet=True)
+    for name in ("power_doppler", "color_doppler", "bmode_db"):
+        assert_same_array(getattr(a, name), getattr(b, name), name)
+
+
+def test_int16_samples_are_cast_not_truncated(disk):
+    recording = pcuvd.read_recording(disk)
+    scaled = np.round(recording.samples / np.abs(recording.samples).max() * 30000)
+    as_int16 = scaled.astype(np.int16)
+    kwargs = dict(
+        probe=recording.probe,
+        sampling_freq_hz=recording.sampling_freq_hz,
+        t0_s=recording.t0_s,
+        event_prf_hz=recording.event_prf_hz,
+        angles_rad=recording.angles_rad,
+    )
+    from_int = pcuvd.Recording.from_arrays(as_int16, **kwargs)
+    from_float = pcuvd.Recording.from_arrays(scaled.astype(np.float64), **kwargs)
+    assert from_int.samples.dtype == np.float32
+    np.testing.assert_array_equal(from_int.samples, from_float.samples)
+
+
+def test_to_xarray_has_coordinates_in_metres(disk):
+    xr = pytest.importorskip("xarray")
+    result = pcuvd.process(disk, quiet=True)
+    dataset = result.to_xarray()
+    assert isinstance(dataset, xr.Dataset)
+    np.testing.assert_array_equal(dataset["x"].values, result.x)
+    np.testing.assert_array_equal(dataset["z"].values, result.z)
+    assert dataset["color_doppler"].dims == ("z", "x")
+    assert dataset["projections"].dims == ("angle", "z", "x")
+    # Depths of the disk recording are centimetres, i.e. a few hundredths of a metre.
+    assert 0 < float(dataset["z"].max()) < 0.1
+
+
+def test_threads_run_at_once_and_agree(disk):
+    """The GIL is released during computation: two threads process the same recording."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    recording = pcuvd.read_recording(disk)
+    with ThreadPoolExecutor(2) as pool:
+        results = list(pool.map(lambda _: pcuvd.process(recording, quiet=True), range(2)))
+    assert_same_array(results[0].power_doppler, results[1].power_doppler, "power_doppler")

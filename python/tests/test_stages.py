@@ -1,0 +1,180 @@
+"""Stage functions: against analytic truth, independent numpy computations, and the Rust chain."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pcuvd
+from conftest import assert_same_array
+
+
+def test_chain_of_stages_equals_process_on_the_disk(disk):
+    """rf_to_iq → beamform → svd_filter → power_doppler / kasai is exactly what process runs."""
+    recording = pcuvd.read_recording(disk)
+    result = pcuvd.process(recording, quiet=True)
+    summary = result.summary
+    fc = recording.probe["center_freq_hz"]
+    iq = pcuvd.rf_to_iq(
+        recording.samples,
+        sampling_freq_hz=recording.sampling_freq_hz,
+        demod_freq_hz=fc,
+        t0_s=recording.t0_s,
+    )
+    x, z = result.x, result.z
+    series = pcuvd.beamform(
+        iq,
+        probe=recording.probe,
+        angle_rad=0.0,
+        sampling_freq_hz=recording.sampling_freq_hz,
+        demod_freq_hz=fc,
+        t0_s=recording.t0_s,
+        x_m=x,
+        z_m=z,
+        sound_speed_m_s=recording.sound_speed_m_s,
+    )
+    assert series.shape == (len(z), len(x), recording.n_frames)
+    filtered, cut = pcuvd.svd_filter(series)
+    assert cut["low"] == summary["clutter_filter"]["cut_offs_per_angle"][0]["low"]
+    assert_same_array(pcuvd.power_doppler(filtered), result.power_doppler, "power")
+    velocity = pcuvd.kasai(
+        filtered,
+        sound_speed_m_s=recording.sound_speed_m_s,
+        frame_rate_hz=recording.frame_rate_hz,
+        center_freq_hz=fc,
+    )
+    # One angle at 0°: the projection is the axial velocity, where the plane wave reaches.
+    reached = np.isfinite(result.projections[0])
+    assert reached.mean() > 0.9
+    np.testing.assert_array_equal(velocity[reached], result.projections[0][reached])
+    np.testing.assert_array_equal(velocity, result.color_doppler)
+
+
+def test_vector_fits_equal_process_on_a_coded_tube(tmp_path):
+    recording, truth = pcuvd.simulate("tube", "coded", frames=10, noise_db=None, quiet=True)
+    result = pcuvd.process(recording, grid_mm=(-3, 3, 4, 10, 0.1), dynamics="off", quiet=True)
+    vx, vz = pcuvd.vector_ls(result.projections, recording.angles_rad)
+    assert_same_array(vx, result.vx_ls, "vx_ls")
+    assert_same_array(vz, result.vz_ls, "vz_ls")
+    vx, vz = pcuvd.vector_irls(result.projections, recording.angles_rad)
+    assert_same_array(vx, result.vx, "vx")
+    assert_same_array(vz, result.vz, "vz")
+    assert truth.vx.shape == truth.mask.shape and truth.mask.any()
+
+
+def test_vector_fits_recover_an_exact_vector():
+    angles = np.radians(np.linspace(-15, 15, 8))
+    vx, vz = 0.012, -0.02
+    # V_θ = (vx·sin θ + vz·(1 + cos θ))/2, the projection model, written independently here.
+    v_theta = (vx * np.sin(angles) + vz * (1 + np.cos(angles))) / 2
+    projections = np.broadcast_to(v_theta[:, None, None], (8, 3, 4)).copy()
+    projections[0, 0, 0] = np.nan  # a missing angle is left out, not propagated
+    for fit in (pcuvd.vector_ls, pcuvd.vector_irls):
+        got_x, got_z = fit(projections, angles)
+        np.testing.assert_allclose(got_x, vx, rtol=1e-9)
+        np.testing.assert_allclose(got_z, vz, rtol=1e-9)
+
+
+def test_irls_downweights_an_outlier_that_least_squares_follows():
+    angles = np.radians(np.linspace(-15, 15, 8))
+    v_theta = (0.01 * np.sin(angles) + 0.02 * (1 + np.cos(angles))) / 2
+    v_theta[3] += 0.01  # one corrupted projection
+    projections = v_theta[:, None, None].copy()
+    ls = np.hypot(*(a[0, 0] for a in pcuvd.vector_ls(projections, angles)))
+    irls = np.hypot(*(a[0, 0] for a in pcuvd.vector_irls(projections, angles)))
+    truth = np.hypot(0.01, 0.02)
+    assert abs(irls - truth) < 0.2 * abs(ls - truth)
+
+
+def test_kasai_reads_a_doppler_tone():
+    c, prf, fc, fd = 1540.0, 5000.0, 5e6, 400.0
+    n = np.arange(64)
+    tone = np.exp(2j * np.pi * fd * n / prf)
+    series = np.broadcast_to(tone, (2, 3, 64)).astype(np.complex64)
+    velocity = pcuvd.kasai(series, sound_speed_m_s=c, frame_rate_hz=prf, center_freq_hz=fc)
+    # arg R(1) = 2π f_D / PRF, V = −c·f_D/(2 f_c): the echo phase advancing means approaching.
+    np.testing.assert_allclose(velocity, -c * fd / (2 * fc), rtol=1e-5)
+    power = pcuvd.power_doppler(3 * series)
+    np.testing.assert_allclose(power, 9.0, rtol=1e-5)
+
+
+def test_rf_to_iq_gives_the_analytic_baseband():
+    fs, fc, t0, phase = 40e6, 5e6, 2e-6, 0.7
+    t = t0 + np.arange(2000) / fs
+    rf = np.cos(2 * np.pi * fc * t + phase)[None, None, :].repeat(2, axis=0)
+    iq = pcuvd.rf_to_iq(rf, sampling_freq_hz=fs, demod_freq_hz=fc, t0_s=t0)
+    assert iq.shape == (2, 1, 2000) and iq.dtype == np.complex64
+    middle = iq[:, 0, 200:-200]
+    # cos(ωt + φ)·e^{−iωt}, low-passed with gain 2, is e^{iφ}.
+    np.testing.assert_allclose(middle, np.exp(1j * phase), atol=2e-3)
+
+
+def test_svd_filter_removes_the_tissue_rank_as_numpy_does():
+    rng = np.random.default_rng(1)
+    nz, nx, frames = 12, 10, 20
+    tissue = 50 * np.outer(rng.normal(size=nz * nx), np.exp(2j * np.pi * 0.001 * np.arange(frames)))
+    blood = rng.normal(size=(nz * nx, frames)) + 1j * rng.normal(size=(nz * nx, frames))
+    casorati = (tissue + blood).astype(np.complex64)
+    series = casorati.reshape(nz, nx, frames)
+    filtered, cut = pcuvd.svd_filter(series, low=1)
+    assert cut["low"] == 1
+    # Independent: remove the leading right singular vector with numpy's SVD.
+    _, s, vh = np.linalg.svd(casorati.astype(np.complex128), full_matrices=False)
+    v1 = vh[0].conj()[:, None]
+    expected = casorati - (casorati @ v1) @ v1.conj().T
+    np.testing.assert_allclose(filtered.reshape(-1, frames), expected, atol=1e-3 * np.abs(expected).max())
+    np.testing.assert_allclose(cut["singular_values"][:3], s[:3], rtol=1e-4)
+
+
+def test_decode_hadamard_inverts_a_numpy_encoding():
+    """Encode per-angle RF with the Sylvester Hadamard matrix and whole-sample slot delays in
+    numpy, then decode (events taken as simultaneous): n × the original records come back
+    (decoding is Hᵀ·M, whose coherent sum over n events is coding's SNR gain)."""
+    rng = np.random.default_rng(2)
+    n, frames, channels, samples, fs = 4, 3, 5, 64, 20e6
+    delay_samples = 2
+    per_angle = rng.normal(size=(n, frames, channels, samples)).astype(np.float32)
+    per_angle[..., -8:] = 0  # room for the delayed slots
+    h = np.array([[1.0]])
+    while h.shape[0] < n:
+        h = np.block([[h, h], [h, -h]])
+    events = np.zeros((frames * n, channels, samples), np.float32)
+    for f in range(frames):
+        for i in range(n):
+            for k in range(n):
+                shifted = np.roll(per_angle[k, f], k * delay_samples, axis=-1)
+                events[f * n + i] += h[i, k] * shifted
+    decoded = pcuvd.decode_hadamard(
+        events, n, slot_delay_s=delay_samples / fs, sampling_freq_hz=fs, alignment="simultaneous"
+    )
+    assert decoded.shape == per_angle.shape
+    np.testing.assert_allclose(
+        decoded[..., : samples - 8], n * per_angle[..., : samples - 8], atol=1e-4
+    )
+
+
+def test_resistivity_index():
+    psv = np.array([[0.02, 0.0], [np.nan, 0.01]])
+    edv = np.array([[0.006, 0.0], [0.001, 0.01]])
+    ri = pcuvd.resistivity_index(psv, edv)
+    np.testing.assert_allclose(ri[0, 0], 0.7)
+    assert np.isnan(ri[0, 1]) and np.isnan(ri[1, 0])
+    assert ri[1, 1] == 0.0
+
+
+def test_the_quickstart_example_runs_and_draws(disk, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "quickstart.py"
+    figure = tmp_path / "cd.png"
+    done = subprocess.run(
+        [sys.executable, str(example), str(disk), "--out", str(figure)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr
+    assert figure.stat().st_size > 10_000
+    assert "PWI_disk.mat" in done.stdout
