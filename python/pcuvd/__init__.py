@@ -11,13 +11,13 @@ Quick start::
 
 Units are SI (m, s, Hz, m/s), each in its keyword's name. Stage functions (`rf_to_iq`,
 `beamform`, `svd_filter`, `power_doppler`, `kasai`, `vector_ls`, `vector_irls`,
-`decode_hadamard`, `resistivity_index`) run one step of the chain on arrays; `simulate` makes
+`decode_hadamard`, `dynamics`, `resistivity_index`) run one step of the chain on arrays; `simulate` makes
 recordings with ground truth; `pcuvd.study` runs the paper's studies.
 """
 
 from . import study
 from ._pcuvd import __version__
-from ._process import ProcessResult, process, process_option_names
+from ._process import ProcessResult, dynamics, process, process_option_names
 from ._recording import Recording, read_recording
 from ._simulate import Truth, simulate, simulate_option_names
 from ._stages import (
@@ -39,6 +39,7 @@ __all__ = [
     "__version__",
     "beamform",
     "decode_hadamard",
+    "dynamics",
     "kasai",
     "power_doppler",
     "process",

@@ -115,6 +115,19 @@ class ProcessResult:
         return f"<pcuvd.ProcessResult {nz}×{nx} pixels: {maps}>"
 
 
+def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> ProcessResult:
+    """The dynamics stage (sliding-window vectors, heart rate, PSV/EDV/RI maps, vessel classes)
+    run again on a processed recording with other settings, without processing it again.
+
+    options: the CLI's dynamics options, e.g. `heart_rate_hz=5.5`, `window_ms=20`,
+    `window_step_ms=5`, `artery_ri_min=0.55`, `vein_ri_max=0.5`, `pool_along_mm=0`,
+    `dynamics="on"` (an error rather than a skipped stage when RI cannot be measured).
+    Returns a new result with the same maps and the new RI maps (`ri`, `psv`, `edv`, ...).
+    """
+    args = _checks.to_args("dynamics", options, _pcuvd.dynamics_option_names())
+    return ProcessResult(result._native.with_dynamics(args, bool(quiet)))
+
+
 def process(
     recording: Recording | str | os.PathLike, *, quiet: bool = False, **options: Any
 ) -> ProcessResult:

@@ -159,3 +159,24 @@ def test_threads_run_at_once_and_agree(disk):
     with ThreadPoolExecutor(2) as pool:
         results = list(pool.map(lambda _: pcuvd.process(recording, quiet=True), range(2)))
     assert_same_array(results[0].power_doppler, results[1].power_doppler, "power_doppler")
+
+
+def test_dynamics_rerun_equals_processing_with_those_settings():
+    """pcuvd.dynamics re-runs only the dynamics stage: the same RI maps as a full process."""
+    recording, _ = pcuvd.simulate("tube", "coded", frames=60, noise_db=None, quiet=True)
+    grid = {"grid_mm": (-3, 3, 4, 10, 0.1)}
+    # A steady tube, read as if a 40 Hz heart beat (one 25 ms cycle in the 33 ms recording).
+    beat = {"heart_rate_hz": 40, "window_ms": 5, "window_step_ms": 1}
+    without = pcuvd.process(recording, dynamics="off", quiet=True, **grid)
+    assert without.summary["dynamics"] == {"skipped": "--dynamics off"}
+    with pytest.raises(AttributeError, match="dynamics"):
+        without.ri
+    rerun = pcuvd.dynamics(without, quiet=True, **beat)
+    full = pcuvd.process(recording, quiet=True, **grid, **beat)
+    for name in ("ri", "psv", "edv", "vessel_class", "flow_up", "speed_series", "times", "vx"):
+        assert_same_array(getattr(rerun, name), getattr(full, name), name)
+    assert rerun.summary["dynamics"] == full.summary["dynamics"]
+    with pytest.raises(TypeError, match="unexpected keyword 'grid_mm'"):
+        pcuvd.dynamics(without, grid_mm=(-1, 1, 4, 5, 0.1))
+    with pytest.raises(ValueError, match="window"):
+        pcuvd.dynamics(without, heart_rate_hz=40, window_ms=-1)

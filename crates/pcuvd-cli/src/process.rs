@@ -202,8 +202,9 @@ pub enum DynamicsOutcome {
 /// Everything `process` computed, before anything is written.
 #[derive(Debug, Clone)]
 pub struct Processed {
-    /// The maps of the decoding-to-vectors chain.
-    pub out: ProcessOutput,
+    /// The maps of the decoding-to-vectors chain (shared: a re-run of the dynamics stage with
+    /// other settings keeps them, and the filtered series they hold can be large).
+    pub out: std::sync::Arc<ProcessOutput>,
     /// The dynamics stage's result.
     pub dynamics: DynamicsOutcome,
     /// Wall-clock seconds the dynamics stage took.
@@ -220,9 +221,19 @@ pub fn compute(
 ) -> Result<Processed> {
     let out = pipeline::process(data, &plan.params, progress)?;
     let clock = std::time::Instant::now();
-    let dynamics = match &plan.dynamics {
+    let dynamics = run_dynamics(&out, plan)?;
+    Ok(Processed {
+        out: std::sync::Arc::new(out),
+        dynamics,
+        dynamics_s: clock.elapsed().as_secs_f64(),
+    })
+}
+
+/// The dynamics stage on the chain's maps `out`, as `plan` says (see [`compute`]).
+pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
+    Ok(match &plan.dynamics {
         None => DynamicsOutcome::Skipped("--dynamics off".into()),
-        Some(settings) => match pipeline::dynamics(&out, &settings.params, &settings.vessel) {
+        Some(settings) => match pipeline::dynamics(out, &settings.params, &settings.vessel) {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),
                 maps: Box::new(maps),
@@ -234,11 +245,6 @@ pub fn compute(
             }
             Err(e) => return Err(anyhow::Error::from(e).context("dynamics (RI maps)")),
         },
-    };
-    Ok(Processed {
-        out,
-        dynamics,
-        dynamics_s: clock.elapsed().as_secs_f64(),
     })
 }
 

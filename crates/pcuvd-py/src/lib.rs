@@ -407,6 +407,20 @@ struct ProcessCall {
     max_memory_gb: Option<f64>,
 }
 
+/// `pcuvd process`'s dynamics options alone.
+#[derive(Parser, Debug)]
+#[command(name = "pcuvd.dynamics", no_binary_name = true)]
+struct DynamicsCall {
+    #[command(flatten)]
+    dynamics: pcuvd_cli::options::DynamicsOptions,
+}
+
+/// The option names the dynamics stage accepts.
+#[pyfunction]
+fn dynamics_option_names() -> Vec<String> {
+    option_names::<DynamicsCall>()
+}
+
 /// The option names `process` accepts (long names, without dashes).
 #[pyfunction]
 fn process_option_names() -> Vec<String> {
@@ -416,6 +430,8 @@ fn process_option_names() -> Vec<String> {
 /// What `pcuvd.process` returns: the maps, the summary, and `save` writing what the CLI writes.
 #[pyclass(frozen, name = "ProcessResult", module = "pcuvd._pcuvd")]
 struct PyProcessResult {
+    /// The processing options it ran with (a dynamics re-run keeps them).
+    options: pcuvd_cli::options::ProcessingOptions,
     recording: Arc<ChannelData>,
     files: Vec<PathBuf>,
     input: String,
@@ -448,6 +464,7 @@ fn process(
         })
         .map_err(to_py)?;
     Ok(PyProcessResult {
+        options: call.options,
         recording: data,
         files: recording.files.clone(),
         input: recording.input.clone(),
@@ -499,6 +516,34 @@ impl PyProcessResult {
             dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
         }
         Ok(dict)
+    }
+
+    /// The same maps with the dynamics stage run again with the options of `args` (as on the
+    /// command line: heart rate, windows, RI thresholds, vessel tests, pooling).
+    fn with_dynamics(&self, py: Python<'_>, args: Vec<String>, quiet: bool) -> PyResult<Self> {
+        let call: DynamicsCall = parse_options(args)?;
+        set_quiet(quiet);
+        let (plan, dynamics, seconds) = py
+            .detach(|| -> anyhow::Result<_> {
+                let plan = Plan::new(&self.options, &call.dynamics, &self.recording)?;
+                let clock = std::time::Instant::now();
+                let dynamics = cli_process::run_dynamics(&self.processed.out, &plan)?;
+                Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
+            })
+            .map_err(to_py)?;
+        Ok(PyProcessResult {
+            options: self.options.clone(),
+            recording: self.recording.clone(),
+            files: self.files.clone(),
+            input: self.input.clone(),
+            format: self.format.clone(),
+            plan,
+            processed: Processed {
+                out: self.processed.out.clone(),
+                dynamics,
+                dynamics_s: seconds,
+            },
+        })
     }
 
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
@@ -985,6 +1030,7 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(recording_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process, m)?)?;
     m.add_function(wrap_pyfunction!(process_option_names, m)?)?;
+    m.add_function(wrap_pyfunction!(dynamics_option_names, m)?)?;
     m.add_function(wrap_pyfunction!(decode_hadamard_rf, m)?)?;
     m.add_function(wrap_pyfunction!(rf_to_iq, m)?)?;
     m.add_function(wrap_pyfunction!(beamform_iq, m)?)?;
