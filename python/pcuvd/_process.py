@@ -33,6 +33,12 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "flow_up": (("z", "x"), "1 where the mean flow is toward the probe"),
     "speed_series": (("time", "z", "x"), "speed in sliding windows (m/s)"),
     "times": (("time",), "window centres (s)"),
+    "ensemble_power_doppler": (("ensemble", "z", "x"), "power Doppler of each ensemble"),
+    "ensemble_color_doppler": (("ensemble", "z", "x"), "axial velocity of each ensemble (m/s)"),
+    "ensemble_vx": (("ensemble", "z", "x"), "lateral velocity of each ensemble (m/s)"),
+    "ensemble_vz": (("ensemble", "z", "x"), "axial vector velocity of each ensemble (m/s)"),
+    "ensemble_speed": (("ensemble", "z", "x"), "speed of each ensemble (m/s)"),
+    "ensemble_times": (("ensemble",), "ensemble centre times (s)"),
 }
 
 
@@ -48,7 +54,9 @@ class ProcessResult:
     `color_doppler` (nz, nx); `projections` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
     `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `ri`, `psv`, `edv`,
     `vessel_class`, `flow_up` (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
-    dynamics stage ran; `x` (nx) and `z` (nz) in m.
+    dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`, `ensemble_vx`,
+    `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
+    `ensemble_frames=N`; `x` (nx) and `z` (nz) in m.
     """
 
     def __init__(self, native: Any):
@@ -102,10 +110,12 @@ class ProcessResult:
         coords["angle"] = ("angle", np.radians(summary["acquisition"]["angles_deg"]))
         if "times" in arrays:
             coords["time"] = ("time", arrays["times"])
+        if "ensemble_times" in arrays:
+            coords["ensemble"] = ("ensemble", arrays["ensemble_times"])
         data_vars = {
             name: (MAPS[name][0], value, {"description": MAPS[name][1]})
             for name, value in arrays.items()
-            if name not in ("x", "z", "times")
+            if name not in ("x", "z", "times", "ensemble_times")
         }
         return xr.Dataset(data_vars, coords=coords, attrs={"summary": json.dumps(summary)})
 
@@ -137,7 +147,8 @@ def process(
     recording: a `Recording` or a path (read with `read_recording`). options: the CLI's options
     with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
-    `dynamics="off"`, `heart_rate_hz=5.5`, `window_ms=20`; see `process_option_names()`.
+    `dynamics="off"`, `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
+    `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
     for a bad option or recording, before any work where the CLI would.
     """

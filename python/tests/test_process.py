@@ -38,12 +38,19 @@ def tube(tmp_path_factory, cli) -> Path:
 @pytest.mark.parametrize("which", ["disk", "tube"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     source = {"disk": disk, "tube": tube}[which]
-    options = ["--grid=-3,3,4,10,0.1", "--dynamics=off"] if which == "tube" else []
+    tube_options = ["--grid=-3,3,4,10,0.1", "--dynamics=off", "--ensemble-frames=4", "--ensemble-step=3"]
+    options = tube_options if which == "tube" else []
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
     assert done.returncode == 0, done.stderr
 
-    kwargs = {"grid_mm": (-3, 3, 4, 10, 0.1), "dynamics": "off"} if which == "tube" else {}
+    tube_kwargs = {
+        "grid_mm": (-3, 3, 4, 10, 0.1),
+        "dynamics": "off",
+        "ensemble_frames": 4,
+        "ensemble_step": 3,
+    }
+    kwargs = tube_kwargs if which == "tube" else {}
     result = pcuvd.process(source, quiet=True, **kwargs)
     by_python = tmp_path / "python"
     figures = result.save(by_python)
@@ -55,6 +62,9 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     )
     if which == "tube":
         assert {"vx", "vz", "speed", "vx_ls", "vz_ls", "speed_ls"} <= set(cli_arrays)
+        # A Doppler time series of 3 ensembles (frames 0–3, 3–6, 6–9 of 10).
+        assert cli_arrays["ensemble_vx"].shape == (3, *cli_arrays["vx"].shape)
+        assert list(cli_arrays["ensemble_times"] * 1800) == [1.5, 4.5, 7.5]
     for name in cli_arrays:
         assert_same_array(py_arrays[name], cli_arrays[name], name)
         # The in-memory maps are the saved ones.

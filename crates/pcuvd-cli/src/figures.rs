@@ -467,3 +467,107 @@ pub fn dynamics_figures(
     )?);
     Ok(written)
 }
+
+/// The Doppler time series (`ensembles.png`): the mean power Doppler over ensembles, its
+/// variation across ensembles (std / mean) in the flow pixels, and the flow region's mean power
+/// (dB re its time average) and, with vectors, mean speed over time, ± their spread across pixels.
+pub fn ensemble_figure(
+    dir: &Path,
+    out: &ProcessOutput,
+    maps: &pcuvd::ensembles::EnsembleMaps,
+    name: &str,
+) -> Result<PathBuf> {
+    let grid = &out.grid;
+    let count = maps.starts.len() as f64;
+    let mean = maps
+        .power_doppler
+        .mean_axis(ndarray::Axis(0))
+        .expect("≥ 1 ensemble");
+    let std = maps.power_doppler.std_axis(ndarray::Axis(0), 0.0);
+    let flow = masks::within_db_of_peak(&mean, masks::FLOW_FIGURE_DB);
+    let variation = Zip::from(&std)
+        .and(&mean)
+        .and(&flow)
+        .map_collect(|&s, &m, &f| {
+            if f && m > 0.0 {
+                100.0 * s / m
+            } else {
+                f64::NAN
+            }
+        });
+    let top = quantile(variation.iter().copied().filter(|v| v.is_finite()), 0.95).max(1.0);
+    let mean_panel = map_panel(
+        &format!("Power Doppler, mean of {count} ensembles"),
+        masks::power_db_re_peak(&mean),
+        grid,
+        Colormap::Hot,
+        (-40.0, 0.0),
+        "dB",
+    );
+    let size = pcuvd_render::fitted_panel_size(&mean_panel, PROCESS_PANEL_WIDTH_PX)
+        .context("cannot lay out the figures")?;
+    let variation_panel = finite_panel(
+        "Power Doppler variation across ensembles (flow pixels)",
+        variation,
+        grid,
+        Colormap::Viridis,
+        (0.0, top),
+        "std / mean (%)",
+    );
+    let t_ms: Vec<f64> = maps.times_s.iter().map(|t| t * 1e3).collect();
+    // Per ensemble, over the flow pixels: mean and spread of the power (dB re the pixel's own
+    // time average, so bright and faint vessels weigh alike) and of the speed.
+    let over_flow = |values: &dyn Fn(usize, usize, usize) -> f64| -> (Vec<f64>, Vec<f64>) {
+        (0..maps.starts.len())
+            .map(|e| {
+                let v: Vec<f64> = flow
+                    .indexed_iter()
+                    .filter(|(_, f)| **f)
+                    .map(|((z, x), _)| values(e, z, x))
+                    .filter(|v| v.is_finite())
+                    .collect();
+                let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
+                let s =
+                    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(1) as f64).sqrt();
+                (m, s)
+            })
+            .unzip()
+    };
+    let (power_db, power_spread) =
+        over_flow(&|e, z, x| 10.0 * (maps.power_doppler[[e, z, x]] / mean[[z, x]]).log10());
+    let mut series = vec![Series {
+        label: "power Doppler (dB re its mean), mean ± std over flow pixels".into(),
+        x: t_ms.clone(),
+        y: power_db,
+        y_err: Some(power_spread),
+        style: SeriesStyle::LinePoints,
+        rgb: Some((214, 39, 40)),
+    }];
+    let mut y_label = "power (dB re time average)".to_string();
+    if let Some(speed) = maps.speed() {
+        let (speed_mm_s, speed_spread) = over_flow(&|e, z, x| speed[[e, z, x]] * 1e3);
+        series.push(Series {
+            label: "speed (mm/s), mean ± std over flow pixels".into(),
+            x: t_ms,
+            y: speed_mm_s,
+            y_err: Some(speed_spread),
+            style: SeriesStyle::LinePoints,
+            rgb: Some((31, 119, 180)),
+        });
+        y_label = "power (dB) / speed (mm/s)".into();
+    }
+    let plot = PlotPanel {
+        title: "Flow region over time (one point per ensemble)".into(),
+        x_label: "ensemble centre time (ms)".into(),
+        y_label,
+        series,
+        ..Default::default()
+    };
+    save(
+        &dir.join("ensembles.png"),
+        &format!("{name}: Doppler time series, {count} ensembles"),
+        vec![Panel::Image(mean_panel), variation_panel, Panel::Plot(plot)],
+        3,
+        size,
+    )
+}

@@ -49,6 +49,31 @@ pub struct ProcessingOptions {
     /// simultaneous). Conventional recordings are not affected.
     #[arg(long, value_enum, default_value_t = Alignment::from(pcuvd::decode::EventAlignment::default()))]
     pub event_alignment: Alignment,
+    /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter
+    /// filter and its own power, colour and vector maps (ensemble_*.npy, ensembles.png). Default:
+    /// none (the whole recording is one ensemble, as the other maps are).
+    #[arg(long)]
+    pub ensemble_frames: Option<usize>,
+    /// Frames from one ensemble's start to the next's (default: --ensemble-frames, no overlap).
+    #[arg(long, requires = "ensemble_frames")]
+    pub ensemble_step: Option<usize>,
+}
+
+impl ProcessingOptions {
+    /// The ensembles of `--ensemble-frames` / `--ensemble-step`, checked against a recording of
+    /// `frames` frames; `None` when no time series was asked for.
+    pub fn ensembles(&self, frames: usize) -> Result<Option<pcuvd::ensembles::EnsembleSpec>> {
+        let Some(ensemble_frames) = self.ensemble_frames else {
+            return Ok(None);
+        };
+        let spec = pcuvd::ensembles::EnsembleSpec {
+            frames: ensemble_frames,
+            step: self.ensemble_step.unwrap_or(ensemble_frames),
+        };
+        spec.starts(frames)
+            .context("--ensemble-frames / --ensemble-step")?;
+        Ok(Some(spec))
+    }
 }
 
 /// How coded events are aligned in slow time before decoding ([`EventAlignment`]).

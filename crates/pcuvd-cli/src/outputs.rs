@@ -28,12 +28,19 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "flow_up.npy",
     "speed_series.npy",
     "times.npy",
+    "ensemble_power_doppler.npy",
+    "ensemble_color_doppler.npy",
+    "ensemble_vx.npy",
+    "ensemble_vz.npy",
+    "ensemble_speed.npy",
+    "ensemble_times.npy",
     "bmode.png",
     "power_doppler.png",
     "color_doppler.png",
     "vector.png",
     "ri.png",
     "waveform.png",
+    "ensembles.png",
 ];
 
 /// The same file, whether or not either path exists yet: canonical when it exists, else the

@@ -154,6 +154,8 @@ pub struct Plan {
     pub dynamics_required: bool,
     /// Every processing and dynamics option, defaults included, as one line of text.
     pub options_text: String,
+    /// The Doppler time series' ensembles, when asked for.
+    pub ensembles: Option<pcuvd::ensembles::EnsembleSpec>,
 }
 
 impl Plan {
@@ -177,6 +179,7 @@ impl Plan {
             })
         };
         Ok(Plan {
+            ensembles: options.ensembles(data.n_frames())?,
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
@@ -209,6 +212,8 @@ pub struct Processed {
     pub dynamics: DynamicsOutcome,
     /// Wall-clock seconds the dynamics stage took.
     pub dynamics_s: f64,
+    /// The Doppler time series, when asked for.
+    pub ensembles: Option<pcuvd::ensembles::EnsembleMaps>,
 }
 
 /// Runs the chain and the dynamics stage on `data` as `plan` says. With `--dynamics auto` and no
@@ -219,13 +224,31 @@ pub fn compute(
     plan: &Plan,
     progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
 ) -> Result<Processed> {
-    let out = pipeline::process(data, &plan.params, progress)?;
+    let (out, ensembles) = match plan.ensembles {
+        None => (pipeline::process(data, &plan.params, progress)?, None),
+        Some(spec) => {
+            // Each ensemble is filtered on its own: the time series starts from the unfiltered
+            // images, before the whole recording's analysis filters them.
+            let (images, mut timings) = pipeline::form_images(data, &plan.params, progress)?;
+            let clock = std::time::Instant::now();
+            let maps = pcuvd::ensembles::ensemble_maps(&images, &plan.params, spec, &|_, d, t| {
+                progress(pipeline::Stage::Clutter, d, t)
+            })?;
+            let ensembles_s = clock.elapsed().as_secs_f64();
+            let mut out = pipeline::analyse(images, &plan.params, progress)?;
+            timings.append(&mut out.timings);
+            out.timings = timings;
+            out.timings.push((pipeline::Stage::Ensembles, ensembles_s));
+            (out, Some(maps))
+        }
+    };
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan)?;
     Ok(Processed {
         out: std::sync::Arc::new(out),
         dynamics,
         dynamics_s: clock.elapsed().as_secs_f64(),
+        ensembles,
     })
 }
 
@@ -266,6 +289,10 @@ pub fn save(
     let mut summary = summary(data, plan, processed, source);
     let mut pngs = figures::process_figures(dir, out, name)?;
     pngs.append(&mut write_dynamics(dir, plan, processed, name)?);
+    if let Some(maps) = &processed.ensembles {
+        write_ensembles(dir, maps)?;
+        pngs.push(figures::ensemble_figure(dir, out, maps, name)?);
+    }
     for (key, seconds) in extra_timings {
         summary["timings_s"][*key] = json!(seconds);
     }
@@ -381,6 +408,23 @@ pub fn summary(
 ) -> serde_json::Value {
     let mut summary = summary_json(data, &plan.params, &processed.out, source);
     summary["dynamics"] = dynamics_summary(plan, processed);
+    summary["ensembles"] = match (&plan.ensembles, &processed.ensembles) {
+        (Some(spec), Some(maps)) => json!({
+            "frames": spec.frames,
+            "step_frames": spec.step,
+            "count": maps.starts.len(),
+            "duration_s": spec.frames as f64 / data.acquisition.frame_rate(),
+            "times_s": maps.times_s,
+            "start_frames": maps.starts,
+            "clutter_cut_offs_per_angle": maps.clutter.iter().map(|per_angle| {
+                per_angle.iter().map(|(low, high)| json!({"low": low, "high": high})).collect::<Vec<_>>()
+            }).collect::<Vec<_>>(),
+            "estimator": "IRLS-WLS (PC-UVD)",
+        }),
+        _ => {
+            json!("none: the whole recording is one ensemble (--ensemble-frames for a time series)")
+        }
+    };
     summary
 }
 
@@ -460,6 +504,22 @@ fn write_dynamics(
         count(dynamics::UNDETERMINED)
     );
     Ok(pngs)
+}
+
+/// Writes the Doppler time series: (ensembles, nz, nx) maps in SI units and their centre times.
+fn write_ensembles(dir: &Path, maps: &pcuvd::ensembles::EnsembleMaps) -> Result<()> {
+    pcuvd_io::write_npy(&dir.join("ensemble_power_doppler.npy"), &maps.power_doppler)?;
+    pcuvd_io::write_npy(&dir.join("ensemble_color_doppler.npy"), &maps.color_doppler)?;
+    if let (Some(vx), Some(vz), Some(speed)) = (&maps.vx, &maps.vz, maps.speed()) {
+        pcuvd_io::write_npy(&dir.join("ensemble_vx.npy"), vx)?;
+        pcuvd_io::write_npy(&dir.join("ensemble_vz.npy"), vz)?;
+        pcuvd_io::write_npy(&dir.join("ensemble_speed.npy"), &speed)?;
+    }
+    pcuvd_io::write_npy(
+        &dir.join("ensemble_times.npy"),
+        &Array1::from(maps.times_s.clone()),
+    )?;
+    Ok(())
 }
 
 /// A vessel-test level (dB) as set: "off" for the infinite level that stands for it.

@@ -64,7 +64,33 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         assert!(out.path().join(name).exists(), "{name} missing");
     }
 
-    // Find the disk from the image itself: the bright region in the documented box.
+    let (cx, cz, radius) = find_disk(&bmode, &x, &z);
+    assert!(
+        radius > 8e-3 && radius < 11e-3,
+        "disk radius {radius} m (2 cm diameter expected)"
+    );
+    let (coef, r2, rows) = plane_fit(v.view(), &x, &z, (cx, cz, radius));
+    let max_abs = rows.iter().map(|r| r.2.abs()).fold(0.0, f64::max);
+    eprintln!(
+        "disk centre ({:.2}, {:.2}) mm, radius {:.2} mm, {} pixels, R² = {r2:.4}, slope dv/dx = {:.1} s⁻¹, dv/dz = {:.1} s⁻¹, max |v| = {:.3} m/s, Nyquist {:.3} m/s",
+        cx * 1e3,
+        cz * 1e3,
+        radius * 1e3,
+        rows.len(),
+        coef[1],
+        coef[2],
+        max_abs,
+        nyquist
+    );
+    assert!(r2 >= 0.98, "R² = {r2}");
+    assert!(max_abs < nyquist, "max |v| {max_abs} ≥ Nyquist {nyquist}");
+    // Rigid rotation: the gradient is lateral, not axial.
+    assert!(coef[2].abs() < 0.1 * coef[1].abs());
+}
+
+/// The disk found in the image itself: centre (m) and radius (m) of the bright region (B-mode
+/// above −12 dB) in the documented box.
+fn find_disk(bmode: &Array2<f64>, x: &Array1<f64>, z: &Array1<f64>) -> (f64, f64, f64) {
     let (mut n, mut sx, mut sz) = (0.0, 0.0, 0.0);
     for ((iz, ix), &b) in bmode.indexed_iter() {
         let (px, pz) = (x[ix], z[iz]);
@@ -75,14 +101,18 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         }
     }
     let step = x[1] - x[0];
-    let (cx, cz) = (sx / n, sz / n);
     let radius = (n * step * step / std::f64::consts::PI).sqrt();
-    assert!(
-        radius > 8e-3 && radius < 11e-3,
-        "disk radius {radius} m (2 cm diameter expected)"
-    );
+    (sx / n, sz / n, radius)
+}
 
-    // Least-squares plane v = a + b·x + c·z over the disk's inner part.
+/// Least-squares plane v = a + b·x + c·z over the inner 85 % of the disk (centre, radius):
+/// coefficients (m/s, s⁻¹, s⁻¹), R², and the (x, z, v) rows fitted.
+fn plane_fit(
+    v: ndarray::ArrayView2<f64>,
+    x: &Array1<f64>,
+    z: &Array1<f64>,
+    (cx, cz, radius): (f64, f64, f64),
+) -> ([f64; 3], f64, Vec<(f64, f64, f64)>) {
     let mut rows = Vec::new();
     for ((iz, ix), &vel) in v.indexed_iter() {
         if (x[ix] - cx).hypot(z[iz] - cz) < 0.85 * radius {
@@ -108,23 +138,65 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         ss_res += (vel - fit).powi(2);
         ss_tot += (vel - mean).powi(2);
     }
-    let r2 = 1.0 - ss_res / ss_tot;
-    let max_abs = rows.iter().map(|r| r.2.abs()).fold(0.0, f64::max);
-    eprintln!(
-        "disk centre ({:.2}, {:.2}) mm, radius {:.2} mm, {} pixels, R² = {r2:.4}, slope dv/dx = {:.1} s⁻¹, dv/dz = {:.1} s⁻¹, max |v| = {:.3} m/s, Nyquist {:.3} m/s",
-        cx * 1e3,
-        cz * 1e3,
-        radius * 1e3,
-        rows.len(),
-        coef[1],
-        coef[2],
-        max_abs,
-        nyquist
+    (coef, 1.0 - ss_res / ss_tot, rows)
+}
+
+/// A Doppler time series of the rotating disk: four 8-frame ensembles, each with its own clutter
+/// filter. The disk turns steadily, so each ensemble's colour Doppler is the same rigid-rotation
+/// plane as the whole recording's; an ensemble longer than the recording is refused at once.
+#[test]
+fn every_ensemble_of_the_disk_sees_the_same_rotation() {
+    let out = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["--quiet", "process"])
+            .arg(disk_file())
+            .arg("--out")
+            .arg(out.path())
+            .args(["--force", "--dynamics", "off"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let refused = run(&["--ensemble-frames", "40"]);
+    assert!(!refused.status.success());
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        message.contains("--ensemble-frames") && message.contains("32"),
+        "{message}"
     );
-    assert!(r2 >= 0.98, "R² = {r2}");
-    assert!(max_abs < nyquist, "max |v| {max_abs} ≥ Nyquist {nyquist}");
-    // Rigid rotation: the gradient is lateral, not axial.
-    assert!(coef[2].abs() < 0.1 * coef[1].abs());
+    assert!(!out.path().join("bmode_db.npy").exists(), "work began");
+
+    assert!(run(&["--ensemble-frames", "8"]).status.success());
+    let x: Array1<f64> = read_npy(out.path().join("x.npy")).unwrap();
+    let z: Array1<f64> = read_npy(out.path().join("z.npy")).unwrap();
+    let bmode: Array2<f64> = read_npy(out.path().join("bmode_db.npy")).unwrap();
+    let whole: Array2<f64> = read_npy(out.path().join("color_doppler.npy")).unwrap();
+    let series: ndarray::Array3<f64> =
+        read_npy(out.path().join("ensemble_color_doppler.npy")).unwrap();
+    let times: Array1<f64> = read_npy(out.path().join("ensemble_times.npy")).unwrap();
+    assert_eq!(series.dim(), (4, z.len(), x.len()));
+    // Centres of frames 0–7, 8–15, ... at 10 kHz.
+    for (t, expected) in times.iter().zip([3.5e-4, 11.5e-4, 19.5e-4, 27.5e-4]) {
+        assert!((t - expected).abs() < 1e-12, "{times}");
+    }
+    assert!(out.path().join("ensembles.png").exists());
+    let disk = find_disk(&bmode, &x, &z);
+    let (reference, _, _) = plane_fit(whole.view(), &x, &z, disk);
+    for (e, map) in series.outer_iter().enumerate() {
+        let (coef, r2, _) = plane_fit(map, &x, &z, disk);
+        eprintln!(
+            "ensemble {e}: dv/dx {:.1} s⁻¹ (whole recording {:.1}), R² {r2:.3}",
+            coef[1], reference[1]
+        );
+        assert!(r2 > 0.95, "ensemble {e}: R² {r2}");
+        assert!(
+            (coef[1] / reference[1] - 1.0).abs() < 0.05,
+            "ensemble {e}: slope {} vs {}",
+            coef[1],
+            reference[1]
+        );
+    }
 }
 
 fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {

@@ -515,6 +515,30 @@ impl PyProcessResult {
             dict.set_item("speed_series", series.speed().into_pyarray(py))?;
             dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
         }
+        if let Some(ensembles) = &self.processed.ensembles {
+            let maps = [
+                (
+                    "ensemble_power_doppler",
+                    Some(ensembles.power_doppler.clone()),
+                ),
+                (
+                    "ensemble_color_doppler",
+                    Some(ensembles.color_doppler.clone()),
+                ),
+                ("ensemble_vx", ensembles.vx.clone()),
+                ("ensemble_vz", ensembles.vz.clone()),
+                ("ensemble_speed", ensembles.speed()),
+            ];
+            for (name, map) in maps {
+                if let Some(map) = map {
+                    dict.set_item(name, map.into_pyarray(py))?;
+                }
+            }
+            dict.set_item(
+                "ensemble_times",
+                PyArray1::from_slice(py, &ensembles.times_s),
+            )?;
+        }
         Ok(dict)
     }
 
@@ -542,6 +566,7 @@ impl PyProcessResult {
                 out: self.processed.out.clone(),
                 dynamics,
                 dynamics_s: seconds,
+                ensembles: self.processed.ensembles.clone(),
             },
         })
     }

@@ -20,6 +20,7 @@ pub mod clutter;
 pub mod decode;
 pub mod doppler;
 pub mod dynamics;
+pub mod ensembles;
 pub mod error;
 pub mod geometry;
 pub mod grid;

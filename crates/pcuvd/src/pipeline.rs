@@ -47,6 +47,9 @@ pub enum Stage {
     Clutter,
     /// Autocorrelation Doppler and vector solve.
     Doppler,
+    /// The Doppler time series: every ensemble's clutter filter, Doppler and vectors
+    /// ([`crate::ensembles`]).
+    Ensembles,
 }
 
 impl Stage {
@@ -57,6 +60,7 @@ impl Stage {
             Stage::Beamform => "demodulate + beamform",
             Stage::Clutter => "clutter filter",
             Stage::Doppler => "Doppler + vector",
+            Stage::Ensembles => "ensembles (time series)",
         }
     }
 }
