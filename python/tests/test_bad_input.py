@@ -175,6 +175,11 @@ calls = [
     lambda: pcuvd.process({str(disk)!r}, window_ms=-5, dynamics='on'),
     lambda: pcuvd.kasai(np.ones((2, 2, 3)), sound_speed_m_s=0, frame_rate_hz=1, center_freq_hz=1),
     lambda: pcuvd.svd_filter(np.ones((1, 1, 2)), low=10**30),
+    lambda: pcuvd.rf_to_iq(np.ones((1, 2, 10)), sampling_freq_hz=1e7, demod_freq_hz=1e-300),
+    lambda: pcuvd.rf_to_iq(np.ones((1, 2, 10)), sampling_freq_hz=1e300, demod_freq_hz=5e6),
+    lambda: pcuvd.beamform(np.ones((400, 128, 4), np.complex64), probe='L22-14vX', angle_rad=0,
+                           sampling_freq_hz=1e7, demod_freq_hz=5e6, t0_s=0,
+                           grid_m=(-0.02, 0.02, 0.001, 0.021, 1e-5)),
     lambda: pcuvd.vector_irls(np.full((2, 1, 1), np.inf), [0.0, 0.1], lambda_mm_s=float('nan')),
     lambda: pcuvd.beamform(np.ones((1, 128, 4)), probe={{'preset': 'L22-14vX', 'n_elements': 10**12}},
                            angle_rad=0, sampling_freq_hz=1e7, demod_freq_hz=5e6, t0_s=0,
@@ -183,8 +188,8 @@ calls = [
 for call in calls:
     try:
         call()
-    except (ValueError, TypeError, OSError, OverflowError):
-        pass
+    except (ValueError, TypeError, OSError, OverflowError) as error:
+        print(type(error).__name__, str(error)[:120])
     else:
         raise SystemExit("a bad call did not raise")
 print("survived")

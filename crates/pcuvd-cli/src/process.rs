@@ -331,7 +331,7 @@ pub fn check_memory(
 }
 
 /// Memory available to a new process (bytes): `MemAvailable` of /proc/meminfo, where there is one.
-fn available_memory() -> Option<u64> {
+pub fn available_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

@@ -769,6 +769,21 @@ fn beamform_iq<'py>(
             "f_number must be finite and > 0, got {f_number}"
         )));
     }
+    // The image series is nz × nx × frames complex samples: refuse what would not fit rather
+    // than abort the interpreter on allocation.
+    let (nz, nx) = grid.shape();
+    let frames = iq_samples.as_array().dim().0;
+    let bytes = (nz * nx) as f64 * frames as f64 * std::mem::size_of::<Complex32>() as f64;
+    if let Some(available) = cli_process::available_memory()
+        && bytes > available as f64
+    {
+        return Err(PyValueError::new_err(format!(
+            "the image series would need {:.1} GB ({nz} × {nx} pixels × {frames} frames) but \
+             {:.1} GB are available: use a coarser or smaller grid, or fewer frames",
+            bytes / 1e9,
+            available as f64 / 1e9
+        )));
+    }
     let channels_first = iq_samples
         .as_array()
         .permuted_axes([1, 2, 0])

@@ -27,6 +27,9 @@ pub struct IqChannels {
     pub demod_frequency: f64,
 }
 
+/// Lowest IQ low-pass cut-off accepted, as a fraction of the sampling frequency.
+pub const MIN_CUTOFF_RATIO: f64 = 1e-4;
+
 /// Default low-pass cut-off (Hz): halfway to the nearest alias of the −2 f_d image, never above f_d.
 pub fn default_cutoff(demod_frequency: f64, sampling_frequency: f64) -> f64 {
     let fs = sampling_frequency;
@@ -91,6 +94,19 @@ pub fn demodulate(
         AngleSamples::Rf(rf) => {
             let cutoff =
                 cutoff.unwrap_or_else(|| default_cutoff(demod_frequency, sampling_frequency));
+            // The filter is about 3·f_s/cutoff taps long: a cut-off below 10⁻⁴·f_s (a
+            // demodulation frequency of 10⁻³⁰⁰ Hz, an f_s of 10³⁰⁰ Hz) would ask for more taps
+            // than memory holds, and never happens in an ultrasound recording.
+            if cutoff.is_finite() && cutoff > 0.0 && cutoff < MIN_CUTOFF_RATIO * sampling_frequency
+            {
+                return Err(invalid(
+                    "IQ low-pass cut-off",
+                    format!(
+                        "{cutoff:.3e} Hz is below {MIN_CUTOFF_RATIO:e} × f_s ({sampling_frequency:.3e} Hz): \
+                         check the sampling and demodulation (centre) frequencies"
+                    ),
+                ));
+            }
             if !(cutoff > 0.0 && cutoff < sampling_frequency / 2.0) {
                 return Err(invalid(
                     "IQ low-pass cut-off",
@@ -155,6 +171,16 @@ fn fir_same(x: &[Complex32], taps: &[f32], y: &mut [Complex32]) {
 mod tests {
     use super::*;
     use ndarray::Array4;
+
+    /// Absurd frequencies (which would ask for a filter of 10³⁰⁰ taps) are an error, not a crash.
+    #[test]
+    fn absurd_frequencies_are_refused_not_allocated() {
+        let rf = AngleSamples::Rf(Array4::<f32>::zeros((1, 1, 1, 10)));
+        for (fs, fd) in [(1e7, 1e-300), (1e300, 5e6)] {
+            let err = demodulate(&rf, 0, 0.0, fs, fd, None).unwrap_err();
+            assert!(err.to_string().contains("cut-off"), "{err}");
+        }
+    }
 
     /// A Gaussian-windowed tone demodulates to its envelope with the expected phase.
     fn check_tone(fs: f64, fc: f64) {
