@@ -214,6 +214,8 @@ pub struct Processed {
     pub dynamics_s: f64,
     /// The Doppler time series, when asked for.
     pub ensembles: Option<pcuvd::ensembles::EnsembleMaps>,
+    /// The blocks of frames the images were formed in.
+    pub blocks: pcuvd::source::Blocks,
 }
 
 /// Runs the chain and the dynamics stage on `data` as `plan` says. With `--dynamics auto` and no
@@ -224,24 +226,23 @@ pub fn compute(
     plan: &Plan,
     progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
 ) -> Result<Processed> {
-    let (out, ensembles) = match plan.ensembles {
-        None => (pipeline::process(data, &plan.params, progress)?, None),
+    // Images are formed a block of frames at a time, so that decoding and IQ need one block's
+    // memory; each ensemble of a time series is filtered on its own, from the unfiltered images.
+    let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
+    let (images, mut timings) =
+        pipeline::form_images_in_blocks(data, &plan.params, blocks, progress)?;
+    let ensembles = match plan.ensembles {
+        None => None,
         Some(spec) => {
-            // Each ensemble is filtered on its own: the time series starts from the unfiltered
-            // images, before the whole recording's analysis filters them.
-            let (images, mut timings) = pipeline::form_images(data, &plan.params, progress)?;
             let clock = std::time::Instant::now();
-            let maps = pcuvd::ensembles::ensemble_maps(&images, &plan.params, spec, &|_, d, t| {
-                progress(pipeline::Stage::Clutter, d, t)
-            })?;
-            let ensembles_s = clock.elapsed().as_secs_f64();
-            let mut out = pipeline::analyse(images, &plan.params, progress)?;
-            timings.append(&mut out.timings);
-            out.timings = timings;
-            out.timings.push((pipeline::Stage::Ensembles, ensembles_s));
-            (out, Some(maps))
+            let maps = pcuvd::ensembles::ensemble_maps(&images, &plan.params, spec, progress)?;
+            timings.push((pipeline::Stage::Ensembles, clock.elapsed().as_secs_f64()));
+            Some(maps)
         }
     };
+    let mut out = pipeline::analyse(images, &plan.params, progress)?;
+    timings.append(&mut out.timings);
+    out.timings = timings;
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan)?;
     Ok(Processed {
@@ -249,6 +250,7 @@ pub fn compute(
         dynamics,
         dynamics_s: clock.elapsed().as_secs_f64(),
         ensembles,
+        blocks,
     })
 }
 
@@ -408,6 +410,17 @@ pub fn summary(
 ) -> serde_json::Value {
     let mut summary = summary_json(data, &plan.params, &processed.out, source);
     summary["dynamics"] = dynamics_summary(plan, processed);
+    summary["blocks"] = json!({
+        "frames": processed.blocks.frames,
+        "margin_frames": processed.blocks.margin,
+        "rule": format!(
+            "images formed a block of frames at a time: as many frames as fit in {} MiB of \
+             decoding and IQ (the whole recording when it fits), with {} frames decoded on either \
+             side of a block of a coded recording aligned at mid-frame",
+            pipeline::BLOCK_BYTES >> 20,
+            pcuvd::source::Blocks::ALIGNMENT_MARGIN
+        ),
+    });
     summary["ensembles"] = match (&plan.ensembles, &processed.ensembles) {
         (Some(spec), Some(maps)) => json!({
             "frames": spec.frames,

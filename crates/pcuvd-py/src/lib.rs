@@ -567,6 +567,7 @@ impl PyProcessResult {
                 dynamics,
                 dynamics_s: seconds,
                 ensembles: self.processed.ensembles.clone(),
+                blocks: self.processed.blocks,
             },
         })
     }

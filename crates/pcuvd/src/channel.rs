@@ -137,6 +137,22 @@ pub enum AngleSamples {
 }
 
 impl AngleSamples {
+    /// The frames `frames` of every angle (a copy).
+    pub fn frames(&self, frames: std::ops::Range<usize>) -> AngleSamples {
+        match self {
+            AngleSamples::Rf(a) => {
+                AngleSamples::Rf(a.slice(ndarray::s![.., frames, .., ..]).to_owned())
+            }
+            AngleSamples::Iq {
+                data,
+                demod_frequency,
+            } => AngleSamples::Iq {
+                data: data.slice(ndarray::s![.., frames, .., ..]).to_owned(),
+                demod_frequency: *demod_frequency,
+            },
+        }
+    }
+
     /// (angles, frames, channels, samples).
     pub fn dim(&self) -> (usize, usize, usize, usize) {
         match self {

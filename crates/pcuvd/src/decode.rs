@@ -298,21 +298,23 @@ impl SlowTimeAligner {
 
     /// Shifts every series of `buf` (consecutive runs of `fft_len`, the first `frames` samples
     /// filled) by event `event`'s advance, after mirroring each into its second half.
-    fn shift_series(&self, buf: &mut [Complex32], event: usize) {
+    fn shift_series(&self, buf: &mut [Complex32], scratch: &mut [Complex32], event: usize) {
         let (f, len) = (self.frames, self.fft_len);
         for series in buf.chunks_exact_mut(len) {
             for k in 0..f {
                 series[len - 1 - k] = series[k];
             }
         }
-        self.forward.process(buf);
+        // With a scratch buffer of the caller's: `process` would allocate one per call, and short
+        // series (a block of frames) make many calls.
+        self.forward.process_with_scratch(buf, scratch);
         for series in buf.chunks_exact_mut(len) {
             series
                 .iter_mut()
                 .zip(&self.factors[event])
                 .for_each(|(v, g)| *v *= g);
         }
-        self.inverse.process(buf);
+        self.inverse.process_with_scratch(buf, scratch);
     }
 
     /// Aligns one channel's block, shape (events, samples), in place.
@@ -326,6 +328,11 @@ impl SlowTimeAligner {
         let ns = block.ncols();
         let data = block.as_slice_mut().expect("an owned array is contiguous");
         let mut buf = vec![Complex32::new(0.0, 0.0); TILE * len];
+        let scratch_len = self
+            .forward
+            .get_inplace_scratch_len()
+            .max(self.inverse.get_inplace_scratch_len());
+        let mut scratch = vec![Complex32::new(0.0, 0.0); scratch_len];
         for event in 0..n {
             for s0 in (0..ns).step_by(per * TILE) {
                 let samples = (per * TILE).min(ns - s0);
@@ -337,7 +344,7 @@ impl SlowTimeAligner {
                         buf[j * len + frame] = T::pack(lane);
                     }
                 }
-                self.shift_series(buf, event);
+                self.shift_series(buf, &mut scratch, event);
                 for frame in 0..f {
                     let start = (frame * n + event) * ns + s0;
                     let row = &mut data[start..start + samples];

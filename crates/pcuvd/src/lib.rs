@@ -34,6 +34,7 @@ pub mod pipeline;
 pub mod probe;
 pub mod sequence;
 pub mod simulate;
+pub mod source;
 pub mod stats;
 pub mod study;
 pub mod vector;

@@ -15,7 +15,9 @@ use crate::error::{Result, invalid};
 use crate::grid::Grid;
 use crate::images::AngleImages;
 use crate::iq;
+use crate::source::{Blocks, FrameSource};
 use crate::vector::{self, Estimator, IrlsParams, VectorField};
+use num_complex::Complex32;
 
 /// Settings of every stage of [`process`].
 #[derive(Debug, Clone, PartialEq)]
@@ -124,40 +126,64 @@ pub fn form_images(
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
     data.validate()?;
-    let acq = &data.acquisition;
-    check_grid_depth(data, &params.grid)?;
+    form_images_in_blocks(data, params, Blocks::whole(data.n_frames()), progress)
+}
+
+/// As [`form_images`], a block of frames at a time from `source` ([`Blocks`]): the memory it
+/// needs beyond the image series is one block's, not the recording's. Decoding, demodulation
+/// and beamforming act on each frame alone, so blocks give the whole-recording images exactly,
+/// except for coded recordings with mid-frame event alignment, whose resampling reaches
+/// `blocks.margin` frames beyond each block (see [`Blocks::ALIGNMENT_MARGIN`]).
+pub fn form_images_in_blocks(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    blocks: Blocks,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<(AngleImages, Timings)> {
+    let acq = source.acquisition();
+    acq.validate()?;
+    let (_, n_samples) = source.trace_shape();
+    check_depth(recorded_depth_of(acq, n_samples), &params.grid)?;
     let angles = &acq.sequence.angles;
     let n = angles.len();
-    let mut timings = Vec::new();
+    let frames = source.n_frames();
+    let (nz, nx) = params.grid.shape();
+    let mut series: Vec<Array3<Complex32>> =
+        (0..n).map(|_| Array3::zeros((nz, nx, frames))).collect();
+    let ranges = blocks.ranges(frames);
+    let (mut decode_s, mut beamform_s) = (0.0, 0.0);
+    for (b, (block, decoded)) in ranges.iter().enumerate() {
+        let clock = Instant::now();
+        progress(Stage::Decode, b, ranges.len());
+        let data = source.read_frames(decoded.clone())?;
+        let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
+        drop(data);
+        if decoded != block {
+            per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
+        }
+        decode_s += clock.elapsed().as_secs_f64();
 
-    let clock = Instant::now();
-    progress(Stage::Decode, 0, 1);
-    let per_angle = decode::decode_aligned(data, params.event_alignment)?;
-    progress(Stage::Decode, 1, 1);
-    timings.push((Stage::Decode, clock.elapsed().as_secs_f64()));
-
-    let clock = Instant::now();
-    let mut images = Vec::with_capacity(n);
-    for (k, &angle) in angles.iter().enumerate() {
-        progress(Stage::Beamform, k, n);
-        let channels = iq::demodulate(
-            &per_angle,
-            k,
-            acq.t0,
-            acq.sampling_frequency,
-            acq.probe.center_frequency,
-            params.iq_cutoff,
-        )?;
-        images.push(beamform::beamform(
-            &channels,
-            &acq.probe,
-            angle,
-            &params.grid,
-            &params.das,
-        )?);
+        let clock = Instant::now();
+        for (k, &angle) in angles.iter().enumerate() {
+            progress(Stage::Beamform, b * n + k, ranges.len() * n);
+            let channels = iq::demodulate(
+                &per_angle,
+                k,
+                acq.t0,
+                acq.sampling_frequency,
+                acq.probe.center_frequency,
+                params.iq_cutoff,
+            )?;
+            let image =
+                beamform::beamform(&channels, &acq.probe, angle, &params.grid, &params.das)?;
+            series[k]
+                .slice_mut(ndarray::s![.., .., block.clone()])
+                .assign(&image);
+        }
+        beamform_s += clock.elapsed().as_secs_f64();
     }
-    progress(Stage::Beamform, n, n);
-    timings.push((Stage::Beamform, clock.elapsed().as_secs_f64()));
+    progress(Stage::Decode, ranges.len(), ranges.len());
+    progress(Stage::Beamform, ranges.len() * n, ranges.len() * n);
     let images = AngleImages {
         grid: params.grid.clone(),
         angles: angles.clone(),
@@ -165,9 +191,12 @@ pub fn form_images(
         sound_speed: acq.sound_speed,
         demodulation_frequency: acq.probe.center_frequency,
         coverage: Some(angle_coverage(acq, &params.grid)),
-        series: images,
+        series,
     };
-    Ok((images, timings))
+    Ok((
+        images,
+        vec![(Stage::Decode, decode_s), (Stage::Beamform, beamform_s)],
+    ))
 }
 
 /// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
@@ -302,25 +331,71 @@ pub fn angle_coverage(acq: &Acquisition, grid: &Grid) -> Array3<bool> {
 }
 
 /// How [`memory_estimate`] counts.
-pub const MEMORY_ESTIMATE_RULE: &str = "3 × samples × 4 bytes (the input, its decoded per-angle \
-copy and its IQ) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image \
-series, complex64)";
+pub const MEMORY_ESTIMATE_RULE: &str = "samples × 4 bytes (the input, held in memory) + one \
+block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
+smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
+complex64)";
 
-/// Bytes the whole-recording chain ([`process`]) needs for `data` on `grid`, by
+/// Working memory a block of frames may take while it is decoded, demodulated and beamformed
+/// (bytes): [`blocks_for`] sizes blocks to it.
+pub const BLOCK_BYTES: u64 = 1 << 30;
+
+/// Bytes one compound frame takes while its block is formed into images: its events, their
+/// decoded per-angle copy and the frames kept (f32), and one angle's IQ (complex64).
+fn block_bytes_per_frame(source: &dyn FrameSource) -> u64 {
+    let (channels, samples) = source.trace_shape();
+    let trace = (channels * samples) as u64;
+    let angles = source.acquisition().sequence.n_angles() as u64;
+    3 * angles * trace * 4 + trace * 8
+}
+
+/// The blocks `process` forms images in: as many frames as fit in [`BLOCK_BYTES`] (the whole
+/// recording when it fits), with [`Blocks::ALIGNMENT_MARGIN`] frames on either side for coded
+/// recordings aligned at mid-frame.
+pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -> Blocks {
+    let frames = source.n_frames();
+    // A multiple of 16 frames: with 8 frames of margin on either side a block decodes 16·k
+    // frames, and the alignment's FFTs (of twice that length) stay fast; a prime length made
+    // decoding five times slower.
+    let fit = ((BLOCK_BYTES / block_bytes_per_frame(source).max(1)) as usize / 16).max(1) * 16;
+    if fit >= frames {
+        return Blocks::whole(frames);
+    }
+    let coded = matches!(
+        source.acquisition().sequence.coding,
+        crate::sequence::Coding::Hadamard { .. }
+    );
+    Blocks {
+        frames: fit,
+        margin: if coded && alignment == decode::EventAlignment::MidFrame {
+            Blocks::ALIGNMENT_MARGIN
+        } else {
+            0
+        },
+    }
+}
+
+/// Bytes `process` needs for `data` on `grid`, formed in [`blocks_for`] blocks, by
 /// [`MEMORY_ESTIMATE_RULE`]: a rule of thumb from the buffers it holds at its peak.
 pub fn memory_estimate(data: &ChannelData, grid: &Grid) -> u128 {
     let (events, channels, samples) = data.samples.dim();
     let (nz, nx) = grid.shape();
     let frames = data.n_frames() as u128;
     let angles = data.acquisition.sequence.n_angles() as u128;
-    3 * (events * channels * samples) as u128 * 4 + 2 * (nz * nx) as u128 * frames * angles * 8
+    let blocks = blocks_for(data, decode::EventAlignment::MidFrame);
+    let block = (blocks.frames + 2 * blocks.margin).min(data.n_frames()) as u128
+        * block_bytes_per_frame(data) as u128;
+    (events * channels * samples) as u128 * 4 + block + 2 * (nz * nx) as u128 * frames * angles * 8
 }
 
 /// Deepest depth (m) whose straight-down echo lies inside the record.
 pub fn recorded_depth(data: &ChannelData) -> f64 {
-    let acq = &data.acquisition;
-    let (_, _, ns) = data.samples.dim();
-    let t_end = acq.t0 + (ns - 1) as f64 / acq.sampling_frequency;
+    recorded_depth_of(&data.acquisition, data.samples.dim().2)
+}
+
+/// Deepest depth (m) whose straight-down echo lies inside a record of `n_samples` samples.
+fn recorded_depth_of(acq: &Acquisition, n_samples: usize) -> f64 {
+    let t_end = acq.t0 + (n_samples as f64 - 1.0) / acq.sampling_frequency;
     (0.5 * t_end * acq.sound_speed).max(0.0)
 }
 
@@ -345,8 +420,7 @@ pub fn default_grid(data: &ChannelData) -> Result<Grid> {
 }
 
 /// A grid deeper than the record can say nothing: refuse it rather than return zeros.
-fn check_grid_depth(data: &ChannelData, grid: &Grid) -> Result<()> {
-    let deepest = recorded_depth(data);
+fn check_depth(deepest: f64, grid: &Grid) -> Result<()> {
     let z_min = grid.z.first().copied().unwrap_or(0.0);
     if z_min >= deepest {
         return Err(invalid(

@@ -1,0 +1,128 @@
+//! Recordings read a block of frames at a time, so that the chain's memory is bounded by the
+//! block, not by the recording's length.
+
+use std::ops::Range;
+
+use ndarray::s;
+
+use crate::channel::{Acquisition, ChannelData, Samples};
+use crate::error::{Result, invalid};
+
+/// A recording that hands out its compound frames in blocks: in memory ([`ChannelData`]) or read
+/// from a file block by block.
+pub trait FrameSource: Sync {
+    /// How the recording was acquired.
+    fn acquisition(&self) -> &Acquisition;
+    /// Number of compound frames.
+    fn n_frames(&self) -> usize;
+    /// (channels, samples) of each event's trace.
+    fn trace_shape(&self) -> (usize, usize);
+    /// The events of compound frames `frames` (frames.len() × angles events), as a recording of
+    /// their own with the same acquisition.
+    fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData>;
+}
+
+impl FrameSource for ChannelData {
+    fn acquisition(&self) -> &Acquisition {
+        &self.acquisition
+    }
+
+    fn n_frames(&self) -> usize {
+        ChannelData::n_frames(self)
+    }
+
+    fn trace_shape(&self) -> (usize, usize) {
+        let (_, channels, samples) = self.samples.dim();
+        (channels, samples)
+    }
+
+    fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData> {
+        let n = self.acquisition.sequence.n_angles();
+        if frames.start >= frames.end || frames.end > ChannelData::n_frames(self) {
+            return Err(invalid(
+                "frames",
+                format!(
+                    "block {frames:?} is not within the recording's {} frames",
+                    ChannelData::n_frames(self)
+                ),
+            ));
+        }
+        let events = frames.start * n..frames.end * n;
+        let samples = match &self.samples {
+            Samples::Rf(a) => Samples::Rf(a.slice(s![events, .., ..]).to_owned()),
+            Samples::Iq {
+                data,
+                demod_frequency,
+            } => Samples::Iq {
+                data: data.slice(s![events, .., ..]).to_owned(),
+                demod_frequency: *demod_frequency,
+            },
+        };
+        Ok(ChannelData {
+            acquisition: self.acquisition.clone(),
+            samples,
+        })
+    }
+}
+
+/// How the linear part of the chain walks through a recording: blocks of `frames` compound frames,
+/// each decoded with `margin` extra frames on either side (where the recording has them) so that
+/// mid-frame event alignment, which resamples each event's slow-time series, sees the block's
+/// neighbours; only the block's own frames are beamformed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Blocks {
+    /// Compound frames per block (≥ 1).
+    pub frames: usize,
+    /// Frames decoded on either side of a block and then dropped.
+    pub margin: usize,
+}
+
+impl Blocks {
+    /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording. The
+    /// alignment resamples each event's slow-time series by FFT, so a series cut at a block's
+    /// decoded ends differs from the whole recording's by an error that falls about as 1/distance
+    /// into the block: with 8 frames the images differ by at most 7·10⁻⁴ of their peak, and the
+    /// projections inside a tube by 0.3 µm/s RMS, against the estimator's own 0.8 mm/s
+    /// (`tests/blocks.rs`, 12-frame blocks, noise −20 dB); on the 360-frame coded rat network,
+    /// in 31-frame blocks, the vessels' projections by 0.3 µm/s RMS (largest 9 µm/s).
+    pub const ALIGNMENT_MARGIN: usize = 8;
+
+    /// The whole recording of `frames` frames as one block: the reference path.
+    pub fn whole(frames: usize) -> Blocks {
+        Blocks {
+            frames: frames.max(1),
+            margin: 0,
+        }
+    }
+
+    /// Each block's frames and the frames decoded for it: (block, decoded), in order.
+    pub fn ranges(&self, total: usize) -> Vec<(Range<usize>, Range<usize>)> {
+        let step = self.frames.max(1);
+        (0..total)
+            .step_by(step)
+            .map(|start| {
+                let end = (start + step).min(total);
+                let decoded = start.saturating_sub(self.margin)..(end + self.margin).min(total);
+                (start..end, decoded)
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blocks_tile_the_recording_and_margins_stay_inside_it() {
+        let blocks = Blocks {
+            frames: 4,
+            margin: 2,
+        };
+        assert_eq!(
+            blocks.ranges(10),
+            vec![(0..4, 0..6), (4..8, 2..10), (8..10, 6..10)]
+        );
+        assert_eq!(Blocks::whole(10).ranges(10), vec![(0..10, 0..10)]);
+    }
+}
