@@ -30,6 +30,10 @@ const NETWORK_TRUTH_FILES: [&str; 5] = [
     "truth_vessel_class.npy",
     "truth_flow_up.npy",
 ];
+/// Samples `pcuvd simulate` holds in memory at once (bytes): it simulates and writes blocks of
+/// frames this large.
+const SIMULATE_BLOCK_BYTES: usize = 256 << 20;
+
 /// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
 const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
 
@@ -230,6 +234,23 @@ impl Simulation {
         )?)
     }
 
+    /// Events `events` of recording `index` of [`Self::modes`] (see
+    /// [`simulate::simulate_events`]), shape (events, channels, samples).
+    pub fn events(
+        &self,
+        index: usize,
+        events: std::ops::Range<usize>,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<ndarray::Array3<f32>> {
+        Ok(simulate::simulate_events(
+            self.phantom.as_ref(),
+            &self.modes[index].1,
+            self.frames,
+            events,
+            progress,
+        )?)
+    }
+
     /// The `[provenance]` a recording of mode `index` carries: simulator, preset, seed, noise.
     pub fn provenance(&self, index: usize) -> toml::Table {
         let params = &self.modes[index].1;
@@ -252,7 +273,13 @@ impl Simulation {
 
     /// The ground truth on `data`'s default processing grid (the same for every mode).
     pub fn truth(&self, data: &pcuvd::ChannelData) -> Result<SimulatedTruth> {
-        let grid = pipeline::default_grid(data)?;
+        self.truth_for(&data.acquisition, data.samples.dim().2)
+    }
+
+    /// The ground truth on the default processing grid of a recording acquired as `acq` with
+    /// traces of `n_samples` samples.
+    pub fn truth_for(&self, acq: &pcuvd::Acquisition, n_samples: usize) -> Result<SimulatedTruth> {
+        let grid = pipeline::default_grid_for(acq, n_samples)?;
         Ok(SimulatedTruth {
             truth: self.phantom.truth(&grid.x, &grid.z, 0.0),
             cycle: self
@@ -273,15 +300,32 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     for (mode_index, (name, params)) in simulation.modes.iter().enumerate() {
         let events = simulation.frames * params.sequence.n_angles();
         let progress = bar(&format!("simulate {name}"), events as u64);
-        let data =
-            simulation.recording(mode_index, &|done, _| progress.set_position(done as u64))?;
-        progress.finish();
-        let provenance = simulation.provenance(mode_index);
         if mode_index == 0 {
-            // Only once a new recording is ready: a run refused or failed before it deletes nothing.
+            // Once every setting is checked: a refused run deletes nothing.
             remove_stale_outputs(&args.out, &recordings, simulation.network.is_some())?;
         }
-        let manifest = pcuvd_io::write_recording(&args.out, name, &data, &provenance)?;
+        // Simulated and written a block of frames at a time: memory stays bounded whatever the
+        // recording's length, and the samples are those of one whole-recording simulation.
+        let shape = (events, params.probe.n_elements, params.n_samples);
+        let mut writer = pcuvd_io::RecordingWriter::create(
+            &args.out,
+            name,
+            &params.acquisition(),
+            shape,
+            &simulation.provenance(mode_index),
+        )?;
+        let frame_bytes = params.sequence.n_angles() * shape.1 * shape.2 * 4;
+        let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        for first in (0..simulation.frames).step_by(block) {
+            let last = (first + block).min(simulation.frames);
+            let n = params.sequence.n_angles();
+            let samples = simulation.events(mode_index, first * n..last * n, &|done, _| {
+                progress.set_position(done as u64)
+            })?;
+            writer.append(samples.view())?;
+        }
+        let manifest = writer.finish()?;
+        progress.finish();
         println!(
             "wrote {} ({} events of {} channels × {} samples)",
             manifest.display(),
@@ -292,7 +336,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         // The truth is the same for every mode (same phantom, same default grid): write it once,
         // whatever an earlier run left in the folder.
         if mode_index == 0 {
-            let truth = simulation.truth(&data)?;
+            let truth = simulation.truth_for(&params.acquisition(), params.n_samples)?;
             let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
             pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
             pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;

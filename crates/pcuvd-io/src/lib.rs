@@ -17,7 +17,7 @@ pub mod must;
 pub mod npy;
 
 pub use error::IoError;
-pub use manifest::{Recording, read_manifest, read_recording, write_recording};
+pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
 pub use must::read_must_mat;
 pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};

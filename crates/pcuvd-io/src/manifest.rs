@@ -418,30 +418,13 @@ pub fn write_recording(
     data: &ChannelData,
     provenance: &toml::Table,
 ) -> Result<PathBuf, IoError> {
-    let manifest_path = dir.join(format!("{stem}.toml"));
-    if stem.is_empty() || stem == "." || stem == ".." || stem.contains(['/', '\\']) {
-        return Err(IoError::invalid(
-            &manifest_path,
-            "the file stem",
-            format!("{stem:?} is not a plain file name"),
-        ));
-    }
+    let (manifest_path, npy_name, npy_path) = recording_paths(dir, stem)?;
     data.validate().map_err(|source| IoError::Recording {
         path: manifest_path.clone(),
         source,
     })?;
     let acq = &data.acquisition;
-    let npy_name = format!("{stem}.npy");
-    let npy_path = dir.join(&npy_name);
-    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, "create", e))?;
-    // An earlier manifest of this name goes first: if writing stops between the samples and the
-    // new manifest, no manifest describes samples it was not written for.
-    match std::fs::remove_file(&manifest_path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(IoError::io(&manifest_path, "remove", e));
-        }
-        _ => {}
-    }
+    prepare_recording(dir, &manifest_path)?;
 
     let n_angles = acq.sequence.n_angles();
     let (events, channels, samples) = data.samples.dim();
@@ -451,7 +434,7 @@ pub fn write_recording(
             let a4 = Array4::from_shape_vec(shape4, a.iter().copied().collect())
                 .map_err(|e| IoError::invalid(&npy_path, "the samples", e.to_string()))?;
             write_npy(&npy_path, &a4)?;
-            "kind = \"rf\"\n".to_string()
+            RF_KIND.to_string()
         }
         Samples::Iq {
             data: a,
@@ -466,7 +449,50 @@ pub fn write_recording(
             )
         }
     };
+    write_manifest(&manifest_path, acq, &npy_name, &kind_lines, provenance)?;
+    Ok(manifest_path)
+}
 
+/// The `[data]` kind lines of an RF recording.
+const RF_KIND: &str = "kind = \"rf\"\n";
+
+/// The manifest, samples file name and samples path of recording `stem` in `dir`, or an error
+/// when `stem` is not a plain file name.
+fn recording_paths(dir: &Path, stem: &str) -> Result<(PathBuf, String, PathBuf), IoError> {
+    let manifest_path = dir.join(format!("{stem}.toml"));
+    if stem.is_empty() || stem == "." || stem == ".." || stem.contains(['/', '\\']) {
+        return Err(IoError::invalid(
+            &manifest_path,
+            "the file stem",
+            format!("{stem:?} is not a plain file name"),
+        ));
+    }
+    let npy_name = format!("{stem}.npy");
+    let npy_path = dir.join(&npy_name);
+    Ok((manifest_path, npy_name, npy_path))
+}
+
+/// Creates `dir` and removes an earlier manifest at `manifest_path`: if writing stops between the
+/// samples and the new manifest, no manifest describes samples it was not written for.
+fn prepare_recording(dir: &Path, manifest_path: &Path) -> Result<(), IoError> {
+    std::fs::create_dir_all(dir).map_err(|e| IoError::io(dir, "create", e))?;
+    match std::fs::remove_file(manifest_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(IoError::io(manifest_path, "remove", e))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Writes the manifest of a recording acquired as `acq` whose samples are `npy_name`
+/// (frames, angles, channels, samples) of `kind_lines`, atomically.
+fn write_manifest(
+    manifest_path: &Path,
+    acq: &Acquisition,
+    npy_name: &str,
+    kind_lines: &str,
+    provenance: &toml::Table,
+) -> Result<(), IoError> {
     let p = &acq.probe;
     let mut t = String::new();
     t.push_str("# pcuvd recording manifest (SI units; the unit is in each key's name).\n");
@@ -531,8 +557,8 @@ pub fn write_recording(
         )),
     }
     t.push_str("\n[data]\n");
-    t.push_str(&format!("file = {}\n", toml_str(&npy_name)));
-    t.push_str(&kind_lines);
+    t.push_str(&format!("file = {}\n", toml_str(npy_name)));
+    t.push_str(kind_lines);
     t.push_str("axes = [\"frames\", \"angles\", \"channels\", \"samples\"]\n");
     if !provenance.is_empty() {
         #[derive(serde::Serialize)]
@@ -541,7 +567,7 @@ pub fn write_recording(
         }
         let prov = toml::to_string(&Prov { provenance }).map_err(|e| {
             IoError::invalid(
-                &manifest_path,
+                manifest_path,
                 "[provenance]",
                 format!("cannot be written ({e})"),
             )
@@ -549,10 +575,159 @@ pub fn write_recording(
         t.push('\n');
         t.push_str(&prov);
     }
-    crate::npy::write_atomically(&manifest_path, |partial| {
-        std::fs::write(partial, t).map_err(|e| IoError::io(&manifest_path, "write", e))
-    })?;
-    Ok(manifest_path)
+    crate::npy::write_atomically(manifest_path, |partial| {
+        std::fs::write(partial, t).map_err(|e| IoError::io(manifest_path, "write", e))
+    })
+}
+
+/// A recording written a block of events at a time (RF, float32), so that a long simulation
+/// never holds the whole recording: [`RecordingWriter::create`], then [`append`](Self::append)
+/// every event in order, then [`finish`](Self::finish) writes the manifest. Until then the
+/// samples sit under a temporary name and no manifest describes them.
+pub struct RecordingWriter {
+    manifest_path: PathBuf,
+    npy_name: String,
+    npy_path: PathBuf,
+    partial: PathBuf,
+    file: std::io::BufWriter<std::fs::File>,
+    acquisition: Acquisition,
+    provenance: toml::Table,
+    /// (events, channels, samples) the recording will hold.
+    shape: (usize, usize, usize),
+    written: usize,
+}
+
+impl RecordingWriter {
+    /// Starts recording `stem` in `dir` of `events` RF events of (channels, samples) each,
+    /// acquired as `acquisition`.
+    pub fn create(
+        dir: &Path,
+        stem: &str,
+        acquisition: &Acquisition,
+        shape: (usize, usize, usize),
+        provenance: &toml::Table,
+    ) -> Result<RecordingWriter, IoError> {
+        let (manifest_path, npy_name, npy_path) = recording_paths(dir, stem)?;
+        acquisition
+            .validate()
+            .map_err(|source| IoError::Recording {
+                path: manifest_path.clone(),
+                source,
+            })?;
+        let (events, channels, samples) = shape;
+        let n = acquisition.sequence.n_angles();
+        if events == 0 || events % n != 0 || channels != acquisition.probe.n_elements {
+            return Err(IoError::invalid(
+                &npy_path,
+                "the samples",
+                format!(
+                    "{events} events of {channels} channels are not whole frames of {n} events \
+                     from {} elements",
+                    acquisition.probe.n_elements
+                ),
+            ));
+        }
+        prepare_recording(dir, &manifest_path)?;
+        let partial = dir.join(format!(".{npy_name}.part"));
+        crate::npy::track_partial(&partial, true);
+        let file =
+            std::fs::File::create(&partial).map_err(|e| IoError::io(&partial, "create", e))?;
+        let mut file = std::io::BufWriter::new(file);
+        let header = ndarray_npy::npy::header::Header {
+            type_descriptor: <f32 as ndarray_npy::WritableElement>::type_descriptor(),
+            layout: ndarray_npy::npy::header::Layout::Standard,
+            shape: vec![events / n, n, channels, samples],
+        };
+        header
+            .write(&mut file)
+            .map_err(|e| IoError::malformed(&npy_path, format!("cannot write the header: {e}")))?;
+        Ok(RecordingWriter {
+            manifest_path,
+            npy_name,
+            npy_path,
+            partial,
+            file,
+            acquisition: acquisition.clone(),
+            provenance: provenance.clone(),
+            shape,
+            written: 0,
+        })
+    }
+
+    /// Appends the next events, shape (events, channels, samples); refuses a wrong shape, more
+    /// events than announced, and NaN or Inf samples.
+    pub fn append(&mut self, events: ndarray::ArrayView3<f32>) -> Result<(), IoError> {
+        use std::io::Write;
+        let (count, channels, samples) = events.dim();
+        if (channels, samples) != (self.shape.1, self.shape.2)
+            || self.written + count > self.shape.0
+        {
+            return Err(IoError::invalid(
+                &self.npy_path,
+                "the samples",
+                format!(
+                    "a block of {:?} after {} events does not fit {:?}",
+                    events.dim(),
+                    self.written,
+                    self.shape
+                ),
+            ));
+        }
+        if events.iter().any(|v| !v.is_finite()) {
+            return Err(IoError::invalid(
+                &self.npy_path,
+                "the samples",
+                "hold NaN or Inf",
+            ));
+        }
+        for v in events.iter() {
+            self.file
+                .write_all(&v.to_le_bytes())
+                .map_err(|e| IoError::io(&self.partial, "write", e))?;
+        }
+        self.written += count;
+        Ok(())
+    }
+
+    /// Completes the samples file (renamed into place) and writes the manifest; returns the
+    /// manifest's path. Refuses a recording with fewer events than announced.
+    pub fn finish(mut self) -> Result<PathBuf, IoError> {
+        use std::io::Write;
+        if self.written != self.shape.0 {
+            return Err(IoError::invalid(
+                &self.npy_path,
+                "the samples",
+                format!(
+                    "{} events written of the {} announced",
+                    self.written, self.shape.0
+                ),
+            ));
+        }
+        self.file
+            .flush()
+            .and_then(|()| self.file.get_ref().sync_all())
+            .map_err(|e| IoError::io(&self.partial, "write", e))?;
+        std::fs::rename(&self.partial, &self.npy_path)
+            .map_err(|e| IoError::io(&self.npy_path, "write", e))?;
+        crate::npy::track_partial(&self.partial, false);
+        write_manifest(
+            &self.manifest_path,
+            &self.acquisition,
+            &self.npy_name,
+            RF_KIND,
+            &self.provenance,
+        )?;
+        Ok(self.manifest_path.clone())
+    }
+}
+
+impl Drop for RecordingWriter {
+    fn drop(&mut self) {
+        // Abandoned before finish (an error, a panic): no half-written samples stay behind. After
+        // finish the partial name no longer exists and this does nothing.
+        let _ = std::fs::remove_file(&self.partial);
+        crate::npy::track_partial(&self.partial, false);
+    }
 }
 
 #[cfg(test)]

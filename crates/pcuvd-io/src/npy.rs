@@ -37,6 +37,16 @@ fn in_progress() -> std::sync::MutexGuard<'static, Vec<std::path::PathBuf>> {
     PARTIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Records (`true`) or forgets (`false`) a temporary file written outside [`write_atomically`],
+/// so that [`remove_partial_files`] removes it on an interrupt.
+pub(crate) fn track_partial(partial: &Path, writing: bool) {
+    let mut list = in_progress();
+    list.retain(|p| p != partial);
+    if writing {
+        list.push(partial.to_path_buf());
+    }
+}
+
 /// Removes the temporary files of writes still in progress: for an interrupt handler, just
 /// before the process exits, so that an interrupted run leaves no `.NAME.part` behind.
 pub fn remove_partial_files() {

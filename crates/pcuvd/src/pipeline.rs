@@ -402,11 +402,15 @@ fn recorded_depth_of(acq: &Acquisition, n_samples: usize) -> f64 {
 /// The default grid: the array's lateral extent, from just below the first recorded depth to the
 /// last, with a step of half a wavelength (rounded to 0.01 mm), capped near 400 × 400 pixels.
 pub fn default_grid(data: &ChannelData) -> Result<Grid> {
-    let acq = &data.acquisition;
+    default_grid_for(&data.acquisition, data.samples.dim().2)
+}
+
+/// [`default_grid`] of a recording acquired as `acq` with traces of `n_samples` samples.
+pub fn default_grid_for(acq: &Acquisition, n_samples: usize) -> Result<Grid> {
     let (x0, x1) = acq.probe.aperture();
     let z_first = (0.5 * acq.t0 * acq.sound_speed).max(0.0);
     let z0 = z_first.max(1e-3);
-    let z1 = recorded_depth(data);
+    let z1 = recorded_depth_of(acq, n_samples);
     if z1 <= z0 {
         return Err(invalid(
             "grid",

@@ -728,3 +728,24 @@ fn noise_alone_is_what_simulate_adds() {
     coded.noise = None;
     assert!(pcuvd::simulate::simulate_noise(&phantom, &coded, 2).is_err());
 }
+
+/// A recording simulated a block of events at a time (as `pcuvd simulate` writes it) is the
+/// whole-recording simulation bit for bit, noise included; a range beyond the recording is refused.
+#[test]
+fn events_in_blocks_are_the_whole_simulation() {
+    let (mut coded, _) = coded_and_conventional(4, 1e-6, 16);
+    coded.noise = Some(pcuvd::simulate::NoiseSpec::new(-6.0));
+    coded.seed = 5;
+    let phantom = block([0.01, -0.005], 50.0, 3);
+    let whole = simulate(&phantom, &coded, 3, &no_progress).unwrap();
+    let mut pieces = Vec::new();
+    for events in [0..4, 4..5, 5..12] {
+        pieces.push(
+            pcuvd::simulate::simulate_events(&phantom, &coded, 3, events, &no_progress).unwrap(),
+        );
+    }
+    let views: Vec<_> = pieces.iter().map(|p| p.view()).collect();
+    let joined = ndarray::concatenate(ndarray::Axis(0), &views).unwrap();
+    assert_eq!(&joined, rf(&whole));
+    assert!(pcuvd::simulate::simulate_events(&phantom, &coded, 3, 8..13, &no_progress).is_err());
+}

@@ -312,3 +312,64 @@ fn truncated_npy_is_an_error() {
     let e = read_manifest(&path).unwrap_err().to_string();
     assert!(e.starts_with(&npy.display().to_string()), "{e}");
 }
+
+/// A recording written a block at a time is, file for file, the one written at once; a writer
+/// abandoned or finished early leaves no samples and no manifest.
+#[test]
+fn streamed_recording_equals_the_one_written_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
+    let samples = rf(5 * 4, 6, 11);
+    let mut prov = toml::Table::new();
+    prov.insert("seed".into(), toml::Value::Integer(3));
+    let data = ChannelData {
+        acquisition: acq.clone(),
+        samples: Samples::Rf(samples.clone()),
+    };
+    let at_once = write_recording(&dir.path().join("a"), "rec", &data, &prov).unwrap();
+    let mut writer =
+        RecordingWriter::create(&dir.path().join("b"), "rec", &acq, samples.dim(), &prov).unwrap();
+    // Blocks of 8, 8 and 4 events (2, 2 and 1 frames).
+    for start in (0..20).step_by(8) {
+        let block = samples.slice(ndarray::s![start..(start + 8).min(20), .., ..]);
+        writer.append(block).unwrap();
+    }
+    let streamed = writer.finish().unwrap();
+    for name in ["rec.toml", "rec.npy"] {
+        assert_eq!(
+            std::fs::read(at_once.with_file_name(name)).unwrap(),
+            std::fs::read(streamed.with_file_name(name)).unwrap(),
+            "{name}"
+        );
+    }
+    assert_eq!(read_recording(&streamed).unwrap().data, data);
+
+    let folder = dir.path().join("c");
+    let mut short = RecordingWriter::create(&folder, "rec", &acq, samples.dim(), &prov).unwrap();
+    short
+        .append(samples.slice(ndarray::s![0..8, .., ..]))
+        .unwrap();
+    let err = short
+        .append(samples.slice(ndarray::s![0..16, .., ..]))
+        .unwrap_err();
+    assert!(err.to_string().contains("does not fit"), "{err}");
+    let err = short.finish().unwrap_err();
+    assert!(
+        err.to_string().contains("8 events written of the 20"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&folder).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+    let mut bad = samples.clone();
+    bad[[3, 2, 1]] = f32::NAN;
+    let mut writer = RecordingWriter::create(&folder, "rec", &acq, samples.dim(), &prov).unwrap();
+    assert!(
+        writer
+            .append(bad.view())
+            .unwrap_err()
+            .to_string()
+            .contains("NaN")
+    );
+    drop(writer);
+    assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
+}

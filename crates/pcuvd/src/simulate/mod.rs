@@ -297,6 +297,30 @@ pub fn simulate(
     n_frames: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<ChannelData> {
+    let n_events = n_frames.saturating_mul(params.sequence.n_angles());
+    Ok(ChannelData {
+        acquisition: params.acquisition(),
+        samples: Samples::Rf(simulate_events(
+            phantom,
+            params,
+            n_frames,
+            0..n_events,
+            progress,
+        )?),
+    })
+}
+
+/// Events `events` (a range of transmit-event indices) of the recording of `n_frames` frames that
+/// [`simulate`] makes, shape (events, channels, samples): the same samples, bit for bit, so that a
+/// long recording can be simulated and written a block at a time. `progress(event index + 1,
+/// events of the whole recording)` after each event.
+pub fn simulate_events(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+    events: std::ops::Range<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Array3<f32>> {
     params.validate()?;
     if n_frames == 0 {
         return Err(invalid("number of frames", "must be at least 1"));
@@ -339,8 +363,14 @@ pub fn simulate(
 
     let noise = noise_generator(phantom, params, &sim, &mut positions, &load)?;
 
-    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
-    for (event, out) in rf.axis_iter_mut(Axis(0)).enumerate() {
+    if events.start > events.end || events.end > n_events {
+        return Err(invalid(
+            "events",
+            format!("{events:?} is not within the recording's {n_events} events"),
+        ));
+    }
+    let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
+    for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
         let t = event as f64 / params.sequence.event_prf;
         load(t, &mut positions)?;
         let slots: Vec<Slot> = params
@@ -359,10 +389,7 @@ pub fn simulate(
         sim.render_event(&positions, phantom.amplitudes(), &slots, out, streams);
         progress(event + 1, n_events);
     }
-    Ok(ChannelData {
-        acquisition: params.acquisition(),
-        samples: Samples::Rf(rf),
-    })
+    Ok(rf)
 }
 
 /// Fills the scatterer positions at a time (s), checking them.
