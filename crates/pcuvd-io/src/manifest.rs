@@ -390,6 +390,11 @@ fn to_events<T: Clone>(
     perm: &[usize],
     shape: (usize, usize, usize),
 ) -> Result<Array3<T>, ndarray::ShapeError> {
+    // Samples already in canonical order (what pcuvd writes) are only reshaped, not copied: a
+    // copy would double the memory a long recording takes while it is read.
+    if perm.iter().enumerate().all(|(i, &p)| i == p) && a.is_standard_layout() {
+        return a.into_shape_with_order(shape);
+    }
     let p = a.permuted_axes(perm.to_vec());
     let values: Vec<T> = p.iter().cloned().collect();
     Array3::from_shape_vec(shape, values)

@@ -102,10 +102,21 @@ impl NpyArray {
 /// Reads a `.npy` file of dtype f4, f8, i2, i4 (→ [`NpyArray::Real`]) or c8, c16
 /// (→ [`NpyArray::Complex`]), either byte order, C or Fortran order.
 pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "read", e))?;
-    let mut rest: &[u8] = &bytes;
-    let header = Header::from_reader(&mut rest)
+    use std::io::{Seek, SeekFrom};
+    // Read from the file, not from its bytes in memory: a long recording would otherwise be held
+    // twice while it is read (the file's bytes and the array).
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, "read", e))?;
+    let file_len = file
+        .metadata()
+        .map_err(|e| IoError::io(path, "read", e))?
+        .len();
+    let mut reader = std::io::BufReader::new(file);
+    let header = Header::from_reader(&mut reader)
         .map_err(|e| IoError::malformed(path, format!("not a valid .npy file ({e})")))?;
+    let header_len = reader
+        .stream_position()
+        .map_err(|e| IoError::io(path, "read", e))?;
+    let data_len = file_len.saturating_sub(header_len);
     let descr = header
         .type_descriptor
         .as_string()
@@ -129,20 +140,22 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
         .shape
         .iter()
         .try_fold(item, |acc: usize, &d| acc.checked_mul(d));
-    if expected != Some(rest.len()) {
+    if expected.map(|e| e as u64) != Some(data_len) {
         return Err(IoError::malformed(
             path,
             format!(
-                "the header announces shape {:?} of '{descr}' but the file holds {} data bytes",
+                "the header announces shape {:?} of '{descr}' but the file holds {data_len} data bytes",
                 header.shape,
-                rest.len()
             ),
         ));
     }
     let bad = |e: ndarray_npy::ReadNpyError| {
         IoError::malformed(path, format!("cannot read the array ({e})"))
     };
-    let r: &[u8] = &bytes;
+    reader
+        .seek(SeekFrom::Start(0))
+        .map_err(|e| IoError::io(path, "read", e))?;
+    let r = reader;
     Ok(match code {
         "f4" => NpyArray::Real(ArrayD::<f32>::read_npy(r).map_err(bad)?),
         "f8" => NpyArray::Real(ArrayD::<f64>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
