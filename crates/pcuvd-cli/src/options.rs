@@ -2,7 +2,6 @@
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use pcuvd::ChannelData;
 use pcuvd::beamform::{Apodization, DasParams};
 use pcuvd::clutter::{ClutterParams, RankCut};
 use pcuvd::dynamics::{self, DynamicsParams, VesselPooling, VesselTests};
@@ -347,10 +346,10 @@ impl DynamicsOptions {
 
 impl ProcessingOptions {
     /// Stage settings for `data`.
-    pub fn params(&self, data: &ChannelData) -> Result<ProcessParams> {
+    pub fn params(&self, data: &dyn pcuvd::source::FrameSource) -> Result<ProcessParams> {
         let grid = match &self.grid {
             Some(text) => parse_grid(text)?,
-            None => pipeline::default_grid(data)?,
+            None => pipeline::default_grid_for(data.acquisition(), data.trace_shape().1)?,
         };
         let (rows, cols) = parse_kernel(&self.doppler_kernel)?;
         let irls = IrlsParams {
@@ -365,7 +364,7 @@ impl ProcessingOptions {
             das: DasParams {
                 f_number: self.f_number,
                 apodization: Apodization::Hann,
-                sound_speed: data.acquisition.sound_speed,
+                sound_speed: data.acquisition().sound_speed,
             },
             clutter: ClutterParams {
                 low: rank_cut(&self.svd_low, "svd-low")?,

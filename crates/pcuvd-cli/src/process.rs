@@ -8,6 +8,7 @@ use ndarray::Array1;
 use pcuvd::ChannelData;
 use pcuvd::dynamics::{self, DynamicsParams, PoolingSummary, RiMaps, VelocitySeries, VesselTests};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
+use pcuvd::source::FrameSource;
 use serde_json::json;
 
 use crate::figures;
@@ -62,6 +63,21 @@ pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
     Ok((data, files))
 }
 
+/// Opens a recording for `process`: a pcuvd manifest whose samples are stored in event order is
+/// read from its file a block of frames at a time (never whole in memory); anything else is read
+/// whole ([`read_input`]). Returns the source and every file it reads.
+pub fn open_input(path: &Path) -> Result<(Box<dyn FrameSource>, Vec<PathBuf>)> {
+    let manifest = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    if manifest && let Some(frames) = pcuvd_io::ManifestFrames::open(path)? {
+        let files = vec![path.to_path_buf(), frames.data_path().to_path_buf()];
+        return Ok((Box::new(frames), files));
+    }
+    let (data, files) = read_input(path)?;
+    Ok((Box::new(data), files))
+}
+
 /// Creates `dir` (and parents), with a message naming it on failure.
 pub fn create_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir)
@@ -71,13 +87,18 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
-    let (data, input_files) = read_input(&args.input)?;
+    let (source, input_files) = open_input(&args.input)?;
+    let data = source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
-    let plan = Plan::new(&args.options, &args.dynamics, &data)?;
-    check_memory(&data, &plan.params, args.max_memory_gb)?;
+    let plan = Plan::new(&args.options, &args.dynamics, data)?;
+    check_memory(data, &plan.params, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
     let (format, reader) = match input_files.len() {
         1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
+        _ if data.resident_bytes() == 0 => (
+            "pcuvd recording manifest (.toml) + NumPy .npy",
+            "pcuvd_io::ManifestFrames (a block of frames at a time)",
+        ),
         _ => (
             "pcuvd recording manifest (.toml) + NumPy .npy",
             "pcuvd_io::read_recording",
@@ -111,12 +132,12 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let progress = PipelineProgress::new("");
-    let processed = compute(&data, &plan, &|s, d, t| progress.update(s, d, t))
+    let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     let extra_timings = [("read", read_s), ("checksum", checksum_s)];
     let pngs = save(
         &args.out,
-        &data,
+        data,
         &plan,
         &processed,
         source,
@@ -126,9 +147,9 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     println!(
         "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
         args.input.display(),
-        data.acquisition.sequence.n_angles(),
+        data.acquisition().sequence.n_angles(),
         data.n_frames(),
-        data.acquisition.frame_rate(),
+        data.acquisition().frame_rate(),
         processed.out.nyquist_velocity * 1e3,
         processed.out.grid.z.len(),
         processed.out.grid.x.len()
@@ -163,7 +184,7 @@ impl Plan {
     pub fn new(
         options: &ProcessingOptions,
         dynamics: &DynamicsOptions,
-        data: &ChannelData,
+        data: &dyn FrameSource,
     ) -> Result<Plan> {
         let params = options.params(data)?;
         let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
@@ -171,7 +192,7 @@ impl Plan {
         } else {
             Some(DynamicsSettings {
                 params: dynamics.params(
-                    data.acquisition.frame_rate(),
+                    data.acquisition().frame_rate(),
                     params.irls,
                     params.grid.step(),
                 )?,
@@ -222,7 +243,7 @@ pub struct Processed {
 /// dynamics setting given, a recording that cannot give RI maps (too short, one angle) skips the
 /// stage with a note; otherwise that is an error.
 pub fn compute(
-    data: &ChannelData,
+    data: &dyn FrameSource,
     plan: &Plan,
     progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
 ) -> Result<Processed> {
@@ -278,7 +299,7 @@ pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome>
 /// `extra_timings` (seconds) beside the stages'. `name` labels the figures. Returns the figures.
 pub fn save(
     dir: &Path,
-    data: &ChannelData,
+    data: &dyn FrameSource,
     plan: &Plan,
     processed: &Processed,
     source: serde_json::Value,
@@ -308,7 +329,7 @@ pub fn save(
 /// Refuses, before any work, a recording and grid whose processing would need more memory than
 /// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
 pub fn check_memory(
-    data: &ChannelData,
+    data: &dyn FrameSource,
     params: &ProcessParams,
     limit_gb: Option<f64>,
 ) -> Result<()> {
@@ -403,7 +424,7 @@ pub struct DynamicsSettings {
 /// The summary.json of a `process` run (without the writing timings): every parameter used, the
 /// Nyquist velocity, clutter cut-offs, per-stage timings, the dynamics stage, and `source`.
 pub fn summary(
-    data: &ChannelData,
+    data: &dyn FrameSource,
     plan: &Plan,
     processed: &Processed,
     source: serde_json::Value,
@@ -426,7 +447,7 @@ pub fn summary(
             "frames": spec.frames,
             "step_frames": spec.step,
             "count": maps.starts.len(),
-            "duration_s": spec.frames as f64 / data.acquisition.frame_rate(),
+            "duration_s": spec.frames as f64 / data.acquisition().frame_rate(),
             "times_s": maps.times_s,
             "start_frames": maps.starts,
             "clutter_cut_offs_per_angle": maps.clutter.iter().map(|per_angle| {
@@ -570,12 +591,12 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
 
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
 pub fn summary_json(
-    data: &ChannelData,
+    data: &dyn FrameSource,
     params: &ProcessParams,
     out: &ProcessOutput,
     extra: serde_json::Value,
 ) -> serde_json::Value {
-    let acq = &data.acquisition;
+    let acq = data.acquisition();
     let probe = &acq.probe;
     let seq = &acq.sequence;
     let coding = match seq.coding {

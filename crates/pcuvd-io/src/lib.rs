@@ -4,6 +4,7 @@
 //!   and a small writer;
 //! - [`must`]: MUST/PyMUST-style recordings (`RF` + `param`) as [`pcuvd::ChannelData`];
 //! - [`manifest`]: the "pcuvd-recording" TOML manifest + `.npy` samples, read and write;
+//! - [`frames`]: a manifest's samples read a block of frames at a time;
 //! - [`npy`]: thin `.npy`/JSON writers for results.
 //!
 //! Every error is an [`IoError`] whose message names the file, the field and the problem.
@@ -11,12 +12,14 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod frames;
 pub mod manifest;
 pub mod mat;
 pub mod must;
 pub mod npy;
 
 pub use error::IoError;
+pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
 pub use must::read_must_mat;

@@ -107,6 +107,88 @@ fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> IoError {
 
 /// Reads a recording manifest, its samples and its provenance.
 pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
+    let parsed = parse_manifest(path)?;
+    let Parsed {
+        acquisition,
+        provenance,
+        data_path,
+        axes,
+        perm,
+        demod,
+    } = parsed;
+    let array = read_npy(&data_path)?;
+    let shape = array.shape().to_vec();
+    let (events, channels, samples) =
+        event_shape(path, &acquisition, &data_path, &axes, &perm, &shape)?;
+    let reshape_err = |e: ndarray::ShapeError| {
+        IoError::invalid(path, "[data].axes", format!("cannot be applied ({e})"))
+    };
+    let samples = match (array, demod) {
+        (NpyArray::Real(a), None) => {
+            Samples::Rf(to_events(a, &perm, (events, channels, samples)).map_err(reshape_err)?)
+        }
+        (NpyArray::Complex(a), Some(demod_frequency)) => Samples::Iq {
+            data: to_events(a, &perm, (events, channels, samples)).map_err(reshape_err)?,
+            demod_frequency,
+        },
+        (NpyArray::Real(_), Some(_)) => return Err(kind_error(path, &data_path, true)),
+        (NpyArray::Complex(_), None) => return Err(kind_error(path, &data_path, false)),
+    };
+    let data = ChannelData {
+        acquisition,
+        samples,
+    };
+    data.validate().map_err(|source| IoError::Recording {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(Recording {
+        data,
+        provenance,
+        manifest_path: path.to_path_buf(),
+        data_path,
+    })
+}
+
+/// The error for samples whose values do not match `[data].kind` (`iq` said, real found, or the
+/// reverse).
+pub(crate) fn kind_error(path: &Path, data_path: &Path, iq_said: bool) -> IoError {
+    if iq_said {
+        IoError::invalid(
+            path,
+            "[data].kind",
+            format!(
+                "is \"iq\" but {} holds real values (complex64/complex128 expected)",
+                data_path.display()
+            ),
+        )
+    } else {
+        IoError::invalid(
+            path,
+            "[data].kind",
+            format!(
+                "is \"rf\" but {} holds complex values (float32/float64/int16/int32 expected)",
+                data_path.display()
+            ),
+        )
+    }
+}
+
+/// A manifest read and checked, its samples not yet: what [`read_recording`] and
+/// [`crate::frames::ManifestFrames`] share.
+pub(crate) struct Parsed {
+    pub(crate) acquisition: Acquisition,
+    pub(crate) provenance: toml::Table,
+    pub(crate) data_path: PathBuf,
+    pub(crate) axes: Vec<String>,
+    /// For each canonical axis, its index among the named axes.
+    pub(crate) perm: Vec<usize>,
+    /// The demodulation frequency of IQ samples; `None` for RF.
+    pub(crate) demod: Option<f64>,
+}
+
+/// Reads and checks a manifest, up to (not including) its samples.
+pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, "read", e))?;
     let table: toml::Table = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
     match table.get("format") {
@@ -264,8 +346,26 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
             format!("names {}, which does not exist", data_path.display()),
         ));
     }
-    let array = read_npy(&data_path)?;
-    let shape = array.shape().to_vec();
+    Ok(Parsed {
+        acquisition,
+        provenance: m.provenance,
+        data_path,
+        axes,
+        perm,
+        demod,
+    })
+}
+
+/// (events, channels, samples) of samples of `shape` whose axes are `axes`, checked against the
+/// acquisition: angles and elements.
+pub(crate) fn event_shape(
+    path: &Path,
+    acquisition: &Acquisition,
+    data_path: &Path,
+    axes: &[String],
+    perm: &[usize],
+    shape: &[usize],
+) -> Result<(usize, usize, usize), IoError> {
     if shape.len() != axes.len() {
         return Err(IoError::invalid(
             path,
@@ -314,52 +414,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
             ),
         ));
     }
-    let reshape_err = |e: ndarray::ShapeError| {
-        IoError::invalid(path, "[data].axes", format!("cannot be applied ({e})"))
-    };
-    let samples = match (array, demod) {
-        (NpyArray::Real(a), None) => {
-            Samples::Rf(to_events(a, &perm, (events, channels, samples)).map_err(reshape_err)?)
-        }
-        (NpyArray::Complex(a), Some(demod_frequency)) => Samples::Iq {
-            data: to_events(a, &perm, (events, channels, samples)).map_err(reshape_err)?,
-            demod_frequency,
-        },
-        (NpyArray::Real(_), Some(_)) => {
-            return Err(IoError::invalid(
-                path,
-                "[data].kind",
-                format!(
-                    "is \"iq\" but {} holds real values (complex64/complex128 expected)",
-                    data_path.display()
-                ),
-            ));
-        }
-        (NpyArray::Complex(_), None) => {
-            return Err(IoError::invalid(
-                path,
-                "[data].kind",
-                format!(
-                    "is \"rf\" but {} holds complex values (float32/float64/int16/int32 expected)",
-                    data_path.display()
-                ),
-            ));
-        }
-    };
-    let data = ChannelData {
-        acquisition,
-        samples,
-    };
-    data.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    Ok(Recording {
-        data,
-        provenance: m.provenance,
-        manifest_path: path.to_path_buf(),
-        data_path,
-    })
+    Ok((events, channels, samples))
 }
 
 /// For each canonical axis (frames, angles, channels, samples) or (events, channels, samples), its

@@ -455,11 +455,12 @@ fn process(
     let (plan, processed) = py
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
-            let plan = Plan::new(&call.options, &call.dynamics, &data)?;
-            cli_process::check_memory(&data, &plan.params, call.max_memory_gb)?;
+            let plan = Plan::new(&call.options, &call.dynamics, &*data)?;
+            cli_process::check_memory(&*data, &plan.params, call.max_memory_gb)?;
             let progress = PipelineProgress::new("");
-            let processed = cli_process::compute(&data, &plan, &|s, d, t| progress.update(s, d, t))
-                .with_context(|| format!("{input}: processing failed"))?;
+            let processed =
+                cli_process::compute(&*data, &plan, &|s, d, t| progress.update(s, d, t))
+                    .with_context(|| format!("{input}: processing failed"))?;
             Ok((plan, processed))
         })
         .map_err(to_py)?;
@@ -549,7 +550,7 @@ impl PyProcessResult {
         set_quiet(quiet);
         let (plan, dynamics, seconds) = py
             .detach(|| -> anyhow::Result<_> {
-                let plan = Plan::new(&self.options, &call.dynamics, &self.recording)?;
+                let plan = Plan::new(&self.options, &call.dynamics, &*self.recording)?;
                 let clock = std::time::Instant::now();
                 let dynamics = cli_process::run_dynamics(&self.processed.out, &plan)?;
                 Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
@@ -575,7 +576,7 @@ impl PyProcessResult {
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        Ok(cli_process::summary(&self.recording, &self.plan, &self.processed, source).to_string())
+        Ok(cli_process::summary(&*self.recording, &self.plan, &self.processed, source).to_string())
     }
 
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
@@ -597,7 +598,7 @@ impl PyProcessResult {
                 .unwrap_or_default();
             cli_process::save(
                 &folder,
-                &self.recording,
+                &*self.recording,
                 &self.plan,
                 &self.processed,
                 source,

@@ -22,6 +22,9 @@ pub enum Error {
     /// NaN or infinite samples in input data.
     #[error("non-finite value in {0}")]
     NonFinite(String),
+    /// A recording's samples could not be read from their file (the message names the file).
+    #[error("{0}")]
+    Read(String),
 }
 
 /// Result of a pcuvd computation.

@@ -331,7 +331,8 @@ pub fn angle_coverage(acq: &Acquisition, grid: &Grid) -> Array3<bool> {
 }
 
 /// How [`memory_estimate`] counts.
-pub const MEMORY_ESTIMATE_RULE: &str = "samples × 4 bytes (the input, held in memory) + one \
+pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none when they are \
+read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
 smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
 complex64)";
@@ -375,17 +376,16 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
     }
 }
 
-/// Bytes `process` needs for `data` on `grid`, formed in [`blocks_for`] blocks, by
+/// Bytes `process` needs for `source` on `grid`, formed in [`blocks_for`] blocks, by
 /// [`MEMORY_ESTIMATE_RULE`]: a rule of thumb from the buffers it holds at its peak.
-pub fn memory_estimate(data: &ChannelData, grid: &Grid) -> u128 {
-    let (events, channels, samples) = data.samples.dim();
+pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let (nz, nx) = grid.shape();
-    let frames = data.n_frames() as u128;
-    let angles = data.acquisition.sequence.n_angles() as u128;
-    let blocks = blocks_for(data, decode::EventAlignment::MidFrame);
-    let block = (blocks.frames + 2 * blocks.margin).min(data.n_frames()) as u128
-        * block_bytes_per_frame(data) as u128;
-    (events * channels * samples) as u128 * 4 + block + 2 * (nz * nx) as u128 * frames * angles * 8
+    let frames = source.n_frames() as u128;
+    let angles = source.acquisition().sequence.n_angles() as u128;
+    let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
+    let block = (blocks.frames + 2 * blocks.margin).min(source.n_frames()) as u128
+        * block_bytes_per_frame(source) as u128;
+    source.resident_bytes() as u128 + block + 2 * (nz * nx) as u128 * frames * angles * 8
 }
 
 /// Deepest depth (m) whose straight-down echo lies inside the record.
@@ -394,7 +394,7 @@ pub fn recorded_depth(data: &ChannelData) -> f64 {
 }
 
 /// Deepest depth (m) whose straight-down echo lies inside a record of `n_samples` samples.
-fn recorded_depth_of(acq: &Acquisition, n_samples: usize) -> f64 {
+pub fn recorded_depth_of(acq: &Acquisition, n_samples: usize) -> f64 {
     let t_end = acq.t0 + (n_samples as f64 - 1.0) / acq.sampling_frequency;
     (0.5 * t_end * acq.sound_speed).max(0.0)
 }

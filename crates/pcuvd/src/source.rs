@@ -20,6 +20,10 @@ pub trait FrameSource: Sync {
     /// The events of compound frames `frames` (frames.len() × angles events), as a recording of
     /// their own with the same acquisition.
     fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData>;
+    /// Bytes of samples the source holds in memory (0 for one that reads its file block by block).
+    fn resident_bytes(&self) -> u64 {
+        0
+    }
 }
 
 impl FrameSource for ChannelData {
@@ -34,6 +38,15 @@ impl FrameSource for ChannelData {
     fn trace_shape(&self) -> (usize, usize) {
         let (_, channels, samples) = self.samples.dim();
         (channels, samples)
+    }
+
+    fn resident_bytes(&self) -> u64 {
+        let (events, channels, samples) = self.samples.dim();
+        let item = match self.samples {
+            Samples::Rf(_) => 4,
+            Samples::Iq { .. } => 8,
+        };
+        (events * channels * samples) as u64 * item
     }
 
     fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData> {

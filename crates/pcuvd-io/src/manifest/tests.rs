@@ -373,3 +373,74 @@ fn streamed_recording_equals_the_one_written_at_once() {
     drop(writer);
     assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
 }
+
+/// A manifest's samples read a block of frames at a time are the recording read whole, for each
+/// stored dtype; samples in another axis order are left to the whole reader.
+#[test]
+fn frames_read_in_blocks_are_the_recording() {
+    use pcuvd::source::FrameSource;
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
+    let samples = rf(3 * 4, 6, 11);
+    let data = ChannelData {
+        acquisition: acq.clone(),
+        samples: Samples::Rf(samples.clone()),
+    };
+    let manifest = write_recording(dir.path(), "rec", &data, &toml::Table::new()).unwrap();
+    let npy = manifest.with_file_name("rec.npy");
+    let four = samples
+        .clone()
+        .into_shape_with_order((3, 4, 6, 11))
+        .unwrap();
+    // float32 as written, then float64 and int16 (integer values survive every dtype).
+    for rewrite in 0..3 {
+        match rewrite {
+            1 => ndarray_npy::write_npy(&npy, &four.mapv(f64::from)).unwrap(),
+            2 => ndarray_npy::write_npy(&npy, &four.mapv(|v| (v * 100.0).round() as i16)).unwrap(),
+            _ => {}
+        }
+        let whole = read_recording(&manifest).unwrap().data;
+        let frames = crate::ManifestFrames::open(&manifest)
+            .unwrap()
+            .expect("event order");
+        assert_eq!(frames.n_frames(), 3);
+        assert_eq!(frames.trace_shape(), (6, 11));
+        assert_eq!(frames.resident_bytes(), 0);
+        for range in [0..3, 1..2, 2..3] {
+            assert_eq!(
+                frames.read_frames(range.clone()).unwrap(),
+                whole.read_frames(range).unwrap(),
+                "dtype case {rewrite}"
+            );
+        }
+        assert!(frames.read_frames(2..4).is_err());
+    }
+    // Another axis order: read whole instead.
+    let text = std::fs::read_to_string(&manifest).unwrap().replace(
+        "axes = [\"frames\", \"angles\", \"channels\", \"samples\"]",
+        "axes = [\"angles\", \"frames\", \"channels\", \"samples\"]",
+    );
+    std::fs::write(&manifest, text).unwrap();
+    ndarray_npy::write_npy(
+        &npy,
+        &four
+            .clone()
+            .permuted_axes([1, 0, 2, 3])
+            .as_standard_layout(),
+    )
+    .unwrap();
+    assert!(crate::ManifestFrames::open(&manifest).unwrap().is_none());
+    // A truncated samples file is refused when opened, not half-way through processing.
+    ndarray_npy::write_npy(&npy, &four).unwrap();
+    let bytes = std::fs::read(&npy).unwrap();
+    let text = std::fs::read_to_string(&manifest).unwrap().replace(
+        "axes = [\"angles\", \"frames\", \"channels\", \"samples\"]",
+        "axes = [\"frames\", \"angles\", \"channels\", \"samples\"]",
+    );
+    std::fs::write(&manifest, text).unwrap();
+    std::fs::write(&npy, &bytes[..bytes.len() - 4]).unwrap();
+    let err = crate::ManifestFrames::open(&manifest)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("data bytes"), "{err}");
+}

@@ -1,0 +1,258 @@
+//! Recordings read from their file a block of frames at a time ([`pcuvd::source::FrameSource`]),
+//! so that processing a long recording never holds all of it in memory.
+
+use std::io::{Read, Seek, SeekFrom};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use ndarray::Array3;
+use ndarray_npy::npy::header::{Header, Layout};
+use num_complex::Complex32;
+use pcuvd::source::FrameSource;
+use pcuvd::{Acquisition, ChannelData, Samples};
+
+use crate::error::IoError;
+use crate::manifest::{event_shape, kind_error, parse_manifest};
+
+/// How one stored sample reads (little-endian).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stored {
+    F4,
+    F8,
+    I2,
+    I4,
+    C8,
+    C16,
+}
+
+impl Stored {
+    fn bytes(self) -> usize {
+        match self {
+            Stored::I2 => 2,
+            Stored::F4 | Stored::I4 => 4,
+            Stored::F8 | Stored::C8 => 8,
+            Stored::C16 => 16,
+        }
+    }
+
+    fn complex(self) -> bool {
+        matches!(self, Stored::C8 | Stored::C16)
+    }
+}
+
+/// The samples of a pcuvd manifest whose `.npy` holds events in order (axes (frames, angles,
+/// channels, samples) or (events, channels, samples), C order, little-endian), read a block of
+/// frames at a time. int16 samples stay int16 on disk until their block is converted.
+#[derive(Debug, Clone)]
+pub struct ManifestFrames {
+    acquisition: Acquisition,
+    data_path: PathBuf,
+    data_offset: u64,
+    stored: Stored,
+    demod: Option<f64>,
+    /// (events, channels, samples).
+    shape: (usize, usize, usize),
+}
+
+impl ManifestFrames {
+    /// Opens the manifest at `path` for block reading: its acquisition is read and checked and its
+    /// samples file's header checked against it. `Ok(None)` when the samples are not stored in
+    /// event order (another axis order, Fortran order, big-endian): read those whole.
+    pub fn open(path: &Path) -> Result<Option<ManifestFrames>, IoError> {
+        let parsed = parse_manifest(path)?;
+        if parsed.perm.iter().enumerate().any(|(i, &p)| i != p) {
+            return Ok(None);
+        }
+        let data_path = parsed.data_path.clone();
+        let file =
+            std::fs::File::open(&data_path).map_err(|e| IoError::io(&data_path, "read", e))?;
+        let file_len = file
+            .metadata()
+            .map_err(|e| IoError::io(&data_path, "read", e))?
+            .len();
+        let mut reader = std::io::BufReader::new(file);
+        let header = Header::from_reader(&mut reader)
+            .map_err(|e| IoError::malformed(&data_path, format!("not a valid .npy file ({e})")))?;
+        let data_offset = reader
+            .stream_position()
+            .map_err(|e| IoError::io(&data_path, "read", e))?;
+        let descr = header
+            .type_descriptor
+            .as_string()
+            .cloned()
+            .unwrap_or_else(|| header.type_descriptor.to_string());
+        let little = descr.starts_with('<') || descr.starts_with('|') || descr.starts_with('=');
+        let stored = match descr.trim_start_matches(['<', '>', '=', '|']) {
+            "f4" => Stored::F4,
+            "f8" => Stored::F8,
+            "i2" => Stored::I2,
+            "i4" => Stored::I4,
+            "c8" => Stored::C8,
+            "c16" => Stored::C16,
+            // Other dtypes get read_npy's own message when read whole.
+            _ => return Ok(None),
+        };
+        if header.layout != Layout::Standard || !little || cfg!(target_endian = "big") {
+            return Ok(None);
+        }
+        if stored.complex() != parsed.demod.is_some() {
+            return Err(kind_error(path, &data_path, parsed.demod.is_some()));
+        }
+        let shape = event_shape(
+            path,
+            &parsed.acquisition,
+            &data_path,
+            &parsed.axes,
+            &parsed.perm,
+            &header.shape,
+        )?;
+        let expected =
+            (shape.0 as u128) * (shape.1 as u128) * (shape.2 as u128) * stored.bytes() as u128;
+        if data_offset as u128 + expected != file_len as u128 {
+            return Err(IoError::malformed(
+                &data_path,
+                format!(
+                    "the header announces shape {:?} of '{descr}' but the file holds {} data bytes",
+                    header.shape,
+                    file_len.saturating_sub(data_offset)
+                ),
+            ));
+        }
+        let n = parsed.acquisition.sequence.n_angles();
+        if shape.0 == 0 || shape.0 % n != 0 {
+            return Err(IoError::invalid(
+                path,
+                "[data]",
+                format!(
+                    "{} events is not a whole number of compound frames of {n}",
+                    shape.0
+                ),
+            ));
+        }
+        Ok(Some(ManifestFrames {
+            acquisition: parsed.acquisition,
+            data_path,
+            data_offset,
+            stored,
+            demod: parsed.demod,
+            shape,
+        }))
+    }
+
+    /// The samples file.
+    pub fn data_path(&self) -> &Path {
+        &self.data_path
+    }
+
+    fn read_bytes(&self, events: Range<usize>) -> std::io::Result<Vec<u8>> {
+        let trace = self.shape.1 * self.shape.2 * self.stored.bytes();
+        let mut file = std::fs::File::open(&self.data_path)?;
+        file.seek(SeekFrom::Start(
+            self.data_offset + (events.start * trace) as u64,
+        ))?;
+        let mut bytes = vec![0u8; events.len() * trace];
+        file.read_exact(&mut bytes)?;
+        Ok(bytes)
+    }
+}
+
+fn chunk<const N: usize>(bytes: &[u8]) -> impl Iterator<Item = [u8; N]> + '_ {
+    bytes
+        .chunks_exact(N)
+        .map(|c| c.try_into().expect("chunks of N bytes"))
+}
+
+impl FrameSource for ManifestFrames {
+    fn acquisition(&self) -> &Acquisition {
+        &self.acquisition
+    }
+
+    fn n_frames(&self) -> usize {
+        self.shape.0 / self.acquisition.sequence.n_angles()
+    }
+
+    fn trace_shape(&self) -> (usize, usize) {
+        (self.shape.1, self.shape.2)
+    }
+
+    fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
+        let n = self.acquisition.sequence.n_angles();
+        if frames.start >= frames.end || frames.end > FrameSource::n_frames(self) {
+            return Err(pcuvd::error::invalid(
+                "frames",
+                format!(
+                    "block {frames:?} is not within the recording's {} frames",
+                    FrameSource::n_frames(self)
+                ),
+            ));
+        }
+        let events = frames.start * n..frames.end * n;
+        let shape = (events.len(), self.shape.1, self.shape.2);
+        let bytes = self.read_bytes(events).map_err(|e| {
+            pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
+        })?;
+        let real = |values: Vec<f32>| Array3::from_shape_vec(shape, values);
+        let complex = |values: Vec<Complex32>| Array3::from_shape_vec(shape, values);
+        let shape_error = |e: ndarray::ShapeError| pcuvd::Error::Shape(e.to_string());
+        let samples = match self.stored {
+            Stored::F4 => Samples::Rf(
+                real(chunk::<4>(&bytes).map(f32::from_le_bytes).collect()).map_err(shape_error)?,
+            ),
+            Stored::F8 => Samples::Rf(
+                real(
+                    chunk::<8>(&bytes)
+                        .map(|b| f64::from_le_bytes(b) as f32)
+                        .collect(),
+                )
+                .map_err(shape_error)?,
+            ),
+            Stored::I2 => Samples::Rf(
+                real(
+                    chunk::<2>(&bytes)
+                        .map(|b| f32::from(i16::from_le_bytes(b)))
+                        .collect(),
+                )
+                .map_err(shape_error)?,
+            ),
+            Stored::I4 => Samples::Rf(
+                real(
+                    chunk::<4>(&bytes)
+                        .map(|b| i32::from_le_bytes(b) as f32)
+                        .collect(),
+                )
+                .map_err(shape_error)?,
+            ),
+            Stored::C8 | Stored::C16 => {
+                let values: Vec<Complex32> = if self.stored == Stored::C8 {
+                    chunk::<8>(&bytes)
+                        .map(|b| {
+                            let (re, im) = b.split_at(4);
+                            Complex32::new(
+                                f32::from_le_bytes(re.try_into().expect("4 bytes")),
+                                f32::from_le_bytes(im.try_into().expect("4 bytes")),
+                            )
+                        })
+                        .collect()
+                } else {
+                    chunk::<16>(&bytes)
+                        .map(|b| {
+                            let (re, im) = b.split_at(8);
+                            Complex32::new(
+                                f64::from_le_bytes(re.try_into().expect("8 bytes")) as f32,
+                                f64::from_le_bytes(im.try_into().expect("8 bytes")) as f32,
+                            )
+                        })
+                        .collect()
+                };
+                Samples::Iq {
+                    data: complex(values).map_err(shape_error)?,
+                    demod_frequency: self.demod.unwrap_or(0.0),
+                }
+            }
+        };
+        Ok(ChannelData {
+            acquisition: self.acquisition.clone(),
+            samples,
+        })
+    }
+}
