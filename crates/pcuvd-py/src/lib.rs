@@ -415,18 +415,6 @@ struct DynamicsCall {
     dynamics: pcuvd_cli::options::DynamicsOptions,
 }
 
-/// The option names the dynamics stage accepts.
-#[pyfunction]
-fn dynamics_option_names() -> Vec<String> {
-    option_names::<DynamicsCall>()
-}
-
-/// The option names `process` accepts (long names, without dashes).
-#[pyfunction]
-fn process_option_names() -> Vec<String> {
-    option_names::<ProcessCall>()
-}
-
 /// What `pcuvd.process` returns: the maps, the summary, and `save` writing what the CLI writes.
 #[pyclass(frozen, name = "ProcessResult", module = "pcuvd._pcuvd")]
 struct PyProcessResult {
@@ -952,12 +940,6 @@ struct SimulateCall {
     options: pcuvd_cli::simulate::SimulationOptions,
 }
 
-/// The option names `simulate` accepts.
-#[pyfunction]
-fn simulate_option_names() -> Vec<String> {
-    option_names::<SimulateCall>()
-}
-
 /// Recordings by mode name, and the truth arrays by name.
 type Simulated<'py> = (Vec<(String, PyRecording)>, Bound<'py, PyDict>);
 
@@ -1020,12 +1002,6 @@ struct StudyCall {
     options: pcuvd_cli::paper::StudyOptions,
 }
 
-/// The option names the studies accept.
-#[pyfunction]
-fn study_option_names() -> Vec<String> {
-    option_names::<StudyCall>()
-}
-
 /// Runs one of the paper's studies ("spiral" or "network") with `pcuvd paper`'s options; returns
 /// its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
 #[pyfunction]
@@ -1052,6 +1028,19 @@ fn study(py: Python<'_>, which: &str, args: Vec<String>, quiet: bool) -> PyResul
     .map_err(to_py)
 }
 
+/// The long option names (aliases included) that `command` ("process", "dynamics", "simulate"
+/// or "study") accepts, for the Python half's keyword check.
+#[pyfunction]
+fn option_names_of(command: &str) -> PyResult<Vec<String>> {
+    match command {
+        "process" => Ok(option_names::<ProcessCall>()),
+        "dynamics" => Ok(option_names::<DynamicsCall>()),
+        "simulate" => Ok(option_names::<SimulateCall>()),
+        "study" => Ok(option_names::<StudyCall>()),
+        other => Err(PyValueError::new_err(format!("no command {other:?}"))),
+    }
+}
+
 /// The native module.
 #[pymodule]
 fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -1071,8 +1060,7 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(recording_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process, m)?)?;
-    m.add_function(wrap_pyfunction!(process_option_names, m)?)?;
-    m.add_function(wrap_pyfunction!(dynamics_option_names, m)?)?;
+    m.add_function(wrap_pyfunction!(option_names_of, m)?)?;
     m.add_function(wrap_pyfunction!(decode_hadamard_rf, m)?)?;
     m.add_function(wrap_pyfunction!(rf_to_iq, m)?)?;
     m.add_function(wrap_pyfunction!(beamform_iq, m)?)?;
@@ -1082,8 +1070,6 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(vector_fit, m)?)?;
     m.add_function(wrap_pyfunction!(resistivity_index, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
-    m.add_function(wrap_pyfunction!(simulate_option_names, m)?)?;
     m.add_function(wrap_pyfunction!(study, m)?)?;
-    m.add_function(wrap_pyfunction!(study_option_names, m)?)?;
     Ok(())
 }
