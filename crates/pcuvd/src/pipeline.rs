@@ -153,34 +153,26 @@ pub fn form_images_in_blocks(
     let ranges = blocks.ranges(frames);
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     for (b, (block, decoded)) in ranges.iter().enumerate() {
-        let clock = Instant::now();
-        progress(Stage::Decode, b, ranges.len());
-        let data = source.read_frames(decoded.clone())?;
-        let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
-        drop(data);
-        if decoded != block {
-            per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
-        }
-        decode_s += clock.elapsed().as_secs_f64();
-
-        let clock = Instant::now();
-        for (k, &angle) in angles.iter().enumerate() {
-            progress(Stage::Beamform, b * n + k, ranges.len() * n);
-            let channels = iq::demodulate(
-                &per_angle,
-                k,
-                acq.t0,
-                acq.sampling_frequency,
-                acq.probe.center_frequency,
-                params.iq_cutoff,
-            )?;
-            let image =
-                beamform::beamform(&channels, &acq.probe, angle, &params.grid, &params.das)?;
+        let formed = form_block(
+            source,
+            params,
+            block.clone(),
+            decoded.clone(),
+            &|stage, k| {
+                let (done, total) = match stage {
+                    Stage::Decode => (b, ranges.len()),
+                    _ => (b * n + k, ranges.len() * n),
+                };
+                progress(stage, done, total)
+            },
+        )?;
+        decode_s += formed.decode_s;
+        beamform_s += formed.beamform_s;
+        for (k, image) in formed.images.iter().enumerate() {
             series[k]
                 .slice_mut(ndarray::s![.., .., block.clone()])
-                .assign(&image);
+                .assign(image);
         }
-        beamform_s += clock.elapsed().as_secs_f64();
     }
     progress(Stage::Decode, ranges.len(), ranges.len());
     progress(Stage::Beamform, ranges.len() * n, ranges.len() * n);
@@ -197,6 +189,72 @@ pub fn form_images_in_blocks(
         images,
         vec![(Stage::Decode, decode_s), (Stage::Beamform, beamform_s)],
     ))
+}
+
+/// The images of one block of frames, per angle, and the seconds its decoding and its
+/// demodulation + beamforming took.
+pub struct BlockImages {
+    /// Per angle, the block's image series (nz, nx, block frames).
+    pub images: Vec<Array3<Complex32>>,
+    /// Seconds spent reading and decoding.
+    pub decode_s: f64,
+    /// Seconds spent demodulating and beamforming.
+    pub beamform_s: f64,
+}
+
+/// Forms the images of frames `block` of `source`, decoding frames `decoded` (which holds
+/// `block`, plus the margin the event alignment needs): one step of [`form_images_in_blocks`],
+/// for callers that combine blocks of several sources (echoes and noise, say) as they come.
+/// `progress(stage, k)` is called before decoding (k = 0) and before each angle k is beamformed.
+pub fn form_block(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    block: std::ops::Range<usize>,
+    decoded: std::ops::Range<usize>,
+    progress: &dyn Fn(Stage, usize),
+) -> Result<BlockImages> {
+    let acq = source.acquisition();
+    if !(decoded.start <= block.start && block.end <= decoded.end && block.start < block.end) {
+        return Err(invalid(
+            "frames",
+            format!("block {block:?} is not within the decoded frames {decoded:?}"),
+        ));
+    }
+    let clock = Instant::now();
+    progress(Stage::Decode, 0);
+    let data = source.read_frames(decoded.clone())?;
+    let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
+    drop(data);
+    if decoded != block {
+        per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
+    }
+    let decode_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let mut images = Vec::with_capacity(acq.sequence.n_angles());
+    for (k, &angle) in acq.sequence.angles.iter().enumerate() {
+        progress(Stage::Beamform, k);
+        let channels = iq::demodulate(
+            &per_angle,
+            k,
+            acq.t0,
+            acq.sampling_frequency,
+            acq.probe.center_frequency,
+            params.iq_cutoff,
+        )?;
+        images.push(beamform::beamform(
+            &channels,
+            &acq.probe,
+            angle,
+            &params.grid,
+            &params.das,
+        )?);
+    }
+    Ok(BlockImages {
+        images,
+        decode_s,
+        beamform_s: clock.elapsed().as_secs_f64(),
+    })
 }
 
 /// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
