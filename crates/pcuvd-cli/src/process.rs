@@ -197,6 +197,7 @@ impl Plan {
                     params.grid.step(),
                 )?,
                 vessel: dynamics.vessel_tests()?,
+                triggers: dynamics.triggers()?,
             })
         };
         Ok(Plan {
@@ -279,7 +280,12 @@ pub fn compute(
 pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
     Ok(match &plan.dynamics {
         None => DynamicsOutcome::Skipped("--dynamics off".into()),
-        Some(settings) => match pipeline::dynamics(out, &settings.params, &settings.vessel) {
+        Some(settings) => match pipeline::dynamics(
+            out,
+            &settings.params,
+            &settings.vessel,
+            settings.triggers.as_deref(),
+        ) {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),
                 maps: Box::new(maps),
@@ -419,6 +425,8 @@ pub struct DynamicsSettings {
     pub params: DynamicsParams,
     /// Whole-recording vessel tests (noise-floor margin, local peak).
     pub vessel: VesselTests,
+    /// Cardiac cycle start times (s from the first frame), when given.
+    pub triggers: Option<Vec<f64>>,
 }
 
 /// The summary.json of a `process` run (without the writing timings): every parameter used, the
@@ -477,6 +485,9 @@ fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
     json!({
         "heart_rate_hz": maps.heart_rate_hz,
         "heart_rate_given": dparams.heart_rate_hz.is_some(),
+        "cycles_from": maps.cycle_source.describe(),
+        "cycles_count": maps.cycles.len(),
+        "spread": "psv_spread.npy, edv_spread.npy, ri_spread.npy: standard deviation across the complete cycles of each cycle's PSV (m/s), EDV (m/s) and RI, each cycle's speed fitted on its own; NaN with one cycle",
         "window_frames": dparams.window,
         "step_frames": dparams.step,
         "window_s": series.window_s,
@@ -520,6 +531,9 @@ fn write_dynamics(
     npy(dir, "ri.npy", &maps.ri)?;
     npy(dir, "psv.npy", &maps.psv)?;
     npy(dir, "edv.npy", &maps.edv)?;
+    npy(dir, "psv_spread.npy", &maps.psv_spread)?;
+    npy(dir, "edv_spread.npy", &maps.edv_spread)?;
+    npy(dir, "ri_spread.npy", &maps.ri_spread)?;
     pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
     pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
     pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
@@ -530,8 +544,14 @@ fn write_dynamics(
     let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     println!(
-        "RI maps: heart rate {:.2} Hz, {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
+        "RI maps: heart rate {:.2} Hz ({}), {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
         maps.heart_rate_hz,
+        match maps.cycle_source {
+            dynamics::CycleSource::GivenRate => "given",
+            dynamics::CycleSource::Triggers => "from the cardiac triggers",
+            dynamics::CycleSource::Upstrokes => "measured: systolic upstrokes",
+            dynamics::CycleSource::Autocorrelation => "measured: autocorrelation",
+        },
         maps.cycles.len(),
         count(dynamics::ARTERIOLE),
         count(dynamics::VENULE),

@@ -5,12 +5,14 @@
 //! - [`must`]: MUST/PyMUST-style recordings (`RF` + `param`) as [`pcuvd::ChannelData`];
 //! - [`manifest`]: the "pcuvd-recording" TOML manifest + `.npy` samples, read and write;
 //! - [`frames`]: a manifest's samples read a block of frames at a time;
+//! - [`cardiac`]: cardiac cycle start times (ECG R-waves, triggers) recorded beside a recording;
 //! - [`npy`]: thin `.npy`/JSON writers for results.
 //!
 //! Every error is an [`IoError`] whose message names the file, the field and the problem.
 
 #![warn(missing_docs)]
 
+pub mod cardiac;
 pub mod error;
 pub mod frames;
 pub mod manifest;
@@ -18,6 +20,7 @@ pub mod mat;
 pub mod must;
 pub mod npy;
 
+pub use cardiac::read_trigger_times;
 pub use error::IoError;
 pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};

@@ -499,6 +499,9 @@ impl PyProcessResult {
             dict.set_item("ri", maps.ri.to_pyarray(py))?;
             dict.set_item("psv", maps.psv.to_pyarray(py))?;
             dict.set_item("edv", maps.edv.to_pyarray(py))?;
+            dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
+            dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
+            dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
             dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
             dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
             dict.set_item("speed_series", series.speed().into_pyarray(py))?;

@@ -349,12 +349,15 @@ pub fn analyse(
 
 /// The dynamics stage on a processed recording: vector velocity in sliding windows over the
 /// clutter-filtered series (`params`), the whole-recording vessel mask of `vessel` on its power
-/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels. `process`, the
-/// vessel-network study and the tests all run it through here.
+/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels, over the cardiac
+/// cycles that `triggers` (s from the first frame: ECG R-waves or scanner triggers) delimit when
+/// given, else found as [`dynamics::cardiac_cycles`] says. `process`, the vessel-network study and
+/// the tests all run it through here.
 pub fn dynamics(
     out: &ProcessOutput,
     params: &DynamicsParams,
     vessel: &VesselTests,
+    triggers: Option<&[f64]>,
 ) -> Result<(VelocitySeries, RiMaps)> {
     if out.filtered.n_angles() < 2 {
         return Err(invalid(
@@ -365,7 +368,7 @@ pub fn dynamics(
     params.validate(out.filtered.frame_rate)?;
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
     let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
-    let maps = dynamics::ri_maps_where(&series, params, Some(&flow))?;
+    let maps = dynamics::ri_maps_triggered(&series, params, Some(&flow), triggers)?;
     Ok((series, maps))
 }
 

@@ -396,7 +396,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         let process = process_params(&grid, &acquisition, (1, 1), settings.event_alignment);
         let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
-        let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests)?;
+        let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests, None)?;
         let spectrograms = sites
             .iter()
             .map(|p| dynamics::spectrogram(&out.filtered, p.pixel, &SpectrogramParams::rat()))
