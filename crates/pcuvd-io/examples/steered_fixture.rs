@@ -25,7 +25,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         bandwidth: 0.6,
     };
     let sequence = Sequence {
-        angles: [-10.0f64, 0.0, 10.0].iter().map(|a| a.to_radians()).collect(),
+        angles: [-10.0f64, 0.0, 10.0]
+            .iter()
+            .map(|a| a.to_radians())
+            .collect(),
         event_prf: 6000.0,
         coding: Coding::Conventional,
         pulse_cycles: 2.0,

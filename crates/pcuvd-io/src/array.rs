@@ -191,7 +191,10 @@ impl StoredArray {
     pub fn dtype_name(&self) -> String {
         match &self.backing {
             Backing::Hdf5 { imag: Some(_), .. } => {
-                format!("complex (real and imaginary {} datasets)", self.dtype.name())
+                format!(
+                    "complex (real and imaginary {} datasets)",
+                    self.dtype.name()
+                )
             }
             Backing::Values { imag: Some(_), .. } => "complex (MATLAB)".to_string(),
             _ => self.dtype.name().to_string(),
@@ -341,7 +344,12 @@ fn finish(counts: &[usize], re: Vec<f32>, im: Option<Vec<f32>>) -> Result<Block,
 
 /// Calls `f` with the linear storage index of every element of the selection, in C order of the
 /// selection.
-fn for_each_index(shape: &[usize], fortran: bool, ranges: &[Range<usize>], mut f: impl FnMut(usize)) {
+fn for_each_index(
+    shape: &[usize],
+    fortran: bool,
+    ranges: &[Range<usize>],
+    mut f: impl FnMut(usize),
+) {
     let nd = shape.len();
     // Stride of each axis in storage.
     let mut strides = vec![1usize; nd];

@@ -42,7 +42,9 @@ pub fn parse_data_file(manifest: &Path, file: &str) -> Result<DataSpec, IoError>
                 return Err(IoError::invalid(
                     manifest,
                     "[data].file",
-                    format!("is {file:?}: nothing follows the ':' (name the array inside the file)"),
+                    format!(
+                        "is {file:?}: nothing follows the ':' (name the array inside the file)"
+                    ),
                 ));
             }
             return Ok(DataSpec {
@@ -143,7 +145,11 @@ pub fn open_data_array(spec: &DataSpec) -> Result<StoredArray, IoError> {
                     format!("variable '{m}'"),
                     format!("must be a numeric array, found a {}", other.describe()),
                 )),
-                None => Err(IoError::missing(path, "the file", format!("variable '{m}'"))),
+                None => Err(IoError::missing(
+                    path,
+                    "the file",
+                    format!("variable '{m}'"),
+                )),
             }
         }
         _ => Err(IoError::malformed(

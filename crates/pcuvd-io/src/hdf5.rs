@@ -97,9 +97,11 @@ impl Hdf5 {
     /// The names of the members (groups and datasets) of group `group` ("/" for the root).
     pub fn members(&self, group: &str) -> Result<Vec<String>, IoError> {
         let g = self.group(group)?;
-        guard(&self.path, &format!("group {group} cannot be listed"), || {
-            g.link_names()
-        })
+        guard(
+            &self.path,
+            &format!("group {group} cannot be listed"),
+            || g.link_names(),
+        )
     }
 
     /// The group at `path` ("/" or "" for the root).
@@ -108,9 +110,11 @@ impl Hdf5 {
         if trimmed.is_empty() {
             return Ok(self.file.root_group());
         }
-        guard(&self.path, &format!("{path} is not a readable group"), || {
-            self.file.root_group().group(trimmed)
-        })
+        guard(
+            &self.path,
+            &format!("{path} is not a readable group"),
+            || self.file.root_group().group(trimmed),
+        )
     }
 
     /// True when a group exists at `path`.
@@ -138,9 +142,11 @@ impl Hdf5 {
 
     /// The dataset at `path`.
     pub fn dataset(&self, path: &str) -> Result<H5Dataset, IoError> {
-        guard(&self.path, &format!("{path} is not a readable dataset"), || {
-            self.file.dataset(path.trim_start_matches('/'))
-        })
+        guard(
+            &self.path,
+            &format!("{path} is not a readable dataset"),
+            || self.file.dataset(path.trim_start_matches('/')),
+        )
     }
 
     /// Shape and element kind of the dataset at `path`.
@@ -182,6 +188,29 @@ impl Hdf5 {
             ));
         }
         let dt = guard(&self.path, &format!("{path}: datatype"), || ds.datatype())?;
+        if shape.is_empty() {
+            // A scalar dataspace (h5py's scalars): read whole, hyperslabs need an extent.
+            let what = format!("{path}: read");
+            let v: Vec<f64> = match kind_of(&dt) {
+                H5Kind::Float { size: 8 } => guard(&self.path, &what, || ds.read_raw::<f64>())?,
+                H5Kind::Float { size: 4 } => guard(&self.path, &what, || ds.read_raw::<f32>())?
+                    .into_iter()
+                    .map(f64::from)
+                    .collect(),
+                H5Kind::Int { .. } => guard(&self.path, &what, || ds.read_numeric_as::<i64>())?
+                    .into_iter()
+                    .map(|v| v as f64)
+                    .collect(),
+                other => {
+                    return Err(IoError::invalid(
+                        &self.path,
+                        path,
+                        format!("holds {other:?}; expected a number"),
+                    ));
+                }
+            };
+            return Ok((shape, v));
+        }
         let all: Vec<usize> = vec![0; shape.len()];
         let values = read_slice_f64(&self.path, path, &ds, kind_of(&dt), &all, &shape)?;
         Ok((shape, values))
@@ -259,19 +288,37 @@ pub fn read_slice_f64(
         H5Kind::Int { size: 1, signed } => {
             let v = guard(file, &what, || ds.read_slice::<u8>(starts, counts))?;
             v.into_iter()
-                .map(|b| if signed { f64::from(b as i8) } else { f64::from(b) })
+                .map(|b| {
+                    if signed {
+                        f64::from(b as i8)
+                    } else {
+                        f64::from(b)
+                    }
+                })
                 .collect()
         }
         H5Kind::Int { size: 2, signed } => {
             let v = guard(file, &what, || ds.read_slice::<u16>(starts, counts))?;
             v.into_iter()
-                .map(|b| if signed { f64::from(b as i16) } else { f64::from(b) })
+                .map(|b| {
+                    if signed {
+                        f64::from(b as i16)
+                    } else {
+                        f64::from(b)
+                    }
+                })
                 .collect()
         }
         H5Kind::Int { size: 4, signed } => {
             let v = guard(file, &what, || ds.read_slice::<u32>(starts, counts))?;
             v.into_iter()
-                .map(|b| if signed { f64::from(b as i32) } else { f64::from(b) })
+                .map(|b| {
+                    if signed {
+                        f64::from(b as i32)
+                    } else {
+                        f64::from(b)
+                    }
+                })
                 .collect()
         }
         H5Kind::Int { size: 8, signed } => {
@@ -288,35 +335,4 @@ pub fn read_slice_f64(
             ));
         }
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn probe_fixtures() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/readers");
-        for (name, ds) in [
-            ("disk_v73.mat", "RF"),
-            ("disk.uff", "channel_data/data"),
-            ("disk_zea.hdf5", "tracks/track_0/data/raw_data"),
-            ("disk_verasonics.mat", "RcvData"),
-        ] {
-            let h = Hdf5::open(&dir.join(name)).unwrap();
-            println!("{name}: {:?}", h.members("/").unwrap());
-            println!("  {ds}: {:?}", h.describe(ds).unwrap());
-        }
-        let h = Hdf5::open(&dir.join("disk_zea.hdf5")).unwrap();
-        let ds = h.dataset("tracks/track_0/data/raw_data").unwrap();
-        let v = ds.read_slice::<i16>(&[2, 0, 0, 0, 0], &[1, 1, 3, 2, 1]).unwrap();
-        println!("zea {v:?}");
-        println!("{:?}", h.read_f64("tracks/track_0/scan/time_to_next_transmit"));
-        let h = Hdf5::open(&dir.join("disk_verasonics.mat")).unwrap();
-        println!("{:?}", h.references("RcvData"));
-        println!("{:?}", h.members("Receive"));
-        println!("{:?}", h.attr_string("Receive", "MATLAB_class"));
-        let r = h.references("Receive/startSample").unwrap();
-        println!("{:?} {:?}", r, h.read_f64(&r[1]));
-    }
 }

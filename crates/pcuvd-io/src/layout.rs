@@ -8,13 +8,26 @@ use crate::hdf5::Hdf5;
 
 /// (elements, pitch in m) of the element centres `x` (m), which must be evenly spaced along x
 /// (pcuvd's beamformer knows linear arrays); `field` names them in errors.
-pub fn linear_array(path: &Path, field: &str, x: &[f64], off_axis: &[f64]) -> Result<(usize, f64), IoError> {
+pub fn linear_array(
+    path: &Path,
+    field: &str,
+    x: &[f64],
+    off_axis: &[f64],
+) -> Result<(usize, f64), IoError> {
     let n = x.len();
     if n < 2 {
-        return Err(IoError::invalid(path, field, format!("holds {n} element(s); at least 2 are needed")));
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!("holds {n} element(s); at least 2 are needed"),
+        ));
     }
     if let Some(v) = x.iter().chain(off_axis).find(|v| !v.is_finite()) {
-        return Err(IoError::invalid(path, field, format!("holds a non-finite position ({v})")));
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!("holds a non-finite position ({v})"),
+        ));
     }
     let pitch = (x[n - 1] - x[0]) / (n - 1) as f64;
     if pitch <= 0.0 {
@@ -59,7 +72,9 @@ pub fn linear_array(path: &Path, field: &str, x: &[f64], off_axis: &[f64]) -> Re
 pub fn common_t0(path: &Path, field: &str, per_transmit: &[f64], fs: f64) -> Result<f64, IoError> {
     let (lo, hi) = per_transmit
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
     if per_transmit.is_empty() || !lo.is_finite() || !hi.is_finite() {
         return Err(IoError::invalid(path, field, "holds no finite time"));
     }
@@ -116,7 +131,11 @@ pub fn positive(path: &Path, name: &str, v: f64) -> Result<f64, IoError> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(IoError::invalid(path, name, format!("must be finite and > 0, got {v}")))
+        Err(IoError::invalid(
+            path,
+            name,
+            format!("must be finite and > 0, got {v}"),
+        ))
     }
 }
 

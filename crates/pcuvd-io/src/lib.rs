@@ -39,6 +39,6 @@ pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
 pub use must::read_must_mat;
+pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
 pub use open::{OpenedRecording, SourceInfo, StoredSamples, open_recording};
 pub use params::{Overrides, ParamSource, Parameter};
-pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};

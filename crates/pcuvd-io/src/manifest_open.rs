@@ -47,31 +47,50 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
     let never = || IoError::malformed(path, "unreachable");
     acq.sampling_frequency = r.number(
         "sampling_frequency_hz",
-        Some((acq.sampling_frequency, src("acquisition", "sampling_frequency_hz"))),
+        Some((
+            acq.sampling_frequency,
+            src("acquisition", "sampling_frequency_hz"),
+        )),
         None,
         never,
     )?;
     acq.probe.center_frequency = r.number(
         "center_frequency_hz",
-        Some((acq.probe.center_frequency, src("probe", "center_frequency_hz"))),
+        Some((
+            acq.probe.center_frequency,
+            src("probe", "center_frequency_hz"),
+        )),
         None,
         never,
     )?;
-    r.record("n_elements", json!(acq.probe.n_elements), src("probe", "n_elements"));
+    r.record(
+        "n_elements",
+        json!(acq.probe.n_elements),
+        src("probe", "n_elements"),
+    );
     r.record("pitch_m", json!(acq.probe.pitch), src("probe", "pitch_m"));
     r.record(
         "element_width_m",
         json!(acq.probe.element_width),
         src("probe", "element_width_m"),
     );
-    r.record("bandwidth", json!(acq.probe.bandwidth), src("probe", "bandwidth"));
+    r.record(
+        "bandwidth",
+        json!(acq.probe.bandwidth),
+        src("probe", "bandwidth"),
+    );
     acq.sound_speed = r.number(
         "sound_speed_m_s",
         Some((acq.sound_speed, src("acquisition", "sound_speed_m_s"))),
         None,
         never,
     )?;
-    acq.t0 = r.number("t0_s", Some((acq.t0, src("acquisition", "t0_s"))), None, never)?;
+    acq.t0 = r.number(
+        "t0_s",
+        Some((acq.t0, src("acquisition", "t0_s"))),
+        None,
+        never,
+    )?;
     acq.sequence.event_prf = r.number(
         "event_prf_hz",
         Some((acq.sequence.event_prf, src("acquisition", "event_prf_hz"))),
@@ -80,7 +99,10 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
     )?;
     acq.sequence.pulse_cycles = r.number(
         "pulse_cycles",
-        Some((acq.sequence.pulse_cycles, src("acquisition", "pulse_cycles"))),
+        Some((
+            acq.sequence.pulse_cycles,
+            src("acquisition", "pulse_cycles"),
+        )),
         None,
         never,
     )?;
@@ -102,7 +124,11 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         field("[acquisition].coding"),
     );
     if let pcuvd::Coding::Hadamard { slot_delay } = acq.sequence.coding {
-        r.record("slot_delay_s", json!(slot_delay), field("[acquisition].slot_delay_s"));
+        r.record(
+            "slot_delay_s",
+            json!(slot_delay),
+            field("[acquisition].slot_delay_s"),
+        );
     }
     let demod = match parsed.demod {
         Some(f) => Some(r.number(

@@ -103,7 +103,10 @@ fn read_at(h5: &Hdf5, path: &str, depth: usize) -> Result<MatValue, IoError> {
     let dims: Vec<usize> = shape.iter().rev().copied().collect();
     if h5.attr_string(path, "MATLAB_empty").is_some()
         || class.as_deref() == Some("canonical empty")
-        || matches!(h5.dataset(path).map(|d| d.attr("MATLAB_empty").is_ok()), Ok(true))
+        || matches!(
+            h5.dataset(path).map(|d| d.attr("MATLAB_empty").is_ok()),
+            Ok(true)
+        )
     {
         return Ok(MatValue::empty());
     }

@@ -275,7 +275,10 @@ pub fn open_v73(
     let params = MustParams::from_struct(path, &param)?;
     let (shape, kind) = h5.describe(variable)?;
     let dtype = match kind {
-        crate::hdf5::H5Kind::Int { size: 2, signed: true } => Dtype::I16,
+        crate::hdf5::H5Kind::Int {
+            size: 2,
+            signed: true,
+        } => Dtype::I16,
         crate::hdf5::H5Kind::Float { size: 4 } => Dtype::F32,
         crate::hdf5::H5Kind::Float { size: 8 } => Dtype::F64,
         crate::hdf5::H5Kind::Complex { size: 4 } => Dtype::C64,
@@ -402,8 +405,11 @@ fn build(
             .position(|&b| b == a)
             .map_or(0, |i| samples.array.shape[i])
     };
-    let (n_samples, n_elements, n_transmits) =
-        (size(Axis::Samples), size(Axis::Channels), size(Axis::Events));
+    let (n_samples, n_elements, n_transmits) = (
+        size(Axis::Samples),
+        size(Axis::Channels),
+        size(Axis::Events),
+    );
     if n_samples == 0 || n_elements == 0 || n_transmits == 0 {
         return Err(IoError::invalid(
             path,
@@ -415,11 +421,27 @@ fn build(
     let p = &params;
     let req = |name: &str| {
         let field = p.name(name);
-        move || IoError::missing(path, "variable 'param'", format!("field '{}'", field.trim_start_matches("param.")))
+        move || {
+            IoError::missing(
+                path,
+                "variable 'param'",
+                format!("field '{}'", field.trim_start_matches("param.")),
+            )
+        }
     };
-    let fs = r.number("sampling_frequency_hz", p.scalar(path, "fs")?, None, req("fs"))?;
+    let fs = r.number(
+        "sampling_frequency_hz",
+        p.scalar(path, "fs")?,
+        None,
+        req("fs"),
+    )?;
     let fs = positive(path, &p.name("fs"), fs)?;
-    let fc = r.number("center_frequency_hz", p.scalar(path, "fc")?, None, req("fc"))?;
+    let fc = r.number(
+        "center_frequency_hz",
+        p.scalar(path, "fc")?,
+        None,
+        req("fc"),
+    )?;
     let fc = positive(path, &p.name("fc"), fc)?;
     let pitch = positive(
         path,
@@ -429,7 +451,12 @@ fn build(
     let width = positive(
         path,
         &p.name("width"),
-        r.number("element_width_m", p.scalar(path, "width")?, None, req("width"))?,
+        r.number(
+            "element_width_m",
+            p.scalar(path, "width")?,
+            None,
+            req("width"),
+        )?,
     )?;
     let c = positive(
         path,
@@ -454,7 +481,9 @@ fn build(
             derived(format!("{} (%) / 100", p.name("bandwidth")))
         } else {
             ParamSource::Default {
-                note: format!("MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"),
+                note: format!(
+                    "MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"
+                ),
             }
         },
     );
@@ -464,7 +493,10 @@ fn build(
         r.number(
             "pulse_cycles",
             p.scalar(path, "TXnow")?,
-            Some((DEFAULT_PULSE_CYCLES, "MUST's default when param.TXnow is absent")),
+            Some((
+                DEFAULT_PULSE_CYCLES,
+                "MUST's default when param.TXnow is absent",
+            )),
             req("TXnow"),
         )?,
     )?;
@@ -580,7 +612,9 @@ fn build(
     let frames = ArrayFrames::new(path, acquisition, samples.array, samples.axes, demod)?;
     let mut warnings = Vec::new();
     if n_transmits % n != 0 {
-        warnings.push(format!("{n_transmits} transmits are not whole frames of {n}"));
+        warnings.push(format!(
+            "{n_transmits} transmits are not whole frames of {n}"
+        ));
     }
     let opened = OpenedRecording {
         source: Box::new(frames),
@@ -671,7 +705,9 @@ fn transmit_angles(
     let frame: Vec<f64> = (0..period).map(angle_of).collect();
     let (lo, hi) = offsets
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &d| (l.min(d), h.max(d)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &d| {
+            (l.min(d), h.max(d))
+        });
     if hi - lo > 0.01 / fs {
         return Err(fail(format!(
             "rows start at different times (earliest delays from {:.4} to {:.4} µs): pcuvd needs \
@@ -811,7 +847,7 @@ mod tests {
         assert_eq!(a.t0, 1e-6);
         assert_eq!(d.samples.dim(), (3, 4, 10));
         // RF(s, e, t) lands at [t, e, s].
-        if let Samples::Rf(x) = &d.samples {
+        if let pcuvd::Samples::Rf(x) = &d.samples {
             let s = 7;
             let e = 2;
             let t = 1;

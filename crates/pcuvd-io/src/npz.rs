@@ -164,7 +164,10 @@ pub fn open_npz_member(path: &Path, name: &str) -> Result<StoredArray, IoError> 
         if data.len() as u64 != bytes {
             return Err(IoError::malformed(
                 &label_path,
-                format!("holds {} data bytes, not the {bytes} its header announces", data.len()),
+                format!(
+                    "holds {} data bytes, not the {bytes} its header announces",
+                    data.len()
+                ),
             ));
         }
         Backing::Bytes {
@@ -189,7 +192,11 @@ pub fn read_npz_values(path: &Path, name: &str) -> Result<(Vec<usize>, Vec<f64>)
         return Err(IoError::invalid(
             path,
             name,
-            format!("must be a small real array, found shape {:?} of {}", array.shape, array.dtype.name()),
+            format!(
+                "must be a small real array, found shape {:?} of {}",
+                array.shape,
+                array.dtype.name()
+            ),
         ));
     }
     exact_f64(&array).map(|v| (array.shape.clone(), v))
@@ -210,7 +217,12 @@ fn exact_f64(array: &StoredArray) -> Result<Vec<f64>, IoError> {
                 .map_err(|e| IoError::io(path, "read", e))?;
             Arc::new(b)
         }
-        _ => return Err(IoError::malformed(Path::new(&array.label), "not a stored array")),
+        _ => {
+            return Err(IoError::malformed(
+                Path::new(&array.label),
+                "not a stored array",
+            ));
+        }
     };
     let little = matches!(
         array.backing,
@@ -224,7 +236,11 @@ fn exact_f64(array: &StoredArray) -> Result<Vec<f64>, IoError> {
         macro_rules! num {
             ($t:ty) => {{
                 let arr = b.try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
-                if little { <$t>::from_le_bytes(arr) } else { <$t>::from_be_bytes(arr) }
+                if little {
+                    <$t>::from_le_bytes(arr)
+                } else {
+                    <$t>::from_be_bytes(arr)
+                }
             }};
         }
         match array.dtype {

@@ -32,7 +32,13 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let mut r = Resolver::new(overrides);
     let req = |name: &str| {
         let n = f(name);
-        move || IoError::missing(path, "group /channel_data", format!("dataset '{}'", n.trim_start_matches("channel_data/")))
+        move || {
+            IoError::missing(
+                path,
+                "group /channel_data",
+                format!("dataset '{}'", n.trim_start_matches("channel_data/")),
+            )
+        }
     };
     let fs = r.number(
         "sampling_frequency_hz",
@@ -49,7 +55,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     )?;
     let c = positive(path, &f("sound_speed"), c)?;
     let modulation = scalar(h5, &f("modulation_frequency"))?.unwrap_or(0.0);
-    let prf_field = if h5.is_dataset(&f("PRF")) { f("PRF") } else { f("prf") };
+    let prf_field = if h5.is_dataset(&f("PRF")) {
+        f("PRF")
+    } else {
+        f("prf")
+    };
     let prf = r.number(
         "event_prf_hz",
         scalar(h5, &prf_field)?.map(|v| (v, field(prf_field.clone()))),
@@ -74,12 +84,26 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     };
-    let at = |row: usize, i: usize| if rows7 { g[row * n_el + i] } else { g[i * 7 + row] };
+    let at = |row: usize, i: usize| {
+        if rows7 {
+            g[row * n_el + i]
+        } else {
+            g[i * 7 + row]
+        }
+    };
     let x: Vec<f64> = (0..n_el).map(|i| at(0, i)).collect();
     let off: Vec<f64> = (0..n_el).flat_map(|i| [at(1, i), at(2, i)]).collect();
     let (n, pitch) = linear_array(path, &geometry, &x, &off)?;
-    r.record("n_elements", json!(n), derived(format!("{geometry} (its N columns)")));
-    r.record("pitch_m", json!(pitch), derived(format!("{geometry} (element x spacing)")));
+    r.record(
+        "n_elements",
+        json!(n),
+        derived(format!("{geometry} (its N columns)")),
+    );
+    r.record(
+        "pitch_m",
+        json!(pitch),
+        derived(format!("{geometry} (element x spacing)")),
+    );
     let (width, wsrc) = match scalar(h5, &f("probe/element_width"))? {
         Some(w) => (w, field(f("probe/element_width"))),
         None => (at(5, 0), derived(format!("{geometry} (row 6, width)"))),
@@ -107,7 +131,10 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let bandwidth = r.number(
         "bandwidth",
         scalar(h5, &bw_field)?.map(|v| (v, field(bw_field.clone()))),
-        Some((DEFAULT_BANDWIDTH, "pcuvd's when pulse/fractional_bandwidth is absent")),
+        Some((
+            DEFAULT_BANDWIDTH,
+            "pcuvd's when pulse/fractional_bandwidth is absent",
+        )),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, &bw_field, bandwidth)?;
@@ -123,7 +150,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             .into_iter()
             .filter(|m| m.starts_with("sequence_"))
             .collect();
-        names.sort_by_key(|m| m.trim_start_matches("sequence_").parse::<u64>().unwrap_or(u64::MAX));
+        names.sort_by_key(|m| {
+            m.trim_start_matches("sequence_")
+                .parse::<u64>()
+                .unwrap_or(u64::MAX)
+        });
         names.into_iter().map(|m| format!("{seq}/{m}")).collect()
     };
     if waves.is_empty() {
@@ -151,7 +182,9 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             return Err(IoError::invalid(
                 path,
                 format!("{w}/source/distance"),
-                format!("is {d} m: a finite source distance is a focused or diverging wave; pcuvd reads plane waves (distance = Inf)"),
+                format!(
+                    "is {d} m: a finite source distance is a focused or diverging wave; pcuvd reads plane waves (distance = Inf)"
+                ),
             ));
         }
         let delay = scalar(h5, &format!("{w}/delay"))?.unwrap_or(0.0);
@@ -162,7 +195,12 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     }
     let t0_found = if initial.is_some() {
         Some((
-            common_t0(path, &format!("{cd}/initial_time and the waves' delay"), &t0s, fs)?,
+            common_t0(
+                path,
+                &format!("{cd}/initial_time and the waves' delay"),
+                &t0s,
+                fs,
+            )?,
             derived(format!(
                 "{cd}/initial_time + sequence/*/delay + the time each wave takes from its first \
                  element to the origin (USTB's time zero)"
@@ -171,7 +209,9 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     } else {
         None
     };
-    let t0 = r.number("t0_s", t0_found, None, || missing_t0(path, &f("initial_time")))?;
+    let t0 = r.number("t0_s", t0_found, None, || {
+        missing_t0(path, &f("initial_time"))
+    })?;
     let angles = r.angles((angles, derived(format!("{seq}/sequence_*/source/azimuth"))));
     r.record(
         "coding",
@@ -183,7 +223,10 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
-        Some((crate::must::DEFAULT_PULSE_CYCLES, "UFF does not record the pulse length")),
+        Some((
+            crate::must::DEFAULT_PULSE_CYCLES,
+            "UFF does not record the pulse length",
+        )),
         || IoError::malformed(path, "unreachable"),
     )?;
     let array = crate::datafile::open_hdf5_array(path, &f("data"))?;
@@ -243,10 +286,12 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         sound_speed: c,
         t0,
     };
-    acquisition.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    acquisition
+        .validate()
+        .map_err(|source| IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let stored = StoredSamples {
         array: array.label.clone(),
         shape: array.shape.clone(),

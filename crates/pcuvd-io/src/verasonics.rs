@@ -93,8 +93,16 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let resource = read("Resource")?;
     let receive = read("Receive")?;
     let tx = read("TX")?;
-    let events = if h5.exists("Event") { Some(read("Event")?) } else { None };
-    let seq_control = if h5.exists("SeqControl") { Some(read("SeqControl")?) } else { None };
+    let events = if h5.exists("Event") {
+        Some(read("Event")?)
+    } else {
+        None
+    };
+    let seq_control = if h5.exists("SeqControl") {
+        Some(read("SeqControl")?)
+    } else {
+        None
+    };
 
     let c = need(
         struct_field(&resource, "Parameters")
@@ -153,11 +161,17 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let x: Vec<f64> = pos[..n_pos].iter().map(|v| v * scale).collect();
     let off: Vec<f64> = pos[n_pos..3 * n_pos].iter().map(|v| v * scale).collect();
     let (n_el, pitch) = linear_array(path, "Trans.ElementPos", &x, &off)?;
-    r.record("n_elements", json!(n_el), derived("Trans.ElementPos (its rows)"));
+    r.record(
+        "n_elements",
+        json!(n_el),
+        derived("Trans.ElementPos (its rows)"),
+    );
     r.record(
         "pitch_m",
         json!(pitch),
-        derived(format!("Trans.ElementPos (x spacing, in Trans.units = {units})")),
+        derived(format!(
+            "Trans.ElementPos (x spacing, in Trans.units = {units})"
+        )),
     );
     let width = match trans.field("elementWidth").and_then(MatValue::as_scalar) {
         Some(w) => {
@@ -172,7 +186,9 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             r.record(
                 "element_width_m",
                 json!(pitch),
-                ParamSource::Default { note: "Trans.elementWidth is absent: the pitch".into() },
+                ParamSource::Default {
+                    note: "Trans.elementWidth is absent: the pitch".into(),
+                },
             );
             pitch
         }
@@ -181,12 +197,20 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let band = numbers(trans.field("Bandwidth"));
     let bandwidth = r.number(
         "bandwidth",
-        (band.len() == 2).then(|| ((band[1] - band[0]) / f_mhz, derived("Trans.Bandwidth ([low high] MHz) / Trans.frequency"))),
+        (band.len() == 2).then(|| {
+            (
+                (band[1] - band[0]) / f_mhz,
+                derived("Trans.Bandwidth ([low high] MHz) / Trans.frequency"),
+            )
+        }),
         Some((crate::uff::DEFAULT_BANDWIDTH, "Trans.Bandwidth is absent")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, "Trans.Bandwidth", bandwidth)?;
-    let lens = trans.field("lensCorrection").and_then(MatValue::as_scalar).unwrap_or(0.0);
+    let lens = trans
+        .field("lensCorrection")
+        .and_then(MatValue::as_scalar)
+        .unwrap_or(0.0);
 
     // The acquisitions of frame 1 of buffer 1, in event order, and the transmit each fires.
     let receives = elements(&receive);
@@ -199,13 +223,18 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let mut order: Vec<(usize, usize, Vec<usize>)> = Vec::new(); // (receive, tx, seqControl)
     if let Some(ev) = &events {
         for e in elements(ev) {
-            let (Some(t), Some(rc)) = (number(e, "tx"), number(e, "rcv")) else { continue };
+            let (Some(t), Some(rc)) = (number(e, "tx"), number(e, "rcv")) else {
+                continue;
+            };
             if t < 1.0 || rc < 1.0 {
                 continue;
             }
             let (t, rc) = (t as usize - 1, rc as usize - 1);
             if in_frame_1(rc) && !order.iter().any(|(q, _, _)| *q == rc) {
-                let sc = numbers(e.get("seqControl")).iter().map(|v| *v as usize).collect();
+                let sc = numbers(e.get("seqControl"))
+                    .iter()
+                    .map(|v| *v as usize)
+                    .collect();
                 order.push((rc, t, sc));
             }
         }
@@ -216,7 +245,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         }
     }
     if order.is_empty() {
-        return Err(IoError::invalid(path, "Receive", "has no acquisition of frame 1 (framenum = 1)"));
+        return Err(IoError::invalid(
+            path,
+            "Receive",
+            "has no acquisition of frame 1 (framenum = 1)",
+        ));
     }
     let mut rows = Vec::with_capacity(order.len());
     let mut t0s = Vec::with_capacity(order.len());
@@ -230,7 +263,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         let start = need(number(m, "startSample"), &field_of("startSample"))?;
         let end = need(number(m, "endSample"), &field_of("endSample"))?;
         if !(start >= 1.0 && end >= start && end < 1e12) {
-            return Err(IoError::invalid(path, field_of("endSample"), format!("rows {start}..{end} are not a range of samples")));
+            return Err(IoError::invalid(
+                path,
+                field_of("endSample"),
+                format!("rows {start}..{end} are not a range of samples"),
+            ));
         }
         rows.push(start as usize - 1..end as usize);
         let rate = need(number(m, "decimSampleRate"), &field_of("decimSampleRate"))?;
@@ -242,13 +279,19 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             return Err(IoError::invalid(
                 path,
                 field_of("sampleMode"),
-                format!("is {mode}: interleaved I/Q sampling is not read yet (RF modes NS200BW and BS67BW are)"),
+                format!(
+                    "is {mode}: interleaved I/Q sampling is not read yet (RF modes NS200BW and BS67BW are)"
+                ),
             ));
         }
         let depth = need(number(m, "startDepth"), &field_of("startDepth"))?;
         t0s.push(2.0 * depth * wavelength / c - 2.0 * lens * wavelength / c);
         let txm = tx_list.get(*t).ok_or_else(|| {
-            IoError::invalid(path, format!("Event tx {}", t + 1), "names a TX that does not exist")
+            IoError::invalid(
+                path,
+                format!("Event tx {}", t + 1),
+                "names a TX that does not exist",
+            )
         })?;
         if number(txm, "focus").is_some_and(|f| f != 0.0) {
             return Err(IoError::invalid(
@@ -270,24 +313,37 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     }
     let fs = fs_all[0];
     if fs_all.iter().any(|&f| f != fs) {
-        return Err(IoError::invalid(path, "Receive.decimSampleRate", "differs between acquisitions"));
+        return Err(IoError::invalid(
+            path,
+            "Receive.decimSampleRate",
+            "differs between acquisitions",
+        ));
     }
     let fs = r.number(
         "sampling_frequency_hz",
-        Some((fs, derived("Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶"))),
+        Some((
+            fs,
+            derived("Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶"),
+        )),
         None,
         || IoError::malformed(path, "unreachable"),
     )?;
     let fs = positive(path, "Receive.decimSampleRate", fs)?;
     let n_samples = rows[0].len();
     if rows.iter().any(|r| r.len() != n_samples) {
-        return Err(IoError::invalid(path, "Receive.endSample", "acquisitions of different lengths are not supported"));
+        return Err(IoError::invalid(
+            path,
+            "Receive.endSample",
+            "acquisitions of different lengths are not supported",
+        ));
     }
     let t0 = r.number(
         "t0_s",
         Some((
             common_t0(path, "Receive.startDepth", &t0s, fs)?,
-            derived("2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency)"),
+            derived(
+                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency)",
+            ),
         )),
         None,
         || IoError::malformed(path, "unreachable"),
@@ -298,13 +354,19 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         .filter(|n| apf % n == 0)
         .find(|&n| (0..apf).all(|i| (angles_per_acq[i] - angles_per_acq[i % n]).abs() < 1e-9))
         .unwrap_or(apf);
-    let angles = r.angles((angles_per_acq[..period].to_vec(), derived("TX(Event.tx).Steer(1), in event order")));
+    let angles = r.angles((
+        angles_per_acq[..period].to_vec(),
+        derived("TX(Event.tx).Steer(1), in event order"),
+    ));
     let prf_found = if intervals.is_empty() {
         None
     } else {
         let mut s = intervals.clone();
         s.sort_by(f64::total_cmp);
-        Some((1.0 / s[s.len() / 2], derived("1 / SeqControl(Event.seqControl) timeToNextAcq (µs)")))
+        Some((
+            1.0 / s[s.len() / 2],
+            derived("1 / SeqControl(Event.seqControl) timeToNextAcq (µs)"),
+        ))
     };
     let prf = r.number("event_prf_hz", prf_found, None, || {
         missing_prf(path, "SeqControl timeToNextAcq")
@@ -322,20 +384,42 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         Some((crate::must::DEFAULT_PULSE_CYCLES, "TW.Parameters is absent")),
         || IoError::malformed(path, "unreachable"),
     )?;
-    r.record("coding", json!("none"), ParamSource::Default { note: "one transmit per Verasonics event".into() });
+    r.record(
+        "coding",
+        json!("none"),
+        ParamSource::Default {
+            note: "one transmit per Verasonics event".into(),
+        },
+    );
 
     // The receive buffer.
     let buffers = h5.references("RcvData")?;
-    let dataset = buffers.first().cloned().ok_or_else(|| IoError::invalid(path, "RcvData", "is an empty cell"))?;
+    let dataset = buffers
+        .first()
+        .cloned()
+        .ok_or_else(|| IoError::invalid(path, "RcvData", "is an empty cell"))?;
     let (shape, kind) = h5.describe(&dataset)?;
-    if kind != (crate::hdf5::H5Kind::Int { size: 2, signed: true }) {
-        return Err(IoError::invalid(path, "RcvData{1}", format!("holds {kind:?}; expected int16")));
+    if kind
+        != (crate::hdf5::H5Kind::Int {
+            size: 2,
+            signed: true,
+        })
+    {
+        return Err(IoError::invalid(
+            path,
+            "RcvData{1}",
+            format!("holds {kind:?}; expected int16"),
+        ));
     }
     let (n_buffer_frames, channels, buffer_rows, has_frame_axis) = match shape.as_slice() {
         [f, ch, rw] => (*f, *ch, *rw, true),
         [ch, rw] => (1, *ch, *rw, false),
         other => {
-            return Err(IoError::invalid(path, "RcvData{1}", format!("has HDF5 shape {other:?}; expected (frames, channels, rows)")));
+            return Err(IoError::invalid(
+                path,
+                "RcvData{1}",
+                format!("has HDF5 shape {other:?}; expected (frames, channels, rows)"),
+            ));
         }
     };
     if channels != n_el {
@@ -346,9 +430,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         ));
     }
     if rows.iter().any(|r| r.end > buffer_rows) {
-        return Err(IoError::invalid(path, "Receive.endSample", format!("reaches past the buffer's {buffer_rows} rows")));
+        return Err(IoError::invalid(
+            path,
+            "Receive.endSample",
+            format!("reaches past the buffer's {buffer_rows} rows"),
+        ));
     }
-    let rcv_buffer = struct_field(&resource, "RcvBuffer").map(elements).unwrap_or_default();
+    let rcv_buffer = struct_field(&resource, "RcvBuffer")
+        .map(elements)
+        .unwrap_or_default();
     let num_frames = rcv_buffer.first().and_then(|m| number(m, "numFrames"));
     if let Some(nf) = num_frames
         && nf as usize != n_buffer_frames
@@ -356,9 +446,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         warnings.push(format!("Resource.RcvBuffer.numFrames is {nf} but RcvData{{1}} holds {n_buffer_frames} frames; the data's count is used"));
     }
     let first_slot = match rcv_buffer.first().and_then(|m| number(m, "lastFrame")) {
-        Some(last) if last >= 1.0 && (last as usize) <= n_buffer_frames => last as usize % n_buffer_frames,
+        Some(last) if last >= 1.0 && (last as usize) <= n_buffer_frames => {
+            last as usize % n_buffer_frames
+        }
         Some(last) => {
-            return Err(IoError::invalid(path, "Resource.RcvBuffer.lastFrame", format!("is {last}, outside 1..{n_buffer_frames}")));
+            return Err(IoError::invalid(
+                path,
+                "Resource.RcvBuffer.lastFrame",
+                format!("is {last}, outside 1..{n_buffer_frames}"),
+            ));
         }
         None => {
             warnings.push("Resource.RcvBuffer.lastFrame is absent: the buffer's frames are taken in stored order".into());
@@ -367,23 +463,45 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     };
     let acquisition = Acquisition {
         probe: pcuvd::Probe {
-            name: trans.field("name").and_then(MatValue::as_str).unwrap_or("Verasonics").to_string(),
+            name: trans
+                .field("name")
+                .and_then(MatValue::as_str)
+                .unwrap_or("Verasonics")
+                .to_string(),
             n_elements: n_el,
             pitch,
             element_width: width,
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence { angles, event_prf: prf, coding: pcuvd::Coding::Conventional, pulse_cycles },
+        sequence: pcuvd::Sequence {
+            angles,
+            event_prf: prf,
+            coding: pcuvd::Coding::Conventional,
+            pulse_cycles,
+        },
         sampling_frequency: fs,
         sound_speed: c,
         t0,
     };
-    acquisition.validate().map_err(|source| IoError::Recording { path: path.to_path_buf(), source })?;
+    acquisition
+        .validate()
+        .map_err(|source| IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let stored = StoredSamples {
         array: format!("{}:RcvData{{1}} ({dataset})", path.display()),
         shape: shape.clone(),
-        axes: if has_frame_axis { vec!["buffer frames".into(), "channels".into(), "rows (acquisitions × samples)".into()] } else { vec!["channels".into(), "rows (acquisitions × samples)".into()] },
+        axes: if has_frame_axis {
+            vec![
+                "buffer frames".into(),
+                "channels".into(),
+                "rows (acquisitions × samples)".into(),
+            ]
+        } else {
+            vec!["channels".into(), "rows (acquisitions × samples)".into()]
+        },
         dtype: "int16".into(),
         kind: "rf".into(),
     };
@@ -427,7 +545,10 @@ impl FrameSource for VerasonicsFrames {
         let n = self.acquisition.sequence.n_angles();
         let total = FrameSource::n_frames(self);
         if frames.start >= frames.end || frames.end > total {
-            return Err(pcuvd::error::invalid("frames", format!("block {frames:?} is not within the recording's {total} frames")));
+            return Err(pcuvd::error::invalid(
+                "frames",
+                format!("block {frames:?} is not within the recording's {total} frames"),
+            ));
         }
         let apf = self.rows.len();
         let events = frames.start * n..frames.end * n;
@@ -447,7 +568,10 @@ impl FrameSource for VerasonicsFrames {
             } else {
                 (vec![0, lo], vec![self.channels, hi - lo])
             };
-            let buf: Vec<i16> = crate::hdf5::guard(&self.path, "RcvData: read", || ds.read_slice::<i16>(&starts, &counts)).map_err(err)?;
+            let buf: Vec<i16> = crate::hdf5::guard(&self.path, "RcvData: read", || {
+                ds.read_slice::<i16>(&starts, &counts)
+            })
+            .map_err(err)?;
             let width = hi - lo;
             for (acq, rows) in self.rows.iter().enumerate() {
                 let e = vframe * apf + acq;
@@ -462,6 +586,9 @@ impl FrameSource for VerasonicsFrames {
                 }
             }
         }
-        Ok(ChannelData { acquisition: self.acquisition.clone(), samples: Samples::Rf(out) })
+        Ok(ChannelData {
+            acquisition: self.acquisition.clone(),
+            samples: Samples::Rf(out),
+        })
     }
 }

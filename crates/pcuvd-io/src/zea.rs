@@ -27,7 +27,10 @@ use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_pr
 
 /// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
 /// recording of `n_tx` transmits per frame: n_tx over the median frame period.
-pub fn event_prf_from_intervals(intervals: &[f64], n_tx: usize) -> Result<(f64, Option<String>), String> {
+pub fn event_prf_from_intervals(
+    intervals: &[f64],
+    n_tx: usize,
+) -> Result<(f64, Option<String>), String> {
     if n_tx == 0 || intervals.len() < n_tx.max(1) {
         return Err(format!(
             "holds {} intervals: fewer than one frame of {n_tx} transmits",
@@ -35,7 +38,9 @@ pub fn event_prf_from_intervals(intervals: &[f64], n_tx: usize) -> Result<(f64, 
         ));
     }
     if let Some(v) = intervals.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
-        return Err(format!("holds an interval of {v} s (must be finite and > 0)"));
+        return Err(format!(
+            "holds an interval of {v} s (must be finite and > 0)"
+        ));
     }
     // Frame k starts at the sum of the intervals before transmit k·n_tx.
     let mut periods: Vec<f64> = intervals
@@ -81,7 +86,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             .collect();
         tracks.sort();
         let first = tracks.first().cloned().ok_or_else(|| {
-            IoError::missing(path, "the zea file", "raw channel data (data/raw_data in /tracks/track_N)")
+            IoError::missing(
+                path,
+                "the zea file",
+                "raw channel data (data/raw_data in /tracks/track_N)",
+            )
         })?;
         if tracks.len() > 1 {
             warnings.push(format!(
@@ -99,7 +108,10 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         return Err(IoError::invalid(
             path,
             &raw,
-            format!("has shape {:?}; expected (n_frames, n_tx, n_ax, n_el, n_ch)", array.shape),
+            format!(
+                "has shape {:?}; expected (n_frames, n_tx, n_ax, n_el, n_ch)",
+                array.shape
+            ),
         ));
     };
     let iq = match n_ch {
@@ -151,10 +163,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     )?;
     let c = positive(path, &scan("sound_speed"), c)?;
     let t0_found = match per_transmit(h5, &scan("initial_times"), n_tx)? {
-        Some(v) => Some((common_t0(path, &scan("initial_times"), &v, fs)?, field(scan("initial_times")))),
+        Some(v) => Some((
+            common_t0(path, &scan("initial_times"), &v, fs)?,
+            field(scan("initial_times")),
+        )),
         None => None,
     };
-    let t0 = r.number("t0_s", t0_found, None, || missing_t0(path, &scan("initial_times")))?;
+    let t0 = r.number("t0_s", t0_found, None, || {
+        missing_t0(path, &scan("initial_times"))
+    })?;
 
     // Probe.
     let geometry = "probe/probe_geometry";
@@ -171,8 +188,16 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let x: Vec<f64> = g.chunks_exact(3).map(|p| p[0]).collect();
     let off: Vec<f64> = g.chunks_exact(3).flat_map(|p| [p[1], p[2]]).collect();
     let (n, pitch) = linear_array(path, geometry, &x, &off)?;
-    r.record("n_elements", json!(n), derived(format!("{geometry} (its rows)")));
-    r.record("pitch_m", json!(pitch), derived(format!("{geometry} (element x spacing)")));
+    r.record(
+        "n_elements",
+        json!(n),
+        derived(format!("{geometry} (its rows)")),
+    );
+    r.record(
+        "pitch_m",
+        json!(pitch),
+        derived(format!("{geometry} (element x spacing)")),
+    );
     let width = scalar(h5, "probe/element_width")?;
     let width = match width {
         Some(w) => {
@@ -183,7 +208,9 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             r.record(
                 "element_width_m",
                 json!(pitch),
-                ParamSource::Default { note: "probe/element_width is absent: the pitch".into() },
+                ParamSource::Default {
+                    note: "probe/element_width is absent: the pitch".into(),
+                },
             );
             pitch
         }
@@ -192,7 +219,10 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         "bandwidth",
         scalar(h5, "probe/probe_bandwidth_percent")?
             .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
-        Some((crate::uff::DEFAULT_BANDWIDTH, "probe/probe_bandwidth_percent is absent")),
+        Some((
+            crate::uff::DEFAULT_BANDWIDTH,
+            "probe/probe_bandwidth_percent is absent",
+        )),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, "probe/probe_bandwidth_percent", bandwidth)?;
@@ -201,10 +231,13 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let angles = match per_transmit(h5, &scan("polar_angles"), n_tx)? {
         Some(a) => {
             if let Some(d) = per_transmit_rows(h5, &scan("t0_delays"), n_tx, n)? {
-                let xs: Vec<f64> = (0..n).map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch).collect();
+                let xs: Vec<f64> = (0..n)
+                    .map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch)
+                    .collect();
                 for (k, row) in d.chunks_exact(n).enumerate() {
-                    let fitted = crate::must::plane_wave_angle(row, &xs, c)
-                        .map_err(|e| IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e))?;
+                    let fitted = crate::must::plane_wave_angle(row, &xs, c).map_err(|e| {
+                        IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e)
+                    })?;
                     if (fitted - a[k]).abs() > 0.05f64.to_radians() {
                         warnings.push(format!(
                             "transmit {}: {} says {:.3}° but its t0_delays steer {:.3}°; pcuvd \
@@ -221,9 +254,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         }
         None => {
             let d = per_transmit_rows(h5, &scan("t0_delays"), n_tx, n)?.ok_or_else(|| {
-                IoError::missing(path, "the zea scan group", format!("dataset '{}' (or t0_delays)", scan("polar_angles")))
+                IoError::missing(
+                    path,
+                    "the zea scan group",
+                    format!("dataset '{}' (or t0_delays)", scan("polar_angles")),
+                )
             })?;
-            let xs: Vec<f64> = (0..n).map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch).collect();
+            let xs: Vec<f64> = (0..n)
+                .map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch)
+                .collect();
             let a = d
                 .chunks_exact(n)
                 .enumerate()
@@ -233,15 +272,21 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                     })
                 })
                 .collect::<Result<Vec<_>, _>>()?;
-            (a, derived(format!("{} (plane-wave fit of each row)", scan("t0_delays"))))
+            (
+                a,
+                derived(format!(
+                    "{} (plane-wave fit of each row)",
+                    scan("t0_delays")
+                )),
+            )
         }
     };
     let angles = r.angles(angles);
     let ttnt = scan("time_to_next_transmit");
     let prf_found = if h5.is_dataset(&ttnt) {
         let (_, intervals) = h5.read_f64(&ttnt)?;
-        let (prf, warning) =
-            event_prf_from_intervals(&intervals, n_tx).map_err(|e| IoError::invalid(path, &ttnt, e))?;
+        let (prf, warning) = event_prf_from_intervals(&intervals, n_tx)
+            .map_err(|e| IoError::invalid(path, &ttnt, e))?;
         warnings.extend(warning);
         Some((
             prf,
@@ -258,12 +303,17 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     r.record(
         "coding",
         json!("none"),
-        ParamSource::Default { note: "zea describes one transmit per event".into() },
+        ParamSource::Default {
+            note: "zea describes one transmit per event".into(),
+        },
     );
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
-        Some((crate::must::DEFAULT_PULSE_CYCLES, "zea does not record the pulse length")),
+        Some((
+            crate::must::DEFAULT_PULSE_CYCLES,
+            "zea does not record the pulse length",
+        )),
         || IoError::malformed(path, "unreachable"),
     )?;
     let demod = if iq {
@@ -306,10 +356,12 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         sound_speed: c,
         t0,
     };
-    acquisition.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    acquisition
+        .validate()
+        .map_err(|source| IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        })?;
     warnings.push(
         "zea's colour Doppler is positive toward the transducer; pcuvd's color_doppler is \
          positive away from it"
@@ -318,10 +370,16 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let stored = StoredSamples {
         array: array.label.clone(),
         shape: array.shape.clone(),
-        axes: vec!["frames", "angles", "samples", "channels", if iq { "re_im" } else { "unit" }]
-            .into_iter()
-            .map(String::from)
-            .collect(),
+        axes: vec![
+            "frames",
+            "angles",
+            "samples",
+            "channels",
+            if iq { "re_im" } else { "unit" },
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect(),
         dtype: array.dtype_name(),
         kind: if iq { "iq" } else { "rf" }.into(),
     };
@@ -340,7 +398,12 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
 }
 
 /// A (n_tx, n_el) dataset as rows of `n_el`, or `None` when absent.
-fn per_transmit_rows(h5: &Hdf5, path: &str, n_tx: usize, n_el: usize) -> Result<Option<Vec<f64>>, IoError> {
+fn per_transmit_rows(
+    h5: &Hdf5,
+    path: &str,
+    n_tx: usize,
+    n_el: usize,
+) -> Result<Option<Vec<f64>>, IoError> {
     if !h5.is_dataset(path) {
         return Ok(None);
     }
@@ -367,7 +430,9 @@ mod tests {
         assert!((prf - 10_000.0).abs() < 1e-6 && w.is_none());
         // The same transmits with a 700 µs pause after each frame: frames every 900 µs, so each
         // angle is sampled at 1.11 kHz, i.e. pcuvd's event PRF 3/900 µs, with a warning.
-        let paused: Vec<f64> = (0..12).map(|i| if i % 3 == 2 { 700e-6 } else { 100e-6 }).collect();
+        let paused: Vec<f64> = (0..12)
+            .map(|i| if i % 3 == 2 { 700e-6 } else { 100e-6 })
+            .collect();
         let (prf, w) = event_prf_from_intervals(&paused, 3).unwrap();
         assert!((prf - 3.0 / 900e-6).abs() < 1e-6, "{prf}");
         assert!(w.unwrap().contains("100.0 µs apart"));
