@@ -198,7 +198,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     );
     println!("  parameters   (value: where it came from)");
     for p in &info.parameters {
-        println!("    {:<22} {}: {}", p.name, p.value, p.source);
+        println!("    {:<24} {}: {}", p.name, p.value, p.source);
     }
     for w in &warnings {
         println!("  warning: {w}");

@@ -167,9 +167,13 @@ pub fn read_head(path: &Path, n: usize) -> Result<Vec<u8>, IoError> {
     use std::io::Read;
     let meta = std::fs::metadata(path).map_err(|e| IoError::io(path, "read", e))?;
     if meta.is_dir() {
-        return Err(IoError::malformed(
+        return Err(IoError::io(
             path,
-            "is a folder, not a recording file (give the recording file or its manifest .toml)",
+            "read",
+            std::io::Error::new(
+                std::io::ErrorKind::IsADirectory,
+                "it is a folder, not a recording file (give the recording file or its manifest .toml)",
+            ),
         ));
     }
     #[cfg(unix)]
