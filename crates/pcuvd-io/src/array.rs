@@ -471,6 +471,34 @@ fn read_hdf5(
     }
 }
 
+/// The most one compound frame may hold (bytes as complex64): a header announcing more is taken
+/// as corrupt rather than allocated (a real frame holds megabytes).
+pub const MAX_FRAME_BYTES: u64 = 4 << 30;
+
+/// Refuses a compound frame of `events` × `channels` × `samples` beyond [`MAX_FRAME_BYTES`].
+pub fn check_frame_size(
+    file: &Path,
+    events: usize,
+    channels: usize,
+    samples: usize,
+) -> Result<(), IoError> {
+    let bytes = (events as u128) * (channels as u128) * (samples as u128) * 8;
+    if bytes > u128::from(MAX_FRAME_BYTES) {
+        return Err(IoError::invalid(
+            file,
+            "the samples",
+            format!(
+                "announce compound frames of {events} events × {channels} channels × {samples} \
+                 samples ({:.1} GB each as complex64): more than {} GB per frame, taken as a \
+                 corrupt header",
+                bytes as f64 / 1e9,
+                MAX_FRAME_BYTES >> 30
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// What one axis of a stored array is, in pcuvd's terms.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Axis {
@@ -628,6 +656,7 @@ impl ArrayFrames {
                 "each trace needs at least 2 samples, got {samples}"
             )));
         }
+        check_frame_size(file, n, channels, samples)?;
         Ok(ArrayFrames {
             acquisition,
             array,

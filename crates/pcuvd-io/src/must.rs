@@ -676,7 +676,7 @@ fn transmit_angles(
             )));
         }
     };
-    if n_transmits % rows.len() != 0 {
+    if !n_transmits.is_multiple_of(rows.len()) {
         return Err(fail(format!(
             "has {} rows (delay laws) but the recording has {n_transmits} transmits: give one \
              row per transmit, or one per angle when the transmits cycle through them",
@@ -699,7 +699,7 @@ fn transmit_angles(
     let angle_of = |i: usize| angles[i % angles.len()];
     // The compound frame: the shortest period the transmits' angles repeat with.
     let period = (1..=n_transmits)
-        .filter(|n| n_transmits % n == 0)
+        .filter(|n| n_transmits.is_multiple_of(*n))
         .find(|&n| (0..n_transmits).all(|i| (angle_of(i) - angle_of(i % n)).abs() < 1e-6))
         .unwrap_or(n_transmits);
     let frame: Vec<f64> = (0..period).map(angle_of).collect();

@@ -429,6 +429,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             format!("has {channels} channels but Trans.ElementPos {n_el} elements"),
         ));
     }
+    crate::array::check_frame_size(path, rows.len(), channels, n_samples)?;
     if rows.iter().any(|r| r.end > buffer_rows) {
         return Err(IoError::invalid(
             path,

@@ -336,9 +336,10 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let acquisition = pcuvd::Acquisition {
         probe: pcuvd::Probe {
             name: h5
-                .read_f64("probe/name")
+                .dataset("probe/name")
                 .ok()
-                .map(|_| "zea probe".to_string())
+                .and_then(|d| crate::hdf5::guard(path, "probe/name", || d.read_strings()).ok())
+                .and_then(|v| v.into_iter().next())
                 .unwrap_or_else(|| "zea probe".into()),
             n_elements: n,
             pitch,
