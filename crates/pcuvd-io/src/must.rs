@@ -889,6 +889,81 @@ mod tests {
     }
 
     #[test]
+    fn steered_transmits_cycle_through_the_angles_of_a_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 8;
+        let x = Probe {
+            name: String::new(),
+            n_elements: n,
+            pitch: 3e-4,
+            element_width: 2.5e-4,
+            center_frequency: 5e6,
+            bandwidth: 0.7,
+        }
+        .element_x();
+        let c = 1500.0;
+        // MUST's txdelay: x·sin θ / c shifted so that the first element fires at 0.
+        let law = |deg: f64| -> Vec<f64> {
+            let d: Vec<f64> = x.iter().map(|xi| xi * deg.to_radians().sin() / c).collect();
+            let min = d.iter().copied().fold(f64::INFINITY, f64::min);
+            d.iter().map(|v| v - min).collect()
+        };
+        let matrix = |rows: &[Vec<f64>]| {
+            // MATLAB rows × elements, column-major.
+            let r = rows.len();
+            let mut v = vec![0.0; r * n];
+            for (i, row) in rows.iter().enumerate() {
+                for (j, d) in row.iter().enumerate() {
+                    v[i + r * j] = *d;
+                }
+            }
+            MatValue::double(vec![r, n], v).unwrap()
+        };
+        let angles = [-5.0, 0.0, 5.0];
+        // One row per angle, 6 transmits: two frames of three angles.
+        let mut p = param(n);
+        p.insert("c".into(), MatValue::scalar(c));
+        p.insert("TXdelay".into(), matrix(&angles.map(law)));
+        let d = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p)).unwrap();
+        let got: Vec<f64> = d
+            .acquisition
+            .sequence
+            .angles
+            .iter()
+            .map(|a| a.to_degrees())
+            .collect();
+        assert_eq!(got.len(), 3);
+        for (g, w) in got.iter().zip(angles) {
+            assert!((g - w).abs() < 1e-9, "{got:?}");
+        }
+        assert_eq!(d.n_frames(), 2);
+        // One row per transmit, the same cycle: the same frame.
+        let rows: Vec<Vec<f64>> = (0..6).map(|i| law(angles[i % 3])).collect();
+        p.insert("TXdelay".into(), matrix(&rows));
+        let e = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p)).unwrap();
+        assert_eq!(e.acquisition.sequence.angles, d.acquisition.sequence.angles);
+        // Transmits that do not cycle through distinct angles are refused.
+        let rows: Vec<Vec<f64>> = [0.0, 0.0, 5.0, 5.0, 0.0, 0.0].map(law).to_vec();
+        p.insert("TXdelay".into(), matrix(&rows));
+        let err = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("same steering angle"), "{err}");
+        // Rows that do not divide the transmits are refused with the counts.
+        p.insert(
+            "TXdelay".into(),
+            matrix(&[law(0.0), law(5.0), law(-5.0), law(1.0)]),
+        );
+        let err = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("has 4 rows") && err.contains("6 transmits"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn errors_name_file_field_and_problem() {
         let dir = tempfile::tempdir().unwrap();
         let check = |rf: &MatValue, p: &BTreeMap<String, MatValue>, want: &str| {
