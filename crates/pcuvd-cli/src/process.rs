@@ -113,8 +113,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let read_s = clock.elapsed().as_secs_f64();
     let mut plan = Plan::new(&args.options, &args.dynamics, data)?;
     // Overrides change the results: a re-run with others is not the same run.
-    plan.options_text
-        .push_str(&format!(" {:?}", args.acquisition));
+    if !args.acquisition.to_overrides().is_empty() {
+        plan.options_text
+            .push_str(&format!(" {:?}", args.acquisition));
+    }
     check_memory(data, &plan.params, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
     let source = provenance(
