@@ -190,9 +190,18 @@ fn unreadable_manifest_and_missing_file() {
     .unwrap();
     expect_error(&wrong_version, &[], &["v9.toml", "version"]);
     expect_error(&dir.path().join("absent.mat"), &[], &["absent.mat"]);
+    // A file of no format pcuvd reads: what it looks like, and the formats pcuvd reads.
+    let csv = dir.path().join("data.csv");
+    std::fs::write(&csv, "x,y\n1,2\n").unwrap();
     expect_error(
-        &dir.path().join("data.csv"),
+        &csv,
         &[],
-        &["data.csv", ".mat", ".toml"],
+        &[
+            "data.csv",
+            "not a recording pcuvd recognises",
+            "text",
+            "USTB UFF",
+            ".toml",
+        ],
     );
 }

@@ -12,7 +12,7 @@ use pcuvd::{Acquisition, ChannelData, Coding, Probe, Samples, Sequence};
 use serde::Deserialize;
 
 use crate::error::IoError;
-use crate::npy::{NpyArray, read_npy, write_npy};
+use crate::npy::{NpyArray, write_npy};
 
 /// The value of the manifest's `format` key.
 pub const FORMAT: &str = "pcuvd-recording";
@@ -112,11 +112,15 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         acquisition,
         provenance,
         data_path,
+        data_member,
         axes,
         perm,
         demod,
     } = parsed;
-    let array = read_npy(&data_path)?;
+    let array = crate::datafile::read_whole(&crate::datafile::DataSpec {
+        path: data_path.clone(),
+        member: data_member,
+    })?;
     let shape = array.shape().to_vec();
     let (events, channels, samples) =
         event_shape(path, &acquisition, &data_path, &axes, &perm, &shape)?;
@@ -180,6 +184,8 @@ pub(crate) struct Parsed {
     pub(crate) acquisition: Acquisition,
     pub(crate) provenance: toml::Table,
     pub(crate) data_path: PathBuf,
+    /// The array inside the samples file (`"rec.npz:RF"`, `"rec.h5:/dataset"`), if named.
+    pub(crate) data_member: Option<String>,
     pub(crate) axes: Vec<String>,
     /// For each canonical axis, its index among the named axes.
     pub(crate) perm: Vec<usize>,
@@ -338,18 +344,12 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
         }
     };
     let perm = axis_permutation(&axes).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
-    let data_path = path.parent().unwrap_or_else(|| Path::new("")).join(&file);
-    if !data_path.is_file() {
-        return Err(IoError::invalid(
-            path,
-            "[data].file",
-            format!("names {}, which does not exist", data_path.display()),
-        ));
-    }
+    let data = crate::datafile::parse_data_file(path, &file)?;
     Ok(Parsed {
         acquisition,
         provenance: m.provenance,
-        data_path,
+        data_path: data.path,
+        data_member: data.member,
         axes,
         perm,
         demod,
