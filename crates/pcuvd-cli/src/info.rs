@@ -64,12 +64,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
-    let coding = match seq.coding {
-        Coding::Conventional => json!({ "kind": "none" }),
-        Coding::Hadamard { slot_delay } => {
-            json!({ "kind": "hadamard", "order": n_angles, "slot_delay_s": slot_delay })
-        }
-    };
+    let coding = crate::process::coding_json(seq);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -90,6 +85,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "t0_s": acq.t0,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding,
+            "pulse_cycles": seq.pulse_cycles,
+            "transmit_pulse": crate::process::pulse_json(seq),
             "event_prf_hz": seq.event_prf,
             "frames": frames,
             "frame_rate_hz": acq.frame_rate(),
@@ -146,11 +143,23 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     println!("  angles (°)   {}", angles.join(", "));
     println!(
         "  coding       {}",
-        match seq.coding {
+        match &seq.coding {
             Coding::Conventional => "none (one angle per event)".to_string(),
             Coding::Hadamard { slot_delay } => format!(
                 "Hadamard order {n_angles}, slot delay {:.3} µs",
                 slot_delay * 1e6
+            ),
+            Coding::Matrix(code) => format!(
+                "explicit code matrix of order {n_angles}{} (decoded records are {:.0} × each \
+                 angle's; condition number {:.3}), slot starts {} µs",
+                if code.is_coded() { "" } else { " (one slot per event)" },
+                code.decoding_gain(),
+                code.condition_number(),
+                code.slot_starts
+                    .iter()
+                    .map(|t| format!("{:.3}", t * 1e6))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         }
     );

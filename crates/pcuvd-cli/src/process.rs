@@ -589,6 +589,41 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     Ok(())
 }
 
+/// How the angles were transmitted, for summary.json and `pcuvd info`: `kind` "none",
+/// "hadamard" (order, even slot delay) or "matrix" (the code's weights row by row, each slot's
+/// start, the decoding gain g — decoded records are g × each angle's — and the condition number).
+pub fn coding_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.coding {
+        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
+        pcuvd::Coding::Hadamard { slot_delay } => json!({
+            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
+        }),
+        pcuvd::Coding::Matrix(code) => json!({
+            "kind": "matrix",
+            "order": code.order(),
+            "code_matrix": code.weights.chunks(code.order().max(1)).collect::<Vec<_>>(),
+            "slot_starts_s": code.slot_starts,
+            "events_fire_several_slots": code.is_coded(),
+            "decoding_gain": code.decoding_gain(),
+            "condition_number": code.condition_number(),
+        }),
+    }
+}
+
+/// The sampled transmit pulse for summary.json and `pcuvd info` (null when the sequence has
+/// none): its sampling rate, length, and what pcuvd uses it for.
+pub fn pulse_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.pulse {
+        None => serde_json::Value::Null,
+        Some(p) => json!({
+            "sampling_frequency_hz": p.sampling_frequency,
+            "n_samples": p.samples.len(),
+            "duration_s": p.duration(),
+            "used_for": "simulation (the echo waveform: the pulse through the probe's two-way response); processing does not need it",
+        }),
+    }
+}
+
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
 pub fn summary_json(
     data: &dyn FrameSource,
@@ -599,13 +634,10 @@ pub fn summary_json(
     let acq = data.acquisition();
     let probe = &acq.probe;
     let seq = &acq.sequence;
-    let coding = match seq.coding {
-        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
-        pcuvd::Coding::Hadamard { slot_delay } => json!({
-            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
-            "event_alignment": params.event_alignment.label(),
-        }),
-    };
+    let mut coding = coding_json(seq);
+    if seq.is_coded() {
+        coding["event_alignment"] = json!(params.event_alignment.label());
+    }
     let timings: serde_json::Map<String, serde_json::Value> = out
         .timings
         .iter()
@@ -624,6 +656,7 @@ pub fn summary_json(
             "t0_s": acq.t0, "event_prf_hz": seq.event_prf,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding, "frames": data.n_frames(), "frame_rate_hz": acq.frame_rate(),
+            "pulse_cycles": seq.pulse_cycles, "transmit_pulse": pulse_json(seq),
         },
         "grid": {
             "x_min_m": out.grid.x[0], "x_max_m": out.grid.x[out.grid.x.len() - 1],

@@ -70,6 +70,7 @@ fn write_recording(dir: &Path) -> std::path::PathBuf {
         event_prf: 7.2e3,
         coding: Coding::Conventional,
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let params = SimParams::new(probe, sequence, 65e6, 1540.0, (4.5e-3, 8.5e-3)).unwrap();
     let data = simulate::simulate(&phantom, &params, 200, &|_, _| {}).unwrap();

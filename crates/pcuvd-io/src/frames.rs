@@ -98,6 +98,7 @@ impl ManifestFrames {
         if stored.complex() != parsed.demod.is_some() {
             return Err(kind_error(path, &data_path, parsed.demod.is_some()));
         }
+
         let shape = event_shape(
             path,
             &parsed.acquisition,

@@ -191,6 +191,7 @@ pub fn from_mat(path: &Path, file: &MatFile) -> Result<ChannelData, IoError> {
                 event_prf: prf,
                 coding: Coding::Conventional,
                 pulse_cycles,
+                pulse: None,
             },
             sampling_frequency: fs,
             sound_speed: c,

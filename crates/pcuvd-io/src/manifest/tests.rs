@@ -10,6 +10,7 @@ fn acquisition(n_angles: usize, coding: Coding, probe: Probe) -> Acquisition {
             event_prf: 14.4e3,
             coding,
             pulse_cycles: 2.0,
+            pulse: None,
         },
         sampling_frequency: 62.5e6,
         sound_speed: 1540.0,
@@ -197,7 +198,7 @@ fn errors_name_the_file_and_the_field() {
         &rep("format = \"pcuvd-recording\"", "format = \"other\""),
         &["format is \"other\""],
     );
-    check(&rep("version = 1 ", "version = 2 "), &["version is 2"]);
+    check(&rep("version = 1 ", "version = 3 "), &["version is 3", "versions 1 to 2"]);
     // A percentage where a fraction is meant is refused, with the fraction suggested.
     let bandwidth_line = text
         .lines()
