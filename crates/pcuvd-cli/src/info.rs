@@ -152,7 +152,11 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             Coding::Matrix(code) => format!(
                 "explicit code matrix of order {n_angles}{} (decoded records are {:.0} × each \
                  angle's; condition number {:.3}), slot starts {} µs",
-                if code.is_coded() { "" } else { " (one slot per event)" },
+                if code.is_coded() {
+                    ""
+                } else {
+                    " (one slot per event)"
+                },
                 code.decoding_gain(),
                 code.condition_number(),
                 code.slot_starts

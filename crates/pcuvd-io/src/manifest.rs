@@ -446,13 +446,13 @@ fn acquisition_of(
         return Err(IoError::invalid(
             path,
             name,
-            format!("{what} only known to version 2 manifests; this one says version = 1 (set version = 2)"),
+            format!(
+                "{what} only known to version 2 manifests; this one says version = 1 (set version = 2)"
+            ),
         ));
     }
     probe.validate().map_err(refuse)?;
-    let c = acq
-        .sound_speed_m_s
-        .ok_or_else(|| miss("sound_speed_m_s"))?;
+    let c = acq.sound_speed_m_s.ok_or_else(|| miss("sound_speed_m_s"))?;
     pcuvd::error::require_range(
         "speed of sound",
         c,
@@ -1024,10 +1024,7 @@ fn write_manifest(
                 t.push_str(&format!("    [{}],\n", list(row)));
             }
             t.push_str("]\n");
-            t.push_str(&format!(
-                "slot_delays_s = [{}]\n",
-                list(&code.slot_starts)
-            ));
+            t.push_str(&format!("slot_delays_s = [{}]\n", list(&code.slot_starts)));
         }
     }
     if let Some(pulse) = &acq.sequence.pulse {

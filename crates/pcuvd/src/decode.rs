@@ -159,9 +159,7 @@ pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<A
             acq.sampling_frequency,
             alignment,
         ),
-        Coding::Matrix(code) => {
-            decode_code(&data.samples, code, acq.sampling_frequency, alignment)
-        }
+        Coding::Matrix(code) => decode_code(&data.samples, code, acq.sampling_frequency, alignment),
     }
 }
 

@@ -125,7 +125,9 @@ pub fn plane_wave_from_delays(
     let angle = sin.asin();
     let (lo, hi) = element_x
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| (l.min(x), h.max(x)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+            (l.min(x), h.max(x))
+        });
     let x_ref = if angle >= 0.0 { lo } else { hi };
     Ok(PlaneWave {
         angle,

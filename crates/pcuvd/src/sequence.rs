@@ -113,16 +113,12 @@ impl TransmitCode {
             })
         });
         if orthogonal {
-            return Ok((0..n * n)
-                .map(|j| self.weight(j % n, j / n))
-                .collect());
+            return Ok((0..n * n).map(|j| self.weight(j % n, j / n)).collect());
         }
         let a = faer::Mat::<f64>::from_fn(n, n, |i, k| self.weight(i, k));
         use faer::linalg::solvers::DenseSolveCore;
         let inverse = a.partial_piv_lu().inverse();
-        Ok((0..n * n)
-            .map(|j| g * inverse[(j / n, j % n)])
-            .collect())
+        Ok((0..n * n).map(|j| g * inverse[(j / n, j % n)]).collect())
     }
 
     /// Checks the shape (n × n weights, n slot starts), that every value is finite, the starts
@@ -170,15 +166,16 @@ impl TransmitCode {
         if let Some(k) = (0..n).find(|&k| (0..n).all(|i| self.weight(i, k) == 0.0)) {
             return Err(invalid(
                 "code matrix",
-                format!("is singular: slot {k} fires in no event (its column is all zero)"),
+                format!("singular: slot {k} fires in no event (its column is all zero)"),
             ));
         }
         let condition = self.condition_number();
         if !(condition <= MAX_CODE_CONDITION) {
-            let what = if condition.is_finite() {
-                format!("is ill-conditioned (condition number {condition:.3e})")
+            // Beyond 10¹² the smallest singular value is rounding noise: the matrix is singular.
+            let what = if condition <= 1e12 {
+                format!("ill-conditioned (condition number {condition:.3e})")
             } else {
-                "is singular (some combination of its rows is zero)".to_string()
+                "singular (a combination of its rows is zero, to rounding)".to_string()
             };
             return Err(invalid(
                 "code matrix",
@@ -226,7 +223,10 @@ impl TransmitPulse {
         if let Some(j) = self.samples.iter().position(|v| !v.is_finite()) {
             return Err(invalid(
                 "pulse samples",
-                format!("sample {j} is {}; every sample must be finite", self.samples[j]),
+                format!(
+                    "sample {j} is {}; every sample must be finite",
+                    self.samples[j]
+                ),
             ));
         }
         if self.samples.iter().all(|&v| v == 0.0) {
@@ -572,9 +572,19 @@ mod tests {
         assert_eq!(s.last_slot_start(), 3.9e-6);
         assert_eq!(s.event_pulses(5)[1], (1, -1.0, 1.3e-6));
         s.event_prf = 3e5;
-        assert!(s.validate().unwrap_err().to_string().contains("longer than the event period"));
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("longer than the event period")
+        );
         s.event_prf = 1e4;
         s.angles.pop();
-        assert!(s.validate().unwrap_err().to_string().contains("4 slots but the sequence has 3"));
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("4 slots but the sequence has 3")
+        );
     }
 }

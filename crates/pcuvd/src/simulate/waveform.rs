@@ -176,7 +176,13 @@ impl EchoWaveform {
         // Where the echo's envelope peaks: the origin moves there.
         let mut planner = FftPlanner::<f64>::new();
         let mut analytic: Vec<Complex64> = (0..n)
-            .map(|k| if k < n / 2 { spec[k] } else { Complex64::new(0.0, 0.0) })
+            .map(|k| {
+                if k < n / 2 {
+                    spec[k]
+                } else {
+                    Complex64::new(0.0, 0.0)
+                }
+            })
             .collect();
         planner.plan_fft_inverse(n).process(&mut analytic);
         let peak = analytic
@@ -488,11 +494,17 @@ mod tests {
             .collect();
         for lead in [0usize, 100] {
             let pulse = TransmitPulse {
-                samples: std::iter::repeat_n(0.0, lead).chain(samples.iter().copied()).collect(),
+                samples: std::iter::repeat_n(0.0, lead)
+                    .chain(samples.iter().copied())
+                    .collect(),
                 sampling_frequency: rate,
             };
             let wf = EchoWaveform::from_pulse(&probe, &pulse, fs).unwrap();
-            assert!(wf.peak_offset().abs() < 1.0 / (fs * 64.0), "{}", wf.peak_offset());
+            assert!(
+                wf.peak_offset().abs() < 1.0 / (fs * 64.0),
+                "{}",
+                wf.peak_offset()
+            );
             let worst = (-400..=400)
                 .map(|i| {
                     let t = i as f64 * 1e-9;
@@ -506,7 +518,9 @@ mod tests {
             samples: vec![1.0, -1.0, 1.0],
             sampling_frequency: 0.0,
         };
-        let e = EchoWaveform::from_pulse(&probe, &slow, fs).unwrap_err().to_string();
+        let e = EchoWaveform::from_pulse(&probe, &slow, fs)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("pulse sampling frequency"), "{e}");
     }
 }
