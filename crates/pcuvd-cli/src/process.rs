@@ -41,6 +41,7 @@ pub struct ProcessArgs {
 /// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest). Returns
 /// the data and every file it was read from (the manifest and its samples).
 pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
+    pcuvd_io::check_regular_file(path)?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -60,6 +61,7 @@ pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
             path.display()
         ),
     };
+    check_recording(path, &data)?;
     Ok((data, files))
 }
 
@@ -67,15 +69,24 @@ pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
 /// read from its file a block of frames at a time (never whole in memory); anything else is read
 /// whole ([`read_input`]). Returns the source and every file it reads.
 pub fn open_input(path: &Path) -> Result<(Box<dyn FrameSource>, Vec<PathBuf>)> {
+    pcuvd_io::check_regular_file(path)?;
     let manifest = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     if manifest && let Some(frames) = pcuvd_io::ManifestFrames::open(path)? {
+        check_recording(path, &frames)?;
         let files = vec![path.to_path_buf(), frames.data_path().to_path_buf()];
         return Ok((Box::new(frames), files));
     }
     let (data, files) = read_input(path)?;
     Ok((Box::new(data), files))
+}
+
+/// Checks what a recording's acquisition says against its samples' shape before any work (every
+/// pulse slot starts within the record), naming the file.
+fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
+    pipeline::check_record(data.acquisition(), data.trace_shape().1)
+        .with_context(|| path.display().to_string())
 }
 
 /// Creates `dir` (and parents), with a message naming it on failure.
@@ -91,7 +102,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let data = source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
     let plan = Plan::new(&args.options, &args.dynamics, data)?;
-    check_memory(data, &plan.params, args.max_memory_gb)?;
+    check_memory(data, &plan, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
     let (format, reader) = match input_files.len() {
         1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
@@ -199,6 +210,43 @@ impl Plan {
                 vessel: dynamics.vessel_tests()?,
             })
         };
+        if dynamics.explicit()
+            && let Some(settings) = &dynamics_settings
+        {
+            // Asked for: what the recording cannot give is refused now, not after processing.
+            let acq = data.acquisition();
+            if acq.sequence.n_angles() < 2 {
+                bail!(
+                    "the dynamics stage (asked for by --dynamics on or a dynamics option) needs two \
+                     or more steering angles for vector velocity; the recording has one"
+                );
+            }
+            settings
+                .params
+                .validate(acq.frame_rate())
+                .context("dynamics options")?;
+            let duration = data.n_frames() as f64 / acq.frame_rate();
+            if let Some(hr) = settings.params.heart_rate_hz
+                && 1.0 / hr > duration
+            {
+                bail!(
+                    "--heart-rate {}: a cycle lasts {:.4} s but the recording holds {:.4} s \
+                     ({} frames at {:.1} Hz); RI needs at least one whole cycle",
+                    crate::options::shown("--heart-rate", hr),
+                    1.0 / hr,
+                    duration,
+                    data.n_frames(),
+                    acq.frame_rate()
+                );
+            }
+            if settings.params.window > data.n_frames() {
+                bail!(
+                    "--window-ms: a window of {} frames is longer than the recording's {} frames",
+                    settings.params.window,
+                    data.n_frames()
+                );
+            }
+        }
         Ok(Plan {
             ensembles: options.ensembles(data.n_frames())?,
             params,
@@ -326,25 +374,61 @@ pub fn save(
     Ok(pngs)
 }
 
-/// Refuses, before any work, a recording and grid whose processing would need more memory than
-/// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
-pub fn check_memory(
-    data: &dyn FrameSource,
-    params: &ProcessParams,
-    limit_gb: Option<f64>,
-) -> Result<()> {
+/// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
+pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
+speed and the pooled speed per window) + time series: ensembles × pixels × 6 × 8 bytes (five \
+maps and a filtered copy of one ensemble's frames per angle counted once more)";
+
+/// Bytes the stages after image formation hold beyond the chain's image series
+/// ([`STAGE_MEMORY_RULE`]): the dynamics stage's window series and a time series' maps.
+fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
+    let (nz, nx) = plan.params.grid.shape();
+    let pixels = (nz * nx) as u128;
+    let frames = data.n_frames();
+    // The stage runs only with two angles or more and a window the recording holds.
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
+        if !vectors || d.params.window > frames {
+            return 0;
+        }
+        let windows = (frames - d.params.window) / d.params.step.max(1) + 1;
+        5 * windows as u128 * pixels * 8
+    });
+    let ensembles = plan.ensembles.map_or(0, |e| {
+        let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
+        let angles = data.acquisition().sequence.n_angles() as u128;
+        count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * angles * 8
+    });
+    dynamics + ensembles
+}
+
+/// Refuses, before any work, a recording, grid and stages whose processing would need more memory
+/// than the machine has available ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`]),
+/// instead of aborting on allocation.
+pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
+    let params = &plan.params;
     let available = match limit_gb {
         Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
-        Some(gb) => bail!("--max-memory-gb {gb}: must be a positive number of GB"),
+        Some(gb) => bail!(
+            "--max-memory-gb {}: must be a positive number of GB",
+            crate::options::shown("--max-memory-gb", gb)
+        ),
         None => available_memory().map(|b| b as f64),
     };
-    let needed = pipeline::memory_estimate(data, &params.grid) as f64;
+    let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
     if let Some(available) = available
         && needed > available
     {
+        let what = match limit_gb {
+            Some(gb) => format!(
+                "--max-memory-gb {}",
+                crate::options::shown("--max-memory-gb", gb)
+            ),
+            None => "the machine".to_string(),
+        };
         bail!(
-            "processing needs about {:.3} GB ({}) but {:.3} GB are available: use a coarser or \
-             smaller --grid, or a shorter recording",
+            "processing needs about {:.3} GB ({} {STAGE_MEMORY_RULE}) but {:.3} GB are \
+             available ({what}): use a coarser or smaller --grid, or a shorter recording",
             needed / 1e9,
             pipeline::MEMORY_ESTIMATE_RULE,
             available / 1e9

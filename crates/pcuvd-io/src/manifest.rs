@@ -118,14 +118,41 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
 }
 
 fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> IoError {
-    let msg = e.message().trim().replace('\n', " ");
+    let msg = crate::error::flat(e.message().trim());
     match e.span() {
         Some(span) => {
             let (line, col) = line_col(text, span.start);
-            IoError::malformed(path, format!("line {line}, column {col}: {msg}"))
+            match key_at(text, span.start) {
+                Some(key) => {
+                    IoError::invalid(path, key, format!("(line {line}, column {col}): {msg}"))
+                }
+                None => IoError::malformed(path, format!("line {line}, column {col}: {msg}")),
+            }
         }
         None => IoError::malformed(path, msg),
     }
+}
+
+/// The key (as "[table].key") whose value holds byte `offset` of a manifest's `text`, when that
+/// line is a `key = value` line: a type error then names the key, not only the line.
+fn key_at(text: &str, offset: usize) -> Option<String> {
+    let before = text.get(..offset.min(text.len()))?;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    if key.is_empty() || key.starts_with(['#', '[']) || key.contains(char::is_whitespace) {
+        return None;
+    }
+    let table = before[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('[') && l.ends_with(']'));
+    Some(match table {
+        Some(table) => format!("{table}.{key}"),
+        None => key.to_string(),
+    })
 }
 
 /// Reads a recording manifest, its samples and its provenance.
@@ -338,13 +365,8 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     let perm =
         axis_permutation(&axes, version).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
     let data_path = path.parent().unwrap_or_else(|| Path::new("")).join(&file);
-    if !data_path.is_file() {
-        return Err(IoError::invalid(
-            path,
-            "[data].file",
-            format!("names {}, which does not exist", data_path.display()),
-        ));
-    }
+    crate::paths::check_regular_file(&data_path)
+        .map_err(|e| IoError::invalid(path, "[data].file", format!("names {e}")))?;
     Ok(Parsed {
         acquisition,
         provenance: m.provenance,
@@ -777,6 +799,20 @@ pub(crate) fn event_shape(
             "[probe].n_elements",
             format!(
                 "is {n_elements} but the 'channels' axis of {} has {channels} (shape {shape:?})",
+                data_path.display()
+            ),
+        ));
+    }
+    if let Err(source) = pcuvd::pipeline::check_record(acquisition, samples) {
+        let key = match acquisition.sequence.coding {
+            Coding::Hadamard { .. } => "[acquisition].slot_delay_s",
+            _ => "[acquisition].slot_delays_s",
+        };
+        return Err(IoError::invalid(
+            path,
+            key,
+            format!(
+                "does not fit the samples of {}: {source}",
                 data_path.display()
             ),
         ));

@@ -450,7 +450,7 @@ fn process(
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
             let plan = Plan::new(&call.options, &call.dynamics, &*data)?;
-            cli_process::check_memory(&*data, &plan.params, call.max_memory_gb)?;
+            cli_process::check_memory(&*data, &plan, call.max_memory_gb)?;
             let progress = PipelineProgress::new("");
             let processed =
                 cli_process::compute(&*data, &plan, &|s, d, t| progress.update(s, d, t))

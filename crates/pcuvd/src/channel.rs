@@ -45,7 +45,7 @@ impl Acquisition {
         require_positive("speed of sound", self.sound_speed)?;
         crate::error::require_range("speed of sound", self.sound_speed, SOUND_SPEED_RANGE, "m/s")?;
         if !self.t0.is_finite() {
-            return Err(invalid("t0", format!("must be finite, got {}", self.t0)));
+            return Err(invalid("t0", format!("must be finite, got {:?}", self.t0)));
         }
         // The first sample comes after the event fires and before the next one does.
         let period = 1.0 / self.sequence.event_prf;
@@ -159,6 +159,14 @@ pub enum Samples {
 }
 
 impl Samples {
+    /// True when some sample is not zero.
+    pub fn any_nonzero(&self) -> bool {
+        match self {
+            Samples::Rf(a) => a.iter().any(|&v| v != 0.0),
+            Samples::Iq { data, .. } => data.iter().any(|v| v.re != 0.0 || v.im != 0.0),
+        }
+    }
+
     /// (events, channels, samples).
     pub fn dim(&self) -> (usize, usize, usize) {
         match self {

@@ -264,7 +264,18 @@ fn decode_with(
     alignment: EventAlignment,
 ) -> Result<AngleSamples> {
     let n = plan.shifts.len();
-    let frames = samples.dim().0 / n;
+    let (events, _, ns) = samples.dim();
+    let frames = events / n;
+    if let Some(k) = plan.shifts.iter().position(|s| s.abs() >= ns as f64) {
+        return Err(crate::error::invalid(
+            "slot delays",
+            format!(
+                "slot {k} is shifted by {:.1} samples, more than its {ns}-sample record: its echoes \
+                 are not in the recording",
+                plan.shifts[k]
+            ),
+        ));
+    }
     let aligner = match alignment {
         EventAlignment::MidFrame if plan.align && n > 1 && frames > 1 => {
             Some(SlowTimeAligner::new(frames, n))

@@ -45,7 +45,7 @@ pub fn require_positive(name: &str, value: f64) -> Result<()> {
     } else {
         Err(invalid(
             name,
-            format!("must be finite and > 0, got {value}"),
+            format!("must be finite and > 0, got {value:?}"),
         ))
     }
 }
