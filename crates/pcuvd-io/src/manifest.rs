@@ -803,20 +803,6 @@ pub(crate) fn event_shape(
             ),
         ));
     }
-    if let Err(source) = pcuvd::pipeline::check_record(acquisition, samples) {
-        let key = match acquisition.sequence.coding {
-            Coding::Hadamard { .. } => "[acquisition].slot_delay_s",
-            _ => "[acquisition].slot_delays_s",
-        };
-        return Err(IoError::invalid(
-            path,
-            key,
-            format!(
-                "does not fit the samples of {}: {source}",
-                data_path.display()
-            ),
-        ));
-    }
     Ok((events, channels, samples))
 }
 
