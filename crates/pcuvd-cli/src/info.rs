@@ -44,15 +44,11 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let memory_bytes = grid.as_ref().map_or(0, |g| {
         usize::try_from(pcuvd::pipeline::memory_estimate(&data, g)).unwrap_or(usize::MAX)
     });
-    let f_max = probe.center_frequency * (1.0 + probe.bandwidth / 2.0);
     let mut warnings = Vec::new();
-    if demod.is_none() && acq.sampling_frequency < 2.0 * f_max {
-        warnings.push(format!(
-            "f_s {:.2} MHz is below 2 × {:.2} MHz (twice the band's top): the RF is band-pass \
-             sampled; pcuvd demodulates it as such, but check that the band does not fold onto itself",
-            acq.sampling_frequency * 1e-6,
-            f_max * 1e-6
-        ));
+    if demod.is_none()
+        && let Some(warning) = crate::process::band_pass_warning(acq)
+    {
+        warnings.push(warning);
     }
     if acq.nyquist_velocity() < LOW_NYQUIST_M_S {
         warnings.push(format!(

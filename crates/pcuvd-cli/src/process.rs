@@ -82,6 +82,47 @@ pub fn open_input(path: &Path) -> Result<(Box<dyn FrameSource>, Vec<PathBuf>)> {
     Ok((Box::new(data), files))
 }
 
+/// The warning for RF that is band-pass sampled (f_s below twice the band's top, the band whole in
+/// one Nyquist zone: valid, and demodulated as such); `None` when f_s is above twice the band's top
+/// or the band folds (an error the readers give).
+pub fn band_pass_warning(acq: &pcuvd::Acquisition) -> Option<String> {
+    match acq.rf_band_sampling() {
+        Ok(pcuvd::BandSampling::BandPass { zone }) => {
+            let probe = &acq.probe;
+            let (low, high) = (
+                probe.center_frequency * (1.0 - probe.bandwidth / 2.0),
+                probe.center_frequency * (1.0 + probe.bandwidth / 2.0),
+            );
+            let half = acq.sampling_frequency / 2.0;
+            Some(format!(
+                "f_s {:.3} MHz is below twice the band's top ({:.3} MHz): the RF is band-pass \
+                 sampled, its band {:.3}–{:.3} MHz lying in Nyquist zone {zone} ({:.3}–{:.3} MHz); \
+                 pcuvd demodulates it as such, but a band wider than the probe's stated bandwidth \
+                 would fold onto itself",
+                acq.sampling_frequency * 1e-6,
+                2.0 * high * 1e-6,
+                low * 1e-6,
+                high * 1e-6,
+                zone as f64 * half * 1e-6,
+                (zone + 1) as f64 * half * 1e-6
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// [`band_pass_warning`] for a recording whose samples are RF (read from its first frame).
+fn rf_band_pass_warning(data: &dyn FrameSource) -> Result<Option<String>> {
+    if data.n_frames() == 0 {
+        return Ok(None);
+    }
+    let first = data.read_frames(0..1)?;
+    Ok(match first.samples {
+        pcuvd::Samples::Rf(_) => band_pass_warning(data.acquisition()),
+        pcuvd::Samples::Iq { .. } => None,
+    })
+}
+
 /// Checks what a recording's acquisition says against its samples' shape before any work (every
 /// pulse slot starts within the record), naming the file.
 fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
@@ -102,6 +143,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let data = source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
     let plan = Plan::new(&args.options, &args.dynamics, data)?;
+    let band_warning = rf_band_pass_warning(data)?;
     check_memory(data, &plan, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
     let (format, reader) = match input_files.len() {
@@ -142,6 +184,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    // Said once the run is accepted (not before an error, which stays the only line).
+    if let Some(warning) = band_warning {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
