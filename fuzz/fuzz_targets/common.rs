@@ -42,6 +42,7 @@ pub fn samples_npy() -> PathBuf {
 /// Decodes what a reader accepted, as processing would first do: a reader must not hand on
 /// anything decoding then panics on.
 pub fn decode(data: &pcuvd::ChannelData) {
-    let _ = pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2)
-        .and_then(|()| pcuvd::decode::decode_aligned(data, pcuvd::decode::EventAlignment::MidFrame));
+    let _ = pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2).and_then(|()| {
+        pcuvd::decode::decode_aligned(data, pcuvd::decode::EventAlignment::MidFrame)
+    });
 }

@@ -152,6 +152,27 @@ class Recording:
         return self._acquisition["format"]
 
     @property
+    def reader(self) -> str:
+        """The reader that read it (or what made it)."""
+        return self._acquisition["reader"]
+
+    @property
+    def parameters(self) -> dict:
+        """Every acquisition parameter the reader resolved, by name (SI unit in the name):
+        {"value": ..., "source": {"kind": "file" | "derived" | "default" | "override", ...}},
+        e.g. parameters["t0_s"]["source"] == {"kind": "file", "field": "param.t0"}. Empty for
+        arrays and simulations."""
+        return {
+            p["name"]: {"value": p["value"], "source": p["source"]}
+            for p in self._acquisition.get("parameters", [])
+        }
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the reader wants you to know (a default taken, a field not applied)."""
+        return list(self._acquisition.get("warnings", []))
+
+    @property
     def samples(self) -> np.ndarray:
         """The samples, (events, channels, samples): float32 RF or complex64 IQ (read-only)."""
         if self._samples is None:
@@ -225,12 +246,15 @@ class Recording:
 
 
 def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
-    """Reads a recording in any format `pcuvd process` reads (see the README's "What goes in").
+    """Reads a recording in any format `pcuvd process` reads (see the README's "What goes in"),
+    recognised from its content, with the same reader as the command.
 
-    overrides: acquisition fields to set after reading, in SI units: sampling_freq_hz,
-    sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding ("none",
-    "hadamard"), slot_delay_s, pulse_cycles. Raises OSError when the file cannot be opened,
-    ValueError when its content or an override is unusable (the message the CLI prints).
+    overrides: acquisition fields that replace (or fill in) what the file says, in SI units:
+    sampling_freq_hz, sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding
+    ("none", "hadamard"), slot_delay_s, pulse_cycles; `parameters` then names them as given by
+    the user (a MUST file without param.t0 reads with t0_s=...). Raises OSError when the file
+    cannot be opened, ValueError when its content or an override is unusable (the message the
+    CLI prints).
     """
     for key, value in overrides.items():
         if isinstance(value, np.ndarray):

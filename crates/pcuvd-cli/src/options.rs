@@ -230,9 +230,14 @@ pub struct DynamicsOptions {
     /// holds a cardiac cycle), "on" (required) or "off".
     #[arg(long, value_enum, default_value = "auto")]
     pub dynamics: DynamicsChoice,
-    /// Heart rate (Hz); default: measured from the data, which needs about 1.5 cycles or more.
+    /// Heart rate (Hz); default: measured from the data — from its systolic upstrokes where two
+    /// are recorded (about one cycle or more), else from its autocorrelation (about 1.5 cycles).
     #[arg(long, visible_alias = "heart-rate-hz")]
     pub heart_rate: Option<f64>,
+    /// Cardiac cycle start times (s from the recording's first frame: ECG R-waves or scanner
+    /// triggers), a 1-D .npy file or a text file of numbers: each cycle runs from one to the next.
+    #[arg(long)]
+    pub cardiac_triggers: Option<std::path::PathBuf>,
     /// Sliding-window length (ms); default 20 ms (36 frames at the rat's 1.8 kHz).
     #[arg(long)]
     pub window_ms: Option<f64>,
@@ -288,8 +293,20 @@ impl DynamicsOptions {
     pub fn explicit(&self) -> bool {
         self.dynamics == DynamicsChoice::On
             || self.heart_rate.is_some()
+            || self.cardiac_triggers.is_some()
             || self.window_ms.is_some()
             || self.window_step_ms.is_some()
+    }
+
+    /// The cycle start times of `--cardiac-triggers` (s), read and checked; `None` without it.
+    pub fn triggers(&self) -> Result<Option<Vec<f64>>> {
+        if self.heart_rate.is_some() && self.cardiac_triggers.is_some() {
+            bail!("--heart-rate and --cardiac-triggers: give one (triggers delimit the cycles)");
+        }
+        self.cardiac_triggers
+            .as_deref()
+            .map(|path| pcuvd_io::read_trigger_times(path).context("--cardiac-triggers"))
+            .transpose()
     }
 
     /// The whole-recording vessel tests of `--vessel-margin-db`, `--vessel-local-db` and

@@ -19,7 +19,8 @@ use crate::progress::PipelineProgress;
 /// Arguments of `pcuvd process`.
 #[derive(Args, Debug)]
 pub struct ProcessArgs {
-    /// Recording: a MUST-style MATLAB v5 file (.mat, variables RF and param) or a pcuvd recording manifest (.toml).
+    /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
+    /// a Verasonics workspace .mat, or a pcuvd recording manifest .toml); recognised by content.
     pub input: PathBuf,
     /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]
@@ -33,53 +34,70 @@ pub struct ProcessArgs {
     #[arg(long)]
     pub max_memory_gb: Option<f64>,
     #[command(flatten)]
+    pub acquisition: AcquisitionOverrides,
+    #[command(flatten)]
     pub options: ProcessingOptions,
     #[command(flatten)]
     pub dynamics: DynamicsOptions,
 }
 
-/// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest). Returns
-/// the data and every file it was read from (the manifest and its samples).
-pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
-    pcuvd_io::check_regular_file(path)?;
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let (data, files) = match ext.as_str() {
-        "mat" => (pcuvd_io::read_must_mat(path)?, vec![path.to_path_buf()]),
-        "toml" => {
-            let recording = pcuvd_io::read_recording(path)?;
-            (
-                recording.data,
-                vec![path.to_path_buf(), recording.data_path],
-            )
-        }
-        _ => bail!(
-            "{}: unknown recording type: expected a MUST-style .mat file or a pcuvd manifest .toml",
-            path.display()
-        ),
-    };
-    check_recording(path, &data)?;
-    Ok((data, files))
+/// Acquisition values that replace (or fill in) what the recording says, SI units; each is
+/// recorded as given by the user in `pcuvd info` and summary.json.
+#[derive(Args, Debug, Clone, Default)]
+pub struct AcquisitionOverrides {
+    /// Time of the first sample after the first element fires (s), e.g. --t0-s 9.95e-6.
+    #[arg(long, allow_hyphen_values = true)]
+    pub t0_s: Option<f64>,
+    /// Speed of sound (m/s).
+    #[arg(long)]
+    pub sound_speed_m_s: Option<f64>,
+    /// Transmit-event repetition frequency (Hz).
+    #[arg(long)]
+    pub event_prf_hz: Option<f64>,
+    /// Sampling frequency of the traces (Hz).
+    #[arg(long)]
+    pub sampling_freq_hz: Option<f64>,
+    /// Probe centre frequency (Hz).
+    #[arg(long)]
+    pub center_freq_hz: Option<f64>,
+    /// Demodulation frequency of IQ samples (Hz).
+    #[arg(long)]
+    pub demod_freq_hz: Option<f64>,
 }
 
-/// Opens a recording for `process`: a pcuvd manifest whose samples are stored in event order is
-/// read from its file a block of frames at a time (never whole in memory); anything else is read
-/// whole ([`read_input`]). Returns the source and every file it reads.
-pub fn open_input(path: &Path) -> Result<(Box<dyn FrameSource>, Vec<PathBuf>)> {
-    pcuvd_io::check_regular_file(path)?;
-    let manifest = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    if manifest && let Some(frames) = pcuvd_io::ManifestFrames::open(path)? {
-        check_recording(path, &frames)?;
-        let files = vec![path.to_path_buf(), frames.data_path().to_path_buf()];
-        return Ok((Box::new(frames), files));
+impl AcquisitionOverrides {
+    /// The overrides as the readers take them.
+    pub fn to_overrides(&self) -> pcuvd_io::Overrides {
+        pcuvd_io::Overrides {
+            t0_s: self.t0_s,
+            sound_speed_m_s: self.sound_speed_m_s,
+            event_prf_hz: self.event_prf_hz,
+            sampling_freq_hz: self.sampling_freq_hz,
+            center_freq_hz: self.center_freq_hz,
+            demod_freq_hz: self.demod_freq_hz,
+            ..pcuvd_io::Overrides::default()
+        }
     }
-    let (data, files) = read_input(path)?;
-    Ok((Box::new(data), files))
+}
+
+/// Reads a whole recording, any format (recognised from its content). Returns the data and every
+/// file it was read from (a manifest and its samples, or the one file).
+pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
+    let opened = open_input(path, &pcuvd_io::Overrides::default())?;
+    let data = opened.read_all()?;
+    Ok((data, opened.info.files))
+}
+
+/// Opens a recording for `process` and `info`, any format, with the user's overrides: its frames
+/// are read a block at a time, and its [`pcuvd_io::SourceInfo`] says what was read, by which
+/// reader, and where every acquisition parameter came from.
+pub fn open_input(
+    path: &Path,
+    overrides: &pcuvd_io::Overrides,
+) -> Result<pcuvd_io::OpenedRecording> {
+    let opened = pcuvd_io::open_recording(path, overrides)?;
+    check_recording(path, opened.source.as_ref())?;
+    Ok(opened)
 }
 
 /// The warning for RF that is band-pass sampled (f_s below twice the band's top, the band whole in
@@ -139,28 +157,22 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
-    let (source, input_files) = open_input(&args.input)?;
-    let data = source.as_ref();
+    let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
+    let input_files = opened.info.files.clone();
+    let data = opened.source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
-    let plan = Plan::new(&args.options, &args.dynamics, data)?;
+    let mut plan = Plan::new(&args.options, &args.dynamics, data)?;
+    // Overrides change the results: a re-run with others is not the same run.
+    if !args.acquisition.to_overrides().is_empty() {
+        plan.options_text
+            .push_str(&format!(" {:?}", args.acquisition));
+    }
     let band_warning = rf_band_pass_warning(data)?;
     check_memory(data, &plan, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
-    let (format, reader) = match input_files.len() {
-        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
-        _ if data.resident_bytes() == 0 => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::ManifestFrames (a block of frames at a time)",
-        ),
-        _ => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::read_recording",
-        ),
-    };
     let source = provenance(
         &args.input.display().to_string(),
-        &input_files,
-        (format, reader),
+        &opened.info,
         &plan.options_text,
         std::env::args().collect(),
     )?;
@@ -254,6 +266,7 @@ impl Plan {
                     params.grid.step(),
                 )?,
                 vessel: dynamics.vessel_tests()?,
+                triggers: dynamics.triggers()?,
             })
         };
         if dynamics.explicit()
@@ -373,7 +386,12 @@ pub fn compute(
 pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
     Ok(match &plan.dynamics {
         None => DynamicsOutcome::Skipped("--dynamics off".into()),
-        Some(settings) => match pipeline::dynamics(out, &settings.params, &settings.vessel) {
+        Some(settings) => match pipeline::dynamics(
+            out,
+            &settings.params,
+            &settings.vessel,
+            settings.triggers.as_deref(),
+        ) {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),
                 maps: Box::new(maps),
@@ -492,15 +510,16 @@ pub fn available_memory() -> Option<u64> {
 }
 
 /// Where the results came from: pcuvd's version, the command line, every input file with its
-/// size and SHA-256, the format and the reader (`format_reader`) that read it, and the options.
+/// size and SHA-256, the format and the reader that read it (as the reader reports them), every
+/// acquisition parameter with its source, the reader's warnings, and the options.
 pub fn provenance(
     input: &str,
-    input_files: &[PathBuf],
-    format_reader: (&str, &str),
+    info: &pcuvd_io::SourceInfo,
     options_text: &str,
     command_line: Vec<String>,
 ) -> Result<serde_json::Value> {
-    let files = input_files
+    let files = info
+        .files
         .iter()
         .map(|path| {
             let (size, sha256) = outputs::fingerprint(path)?;
@@ -509,9 +528,12 @@ pub fn provenance(
         .collect::<Result<Vec<_>>>()?;
     Ok(json!({
         "input": input,
-        "format": format_reader.0,
-        "reader": format_reader.1,
+        "format": info.format,
+        "reader": info.reader,
         "files": files,
+        "stored_samples": info.stored,
+        "parameters": info.parameters,
+        "reader_warnings": info.warnings,
         "pcuvd_version": env!("CARGO_PKG_VERSION"),
         "command_line": command_line,
         "options": options_text,
@@ -549,6 +571,8 @@ pub struct DynamicsSettings {
     pub params: DynamicsParams,
     /// Whole-recording vessel tests (noise-floor margin, local peak).
     pub vessel: VesselTests,
+    /// Cardiac cycle start times (s from the first frame), when given.
+    pub triggers: Option<Vec<f64>>,
 }
 
 /// The summary.json of a `process` run (without the writing timings): every parameter used, the
@@ -607,6 +631,9 @@ fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
     json!({
         "heart_rate_hz": maps.heart_rate_hz,
         "heart_rate_given": dparams.heart_rate_hz.is_some(),
+        "cycles_from": maps.cycle_source.describe(),
+        "cycles_count": maps.cycles.len(),
+        "spread": "psv_spread.npy, edv_spread.npy, ri_spread.npy: standard deviation across the complete cycles of each cycle's PSV (m/s), EDV (m/s) and RI, each cycle's speed fitted on its own; NaN with one cycle",
         "window_frames": dparams.window,
         "step_frames": dparams.step,
         "window_s": series.window_s,
@@ -650,6 +677,9 @@ fn write_dynamics(
     npy(dir, "ri.npy", &maps.ri)?;
     npy(dir, "psv.npy", &maps.psv)?;
     npy(dir, "edv.npy", &maps.edv)?;
+    npy(dir, "psv_spread.npy", &maps.psv_spread)?;
+    npy(dir, "edv_spread.npy", &maps.edv_spread)?;
+    npy(dir, "ri_spread.npy", &maps.ri_spread)?;
     pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
     pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
     pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
@@ -660,8 +690,14 @@ fn write_dynamics(
     let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     println!(
-        "RI maps: heart rate {:.2} Hz, {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
+        "RI maps: heart rate {:.2} Hz ({}), {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
         maps.heart_rate_hz,
+        match maps.cycle_source {
+            dynamics::CycleSource::GivenRate => "given",
+            dynamics::CycleSource::Triggers => "from the cardiac triggers",
+            dynamics::CycleSource::Upstrokes => "measured: systolic upstrokes",
+            dynamics::CycleSource::Autocorrelation => "measured: autocorrelation",
+        },
         maps.cycles.len(),
         count(dynamics::ARTERIOLE),
         count(dynamics::VENULE),

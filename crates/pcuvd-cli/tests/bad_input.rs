@@ -205,11 +205,19 @@ fn unreadable_manifest_and_missing_file() {
     .unwrap();
     expect_error(&wrong_version, &[], &["v9.toml", "version"]);
     expect_error(&dir.path().join("absent.mat"), &[], &["absent.mat"]);
-    std::fs::write(dir.path().join("data.csv"), "1,2\n").unwrap();
+    // A file of no format pcuvd reads: what it looks like, and the formats pcuvd reads.
+    let csv = dir.path().join("data.csv");
+    std::fs::write(&csv, "x,y\n1,2\n").unwrap();
     expect_error(
-        &dir.path().join("data.csv"),
+        &csv,
         &[],
-        &["data.csv", ".mat", ".toml"],
+        &[
+            "data.csv",
+            "not a recording pcuvd recognises",
+            "text",
+            "USTB UFF",
+            ".toml",
+        ],
     );
 }
 
@@ -428,14 +436,19 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
         "unknown_extension",
         &csv,
         &[],
-        &["table.csv", ".mat", ".toml"],
+        &[
+            "table.csv",
+            "not a recording pcuvd recognises",
+            "MATLAB",
+            ".toml",
+        ],
     );
 
     // --- MUST-style MATLAB v5 files.
     let ok_mat = must_file(&dir, "ok.mat", |_, _| {});
     let ok_bytes = std::fs::read(&ok_mat).unwrap();
     let empty = cases.file("empty.mat", b"");
-    cases.process("mat_empty", &empty, &[], &["empty.mat", "0 bytes"]);
+    cases.process("mat_empty", &empty, &[], &["empty.mat", "it is empty"]);
     let short = cases.file("short.mat", &ok_bytes[..100]);
     cases.process(
         "mat_truncated_header",

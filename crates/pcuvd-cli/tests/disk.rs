@@ -48,7 +48,30 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         source["files"][0]["sha256"].as_str().map(str::len),
         Some(64)
     );
-    assert_eq!(source["reader"], "pcuvd_io::read_must_mat");
+    // The format and reader as the reader reports them, and each parameter's source.
+    assert_eq!(source["format"], "MUST/PyMUST MATLAB v5 (.mat)");
+    assert!(
+        source["reader"]
+            .as_str()
+            .unwrap()
+            .starts_with("pcuvd_io::must"),
+        "{source}"
+    );
+    let parameter = |name: &str| {
+        source["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap_or_else(|| panic!("no parameter {name} in {source}"))
+            .clone()
+    };
+    assert_eq!(parameter("t0_s")["source"]["field"], "param.t0");
+    assert_eq!(
+        parameter("sampling_frequency_hz")["source"]["field"],
+        "param.fs"
+    );
+    assert_eq!(parameter("pulse_cycles")["source"]["kind"], "default");
     assert_eq!(source["pcuvd_version"], env!("CARGO_PKG_VERSION"));
     assert!(source["command_line"][1] == "process", "{source}");
     assert!(summary["timings_s"]["read"].as_f64().unwrap() >= 0.0);

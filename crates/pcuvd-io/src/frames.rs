@@ -60,7 +60,7 @@ impl ManifestFrames {
     /// event order (another axis order, Fortran order, big-endian): read those whole.
     pub fn open(path: &Path) -> Result<Option<ManifestFrames>, IoError> {
         let parsed = parse_manifest(path)?;
-        if parsed.perm.iter().enumerate().any(|(i, &p)| i != p) {
+        if parsed.data_member.is_some() || parsed.perm.iter().enumerate().any(|(i, &p)| i != p) {
             return Ok(None);
         }
         let data_path = parsed.data_path.clone();

@@ -23,7 +23,7 @@ use pcuvd::{
 use serde::Deserialize;
 
 use crate::error::IoError;
-use crate::npy::{NpyArray, read_npy, write_npy};
+use crate::npy::{NpyArray, write_npy};
 
 /// The value of the manifest's `format` key.
 pub const FORMAT: &str = "pcuvd-recording";
@@ -162,11 +162,15 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         acquisition,
         provenance,
         data_path,
+        data_member,
         axes,
         perm,
         demod,
     } = parsed;
-    let array = read_npy(&data_path)?;
+    let array = crate::datafile::read_whole(&crate::datafile::DataSpec {
+        path: data_path.clone(),
+        member: data_member,
+    })?;
     let shape = array.shape().to_vec();
     let (events, channels, samples) =
         event_shape(path, &acquisition, &data_path, &axes, &perm, &shape)?;
@@ -253,6 +257,8 @@ pub(crate) struct Parsed {
     pub(crate) acquisition: Acquisition,
     pub(crate) provenance: toml::Table,
     pub(crate) data_path: PathBuf,
+    /// The array inside the samples file (`"rec.npz:RF"`, `"rec.h5:/dataset"`), if named.
+    pub(crate) data_member: Option<String>,
     pub(crate) axes: Vec<String>,
     /// For each canonical axis, its index among the named axes.
     pub(crate) perm: Vec<usize>,
@@ -364,13 +370,12 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     }
     let perm =
         axis_permutation(&axes, version).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
-    let data_path = path.parent().unwrap_or_else(|| Path::new("")).join(&file);
-    crate::paths::check_regular_file(&data_path)
-        .map_err(|e| IoError::invalid(path, "[data].file", format!("names {e}")))?;
+    let data = crate::datafile::parse_data_file(path, &file)?;
     Ok(Parsed {
         acquisition,
         provenance: m.provenance,
-        data_path,
+        data_path: data.path,
+        data_member: data.member,
         axes,
         perm,
         demod,

@@ -47,6 +47,15 @@ pub fn check_regular_file(path: &Path) -> Result<(), IoError> {
     }
 }
 
+/// What `path` is when it exists but is not a regular file ("a folder", "a named pipe (FIFO)",
+/// "a symbolic link to X in a loop of symbolic links", ...); `None` for a regular file or nothing.
+pub fn what_is(path: &Path) -> Option<String> {
+    match check_regular_file(path) {
+        Err(IoError::NotAFile { what, .. }) => Some(what),
+        _ => None,
+    }
+}
+
 /// ELOOP: too many levels of symbolic links (Linux and the BSDs agree on 40 and 62 resp.).
 #[cfg(target_os = "linux")]
 const LOOP_ERRNO: i32 = 40;

@@ -94,21 +94,26 @@ fn set_quiet(quiet: bool) {
 #[pyclass(frozen, name = "Recording", module = "pcuvd._pcuvd")]
 struct PyRecording {
     data: Arc<ChannelData>,
-    /// Every file it was read from (empty for arrays or a simulation).
-    files: Vec<PathBuf>,
     /// What it was read or made from, as given.
     input: String,
-    /// The format and the reader.
-    format: (String, String),
+    /// What the reader reported: files (empty for arrays or a simulation), format, reader, every
+    /// acquisition parameter with its source, warnings.
+    info: pcuvd_io::SourceInfo,
 }
 
 impl PyRecording {
     fn new(data: ChannelData, files: Vec<PathBuf>, input: String, format: (&str, &str)) -> Self {
         PyRecording {
             data: Arc::new(data),
-            files,
             input,
-            format: (format.0.to_string(), format.1.to_string()),
+            info: pcuvd_io::SourceInfo {
+                files,
+                format: format.0.to_string(),
+                reader: format.1.to_string(),
+                parameters: vec![],
+                stored: None,
+                warnings: vec![],
+            },
         }
     }
 }
@@ -168,10 +173,13 @@ impl PyRecording {
             "n_angles": seq.n_angles(),
             "nyquist_velocity_m_s": acq.nyquist_velocity(),
             "recorded_depth_m": pcuvd::pipeline::recorded_depth(&self.data),
-            "files": self.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+            "files": self.info.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
             "input": self.input,
-            "format": self.format.0,
-            "reader": self.format.1,
+            "format": self.info.format,
+            "reader": self.info.reader,
+            "parameters": self.info.parameters,
+            "stored_samples": self.info.stored,
+            "warnings": self.info.warnings,
         })
         .to_string()
     }
@@ -183,25 +191,45 @@ impl PyRecording {
 fn read_recording(py: Python<'_>, path: PathBuf, overrides: &str) -> PyResult<PyRecording> {
     let overrides: serde_json::Map<String, Value> =
         serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    let (mut data, files) = py
-        .detach(|| cli_process::read_input(&path))
+    let reader_overrides = reader_overrides(&overrides)
+        .with_context(|| format!("{}: overrides", path.display()))
+        .map_err(to_py)?;
+    let (mut data, info) = py
+        .detach(|| -> anyhow::Result<_> {
+            let opened = pcuvd_io::open_recording(&path, &reader_overrides)?;
+            Ok((opened.read_all()?, opened.info))
+        })
         .map_err(to_py)?;
     apply_overrides(&mut data, &overrides)
         .with_context(|| format!("{}: overrides", path.display()))
         .map_err(to_py)?;
-    let format = match files.len() {
-        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
-        _ => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::read_recording",
+    Ok(PyRecording {
+        data: Arc::new(data),
+        input: path.display().to_string(),
+        info,
+    })
+}
+
+/// The overrides the reader applies itself (so that it records them as the parameters'
+/// source, and a file without t0 can be read with `t0_s=`).
+fn reader_overrides(map: &serde_json::Map<String, Value>) -> anyhow::Result<pcuvd_io::Overrides> {
+    let angles = match map.get("angles_rad").filter(|v| !v.is_null()) {
+        Some(v) => Some(
+            serde_json::from_value(v.clone())
+                .with_context(|| format!("angles_rad: expected a list of numbers, got {v}"))?,
         ),
+        None => None,
     };
-    Ok(PyRecording::new(
-        data,
-        files,
-        path.display().to_string(),
-        format,
-    ))
+    Ok(pcuvd_io::Overrides {
+        t0_s: number(map, "t0_s")?,
+        sound_speed_m_s: number(map, "sound_speed_m_s")?,
+        event_prf_hz: number(map, "event_prf_hz")?,
+        sampling_freq_hz: number(map, "sampling_freq_hz")?,
+        center_freq_hz: number(map, "center_freq_hz")?,
+        demod_freq_hz: None,
+        angles_rad: angles,
+        pulse_cycles: number(map, "pulse_cycles")?,
+    })
 }
 
 fn number(map: &serde_json::Map<String, Value>, key: &str) -> anyhow::Result<Option<f64>> {
@@ -427,9 +455,8 @@ struct PyProcessResult {
     /// The processing options it ran with (a dynamics re-run keeps them).
     options: pcuvd_cli::options::ProcessingOptions,
     recording: Arc<ChannelData>,
-    files: Vec<PathBuf>,
     input: String,
-    format: (String, String),
+    info: pcuvd_io::SourceInfo,
     plan: Plan,
     processed: Processed,
 }
@@ -461,9 +488,8 @@ fn process(
     Ok(PyProcessResult {
         options: call.options,
         recording: data,
-        files: recording.files.clone(),
         input: recording.input.clone(),
-        format: recording.format.clone(),
+        info: recording.info.clone(),
         plan,
         processed,
     })
@@ -473,8 +499,7 @@ impl PyProcessResult {
     fn source(&self) -> anyhow::Result<Value> {
         cli_process::provenance(
             &self.input,
-            &self.files,
-            (&self.format.0, &self.format.1),
+            &self.info,
             &self.plan.options_text,
             vec![format!("python: pcuvd.process({:?})", self.input)],
         )
@@ -505,6 +530,9 @@ impl PyProcessResult {
             dict.set_item("ri", maps.ri.to_pyarray(py))?;
             dict.set_item("psv", maps.psv.to_pyarray(py))?;
             dict.set_item("edv", maps.edv.to_pyarray(py))?;
+            dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
+            dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
+            dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
             dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
             dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
             dict.set_item("speed_series", series.speed().into_pyarray(py))?;
@@ -553,9 +581,8 @@ impl PyProcessResult {
         Ok(PyProcessResult {
             options: self.options.clone(),
             recording: self.recording.clone(),
-            files: self.files.clone(),
             input: self.input.clone(),
-            format: self.format.clone(),
+            info: self.info.clone(),
             plan,
             processed: Processed {
                 out: self.processed.out.clone(),
@@ -583,7 +610,7 @@ impl PyProcessResult {
             pcuvd_cli::outputs::prepare(
                 &folder,
                 pcuvd_cli::outputs::PROCESS_OUTPUTS,
-                &self.files,
+                &self.info.files,
                 force,
             )?;
             let name = std::path::Path::new(&self.input)

@@ -107,7 +107,7 @@ pub fn plane_wave_from_delays(
         .zip(delays)
         .map(|(&x, d)| (d - line(x)).abs())
         .fold(0.0, f64::max);
-    if !(misfit <= tolerance) {
+    if misfit.is_nan() || misfit > tolerance {
         return Err(format!(
             "is not a plane wave: the best plane wave misses a delay by {:.4} µs (at most {:.4} µs \
              is accepted); focused and diverging waves are not supported",
@@ -116,7 +116,7 @@ pub fn plane_wave_from_delays(
         ));
     }
     let sin = c * slope;
-    if !(sin.abs() < 1.0) {
+    if sin.is_nan() || sin.abs() >= 1.0 {
         return Err(format!(
             "implies sin θ = {sin:.4} for c = {c} m/s: a plane wave needs |sin θ| < 1 (delays \
              too steep, or in another unit than s)"

@@ -154,35 +154,27 @@ pub fn form_images_in_blocks(
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
     for (b, (block, decoded)) in ranges.iter().enumerate() {
-        let clock = Instant::now();
-        progress(Stage::Decode, b, ranges.len());
-        let data = source.read_frames(decoded.clone())?;
-        recorded = recorded || data.samples.any_nonzero();
-        let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
-        drop(data);
-        if decoded != block {
-            per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
-        }
-        decode_s += clock.elapsed().as_secs_f64();
-
-        let clock = Instant::now();
-        for (k, &angle) in angles.iter().enumerate() {
-            progress(Stage::Beamform, b * n + k, ranges.len() * n);
-            let channels = iq::demodulate(
-                &per_angle,
-                k,
-                acq.t0,
-                acq.sampling_frequency,
-                acq.probe.center_frequency,
-                params.iq_cutoff,
-            )?;
-            let image =
-                beamform::beamform(&channels, &acq.probe, angle, &params.grid, &params.das)?;
+        let formed = form_block(
+            source,
+            params,
+            block.clone(),
+            decoded.clone(),
+            &|stage, k| {
+                let (done, total) = match stage {
+                    Stage::Decode => (b, ranges.len()),
+                    _ => (b * n + k, ranges.len() * n),
+                };
+                progress(stage, done, total)
+            },
+        )?;
+        decode_s += formed.decode_s;
+        beamform_s += formed.beamform_s;
+        recorded = recorded || formed.recorded;
+        for (k, image) in formed.images.iter().enumerate() {
             series[k]
                 .slice_mut(ndarray::s![.., .., block.clone()])
-                .assign(&image);
+                .assign(image);
         }
-        beamform_s += clock.elapsed().as_secs_f64();
     }
     if !recorded {
         // Zeros beamform to zeros, and every map of them would be NaN or empty: a recording of
@@ -207,6 +199,76 @@ pub fn form_images_in_blocks(
         images,
         vec![(Stage::Decode, decode_s), (Stage::Beamform, beamform_s)],
     ))
+}
+
+/// The images of one block of frames, per angle, and the seconds its decoding and its
+/// demodulation + beamforming took.
+pub struct BlockImages {
+    /// Per angle, the block's image series (nz, nx, block frames).
+    pub images: Vec<Array3<Complex32>>,
+    /// Seconds spent reading and decoding.
+    pub decode_s: f64,
+    /// Seconds spent demodulating and beamforming.
+    pub beamform_s: f64,
+    /// True when some sample of the decoded frames is not zero.
+    pub recorded: bool,
+}
+
+/// Forms the images of frames `block` of `source`, decoding frames `decoded` (which holds
+/// `block`, plus the margin the event alignment needs): one step of [`form_images_in_blocks`],
+/// for callers that combine blocks of several sources (echoes and noise, say) as they come.
+/// `progress(stage, k)` is called before decoding (k = 0) and before each angle k is beamformed.
+pub fn form_block(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    block: std::ops::Range<usize>,
+    decoded: std::ops::Range<usize>,
+    progress: &dyn Fn(Stage, usize),
+) -> Result<BlockImages> {
+    let acq = source.acquisition();
+    if !(decoded.start <= block.start && block.end <= decoded.end && block.start < block.end) {
+        return Err(invalid(
+            "frames",
+            format!("block {block:?} is not within the decoded frames {decoded:?}"),
+        ));
+    }
+    let clock = Instant::now();
+    progress(Stage::Decode, 0);
+    let data = source.read_frames(decoded.clone())?;
+    let recorded = data.samples.any_nonzero();
+    let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
+    drop(data);
+    if decoded != block {
+        per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
+    }
+    let decode_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let mut images = Vec::with_capacity(acq.sequence.n_angles());
+    for (k, &angle) in acq.sequence.angles.iter().enumerate() {
+        progress(Stage::Beamform, k);
+        let channels = iq::demodulate(
+            &per_angle,
+            k,
+            acq.t0,
+            acq.sampling_frequency,
+            acq.probe.center_frequency,
+            params.iq_cutoff,
+        )?;
+        images.push(beamform::beamform(
+            &channels,
+            &acq.probe,
+            angle,
+            &params.grid,
+            &params.das,
+        )?);
+    }
+    Ok(BlockImages {
+        images,
+        decode_s,
+        beamform_s: clock.elapsed().as_secs_f64(),
+        recorded,
+    })
 }
 
 /// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
@@ -301,12 +363,15 @@ pub fn analyse(
 
 /// The dynamics stage on a processed recording: vector velocity in sliding windows over the
 /// clutter-filtered series (`params`), the whole-recording vessel mask of `vessel` on its power
-/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels. `process`, the
-/// vessel-network study and the tests all run it through here.
+/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels, over the cardiac
+/// cycles that `triggers` (s from the first frame: ECG R-waves or scanner triggers) delimit when
+/// given, else found as [`dynamics::cardiac_cycles`] says. `process`, the vessel-network study and
+/// the tests all run it through here.
 pub fn dynamics(
     out: &ProcessOutput,
     params: &DynamicsParams,
     vessel: &VesselTests,
+    triggers: Option<&[f64]>,
 ) -> Result<(VelocitySeries, RiMaps)> {
     if out.filtered.n_angles() < 2 {
         return Err(invalid(
@@ -317,7 +382,7 @@ pub fn dynamics(
     params.validate(out.filtered.frame_rate)?;
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
     let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
-    let maps = dynamics::ri_maps_where(&series, params, Some(&flow))?;
+    let maps = dynamics::ri_maps_triggered(&series, params, Some(&flow), triggers)?;
     Ok((series, maps))
 }
 

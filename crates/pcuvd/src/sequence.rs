@@ -170,7 +170,7 @@ impl TransmitCode {
             ));
         }
         let condition = self.condition_number();
-        if !(condition <= MAX_CODE_CONDITION) {
+        if condition.is_nan() || condition > MAX_CODE_CONDITION {
             // Beyond 10¹² the smallest singular value is rounding noise: the matrix is singular.
             let what = if condition <= 1e12 {
                 format!("ill-conditioned (condition number {condition:.3e})")

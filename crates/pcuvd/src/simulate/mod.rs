@@ -457,6 +457,26 @@ pub fn simulate_noise(
     params: &SimParams,
     n_frames: usize,
 ) -> Result<ChannelData> {
+    let n_events = n_frames.saturating_mul(params.sequence.n_angles());
+    Ok(ChannelData {
+        acquisition: params.acquisition(),
+        samples: Samples::Rf(simulate_noise_events(
+            phantom,
+            params,
+            n_frames,
+            0..n_events,
+        )?),
+    })
+}
+
+/// Events `events` of the noise [`simulate_noise`] makes for a recording of `n_frames` frames,
+/// shape (events, channels, samples): the same samples, bit for bit, a block at a time.
+pub fn simulate_noise_events(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+    events: std::ops::Range<usize>,
+) -> Result<Array3<f32>> {
     params.validate()?;
     if n_frames == 0 {
         return Err(invalid("number of frames", "must be at least 1"));
@@ -467,6 +487,14 @@ pub fn simulate_noise(
             "simulate_noise needs a noise specification",
         ));
     }
+    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
+    let n_events = n_frames.saturating_mul(params.sequence.n_angles());
+    if events.start > events.end || events.end > n_events {
+        return Err(invalid(
+            "events",
+            format!("{events:?} is not within the recording's {n_events} events"),
+        ));
+    }
     let sim = Simulator::new(params)?;
     let mut positions = Vec::with_capacity(phantom.n_scatterers());
     let load = |t: f64, out: &mut Vec<[f64; 2]>| -> Result<()> {
@@ -475,22 +503,19 @@ pub fn simulate_noise(
     };
     let generator =
         noise_generator(phantom, params, &sim, &mut positions, &load)?.expect("noise is specified");
-    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
-    let n_events = n_frames * params.sequence.n_angles();
-    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
+    let first = events.start;
+    let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
     rf.axis_iter_mut(Axis(0))
         .into_par_iter()
         .enumerate()
-        .for_each(|(event, mut out)| {
+        .for_each(|(i, mut out)| {
+            let event = first + i;
             for (channel, mut trace) in out.axis_iter_mut(Axis(0)).enumerate() {
                 let trace = trace.as_slice_mut().expect("standard layout");
                 generator.add(trace, (event * n_channels + channel) as u64);
             }
         });
-    Ok(ChannelData {
-        acquisition: params.acquisition(),
-        samples: Samples::Rf(rf),
-    })
+    Ok(rf)
 }
 
 /// Echo arrival time (s, relative to the record's first sample) of a scatterer at (x, z) (m) for a
