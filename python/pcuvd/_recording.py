@@ -71,13 +71,34 @@ class Recording:
 
     @property
     def coding(self) -> str:
-        """"none" (one angle per event) or "hadamard" (every event fires every angle)."""
+        """"none" (one angle per event), "hadamard" (every event fires every angle) or "matrix"
+        (an explicit code from a version 2 manifest: see `code_matrix` and `slot_starts_s`)."""
         return self._acquisition["coding"]
 
     @property
     def slot_delay_s(self) -> float | None:
-        """Delay between successive Hadamard pulse slots (s); None when not coded."""
+        """Delay between successive Hadamard pulse slots (s); None when not coded or uneven."""
         return self._acquisition["slot_delay_s"]
+
+    @property
+    def code_matrix(self) -> np.ndarray:
+        """The transmit code, shape (events per frame, angles): entry (i, k) is the weight (±1,
+        or 0 when silent) of angle k in event i of a compound frame; the identity when not coded."""
+        return np.array(self._acquisition["code_matrix"], dtype=float)
+
+    @property
+    def slot_starts_s(self) -> np.ndarray:
+        """When each angle's slot fires within its event (s), shape (angles,)."""
+        return np.array(self._acquisition["slot_starts_s"], dtype=float)
+
+    @property
+    def transmit_pulse(self) -> tuple[np.ndarray, float] | None:
+        """The transmit pulse as sampled (samples, sampling frequency in Hz), or None when only
+        `pulse_cycles` is known. The simulator sends it through the probe's response."""
+        pulse = self._acquisition["transmit_pulse"]
+        if pulse is None:
+            return None
+        return np.array(pulse["samples"], dtype=float), float(pulse["sampling_freq_hz"])
 
     @property
     def pulse_cycles(self) -> float:

@@ -56,15 +56,11 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let memory_bytes = grid.as_ref().map_or(0, |g| {
         usize::try_from(pcuvd::pipeline::memory_estimate(source, g)).unwrap_or(usize::MAX)
     });
-    let f_max = probe.center_frequency * (1.0 + probe.bandwidth / 2.0);
     let mut warnings = info.warnings.clone();
-    if demod.is_none() && acq.sampling_frequency < 2.0 * f_max {
-        warnings.push(format!(
-            "f_s {:.2} MHz is below 2 × {:.2} MHz (twice the band's top): the RF is band-pass \
-             sampled; pcuvd demodulates it as such, but check that the band does not fold onto itself",
-            acq.sampling_frequency * 1e-6,
-            f_max * 1e-6
-        ));
+    if demod.is_none()
+        && let Some(warning) = crate::process::band_pass_warning(acq)
+    {
+        warnings.push(warning);
     }
     if acq.nyquist_velocity() < LOW_NYQUIST_M_S {
         warnings.push(format!(
@@ -76,12 +72,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
-    let coding = match seq.coding {
-        Coding::Conventional => json!({ "kind": "none" }),
-        Coding::Hadamard { slot_delay } => {
-            json!({ "kind": "hadamard", "order": n_angles, "slot_delay_s": slot_delay })
-        }
-    };
+    let coding = crate::process::coding_json(seq);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -106,6 +97,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "t0_s": acq.t0,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding,
+            "pulse_cycles": seq.pulse_cycles,
+            "transmit_pulse": crate::process::pulse_json(seq),
             "event_prf_hz": seq.event_prf,
             "frames": frames,
             "frame_rate_hz": acq.frame_rate(),
@@ -173,11 +166,27 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     println!("  angles (°)   {}", angles.join(", "));
     println!(
         "  coding       {}",
-        match seq.coding {
+        match &seq.coding {
             Coding::Conventional => "none (one angle per event)".to_string(),
             Coding::Hadamard { slot_delay } => format!(
                 "Hadamard order {n_angles}, slot delay {:.3} µs",
                 slot_delay * 1e6
+            ),
+            Coding::Matrix(code) => format!(
+                "explicit code matrix of order {n_angles}{} (decoded records are {:.0} × each \
+                 angle's; condition number {:.3}), slot starts {} µs",
+                if code.is_coded() {
+                    ""
+                } else {
+                    " (one slot per event)"
+                },
+                code.decoding_gain(),
+                code.condition_number(),
+                code.slot_starts
+                    .iter()
+                    .map(|t| format!("{:.3}", t * 1e6))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         }
     );

@@ -83,7 +83,7 @@ impl AcquisitionOverrides {
 /// Reads a whole recording, any format (recognised from its content). Returns the data and every
 /// file it was read from (a manifest and its samples, or the one file).
 pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
-    let opened = pcuvd_io::open_recording(path, &pcuvd_io::Overrides::default())?;
+    let opened = open_input(path, &pcuvd_io::Overrides::default())?;
     let data = opened.read_all()?;
     Ok((data, opened.info.files))
 }
@@ -95,7 +95,57 @@ pub fn open_input(
     path: &Path,
     overrides: &pcuvd_io::Overrides,
 ) -> Result<pcuvd_io::OpenedRecording> {
-    Ok(pcuvd_io::open_recording(path, overrides)?)
+    let opened = pcuvd_io::open_recording(path, overrides)?;
+    check_recording(path, opened.source.as_ref())?;
+    Ok(opened)
+}
+
+/// The warning for RF that is band-pass sampled (f_s below twice the band's top, the band whole in
+/// one Nyquist zone: valid, and demodulated as such); `None` when f_s is above twice the band's top
+/// or the band folds (an error the readers give).
+pub fn band_pass_warning(acq: &pcuvd::Acquisition) -> Option<String> {
+    match acq.rf_band_sampling() {
+        Ok(pcuvd::BandSampling::BandPass { zone }) => {
+            let probe = &acq.probe;
+            let (low, high) = (
+                probe.center_frequency * (1.0 - probe.bandwidth / 2.0),
+                probe.center_frequency * (1.0 + probe.bandwidth / 2.0),
+            );
+            let half = acq.sampling_frequency / 2.0;
+            Some(format!(
+                "f_s {:.3} MHz is below twice the band's top ({:.3} MHz): the RF is band-pass \
+                 sampled, its band {:.3}–{:.3} MHz lying in Nyquist zone {zone} ({:.3}–{:.3} MHz); \
+                 pcuvd demodulates it as such, but a band wider than the probe's stated bandwidth \
+                 would fold onto itself",
+                acq.sampling_frequency * 1e-6,
+                2.0 * high * 1e-6,
+                low * 1e-6,
+                high * 1e-6,
+                zone as f64 * half * 1e-6,
+                (zone + 1) as f64 * half * 1e-6
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// [`band_pass_warning`] for a recording whose samples are RF (read from its first frame).
+fn rf_band_pass_warning(data: &dyn FrameSource) -> Result<Option<String>> {
+    if data.n_frames() == 0 {
+        return Ok(None);
+    }
+    let first = data.read_frames(0..1)?;
+    Ok(match first.samples {
+        pcuvd::Samples::Rf(_) => band_pass_warning(data.acquisition()),
+        pcuvd::Samples::Iq { .. } => None,
+    })
+}
+
+/// Checks what a recording's acquisition says against its samples' shape before any work (every
+/// pulse slot starts within the record), naming the file.
+fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
+    pipeline::check_record(data.acquisition(), data.trace_shape().1)
+        .with_context(|| path.display().to_string())
 }
 
 /// Creates `dir` (and parents), with a message naming it on failure.
@@ -117,7 +167,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         plan.options_text
             .push_str(&format!(" {:?}", args.acquisition));
     }
-    check_memory(data, &plan.params, args.max_memory_gb)?;
+    let band_warning = rf_band_pass_warning(data)?;
+    check_memory(data, &plan, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
     let source = provenance(
         &args.input.display().to_string(),
@@ -145,6 +196,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    // Said once the run is accepted (not before an error, which stays the only line).
+    if let Some(warning) = band_warning {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
@@ -214,6 +269,43 @@ impl Plan {
                 triggers: dynamics.triggers()?,
             })
         };
+        if dynamics.explicit()
+            && let Some(settings) = &dynamics_settings
+        {
+            // Asked for: what the recording cannot give is refused now, not after processing.
+            let acq = data.acquisition();
+            if acq.sequence.n_angles() < 2 {
+                bail!(
+                    "the dynamics stage (asked for by --dynamics on or a dynamics option) needs two \
+                     or more steering angles for vector velocity; the recording has one"
+                );
+            }
+            settings
+                .params
+                .validate(acq.frame_rate())
+                .context("dynamics options")?;
+            let duration = data.n_frames() as f64 / acq.frame_rate();
+            if let Some(hr) = settings.params.heart_rate_hz
+                && 1.0 / hr > duration
+            {
+                bail!(
+                    "--heart-rate {}: a cycle lasts {:.4} s but the recording holds {:.4} s \
+                     ({} frames at {:.1} Hz); RI needs at least one whole cycle",
+                    crate::options::shown("--heart-rate", hr),
+                    1.0 / hr,
+                    duration,
+                    data.n_frames(),
+                    acq.frame_rate()
+                );
+            }
+            if settings.params.window > data.n_frames() {
+                bail!(
+                    "--window-ms: a window of {} frames is longer than the recording's {} frames",
+                    settings.params.window,
+                    data.n_frames()
+                );
+            }
+        }
         Ok(Plan {
             ensembles: options.ensembles(data.n_frames())?,
             params,
@@ -346,25 +438,61 @@ pub fn save(
     Ok(pngs)
 }
 
-/// Refuses, before any work, a recording and grid whose processing would need more memory than
-/// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
-pub fn check_memory(
-    data: &dyn FrameSource,
-    params: &ProcessParams,
-    limit_gb: Option<f64>,
-) -> Result<()> {
+/// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
+pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
+speed and the pooled speed per window) + time series: ensembles × pixels × 6 × 8 bytes (five \
+maps and a filtered copy of one ensemble's frames per angle counted once more)";
+
+/// Bytes the stages after image formation hold beyond the chain's image series
+/// ([`STAGE_MEMORY_RULE`]): the dynamics stage's window series and a time series' maps.
+fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
+    let (nz, nx) = plan.params.grid.shape();
+    let pixels = (nz * nx) as u128;
+    let frames = data.n_frames();
+    // The stage runs only with two angles or more and a window the recording holds.
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
+        if !vectors || d.params.window > frames {
+            return 0;
+        }
+        let windows = (frames - d.params.window) / d.params.step.max(1) + 1;
+        5 * windows as u128 * pixels * 8
+    });
+    let ensembles = plan.ensembles.map_or(0, |e| {
+        let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
+        let angles = data.acquisition().sequence.n_angles() as u128;
+        count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * angles * 8
+    });
+    dynamics + ensembles
+}
+
+/// Refuses, before any work, a recording, grid and stages whose processing would need more memory
+/// than the machine has available ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`]),
+/// instead of aborting on allocation.
+pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
+    let params = &plan.params;
     let available = match limit_gb {
         Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
-        Some(gb) => bail!("--max-memory-gb {gb}: must be a positive number of GB"),
+        Some(gb) => bail!(
+            "--max-memory-gb {}: must be a positive number of GB",
+            crate::options::shown("--max-memory-gb", gb)
+        ),
         None => available_memory().map(|b| b as f64),
     };
-    let needed = pipeline::memory_estimate(data, &params.grid) as f64;
+    let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
     if let Some(available) = available
         && needed > available
     {
+        let what = match limit_gb {
+            Some(gb) => format!(
+                "--max-memory-gb {}",
+                crate::options::shown("--max-memory-gb", gb)
+            ),
+            None => "the machine".to_string(),
+        };
         bail!(
-            "processing needs about {:.3} GB ({}) but {:.3} GB are available: use a coarser or \
-             smaller --grid, or a shorter recording",
+            "processing needs about {:.3} GB ({} {STAGE_MEMORY_RULE}) but {:.3} GB are \
+             available ({what}): use a coarser or smaller --grid, or a shorter recording",
             needed / 1e9,
             pipeline::MEMORY_ESTIMATE_RULE,
             available / 1e9
@@ -627,6 +755,41 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     Ok(())
 }
 
+/// How the angles were transmitted, for summary.json and `pcuvd info`: `kind` "none",
+/// "hadamard" (order, even slot delay) or "matrix" (the code's weights row by row, each slot's
+/// start, the decoding gain g — decoded records are g × each angle's — and the condition number).
+pub fn coding_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.coding {
+        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
+        pcuvd::Coding::Hadamard { slot_delay } => json!({
+            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
+        }),
+        pcuvd::Coding::Matrix(code) => json!({
+            "kind": "matrix",
+            "order": code.order(),
+            "code_matrix": code.weights.chunks(code.order().max(1)).collect::<Vec<_>>(),
+            "slot_starts_s": code.slot_starts,
+            "events_fire_several_slots": code.is_coded(),
+            "decoding_gain": code.decoding_gain(),
+            "condition_number": code.condition_number(),
+        }),
+    }
+}
+
+/// The sampled transmit pulse for summary.json and `pcuvd info` (null when the sequence has
+/// none): its sampling rate, length, and what pcuvd uses it for.
+pub fn pulse_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.pulse {
+        None => serde_json::Value::Null,
+        Some(p) => json!({
+            "sampling_frequency_hz": p.sampling_frequency,
+            "n_samples": p.samples.len(),
+            "duration_s": p.duration(),
+            "used_for": "simulation (the echo waveform: the pulse through the probe's two-way response); processing does not need it",
+        }),
+    }
+}
+
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
 pub fn summary_json(
     data: &dyn FrameSource,
@@ -637,13 +800,10 @@ pub fn summary_json(
     let acq = data.acquisition();
     let probe = &acq.probe;
     let seq = &acq.sequence;
-    let coding = match seq.coding {
-        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
-        pcuvd::Coding::Hadamard { slot_delay } => json!({
-            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
-            "event_alignment": params.event_alignment.label(),
-        }),
-    };
+    let mut coding = coding_json(seq);
+    if seq.is_coded() {
+        coding["event_alignment"] = json!(params.event_alignment.label());
+    }
     let timings: serde_json::Map<String, serde_json::Value> = out
         .timings
         .iter()
@@ -662,6 +822,7 @@ pub fn summary_json(
             "t0_s": acq.t0, "event_prf_hz": seq.event_prf,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding, "frames": data.n_frames(), "frame_rate_hz": acq.frame_rate(),
+            "pulse_cycles": seq.pulse_cycles, "transmit_pulse": pulse_json(seq),
         },
         "grid": {
             "x_min_m": out.grid.x[0], "x_max_m": out.grid.x[out.grid.x.len() - 1],

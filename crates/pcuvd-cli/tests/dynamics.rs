@@ -70,6 +70,7 @@ fn write_recording(dir: &Path) -> std::path::PathBuf {
         event_prf: 7.2e3,
         coding: Coding::Conventional,
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let params = SimParams::new(probe, sequence, 65e6, 1540.0, (4.5e-3, 8.5e-3)).unwrap();
     let data = simulate::simulate(&phantom, &params, 200, &|_, _| {}).unwrap();
@@ -225,7 +226,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
         assert!(stderr.contains(needle), "{needle:?} missing: {stderr}");
     };
-    refuse(&["--heart-rate", "4"], "shorter than one cardiac cycle");
+    refuse(&["--heart-rate", "4"], "RI needs at least one whole cycle");
     refuse(
         &[
             "--heart-rate",

@@ -32,6 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         event_prf: 6000.0,
         coding: Coding::Conventional,
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let mut params = SimParams::new(probe, sequence, 20e6, 1540.0, (8e-3, 16e-3))?;
     params.seed = 7;

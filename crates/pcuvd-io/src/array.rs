@@ -73,7 +73,8 @@ impl Dtype {
     pub fn from_numpy(code: &str) -> Option<Dtype> {
         Some(match code {
             "i1" => Dtype::I8,
-            "u1" | "b1" => Dtype::U8,
+            // Booleans ("b1") are masks, not samples: refused with the type named.
+            "u1" => Dtype::U8,
             "i2" => Dtype::I16,
             "u2" => Dtype::U16,
             "i4" => Dtype::I32,
@@ -642,7 +643,8 @@ impl ArrayFrames {
         }
         if channels != acquisition.probe.n_elements {
             return Err(fail(format!(
-                "the probe has {} elements but the 'channels' axis of {} has {channels} (shape {:?})",
+                "do not match the probe: it has {} elements ([probe].n_elements in a manifest) \
+                 but the 'channels' axis of {} has {channels} (shape {:?})",
                 acquisition.probe.n_elements, array.label, array.shape
             )));
         }

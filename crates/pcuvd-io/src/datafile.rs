@@ -53,8 +53,8 @@ pub fn parse_data_file(manifest: &Path, file: &str) -> Result<DataSpec, IoError>
             });
         }
     }
-    let what = if whole.is_dir() {
-        "which is a folder, not a file".to_string()
+    let what = if let Some(kind) = crate::paths::what_is(&whole) {
+        format!("which is {kind}, not a file")
     } else if let Some((f, _)) = file.split_once(':') {
         format!(
             "but neither {} nor {} exists",

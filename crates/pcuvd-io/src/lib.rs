@@ -10,7 +10,8 @@
 //! - [`open`]: [`open_recording`], the one entry point that recognises any supported recording
 //!   from its content (MUST v5/v7.3/npz, UFF, zea, Verasonics, manifests) and reads it a block of
 //!   frames at a time, with every acquisition parameter's source ([`params`]);
-//! - [`array`], [`npz`], [`hdf5`], [`mat73`], [`datafile`]: the stored arrays those readers share.
+//! - [`array`], [`npz`], [`hdf5`], [`mat73`], [`datafile`]: the stored arrays those readers share;
+//! - [`paths`]: what a path names (a folder, a pipe, a link loop), said before it is opened.
 //!
 //! Every error is an [`IoError`] whose message names the file, the field and the problem.
 
@@ -32,6 +33,7 @@ pub mod npy;
 pub mod npz;
 pub mod open;
 pub mod params;
+pub mod paths;
 pub mod uff;
 pub mod verasonics;
 pub mod zea;
@@ -45,3 +47,4 @@ pub use must::read_must_mat;
 pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
 pub use open::{OpenedRecording, SourceInfo, StoredSamples, open_recording};
 pub use params::{Overrides, ParamSource, Parameter};
+pub use paths::check_regular_file;

@@ -97,32 +97,61 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         None,
         never,
     )?;
+    let cycles_source = if !has("acquisition", "pulse_cycles") && acq.sequence.pulse.is_some() {
+        crate::params::derived("[acquisition.pulse] (its length in cycles of the centre frequency)")
+    } else {
+        src("acquisition", "pulse_cycles")
+    };
     acq.sequence.pulse_cycles = r.number(
         "pulse_cycles",
-        Some((
-            acq.sequence.pulse_cycles,
-            src("acquisition", "pulse_cycles"),
-        )),
+        Some((acq.sequence.pulse_cycles, cycles_source)),
         None,
         never,
     )?;
     let angle_key = if has("acquisition", "angles_deg") {
         "angles_deg"
-    } else {
+    } else if has("acquisition", "angles_rad") {
         "angles_rad"
+    } else {
+        // Version 2: derived from the per-element delays (each row fitted to a plane wave).
+        "transmit_delays_s"
     };
-    acq.sequence.angles = r.angles((
-        acq.sequence.angles.clone(),
-        field(format!("[acquisition].{angle_key}")),
-    ));
+    let angle_source = if angle_key == "transmit_delays_s" {
+        crate::params::derived("[acquisition].transmit_delays_s (each row fitted to a plane wave)")
+    } else {
+        field(format!("[acquisition].{angle_key}"))
+    };
+    acq.sequence.angles = r.angles((acq.sequence.angles.clone(), angle_source));
     r.record(
         "coding",
         json!(match acq.sequence.coding {
             pcuvd::Coding::Conventional => "none",
             pcuvd::Coding::Hadamard { .. } => "hadamard",
+            pcuvd::Coding::Matrix(_) => "matrix",
         }),
         field("[acquisition].coding"),
     );
+    if let pcuvd::Coding::Matrix(code) = &acq.sequence.coding {
+        let starts_key = if has("acquisition", "transmit_delays_s") {
+            "transmit_delays_s"
+        } else if has("acquisition", "slot_delays_s") {
+            "slot_delays_s"
+        } else {
+            "slot_delay_s"
+        };
+        r.record(
+            "slot_starts_s",
+            json!(code.slot_starts),
+            field(format!("[acquisition].{starts_key}")),
+        );
+        if has("acquisition", "code_matrix") {
+            r.record(
+                "code_matrix",
+                json!(code.weights.chunks(code.order().max(1)).collect::<Vec<_>>()),
+                field("[acquisition].code_matrix"),
+            );
+        }
+    }
     if let pcuvd::Coding::Hadamard { slot_delay } = acq.sequence.coding {
         r.record(
             "slot_delay_s",
@@ -182,6 +211,8 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         .map(|a| match a.as_str() {
             "frames" => Axis::Frames,
             "angles" => Axis::Angles,
+            // From version 2 the events of a compound frame are named "events" beside "frames".
+            "events" if parsed.axes.len() == 4 => Axis::Angles,
             "events" => Axis::Events,
             "channels" => Axis::Channels,
             _ => Axis::Samples,

@@ -582,6 +582,7 @@ fn build(
             event_prf: prf,
             coding: Coding::Conventional,
             pulse_cycles,
+            pulse: None,
         },
         sampling_frequency: fs,
         sound_speed: c,

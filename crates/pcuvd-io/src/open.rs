@@ -197,6 +197,8 @@ pub fn read_head(path: &Path, n: usize) -> Result<Vec<u8>, IoError> {
 
 /// Opens the recording at `path`, whatever its format, applying the user's `overrides`.
 pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
+    // A folder, a named pipe (reading one would wait forever) or a link loop is said as such.
+    crate::paths::check_regular_file(path)?;
     let head = read_head(path, 8192)?;
     let ext = path
         .extension()

@@ -480,6 +480,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             event_prf: prf,
             coding: pcuvd::Coding::Conventional,
             pulse_cycles,
+            pulse: None,
         },
         sampling_frequency: fs,
         sound_speed: c,

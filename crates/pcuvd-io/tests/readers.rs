@@ -365,7 +365,7 @@ fn unrecognised_files_say_what_they_look_like() {
     let e = open_recording(dir.path(), &Overrides::default())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("it is a folder"), "{e}");
+    assert!(e.contains("is a folder, not a file"), "{e}");
     // An archive that is not PyMUST-style asks for a manifest.
     let e = open_recording(&fixture("disk.npz"), &Overrides::default()).map(|_| ());
     assert!(e.is_ok());

@@ -143,7 +143,9 @@ impl PyRecording {
         let (coding, slot_delay) = match seq.coding {
             Coding::Conventional => ("none", Value::Null),
             Coding::Hadamard { slot_delay } => ("hadamard", json!(slot_delay)),
+            Coding::Matrix(_) => ("matrix", Value::Null),
         };
+        let code = seq.transmit_code().ok();
         let demod = match &self.data.samples {
             Samples::Rf(_) => Value::Null,
             Samples::Iq {
@@ -161,7 +163,10 @@ impl PyRecording {
             "angles_rad": seq.angles,
             "coding": coding,
             "slot_delay_s": slot_delay,
+            "code_matrix": code.as_ref().map(|c| c.weights.chunks(c.order().max(1)).map(<[f64]>::to_vec).collect::<Vec<_>>()),
+            "slot_starts_s": code.as_ref().map(|c| c.slot_starts.clone()),
             "pulse_cycles": seq.pulse_cycles,
+            "transmit_pulse": seq.pulse.as_ref().map(|p| json!({"samples": p.samples, "sampling_freq_hz": p.sampling_frequency})),
             "demod_freq_hz": demod,
             "n_events": events, "n_channels": channels, "n_samples": samples,
             "n_frames": self.data.n_frames(),
@@ -400,6 +405,7 @@ fn recording_from_arrays(
                     event_prf: required("event_prf_hz")?,
                     coding: Coding::Conventional,
                     pulse_cycles: number(&fields, "pulse_cycles")?.unwrap_or(2.0),
+                    pulse: None,
                 },
                 sampling_frequency: required("sampling_freq_hz")?,
                 sound_speed: number(&fields, "sound_speed_m_s")?.unwrap_or(1540.0),
@@ -471,7 +477,7 @@ fn process(
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
             let plan = Plan::new(&call.options, &call.dynamics, &*data)?;
-            cli_process::check_memory(&*data, &plan.params, call.max_memory_gb)?;
+            cli_process::check_memory(&*data, &plan, call.max_memory_gb)?;
             let progress = PipelineProgress::new("");
             let processed =
                 cli_process::compute(&*data, &plan, &|s, d, t| progress.update(s, d, t))

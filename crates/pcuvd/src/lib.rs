@@ -40,8 +40,8 @@ pub mod study;
 pub mod vector;
 pub mod vessel;
 
-pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
+pub use channel::{Acquisition, AngleSamples, BandSampling, ChannelData, Samples};
 pub use error::{Error, Result};
 pub use hadamard::Hadamard;
 pub use probe::Probe;
-pub use sequence::{Coding, Sequence};
+pub use sequence::{Coding, Sequence, TransmitCode, TransmitPulse};

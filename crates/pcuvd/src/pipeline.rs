@@ -152,6 +152,7 @@ pub fn form_images_in_blocks(
         (0..n).map(|_| Array3::zeros((nz, nx, frames))).collect();
     let ranges = blocks.ranges(frames);
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
+    let mut recorded = false;
     for (b, (block, decoded)) in ranges.iter().enumerate() {
         let formed = form_block(
             source,
@@ -168,11 +169,20 @@ pub fn form_images_in_blocks(
         )?;
         decode_s += formed.decode_s;
         beamform_s += formed.beamform_s;
+        recorded = recorded || formed.recorded;
         for (k, image) in formed.images.iter().enumerate() {
             series[k]
                 .slice_mut(ndarray::s![.., .., block.clone()])
                 .assign(image);
         }
+    }
+    if !recorded {
+        // Zeros beamform to zeros, and every map of them would be NaN or empty: a recording of
+        // nothing (a scanner that did not record, a wrong variable) is refused.
+        return Err(invalid(
+            "samples",
+            "every sample is zero: the recording holds no echo",
+        ));
     }
     progress(Stage::Decode, ranges.len(), ranges.len());
     progress(Stage::Beamform, ranges.len() * n, ranges.len() * n);
@@ -200,6 +210,8 @@ pub struct BlockImages {
     pub decode_s: f64,
     /// Seconds spent demodulating and beamforming.
     pub beamform_s: f64,
+    /// True when some sample of the decoded frames is not zero.
+    pub recorded: bool,
 }
 
 /// Forms the images of frames `block` of `source`, decoding frames `decoded` (which holds
@@ -223,6 +235,7 @@ pub fn form_block(
     let clock = Instant::now();
     progress(Stage::Decode, 0);
     let data = source.read_frames(decoded.clone())?;
+    let recorded = data.samples.any_nonzero();
     let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
     drop(data);
     if decoded != block {
@@ -254,6 +267,7 @@ pub fn form_block(
         images,
         decode_s,
         beamform_s: clock.elapsed().as_secs_f64(),
+        recorded,
     })
 }
 
@@ -396,7 +410,9 @@ pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none
 read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
 smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
-complex64)";
+complex64). FFT and filter lengths are bounded by the data: a slot shift by less than a record \
+(check_record), an IQ filter of at most 3·10⁴ taps (iq::MIN_CUTOFF_RATIO), a slow-time FFT of \
+twice the frames of a block";
 
 /// Working memory a block of frames may take while it is decoded, demodulated and beamformed
 /// (bytes): [`blocks_for`] sizes blocks to it.
@@ -423,10 +439,7 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
     if fit >= frames {
         return Blocks::whole(frames);
     }
-    let coded = matches!(
-        source.acquisition().sequence.coding,
-        crate::sequence::Coding::Hadamard { .. }
-    );
+    let coded = source.acquisition().sequence.is_coded();
     Blocks {
         frames: fit,
         margin: if coded && alignment == decode::EventAlignment::MidFrame {
@@ -447,6 +460,27 @@ pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let block = (blocks.frames + 2 * blocks.margin).min(source.n_frames()) as u128
         * block_bytes_per_frame(source) as u128;
     source.resident_bytes() as u128 + block + 2 * (nz * nx) as u128 * frames * angles * 8
+}
+
+/// Checks, before any work, that every pulse slot of `acq` starts within a record of `n_samples`
+/// samples: decoding advances slot k's record by its start, so a slot that starts after the record
+/// ends has no echo in it (and would ask for an FFT longer than the record).
+pub fn check_record(acq: &Acquisition, n_samples: usize) -> Result<()> {
+    let last = acq.sequence.last_slot_start();
+    let record = n_samples as f64 / acq.sampling_frequency;
+    if last >= record {
+        return Err(invalid(
+            "slot delays",
+            format!(
+                "the last pulse slot starts {:.3} µs into the event, after the {:.3} µs record \
+                 ({n_samples} samples at {:.3} MHz) ends: its echoes are not in the recording",
+                last * 1e6,
+                record * 1e6,
+                acq.sampling_frequency * 1e-6
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Deepest depth (m) whose straight-down echo lies inside the record.
@@ -482,6 +516,12 @@ pub fn default_grid_for(acq: &Acquisition, n_samples: usize) -> Result<Grid> {
     let extent = (x1 - x0).max(z1 - z0);
     step = step.max(extent / 400.0).max(1e-5);
     Grid::new(x0, x1, z0, z1, step)
+}
+
+/// Checks, before any work, that `grid` starts above the deepest depth a record of `n_samples`
+/// samples acquired as `acq` holds ([`recorded_depth_of`]).
+pub fn check_grid_depth(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Result<()> {
+    check_depth(recorded_depth_of(acq, n_samples), grid)
 }
 
 /// A grid deeper than the record can say nothing: refuse it rather than return zeros.

@@ -172,7 +172,7 @@ impl DynamicsParams {
             return Err(invalid(
                 "vessel power threshold",
                 format!(
-                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {} dB",
+                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {:?} dB",
                     self.min_power_db
                 ),
             ));
