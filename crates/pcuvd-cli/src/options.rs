@@ -56,6 +56,12 @@ pub struct ProcessingOptions {
     /// Frames from one ensemble's start to the next's (default: --ensemble-frames, no overlap).
     #[arg(long, requires = "ensemble_frames")]
     pub ensemble_step: Option<usize>,
+    /// Long recordings: compound frames per segment, each imaged, clutter-filtered and analysed
+    /// on its own so that memory stays bounded (default: as many as fit in 1.5 GiB of image
+    /// series; the whole recording in one when it fits, which gives the exact whole-recording
+    /// maps).
+    #[arg(long)]
+    pub segment_frames: Option<usize>,
 }
 
 impl ProcessingOptions {

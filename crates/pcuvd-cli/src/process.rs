@@ -8,6 +8,7 @@ use ndarray::Array1;
 use pcuvd::ChannelData;
 use pcuvd::dynamics::{self, DynamicsParams, PoolingSummary, RiMaps, VelocitySeries, VesselTests};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
+use pcuvd::segments::Segments;
 use pcuvd::source::FrameSource;
 use serde_json::json;
 
@@ -246,6 +247,8 @@ pub struct Plan {
     pub options_text: String,
     /// The Doppler time series' ensembles, when asked for.
     pub ensembles: Option<pcuvd::ensembles::EnsembleSpec>,
+    /// How a recording too long to hold whole is cut; `None`: processed whole.
+    pub segments: Option<Segments>,
 }
 
 impl Plan {
@@ -306,8 +309,24 @@ impl Plan {
                 );
             }
         }
+        let ensembles = options.ensembles(data.n_frames())?;
+        let (nz, nx) = params.grid.shape();
+        let segment_frames = options.segment_frames.unwrap_or_else(|| {
+            pcuvd::segments::frames_that_fit(nz * nx, data.acquisition().sequence.n_angles())
+        });
+        let segments = Segments::plan(
+            data.n_frames(),
+            segment_frames,
+            dynamics_settings
+                .as_ref()
+                .map(|d| &d.params)
+                .filter(|_| data.acquisition().sequence.n_angles() >= 2),
+            ensembles,
+        )
+        .context("--segment-frames")?;
         Ok(Plan {
-            ensembles: options.ensembles(data.n_frames())?,
+            ensembles,
+            segments,
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
@@ -344,6 +363,18 @@ pub struct Processed {
     pub ensembles: Option<pcuvd::ensembles::EnsembleMaps>,
     /// The blocks of frames the images were formed in.
     pub blocks: pcuvd::source::Blocks,
+    /// Each segment's core and imaged frames, and its clutter cut-offs per angle, when the
+    /// recording was processed in segments.
+    pub segments: Option<SegmentsDone>,
+}
+
+/// What processing in segments did, for summary.json.
+#[derive(Debug, Clone)]
+pub struct SegmentsDone {
+    /// Each segment's own frames and the frames imaged for it.
+    pub ranges: Vec<(std::ops::Range<usize>, std::ops::Range<usize>)>,
+    /// Each segment's clutter cut-offs (low, high), per angle.
+    pub clutter: Vec<Vec<(usize, usize)>>,
 }
 
 /// Runs the chain and the dynamics stage on `data` as `plan` says. With `--dynamics auto` and no
@@ -357,6 +388,9 @@ pub fn compute(
     // Images are formed a block of frames at a time, so that decoding and IQ need one block's
     // memory; each ensemble of a time series is filtered on its own, from the unfiltered images.
     let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
+    if let Some(segments) = &plan.segments {
+        return compute_in_segments(data, plan, segments, blocks, progress);
+    }
     let (images, mut timings) =
         pipeline::form_images_in_blocks(data, &plan.params, blocks, progress)?;
     let ensembles = match plan.ensembles {
@@ -379,19 +413,101 @@ pub fn compute(
         dynamics_s: clock.elapsed().as_secs_f64(),
         ensembles,
         blocks,
+        segments: None,
+    })
+}
+
+/// [`compute`] for a recording too long to hold whole: segment by segment
+/// ([`pcuvd::segments`]), the dynamics stage's windows and the ensembles from the segments, the
+/// RI maps from their series.
+fn compute_in_segments(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    segments: &Segments,
+    blocks: pcuvd::source::Blocks,
+    progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
+) -> Result<Processed> {
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let windows = plan
+        .dynamics
+        .as_ref()
+        .filter(|d| vectors && d.params.validate(data.acquisition().frame_rate()).is_ok());
+    let done = pcuvd::segments::process_in_segments(
+        data,
+        &plan.params,
+        segments,
+        windows.map(|d| &d.params),
+        plan.ensembles,
+        progress,
+    )?;
+    let clock = std::time::Instant::now();
+    let dynamics = dynamics_outcome(plan, || match (&plan.dynamics, done.series) {
+        (Some(settings), Some(series)) => {
+            let maps = pipeline::ri_maps_of(
+                &series,
+                &done.out.power_doppler,
+                &done.out.grid,
+                &settings.params,
+                &settings.vessel,
+                settings.triggers.as_deref(),
+            )?;
+            Ok((series, maps))
+        }
+        // The stage's own checks say why it cannot run (one angle, a window too long).
+        (Some(settings), None) => {
+            if !vectors {
+                return Err(pcuvd::error::invalid(
+                    "angles",
+                    "vector velocity needs two or more steering angles; the recording has one",
+                ));
+            }
+            settings.params.validate(data.acquisition().frame_rate())?;
+            Err(pcuvd::error::invalid(
+                "dynamics",
+                "no segment gave a velocity window",
+            ))
+        }
+        (None, _) => Err(pcuvd::error::invalid("dynamics", "the stage is off")),
+    })?;
+    Ok(Processed {
+        out: std::sync::Arc::new(done.out),
+        dynamics,
+        dynamics_s: clock.elapsed().as_secs_f64(),
+        ensembles: done.ensembles,
+        blocks,
+        segments: Some(SegmentsDone {
+            ranges: done.ranges,
+            clutter: done
+                .clutter
+                .iter()
+                .map(|per_angle| per_angle.iter().map(|r| (r.low, r.high)).collect())
+                .collect(),
+        }),
     })
 }
 
 /// The dynamics stage on the chain's maps `out`, as `plan` says (see [`compute`]).
 pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
-    Ok(match &plan.dynamics {
-        None => DynamicsOutcome::Skipped("--dynamics off".into()),
-        Some(settings) => match pipeline::dynamics(
+    dynamics_outcome(plan, || {
+        let settings = plan.dynamics.as_ref().expect("asked only when the stage is on");
+        pipeline::dynamics(
             out,
             &settings.params,
             &settings.vessel,
             settings.triggers.as_deref(),
-        ) {
+        )
+    })
+}
+
+/// The dynamics stage's outcome as `plan` says: off, done by `stage`, or skipped with a note when
+/// the recording cannot give RI maps and no dynamics setting was given (else an error).
+fn dynamics_outcome(
+    plan: &Plan,
+    stage: impl FnOnce() -> pcuvd::Result<(VelocitySeries, RiMaps)>,
+) -> Result<DynamicsOutcome> {
+    Ok(match &plan.dynamics {
+        None => DynamicsOutcome::Skipped("--dynamics off".into()),
+        Some(_) => match stage() {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),
                 maps: Box::new(maps),
@@ -596,6 +712,25 @@ pub fn summary(
             pcuvd::source::Blocks::ALIGNMENT_MARGIN
         ),
     });
+    summary["segments"] = match &processed.segments {
+        None => json!("none: the whole recording was held and processed at once"),
+        Some(done) => json!({
+            "count": done.ranges.len(),
+            "own_frames": done.ranges.iter().map(|(core, _)| [core.start, core.end]).collect::<Vec<_>>(),
+            "imaged_frames": done.ranges.iter().map(|(_, imaged)| [imaged.start, imaged.end]).collect::<Vec<_>>(),
+            "clutter_cut_offs_per_angle": done.clutter.iter().map(|per_angle| {
+                per_angle.iter().map(|(low, high)| json!({"low": low, "high": high})).collect::<Vec<_>>()
+            }).collect::<Vec<_>>(),
+            "rule": format!(
+                "too long to hold whole (--segment-frames, default: the frames whose image series \
+                 fit in {} MiB): each segment imaged with the frames its dynamics windows and \
+                 ensembles reach into, clutter-filtered on its own; power and lag-1 \
+                 autocorrelation summed over the segments' own frames, velocities and vectors \
+                 from the sums; windows and ensembles from the segment their start is in",
+                pcuvd::segments::SERIES_BYTES >> 20
+            ),
+        }),
+    };
     summary["ensembles"] = match (&plan.ensembles, &processed.ensembles) {
         (Some(spec), Some(maps)) => json!({
             "frames": spec.frames,

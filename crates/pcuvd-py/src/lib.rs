@@ -590,6 +590,7 @@ impl PyProcessResult {
                 dynamics_s: seconds,
                 ensembles: self.processed.ensembles.clone(),
                 blocks: self.processed.blocks,
+                segments: self.processed.segments.clone(),
             },
         })
     }

@@ -32,6 +32,7 @@ pub mod metrics;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;
+pub mod segments;
 pub mod sequence;
 pub mod simulate;
 pub mod source;

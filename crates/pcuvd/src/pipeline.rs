@@ -140,17 +140,40 @@ pub fn form_images_in_blocks(
     blocks: Blocks,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
+    form_images_of(source, params, blocks, 0..source.n_frames(), progress)
+}
+
+/// As [`form_images_in_blocks`], for the compound frames `frames` of `source` only (a segment of
+/// a long recording): their images are those of the whole recording's path, the decoding
+/// margins reaching into the frames around them.
+pub fn form_images_of(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    blocks: Blocks,
+    frames: std::ops::Range<usize>,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<(AngleImages, Timings)> {
     let acq = source.acquisition();
     acq.validate()?;
     let (_, n_samples) = source.trace_shape();
     check_depth(recorded_depth_of(acq, n_samples), &params.grid)?;
+    if frames.start >= frames.end || frames.end > source.n_frames() {
+        return Err(invalid(
+            "frames",
+            format!(
+                "{frames:?} is not a range of the recording's {} frames",
+                source.n_frames()
+            ),
+        ));
+    }
     let angles = &acq.sequence.angles;
     let n = angles.len();
-    let frames = source.n_frames();
+    let first = frames.start;
     let (nz, nx) = params.grid.shape();
-    let mut series: Vec<Array3<Complex32>> =
-        (0..n).map(|_| Array3::zeros((nz, nx, frames))).collect();
-    let ranges = blocks.ranges(frames);
+    let mut series: Vec<Array3<Complex32>> = (0..n)
+        .map(|_| Array3::zeros((nz, nx, frames.len())))
+        .collect();
+    let ranges = blocks.ranges_in(frames, source.n_frames());
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
     for (b, (block, decoded)) in ranges.iter().enumerate() {
@@ -172,7 +195,7 @@ pub fn form_images_in_blocks(
         recorded = recorded || formed.recorded;
         for (k, image) in formed.images.iter().enumerate() {
             series[k]
-                .slice_mut(ndarray::s![.., .., block.clone()])
+                .slice_mut(ndarray::s![.., .., block.start - first..block.end - first])
                 .assign(image);
         }
     }
@@ -300,26 +323,96 @@ pub fn analyse(
 
     let clock = Instant::now();
     progress(Stage::Doppler, 0, 1);
+    let (per_angle, compound) = autocorrelations(&images.series, params.doppler_kernel)?;
+    let maps = doppler_maps(&per_angle, &compound, &images, params)?;
+    progress(Stage::Doppler, 1, 1);
+    timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
+
+    Ok(ProcessOutput {
+        grid: params.grid.clone(),
+        bmode_db,
+        power_doppler: maps.power_doppler,
+        color_doppler: maps.color_doppler,
+        power_per_angle: maps.power_per_angle,
+        projections: maps.projections,
+        coverage: maps.coverage,
+        vector_ls: maps.vector_ls,
+        vector_irls: maps.vector_irls,
+        nyquist_velocity: maps.nyquist_velocity,
+        clutter: reports,
+        filtered: images,
+        timings,
+    })
+}
+
+/// Power and lag-1 autocorrelation of each angle's clutter-filtered series (nz, nx, frames) and
+/// of their compound, averaged over `kernel` (see [`doppler::autocorrelation`]).
+pub fn autocorrelations(
+    series: &[Array3<Complex32>],
+    kernel: (usize, usize),
+) -> Result<(Vec<Autocorrelation>, Autocorrelation)> {
+    let per_angle = series
+        .iter()
+        .map(|image| doppler::autocorrelation(image.view(), kernel))
+        .collect::<Result<Vec<_>>>()?;
+    let compound = doppler::autocorrelation(beamform::compound(series)?.view(), kernel)?;
+    Ok((per_angle, compound))
+}
+
+/// The Doppler maps of [`ProcessOutput`], on the grid (nz, nx), SI units.
+#[derive(Debug, Clone)]
+pub struct DopplerMaps {
+    /// Power Doppler of the compounded series (|IQ|² units).
+    pub power_doppler: Array2<f64>,
+    /// Axial velocity from the compounded series (m/s, positive = away from the probe).
+    pub color_doppler: Array2<f64>,
+    /// Per-angle power Doppler (angles, nz, nx).
+    pub power_per_angle: Array3<f64>,
+    /// Per-angle projection velocities (angles, nz, nx), m/s; NaN where the angle does not reach.
+    pub projections: Array3<f64>,
+    /// Per angle, the pixels its plane wave reaches (angles, nz, nx).
+    pub coverage: Array3<bool>,
+    /// Vector field by least squares (UVD); `None` with a single angle.
+    pub vector_ls: Option<VectorField>,
+    /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
+    pub vector_irls: Option<VectorField>,
+    /// Nyquist velocity of each projection (m/s).
+    pub nyquist_velocity: f64,
+}
+
+/// Velocities and vectors from autocorrelations ([`autocorrelations`], or sums of them over the
+/// segments of a long recording): `images` gives the angles, frame rate, speed of sound,
+/// demodulation frequency and coverage (its series are not read).
+pub fn doppler_maps(
+    per_angle: &[Autocorrelation],
+    compound: &Autocorrelation,
+    images: &AngleImages,
+    params: &ProcessParams,
+) -> Result<DopplerMaps> {
+    let angles = &images.angles;
+    let n = angles.len();
+    if per_angle.len() != n {
+        return Err(invalid(
+            "autocorrelations",
+            format!("{} for {n} angles", per_angle.len()),
+        ));
+    }
     let frame_rate = images.frame_rate;
     let (c, f0) = (images.sound_speed, images.demodulation_frequency);
     let (nz, nx) = params.grid.shape();
     let mut projections = Array3::<f64>::zeros((n, nz, nx));
     let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
-    for (k, image) in images.series.iter().enumerate() {
-        let ac = doppler::autocorrelation(image.view(), params.doppler_kernel)?;
+    for (k, ac) in per_angle.iter().enumerate() {
         projections
             .index_axis_mut(Axis(0), k)
             .assign(&doppler::projection_velocity(&ac.r1, c, frame_rate, f0)?);
         power_per_angle.index_axis_mut(Axis(0), k).assign(&ac.power);
     }
-    let compound = beamform::compound(&images.series)?;
-    let Autocorrelation { power, r1 } =
-        doppler::autocorrelation(compound.view(), params.doppler_kernel)?;
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
     // angle sets): rescale its projection to the axial velocity.
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
-    let axial =
-        doppler::projection_velocity(&r1, c, frame_rate, f0)?.mapv(|v| 2.0 * v / (1.0 + mean_cos));
+    let axial = doppler::projection_velocity(&compound.r1, c, frame_rate, f0)?
+        .mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = images
         .coverage
         .clone()
@@ -328,12 +421,12 @@ pub fn analyse(
     let (vector_ls, vector_irls) = if n >= 2 {
         (
             Some(vector::vector_velocity(
-                &angles,
+                angles,
                 projections.view(),
                 &Estimator::LeastSquares,
             )?),
             Some(vector::vector_velocity(
-                &angles,
+                angles,
                 projections.view(),
                 &Estimator::Irls(params.irls),
             )?),
@@ -341,13 +434,8 @@ pub fn analyse(
     } else {
         (None, None)
     };
-    progress(Stage::Doppler, 1, 1);
-    timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
-
-    Ok(ProcessOutput {
-        grid: params.grid.clone(),
-        bmode_db,
-        power_doppler: power,
+    Ok(DopplerMaps {
+        power_doppler: compound.power.clone(),
         color_doppler: axial,
         power_per_angle,
         projections,
@@ -355,9 +443,6 @@ pub fn analyse(
         vector_ls,
         vector_irls,
         nyquist_velocity: doppler::nyquist_velocity(c, frame_rate, f0),
-        clutter: reports,
-        filtered: images,
-        timings,
     })
 }
 
@@ -379,11 +464,31 @@ pub fn dynamics(
             "vector velocity needs two or more steering angles; the recording has one",
         ));
     }
+    if out.filtered.series.is_empty() {
+        return Err(invalid(
+            "filtered series",
+            "the recording was processed in segments (too long to hold whole) and its filtered              series were not kept: give the dynamics settings to process itself",
+        ));
+    }
     params.validate(out.filtered.frame_rate)?;
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
-    let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
-    let maps = dynamics::ri_maps_triggered(&series, params, Some(&flow), triggers)?;
+    let maps = ri_maps_of(&series, &out.power_doppler, &out.grid, params, vessel, triggers)?;
     Ok((series, maps))
+}
+
+/// The RI half of [`dynamics`], on a velocity series already formed (by [`dynamics`] or segment by
+/// segment, [`crate::segments`]): the vessel mask of `vessel` on the whole-recording power Doppler,
+/// then PSV, EDV, RI, classes and flow directions over the cardiac cycles.
+pub fn ri_maps_of(
+    series: &VelocitySeries,
+    power_doppler: &Array2<f64>,
+    grid: &Grid,
+    params: &DynamicsParams,
+    vessel: &VesselTests,
+    triggers: Option<&[f64]>,
+) -> Result<RiMaps> {
+    let flow = vessel.flow_mask(power_doppler, grid.step());
+    dynamics::ri_maps_triggered(series, params, Some(&flow), triggers)
 }
 
 /// Per steering angle, the pixels of `grid` that its plane wave reaches (angles, nz, nx): those
@@ -410,7 +515,8 @@ pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none
 read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
 smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
-complex64). FFT and filter lengths are bounded by the data: a slot shift by less than a record \
+complex64; frames: the recording's, or one segment's when it is processed in segments, \
+segments::SERIES_BYTES). FFT and filter lengths are bounded by the data: a slot shift by less than a record \
 (check_record), an IQ filter of at most 3·10⁴ taps (iq::MIN_CUTOFF_RATIO), a slow-time FFT of \
 twice the frames of a block";
 
@@ -454,8 +560,12 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
 /// [`MEMORY_ESTIMATE_RULE`]: a rule of thumb from the buffers it holds at its peak.
 pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let (nz, nx) = grid.shape();
-    let frames = source.n_frames() as u128;
-    let angles = source.acquisition().sequence.n_angles() as u128;
+    let angles = source.acquisition().sequence.n_angles();
+    // A recording longer than one segment holds one segment's images at a time.
+    let frames = source
+        .n_frames()
+        .min(crate::segments::frames_that_fit(nz * nx, angles)) as u128;
+    let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
     let block = (blocks.frames + 2 * blocks.margin).min(source.n_frames()) as u128
         * block_bytes_per_frame(source) as u128;
