@@ -37,11 +37,14 @@ def tube(tmp_path_factory, cli) -> Path:
     return folder / "coded.toml"
 
 
-@pytest.mark.parametrize("which", ["disk", "tube"])
+@pytest.mark.parametrize("which", ["disk", "tube", "tube in segments"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
-    source = {"disk": disk, "tube": tube}[which]
+    source = disk if which == "disk" else tube
     tube_options = ["--grid=-3,3,4,10,0.1", "--dynamics=off", "--ensemble-frames=4", "--ensemble-step=3"]
     options = tube_options if which == "tube" else []
+    if which == "tube in segments":
+        # Segments of 8 frames: 6-frame cores, each imaged with the 2 frames its ensembles reach.
+        options = tube_options[:2] + ["--ensemble-frames=4", "--ensemble-step=2", "--segment-frames=8"]
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
     assert done.returncode == 0, done.stderr
@@ -53,6 +56,8 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         "ensemble_step": 3,
     }
     kwargs = tube_kwargs if which == "tube" else {}
+    if which == "tube in segments":
+        kwargs = {**tube_kwargs, "ensemble_step": 2, "segment_frames": 8}
     result = pcuvd.process(source, quiet=True, **kwargs)
     by_python = tmp_path / "python"
     figures = result.save(by_python)
@@ -67,6 +72,11 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         # A Doppler time series of 3 ensembles (frames 0–3, 3–6, 6–9 of 10).
         assert cli_arrays["ensemble_vx"].shape == (3, *cli_arrays["vx"].shape)
         assert list(cli_arrays["ensemble_times"] * 1800) == [1.5, 4.5, 7.5]
+    if which == "tube in segments":
+        # Ensembles every 2 frames (0–3, 2–5, 4–7, 6–9) from the cores 0–5 and 6–9.
+        assert cli_arrays["ensemble_vx"].shape == (4, *cli_arrays["vx"].shape)
+        segments = json.loads((by_cli / "summary.json").read_text())["segments"]
+        assert segments["own_frames"] == [[0, 6], [6, 10]]
     for name in cli_arrays:
         assert_same_array(py_arrays[name], cli_arrays[name], name)
         # The in-memory maps are the saved ones.

@@ -311,19 +311,17 @@ impl Plan {
         }
         let ensembles = options.ensembles(data.n_frames())?;
         let (nz, nx) = params.grid.shape();
+        let windows = dynamics_settings
+            .as_ref()
+            .map(|d| &d.params)
+            .filter(|_| data.acquisition().sequence.n_angles() >= 2);
+        // By default as many frames as fit, but never too few for the windows and ensembles.
         let segment_frames = options.segment_frames.unwrap_or_else(|| {
             pcuvd::segments::frames_that_fit(nz * nx, data.acquisition().sequence.n_angles())
+                .max(Segments::shortest(windows, ensembles))
         });
-        let segments = Segments::plan(
-            data.n_frames(),
-            segment_frames,
-            dynamics_settings
-                .as_ref()
-                .map(|d| &d.params)
-                .filter(|_| data.acquisition().sequence.n_angles() >= 2),
-            ensembles,
-        )
-        .context("--segment-frames")?;
+        let segments = Segments::plan(data.n_frames(), segment_frames, windows, ensembles)
+            .context("--segment-frames")?;
         Ok(Plan {
             ensembles,
             segments,
@@ -489,7 +487,10 @@ fn compute_in_segments(
 /// The dynamics stage on the chain's maps `out`, as `plan` says (see [`compute`]).
 pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
     dynamics_outcome(plan, || {
-        let settings = plan.dynamics.as_ref().expect("asked only when the stage is on");
+        let settings = plan
+            .dynamics
+            .as_ref()
+            .expect("asked only when the stage is on");
         pipeline::dynamics(
             out,
             &settings.params,

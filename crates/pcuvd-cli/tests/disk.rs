@@ -222,8 +222,7 @@ fn every_ensemble_of_the_disk_sees_the_same_rotation() {
     }
 }
 
-/// The disk processed in segments of 16 frames (8-frame cores, each imaged with the 8 frames its
-/// ensembles reach into): the ensembles are the whole-recording run's exactly (the same images,
+/// The disk processed in segments of 8 frames (8-frame ensembles, one per segment): the ensembles are the whole-recording run's exactly (the same images,
 /// each ensemble filtered on its own), the whole-recording colour Doppler is the same rotation,
 /// and summary.json says how the recording was cut.
 #[test]
@@ -243,25 +242,23 @@ fn the_disk_in_segments_gives_the_same_maps() {
         out
     };
     let whole = run(&[]);
-    let segmented = run(&["--segment-frames", "16"]);
+    let segmented = run(&["--segment-frames", "8"]);
     let read3 = |dir: &tempfile::TempDir, name: &str| -> ndarray::Array3<f64> {
         read_npy(dir.path().join(name)).unwrap()
     };
     for name in ["ensemble_color_doppler.npy", "ensemble_power_doppler.npy"] {
         assert_eq!(read3(&whole, name), read3(&segmented, name), "{name}");
     }
-    let summary: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(segmented.path().join("summary.json")).unwrap(),
-    )
-    .unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(segmented.path().join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(summary["segments"]["count"], 4, "{}", summary["segments"]);
     assert_eq!(
         summary["segments"]["imaged_frames"][0],
-        serde_json::json!([0, 16])
+        serde_json::json!([0, 8])
     );
     let whole_summary: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(whole.path().join("summary.json")).unwrap())
-            .unwrap();
+        serde_json::from_slice(&std::fs::read(whole.path().join("summary.json")).unwrap()).unwrap();
     assert!(whole_summary["segments"].is_string());
 
     let x: Array1<f64> = read_npy(whole.path().join("x.npy")).unwrap();

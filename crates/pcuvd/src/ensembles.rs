@@ -88,23 +88,33 @@ impl EnsembleMaps {
         let first = parts
             .first()
             .ok_or_else(|| invalid("ensembles", "no segment holds a whole ensemble"))?;
-        let stack = |field: fn(&EnsembleMaps) -> Option<&Array3<f64>>| -> Result<Option<Array3<f64>>> {
-            let views: Option<Vec<_>> = parts.iter().map(|p| field(p).map(|a| a.view())).collect();
-            views
-                .map(|v| {
-                    ndarray::concatenate(Axis(0), &v)
-                        .map_err(|e| invalid("ensembles", format!("segments' maps: {e}")))
-                })
-                .transpose()
-        };
+        let stack =
+            |field: fn(&EnsembleMaps) -> Option<&Array3<f64>>| -> Result<Option<Array3<f64>>> {
+                let views: Option<Vec<_>> =
+                    parts.iter().map(|p| field(p).map(|a| a.view())).collect();
+                views
+                    .map(|v| {
+                        ndarray::concatenate(Axis(0), &v)
+                            .map_err(|e| invalid("ensembles", format!("segments' maps: {e}")))
+                    })
+                    .transpose()
+            };
         let vectors = first.vx.is_some();
         Ok(EnsembleMaps {
             times_s: parts.iter().flat_map(|p| p.times_s.clone()).collect(),
             starts: parts.iter().flat_map(|p| p.starts.clone()).collect(),
             power_doppler: stack(|p| Some(&p.power_doppler))?.expect("every part has power"),
             color_doppler: stack(|p| Some(&p.color_doppler))?.expect("every part has colour"),
-            vx: if vectors { stack(|p| p.vx.as_ref())? } else { None },
-            vz: if vectors { stack(|p| p.vz.as_ref())? } else { None },
+            vx: if vectors {
+                stack(|p| p.vx.as_ref())?
+            } else {
+                None
+            },
+            vz: if vectors {
+                stack(|p| p.vz.as_ref())?
+            } else {
+                None
+            },
             clutter: parts.iter().flat_map(|p| p.clutter.clone()).collect(),
         })
     }

@@ -472,7 +472,14 @@ pub fn dynamics(
     }
     params.validate(out.filtered.frame_rate)?;
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
-    let maps = ri_maps_of(&series, &out.power_doppler, &out.grid, params, vessel, triggers)?;
+    let maps = ri_maps_of(
+        &series,
+        &out.power_doppler,
+        &out.grid,
+        params,
+        vessel,
+        triggers,
+    )?;
     Ok((series, maps))
 }
 

@@ -64,27 +64,46 @@ impl Segments {
         if segment_frames >= total {
             return Ok(None);
         }
-        let overlap = dynamics
-            .map_or(0, |d| d.window)
-            .max(ensembles.map_or(0, |e| e.frames));
-        let align = lcm(
-            dynamics.map_or(1, |d| d.step.max(1)),
-            ensembles.map_or(1, |e| e.step.max(1)),
-        );
+        let (overlap, align) = Self::reach(dynamics, ensembles);
         let core = segment_frames.saturating_sub(overlap) / align * align;
-        // The clutter filter and the lag-1 autocorrelation need several frames per core.
-        if core < 4.max(align) {
+        if core < Self::shortest_core(align) {
             return Err(invalid(
                 "segment frames",
                 format!(
                     "{segment_frames} frames per segment leave {core} for its own frames after \
-                     the {overlap} that the dynamics window or ensembles reach into: give a \
+                     the {overlap} that the dynamics windows or ensembles reach into: give a \
                      larger --segment-frames (at least {})",
-                    overlap + 4.max(align).div_ceil(align) * align
+                    Self::shortest(dynamics, ensembles)
                 ),
             ));
         }
         Ok(Some(Segments { core, overlap }))
+    }
+
+    /// The fewest frames a segment may have with these windows and ensembles.
+    pub fn shortest(dynamics: Option<&DynamicsParams>, ensembles: Option<EnsembleSpec>) -> usize {
+        let (overlap, align) = Self::reach(dynamics, ensembles);
+        overlap + Self::shortest_core(align)
+    }
+
+    /// The clutter filter and the lag-1 autocorrelation need several frames per core, and cores
+    /// start on the windows' and ensembles' steps.
+    fn shortest_core(align: usize) -> usize {
+        4usize.div_ceil(align) * align
+    }
+
+    /// (overlap, alignment): windows and ensembles start every `step` frames, so the last one
+    /// starting in a core (a multiple of the steps long) starts `step` before its end and needs
+    /// `frames − step` frames after it; cores start on a multiple of every step.
+    fn reach(dynamics: Option<&DynamicsParams>, ensembles: Option<EnsembleSpec>) -> (usize, usize) {
+        let overlap = dynamics
+            .map_or(0, |d| d.window.saturating_sub(d.step))
+            .max(ensembles.map_or(0, |e| e.frames.saturating_sub(e.step)));
+        let align = lcm(
+            dynamics.map_or(1, |d| d.step.max(1)),
+            ensembles.map_or(1, |e| e.step.max(1)),
+        );
+        (overlap, align)
     }
 
     /// Each segment's core and the frames imaged for it: (core, imaged), in order. The cores
@@ -205,7 +224,8 @@ pub fn process_in_segments(
         (Stage::Clutter, 0.0),
         (Stage::Doppler, 0.0),
     ];
-    let mut add_time = |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage) {
+    let mut add_time = |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage)
+    {
         Some(t) => t.1 += seconds,
         None => timings.push((stage, seconds)),
     };
@@ -228,7 +248,8 @@ pub fn process_in_segments(
                 .filter(|&s| s + spec.frames <= images.n_frames())
                 .collect();
             if !starts.is_empty() {
-                let mut part = ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
+                let mut part =
+                    ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
                 part.shift(core.start, spec, images.frame_rate);
                 ensemble_parts.push(part);
             }

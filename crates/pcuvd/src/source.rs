@@ -116,7 +116,11 @@ impl Blocks {
     /// As [`Blocks::ranges`], for the frames `frames` of a recording of `total` frames: the
     /// blocks tile `frames`, and their margins reach into the frames around it (a segment of a
     /// long recording decodes as the whole recording would).
-    pub fn ranges_in(&self, frames: Range<usize>, total: usize) -> Vec<(Range<usize>, Range<usize>)> {
+    pub fn ranges_in(
+        &self,
+        frames: Range<usize>,
+        total: usize,
+    ) -> Vec<(Range<usize>, Range<usize>)> {
         let step = self.frames.max(1);
         let end_of_frames = frames.end.min(total);
         (frames.start..end_of_frames)

@@ -113,8 +113,16 @@ fn one_segment_gives_the_whole_recording_maps() {
     let out = &done.out;
     let mut maps = vec![
         ("B-mode", out.bmode_db.clone(), whole.bmode_db.clone()),
-        ("power", out.power_doppler.clone(), whole.power_doppler.clone()),
-        ("colour", out.color_doppler.clone(), whole.color_doppler.clone()),
+        (
+            "power",
+            out.power_doppler.clone(),
+            whole.power_doppler.clone(),
+        ),
+        (
+            "colour",
+            out.color_doppler.clone(),
+            whole.color_doppler.clone(),
+        ),
     ];
     for (k, (a, b)) in per_angle(&out.projections)
         .into_iter()
@@ -149,7 +157,8 @@ fn segments_stay_within_the_estimators_spread() {
     let data = recording();
     let params = params(&data);
     let whole = pipeline::process(&data, &params, &quiet).unwrap();
-    // 24-frame cores (a multiple of both steps), each imaged with the 16 frames after it.
+    // 24-frame cores (a multiple of both steps), each imaged with the 8 frames after it that the
+    // last window starting in it (16 frames from 8 before its end) reaches.
     let segments = Segments::plan(FRAMES, 40, Some(&windows()), Some(ENSEMBLES))
         .unwrap()
         .unwrap();
@@ -157,7 +166,7 @@ fn segments_stay_within_the_estimators_spread() {
         segments,
         Segments {
             core: 24,
-            overlap: 16
+            overlap: 8
         }
     );
     let done = process_in_segments(
@@ -171,7 +180,7 @@ fn segments_stay_within_the_estimators_spread() {
     .unwrap();
     assert_eq!(
         done.ranges,
-        vec![(0..24, 0..40), (24..48, 24..64), (48..64, 48..64)]
+        vec![(0..24, 0..32), (24..48, 24..56), (48..64, 48..64)]
     );
 
     // The estimator's own spread: the whole-recording projections against the truth, in the tube.
@@ -229,10 +238,12 @@ fn a_segment_too_short_for_the_windows_is_refused_by_name() {
     let e = Segments::plan(FRAMES, 20, Some(&windows()), Some(ENSEMBLES))
         .unwrap_err()
         .to_string();
+    // 8 frames of overlap and a core of one 24-frame alignment step.
     assert!(
-        e.contains("segment frames") && e.contains("at least 40"),
+        e.contains("segment frames") && e.contains("at least 32"),
         "{e}"
     );
+    assert_eq!(Segments::shortest(Some(&windows()), Some(ENSEMBLES)), 32);
     assert_eq!(
         Segments::plan(FRAMES, FRAMES, Some(&windows()), None).unwrap(),
         None
