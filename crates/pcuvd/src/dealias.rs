@@ -51,10 +51,10 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip};
+use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
-use crate::error::{Error, Result, invalid, require_positive};
+use crate::error::{Error, Result, invalid};
 use crate::vector::{self, Estimator, VectorField, projection_weights};
 
 /// Smallest region (pixels) whose levels are chosen by its summed score; smaller ones keep the
@@ -149,15 +149,16 @@ pub struct Candidate {
     pub level: i32,
 }
 
-/// The square grid of trial vectors (m/s) of K intervals at Nyquist velocity `nyquist` (m/s):
-/// spacing `nyquist`, over the disc of radius (2K + 1 + 1)·`nyquist`.
-fn trial_vectors(intervals: u32, nyquist: f64) -> Vec<(f64, f64)> {
-    let radius = (2 * intervals + 2) as f64 * nyquist;
-    let m = (2 * intervals + 2) as i64;
+/// The square grid of trial vectors (m/s) of K intervals for per-angle Nyquist velocities
+/// between `slowest` and `fastest` (m/s): spacing `slowest`, over the disc of radius
+/// (2K + 1)·`fastest` + `slowest`.
+fn trial_vectors(intervals: u32, slowest: f64, fastest: f64) -> Vec<(f64, f64)> {
+    let radius = (2 * intervals + 1) as f64 * fastest + slowest;
+    let m = (radius / slowest).ceil() as i64;
     let mut trials = Vec::new();
     for iz in -m..=m {
         for ix in -m..=m {
-            let t = (ix as f64 * nyquist, iz as f64 * nyquist);
+            let t = (ix as f64 * slowest, iz as f64 * slowest);
             if t.0.hypot(t.1) <= radius * (1.0 + 1e-9) {
                 trials.push(t);
             }
@@ -174,6 +175,8 @@ struct PixelModel {
     weights: Vec<(f64, f64)>,
     /// The measured projections of the reached angles (m/s).
     p: Vec<f64>,
+    /// The alias period 2·v_N of each reached angle (m/s).
+    period: Vec<f64>,
     /// Rows of M = 2·(AᵀA)⁻¹Aᵀ, so that the LS vector of projections u is (m_x·u, m_z·u).
     m_x: Vec<f64>,
     m_z: Vec<f64>,
@@ -182,7 +185,7 @@ struct PixelModel {
 impl PixelModel {
     /// `None` when fewer than 3 distinct angles reach the pixel: a common shift of the alias counts
     /// is then a vector like any other (with 2 angles every pattern fits exactly).
-    fn new(angles: &[f64], v_theta: &[f64]) -> Option<Self> {
+    fn new(angles: &[f64], v_theta: &[f64], nyquist: &[f64]) -> Option<Self> {
         let index: Vec<usize> = (0..angles.len())
             .filter(|&i| v_theta[i].is_finite())
             .collect();
@@ -215,10 +218,12 @@ impl PixelModel {
             .map(|&(s, c)| 2.0 * (a11 * c - a12 * s) / det)
             .collect();
         let p = index.iter().map(|&i| v_theta[i]).collect();
+        let period = index.iter().map(|&i| 2.0 * nyquist[i]).collect();
         Some(PixelModel {
             index,
             weights,
             p,
+            period,
             m_x,
             m_z,
         })
@@ -247,39 +252,61 @@ fn pattern_key(k: &[i8]) -> Option<u128> {
 
 /// The best candidate of every level of one pixel, sorted by level: projections `v_theta` (m/s;
 /// NaN for an angle that does not reach the pixel) at `angles` (rad), projection Nyquist velocity
-/// `nyquist` (m/s), alias counts up to ±`intervals`, fitted and scored with `estimator` (see the
-/// module docs). Empty when fewer than 3 distinct angles reach the pixel.
+/// `nyquist` of each angle (m/s; c·f_frame/(4 f) for the frequency f that turned its phase into
+/// a velocity), alias counts up to ±`intervals`, fitted and scored with `estimator` (see the module
+/// docs). Empty when fewer than 3 distinct angles reach the pixel; an error when the three slices
+/// differ in length.
 pub fn pixel_candidates(
     angles: &[f64],
     v_theta: &[f64],
-    nyquist: f64,
+    nyquist: &[f64],
     intervals: u32,
     estimator: &Estimator,
-) -> Vec<Candidate> {
-    let trials = trial_vectors(intervals, nyquist);
-    candidates_with(angles, v_theta, nyquist, intervals, estimator, &trials)
+) -> Result<Vec<Candidate>> {
+    if v_theta.len() != angles.len() || nyquist.len() != angles.len() {
+        return Err(Error::Shape(format!(
+            "{} projections and {} Nyquist velocities for {} angles",
+            v_theta.len(),
+            nyquist.len(),
+            angles.len()
+        )));
+    }
+    Ok(candidates_of(
+        angles, v_theta, nyquist, intervals, estimator,
+    ))
 }
 
-fn candidates_with(
+/// [`pixel_candidates`] of slices of one length.
+fn candidates_of(
     angles: &[f64],
     v_theta: &[f64],
-    nyquist: f64,
+    nyquist: &[f64],
     intervals: u32,
     estimator: &Estimator,
-    trials: &[(f64, f64)],
 ) -> Vec<Candidate> {
-    let Some(model) = PixelModel::new(angles, v_theta) else {
+    let Some(model) = PixelModel::new(angles, v_theta, nyquist) else {
         return vec![];
     };
     let n = model.index.len();
-    let period = 2.0 * nyquist;
+    let slowest = 0.5 * model.period.iter().copied().fold(f64::INFINITY, f64::min);
+    let fastest = 0.5 * model.period.iter().copied().fold(0.0, f64::max);
+    if !(slowest.is_finite() && slowest > 0.0) {
+        return vec![];
+    }
+    let trials = trial_vectors(intervals, slowest, fastest);
     let k_max = intervals as i64;
     // Every trial vector's pattern, deduplicated.
     let mut patterns: Vec<Vec<i8>> = Vec::new();
     let mut keys: Vec<u128> = Vec::new();
     let mut k = vec![0i8; n];
-    'trials: for &(tx, tz) in trials {
-        for (j, (&(s, c), &p)) in model.weights.iter().zip(&model.p).enumerate() {
+    'trials: for &(tx, tz) in &trials {
+        for (j, ((&(s, c), &p), &period)) in model
+            .weights
+            .iter()
+            .zip(&model.p)
+            .zip(&model.period)
+            .enumerate()
+        {
             let count = ((0.5 * (tx * s + tz * c) - p) / period).round() as i64;
             if count.abs() > k_max {
                 continue 'trials;
@@ -307,13 +334,13 @@ fn candidates_with(
         patterns.dedup();
     }
     // Least squares for every pattern; the best of each level is kept.
-    let limit = SPEED_MARGIN * (2 * intervals + 1) as f64 * nyquist;
+    let limit = SPEED_MARGIN * (2 * intervals + 1) as f64 * fastest;
     let levels = 2 * intervals as usize + 1;
-    let mut best: Vec<Option<(f64, usize, (f64, f64))>> = vec![None; levels];
+    let mut best: Vec<Option<(f64, usize)>> = vec![None; levels];
     let mut u = vec![0.0; n];
     for (index, pattern) in patterns.iter().enumerate() {
         for j in 0..n {
-            u[j] = model.p[j] + period * f64::from(pattern[j]);
+            u[j] = model.p[j] + model.period[j] * f64::from(pattern[j]);
         }
         let v = model.ls(&u);
         if v.0.hypot(v.1) > limit {
@@ -322,17 +349,17 @@ fn candidates_with(
         let ssr: f64 = model.residuals(&u, v).map(|r| r * r).sum();
         let level = level_of(pattern);
         let slot = &mut best[(level + intervals as i32) as usize];
-        if slot.is_none_or(|(s, _, _)| ssr < s) {
-            *slot = Some((ssr, index, v));
+        if slot.is_none_or(|(s, _)| ssr < s) {
+            *slot = Some((ssr, index));
         }
     }
     let reached_angles: Vec<f64> = model.index.iter().map(|&i| angles[i]).collect();
     best.iter()
         .flatten()
-        .map(|&(_, index, _)| {
+        .map(|&(_, index)| {
             let pattern = &patterns[index];
             for j in 0..n {
-                u[j] = model.p[j] + period * f64::from(pattern[j]);
+                u[j] = model.p[j] + model.period[j] * f64::from(pattern[j]);
             }
             // The final fit is the estimator's own (for an all-zero pattern: the plain fit, to
             // the last bit); the precomputed LS operator only ranked the patterns.
@@ -370,25 +397,39 @@ fn level_of(pattern: &[i8]) -> i32 {
 pub fn solve_pixel_dealiased(
     angles: &[f64],
     v_theta: &[f64],
-    nyquist: f64,
+    nyquist: &[f64],
     intervals: u32,
     estimator: &Estimator,
-) -> Option<Candidate> {
-    pixel_candidates(angles, v_theta, nyquist, intervals, estimator)
-        .into_iter()
-        .min_by(|a, b| a.score.total_cmp(&b.score))
+) -> Result<Option<Candidate>> {
+    Ok(
+        pixel_candidates(angles, v_theta, nyquist, intervals, estimator)?
+            .into_iter()
+            .min_by(|a, b| a.score.total_cmp(&b.score)),
+    )
 }
+
+/// Flow pixels, the only ones unwrapped: power Doppler at least this many dB above the noise
+/// floor of its depth row ([`crate::doppler::above_noise_floor`]). Elsewhere the projections are
+/// noise, which unwrapping would only turn into large random speeds.
+pub const FLOW_MARGIN_DB: f64 = 3.0;
 
 /// A dealiased vector field and what the dealiasing did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DealiasedField {
     /// The vectors (m/s), shape (nz, nx).
     pub field: VectorField,
+    /// K used (0 when off).
+    pub intervals: u32,
+    /// The alias counts chosen and how many pixels were unwrapped.
+    pub counts: AliasCounts,
+}
+
+/// The alias counts dealiasing chose, and how many pixels it unwrapped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AliasCounts {
     /// Alias count of each angle at each pixel, (angles, nz, nx): the unwrapped projection is
     /// V_θ + 2·k·v_N; 0 where nothing was unwrapped.
     pub alias_counts: Array3<i8>,
-    /// K used (0 when off).
-    pub intervals: u32,
     /// Flow pixels whose levels were chosen (in regions of at least [`MIN_REGION_PIXELS`]).
     pub dealiased_pixels: usize,
     /// Of those, the pixels with a non-zero alias count at some angle.
@@ -399,13 +440,14 @@ pub struct DealiasedField {
 
 /// Vector field from projection maps `v_theta` (angles, nz, nx) (m/s; NaN where an angle does not
 /// reach a pixel) at `angles` (rad), dealiased as `dealias` says (see the module docs): projection
-/// Nyquist velocity `nyquist` (m/s), the same at every angle and pixel; `quality` (nz, nx), e.g.
+/// Nyquist velocity `nyquist` of each angle and pixel (angles, nz, nx) (m/s; broadcast one value
+/// with [`uniform`]); `quality` (nz, nx), e.g.
 /// power Doppler, orders the region growing (strongest first); only pixels of `flow` (nz, nx) are
 /// unwrapped. With [`Dealias::Off`] it is [`vector::vector_velocity`].
 pub fn dealiased_vectors(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
-    nyquist: f64,
+    nyquist: ArrayView3<f64>,
     estimator: &Estimator,
     dealias: Dealias,
     quality: ArrayView2<f64>,
@@ -413,6 +455,13 @@ pub fn dealiased_vectors(
 ) -> Result<DealiasedField> {
     dealias.validate()?;
     let (n, nz, nx) = v_theta.dim();
+    if nyquist.dim() != (n, nz, nx) {
+        return Err(Error::Shape(format!(
+            "Nyquist velocities {:?} for projections {:?}",
+            nyquist.dim(),
+            v_theta.dim()
+        )));
+    }
     if quality.dim() != (nz, nx) || flow.dim() != (nz, nx) {
         return Err(Error::Shape(format!(
             "quality {:?} and flow mask {:?} for projections of {nz} × {nx} pixels",
@@ -424,11 +473,13 @@ pub fn dealiased_vectors(
         Dealias::Off | Dealias::Intervals(0) => {
             return Ok(DealiasedField {
                 field: vector::vector_velocity(angles, v_theta, estimator)?,
-                alias_counts: Array3::zeros((n, nz, nx)),
                 intervals: 0,
-                dealiased_pixels: 0,
-                unwrapped_pixels: 0,
-                at_limit_pixels: 0,
+                counts: AliasCounts {
+                    alias_counts: Array3::zeros((n, nz, nx)),
+                    dealiased_pixels: 0,
+                    unwrapped_pixels: 0,
+                    at_limit_pixels: 0,
+                },
             });
         }
         Dealias::Intervals(k) => k,
@@ -443,7 +494,7 @@ pub fn dealiased_vectors(
 pub fn auto_intervals(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
-    nyquist: f64,
+    nyquist: ArrayView3<f64>,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<u32> {
@@ -457,11 +508,18 @@ pub fn auto_intervals(
             quality,
             flow,
         )?;
-        if (out.at_limit_pixels as f64) < AUTO_LIMIT_FRACTION * out.dealiased_pixels as f64 {
+        let counts = &out.counts;
+        if (counts.at_limit_pixels as f64) < AUTO_LIMIT_FRACTION * counts.dealiased_pixels as f64 {
             return Ok(k);
         }
     }
     Ok(MAX_AUTO_INTERVALS)
+}
+
+/// One Nyquist velocity (m/s) for every angle and pixel of projections of shape `dim`
+/// (angles, nz, nx), as [`dealiased_vectors`] takes it.
+pub fn uniform(nyquist: f64, dim: (usize, usize, usize)) -> Array3<f64> {
+    Array3::from_elem(dim, nyquist)
 }
 
 /// A pixel of the priority queue of the region growing: strongest first, then lowest index.
@@ -487,13 +545,18 @@ impl Ord for Queued {
 fn dealias_with(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
-    nyquist: f64,
+    nyquist: ArrayView3<f64>,
     estimator: &Estimator,
     intervals: u32,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<DealiasedField> {
-    require_positive("Nyquist velocity", nyquist)?;
+    if let Some(bad) = nyquist.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+        return Err(invalid(
+            "Nyquist velocity",
+            format!("must be finite and > 0 m/s, got {bad}"),
+        ));
+    }
     let (n, nz, nx) = v_theta.dim();
     if n != angles.len() {
         return Err(Error::Shape(format!(
@@ -502,9 +565,9 @@ fn dealias_with(
         )));
     }
     let plain = vector::vector_velocity(angles, v_theta, estimator)?;
-    let trials = trial_vectors(intervals, nyquist);
     // Per pixel (row-major), its candidates: flow pixels only.
     let lanes = v_theta.permuted_axes([1, 2, 0]);
+    let nyquist_lanes = nyquist.permuted_axes([1, 2, 0]);
     let mut candidates: Vec<Vec<Candidate>> = vec![Vec::new(); nz * nx];
     candidates
         .par_iter_mut()
@@ -513,15 +576,17 @@ fn dealias_with(
             let (iz, ix) = (pixel / nx, pixel % nx);
             if flow[[iz, ix]] {
                 let p: Vec<f64> = lanes.slice(ndarray::s![iz, ix, ..]).to_vec();
-                *out = candidates_with(angles, &p, nyquist, intervals, estimator, &trials);
+                let vn: Vec<f64> = nyquist_lanes.slice(ndarray::s![iz, ix, ..]).to_vec();
+                *out = candidates_of(angles, &p, &vn, intervals, estimator);
             }
         });
 
     // The common-shift direction of the whole angle set: the change of the LS vector when every
-    // projection grows by 2·v_N, as a unit vector and its length (the spacing of levels).
-    let all = vec![0.0; n];
-    let shift = PixelModel::new(angles, &all).map(|m| {
-        let u = vec![2.0 * nyquist; n];
+    // projection grows by 2·v_N (the median v_N), as a unit vector and its length (the spacing of
+    // levels).
+    let typical = crate::stats::median(nyquist.iter().copied().collect());
+    let shift = PixelModel::new(angles, &vec![0.0; n], &vec![typical; n]).map(|m| {
+        let u = vec![2.0 * typical; n];
         m.ls(&u)
     });
     let (unit, spacing) = match shift {
@@ -529,7 +594,7 @@ fn dealias_with(
             let len = sx.hypot(sz);
             ((sx / len, sz / len), len)
         }
-        None => ((0.0, 1.0), 2.0 * nyquist),
+        None => ((0.0, 1.0), 2.0 * typical),
     };
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 
@@ -663,11 +728,13 @@ fn dealias_with(
     }
     Ok(DealiasedField {
         field,
-        alias_counts,
         intervals,
-        dealiased_pixels: dealiased,
-        unwrapped_pixels: unwrapped,
-        at_limit_pixels: at_limit,
+        counts: AliasCounts {
+            alias_counts,
+            dealiased_pixels: dealiased,
+            unwrapped_pixels: unwrapped,
+            at_limit_pixels: at_limit,
+        },
     })
 }
 
@@ -675,6 +742,7 @@ fn dealias_with(
 mod tests {
     use super::*;
     use crate::vector::IrlsParams;
+    use ndarray::Array2;
     use proptest::prelude::*;
 
     /// The paper's projection Nyquist velocity (m/s): 1540 · 1800 / (4 · 15.625 MHz).
@@ -698,6 +766,19 @@ mod tests {
             .collect()
     }
 
+    /// As [`wrapped`] with a Nyquist velocity per angle (m/s).
+    fn wrapped_each(angles: &[f64], (vx, vz): (f64, f64), nyquist: &[f64]) -> Vec<f64> {
+        angles
+            .iter()
+            .zip(nyquist)
+            .map(|(&t, &vn)| {
+                let (s, c) = projection_weights(t);
+                let u = 0.5 * (vx * s + vz * c);
+                (u + vn).rem_euclid(2.0 * vn) - vn
+            })
+            .collect()
+    }
+
     fn estimators() -> [Estimator; 2] {
         [
             Estimator::LeastSquares,
@@ -714,7 +795,9 @@ mod tests {
             let p = wrapped(&angles, v, VN);
             for est in estimators() {
                 for k in [1, 2, 3] {
-                    let c = solve_pixel_dealiased(&angles, &p, VN, k, &est).unwrap();
+                    let c = solve_pixel_dealiased(&angles, &p, &[VN; 8], k, &est)
+                        .unwrap()
+                        .unwrap();
                     assert!(
                         (c.vx - v.0).abs() < 1e-9 && (c.vz - v.1).abs() < 1e-9,
                         "{direction_deg}°, K = {k}, {est:?}: {c:?} for {v:?}"
@@ -743,7 +826,9 @@ mod tests {
             let v = (0.95 * VN * d.cos(), 0.95 * VN * d.sin());
             let p = wrapped(&angles, v, VN);
             for est in estimators() {
-                let c = solve_pixel_dealiased(&angles, &p, VN, 2, &est).unwrap();
+                let c = solve_pixel_dealiased(&angles, &p, &[VN; 8], 2, &est)
+                    .unwrap()
+                    .unwrap();
                 assert!(c.alias_counts.iter().all(|&k| k == 0), "{c:?}");
                 let plain = vector::solve_pixel(&angles, &p, &est);
                 assert_eq!((c.vx, c.vz), plain, "{direction_deg}° {est:?}");
@@ -758,17 +843,27 @@ mod tests {
         let mut p = wrapped(&angles, v, VN);
         p[0] = f64::NAN;
         p[7] = f64::NAN;
-        let c = solve_pixel_dealiased(&angles, &p, VN, 1, &Estimator::LeastSquares).unwrap();
+        let c = solve_pixel_dealiased(&angles, &p, &[VN; 8], 1, &Estimator::LeastSquares)
+            .unwrap()
+            .unwrap();
         assert!((c.vx - v.0).abs() < 1e-9 && (c.vz - v.1).abs() < 1e-9);
         assert_eq!((c.alias_counts[0], c.alias_counts[7]), (0, 0));
         assert!(c.alias_counts[3] == 1);
         let mut two = vec![f64::NAN; 8];
         two[2] = p[2];
         two[5] = p[5];
-        assert!(pixel_candidates(&angles, &two, VN, 1, &Estimator::LeastSquares).is_empty());
+        assert!(
+            pixel_candidates(&angles, &two, &[VN; 8], 1, &Estimator::LeastSquares)
+                .unwrap()
+                .is_empty()
+        );
         // Three copies of one angle are one angle.
         let same = [0.1, 0.1, 0.1];
-        assert!(pixel_candidates(&same, &[0.01; 3], VN, 1, &Estimator::LeastSquares).is_empty());
+        assert!(
+            pixel_candidates(&same, &[0.01; 3], &[VN; 3], 1, &Estimator::LeastSquares)
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]
@@ -914,7 +1009,7 @@ mod tests {
             let out = dealiased_vectors(
                 &angles,
                 v_theta.view(),
-                VN,
+                uniform(VN, v_theta.dim()).view(),
                 &est,
                 Dealias::Intervals(2),
                 power.view(),
@@ -928,10 +1023,11 @@ mod tests {
                     .count() as f64
                     / lumen_pixels.len() as f64
             };
-            let spatial = right(&|(iz, ix), a| out.alias_counts[[a, iz, ix]]);
+            let spatial = right(&|(iz, ix), a| out.counts.alias_counts[[a, iz, ix]]);
             let per_pixel = right(&|(iz, ix), a| {
                 let p: Vec<f64> = v_theta.slice(ndarray::s![.., iz, ix]).to_vec();
-                solve_pixel_dealiased(&angles, &p, VN, 2, &est)
+                solve_pixel_dealiased(&angles, &p, &[VN; 8], 2, &est)
+                    .unwrap()
                     .unwrap()
                     .alias_counts[a]
             });
@@ -941,12 +1037,15 @@ mod tests {
                 per_pixel < 0.5 && plain < 0.5,
                 "{est:?}: per pixel {per_pixel}, plain {plain}"
             );
-            assert!(out.unwrapped_pixels > 0 && out.dealiased_pixels >= lumen_pixels.len());
+            assert!(
+                out.counts.unwrapped_pixels > 0
+                    && out.counts.dealiased_pixels >= lumen_pixels.len()
+            );
             // Auto picks 2: at K = 1 the fast core reaches ±1.
             let auto = dealiased_vectors(
                 &angles,
                 v_theta.view(),
-                VN,
+                uniform(VN, v_theta.dim()).view(),
                 &est,
                 Dealias::Auto,
                 power.view(),
@@ -964,7 +1063,7 @@ mod tests {
             let out = dealiased_vectors(
                 &angles,
                 v_theta.view(),
-                VN,
+                uniform(VN, v_theta.dim()).view(),
                 &est,
                 Dealias::Auto,
                 power.view(),
@@ -995,7 +1094,7 @@ mod tests {
             let out = dealiased_vectors(
                 &angles,
                 v_theta.view(),
-                VN,
+                uniform(VN, v_theta.dim()).view(),
                 &est,
                 Dealias::Auto,
                 power.view(),
@@ -1003,7 +1102,7 @@ mod tests {
             )
             .unwrap();
             assert_eq!(out.intervals, 1);
-            assert_eq!(out.unwrapped_pixels, 0, "{est:?}");
+            assert_eq!(out.counts.unwrapped_pixels, 0, "{est:?}");
             assert_eq!(out.field, plain, "{est:?}");
             assert!(
                 within_tenth(&out.field, &truth, &lumen, peak)
@@ -1016,7 +1115,8 @@ mod tests {
         #![proptest_config(ProptestConfig::with_cases(200))]
 
         /// Any vector within the limit, any set of 3–12 distinct angles at least 2° apart within
-        /// ±25°, any K in 1..=3, either estimator: the noiseless wrapped projections give it back.
+        /// ±25°, each with its own Nyquist velocity within ±5 % (a per-angle mean frequency), any
+        /// K in 1..=3, either estimator: the noiseless wrapped projections give it back.
         #[test]
         fn recovers_any_vector_within_the_limit(
             k in 1u32..=3,
@@ -1025,6 +1125,7 @@ mod tests {
             first in -25.0f64..-5.0,
             steps in proptest::collection::vec(2.0f64..8.0, 2..12),
             irls in proptest::bool::ANY,
+            spread in proptest::collection::vec(0.95f64..1.05, 12),
         ) {
             let mut angles = vec![first];
             for s in &steps {
@@ -1034,11 +1135,13 @@ mod tests {
             }
             prop_assume!(angles.len() >= 3);
             let angles: Vec<f64> = angles.iter().map(|a| a.to_radians()).collect();
-            let speed = speed * (2 * k + 1) as f64 * VN;
+            let nyquist: Vec<f64> = spread[..angles.len()].iter().map(|f| f * VN).collect();
+            let slowest = nyquist.iter().copied().fold(f64::INFINITY, f64::min);
+            let speed = speed * (2 * k + 1) as f64 * slowest;
             let v = (speed * direction.cos(), speed * direction.sin());
-            let p = wrapped(&angles, v, VN);
+            let p = wrapped_each(&angles, v, &nyquist);
             let est = if irls { Estimator::Irls(IrlsParams::default()) } else { Estimator::LeastSquares };
-            let c = solve_pixel_dealiased(&angles, &p, VN, k, &est).unwrap();
+            let c = solve_pixel_dealiased(&angles, &p, &nyquist, k, &est).unwrap().unwrap();
             prop_assert!(
                 (c.vx - v.0).abs() < 1e-7 && (c.vz - v.1).abs() < 1e-7,
                 "K = {}, angles {:?}: {:?} for {:?}", k, angles, c, v

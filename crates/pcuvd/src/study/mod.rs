@@ -169,6 +169,7 @@ pub fn process_params(
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment,
+        dealias: Default::default(),
     }
 }
 
