@@ -43,10 +43,17 @@
 //! regions grow from the strongest pixel in order of power, as in quality-guided phase unwrapping;
 //! a pixel joins the region of its assigned neighbours with its candidate nearest their mean vector
 //! along the common-shift direction, if within half a level (≈ v_N). That fixes the levels of a
-//! region up to one common offset, which the region's summed score settles: the residual of a
-//! common shift adds up over the region's pixels, its noise only as the square root of their
-//! number. Pixels outside the flow mask, with fewer than 3 distinct angles, or in regions of fewer
-//! than [`MIN_REGION_PIXELS`] pixels keep the plain fit.
+//! region up to one common offset. Blood is slow at a vessel's wall, and whatever the flow mask
+//! lets in beyond it (noise, the blurred wall) reads within ±v_N at level 0, so the offset that
+//! makes the region's edge (its pixels next to pixels outside the mask) slowest, in whole levels,
+//! is the physical one: the vessel is unwrapped from its slow rim inward. Between offsets that
+//! leave the edge alike, and for regions without an edge, the region's summed score decides: the
+//! residual of a common shift adds up over the region's pixels, its noise only as the square root
+//! of their number. Pixels outside the flow mask, with fewer than 3 distinct angles, or in regions
+//! of fewer than [`MIN_REGION_PIXELS`] pixels keep the plain fit.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
@@ -67,23 +74,6 @@ pub const AUTO_LIMIT_FRACTION: f64 = 0.01;
 
 /// Largest K accepted: beyond it the candidates become too many and too close to tell apart.
 pub const MAX_INTERVALS: u32 = 8;
-
-/// Two stretches of flow are joined across a steep border only when at least this many more of
-/// the links between them agree on their relative level than disagree.
-pub const MIN_LINK_VOTES: usize = 3;
-
-/// Reading within this fraction of a level's spacing from the midpoint between two levels (that
-/// is, near ±v_N modulo 2·v_N), a pixel is ambiguous: it decides no level.
-const AMBIGUOUS_PHASE: f64 = 0.4;
-
-/// Neighbours join in the first pass when they agree within this fraction of a level's spacing.
-const SMOOTH_LINK: f64 = 0.15;
-
-/// Pixels of two stretches within this many pixels of each other vote on their relative level.
-const VOTE_RADIUS: i64 = 3;
-
-/// A vote counts when the two pixels agree within this fraction of a level's spacing.
-const VOTE_LINK: f64 = 0.35;
 
 /// Fits faster than this times (2K + 1)·v_N are outside the limit.
 const SPEED_MARGIN: f64 = 1.1;
@@ -368,58 +358,31 @@ fn candidates_of(
         }
     }
     let reached_angles: Vec<f64> = model.index.iter().map(|&i| angles[i]).collect();
-    let fit = |pattern: &[i8], u: &mut Vec<f64>| {
-        for j in 0..n {
-            u[j] = model.p[j] + model.period[j] * f64::from(pattern[j]);
-        }
-        // The estimator's own fit (for an all-zero pattern: the plain fit, to the last bit); the
-        // precomputed LS operator only ranked the patterns.
-        let v = vector::solve_pixel(&reached_angles, u, estimator);
-        let score = match estimator {
-            Estimator::LeastSquares => model.residuals(u, v).map(|r| r * r).sum(),
-            Estimator::Irls(_) => model.residuals(u, v).map(f64::abs).sum(),
-        };
-        (v, score)
-    };
-    // The pixel's pattern: the best of each level's best, by the estimator's score.
-    let Some(chosen) = best
-        .iter()
+    best.iter()
         .flatten()
-        .map(|&(ssr, index)| match estimator {
-            Estimator::LeastSquares => (ssr, index),
-            Estimator::Irls(_) => (fit(&patterns[index], &mut u).1, index),
-        })
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, index)| patterns[index].clone())
-    else {
-        return vec![];
-    };
-    // Its common shifts, one per level: which angles wrap relative to the others is the pixel's
-    // to say; how many times all of them do is left to space. Other patterns are not kept: a
-    // poor fit of a level (say, no angle unwrapped where half of them wrapped) reads a speed
-    // between the levels and would join stretches at different levels.
-    let (low, high) = chosen
-        .iter()
-        .fold((i8::MAX, i8::MIN), |(lo, hi), &k| (lo.min(k), hi.max(k)));
-    let k_max = intervals as i8;
-    (-k_max - low..=k_max - high)
-        .filter_map(|c| {
-            let pattern: Vec<i8> = chosen.iter().map(|&k| k + c).collect();
-            let (v, score) = fit(&pattern, &mut u);
-            if v.0.hypot(v.1) > limit {
-                return None;
+        .map(|&(_, index)| {
+            let pattern = &patterns[index];
+            for j in 0..n {
+                u[j] = model.p[j] + model.period[j] * f64::from(pattern[j]);
             }
+            // The final fit is the estimator's own (for an all-zero pattern: the plain fit, to
+            // the last bit); the precomputed LS operator only ranked the patterns.
+            let v = vector::solve_pixel(&reached_angles, &u, estimator);
+            let score = match estimator {
+                Estimator::LeastSquares => model.residuals(&u, v).map(|r| r * r).sum(),
+                Estimator::Irls(_) => model.residuals(&u, v).map(f64::abs).sum(),
+            };
             let mut alias_counts = vec![0i8; angles.len()];
             for (j, &i) in model.index.iter().enumerate() {
                 alias_counts[i] = pattern[j];
             }
-            Some(Candidate {
+            Candidate {
                 alias_counts,
                 vx: v.0,
                 vz: v.1,
                 score,
-                level: level_of(&pattern),
-            })
+                level: level_of(pattern),
+            }
         })
         .collect()
 }
@@ -563,13 +526,33 @@ pub fn uniform(nyquist: f64, dim: (usize, usize, usize)) -> Array3<f64> {
     Array3::from_elem(dim, nyquist)
 }
 
+/// A pixel of the priority queue of the region growing: strongest first, then lowest index.
+#[derive(PartialEq)]
+struct Queued(f64, usize);
+
+impl Eq for Queued {}
+
+impl PartialOrd for Queued {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Queued {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0
+            .total_cmp(&other.0)
+            .then_with(|| other.1.cmp(&self.1))
+    }
+}
+
 fn dealias_with(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
     nyquist: ArrayView3<f64>,
     estimator: &Estimator,
     intervals: u32,
-    _quality: ArrayView2<f64>,
+    quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<DealiasedField> {
     if let Some(bad) = nyquist.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
@@ -619,301 +602,155 @@ fn dealias_with(
     };
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 
-    let level_at = |p: usize, level: i32| candidates[p].iter().position(|c| c.level == level);
-    // Pixels within `radius` (square) of p that have candidates.
-    let around = |p: usize, radius: i64| {
+    // Region growing, strongest pixel first.
+    const NONE: usize = usize::MAX;
+    let mut region = vec![NONE; nz * nx];
+    let mut choice = vec![0usize; nz * nx];
+    let mut regions: Vec<Vec<usize>> = Vec::new();
+    let mut order: Vec<usize> = (0..nz * nx)
+        .filter(|&p| !candidates[p].is_empty())
+        .collect();
+    order.sort_by(|&a, &b| {
+        let (qa, qb) = (quality[[a / nx, a % nx]], quality[[b / nx, b % nx]]);
+        qb.total_cmp(&qa).then(a.cmp(&b))
+    });
+    let neighbours = |p: usize| {
         let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-        let candidates = &candidates;
-        (-radius..=radius)
-            .flat_map(move |dz| (-radius..=radius).map(move |dx| (dz, dx)))
+        (-1i64..=1)
+            .flat_map(move |dz| (-1i64..=1).map(move |dx| (dz, dx)))
             .filter(|&(dz, dx)| (dz, dx) != (0, 0))
             .filter_map(move |(dz, dx)| {
                 let (z, x) = (iz + dz, ix + dx);
                 (z >= 0 && x >= 0 && (z as usize) < nz && (x as usize) < nx)
                     .then(|| z as usize * nx + x as usize)
             })
-            .filter(move |&q| !candidates[q].is_empty())
     };
-    // A pixel reading near ±v_N (mod 2·v_N) along the common shift is as near its neighbours at
-    // one level as at the next: where a steep profile (a fast vessel's wall) is blurred, the
-    // Doppler spectrum spans the whole Nyquist interval and the mean phase piles up at ±π. Such
-    // pixels take no part in deciding levels; they follow their neighbours at the end.
-    let ambiguous: Vec<bool> = candidates
-        .iter()
-        .map(|c| {
-            c.first().is_none_or(|c| {
-                let x = along(c) / spacing;
-                (x - x.round()).abs() > AMBIGUOUS_PHASE
+    let mut heap = BinaryHeap::new();
+    for &seed in &order {
+        if region[seed] != NONE {
+            continue;
+        }
+        let id = regions.len();
+        let best = (0..candidates[seed].len())
+            .min_by(|&a, &b| {
+                candidates[seed][a]
+                    .score
+                    .total_cmp(&candidates[seed][b].score)
             })
-        })
-        .collect();
-    // The level shift of q that brings q's candidate nearest p's current one, within `tolerance`
-    // levels' spacing.
-    let nearest = |level: &[i32], p: usize, q: usize, tolerance: f64| -> Option<(i32, f64)> {
-        let target = along(&candidates[p][level_at(p, level[p])?]);
-        candidates[q]
-            .iter()
-            .map(|c| (c.level - level[q], (along(c) - target).abs()))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .filter(|&(_, d)| d <= tolerance * spacing)
-    };
-    // Moves every pixel of group `moving` by `shift` levels into group `stay`; refused (false)
-    // when a pixel would leave its candidates (beyond ±K).
-    let join = |level: &mut Vec<i32>,
-                group: &mut Vec<usize>,
-                members: &mut Vec<Vec<usize>>,
-                stay: usize,
-                moving: usize,
-                shift: i32|
-     -> bool {
-        if members[moving]
-            .iter()
-            .any(|&m| level_at(m, level[m] + shift).is_none())
-        {
-            return false;
+            .unwrap_or(0);
+        region[seed] = id;
+        choice[seed] = best;
+        let mut members = vec![seed];
+        heap.clear();
+        for q in neighbours(seed) {
+            if region[q] == NONE && !candidates[q].is_empty() {
+                heap.push(Queued(quality[[q / nx, q % nx]], q));
+            }
         }
-        let moved = std::mem::take(&mut members[moving]);
-        for &m in &moved {
-            level[m] += shift;
-            group[m] = stay;
-        }
-        members[stay].extend(moved);
-        true
-    };
-    // Joins the groups of p and q with q's level shifted by `shift` relative to p's (the smaller
-    // group moves).
-    let join_pair = |level: &mut Vec<i32>,
-                     group: &mut Vec<usize>,
-                     members: &mut Vec<Vec<usize>>,
-                     gp: usize,
-                     gq: usize,
-                     shift: i32|
-     -> bool {
-        if members[gp].len() >= members[gq].len() {
-            join(level, group, members, gp, gq, shift)
-        } else {
-            join(level, group, members, gq, gp, -shift)
-        }
-    };
-
-    const NONE: usize = usize::MAX;
-    let mut level: Vec<i32> = (0..nz * nx)
-        .map(|p| {
-            candidates[p]
+        while let Some(Queued(_, q)) = heap.pop() {
+            if region[q] != NONE {
+                continue;
+            }
+            let (sum, count) = neighbours(q)
+                .filter(|&r| region[r] == id)
+                .fold((0.0, 0usize), |(s, c), r| {
+                    (s + along(&candidates[r][choice[r]]), c + 1)
+                });
+            if count == 0 {
+                continue;
+            }
+            let reference = sum / count as f64;
+            let Some((best, distance)) = candidates[q]
                 .iter()
-                .min_by(|a, b| a.score.total_cmp(&b.score))
-                .map_or(0, |c| c.level)
-        })
-        .collect();
-    let mut group: Vec<usize> = (0..nz * nx)
-        .map(|p| if candidates[p].is_empty() { NONE } else { p })
-        .collect();
-    let mut members: Vec<Vec<usize>> = (0..nz * nx)
-        .map(|p| {
-            if candidates[p].is_empty() {
-                vec![]
-            } else {
-                vec![p]
-            }
-        })
-        .collect();
-
-    // 1. Smooth stretches: links between 8-neighbours that agree within a small part of a level,
-    // most reliable first (Herráez et al.'s reliability-sorted unwrapping), each deciding the
-    // relative level of the two groups it joins.
-    let mut edges: Vec<(f64, usize, usize)> = Vec::new();
-    for p in 0..nz * nx {
-        if ambiguous[p] {
-            continue;
-        }
-        let (iz, ix) = (p / nx, p % nx);
-        for (dz, dx) in [(0i64, 1i64), (1, -1), (1, 0), (1, 1)] {
-            let (z, x) = (iz as i64 + dz, ix as i64 + dx);
-            if z < 0 || x < 0 || z as usize >= nz || x as usize >= nx {
-                continue;
-            }
-            let q = z as usize * nx + x as usize;
-            if ambiguous[q] {
-                continue;
-            }
-            if let Some((_, d)) = nearest(&level, p, q, SMOOTH_LINK) {
-                edges.push((d, p, q));
-            }
-        }
-    }
-    edges.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    for &(_, p, q) in &edges {
-        let (gp, gq) = (group[p], group[q]);
-        if gp == gq {
-            continue;
-        }
-        if let Some((shift, _)) = nearest(&level, p, q, SMOOTH_LINK) {
-            join_pair(&mut level, &mut group, &mut members, gp, gq, shift);
-        }
-    }
-
-    // 2. Stretches are joined across what separates them (a wall, a band of ambiguous pixels) by
-    // the vote of every pair of their pixels within VOTE_RADIUS: one pair across a blurred edge
-    // can read the other side's wrapped value, most do not. Stretches of at least
-    // MIN_REGION_PIXELS, the pair of stretches with the strongest majority first.
-    let big =
-        |members: &Vec<Vec<usize>>, g: usize| g != NONE && members[g].len() >= MIN_REGION_PIXELS;
-    let mut pairs: Vec<(usize, usize)> = Vec::new();
-    for p in 0..nz * nx {
-        if ambiguous[p] || !big(&members, group[p]) {
-            continue;
-        }
-        for q in around(p, VOTE_RADIUS) {
-            if q > p && !ambiguous[q] && group[q] != group[p] && big(&members, group[q]) {
-                pairs.push((p, q));
-            }
-        }
-    }
-    let mut refused: std::collections::BTreeSet<(usize, usize)> = Default::default();
-    loop {
-        let mut votes: std::collections::BTreeMap<
-            (usize, usize),
-            std::collections::BTreeMap<i32, usize>,
-        > = Default::default();
-        for &(p, q) in &pairs {
-            let (gp, gq) = (group[p], group[q]);
-            if gp == gq {
-                continue;
-            }
-            // The shift of the higher-numbered group relative to the lower one.
-            let (key, from, to) = if gp < gq {
-                ((gp, gq), p, q)
-            } else {
-                ((gq, gp), q, p)
-            };
-            if refused.contains(&key) {
-                continue;
-            }
-            if let Some((shift, _)) = nearest(&level, from, to, VOTE_LINK) {
-                *votes.entry(key).or_default().entry(shift).or_default() += 1;
-            }
-        }
-        let best = votes
-            .iter()
-            .filter_map(|(&key, tally)| {
-                let total: usize = tally.values().sum();
-                let (&shift, &top) = tally.iter().max_by_key(|(s, n)| (**n, -s.abs()))?;
-                let net = 2 * top as i64 - total as i64;
-                (net >= MIN_LINK_VOTES as i64).then_some((net, key, shift))
-            })
-            .max_by_key(|&(net, key, _)| (net, std::cmp::Reverse(key)));
-        let Some((_, (a, b), shift)) = best else {
-            break;
-        };
-        if !join_pair(&mut level, &mut group, &mut members, a, b, shift) {
-            refused.insert((a, b));
-        }
-    }
-
-    // 3. The rest (ambiguous pixels, small groups) follow their neighbours: each joins the large
-    // group most of its 8-neighbours belong to, at the level nearest their mean, pass after pass
-    // inward from the groups.
-    loop {
-        let mut changed = false;
-        for p in 0..nz * nx {
-            if candidates[p].is_empty() || big(&members, group[p]) {
-                continue;
-            }
-            let mut tally: std::collections::BTreeMap<usize, (usize, f64)> = Default::default();
-            for q in around(p, 1) {
-                if big(&members, group[q])
-                    && let Some(i) = level_at(q, level[q])
-                {
-                    let entry = tally.entry(group[q]).or_default();
-                    entry.0 += 1;
-                    entry.1 += along(&candidates[q][i]);
-                }
-            }
-            let Some((&g, &(count, sum))) = tally
-                .iter()
-                .max_by_key(|(g, (n, _))| (*n, std::cmp::Reverse(**g)))
+                .enumerate()
+                .map(|(i, c)| (i, (along(c) - reference).abs()))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
             else {
                 continue;
             };
-            let reference = sum / count as f64;
-            let Some(c) = candidates[p].iter().min_by(|a, b| {
-                (along(a) - reference)
-                    .abs()
-                    .total_cmp(&(along(b) - reference).abs())
-            }) else {
+            if distance > 0.5 * spacing {
                 continue;
-            };
-            let old = group[p];
-            level[p] = c.level;
-            group[p] = g;
-            if old != NONE && old != g {
-                members[old].retain(|&m| m != p);
             }
-            members[g].push(p);
-            changed = true;
+            region[q] = id;
+            choice[q] = best;
+            members.push(q);
+            for r in neighbours(q) {
+                if region[r] == NONE && !candidates[r].is_empty() {
+                    heap.push(Queued(quality[[r / nx, r % nx]], r));
+                }
+            }
         }
-        if !changed {
-            break;
-        }
+        regions.push(members);
     }
 
-    // 4. Each group's common offset. Blood is slow at a vessel's wall, and noise reads within
-    // ±v_N at level 0, so the offset that makes the group's edge (its pixels next to pixels that
-    // are not flow) slowest is the physical one; summed scores break ties and decide for groups
-    // without an edge. (A pixel's own residual cannot: see the module docs.)
+    // Each region's common offset. Blood is slow at a vessel's wall and noise reads within ±v_N,
+    // so the offset that makes the region's edge (its pixels next to pixels that are not flow;
+    // the grid's border is none) slowest is the physical one; the summed score decides between
+    // offsets that leave the edge alike, and for regions without an edge (a pixel's own residual
+    // hardly settles the common shift: see the module docs).
     let mut field = plain;
     let mut alias_counts = Array3::<i8>::zeros((n, nz, nx));
     let (mut dealiased, mut unwrapped, mut at_limit) = (0, 0, 0);
     let k_max = intervals as i32;
-    for pixels in members.iter() {
-        if pixels.len() < MIN_REGION_PIXELS {
+    let is_edge = |p: usize| {
+        let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
+        (-1i64..=1).any(|dz| {
+            (-1i64..=1).any(|dx| {
+                let (z, x) = (iz + dz, ix + dx);
+                z >= 0
+                    && x >= 0
+                    && (z as usize) < nz
+                    && (x as usize) < nx
+                    && candidates[z as usize * nx + x as usize].is_empty()
+            })
+        })
+    };
+    for members in &regions {
+        if members.len() < MIN_REGION_PIXELS {
             continue;
         }
-        let edge: Vec<usize> = pixels
-            .iter()
-            .copied()
-            .filter(|&p| {
-                // Next to a pixel that is not flow (the grid's border is not an edge).
-                let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-                (-1i64..=1).any(|dz| {
-                    (-1i64..=1).any(|dx| {
-                        let (z, x) = (iz + dz, ix + dx);
-                        z >= 0
-                            && x >= 0
-                            && (z as usize) < nz
-                            && (x as usize) < nx
-                            && candidates[z as usize * nx + x as usize].is_empty()
-                    })
-                })
-            })
-            .collect();
-        let mut best: Option<((f64, f64), i32)> = None;
+        let at_level = |p: usize, offset: i32| {
+            let level = candidates[p][choice[p]].level + offset;
+            candidates[p].iter().position(|c| c.level == level)
+        };
+        let edge: Vec<usize> = members.iter().copied().filter(|&p| is_edge(p)).collect();
+        // (edge speed in levels, rounded so that noise within a level does not decide; summed
+        // score; offset)
+        let mut best: Option<(i64, f64, i32)> = None;
         for offset in -2 * k_max..=2 * k_max {
-            let feasible = pixels
-                .iter()
-                .all(|&p| level_at(p, level[p] + offset).is_some());
-            if !feasible {
+            let chosen: Option<Vec<usize>> = members.iter().map(|&p| at_level(p, offset)).collect();
+            let Some(chosen) = chosen else {
                 continue;
-            }
-            let at = |p: usize| &candidates[p][level_at(p, level[p] + offset).unwrap_or(0)];
-            let edge_speed = if edge.is_empty() {
-                0.0
-            } else {
-                crate::stats::median(edge.iter().map(|&p| along(at(p)).abs()).collect())
             };
-            let total: f64 = pixels.iter().map(|&p| at(p).score).sum();
-            let key = (edge_speed, total);
+            let total: f64 = members
+                .iter()
+                .zip(&chosen)
+                .map(|(&p, &i)| candidates[p][i].score)
+                .sum();
+            let edge_levels = if edge.is_empty() {
+                0
+            } else {
+                let speeds = members
+                    .iter()
+                    .zip(&chosen)
+                    .filter(|(p, _)| is_edge(**p))
+                    .map(|(&p, &i)| along(&candidates[p][i]).abs())
+                    .collect();
+                (crate::stats::median(speeds) / spacing).round() as i64
+            };
+            let key = (edge_levels, total, offset);
             let better = match best {
                 None => true,
-                Some(((e, t), o)) => (key.0, key.1, offset.abs()) < (e, t, o.abs()),
+                Some((e, t, o)) => (edge_levels, total, offset.abs()) < (e, t, o.abs()),
             };
             if better {
-                best = Some((key, offset));
+                best = Some(key);
             }
         }
-        let offset = best.map_or(0, |(_, o)| o);
-        for &p in pixels {
-            let Some(i) = level_at(p, level[p] + offset) else {
+        let offset = best.map_or(0, |(_, _, o)| o);
+
+        for &p in members {
+            let Some(i) = at_level(p, offset) else {
                 continue;
             };
             let c = &candidates[p][i];
