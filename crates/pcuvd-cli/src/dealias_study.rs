@@ -245,6 +245,10 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
         m.within_definition
     ));
     report.paragraph(&format!(
+        "Speed within 10 % of the peak (laxer, shown beside it): {}.",
+        m.speed_within_definition
+    ));
+    report.paragraph(&format!(
         "Alias pattern right: {}.",
         m.alias_pattern_definition
     ));
@@ -283,6 +287,8 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
                     method.label().into(),
                     stat(&|r| r.off.within_10pct_of_peak),
                     stat(&|r| r.on.within_10pct_of_peak),
+                    stat(&|r| r.off.speed_within_10pct_of_peak),
+                    stat(&|r| r.on.speed_within_10pct_of_peak),
                     stat(&|r| r.off.alias_pattern_right),
                     stat(&|r| r.on.alias_pattern_right),
                     rmse(&|r| r.off.rmse_mm_s),
@@ -302,6 +308,8 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
             "peak / v_N",
             "method",
             "within 10 % of peak, off (%)",
+            "on (%)",
+            "speed within 10 % of peak, off (%)",
             "on (%)",
             "alias pattern right, off (%)",
             "on (%)",
@@ -324,7 +332,7 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
         .collect();
     report.table(&["target", "measured (worst seed)", ""], &targets);
     report.paragraph(
-        "Reading the numbers: dealiasing recovers the alias pattern of the conventional recordings; what remains of their error is the estimator's own, mostly in Vx (which rests on the small differences between angles and grows with the speed). Hadamard-coded recordings cannot be dealiased this way: decoding (with either event alignment) needs every echo's Doppler within ±half the frame rate, i.e. its projections within ±v_N; a faster echo is not wrapped but decoded into the other angles, so its projections read too slow with no alias to undo.",
+        "Reading the numbers: where dealiasing recovers the alias pattern of the conventional recordings (the pattern column says where), what remains of their error is the estimator's own, mostly in Vx (which rests on the small differences between angles and grows with the speed). Hadamard-coded recordings cannot be dealiased this way: decoding (with either event alignment) needs every echo's Doppler within ±half the frame rate, i.e. its projections within ±v_N; a faster echo is not wrapped but decoded into the other angles, so its projections read too slow with no alias to undo.",
     );
     for fig in figs {
         report.image_png(&format!("{} ({})", fig.caption, fig.file), &fig.png);

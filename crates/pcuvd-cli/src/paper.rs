@@ -200,7 +200,7 @@ impl StudyOptions {
         let noise_db = self
             .dealias_noise_db
             .split(',')
-            .map(|t| crate::options::parse_db_or_off(t))
+            .map(crate::options::parse_db_or_off)
             .collect::<Result<Vec<_>>>()
             .with_context(|| format!("--dealias-noise-db {:?}", self.dealias_noise_db))?;
         let seeds = self
