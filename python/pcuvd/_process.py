@@ -31,6 +31,9 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "ri": (("z", "x"), "resistivity index (PSV − EDV)/PSV (NaN outside vessels)"),
     "psv": (("z", "x"), "peak systolic speed (m/s)"),
     "edv": (("z", "x"), "end-diastolic speed (m/s)"),
+    "psv_spread": (("z", "x"), "standard deviation of PSV across cardiac cycles (m/s)"),
+    "edv_spread": (("z", "x"), "standard deviation of EDV across cardiac cycles (m/s)"),
+    "ri_spread": (("z", "x"), "standard deviation of RI across cardiac cycles"),
     "vessel_class": (("z", "x"), "0 background, 1 arteriole, 2 venule, 3 undetermined"),
     "flow_up": (("z", "x"), "1 where the mean flow is toward the probe"),
     "speed_series": (("time", "z", "x"), "speed in sliding windows (m/s)"),
@@ -56,7 +59,8 @@ class ProcessResult:
     `color_doppler` (nz, nx); `projections` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
     `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `alias_counts`,
     `alias_counts_ls` (angles, nz, nx) int8 with `dealias` on; `ri`, `psv`, `edv`,
-    `vessel_class`, `flow_up` (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
+    `psv_spread`, `edv_spread`, `ri_spread` (across cardiac cycles), `vessel_class`, `flow_up`
+    (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
     dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`, `ensemble_vx`,
     `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
     `ensemble_frames=N`; `x` (nx) and `z` (nz) in m.

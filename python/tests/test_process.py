@@ -123,6 +123,26 @@ def test_overrides_change_the_acquisition(disk):
         pcuvd.read_recording(disk, speed_of_sound=1480.0)
 
 
+def test_parameters_say_where_they_came_from(disk):
+    recording = pcuvd.read_recording(disk)
+    assert recording.parameters["t0_s"]["source"] == {"kind": "file", "field": "param.t0"}
+    assert recording.parameters["pulse_cycles"]["source"]["kind"] == "default"
+    given = pcuvd.read_recording(disk, t0_s=1e-6)
+    assert given.t0_s == 1e-6
+    assert given.parameters["t0_s"] == {"value": 1e-6, "source": {"kind": "override"}}
+
+
+def test_every_format_reads_through_the_same_reader(disk):
+    # The disk written by pyuff-ustb (its first 8 transmits): the .mat's samples, read by the
+    # reader `pcuvd process` uses.
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    uff = pcuvd.read_recording(fixtures / "disk.uff")
+    assert uff.format == "USTB UFF channel data (HDF5)"
+    assert uff.parameters["event_prf_hz"]["source"] == {"kind": "file", "field": "channel_data/PRF"}
+    mat = pcuvd.read_recording(disk)
+    np.testing.assert_array_equal(uff.samples, mat.samples[:8])
+
+
 def test_from_arrays_equals_the_file(disk):
     recording = pcuvd.read_recording(disk)
     samples = np.transpose(recording.samples, (2, 0, 1))  # (samples, events, channels)

@@ -64,17 +64,26 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("error: {}", one_line(&error));
-            ExitCode::FAILURE
+            ExitCode::from(ERROR_EXIT_CODE)
         }
     }
 }
 
-/// The cause chain on one line, without the captured backtrace, skipping a cause whose text an
-/// outer message already quotes.
+/// Exit code of a command refused or failed for its input (the file, a field, an option), as for
+/// a usage error: 2. (0: success; 130: interrupted.)
+pub const ERROR_EXIT_CODE: u8 = 2;
+
+/// The cause chain on one line (line breaks inside a cause become spaces), without the captured
+/// backtrace, skipping a cause whose text an outer message already quotes.
 pub fn one_line(error: &anyhow::Error) -> String {
     let mut line = String::new();
     for cause in error.chain() {
-        let text = cause.to_string();
+        // One line, whatever a cause's own message holds.
+        let text = cause
+            .to_string()
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ");
         if !line.contains(&text) {
             if !line.is_empty() {
                 line.push_str(": ");

@@ -76,6 +76,27 @@ pub fn autocorrelation(
     Ok(Autocorrelation { power, r1 })
 }
 
+impl Autocorrelation {
+    /// The same estimates averaged over a spatial box of `kernel` = (rows, cols) pixels (odd
+    /// sizes), as [`autocorrelation`] averages them: for estimates summed over several segments of
+    /// a recording before averaging (the average is linear, so the order does not matter).
+    pub fn box_averaged(self, kernel: (usize, usize)) -> Result<Autocorrelation> {
+        if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
+            return Err(invalid(
+                "Doppler averaging kernel",
+                format!("sizes must be odd, got {kernel:?}"),
+            ));
+        }
+        if kernel == (1, 1) {
+            return Ok(self);
+        }
+        Ok(Autocorrelation {
+            power: box_average(&self.power, kernel),
+            r1: box_average(&self.r1, kernel),
+        })
+    }
+}
+
 fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
 where
     T: Copy + Default + std::ops::AddAssign + std::ops::Div<f64, Output = T>,

@@ -34,6 +34,7 @@ pub mod metrics;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;
+pub mod segments;
 pub mod sequence;
 pub mod simulate;
 pub mod source;
@@ -42,8 +43,8 @@ pub mod study;
 pub mod vector;
 pub mod vessel;
 
-pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
+pub use channel::{Acquisition, AngleSamples, BandSampling, ChannelData, Samples};
 pub use error::{Error, Result};
 pub use hadamard::Hadamard;
 pub use probe::Probe;
-pub use sequence::{Coding, Sequence};
+pub use sequence::{Coding, Sequence, TransmitCode, TransmitPulse};

@@ -401,8 +401,12 @@ mod tests {
             flow_up: array![[true, false, false, false, true]],
             psv: Array2::zeros((1, 5)),
             edv: Array2::zeros((1, 5)),
+            psv_spread: Array2::zeros((1, 5)),
+            edv_spread: Array2::zeros((1, 5)),
+            ri_spread: Array2::zeros((1, 5)),
             heart_rate_hz: 5.5,
             cycles: vec![],
+            cycle_source: crate::dynamics::CycleSource::GivenRate,
         };
         let s = score_ri(&est, &truth);
         // Errors 0.1, 0.2, 0.0 and 1 (missing): median 0.15.

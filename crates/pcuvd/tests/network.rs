@@ -109,7 +109,8 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         .unwrap(),
         ..dparams
     };
-    let (_, pooled) = pipeline::dynamics(&out, &pooled_params, &VesselTests::default()).unwrap();
+    let (_, pooled) =
+        pipeline::dynamics(&out, &pooled_params, &VesselTests::default(), None).unwrap();
     MethodMaps { per_pixel, pooled }
 }
 

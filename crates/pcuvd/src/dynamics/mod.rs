@@ -13,8 +13,12 @@
 //!
 //! A recording must hold at least one complete cardiac cycle (of window centres): a shorter one
 //! is refused with an error that says how long it is and how long a cycle is, never answered with
-//! a map of zeros. Measuring the heart rate from the data needs about 1.5 cycles or more; for the
-//! paper's 0.2 s rat recordings (≈ 1.1 cycles) give the heart rate.
+//! a map of zeros. The cycles come from trigger times given with the recording (ECG R-waves), a
+//! given heart rate, or the data ([`cardiac_cycles`]): beat to beat between systolic upstrokes on
+//! long recordings, one period from the autocorrelation (≳ 1.5 cycles), or between the two
+//! upstrokes of a recording a little longer than one cycle. The paper's 0.2 s rat recordings
+//! (≈ 1.1 cycles) usually hold one upstroke: give the heart rate. Over several cycles, the spread
+//! across cycles of PSV, EDV and RI is measured too.
 //!
 //! Files: `windows` (sliding-window vectors), `vessels` (whole-recording vessel tests), `pooling`
 //! (vessel pooling), `harmonics` (cardiac-harmonic fit), `cycles` (heart rate, cycles, PSV/EDV),
@@ -75,7 +79,7 @@ pub struct DynamicsParams {
     pub window: usize,
     /// Frames between consecutive window starts (≥ 1).
     pub step: usize,
-    /// Heart rate (Hz) if known; `None` measures it from the data (needs ≳ 1.5 cycles).
+    /// Heart rate (Hz) if known; `None` measures it from the data ([`cardiac_cycles`]).
     pub heart_rate_hz: Option<f64>,
     /// Vector estimator applied in every window (LS = UVD, IRLS = PC-UVD).
     pub estimator: Estimator,
@@ -173,7 +177,7 @@ impl DynamicsParams {
             return Err(invalid(
                 "vessel power threshold",
                 format!(
-                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {} dB",
+                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {:?} dB",
                     self.min_power_db
                 ),
             ));

@@ -42,6 +42,47 @@ impl VelocitySeries {
         (mean(&self.vx), mean(&self.vz))
     }
 
+    /// Keeps the first `windows` windows (a segment's own, [`crate::segments`]).
+    pub fn truncate(&mut self, windows: usize) {
+        let keep = windows.min(self.len());
+        self.times_s.truncate(keep);
+        for a in [&mut self.vx, &mut self.vz, &mut self.power] {
+            a.slice_collapse(ndarray::s![..keep, .., ..]);
+        }
+    }
+
+    /// Moves every window `seconds` later (a segment's windows, timed from the recording's start).
+    pub fn shift(&mut self, seconds: f64) {
+        self.times_s.iter_mut().for_each(|t| *t += seconds);
+    }
+
+    /// The windows of consecutive segments as one series, in order; refuses no parts or parts
+    /// with other windows or map shapes.
+    pub fn concatenate(parts: Vec<VelocitySeries>) -> Result<VelocitySeries> {
+        let first = parts
+            .first()
+            .ok_or_else(|| invalid("velocity series", "no segment has a whole window"))?;
+        if parts
+            .iter()
+            .any(|p| p.window_s != first.window_s || p.step_s != first.step_s)
+        {
+            return Err(invalid("velocity series", "segments with other windows"));
+        }
+        let stack = |field: fn(&VelocitySeries) -> &Array3<f64>| {
+            let views: Vec<_> = parts.iter().map(|p| field(p).view()).collect();
+            ndarray::concatenate(Axis(0), &views)
+                .map_err(|e| Error::Shape(format!("velocity series of segments: {e}")))
+        };
+        Ok(VelocitySeries {
+            times_s: parts.iter().flat_map(|p| p.times_s.clone()).collect(),
+            vx: stack(|p| &p.vx)?,
+            vz: stack(|p| &p.vz)?,
+            power: stack(|p| &p.power)?,
+            window_s: first.window_s,
+            step_s: first.step_s,
+        })
+    }
+
     /// Number of windows (time samples).
     pub fn len(&self) -> usize {
         self.times_s.len()

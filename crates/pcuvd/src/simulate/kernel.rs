@@ -83,11 +83,7 @@ struct SlotGeometry {
 impl Simulator {
     pub(crate) fn new(params: &SimParams) -> Result<Self> {
         let probe = &params.probe;
-        let wf = EchoWaveform::new(
-            probe,
-            params.sequence.pulse_cycles,
-            params.sampling_frequency,
-        )?;
+        let wf = EchoWaveform::for_sequence(probe, &params.sequence, params.sampling_frequency)?;
         let c = params.sound_speed;
         let lambda = probe.wavelength(c);
         let kappa = params.attenuation_db_cm_mhz * (probe.center_frequency / 1e6) * 100.0

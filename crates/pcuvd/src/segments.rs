@@ -1,0 +1,344 @@
+//! Long recordings in segments: memory bounded by a segment's image series, not by the recording.
+//!
+//! The whole-recording path holds every frame's per-angle images, because the SVD clutter filter
+//! sees the whole ensemble at once: 1.4 GB for the paper's 0.2 s rat recording, 7 GB for 1 s. A
+//! recording too long for that is cut into consecutive *cores* of frames; each core is imaged with
+//! some following frames (the *overlap*, so that every dynamics window and time-series ensemble
+//! starting in it lies inside one segment), clutter-filtered on its own, and then dropped. What
+//! the maps need accumulates across segments:
+//!
+//! - power and lag-1 autocorrelation are sums over frames and frame pairs, so each core's sums are
+//!   added (before the spatial box average, which is linear) and the velocities taken from the
+//!   totals: the maps are those of one long ensemble, except that each segment has its own clutter
+//!   subspace and the pairs across a cut are not counted;
+//! - the B-mode's mean envelope is summed over the cores the same way (unfiltered: exact);
+//! - dynamics windows and ensembles start on the same frames as the whole-recording path's, each
+//!   computed in the segment whose core holds its start;
+//! - vector dealiasing ([`crate::dealias`]) applies where the whole-recording path applies it: to
+//!   the maps from the totals (in [`pipeline::doppler_maps`]), to every ensemble, and to every
+//!   dynamics window. Where the whole path's windows take an automatic K from the recording's
+//!   maps, the segments' take it from the first segment's (the totals come too late).
+//!
+//! Where one segment holds the whole recording the results are the whole-recording path's.
+
+use std::ops::Range;
+
+use ndarray::{Array2, Axis, Zip, s};
+use num_complex::{Complex32, Complex64};
+
+use crate::beamform;
+use crate::clutter::{self, ClutterReport};
+use crate::dealias::Dealias;
+use crate::doppler::{self, Autocorrelation};
+use crate::dynamics::{self, DynamicsParams, VelocitySeries};
+use crate::ensembles::{self, EnsembleMaps, EnsembleSpec};
+use crate::error::{Result, invalid};
+use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
+use crate::source::FrameSource;
+
+/// Bytes of per-angle image series (complex64) one segment may hold: 1.5 GiB, which keeps the
+/// paper's 360-frame rat recording (1.4 GB) whole.
+pub const SERIES_BYTES: u64 = 3 << 29;
+
+/// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
+/// with `overlap` frames after it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Segments {
+    /// Compound frames of each core (a multiple of the dynamics and ensemble steps).
+    pub core: usize,
+    /// Frames imaged after each core, for the windows and ensembles starting near its end.
+    pub overlap: usize,
+}
+
+/// Frames of per-angle images of `angles` angles on `pixels` pixels that fit in [`SERIES_BYTES`].
+pub fn frames_that_fit(pixels: usize, angles: usize) -> usize {
+    (SERIES_BYTES / (pixels.max(1) * angles.max(1) * 8) as u64) as usize
+}
+
+impl Segments {
+    /// Cuts a recording of `total` frames for processing in segments of at most `segment_frames`
+    /// frames (core + overlap), or `None` when one segment holds it (the whole-recording path).
+    /// `dynamics` and `ensembles`, when they run, set the overlap (their window) and the cores'
+    /// alignment (their steps); a segment too short for them is refused, naming both.
+    pub fn plan(
+        total: usize,
+        segment_frames: usize,
+        dynamics: Option<&DynamicsParams>,
+        ensembles: Option<EnsembleSpec>,
+    ) -> Result<Option<Segments>> {
+        if segment_frames >= total {
+            return Ok(None);
+        }
+        let overlap = dynamics
+            .map_or(0, |d| d.window)
+            .max(ensembles.map_or(0, |e| e.frames));
+        let align = lcm(
+            dynamics.map_or(1, |d| d.step.max(1)),
+            ensembles.map_or(1, |e| e.step.max(1)),
+        );
+        let core = segment_frames.saturating_sub(overlap) / align * align;
+        // The clutter filter and the lag-1 autocorrelation need several frames per core.
+        if core < 4.max(align) {
+            return Err(invalid(
+                "segment frames",
+                format!(
+                    "{segment_frames} frames per segment leave {core} for its own frames after \
+                     the {overlap} that the dynamics window or ensembles reach into: give a \
+                     larger --segment-frames (at least {})",
+                    overlap + 4.max(align).div_ceil(align) * align
+                ),
+            ));
+        }
+        Ok(Some(Segments { core, overlap }))
+    }
+
+    /// Each segment's core and the frames imaged for it: (core, imaged), in order. The cores
+    /// tile the recording; a remainder too short to filter joins the last core.
+    pub fn ranges(&self, total: usize) -> Vec<(Range<usize>, Range<usize>)> {
+        let core = self.core.max(1);
+        let mut starts: Vec<usize> = (0..total).step_by(core).collect();
+        if starts.len() > 1 && total - starts[starts.len() - 1] < 4 {
+            starts.pop();
+        }
+        starts
+            .iter()
+            .enumerate()
+            .map(|(k, &start)| {
+                let end = starts.get(k + 1).copied().unwrap_or(total);
+                (start..end, start..(end + self.overlap).min(total))
+            })
+            .collect()
+    }
+}
+
+fn lcm(a: usize, b: usize) -> usize {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    a / gcd(a, b) * b
+}
+
+/// What [`process_in_segments`] gives: the maps, and the stages that run over time.
+#[derive(Debug, Clone)]
+pub struct Segmented {
+    /// The maps from the sums over every core. Its `filtered` holds no series (they were dropped
+    /// segment by segment) and its `clutter` is the first segment's.
+    pub out: ProcessOutput,
+    /// The dynamics stage's velocity series, when `dynamics` was given.
+    pub series: Option<VelocitySeries>,
+    /// The Doppler time series, when `ensembles` was given.
+    pub ensembles: Option<EnsembleMaps>,
+    /// Each segment's core and imaged frames.
+    pub ranges: Vec<(Range<usize>, Range<usize>)>,
+    /// Each segment's clutter cut-offs, per angle.
+    pub clutter: Vec<Vec<ClutterReport>>,
+}
+
+/// Running sums of power and lag-1 autocorrelation over frames and frame pairs.
+struct Sums {
+    power: Array2<f64>,
+    r1: Array2<Complex64>,
+    frames: usize,
+    pairs: usize,
+}
+
+impl Sums {
+    fn new(shape: (usize, usize)) -> Sums {
+        Sums {
+            power: Array2::zeros(shape),
+            r1: Array2::zeros(shape),
+            frames: 0,
+            pairs: 0,
+        }
+    }
+
+    /// Adds the frames of `series` (nz, nx, frames ≥ 2).
+    fn add(&mut self, series: ndarray::ArrayView3<Complex32>) -> Result<()> {
+        let frames = series.dim().2;
+        let ac = doppler::autocorrelation(series, (1, 1))?;
+        Zip::from(&mut self.power)
+            .and(&ac.power)
+            .for_each(|s, &p| *s += p * frames as f64);
+        Zip::from(&mut self.r1)
+            .and(&ac.r1)
+            .for_each(|s, &r| *s += r * (frames - 1) as f64);
+        self.frames += frames;
+        self.pairs += frames - 1;
+        Ok(())
+    }
+
+    fn mean(&self, kernel: (usize, usize)) -> Result<Autocorrelation> {
+        let (frames, pairs) = (self.frames.max(1) as f64, self.pairs.max(1) as f64);
+        Autocorrelation {
+            power: &self.power / frames,
+            r1: &self.r1 / pairs,
+        }
+        .box_averaged(kernel)
+    }
+}
+
+/// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
+/// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
+/// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
+/// series, not the recording's. `progress` sees every stage's work over the whole recording.
+pub fn process_in_segments(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    segments: &Segments,
+    dynamics: Option<&DynamicsParams>,
+    ensemble_spec: Option<EnsembleSpec>,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<Segmented> {
+    let total = source.n_frames();
+    let ranges = segments.ranges(total);
+    let count = ranges.len();
+    let shape = params.grid.shape();
+    let n = source.acquisition().sequence.n_angles();
+    if let Some(d) = dynamics {
+        d.validate(source.acquisition().frame_rate())?;
+    }
+    // The windows' dealiasing; an automatic K is settled on the first segment's maps below.
+    let mut dynamics = dynamics.copied();
+    let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::new(shape)).collect();
+    let mut compound = Sums::new(shape);
+    let mut envelope = Array2::<f64>::zeros(shape);
+    let mut windows: Vec<VelocitySeries> = Vec::new();
+    let mut ensemble_parts: Vec<EnsembleMaps> = Vec::new();
+    let mut clutter_reports = Vec::with_capacity(count);
+    let mut meta = None;
+    let mut timings: Timings = vec![
+        (Stage::Decode, 0.0),
+        (Stage::Beamform, 0.0),
+        (Stage::Clutter, 0.0),
+        (Stage::Doppler, 0.0),
+    ];
+    let mut add_time = |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage)
+    {
+        Some(t) => t.1 += seconds,
+        None => timings.push((stage, seconds)),
+    };
+    for (k, (core, imaged)) in ranges.iter().enumerate() {
+        let blocks = pipeline::blocks_for(source, params.event_alignment);
+        let (mut images, formed) =
+            pipeline::form_images_of(source, params, blocks, imaged.clone(), &|stage, d, t| {
+                progress(stage, k * t + d, count * t)
+            })?;
+        for (stage, seconds) in formed {
+            add_time(stage, seconds);
+        }
+        let own = 0..core.len();
+        let clock = std::time::Instant::now();
+        if let Some(spec) = ensemble_spec {
+            // Ensembles start every `step` frames from the recording's first; those starting in
+            // this core are this segment's.
+            let starts: Vec<usize> = (0..own.end)
+                .step_by(spec.step.max(1))
+                .filter(|&s| s + spec.frames <= images.n_frames())
+                .collect();
+            if !starts.is_empty() {
+                let mut part =
+                    ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
+                part.shift(core.start, spec, images.frame_rate);
+                ensemble_parts.push(part);
+            }
+            progress(Stage::Ensembles, k + 1, count);
+            add_time(Stage::Ensembles, clock.elapsed().as_secs_f64());
+        }
+        let unfiltered = beamform::compound(&images.series)?;
+        Zip::from(&mut envelope)
+            .and(unfiltered.slice(s![.., .., own.clone()]).lanes(Axis(2)))
+            .for_each(|e, lane| *e += lane.iter().map(|c| c.norm() as f64).sum::<f64>());
+        drop(unfiltered);
+
+        let clock = std::time::Instant::now();
+        let mut reports = Vec::with_capacity(n);
+        for (a, image) in images.series.iter_mut().enumerate() {
+            progress(Stage::Clutter, k * n + a, count * n);
+            reports.push(clutter::svd_filter(image, &params.clutter)?);
+        }
+        clutter_reports.push(reports);
+        add_time(Stage::Clutter, clock.elapsed().as_secs_f64());
+
+        let clock = std::time::Instant::now();
+        progress(Stage::Doppler, k, count);
+        for (sums, image) in per_angle.iter_mut().zip(&images.series) {
+            sums.add(image.slice(s![.., .., own.clone()]))?;
+        }
+        compound.add(beamform::compound(&images.series)?.slice(s![.., .., own.clone()]))?;
+        if k == 0
+            && let Some(d) = dynamics.as_mut()
+            && d.dealias == Dealias::Auto
+            && params.dealias != Dealias::Off
+            && n >= 2
+        {
+            // As `pipeline::dynamics` does with the recording's maps: windows unwrap as far as
+            // the maps needed, here the first segment's (one segment: the whole path's K).
+            let first = pipeline::doppler_maps(
+                &per_angle
+                    .iter()
+                    .map(|s| s.mean(params.doppler_kernel))
+                    .collect::<Result<Vec<_>>>()?,
+                &compound.mean(params.doppler_kernel)?,
+                &images,
+                params,
+            )?;
+            if let Some(done) = first.dealias {
+                d.dealias = Dealias::Intervals(done.intervals);
+            }
+        }
+        if let Some(d) = &dynamics
+            && images.n_frames() >= d.window
+        {
+            let mut part = dynamics::sliding_vectors(&images, d)?;
+            // Windows start every `step` frames; keep those starting in this core.
+            let keep = own.end.div_ceil(d.step.max(1)).min(part.len());
+            part.truncate(keep);
+            part.shift(core.start as f64 / images.frame_rate);
+            windows.push(part);
+        }
+        add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
+        images.series = Vec::new();
+        meta = Some(images);
+    }
+    progress(Stage::Doppler, count, count);
+    let images = meta.ok_or_else(|| invalid("frames", "the recording has no frames"))?;
+    let per_angle = per_angle
+        .into_iter()
+        .map(|s| s.mean(params.doppler_kernel))
+        .collect::<Result<Vec<_>>>()?;
+    let compound = compound.mean(params.doppler_kernel)?;
+    let clock = std::time::Instant::now();
+    let maps = pipeline::doppler_maps(&per_angle, &compound, &images, params)?;
+    add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
+    let bmode_db = beamform::bmode_db_of_envelope(envelope / total as f64);
+    let series = match dynamics {
+        Some(_) => Some(VelocitySeries::concatenate(windows)?),
+        None => None,
+    };
+    let ensembles = match ensemble_spec {
+        Some(_) => Some(EnsembleMaps::concatenate(ensemble_parts)?),
+        None => None,
+    };
+    Ok(Segmented {
+        out: ProcessOutput {
+            grid: params.grid.clone(),
+            bmode_db,
+            power_doppler: maps.power_doppler,
+            color_doppler: maps.color_doppler,
+            power_per_angle: maps.power_per_angle,
+            projections: maps.projections,
+            coverage: maps.coverage,
+            vector_ls: maps.vector_ls,
+            vector_irls: maps.vector_irls,
+            dealias: maps.dealias,
+            nyquist_velocity: maps.nyquist_velocity,
+            clutter: clutter_reports[0].clone(),
+            filtered: images,
+            timings,
+        },
+        series,
+        ensembles,
+        ranges,
+        clutter: clutter_reports,
+    })
+}
