@@ -40,11 +40,22 @@ def tube(tmp_path_factory, cli) -> Path:
 @pytest.mark.parametrize("which", ["disk", "tube", "tube in segments"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     source = disk if which == "disk" else tube
-    tube_options = ["--grid=-3,3,4,10,0.1", "--dynamics=off", "--ensemble-frames=4", "--ensemble-step=3"]
+    tube_options = [
+        "--grid=-3,3,4,10,0.1",
+        "--dynamics=off",
+        "--ensemble-frames=4",
+        "--ensemble-step=3",
+        "--dealias=auto",
+    ]
     options = tube_options if which == "tube" else []
     if which == "tube in segments":
         # Segments of 8 frames: 6-frame cores, each imaged with the 2 frames its ensembles reach.
-        options = tube_options[:2] + ["--ensemble-frames=4", "--ensemble-step=2", "--segment-frames=8"]
+        options = tube_options[:2] + [
+            "--ensemble-frames=4",
+            "--ensemble-step=2",
+            "--segment-frames=8",
+            "--dealias=auto",
+        ]
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
     assert done.returncode == 0, done.stderr
@@ -54,6 +65,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         "dynamics": "off",
         "ensemble_frames": 4,
         "ensemble_step": 3,
+        "dealias": "auto",
     }
     kwargs = tube_kwargs if which == "tube" else {}
     if which == "tube in segments":
@@ -69,6 +81,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     )
     if which == "tube":
         assert {"vx", "vz", "speed", "vx_ls", "vz_ls", "speed_ls"} <= set(cli_arrays)
+        assert cli_arrays["alias_counts"].shape == (8, *cli_arrays["vx"].shape)
         # A Doppler time series of 3 ensembles (frames 0–3, 3–6, 6–9 of 10).
         assert cli_arrays["ensemble_vx"].shape == (3, *cli_arrays["vx"].shape)
         assert list(cli_arrays["ensemble_times"] * 1800) == [1.5, 4.5, 7.5]

@@ -1,6 +1,7 @@
 //! The `pcuvd` command as a library: every subcommand's options, checks, computation and outputs,
 //! so that other front ends (the Python package) run exactly what the command runs.
 
+pub mod dealias_study;
 pub mod figures;
 pub mod info;
 pub mod network_study;
@@ -34,7 +35,7 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
     Info(info::InfoArgs),
-    /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
+    /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),
 }
 

@@ -48,6 +48,15 @@ pub struct ProcessingOptions {
     /// simultaneous). Conventional recordings are not affected.
     #[arg(long, value_enum, default_value_t = Alignment::from(pcuvd::decode::EventAlignment::default()))]
     pub event_alignment: Alignment,
+    /// Vector dealiasing: "off", "auto" or K. A projection beyond the Nyquist velocity v_N wraps
+    /// by 2·v_N; K unwraps up to ±K such intervals per angle (speeds up to (2K + 1)·v_N), choosing
+    /// each pixel's alias pattern by the smallest residual of the vector fit and the common shift
+    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor). "auto"
+    /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies
+    /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
+    /// decode flow above v_N wrongly (see the README), so it helps conventional recordings most.
+    #[arg(long, default_value = "off")]
+    pub dealias: String,
     /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter
     /// filter and its own power, colour and vector maps (ensemble_*.npy, ensembles.png). Default:
     /// none (the whole recording is one ensemble, as the other maps are).
@@ -65,6 +74,11 @@ pub struct ProcessingOptions {
 }
 
 impl ProcessingOptions {
+    /// The dealiasing of `--dealias`.
+    pub fn dealias(&self) -> Result<pcuvd::dealias::Dealias> {
+        pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")
+    }
+
     /// The ensembles of `--ensemble-frames` / `--ensemble-step`, checked against a recording of
     /// `frames` frames; `None` when no time series was asked for.
     pub fn ensembles(&self, frames: usize) -> Result<Option<pcuvd::ensembles::EnsembleSpec>> {
@@ -337,12 +351,13 @@ impl DynamicsOptions {
     }
 
     /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
-    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls`, the averaging kernel of
+    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls` and `dealias`, the averaging kernel of
     /// `--dynamics-kernel`, vessel pooling converted from mm to pixels of `grid_step_m` (m).
     pub fn params(
         &self,
         frame_rate: f64,
         irls: IrlsParams,
+        dealias: pcuvd::dealias::Dealias,
         grid_step_m: f64,
     ) -> Result<DynamicsParams> {
         let kernel = parse_kernel(&self.dynamics_kernel)
@@ -399,6 +414,7 @@ impl DynamicsOptions {
             step,
             heart_rate_hz: self.heart_rate,
             estimator: Estimator::Irls(irls),
+            dealias,
             kernel,
             artery_ri_min: self.artery_ri_min,
             vein_ri_max: self.vein_ri_max,
@@ -464,6 +480,7 @@ impl ProcessingOptions {
             irls,
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
+            dealias: self.dealias()?,
         })
     }
 }

@@ -21,6 +21,8 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "vx_ls.npy",
     "vz_ls.npy",
     "speed_ls.npy",
+    "alias_counts.npy",
+    "alias_counts_ls.npy",
     "ri.npy",
     "psv.npy",
     "edv.npy",

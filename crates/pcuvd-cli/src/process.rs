@@ -266,6 +266,7 @@ impl Plan {
                 params: dynamics.params(
                     data.acquisition().frame_rate(),
                     params.irls,
+                    params.dealias,
                     params.grid.step(),
                 )?,
                 vessel: dynamics.vessel_tests()?,
@@ -888,7 +889,48 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
         npy(dir, "vz_ls.npy", &ls.vz)?;
         npy(dir, "speed_ls.npy", &ls.speed())?;
     }
+    if let Some(done) = &out.dealias {
+        pcuvd_io::write_npy(&dir.join("alias_counts.npy"), &done.irls.alias_counts)?;
+        pcuvd_io::write_npy(&dir.join("alias_counts_ls.npy"), &done.ls.alias_counts)?;
+    }
     Ok(())
+}
+
+/// The `dealias` entry of summary.json: the setting, the K used, the speeds it reaches, and per
+/// estimator how many flow pixels were dealiased, unwrapped, and reached ±K.
+fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::Value {
+    let Some(done) = &out.dealias else {
+        return json!({ "setting": params.dealias.label() });
+    };
+    let counts = |c: &pcuvd::dealias::AliasCounts| {
+        json!({
+            "dealiased_pixels": c.dealiased_pixels,
+            "unwrapped_pixels": c.unwrapped_pixels,
+            "at_limit_pixels": c.at_limit_pixels,
+        })
+    };
+    json!({
+        "setting": params.dealias.label(),
+        "intervals": done.intervals,
+        "max_speed_m_s": (2 * done.intervals + 1) as f64 * out.nyquist_velocity,
+        "flow_pixels": done.flow_pixels,
+        "pcuvd_irls": counts(&done.irls),
+        "uvd_ls": counts(&done.ls),
+        "rule": format!(
+            "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
+             scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
+             sum of absolute residuals); the common shift of all angles chosen over regions of \
+             neighbouring flow pixels (power {} dB above the row's noise floor) grown by power, \
+             each region's offset by its summed score; regions under {} pixels and other pixels \
+             keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
+             unwrapped pixels reach ±K; alias_counts.npy (PC-UVD) and alias_counts_ls.npy (UVD) \
+             hold the counts (angles, nz, nx)",
+            pcuvd::dealias::FLOW_MARGIN_DB,
+            pcuvd::dealias::MIN_REGION_PIXELS,
+            pcuvd::dealias::MAX_AUTO_INTERVALS,
+            pcuvd::dealias::AUTO_LIMIT_FRACTION * 100.0
+        ),
+    })
 }
 
 /// How the angles were transmitted, for summary.json and `pcuvd info`: `kind` "none",
@@ -975,6 +1017,7 @@ pub fn summary_json(
         "doppler": { "kernel": [params.doppler_kernel.0, params.doppler_kernel.1] },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,
+        "dealias": dealias_summary(params, out),
         "timings_s": timings,
     })
 }

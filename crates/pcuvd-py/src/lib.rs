@@ -526,6 +526,10 @@ impl PyProcessResult {
             dict.set_item("vz_ls", ls.vz.to_pyarray(py))?;
             dict.set_item("speed_ls", ls.speed().into_pyarray(py))?;
         }
+        if let Some(done) = &out.dealias {
+            dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
+            dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
+        }
         if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
             dict.set_item("ri", maps.ri.to_pyarray(py))?;
             dict.set_item("psv", maps.psv.to_pyarray(py))?;

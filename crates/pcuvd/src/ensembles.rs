@@ -267,6 +267,7 @@ mod tests {
             irls: IrlsParams::default(),
             iq_cutoff: None,
             event_alignment: Default::default(),
+            dealias: Default::default(),
         };
         (images, params)
     }

@@ -8,6 +8,7 @@ use ndarray::{Array2, Array3, Axis};
 use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
+use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
 use crate::doppler::{self, Autocorrelation};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
@@ -36,6 +37,8 @@ pub struct ProcessParams {
     pub iq_cutoff: Option<f64>,
     /// How coded events are aligned in slow time before decoding (see [`decode::EventAlignment`]).
     pub event_alignment: decode::EventAlignment,
+    /// Vector dealiasing of both estimators ([`crate::dealias`]); off by default.
+    pub dealias: Dealias,
 }
 
 /// Pipeline stages, in order, as reported to a progress callback.
@@ -89,6 +92,8 @@ pub struct ProcessOutput {
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
     pub vector_irls: Option<VectorField>,
+    /// What vector dealiasing did; `None` when it is off or with a single angle.
+    pub dealias: Option<DealiasOutcome>,
     /// Nyquist velocity of each projection (m/s).
     pub nyquist_velocity: f64,
     /// Clutter-filter cut-offs per angle.
@@ -102,6 +107,19 @@ pub struct ProcessOutput {
 
 /// Wall-clock seconds per stage.
 pub type Timings = Vec<(Stage, f64)>;
+
+/// What vector dealiasing did to a recording's maps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DealiasOutcome {
+    /// Nyquist intervals K unwrapped per angle (as set, or as [`Dealias::Auto`] chose).
+    pub intervals: u32,
+    /// Flow pixels: power Doppler [`dealias::FLOW_MARGIN_DB`] above the noise floor of its row.
+    pub flow_pixels: usize,
+    /// The alias counts of the PC-UVD (IRLS) vectors.
+    pub irls: AliasCounts,
+    /// The alias counts of the UVD (least-squares) vectors.
+    pub ls: AliasCounts,
+}
 
 /// Runs the pipeline on a recording. `progress(stage, done, total)` is called as work completes.
 pub fn process(
@@ -338,6 +356,7 @@ pub fn analyse(
         coverage: maps.coverage,
         vector_ls: maps.vector_ls,
         vector_irls: maps.vector_irls,
+        dealias: maps.dealias,
         nyquist_velocity: maps.nyquist_velocity,
         clutter: reports,
         filtered: images,
@@ -376,6 +395,8 @@ pub struct DopplerMaps {
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
     pub vector_irls: Option<VectorField>,
+    /// What vector dealiasing did; `None` when it is off or with a single angle.
+    pub dealias: Option<DealiasOutcome>,
     /// Nyquist velocity of each projection (m/s).
     pub nyquist_velocity: f64,
 }
@@ -418,31 +439,54 @@ pub fn doppler_maps(
         .clone()
         .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
-    let (vector_ls, vector_irls) = if n >= 2 {
-        (
-            Some(vector::vector_velocity(
+    let nyquist_velocity = doppler::nyquist_velocity(c, frame_rate, f0);
+    let power = &compound.power;
+    let (vector_ls, vector_irls, dealiased) = if n >= 2 {
+        let flow = doppler::above_noise_floor(power, dealias::FLOW_MARGIN_DB);
+        let nyquist = dealias::uniform(nyquist_velocity, projections.dim());
+        let setting = match params.dealias {
+            Dealias::Auto => Dealias::Intervals(dealias::auto_intervals(
                 angles,
                 projections.view(),
-                &Estimator::LeastSquares,
+                nyquist.view(),
+                power.view(),
+                flow.view(),
             )?),
-            Some(vector::vector_velocity(
+            other => other,
+        };
+        let solve = |estimator: &Estimator| {
+            dealias::dealiased_vectors(
                 angles,
                 projections.view(),
-                &Estimator::Irls(params.irls),
-            )?),
-        )
+                nyquist.view(),
+                estimator,
+                setting,
+                power.view(),
+                flow.view(),
+            )
+        };
+        let ls = solve(&Estimator::LeastSquares)?;
+        let irls = solve(&Estimator::Irls(params.irls))?;
+        let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
+            intervals: ls.intervals,
+            flow_pixels: flow.iter().filter(|&&f| f).count(),
+            irls: irls.counts,
+            ls: ls.counts,
+        });
+        (Some(ls.field), Some(irls.field), outcome)
     } else {
-        (None, None)
+        (None, None, None)
     };
     Ok(DopplerMaps {
-        power_doppler: compound.power.clone(),
+        power_doppler: power.clone(),
         color_doppler: axial,
         power_per_angle,
         projections,
         coverage,
         vector_ls,
         vector_irls,
-        nyquist_velocity: doppler::nyquist_velocity(c, frame_rate, f0),
+        dealias: dealiased,
+        nyquist_velocity,
     })
 }
 
@@ -467,10 +511,19 @@ pub fn dynamics(
     if out.filtered.series.is_empty() {
         return Err(invalid(
             "filtered series",
-            "the recording was processed in segments (too long to hold whole) and its filtered              series were not kept: give the dynamics settings to process itself",
+            "the recording was processed in segments (too long to hold whole) and its filtered \
+             series were not kept: give the dynamics settings to process itself",
         ));
     }
     params.validate(out.filtered.frame_rate)?;
+    // Windows unwrap as far as the whole recording needed (auto decides once, on the recording).
+    let params = &DynamicsParams {
+        dealias: match (params.dealias, &out.dealias) {
+            (Dealias::Auto, Some(done)) => Dealias::Intervals(done.intervals),
+            (setting, _) => setting,
+        },
+        ..*params
+    };
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
     let maps = ri_maps_of(
         &series,

@@ -13,7 +13,11 @@
 //!   subspace and the pairs across a cut are not counted;
 //! - the B-mode's mean envelope is summed over the cores the same way (unfiltered: exact);
 //! - dynamics windows and ensembles start on the same frames as the whole-recording path's, each
-//!   computed in the segment whose core holds its start.
+//!   computed in the segment whose core holds its start;
+//! - vector dealiasing ([`crate::dealias`]) applies where the whole-recording path applies it: to
+//!   the maps from the totals (in [`pipeline::doppler_maps`]), to every ensemble, and to every
+//!   dynamics window. Where the whole path's windows take an automatic K from the recording's
+//!   maps, the segments' take it from the first segment's (the totals come too late).
 //!
 //! Where one segment holds the whole recording the results are the whole-recording path's.
 
@@ -24,6 +28,7 @@ use num_complex::{Complex32, Complex64};
 
 use crate::beamform;
 use crate::clutter::{self, ClutterReport};
+use crate::dealias::Dealias;
 use crate::doppler::{self, Autocorrelation};
 use crate::dynamics::{self, DynamicsParams, VelocitySeries};
 use crate::ensembles::{self, EnsembleMaps, EnsembleSpec};
@@ -181,11 +186,11 @@ impl Sums {
         Ok(())
     }
 
-    fn mean(self, kernel: (usize, usize)) -> Result<Autocorrelation> {
+    fn mean(&self, kernel: (usize, usize)) -> Result<Autocorrelation> {
         let (frames, pairs) = (self.frames.max(1) as f64, self.pairs.max(1) as f64);
         Autocorrelation {
-            power: self.power / frames,
-            r1: self.r1 / pairs,
+            power: &self.power / frames,
+            r1: &self.r1 / pairs,
         }
         .box_averaged(kernel)
     }
@@ -211,6 +216,8 @@ pub fn process_in_segments(
     if let Some(d) = dynamics {
         d.validate(source.acquisition().frame_rate())?;
     }
+    // The windows' dealiasing; an automatic K is settled on the first segment's maps below.
+    let mut dynamics = dynamics.copied();
     let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::new(shape)).collect();
     let mut compound = Sums::new(shape);
     let mut envelope = Array2::<f64>::zeros(shape);
@@ -277,7 +284,28 @@ pub fn process_in_segments(
             sums.add(image.slice(s![.., .., own.clone()]))?;
         }
         compound.add(beamform::compound(&images.series)?.slice(s![.., .., own.clone()]))?;
-        if let Some(d) = dynamics
+        if k == 0
+            && let Some(d) = dynamics.as_mut()
+            && d.dealias == Dealias::Auto
+            && params.dealias != Dealias::Off
+            && n >= 2
+        {
+            // As `pipeline::dynamics` does with the recording's maps: windows unwrap as far as
+            // the maps needed, here the first segment's (one segment: the whole path's K).
+            let first = pipeline::doppler_maps(
+                &per_angle
+                    .iter()
+                    .map(|s| s.mean(params.doppler_kernel))
+                    .collect::<Result<Vec<_>>>()?,
+                &compound.mean(params.doppler_kernel)?,
+                &images,
+                params,
+            )?;
+            if let Some(done) = first.dealias {
+                d.dealias = Dealias::Intervals(done.intervals);
+            }
+        }
+        if let Some(d) = &dynamics
             && images.n_frames() >= d.window
         {
             let mut part = dynamics::sliding_vectors(&images, d)?;
@@ -321,6 +349,7 @@ pub fn process_in_segments(
             coverage: maps.coverage,
             vector_ls: maps.vector_ls,
             vector_irls: maps.vector_irls,
+            dealias: maps.dealias,
             nyquist_velocity: maps.nyquist_velocity,
             clutter: clutter_reports[0].clone(),
             filtered: images,

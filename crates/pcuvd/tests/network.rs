@@ -78,6 +78,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment: Default::default(),
+        dealias: Default::default(),
     };
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
     let dparams = DynamicsParams {

@@ -1,8 +1,10 @@
 //! A long recording processed in segments ([`pcuvd::segments`]): one segment gives the
 //! whole-recording path's maps; several stay within the estimator's own spread, and the time
-//! series' ensembles, each filtered on its own, are the whole-recording path's exactly.
+//! series' ensembles, each filtered on its own, are the whole-recording path's exactly. Vector
+//! dealiasing applies on both paths alike.
 
 use ndarray::{Array2, Array3};
+use pcuvd::dealias::Dealias;
 use pcuvd::decode::EventAlignment;
 use pcuvd::dynamics::DynamicsParams;
 use pcuvd::ensembles::{self, EnsembleSpec};
@@ -19,6 +21,10 @@ fn quiet(_: Stage, _: usize, _: usize) {}
 /// A 48-element, 5-angle conventional recording of a tube 6 mm deep flowing at 30 mm/s, noise
 /// −20 dB: every frame's images stand alone, so segments image exactly what the whole path does.
 fn recording() -> ChannelData {
+    recording_of(&tube())
+}
+
+fn recording_of(phantom: &TubePhantom) -> ChannelData {
     let probe = Probe {
         n_elements: 48,
         ..Probe::l22_14vx()
@@ -33,17 +39,22 @@ fn recording() -> ChannelData {
     let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
     params.noise = Some(NoiseSpec::new(-20.0));
     params.seed = 5;
-    simulate(&tube(), &params, FRAMES, &|_, _| {}).unwrap()
+    simulate(phantom, &params, FRAMES, &|_, _| {}).unwrap()
 }
 
 fn tube() -> TubePhantom {
+    tube_at(0.03)
+}
+
+/// The tube of [`recording`] with a peak speed of `peak_speed` (m/s).
+fn tube_at(peak_speed: f64) -> TubePhantom {
     TubePhantom::new(
         TubeSpec {
             centre: [0.0, 6e-3],
             angle: 20f64.to_radians(),
             length: 6e-3,
             radius: 0.5e-3,
-            peak_speed: 0.03,
+            peak_speed,
             density: 300e6,
         },
         3,
@@ -248,4 +259,103 @@ fn a_segment_too_short_for_the_windows_is_refused_by_name() {
         Segments::plan(FRAMES, FRAMES, Some(&windows()), None).unwrap(),
         None
     );
+}
+
+/// `--dealias auto` in segments: the maps from the totals, every ensemble and every dynamics
+/// window are dealiased, as on the whole-recording path; one segment gives the whole path's
+/// dealiased vectors, windows (at the K the maps chose) and ensembles.
+#[test]
+fn segments_dealias_as_the_whole_path_does() {
+    let probe = recording().acquisition;
+    let nyquist = pcuvd::doppler::nyquist_velocity(
+        probe.sound_speed,
+        probe.frame_rate(),
+        probe.probe.center_frequency,
+    );
+    let data = recording_of(&tube_at(2.5 * nyquist));
+    let params = ProcessParams {
+        dealias: Dealias::Auto,
+        ..params(&data)
+    };
+    let dynamics = DynamicsParams {
+        dealias: Dealias::Auto,
+        ..windows()
+    };
+    let whole = pipeline::process(&data, &params, &quiet).unwrap();
+    let dealiased = whole.dealias.clone().expect("the whole path dealiases");
+    assert!(
+        dealiased.irls.unwrapped_pixels > 0,
+        "the fast tube aliases: {dealiased:?}"
+    );
+    let at_k = DynamicsParams {
+        dealias: Dealias::Intervals(dealiased.intervals),
+        ..dynamics
+    };
+    let reference = pcuvd::dynamics::sliding_vectors(&whole.filtered, &at_k).unwrap();
+    let plain = pcuvd::dynamics::sliding_vectors(
+        &whole.filtered,
+        &DynamicsParams {
+            dealias: Dealias::Off,
+            ..dynamics
+        },
+    )
+    .unwrap();
+    assert_ne!(reference.vx, plain.vx, "the windows need dealiasing");
+    let (images, _) = pipeline::form_images(&data, &params, &quiet).unwrap();
+    let ensembles = ensembles::ensemble_maps(&images, &params, ENSEMBLES, &quiet).unwrap();
+
+    let one = Segments {
+        core: FRAMES,
+        overlap: 0,
+    };
+    let done = process_in_segments(
+        &data,
+        &params,
+        &one,
+        Some(&dynamics),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    assert_eq!(out_dealiased.intervals, dealiased.intervals);
+    assert_eq!(
+        out_dealiased.irls.unwrapped_pixels,
+        dealiased.irls.unwrapped_pixels
+    );
+    let (irls, reference_irls) = (
+        done.out.vector_irls.as_ref().unwrap(),
+        whole.vector_irls.as_ref().unwrap(),
+    );
+    for (name, a, b) in [
+        ("Vx", &irls.vx, &reference_irls.vx),
+        ("Vz", &irls.vz, &reference_irls.vz),
+    ] {
+        let (diff, same_nan) = relative_difference(a, b);
+        assert!(same_nan, "{name}: NaN at other pixels");
+        assert!(diff < 1e-5, "{name}: differs by {diff:.2e} of its peak");
+    }
+    let series = done.series.unwrap();
+    assert_eq!(series.vx, reference.vx);
+    assert_eq!(series.vz, reference.vz);
+    assert_eq!(done.ensembles.unwrap(), ensembles);
+
+    // Several segments: the maps from the totals are dealiased too, and every window.
+    let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
+        .unwrap()
+        .unwrap();
+    let done = process_in_segments(
+        &data,
+        &params,
+        &segments,
+        Some(&dynamics),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    assert!(done.ranges.len() > 1);
+    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    assert!(out_dealiased.irls.unwrapped_pixels > 0, "{out_dealiased:?}");
+    assert_eq!(done.series.unwrap().len(), reference.len());
+    assert_eq!(done.ensembles.unwrap(), ensembles);
 }

@@ -31,6 +31,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
 
+use crate::dealias::{self, Dealias};
 use crate::doppler;
 use crate::error::{Error, Result, invalid, require_positive};
 use crate::images::AngleImages;
@@ -82,6 +83,9 @@ pub struct DynamicsParams {
     pub heart_rate_hz: Option<f64>,
     /// Vector estimator applied in every window (LS = UVD, IRLS = PC-UVD).
     pub estimator: Estimator,
+    /// Vector dealiasing of every window ([`crate::dealias`]; auto decides in each window);
+    /// systole beyond the Nyquist velocity needs it for RI.
+    pub dealias: Dealias,
     /// Spatial averaging box (rows, cols) of each window's autocorrelation; odd sizes.
     pub kernel: (usize, usize),
     /// Smallest RI (dimensionless) of an arteriole (paper: arterioles 0.55–0.9).
@@ -113,8 +117,8 @@ impl DynamicsParams {
     /// - `heart_rate_hz` = 5.5 Hz (≈ 330 bpm, anaesthetised rat): 0.2 s holds only ≈ 1.1 cycles,
     ///   too few to measure the period from the data, so the preset supplies it; set `None` for
     ///   recordings of two cycles or more.
-    /// - `estimator` = IRLS with the paper's λ = 0.01 mm/s (PC-UVD); `kernel` = (1, 1) (no
-    ///   spatial averaging: small vessels are a few pixels wide).
+    /// - `estimator` = IRLS with the paper's λ = 0.01 mm/s (PC-UVD), no dealiasing; `kernel` =
+    ///   (1, 1) (no spatial averaging: small vessels are a few pixels wide).
     /// - `artery_ri_min` = 0.55, `vein_ri_max` = 0.5 (paper §4 and its ref. 29).
     /// - `min_power_db` = −30 dB: about the displayed dynamic range of the paper's power Doppler
     ///   images (Fig. 6); below it the speed is mostly noise and its RI meaningless.
@@ -125,6 +129,7 @@ impl DynamicsParams {
             step: 9,
             heart_rate_hz: Some(5.5),
             estimator: Estimator::Irls(IrlsParams::default()),
+            dealias: Dealias::Off,
             kernel: (1, 1),
             artery_ri_min: 0.55,
             vein_ri_max: 0.5,

@@ -224,7 +224,8 @@ pub(super) fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
 }
 
 /// Vector velocity in sliding windows over slow time: per angle, the lag-1 autocorrelation of each
-/// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`.
+/// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`, dealiased as
+/// `params.dealias` says (each window's mean power orders and masks its flow pixels).
 ///
 /// `images`: clutter-filtered IQ per angle, each (nz, nx, frames), with their angles, compound
 /// frame rate, sound speed and demodulation frequency; an angle is used only where its
@@ -263,6 +264,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     }
 
     let n = angles.len();
+    let nyquist = doppler::nyquist_velocity(sound_speed, frame_rate, center_frequency);
     let maps = (0..n_windows)
         .into_par_iter()
         .map(|k| {
@@ -286,7 +288,16 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             if let Some(c) = coverage {
                 vector::drop_unreached(&mut projections, c);
             }
-            let field = vector::vector_velocity(angles, projections.view(), &params.estimator)?;
+            let field = dealias::dealiased_vectors(
+                angles,
+                projections.view(),
+                dealias::uniform(nyquist, projections.dim()).view(),
+                &params.estimator,
+                params.dealias,
+                power.view(),
+                doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB).view(),
+            )?
+            .field;
             Ok((field.vx, field.vz, power))
         })
         .collect::<Result<Vec<_>>>()?;

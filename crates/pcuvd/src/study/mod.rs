@@ -3,7 +3,8 @@
 //! paper` command, Python, a notebook) gets the same numbers from the same code.
 //!
 //! - [`spiral`]: the spiral-flow simulation (paper §2.3, §3, Fig. 2–5) with a noise sweep;
-//! - [`network`]: the in-vivo-like pulsatile vessel network (paper §4, Fig. 6–8) with RI truth.
+//! - [`network`]: the in-vivo-like pulsatile vessel network (paper §4, Fig. 6–8) with RI truth;
+//! - [`dealias`]: vector dealiasing on a tube at 1–3× the Nyquist velocity (beyond the paper).
 //!
 //! Both form the echoes and the receiver noise apart: everything up to the Doppler
 //! autocorrelation (decoding, demodulation, beamforming) is linear in the channel data, so the
@@ -21,6 +22,7 @@
 //! # Ok::<(), pcuvd::Error>(())
 //! ```
 
+pub mod dealias;
 pub mod network;
 pub mod spiral;
 
@@ -172,6 +174,7 @@ pub fn process_params(
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment,
+        dealias: Default::default(),
     }
 }
 
