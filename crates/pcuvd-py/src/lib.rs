@@ -25,7 +25,7 @@ use pcuvd::vector::{self, Estimator, IrlsParams};
 use pcuvd::{AngleSamples, ChannelData, Coding, Probe, Samples, Sequence};
 use pcuvd_cli::process::{self as cli_process, DynamicsOutcome, Plan, Processed};
 use pcuvd_cli::progress::{PipelineProgress, TaskProgress};
-use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde_json::{Value, json};
@@ -34,14 +34,24 @@ use serde_json::{Value, json};
 /// command line prints for the same error.
 fn to_py(error: anyhow::Error) -> PyErr {
     let message = pcuvd_cli::one_line(&error);
+    // What the file system refused (a missing file, a folder, a pipe, a read error) is an
+    // OSError, a missing file a FileNotFoundError, as Python's own open() raises them.
+    let missing = error.chain().any(|cause| {
+        matches!(
+            cause.downcast_ref::<pcuvd_io::IoError>(),
+            Some(pcuvd_io::IoError::NotFound { .. })
+        )
+    });
     let os_refused = error.chain().any(|cause| {
         cause.downcast_ref::<std::io::Error>().is_some()
             || matches!(
                 cause.downcast_ref::<pcuvd_io::IoError>(),
-                Some(pcuvd_io::IoError::Io { .. })
+                Some(pcuvd_io::IoError::Io { .. } | pcuvd_io::IoError::NotAFile { .. })
             )
     });
-    if os_refused {
+    if missing {
+        PyFileNotFoundError::new_err(message)
+    } else if os_refused {
         PyOSError::new_err(message)
     } else {
         PyValueError::new_err(message)
