@@ -1,7 +1,7 @@
 //! Long recordings in segments: memory bounded by a segment's image series, not by the recording.
 //!
 //! The whole-recording path holds every frame's per-angle images, because the SVD clutter filter
-//! sees the whole ensemble at once: 1.4 GB for the paper's 0.2 s rat recording, 7 GB for 1 s. A
+//! sees the whole ensemble at once: 2.2 GB for the paper's 0.2 s rat recording, 11 GB for 1 s. A
 //! recording too long for that is cut into consecutive *cores* of frames; each core is imaged with
 //! some following frames (the *overlap*, so that every dynamics window and time-series ensemble
 //! starting in it lies inside one segment), clutter-filtered on its own, and then dropped. What
@@ -36,8 +36,9 @@ use crate::error::{Result, invalid};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
 use crate::source::FrameSource;
 
-/// Bytes of per-angle image series (complex64) one segment may hold: 1.5 GiB, which keeps the
-/// paper's 360-frame rat recording (1.4 GB) whole.
+/// Bytes of per-angle image series (complex64) one segment may hold: 1.5 GiB, with a block's
+/// working memory (1 GiB) about 2 GB of peak whatever the recording's length (the paper's 360-frame
+/// rat recording, 2.2 GB of series, runs in two segments of 180 frames).
 pub const SERIES_BYTES: u64 = 3 << 29;
 
 /// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
@@ -70,18 +71,22 @@ impl Segments {
             return Ok(None);
         }
         let (overlap, align) = Self::reach(dynamics, ensembles);
-        let core = segment_frames.saturating_sub(overlap) / align * align;
-        if core < Self::shortest_core(align) {
+        let longest = segment_frames.saturating_sub(overlap) / align * align;
+        if longest < Self::shortest_core(align) {
             return Err(invalid(
                 "segment frames",
                 format!(
-                    "{segment_frames} frames per segment leave {core} for its own frames after \
+                    "{segment_frames} frames per segment leave {longest} for its own frames after \
                      the {overlap} that the dynamics windows or ensembles reach into: give a \
                      larger --segment-frames (at least {})",
                     Self::shortest(dynamics, ensembles)
                 ),
             ));
         }
+        // As few segments as fit, of even length: a short last segment would get a clutter
+        // filter of few frames. The even share, rounded up to the steps, is at most `longest`.
+        let count = total.div_ceil(longest);
+        let core = total.div_ceil(count).div_ceil(align) * align;
         Ok(Some(Segments { core, overlap }))
     }
 
