@@ -16,28 +16,7 @@ fn samples_npy(dir: &Path) {
 }
 
 /// The npy target's manifest, reading `fuzzed.npy`.
-const NPY_MANIFEST: &str = r#"format = "pcuvd-recording"
-version = 1
-[probe]
-n_elements = 4
-pitch_m = 3e-4
-element_width_m = 2.5e-4
-center_frequency_hz = 5e6
-bandwidth = 0.6
-[acquisition]
-sampling_frequency_hz = 20e6
-sound_speed_m_s = 1540.0
-t0_s = 0.0
-event_prf_hz = 5000.0
-angles_deg = [-6, -2, 2, 6]
-pulse_cycles = 2.0
-coding = "hadamard"
-slot_delay_s = 1e-7
-[data]
-file = "fuzzed.npy"
-kind = "rf"
-axes = ["frames", "angles", "channels", "samples"]
-"#;
+const NPY_MANIFEST: &str = include_str!("../../../fuzz/npy_target.toml");
 
 fn decode(data: &pcuvd::ChannelData) -> Result<(), pcuvd::Error> {
     pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2)?;

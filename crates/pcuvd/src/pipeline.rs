@@ -108,6 +108,37 @@ pub struct ProcessOutput {
 /// Wall-clock seconds per stage.
 pub type Timings = Vec<(Stage, f64)>;
 
+impl ProcessOutput {
+    /// Gathers the Doppler maps ([`doppler_maps`]) with the rest of what the chain measured: the
+    /// one place both the whole-recording path and the segmented one ([`crate::segments`]) build
+    /// their output.
+    pub fn from_maps(
+        maps: DopplerMaps,
+        grid: Grid,
+        bmode_db: Array2<f64>,
+        clutter: Vec<ClutterReport>,
+        filtered: AngleImages,
+        timings: Timings,
+    ) -> ProcessOutput {
+        ProcessOutput {
+            grid,
+            bmode_db,
+            power_doppler: maps.power_doppler,
+            color_doppler: maps.color_doppler,
+            power_per_angle: maps.power_per_angle,
+            projections: maps.projections,
+            coverage: maps.coverage,
+            vector_ls: maps.vector_ls,
+            vector_irls: maps.vector_irls,
+            dealias: maps.dealias,
+            nyquist_velocity: maps.nyquist_velocity,
+            clutter,
+            filtered,
+            timings,
+        }
+    }
+}
+
 /// What vector dealiasing did to a recording's maps.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DealiasOutcome {
@@ -346,22 +377,14 @@ pub fn analyse(
     progress(Stage::Doppler, 1, 1);
     timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
 
-    Ok(ProcessOutput {
-        grid: params.grid.clone(),
+    Ok(ProcessOutput::from_maps(
+        maps,
+        params.grid.clone(),
         bmode_db,
-        power_doppler: maps.power_doppler,
-        color_doppler: maps.color_doppler,
-        power_per_angle: maps.power_per_angle,
-        projections: maps.projections,
-        coverage: maps.coverage,
-        vector_ls: maps.vector_ls,
-        vector_irls: maps.vector_irls,
-        dealias: maps.dealias,
-        nyquist_velocity: maps.nyquist_velocity,
-        clutter: reports,
-        filtered: images,
+        reports,
+        images,
         timings,
-    })
+    ))
 }
 
 /// Power and lag-1 autocorrelation of each angle's clutter-filtered series (nz, nx, frames) and

@@ -241,8 +241,8 @@ pub fn process_in_segments(
         Some(t) => t.1 += seconds,
         None => timings.push((stage, seconds)),
     };
+    let blocks = pipeline::blocks_for(source, params.event_alignment);
     for (k, (core, imaged)) in ranges.iter().enumerate() {
-        let blocks = pipeline::blocks_for(source, params.event_alignment);
         let (mut images, formed) =
             pipeline::form_images_of(source, params, blocks, imaged.clone(), &|stage, d, t| {
                 progress(stage, k * t + d, count * t)
@@ -344,22 +344,14 @@ pub fn process_in_segments(
         None => None,
     };
     Ok(Segmented {
-        out: ProcessOutput {
-            grid: params.grid.clone(),
+        out: ProcessOutput::from_maps(
+            maps,
+            params.grid.clone(),
             bmode_db,
-            power_doppler: maps.power_doppler,
-            color_doppler: maps.color_doppler,
-            power_per_angle: maps.power_per_angle,
-            projections: maps.projections,
-            coverage: maps.coverage,
-            vector_ls: maps.vector_ls,
-            vector_irls: maps.vector_irls,
-            dealias: maps.dealias,
-            nyquist_velocity: maps.nyquist_velocity,
-            clutter: clutter_reports[0].clone(),
-            filtered: images,
+            clutter_reports[0].clone(),
+            images,
             timings,
-        },
+        ),
         series,
         ensembles,
         ranges,
