@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, Axis};
+use ndarray::{Array2, Array3, ArrayViewMut3, Axis};
 
 use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
@@ -12,7 +12,7 @@ use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
 use crate::doppler::{self, Autocorrelation};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
-use crate::error::{Result, invalid};
+use crate::error::{Error, Result, invalid};
 use crate::grid::Grid;
 use crate::images::AngleImages;
 use crate::iq;
@@ -226,11 +226,16 @@ pub fn form_images_of(
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
     for (b, (block, decoded)) in ranges.iter().enumerate() {
-        let formed = form_block(
+        let frames_of_block = ndarray::s![.., .., block.start - first..block.end - first];
+        let formed = form_block_into(
             source,
             params,
             block.clone(),
             decoded.clone(),
+            series
+                .iter_mut()
+                .map(|image| image.slice_mut(frames_of_block))
+                .collect(),
             &|stage, k| {
                 let (done, total) = match stage {
                     Stage::Decode => (b, ranges.len()),
@@ -242,11 +247,6 @@ pub fn form_images_of(
         decode_s += formed.decode_s;
         beamform_s += formed.beamform_s;
         recorded = recorded || formed.recorded;
-        for (k, image) in formed.images.iter().enumerate() {
-            series[k]
-                .slice_mut(ndarray::s![.., .., block.start - first..block.end - first])
-                .assign(image);
-        }
     }
     if !recorded {
         // Zeros beamform to zeros, and every map of them would be NaN or empty: a recording of
@@ -286,6 +286,18 @@ pub struct BlockImages {
     pub recorded: bool,
 }
 
+/// What forming one block into given images took: seconds reading and decoding, seconds
+/// demodulating and beamforming, and whether any decoded sample was not zero.
+#[derive(Debug, Clone, Copy)]
+pub struct BlockFormed {
+    /// Seconds spent reading and decoding.
+    pub decode_s: f64,
+    /// Seconds spent demodulating and beamforming.
+    pub beamform_s: f64,
+    /// True when some sample of the decoded frames is not zero.
+    pub recorded: bool,
+}
+
 /// Forms the images of frames `block` of `source`, decoding frames `decoded` (which holds
 /// `block`, plus the margin the event alignment needs): one step of [`form_images_in_blocks`],
 /// for callers that combine blocks of several sources (echoes and noise, say) as they come.
@@ -297,12 +309,49 @@ pub fn form_block(
     decoded: std::ops::Range<usize>,
     progress: &dyn Fn(Stage, usize),
 ) -> Result<BlockImages> {
+    let (nz, nx) = params.grid.shape();
+    let mut images: Vec<Array3<Complex32>> = (0..source.acquisition().sequence.n_angles())
+        .map(|_| Array3::zeros((nz, nx, block.len())))
+        .collect();
+    let formed = form_block_into(
+        source,
+        params,
+        block,
+        decoded,
+        images.iter_mut().map(|image| image.view_mut()).collect(),
+        progress,
+    )?;
+    Ok(BlockImages {
+        images,
+        decode_s: formed.decode_s,
+        beamform_s: formed.beamform_s,
+        recorded: formed.recorded,
+    })
+}
+
+/// As [`form_block`], into `images` (per angle, (nz, nx, block frames)): the block's frames of
+/// the recording's series, written in place.
+pub fn form_block_into(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    block: std::ops::Range<usize>,
+    decoded: std::ops::Range<usize>,
+    mut images: Vec<ArrayViewMut3<Complex32>>,
+    progress: &dyn Fn(Stage, usize),
+) -> Result<BlockFormed> {
     let acq = source.acquisition();
     if !(decoded.start <= block.start && block.end <= decoded.end && block.start < block.end) {
         return Err(invalid(
             "frames",
             format!("block {block:?} is not within the decoded frames {decoded:?}"),
         ));
+    }
+    if images.len() != acq.sequence.n_angles() {
+        return Err(Error::Shape(format!(
+            "{} image series for {} angles",
+            images.len(),
+            acq.sequence.n_angles()
+        )));
     }
     let clock = Instant::now();
     progress(Stage::Decode, 0);
@@ -316,8 +365,7 @@ pub fn form_block(
     let decode_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let mut images = Vec::with_capacity(acq.sequence.n_angles());
-    for (k, &angle) in acq.sequence.angles.iter().enumerate() {
+    for (k, (&angle, image)) in acq.sequence.angles.iter().zip(&mut images).enumerate() {
         progress(Stage::Beamform, k);
         let channels = iq::demodulate(
             &per_angle,
@@ -327,16 +375,16 @@ pub fn form_block(
             acq.probe.center_frequency,
             params.iq_cutoff,
         )?;
-        images.push(beamform::beamform(
+        beamform::beamform_into(
             &channels,
             &acq.probe,
             angle,
             &params.grid,
             &params.das,
-        )?);
+            image.view_mut(),
+        )?;
     }
-    Ok(BlockImages {
-        images,
+    Ok(BlockFormed {
         decode_s,
         beamform_s: clock.elapsed().as_secs_f64(),
         recorded,

@@ -158,7 +158,7 @@ mod tests {
             // second reads the last sample pair of its element.
             let mut taps = Taps::default();
             for (n, offset) in [(4, 3), (3, 38)] {
-                let start = taps.push(n);
+                let start = taps.push(n, 1);
                 for k in 0..n {
                     let i0 = (k * 9 + offset).min(samples - 2);
                     taps.rows[start + k] = ((1 + k) * samples + i0) as u32;

@@ -31,7 +31,7 @@ mod kernel;
 mod portable;
 mod tiling;
 
-use ndarray::{Array3, ArrayView3, Axis};
+use ndarray::{Array3, ArrayView3, ArrayViewMut3, Axis};
 use num_complex::Complex32;
 
 use crate::error::{Error, Result, invalid};
@@ -84,6 +84,19 @@ pub fn beamform(
     params: &DasParams,
 ) -> Result<Array3<Complex32>> {
     tiling::beamform_with(Kernel::detect(), iq, probe, angle, grid, params)
+}
+
+/// As [`beamform`], into `image` (nz, nx, frames), e.g. a block's frames of a longer series:
+/// no image is allocated when each pixel's frames lie contiguous in it.
+pub fn beamform_into(
+    iq: &IqChannels,
+    probe: &Probe,
+    angle: f64,
+    grid: &Grid,
+    params: &DasParams,
+    image: ArrayViewMut3<Complex32>,
+) -> Result<()> {
+    tiling::beamform_into_with(Kernel::detect(), iq, probe, angle, grid, params, image)
 }
 
 /// Coherent compounding: the sum of per-angle images (nz, nx, frames).
@@ -224,5 +237,47 @@ mod tests {
                 assert!((a - b).norm() <= 1e-5 * scale, "{a} vs {b} (scale {scale})");
             }
         }
+    }
+
+    /// Into the block's frames of a longer series (each pixel's frames contiguous but pixels a
+    /// series apart) and into a view whose frames are not contiguous, the images are those
+    /// `beamform` returns, and the frames around the block are left as they were.
+    #[test]
+    fn beamform_into_a_slice_of_a_series_writes_only_its_frames() {
+        let probe = Probe::l22_14vx();
+        let grid = Grid::new(-1e-3, 1e-3, 3e-3, 4e-3, 0.1e-3).unwrap();
+        let params = DasParams::new(1540.0);
+        let iq = random_iq(probe.n_elements, 400, 9, 3);
+        let whole = beamform(&iq, &probe, 0.1, &grid, &params).unwrap();
+        let (nz, nx) = grid.shape();
+        let marker = Complex32::new(7.0, -7.0);
+        let mut series = Array3::from_elem((nz, nx, 20), marker);
+        beamform_into(
+            &iq,
+            &probe,
+            0.1,
+            &grid,
+            &params,
+            series.slice_mut(ndarray::s![.., .., 5..14]),
+        )
+        .unwrap();
+        assert_eq!(series.slice(ndarray::s![.., .., 5..14]), whole);
+        assert!(series.slice(ndarray::s![.., .., ..5]).iter().all(|&v| v == marker));
+        assert!(series.slice(ndarray::s![.., .., 14..]).iter().all(|&v| v == marker));
+        // Every other frame of a series: not contiguous.
+        let mut strided = Array3::from_elem((nz, nx, 18), marker);
+        beamform_into(
+            &iq,
+            &probe,
+            0.1,
+            &grid,
+            &params,
+            strided.slice_mut(ndarray::s![.., .., ..;2]),
+        )
+        .unwrap();
+        assert_eq!(strided.slice(ndarray::s![.., .., ..;2]), whole);
+        assert!(strided.slice(ndarray::s![.., .., 1..;2]).iter().all(|&v| v == marker));
+        let err = beamform_into(&iq, &probe, 0.1, &grid, &params, series.view_mut()).unwrap_err();
+        assert!(err.to_string().contains("frames"), "{err}");
     }
 }

@@ -4,7 +4,7 @@
 //! runs; per tile and group, the delays and rotated interpolation weights of every pixel's
 //! elements in one flat table ([`Taps`]), filled by a loop over the elements that vectorises.
 
-use ndarray::Array3;
+use ndarray::{Array3, ArrayViewMut3, Axis};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
@@ -30,6 +30,22 @@ pub(super) fn beamform_with(
     grid: &Grid,
     params: &DasParams,
 ) -> Result<Array3<Complex32>> {
+    let (nz, nx) = grid.shape();
+    let mut image = Array3::<Complex32>::zeros((nz, nx, iq.data.dim().2));
+    beamform_into_with(kernel, iq, probe, angle, grid, params, image.view_mut())?;
+    Ok(image)
+}
+
+/// [`beamform_into`](super::beamform_into) with a given accumulation kernel.
+pub(super) fn beamform_into_with(
+    kernel: Kernel,
+    iq: &IqChannels,
+    probe: &Probe,
+    angle: f64,
+    grid: &Grid,
+    params: &DasParams,
+    mut image: ArrayViewMut3<Complex32>,
+) -> Result<()> {
     require_positive("f-number", params.f_number)?;
     require_positive("speed of sound", params.sound_speed)?;
     let (channels, n_samples, frames) = iq.data.dim();
@@ -46,27 +62,48 @@ pub(super) fn beamform_with(
         )));
     }
     let (nz, nx) = grid.shape();
-    let mut image = Array3::<Complex32>::zeros((nz, nx, frames));
+    if image.dim() != (nz, nx, frames) {
+        return Err(Error::Shape(format!(
+            "an image of {:?} (nz, nx, frames) for a grid of {nz} × {nx} and {frames} frames",
+            image.dim()
+        )));
+    }
+    if frames > 1 && image.stride_of(Axis(2)) != 1 {
+        // The kernels write each pixel's frames as one run.
+        let mut contiguous = Array3::<Complex32>::zeros((nz, nx, frames));
+        beamform_into_with(
+            kernel,
+            iq,
+            probe,
+            angle,
+            grid,
+            params,
+            contiguous.view_mut(),
+        )?;
+        image.assign(&contiguous);
+        return Ok(());
+    }
+    image.fill(Complex32::new(0.0, 0.0));
     // Interpolation needs two samples; with fewer, no pixel gets a contribution.
     if n_samples < 2 || frames == 0 || nz == 0 || nx == 0 || channels == 0 {
-        return Ok(image);
+        return Ok(());
     }
     let setup = Setup::new(iq, probe, angle, params);
     let data = iq.data.as_standard_layout();
     let data = data.as_slice().expect("standard layout");
     let chunks = frame_chunks(frames, kernel);
-    let out = image.as_slice_mut().expect("standard layout");
     // z bands outermost, x tiles of a band in parallel: both threads then sweep the same band of
     // depths, so the channel samples it needs stay in L3 while they are in use.
-    for (band, out_band) in out.chunks_mut(TILE_Z * nx * frames).enumerate() {
+    for (band, mut out_band) in image.axis_chunks_iter_mut(Axis(0), TILE_Z).enumerate() {
         let iz0 = band * TILE_Z;
         let mut tiles: Vec<Vec<(f64, f64, &mut [Complex32])>> = (0..nx.div_ceil(TILE_X))
             .map(|_| Vec::with_capacity(TILE_Z * TILE_X))
             .collect();
-        for (row, &z) in out_band.chunks_mut(nx * frames).zip(&grid.z[iz0..]) {
-            for (ix, pixel) in row.chunks_mut(frames).enumerate() {
-                tiles[ix / TILE_X].push((grid.x[ix], z, pixel));
-            }
+        // Lanes in (z, x) order; each pixel's frames are one run (checked above).
+        for (i, pixel) in out_band.lanes_mut(Axis(2)).into_iter().enumerate() {
+            let (iz, ix) = (i / nx, i % nx);
+            let pixel = pixel.into_slice().expect("a pixel's frames are contiguous");
+            tiles[ix / TILE_X].push((grid.x[ix], grid.z[iz0 + iz], pixel));
         }
         tiles.into_par_iter().for_each_init(
             || (Taps::default(), Vec::new()),
@@ -91,13 +128,17 @@ pub(super) fn beamform_with(
                             .map(move |f| (g..(g + GROUP).min(channels), f.clone()))
                     })
                     .collect();
+                // Every pixel's taps over its whole aperture at once, then each group's as a
+                // sub-range: per group, the calls (and their aperture search and transmit delay)
+                // cost more than the elements of a group did.
+                taps.clear();
+                for (x, z, _) in pixels.iter() {
+                    setup.taps(*x, *z, 0..channels, kernel, taps);
+                }
+                taps.finish();
                 for (i, (elements, frames)) in passes.iter().enumerate() {
                     if frames.start == 0 {
-                        taps.clear();
-                        for (x, z, _) in pixels.iter() {
-                            setup.taps(*x, *z, elements.clone(), kernel, taps);
-                        }
-                        taps.finish();
+                        taps.select(elements.clone());
                     }
                     let mut ahead = passes
                         .get(i + 1)
@@ -125,7 +166,7 @@ pub(super) fn beamform_with(
             },
         );
     }
-    Ok(image)
+    Ok(())
 }
 
 /// Depths per band and lateral positions per tile of the blocked pixel loop.
@@ -195,7 +236,10 @@ pub(super) struct Setup {
 /// more entries than there are taps (zeros), so that the kernel may read ahead to prefetch.
 #[derive(Default)]
 pub(super) struct Taps {
+    /// Per pixel, the taps the kernel runs now: those of the selected group of elements.
     pub(super) spans: Vec<Span>,
+    /// Per pixel, all its taps and the element of the first: (span, element).
+    apertures: Vec<(Span, usize)>,
     /// 32 bits (the caller checks that every row index fits) so that the delay loop fills them
     /// vectorised, along with the weights.
     pub(super) rows: Vec<u32>,
@@ -287,6 +331,7 @@ impl Taps {
     /// Empties the tables, keeping their allocations for the next group.
     fn clear(&mut self) {
         self.spans.clear();
+        self.apertures.clear();
         self.rows.clear();
         for v in [
             &mut self.c0_re,
@@ -298,10 +343,12 @@ impl Taps {
         }
     }
 
-    /// Room for `len` more taps of a new pixel; returns where they start.
-    pub(super) fn push(&mut self, len: usize) -> usize {
+    /// Room for `len` more taps of a new pixel, of elements from `first` on; returns where
+    /// they start.
+    pub(super) fn push(&mut self, len: usize, first: usize) -> usize {
         let start = self.rows.len();
         self.spans.push(Span { start, len });
+        self.apertures.push((Span { start, len }, first));
         let end = start + len;
         self.rows.resize(end, 0);
         for v in [
@@ -313,6 +360,19 @@ impl Taps {
             v.resize(end, 0.0);
         }
         start
+    }
+
+    /// Points every pixel's span at its taps of `elements` (an empty span where its aperture
+    /// has none of them).
+    fn select(&mut self, elements: std::ops::Range<usize>) {
+        for (span, &(all, first)) in self.spans.iter_mut().zip(&self.apertures) {
+            let lo = elements.start.clamp(first, first + all.len);
+            let hi = elements.end.clamp(lo, first + all.len);
+            *span = Span {
+                start: all.start + lo - first,
+                len: hi - lo,
+            };
+        }
     }
 
     /// Pads `rows` for the kernel's look-ahead once all pixels are in.
@@ -399,7 +459,7 @@ impl Setup {
             (elements.start, elements.end)
         };
         let len = end - first;
-        let start = taps.push(len);
+        let start = taps.push(len, first);
         let span = start..start + len;
         let element_x = &self.element_x[first..end];
         let out = TapsMut {
