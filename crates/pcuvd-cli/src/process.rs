@@ -170,22 +170,32 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     }
     let band_warning = rf_band_pass_warning(data)?;
     check_memory(data, &plan, args.max_memory_gb)?;
-    let clock = std::time::Instant::now();
-    let source = provenance(
-        &args.input.display().to_string(),
-        &opened.info,
-        &plan.options_text,
-        std::env::args().collect(),
-    )?;
-    let checksum_s = clock.elapsed().as_secs_f64();
-    if !args.force && already_done(&args.out, &source) {
-        println!(
-            "{}: already processed from the same input (checksums) with the same options and \
-             pcuvd version (summary.json); skipped (--force redoes it)",
-            args.out.display()
-        );
-        return Ok(());
-    }
+    let provenance_of_run = {
+        let (input, info) = (args.input.display().to_string(), opened.info.clone());
+        let options_text = plan.options_text.clone();
+        move || {
+            let clock = std::time::Instant::now();
+            let source = provenance(&input, &info, &options_text, std::env::args().collect());
+            source.map(|source| (source, clock.elapsed().as_secs_f64()))
+        }
+    };
+    // The checksums read the whole input, on one core (2 s for 2.8 GB): they are needed before
+    // any work only to skip a folder processed before; otherwise they are computed beside the
+    // processing, on a thread of their own.
+    let checksums = if !args.force && args.out.join("summary.json").is_file() {
+        let (source, seconds) = provenance_of_run()?;
+        if already_done(&args.out, &source) {
+            println!(
+                "{}: already processed from the same input (checksums) with the same options and \
+                 pcuvd version (summary.json); skipped (--force redoes it)",
+                args.out.display()
+            );
+            return Ok(());
+        }
+        Checksums::Done(source, seconds)
+    } else {
+        Checksums::Running(std::thread::spawn(provenance_of_run))
+    };
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
@@ -204,6 +214,12 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    let (source, checksum_s) = match checksums {
+        Checksums::Done(source, seconds) => (source, seconds),
+        Checksums::Running(thread) => thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
+    };
     let extra_timings = [("read", read_s), ("checksum", checksum_s)];
     let pngs = save(
         &args.out,
@@ -230,6 +246,13 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// The input's provenance with its checksums, and the seconds they took: computed, or being
+/// computed beside the processing.
+enum Checksums {
+    Done(serde_json::Value, f64),
+    Running(std::thread::JoinHandle<Result<(serde_json::Value, f64)>>),
 }
 
 /// Every setting of a `process` run, read and checked before any work: the pipeline's, the
