@@ -69,6 +69,36 @@ pub fn demodulate(
     demod_frequency: f64,
     cutoff: Option<f64>,
 ) -> Result<IqChannels> {
+    let mut out = IqChannels {
+        data: Array3::zeros((0, 0, 0)),
+        sampling_frequency,
+        t0,
+        demod_frequency,
+    };
+    demodulate_into(
+        samples,
+        angle,
+        t0,
+        sampling_frequency,
+        demod_frequency,
+        cutoff,
+        &mut out,
+    )?;
+    Ok(out)
+}
+
+/// As [`demodulate`], into `out`, whose array is reused when it has the shape (an angle after
+/// another of the same block).
+#[allow(clippy::too_many_arguments)]
+pub fn demodulate_into(
+    samples: &AngleSamples,
+    angle: usize,
+    t0: f64,
+    sampling_frequency: f64,
+    demod_frequency: f64,
+    cutoff: Option<f64>,
+    iq: &mut IqChannels,
+) -> Result<()> {
     require_positive("sampling frequency", sampling_frequency)?;
     require_positive("demodulation frequency", demod_frequency)?;
     let (n_angles, frames, channels, n_samples) = samples.dim();
@@ -77,19 +107,21 @@ pub fn demodulate(
             "angle {angle} requested from data with {n_angles} angles"
         )));
     }
-    let mut out = Array3::<Complex32>::zeros((channels, n_samples, frames));
+    iq.sampling_frequency = sampling_frequency;
+    iq.t0 = t0;
+    iq.demod_frequency = demod_frequency;
+    if iq.data.dim() != (channels, n_samples, frames) || !iq.data.is_standard_layout() {
+        iq.data = Array3::<Complex32>::zeros((channels, n_samples, frames));
+    }
+    let out = &mut iq.data;
     match samples {
         AngleSamples::Iq {
             data,
             demod_frequency: fd,
         } => {
             out.assign(&data.slice(s![angle, .., .., ..]).permuted_axes([1, 2, 0]));
-            return Ok(IqChannels {
-                data: out,
-                sampling_frequency,
-                t0,
-                demod_frequency: *fd,
-            });
+            iq.demod_frequency = *fd;
+            return Ok(());
         }
         AngleSamples::Rf(rf) => {
             let cutoff =
@@ -129,11 +161,11 @@ pub fn demodulate(
             out.axis_iter_mut(Axis(0))
                 .into_par_iter()
                 .enumerate()
-                .for_each(|(ch, mut dest)| {
+                .for_each_init(Vec::new, |mixed, (ch, mut dest)| {
                     // Mixed and filtered with the frames side by side, (samples, frames) as the
                     // output is laid out: each tap then multiplies a whole row of frames, which
                     // vectorises, where one trace at a time did not.
-                    let mut mixed = vec![Complex32::new(0.0, 0.0); n_samples * frames];
+                    mixed.resize(n_samples * frames, Complex32::new(0.0, 0.0));
                     for f in 0..frames {
                         let trace = rf.slice(s![f, ch, ..]);
                         for (n, (&x, &w)) in trace.iter().zip(&mixer).enumerate() {
@@ -143,16 +175,11 @@ pub fn demodulate(
                     let dest = dest
                         .as_slice_mut()
                         .expect("an owned (channels, samples, frames) array is contiguous");
-                    fir_same_rows(&mixed, frames, &taps, dest);
+                    fir_same_rows(mixed, frames, &taps, dest);
                 });
         }
     }
-    Ok(IqChannels {
-        data: out,
-        sampling_frequency,
-        t0,
-        demod_frequency,
-    })
+    Ok(())
 }
 
 /// Centred ("same"-length) convolution along the rows of `x`, (samples, `width`) row-major, with

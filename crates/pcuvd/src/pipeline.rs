@@ -365,15 +365,23 @@ pub fn form_block_into(
     let decode_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
+    // One angle's IQ at a time, in one array.
+    let mut channels = iq::IqChannels {
+        data: Array3::zeros((0, 0, 0)),
+        sampling_frequency: acq.sampling_frequency,
+        t0: acq.t0,
+        demod_frequency: acq.probe.center_frequency,
+    };
     for (k, (&angle, image)) in acq.sequence.angles.iter().zip(&mut images).enumerate() {
         progress(Stage::Beamform, k);
-        let channels = iq::demodulate(
+        iq::demodulate_into(
             &per_angle,
             k,
             acq.t0,
             acq.sampling_frequency,
             acq.probe.center_frequency,
             params.iq_cutoff,
+            &mut channels,
         )?;
         beamform::beamform_into(
             &channels,
