@@ -162,36 +162,39 @@ impl ManifestFrames {
     /// byte buffer to convert from), which for float32 recordings is the array processing uses.
     fn read_stored<T: bytemuck::Pod>(&self, events: Range<usize>) -> std::io::Result<Vec<T>> {
         let per_event = self.shape.1 * self.shape.2 * self.stored.bytes() / size_of::<T>();
+        let mut values = vec![T::zeroed(); events.len() * per_event];
+        self.read_stored_into(events, &mut values)?;
+        Ok(values)
+    }
+
+    /// [`Self::read_stored`] into `values`, which holds exactly their number.
+    fn read_stored_into<T: bytemuck::Pod>(
+        &self,
+        events: Range<usize>,
+        values: &mut [T],
+    ) -> std::io::Result<()> {
+        let event_bytes = self.shape.1 * self.shape.2 * self.stored.bytes();
         let mut file = std::fs::File::open(&self.data_path)?;
         file.seek(SeekFrom::Start(
-            self.data_offset + (events.start * per_event * size_of::<T>()) as u64,
+            self.data_offset + (events.start * event_bytes) as u64,
         ))?;
-        let mut values = vec![T::zeroed(); events.len() * per_event];
-        file.read_exact(bytemuck::cast_slice_mut(&mut values))?;
+        file.read_exact(bytemuck::cast_slice_mut(values))?;
         if cfg!(target_endian = "big") {
             // The file is little-endian.
             values
                 .iter_mut()
                 .for_each(|v| bytemuck::bytes_of_mut(v).reverse());
         }
-        Ok(values)
-    }
-}
-
-impl FrameSource for ManifestFrames {
-    fn acquisition(&self) -> &Acquisition {
-        &self.acquisition
+        Ok(())
     }
 
-    fn n_frames(&self) -> usize {
-        self.shape.0 / self.acquisition.sequence.n_angles()
-    }
-
-    fn trace_shape(&self) -> (usize, usize) {
-        (self.shape.1, self.shape.2)
-    }
-
-    fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
+    /// Frames `frames` as [`FrameSource::read_frames`] reads them, into `reuse`'s samples
+    /// where they are float32 samples of the same shape (a block after another).
+    fn read_block(
+        &self,
+        frames: Range<usize>,
+        reuse: Option<ChannelData>,
+    ) -> pcuvd::Result<ChannelData> {
         let n = self.acquisition.sequence.n_angles();
         if frames.start >= frames.end || frames.end > FrameSource::n_frames(self) {
             return Err(pcuvd::error::invalid(
@@ -210,12 +213,30 @@ impl FrameSource for ManifestFrames {
         let real = |values: Vec<f32>| Array3::from_shape_vec(shape, values);
         let complex = |values: Vec<Complex32>| Array3::from_shape_vec(shape, values);
         let shape_error = |e: ndarray::ShapeError| pcuvd::Error::Shape(e.to_string());
+        let reusable = match reuse {
+            Some(ChannelData {
+                samples: Samples::Rf(array),
+                ..
+            }) if self.stored == Stored::F4
+                && array.dim() == shape
+                && array.is_standard_layout() =>
+            {
+                Some(array)
+            }
+            _ => None,
+        };
         // Conversions run on every core: single-threaded, they held the other core idle for
         // about a tenth of a run.
         let samples = match self.stored {
-            Stored::F4 => Samples::Rf(
-                real(self.read_stored::<f32>(events).map_err(read_error)?).map_err(shape_error)?,
-            ),
+            Stored::F4 => Samples::Rf(match reusable {
+                Some(mut array) => {
+                    let values = array.as_slice_mut().expect("standard layout (checked)");
+                    self.read_stored_into(events, values).map_err(read_error)?;
+                    array
+                }
+                None => real(self.read_stored::<f32>(events).map_err(read_error)?)
+                    .map_err(shape_error)?,
+            }),
             Stored::F8 => Samples::Rf(
                 real(convert(self.read_stored::<f64>(events), |v| v as f32).map_err(read_error)?)
                     .map_err(shape_error)?,
@@ -272,5 +293,32 @@ impl FrameSource for ManifestFrames {
             acquisition: self.acquisition.clone(),
             samples,
         })
+    }
+}
+
+impl FrameSource for ManifestFrames {
+    fn acquisition(&self) -> &Acquisition {
+        &self.acquisition
+    }
+
+    fn n_frames(&self) -> usize {
+        self.shape.0 / self.acquisition.sequence.n_angles()
+    }
+
+    fn trace_shape(&self) -> (usize, usize) {
+        (self.shape.1, self.shape.2)
+    }
+
+    fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
+        self.read_block(frames, None)
+    }
+
+    fn read_frames_into(
+        &self,
+        frames: Range<usize>,
+        block: &mut Option<ChannelData>,
+    ) -> pcuvd::Result<()> {
+        *block = Some(self.read_block(frames, block.take())?);
+        Ok(())
     }
 }

@@ -20,6 +20,7 @@
 //! the medium at one instant and decoding is exact again for every echo whose Doppler frequency is
 //! below half the frame rate, which is what Doppler needs anyway (the Nyquist velocity).
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use ndarray::{Array2, Array3, Array4, ArrayView3, Axis, s};
@@ -142,24 +143,66 @@ pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
 /// As [`decode`], with coded events aligned in slow time as `alignment` says (conventional
 /// sequences are only split: each angle's record is already one event per frame).
 pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<AngleSamples> {
+    decode_aligned_frames(data, alignment, 0..data.n_frames())
+}
+
+/// As [`decode_aligned`], keeping only compound frames `frames` of the recording (the others
+/// are read only by the slow-time alignment): (angles, frames.len(), channels, samples).
+pub fn decode_aligned_frames(
+    data: &ChannelData,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+) -> Result<AngleSamples> {
+    decode_reusing(data, alignment, frames, None)
+}
+
+/// As [`decode_aligned_frames`], into `out`: the memory of the records it holds (a previous
+/// block's) is reused when they have the shape, rather than fresh pages faulted in and zeroed.
+pub fn decode_aligned_frames_into(
+    data: &ChannelData,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+    out: &mut Option<AngleSamples>,
+) -> Result<()> {
+    *out = Some(decode_reusing(data, alignment, frames, out.take())?);
+    Ok(())
+}
+
+fn decode_reusing(
+    data: &ChannelData,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+    reuse: Option<AngleSamples>,
+) -> Result<AngleSamples> {
     data.validate()?;
     let acq = &data.acquisition;
     match &acq.sequence.coding {
-        Coding::Conventional => decode_samples(
+        Coding::Conventional => decode_samples_frames(
             &data.samples,
             acq.sequence.n_angles(),
             None,
             acq.sampling_frequency,
             alignment,
+            frames,
+            reuse,
         ),
-        Coding::Hadamard { slot_delay } => decode_samples(
+        Coding::Hadamard { slot_delay } => decode_samples_frames(
             &data.samples,
             acq.sequence.n_angles(),
             Some(slot_delay * acq.sampling_frequency),
             acq.sampling_frequency,
             alignment,
+            frames,
+            reuse,
         ),
-        Coding::Matrix(code) => decode_code(&data.samples, code, acq.sampling_frequency, alignment),
+        Coding::Matrix(code) => decode_code_frames(
+            &data.samples,
+            code,
+            acq.sampling_frequency,
+            alignment,
+            frames,
+            reuse,
+        ),
     }
 }
 
@@ -174,6 +217,30 @@ pub fn decode_samples(
     alignment: EventAlignment,
 ) -> Result<AngleSamples> {
     check_frames(samples, n)?;
+    let frames = 0..samples.dim().0 / n;
+    decode_samples_frames(
+        samples,
+        n,
+        slot_shift,
+        sampling_frequency,
+        alignment,
+        frames,
+        None,
+    )
+}
+
+/// [`decode_samples`], keeping compound frames `frames`, into `reuse`'s memory where it fits.
+fn decode_samples_frames(
+    samples: &Samples,
+    n: usize,
+    slot_shift: Option<f64>,
+    sampling_frequency: f64,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+    reuse: Option<AngleSamples>,
+) -> Result<AngleSamples> {
+    check_frames(samples, n)?;
+    check_kept(samples, n, &frames)?;
     if let Some(shift) = slot_shift
         && !(shift.is_finite() && shift >= 0.0)
     {
@@ -184,16 +251,19 @@ pub fn decode_samples(
     }
     crate::error::require_positive("sampling frequency", sampling_frequency)?;
     match slot_shift {
-        None => Ok(match samples {
-            Samples::Rf(rf) => AngleSamples::Rf(split(rf.view(), n)),
-            Samples::Iq {
-                data,
-                demod_frequency,
-            } => AngleSamples::Iq {
-                data: split(data.view(), n),
-                demod_frequency: *demod_frequency,
-            },
-        }),
+        None => {
+            let events = s![frames.start * n..frames.end * n, .., ..];
+            Ok(match samples {
+                Samples::Rf(rf) => AngleSamples::Rf(split(rf.slice(events), n)),
+                Samples::Iq {
+                    data,
+                    demod_frequency,
+                } => AngleSamples::Iq {
+                    data: split(data.slice(events), n),
+                    demod_frequency: *demod_frequency,
+                },
+            })
+        }
         Some(shift) => {
             let h = Hadamard::new(n)?;
             // Hᵀ: slot k gathers event i with the polarity H[i][k].
@@ -204,7 +274,7 @@ pub fn decode_samples(
                 shifts,
                 align: true,
             };
-            decode_with(samples, &plan, sampling_frequency, alignment)
+            decode_with(samples, &plan, sampling_frequency, alignment, frames, reuse)
         }
     }
 }
@@ -221,6 +291,22 @@ pub fn decode_code(
 ) -> Result<AngleSamples> {
     let n = code.order();
     check_frames(samples, n)?;
+    let frames = 0..samples.dim().0 / n;
+    decode_code_frames(samples, code, sampling_frequency, alignment, frames, None)
+}
+
+/// [`decode_code`], keeping compound frames `frames`, into `reuse`'s memory where it fits.
+fn decode_code_frames(
+    samples: &Samples,
+    code: &TransmitCode,
+    sampling_frequency: f64,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+    reuse: Option<AngleSamples>,
+) -> Result<AngleSamples> {
+    let n = code.order();
+    check_frames(samples, n)?;
+    check_kept(samples, n, &frames)?;
     crate::error::require_positive("sampling frequency", sampling_frequency)?;
     let plan = DecodePlan {
         matrix: code
@@ -235,7 +321,7 @@ pub fn decode_code(
             .collect(),
         align: code.is_coded(),
     };
-    decode_with(samples, &plan, sampling_frequency, alignment)
+    decode_with(samples, &plan, sampling_frequency, alignment, frames, reuse)
 }
 
 /// A whole number of compound frames of `n` events, or an error.
@@ -245,6 +331,18 @@ fn check_frames(samples: &Samples, n: usize) -> Result<()> {
         return Err(crate::error::Error::Shape(format!(
             "{events} transmit events is not a whole number of compound frames of {n} events"
         )));
+    }
+    Ok(())
+}
+
+/// `frames`, a non-empty range of the recording's compound frames of `n` events, or an error.
+fn check_kept(samples: &Samples, n: usize, frames: &Range<usize>) -> Result<()> {
+    let total = samples.dim().0 / n;
+    if frames.start >= frames.end || frames.end > total {
+        return Err(crate::error::invalid(
+            "frames",
+            format!("{frames:?} is not a range of the recording's {total} frames"),
+        ));
     }
     Ok(())
 }
@@ -262,6 +360,8 @@ fn decode_with(
     plan: &DecodePlan,
     sampling_frequency: f64,
     alignment: EventAlignment,
+    kept: Range<usize>,
+    reuse: Option<AngleSamples>,
 ) -> Result<AngleSamples> {
     let n = plan.shifts.len();
     let (events, _, ns) = samples.dim();
@@ -283,12 +383,19 @@ fn decode_with(
         _ => None,
     };
     let aligner = aligner.as_ref();
+    let (reuse_rf, reuse_iq) = match reuse {
+        Some(AngleSamples::Rf(a)) => (Some(a), None),
+        Some(AngleSamples::Iq { data, .. }) => (None, Some(data)),
+        None => (None, None),
+    };
     match samples {
         Samples::Rf(rf) => Ok(AngleSamples::Rf(decode_events(
             rf.view(),
             plan,
             |shifter, tr, s| shifter.shift_real(tr, s),
             aligner,
+            kept,
+            reuse_rf,
         ))),
         Samples::Iq {
             data: iq,
@@ -307,6 +414,8 @@ fn decode_with(
                     tr.iter_mut().for_each(|v| *v *= rot);
                 },
                 aligner,
+                kept,
+                reuse_iq,
             );
             Ok(AngleSamples::Iq {
                 data: out,
@@ -485,12 +594,15 @@ impl SlowTimeSample for Complex32 {
 const TILE: usize = 16;
 
 /// Decodes coded events: per channel, the events aligned by `aligner` if given, then for every
-/// frame slot k = Σ_i D[k][i]·event_i (D = `plan.matrix`), advanced by `plan.shifts[k]` samples.
+/// frame of `kept` slot k = Σ_i D[k][i]·event_i (D = `plan.matrix`), advanced by
+/// `plan.shifts[k]` samples: (slots, kept frames, channels, samples).
 fn decode_events<T, F>(
     events: ArrayView3<T>,
     plan: &DecodePlan,
     shift: F,
     aligner: Option<&SlowTimeAligner>,
+    kept: Range<usize>,
+    reuse: Option<Array4<T>>,
 ) -> Array4<T>
 where
     T: SlowTimeSample + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
@@ -498,10 +610,13 @@ where
 {
     let n = plan.shifts.len();
     let (ne, nc, ns) = events.dim();
-    let frames = ne / n;
     let max_shift = plan.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
     let shifter = TraceShifter::new(ns, max_shift);
-    let mut out = Array4::<T>::from_elem((n, frames, nc, ns), T::zero());
+    // Every element is written below, so a reused array needs no clearing.
+    let shape = (n, kept.len(), nc, ns);
+    let reuse = reuse.filter(|array| array.dim() == shape && array.is_standard_layout());
+    // (An array of another shape is dropped by now, before a new one is allocated.)
+    let mut out = reuse.unwrap_or_else(|| Array4::<T>::from_elem(shape, T::zero()));
     out.axis_iter_mut(Axis(2))
         .into_par_iter()
         .enumerate()
@@ -521,7 +636,7 @@ where
             }
             let block = block.as_slice().expect("an owned array is contiguous");
             let mut trace = vec![T::zero(); ns];
-            for f in 0..frames {
+            for (kept_f, f) in kept.clone().enumerate() {
                 for k in 0..n {
                     trace.fill(T::zero());
                     for i in 0..n {
@@ -535,7 +650,7 @@ where
                         }
                     }
                     shift(&shifter, &mut trace, plan.shifts[k]);
-                    let mut dest = channel_out.slice_mut(s![k, f, ..]);
+                    let mut dest = channel_out.slice_mut(s![k, kept_f, ..]);
                     match dest.as_slice_mut() {
                         Some(dest) => dest.copy_from_slice(&trace),
                         None => dest.assign(&ndarray::ArrayView1::from(&trace)),

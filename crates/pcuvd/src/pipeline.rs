@@ -6,7 +6,7 @@ use std::time::Instant;
 use ndarray::{Array2, Array3, ArrayViewMut3, Axis};
 
 use crate::beamform::{self, DasParams};
-use crate::channel::{Acquisition, ChannelData};
+use crate::channel::{Acquisition, AngleSamples, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
@@ -225,6 +225,7 @@ pub fn form_images_of(
     let ranges = blocks.ranges_in(frames, source.n_frames());
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
+    let mut buffers = BlockBuffers::default();
     for (b, (block, decoded)) in ranges.iter().enumerate() {
         let frames_of_block = ndarray::s![.., .., block.start - first..block.end - first];
         let formed = form_block_into(
@@ -236,6 +237,7 @@ pub fn form_images_of(
                 .iter_mut()
                 .map(|image| image.slice_mut(frames_of_block))
                 .collect(),
+            &mut buffers,
             &|stage, k| {
                 let (done, total) = match stage {
                     Stage::Decode => (b, ranges.len()),
@@ -319,6 +321,7 @@ pub fn form_block(
         block,
         decoded,
         images.iter_mut().map(|image| image.view_mut()).collect(),
+        &mut BlockBuffers::default(),
         progress,
     )?;
     Ok(BlockImages {
@@ -329,14 +332,39 @@ pub fn form_block(
     })
 }
 
+/// The working arrays of [`form_block_into`], kept from one block to the next: the events read,
+/// the decoded records and one angle's IQ. Fresh arrays of that size (about 1 GB) cost more to
+/// fault in and zero than decoding them takes.
+pub struct BlockBuffers {
+    read: Option<ChannelData>,
+    decoded: Option<AngleSamples>,
+    iq: iq::IqChannels,
+}
+
+impl Default for BlockBuffers {
+    fn default() -> Self {
+        BlockBuffers {
+            read: None,
+            decoded: None,
+            iq: iq::IqChannels {
+                data: Array3::zeros((0, 0, 0)),
+                sampling_frequency: 0.0,
+                t0: 0.0,
+                demod_frequency: 0.0,
+            },
+        }
+    }
+}
+
 /// As [`form_block`], into `images` (per angle, (nz, nx, block frames)): the block's frames of
-/// the recording's series, written in place.
+/// the recording's series, written in place, with the working arrays of `buffers`.
 pub fn form_block_into(
     source: &dyn FrameSource,
     params: &ProcessParams,
     block: std::ops::Range<usize>,
     decoded: std::ops::Range<usize>,
     mut images: Vec<ArrayViewMut3<Complex32>>,
+    buffers: &mut BlockBuffers,
     progress: &dyn Fn(Stage, usize),
 ) -> Result<BlockFormed> {
     let acq = source.acquisition();
@@ -355,36 +383,30 @@ pub fn form_block_into(
     }
     let clock = Instant::now();
     progress(Stage::Decode, 0);
-    let data = source.read_frames(decoded.clone())?;
+    source.read_frames_into(decoded.clone(), &mut buffers.read)?;
+    let data = buffers.read.as_ref().expect("just read");
     let recorded = data.samples.any_nonzero();
-    let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
-    drop(data);
-    if decoded != block {
-        per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
-    }
+    let kept = block.start - decoded.start..block.end - decoded.start;
+    decode::decode_aligned_frames_into(data, params.event_alignment, kept, &mut buffers.decoded)?;
+    let per_angle = buffers.decoded.as_ref().expect("just decoded");
     let decode_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
     // One angle's IQ at a time, in one array.
-    let mut channels = iq::IqChannels {
-        data: Array3::zeros((0, 0, 0)),
-        sampling_frequency: acq.sampling_frequency,
-        t0: acq.t0,
-        demod_frequency: acq.probe.center_frequency,
-    };
+    let channels = &mut buffers.iq;
     for (k, (&angle, image)) in acq.sequence.angles.iter().zip(&mut images).enumerate() {
         progress(Stage::Beamform, k);
         iq::demodulate_into(
-            &per_angle,
+            per_angle,
             k,
             acq.t0,
             acq.sampling_frequency,
             acq.probe.center_frequency,
             params.iq_cutoff,
-            &mut channels,
+            channels,
         )?;
         beamform::beamform_into(
-            &channels,
+            channels,
             &acq.probe,
             angle,
             &params.grid,
@@ -663,13 +685,13 @@ twice the frames of a block";
 /// (bytes): [`blocks_for`] sizes blocks to it.
 pub const BLOCK_BYTES: u64 = 1 << 30;
 
-/// Bytes one compound frame takes while its block is formed into images: its events, their
-/// decoded per-angle copy and the frames kept (f32), and one angle's IQ (complex64).
+/// Bytes one compound frame takes while its block is formed into images: its events and their
+/// decoded per-angle records (f32), and one angle's IQ (complex64).
 fn block_bytes_per_frame(source: &dyn FrameSource) -> u64 {
     let (channels, samples) = source.trace_shape();
     let trace = (channels * samples) as u64;
     let angles = source.acquisition().sequence.n_angles() as u64;
-    3 * angles * trace * 4 + trace * 8
+    2 * angles * trace * 4 + trace * 8
 }
 
 /// The blocks `process` forms images in: as many frames as fit in [`BLOCK_BYTES`] (the whole

@@ -20,6 +20,17 @@ pub trait FrameSource: Sync {
     /// The events of compound frames `frames` (frames.len() × angles events), as a recording of
     /// their own with the same acquisition.
     fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData>;
+    /// As [`FrameSource::read_frames`], into `block`: a source may reuse the memory of the
+    /// recording it holds (the previous block) rather than fault in and zero fresh pages.
+    fn read_frames_into(
+        &self,
+        frames: Range<usize>,
+        block: &mut Option<ChannelData>,
+    ) -> Result<()> {
+        *block = None;
+        *block = Some(self.read_frames(frames)?);
+        Ok(())
+    }
     /// Bytes of samples the source holds in memory (0 for one that reads its file block by block).
     fn resident_bytes(&self) -> u64 {
         0

@@ -4,7 +4,10 @@ use ndarray::{Array3, Array4};
 use num_complex::Complex32;
 use pcuvd::beamform::{self, DasParams};
 use pcuvd::channel::{Acquisition, AngleSamples, ChannelData, Samples};
-use pcuvd::decode::{EventAlignment, decode, decode_aligned, encode, encode_code};
+use pcuvd::decode::{
+    EventAlignment, decode, decode_aligned, decode_aligned_frames, decode_aligned_frames_into,
+    encode, encode_code,
+};
 use pcuvd::geometry::round_trip_delay;
 use pcuvd::grid::Grid;
 use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode, iq};
@@ -148,6 +151,38 @@ fn conventional_events_are_split_by_angle() {
     };
     assert_eq!(d.dim(), (3, 2, 2, 5));
     assert_eq!(d[[2, 1, 0, 4]], (5 * 100 + 4) as f32); // angle 2 of frame 1 = event 5
+}
+
+/// Decoding only some frames (a block's, the others read only by the alignment) gives those
+/// frames of the whole recording's decoding bit for bit: conventional and coded, with and without
+/// mid-frame alignment, and into the array of an earlier block of the same shape, whose values
+/// must all be overwritten. A range outside the recording is an error.
+#[test]
+fn decoding_some_frames_gives_those_frames_of_the_whole() {
+    let events = Array3::from_shape_fn((4 * 7, 16, 120), |(e, c, s)| {
+        (((e * 31 + c * 7 + s * 13) % 17) as f32 - 8.0) * (1.0 + 0.1 * (s as f32 * 0.3).sin())
+    });
+    let coded = coded_recording(events, 4, 0.3e-6, 62.5e6);
+    let mut conventional = coded.clone();
+    conventional.acquisition.sequence.coding = Coding::Conventional;
+    for rec in [&coded, &conventional] {
+        for alignment in [EventAlignment::Simultaneous, EventAlignment::MidFrame] {
+            let whole = decode_aligned(rec, alignment).unwrap();
+            let part = decode_aligned_frames(rec, alignment, 2..5).unwrap();
+            assert_eq!(part, whole.frames(2..5), "{alignment:?}");
+            let mut earlier = Some(decode_aligned_frames(rec, alignment, 4..7).unwrap());
+            decode_aligned_frames_into(rec, alignment, 2..5, &mut earlier).unwrap();
+            assert_eq!(
+                earlier.unwrap(),
+                whole.frames(2..5),
+                "{alignment:?}, reused"
+            );
+            for outside in [3..3, 5..8] {
+                let err = decode_aligned_frames(rec, alignment, outside).unwrap_err();
+                assert!(err.to_string().contains("frames"), "{err}");
+            }
+        }
+    }
 }
 
 /// RF of a point scatterer, synthesised analytically with the shared time-of-flight convention.
@@ -394,7 +429,8 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
 
 /// The memory estimate by hand: 8 events (4 angles × 2 frames) × 16 channels × 100 samples, and a
 /// 3 × 5 pixel grid: the input, 12,800 × 4 bytes; one block, here the whole recording, of 2 frames
-/// × (3 copies × 4 angles × 1,600 samples × 4 bytes + one angle's IQ, 1,600 × 8 bytes); and the
+/// × (2 copies (the events read and their decoded records) × 4 angles × 1,600 samples × 4 bytes +
+/// one angle's IQ, 1,600 × 8 bytes); and the
 /// two image series, 2 × 15 pixels × 2 frames × 4 angles × 8 bytes.
 #[test]
 fn memory_estimate_counts_samples_and_image_series() {
@@ -404,6 +440,6 @@ fn memory_estimate_counts_samples_and_image_series() {
     assert_eq!(grid.shape(), (3, 5));
     assert_eq!(
         pcuvd::pipeline::memory_estimate(&rec, &grid),
-        8 * 16 * 100 * 4 + 2 * (3 * 4 * 1600 * 4 + 1600 * 8) + 2 * 15 * 2 * 4 * 8
+        8 * 16 * 100 * 4 + 2 * (2 * 4 * 1600 * 4 + 1600 * 8) + 2 * 15 * 2 * 4 * 8
     );
 }

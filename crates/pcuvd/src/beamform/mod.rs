@@ -262,8 +262,18 @@ mod tests {
         )
         .unwrap();
         assert_eq!(series.slice(ndarray::s![.., .., 5..14]), whole);
-        assert!(series.slice(ndarray::s![.., .., ..5]).iter().all(|&v| v == marker));
-        assert!(series.slice(ndarray::s![.., .., 14..]).iter().all(|&v| v == marker));
+        assert!(
+            series
+                .slice(ndarray::s![.., .., ..5])
+                .iter()
+                .all(|&v| v == marker)
+        );
+        assert!(
+            series
+                .slice(ndarray::s![.., .., 14..])
+                .iter()
+                .all(|&v| v == marker)
+        );
         // Every other frame of a series: not contiguous.
         let mut strided = Array3::from_elem((nz, nx, 18), marker);
         beamform_into(
@@ -276,7 +286,12 @@ mod tests {
         )
         .unwrap();
         assert_eq!(strided.slice(ndarray::s![.., .., ..;2]), whole);
-        assert!(strided.slice(ndarray::s![.., .., 1..;2]).iter().all(|&v| v == marker));
+        assert!(
+            strided
+                .slice(ndarray::s![.., .., 1..;2])
+                .iter()
+                .all(|&v| v == marker)
+        );
         let err = beamform_into(&iq, &probe, 0.1, &grid, &params, series.view_mut()).unwrap_err();
         assert!(err.to_string().contains("frames"), "{err}");
     }
