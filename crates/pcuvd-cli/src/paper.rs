@@ -19,7 +19,7 @@ use crate::figures::{
     self, PCUVD_RGB, PROFILE_LINE_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line,
     map_panel, render, vector_overlay,
 };
-use crate::options::Alignment;
+use crate::options::{Alignment, DopplerEstimatorOption};
 use crate::process::create_dir;
 use crate::progress::TaskProgress;
 
@@ -67,6 +67,10 @@ pub struct StudyOptions {
     /// Pixel size of the imaging grid (mm).
     #[arg(long, default_value_t = SpiralSettings::default().grid_step_m * 1e3)]
     pub grid_step: f64,
+    /// Which frequency turns the Doppler phase into velocity: "loupas" (the mean RF frequency
+    /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
+    #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(SpiralSettings::default().doppler_estimator))]
+    pub doppler_estimator: DopplerEstimatorOption,
     /// Compound frames of each vessel-network recording (the paper's rat: 360 = 0.2 s at 1.8 kHz).
     #[arg(long, default_value_t = NetworkSettings::default().frames)]
     pub network_frames: usize,
@@ -145,6 +149,7 @@ impl StudyOptions {
             motion: self.motion.into(),
             event_alignment: self.event_alignment.into(),
             doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
+            doppler_estimator: self.doppler_estimator.into(),
             grid_step_m: self.grid_step * 1e-3,
         };
         settings
@@ -163,6 +168,7 @@ impl StudyOptions {
             motion: self.motion.into(),
             event_alignment: self.event_alignment.into(),
             grid_step_m: self.grid_step * 1e-3,
+            doppler_estimator: self.doppler_estimator.into(),
         };
         settings.validate().with_context(|| {
             format!(

@@ -1,20 +1,37 @@
-//! Lag-1 autocorrelation Doppler (paper eq. 4–5): power, mean frequency, projection velocity.
+//! Autocorrelation Doppler (paper eq. 4–5): power, mean frequency, projection velocity.
 //!
 //! R = 1/(N−1) Σ_t S*(t)·S(t+1) over the frames of a (clutter-filtered) series. A scatterer moving
 //! deeper lengthens the echo path, so the phase of R is negative; hence
-//! V_θ = −c·f_frame/(4π f_0)·arg R, with f_frame = event PRF / n the per-angle frame rate. V_θ is
-//! the projection of (Vx, Vz) on the angle's Doppler direction: Vx·sin θ + Vz·(cos θ + 1) = 2 V_θ.
+//! V_θ = −c·f_frame/(4π f̄)·arg R, with f_frame = event PRF / n the per-angle frame rate and f̄ the
+//! mean RF frequency of the echoes. V_θ is the projection of (Vx, Vz) on the angle's Doppler
+//! direction: Vx·sin θ + Vz·(cos θ + 1) = 2 V_θ.
 //!
-//! # Mean frequency (Loupas et al. 1995)
+//! # Which frequency (two estimators, [`DopplerEstimator`])
 //! The lag-1 phase is 4π f̄ V_θ / (c f_frame), where f̄ is the power-weighted mean RF frequency of
-//! the *image*, not f_0. In a 2-D image of diffuse scatterers each frequency f of the echo contributes
-//! in proportion to its lateral beam width, ∝ 1/f, so f̄ is the harmonic mean of the echo's power
-//! spectrum — 0.969 f_0 for the L22-14vX 2-cycle echo (67 % bandwidth) — and f̄ also varies from one
-//! speckle realisation to the next (±2–3 % over a few dozen speckle cells). Scaling by f_0 then reads
-//! projections a few per cent low. The 2-D autocorrelation estimator measures f̄ on the data from the
-//! phase of the axial-lag autocorrelation R(1, 0) (one pixel deeper, same frame) and divides by it:
-//! [`axial_autocorrelation`], [`AxialSampling`], [`projection_velocity_loupas`].
-
+//! the *image*, not the transmit's nominal f_0. [`DopplerEstimator::Kasai`] (the paper's eq. 5)
+//! divides by f_0 (the demodulation frequency); [`DopplerEstimator::Loupas`] measures f̄ at every
+//! pixel and divides by it (the 2-D autocorrelation of Loupas et al. 1995). Why it matters:
+//! - In a 2-D image of diffuse scatterers each frequency f of the echo contributes in proportion
+//!   to its lateral beam width, ∝ 1/f, so f̄ is the harmonic mean of the echo's power spectrum —
+//!   0.969 f_0 for the L22-14vX 2-cycle echo (67 % bandwidth). Kasai reads projections 3 % low.
+//! - f̄ varies from one speckle realisation to the next (±2–3 % over a few dozen speckle cells),
+//!   differently at each angle, and an angle-dependent error of 2 % is several mm/s of Vx.
+//! - Frequency-dependent attenuation lowers f̄ with depth (by 5–10 % at 1 cm in brain at 15 MHz),
+//!   as do the transducer and the medium in real recordings.
+//!
+//! Loupas reads f̄ from the phase of the axial-lag autocorrelation (one pixel deeper). The plain
+//! R(1, 0) = ⟨S*(z, t)·S(z + 1, t)⟩ also holds the receiver noise's own axial correlation, which
+//! pulls f̄ toward the noise band's centre at low SNR; pcuvd pairs the axial lag with a temporal
+//! lag of one frame instead, ⟨S*(z, t)·S(z + 1, t ± 1)⟩, where white noise does not correlate, and
+//! removes the Doppler phase they carry with arg R ([`axial_autocorrelation_lag1`]). The mean
+//! frequency changes slowly across the image, so it is averaged over the Doppler kernel widened by
+//! one pixel on each side ([`mean_frequency_kernel`]).
+//!
+//! Its limit is the axial pixel step: the axial phase 2π f̄ (1 + cos θ) Δz / c is read modulo 2π
+//! around the demodulation frequency, and with a wide echo spectrum its third cumulant (skew)
+//! bends that phase away from 2π f̄ τ by ≈ (2π σ_f τ)³·skew/6: at Δz = λ/2 (τ ≈ 1/f_0) a speckle
+//! region's realised skew gives errors of ±1 % per angle; at λ/4 about ±0.3 %. Grids coarser than
+//! about a wavelength are refused ([`AxialSampling::new`]).
 use ndarray::{Array2, ArrayView3, Axis, Zip, s};
 use num_complex::{Complex32, Complex64};
 
@@ -45,12 +62,7 @@ pub fn autocorrelation(
             format!("needs at least 2 frames, got {nf}"),
         ));
     }
-    if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
-        return Err(invalid(
-            "Doppler averaging kernel",
-            format!("sizes must be odd, got {kernel:?}"),
-        ));
-    }
+    check_kernel(kernel)?;
     let mut power = Array2::<f64>::zeros((nz, nx));
     let mut r1 = Array2::<Complex64>::zeros((nz, nx));
     Zip::from(&mut power)
@@ -74,6 +86,17 @@ pub fn autocorrelation(
         r1 = box_average(&r1, kernel);
     }
     Ok(Autocorrelation { power, r1 })
+}
+
+/// Refuses an averaging box with an even size (it would have no centre pixel).
+fn check_kernel(kernel: (usize, usize)) -> Result<()> {
+    if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
+        return Err(invalid(
+            "Doppler averaging kernel",
+            format!("sizes must be odd, got {kernel:?}"),
+        ));
+    }
+    Ok(())
 }
 
 fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
@@ -112,12 +135,7 @@ pub fn axial_autocorrelation(
             ),
         ));
     }
-    if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
-        return Err(invalid(
-            "Doppler averaging kernel",
-            format!("sizes must be odd, got {kernel:?}"),
-        ));
-    }
+    check_kernel(kernel)?;
     let mut r = Array2::<Complex64>::zeros((nz, nx));
     r.axis_iter_mut(Axis(0))
         .into_par_iter()
@@ -173,7 +191,26 @@ impl AxialSampling {
                 format!("{angle} rad is not within (−π/2, π/2)"),
             ));
         }
-        let axial_weight = crate::vector::projection_weights(angle).1;
+        Self::with_weight(
+            axial_step,
+            crate::vector::projection_weights(angle).1,
+            sound_speed,
+            reference_frequency,
+        )
+    }
+
+    /// As [`AxialSampling::new`] for an image whose echo path lengthens by `axial_weight` × the
+    /// depth change (1 + cos θ for one angle; 1 + the mean cos θ for a compounded image).
+    pub fn with_weight(
+        axial_step: f64,
+        axial_weight: f64,
+        sound_speed: f64,
+        reference_frequency: f64,
+    ) -> Result<Self> {
+        require_positive("axial pixel step", axial_step)?;
+        require_positive("axial weight", axial_weight)?;
+        require_positive("speed of sound", sound_speed)?;
+        require_positive("reference frequency", reference_frequency)?;
         let step_delay = axial_weight * axial_step / sound_speed;
         if 0.5 / step_delay < 0.25 * reference_frequency {
             return Err(invalid(
@@ -241,6 +278,311 @@ pub fn projection_velocity_loupas(
     Ok(Zip::from(r1)
         .and(r_axial)
         .map_collect(|&a, &b| loupas_velocity(a, b, sound_speed, frame_rate, axial)))
+}
+
+/// Which frequency turns the lag-1 phase into velocity (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DopplerEstimator {
+    /// The nominal frequency: the demodulation (centre) frequency f_0 (Kasai et al. 1985; the
+    /// paper's eq. 5). Reads low by the ratio of the image's mean frequency to f_0.
+    Kasai,
+    /// The mean RF frequency measured at every pixel from the axial lag at temporal lags ±1
+    /// (2-D autocorrelation, Loupas et al. 1995): unbiased whatever the echo spectrum.
+    #[default]
+    Loupas,
+}
+
+impl DopplerEstimator {
+    /// Every estimator, in the order of their option names.
+    pub const ALL: [DopplerEstimator; 2] = [DopplerEstimator::Kasai, DopplerEstimator::Loupas];
+
+    /// Its name in settings and reports: "kasai" or "loupas".
+    pub fn label(self) -> &'static str {
+        match self {
+            DopplerEstimator::Kasai => "kasai",
+            DopplerEstimator::Loupas => "loupas",
+        }
+    }
+
+    /// One sentence for reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            DopplerEstimator::Kasai => {
+                "lag-1 autocorrelation phase scaled by the nominal centre frequency (Kasai; the paper's eq. 5)"
+            }
+            DopplerEstimator::Loupas => {
+                "lag-1 autocorrelation phase scaled by the mean RF frequency measured at each pixel from the axial lag at temporal lags ±1 (2-D autocorrelation, Loupas), unbiased by the echo spectrum, attenuation and white noise"
+            }
+        }
+    }
+}
+
+/// What turns an image series' autocorrelations into velocity: its sampling and geometry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DopplerGeometry {
+    /// Speed of sound (m/s).
+    pub sound_speed: f64,
+    /// Slow-time rate of the series (Hz).
+    pub frame_rate: f64,
+    /// Demodulation frequency of the IQ data (Hz): Kasai's frequency, and the frequency around
+    /// which Loupas unwraps the axial phase.
+    pub demodulation_frequency: f64,
+    /// Axial pixel step of the image (m).
+    pub axial_step: f64,
+    /// How much the echo path lengthens per unit of depth: 1 + cos θ for one angle, 1 + the mean
+    /// cos θ for a compounded image.
+    pub axial_weight: f64,
+    /// Lateral pixel step of the image (m).
+    pub lateral_step: f64,
+    /// The model's lateral weight: how much the echo path lengthens per unit of lateral motion,
+    /// sin θ for one angle (the mean sin θ for a compounded image).
+    pub lateral_weight: f64,
+}
+
+/// Doppler of one image series, every map (nz, nx).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DopplerMaps {
+    /// Mean |S|² over frames (power Doppler), averaged over the kernel.
+    pub power: Array2<f64>,
+    /// Lag-1 autocorrelation R(0, 1), averaged over the kernel.
+    pub r1: Array2<Complex64>,
+    /// Mean RF frequency the phase was scaled by (Hz): measured per pixel (Loupas) or the
+    /// demodulation frequency (Kasai).
+    pub mean_frequency: Array2<f64>,
+    /// Velocity along the series' Doppler direction (m/s): V = −c·f_frame·arg R / (4π f̄);
+    /// 0 where R is 0. For one angle this is the projection V_θ.
+    pub velocity: Array2<f64>,
+    /// The lateral weight of this series' projection at each pixel, in the model
+    /// Vx·s + Vz·(1 + cos θ) = 2·V: the geometry's sin θ (Kasai), or measured (Loupas) as the
+    /// mean lateral wavenumber over the mean wavenumber 2π f̄ / c of the image, which the finite
+    /// receive aperture and the speckle make differ from sin θ by up to a few hundredths.
+    pub lateral_weight: Array2<f64>,
+}
+
+/// Largest lateral step (in wavelengths at the demodulation frequency) at which Loupas measures
+/// the lateral weight: the image's lateral wavenumbers reach k·(|sin θ| + sin φ_max), with
+/// φ_max ≈ 27° at F# 1 and 18° at F# 1.5, and their phase over one step must stay within ±π.
+/// Coarser grids keep the model's sin θ.
+pub const LATERAL_STEP_MAX_WAVELENGTHS: f64 = 0.5;
+
+/// The Doppler kernel of the mean frequency: the lag-1 kernel widened by one pixel on each side.
+/// Why: f̄ follows the echo spectrum and the depth, which change over many pixels, and averaging
+/// it a little wider than the lag-1 phase steadies it where the phase is noisy (on the paper's
+/// spiral, 3 × 3 for a 1 × 1 kernel took the no-noise Vx RMSE from 3.60 to 3.38 mm/s).
+pub fn mean_frequency_kernel(kernel: (usize, usize)) -> (usize, usize) {
+    (kernel.0 + 2, kernel.1 + 2)
+}
+
+/// Noise-immune axial-lag autocorrelation per pixel, (nz, nx): with R(1, ±1) the means over
+/// frames of S*(z, t)·S(z + 1, t + 1) and S*(z, t + 1)·S(z + 1, t) (the last row pairs with the
+/// row above), each averaged over `kernel`, R(1, +1)·e^{−iφ} + R(1, −1)·e^{+iφ}, φ = arg `r1`
+/// (the lag-1 autocorrelation, same shape). Both terms carry the axial phase ± the Doppler phase;
+/// removing φ leaves the axial phase of [`axial_autocorrelation`] without the receiver noise's
+/// own axial correlation (white noise does not correlate across frames). Needs nz ≥ 2 and ≥ 2
+/// frames.
+pub fn axial_autocorrelation_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+) -> Result<Array2<Complex64>> {
+    spatial_lag1(series, r1, kernel, Axis(0))
+}
+
+/// As [`axial_autocorrelation_lag1`], one pixel to the side (+x): its phase is the mean lateral
+/// wavenumber times the lateral step. Needs nx ≥ 2 and ≥ 2 frames.
+pub fn lateral_autocorrelation_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+) -> Result<Array2<Complex64>> {
+    spatial_lag1(series, r1, kernel, Axis(1))
+}
+
+/// The spatial lag of one pixel along `along` (Axis(0): depth, Axis(1): lateral) at temporal lags
+/// ±1, with the Doppler phase of `r1` removed; see [`axial_autocorrelation_lag1`].
+fn spatial_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+    along: Axis,
+) -> Result<Array2<Complex64>> {
+    let (nz, nx, nf) = series.dim();
+    let (n_along, what) = if along == Axis(0) {
+        (nz, "rows")
+    } else {
+        (nx, "columns")
+    };
+    if n_along < 2 || nf < 2 {
+        return Err(invalid(
+            "Doppler",
+            format!(
+                "a spatial-lag autocorrelation needs at least 2 {what} and 2 frames, got {n_along} {what} and {nf} frames"
+            ),
+        ));
+    }
+    check_kernel(kernel)?;
+    if r1.dim() != (nz, nx) {
+        return Err(Error::Shape(format!(
+            "lag-1 autocorrelation {:?} for a series of {nz} × {nx} pixels",
+            r1.dim()
+        )));
+    }
+    let mut plus = Array2::<Complex64>::zeros((nz, nx));
+    let mut minus = Array2::<Complex64>::zeros((nz, nx));
+    plus.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .zip(minus.axis_iter_mut(Axis(0)))
+        .enumerate()
+        .for_each(|(iz, (mut p_row, mut m_row))| {
+            for ix in 0..nx {
+                // The pixel and its neighbour one step along `along`; the last one pairs with the
+                // one before it, roles swapped, so the phase keeps its sign.
+                let i = if along == Axis(0) { iz } else { ix };
+                let (first, second) = if i + 1 < n_along {
+                    (i, i + 1)
+                } else {
+                    (i - 1, i)
+                };
+                let at = |j: usize| {
+                    if along == Axis(0) {
+                        series.slice(s![j, ix, ..])
+                    } else {
+                        series.slice(s![iz, j, ..])
+                    }
+                };
+                let (a, b) = (at(first), at(second));
+                let (mut p, mut m) = (Complex64::new(0.0, 0.0), Complex64::new(0.0, 0.0));
+                for t in 0..nf - 1 {
+                    let up = a[t].conj() * b[t + 1];
+                    let down = a[t + 1].conj() * b[t];
+                    p += Complex64::new(up.re as f64, up.im as f64);
+                    m += Complex64::new(down.re as f64, down.im as f64);
+                }
+                let pairs = (nf - 1) as f64;
+                p_row[ix] = p / pairs;
+                m_row[ix] = m / pairs;
+            }
+        });
+    if kernel != (1, 1) {
+        plus = box_average(&plus, kernel);
+        minus = box_average(&minus, kernel);
+    }
+    Ok(Zip::from(&plus)
+        .and(&minus)
+        .and(r1)
+        .map_collect(|&p, &m, &r| {
+            let turn = if r.norm() > 0.0 {
+                r / r.norm()
+            } else {
+                Complex64::new(1.0, 0.0)
+            };
+            p * turn.conj() + m * turn
+        }))
+}
+
+/// Power, lag-1 autocorrelation, mean frequency and velocity of `series` (nz, nx, frames) with
+/// `estimator`, the autocorrelations averaged over `kernel` (odd (rows, cols)); the mean frequency
+/// over [`mean_frequency_kernel`]. Loupas needs ≥ 2 rows and an axial step fine enough for
+/// [`AxialSampling::with_weight`]; a pixel whose axial autocorrelation is zero keeps the
+/// demodulation frequency.
+pub fn doppler_maps(
+    series: ArrayView3<Complex32>,
+    kernel: (usize, usize),
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+) -> Result<DopplerMaps> {
+    let DopplerGeometry {
+        sound_speed,
+        frame_rate,
+        demodulation_frequency: f_demod,
+        axial_step,
+        axial_weight,
+        ..
+    } = *geometry;
+    require_positive("speed of sound", sound_speed)?;
+    require_positive("frame rate", frame_rate)?;
+    require_positive("demodulation frequency", f_demod)?;
+    check_kernel(kernel)?;
+    let raw = autocorrelation(series, (1, 1))?;
+    let averaged = |map: &Array2<Complex64>, k: (usize, usize)| {
+        if k == (1, 1) {
+            map.clone()
+        } else {
+            box_average(map, k)
+        }
+    };
+    let r1 = averaged(&raw.r1, kernel);
+    let power = if kernel == (1, 1) {
+        raw.power.clone()
+    } else {
+        box_average(&raw.power, kernel)
+    };
+    let (mean_frequency, lateral_weight) = match estimator {
+        DopplerEstimator::Kasai => (
+            Array2::from_elem(r1.dim(), f_demod),
+            Array2::from_elem(r1.dim(), geometry.lateral_weight),
+        ),
+        DopplerEstimator::Loupas => {
+            let axial = AxialSampling::with_weight(axial_step, axial_weight, sound_speed, f_demod)
+                .map_err(|e| {
+                    invalid(
+                        "Doppler estimator",
+                        format!(
+                            "loupas: {e}; use a finer grid, or the kasai estimator (which scales by the nominal frequency)"
+                        ),
+                    )
+                })?;
+            let wide = mean_frequency_kernel(kernel);
+            let r1_wide = averaged(&raw.r1, wide);
+            let r_axial = axial_autocorrelation_lag1(series, &r1_wide, wide)?;
+            let f_bar = r_axial.mapv(|r| {
+                let f = axial.mean_frequency(r);
+                if r.norm() > 0.0 && f > 0.0 {
+                    f
+                } else {
+                    f_demod
+                }
+            });
+            let wavelength = sound_speed / f_demod;
+            let step = geometry.lateral_step;
+            let lateral = if series.dim().1 >= 2
+                && step.is_finite()
+                && step > 0.0
+                && step <= LATERAL_STEP_MAX_WAVELENGTHS * wavelength
+            {
+                let r_lateral = lateral_autocorrelation_lag1(series, &r1_wide, wide)?;
+                let tau = std::f64::consts::TAU;
+                let expected = tau * geometry.lateral_weight * step / wavelength;
+                Zip::from(&r_lateral).and(&f_bar).map_collect(|&r, &f| {
+                    if r.norm() > 0.0 {
+                        let phase = r.arg() + tau * ((expected - r.arg()) / tau).round();
+                        // k̄x / k̄, k̄ = 2π f̄ / c.
+                        phase / step * sound_speed / (tau * f)
+                    } else {
+                        geometry.lateral_weight
+                    }
+                })
+            } else {
+                Array2::from_elem(r1.dim(), geometry.lateral_weight)
+            };
+            (f_bar, lateral)
+        }
+    };
+    let velocity = Zip::from(&r1).and(&mean_frequency).map_collect(|&r, &f| {
+        if r.norm() > 0.0 {
+            -sound_speed * frame_rate * r.arg() / (4.0 * std::f64::consts::PI * f)
+        } else {
+            0.0
+        }
+    });
+    Ok(DopplerMaps {
+        power,
+        r1,
+        mean_frequency,
+        velocity,
+        lateral_weight,
+    })
 }
 
 /// Velocity scale of the phase of R: V = −scale · arg R, scale = c·f_frame/(4π f_0) (m/s per rad).

@@ -9,7 +9,7 @@ use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::decode;
-use crate::doppler::{self, Autocorrelation};
+use crate::doppler::{self, DopplerGeometry, DopplerMaps};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
@@ -30,6 +30,8 @@ pub struct ProcessParams {
     pub clutter: ClutterParams,
     /// Spatial averaging box (rows, cols) of the autocorrelation; odd sizes.
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scales the Doppler phase (see [`doppler::DopplerEstimator`]).
+    pub doppler_estimator: doppler::DopplerEstimator,
     /// IRLS settings of the PC-UVD estimator.
     pub irls: IrlsParams,
     /// IQ low-pass cut-off (Hz); `None` picks [`iq::default_cutoff`].
@@ -85,6 +87,10 @@ pub struct ProcessOutput {
     pub projections: Array3<f64>,
     /// Per angle, the pixels its plane wave reaches (angles, nz, nx); see [`angle_coverage`].
     pub coverage: Array3<bool>,
+    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx):
+    /// sin θ (Kasai) or measured from the images (Loupas); see
+    /// [`doppler::DopplerMaps::lateral_weight`].
+    pub lateral_weights: Array3<f64>,
     /// Vector field by least squares (UVD); `None` with a single angle.
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
@@ -233,21 +239,50 @@ pub fn analyse(
     let (nz, nx) = params.grid.shape();
     let mut projections = Array3::<f64>::zeros((n, nz, nx));
     let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
+    let geometry = |lateral_weight: f64, axial_weight: f64| DopplerGeometry {
+        sound_speed: c,
+        frame_rate,
+        demodulation_frequency: f0,
+        axial_step: params.grid.axial_step(),
+        axial_weight,
+        lateral_step: params.grid.step(),
+        lateral_weight,
+    };
+    let mut lateral_weights = Array3::<f64>::zeros((n, nz, nx));
     for (k, image) in images.series.iter().enumerate() {
-        let ac = doppler::autocorrelation(image.view(), params.doppler_kernel)?;
+        let maps = doppler::doppler_maps(
+            image.view(),
+            params.doppler_kernel,
+            params.doppler_estimator,
+            &geometry(
+                crate::vector::projection_weights(angles[k]).0,
+                crate::vector::projection_weights(angles[k]).1,
+            ),
+        )?;
         projections
             .index_axis_mut(Axis(0), k)
-            .assign(&doppler::projection_velocity(&ac.r1, c, frame_rate, f0)?);
-        power_per_angle.index_axis_mut(Axis(0), k).assign(&ac.power);
+            .assign(&maps.velocity);
+        lateral_weights
+            .index_axis_mut(Axis(0), k)
+            .assign(&maps.lateral_weight);
+        power_per_angle
+            .index_axis_mut(Axis(0), k)
+            .assign(&maps.power);
     }
     let compound = beamform::compound(&images.series)?;
-    let Autocorrelation { power, r1 } =
-        doppler::autocorrelation(compound.view(), params.doppler_kernel)?;
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
-    // angle sets): rescale its projection to the axial velocity.
+    // angle sets): rescale its velocity to the axial velocity.
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
-    let axial =
-        doppler::projection_velocity(&r1, c, frame_rate, f0)?.mapv(|v| 2.0 * v / (1.0 + mean_cos));
+    let mean_sin = angles.iter().map(|a| a.sin()).sum::<f64>() / n as f64;
+    let DopplerMaps {
+        power, velocity, ..
+    } = doppler::doppler_maps(
+        compound.view(),
+        params.doppler_kernel,
+        params.doppler_estimator,
+        &geometry(mean_sin, 1.0 + mean_cos),
+    )?;
+    let axial = velocity.mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = images
         .coverage
         .clone()
@@ -255,14 +290,16 @@ pub fn analyse(
     vector::drop_unreached(&mut projections, coverage.view());
     let (vector_ls, vector_irls) = if n >= 2 {
         (
-            Some(vector::vector_velocity(
+            Some(vector::vector_velocity_measured(
                 &angles,
                 projections.view(),
+                lateral_weights.view(),
                 &Estimator::LeastSquares,
             )?),
-            Some(vector::vector_velocity(
+            Some(vector::vector_velocity_measured(
                 &angles,
                 projections.view(),
+                lateral_weights.view(),
                 &Estimator::Irls(params.irls),
             )?),
         )
@@ -280,6 +317,7 @@ pub fn analyse(
         power_per_angle,
         projections,
         coverage,
+        lateral_weights,
         vector_ls,
         vector_irls,
         nyquist_velocity: doppler::nyquist_velocity(c, frame_rate, f0),

@@ -75,6 +75,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
             ..ClutterParams::default()
         },
         doppler_kernel: (1, 1),
+        doppler_estimator: Default::default(),
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment: Default::default(),

@@ -15,6 +15,7 @@ use serde::Serialize;
 use super::spiral::{SnrByDepth, alignment_label};
 use super::{Acquire, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
 use crate::decode::EventAlignment;
+use crate::doppler::DopplerEstimator;
 use crate::dynamics::{
     self, DynamicsParams, PoolingSummary, RiMaps, Spectrogram, SpectrogramParams, VelocitySeries,
     VesselPooling, VesselTests,
@@ -24,7 +25,7 @@ use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores};
 use crate::phantom::Phantom;
 use crate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
-use crate::pipeline::{self, ProcessOutput};
+use crate::pipeline::{self, ProcessOutput, ProcessParams};
 use crate::simulate;
 use crate::vector::{Estimator, IrlsParams, VectorField};
 
@@ -54,6 +55,8 @@ pub struct NetworkSettings {
     pub event_alignment: EventAlignment,
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
+    /// Which frequency scales the Doppler phase (whole-recording maps and windows alike).
+    pub doppler_estimator: DopplerEstimator,
 }
 
 impl Default for NetworkSettings {
@@ -66,6 +69,7 @@ impl Default for NetworkSettings {
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
             grid_step_m: 0.05e-3,
+            doppler_estimator: DopplerEstimator::default(),
         }
     }
 }
@@ -100,6 +104,7 @@ impl NetworkSettings {
                 Mode::Coded => Estimator::Irls(IrlsParams::default()),
             },
             pooling,
+            doppler: self.doppler_estimator,
             ..DynamicsParams::rat()
         })
     }
@@ -389,7 +394,10 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         let acquisition = formed.acquisition.clone();
         let images = formed.at_gain(1.0);
         drop(formed);
-        let process = process_params(&grid, &acquisition, (1, 1), settings.event_alignment);
+        let process = ProcessParams {
+            doppler_estimator: settings.doppler_estimator,
+            ..process_params(&grid, &acquisition, (1, 1), settings.event_alignment)
+        };
         let out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
         let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests)?;

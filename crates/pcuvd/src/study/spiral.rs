@@ -13,11 +13,12 @@ use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
 use crate::decode::EventAlignment;
+use crate::doppler::DopplerEstimator;
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, snr_by_depth};
 use crate::phantom::{Phantom, SpiralPhantom, Truth};
-use crate::pipeline::{self, ProcessOutput};
+use crate::pipeline::{self, ProcessOutput, ProcessParams};
 use crate::simulate::{self, NOISE_DEFINITION};
 use crate::vector::VectorField;
 
@@ -54,6 +55,8 @@ pub struct SpiralSettings {
     pub event_alignment: EventAlignment,
     /// Spatial averaging of the autocorrelation (rows, cols) pixels, odd.
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scales the Doppler phase.
+    pub doppler_estimator: DopplerEstimator,
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
 }
@@ -76,6 +79,7 @@ impl Default for SpiralSettings {
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
             doppler_kernel: (1, 1),
+            doppler_estimator: DopplerEstimator::default(),
             grid_step_m: 0.05e-3,
         }
     }
@@ -239,6 +243,8 @@ pub struct SpiralMetrics {
     pub event_alignment: &'static str,
     /// Autocorrelation averaging (rows, cols).
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scaled the Doppler phase.
+    pub doppler_estimator: DopplerEstimator,
     /// Seed.
     pub seed: u64,
     /// Nyquist velocity of each projection (m/s).
@@ -344,12 +350,15 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
 
     // Main study at the requested noise level.
     let clock = Instant::now();
-    let params = process_params(
-        &grid,
-        &formed[0].acquisition,
-        settings.doppler_kernel,
-        settings.event_alignment,
-    );
+    let params = ProcessParams {
+        doppler_estimator: settings.doppler_estimator,
+        ..process_params(
+            &grid,
+            &formed[0].acquisition,
+            settings.doppler_kernel,
+            settings.event_alignment,
+        )
+    };
     let quiet = |_: pipeline::Stage, _: usize, _: usize| {};
     let mut main: Vec<ProcessOutput> = formed
         .iter()
@@ -429,6 +438,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         motion: settings.motion,
         event_alignment: settings.event_alignment.label(),
         doppler_kernel: settings.doppler_kernel,
+        doppler_estimator: settings.doppler_estimator,
         seed: settings.seed,
         nyquist_velocity_m_s: coded.nyquist_velocity,
         vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
