@@ -23,6 +23,10 @@ use crate::probe::Probe;
 #[derive(Debug, Clone)]
 pub struct EchoWaveform {
     fs: f64,
+    /// Peak of the unattenuated waveform before normalisation (the scale of every table).
+    peak: f64,
+    /// Half-span in samples of the fine grid.
+    half_fine: usize,
     taps: usize,
     half: usize,
     table: Vec<f32>,
@@ -50,6 +54,32 @@ impl EchoWaveform {
 
     /// The echo waveform of `probe` for a pulse of `pulse_cycles` cycles, sampled at `fs` (Hz).
     pub fn new(probe: &Probe, pulse_cycles: f64, fs: f64) -> Result<Self> {
+        Self::build(probe, pulse_cycles, fs, 0.0, None)
+    }
+
+    /// The same echo after frequency-dependent attenuation over a path whose attenuation is
+    /// `tilt` (s) per Hz beyond f_c: its spectrum multiplied by exp(−tilt·(|f| − f_c)), so that
+    /// the gain at f_c stays 1 (the simulator applies the attenuation at f_c apart). With linear
+    /// attenuation α (Np/m/Hz) over a round-trip path L, tilt = α·L; a Gaussian echo spectrum of
+    /// amplitude width σ then moves down by α·L·σ². Same time span, taps and scale as `self`, so
+    /// that tables of several paths can be blended.
+    pub fn attenuated(&self, probe: &Probe, pulse_cycles: f64, tilt: f64) -> Result<Self> {
+        if !(tilt.is_finite() && tilt >= 0.0) {
+            return Err(invalid(
+                "attenuation",
+                format!("the spectral tilt must be finite and ≥ 0 s, got {tilt}"),
+            ));
+        }
+        Self::build(probe, pulse_cycles, self.fs, tilt, Some(self))
+    }
+
+    fn build(
+        probe: &Probe,
+        pulse_cycles: f64,
+        fs: f64,
+        tilt: f64,
+        like: Option<&EchoWaveform>,
+    ) -> Result<Self> {
         probe.validate()?;
         require_positive("pulse cycles", pulse_cycles)?;
         require_positive("sampling frequency", fs)?;
@@ -96,8 +126,9 @@ impl EchoWaveform {
             k * fine_rate / n as f64
         };
         for (k, v) in spec.iter_mut().enumerate() {
-            let d = (freq(k).abs() - fc) / sigma_f;
-            *v *= (-0.5 * d * d).exp() / n as f64;
+            let f = freq(k).abs();
+            let d = (f - fc) / sigma_f;
+            *v *= (-0.5 * d * d - tilt * (f - fc)).exp() / n as f64;
         }
         // Analytic signal for the envelope: keep positive frequencies, doubled.
         let mut analytic: Vec<Complex64> = spec
@@ -114,7 +145,11 @@ impl EchoWaveform {
         inverse.process(&mut spec);
         inverse.process(&mut analytic);
         let mut fine: Vec<f64> = spec.iter().map(|v| v.re).collect();
-        let peak = fine.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // A blended table keeps the unattenuated echo's scale, span and taps.
+        let peak = like.map_or_else(
+            || fine.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+            |w| w.peak,
+        );
         if !(peak > 0.0 && peak.is_finite()) {
             return Err(invalid(
                 "pulse",
@@ -133,7 +168,7 @@ impl EchoWaveform {
             .iter()
             .rposition(|v| v.abs() > TRUNCATION)
             .unwrap_or(n - 1);
-        let half_fine = (origin - lo).max(hi - origin);
+        let half_fine = like.map_or((origin - lo).max(hi - origin), |w| w.half_fine);
         let half_duration = half_fine as f64 / fine_rate;
         // Row p covers (j − half − p/P) samples for j < taps: [−half, taps − half − 1] ⊇ [−H, H + 1].
         let half = half_fine.div_ceil(p);
@@ -197,6 +232,8 @@ impl EchoWaveform {
             .collect();
         Ok(EchoWaveform {
             fs,
+            peak,
+            half_fine,
             taps,
             half,
             table,
