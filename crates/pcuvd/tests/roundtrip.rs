@@ -486,3 +486,84 @@ fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
         kasai_worst * 100.0
     );
 }
+
+/// Per-angle projections (m/s, region means) that the pipeline reads from one noiseless block
+/// translating at 25 mm/s, 20° from +z, at 7 mm, recorded over `frames` frames with `coding`
+/// (8 angles in [−15°, 15°] at 14.4 kHz, the same scatterers for every coding), the coded one
+/// decoded with mid-frame event alignment.
+fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64> {
+    use pcuvd::pipeline;
+    let (depth, speed, direction) = (7e-3, 0.025, 20f64.to_radians());
+    let velocity = [speed * direction.sin(), speed * direction.cos()];
+    let sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
+        event_prf: 14.4e3,
+        coding,
+        pulse_cycles: 2.0,
+    };
+    let mut p = SimParams::new(
+        Probe::l22_14vx(),
+        sequence,
+        65e6,
+        1540.0,
+        (depth - 1.5e-3, depth + 1.5e-3),
+    )
+    .unwrap();
+    p.attenuation_db_cm_mhz = 0.0;
+    let travel = speed * frames as f64 / p.sequence.frame_rate();
+    let block = BlockPhantom::new(
+        BlockSpec {
+            x: (-2.5e-3 - travel, 2.5e-3 + travel),
+            z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
+            velocity,
+            density: 300e6,
+        },
+        seed,
+    )
+    .unwrap();
+    let data = simulate(&block, &p, frames, &|_, _| {}).unwrap();
+    let grid = Grid::new(-0.8e-3, 0.8e-3, depth - 0.4e-3, depth + 0.4e-3, 25e-6).unwrap();
+    let params = pcuvd::study::process_params(
+        &grid,
+        &data.acquisition,
+        (1, 1),
+        pcuvd::decode::EventAlignment::MidFrame,
+    );
+    let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
+    out.projections
+        .outer_iter()
+        .map(|m| m.iter().sum::<f64>() / m.len() as f64)
+        .collect()
+}
+
+/// Decoded projections of a coded recording against the conventional recording of the same
+/// scatterers: the mid-frame alignment interpolates each event's slow-time series over ±12
+/// frames and continues it beyond the recording's ends by linear prediction, so from 12 frames
+/// on every angle's projection is within 1 % of the conventional one. Below that the predictor
+/// is fitted on too few frames to continue the series well (measured in the note below).
+///
+/// Measured (seed 1, worst angle, decoded / conventional − 1): see the assertions' messages.
+#[test]
+fn decoded_projections_match_conventional_from_twelve_frames() {
+    for frames in [6usize, 12, 32] {
+        let coded = block_projections_coded(frames, Coding::Hadamard { slot_delay: 1e-6 }, 1);
+        let conventional = block_projections_coded(frames, Coding::Conventional, 1);
+        let worst = coded
+            .iter()
+            .zip(&conventional)
+            .map(|(a, b)| a / b - 1.0)
+            .fold(0.0f64, |w, e| if e.abs() > w.abs() { e } else { w });
+        eprintln!(
+            "{frames} frames: worst decoded / conventional − 1 = {:+.2} % (conventional {:?} mm/s)",
+            worst * 100.0,
+            conventional.iter().map(|v| (v * 1e4).round() / 10.0).collect::<Vec<_>>()
+        );
+        if frames >= 12 {
+            assert!(
+                worst.abs() < 0.01,
+                "{frames} frames: decoded projections {:.2} % off the conventional ones",
+                worst * 100.0
+            );
+        }
+    }
+}
