@@ -393,9 +393,7 @@ fn block_bytes_per_frame(source: &dyn FrameSource) -> u64 {
 /// recordings aligned at mid-frame.
 pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -> Blocks {
     let frames = source.n_frames();
-    // A multiple of 16 frames: with 8 frames of margin on either side a block decodes 16·k
-    // frames, and the alignment's FFTs (of twice that length) stay fast; a prime length made
-    // decoding five times slower.
+    // A multiple of 16 frames, so that blocks of a long recording are all alike.
     let fit = ((BLOCK_BYTES / block_bytes_per_frame(source).max(1)) as usize / 16).max(1) * 16;
     if fit >= frames {
         return Blocks::whole(frames);

@@ -91,14 +91,12 @@ pub struct Blocks {
 }
 
 impl Blocks {
-    /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording. The
-    /// alignment resamples each event's slow-time series by FFT, so a series cut at a block's
-    /// decoded ends differs from the whole recording's by an error that falls about as 1/distance
-    /// into the block: with 8 frames the images differ by at most 7·10⁻⁴ of their peak, and the
-    /// projections inside a tube by 0.3 µm/s RMS, against the estimator's own 0.8 mm/s
-    /// (`tests/blocks.rs`, 12-frame blocks, noise −20 dB); on the 360-frame coded rat network,
-    /// in 31-frame blocks, the vessels' projections by 0.3 µm/s RMS (largest 9 µm/s).
-    pub const ALIGNMENT_MARGIN: usize = 8;
+    /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording: the
+    /// alignment's reach ([`crate::decode::ALIGN_HALF`]). Each aligned frame is a weighted sum of
+    /// that many frames on either side, so a block's frames come out as the whole recording's;
+    /// only near the recording's own ends, where both continue the series by a predictor fitted
+    /// on the frames they hold, can a short block differ (`tests/blocks.rs`).
+    pub const ALIGNMENT_MARGIN: usize = crate::decode::ALIGN_HALF;
 
     /// The whole recording of `frames` frames as one block: the reference path.
     pub fn whole(frames: usize) -> Blocks {

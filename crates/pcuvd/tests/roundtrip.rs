@@ -538,14 +538,17 @@ fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64>
 
 /// Decoded projections of a coded recording against the conventional recording of the same
 /// scatterers: the mid-frame alignment interpolates each event's slow-time series over ±12
-/// frames and continues it beyond the recording's ends by linear prediction, so from 12 frames
-/// on every angle's projection is within 1 % of the conventional one. Below that the predictor
-/// is fitted on too few frames to continue the series well (measured in the note below).
+/// frames and continues it beyond the recording's ends by linear prediction (an order-4 model,
+/// fewer on short series: order ⌊(frames − 2)/2⌋), so every angle's projection is within 1 % of
+/// the conventional one from 4 frames on. With 3 frames or fewer no predictor can be fitted, the
+/// series is held at its end values, and the projections read low.
 ///
-/// Measured (seed 1, worst angle, decoded / conventional − 1): see the assertions' messages.
+/// Measured (seed 1, worst angle, decoded / conventional − 1): −8.9 %, −0.47 %, −0.42 %, −0.11 %
+/// and +0.02 % at 3, 4, 6, 12 and 32 frames; the FFT over the mirror-extended series used
+/// before read −3.3 % and −1.5 % at 6 and 12 frames.
 #[test]
 fn decoded_projections_match_conventional_from_twelve_frames() {
-    for frames in [6usize, 12, 32] {
+    for frames in [3usize, 4, 6, 12, 32] {
         let coded = block_projections_coded(frames, Coding::Hadamard { slot_delay: 1e-6 }, 1);
         let conventional = block_projections_coded(frames, Coding::Conventional, 1);
         let worst = coded
@@ -556,9 +559,12 @@ fn decoded_projections_match_conventional_from_twelve_frames() {
         eprintln!(
             "{frames} frames: worst decoded / conventional − 1 = {:+.2} % (conventional {:?} mm/s)",
             worst * 100.0,
-            conventional.iter().map(|v| (v * 1e4).round() / 10.0).collect::<Vec<_>>()
+            conventional
+                .iter()
+                .map(|v| (v * 1e4).round() / 10.0)
+                .collect::<Vec<_>>()
         );
-        if frames >= 12 {
+        if frames >= 4 {
             assert!(
                 worst.abs() < 0.01,
                 "{frames} frames: decoded projections {:.2} % off the conventional ones",
