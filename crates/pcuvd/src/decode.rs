@@ -249,8 +249,9 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
 /// fitted by forward–backward least squares on the [`ALIGN_FIT_FRAMES`] frames nearest that end,
 /// pooled over the tile of neighbouring samples aligned together (they share a Doppler
 /// spectrum), predicts the missing frames. A Doppler signal is a few steady tones, which such a
-/// model continues well (the forward–backward fit assumes them steady, as stationary flow is); the earlier mirror extension reversed a steady tone at the ends and
-/// read the first and last frames 60 % off.
+/// model continues well (the forward–backward fit assumes them steady, as stationary flow is);
+/// the earlier mirror extension reversed a steady tone at the ends and read the first and last
+/// frames 60 % off.
 struct SlowTimeAligner {
     frames: usize,
     events_per_frame: usize,
