@@ -26,9 +26,14 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "vx_ls": (("z", "x"), "lateral velocity, UVD least squares (m/s)"),
     "vz_ls": (("z", "x"), "axial velocity, UVD least squares (m/s)"),
     "speed_ls": (("z", "x"), "speed, UVD least squares (m/s)"),
+    "alias_counts": (("angle", "z", "x"), "alias count k per angle, PC-UVD (V_θ + 2k·v_N)"),
+    "alias_counts_ls": (("angle", "z", "x"), "alias count k per angle, UVD least squares"),
     "ri": (("z", "x"), "resistivity index (PSV − EDV)/PSV (NaN outside vessels)"),
     "psv": (("z", "x"), "peak systolic speed (m/s)"),
     "edv": (("z", "x"), "end-diastolic speed (m/s)"),
+    "psv_spread": (("z", "x"), "standard deviation of PSV across cardiac cycles (m/s)"),
+    "edv_spread": (("z", "x"), "standard deviation of EDV across cardiac cycles (m/s)"),
+    "ri_spread": (("z", "x"), "standard deviation of RI across cardiac cycles"),
     "vessel_class": (("z", "x"), "0 background, 1 arteriole, 2 venule, 3 undetermined"),
     "flow_up": (("z", "x"), "1 where the mean flow is toward the probe"),
     "speed_series": (("time", "z", "x"), "speed in sliding windows (m/s)"),
@@ -52,8 +57,10 @@ class ProcessResult:
 
     Maps are attributes named as the files `pcuvd process` writes: `bmode_db`, `power_doppler`,
     `color_doppler` (nz, nx); `projections` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
-    `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `ri`, `psv`, `edv`,
-    `vessel_class`, `flow_up` (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
+    `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `alias_counts`,
+    `alias_counts_ls` (angles, nz, nx) int8 with `dealias` on; `ri`, `psv`, `edv`,
+    `psv_spread`, `edv_spread`, `ri_spread` (across cardiac cycles), `vessel_class`, `flow_up`
+    (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
     dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`, `ensemble_vx`,
     `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
     `ensemble_frames=N`; `x` (nx) and `z` (nz) in m.
@@ -147,7 +154,8 @@ def process(
     recording: a `Recording` or a path (read with `read_recording`). options: the CLI's options
     with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
-    `dynamics="off"`, `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
+    `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity),
+    `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
     for a bad option or recording, before any work where the CLI would.

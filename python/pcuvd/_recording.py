@@ -71,13 +71,34 @@ class Recording:
 
     @property
     def coding(self) -> str:
-        """"none" (one angle per event) or "hadamard" (every event fires every angle)."""
+        """"none" (one angle per event), "hadamard" (every event fires every angle) or "matrix"
+        (an explicit code from a version 2 manifest: see `code_matrix` and `slot_starts_s`)."""
         return self._acquisition["coding"]
 
     @property
     def slot_delay_s(self) -> float | None:
-        """Delay between successive Hadamard pulse slots (s); None when not coded."""
+        """Delay between successive Hadamard pulse slots (s); None when not coded or uneven."""
         return self._acquisition["slot_delay_s"]
+
+    @property
+    def code_matrix(self) -> np.ndarray:
+        """The transmit code, shape (events per frame, angles): entry (i, k) is the weight (±1,
+        or 0 when silent) of angle k in event i of a compound frame; the identity when not coded."""
+        return np.array(self._acquisition["code_matrix"], dtype=float)
+
+    @property
+    def slot_starts_s(self) -> np.ndarray:
+        """When each angle's slot fires within its event (s), shape (angles,)."""
+        return np.array(self._acquisition["slot_starts_s"], dtype=float)
+
+    @property
+    def transmit_pulse(self) -> tuple[np.ndarray, float] | None:
+        """The transmit pulse as sampled (samples, sampling frequency in Hz), or None when only
+        `pulse_cycles` is known. The simulator sends it through the probe's response."""
+        pulse = self._acquisition["transmit_pulse"]
+        if pulse is None:
+            return None
+        return np.array(pulse["samples"], dtype=float), float(pulse["sampling_freq_hz"])
 
     @property
     def pulse_cycles(self) -> float:
@@ -129,6 +150,27 @@ class Recording:
     def format(self) -> str:
         """The format it was read from, or what made it."""
         return self._acquisition["format"]
+
+    @property
+    def reader(self) -> str:
+        """The reader that read it (or what made it)."""
+        return self._acquisition["reader"]
+
+    @property
+    def parameters(self) -> dict:
+        """Every acquisition parameter the reader resolved, by name (SI unit in the name):
+        {"value": ..., "source": {"kind": "file" | "derived" | "default" | "override", ...}},
+        e.g. parameters["t0_s"]["source"] == {"kind": "file", "field": "param.t0"}. Empty for
+        arrays and simulations."""
+        return {
+            p["name"]: {"value": p["value"], "source": p["source"]}
+            for p in self._acquisition.get("parameters", [])
+        }
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the reader wants you to know (a default taken, a field not applied)."""
+        return list(self._acquisition.get("warnings", []))
 
     @property
     def samples(self) -> np.ndarray:
@@ -204,12 +246,15 @@ class Recording:
 
 
 def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
-    """Reads a recording in any format `pcuvd process` reads (see the README's "What goes in").
+    """Reads a recording in any format `pcuvd process` reads (see the README's "What goes in"),
+    recognised from its content, with the same reader as the command.
 
-    overrides: acquisition fields to set after reading, in SI units: sampling_freq_hz,
-    sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding ("none",
-    "hadamard"), slot_delay_s, pulse_cycles. Raises OSError when the file cannot be opened,
-    ValueError when its content or an override is unusable (the message the CLI prints).
+    overrides: acquisition fields that replace (or fill in) what the file says, in SI units:
+    sampling_freq_hz, sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding
+    ("none", "hadamard"), slot_delay_s, pulse_cycles; `parameters` then names them as given by
+    the user (a MUST file without param.t0 reads with t0_s=...). Raises OSError when the file
+    cannot be opened, ValueError when its content or an override is unusable (the message the
+    CLI prints).
     """
     for key, value in overrides.items():
         if isinstance(value, np.ndarray):

@@ -59,7 +59,7 @@ def test_bad_process_options(disk, kwargs, error, match):
 
 
 def test_files_that_cannot_be_recordings(tmp_path):
-    with pytest.raises(OSError, match="no-such.mat"):
+    with pytest.raises(FileNotFoundError, match="no-such.mat"):
         pcuvd.read_recording(tmp_path / "no-such.mat")
     (tmp_path / "folder.mat").mkdir()
     with pytest.raises(OSError, match="folder.mat"):

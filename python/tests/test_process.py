@@ -37,11 +37,25 @@ def tube(tmp_path_factory, cli) -> Path:
     return folder / "coded.toml"
 
 
-@pytest.mark.parametrize("which", ["disk", "tube"])
+@pytest.mark.parametrize("which", ["disk", "tube", "tube in segments"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
-    source = {"disk": disk, "tube": tube}[which]
-    tube_options = ["--grid=-3,3,4,10,0.1", "--dynamics=off", "--ensemble-frames=4", "--ensemble-step=3"]
+    source = disk if which == "disk" else tube
+    tube_options = [
+        "--grid=-3,3,4,10,0.1",
+        "--dynamics=off",
+        "--ensemble-frames=4",
+        "--ensemble-step=3",
+        "--dealias=auto",
+    ]
     options = tube_options if which == "tube" else []
+    if which == "tube in segments":
+        # Segments of 8 frames: 6-frame cores, each imaged with the 2 frames its ensembles reach.
+        options = tube_options[:2] + [
+            "--ensemble-frames=4",
+            "--ensemble-step=2",
+            "--segment-frames=8",
+            "--dealias=auto",
+        ]
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
     assert done.returncode == 0, done.stderr
@@ -51,8 +65,11 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         "dynamics": "off",
         "ensemble_frames": 4,
         "ensemble_step": 3,
+        "dealias": "auto",
     }
     kwargs = tube_kwargs if which == "tube" else {}
+    if which == "tube in segments":
+        kwargs = {**tube_kwargs, "ensemble_step": 2, "segment_frames": 8}
     result = pcuvd.process(source, quiet=True, **kwargs)
     by_python = tmp_path / "python"
     figures = result.save(by_python)
@@ -64,9 +81,15 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     )
     if which == "tube":
         assert {"vx", "vz", "speed", "vx_ls", "vz_ls", "speed_ls"} <= set(cli_arrays)
+        assert cli_arrays["alias_counts"].shape == (8, *cli_arrays["vx"].shape)
         # A Doppler time series of 3 ensembles (frames 0–3, 3–6, 6–9 of 10).
         assert cli_arrays["ensemble_vx"].shape == (3, *cli_arrays["vx"].shape)
         assert list(cli_arrays["ensemble_times"] * 1800) == [1.5, 4.5, 7.5]
+    if which == "tube in segments":
+        # Ensembles every 2 frames (0–3, 2–5, 4–7, 6–9) from the cores 0–5 and 6–9.
+        assert cli_arrays["ensemble_vx"].shape == (4, *cli_arrays["vx"].shape)
+        segments = json.loads((by_cli / "summary.json").read_text())["segments"]
+        assert segments["own_frames"] == [[0, 6], [6, 10]]
     for name in cli_arrays:
         assert_same_array(py_arrays[name], cli_arrays[name], name)
         # The in-memory maps are the saved ones.
@@ -113,6 +136,26 @@ def test_overrides_change_the_acquisition(disk):
     assert recording.sound_speed_m_s == 1480.0 and recording.t0_s == 0.0
     with pytest.raises(ValueError, match="unknown acquisition field"):
         pcuvd.read_recording(disk, speed_of_sound=1480.0)
+
+
+def test_parameters_say_where_they_came_from(disk):
+    recording = pcuvd.read_recording(disk)
+    assert recording.parameters["t0_s"]["source"] == {"kind": "file", "field": "param.t0"}
+    assert recording.parameters["pulse_cycles"]["source"]["kind"] == "default"
+    given = pcuvd.read_recording(disk, t0_s=1e-6)
+    assert given.t0_s == 1e-6
+    assert given.parameters["t0_s"] == {"value": 1e-6, "source": {"kind": "override"}}
+
+
+def test_every_format_reads_through_the_same_reader(disk):
+    # The disk written by pyuff-ustb (its first 8 transmits): the .mat's samples, read by the
+    # reader `pcuvd process` uses.
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    uff = pcuvd.read_recording(fixtures / "disk.uff")
+    assert uff.format == "USTB UFF channel data (HDF5)"
+    assert uff.parameters["event_prf_hz"]["source"] == {"kind": "file", "field": "channel_data/PRF"}
+    mat = pcuvd.read_recording(disk)
+    np.testing.assert_array_equal(uff.samples, mat.samples[:8])
 
 
 def test_from_arrays_equals_the_file(disk):

@@ -4,16 +4,19 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use pcuvd::{Coding, Samples};
+use pcuvd::Coding;
 use serde_json::json;
 
-use crate::process::read_input;
+use crate::process::{AcquisitionOverrides, open_input};
 
 /// Arguments of `pcuvd info`.
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// Recording: a MUST-style MATLAB v5 file (.mat) or a pcuvd recording manifest (.toml).
+    /// Recording: MUST .mat (v5 or v7.3) or .npz, USTB .uff, zea .hdf5, a Verasonics workspace
+    /// .mat, or a pcuvd recording manifest .toml; recognised from its content.
     pub input: PathBuf,
+    #[command(flatten)]
+    pub acquisition: AcquisitionOverrides,
     /// Print JSON (for programs) instead of text.
     #[arg(long)]
     pub json: bool,
@@ -25,34 +28,39 @@ const LOW_NYQUIST_M_S: f64 = 20e-3;
 
 /// Runs `pcuvd info`.
 pub fn run(args: &InfoArgs) -> Result<()> {
-    let (data, files) = read_input(&args.input)?;
-    let acq = &data.acquisition;
+    let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
+    let source = opened.source.as_ref();
+    let info = &opened.info;
+    let files = &info.files;
+    let acq = source.acquisition();
     let (probe, seq) = (&acq.probe, &acq.sequence);
-    let (events, channels, samples) = data.samples.dim();
-    let (kind, bytes_per_sample, demod) = match &data.samples {
-        Samples::Rf(_) => ("RF (real)", 4usize, None),
-        Samples::Iq {
-            demod_frequency, ..
-        } => ("IQ (complex)", 8usize, Some(*demod_frequency)),
-    };
-    let frames = data.n_frames();
+    let frames = source.n_frames();
     let n_angles = seq.n_angles();
-    let depth = pcuvd::pipeline::recorded_depth(&data);
-    let grid = pcuvd::pipeline::default_grid(&data).ok();
+    let events = frames * n_angles;
+    let (channels, samples) = source.trace_shape();
+    let iq = info.stored.as_ref().is_some_and(|s| s.kind == "iq");
+    let demod = info
+        .parameters
+        .iter()
+        .find(|p| p.name == "demod_frequency_hz")
+        .and_then(|p| p.value.as_f64());
+    let (kind, bytes_per_sample) = if iq {
+        ("IQ (complex)", 8usize)
+    } else {
+        ("RF (real)", 4usize)
+    };
+    let depth = pcuvd::pipeline::recorded_depth_of(acq, samples);
+    let grid = pcuvd::pipeline::default_grid_for(acq, samples).ok();
     let (nz, nx) = grid.as_ref().map_or((0, 0), |g| g.shape());
     let input_bytes = events * channels * samples * bytes_per_sample;
     let memory_bytes = grid.as_ref().map_or(0, |g| {
-        usize::try_from(pcuvd::pipeline::memory_estimate(&data, g)).unwrap_or(usize::MAX)
+        usize::try_from(pcuvd::pipeline::memory_estimate(source, g)).unwrap_or(usize::MAX)
     });
-    let f_max = probe.center_frequency * (1.0 + probe.bandwidth / 2.0);
-    let mut warnings = Vec::new();
-    if demod.is_none() && acq.sampling_frequency < 2.0 * f_max {
-        warnings.push(format!(
-            "f_s {:.2} MHz is below 2 × {:.2} MHz (twice the band's top): the RF is band-pass \
-             sampled; pcuvd demodulates it as such, but check that the band does not fold onto itself",
-            acq.sampling_frequency * 1e-6,
-            f_max * 1e-6
-        ));
+    let mut warnings = info.warnings.clone();
+    if demod.is_none()
+        && let Some(warning) = crate::process::band_pass_warning(acq)
+    {
+        warnings.push(warning);
     }
     if acq.nyquist_velocity() < LOW_NYQUIST_M_S {
         warnings.push(format!(
@@ -64,15 +72,14 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
-    let coding = match seq.coding {
-        Coding::Conventional => json!({ "kind": "none" }),
-        Coding::Hadamard { slot_delay } => {
-            json!({ "kind": "hadamard", "order": n_angles, "slot_delay_s": slot_delay })
-        }
-    };
+    let coding = crate::process::coding_json(seq);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "format": info.format,
+        "reader": info.reader,
+        "stored_samples": info.stored,
+        "parameters": info.parameters,
         "samples": {
             "kind": kind,
             "shape_events_channels_samples": [events, channels, samples],
@@ -90,6 +97,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "t0_s": acq.t0,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding,
+            "pulse_cycles": seq.pulse_cycles,
+            "transmit_pulse": crate::process::pulse_json(seq),
             "event_prf_hz": seq.event_prf,
             "frames": frames,
             "frame_rate_hz": acq.frame_rate(),
@@ -116,8 +125,19 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         }
     };
     println!("{}", args.input.display());
+    println!("  format       {}", info.format);
+    println!("  reader       {}", info.reader);
+    if let Some(st) = &info.stored {
+        println!(
+            "  stored       {} {:?} ({}) in {}",
+            st.dtype,
+            st.shape,
+            st.axes.join(", "),
+            st.array
+        );
+    }
     println!(
-        "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} in memory){}",
+        "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} as float){}",
         size(input_bytes),
         demod.map_or(String::new(), |f| format!(
             ", demodulated at {:.3} MHz",
@@ -146,11 +166,27 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     println!("  angles (°)   {}", angles.join(", "));
     println!(
         "  coding       {}",
-        match seq.coding {
+        match &seq.coding {
             Coding::Conventional => "none (one angle per event)".to_string(),
             Coding::Hadamard { slot_delay } => format!(
                 "Hadamard order {n_angles}, slot delay {:.3} µs",
                 slot_delay * 1e6
+            ),
+            Coding::Matrix(code) => format!(
+                "explicit code matrix of order {n_angles}{} (decoded records are {:.0} × each \
+                 angle's; condition number {:.3}), slot starts {} µs",
+                if code.is_coded() {
+                    ""
+                } else {
+                    " (one slot per event)"
+                },
+                code.decoding_gain(),
+                code.condition_number(),
+                code.slot_starts
+                    .iter()
+                    .map(|t| format!("{:.3}", t * 1e6))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         }
     );
@@ -169,6 +205,10 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         "  processing   default grid {nz} × {nx} pixels; about {} of memory",
         size(memory_bytes)
     );
+    println!("  parameters   (value: where it came from)");
+    for p in &info.parameters {
+        println!("    {:<24} {}: {}", p.name, p.value, p.source);
+    }
     for w in &warnings {
         println!("  warning: {w}");
     }

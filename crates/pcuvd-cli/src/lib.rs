@@ -1,6 +1,7 @@
 //! The `pcuvd` command as a library: every subcommand's options, checks, computation and outputs,
 //! so that other front ends (the Python package) run exactly what the command runs.
 
+pub mod dealias_study;
 pub mod figures;
 pub mod info;
 pub mod network_study;
@@ -34,7 +35,7 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
     Info(info::InfoArgs),
-    /// Reproduce the PC-UVD paper's spiral-flow study: simulate, process, compare with truth; figures, metrics.json, report.html.
+    /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),
 }
 
@@ -63,17 +64,26 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("error: {}", one_line(&error));
-            ExitCode::FAILURE
+            ExitCode::from(ERROR_EXIT_CODE)
         }
     }
 }
 
-/// The cause chain on one line, without the captured backtrace, skipping a cause whose text an
-/// outer message already quotes.
+/// Exit code of a command refused or failed for its input (the file, a field, an option), as for
+/// a usage error: 2. (0: success; 130: interrupted.)
+pub const ERROR_EXIT_CODE: u8 = 2;
+
+/// The cause chain on one line (line breaks inside a cause become spaces), without the captured
+/// backtrace, skipping a cause whose text an outer message already quotes.
 pub fn one_line(error: &anyhow::Error) -> String {
     let mut line = String::new();
     for cause in error.chain() {
-        let text = cause.to_string();
+        // One line, whatever a cause's own message holds.
+        let text = cause
+            .to_string()
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ");
         if !line.contains(&text) {
             if !line.is_empty() {
                 line.push_str(": ");

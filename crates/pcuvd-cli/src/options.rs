@@ -53,6 +53,15 @@ pub struct ProcessingOptions {
     /// simultaneous). Conventional recordings are not affected.
     #[arg(long, value_enum, default_value_t = Alignment::from(pcuvd::decode::EventAlignment::default()))]
     pub event_alignment: Alignment,
+    /// Vector dealiasing: "off", "auto" or K. A projection beyond the Nyquist velocity v_N wraps
+    /// by 2·v_N; K unwraps up to ±K such intervals per angle (speeds up to (2K + 1)·v_N), choosing
+    /// each pixel's alias pattern by the smallest residual of the vector fit and the common shift
+    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor). "auto"
+    /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies
+    /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
+    /// decode flow above v_N wrongly (see the README), so it helps conventional recordings most.
+    #[arg(long, default_value = "off")]
+    pub dealias: String,
     /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter
     /// filter and its own power, colour and vector maps (ensemble_*.npy, ensembles.png). Default:
     /// none (the whole recording is one ensemble, as the other maps are).
@@ -61,9 +70,20 @@ pub struct ProcessingOptions {
     /// Frames from one ensemble's start to the next's (default: --ensemble-frames, no overlap).
     #[arg(long, requires = "ensemble_frames")]
     pub ensemble_step: Option<usize>,
+    /// Long recordings: compound frames per segment, each imaged, clutter-filtered and analysed
+    /// on its own so that memory stays bounded (default: as many as fit in 1.5 GiB of image
+    /// series; the whole recording in one when it fits, which gives the exact whole-recording
+    /// maps).
+    #[arg(long)]
+    pub segment_frames: Option<usize>,
 }
 
 impl ProcessingOptions {
+    /// The dealiasing of `--dealias`.
+    pub fn dealias(&self) -> Result<pcuvd::dealias::Dealias> {
+        pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")
+    }
+
     /// The ensembles of `--ensemble-frames` / `--ensemble-step`, checked against a recording of
     /// `frames` frames; `None` when no time series was asked for.
     pub fn ensembles(&self, frames: usize) -> Result<Option<pcuvd::ensembles::EnsembleSpec>> {
@@ -167,6 +187,28 @@ pub fn parse_grid(text: &str) -> Result<Grid> {
         .with_context(|| format!("--grid {text:?}"))
 }
 
+/// The text the user gave for option `flag` (e.g. "--window-ms") on this process's command line,
+/// as written (`--flag VALUE` or `--flag=VALUE`, the last one given); `None` when it is not there
+/// (a default, or a front end such as Python that passes its own arguments).
+pub fn as_written(flag: &str) -> Option<String> {
+    let args: Vec<String> = std::env::args().collect();
+    let mut found = None;
+    for (i, arg) in args.iter().enumerate() {
+        if arg == flag {
+            found = args.get(i + 1).cloned();
+        } else if let Some(value) = arg.strip_prefix(flag).and_then(|r| r.strip_prefix('=')) {
+            found = Some(value.to_string());
+        }
+    }
+    found
+}
+
+/// Option `flag`'s value for a message: as the user wrote it on the command line, else `value`
+/// in its shortest exact form (1e-300, not three hundred zeros).
+pub fn shown(flag: &str, value: f64) -> String {
+    as_written(flag).unwrap_or_else(|| format!("{value:?}"))
+}
+
 /// Parses a comma-separated list of finite numbers.
 pub fn parse_numbers(text: &str) -> Result<Vec<f64>> {
     let values: Vec<f64> = text
@@ -189,6 +231,14 @@ pub fn parse_db_or_off(text: &str) -> Result<Option<f64>> {
         _ => bail!("{text:?}: give a number of dB or \"off\""),
     }
 }
+
+/// Most frames a sliding window may span: 10⁹ (a day at 10 kHz); more is a unit mistake, and a
+/// frame count that does not fit a machine word would wrap.
+const MAX_WINDOW_FRAMES: f64 = 1e9;
+
+/// Range of receive f-numbers accepted: below 0.1 the aperture would be ten times the depth, above
+/// 100 a single element; outside it the value is a mistake.
+const F_NUMBER_RANGE: (f64, f64) = (0.1, 100.0);
 
 /// Default sliding-window length of `--window-ms` (ms).
 const DEFAULT_WINDOW_MS: f64 = dynamics::DEFAULT_WINDOW_S * 1e3;
@@ -232,9 +282,14 @@ pub struct DynamicsOptions {
     /// holds a cardiac cycle), "on" (required) or "off".
     #[arg(long, value_enum, default_value = "auto")]
     pub dynamics: DynamicsChoice,
-    /// Heart rate (Hz); default: measured from the data, which needs about 1.5 cycles or more.
+    /// Heart rate (Hz); default: measured from the data — from its systolic upstrokes where two
+    /// are recorded (about one cycle or more), else from its autocorrelation (about 1.5 cycles).
     #[arg(long, visible_alias = "heart-rate-hz")]
     pub heart_rate: Option<f64>,
+    /// Cardiac cycle start times (s from the recording's first frame: ECG R-waves or scanner
+    /// triggers), a 1-D .npy file or a text file of numbers: each cycle runs from one to the next.
+    #[arg(long)]
+    pub cardiac_triggers: Option<std::path::PathBuf>,
     /// Sliding-window length (ms); default 20 ms (36 frames at the rat's 1.8 kHz).
     #[arg(long)]
     pub window_ms: Option<f64>,
@@ -290,8 +345,20 @@ impl DynamicsOptions {
     pub fn explicit(&self) -> bool {
         self.dynamics == DynamicsChoice::On
             || self.heart_rate.is_some()
+            || self.cardiac_triggers.is_some()
             || self.window_ms.is_some()
             || self.window_step_ms.is_some()
+    }
+
+    /// The cycle start times of `--cardiac-triggers` (s), read and checked; `None` without it.
+    pub fn triggers(&self) -> Result<Option<Vec<f64>>> {
+        if self.heart_rate.is_some() && self.cardiac_triggers.is_some() {
+            bail!("--heart-rate and --cardiac-triggers: give one (triggers delimit the cycles)");
+        }
+        self.cardiac_triggers
+            .as_deref()
+            .map(|path| pcuvd_io::read_trigger_times(path).context("--cardiac-triggers"))
+            .transpose()
     }
 
     /// The whole-recording vessel tests of `--vessel-margin-db`, `--vessel-local-db` and
@@ -316,27 +383,40 @@ impl DynamicsOptions {
     }
 
     /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
-    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls`, the averaging kernel of
+    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls` and `dealias`, the averaging kernel of
     /// `--dynamics-kernel`, vessel pooling converted from mm to pixels of `grid_step_m` (m).
     pub fn params(
         &self,
         frame_rate: f64,
         irls: IrlsParams,
+        dealias: pcuvd::dealias::Dealias,
         grid_step_m: f64,
     ) -> Result<DynamicsParams> {
         let kernel = parse_kernel(&self.dynamics_kernel)
             .map_err(|e| anyhow::anyhow!("{e}").context("--dynamics-kernel"))?;
         let frames = |ms: f64, option: &str| -> Result<usize> {
+            let flag = format!("--{option}");
             if !(ms.is_finite() && ms > 0.0) {
-                bail!("--{option} {ms}: must be a positive number of ms");
+                bail!(
+                    "{flag} {}: must be a positive number of ms",
+                    shown(&flag, ms)
+                );
             }
-            Ok((ms * 1e-3 * frame_rate).round() as usize)
+            let frames = (ms * 1e-3 * frame_rate).round();
+            if frames > MAX_WINDOW_FRAMES {
+                bail!(
+                    "{flag} {}: {frames:.3e} frames at the compound rate {frame_rate:.0} Hz; \
+                     longer than any recording",
+                    shown(&flag, ms)
+                );
+            }
+            Ok(frames as usize)
         };
         let window = frames(self.window_ms.unwrap_or(DEFAULT_WINDOW_MS), "window-ms")?;
         if window < 2 {
             bail!(
                 "--window-ms {}: {window} frame(s) at the compound rate {frame_rate:.0} Hz; a window needs at least 2",
-                self.window_ms.unwrap_or(DEFAULT_WINDOW_MS)
+                shown("--window-ms", self.window_ms.unwrap_or(DEFAULT_WINDOW_MS))
             );
         }
         let step = frames(
@@ -346,9 +426,13 @@ impl DynamicsOptions {
         )?
         .max(1);
         if let Some(hr) = self.heart_rate
-            && !(hr.is_finite() && hr > 0.0)
+            && !(hr.is_finite() && hr > 0.0 && hr <= frame_rate)
         {
-            bail!("--heart-rate {hr}: must be a positive number of Hz");
+            bail!(
+                "--heart-rate {}: must be a positive number of Hz, at most the compound frame \
+                 rate {frame_rate:.1} Hz",
+                shown("--heart-rate", hr)
+            );
         }
         let pooling = VesselPooling::from_metres(
             self.pool_along_mm * 1e-3,
@@ -362,6 +446,7 @@ impl DynamicsOptions {
             step,
             heart_rate_hz: self.heart_rate,
             estimator: Estimator::Irls(irls),
+            dealias,
             kernel,
             artery_ri_min: self.artery_ri_min,
             vein_ri_max: self.vein_ri_max,
@@ -380,10 +465,30 @@ impl ProcessingOptions {
     /// Stage settings for `data`.
     pub fn params(&self, data: &dyn pcuvd::source::FrameSource) -> Result<ProcessParams> {
         let grid = match &self.grid {
-            Some(text) => parse_grid(text)?,
+            Some(text) => {
+                let grid = parse_grid(text)?;
+                pipeline::check_grid_depth(data.acquisition(), data.trace_shape().1, &grid)
+                    .with_context(|| format!("--grid {text:?}"))?;
+                grid
+            }
             None => pipeline::default_grid_for(data.acquisition(), data.trace_shape().1)?,
         };
         let (rows, cols) = parse_kernel(&self.doppler_kernel)?;
+        let (nz, nx) = grid.shape();
+        if rows % 2 == 0 || cols % 2 == 0 || rows > nz || cols > nx {
+            bail!(
+                "--doppler-kernel {:?}: sizes must be odd and at most the grid's {nz} × {nx} pixels",
+                self.doppler_kernel
+            );
+        }
+        if !(self.f_number >= F_NUMBER_RANGE.0 && self.f_number <= F_NUMBER_RANGE.1) {
+            bail!(
+                "--f-number {}: must be within [{}, {}] (depth / receive aperture width)",
+                shown("--f-number", self.f_number),
+                F_NUMBER_RANGE.0,
+                F_NUMBER_RANGE.1
+            );
+        }
         let irls = IrlsParams {
             lambda_mm_s: self.irls_lambda,
             epsilon: self.irls_epsilon,
@@ -408,6 +513,7 @@ impl ProcessingOptions {
             irls,
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
+            dealias: self.dealias()?,
         })
     }
 }

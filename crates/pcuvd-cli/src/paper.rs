@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use ndarray::{Array2, Zip};
 use pcuvd::masks;
+use pcuvd::study::dealias::{DealiasMetrics, DealiasSettings};
 use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
 use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
 use pcuvd::study::{Motion as StudyMotion, describe_alignment};
@@ -30,7 +31,8 @@ pub struct PaperArgs {
     /// Output folder (created if needed).
     #[arg(long)]
     pub out: std::path::PathBuf,
-    /// Which study to run: all, spiral (Fig. 2–5) or network (in-vivo-like, Fig. 6–8, RI maps).
+    /// Which study to run: all, spiral (Fig. 2–5), network (in-vivo-like, Fig. 6–8, RI maps) or
+    /// dealias (vector dealiasing of a tube at 1–3× the Nyquist velocity).
     #[arg(long, value_enum, default_value = "all")]
     pub part: Part,
     #[command(flatten)]
@@ -86,6 +88,41 @@ pub struct StudyOptions {
     /// holds too few beats to measure it.
     #[arg(long, default_value_t = NetworkSettings::default().heart_rate_hz)]
     pub heart_rate: f64,
+    /// Dealiasing study: the tube's peak speeds as multiples of the projection Nyquist velocity,
+    /// comma-separated.
+    #[arg(long, default_value_t = join(&DealiasSettings::default().multiples))]
+    pub dealias_multiples: String,
+    /// Dealiasing study: noise levels (dB, comma-separated; "off" for none).
+    #[arg(long, default_value_t = default_dealias_noise(), allow_hyphen_values = true)]
+    pub dealias_noise_db: String,
+    /// Dealiasing study: seeds, comma-separated (each speed and seed is one simulation per mode).
+    #[arg(long, default_value_t = join(&DealiasSettings::default().seeds))]
+    pub dealias_seeds: String,
+    /// Dealiasing study: the dealiasing compared with none, "auto" or K (see `process --dealias`).
+    #[arg(long, default_value_t = DealiasSettings::default().dealias.label())]
+    pub dealias: String,
+    /// Dealiasing study: flow direction of the tube, degrees below +x.
+    #[arg(long, default_value_t = DealiasSettings::default().tube_angle_deg)]
+    pub dealias_tube_angle_deg: f64,
+}
+
+/// Values as comma-separated text, as the list options take them.
+fn join<T: ToString>(values: &[T]) -> String {
+    values
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// The library's dealiasing noise levels, as the option's default text ("off" for none).
+fn default_dealias_noise() -> String {
+    let levels: Vec<String> = DealiasSettings::default()
+        .noise_db
+        .iter()
+        .map(|v| v.map_or("off".into(), |db| db.to_string()))
+        .collect();
+    levels.join(",")
 }
 
 /// The library's sweep levels, as the option's default text.
@@ -107,6 +144,8 @@ pub enum Part {
     Spiral,
     /// The in-vivo-like vessel network over a cardiac cycle (Fig. 6–8, RI maps).
     Network,
+    /// Vector dealiasing of a tube at 1–3× the projection Nyquist velocity (beyond the paper).
+    Dealias,
 }
 
 /// When scatterers move ([`pcuvd::study::Motion`]).
@@ -170,6 +209,46 @@ impl StudyOptions {
         Ok(settings)
     }
 
+    /// The dealiasing study's settings, checked (with `--frames`, `--motion`,
+    /// `--event-alignment`, `--doppler-kernel` and `--grid-step` shared with the spiral study).
+    pub fn dealias_settings(&self) -> Result<DealiasSettings> {
+        let multiples = crate::options::parse_numbers(&self.dealias_multiples)
+            .with_context(|| format!("--dealias-multiples {:?}", self.dealias_multiples))?;
+        let noise_db = self
+            .dealias_noise_db
+            .split(',')
+            .map(crate::options::parse_db_or_off)
+            .collect::<Result<Vec<_>>>()
+            .with_context(|| format!("--dealias-noise-db {:?}", self.dealias_noise_db))?;
+        let seeds = self
+            .dealias_seeds
+            .split(',')
+            .map(|t| t.trim().parse::<u64>())
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .with_context(|| {
+                format!(
+                    "--dealias-seeds {:?}: expected comma-separated whole numbers",
+                    self.dealias_seeds
+                )
+            })?;
+        let settings = DealiasSettings {
+            multiples,
+            noise_db,
+            seeds,
+            frames: self.frames,
+            tube_angle_deg: self.dealias_tube_angle_deg,
+            dealias: pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")?,
+            motion: self.motion.into(),
+            event_alignment: self.event_alignment.into(),
+            doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
+            grid_step_m: self.grid_step * 1e-3,
+        };
+        settings.validate().context(
+            "--dealias-multiples / --dealias-noise-db / --dealias-seeds / --dealias / --frames / --doppler-kernel / --grid-step",
+        )?;
+        Ok(settings)
+    }
+
     /// The network study's settings, checked.
     pub fn network_settings(&self) -> Result<NetworkSettings> {
         let settings = NetworkSettings {
@@ -199,17 +278,23 @@ struct PaperMetrics<'a> {
     spiral: Option<&'a SpiralMetrics>,
     #[serde(flatten)]
     network: Option<&'a NetworkMetrics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dealias: Option<&'a DealiasMetrics>,
     total_s: f64,
 }
 
 /// Runs `pcuvd paper`.
 pub fn run(args: &PaperArgs) -> Result<()> {
     // Every setting is checked before the first study starts.
-    let spiral_settings = (args.part != Part::Network)
+    let runs = |part: Part| args.part == Part::All || args.part == part;
+    let spiral_settings = runs(Part::Spiral)
         .then(|| args.study.spiral_settings())
         .transpose()?;
-    let network_settings = (args.part != Part::Spiral)
+    let network_settings = runs(Part::Network)
         .then(|| args.study.network_settings())
+        .transpose()?;
+    let dealias_settings = runs(Part::Dealias)
+        .then(|| args.study.dealias_settings())
         .transpose()?;
     create_dir(&args.out)?;
     remove_other_part(&args.out, args.part)?;
@@ -276,9 +361,25 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         network_figs = crate::network_study::network_figures(&args.out, &study, &progress)?;
         network = Some((study.metrics, study.settings));
     }
+    let mut dealias = None;
+    let mut dealias_figs = Vec::new();
+    if let Some(settings) = &dealias_settings {
+        let study = pcuvd::study::dealias::run(settings, &report_progress)?;
+        for t in &study.metrics.targets {
+            println!(
+                "dealias: {}: {:.4} ({})",
+                t.target,
+                t.measured,
+                if t.holds { "holds" } else { "does not hold" }
+            );
+        }
+        dealias_figs = crate::dealias_study::dealias_figures(&args.out, &study)?;
+        dealias = Some(study.metrics);
+    }
     let metrics = PaperMetrics {
         spiral: spiral_done.as_ref().map(|s| &s.0),
         network: network.as_ref().map(|n| &n.0),
+        dealias: dealias.as_ref(),
         total_s: started.elapsed().as_secs_f64(),
     };
     // Through a JSON value, whose keys are sorted: the file reads the same whatever the struct order.
@@ -293,10 +394,11 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         network
             .as_ref()
             .map(|(m, s)| (m, s, network_figs.as_slice())),
+        dealias.as_ref().map(|m| (m, dealias_figs.as_slice())),
     )?;
     println!(
         "wrote metrics.json, report.html and {} figures to {} ({:.0} s)",
-        spiral_figs.len() + network_figs.len(),
+        spiral_figs.len() + network_figs.len() + dealias_figs.len(),
         args.out.display(),
         started.elapsed().as_secs_f64()
     );
@@ -314,12 +416,13 @@ pub const SPIRAL_FIGURES: [&str; 5] = [
 /// The subfolders where the spiral part draws each mode's maps ([`figures::PROCESS_FIGURES`]).
 const MODE_FOLDERS: [&str; 2] = ["conventional", "coded"];
 
-/// Removes the figures that the part not run now wrote into `dir` in an earlier run, so that the
+/// Removes the figures that the parts not run now wrote into `dir` in an earlier run, so that the
 /// folder holds no figure that its report.html leaves out. Only files of pcuvd's own naming go;
 /// a mode subfolder goes only when nothing else is left in it.
 fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
     let mut stale: Vec<std::path::PathBuf> = Vec::new();
-    if part == Part::Network {
+    let spiral_off = !matches!(part, Part::All | Part::Spiral);
+    if spiral_off {
         stale.extend(SPIRAL_FIGURES.iter().map(|f| dir.join(f)));
         for folder in MODE_FOLDERS {
             stale.extend(
@@ -329,9 +432,16 @@ fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
             );
         }
     }
-    if part == Part::Spiral {
+    if !matches!(part, Part::All | Part::Network) {
         stale.extend(
             crate::network_study::NETWORK_FIGURES
+                .iter()
+                .map(|f| dir.join(f)),
+        );
+    }
+    if !matches!(part, Part::All | Part::Dealias) {
+        stale.extend(
+            crate::dealias_study::DEALIAS_FIGURES
                 .iter()
                 .map(|f| dir.join(f)),
         );
@@ -347,7 +457,7 @@ fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
             }
         }
     }
-    if part == Part::Network {
+    if spiral_off {
         for folder in MODE_FOLDERS {
             // Fails, and is meant to, where the folder holds anything else.
             let _ = std::fs::remove_dir(dir.join(folder));
@@ -684,6 +794,7 @@ fn write_report(
     metrics: &serde_json::Value,
     spiral: Option<(&SpiralMetrics, &SpiralSettings, &[Rendered])>,
     network: Option<(&NetworkMetrics, &NetworkSettings, &[Rendered])>,
+    dealias: Option<(&DealiasMetrics, &[Rendered])>,
 ) -> Result<()> {
     let mut report =
         Report::new("pcuvd: pulse-coded ultrafast vector Doppler, the paper's studies");
@@ -692,6 +803,9 @@ fn write_report(
     }
     if let Some((metrics, settings, figs)) = network {
         crate::network_study::report_section(&mut report, metrics, settings, figs);
+    }
+    if let Some((metrics, figs)) = dealias {
+        crate::dealias_study::report_section(&mut report, metrics, figs);
     }
     report.heading("Every number and parameter (metrics.json)");
     report.preformatted(&serde_json::to_string_pretty(metrics).unwrap_or_default());

@@ -8,6 +8,7 @@ use ndarray::Array1;
 use pcuvd::ChannelData;
 use pcuvd::dynamics::{self, DynamicsParams, PoolingSummary, RiMaps, VelocitySeries, VesselTests};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
+use pcuvd::segments::Segments;
 use pcuvd::source::FrameSource;
 use serde_json::json;
 
@@ -19,7 +20,8 @@ use crate::progress::PipelineProgress;
 /// Arguments of `pcuvd process`.
 #[derive(Args, Debug)]
 pub struct ProcessArgs {
-    /// Recording: a MUST-style MATLAB v5 file (.mat, variables RF and param) or a pcuvd recording manifest (.toml).
+    /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
+    /// a Verasonics workspace .mat, or a pcuvd recording manifest .toml); recognised by content.
     pub input: PathBuf,
     /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]
@@ -33,49 +35,118 @@ pub struct ProcessArgs {
     #[arg(long)]
     pub max_memory_gb: Option<f64>,
     #[command(flatten)]
+    pub acquisition: AcquisitionOverrides,
+    #[command(flatten)]
     pub options: ProcessingOptions,
     #[command(flatten)]
     pub dynamics: DynamicsOptions,
 }
 
-/// Reads a recording by its extension: `.mat` (MUST style) or `.toml` (pcuvd manifest). Returns
-/// the data and every file it was read from (the manifest and its samples).
-pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let (data, files) = match ext.as_str() {
-        "mat" => (pcuvd_io::read_must_mat(path)?, vec![path.to_path_buf()]),
-        "toml" => {
-            let recording = pcuvd_io::read_recording(path)?;
-            (
-                recording.data,
-                vec![path.to_path_buf(), recording.data_path],
-            )
-        }
-        _ => bail!(
-            "{}: unknown recording type: expected a MUST-style .mat file or a pcuvd manifest .toml",
-            path.display()
-        ),
-    };
-    Ok((data, files))
+/// Acquisition values that replace (or fill in) what the recording says, SI units; each is
+/// recorded as given by the user in `pcuvd info` and summary.json.
+#[derive(Args, Debug, Clone, Default)]
+pub struct AcquisitionOverrides {
+    /// Time of the first sample after the first element fires (s), e.g. --t0-s 9.95e-6.
+    #[arg(long, allow_hyphen_values = true)]
+    pub t0_s: Option<f64>,
+    /// Speed of sound (m/s).
+    #[arg(long)]
+    pub sound_speed_m_s: Option<f64>,
+    /// Transmit-event repetition frequency (Hz).
+    #[arg(long)]
+    pub event_prf_hz: Option<f64>,
+    /// Sampling frequency of the traces (Hz).
+    #[arg(long)]
+    pub sampling_freq_hz: Option<f64>,
+    /// Probe centre frequency (Hz).
+    #[arg(long)]
+    pub center_freq_hz: Option<f64>,
+    /// Demodulation frequency of IQ samples (Hz).
+    #[arg(long)]
+    pub demod_freq_hz: Option<f64>,
 }
 
-/// Opens a recording for `process`: a pcuvd manifest whose samples are stored in event order is
-/// read from its file a block of frames at a time (never whole in memory); anything else is read
-/// whole ([`read_input`]). Returns the source and every file it reads.
-pub fn open_input(path: &Path) -> Result<(Box<dyn FrameSource>, Vec<PathBuf>)> {
-    let manifest = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    if manifest && let Some(frames) = pcuvd_io::ManifestFrames::open(path)? {
-        let files = vec![path.to_path_buf(), frames.data_path().to_path_buf()];
-        return Ok((Box::new(frames), files));
+impl AcquisitionOverrides {
+    /// The overrides as the readers take them.
+    pub fn to_overrides(&self) -> pcuvd_io::Overrides {
+        pcuvd_io::Overrides {
+            t0_s: self.t0_s,
+            sound_speed_m_s: self.sound_speed_m_s,
+            event_prf_hz: self.event_prf_hz,
+            sampling_freq_hz: self.sampling_freq_hz,
+            center_freq_hz: self.center_freq_hz,
+            demod_freq_hz: self.demod_freq_hz,
+            ..pcuvd_io::Overrides::default()
+        }
     }
-    let (data, files) = read_input(path)?;
-    Ok((Box::new(data), files))
+}
+
+/// Reads a whole recording, any format (recognised from its content). Returns the data and every
+/// file it was read from (a manifest and its samples, or the one file).
+pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
+    let opened = open_input(path, &pcuvd_io::Overrides::default())?;
+    let data = opened.read_all()?;
+    Ok((data, opened.info.files))
+}
+
+/// Opens a recording for `process` and `info`, any format, with the user's overrides: its frames
+/// are read a block at a time, and its [`pcuvd_io::SourceInfo`] says what was read, by which
+/// reader, and where every acquisition parameter came from.
+pub fn open_input(
+    path: &Path,
+    overrides: &pcuvd_io::Overrides,
+) -> Result<pcuvd_io::OpenedRecording> {
+    let opened = pcuvd_io::open_recording(path, overrides)?;
+    check_recording(path, opened.source.as_ref())?;
+    Ok(opened)
+}
+
+/// The warning for RF that is band-pass sampled (f_s below twice the band's top, the band whole in
+/// one Nyquist zone: valid, and demodulated as such); `None` when f_s is above twice the band's top
+/// or the band folds (an error the readers give).
+pub fn band_pass_warning(acq: &pcuvd::Acquisition) -> Option<String> {
+    match acq.rf_band_sampling() {
+        Ok(pcuvd::BandSampling::BandPass { zone }) => {
+            let probe = &acq.probe;
+            let (low, high) = (
+                probe.center_frequency * (1.0 - probe.bandwidth / 2.0),
+                probe.center_frequency * (1.0 + probe.bandwidth / 2.0),
+            );
+            let half = acq.sampling_frequency / 2.0;
+            Some(format!(
+                "f_s {:.3} MHz is below twice the band's top ({:.3} MHz): the RF is band-pass \
+                 sampled, its band {:.3}–{:.3} MHz lying in Nyquist zone {zone} ({:.3}–{:.3} MHz); \
+                 pcuvd demodulates it as such, but a band wider than the probe's stated bandwidth \
+                 would fold onto itself",
+                acq.sampling_frequency * 1e-6,
+                2.0 * high * 1e-6,
+                low * 1e-6,
+                high * 1e-6,
+                zone as f64 * half * 1e-6,
+                (zone + 1) as f64 * half * 1e-6
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// [`band_pass_warning`] for a recording whose samples are RF (read from its first frame).
+fn rf_band_pass_warning(data: &dyn FrameSource) -> Result<Option<String>> {
+    if data.n_frames() == 0 {
+        return Ok(None);
+    }
+    let first = data.read_frames(0..1)?;
+    Ok(match first.samples {
+        pcuvd::Samples::Rf(_) => band_pass_warning(data.acquisition()),
+        pcuvd::Samples::Iq { .. } => None,
+    })
+}
+
+/// Checks what a recording's acquisition says against its samples' shape before any work (every
+/// pulse slot starts within the record), naming the file.
+fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
+    pipeline::check_record(data.acquisition(), data.trace_shape().1)
+        .with_context(|| path.display().to_string())
 }
 
 /// Creates `dir` (and parents), with a message naming it on failure.
@@ -87,27 +158,22 @@ pub fn create_dir(dir: &Path) -> Result<()> {
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
-    let (source, input_files) = open_input(&args.input)?;
-    let data = source.as_ref();
+    let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
+    let input_files = opened.info.files.clone();
+    let data = opened.source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
-    let plan = Plan::new(&args.options, &args.dynamics, data)?;
-    check_memory(data, &plan.params, args.max_memory_gb)?;
+    let mut plan = Plan::new(&args.options, &args.dynamics, data)?;
+    // Overrides change the results: a re-run with others is not the same run.
+    if !args.acquisition.to_overrides().is_empty() {
+        plan.options_text
+            .push_str(&format!(" {:?}", args.acquisition));
+    }
+    let band_warning = rf_band_pass_warning(data)?;
+    check_memory(data, &plan, args.max_memory_gb)?;
     let clock = std::time::Instant::now();
-    let (format, reader) = match input_files.len() {
-        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
-        _ if data.resident_bytes() == 0 => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::ManifestFrames (a block of frames at a time)",
-        ),
-        _ => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::read_recording",
-        ),
-    };
     let source = provenance(
         &args.input.display().to_string(),
-        &input_files,
-        (format, reader),
+        &opened.info,
         &plan.options_text,
         std::env::args().collect(),
     )?;
@@ -131,6 +197,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    // Said once the run is accepted (not before an error, which stays the only line).
+    if let Some(warning) = band_warning {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
@@ -177,6 +247,8 @@ pub struct Plan {
     pub options_text: String,
     /// The Doppler time series' ensembles, when asked for.
     pub ensembles: Option<pcuvd::ensembles::EnsembleSpec>,
+    /// How a recording too long to hold whole is cut; `None`: processed whole.
+    pub segments: Option<Segments>,
 }
 
 impl Plan {
@@ -197,14 +269,67 @@ impl Plan {
                     ..dynamics.params(
                         data.acquisition().frame_rate(),
                         params.irls,
+                        params.dealias,
                         params.grid.step(),
                     )?
                 },
                 vessel: dynamics.vessel_tests()?,
+                triggers: dynamics.triggers()?,
             })
         };
+        if dynamics.explicit()
+            && let Some(settings) = &dynamics_settings
+        {
+            // Asked for: what the recording cannot give is refused now, not after processing.
+            let acq = data.acquisition();
+            if acq.sequence.n_angles() < 2 {
+                bail!(
+                    "the dynamics stage (asked for by --dynamics on or a dynamics option) needs two \
+                     or more steering angles for vector velocity; the recording has one"
+                );
+            }
+            settings
+                .params
+                .validate(acq.frame_rate())
+                .context("dynamics options")?;
+            let duration = data.n_frames() as f64 / acq.frame_rate();
+            if let Some(hr) = settings.params.heart_rate_hz
+                && 1.0 / hr > duration
+            {
+                bail!(
+                    "--heart-rate {}: a cycle lasts {:.4} s but the recording holds {:.4} s \
+                     ({} frames at {:.1} Hz); RI needs at least one whole cycle",
+                    crate::options::shown("--heart-rate", hr),
+                    1.0 / hr,
+                    duration,
+                    data.n_frames(),
+                    acq.frame_rate()
+                );
+            }
+            if settings.params.window > data.n_frames() {
+                bail!(
+                    "--window-ms: a window of {} frames is longer than the recording's {} frames",
+                    settings.params.window,
+                    data.n_frames()
+                );
+            }
+        }
+        let ensembles = options.ensembles(data.n_frames())?;
+        let (nz, nx) = params.grid.shape();
+        let windows = dynamics_settings
+            .as_ref()
+            .map(|d| &d.params)
+            .filter(|_| data.acquisition().sequence.n_angles() >= 2);
+        // By default as many frames as fit, but never too few for the windows and ensembles.
+        let segment_frames = options.segment_frames.unwrap_or_else(|| {
+            pcuvd::segments::frames_that_fit(nz * nx, data.acquisition().sequence.n_angles())
+                .max(Segments::shortest(windows, ensembles))
+        });
+        let segments = Segments::plan(data.n_frames(), segment_frames, windows, ensembles)
+            .context("--segment-frames")?;
         Ok(Plan {
-            ensembles: options.ensembles(data.n_frames())?,
+            ensembles,
+            segments,
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
@@ -241,6 +366,18 @@ pub struct Processed {
     pub ensembles: Option<pcuvd::ensembles::EnsembleMaps>,
     /// The blocks of frames the images were formed in.
     pub blocks: pcuvd::source::Blocks,
+    /// Each segment's core and imaged frames, and its clutter cut-offs per angle, when the
+    /// recording was processed in segments.
+    pub segments: Option<SegmentsDone>,
+}
+
+/// What processing in segments did, for summary.json.
+#[derive(Debug, Clone)]
+pub struct SegmentsDone {
+    /// Each segment's own frames and the frames imaged for it.
+    pub ranges: Vec<(std::ops::Range<usize>, std::ops::Range<usize>)>,
+    /// Each segment's clutter cut-offs (low, high), per angle.
+    pub clutter: Vec<Vec<(usize, usize)>>,
 }
 
 /// Runs the chain and the dynamics stage on `data` as `plan` says. With `--dynamics auto` and no
@@ -254,6 +391,9 @@ pub fn compute(
     // Images are formed a block of frames at a time, so that decoding and IQ need one block's
     // memory; each ensemble of a time series is filtered on its own, from the unfiltered images.
     let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
+    if let Some(segments) = &plan.segments {
+        return compute_in_segments(data, plan, segments, blocks, progress);
+    }
     let (images, mut timings) =
         pipeline::form_images_in_blocks(data, &plan.params, blocks, progress)?;
     let ensembles = match plan.ensembles {
@@ -276,14 +416,104 @@ pub fn compute(
         dynamics_s: clock.elapsed().as_secs_f64(),
         ensembles,
         blocks,
+        segments: None,
+    })
+}
+
+/// [`compute`] for a recording too long to hold whole: segment by segment
+/// ([`pcuvd::segments`]), the dynamics stage's windows and the ensembles from the segments, the
+/// RI maps from their series.
+fn compute_in_segments(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    segments: &Segments,
+    blocks: pcuvd::source::Blocks,
+    progress: &(dyn Fn(pipeline::Stage, usize, usize) + Sync),
+) -> Result<Processed> {
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let windows = plan
+        .dynamics
+        .as_ref()
+        .filter(|d| vectors && d.params.validate(data.acquisition().frame_rate()).is_ok());
+    let done = pcuvd::segments::process_in_segments(
+        data,
+        &plan.params,
+        segments,
+        windows.map(|d| &d.params),
+        plan.ensembles,
+        progress,
+    )?;
+    let clock = std::time::Instant::now();
+    let dynamics = dynamics_outcome(plan, || match (&plan.dynamics, done.series) {
+        (Some(settings), Some(series)) => {
+            let maps = pipeline::ri_maps_of(
+                &series,
+                &done.out.power_doppler,
+                &done.out.grid,
+                &settings.params,
+                &settings.vessel,
+                settings.triggers.as_deref(),
+            )?;
+            Ok((series, maps))
+        }
+        // The stage's own checks say why it cannot run (one angle, a window too long).
+        (Some(settings), None) => {
+            if !vectors {
+                return Err(pcuvd::error::invalid(
+                    "angles",
+                    "vector velocity needs two or more steering angles; the recording has one",
+                ));
+            }
+            settings.params.validate(data.acquisition().frame_rate())?;
+            Err(pcuvd::error::invalid(
+                "dynamics",
+                "no segment gave a velocity window",
+            ))
+        }
+        (None, _) => Err(pcuvd::error::invalid("dynamics", "the stage is off")),
+    })?;
+    Ok(Processed {
+        out: std::sync::Arc::new(done.out),
+        dynamics,
+        dynamics_s: clock.elapsed().as_secs_f64(),
+        ensembles: done.ensembles,
+        blocks,
+        segments: Some(SegmentsDone {
+            ranges: done.ranges,
+            clutter: done
+                .clutter
+                .iter()
+                .map(|per_angle| per_angle.iter().map(|r| (r.low, r.high)).collect())
+                .collect(),
+        }),
     })
 }
 
 /// The dynamics stage on the chain's maps `out`, as `plan` says (see [`compute`]).
 pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome> {
+    dynamics_outcome(plan, || {
+        let settings = plan
+            .dynamics
+            .as_ref()
+            .expect("asked only when the stage is on");
+        pipeline::dynamics(
+            out,
+            &settings.params,
+            &settings.vessel,
+            settings.triggers.as_deref(),
+        )
+    })
+}
+
+/// The dynamics stage's outcome as `plan` says: off, done by `stage`, or skipped with a note when
+/// the recording cannot give RI maps and no dynamics setting was given (else an error).
+fn dynamics_outcome(
+    plan: &Plan,
+    stage: impl FnOnce() -> pcuvd::Result<(VelocitySeries, RiMaps)>,
+) -> Result<DynamicsOutcome> {
     Ok(match &plan.dynamics {
         None => DynamicsOutcome::Skipped("--dynamics off".into()),
-        Some(settings) => match pipeline::dynamics(out, &settings.params, &settings.vessel) {
+        Some(_) => match stage() {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),
                 maps: Box::new(maps),
@@ -330,25 +560,61 @@ pub fn save(
     Ok(pngs)
 }
 
-/// Refuses, before any work, a recording and grid whose processing would need more memory than
-/// the machine has available ([`pipeline::memory_estimate`]), instead of aborting on allocation.
-pub fn check_memory(
-    data: &dyn FrameSource,
-    params: &ProcessParams,
-    limit_gb: Option<f64>,
-) -> Result<()> {
+/// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
+pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
+speed and the pooled speed per window) + time series: ensembles × pixels × 6 × 8 bytes (five \
+maps and a filtered copy of one ensemble's frames per angle counted once more)";
+
+/// Bytes the stages after image formation hold beyond the chain's image series
+/// ([`STAGE_MEMORY_RULE`]): the dynamics stage's window series and a time series' maps.
+fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
+    let (nz, nx) = plan.params.grid.shape();
+    let pixels = (nz * nx) as u128;
+    let frames = data.n_frames();
+    // The stage runs only with two angles or more and a window the recording holds.
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
+        if !vectors || d.params.window > frames {
+            return 0;
+        }
+        let windows = (frames - d.params.window) / d.params.step.max(1) + 1;
+        5 * windows as u128 * pixels * 8
+    });
+    let ensembles = plan.ensembles.map_or(0, |e| {
+        let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
+        let angles = data.acquisition().sequence.n_angles() as u128;
+        count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * angles * 8
+    });
+    dynamics + ensembles
+}
+
+/// Refuses, before any work, a recording, grid and stages whose processing would need more memory
+/// than the machine has available ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`]),
+/// instead of aborting on allocation.
+pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
+    let params = &plan.params;
     let available = match limit_gb {
         Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
-        Some(gb) => bail!("--max-memory-gb {gb}: must be a positive number of GB"),
+        Some(gb) => bail!(
+            "--max-memory-gb {}: must be a positive number of GB",
+            crate::options::shown("--max-memory-gb", gb)
+        ),
         None => available_memory().map(|b| b as f64),
     };
-    let needed = pipeline::memory_estimate(data, &params.grid) as f64;
+    let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
     if let Some(available) = available
         && needed > available
     {
+        let what = match limit_gb {
+            Some(gb) => format!(
+                "--max-memory-gb {}",
+                crate::options::shown("--max-memory-gb", gb)
+            ),
+            None => "the machine".to_string(),
+        };
         bail!(
-            "processing needs about {:.3} GB ({}) but {:.3} GB are available: use a coarser or \
-             smaller --grid, or a shorter recording",
+            "processing needs about {:.3} GB ({} {STAGE_MEMORY_RULE}) but {:.3} GB are \
+             available ({what}): use a coarser or smaller --grid, or a shorter recording",
             needed / 1e9,
             pipeline::MEMORY_ESTIMATE_RULE,
             available / 1e9
@@ -366,15 +632,16 @@ pub fn available_memory() -> Option<u64> {
 }
 
 /// Where the results came from: pcuvd's version, the command line, every input file with its
-/// size and SHA-256, the format and the reader (`format_reader`) that read it, and the options.
+/// size and SHA-256, the format and the reader that read it (as the reader reports them), every
+/// acquisition parameter with its source, the reader's warnings, and the options.
 pub fn provenance(
     input: &str,
-    input_files: &[PathBuf],
-    format_reader: (&str, &str),
+    info: &pcuvd_io::SourceInfo,
     options_text: &str,
     command_line: Vec<String>,
 ) -> Result<serde_json::Value> {
-    let files = input_files
+    let files = info
+        .files
         .iter()
         .map(|path| {
             let (size, sha256) = outputs::fingerprint(path)?;
@@ -383,9 +650,12 @@ pub fn provenance(
         .collect::<Result<Vec<_>>>()?;
     Ok(json!({
         "input": input,
-        "format": format_reader.0,
-        "reader": format_reader.1,
+        "format": info.format,
+        "reader": info.reader,
         "files": files,
+        "stored_samples": info.stored,
+        "parameters": info.parameters,
+        "reader_warnings": info.warnings,
         "pcuvd_version": env!("CARGO_PKG_VERSION"),
         "command_line": command_line,
         "options": options_text,
@@ -423,6 +693,8 @@ pub struct DynamicsSettings {
     pub params: DynamicsParams,
     /// Whole-recording vessel tests (noise-floor margin, local peak).
     pub vessel: VesselTests,
+    /// Cardiac cycle start times (s from the first frame), when given.
+    pub triggers: Option<Vec<f64>>,
 }
 
 /// The summary.json of a `process` run (without the writing timings): every parameter used, the
@@ -446,6 +718,25 @@ pub fn summary(
             pcuvd::source::Blocks::ALIGNMENT_MARGIN
         ),
     });
+    summary["segments"] = match &processed.segments {
+        None => json!("none: the whole recording was held and processed at once"),
+        Some(done) => json!({
+            "count": done.ranges.len(),
+            "own_frames": done.ranges.iter().map(|(core, _)| [core.start, core.end]).collect::<Vec<_>>(),
+            "imaged_frames": done.ranges.iter().map(|(_, imaged)| [imaged.start, imaged.end]).collect::<Vec<_>>(),
+            "clutter_cut_offs_per_angle": done.clutter.iter().map(|per_angle| {
+                per_angle.iter().map(|(low, high)| json!({"low": low, "high": high})).collect::<Vec<_>>()
+            }).collect::<Vec<_>>(),
+            "rule": format!(
+                "too long to hold whole (--segment-frames, default: the frames whose image series \
+                 fit in {} MiB): each segment imaged with the frames its dynamics windows and \
+                 ensembles reach into, clutter-filtered on its own; power and lag-1 \
+                 autocorrelation summed over the segments' own frames, velocities and vectors \
+                 from the sums; windows and ensembles from the segment their start is in",
+                pcuvd::segments::SERIES_BYTES >> 20
+            ),
+        }),
+    };
     summary["ensembles"] = match (&plan.ensembles, &processed.ensembles) {
         (Some(spec), Some(maps)) => json!({
             "frames": spec.frames,
@@ -481,6 +772,9 @@ fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
     json!({
         "heart_rate_hz": maps.heart_rate_hz,
         "heart_rate_given": dparams.heart_rate_hz.is_some(),
+        "cycles_from": maps.cycle_source.describe(),
+        "cycles_count": maps.cycles.len(),
+        "spread": "psv_spread.npy, edv_spread.npy, ri_spread.npy: standard deviation across the complete cycles of each cycle's PSV (m/s), EDV (m/s) and RI, each cycle's speed fitted on its own; NaN with one cycle",
         "window_frames": dparams.window,
         "step_frames": dparams.step,
         "window_s": series.window_s,
@@ -524,6 +818,9 @@ fn write_dynamics(
     npy(dir, "ri.npy", &maps.ri)?;
     npy(dir, "psv.npy", &maps.psv)?;
     npy(dir, "edv.npy", &maps.edv)?;
+    npy(dir, "psv_spread.npy", &maps.psv_spread)?;
+    npy(dir, "edv_spread.npy", &maps.edv_spread)?;
+    npy(dir, "ri_spread.npy", &maps.ri_spread)?;
     pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
     pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
     pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
@@ -534,8 +831,14 @@ fn write_dynamics(
     let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     println!(
-        "RI maps: heart rate {:.2} Hz, {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
+        "RI maps: heart rate {:.2} Hz ({}), {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
         maps.heart_rate_hz,
+        match maps.cycle_source {
+            dynamics::CycleSource::GivenRate => "given",
+            dynamics::CycleSource::Triggers => "from the cardiac triggers",
+            dynamics::CycleSource::Upstrokes => "measured: systolic upstrokes",
+            dynamics::CycleSource::Autocorrelation => "measured: autocorrelation",
+        },
         maps.cycles.len(),
         count(dynamics::ARTERIOLE),
         count(dynamics::VENULE),
@@ -590,7 +893,83 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
         npy(dir, "vz_ls.npy", &ls.vz)?;
         npy(dir, "speed_ls.npy", &ls.speed())?;
     }
+    if let Some(done) = &out.dealias {
+        pcuvd_io::write_npy(&dir.join("alias_counts.npy"), &done.irls.alias_counts)?;
+        pcuvd_io::write_npy(&dir.join("alias_counts_ls.npy"), &done.ls.alias_counts)?;
+    }
     Ok(())
+}
+
+/// The `dealias` entry of summary.json: the setting, the K used, the speeds it reaches, and per
+/// estimator how many flow pixels were dealiased, unwrapped, and reached ±K.
+fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::Value {
+    let Some(done) = &out.dealias else {
+        return json!({ "setting": params.dealias.label() });
+    };
+    let counts = |c: &pcuvd::dealias::AliasCounts| {
+        json!({
+            "dealiased_pixels": c.dealiased_pixels,
+            "unwrapped_pixels": c.unwrapped_pixels,
+            "at_limit_pixels": c.at_limit_pixels,
+        })
+    };
+    json!({
+        "setting": params.dealias.label(),
+        "intervals": done.intervals,
+        "max_speed_m_s": (2 * done.intervals + 1) as f64 * out.nyquist_velocity,
+        "flow_pixels": done.flow_pixels,
+        "pcuvd_irls": counts(&done.irls),
+        "uvd_ls": counts(&done.ls),
+        "rule": format!(
+            "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
+             scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
+             sum of absolute residuals); the common shift of all angles chosen over regions of \
+             neighbouring flow pixels (power {} dB above the row's noise floor) grown by power, \
+             each region's offset by its summed score; regions under {} pixels and other pixels \
+             keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
+             unwrapped pixels reach ±K; alias_counts.npy (PC-UVD) and alias_counts_ls.npy (UVD) \
+             hold the counts (angles, nz, nx)",
+            pcuvd::dealias::FLOW_MARGIN_DB,
+            pcuvd::dealias::MIN_REGION_PIXELS,
+            pcuvd::dealias::MAX_AUTO_INTERVALS,
+            pcuvd::dealias::AUTO_LIMIT_FRACTION * 100.0
+        ),
+    })
+}
+
+/// How the angles were transmitted, for summary.json and `pcuvd info`: `kind` "none",
+/// "hadamard" (order, even slot delay) or "matrix" (the code's weights row by row, each slot's
+/// start, the decoding gain g — decoded records are g × each angle's — and the condition number).
+pub fn coding_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.coding {
+        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
+        pcuvd::Coding::Hadamard { slot_delay } => json!({
+            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
+        }),
+        pcuvd::Coding::Matrix(code) => json!({
+            "kind": "matrix",
+            "order": code.order(),
+            "code_matrix": code.weights.chunks(code.order().max(1)).collect::<Vec<_>>(),
+            "slot_starts_s": code.slot_starts,
+            "events_fire_several_slots": code.is_coded(),
+            "decoding_gain": code.decoding_gain(),
+            "condition_number": code.condition_number(),
+        }),
+    }
+}
+
+/// The sampled transmit pulse for summary.json and `pcuvd info` (null when the sequence has
+/// none): its sampling rate, length, and what pcuvd uses it for.
+pub fn pulse_json(seq: &pcuvd::Sequence) -> serde_json::Value {
+    match &seq.pulse {
+        None => serde_json::Value::Null,
+        Some(p) => json!({
+            "sampling_frequency_hz": p.sampling_frequency,
+            "n_samples": p.samples.len(),
+            "duration_s": p.duration(),
+            "used_for": "simulation (the echo waveform: the pulse through the probe's two-way response); processing does not need it",
+        }),
+    }
 }
 
 /// Every parameter used, the Nyquist velocity, clutter cut-offs and per-stage timings.
@@ -603,13 +982,10 @@ pub fn summary_json(
     let acq = data.acquisition();
     let probe = &acq.probe;
     let seq = &acq.sequence;
-    let coding = match seq.coding {
-        pcuvd::Coding::Conventional => json!({ "kind": "none" }),
-        pcuvd::Coding::Hadamard { slot_delay } => json!({
-            "kind": "hadamard", "order": seq.n_angles(), "slot_delay_s": slot_delay,
-            "event_alignment": params.event_alignment.label(),
-        }),
-    };
+    let mut coding = coding_json(seq);
+    if seq.is_coded() {
+        coding["event_alignment"] = json!(params.event_alignment.label());
+    }
     let timings: serde_json::Map<String, serde_json::Value> = out
         .timings
         .iter()
@@ -628,6 +1004,7 @@ pub fn summary_json(
             "t0_s": acq.t0, "event_prf_hz": seq.event_prf,
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding, "frames": data.n_frames(), "frame_rate_hz": acq.frame_rate(),
+            "pulse_cycles": seq.pulse_cycles, "transmit_pulse": pulse_json(seq),
         },
         "grid": {
             "x_min_m": out.grid.x[0], "x_max_m": out.grid.x[out.grid.x.len() - 1],
@@ -644,6 +1021,7 @@ pub fn summary_json(
         "doppler": { "kernel": [params.doppler_kernel.0, params.doppler_kernel.1] },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,
+        "dealias": dealias_summary(params, out),
         "timings_s": timings,
     })
 }

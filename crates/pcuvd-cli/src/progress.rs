@@ -10,7 +10,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use pcuvd::pipeline::Stage;
 
 /// Time between two progress lines of a running task when stderr is not a terminal.
@@ -44,10 +44,18 @@ struct LogState {
 
 /// A progress report of `total` steps labelled `label`, on stderr.
 pub fn bar(label: &str, total: u64) -> Bar {
+    bar_in(label, total, None)
+}
+
+/// As [`bar`]; in a terminal, drawn in `lines` beside the other bars there.
+fn bar_in(label: &str, total: u64, lines: Option<&MultiProgress>) -> Bar {
     let view = if QUIET.load(Ordering::Relaxed) {
         View::Quiet
     } else if std::io::stderr().is_terminal() {
-        let bar = ProgressBar::new(total);
+        let bar = match lines {
+            Some(lines) => lines.add(ProgressBar::new(total)),
+            None => ProgressBar::new(total),
+        };
         bar.set_style(
             ProgressStyle::with_template("{prefix:>24} [{bar:32}] {pos}/{len} {elapsed_precise}")
                 .expect("static template")
@@ -172,9 +180,12 @@ impl TaskProgress {
     }
 }
 
-/// A callback for [`pcuvd::pipeline::process`] that shows one bar per stage.
+/// A callback for [`pcuvd::pipeline::process`] that shows one bar per stage. Stages interleave
+/// (a block's decoding, then its beamforming, then the next block's; a long recording's segments
+/// each run every stage), so each stage keeps its bar until its own work is done.
 pub struct PipelineProgress {
-    tasks: TaskProgress,
+    bars: Mutex<Vec<(Stage, Bar)>>,
+    lines: MultiProgress,
     tag: String,
 }
 
@@ -182,14 +193,33 @@ impl PipelineProgress {
     /// Bars prefixed by `tag` (e.g. the recording's name).
     pub fn new(tag: &str) -> Self {
         PipelineProgress {
-            tasks: TaskProgress::new(),
+            bars: Mutex::new(Vec::new()),
+            lines: MultiProgress::new(),
             tag: tag.to_string(),
         }
     }
 
     /// Reports that `stage` has done `done` of `total` steps.
     pub fn update(&self, stage: Stage, done: usize, total: usize) {
-        self.tasks
-            .update(&format!("{}{}", self.tag, stage.label()), done, total);
+        let mut bars = self.bars.lock().unwrap_or_else(|e| e.into_inner());
+        let label = format!("{}{}", self.tag, stage.label());
+        let index = match bars
+            .iter()
+            .position(|(s, b)| *s == stage && b.total == total as u64)
+        {
+            Some(index) => index,
+            None => {
+                // A stage that starts over with another count (a study's next recording) gets a
+                // new bar.
+                bars.retain(|(s, _)| *s != stage);
+                bars.push((stage, bar_in(&label, total as u64, Some(&self.lines))));
+                bars.len() - 1
+            }
+        };
+        let bar = &bars[index].1;
+        bar.set_position(done as u64);
+        if done == total {
+            bar.finish();
+        }
     }
 }

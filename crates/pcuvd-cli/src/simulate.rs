@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use ndarray::Array1;
-use pcuvd::phantom::network::NetworkPhantom;
-use pcuvd::phantom::{Phantom, SpiralPhantom, TubePhantom, TubeSpec};
+use pcuvd::phantom::network::{NetworkPhantom, NetworkSpec};
+use pcuvd::phantom::{Phantom, SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec};
 use pcuvd::pipeline;
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
@@ -73,7 +73,7 @@ fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) ->
 pub enum Preset {
     /// The paper's spiral (§2.3): L22-14vX, 15.625 MHz, 2-cycle pulse, f_s 65 MHz, c 1540 m/s, 8 angles in [−15°, 15°], event PRF 14.4 kHz (1.8 kHz compound), Hadamard order 8 with 1 µs slots, 100 frames, noise −10 dB.
     PaperSpiral,
-    /// A straight tube (radius 0.5 mm, 25 mm/s peak, parabolic) at 30° below +x through (0, 8 mm), with the paper-spiral acquisition.
+    /// A straight tube (radius 0.5 mm, 25 mm/s peak unless --peak-velocity-mm-s, parabolic) at 30° below +x through (0, 8 mm), with the paper-spiral acquisition.
     Tube,
     /// The in-vivo-like pulsatile vessel network at 5.5 Hz (4 arterioles RI 0.7, 4 venules RI 0.3, flowing up and down, 1–13 mm deep) with the paper's rat acquisition (Table 1): as paper-spiral but 360 frames (0.2 s), receive window 0–13 mm; writes the RI truth too.
     RatNetwork,
@@ -114,6 +114,13 @@ pub struct SimulationOptions {
     /// Hadamard slot delay (µs).
     #[arg(long, default_value_t = 1.0)]
     pub slot_delay_us: f64,
+    /// Peak flow speed (mm/s): the centreline speed of the tube and the spiral, the peak
+    /// systolic speed of the network's fastest vessel (the others scaled alike). Default: the
+    /// preset's (25 mm/s; the network's fastest arteriole 30 mm/s). The projection Nyquist
+    /// velocity of the 8-angle presets is about 44 mm/s: faster flow aliases (see `process
+    /// --dealias`).
+    #[arg(long)]
+    pub peak_velocity_mm_s: Option<f64>,
 }
 
 /// Arguments of `pcuvd simulate`.
@@ -178,22 +185,35 @@ impl Simulation {
                     })?,
             ),
         };
+        let peak = match args.peak_velocity_mm_s {
+            Some(v) if !(v.is_finite() && v > 0.0) => {
+                bail!("--peak-velocity-mm-s {v}: must be a finite speed > 0 mm/s")
+            }
+            given => given.map(|v| v * 1e-3),
+        };
         let network = match args.preset {
-            Preset::RatNetwork => Some(NetworkPhantom::rat(args.seed)?),
+            Preset::RatNetwork => {
+                let spec = NetworkSpec::rat();
+                let spec = match peak {
+                    Some(psv) => spec.with_fastest_psv(psv)?,
+                    None => spec,
+                };
+                Some(NetworkPhantom::new(spec, args.seed)?)
+            }
             _ => None,
         };
         let phantom: Box<dyn Phantom> = match (args.preset, &network) {
             (_, Some(network)) => Box::new(network.clone()),
-            (Preset::PaperSpiral, None) => Box::new(SpiralPhantom::paper(args.seed)?),
+            (Preset::PaperSpiral, None) => {
+                let paper = SpiralSpec::paper();
+                let spec = SpiralSpec {
+                    peak_speed: peak.unwrap_or(paper.peak_speed),
+                    ..paper
+                };
+                Box::new(SpiralPhantom::new(spec, args.seed)?)
+            }
             (_, None) => Box::new(TubePhantom::new(
-                TubeSpec {
-                    centre: [0.0, 8e-3],
-                    angle: 30f64.to_radians(),
-                    length: 16e-3,
-                    radius: 0.5e-3,
-                    peak_speed: 25e-3,
-                    density: 300e6,
-                },
+                TubeSpec::preset(peak.unwrap_or(25e-3)),
                 args.seed,
             )?),
         };

@@ -48,7 +48,30 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         source["files"][0]["sha256"].as_str().map(str::len),
         Some(64)
     );
-    assert_eq!(source["reader"], "pcuvd_io::read_must_mat");
+    // The format and reader as the reader reports them, and each parameter's source.
+    assert_eq!(source["format"], "MUST/PyMUST MATLAB v5 (.mat)");
+    assert!(
+        source["reader"]
+            .as_str()
+            .unwrap()
+            .starts_with("pcuvd_io::must"),
+        "{source}"
+    );
+    let parameter = |name: &str| {
+        source["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .unwrap_or_else(|| panic!("no parameter {name} in {source}"))
+            .clone()
+    };
+    assert_eq!(parameter("t0_s")["source"]["field"], "param.t0");
+    assert_eq!(
+        parameter("sampling_frequency_hz")["source"]["field"],
+        "param.fs"
+    );
+    assert_eq!(parameter("pulse_cycles")["source"]["kind"], "default");
     assert_eq!(source["pcuvd_version"], env!("CARGO_PKG_VERSION"));
     assert!(source["command_line"][1] == "process", "{source}");
     assert!(summary["timings_s"]["read"].as_f64().unwrap() >= 0.0);
@@ -197,6 +220,62 @@ fn every_ensemble_of_the_disk_sees_the_same_rotation() {
             reference[1]
         );
     }
+}
+
+/// The disk processed in segments of 8 frames (8-frame ensembles, one per segment): the ensembles are the whole-recording run's exactly (the same images,
+/// each ensemble filtered on its own), the whole-recording colour Doppler is the same rotation,
+/// and summary.json says how the recording was cut.
+#[test]
+fn the_disk_in_segments_gives_the_same_maps() {
+    let run = |extra: &[&str]| {
+        let out = tempfile::tempdir().unwrap();
+        let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["--quiet", "process"])
+            .arg(disk_file())
+            .arg("--out")
+            .arg(out.path())
+            .args(["--dynamics", "off", "--ensemble-frames", "8"])
+            .args(extra)
+            .status()
+            .unwrap();
+        assert!(status.success());
+        out
+    };
+    let whole = run(&[]);
+    let segmented = run(&["--segment-frames", "8"]);
+    let read3 = |dir: &tempfile::TempDir, name: &str| -> ndarray::Array3<f64> {
+        read_npy(dir.path().join(name)).unwrap()
+    };
+    for name in ["ensemble_color_doppler.npy", "ensemble_power_doppler.npy"] {
+        assert_eq!(read3(&whole, name), read3(&segmented, name), "{name}");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(segmented.path().join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["segments"]["count"], 4, "{}", summary["segments"]);
+    assert_eq!(
+        summary["segments"]["imaged_frames"][0],
+        serde_json::json!([0, 8])
+    );
+    let whole_summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(whole.path().join("summary.json")).unwrap()).unwrap();
+    assert!(whole_summary["segments"].is_string());
+
+    let x: Array1<f64> = read_npy(whole.path().join("x.npy")).unwrap();
+    let z: Array1<f64> = read_npy(whole.path().join("z.npy")).unwrap();
+    let bmode: Array2<f64> = read_npy(whole.path().join("bmode_db.npy")).unwrap();
+    let disk = find_disk(&bmode, &x, &z);
+    let colour = |dir: &tempfile::TempDir| -> Array2<f64> {
+        read_npy(dir.path().join("color_doppler.npy")).unwrap()
+    };
+    let (reference, _, _) = plane_fit(colour(&whole).view(), &x, &z, disk);
+    let (coef, r2, _) = plane_fit(colour(&segmented).view(), &x, &z, disk);
+    eprintln!(
+        "segments: dv/dx {:.1} s⁻¹ (whole recording {:.1}), R² {r2:.3}",
+        coef[1], reference[1]
+    );
+    assert!(r2 > 0.95, "R² {r2}");
+    assert!((coef[1] / reference[1] - 1.0).abs() < 0.02);
 }
 
 fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {

@@ -70,6 +70,7 @@ fn write_recording(dir: &Path) -> std::path::PathBuf {
         event_prf: 7.2e3,
         coding: Coding::Conventional,
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let params = SimParams::new(probe, sequence, 65e6, 1540.0, (4.5e-3, 8.5e-3)).unwrap();
     let data = simulate::simulate(&phantom, &params, 200, &|_, _| {}).unwrap();
@@ -79,6 +80,19 @@ fn write_recording(dir: &Path) -> std::path::PathBuf {
     let truth = phantom.cycle_truth(&grid_x, &grid_z);
     pcuvd_io::write_npy(&dir.join("truth_class.npy"), &truth.vessel_class).unwrap();
     dir.join("pulsatile.toml")
+}
+
+/// Median RI over the lumen pixels of class `kind` in `truth`; every one must have an RI.
+fn median_ri_of(truth: &Array2<u8>, ri: &Array2<f64>, kind: u8) -> f64 {
+    let mut v: Vec<f64> = truth
+        .iter()
+        .zip(ri)
+        .filter(|(t, _)| **t == kind)
+        .map(|(_, r)| *r)
+        .collect();
+    assert!(v.iter().all(|r| r.is_finite()), "lumen pixel without RI");
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
 }
 
 #[test]
@@ -137,18 +151,10 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     let ri: Array2<f64> = read_npy(out.join("ri.npy")).unwrap();
     let truth: Array2<u8> = read_npy(dir.path().join("truth_class.npy")).unwrap();
     assert_eq!((class.dim(), ri.dim()), (truth.dim(), truth.dim()));
-    let median_ri = |kind: u8| {
-        let mut v: Vec<f64> = truth
-            .iter()
-            .zip(&ri)
-            .filter(|(t, _)| **t == kind)
-            .map(|(_, r)| *r)
-            .collect();
-        assert!(v.iter().all(|r| r.is_finite()), "lumen pixel without RI");
-        v.sort_by(|a, b| a.total_cmp(b));
-        v[v.len() / 2]
-    };
-    let (artery, vein) = (median_ri(ARTERIOLE), median_ri(VENULE));
+    let (artery, vein) = (
+        median_ri_of(&truth, &ri, ARTERIOLE),
+        median_ri_of(&truth, &ri, VENULE),
+    );
     // Noise off: the errors left are the estimator's (20 ms windows, 4 angles, the lumen's
     // velocity gradient within the averaging kernel), a few hundredths of RI.
     assert!(
@@ -157,6 +163,48 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     );
     let times: Array1<f64> = read_npy(out.join("times.npy")).unwrap();
     assert!((times[1] - times[0] - 0.005).abs() < 1e-9);
+
+    // Cycle start times given beside the recording (an ECG's R-waves, say): one 12 Hz cycle,
+    // its systole 10 ms in (the waveform's delay) with the cycle starting 2 ms after it.
+    let triggers = dir.path().join("r_waves.txt");
+    std::fs::write(&triggers, "0.012\n0.095333\n").unwrap();
+    let triggered = dir.path().join("triggered");
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        input,
+        "--out",
+        triggered.to_str().unwrap(),
+        grid,
+        "--svd-low",
+        "off",
+        "--cardiac-triggers",
+        triggers.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(triggered.join("summary.json")).unwrap())
+            .unwrap();
+    let dynamics = &summary["dynamics"];
+    assert!(
+        dynamics["cycles_from"]
+            .as_str()
+            .unwrap()
+            .contains("triggers"),
+        "{dynamics}"
+    );
+    assert_eq!(dynamics["cycles_count"], 1);
+    assert!((dynamics["heart_rate_hz"].as_f64().unwrap() - 12.0).abs() < 0.1);
+    let spread: Array2<f64> = read_npy(triggered.join("ri_spread.npy")).unwrap();
+    assert!(spread.iter().all(|v| v.is_nan()), "one cycle has no spread");
+    let ri_triggered: Array2<f64> = read_npy(triggered.join("ri.npy")).unwrap();
+    let (artery_t, vein_t) = (
+        median_ri_of(&truth, &ri_triggered, ARTERIOLE),
+        median_ri_of(&truth, &ri_triggered, VENULE),
+    );
+    assert!(
+        (artery_t - 0.7).abs() < 0.06 && (vein_t - 0.3).abs() < 0.06,
+        "with triggers: arteriole RI {artery_t} (true 0.7), venule RI {vein_t} (true 0.3)"
+    );
 
     // Refusals: one line, naming the problem.
     // --force: each run reuses the folder of the first (the earlier run's outputs are replaced).
@@ -178,7 +226,22 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
         assert!(stderr.contains(needle), "{needle:?} missing: {stderr}");
     };
-    refuse(&["--heart-rate", "4"], "shorter than one cardiac cycle");
+    refuse(&["--heart-rate", "4"], "RI needs at least one whole cycle");
+    refuse(
+        &[
+            "--heart-rate",
+            "12",
+            "--cardiac-triggers",
+            triggers.to_str().unwrap(),
+        ],
+        "give one",
+    );
+    let backwards = dir.path().join("backwards.txt");
+    std::fs::write(&backwards, "0.09 0.01").unwrap();
+    refuse(
+        &["--cardiac-triggers", backwards.to_str().unwrap()],
+        "backwards.txt",
+    );
     refuse(&["--window-ms", "500"], "window");
     refuse(&["--heart-rate", "400"], "heart rate");
     refuse(&["--heart-rate=-3"], "--heart-rate");

@@ -15,6 +15,21 @@ pub enum IoError {
         /// The operating system's reason.
         source: std::io::Error,
     },
+    /// The path names nothing.
+    #[error("{}: does not exist", path.display())]
+    NotFound {
+        /// The path, as given.
+        path: PathBuf,
+    },
+    /// The path names something that is not a regular file (a folder, a named pipe, a device, a
+    /// broken or looping symbolic link).
+    #[error("{}: is {what}, not a file", path.display())]
+    NotAFile {
+        /// The path, as given.
+        path: PathBuf,
+        /// What it is, e.g. "a folder" or "a named pipe (FIFO)".
+        what: String,
+    },
     /// The file is not in the expected format, or is damaged (truncated, corrupt, unparsable).
     #[error("{}: {problem}", path.display())]
     Malformed {
@@ -58,6 +73,8 @@ impl IoError {
     pub fn path(&self) -> &std::path::Path {
         match self {
             IoError::Io { path, .. }
+            | IoError::NotFound { path }
+            | IoError::NotAFile { path, .. }
             | IoError::Malformed { path, .. }
             | IoError::Missing { path, .. }
             | IoError::Invalid { path, .. }
@@ -104,4 +121,13 @@ impl IoError {
             problem: problem.into(),
         }
     }
+}
+
+/// A foreign error's message on one line: its line breaks and the indentation after them become
+/// single spaces (a parser's multi-line report would otherwise break the one-line message).
+pub(crate) fn flat(e: impl std::fmt::Display) -> String {
+    e.to_string()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
 }

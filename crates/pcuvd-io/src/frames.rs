@@ -60,7 +60,7 @@ impl ManifestFrames {
     /// event order (another axis order, Fortran order, big-endian): read those whole.
     pub fn open(path: &Path) -> Result<Option<ManifestFrames>, IoError> {
         let parsed = parse_manifest(path)?;
-        if parsed.perm.iter().enumerate().any(|(i, &p)| i != p) {
+        if parsed.data_member.is_some() || parsed.perm.iter().enumerate().any(|(i, &p)| i != p) {
             return Ok(None);
         }
         let data_path = parsed.data_path.clone();
@@ -71,8 +71,12 @@ impl ManifestFrames {
             .map_err(|e| IoError::io(&data_path, "read", e))?
             .len();
         let mut reader = std::io::BufReader::new(file);
-        let header = Header::from_reader(&mut reader)
-            .map_err(|e| IoError::malformed(&data_path, format!("not a valid .npy file ({e})")))?;
+        let header = Header::from_reader(&mut reader).map_err(|e| {
+            IoError::malformed(
+                &data_path,
+                format!("not a valid .npy file ({})", crate::error::flat(e)),
+            )
+        })?;
         let data_offset = reader
             .stream_position()
             .map_err(|e| IoError::io(&data_path, "read", e))?;
@@ -98,6 +102,7 @@ impl ManifestFrames {
         if stored.complex() != parsed.demod.is_some() {
             return Err(kind_error(path, &data_path, parsed.demod.is_some()));
         }
+
         let shape = event_shape(
             path,
             &parsed.acquisition,
@@ -250,6 +255,17 @@ impl FrameSource for ManifestFrames {
                 }
             }
         };
+        let finite = match &samples {
+            Samples::Rf(a) => a.iter().all(|v| v.is_finite()),
+            Samples::Iq { data, .. } => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
+        };
+        if !finite {
+            return Err(pcuvd::Error::Read(format!(
+                "{}: the samples hold NaN or Inf values in frames {frames:?} (every sample must be \
+                 finite)",
+                self.data_path.display()
+            )));
+        }
         Ok(ChannelData {
             acquisition: self.acquisition.clone(),
             samples,

@@ -1,23 +1,34 @@
-//! The recording manifest: a TOML file (format "pcuvd-recording", version 1, SI units with the
-//! unit in each key name) that describes the acquisition and points at a `.npy` file of samples.
+//! The recording manifest: a TOML file (format "pcuvd-recording", SI units with the unit in each
+//! key name) that describes the acquisition and points at a `.npy` file of samples.
 //!
-//! See `crates/pcuvd-io/examples/recording.toml` for a complete, commented example. Angles may be
-//! given as `angles_deg` or `angles_rad` (exactly one); [`write_recording`] writes `angles_rad`
-//! so that a written recording reads back bit for bit.
+//! Version 1 says plane waves by angle, coding "none" or "hadamard" with evenly spaced slots, and
+//! a pulse length in cycles; see `crates/pcuvd-io/examples/recording.toml`. Version 2 adds what
+//! scanners' sequences need: per-element transmit delays per slot (`transmit_delays_s`, the
+//! steering angle and slot start derived from them and checked to be a plane wave), an explicit
+//! code matrix in the scanner's row order (`coding = "matrix"`, `code_matrix`), uneven slot
+//! starts (`slot_delays_s`), the transmit pulse as samples (`[acquisition.pulse]`), and the
+//! per-frame axis of the samples named `events` (an event of a coded frame fires every angle);
+//! see `crates/pcuvd-io/examples/recording_v2.toml`. Every key is checked against its range, and
+//! an error names the key. Angles may be given as `angles_deg` or `angles_rad` (exactly one);
+//! [`write_recording`] writes `angles_rad` so that a written recording reads back bit for bit,
+//! and writes version 1 whenever version 1 can say the sequence (so such files stay unchanged).
 
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array3, Array4, ArrayD};
-use pcuvd::{Acquisition, ChannelData, Coding, Probe, Samples, Sequence};
+use pcuvd::{
+    Acquisition, ChannelData, Coding, Hadamard, Probe, Samples, Sequence, TransmitCode,
+    TransmitPulse,
+};
 use serde::Deserialize;
 
 use crate::error::IoError;
-use crate::npy::{NpyArray, read_npy, write_npy};
+use crate::npy::{NpyArray, write_npy};
 
 /// The value of the manifest's `format` key.
 pub const FORMAT: &str = "pcuvd-recording";
-/// The manifest version this crate reads and writes.
-pub const VERSION: i64 = 1;
+/// The newest manifest version this crate reads and writes (it reads every version from 1).
+pub const VERSION: i64 = 2;
 
 /// A recording read from a manifest: the channel data, the free-form provenance, and where it was.
 #[derive(Debug, Clone, PartialEq)]
@@ -70,6 +81,18 @@ struct AcquisitionSection {
     pulse_cycles: Option<f64>,
     coding: Option<String>,
     slot_delay_s: Option<f64>,
+    // Version 2 only.
+    slot_delays_s: Option<Vec<f64>>,
+    code_matrix: Option<Vec<Vec<f64>>>,
+    transmit_delays_s: Option<Vec<Vec<f64>>>,
+    pulse: Option<PulseSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PulseSection {
+    sampling_frequency_hz: Option<f64>,
+    samples: Option<Vec<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -95,14 +118,41 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
 }
 
 fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> IoError {
-    let msg = e.message().trim().replace('\n', " ");
+    let msg = crate::error::flat(e.message().trim());
     match e.span() {
         Some(span) => {
             let (line, col) = line_col(text, span.start);
-            IoError::malformed(path, format!("line {line}, column {col}: {msg}"))
+            match key_at(text, span.start) {
+                Some(key) => {
+                    IoError::invalid(path, key, format!("(line {line}, column {col}): {msg}"))
+                }
+                None => IoError::malformed(path, format!("line {line}, column {col}: {msg}")),
+            }
         }
         None => IoError::malformed(path, msg),
     }
+}
+
+/// The key (as "[table].key") whose value holds byte `offset` of a manifest's `text`, when that
+/// line is a `key = value` line: a type error then names the key, not only the line.
+fn key_at(text: &str, offset: usize) -> Option<String> {
+    let before = text.get(..offset.min(text.len()))?;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    if key.is_empty() || key.starts_with(['#', '[']) || key.contains(char::is_whitespace) {
+        return None;
+    }
+    let table = before[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('[') && l.ends_with(']'));
+    Some(match table {
+        Some(table) => format!("{table}.{key}"),
+        None => key.to_string(),
+    })
 }
 
 /// Reads a recording manifest, its samples and its provenance.
@@ -112,11 +162,15 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         acquisition,
         provenance,
         data_path,
+        data_member,
         axes,
         perm,
         demod,
     } = parsed;
-    let array = read_npy(&data_path)?;
+    let array = crate::datafile::read_whole(&crate::datafile::DataSpec {
+        path: data_path.clone(),
+        member: data_member,
+    })?;
     let shape = array.shape().to_vec();
     let (events, channels, samples) =
         event_shape(path, &acquisition, &data_path, &axes, &perm, &shape)?;
@@ -138,9 +192,16 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         acquisition,
         samples,
     };
-    data.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
+    data.validate().map_err(|source| match source {
+        pcuvd::Error::NonFinite(_) => IoError::invalid(
+            &data_path,
+            "the samples",
+            "hold NaN or Inf values (every sample must be finite)",
+        ),
+        source => IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     Ok(Recording {
         data,
@@ -148,6 +209,22 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         manifest_path: path.to_path_buf(),
         data_path,
     })
+}
+
+/// The error for RF samples whose sampling frequency folds the probe's band
+/// ([`Acquisition::rf_band_sampling`]), naming the key.
+fn rf_sampling_error(path: &Path, source: pcuvd::Error) -> IoError {
+    match source {
+        pcuvd::Error::InvalidParameter { reason, .. } => IoError::invalid(
+            path,
+            "[acquisition].sampling_frequency_hz",
+            format!("is invalid for RF samples: {reason}"),
+        ),
+        source => IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        },
+    }
 }
 
 /// The error for samples whose values do not match `[data].kind` (`iq` said, real found, or the
@@ -180,6 +257,8 @@ pub(crate) struct Parsed {
     pub(crate) acquisition: Acquisition,
     pub(crate) provenance: toml::Table,
     pub(crate) data_path: PathBuf,
+    /// The array inside the samples file (`"rec.npz:RF"`, `"rec.h5:/dataset"`), if named.
+    pub(crate) data_member: Option<String>,
     pub(crate) axes: Vec<String>,
     /// For each canonical axis, its index among the named axes.
     pub(crate) perm: Vec<usize>,
@@ -202,17 +281,17 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
             ));
         }
     }
-    match table.get("version") {
+    let version = match table.get("version") {
         None => return Err(IoError::missing(path, "the manifest", "key 'version'")),
-        Some(toml::Value::Integer(v)) if *v == VERSION => {}
+        Some(toml::Value::Integer(v)) if (1..=VERSION).contains(v) => *v,
         Some(v) => {
             return Err(IoError::invalid(
                 path,
                 "version",
-                format!("is {v}; this reader knows version {VERSION} only"),
+                format!("is {v}; this reader knows versions 1 to {VERSION}"),
             ));
         }
-    }
+    };
     let m: ManifestFile = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
     let miss = |table: &str, key: &str| {
         IoError::missing(path, format!("table [{table}]"), format!("key '{key}'"))
@@ -251,60 +330,7 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
 
     // [acquisition]
     let acq = m.acquisition.ok_or_else(|| no_table("acquisition"))?;
-    let req = |v: Option<f64>, key: &str| v.ok_or_else(|| miss("acquisition", key));
-    let angles = match (&acq.angles_deg, &acq.angles_rad) {
-        (Some(d), None) => d.iter().map(|a| a.to_radians()).collect(),
-        (None, Some(r)) => r.clone(),
-        (None, None) => return Err(miss("acquisition", "angles_deg")),
-        (Some(_), Some(_)) => {
-            return Err(IoError::invalid(
-                path,
-                "[acquisition].angles_rad",
-                "is given together with angles_deg; give exactly one",
-            ));
-        }
-    };
-    let coding = match acq.coding.as_deref() {
-        None => return Err(miss("acquisition", "coding")),
-        Some("none") => {
-            if acq.slot_delay_s.is_some() {
-                return Err(IoError::invalid(
-                    path,
-                    "[acquisition].slot_delay_s",
-                    "is only meaningful with coding = \"hadamard\"",
-                ));
-            }
-            Coding::Conventional
-        }
-        Some("hadamard") => Coding::Hadamard {
-            slot_delay: req(acq.slot_delay_s, "slot_delay_s")?,
-        },
-        Some(other) => {
-            return Err(IoError::invalid(
-                path,
-                "[acquisition].coding",
-                format!("is \"{other}\"; expected \"none\" or \"hadamard\""),
-            ));
-        }
-    };
-    let acquisition = Acquisition {
-        probe,
-        sequence: Sequence {
-            angles,
-            event_prf: req(acq.event_prf_hz, "event_prf_hz")?,
-            coding,
-            pulse_cycles: req(acq.pulse_cycles, "pulse_cycles")?,
-        },
-        sampling_frequency: req(acq.sampling_frequency_hz, "sampling_frequency_hz")?,
-        sound_speed: req(acq.sound_speed_m_s, "sound_speed_m_s")?,
-        t0: req(acq.t0_s, "t0_s")?,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    let acquisition = acquisition_of(path, version, &acq, probe)?;
 
     // [data]
     let ds = m.data.ok_or_else(|| no_table("data"))?;
@@ -337,23 +363,389 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
             ));
         }
     };
-    let perm = axis_permutation(&axes).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
-    let data_path = path.parent().unwrap_or_else(|| Path::new("")).join(&file);
-    if !data_path.is_file() {
-        return Err(IoError::invalid(
-            path,
-            "[data].file",
-            format!("names {}, which does not exist", data_path.display()),
-        ));
+    if demod.is_none() {
+        acquisition
+            .rf_band_sampling()
+            .map_err(|e| rf_sampling_error(path, e))?;
     }
+    let perm =
+        axis_permutation(&axes, version).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
+    let data = crate::datafile::parse_data_file(path, &file)?;
     Ok(Parsed {
         acquisition,
         provenance: m.provenance,
-        data_path,
+        data_path: data.path,
+        data_member: data.member,
         axes,
         perm,
         demod,
     })
+}
+
+/// The manifest key that holds the quantity pcuvd's checks call `name` (see
+/// [`pcuvd::Error::InvalidParameter`]), given which keys `acq` uses.
+fn key_of(name: &str, acq: &AcquisitionSection) -> Option<&'static str> {
+    Some(match name {
+        "number of elements" => "[probe].n_elements",
+        "pitch" => "[probe].pitch_m",
+        "element width" => "[probe].element_width_m",
+        "centre frequency" => "[probe].center_frequency_hz",
+        "bandwidth" => "[probe].bandwidth",
+        "sampling frequency" => "[acquisition].sampling_frequency_hz",
+        "speed of sound" => "[acquisition].sound_speed_m_s",
+        "t0" => "[acquisition].t0_s",
+        "event PRF" => "[acquisition].event_prf_hz",
+        "pulse cycles" => "[acquisition].pulse_cycles",
+        "angles" if acq.angles_deg.is_some() => "[acquisition].angles_deg",
+        "angles" if acq.angles_rad.is_some() => "[acquisition].angles_rad",
+        "angles" => "[acquisition].transmit_delays_s",
+        "slot delay" => "[acquisition].slot_delay_s",
+        "slot delays" if acq.slot_delays_s.is_some() => "[acquisition].slot_delays_s",
+        "slot delays" if acq.transmit_delays_s.is_some() => "[acquisition].transmit_delays_s",
+        "slot delays" => "[acquisition].slot_delay_s",
+        "code matrix" if acq.code_matrix.is_some() => "[acquisition].code_matrix",
+        "code matrix" => "[acquisition].coding",
+        "pulse samples" => "[acquisition.pulse].samples",
+        "pulse sampling frequency" => "[acquisition.pulse].sampling_frequency_hz",
+        _ => return None,
+    })
+}
+
+/// pcuvd's refusal of the acquisition in the manifest `path`, naming the key that holds the
+/// refused quantity.
+fn acquisition_error(path: &Path, source: pcuvd::Error, acq: &AcquisitionSection) -> IoError {
+    match &source {
+        pcuvd::Error::InvalidParameter { name, reason } => match key_of(name, acq) {
+            Some(key) => IoError::invalid(path, key, format!("is invalid ({name}): {reason}")),
+            None => IoError::Recording {
+                path: path.to_path_buf(),
+                source,
+            },
+        },
+        pcuvd::Error::HadamardOrder(n) => IoError::invalid(
+            path,
+            "[acquisition].coding",
+            format!("is \"hadamard\" with {n} angles, but {source}"),
+        ),
+        _ => IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        },
+    }
+}
+
+/// The keys only version 2 knows, and whether `acq` uses each.
+fn version_two_keys(acq: &AcquisitionSection) -> [(&'static str, bool); 5] {
+    [
+        ("[acquisition].slot_delays_s", acq.slot_delays_s.is_some()),
+        ("[acquisition].code_matrix", acq.code_matrix.is_some()),
+        (
+            "[acquisition].transmit_delays_s",
+            acq.transmit_delays_s.is_some(),
+        ),
+        ("[acquisition.pulse]", acq.pulse.is_some()),
+        (
+            "[acquisition].coding",
+            acq.coding.as_deref() == Some("matrix"),
+        ),
+    ]
+}
+
+/// The acquisition a manifest of `version` describes with its `[acquisition]` table `acq` and
+/// `probe`, every key checked (each error names its key).
+fn acquisition_of(
+    path: &Path,
+    version: i64,
+    acq: &AcquisitionSection,
+    probe: Probe,
+) -> Result<Acquisition, IoError> {
+    let key = |k: &str| format!("[acquisition].{k}");
+    let miss = |k: &str| IoError::missing(path, "table [acquisition]", format!("key '{k}'"));
+    let refuse = |source: pcuvd::Error| acquisition_error(path, source, acq);
+    if version < 2
+        && let Some((name, _)) = version_two_keys(acq).into_iter().find(|(_, used)| *used)
+    {
+        let what = if name == "[acquisition].coding" {
+            "= \"matrix\" is".to_string()
+        } else {
+            "is".to_string()
+        };
+        return Err(IoError::invalid(
+            path,
+            name,
+            format!(
+                "{what} only known to version 2 manifests; this one says version = 1 (set version = 2)"
+            ),
+        ));
+    }
+    probe.validate().map_err(refuse)?;
+    let c = acq.sound_speed_m_s.ok_or_else(|| miss("sound_speed_m_s"))?;
+    pcuvd::error::require_range(
+        "speed of sound",
+        c,
+        pcuvd::channel::SOUND_SPEED_RANGE,
+        "m/s",
+    )
+    .map_err(refuse)?;
+
+    // Per-element transmit delays: one plane wave per slot, or an error.
+    let tolerance = pcuvd::geometry::PLANE_WAVE_TOLERANCE_PERIODS / probe.center_frequency;
+    let waves = match &acq.transmit_delays_s {
+        None => None,
+        Some(rows) if rows.is_empty() => {
+            return Err(IoError::invalid(
+                path,
+                key("transmit_delays_s"),
+                "is empty; give one row of per-element firing times (s) per slot",
+            ));
+        }
+        Some(rows) => {
+            let xs = probe.element_x();
+            let mut waves = Vec::with_capacity(rows.len());
+            for (k, row) in rows.iter().enumerate() {
+                let mut wave = pcuvd::geometry::plane_wave_from_delays(row, &xs, c, tolerance)
+                    .map_err(|e| {
+                        IoError::invalid(path, key("transmit_delays_s"), format!("row {k} {e}"))
+                    })?;
+                // Delays quantised by the scanner's clock may put the first firing a hair
+                // before the origin.
+                if wave.start < 0.0 && wave.start >= -tolerance {
+                    wave.start = 0.0;
+                }
+                if wave.start < 0.0 {
+                    return Err(IoError::invalid(
+                        path,
+                        key("transmit_delays_s"),
+                        format!(
+                            "row {k}: the slot's first element fires at {:.4} µs, before the \
+                             event's time origin; delays count from the origin of t0_s (≥ 0)",
+                            wave.start * 1e6
+                        ),
+                    ));
+                }
+                waves.push(wave);
+            }
+            Some(waves)
+        }
+    };
+
+    // Angles: given, derived from the delays, or both (then they must agree).
+    let given = match (&acq.angles_deg, &acq.angles_rad) {
+        (Some(d), None) => Some((
+            "angles_deg",
+            d.iter().map(|a| a.to_radians()).collect::<Vec<f64>>(),
+        )),
+        (None, Some(r)) => Some(("angles_rad", r.clone())),
+        (None, None) => None,
+        (Some(_), Some(_)) => {
+            return Err(IoError::invalid(
+                path,
+                key("angles_rad"),
+                "is given together with angles_deg; give exactly one",
+            ));
+        }
+    };
+    let angles = match (given, &waves) {
+        (Some((_, a)), None) => a,
+        (None, Some(w)) => w.iter().map(|w| w.angle).collect(),
+        (None, None) => return Err(miss("angles_deg")),
+        (Some((name, a)), Some(w)) => {
+            if a.len() != w.len() {
+                return Err(IoError::invalid(
+                    path,
+                    key(name),
+                    format!(
+                        "lists {} angles but transmit_delays_s has {} rows (one per slot)",
+                        a.len(),
+                        w.len()
+                    ),
+                ));
+            }
+            let (lo, hi) = probe.aperture();
+            for (k, (given, wave)) in a.iter().zip(w).enumerate() {
+                // The given angle's delays may differ from the fitted plane wave's by as much as
+                // the delays may differ from it.
+                if ((given.sin() - wave.angle.sin()) * (hi - lo) / c).abs() > tolerance {
+                    return Err(IoError::invalid(
+                        path,
+                        key(name),
+                        format!(
+                            "gives slot {k} {:.4}° but row {k} of transmit_delays_s steers \
+                             {:.4}°",
+                            given.to_degrees(),
+                            wave.angle.to_degrees()
+                        ),
+                    ));
+                }
+            }
+            w.iter().map(|w| w.angle).collect()
+        }
+    };
+    let n = angles.len();
+
+    // Slot starts: evenly spaced, listed, or from the delays (at most one of these).
+    let start_keys: Vec<&str> = [
+        ("slot_delay_s", acq.slot_delay_s.is_some()),
+        ("slot_delays_s", acq.slot_delays_s.is_some()),
+        ("transmit_delays_s", waves.is_some()),
+    ]
+    .into_iter()
+    .filter(|(_, used)| *used)
+    .map(|(k, _)| k)
+    .collect();
+    if let [first, second, ..] = start_keys[..] {
+        return Err(IoError::invalid(
+            path,
+            key(second),
+            format!(
+                "is given together with {first}; slot starts come from one of slot_delay_s, \
+                 slot_delays_s and transmit_delays_s"
+            ),
+        ));
+    }
+    let listed = match (&acq.slot_delays_s, &waves) {
+        (Some(list), _) => {
+            if list.len() != n {
+                return Err(IoError::invalid(
+                    path,
+                    key("slot_delays_s"),
+                    format!(
+                        "lists {} slot starts for {n} angles (one per slot)",
+                        list.len()
+                    ),
+                ));
+            }
+            Some(list.clone())
+        }
+        (None, Some(w)) => Some(w.iter().map(|w| w.start).collect()),
+        (None, None) => None,
+    };
+    let only_with = |k: &str, coding: &str| {
+        IoError::invalid(
+            path,
+            key(k),
+            format!("is only meaningful with coding = \"{coding}\""),
+        )
+    };
+    let coding = match acq.coding.as_deref() {
+        None => return Err(miss("coding")),
+        Some("none") => {
+            if acq.slot_delay_s.is_some() {
+                return Err(only_with("slot_delay_s", "hadamard"));
+            }
+            if acq.code_matrix.is_some() {
+                return Err(only_with("code_matrix", "matrix"));
+            }
+            match listed {
+                Some(starts) if starts.iter().any(|&t| t != 0.0) => {
+                    Coding::Matrix(TransmitCode::one_per_event(starts))
+                }
+                _ => Coding::Conventional,
+            }
+        }
+        Some("hadamard") => {
+            if acq.code_matrix.is_some() {
+                return Err(only_with("code_matrix", "matrix"));
+            }
+            match (acq.slot_delay_s, listed) {
+                (Some(slot_delay), _) => Coding::Hadamard { slot_delay },
+                (None, Some(starts)) => {
+                    let h = Hadamard::new(n).map_err(refuse)?;
+                    Coding::Matrix(TransmitCode::hadamard(&h, starts))
+                }
+                (None, None) => return Err(miss("slot_delay_s")),
+            }
+        }
+        Some("matrix") => {
+            let rows = acq
+                .code_matrix
+                .as_ref()
+                .ok_or_else(|| miss("code_matrix"))?;
+            if rows.len() != n || rows.iter().any(|r| r.len() != n) {
+                let lengths: Vec<usize> = rows.iter().map(Vec::len).collect();
+                return Err(IoError::invalid(
+                    path,
+                    key("code_matrix"),
+                    format!(
+                        "has {} rows of lengths {lengths:?}; {n} angles need {n} rows of {n}: \
+                         row i gives the weight (±1) of each slot (angle) in event i of a \
+                         compound frame",
+                        rows.len()
+                    ),
+                ));
+            }
+            let starts = match (acq.slot_delay_s, listed) {
+                (Some(d), _) => (0..n).map(|k| k as f64 * d).collect(),
+                (None, Some(starts)) => starts,
+                (None, None) => {
+                    return Err(IoError::missing(
+                        path,
+                        "table [acquisition]",
+                        "key 'slot_delays_s' (or slot_delay_s, or transmit_delays_s): when each \
+                         slot fires",
+                    ));
+                }
+            };
+            Coding::Matrix(TransmitCode {
+                weights: rows.iter().flatten().copied().collect(),
+                slot_starts: starts,
+            })
+        }
+        Some(other) => {
+            let expected = if version < 2 {
+                "\"none\" or \"hadamard\""
+            } else {
+                "\"none\", \"hadamard\" or \"matrix\""
+            };
+            return Err(IoError::invalid(
+                path,
+                key("coding"),
+                format!("is \"{other}\"; expected {expected}"),
+            ));
+        }
+    };
+
+    // The pulse: its length in cycles, and (version 2) its samples.
+    let pulse = match &acq.pulse {
+        None => None,
+        Some(p) => {
+            let pulse = TransmitPulse {
+                samples: p.samples.clone().ok_or_else(|| {
+                    IoError::missing(path, "table [acquisition.pulse]", "key 'samples'")
+                })?,
+                sampling_frequency: p.sampling_frequency_hz.ok_or_else(|| {
+                    IoError::missing(
+                        path,
+                        "table [acquisition.pulse]",
+                        "key 'sampling_frequency_hz'",
+                    )
+                })?,
+            };
+            pulse.validate().map_err(refuse)?;
+            Some(pulse)
+        }
+    };
+    let pulse_cycles = match (acq.pulse_cycles, &pulse) {
+        (Some(cycles), _) => cycles,
+        (None, Some(p)) => p.duration() * probe.center_frequency,
+        (None, None) => return Err(miss("pulse_cycles")),
+    };
+    let req = |v: Option<f64>, k: &str| v.ok_or_else(|| miss(k));
+    let acquisition = Acquisition {
+        probe,
+        sequence: Sequence {
+            angles,
+            event_prf: req(acq.event_prf_hz, "event_prf_hz")?,
+            coding,
+            pulse_cycles,
+            pulse,
+        },
+        sampling_frequency: req(acq.sampling_frequency_hz, "sampling_frequency_hz")?,
+        sound_speed: c,
+        t0: req(acq.t0_s, "t0_s")?,
+    };
+    acquisition.validate().map_err(refuse)?;
+    Ok(acquisition)
 }
 
 /// (events, channels, samples) of samples of `shape` whose axes are `axes`, checked against the
@@ -384,11 +776,13 @@ pub(crate) fn event_shape(
     let (events, channels, samples) = match canonical.as_slice() {
         [f, a, c, s] => {
             if *a != n_angles {
+                let axis = axes.get(perm[1]).map_or("angles", String::as_str);
                 return Err(IoError::invalid(
                     path,
                     "[acquisition].angles",
                     format!(
-                        "lists {n_angles} angles but the 'angles' axis of {} has {a} (shape {shape:?})",
+                        "lists {n_angles} angles (so {n_angles} events per compound frame) but \
+                         the '{axis}' axis of {} has {a} (shape {shape:?})",
                         data_path.display()
                     ),
                 ));
@@ -417,20 +811,35 @@ pub(crate) fn event_shape(
     Ok((events, channels, samples))
 }
 
-/// For each canonical axis (frames, angles, channels, samples) or (events, channels, samples), its
-/// index among the named axes.
-fn axis_permutation(axes: &[String]) -> Result<Vec<usize>, String> {
-    const FOUR: [&str; 4] = ["frames", "angles", "channels", "samples"];
-    const THREE: [&str; 3] = ["events", "channels", "samples"];
-    let canonical: &[&str] = if axes.len() == 4 { &FOUR } else { &THREE };
+/// The named axes of samples in canonical order: (frames, angles, channels, samples) in a version 1
+/// manifest, (frames, events, channels, samples) from version 2 (the second axis counts the events
+/// of a compound frame: a coded event fires every angle), or (events, channels, samples).
+fn canonical_axes(count: usize, version: i64) -> &'static [&'static str] {
+    match (count, version) {
+        (4, 1) => &["frames", "angles", "channels", "samples"],
+        (4, _) => &["frames", "events", "channels", "samples"],
+        _ => &["events", "channels", "samples"],
+    }
+}
+
+/// For each canonical axis ([`canonical_axes`]), its index among the named axes.
+fn axis_permutation(axes: &[String], version: i64) -> Result<Vec<usize>, String> {
+    let canonical = canonical_axes(axes.len(), version);
     let is_perm = (axes.len() == 3 || axes.len() == 4)
         && canonical
             .iter()
             .all(|c| axes.iter().filter(|a| a.as_str() == *c).count() == 1);
     if !is_perm {
+        let four = canonical_axes(4, version);
+        let hint = if version >= 2 && axes.iter().any(|a| a == "angles") {
+            " (from version 2 the axis of the events of a compound frame is named \"events\", \
+             not \"angles\": a coded event fires every angle)"
+        } else {
+            ""
+        };
         return Err(format!(
-            "is {axes:?}; expected an ordering of [\"frames\", \"angles\", \"channels\", \"samples\"] \
-             or of [\"events\", \"channels\", \"samples\"]"
+            "is {axes:?}; expected an ordering of {four:?} or of [\"events\", \"channels\", \
+             \"samples\"]{hint}"
         ));
     }
     Ok(canonical
@@ -470,8 +879,10 @@ fn toml_str(s: &str) -> String {
     toml::Value::String(s.to_string()).to_string()
 }
 
-/// Writes `{stem}.npy` (float32 RF or complex64 IQ, axes frames × angles × channels × samples) and
-/// `{stem}.toml` in `dir` (created if needed); returns the manifest's path.
+/// Writes `{stem}.npy` (float32 RF or complex64 IQ, axes frames × angles × channels × samples, or
+/// frames × events × ... in a version 2 manifest) and `{stem}.toml` in `dir` (created if needed),
+/// in manifest version 1 when it can say the acquisition, else version 2; returns the manifest's
+/// path.
 pub fn write_recording(
     dir: &Path,
     stem: &str,
@@ -544,6 +955,15 @@ fn prepare_recording(dir: &Path, manifest_path: &Path) -> Result<(), IoError> {
     }
 }
 
+/// The manifest version a recording acquired as `acq` needs: 1 unless its sequence has an
+/// explicit code or a sampled pulse (so recordings version 1 can say are written as before).
+fn version_needed(acq: &Acquisition) -> i64 {
+    match (&acq.sequence.coding, &acq.sequence.pulse) {
+        (Coding::Matrix(_), _) | (_, Some(_)) => 2,
+        _ => 1,
+    }
+}
+
 /// Writes the manifest of a recording acquired as `acq` whose samples are `npy_name`
 /// (frames, angles, channels, samples) of `kind_lines`, atomically.
 fn write_manifest(
@@ -554,10 +974,11 @@ fn write_manifest(
     provenance: &toml::Table,
 ) -> Result<(), IoError> {
     let p = &acq.probe;
+    let version = version_needed(acq);
     let mut t = String::new();
     t.push_str("# pcuvd recording manifest (SI units; the unit is in each key's name).\n");
     t.push_str(&format!(
-        "format = {}\nversion = {VERSION}\n\n",
+        "format = {}\nversion = {version}\n\n",
         toml_str(FORMAT)
     ));
     t.push_str("[probe]\n");
@@ -609,17 +1030,50 @@ fn write_manifest(
         "pulse_cycles = {}\n",
         toml_f64(acq.sequence.pulse_cycles)
     ));
-    match acq.sequence.coding {
+    let list = |values: &[f64]| {
+        values
+            .iter()
+            .map(|&v| toml_f64(v))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    match &acq.sequence.coding {
         Coding::Conventional => t.push_str("coding = \"none\"\n"),
         Coding::Hadamard { slot_delay } => t.push_str(&format!(
             "coding = \"hadamard\"\nslot_delay_s = {}\n",
-            toml_f64(slot_delay)
+            toml_f64(*slot_delay)
         )),
+        Coding::Matrix(code) => {
+            t.push_str("coding = \"matrix\"\n");
+            t.push_str("# row i: the weight of each slot (angle) in event i of a compound frame\n");
+            t.push_str("code_matrix = [\n");
+            for row in code.weights.chunks(code.order().max(1)) {
+                t.push_str(&format!("    [{}],\n", list(row)));
+            }
+            t.push_str("]\n");
+            t.push_str(&format!("slot_delays_s = [{}]\n", list(&code.slot_starts)));
+        }
+    }
+    if let Some(pulse) = &acq.sequence.pulse {
+        t.push_str("\n[acquisition.pulse]\n");
+        t.push_str(&format!(
+            "sampling_frequency_hz = {}\n",
+            toml_f64(pulse.sampling_frequency)
+        ));
+        t.push_str(&format!("samples = [{}]\n", list(&pulse.samples)));
     }
     t.push_str("\n[data]\n");
     t.push_str(&format!("file = {}\n", toml_str(npy_name)));
     t.push_str(kind_lines);
-    t.push_str("axes = [\"frames\", \"angles\", \"channels\", \"samples\"]\n");
+    t.push_str(&format!(
+        "axes = {}\n",
+        toml::Value::Array(
+            canonical_axes(4, version)
+                .iter()
+                .map(|a| toml::Value::String(a.to_string()))
+                .collect()
+        )
+    ));
     if !provenance.is_empty() {
         #[derive(serde::Serialize)]
         struct Prov<'a> {

@@ -111,8 +111,12 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
         .map_err(|e| IoError::io(path, "read", e))?
         .len();
     let mut reader = std::io::BufReader::new(file);
-    let header = Header::from_reader(&mut reader)
-        .map_err(|e| IoError::malformed(path, format!("not a valid .npy file ({e})")))?;
+    let header = Header::from_reader(&mut reader).map_err(|e| {
+        IoError::malformed(
+            path,
+            format!("not a valid .npy file ({})", crate::error::flat(e)),
+        )
+    })?;
     let header_len = reader
         .stream_position()
         .map_err(|e| IoError::io(path, "read", e))?;

@@ -25,7 +25,7 @@ use pcuvd::vector::{self, Estimator, IrlsParams};
 use pcuvd::{AngleSamples, ChannelData, Coding, Probe, Samples, Sequence};
 use pcuvd_cli::process::{self as cli_process, DynamicsOutcome, Plan, Processed};
 use pcuvd_cli::progress::{PipelineProgress, TaskProgress};
-use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde_json::{Value, json};
@@ -34,14 +34,24 @@ use serde_json::{Value, json};
 /// command line prints for the same error.
 fn to_py(error: anyhow::Error) -> PyErr {
     let message = pcuvd_cli::one_line(&error);
+    // What the file system refused (a missing file, a folder, a pipe, a read error) is an
+    // OSError, a missing file a FileNotFoundError, as Python's own open() raises them.
+    let missing = error.chain().any(|cause| {
+        matches!(
+            cause.downcast_ref::<pcuvd_io::IoError>(),
+            Some(pcuvd_io::IoError::NotFound { .. })
+        )
+    });
     let os_refused = error.chain().any(|cause| {
         cause.downcast_ref::<std::io::Error>().is_some()
             || matches!(
                 cause.downcast_ref::<pcuvd_io::IoError>(),
-                Some(pcuvd_io::IoError::Io { .. })
+                Some(pcuvd_io::IoError::Io { .. } | pcuvd_io::IoError::NotAFile { .. })
             )
     });
-    if os_refused {
+    if missing {
+        PyFileNotFoundError::new_err(message)
+    } else if os_refused {
         PyOSError::new_err(message)
     } else {
         PyValueError::new_err(message)
@@ -94,21 +104,26 @@ fn set_quiet(quiet: bool) {
 #[pyclass(frozen, name = "Recording", module = "pcuvd._pcuvd")]
 struct PyRecording {
     data: Arc<ChannelData>,
-    /// Every file it was read from (empty for arrays or a simulation).
-    files: Vec<PathBuf>,
     /// What it was read or made from, as given.
     input: String,
-    /// The format and the reader.
-    format: (String, String),
+    /// What the reader reported: files (empty for arrays or a simulation), format, reader, every
+    /// acquisition parameter with its source, warnings.
+    info: pcuvd_io::SourceInfo,
 }
 
 impl PyRecording {
     fn new(data: ChannelData, files: Vec<PathBuf>, input: String, format: (&str, &str)) -> Self {
         PyRecording {
             data: Arc::new(data),
-            files,
             input,
-            format: (format.0.to_string(), format.1.to_string()),
+            info: pcuvd_io::SourceInfo {
+                files,
+                format: format.0.to_string(),
+                reader: format.1.to_string(),
+                parameters: vec![],
+                stored: None,
+                warnings: vec![],
+            },
         }
     }
 }
@@ -138,7 +153,9 @@ impl PyRecording {
         let (coding, slot_delay) = match seq.coding {
             Coding::Conventional => ("none", Value::Null),
             Coding::Hadamard { slot_delay } => ("hadamard", json!(slot_delay)),
+            Coding::Matrix(_) => ("matrix", Value::Null),
         };
+        let code = seq.transmit_code().ok();
         let demod = match &self.data.samples {
             Samples::Rf(_) => Value::Null,
             Samples::Iq {
@@ -156,17 +173,23 @@ impl PyRecording {
             "angles_rad": seq.angles,
             "coding": coding,
             "slot_delay_s": slot_delay,
+            "code_matrix": code.as_ref().map(|c| c.weights.chunks(c.order().max(1)).map(<[f64]>::to_vec).collect::<Vec<_>>()),
+            "slot_starts_s": code.as_ref().map(|c| c.slot_starts.clone()),
             "pulse_cycles": seq.pulse_cycles,
+            "transmit_pulse": seq.pulse.as_ref().map(|p| json!({"samples": p.samples, "sampling_freq_hz": p.sampling_frequency})),
             "demod_freq_hz": demod,
             "n_events": events, "n_channels": channels, "n_samples": samples,
             "n_frames": self.data.n_frames(),
             "n_angles": seq.n_angles(),
             "nyquist_velocity_m_s": acq.nyquist_velocity(),
             "recorded_depth_m": pcuvd::pipeline::recorded_depth(&self.data),
-            "files": self.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+            "files": self.info.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
             "input": self.input,
-            "format": self.format.0,
-            "reader": self.format.1,
+            "format": self.info.format,
+            "reader": self.info.reader,
+            "parameters": self.info.parameters,
+            "stored_samples": self.info.stored,
+            "warnings": self.info.warnings,
         })
         .to_string()
     }
@@ -178,25 +201,45 @@ impl PyRecording {
 fn read_recording(py: Python<'_>, path: PathBuf, overrides: &str) -> PyResult<PyRecording> {
     let overrides: serde_json::Map<String, Value> =
         serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    let (mut data, files) = py
-        .detach(|| cli_process::read_input(&path))
+    let reader_overrides = reader_overrides(&overrides)
+        .with_context(|| format!("{}: overrides", path.display()))
+        .map_err(to_py)?;
+    let (mut data, info) = py
+        .detach(|| -> anyhow::Result<_> {
+            let opened = pcuvd_io::open_recording(&path, &reader_overrides)?;
+            Ok((opened.read_all()?, opened.info))
+        })
         .map_err(to_py)?;
     apply_overrides(&mut data, &overrides)
         .with_context(|| format!("{}: overrides", path.display()))
         .map_err(to_py)?;
-    let format = match files.len() {
-        1 => ("MUST-style MATLAB v5 (.mat)", "pcuvd_io::read_must_mat"),
-        _ => (
-            "pcuvd recording manifest (.toml) + NumPy .npy",
-            "pcuvd_io::read_recording",
+    Ok(PyRecording {
+        data: Arc::new(data),
+        input: path.display().to_string(),
+        info,
+    })
+}
+
+/// The overrides the reader applies itself (so that it records them as the parameters'
+/// source, and a file without t0 can be read with `t0_s=`).
+fn reader_overrides(map: &serde_json::Map<String, Value>) -> anyhow::Result<pcuvd_io::Overrides> {
+    let angles = match map.get("angles_rad").filter(|v| !v.is_null()) {
+        Some(v) => Some(
+            serde_json::from_value(v.clone())
+                .with_context(|| format!("angles_rad: expected a list of numbers, got {v}"))?,
         ),
+        None => None,
     };
-    Ok(PyRecording::new(
-        data,
-        files,
-        path.display().to_string(),
-        format,
-    ))
+    Ok(pcuvd_io::Overrides {
+        t0_s: number(map, "t0_s")?,
+        sound_speed_m_s: number(map, "sound_speed_m_s")?,
+        event_prf_hz: number(map, "event_prf_hz")?,
+        sampling_freq_hz: number(map, "sampling_freq_hz")?,
+        center_freq_hz: number(map, "center_freq_hz")?,
+        demod_freq_hz: None,
+        angles_rad: angles,
+        pulse_cycles: number(map, "pulse_cycles")?,
+    })
 }
 
 fn number(map: &serde_json::Map<String, Value>, key: &str) -> anyhow::Result<Option<f64>> {
@@ -372,6 +415,7 @@ fn recording_from_arrays(
                     event_prf: required("event_prf_hz")?,
                     coding: Coding::Conventional,
                     pulse_cycles: number(&fields, "pulse_cycles")?.unwrap_or(2.0),
+                    pulse: None,
                 },
                 sampling_frequency: required("sampling_freq_hz")?,
                 sound_speed: number(&fields, "sound_speed_m_s")?.unwrap_or(1540.0),
@@ -421,9 +465,8 @@ struct PyProcessResult {
     /// The processing options it ran with (a dynamics re-run keeps them).
     options: pcuvd_cli::options::ProcessingOptions,
     recording: Arc<ChannelData>,
-    files: Vec<PathBuf>,
     input: String,
-    format: (String, String),
+    info: pcuvd_io::SourceInfo,
     plan: Plan,
     processed: Processed,
 }
@@ -444,7 +487,7 @@ fn process(
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
             let plan = Plan::new(&call.options, &call.dynamics, &*data)?;
-            cli_process::check_memory(&*data, &plan.params, call.max_memory_gb)?;
+            cli_process::check_memory(&*data, &plan, call.max_memory_gb)?;
             let progress = PipelineProgress::new("");
             let processed =
                 cli_process::compute(&*data, &plan, &|s, d, t| progress.update(s, d, t))
@@ -455,9 +498,8 @@ fn process(
     Ok(PyProcessResult {
         options: call.options,
         recording: data,
-        files: recording.files.clone(),
         input: recording.input.clone(),
-        format: recording.format.clone(),
+        info: recording.info.clone(),
         plan,
         processed,
     })
@@ -467,8 +509,7 @@ impl PyProcessResult {
     fn source(&self) -> anyhow::Result<Value> {
         cli_process::provenance(
             &self.input,
-            &self.files,
-            (&self.format.0, &self.format.1),
+            &self.info,
             &self.plan.options_text,
             vec![format!("python: pcuvd.process({:?})", self.input)],
         )
@@ -495,10 +536,17 @@ impl PyProcessResult {
             dict.set_item("vz_ls", ls.vz.to_pyarray(py))?;
             dict.set_item("speed_ls", ls.speed().into_pyarray(py))?;
         }
+        if let Some(done) = &out.dealias {
+            dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
+            dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
+        }
         if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
             dict.set_item("ri", maps.ri.to_pyarray(py))?;
             dict.set_item("psv", maps.psv.to_pyarray(py))?;
             dict.set_item("edv", maps.edv.to_pyarray(py))?;
+            dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
+            dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
+            dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
             dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
             dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
             dict.set_item("speed_series", series.speed().into_pyarray(py))?;
@@ -547,9 +595,8 @@ impl PyProcessResult {
         Ok(PyProcessResult {
             options: self.options.clone(),
             recording: self.recording.clone(),
-            files: self.files.clone(),
             input: self.input.clone(),
-            format: self.format.clone(),
+            info: self.info.clone(),
             plan,
             processed: Processed {
                 out: self.processed.out.clone(),
@@ -557,6 +604,7 @@ impl PyProcessResult {
                 dynamics_s: seconds,
                 ensembles: self.processed.ensembles.clone(),
                 blocks: self.processed.blocks,
+                segments: self.processed.segments.clone(),
             },
         })
     }
@@ -577,7 +625,7 @@ impl PyProcessResult {
             pcuvd_cli::outputs::prepare(
                 &folder,
                 pcuvd_cli::outputs::PROCESS_OUTPUTS,
-                &self.files,
+                &self.info.files,
                 force,
             )?;
             let name = std::path::Path::new(&self.input)

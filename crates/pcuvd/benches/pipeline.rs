@@ -94,6 +94,7 @@ fn decode(c: &mut Criterion) {
                 event_prf: 14.4e3,
                 coding: Coding::Hadamard { slot_delay: 1e-6 },
                 pulse_cycles: 2.0,
+                pulse: None,
             },
             sampling_frequency: 65e6,
             sound_speed: 1540.0,

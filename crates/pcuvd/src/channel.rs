@@ -18,21 +18,102 @@ pub struct Acquisition {
     pub sampling_frequency: f64,
     /// Speed of sound assumed for the medium (m/s).
     pub sound_speed: f64,
-    /// Time of the first sample after the first element of the event's first pulse slot fires (s).
+    /// Time of the first sample after the event's time origin (s): the instant the first element
+    /// of the event's first pulse slot fires, unless an explicit code
+    /// ([`Coding::Matrix`](crate::Coding::Matrix)) starts its slots later.
     pub t0: f64,
 }
 
+/// Range of speeds of sound pcuvd accepts (m/s): from below any gas-free tissue to above steel;
+/// outside it the value is in another unit (mm/µs, say) or a mistake.
+pub const SOUND_SPEED_RANGE: (f64, f64) = (300.0, 10_000.0);
+
 impl Acquisition {
-    /// Checks every parameter for physical sense (positive f_s, c, pitch...).
+    /// Checks every parameter for physical sense and a plausible range (positive f_s up to
+    /// 10 GHz, c within [`SOUND_SPEED_RANGE`], t0 within an event period, a sampled pulse that
+    /// holds the probe's band ...).
     pub fn validate(&self) -> Result<()> {
         self.probe.validate()?;
         self.sequence.validate()?;
         require_positive("sampling frequency", self.sampling_frequency)?;
+        crate::error::require_range(
+            "sampling frequency",
+            self.sampling_frequency,
+            (1e3, crate::sequence::MAX_SAMPLING_FREQUENCY),
+            "Hz",
+        )?;
         require_positive("speed of sound", self.sound_speed)?;
+        crate::error::require_range("speed of sound", self.sound_speed, SOUND_SPEED_RANGE, "m/s")?;
         if !self.t0.is_finite() {
-            return Err(invalid("t0", format!("must be finite, got {}", self.t0)));
+            return Err(invalid("t0", format!("must be finite, got {:?}", self.t0)));
+        }
+        // The first sample comes after the event fires and before the next one does.
+        let period = 1.0 / self.sequence.event_prf;
+        if self.t0.abs() >= period {
+            return Err(invalid(
+                "t0",
+                format!(
+                    "{:.3} µs is not within ± the event period ({:.3} µs at the event PRF): the \
+                     first sample must be recorded within its own event (check the unit: s)",
+                    self.t0 * 1e6,
+                    period * 1e6
+                ),
+            ));
+        }
+        if let Some(pulse) = &self.sequence.pulse {
+            let top = self.probe.center_frequency * (1.0 + self.probe.bandwidth / 2.0);
+            if pulse.sampling_frequency <= 2.0 * top {
+                return Err(invalid(
+                    "pulse sampling frequency",
+                    format!(
+                        "{:.3} MHz must exceed twice the top of the probe's band ({:.3} MHz) for \
+                         the sampled pulse to hold the band",
+                        pulse.sampling_frequency * 1e-6,
+                        2.0 * top * 1e-6
+                    ),
+                ));
+            }
         }
         Ok(())
+    }
+
+    /// How RF sampled at the acquisition's f_s holds the probe's band [f_c(1 − B/2), f_c(1 + B/2)]
+    /// (B the fractional bandwidth): whole below f_s/2, or band-pass sampled within one Nyquist
+    /// zone [m·f_s/2, (m + 1)·f_s/2], m ≥ 1 (which demodulation handles), or an error when the
+    /// band straddles a multiple of f_s/2 and so folds onto itself (its frequencies alias onto
+    /// each other and no processing can separate them).
+    pub fn rf_band_sampling(&self) -> Result<BandSampling> {
+        let fs = self.sampling_frequency;
+        let half = fs / 2.0;
+        let (fc, b) = (self.probe.center_frequency, self.probe.bandwidth);
+        let (low, high) = (fc * (1.0 - b / 2.0), fc * (1.0 + b / 2.0));
+        let zone = (low / half).floor();
+        // A band edge on a zone edge does not fold; rounding must not say it does.
+        if high > (zone + 1.0) * half * (1.0 + 1e-12) {
+            return Err(invalid(
+                "sampling frequency",
+                format!(
+                    "{:.4} MHz folds the RF band {:.3}–{:.3} MHz (f_c {:.3} MHz, bandwidth {:.0} %) \
+                     onto itself: the band straddles {:.4} MHz, a multiple of f_s/2, so its \
+                     frequencies alias onto each other. Sample above {:.4} MHz (twice the band's \
+                     top), or within a band-pass window that holds the whole band",
+                    fs * 1e-6,
+                    low * 1e-6,
+                    high * 1e-6,
+                    fc * 1e-6,
+                    b * 100.0,
+                    (zone + 1.0) * half * 1e-6,
+                    2.0 * high * 1e-6
+                ),
+            ));
+        }
+        Ok(if zone >= 1.0 {
+            BandSampling::BandPass {
+                zone: zone as usize,
+            }
+        } else {
+            BandSampling::Nyquist
+        })
     }
 
     /// Slow-time sampling rate of each angle (Hz) = event PRF / number of angles.
@@ -50,6 +131,19 @@ impl Acquisition {
     }
 }
 
+/// How RF samples hold the probe's band ([`Acquisition::rf_band_sampling`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BandSampling {
+    /// f_s is at least twice the band's top.
+    Nyquist,
+    /// The band lies whole in Nyquist zone `zone` ≥ 1, [zone·f_s/2, (zone + 1)·f_s/2]: valid,
+    /// and demodulated as such, but a band edge set too optimistically would fold.
+    BandPass {
+        /// The Nyquist zone that holds the band.
+        zone: usize,
+    },
+}
+
 /// Recorded samples, shape (events, channels, samples): RF, or IQ already demodulated.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Samples {
@@ -65,6 +159,14 @@ pub enum Samples {
 }
 
 impl Samples {
+    /// True when some sample is not zero.
+    pub fn any_nonzero(&self) -> bool {
+        match self {
+            Samples::Rf(a) => a.iter().any(|&v| v != 0.0),
+            Samples::Iq { data, .. } => data.iter().any(|v| v.re != 0.0 || v.im != 0.0),
+        }
+    }
+
     /// (events, channels, samples).
     pub fn dim(&self) -> (usize, usize, usize) {
         match self {
@@ -84,9 +186,13 @@ pub struct ChannelData {
 }
 
 impl ChannelData {
-    /// Checks parameters, shapes (channels = elements, whole compound frames) and finiteness.
+    /// Checks parameters, shapes (channels = elements, whole compound frames), that RF samples
+    /// do not fold the probe's band ([`Acquisition::rf_band_sampling`]) and finiteness.
     pub fn validate(&self) -> Result<()> {
         self.acquisition.validate()?;
+        if let Samples::Rf(_) = self.samples {
+            self.acquisition.rf_band_sampling()?;
+        }
         let (events, channels, samples) = self.samples.dim();
         let n = self.acquisition.sequence.n_angles();
         if channels != self.acquisition.probe.n_elements {

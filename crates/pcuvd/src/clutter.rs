@@ -12,6 +12,7 @@
 //! Automatic high cut-off: components whose energy falls below the Marchenko–Pastur edge of white
 //! noise, the noise variance estimated from the median eigenvalue, are removed.
 
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
 use ndarray::Array3;
 use num_complex::Complex32;
@@ -89,18 +90,22 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
         unsafe { std::slice::from_raw_parts(d.as_ptr() as *const c32, d.len()) }
     };
 
-    // G = Sᴴ S, accumulated in f64 over pixel chunks.
+    // G = Sᴴ S, accumulated in f64 over pixel chunks. G is Hermitian and the eigensolver reads
+    // its lower half only: computing that half alone halves the largest product of the filter.
     let gram = data
         .par_chunks(CHUNK * frames)
         .map(|chunk| {
             let rows = chunk.len() / frames;
             let s = MatRef::from_row_major_slice(as_faer(chunk), rows, frames);
             let mut g = Mat::<c32>::zeros(frames, frames);
-            faer::linalg::matmul::matmul(
+            triangular::matmul(
                 g.as_mut(),
+                BlockStructure::TriangularLower,
                 faer::Accum::Replace,
                 s.adjoint(),
+                BlockStructure::Rectangular,
                 s,
+                BlockStructure::Rectangular,
                 c32::new(1.0, 0.0),
                 faer::Par::Seq,
             );
@@ -150,29 +155,47 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
         });
     }
 
-    // Projection onto the kept temporal subspace: P = V_keep V_keepᴴ (frames × frames).
+    // Projection onto the kept temporal subspace, S_f = S·V_keep·V_keepᴴ, or, the same, S minus
+    // its part in the removed subspace, S_f = S − S·V_cut·V_cutᴴ (the eigenvectors are
+    // orthonormal): applied through whichever subspace is smaller, two thin products of
+    // pixels × frames × rank instead of one of pixels × frames² (tissue and noise cut-offs
+    // remove a few components of hundreds).
     let keep: Vec<usize> = order[low..high].to_vec();
-    let projection = Mat::<c32>::from_fn(frames, frames, |i, j| {
-        let mut acc = c64::new(0.0, 0.0);
-        for &k in &keep {
-            acc += vectors[(i, k)] * vectors[(j, k)].conj();
-        }
-        c32::new(acc.re as f32, acc.im as f32)
-    });
+    let cut: Vec<usize> = order[..low].iter().chain(&order[high..]).copied().collect();
+    let through_cut = cut.len() < keep.len();
+    let basis_of = |columns: &[usize]| {
+        Mat::<c32>::from_fn(frames, columns.len(), |i, k| {
+            let v = vectors[(i, columns[k])];
+            c32::new(v.re as f32, v.im as f32)
+        })
+    };
+    let basis = basis_of(if through_cut { &cut } else { &keep });
     data.par_chunks_mut(CHUNK * frames).for_each(|chunk| {
         let rows = chunk.len() / frames;
-        let input = MatRef::from_row_major_slice(as_faer(chunk), rows, frames).to_owned();
-        // SAFETY: as above, same layout.
+        let mut coefficients = Mat::<c32>::zeros(rows, basis.ncols());
+        faer::linalg::matmul::matmul(
+            coefficients.as_mut(),
+            faer::Accum::Replace,
+            MatRef::from_row_major_slice(as_faer(chunk), rows, frames),
+            basis.as_ref(),
+            c32::new(1.0, 0.0),
+            faer::Par::Seq,
+        );
+        // SAFETY: num_complex::Complex32 and faer's c32 are the same type.
         let out =
             unsafe { std::slice::from_raw_parts_mut(chunk.as_mut_ptr() as *mut c32, chunk.len()) };
         let out = faer::MatMut::from_row_major_slice_mut(out, rows, frames);
-        // Rows are pixels: S_f = S · Pᵀ… with P Hermitian applied from the right: S_f = S · P.
+        let (accum, alpha) = if through_cut {
+            (faer::Accum::Add, c32::new(-1.0, 0.0))
+        } else {
+            (faer::Accum::Replace, c32::new(1.0, 0.0))
+        };
         faer::linalg::matmul::matmul(
             out,
-            faer::Accum::Replace,
-            input.as_ref(),
-            projection.as_ref(),
-            c32::new(1.0, 0.0),
+            accum,
+            coefficients.as_ref(),
+            basis.adjoint(),
+            alpha,
             faer::Par::Seq,
         );
     });
@@ -281,6 +304,73 @@ mod tests {
         });
         let report = svd_filter(&mut series, &ClutterParams::default()).unwrap();
         assert_eq!(report.low, 0);
+    }
+
+    /// Both ways of applying the projection (through the kept or through the removed subspace)
+    /// equal S·V_keep·V_keepᴴ computed in f64 from an independent thin SVD of S.
+    #[test]
+    fn filtered_series_equal_the_projection_of_an_independent_svd() {
+        let (nz, nx, nf) = (7, 9, 12);
+        let mut state = 12345u64;
+        let mut next = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            ((state >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        };
+        // Rank-2 tissue (strong, slow), rank-3 blood (weaker, faster, a random amplitude per
+        // pixel) and weak noise: the subspaces are well separated at ranks 2 and 5, where the
+        // cut-offs below fall (between near-equal noise components the split itself is
+        // ill-conditioned, and no two computations agree there).
+        let series = Array3::from_shape_fn((nz, nx, nf), |(z, x, f)| {
+            let (t, p) = (f as f32, (z * nx + x) as f32);
+            let tissue = Complex32::new(30.0 * (0.1 * t).cos(), 20.0 * (0.05 * t + 0.01 * p).sin());
+            let blood: Complex32 = (1..=3)
+                .map(|k| {
+                    let phase = 0.7 * k as f32 * t + next() * 6.0;
+                    Complex32::from_polar(3.0 * (next() + 0.6), phase)
+                })
+                .sum();
+            tissue + blood + Complex32::new(0.05 * next(), 0.05 * next())
+        });
+        let s = Mat::<c64>::from_fn(nz * nx, nf, |p, f| {
+            let v = series[[p / nx, p % nx, f]];
+            c64::new(v.re as f64, v.im as f64)
+        });
+        let svd = s.thin_svd().unwrap();
+        for (low, high) in [(2, 12), (0, 5), (2, 5)] {
+            let mut filtered = series.clone();
+            let params = ClutterParams {
+                low: RankCut::Fixed(low),
+                high: RankCut::Fixed(high),
+                tissue_frequency: 0.0,
+            };
+            svd_filter(&mut filtered, &params).unwrap();
+            let v = svd.V();
+            let mut worst: f64 = 0.0;
+            let mut scale: f64 = 0.0;
+            for p in 0..nz * nx {
+                for f in 0..nf {
+                    let mut expected = c64::new(0.0, 0.0);
+                    for g in 0..nf {
+                        let mut weight = c64::new(0.0, 0.0);
+                        for k in low..high {
+                            weight += v[(g, k)] * v[(f, k)].conj();
+                        }
+                        expected += s[(p, g)] * weight;
+                    }
+                    let got = filtered[[p / nx, p % nx, f]];
+                    let diff = c64::new(got.re as f64, got.im as f64) - expected;
+                    worst = worst.max(diff.norm());
+                    scale = scale.max(expected.norm());
+                }
+            }
+            // −80 dB of the kept signal: the f32 series and the Gram matrix (which squares the
+            // tissue-to-blood ratio) bound the agreement (measured 0.9–5.9·10⁻⁵ here, as with
+            // the full frames × frames projection this replaced).
+            assert!(
+                worst < 1e-4 * scale,
+                "cut-offs {low}..{high}: worst error {worst} of {scale}"
+            );
+        }
     }
 
     #[test]

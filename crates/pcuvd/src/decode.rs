@@ -7,6 +7,11 @@
 //! decode(encode(x)) = n·x; moving scatterers break the assumption (see DESIGN.md, "Coding and motion").
 //! Conventional sequences are only split: event i of a frame is angle i.
 //!
+//! An explicit code (weights A, any row order and signs, any slot starts τ_k; see
+//! [`TransmitCode`]) is decoded the same way with the decoding matrix g·A⁻¹
+//! ([`TransmitCode::decoding_matrix`]) in place of Hᵀ: decode(encode(x)) = g·x with g = ‖A‖²_F / n,
+//! which is n·x for any ±1 code and x for one slot per event.
+//!
 //! Motion between the events: event i of every frame fires i event periods after the frame's first,
 //! so moving blood has changed its echo phase from one event to the next and Hᵀ·M no longer
 //! cancels the other angles (it leaks each into the others, in proportion to the speed). With
@@ -26,7 +31,7 @@ use rustfft::{Fft, FftPlanner};
 use crate::channel::{AngleSamples, ChannelData, Samples};
 use crate::error::{Error, Result};
 use crate::hadamard::Hadamard;
-use crate::sequence::Coding;
+use crate::sequence::{Coding, TransmitCode};
 
 /// Advances traces of a fixed length by a (possibly fractional) number of samples: `y[t] = x[t + shift]`.
 /// Samples shifted in from beyond the end are zero.
@@ -139,17 +144,23 @@ pub fn decode(data: &ChannelData) -> Result<AngleSamples> {
 pub fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> Result<AngleSamples> {
     data.validate()?;
     let acq = &data.acquisition;
-    let slot_shift = match acq.sequence.coding {
-        Coding::Conventional => None,
-        Coding::Hadamard { slot_delay } => Some(slot_delay * acq.sampling_frequency),
-    };
-    decode_samples(
-        &data.samples,
-        acq.sequence.n_angles(),
-        slot_shift,
-        acq.sampling_frequency,
-        alignment,
-    )
+    match &acq.sequence.coding {
+        Coding::Conventional => decode_samples(
+            &data.samples,
+            acq.sequence.n_angles(),
+            None,
+            acq.sampling_frequency,
+            alignment,
+        ),
+        Coding::Hadamard { slot_delay } => decode_samples(
+            &data.samples,
+            acq.sequence.n_angles(),
+            Some(slot_delay * acq.sampling_frequency),
+            acq.sampling_frequency,
+            alignment,
+        ),
+        Coding::Matrix(code) => decode_code(&data.samples, code, acq.sampling_frequency, alignment),
+    }
 }
 
 /// As [`decode_aligned`], on bare samples (events, channels, samples) of `n` angles per compound
@@ -162,12 +173,7 @@ pub fn decode_samples(
     sampling_frequency: f64,
     alignment: EventAlignment,
 ) -> Result<AngleSamples> {
-    let (events, _, _) = samples.dim();
-    if n == 0 || events < n || events % n != 0 {
-        return Err(crate::error::Error::Shape(format!(
-            "{events} transmit events is not a whole number of compound frames of {n} events"
-        )));
-    }
+    check_frames(samples, n)?;
     if let Some(shift) = slot_shift
         && !(shift.is_finite() && shift >= 0.0)
     {
@@ -177,48 +183,131 @@ pub fn decode_samples(
         ));
     }
     crate::error::require_positive("sampling frequency", sampling_frequency)?;
+    match slot_shift {
+        None => Ok(match samples {
+            Samples::Rf(rf) => AngleSamples::Rf(split(rf.view(), n)),
+            Samples::Iq {
+                data,
+                demod_frequency,
+            } => AngleSamples::Iq {
+                data: split(data.view(), n),
+                demod_frequency: *demod_frequency,
+            },
+        }),
+        Some(shift) => {
+            let h = Hadamard::new(n)?;
+            // Hᵀ: slot k gathers event i with the polarity H[i][k].
+            let matrix = (0..n * n).map(|j| h.get(j % n, j / n)).collect::<Vec<_>>();
+            let shifts = (0..n).map(|k| k as f64 * shift).collect::<Vec<_>>();
+            let plan = DecodePlan {
+                matrix,
+                shifts,
+                align: true,
+            };
+            decode_with(samples, &plan, sampling_frequency, alignment)
+        }
+    }
+}
+
+/// As [`decode_samples`], for samples (events, channels, samples) transmitted with the explicit
+/// code `code`: slot k's record is Σ_i D[k][i]·event_i with D = [`TransmitCode::decoding_matrix`],
+/// advanced by its start τ_k; events are aligned in slow time as `alignment` says when some event
+/// fires several slots.
+pub fn decode_code(
+    samples: &Samples,
+    code: &TransmitCode,
+    sampling_frequency: f64,
+    alignment: EventAlignment,
+) -> Result<AngleSamples> {
+    let n = code.order();
+    check_frames(samples, n)?;
+    crate::error::require_positive("sampling frequency", sampling_frequency)?;
+    let plan = DecodePlan {
+        matrix: code
+            .decoding_matrix()?
+            .into_iter()
+            .map(|v| v as f32)
+            .collect(),
+        shifts: code
+            .slot_starts
+            .iter()
+            .map(|t| t * sampling_frequency)
+            .collect(),
+        align: code.is_coded(),
+    };
+    decode_with(samples, &plan, sampling_frequency, alignment)
+}
+
+/// A whole number of compound frames of `n` events, or an error.
+fn check_frames(samples: &Samples, n: usize) -> Result<()> {
+    let (events, _, _) = samples.dim();
+    if n == 0 || events < n || events % n != 0 {
+        return Err(crate::error::Error::Shape(format!(
+            "{events} transmit events is not a whole number of compound frames of {n} events"
+        )));
+    }
+    Ok(())
+}
+
+/// How to decode a frame: the decoding matrix (row-major (slot, event)), each slot's advance
+/// (samples), and whether events mix slots (then slow-time alignment applies).
+struct DecodePlan {
+    matrix: Vec<f32>,
+    shifts: Vec<f64>,
+    align: bool,
+}
+
+fn decode_with(
+    samples: &Samples,
+    plan: &DecodePlan,
+    sampling_frequency: f64,
+    alignment: EventAlignment,
+) -> Result<AngleSamples> {
+    let n = plan.shifts.len();
+    let (events, _, ns) = samples.dim();
     let frames = events / n;
+    if let Some(k) = plan.shifts.iter().position(|s| s.abs() >= ns as f64) {
+        return Err(crate::error::invalid(
+            "slot delays",
+            format!(
+                "slot {k} is shifted by {:.1} samples, more than its {ns}-sample record: its echoes \
+                 are not in the recording",
+                plan.shifts[k]
+            ),
+        ));
+    }
     let aligner = match alignment {
-        EventAlignment::MidFrame if n > 1 && frames > 1 => Some(SlowTimeAligner::new(frames, n)),
+        EventAlignment::MidFrame if plan.align && n > 1 && frames > 1 => {
+            Some(SlowTimeAligner::new(frames, n))
+        }
         _ => None,
     };
     let aligner = aligner.as_ref();
     match samples {
-        Samples::Rf(rf) => {
-            let out = match slot_shift {
-                None => split(rf.view(), n),
-                Some(shift) => decode_events(
-                    rf.view(),
-                    &Hadamard::new(n)?,
-                    shift,
-                    |shifter, tr, s| shifter.shift_real(tr, s),
-                    aligner,
-                ),
-            };
-            Ok(AngleSamples::Rf(out))
-        }
+        Samples::Rf(rf) => Ok(AngleSamples::Rf(decode_events(
+            rf.view(),
+            plan,
+            |shifter, tr, s| shifter.shift_real(tr, s),
+            aligner,
+        ))),
         Samples::Iq {
             data: iq,
             demod_frequency,
         } => {
             let fd = *demod_frequency;
             let fs = sampling_frequency;
-            let out = match slot_shift {
-                None => split(iq.view(), n),
-                Some(shift) => decode_events(
-                    iq.view(),
-                    &Hadamard::new(n)?,
-                    shift,
-                    |shifter, tr, s| {
-                        shifter.shift_complex(tr, s);
-                        // Baseband of an advanced analytic signal: IQ(t + τ)·exp(+2πi f_d τ).
-                        let phase = 2.0 * std::f64::consts::PI * fd * s / fs;
-                        let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
-                        tr.iter_mut().for_each(|v| *v *= rot);
-                    },
-                    aligner,
-                ),
-            };
+            let out = decode_events(
+                iq.view(),
+                plan,
+                |shifter, tr, s| {
+                    shifter.shift_complex(tr, s);
+                    // Baseband of an advanced analytic signal: IQ(t + τ)·exp(+2πi f_d τ).
+                    let phase = 2.0 * std::f64::consts::PI * fd * s / fs;
+                    let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
+                    tr.iter_mut().for_each(|v| *v *= rot);
+                },
+                aligner,
+            );
             Ok(AngleSamples::Iq {
                 data: out,
                 demod_frequency: fd,
@@ -533,11 +622,10 @@ impl SlowTimeSample for Complex32 {
 const TILE: usize = 16;
 
 /// Decodes coded events: per channel, the events aligned by `aligner` if given, then for every
-/// frame Hᵀ·M, and slot k advanced by k·`slot_shift` samples.
+/// frame slot k = Σ_i D[k][i]·event_i (D = `plan.matrix`), advanced by `plan.shifts[k]` samples.
 fn decode_events<T, F>(
     events: ArrayView3<T>,
-    h: &Hadamard,
-    slot_shift: f64,
+    plan: &DecodePlan,
     shift: F,
     aligner: Option<&SlowTimeAligner>,
 ) -> Array4<T>
@@ -545,10 +633,11 @@ where
     T: SlowTimeSample + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
     F: Fn(&TraceShifter, &mut [T], f64) + Sync,
 {
-    let n = h.order();
+    let n = plan.shifts.len();
     let (ne, nc, ns) = events.dim();
     let frames = ne / n;
-    let shifter = TraceShifter::new(ns, slot_shift * (n - 1) as f64);
+    let max_shift = plan.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
+    let shifter = TraceShifter::new(ns, max_shift);
     let mut out = Array4::<T>::from_elem((n, frames, nc, ns), T::zero());
     out.axis_iter_mut(Axis(2))
         .into_par_iter()
@@ -573,13 +662,16 @@ where
                 for k in 0..n {
                     trace.fill(T::zero());
                     for i in 0..n {
-                        let sign = h.get(i, k);
+                        let weight = plan.matrix[k * n + i];
+                        if weight == 0.0 {
+                            continue;
+                        }
                         let event = &block[(f * n + i) * ns..(f * n + i + 1) * ns];
                         for (a, &m) in trace.iter_mut().zip(event) {
-                            *a += m * sign;
+                            *a += m * weight;
                         }
                     }
-                    shift(&shifter, &mut trace, k as f64 * slot_shift);
+                    shift(&shifter, &mut trace, plan.shifts[k]);
                     let mut dest = channel_out.slice_mut(s![k, f, ..]);
                     match dest.as_slice_mut() {
                         Some(dest) => dest.copy_from_slice(&trace),
@@ -595,31 +687,72 @@ where
 /// frame (events, channels, samples): event i = `Σ_k H[i][k]·x_k` delayed by k·`slot_shift` samples.
 /// The inverse of [`decode`] for a still medium, up to the factor n.
 pub fn encode(per_angle: ArrayView3<f32>, h: &Hadamard, slot_shift: f64) -> Result<Array3<f32>> {
-    let (n, nc, ns) = per_angle.dim();
+    let n = per_angle.dim().0;
     if n != h.order() {
         return Err(Error::Shape(format!(
             "{n} angles for a Hadamard matrix of order {}",
             h.order()
         )));
     }
-    let shifter = TraceShifter::new(ns, slot_shift * (n - 1) as f64);
+    let shifts: Vec<f64> = (0..n).map(|k| k as f64 * slot_shift).collect();
+    Ok(encode_with(per_angle, |i, k| h.get(i, k), &shifts))
+}
+
+/// Encodes per-angle records (angles, channels, samples) sampled at `sampling_frequency` (Hz)
+/// into the n events of one compound frame transmitted with `code`: event i =
+/// `Σ_k A[i][k]·x_k` delayed by slot k's start. The inverse of [`decode_code`] for a still medium,
+/// up to the factor [`TransmitCode::decoding_gain`].
+pub fn encode_code(
+    per_angle: ArrayView3<f32>,
+    code: &TransmitCode,
+    sampling_frequency: f64,
+) -> Result<Array3<f32>> {
+    code.validate()?;
+    let n = per_angle.dim().0;
+    if n != code.order() {
+        return Err(Error::Shape(format!(
+            "{n} angles for a transmit code of order {}",
+            code.order()
+        )));
+    }
+    let shifts: Vec<f64> = code
+        .slot_starts
+        .iter()
+        .map(|t| t * sampling_frequency)
+        .collect();
+    Ok(encode_with(
+        per_angle,
+        |i, k| code.weight(i, k) as f32,
+        &shifts,
+    ))
+}
+
+/// Event i = Σ_k weight(i, k)·x_k delayed by `shifts[k]` samples.
+fn encode_with(
+    per_angle: ArrayView3<f32>,
+    weight: impl Fn(usize, usize) -> f32,
+    shifts: &[f64],
+) -> Array3<f32> {
+    let (n, nc, ns) = per_angle.dim();
+    let max_shift = shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
+    let shifter = TraceShifter::new(ns, max_shift);
     let mut delayed = per_angle.to_owned();
     for (k, mut angle) in delayed.outer_iter_mut().enumerate() {
         for mut row in angle.outer_iter_mut() {
             let mut trace = row.to_vec();
-            shifter.shift_real(&mut trace, -(k as f64) * slot_shift);
+            shifter.shift_real(&mut trace, -shifts[k]);
             row.assign(&ndarray::ArrayView1::from(&trace));
         }
     }
     let mut out = Array3::<f32>::zeros((n, nc, ns));
     for i in 0..n {
         for k in 0..n {
-            let sign = h.get(i, k);
+            let sign = weight(i, k);
             out.slice_mut(s![i, .., ..])
                 .zip_mut_with(&delayed.slice(s![k, .., ..]), |o, &x| *o += x * sign);
         }
     }
-    Ok(out)
+    out
 }
 
 #[cfg(test)]

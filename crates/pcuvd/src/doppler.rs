@@ -99,6 +99,22 @@ fn check_kernel(kernel: (usize, usize)) -> Result<()> {
     Ok(())
 }
 
+impl Autocorrelation {
+    /// The same estimates averaged over a spatial box of `kernel` = (rows, cols) pixels (odd
+    /// sizes), as [`autocorrelation`] averages them: for estimates summed over several segments of
+    /// a recording before averaging (the average is linear, so the order does not matter).
+    pub fn box_averaged(self, kernel: (usize, usize)) -> Result<Autocorrelation> {
+        check_kernel(kernel)?;
+        if kernel == (1, 1) {
+            return Ok(self);
+        }
+        Ok(Autocorrelation {
+            power: box_average(&self.power, kernel),
+            r1: box_average(&self.r1, kernel),
+        })
+    }
+}
+
 fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
 where
     T: Copy + Default + std::ops::AddAssign + std::ops::Div<f64, Output = T>,
@@ -407,6 +423,58 @@ fn spatial_lag1(
     kernel: (usize, usize),
     along: Axis,
 ) -> Result<Array2<Complex64>> {
+    check_kernel(kernel)?;
+    let (nz, nx, _) = series.dim();
+    if r1.dim() != (nz, nx) {
+        return Err(Error::Shape(format!(
+            "lag-1 autocorrelation {:?} for a series of {nz} × {nx} pixels",
+            r1.dim()
+        )));
+    }
+    Ok(spatial_lag_means(series, along)?.rotated(r1, kernel))
+}
+
+/// The two spatial-lag products of one pixel step at temporal lags ±1, per pixel (nz, nx), as
+/// means over the frame pairs and not yet averaged in space: the raw material of
+/// [`axial_autocorrelation_lag1`] and [`lateral_autocorrelation_lag1`]. Means over different
+/// frames add as any mean does ([`Moments::merge`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialLag {
+    /// Mean over frame pairs of S*(p, t)·S(p′, t + 1), p′ the pixel one step along the lag (the
+    /// last pixel of a line pairs with the one before it, roles swapped).
+    pub plus: Array2<Complex64>,
+    /// Mean over frame pairs of S*(p, t + 1)·S(p′, t).
+    pub minus: Array2<Complex64>,
+}
+
+impl SpatialLag {
+    /// Both products averaged over `kernel` (odd sizes), then R(+1)·e^{−iφ} + R(−1)·e^{+iφ} with
+    /// φ = arg `r1` (same shape): the spatial phase without the Doppler phase.
+    fn rotated(&self, r1: &Array2<Complex64>, kernel: (usize, usize)) -> Array2<Complex64> {
+        let (plus, minus) = if kernel == (1, 1) {
+            (self.plus.clone(), self.minus.clone())
+        } else {
+            (
+                box_average(&self.plus, kernel),
+                box_average(&self.minus, kernel),
+            )
+        };
+        Zip::from(&plus)
+            .and(&minus)
+            .and(r1)
+            .map_collect(|&p, &m, &r| {
+                let turn = if r.norm() > 0.0 {
+                    r / r.norm()
+                } else {
+                    Complex64::new(1.0, 0.0)
+                };
+                p * turn.conj() + m * turn
+            })
+    }
+}
+
+/// [`SpatialLag`] of `series` (nz, nx, frames) one pixel along `along`.
+fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<SpatialLag> {
     let (nz, nx, nf) = series.dim();
     let (n_along, what) = if along == Axis(0) {
         (nz, "rows")
@@ -420,13 +488,6 @@ fn spatial_lag1(
                 "a spatial-lag autocorrelation needs at least 2 {what} and 2 frames, got {n_along} {what} and {nf} frames"
             ),
         ));
-    }
-    check_kernel(kernel)?;
-    if r1.dim() != (nz, nx) {
-        return Err(Error::Shape(format!(
-            "lag-1 autocorrelation {:?} for a series of {nz} × {nx} pixels",
-            r1.dim()
-        )));
     }
     let mut plus = Array2::<Complex64>::zeros((nz, nx));
     let mut minus = Array2::<Complex64>::zeros((nz, nx));
@@ -464,30 +525,159 @@ fn spatial_lag1(
                 m_row[ix] = m / pairs;
             }
         });
-    if kernel != (1, 1) {
-        plus = box_average(&plus, kernel);
-        minus = box_average(&minus, kernel);
+    Ok(SpatialLag { plus, minus })
+}
+
+impl DopplerGeometry {
+    /// Whether Loupas measures the lateral weight on this grid: a lateral step within
+    /// [`LATERAL_STEP_MAX_WAVELENGTHS`] wavelengths at the demodulation frequency (else the
+    /// model's sin θ is kept).
+    pub fn measures_lateral(&self) -> bool {
+        let wavelength = self.sound_speed / self.demodulation_frequency;
+        let step = self.lateral_step;
+        step.is_finite() && step > 0.0 && step <= LATERAL_STEP_MAX_WAVELENGTHS * wavelength
     }
-    Ok(Zip::from(&plus)
-        .and(&minus)
-        .and(r1)
-        .map_collect(|&p, &m, &r| {
-            let turn = if r.norm() > 0.0 {
-                r / r.norm()
+
+    /// The axial sampling Loupas reads the mean frequency with, or the error that says the grid
+    /// is too coarse for it (and what to do).
+    fn loupas_axial(&self) -> Result<AxialSampling> {
+        AxialSampling::with_weight(
+            self.axial_step,
+            self.axial_weight,
+            self.sound_speed,
+            self.demodulation_frequency,
+        )
+        .map_err(|e| {
+            invalid(
+                "Doppler estimator",
+                format!(
+                    "loupas: {e}; use a finer grid, or the kasai estimator (which scales by the nominal frequency)"
+                ),
+            )
+        })
+    }
+}
+
+/// What [`doppler_maps`] derives every map from, per pixel (nz, nx), before any spatial
+/// averaging: means over a series' frames (power) and frame pairs (the rest). Being means, those
+/// of consecutive parts of a recording combine into the whole's ([`Moments::merge`]; the pairs
+/// across a cut are not counted), which is how a long recording is processed in segments.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Moments {
+    /// Mean |S|² over the frames (|IQ|² units).
+    pub power: Array2<f64>,
+    /// Mean S*(t)·S(t + 1) over the frame pairs (|IQ|² units).
+    pub r1: Array2<Complex64>,
+    /// The axial lag at temporal lags ±1 (Loupas only; `None` for Kasai).
+    pub axial: Option<SpatialLag>,
+    /// The lateral lag at temporal lags ±1 (Loupas on a grid that
+    /// [`DopplerGeometry::measures_lateral`]; else `None`).
+    pub lateral: Option<SpatialLag>,
+    /// Frames the power is a mean over.
+    pub frames: usize,
+    /// Frame pairs the lag-1 products are means over.
+    pub pairs: usize,
+}
+
+impl Moments {
+    /// Combines `other`'s moments (other frames of the same pixels, measured alike) into these:
+    /// each mean weighted by its frames or pairs. Refuses moments of another shape or estimator.
+    pub fn merge(&mut self, other: &Moments) -> Result<()> {
+        if self.power.dim() != other.power.dim()
+            || self.axial.is_some() != other.axial.is_some()
+            || self.lateral.is_some() != other.lateral.is_some()
+        {
+            return Err(Error::Shape(format!(
+                "moments of {:?} pixels cannot combine with moments of {:?} measured otherwise",
+                other.power.dim(),
+                self.power.dim()
+            )));
+        }
+        let (f0, f1) = (self.frames as f64, other.frames as f64);
+        let (p0, p1) = (self.pairs as f64, other.pairs as f64);
+        let (frames, pairs) = ((f0 + f1).max(1.0), (p0 + p1).max(1.0));
+        Zip::from(&mut self.power)
+            .and(&other.power)
+            .for_each(|a, &b| *a = (*a * f0 + b * f1) / frames);
+        let by_pairs = |a: &mut Array2<Complex64>, b: &Array2<Complex64>| {
+            Zip::from(a)
+                .and(b)
+                .for_each(|a, &b| *a = (*a * p0 + b * p1) / pairs)
+        };
+        by_pairs(&mut self.r1, &other.r1);
+        for (mine, theirs) in [
+            (self.axial.as_mut(), other.axial.as_ref()),
+            (self.lateral.as_mut(), other.lateral.as_ref()),
+        ] {
+            if let (Some(m), Some(t)) = (mine, theirs) {
+                by_pairs(&mut m.plus, &t.plus);
+                by_pairs(&mut m.minus, &t.minus);
+            }
+        }
+        self.frames += other.frames;
+        self.pairs += other.pairs;
+        Ok(())
+    }
+}
+
+/// The [`Moments`] of `series` (nz, nx, frames ≥ 2) that `estimator` needs on this `geometry`:
+/// power and lag-1 for both, the axial lag for Loupas (which needs ≥ 2 rows and an axial step
+/// fine enough for [`AxialSampling::with_weight`], refused here, before the work), the lateral
+/// lag where Loupas measures the lateral weight.
+pub fn moments(
+    series: ArrayView3<Complex32>,
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+) -> Result<Moments> {
+    let (_, nx, nf) = series.dim();
+    let (axial, lateral) = match estimator {
+        DopplerEstimator::Kasai => (None, None),
+        DopplerEstimator::Loupas => {
+            geometry.loupas_axial()?;
+            let lateral = if nx >= 2 && geometry.measures_lateral() {
+                Some(spatial_lag_means(series, Axis(1))?)
             } else {
-                Complex64::new(1.0, 0.0)
+                None
             };
-            p * turn.conj() + m * turn
-        }))
+            (Some(spatial_lag_means(series, Axis(0))?), lateral)
+        }
+    };
+    let raw = autocorrelation(series, (1, 1))?;
+    Ok(Moments {
+        power: raw.power,
+        r1: raw.r1,
+        axial,
+        lateral,
+        frames: nf,
+        pairs: nf - 1,
+    })
 }
 
 /// Power, lag-1 autocorrelation, mean frequency and velocity of `series` (nz, nx, frames) with
 /// `estimator`, the autocorrelations averaged over `kernel` (odd (rows, cols)); the mean frequency
 /// over [`mean_frequency_kernel`]. Loupas needs ≥ 2 rows and an axial step fine enough for
 /// [`AxialSampling::with_weight`]; a pixel whose axial autocorrelation is zero keeps the
-/// demodulation frequency.
+/// demodulation frequency. The same as [`maps_of_moments`] of [`moments`].
 pub fn doppler_maps(
     series: ArrayView3<Complex32>,
+    kernel: (usize, usize),
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+) -> Result<DopplerMaps> {
+    check_kernel(kernel)?;
+    maps_of_moments(
+        &moments(series, estimator, geometry)?,
+        kernel,
+        estimator,
+        geometry,
+    )
+}
+
+/// The maps of [`doppler_maps`] from a series' [`Moments`] (or several series' merged): every
+/// product averaged over `kernel` (the mean frequency's over [`mean_frequency_kernel`]), then the
+/// phases turned into frequency and velocity. Loupas needs moments measured for Loupas.
+pub fn maps_of_moments(
+    moments: &Moments,
     kernel: (usize, usize),
     estimator: DopplerEstimator,
     geometry: &DopplerGeometry,
@@ -496,15 +686,12 @@ pub fn doppler_maps(
         sound_speed,
         frame_rate,
         demodulation_frequency: f_demod,
-        axial_step,
-        axial_weight,
         ..
     } = *geometry;
     require_positive("speed of sound", sound_speed)?;
     require_positive("frame rate", frame_rate)?;
     require_positive("demodulation frequency", f_demod)?;
     check_kernel(kernel)?;
-    let raw = autocorrelation(series, (1, 1))?;
     let averaged = |map: &Array2<Complex64>, k: (usize, usize)| {
         if k == (1, 1) {
             map.clone()
@@ -512,11 +699,11 @@ pub fn doppler_maps(
             box_average(map, k)
         }
     };
-    let r1 = averaged(&raw.r1, kernel);
+    let r1 = averaged(&moments.r1, kernel);
     let power = if kernel == (1, 1) {
-        raw.power.clone()
+        moments.power.clone()
     } else {
-        box_average(&raw.power, kernel)
+        box_average(&moments.power, kernel)
     };
     let (mean_frequency, lateral_weight) = match estimator {
         DopplerEstimator::Kasai => (
@@ -524,18 +711,16 @@ pub fn doppler_maps(
             Array2::from_elem(r1.dim(), geometry.lateral_weight),
         ),
         DopplerEstimator::Loupas => {
-            let axial = AxialSampling::with_weight(axial_step, axial_weight, sound_speed, f_demod)
-                .map_err(|e| {
-                    invalid(
-                        "Doppler estimator",
-                        format!(
-                            "loupas: {e}; use a finer grid, or the kasai estimator (which scales by the nominal frequency)"
-                        ),
-                    )
-                })?;
+            let axial = geometry.loupas_axial()?;
+            let Some(axial_lag) = &moments.axial else {
+                return Err(invalid(
+                    "Doppler estimator",
+                    "loupas needs the axial-lag moments, which these moments were measured without",
+                ));
+            };
             let wide = mean_frequency_kernel(kernel);
-            let r1_wide = averaged(&raw.r1, wide);
-            let r_axial = axial_autocorrelation_lag1(series, &r1_wide, wide)?;
+            let r1_wide = averaged(&moments.r1, wide);
+            let r_axial = axial_lag.rotated(&r1_wide, wide);
             let f_bar = r_axial.mapv(|r| {
                 let f = axial.mean_frequency(r);
                 if r.norm() > 0.0 && f > 0.0 {
@@ -544,27 +729,24 @@ pub fn doppler_maps(
                     f_demod
                 }
             });
-            let wavelength = sound_speed / f_demod;
-            let step = geometry.lateral_step;
-            let lateral = if series.dim().1 >= 2
-                && step.is_finite()
-                && step > 0.0
-                && step <= LATERAL_STEP_MAX_WAVELENGTHS * wavelength
-            {
-                let r_lateral = lateral_autocorrelation_lag1(series, &r1_wide, wide)?;
-                let tau = std::f64::consts::TAU;
-                let expected = tau * geometry.lateral_weight * step / wavelength;
-                Zip::from(&r_lateral).and(&f_bar).map_collect(|&r, &f| {
-                    if r.norm() > 0.0 {
-                        let phase = r.arg() + tau * ((expected - r.arg()) / tau).round();
-                        // k̄x / k̄, k̄ = 2π f̄ / c.
-                        phase / step * sound_speed / (tau * f)
-                    } else {
-                        geometry.lateral_weight
-                    }
-                })
-            } else {
-                Array2::from_elem(r1.dim(), geometry.lateral_weight)
+            let lateral = match &moments.lateral {
+                Some(lateral_lag) if geometry.measures_lateral() => {
+                    let r_lateral = lateral_lag.rotated(&r1_wide, wide);
+                    let step = geometry.lateral_step;
+                    let wavelength = sound_speed / f_demod;
+                    let tau = std::f64::consts::TAU;
+                    let expected = tau * geometry.lateral_weight * step / wavelength;
+                    Zip::from(&r_lateral).and(&f_bar).map_collect(|&r, &f| {
+                        if r.norm() > 0.0 {
+                            let phase = r.arg() + tau * ((expected - r.arg()) / tau).round();
+                            // k̄x / k̄, k̄ = 2π f̄ / c.
+                            phase / step * sound_speed / (tau * f)
+                        } else {
+                            geometry.lateral_weight
+                        }
+                    })
+                }
+                _ => Array2::from_elem(r1.dim(), geometry.lateral_weight),
             };
             (f_bar, lateral)
         }
@@ -718,6 +900,87 @@ mod tests {
         assert!(AxialSampling::new(0.2e-3, 0.0, c, f0).is_err());
         let other = Array2::<Complex64>::zeros((2, 2));
         assert!(projection_velocity_loupas(&ac.r1, &other, c, fr, &axial).is_err());
+    }
+
+    /// Moments of two consecutive parts of a series, merged, are the moments of the whole less
+    /// the one frame pair across the cut: checked against sums written out pixel by pixel, and
+    /// the maps of the merge are the maps of those sums.
+    #[test]
+    fn merged_moments_are_the_sums_over_both_parts() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let (nz, nx, nf, cut) = (5, 4, 17, 7);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut draw = || -> f32 { StandardNormal.sample(&mut rng) };
+        let series = Array3::from_shape_fn((nz, nx, nf), |_| Complex32::new(draw(), draw()));
+        let geometry = DopplerGeometry {
+            sound_speed: 1540.0,
+            frame_rate: 1800.0,
+            demodulation_frequency: 15.625e6,
+            axial_step: 25e-6,
+            axial_weight: 2.0,
+            lateral_step: 40e-6,
+            lateral_weight: 0.1,
+        };
+        let of = |range: std::ops::Range<usize>| {
+            moments(
+                series.slice(s![.., .., range]),
+                DopplerEstimator::Loupas,
+                &geometry,
+            )
+            .unwrap()
+        };
+        let mut merged = of(0..cut);
+        merged.merge(&of(cut..nf)).unwrap();
+        assert_eq!((merged.frames, merged.pairs), (nf, nf - 2));
+        let c64 = |v: Complex32| Complex64::new(v.re as f64, v.im as f64);
+        let pairs: Vec<usize> = (0..nf - 1).filter(|&t| t + 1 != cut).collect();
+        // The products are formed in f32 (as the estimators form them) and summed in f64.
+        let close = |a: Complex64, b: Complex64| (a - b).norm() < 1e-6 * (1.0 + b.norm());
+        for iz in 0..nz {
+            for ix in 0..nx {
+                let at = |z: usize, x: usize, t: usize| c64(series[[z, x, t]]);
+                let power = (0..nf).map(|t| at(iz, ix, t).norm_sqr()).sum::<f64>() / nf as f64;
+                assert!((merged.power[[iz, ix]] - power).abs() < 1e-6 * power);
+                let mean = |f: &dyn Fn(usize) -> Complex64| {
+                    pairs.iter().map(|&t| f(t)).sum::<Complex64>() / pairs.len() as f64
+                };
+                let r1 = mean(&|t| at(iz, ix, t).conj() * at(iz, ix, t + 1));
+                assert!(close(merged.r1[[iz, ix]], r1));
+                // The axial neighbour one row deeper (the last row pairs with the one above).
+                let (a, b) = if iz + 1 < nz {
+                    (iz, iz + 1)
+                } else {
+                    (iz - 1, iz)
+                };
+                let axial = merged.axial.as_ref().unwrap();
+                let plus = mean(&|t| at(a, ix, t).conj() * at(b, ix, t + 1));
+                let minus = mean(&|t| at(a, ix, t + 1).conj() * at(b, ix, t));
+                assert!(close(axial.plus[[iz, ix]], plus));
+                assert!(close(axial.minus[[iz, ix]], minus));
+                let (a, b) = if ix + 1 < nx {
+                    (ix, ix + 1)
+                } else {
+                    (ix - 1, ix)
+                };
+                let lateral = merged.lateral.as_ref().unwrap();
+                assert!(close(
+                    lateral.plus[[iz, ix]],
+                    mean(&|t| at(iz, a, t).conj() * at(iz, b, t + 1))
+                ));
+            }
+        }
+        // Kasai's moments lack the spatial lags: they neither merge with Loupas's nor give its maps.
+        let kasai = moments(series.view(), DopplerEstimator::Kasai, &geometry).unwrap();
+        assert!(kasai.axial.is_none() && kasai.lateral.is_none());
+        assert!(merged.clone().merge(&kasai).is_err());
+        assert!(maps_of_moments(&kasai, (1, 1), DopplerEstimator::Loupas, &geometry).is_err());
+        // One part alone gives doppler_maps of that part.
+        let whole =
+            doppler_maps(series.view(), (3, 1), DopplerEstimator::Loupas, &geometry).unwrap();
+        let again =
+            maps_of_moments(&of(0..nf), (3, 1), DopplerEstimator::Loupas, &geometry).unwrap();
+        assert_eq!(whole, again);
     }
 
     #[test]

@@ -22,6 +22,11 @@ pub struct EnsembleSpec {
 }
 
 impl EnsembleSpec {
+    /// Centre time (s from the first frame) of the ensemble starting at frame `start`.
+    pub fn centre_time(&self, start: usize, frame_rate: f64) -> f64 {
+        (start as f64 + (self.frames as f64 - 1.0) / 2.0) / frame_rate
+    }
+
     /// The start frame of every ensemble that fits in a recording of `total` frames; refuses an
     /// ensemble shorter than 2 frames, longer than the recording, or a step of 0.
     pub fn starts(&self, total: usize) -> Result<Vec<usize>> {
@@ -67,6 +72,53 @@ pub struct EnsembleMaps {
 }
 
 impl EnsembleMaps {
+    /// Moves every ensemble of `spec` `frames` frames later (a segment's ensembles, counted from
+    /// the recording's first frame), at `frame_rate` (Hz).
+    pub fn shift(&mut self, frames: usize, spec: EnsembleSpec, frame_rate: f64) {
+        self.starts.iter_mut().for_each(|s| *s += frames);
+        self.times_s = self
+            .starts
+            .iter()
+            .map(|&s| spec.centre_time(s, frame_rate))
+            .collect();
+    }
+
+    /// The ensembles of consecutive segments as one series, in order.
+    pub fn concatenate(parts: Vec<EnsembleMaps>) -> Result<EnsembleMaps> {
+        let first = parts
+            .first()
+            .ok_or_else(|| invalid("ensembles", "no segment holds a whole ensemble"))?;
+        let stack =
+            |field: fn(&EnsembleMaps) -> Option<&Array3<f64>>| -> Result<Option<Array3<f64>>> {
+                let views: Option<Vec<_>> =
+                    parts.iter().map(|p| field(p).map(|a| a.view())).collect();
+                views
+                    .map(|v| {
+                        ndarray::concatenate(Axis(0), &v)
+                            .map_err(|e| invalid("ensembles", format!("segments' maps: {e}")))
+                    })
+                    .transpose()
+            };
+        let vectors = first.vx.is_some();
+        Ok(EnsembleMaps {
+            times_s: parts.iter().flat_map(|p| p.times_s.clone()).collect(),
+            starts: parts.iter().flat_map(|p| p.starts.clone()).collect(),
+            power_doppler: stack(|p| Some(&p.power_doppler))?.expect("every part has power"),
+            color_doppler: stack(|p| Some(&p.color_doppler))?.expect("every part has colour"),
+            vx: if vectors {
+                stack(|p| p.vx.as_ref())?
+            } else {
+                None
+            },
+            vz: if vectors {
+                stack(|p| p.vz.as_ref())?
+            } else {
+                None
+            },
+            clutter: parts.iter().flat_map(|p| p.clutter.clone()).collect(),
+        })
+    }
+
     /// Speed |V| (m/s) of each ensemble's vector map; `None` with one angle.
     pub fn speed(&self) -> Option<Array3<f64>> {
         match (&self.vx, &self.vz) {
@@ -88,17 +140,42 @@ pub fn ensemble_maps(
     spec: EnsembleSpec,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<EnsembleMaps> {
-    images.validate()?;
     let starts = spec.starts(images.n_frames())?;
+    ensemble_maps_at(images, params, spec, &starts, progress)
+}
+
+/// As [`ensemble_maps`], for the ensembles starting at frames `starts` of `images` only (those of
+/// a segment of a long recording, [`crate::segments`]).
+pub fn ensemble_maps_at(
+    images: &AngleImages,
+    params: &ProcessParams,
+    spec: EnsembleSpec,
+    starts: &[usize],
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<EnsembleMaps> {
+    images.validate()?;
+    spec.starts(images.n_frames())?;
+    if let Some(&last) = starts.iter().max()
+        && last + spec.frames > images.n_frames()
+    {
+        return Err(invalid(
+            "ensemble start",
+            format!(
+                "frame {last} + {} frames is past the {} frames imaged",
+                spec.frames,
+                images.n_frames()
+            ),
+        ));
+    }
     let (nz, nx) = params.grid.shape();
     let count = starts.len();
     let vectors = images.n_angles() >= 2;
     let mut maps = EnsembleMaps {
         times_s: starts
             .iter()
-            .map(|&s| (s as f64 + (spec.frames as f64 - 1.0) / 2.0) / images.frame_rate)
+            .map(|&s| spec.centre_time(s, images.frame_rate))
             .collect(),
-        starts: starts.clone(),
+        starts: starts.to_vec(),
         power_doppler: Array3::zeros((count, nz, nx)),
         color_doppler: Array3::zeros((count, nz, nx)),
         vx: vectors.then(|| Array3::zeros((count, nz, nx))),
@@ -193,6 +270,7 @@ mod tests {
             irls: IrlsParams::default(),
             iq_cutoff: None,
             event_alignment: Default::default(),
+            dealias: Default::default(),
         };
         (images, params)
     }

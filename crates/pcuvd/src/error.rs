@@ -45,7 +45,19 @@ pub fn require_positive(name: &str, value: f64) -> Result<()> {
     } else {
         Err(invalid(
             name,
-            format!("must be finite and > 0, got {value}"),
+            format!("must be finite and > 0, got {value:?}"),
+        ))
+    }
+}
+
+/// Checks that a quantity is finite and within `[lo, hi]` (in `unit`), naming it.
+pub fn require_range(name: &str, value: f64, (lo, hi): (f64, f64), unit: &str) -> Result<()> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(())
+    } else {
+        Err(invalid(
+            name,
+            format!("must be finite and within [{lo:e}, {hi:e}] {unit}, got {value:e} {unit}"),
         ))
     }
 }

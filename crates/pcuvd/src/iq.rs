@@ -130,17 +130,20 @@ pub fn demodulate(
                 .into_par_iter()
                 .enumerate()
                 .for_each(|(ch, mut dest)| {
-                    let mut mixed = vec![Complex32::new(0.0, 0.0); n_samples];
-                    let mut filtered = vec![Complex32::new(0.0, 0.0); n_samples];
+                    // Mixed and filtered with the frames side by side, (samples, frames) as the
+                    // output is laid out: each tap then multiplies a whole row of frames, which
+                    // vectorises, where one trace at a time did not.
+                    let mut mixed = vec![Complex32::new(0.0, 0.0); n_samples * frames];
                     for f in 0..frames {
                         let trace = rf.slice(s![f, ch, ..]);
-                        for ((m, &x), &w) in mixed.iter_mut().zip(trace.iter()).zip(&mixer) {
-                            *m = w * x;
+                        for (n, (&x, &w)) in trace.iter().zip(&mixer).enumerate() {
+                            mixed[n * frames + f] = w * x;
                         }
-                        fir_same(&mixed, &taps, &mut filtered);
-                        dest.slice_mut(s![.., f])
-                            .assign(&ndarray::ArrayView1::from(&filtered));
                     }
+                    let dest = dest
+                        .as_slice_mut()
+                        .expect("an owned (channels, samples, frames) array is contiguous");
+                    fir_same_rows(&mixed, frames, &taps, dest);
                 });
         }
     }
@@ -152,18 +155,22 @@ pub fn demodulate(
     })
 }
 
-/// Centred ("same"-length) convolution with an odd, symmetric FIR; zero beyond the trace ends.
-fn fir_same(x: &[Complex32], taps: &[f32], y: &mut [Complex32]) {
+/// Centred ("same"-length) convolution along the rows of `x`, (samples, `width`) row-major, with
+/// an odd, symmetric FIR; zero beyond the trace ends. `y` has the shape of `x`. Every column is
+/// filtered alike, with the terms summed in the same order as one trace at a time.
+fn fir_same_rows(x: &[Complex32], width: usize, taps: &[f32], y: &mut [Complex32]) {
     let half = taps.len() / 2;
-    let n = x.len();
-    for (i, out) in y.iter_mut().enumerate() {
+    let n = x.len() / width.max(1);
+    for (i, out) in y.chunks_exact_mut(width).enumerate() {
         let lo = i.saturating_sub(half);
         let hi = (i + half + 1).min(n);
-        let mut acc = Complex32::new(0.0, 0.0);
-        for (j, &xv) in x[lo..hi].iter().enumerate() {
-            acc += xv * taps[lo + j + half - i];
+        out.fill(Complex32::new(0.0, 0.0));
+        for j in lo..hi {
+            let tap = taps[j + half - i];
+            for (o, &v) in out.iter_mut().zip(&x[j * width..(j + 1) * width]) {
+                *o += v * tap;
+            }
         }
-        *out = acc;
     }
 }
 

@@ -4,7 +4,8 @@
 //! [`probe`] and [`sequence`] describe an acquisition, [`hadamard`] its code, [`geometry`] the one
 //! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
 //! demodulates; [`beamform`] forms per-angle IQ images on a [`grid`] of pixels; [`clutter`] removes
-//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz);
+//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz),
+//! [`dealias`] unwraps projections beyond the Nyquist velocity;
 //! [`dynamics`] follows it over the cardiac cycle (PSV, EDV, RI, [`vessel`] classes). [`images`]
 //! carries per-angle image series with their metadata; [`pipeline`] runs the chain in order.
 //!
@@ -17,6 +18,7 @@
 pub mod beamform;
 pub mod channel;
 pub mod clutter;
+pub mod dealias;
 pub mod decode;
 pub mod doppler;
 pub mod dynamics;
@@ -32,6 +34,7 @@ pub mod metrics;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;
+pub mod segments;
 pub mod sequence;
 pub mod simulate;
 pub mod source;
@@ -40,8 +43,8 @@ pub mod study;
 pub mod vector;
 pub mod vessel;
 
-pub use channel::{Acquisition, AngleSamples, ChannelData, Samples};
+pub use channel::{Acquisition, AngleSamples, BandSampling, ChannelData, Samples};
 pub use error::{Error, Result};
 pub use hadamard::Hadamard;
 pub use probe::Probe;
-pub use sequence::{Coding, Sequence};
+pub use sequence::{Coding, Sequence, TransmitCode, TransmitPulse};

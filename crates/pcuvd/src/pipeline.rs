@@ -8,8 +8,9 @@ use ndarray::{Array2, Array3, Axis};
 use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
+use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
-use crate::doppler::{self, DopplerGeometry, DopplerMaps};
+use crate::doppler::{self, DopplerEstimator, DopplerGeometry, Moments};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
@@ -38,6 +39,8 @@ pub struct ProcessParams {
     pub iq_cutoff: Option<f64>,
     /// How coded events are aligned in slow time before decoding (see [`decode::EventAlignment`]).
     pub event_alignment: decode::EventAlignment,
+    /// Vector dealiasing of both estimators ([`crate::dealias`]); off by default.
+    pub dealias: Dealias,
 }
 
 /// Pipeline stages, in order, as reported to a progress callback.
@@ -95,8 +98,14 @@ pub struct ProcessOutput {
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
     pub vector_irls: Option<VectorField>,
-    /// Nyquist velocity of each projection (m/s).
+    /// What vector dealiasing did; `None` when it is off or with a single angle.
+    pub dealias: Option<DealiasOutcome>,
+    /// Nyquist velocity of each projection at the demodulation frequency (m/s): Kasai's.
     pub nyquist_velocity: f64,
+    /// Nyquist velocity of each projection at each pixel (angles, nz, nx), m/s: c·f_frame/(4 f̄),
+    /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
+    /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
+    pub projection_nyquist: Array3<f64>,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
     /// Clutter-filtered per-angle IQ series, each (nz, nx, frames), with their metadata; kept
@@ -108,6 +117,52 @@ pub struct ProcessOutput {
 
 /// Wall-clock seconds per stage.
 pub type Timings = Vec<(Stage, f64)>;
+
+impl ProcessOutput {
+    /// Gathers the Doppler maps ([`doppler_maps`]) with the rest of what the chain measured: the
+    /// one place both the whole-recording path and the segmented one ([`crate::segments`]) build
+    /// their output.
+    pub fn from_maps(
+        maps: DopplerMaps,
+        grid: Grid,
+        bmode_db: Array2<f64>,
+        clutter: Vec<ClutterReport>,
+        filtered: AngleImages,
+        timings: Timings,
+    ) -> ProcessOutput {
+        ProcessOutput {
+            grid,
+            bmode_db,
+            power_doppler: maps.power_doppler,
+            color_doppler: maps.color_doppler,
+            power_per_angle: maps.power_per_angle,
+            projections: maps.projections,
+            coverage: maps.coverage,
+            lateral_weights: maps.lateral_weights,
+            vector_ls: maps.vector_ls,
+            vector_irls: maps.vector_irls,
+            dealias: maps.dealias,
+            nyquist_velocity: maps.nyquist_velocity,
+            projection_nyquist: maps.projection_nyquist,
+            clutter,
+            filtered,
+            timings,
+        }
+    }
+}
+
+/// What vector dealiasing did to a recording's maps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DealiasOutcome {
+    /// Nyquist intervals K unwrapped per angle (as set, or as [`Dealias::Auto`] chose).
+    pub intervals: u32,
+    /// Flow pixels: power Doppler [`dealias::FLOW_MARGIN_DB`] above the noise floor of its row.
+    pub flow_pixels: usize,
+    /// The alias counts of the PC-UVD (IRLS) vectors.
+    pub irls: AliasCounts,
+    /// The alias counts of the UVD (least-squares) vectors.
+    pub ls: AliasCounts,
+}
 
 /// Runs the pipeline on a recording. `progress(stage, done, total)` is called as work completes.
 pub fn process(
@@ -146,47 +201,72 @@ pub fn form_images_in_blocks(
     blocks: Blocks,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
+    form_images_of(source, params, blocks, 0..source.n_frames(), progress)
+}
+
+/// As [`form_images_in_blocks`], for the compound frames `frames` of `source` only (a segment of
+/// a long recording): their images are those of the whole recording's path, the decoding
+/// margins reaching into the frames around them.
+pub fn form_images_of(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    blocks: Blocks,
+    frames: std::ops::Range<usize>,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<(AngleImages, Timings)> {
     let acq = source.acquisition();
     acq.validate()?;
     let (_, n_samples) = source.trace_shape();
     check_depth(recorded_depth_of(acq, n_samples), &params.grid)?;
+    if frames.start >= frames.end || frames.end > source.n_frames() {
+        return Err(invalid(
+            "frames",
+            format!(
+                "{frames:?} is not a range of the recording's {} frames",
+                source.n_frames()
+            ),
+        ));
+    }
     let angles = &acq.sequence.angles;
     let n = angles.len();
-    let frames = source.n_frames();
+    let first = frames.start;
     let (nz, nx) = params.grid.shape();
-    let mut series: Vec<Array3<Complex32>> =
-        (0..n).map(|_| Array3::zeros((nz, nx, frames))).collect();
-    let ranges = blocks.ranges(frames);
+    let mut series: Vec<Array3<Complex32>> = (0..n)
+        .map(|_| Array3::zeros((nz, nx, frames.len())))
+        .collect();
+    let ranges = blocks.ranges_in(frames, source.n_frames());
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
+    let mut recorded = false;
     for (b, (block, decoded)) in ranges.iter().enumerate() {
-        let clock = Instant::now();
-        progress(Stage::Decode, b, ranges.len());
-        let data = source.read_frames(decoded.clone())?;
-        let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
-        drop(data);
-        if decoded != block {
-            per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
-        }
-        decode_s += clock.elapsed().as_secs_f64();
-
-        let clock = Instant::now();
-        for (k, &angle) in angles.iter().enumerate() {
-            progress(Stage::Beamform, b * n + k, ranges.len() * n);
-            let channels = iq::demodulate(
-                &per_angle,
-                k,
-                acq.t0,
-                acq.sampling_frequency,
-                acq.probe.center_frequency,
-                params.iq_cutoff,
-            )?;
-            let image =
-                beamform::beamform(&channels, &acq.probe, angle, &params.grid, &params.das)?;
+        let formed = form_block(
+            source,
+            params,
+            block.clone(),
+            decoded.clone(),
+            &|stage, k| {
+                let (done, total) = match stage {
+                    Stage::Decode => (b, ranges.len()),
+                    _ => (b * n + k, ranges.len() * n),
+                };
+                progress(stage, done, total)
+            },
+        )?;
+        decode_s += formed.decode_s;
+        beamform_s += formed.beamform_s;
+        recorded = recorded || formed.recorded;
+        for (k, image) in formed.images.iter().enumerate() {
             series[k]
-                .slice_mut(ndarray::s![.., .., block.clone()])
-                .assign(&image);
+                .slice_mut(ndarray::s![.., .., block.start - first..block.end - first])
+                .assign(image);
         }
-        beamform_s += clock.elapsed().as_secs_f64();
+    }
+    if !recorded {
+        // Zeros beamform to zeros, and every map of them would be NaN or empty: a recording of
+        // nothing (a scanner that did not record, a wrong variable) is refused.
+        return Err(invalid(
+            "samples",
+            "every sample is zero: the recording holds no echo",
+        ));
     }
     progress(Stage::Decode, ranges.len(), ranges.len());
     progress(Stage::Beamform, ranges.len() * n, ranges.len() * n);
@@ -203,6 +283,76 @@ pub fn form_images_in_blocks(
         images,
         vec![(Stage::Decode, decode_s), (Stage::Beamform, beamform_s)],
     ))
+}
+
+/// The images of one block of frames, per angle, and the seconds its decoding and its
+/// demodulation + beamforming took.
+pub struct BlockImages {
+    /// Per angle, the block's image series (nz, nx, block frames).
+    pub images: Vec<Array3<Complex32>>,
+    /// Seconds spent reading and decoding.
+    pub decode_s: f64,
+    /// Seconds spent demodulating and beamforming.
+    pub beamform_s: f64,
+    /// True when some sample of the decoded frames is not zero.
+    pub recorded: bool,
+}
+
+/// Forms the images of frames `block` of `source`, decoding frames `decoded` (which holds
+/// `block`, plus the margin the event alignment needs): one step of [`form_images_in_blocks`],
+/// for callers that combine blocks of several sources (echoes and noise, say) as they come.
+/// `progress(stage, k)` is called before decoding (k = 0) and before each angle k is beamformed.
+pub fn form_block(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    block: std::ops::Range<usize>,
+    decoded: std::ops::Range<usize>,
+    progress: &dyn Fn(Stage, usize),
+) -> Result<BlockImages> {
+    let acq = source.acquisition();
+    if !(decoded.start <= block.start && block.end <= decoded.end && block.start < block.end) {
+        return Err(invalid(
+            "frames",
+            format!("block {block:?} is not within the decoded frames {decoded:?}"),
+        ));
+    }
+    let clock = Instant::now();
+    progress(Stage::Decode, 0);
+    let data = source.read_frames(decoded.clone())?;
+    let recorded = data.samples.any_nonzero();
+    let mut per_angle = decode::decode_aligned(&data, params.event_alignment)?;
+    drop(data);
+    if decoded != block {
+        per_angle = per_angle.frames(block.start - decoded.start..block.end - decoded.start);
+    }
+    let decode_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let mut images = Vec::with_capacity(acq.sequence.n_angles());
+    for (k, &angle) in acq.sequence.angles.iter().enumerate() {
+        progress(Stage::Beamform, k);
+        let channels = iq::demodulate(
+            &per_angle,
+            k,
+            acq.t0,
+            acq.sampling_frequency,
+            acq.probe.center_frequency,
+            params.iq_cutoff,
+        )?;
+        images.push(beamform::beamform(
+            &channels,
+            &acq.probe,
+            angle,
+            &params.grid,
+            &params.das,
+        )?);
+    }
+    Ok(BlockImages {
+        images,
+        decode_s,
+        beamform_s: clock.elapsed().as_secs_f64(),
+        recorded,
+    })
 }
 
 /// The non-linear part: B-mode, clutter filter, Doppler and vector solve from per-angle image
@@ -234,30 +384,140 @@ pub fn analyse(
 
     let clock = Instant::now();
     progress(Stage::Doppler, 0, 1);
+    let (per_angle, compound) = moments(&images, params, None)?;
+    let maps = doppler_maps(&per_angle, &compound, &images, params)?;
+    progress(Stage::Doppler, 1, 1);
+    timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
+
+    Ok(ProcessOutput::from_maps(
+        maps,
+        params.grid.clone(),
+        bmode_db,
+        reports,
+        images,
+        timings,
+    ))
+}
+
+/// What turns angle `angle`'s series (`None`: the compound's) of `images` into velocity: the
+/// sampling of `grid` and the echo path's weights, (sin θ, 1 + cos θ) for one angle and the
+/// angles' means for their compound.
+pub fn doppler_geometry(
+    images: &AngleImages,
+    grid: &Grid,
+    angle: Option<usize>,
+) -> DopplerGeometry {
+    let n = images.angles.len().max(1) as f64;
+    let (lateral_weight, axial_weight) = match angle {
+        Some(k) => vector::projection_weights(images.angles[k]),
+        None => (
+            images.angles.iter().map(|a| a.sin()).sum::<f64>() / n,
+            1.0 + images.angles.iter().map(|a| a.cos()).sum::<f64>() / n,
+        ),
+    };
+    DopplerGeometry {
+        sound_speed: images.sound_speed,
+        frame_rate: images.frame_rate,
+        demodulation_frequency: images.demodulation_frequency,
+        axial_step: grid.axial_step(),
+        axial_weight,
+        lateral_step: grid.step(),
+        lateral_weight,
+    }
+}
+
+/// The Doppler moments ([`doppler::moments`]) of each angle's clutter-filtered series of
+/// `images` (nz, nx, frames) and of their compound, for `params.doppler_estimator`; a range of
+/// `frames` only, when given (a segment's own frames).
+pub fn moments(
+    images: &AngleImages,
+    params: &ProcessParams,
+    frames: Option<std::ops::Range<usize>>,
+) -> Result<(Vec<Moments>, Moments)> {
+    let range = frames.unwrap_or(0..images.n_frames());
+    let per_angle = images
+        .series
+        .iter()
+        .enumerate()
+        .map(|(k, image)| {
+            doppler::moments(
+                image.slice(ndarray::s![.., .., range.clone()]),
+                params.doppler_estimator,
+                &doppler_geometry(images, &params.grid, Some(k)),
+            )
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let compound = beamform::compound(&images.series)?;
+    let compound = doppler::moments(
+        compound.slice(ndarray::s![.., .., range]),
+        params.doppler_estimator,
+        &doppler_geometry(images, &params.grid, None),
+    )?;
+    Ok((per_angle, compound))
+}
+
+/// The Doppler maps of [`ProcessOutput`], on the grid (nz, nx), SI units.
+#[derive(Debug, Clone)]
+pub struct DopplerMaps {
+    /// Power Doppler of the compounded series (|IQ|² units).
+    pub power_doppler: Array2<f64>,
+    /// Axial velocity from the compounded series (m/s, positive = away from the probe).
+    pub color_doppler: Array2<f64>,
+    /// Per-angle power Doppler (angles, nz, nx).
+    pub power_per_angle: Array3<f64>,
+    /// Per-angle projection velocities (angles, nz, nx), m/s; NaN where the angle does not reach.
+    pub projections: Array3<f64>,
+    /// Per angle, the pixels its plane wave reaches (angles, nz, nx).
+    pub coverage: Array3<bool>,
+    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx): sin θ
+    /// (Kasai) or measured (Loupas); see [`doppler::DopplerMaps::lateral_weight`].
+    pub lateral_weights: Array3<f64>,
+    /// Vector field by least squares (UVD); `None` with a single angle.
+    pub vector_ls: Option<VectorField>,
+    /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
+    pub vector_irls: Option<VectorField>,
+    /// What vector dealiasing did; `None` when it is off or with a single angle.
+    pub dealias: Option<DealiasOutcome>,
+    /// Nyquist velocity of each projection at the demodulation frequency (m/s); Loupas unwraps
+    /// each pixel with its own, c·f_frame/(4 f̄).
+    pub nyquist_velocity: f64,
+    /// Each projection's Nyquist velocity at each pixel (angles, nz, nx), m/s; see
+    /// [`ProcessOutput::projection_nyquist`].
+    pub projection_nyquist: Array3<f64>,
+}
+
+/// Velocities and vectors from Doppler moments ([`moments`], or those of several segments of a
+/// long recording merged, [`doppler::Moments::merge`]) with `params`' kernel, estimator and
+/// dealiasing: `images` gives the angles, frame rate, speed of sound, demodulation frequency and
+/// coverage (its series are not read).
+pub fn doppler_maps(
+    per_angle: &[Moments],
+    compound: &Moments,
+    images: &AngleImages,
+    params: &ProcessParams,
+) -> Result<DopplerMaps> {
+    let angles = &images.angles;
+    let n = angles.len();
+    if per_angle.len() != n {
+        return Err(invalid(
+            "Doppler moments",
+            format!("{} for {n} angles", per_angle.len()),
+        ));
+    }
     let frame_rate = images.frame_rate;
     let (c, f0) = (images.sound_speed, images.demodulation_frequency);
     let (nz, nx) = params.grid.shape();
     let mut projections = Array3::<f64>::zeros((n, nz, nx));
     let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
-    let geometry = |lateral_weight: f64, axial_weight: f64| DopplerGeometry {
-        sound_speed: c,
-        frame_rate,
-        demodulation_frequency: f0,
-        axial_step: params.grid.axial_step(),
-        axial_weight,
-        lateral_step: params.grid.step(),
-        lateral_weight,
-    };
     let mut lateral_weights = Array3::<f64>::zeros((n, nz, nx));
-    for (k, image) in images.series.iter().enumerate() {
-        let maps = doppler::doppler_maps(
-            image.view(),
+    // Each pixel's projection Nyquist velocity, c·f_frame/(4 f̄): its own mean frequency's.
+    let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
+    for (k, m) in per_angle.iter().enumerate() {
+        let maps = doppler::maps_of_moments(
+            m,
             params.doppler_kernel,
             params.doppler_estimator,
-            &geometry(
-                crate::vector::projection_weights(angles[k]).0,
-                crate::vector::projection_weights(angles[k]).1,
-            ),
+            &doppler_geometry(images, &params.grid, Some(k)),
         )?;
         projections
             .index_axis_mut(Axis(0), k)
@@ -265,22 +525,25 @@ pub fn analyse(
         lateral_weights
             .index_axis_mut(Axis(0), k)
             .assign(&maps.lateral_weight);
+        nyquist.index_axis_mut(Axis(0), k).assign(
+            &maps
+                .mean_frequency
+                .mapv(|f| doppler::nyquist_velocity(c, frame_rate, f)),
+        );
         power_per_angle
             .index_axis_mut(Axis(0), k)
             .assign(&maps.power);
     }
-    let compound = beamform::compound(&images.series)?;
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
     // angle sets): rescale its velocity to the axial velocity.
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
-    let mean_sin = angles.iter().map(|a| a.sin()).sum::<f64>() / n as f64;
-    let DopplerMaps {
+    let doppler::DopplerMaps {
         power, velocity, ..
-    } = doppler::doppler_maps(
-        compound.view(),
+    } = doppler::maps_of_moments(
+        compound,
         params.doppler_kernel,
         params.doppler_estimator,
-        &geometry(mean_sin, 1.0 + mean_cos),
+        &doppler_geometry(images, &params.grid, None),
     )?;
     let axial = velocity.mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = images
@@ -288,30 +551,47 @@ pub fn analyse(
         .clone()
         .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
-    let (vector_ls, vector_irls) = if n >= 2 {
-        (
-            Some(vector::vector_velocity_measured(
-                &angles,
+    let nyquist_velocity = doppler::nyquist_velocity(c, frame_rate, f0);
+    // Kasai's rows are the model's; Loupas fits its measured lateral weights.
+    let lateral =
+        (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
+    let (vector_ls, vector_irls, dealiased) = if n >= 2 {
+        let flow = doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB);
+        let setting = match params.dealias {
+            Dealias::Auto => Dealias::Intervals(dealias::auto_intervals(
+                angles,
                 projections.view(),
-                lateral_weights.view(),
-                &Estimator::LeastSquares,
+                nyquist.view(),
+                power.view(),
+                flow.view(),
             )?),
-            Some(vector::vector_velocity_measured(
-                &angles,
+            other => other,
+        };
+        let solve = |estimator: &Estimator| {
+            dealias::dealiased_vectors_measured(
+                angles,
                 projections.view(),
-                lateral_weights.view(),
-                &Estimator::Irls(params.irls),
-            )?),
-        )
+                lateral,
+                nyquist.view(),
+                estimator,
+                setting,
+                power.view(),
+                flow.view(),
+            )
+        };
+        let ls = solve(&Estimator::LeastSquares)?;
+        let irls = solve(&Estimator::Irls(params.irls))?;
+        let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
+            intervals: ls.intervals,
+            flow_pixels: flow.iter().filter(|&&f| f).count(),
+            irls: irls.counts,
+            ls: ls.counts,
+        });
+        (Some(ls.field), Some(irls.field), outcome)
     } else {
-        (None, None)
+        (None, None, None)
     };
-    progress(Stage::Doppler, 1, 1);
-    timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
-
-    Ok(ProcessOutput {
-        grid: params.grid.clone(),
-        bmode_db,
+    Ok(DopplerMaps {
         power_doppler: power,
         color_doppler: axial,
         power_per_angle,
@@ -320,21 +600,23 @@ pub fn analyse(
         lateral_weights,
         vector_ls,
         vector_irls,
-        nyquist_velocity: doppler::nyquist_velocity(c, frame_rate, f0),
-        clutter: reports,
-        filtered: images,
-        timings,
+        dealias: dealiased,
+        nyquist_velocity,
+        projection_nyquist: nyquist,
     })
 }
 
 /// The dynamics stage on a processed recording: vector velocity in sliding windows over the
 /// clutter-filtered series (`params`), the whole-recording vessel mask of `vessel` on its power
-/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels. `process`, the
-/// vessel-network study and the tests all run it through here.
+/// Doppler, then PSV, EDV, RI, classes and flow directions of those pixels, over the cardiac
+/// cycles that `triggers` (s from the first frame: ECG R-waves or scanner triggers) delimit when
+/// given, else found as [`dynamics::cardiac_cycles`] says. `process`, the vessel-network study and
+/// the tests all run it through here.
 pub fn dynamics(
     out: &ProcessOutput,
     params: &DynamicsParams,
     vessel: &VesselTests,
+    triggers: Option<&[f64]>,
 ) -> Result<(VelocitySeries, RiMaps)> {
     if out.filtered.n_angles() < 2 {
         return Err(invalid(
@@ -342,11 +624,47 @@ pub fn dynamics(
             "vector velocity needs two or more steering angles; the recording has one",
         ));
     }
+    if out.filtered.series.is_empty() {
+        return Err(invalid(
+            "filtered series",
+            "the recording was processed in segments (too long to hold whole) and its filtered \
+             series were not kept: give the dynamics settings to process itself",
+        ));
+    }
     params.validate(out.filtered.frame_rate)?;
+    // Windows unwrap as far as the whole recording needed (auto decides once, on the recording).
+    let params = &DynamicsParams {
+        dealias: match (params.dealias, &out.dealias) {
+            (Dealias::Auto, Some(done)) => Dealias::Intervals(done.intervals),
+            (setting, _) => setting,
+        },
+        ..*params
+    };
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
-    let flow = vessel.flow_mask(&out.power_doppler, out.grid.step());
-    let maps = dynamics::ri_maps_where(&series, params, Some(&flow))?;
+    let maps = ri_maps_of(
+        &series,
+        &out.power_doppler,
+        &out.grid,
+        params,
+        vessel,
+        triggers,
+    )?;
     Ok((series, maps))
+}
+
+/// The RI half of [`dynamics`], on a velocity series already formed (by [`dynamics`] or segment by
+/// segment, [`crate::segments`]): the vessel mask of `vessel` on the whole-recording power Doppler,
+/// then PSV, EDV, RI, classes and flow directions over the cardiac cycles.
+pub fn ri_maps_of(
+    series: &VelocitySeries,
+    power_doppler: &Array2<f64>,
+    grid: &Grid,
+    params: &DynamicsParams,
+    vessel: &VesselTests,
+    triggers: Option<&[f64]>,
+) -> Result<RiMaps> {
+    let flow = vessel.flow_mask(power_doppler, grid.step());
+    dynamics::ri_maps_triggered(series, params, Some(&flow), triggers)
 }
 
 /// Per steering angle, the pixels of `grid` that its plane wave reaches (angles, nz, nx): those
@@ -373,7 +691,10 @@ pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none
 read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
 smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
-complex64)";
+complex64; frames: the recording's, or one segment's when it is processed in segments, \
+segments::SERIES_BYTES). FFT and filter lengths are bounded by the data: a slot shift by less than a record \
+(check_record), an IQ filter of at most 3·10⁴ taps (iq::MIN_CUTOFF_RATIO), a slow-time FFT of \
+twice the frames of a block";
 
 /// Working memory a block of frames may take while it is decoded, demodulated and beamformed
 /// (bytes): [`blocks_for`] sizes blocks to it.
@@ -398,10 +719,7 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
     if fit >= frames {
         return Blocks::whole(frames);
     }
-    let coded = matches!(
-        source.acquisition().sequence.coding,
-        crate::sequence::Coding::Hadamard { .. }
-    );
+    let coded = source.acquisition().sequence.is_coded();
     Blocks {
         frames: fit,
         margin: if coded && alignment == decode::EventAlignment::MidFrame {
@@ -416,12 +734,37 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
 /// [`MEMORY_ESTIMATE_RULE`]: a rule of thumb from the buffers it holds at its peak.
 pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let (nz, nx) = grid.shape();
-    let frames = source.n_frames() as u128;
-    let angles = source.acquisition().sequence.n_angles() as u128;
+    let angles = source.acquisition().sequence.n_angles();
+    // A recording longer than one segment holds one segment's images at a time.
+    let frames = source
+        .n_frames()
+        .min(crate::segments::frames_that_fit(nz * nx, angles)) as u128;
+    let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
     let block = (blocks.frames + 2 * blocks.margin).min(source.n_frames()) as u128
         * block_bytes_per_frame(source) as u128;
     source.resident_bytes() as u128 + block + 2 * (nz * nx) as u128 * frames * angles * 8
+}
+
+/// Checks, before any work, that every pulse slot of `acq` starts within a record of `n_samples`
+/// samples: decoding advances slot k's record by its start, so a slot that starts after the record
+/// ends has no echo in it (and would ask for an FFT longer than the record).
+pub fn check_record(acq: &Acquisition, n_samples: usize) -> Result<()> {
+    let last = acq.sequence.last_slot_start();
+    let record = n_samples as f64 / acq.sampling_frequency;
+    if last >= record {
+        return Err(invalid(
+            "slot delays",
+            format!(
+                "the last pulse slot starts {:.3} µs into the event, after the {:.3} µs record \
+                 ({n_samples} samples at {:.3} MHz) ends: its echoes are not in the recording",
+                last * 1e6,
+                record * 1e6,
+                acq.sampling_frequency * 1e-6
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Deepest depth (m) whose straight-down echo lies inside the record.
@@ -457,6 +800,12 @@ pub fn default_grid_for(acq: &Acquisition, n_samples: usize) -> Result<Grid> {
     let extent = (x1 - x0).max(z1 - z0);
     step = step.max(extent / 400.0).max(1e-5);
     Grid::new(x0, x1, z0, z1, step)
+}
+
+/// Checks, before any work, that `grid` starts above the deepest depth a record of `n_samples`
+/// samples acquired as `acq` holds ([`recorded_depth_of`]).
+pub fn check_grid_depth(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Result<()> {
+    check_depth(recorded_depth_of(acq, n_samples), grid)
 }
 
 /// A grid deeper than the record can say nothing: refuse it rather than return zeros.

@@ -1,6 +1,15 @@
 //! Linear-array probes.
 
-use crate::error::{Result, invalid, require_positive};
+use crate::error::{Result, invalid, require_positive, require_range};
+
+/// Most elements a probe may have (more is a mistake, not a probe).
+pub const MAX_ELEMENTS: usize = 65_536;
+
+/// Range of element pitches accepted (m): 1 µm to 50 mm.
+pub const PITCH_RANGE: (f64, f64) = (1e-6, 50e-3);
+
+/// Range of centre frequencies accepted (Hz): 20 kHz to 1 GHz.
+pub const CENTER_FREQUENCY_RANGE: (f64, f64) = (20e3, 1e9);
 
 /// A linear-array ultrasound probe. All lengths in m, frequencies in Hz.
 #[derive(Debug, Clone, PartialEq)]
@@ -67,9 +76,40 @@ impl Probe {
         if self.n_elements == 0 {
             return Err(invalid("number of elements", "must be at least 1"));
         }
+        if self.n_elements > MAX_ELEMENTS {
+            return Err(invalid(
+                "number of elements",
+                format!(
+                    "{} is more than any probe has (at most {MAX_ELEMENTS})",
+                    self.n_elements
+                ),
+            ));
+        }
         require_positive("pitch", self.pitch)?;
+        require_range("pitch", self.pitch, PITCH_RANGE, "m")?;
         require_positive("element width", self.element_width)?;
+        if self.element_width > self.pitch {
+            return Err(invalid(
+                "element width",
+                format!(
+                    "{:.4} mm is wider than the pitch {:.4} mm: elements of a linear array cannot \
+                     overlap",
+                    self.element_width * 1e3,
+                    self.pitch * 1e3
+                ),
+            ));
+        }
         require_positive("centre frequency", self.center_frequency)?;
+        if !(CENTER_FREQUENCY_RANGE.0..=CENTER_FREQUENCY_RANGE.1).contains(&self.center_frequency) {
+            return Err(invalid(
+                "centre frequency",
+                format!(
+                    "{:e} Hz is not an ultrasound frequency (expected {:e} to {:e} Hz; the unit is \
+                     Hz: 5 MHz is 5e6)",
+                    self.center_frequency, CENTER_FREQUENCY_RANGE.0, CENTER_FREQUENCY_RANGE.1
+                ),
+            ));
+        }
         require_positive("bandwidth", self.bandwidth)?;
         // A fraction of the centre frequency: at 2 (200 %) the band already reaches 0 Hz, so a
         // larger value is a percentage given where a fraction is meant (67 for 0.67).

@@ -108,11 +108,23 @@ impl Blocks {
 
     /// Each block's frames and the frames decoded for it: (block, decoded), in order.
     pub fn ranges(&self, total: usize) -> Vec<(Range<usize>, Range<usize>)> {
+        self.ranges_in(0..total, total)
+    }
+
+    /// As [`Blocks::ranges`], for the frames `frames` of a recording of `total` frames: the
+    /// blocks tile `frames`, and their margins reach into the frames around it (a segment of a
+    /// long recording decodes as the whole recording would).
+    pub fn ranges_in(
+        &self,
+        frames: Range<usize>,
+        total: usize,
+    ) -> Vec<(Range<usize>, Range<usize>)> {
         let step = self.frames.max(1);
-        (0..total)
+        let end_of_frames = frames.end.min(total);
+        (frames.start..end_of_frames)
             .step_by(step)
             .map(|start| {
-                let end = (start + step).min(total);
+                let end = (start + step).min(end_of_frames);
                 let decoded = start.saturating_sub(self.margin)..(end + self.margin).min(total);
                 (start..end, decoded)
             })

@@ -31,6 +31,7 @@ fn recording(coded: bool) -> ChannelData {
             Coding::Conventional
         },
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
     params.noise = Some(NoiseSpec::new(-20.0));

@@ -9,12 +9,14 @@ use num_complex::Complex32;
 use pcuvd::Error;
 use pcuvd::doppler::velocity_scale;
 use pcuvd::dynamics::{
-    self, ARTERIOLE, BACKGROUND, DynamicsParams, SpectrogramParams, VENULE, VelocitySeries,
-    VesselPooling, estimate_heart_rate, find_cycles, psv_edv, resistivity_index, ri_maps,
-    sliding_vectors, spectrogram,
+    self, ARTERIOLE, BACKGROUND, CycleSource, DynamicsParams, SpectrogramParams, VENULE,
+    VelocitySeries, VesselPooling, cardiac_cycles, estimate_heart_rate, find_cycles, psv_edv,
+    resistivity_index, ri_maps, ri_maps_triggered, sliding_vectors, spectrogram,
+    systolic_upstrokes,
 };
 use pcuvd::grid::Grid;
 use pcuvd::images::AngleImages;
+use pcuvd::phantom::network::CardiacWaveform;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -957,4 +959,173 @@ fn rice_mean(v: f64, sigma: f64) -> f64 {
     let laguerre_half =
         (x / 2.0).exp() * ((1.0 - x) * bessel(0, -x / 2.0) - x * bessel(1, -x / 2.0));
     sigma * (PI / 2.0).sqrt() * laguerre_half
+}
+
+/// The steepest rise (s) of one beat of `wave` before its systolic peak at `peak` (s): found on a
+/// 1 µs grid of the analytic waveform, the truth the detected upstrokes are checked against.
+fn analytic_upstroke(wave: &CardiacWaveform, peak: f64) -> f64 {
+    let period = 1.0 / wave.heart_rate_hz;
+    let h = 1e-6;
+    (0..(period / 2.0 / h) as usize)
+        .map(|i| peak - period / 2.0 + i as f64 * h)
+        .max_by(|&a, &b| {
+            let slope = |t: f64| wave.value(t + h) - wave.value(t - h);
+            slope(a).total_cmp(&slope(b))
+        })
+        .unwrap()
+}
+
+#[test]
+fn heart_rate_from_two_upstrokes_in_little_more_than_one_cycle() {
+    // The network phantom's arteriolar waveform at 5.5 Hz, as the rat preset's 5 ms window series
+    // sees it, over 1.3 cycles that hold two systolic upstrokes: too short for the
+    // autocorrelation (≳ 1.5 cycles), long enough for the upstrokes.
+    let wave = CardiacWaveform {
+        heart_rate_hz: 5.5,
+        ri: 0.65,
+        delay_s: 0.06,
+    };
+    let dt = 0.005;
+    let times: Vec<f64> = (0..48).map(|i| 0.01 + i as f64 * dt).collect();
+    let v: Vec<f64> = times.iter().map(|&t| 0.02 * wave.value(t)).collect();
+    assert!(estimate_heart_rate(&v, &times).is_err());
+    let upstrokes = systolic_upstrokes(&v, &times).unwrap();
+    assert_eq!(upstrokes.len(), 2, "{upstrokes:?}");
+    for (k, &t) in upstrokes.iter().enumerate() {
+        let truth = analytic_upstroke(&wave, wave.delay_s + k as f64 / wave.heart_rate_hz);
+        assert!(
+            (t - truth).abs() < 0.5e-3,
+            "upstroke {t} s, truth {truth} s"
+        );
+    }
+    let cycles = cardiac_cycles(&v, &times, None, None).unwrap();
+    assert_eq!(cycles.source, CycleSource::Upstrokes);
+    assert_eq!(cycles.ranges.len(), 1);
+    assert!(
+        (cycles.heart_rate_hz - 5.5).abs() / 5.5 < 0.01,
+        "{} Hz",
+        cycles.heart_rate_hz
+    );
+    // The same waveform over 1.1 cycles holds one upstroke: the error says so.
+    let short = &v[..37];
+    let message = cardiac_cycles(short, &times[..37], None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("upstrokes found: 1") && message.contains("give the heart rate"),
+        "{message}"
+    );
+}
+
+/// A beat-to-beat waveform sampled at `times`: beat k starts at `starts[k]` (s) and lasts to the
+/// next start, a raised cosine from `edv` up to `psvs[k]` at mid-beat and back (m/s).
+fn beats(times: &[f64], starts: &[f64], psvs: &[f64], edv: f64) -> Vec<f64> {
+    times
+        .iter()
+        .map(|&t| {
+            let k = starts.windows(2).position(|w| w[0] <= t && t < w[1]);
+            match k {
+                Some(k) => {
+                    let phase = (t - starts[k]) / (starts[k + 1] - starts[k]);
+                    edv + (psvs[k] - edv) * 0.5 * (1.0 - (2.0 * PI * phase).cos())
+                }
+                None => edv,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn long_recordings_follow_the_beats_as_the_heart_rate_drifts() {
+    // 2.4 s of a heart slowing from 6.4 to 4.8 Hz, sampled every 5 ms: one fixed period slides off
+    // the beats; the upstrokes keep to them.
+    let dt = 0.005;
+    let times: Vec<f64> = (0..480).map(|i| i as f64 * dt).collect();
+    let mut starts = vec![0.03];
+    while *starts.last().unwrap() < 2.4 {
+        let t = *starts.last().unwrap();
+        let rate = 6.4 - 1.6 * t / 2.4;
+        starts.push(t + (1.0 / rate / dt).round() * dt);
+    }
+    let psvs = vec![0.02; starts.len()];
+    let v = beats(&times, &starts, &psvs, 0.008);
+    let cycles = cardiac_cycles(&v, &times, None, None).unwrap();
+    assert_eq!(cycles.source, CycleSource::Upstrokes);
+    assert!(cycles.ranges.len() >= 10, "{:?}", cycles.ranges);
+    for &(a, b) in &cycles.ranges {
+        // Each cycle spans one beat: from just after a beat's start (the raised cosine rises
+        // fastest a quarter beat in) to the same point of the next.
+        let beat = starts.iter().rposition(|&s| s <= times[a]).unwrap();
+        let quarter = |k: usize| starts[k] + 0.25 * (starts[k + 1] - starts[k]);
+        assert!(
+            (times[a] - quarter(beat)).abs() <= dt,
+            "cycle starts at {} s",
+            times[a]
+        );
+        assert!(
+            (times[b] - quarter(beat + 1)).abs() <= dt,
+            "cycle ends at {} s",
+            times[b]
+        );
+    }
+}
+
+#[test]
+fn triggers_delimit_the_cycles_and_the_spread_measures_beat_to_beat_change() {
+    // One vessel pixel whose systolic peak changes from beat to beat (PSV 20, 23, 18, 21 mm/s,
+    // EDV 8 mm/s), beats of 36–40 windows (5.6–5.0 Hz) given as trigger times: per-cycle values
+    // are exact for raised-cosine beats, so the means and spreads are those of the beats.
+    let step = 0.005;
+    let durations = [36.0, 40.0, 38.0, 36.0];
+    let mut starts = vec![0.02];
+    for d in durations {
+        starts.push(starts.last().unwrap() + d * step);
+    }
+    let times: Vec<f64> = (0..170).map(|i| 0.01 + i as f64 * step).collect();
+    let psvs = [0.020, 0.023, 0.018, 0.021];
+    let speed = beats(&times, &starts, &psvs, 0.008);
+    let nt = times.len();
+    let series = VelocitySeries {
+        times_s: times.clone(),
+        vx: Array3::zeros((nt, 1, 1)),
+        vz: Array3::from_shape_vec((nt, 1, 1), speed).unwrap(),
+        power: Array3::from_elem((nt, 1, 1), 1.0),
+        window_s: 0.02,
+        step_s: step,
+    };
+    let params = DynamicsParams {
+        heart_rate_hz: None,
+        ..DynamicsParams::rat()
+    };
+    let maps = ri_maps_triggered(&series, &params, None, Some(&starts)).unwrap();
+    assert_eq!(maps.cycle_source, CycleSource::Triggers);
+    assert_eq!(maps.cycles.len(), 4);
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let std = |v: &[f64]| {
+        let m = mean(v);
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+    };
+    let ris: Vec<f64> = psvs.iter().map(|p| resistivity_index(*p, 0.008)).collect();
+    for (name, got, want) in [
+        ("PSV", maps.psv[[0, 0]], mean(&psvs)),
+        ("EDV", maps.edv[[0, 0]], 0.008),
+        ("PSV spread", maps.psv_spread[[0, 0]], std(&psvs)),
+        ("EDV spread", maps.edv_spread[[0, 0]], 0.0),
+        ("RI spread", maps.ri_spread[[0, 0]], std(&ris)),
+    ] {
+        assert!((got - want).abs() < 1e-9, "{name}: {got}, expected {want}");
+    }
+    assert!((maps.heart_rate_hz - 1.0 / (37.0 * step)).abs() < 1e-9);
+    // One cycle: no spread.
+    let one = ri_maps_triggered(&series, &params, None, Some(&starts[..2])).unwrap();
+    assert!(one.ri_spread[[0, 0]].is_nan());
+    // Triggers that hold no complete cycle within the series, or run backwards, are refused.
+    is_invalid(
+        ri_maps_triggered(&series, &params, None, Some(&[5.0, 5.2])),
+        "at least two are needed",
+    );
+    is_invalid(
+        ri_maps_triggered(&series, &params, None, Some(&[0.3, 0.1])),
+        "increasing order",
+    );
 }

@@ -81,6 +81,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment: Default::default(),
+        dealias: Default::default(),
     };
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
     let dparams = DynamicsParams {
@@ -113,7 +114,8 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         .unwrap(),
         ..dparams
     };
-    let (_, pooled) = pipeline::dynamics(&out, &pooled_params, &VesselTests::default()).unwrap();
+    let (_, pooled) =
+        pipeline::dynamics(&out, &pooled_params, &VesselTests::default(), None).unwrap();
     MethodMaps { per_pixel, pooled }
 }
 

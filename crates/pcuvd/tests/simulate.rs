@@ -33,6 +33,7 @@ fn sequence(angles_deg: &[f64], coding: Coding) -> Sequence {
         event_prf: 14.4e3,
         coding,
         pulse_cycles: 2.0,
+        pulse: None,
     }
 }
 

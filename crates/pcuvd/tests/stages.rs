@@ -4,10 +4,10 @@ use ndarray::{Array3, Array4};
 use num_complex::Complex32;
 use pcuvd::beamform::{self, DasParams};
 use pcuvd::channel::{Acquisition, AngleSamples, ChannelData, Samples};
-use pcuvd::decode::{EventAlignment, decode, decode_aligned, encode};
+use pcuvd::decode::{EventAlignment, decode, decode_aligned, encode, encode_code};
 use pcuvd::geometry::round_trip_delay;
 use pcuvd::grid::Grid;
-use pcuvd::{Coding, Hadamard, Probe, Sequence, iq};
+use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode, iq};
 use proptest::prelude::*;
 
 /// Band-limited random traces: random tones inside the probe band under a Gaussian envelope.
@@ -61,6 +61,7 @@ fn coded_recording(events: Array3<f32>, n: usize, slot_delay: f64, fs: f64) -> C
                 event_prf: 1e4,
                 coding: Coding::Hadamard { slot_delay },
                 pulse_cycles: 2.0,
+                pulse: None,
             },
             sampling_frequency: fs,
             sound_speed: 1540.0,
@@ -96,6 +97,43 @@ proptest! {
         let got = decoded.index_axis(ndarray::Axis(1), 0).to_owned() / n as f32;
         let err = relative_error(&got, &x);
         prop_assert!(err < 1e-4, "n {}, fractional {}: relative error {}", n, fractional, err);
+    }
+}
+
+/// decode(encode(x)) = g·x for explicit codes, through the recording's own decoding: H_4 with its
+/// rows in another order, two of them sign-flipped, and uneven fractional slot starts (g = 4, the
+/// Hadamard convention n·x), and a code whose rows are not orthogonal (g = 2, decoded with its
+/// inverse).
+#[test]
+fn explicit_codes_decode_what_they_encode() {
+    let fs = 65e6f64;
+    let h = Hadamard::new(4).unwrap();
+    let (order, signs) = ([3usize, 1, 0, 2], [-1.0, 1.0, 1.0, -1.0]);
+    let scrambled = TransmitCode {
+        weights: (0..16)
+            .map(|j| signs[j / 4] * h.get(order[j / 4], j % 4) as f64)
+            .collect(),
+        slot_starts: vec![0.4e-6, 1.37e-6, 2.0e-6, 3.81e-6],
+    };
+    let uneven = TransmitCode {
+        weights: vec![1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 1.0],
+        slot_starts: vec![0.0, 0.9e-6, 2.3e-6],
+    };
+    for (code, gain) in [(scrambled, 4.0f32), (uneven, 2.0)] {
+        let n = code.order();
+        let record = 600 + (4e-6 * fs).ceil() as usize + 50;
+        let x = random_traces(7, n, 3, 600, record);
+        let events = encode_code(x.view(), &code, fs).unwrap();
+        let mut rec = coded_recording(events, n, 1e-6, fs);
+        rec.acquisition.sequence.coding = Coding::Matrix(code.clone());
+        for alignment in [EventAlignment::Simultaneous, EventAlignment::MidFrame] {
+            let AngleSamples::Rf(decoded) = decode_aligned(&rec, alignment).unwrap() else {
+                unreachable!()
+            };
+            let got = decoded.index_axis(ndarray::Axis(1), 0).to_owned() / gain;
+            let err = relative_error(&got, &x);
+            assert!(err < 1e-4, "order {n}, {alignment:?}: relative error {err}");
+        }
     }
 }
 

@@ -10,6 +10,7 @@ fn acquisition(n_angles: usize, coding: Coding, probe: Probe) -> Acquisition {
             event_prf: 14.4e3,
             coding,
             pulse_cycles: 2.0,
+            pulse: None,
         },
         sampling_frequency: 62.5e6,
         sound_speed: 1540.0,
@@ -197,7 +198,10 @@ fn errors_name_the_file_and_the_field() {
         &rep("format = \"pcuvd-recording\"", "format = \"other\""),
         &["format is \"other\""],
     );
-    check(&rep("version = 1 ", "version = 2 "), &["version is 2"]);
+    check(
+        &rep("version = 1 ", "version = 3 "),
+        &["version is 3", "versions 1 to 2"],
+    );
     // A percentage where a fraction is meant is refused, with the fraction suggested.
     let bandwidth_line = text
         .lines()
@@ -443,4 +447,441 @@ fn frames_read_in_blocks_are_the_recording() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("data bytes"), "{err}");
+}
+
+/// Writes the version 2 example manifest next to a generated rf.npy of `frames` frames; returns
+/// the manifest path.
+fn example_v2_in(dir: &Path, frames: usize, samples: usize) -> PathBuf {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/recording_v2.toml"
+    ))
+    .unwrap();
+    let path = dir.join("recording.toml");
+    std::fs::write(&path, text).unwrap();
+    let a = Array4::from_shape_fn((frames, 4, 16, samples), |(f, e, c, s)| {
+        (f + 2 * e + 3 * c + 5 * s) as f32
+    });
+    write_npy(&dir.join("rf.npy"), &a).unwrap();
+    path
+}
+
+/// The version 2 example: angles and slot starts derived from delays on a 4 ns clock (within
+/// that clock of the angles and starts the delays were made from), the code matrix in the
+/// scanner's row order, the sampled pulse, and the per-frame "events" axis.
+#[test]
+fn the_v2_example_manifest_parses() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_v2_in(dir.path(), 2, 32);
+    let rec = read_recording(&path).unwrap();
+    let a = &rec.data.acquisition;
+    let seq = &a.sequence;
+    let nominal = [-10.0, -10.0 / 3.0, 10.0 / 3.0, 10.0];
+    let starts = [0.0, 1.1e-6, 2.048e-6, 3.2e-6];
+    // 2 ns of delay error over the 4.5 mm aperture is 0.04° at most.
+    for (k, angle) in seq.angles.iter().enumerate() {
+        assert!(
+            (angle.to_degrees() - nominal[k]).abs() < 0.05,
+            "slot {k}: {}°",
+            angle.to_degrees()
+        );
+    }
+    let Coding::Matrix(code) = &seq.coding else {
+        panic!("{:?}", seq.coding)
+    };
+    for (k, start) in code.slot_starts.iter().enumerate() {
+        assert!((start - starts[k]).abs() < 4e-9, "slot {k}: {start}");
+    }
+    assert_eq!(code.weights[..4], [1.0, -1.0, 1.0, -1.0]);
+    assert_eq!(code.weights[8..12], [-1.0, -1.0, 1.0, 1.0]);
+    assert_eq!(code.decoding_gain(), 4.0);
+    let pulse = seq.pulse.as_ref().unwrap();
+    assert_eq!(pulse.samples.len(), 66);
+    assert_eq!(pulse.sampling_frequency, 250e6);
+    // pulse_cycles left out: the pulse's length in cycles of f_c.
+    assert!((seq.pulse_cycles - 66.0 / 250e6 * 7.6e6).abs() < 1e-12);
+    assert_eq!(rec.data.samples.dim(), (8, 16, 32));
+    // events = frame · 4 + event of the frame.
+    if let Samples::Rf(x) = &rec.data.samples {
+        let (f, e, c, s) = (1, 2, 10, 4);
+        assert_eq!(x[[f * 4 + e, c, s]], (f + 2 * e + 3 * c + 5 * s) as f32);
+    }
+}
+
+/// A version 2 recording written and read back is the one written, bit for bit: explicit codes
+/// (a scrambled Hadamard with uneven starts, one slot per event with late starts), a sampled
+/// pulse, RF and IQ; the manifest says version 2 and names the "events" axis. A recording version
+/// 1 can say is still written as version 1.
+#[test]
+fn v2_recordings_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let h = Hadamard::new(4).unwrap();
+    let scrambled = TransmitCode {
+        weights: (0..16)
+            .map(|j| [1.0, -1.0, -1.0, 1.0][j / 4] * h.get([1, 3, 0, 2][j / 4], j % 4) as f64)
+            .collect(),
+        slot_starts: vec![0.25e-6, 1.0e-6, 2.125e-6, 2.9e-6],
+    };
+    let pulse = TransmitPulse {
+        samples: vec![0.0, 0.7, 1.0, -0.3, -1.0, -0.6, 0.2, 0.0],
+        sampling_frequency: 100e6,
+    };
+    let mut cases = Vec::new();
+    let mut acq = acquisition(4, Coding::Matrix(scrambled.clone()), small_probe());
+    cases.push((acq.clone(), false));
+    acq.sequence.pulse = Some(pulse.clone());
+    cases.push((acq.clone(), true));
+    let late = TransmitCode::one_per_event(vec![0.0, 0.5e-6, 1e-6]);
+    cases.push((acquisition(3, Coding::Matrix(late), small_probe()), false));
+    let mut pulsed = acquisition(2, Coding::Conventional, small_probe());
+    pulsed.sequence.pulse = Some(pulse);
+    cases.push((pulsed, false));
+    for (i, (acq, iq)) in cases.into_iter().enumerate() {
+        let n = acq.sequence.n_angles();
+        let r = rf(3 * n, 6, 9);
+        let samples = if iq {
+            Samples::Iq {
+                data: r.mapv(|v| Complex32::new(v, 0.25 * v)),
+                demod_frequency: 7.1e6,
+            }
+        } else {
+            Samples::Rf(r)
+        };
+        let data = ChannelData {
+            acquisition: acq,
+            samples,
+        };
+        let path =
+            write_recording(dir.path(), &format!("v2_{i}"), &data, &toml::Table::new()).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("version = 2\n"), "{text}");
+        assert!(
+            text.contains("axes = [\"frames\", \"events\", \"channels\", \"samples\"]"),
+            "{text}"
+        );
+        assert_eq!(
+            read_recording(&path).unwrap().data,
+            data,
+            "case {i}:\n{text}"
+        );
+    }
+    let v1 = ChannelData {
+        acquisition: acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe()),
+        samples: Samples::Rf(rf(8, 6, 9)),
+    };
+    let path = write_recording(dir.path(), "v1", &v1, &toml::Table::new()).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        text.contains("version = 1\n") && text.contains("\"angles\""),
+        "{text}"
+    );
+}
+
+/// The manifest version 1 writes is, byte for byte, what pcuvd wrote before version 2 existed
+/// (recordings written then and now are the same files).
+#[test]
+fn version_1_manifests_are_written_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = ChannelData {
+        acquisition: acquisition(2, Coding::Hadamard { slot_delay: 1e-6 }, small_probe()),
+        samples: Samples::Rf(rf(4, 6, 3)),
+    };
+    let path = write_recording(dir.path(), "old", &data, &toml::Table::new()).unwrap();
+    let expected = "# pcuvd recording manifest (SI units; the unit is in each key's name).
+format = \"pcuvd-recording\"
+version = 1
+
+[probe]
+name = \"tiny test array\"
+n_elements = 6
+pitch_m = 0.00021
+element_width_m = 0.00019
+center_frequency_hz = 7100000.0
+bandwidth = 0.61  # two-way -6 dB fractional bandwidth
+
+[acquisition]
+sampling_frequency_hz = 62500000.0
+sound_speed_m_s = 1540.0
+t0_s = 1.3e-7
+event_prf_hz = 14400.0
+# angles in degrees: [-15.0000, 15.0000]
+angles_rad = [-0.2617993877991494, 0.2617993877991494]
+pulse_cycles = 2.0
+coding = \"hadamard\"
+slot_delay_s = 1e-6
+
+[data]
+file = \"old.npy\"
+kind = \"rf\"
+axes = [\"frames\", \"angles\", \"channels\", \"samples\"]
+";
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), expected);
+}
+
+/// Per-element delays of exact plane waves give the recording that their angles give (the
+/// same angles to 1e-12 rad, the same conventional coding: every slot starts at 0).
+#[test]
+fn plane_waves_as_delays_read_as_their_angles() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquisition(3, Coding::Conventional, small_probe());
+    let data = ChannelData {
+        acquisition: acq.clone(),
+        samples: Samples::Rf(rf(6, 6, 9)),
+    };
+    let path = write_recording(dir.path(), "rec", &data, &toml::Table::new()).unwrap();
+    let xs = acq.probe.element_x();
+    let aperture = acq.probe.aperture();
+    let rows: Vec<String> = acq
+        .sequence
+        .angles
+        .iter()
+        .map(|&a| {
+            let d: Vec<String> = xs
+                .iter()
+                .map(|&x| {
+                    format!(
+                        "{:?}",
+                        pcuvd::geometry::element_firing_delay(x, a, aperture, 1540.0)
+                    )
+                })
+                .collect();
+            format!("[{}]", d.join(", "))
+        })
+        .collect();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let angles_line = text.lines().find(|l| l.starts_with("angles_rad")).unwrap();
+    let t2 = text.replace("version = 1", "version = 2").replace(
+        angles_line,
+        &format!("transmit_delays_s = [{}]", rows.join(", ")),
+    );
+    let t2 = t2.replace("\"angles\"", "\"events\"");
+    std::fs::write(&path, t2).unwrap();
+    let back = read_recording(&path).unwrap().data;
+    assert_eq!(back.acquisition.sequence.coding, Coding::Conventional);
+    for (a, b) in back
+        .acquisition
+        .sequence
+        .angles
+        .iter()
+        .zip(&acq.sequence.angles)
+    {
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+    assert_eq!(back.samples, data.samples);
+}
+
+/// Version 2's keys, checked: each error names the key and says what is wrong.
+#[test]
+fn v2_errors_name_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_v2_in(dir.path(), 2, 32);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let check = |edit: &dyn Fn(&str) -> String, wants: &[&str]| {
+        let t = edit(&text);
+        assert_ne!(t, text, "edit changed nothing (wanted {wants:?})");
+        std::fs::write(&path, t).unwrap();
+        let e = read_manifest(&path).unwrap_err().to_string();
+        assert!(e.starts_with(&path.display().to_string()), "{e}");
+        for w in wants {
+            assert!(e.contains(w), "{e} (wanted {w})");
+        }
+    };
+    let rep = |a: &'static str, b: &'static str| move |t: &str| t.replacen(a, b, 1);
+    check(
+        &rep("version = 2", "version = 1"),
+        &["[acquisition].code_matrix", "version 2"],
+    );
+    // A focused row: element 7's delay 0.5 µs late.
+    check(
+        &rep("1200e-9, 1192e-9", "1700e-9, 1192e-9"),
+        &[
+            "[acquisition].transmit_delays_s",
+            "row 1",
+            "not a plane wave",
+        ],
+    );
+    check(
+        &rep("    [508e-9, 472e-9", "    [508e-9, 472e-9, 1e-9"),
+        &["transmit_delays_s", "row 0", "17 delays", "16 elements"],
+    );
+    check(
+        &rep(
+            "coding = \"matrix\"",
+            "angles_deg = [-10, -3.33, 3.33, 12]\ncoding = \"matrix\"",
+        ),
+        &["[acquisition].angles_deg", "slot 3", "12.0000°"],
+    );
+    check(
+        &rep(
+            "coding = \"matrix\"",
+            "slot_delays_s = [0, 1e-6, 2e-6, 3e-6]\ncoding = \"matrix\"",
+        ),
+        &[
+            "[acquisition].transmit_delays_s",
+            "together with slot_delays_s",
+        ],
+    );
+    check(
+        &rep("    [1, 1, 1, 1],\n", ""),
+        &["[acquisition].code_matrix", "3 rows", "4 rows of 4"],
+    );
+    check(
+        &rep("    [1, 1, 1, 1],", "    [1, -1, 1, -1],"),
+        &["[acquisition].code_matrix", "singular"],
+    );
+    check(
+        &rep("    [1, 1, 1, 1],", "    [1, -1, 1, -0.999999],"),
+        &["[acquisition].code_matrix", "ill-conditioned"],
+    );
+    check(
+        &rep("coding = \"matrix\"", "coding = \"zigzag\""),
+        &["[acquisition].coding", "\"matrix\""],
+    );
+    check(
+        &rep(
+            "sampling_frequency_hz = 250e6",
+            "sampling_frequency_hz = 10e6",
+        ),
+        &["[acquisition.pulse].sampling_frequency_hz", "twice the top"],
+    );
+    check(
+        &rep("sampling_frequency_hz = 250e6\n", ""),
+        &["table [acquisition.pulse] has no key 'sampling_frequency_hz'"],
+    );
+    check(
+        &rep("samples = [0, 0, 1,", "samples = [0, 0, nan,"),
+        &["[acquisition.pulse].samples", "sample 2"],
+    );
+    check(
+        &rep(
+            "axes = [\"frames\", \"events\"",
+            "axes = [\"frames\", \"angles\"",
+        ),
+        &["[data].axes", "named \"events\""],
+    );
+    check(
+        &rep("[acquisition.pulse]", "[acquisition.pulse]\nshape = 2"),
+        &["unknown field `shape`"],
+    );
+    // Without the delays: the angles, and when each slot fires, are required.
+    let without_delays = |t: &str| {
+        let a = t.find("transmit_delays_s = [").unwrap();
+        let b = a + t[a..].find("],\n]\n").unwrap() + 5;
+        format!("{}{}", &t[..a], &t[b..])
+    };
+    check(&without_delays, &["has no key 'angles_deg'"]);
+    check(
+        &|t: &str| {
+            without_delays(t).replacen("coding = ", "angles_deg = [-9, -3, 3, 9]\ncoding = ", 1)
+        },
+        &["has no key 'slot_delays_s'"],
+    );
+    check(
+        &|t: &str| {
+            without_delays(t).replacen(
+                "coding = ",
+                "angles_deg = [-9, -3, 3, 9]\nslot_delays_s = [0, 1e-6]\ncoding = ",
+                1,
+            )
+        },
+        &["[acquisition].slot_delays_s", "2 slot starts for 4 angles"],
+    );
+    check(
+        &|t: &str| {
+            without_delays(t).replacen(
+                "coding = ",
+                "angles_deg = [-9, -3, 3, 9]\nslot_delays_s = [0, 1e-6, 2e-6, 200e-6]\ncoding = ",
+                1,
+            )
+        },
+        &[
+            "[acquisition].slot_delays_s",
+            "longer than the event period",
+        ],
+    );
+}
+
+/// Ranges of the keys both versions have: absurd values are refused naming the key.
+#[test]
+fn absurd_values_name_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example_in(dir.path(), (2, 8, 128, 16));
+    let text = std::fs::read_to_string(&path).unwrap();
+    for (from, to, wants) in [
+        (
+            "sampling_frequency_hz = 62.5e6",
+            "sampling_frequency_hz = 1e13",
+            &["[acquisition].sampling_frequency_hz", "1e13"][..],
+        ),
+        (
+            "sampling_frequency_hz = 62.5e6",
+            "sampling_frequency_hz = 20e6",
+            &["[acquisition].sampling_frequency_hz", "folds the RF band"],
+        ),
+        ("pitch_m = 1.0e-4", "pitch_m = 1e-300", &["[probe].pitch_m"]),
+        ("pitch_m = 1.0e-4", "pitch_m = inf", &["[probe].pitch_m"]),
+        (
+            "element_width_m = 8.0e-5",
+            "element_width_m = 2e-4",
+            &["[probe].element_width_m", "wider than the pitch"],
+        ),
+        (
+            "center_frequency_hz = 15.625e6",
+            "center_frequency_hz = 15.625",
+            &["[probe].center_frequency_hz", "5e6"],
+        ),
+        (
+            "sound_speed_m_s = 1540.0",
+            "sound_speed_m_s = 1.54",
+            &["[acquisition].sound_speed_m_s"],
+        ),
+        (
+            "event_prf_hz = 14400.0",
+            "event_prf_hz = -1.0",
+            &["[acquisition].event_prf_hz"],
+        ),
+        (
+            "t0_s = 0.0",
+            "t0_s = 1.0",
+            &["[acquisition].t0_s", "event period"],
+        ),
+        (
+            "pulse_cycles = 2.0",
+            "pulse_cycles = 0.0",
+            &["[acquisition].pulse_cycles"],
+        ),
+        (
+            "slot_delay_s = 1.0e-6",
+            "slot_delay_s = 1.0e-4",
+            &["[acquisition].slot_delay_s", "event period"],
+        ),
+        (
+            "angles_deg = [-15.0, ",
+            "angles_deg = [-90.0, ",
+            &["[acquisition].angles_deg", "−90"],
+        ),
+        (
+            "angles_deg = [-15.0, -10.714285714285714",
+            "angles_deg = [-15.0, -15.0",
+            &["[acquisition].angles_deg", "same steering angle"],
+        ),
+        (
+            "n_elements = 128",
+            "n_elements = 0",
+            &["[probe].n_elements"],
+        ),
+        (
+            "kind = \"rf\"",
+            "kind = \"iq\"\ndemod_frequency_hz = -5.0",
+            &["[data].demod_frequency_hz"],
+        ),
+    ] {
+        let t = text.replacen(from, to, 1);
+        assert_ne!(t, text, "{from}");
+        std::fs::write(&path, t).unwrap();
+        let e = read_manifest(&path).unwrap_err().to_string();
+        for w in wants {
+            assert!(e.contains(w), "{e} (wanted {w})");
+        }
+    }
 }

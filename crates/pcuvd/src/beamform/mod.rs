@@ -106,6 +106,11 @@ pub fn bmode_db(image: ArrayView3<Complex32>) -> ndarray::Array2<f64> {
     let env = image.map_axis(Axis(2), |v| {
         v.iter().map(|c| c.norm() as f64).sum::<f64>() / v.len().max(1) as f64
     });
+    bmode_db_of_envelope(env)
+}
+
+/// B-mode image in dB (0 dB at the brightest pixel) of a mean envelope map (nz, nx).
+pub fn bmode_db_of_envelope(env: ndarray::Array2<f64>) -> ndarray::Array2<f64> {
     let max = env.iter().cloned().fold(f64::MIN_POSITIVE, f64::max);
     env.mapv(|v| 20.0 * (v.max(max * 1e-12) / max).log10())
 }

@@ -152,22 +152,86 @@ pub fn estimate_heart_rate(signal: &[f64], times: &[f64]) -> Result<f64> {
 /// Complete cardiac cycles in a waveform `signal` (e.g. the mean speed over vessel pixels) sampled
 /// at uniform `times` (s): half-open index ranges [start, end) one period long, as many as fit,
 /// started at systolic peaks where the recording allows. The period comes from `heart_rate_hz`
-/// (Hz) or, if `None`, from [`estimate_heart_rate`]. Errors when not one cycle fits.
+/// (Hz) or, if `None`, from the data ([`cardiac_cycles`]). Errors when not one cycle fits.
 pub fn find_cycles(
     signal: &[f64],
     times: &[f64],
     heart_rate_hz: Option<f64>,
 ) -> Result<Vec<(usize, usize)>> {
-    Ok(cycles_and_rate(signal, times, heart_rate_hz)?.0)
+    Ok(cardiac_cycles(signal, times, heart_rate_hz, None)?.ranges)
 }
 
-pub(super) fn cycles_and_rate(
+/// How the cardiac cycles of a recording were found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CycleSource {
+    /// From the heart rate given by the user: cycles one period long, aligned with the systolic
+    /// peaks.
+    GivenRate,
+    /// From cycle start times given beside the recording (ECG R-waves or scanner triggers): one
+    /// cycle from each to the next.
+    Triggers,
+    /// Measured from the data: the systolic upstrokes (steepest rises) of the vessels' mean speed,
+    /// one cycle from each to the next. Needs two upstrokes: about one cycle or more.
+    Upstrokes,
+    /// Measured from the data: the first strong peak of the waveform's autocorrelation; cycles
+    /// one period long, aligned with the systolic peaks. Needs about 1.5 cycles.
+    Autocorrelation,
+}
+
+impl CycleSource {
+    /// One sentence for summaries and reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            CycleSource::GivenRate => {
+                "heart rate given (--heart-rate); cycles one period long, aligned with the systolic peaks"
+            }
+            CycleSource::Triggers => {
+                "cardiac triggers given with the recording (ECG R-waves or trigger times); one cycle from each trigger to the next"
+            }
+            CycleSource::Upstrokes => {
+                "measured from the data: systolic upstrokes (steepest rises) of the vessels' mean speed; one cycle from each upstroke to the next"
+            }
+            CycleSource::Autocorrelation => {
+                "measured from the data: first strong peak of the autocorrelation of the vessels' mean speed; cycles one period long, aligned with the systolic peaks"
+            }
+        }
+    }
+}
+
+/// Cardiac cycles of a waveform and how they were found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CardiacCycles {
+    /// Complete cycles as half-open [start, end) index ranges of the waveform, in order.
+    pub ranges: Vec<(usize, usize)>,
+    /// Heart rate (Hz): the given one, or 1 / the median cycle duration.
+    pub heart_rate_hz: f64,
+    /// Where the cycles came from.
+    pub source: CycleSource,
+}
+
+/// Complete cycles from which the measured cycles follow the beats (one from each systolic upstroke
+/// to the next) rather than one fixed period: over many cycles the heart rate drifts, and a fixed
+/// period slides off the beats; over a few, one period fitted to the whole waveform is steadier.
+pub const BEAT_TO_BEAT_MIN_CYCLES: usize = 4;
+
+/// Complete cardiac cycles of a waveform `signal` (the vessels' mean speed) sampled at uniform
+/// `times` (s). In order of preference: cycle start times `triggers` (s, same clock as `times`:
+/// ECG R-waves or scanner triggers); a given `heart_rate_hz` (Hz); measured from the data — beat
+/// to beat between systolic upstrokes ([`systolic_upstrokes`]) when they delimit at least
+/// [`BEAT_TO_BEAT_MIN_CYCLES`] cycles, else one period from the autocorrelation
+/// ([`estimate_heart_rate`], ≳ 1.5 cycles), else between two upstrokes (about one cycle and a
+/// bit: the recording must hold the same phase of two beats). Errors when not one cycle fits.
+pub fn cardiac_cycles(
     signal: &[f64],
     times: &[f64],
     heart_rate_hz: Option<f64>,
-) -> Result<(Vec<(usize, usize)>, f64)> {
+    triggers: Option<&[f64]>,
+) -> Result<CardiacCycles> {
     let dt = check_times(signal, times)?;
-    let hr = match heart_rate_hz {
+    if let Some(triggers) = triggers {
+        return trigger_cycles(times, dt, triggers);
+    }
+    let (hr, source) = match heart_rate_hz {
         Some(hr) => {
             require_positive("heart rate", hr)?;
             if hr * dt > 0.5 {
@@ -180,9 +244,32 @@ pub(super) fn cycles_and_rate(
                     ),
                 ));
             }
-            hr
+            (hr, CycleSource::GivenRate)
         }
-        None => estimate_heart_rate(signal, times)?,
+        None => {
+            let upstrokes = systolic_upstrokes(signal, times)?;
+            let beats = cycles_between(times, dt, &upstrokes, CycleSource::Upstrokes);
+            match beats {
+                Some(beats) if beats.ranges.len() >= BEAT_TO_BEAT_MIN_CYCLES => return Ok(beats),
+                _ => {}
+            }
+            match estimate_heart_rate(signal, times) {
+                Ok(hr) => (hr, CycleSource::Autocorrelation),
+                Err(e) => match beats {
+                    Some(beats) => return Ok(beats),
+                    None => {
+                        return Err(invalid(
+                            "recording",
+                            format!(
+                                "{e} (systolic upstrokes found: {}; two are needed to measure \
+                                 the period from about one cycle)",
+                                upstrokes.len()
+                            ),
+                        ));
+                    }
+                },
+            }
+        }
     };
     let n = signal.len();
     let (period, len) = cycle_length(n, dt, hr)?;
@@ -202,13 +289,134 @@ pub(super) fn cycles_and_rate(
             if cur.1 > best.1 { cur } else { best }
         })
         .0;
-    let cycles = (0..count)
+    let ranges = (0..count)
         .map(|k| {
             let start = offset + start_of(k);
             (start, start + len)
         })
         .collect();
-    Ok((cycles, hr))
+    Ok(CardiacCycles {
+        ranges,
+        heart_rate_hz: hr,
+        source,
+    })
+}
+
+/// Times (s) of the systolic upstrokes of a pulsatile waveform `signal` sampled at uniform `times`:
+/// the local maxima of its slope (central difference) that reach half the steepest slope, at
+/// least one period of the fastest searched heart rate ([`HEART_RATE_SEARCH_HZ`]) apart, each
+/// placed to a fraction of a sample by a parabola through the slope's peak. A rise cut by either
+/// end of the recording is not counted (its steepest point may lie outside).
+pub fn systolic_upstrokes(signal: &[f64], times: &[f64]) -> Result<Vec<f64>> {
+    let dt = check_times(signal, times)?;
+    let n = signal.len();
+    if n < 5 {
+        return Ok(Vec::new());
+    }
+    let slope: Vec<f64> = (1..n - 1)
+        .map(|i| 0.5 * (signal[i + 1] - signal[i - 1]))
+        .collect();
+    let steepest = slope.iter().copied().fold(0.0, f64::max);
+    if steepest <= 0.0 {
+        return Ok(Vec::new());
+    }
+    // slope[j] is the slope at sample j + 1; a peak needs both neighbours inside the record.
+    let mut peaks: Vec<usize> = (1..slope.len() - 1)
+        .filter(|&j| {
+            slope[j] >= 0.5 * steepest && slope[j] >= slope[j - 1] && slope[j] > slope[j + 1]
+        })
+        .collect();
+    // Keep the steepest of peaks closer than the shortest searched period.
+    let min_gap = 1.0 / (HEART_RATE_SEARCH_HZ.1 * dt);
+    peaks.sort_by(|&a, &b| slope[b].total_cmp(&slope[a]));
+    let mut kept: Vec<usize> = Vec::new();
+    for j in peaks {
+        if kept.iter().all(|&k| (k as f64 - j as f64).abs() >= min_gap) {
+            kept.push(j);
+        }
+    }
+    kept.sort_unstable();
+    Ok(kept
+        .into_iter()
+        .map(|j| {
+            let (a, b, c) = (slope[j - 1], slope[j], slope[j + 1]);
+            let curvature = a - 2.0 * b + c;
+            let shift = if curvature < 0.0 {
+                (0.5 * (a - c) / curvature).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            };
+            times[0] + (j as f64 + 1.0 + shift) * dt
+        })
+        .collect())
+}
+
+/// Cycles from each of `starts` (s) to the next, as index ranges of `times` (`dt` apart), keeping
+/// those whose duration lies within ±35 % of the median and within the searched heart rates;
+/// `None` when not one cycle remains.
+fn cycles_between(
+    times: &[f64],
+    dt: f64,
+    starts: &[f64],
+    source: CycleSource,
+) -> Option<CardiacCycles> {
+    let durations: Vec<f64> = starts.windows(2).map(|w| w[1] - w[0]).collect();
+    if durations.is_empty() {
+        return None;
+    }
+    let median = crate::stats::median(durations.clone());
+    let (f_lo, f_hi) = HEART_RATE_SEARCH_HZ;
+    let plausible = |d: f64| (0.65 * median..=1.35 * median).contains(&d);
+    if source == CycleSource::Upstrokes && !(1.0 / f_hi..=1.0 / f_lo).contains(&median) {
+        return None;
+    }
+    let index = |t: f64| ((t - times[0]) / dt).round();
+    let n = times.len() as f64;
+    let ranges: Vec<(usize, usize)> = starts
+        .windows(2)
+        .filter(|w| plausible(w[1] - w[0]))
+        .map(|w| (index(w[0]), index(w[1])))
+        .filter(|&(a, b)| a >= 0.0 && b <= n && b - a >= 2.0)
+        .map(|(a, b)| (a as usize, b as usize))
+        .collect();
+    if ranges.is_empty() {
+        return None;
+    }
+    Some(CardiacCycles {
+        ranges,
+        heart_rate_hz: 1.0 / median,
+        source,
+    })
+}
+
+/// Cycles between given trigger times (s); errors when the triggers are not finite and increasing
+/// or when no complete cycle lies within the waveform's times.
+fn trigger_cycles(times: &[f64], dt: f64, triggers: &[f64]) -> Result<CardiacCycles> {
+    if triggers.iter().any(|t| !t.is_finite()) || triggers.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(invalid(
+            "cardiac triggers",
+            "must be finite times (s) in increasing order",
+        ));
+    }
+    let (first, last) = (times[0], times[times.len() - 1]);
+    let inside: Vec<f64> = triggers
+        .iter()
+        .copied()
+        .filter(|&t| t >= first - 0.5 * dt && t <= last + 0.5 * dt)
+        .collect();
+    cycles_between(times, dt, &inside, CycleSource::Triggers).ok_or_else(|| {
+        invalid(
+            "cardiac triggers",
+            format!(
+                "{} of the {} triggers fall within the waveform's {:.1}–{:.1} ms: at least two are \
+                 needed for one complete cycle",
+                inside.len(),
+                triggers.len(),
+                first * 1e3,
+                last * 1e3
+            ),
+        )
+    })
 }
 
 /// PSV and EDV (units of `speed`) averaged over `cycles`: PSV the largest and EDV the smallest

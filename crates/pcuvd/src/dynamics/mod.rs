@@ -13,8 +13,12 @@
 //!
 //! A recording must hold at least one complete cardiac cycle (of window centres): a shorter one
 //! is refused with an error that says how long it is and how long a cycle is, never answered with
-//! a map of zeros. Measuring the heart rate from the data needs about 1.5 cycles or more; for the
-//! paper's 0.2 s rat recordings (≈ 1.1 cycles) give the heart rate.
+//! a map of zeros. The cycles come from trigger times given with the recording (ECG R-waves), a
+//! given heart rate, or the data ([`cardiac_cycles`]): beat to beat between systolic upstrokes on
+//! long recordings, one period from the autocorrelation (≳ 1.5 cycles), or between the two
+//! upstrokes of a recording a little longer than one cycle. The paper's 0.2 s rat recordings
+//! (≈ 1.1 cycles) usually hold one upstroke: give the heart rate. Over several cycles, the spread
+//! across cycles of PSV, EDV and RI is measured too.
 //!
 //! Files: `windows` (sliding-window vectors), `vessels` (whole-recording vessel tests), `pooling`
 //! (vessel pooling), `harmonics` (cardiac-harmonic fit), `cycles` (heart rate, cycles, PSV/EDV),
@@ -27,6 +31,7 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
 
+use crate::dealias::{self, Dealias};
 use crate::doppler;
 use crate::error::{Error, Result, invalid, require_positive};
 use crate::images::AngleImages;
@@ -74,10 +79,13 @@ pub struct DynamicsParams {
     pub window: usize,
     /// Frames between consecutive window starts (≥ 1).
     pub step: usize,
-    /// Heart rate (Hz) if known; `None` measures it from the data (needs ≳ 1.5 cycles).
+    /// Heart rate (Hz) if known; `None` measures it from the data ([`cardiac_cycles`]).
     pub heart_rate_hz: Option<f64>,
     /// Vector estimator applied in every window (LS = UVD, IRLS = PC-UVD).
     pub estimator: Estimator,
+    /// Vector dealiasing of every window ([`crate::dealias`]; auto decides in each window);
+    /// systole beyond the Nyquist velocity needs it for RI.
+    pub dealias: Dealias,
     /// Spatial averaging box (rows, cols) of each window's autocorrelation; odd sizes.
     pub kernel: (usize, usize),
     /// Which frequency scales each window's Doppler phase ([`doppler::DopplerEstimator`]).
@@ -111,9 +119,9 @@ impl DynamicsParams {
     /// - `heart_rate_hz` = 5.5 Hz (≈ 330 bpm, anaesthetised rat): 0.2 s holds only ≈ 1.1 cycles,
     ///   too few to measure the period from the data, so the preset supplies it; set `None` for
     ///   recordings of two cycles or more.
-    /// - `estimator` = IRLS with the paper's λ = 0.01 mm/s (PC-UVD); `kernel` = (1, 1) (no
-    ///   spatial averaging: small vessels are a few pixels wide); `doppler` = the library's
-    ///   default Doppler estimator (Loupas: the measured mean frequency).
+    /// - `estimator` = IRLS with the paper's λ = 0.01 mm/s (PC-UVD), no dealiasing; `kernel` =
+    ///   (1, 1) (no spatial averaging: small vessels are a few pixels wide); `doppler` = the
+    ///   library's default Doppler estimator (Loupas: the measured mean frequency).
     /// - `artery_ri_min` = 0.55, `vein_ri_max` = 0.5 (paper §4 and its ref. 29).
     /// - `min_power_db` = −30 dB: about the displayed dynamic range of the paper's power Doppler
     ///   images (Fig. 6); below it the speed is mostly noise and its RI meaningless.
@@ -124,6 +132,7 @@ impl DynamicsParams {
             step: 9,
             heart_rate_hz: Some(5.5),
             estimator: Estimator::Irls(IrlsParams::default()),
+            dealias: Dealias::Off,
             kernel: (1, 1),
             doppler: doppler::DopplerEstimator::default(),
             artery_ri_min: 0.55,
@@ -172,7 +181,7 @@ impl DynamicsParams {
             return Err(invalid(
                 "vessel power threshold",
                 format!(
-                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {} dB",
+                    "must be finite and ≤ 0 dB (re. the brightest pixel), got {:?} dB",
                     self.min_power_db
                 ),
             ));

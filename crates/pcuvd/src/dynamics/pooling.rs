@@ -113,7 +113,7 @@ impl VesselPooling {
             if !(length.is_finite() && length >= 0.0) {
                 return Err(invalid(
                     "vessel pooling",
-                    format!("the {name} must be a finite length ≥ 0, got {length} m"),
+                    format!("the {name} must be a finite length ≥ 0, got {length:?} m"),
                 ));
             }
         }
@@ -183,7 +183,13 @@ pub(super) fn pool_waveforms(
     pooling: &VesselPooling,
 ) -> Array3<f64> {
     let (nt, nz, nx) = speed.dim();
-    let r = pooling.along.max(pooling.across).ceil() as isize;
+    // A neighbourhood wider than the image reaches no further than the image (and a half-axis of
+    // 10³⁰⁰ pixels must not become a loop of 10¹⁸ steps).
+    let r = pooling
+        .along
+        .max(pooling.across)
+        .min(nz.max(nx) as f64)
+        .ceil() as isize;
     let min_cos = pooling.max_angle.cos();
     // Per pixel: the unit flow direction and the time mean, or None when it cannot take part.
     let members: Vec<Option<([f64; 2], f64, f64)>> = (0..nz * nx)

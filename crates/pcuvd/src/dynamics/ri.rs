@@ -28,6 +28,15 @@ pub struct RiMaps {
     pub heart_rate_hz: f64,
     /// Cardiac cycles used, as [start, end) indices into the series' windows.
     pub cycles: Vec<(usize, usize)>,
+    /// How the cycles were found (given rate, triggers, or measured, and how).
+    pub cycle_source: CycleSource,
+    /// Standard deviation across cycles of each cycle's PSV (m/s); NaN with fewer than 2 cycles.
+    pub psv_spread: Array2<f64>,
+    /// Standard deviation across cycles of each cycle's EDV (m/s); NaN with fewer than 2 cycles.
+    pub edv_spread: Array2<f64>,
+    /// Standard deviation across cycles of each cycle's RI (dimensionless); NaN with fewer than
+    /// 2 cycles.
+    pub ri_spread: Array2<f64>,
 }
 
 /// PSV, EDV, RI, vessel classes and flow directions from a [`VelocitySeries`]: vessel pixels are
@@ -43,6 +52,24 @@ pub fn ri_maps_where(
     series: &VelocitySeries,
     params: &DynamicsParams,
     flow: Option<&Array2<bool>>,
+) -> Result<RiMaps> {
+    ri_maps_triggered(series, params, flow, None)
+}
+
+/// As [`ri_maps_where`], with the cardiac cycles delimited by `triggers` (s, on the series' time
+/// axis: ECG R-waves or scanner triggers) when given ([`cardiac_cycles`]).
+///
+/// PSV and EDV are each cycle's largest and smallest speed, averaged over the complete cycles,
+/// after a fit of the cardiac harmonics that drops the window-to-window estimation noise: with
+/// cycles of one fixed period (a given or autocorrelation-measured heart rate) one Fourier series
+/// is fitted to the whole series (the mean beat, steadiest); with cycles of their own durations
+/// (triggers, upstrokes) each cycle gets its own fit at its own period. The spread maps are the
+/// standard deviations across cycles of the per-cycle values, each cycle fitted on its own.
+pub fn ri_maps_triggered(
+    series: &VelocitySeries,
+    params: &DynamicsParams,
+    flow: Option<&Array2<bool>>,
+    triggers: Option<&[f64]>,
 ) -> Result<RiMaps> {
     if series.is_empty() {
         return Err(invalid("velocity series", "has no windows"));
@@ -90,8 +117,10 @@ pub fn ri_maps_where(
         ));
     }
     let waveform = series.mean_speed(&mask);
-    let (cycles, hr) = cycles_and_rate(&waveform, &series.times_s, params.heart_rate_hz)?;
+    let found = cardiac_cycles(&waveform, &series.times_s, params.heart_rate_hz, triggers)?;
+    let hr = found.heart_rate_hz;
     check_period_vs_window(hr, series.window_s)?;
+    let cycles = found.ranges.clone();
 
     let mut speed = series.speed();
     if let Some(pooling) = params.pooling {
@@ -103,22 +132,48 @@ pub fn ri_maps_where(
         let weight = mean_power.mapv(|p| p * p);
         speed = pool_waveforms(&speed, &mask, &mx, &mz, &weight, &pooling);
     }
-    let harmonics = params
-        .harmonics
-        .unwrap_or_else(|| auto_harmonics(hr, series.window_s));
-    let fit = HarmonicFit::new(&series.times_s, hr, harmonics);
-    let pixels: Vec<(f64, f64, f64, u8, bool)> = (0..nz * nx)
+    let harmonics_at = |rate: f64| {
+        params
+            .harmonics
+            .unwrap_or_else(|| auto_harmonics(rate, series.window_s))
+    };
+    // Beat-to-beat cycles (triggers, upstrokes) have durations of their own: no one period fits.
+    let per_cycle_means = matches!(found.source, CycleSource::Triggers | CycleSource::Upstrokes);
+    let global_fit = (!per_cycle_means)
+        .then(|| HarmonicFit::new(&series.times_s, hr, harmonics_at(hr)))
+        .flatten();
+    // Each cycle fitted on its own, at its own period: for the spread across cycles, and for the
+    // means when the cycles differ in duration.
+    let cycle_fits: Vec<Option<HarmonicFit>> = cycles
+        .iter()
+        .map(|&(start, end)| {
+            let rate = 1.0 / ((end - start) as f64 * series.step_s);
+            HarmonicFit::new(&series.times_s[start..end], rate, harmonics_at(rate))
+        })
+        .collect();
+    let pixels: Vec<PixelCycles> = (0..nz * nx)
         .into_par_iter()
         .map(|p| {
             let (iz, ix) = (p / nx, p % nx);
             if !mask[[iz, ix]] {
-                return (f64::NAN, f64::NAN, f64::NAN, BACKGROUND, false);
+                return PixelCycles::background();
             }
-            let mut lane: Vec<f64> = speed.slice(s![.., iz, ix]).to_vec();
-            if let Some(smooth) = fit.as_ref().and_then(|f| f.smooth(&lane)) {
-                lane = smooth;
-            }
-            let (psv, edv) = psv_edv_unchecked(&lane, &cycles);
+            let raw: Vec<f64> = speed.slice(s![.., iz, ix]).to_vec();
+            let per_cycle: Vec<(f64, f64)> = cycles
+                .iter()
+                .zip(&cycle_fits)
+                .map(|(&(start, end), fit)| {
+                    let lane = &raw[start..end];
+                    let smooth = fit.as_ref().and_then(|f| f.smooth(lane));
+                    psv_edv_unchecked(smooth.as_deref().unwrap_or(lane), &[(0, end - start)])
+                })
+                .collect();
+            let (psv, edv) = if per_cycle_means {
+                mean_finite_pairs(&per_cycle)
+            } else {
+                let smooth = global_fit.as_ref().and_then(|f| f.smooth(&raw));
+                psv_edv_unchecked(smooth.as_deref().unwrap_or(&raw), &cycles)
+            };
             let ri = resistivity_index(psv, edv);
             let class = if ri >= params.artery_ri_min {
                 ARTERIOLE
@@ -135,17 +190,92 @@ pub fn ri_maps_where(
                 }
             }
             let up = count > 0 && sum / (count as f64) < 0.0;
-            (psv, edv, ri, class, up)
+            let spread = |values: Vec<f64>| sample_std(&values);
+            PixelCycles {
+                psv,
+                edv,
+                ri,
+                class,
+                up,
+                psv_spread: spread(per_cycle.iter().map(|c| c.0).collect()),
+                edv_spread: spread(per_cycle.iter().map(|c| c.1).collect()),
+                ri_spread: spread(
+                    per_cycle
+                        .iter()
+                        .map(|&(p, e)| resistivity_index(p, e))
+                        .collect(),
+                ),
+            }
         })
         .collect();
-    let at = |iz: usize, ix: usize| &pixels[iz * nx + ix];
+    let map = |value: fn(&PixelCycles) -> f64| {
+        Array2::from_shape_fn((nz, nx), |(iz, ix)| value(&pixels[iz * nx + ix]))
+    };
     Ok(RiMaps {
-        psv: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(iz, ix).0),
-        edv: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(iz, ix).1),
-        ri: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(iz, ix).2),
-        vessel_class: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(iz, ix).3),
-        flow_up: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(iz, ix).4),
+        psv: map(|p| p.psv),
+        edv: map(|p| p.edv),
+        ri: map(|p| p.ri),
+        vessel_class: Array2::from_shape_fn((nz, nx), |(iz, ix)| pixels[iz * nx + ix].class),
+        flow_up: Array2::from_shape_fn((nz, nx), |(iz, ix)| pixels[iz * nx + ix].up),
+        psv_spread: map(|p| p.psv_spread),
+        edv_spread: map(|p| p.edv_spread),
+        ri_spread: map(|p| p.ri_spread),
         heart_rate_hz: hr,
         cycles,
+        cycle_source: found.source,
     })
+}
+
+/// One pixel's cycle values: means over cycles, class, direction, and spreads across cycles.
+struct PixelCycles {
+    psv: f64,
+    edv: f64,
+    ri: f64,
+    class: u8,
+    up: bool,
+    psv_spread: f64,
+    edv_spread: f64,
+    ri_spread: f64,
+}
+
+impl PixelCycles {
+    fn background() -> Self {
+        PixelCycles {
+            psv: f64::NAN,
+            edv: f64::NAN,
+            ri: f64::NAN,
+            class: BACKGROUND,
+            up: false,
+            psv_spread: f64::NAN,
+            edv_spread: f64::NAN,
+            ri_spread: f64::NAN,
+        }
+    }
+}
+
+/// Means of the finite (PSV, EDV) pairs; NaN when there is none.
+fn mean_finite_pairs(pairs: &[(f64, f64)]) -> (f64, f64) {
+    let finite: Vec<&(f64, f64)> = pairs
+        .iter()
+        .filter(|(p, e)| p.is_finite() && e.is_finite())
+        .collect();
+    if finite.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = finite.len() as f64;
+    (
+        finite.iter().map(|c| c.0).sum::<f64>() / n,
+        finite.iter().map(|c| c.1).sum::<f64>() / n,
+    )
+}
+
+/// Sample standard deviation (n − 1) of the finite values; NaN with fewer than two.
+fn sample_std(values: &[f64]) -> f64 {
+    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.len() < 2 {
+        return f64::NAN;
+    }
+    let n = finite.len() as f64;
+    let mean = finite.iter().sum::<f64>() / n;
+    (finite.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
 }

@@ -53,13 +53,13 @@ impl VesselTests {
         if self.local_db.is_nan() || self.local_db < 0.0 {
             return Err(invalid(
                 "vessel local level",
-                format!("must be ≥ 0 dB (or off), got {}", self.local_db),
+                format!("must be ≥ 0 dB (or off), got {:?}", self.local_db),
             ));
         }
         if !(self.local_radius_m.is_finite() && self.local_radius_m >= 0.0) {
             return Err(invalid(
                 "vessel local radius",
-                format!("must be ≥ 0 m, got {}", self.local_radius_m),
+                format!("must be ≥ 0 m, got {:?}", self.local_radius_m),
             ));
         }
         Ok(())

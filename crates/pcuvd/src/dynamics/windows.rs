@@ -42,6 +42,47 @@ impl VelocitySeries {
         (mean(&self.vx), mean(&self.vz))
     }
 
+    /// Keeps the first `windows` windows (a segment's own, [`crate::segments`]).
+    pub fn truncate(&mut self, windows: usize) {
+        let keep = windows.min(self.len());
+        self.times_s.truncate(keep);
+        for a in [&mut self.vx, &mut self.vz, &mut self.power] {
+            a.slice_collapse(ndarray::s![..keep, .., ..]);
+        }
+    }
+
+    /// Moves every window `seconds` later (a segment's windows, timed from the recording's start).
+    pub fn shift(&mut self, seconds: f64) {
+        self.times_s.iter_mut().for_each(|t| *t += seconds);
+    }
+
+    /// The windows of consecutive segments as one series, in order; refuses no parts or parts
+    /// with other windows or map shapes.
+    pub fn concatenate(parts: Vec<VelocitySeries>) -> Result<VelocitySeries> {
+        let first = parts
+            .first()
+            .ok_or_else(|| invalid("velocity series", "no segment has a whole window"))?;
+        if parts
+            .iter()
+            .any(|p| p.window_s != first.window_s || p.step_s != first.step_s)
+        {
+            return Err(invalid("velocity series", "segments with other windows"));
+        }
+        let stack = |field: fn(&VelocitySeries) -> &Array3<f64>| {
+            let views: Vec<_> = parts.iter().map(|p| field(p).view()).collect();
+            ndarray::concatenate(Axis(0), &views)
+                .map_err(|e| Error::Shape(format!("velocity series of segments: {e}")))
+        };
+        Ok(VelocitySeries {
+            times_s: parts.iter().flat_map(|p| p.times_s.clone()).collect(),
+            vx: stack(|p| &p.vx)?,
+            vz: stack(|p| &p.vz)?,
+            power: stack(|p| &p.power)?,
+            window_s: first.window_s,
+            step_s: first.step_s,
+        })
+    }
+
     /// Number of windows (time samples).
     pub fn len(&self) -> usize {
         self.times_s.len()
@@ -184,7 +225,8 @@ pub(super) fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
 
 /// Vector velocity in sliding windows over slow time: per angle, the autocorrelations of each
 /// window's frames → projection V_θ (m/s, with `params.doppler`) → (Vx, Vz) with
-/// `params.estimator`.
+/// `params.estimator`, dealiased as `params.dealias` says (each window's mean power orders and
+/// masks its flow pixels; Loupas unwraps each pixel with its own Nyquist velocity).
 ///
 /// `images`: clutter-filtered IQ per angle, each (nz, nx, frames), with their angles, compound
 /// frame rate, sound speed and demodulation frequency; an angle is used only where its
@@ -229,6 +271,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             let start = k * params.step;
             let mut projections = Array3::<f64>::zeros((n, nz, nx));
             let mut lateral = Array3::<f64>::zeros((n, nz, nx));
+            let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
             let mut power = Array2::<f64>::zeros((nz, nx));
             for (a, series) in filtered.iter().enumerate() {
                 let window = series.slice(s![.., .., start..start + params.window]);
@@ -252,18 +295,31 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
                 lateral
                     .index_axis_mut(Axis(0), a)
                     .assign(&maps.lateral_weight);
+                nyquist.index_axis_mut(Axis(0), a).assign(
+                    &maps
+                        .mean_frequency
+                        .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
+                );
                 power += &maps.power;
             }
             power /= n as f64;
             if let Some(c) = coverage {
                 vector::drop_unreached(&mut projections, c);
             }
-            let field = vector::vector_velocity_measured(
+            // Kasai's rows are the model's; Loupas fits its measured lateral weights.
+            let measured =
+                (params.doppler == doppler::DopplerEstimator::Loupas).then(|| lateral.view());
+            let field = dealias::dealiased_vectors_measured(
                 angles,
                 projections.view(),
-                lateral.view(),
+                measured,
+                nyquist.view(),
                 &params.estimator,
-            )?;
+                params.dealias,
+                power.view(),
+                doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB).view(),
+            )?
+            .field;
             Ok((field.vx, field.vz, power))
         })
         .collect::<Result<Vec<_>>>()?;

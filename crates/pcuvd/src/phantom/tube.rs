@@ -22,6 +22,22 @@ pub struct TubeSpec {
     pub density: f64,
 }
 
+impl TubeSpec {
+    /// The `tube` preset's vessel: radius 0.5 mm, 16 mm long, 300 scatterers/mm², centred at
+    /// (0, 8 mm), flowing 30° below +x (toward +x and deeper) at a peak speed of `peak_speed` (m/s;
+    /// the preset's default is 25 mm/s).
+    pub fn preset(peak_speed: f64) -> Self {
+        TubeSpec {
+            centre: [0.0, 8e-3],
+            angle: 30f64.to_radians(),
+            length: 16e-3,
+            radius: 0.5e-3,
+            peak_speed,
+            density: 300e6,
+        }
+    }
+}
+
 /// A straight tube; scatterers that leave one end re-enter at the other, so the count is constant.
 #[derive(Debug, Clone)]
 pub struct TubePhantom {

@@ -98,11 +98,7 @@ struct SlotGeometry {
 impl Simulator {
     pub(crate) fn new(params: &SimParams) -> Result<Self> {
         let probe = &params.probe;
-        let wf = EchoWaveform::new(
-            probe,
-            params.sequence.pulse_cycles,
-            params.sampling_frequency,
-        )?;
+        let wf = EchoWaveform::for_sequence(probe, &params.sequence, params.sampling_frequency)?;
         let c = params.sound_speed;
         let lambda = probe.wavelength(c);
         let kappa = params.attenuation_db_cm_mhz * (probe.center_frequency / 1e6) * 100.0
@@ -119,9 +115,7 @@ impl Simulator {
             let longest = c * (params.t0 + params.window_duration()) + c * wf.half_duration();
             let count = (longest / step).ceil() as usize + 2;
             let bands = (0..count)
-                .map(|k| {
-                    wf.attenuated(probe, params.sequence.pulse_cycles, alpha * step * k as f64)
-                })
+                .map(|k| wf.attenuated(probe, &params.sequence, alpha * step * k as f64))
                 .collect::<Result<Vec<_>>>()?;
             (bands, step)
         } else {

@@ -2,8 +2,9 @@
 //! [`Phantom`], one transmit event at a time, with the medium moving between events.
 //!
 //! # Model
-//! * **Echo shape**: every scatterer returns the same [`EchoWaveform`] (Hann-windowed N-cycle pulse
-//!   through the probe's Gaussian two-way impulse response), centred on its round-trip time.
+//! * **Echo shape**: every scatterer returns the same [`EchoWaveform`] (Hann-windowed N-cycle pulse,
+//!   or the sequence's sampled [`TransmitPulse`](crate::TransmitPulse), through the probe's
+//!   Gaussian two-way impulse response), centred on its round-trip time.
 //! * **Timing**: the echo of a scatterer at (x, z) from pulse slot k (angle θ_k, slot start τ_k) on
 //!   element e is centred at `τ_k + geometry::round_trip_delay(x, z, θ_k, x_e, aperture, c) − t0`
 //!   after the record's first sample — the crate's one time-of-flight convention.
@@ -26,7 +27,7 @@
 //!   a single table. A Doppler estimator that divides by the nominal f_c reads low in proportion;
 //!   the mean-frequency (Loupas) estimator does not.
 //! * **Coding**: a coded event superposes all n slots of `Sequence::event_pulses` with their
-//!   polarity and slot delay; event i is simulated at its own time i / PRF.
+//!   polarity (or weight) and slot start; event i is simulated at its own time i / PRF.
 //! * **Noise**: see [`NOISE_DEFINITION`]; added to every recorded event, before any decoding.
 //!
 //! # Speed and determinism
@@ -212,20 +213,24 @@ impl SimParams {
             noise::band_bins(self.n_samples, fs, noise.band_hz)?;
         }
         let period = 1.0 / self.sequence.event_prf;
-        if let Coding::Hadamard { slot_delay } = self.sequence.coding {
-            // The last slot fires (n − 1)·Δτ into the event; its echoes are listened to for as
-            // long as the receive window lasts, which must end before the next event fires.
+        let last = self.sequence.last_slot_start();
+        if last > 0.0 {
+            // The last slot fires `last` into the event; its echoes are listened to for as long
+            // as the receive window lasts, which must end before the next event fires.
             let n = self.sequence.n_angles();
-            let span = (n - 1) as f64 * slot_delay;
-            let last_end = span + self.t0 + self.window_duration();
+            let last_end = last + self.t0 + self.window_duration();
             if last_end > period {
+                let name = match self.sequence.coding {
+                    Coding::Hadamard { .. } => "slot delay",
+                    _ => "slot delays",
+                };
                 return Err(invalid(
-                    "slot delay",
+                    name,
                     format!(
                         "slot delay makes pulses overlap the next event's receive window: the last of \
                          {n} slots fires {:.2} µs into the event and its {:.2} µs receive window \
                          (t0 {:.2} µs) ends at {:.2} µs, after the next event fires at {:.2} µs",
-                        span * 1e6,
+                        last * 1e6,
                         self.window_duration() * 1e6,
                         self.t0 * 1e6,
                         last_end * 1e6,
@@ -274,12 +279,11 @@ pub fn receive_window(
             ),
         ));
     }
-    let half = EchoWaveform::new(probe, sequence.pulse_cycles, sampling_frequency)?.half_duration();
+    let half = EchoWaveform::for_sequence(probe, sequence, sampling_frequency)?.half_duration();
     let c = sound_speed;
     let (x0, x1) = probe.aperture();
     let width = x1 - x0;
-    let n = sequence.n_angles();
-    let max_offset = (0..n).map(|k| sequence.slot_offset(k)).fold(0.0, f64::max);
+    let max_offset = sequence.last_slot_start();
     let min_cos = sequence
         .angles
         .iter()
@@ -464,6 +468,26 @@ pub fn simulate_noise(
     params: &SimParams,
     n_frames: usize,
 ) -> Result<ChannelData> {
+    let n_events = n_frames.saturating_mul(params.sequence.n_angles());
+    Ok(ChannelData {
+        acquisition: params.acquisition(),
+        samples: Samples::Rf(simulate_noise_events(
+            phantom,
+            params,
+            n_frames,
+            0..n_events,
+        )?),
+    })
+}
+
+/// Events `events` of the noise [`simulate_noise`] makes for a recording of `n_frames` frames,
+/// shape (events, channels, samples): the same samples, bit for bit, a block at a time.
+pub fn simulate_noise_events(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+    events: std::ops::Range<usize>,
+) -> Result<Array3<f32>> {
     params.validate()?;
     if n_frames == 0 {
         return Err(invalid("number of frames", "must be at least 1"));
@@ -474,6 +498,14 @@ pub fn simulate_noise(
             "simulate_noise needs a noise specification",
         ));
     }
+    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
+    let n_events = n_frames.saturating_mul(params.sequence.n_angles());
+    if events.start > events.end || events.end > n_events {
+        return Err(invalid(
+            "events",
+            format!("{events:?} is not within the recording's {n_events} events"),
+        ));
+    }
     let sim = Simulator::new(params)?;
     let mut positions = Vec::with_capacity(phantom.n_scatterers());
     let load = |t: f64, out: &mut Vec<[f64; 2]>| -> Result<()> {
@@ -482,22 +514,19 @@ pub fn simulate_noise(
     };
     let generator =
         noise_generator(phantom, params, &sim, &mut positions, &load)?.expect("noise is specified");
-    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
-    let n_events = n_frames * params.sequence.n_angles();
-    let mut rf = Array3::<f32>::zeros((n_events, n_channels, ns));
+    let first = events.start;
+    let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
     rf.axis_iter_mut(Axis(0))
         .into_par_iter()
         .enumerate()
-        .for_each(|(event, mut out)| {
+        .for_each(|(i, mut out)| {
+            let event = first + i;
             for (channel, mut trace) in out.axis_iter_mut(Axis(0)).enumerate() {
                 let trace = trace.as_slice_mut().expect("standard layout");
                 generator.add(trace, (event * n_channels + channel) as u64);
             }
         });
-    Ok(ChannelData {
-        acquisition: params.acquisition(),
-        samples: Samples::Rf(rf),
-    })
+    Ok(rf)
 }
 
 /// Echo arrival time (s, relative to the record's first sample) of a scatterer at (x, z) (m) for a

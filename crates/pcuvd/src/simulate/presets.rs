@@ -21,6 +21,7 @@ pub fn paper_spiral_params(coded: bool) -> Result<SimParams> {
         event_prf: 14.4e3,
         coding: Coding::Hadamard { slot_delay: 1e-6 },
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let mut params = SimParams::new(probe, sequence.clone(), 65e6, 1540.0, (0.0, 14e-3))?;
     if !coded {
@@ -45,6 +46,7 @@ pub fn rat_params(coded: bool) -> Result<SimParams> {
             Coding::Conventional
         },
         pulse_cycles: 2.0,
+        pulse: None,
     };
     let mut params = SimParams::new(Probe::l22_14vx(), sequence, 65e6, 1540.0, (0.0, 13e-3))?;
     params.noise = Some(NoiseSpec::new(-10.0));

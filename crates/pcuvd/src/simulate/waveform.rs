@@ -5,6 +5,7 @@ use rustfft::FftPlanner;
 
 use crate::error::{Result, invalid, require_positive};
 use crate::probe::Probe;
+use crate::sequence::{Sequence, TransmitPulse};
 
 /// The echo of a point scatterer as received on one element: the transmit pulse (`pulse_cycles`
 /// cycles of f_c under a Hann window, cosine phase) filtered by the probe's two-way impulse response
@@ -63,14 +64,18 @@ impl EchoWaveform {
     /// attenuation α (Np/m/Hz) over a round-trip path L, tilt = α·L; a Gaussian echo spectrum of
     /// amplitude width σ then moves down by α·L·σ². Same time span, taps and scale as `self`, so
     /// that tables of several paths can be blended.
-    pub fn attenuated(&self, probe: &Probe, pulse_cycles: f64, tilt: f64) -> Result<Self> {
+    /// `sequence` gives the transmit pulse, as for [`EchoWaveform::for_sequence`].
+    pub fn attenuated(&self, probe: &Probe, sequence: &Sequence, tilt: f64) -> Result<Self> {
         if !(tilt.is_finite() && tilt >= 0.0) {
             return Err(invalid(
                 "attenuation",
                 format!("the spectral tilt must be finite and ≥ 0 s, got {tilt}"),
             ));
         }
-        Self::build(probe, pulse_cycles, self.fs, tilt, Some(self))
+        match &sequence.pulse {
+            Some(pulse) => Self::pulse_echo(probe, pulse, self.fs, tilt, Some(self)),
+            None => Self::build(probe, sequence.pulse_cycles, self.fs, tilt, Some(self)),
+        }
     }
 
     fn build(
@@ -126,9 +131,146 @@ impl EchoWaveform {
             k * fine_rate / n as f64
         };
         for (k, v) in spec.iter_mut().enumerate() {
-            let f = freq(k).abs();
-            let d = (f - fc) / sigma_f;
-            *v *= (-0.5 * d * d - tilt * (f - fc)).exp() / n as f64;
+            let d = (freq(k).abs() - fc) / sigma_f;
+            *v *= (-0.5 * d * d).exp() / n as f64;
+        }
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
+    }
+
+    /// The echo waveform of `probe` for the transmit pulse of `sequence` (its sampled
+    /// [`TransmitPulse`] when it has one, else a burst of `pulse_cycles` cycles), sampled at `fs`.
+    pub fn for_sequence(probe: &Probe, sequence: &Sequence, fs: f64) -> Result<Self> {
+        match &sequence.pulse {
+            Some(pulse) => Self::from_pulse(probe, pulse, fs),
+            None => Self::new(probe, sequence.pulse_cycles, fs),
+        }
+    }
+
+    /// The echo waveform of `probe` for a sampled transmit pulse, sampled at `fs` (Hz): the pulse
+    /// (band-limited to half its own sampling rate) through the probe's Gaussian two-way response,
+    /// with its time origin moved to the envelope peak, so that an echo arriving at τ peaks at τ
+    /// as the default pulse's does.
+    pub fn from_pulse(probe: &Probe, pulse: &TransmitPulse, fs: f64) -> Result<Self> {
+        Self::pulse_echo(probe, pulse, fs, 0.0, None)
+    }
+
+    /// [`EchoWaveform::from_pulse`], attenuated by `tilt` and tabulated like `like` as
+    /// [`EchoWaveform::attenuated`] says.
+    fn pulse_echo(
+        probe: &Probe,
+        pulse: &TransmitPulse,
+        fs: f64,
+        tilt: f64,
+        like: Option<&EchoWaveform>,
+    ) -> Result<Self> {
+        probe.validate()?;
+        pulse.validate()?;
+        require_positive("sampling frequency", fs)?;
+        let fc = probe.center_frequency;
+        let p = Self::PHASES;
+        let fine_rate = fs * p as f64;
+        let sigma_f = probe.bandwidth * fc / (2.0 * (2.0 * std::f64::consts::LN_2).sqrt());
+        let sigma_t = 1.0 / (2.0 * std::f64::consts::PI * sigma_f);
+        // The envelope peak may lie anywhere in the pulse: room for its whole length either side.
+        let half_est = pulse.duration() + 8.0 * sigma_t;
+        let len = (2.0 * (half_est * fine_rate).ceil() + 1.0).max(16.0);
+        if len > (1 << 22) as f64 {
+            return Err(invalid(
+                "pulse samples",
+                format!(
+                    "a {:.3} µs pulse with {:.0} % bandwidth lasts too many samples at {:.1} MHz to \
+                     tabulate",
+                    pulse.duration() * 1e6,
+                    probe.bandwidth * 100.0,
+                    fs / 1e6
+                ),
+            ));
+        }
+        let n = 2 * (len as usize).next_power_of_two();
+        let origin = n / 2;
+        let freq = |k: usize| {
+            let k = if k <= n / 2 {
+                k as f64
+            } else {
+                k as f64 - n as f64
+            };
+            k * fine_rate / n as f64
+        };
+        // The pulse's spectrum (its samples as band-limited impulses, centred on the origin) where
+        // the probe passes anything: the Gaussian response is below 10⁻²⁰ beyond 9.6 σ_f.
+        let fp = pulse.sampling_frequency;
+        let centre = 0.5 * (pulse.samples.len() as f64 - 1.0) / fp;
+        let mut spec: Vec<Complex64> = (0..n)
+            .map(|k| {
+                let f = freq(k);
+                let d = (f.abs() - fc) / sigma_f;
+                if d.abs() > 9.6 || f.abs() >= 0.5 * fp {
+                    return Complex64::new(0.0, 0.0);
+                }
+                let dtft: Complex64 = pulse
+                    .samples
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &v)| {
+                        let t = j as f64 / fp - centre;
+                        Complex64::from_polar(v, -2.0 * std::f64::consts::PI * f * t)
+                    })
+                    .sum();
+                dtft * (-0.5 * d * d).exp()
+            })
+            .collect();
+        // Where the echo's envelope peaks: the origin moves there.
+        let mut planner = FftPlanner::<f64>::new();
+        let mut analytic: Vec<Complex64> = (0..n)
+            .map(|k| {
+                if k < n / 2 {
+                    spec[k]
+                } else {
+                    Complex64::new(0.0, 0.0)
+                }
+            })
+            .collect();
+        planner.plan_fft_inverse(n).process(&mut analytic);
+        let peak = analytic
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.norm().total_cmp(&b.1.norm()))
+            .map_or(origin, |(i, _)| i);
+        let t_peak = (peak as f64 - origin as f64) / fine_rate;
+        for (k, v) in spec.iter_mut().enumerate() {
+            *v *= Complex64::from_polar(
+                1.0 / n as f64,
+                2.0 * std::f64::consts::PI * freq(k) * t_peak,
+            );
+        }
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
+    }
+
+    /// The tables from the echo's spectrum `spec` on the fine grid (PHASES·`fs`, its time origin
+    /// at index `origin`), already filtered and scaled by 1/len, after the attenuation
+    /// `(f_c, tilt)` (exp(−tilt·(|f| − f_c)); tilt 0 leaves it); `like` gives the scale, span and
+    /// taps of an attenuated table ([`EchoWaveform::attenuated`]).
+    fn from_spectrum(
+        fs: f64,
+        mut spec: Vec<Complex64>,
+        origin: usize,
+        planner: &mut FftPlanner<f64>,
+        (fc, tilt): (f64, f64),
+        like: Option<&EchoWaveform>,
+    ) -> Result<Self> {
+        let p = Self::PHASES;
+        let fine_rate = fs * p as f64;
+        let n = spec.len();
+        if tilt > 0.0 {
+            for (k, v) in spec.iter_mut().enumerate() {
+                let f = if k <= n / 2 {
+                    k as f64
+                } else {
+                    k as f64 - n as f64
+                } * fine_rate
+                    / n as f64;
+                *v *= (-tilt * (f.abs() - fc)).exp();
+            }
         }
         // Analytic signal for the envelope: keep positive frequencies, doubled.
         let mut analytic: Vec<Complex64> = spec
@@ -397,5 +539,55 @@ mod tests {
                 probe.name
             );
         }
+    }
+
+    /// A sampled pulse that is the default Hann burst (sampled at 1 GHz) gives the default echo,
+    /// and so does the same burst after 100 ns of silence: the origin is the envelope peak.
+    #[test]
+    fn sampled_pulse_gives_the_bursts_echo() {
+        let probe = Probe::l22_14vx();
+        let fs = 65e6;
+        let fc = probe.center_frequency;
+        let reference = EchoWaveform::new(&probe, 2.0, fs).unwrap();
+        let rate = 1e9;
+        let burst = 2.0 / fc;
+        let m = (burst * rate).round() as usize;
+        let samples: Vec<f64> = (0..=m)
+            .map(|j| {
+                let t = j as f64 / rate - 0.5 * burst;
+                0.5 * (1.0 + (std::f64::consts::TAU * t / burst).cos())
+                    * (std::f64::consts::TAU * fc * t).cos()
+            })
+            .collect();
+        for lead in [0usize, 100] {
+            let pulse = TransmitPulse {
+                samples: std::iter::repeat_n(0.0, lead)
+                    .chain(samples.iter().copied())
+                    .collect(),
+                sampling_frequency: rate,
+            };
+            let wf = EchoWaveform::from_pulse(&probe, &pulse, fs).unwrap();
+            assert!(
+                wf.peak_offset().abs() < 1.0 / (fs * 64.0),
+                "{}",
+                wf.peak_offset()
+            );
+            let worst = (-400..=400)
+                .map(|i| {
+                    let t = i as f64 * 1e-9;
+                    (wf.value(t) - reference.value(t)).abs()
+                })
+                .fold(0.0f64, f64::max);
+            assert!(worst < 2e-3, "lead {lead}: worst difference {worst:e}");
+        }
+        // A pulse sampled too slowly for the band is refused, naming it.
+        let slow = TransmitPulse {
+            samples: vec![1.0, -1.0, 1.0],
+            sampling_frequency: 0.0,
+        };
+        let e = EchoWaveform::from_pulse(&probe, &slow, fs)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("pulse sampling frequency"), "{e}");
     }
 }

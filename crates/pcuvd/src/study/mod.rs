@@ -3,7 +3,8 @@
 //! paper` command, Python, a notebook) gets the same numbers from the same code.
 //!
 //! - [`spiral`]: the spiral-flow simulation (paper §2.3, §3, Fig. 2–5) with a noise sweep;
-//! - [`network`]: the in-vivo-like pulsatile vessel network (paper §4, Fig. 6–8) with RI truth.
+//! - [`network`]: the in-vivo-like pulsatile vessel network (paper §4, Fig. 6–8) with RI truth;
+//! - [`dealias`]: vector dealiasing on a tube at 1–3× the Nyquist velocity (beyond the paper).
 //!
 //! Both form the echoes and the receiver noise apart: everything up to the Doppler
 //! autocorrelation (decoding, demodulation, beamforming) is linear in the channel data, so the
@@ -21,16 +22,19 @@
 //! # Ok::<(), pcuvd::Error>(())
 //! ```
 
+pub mod dealias;
 pub mod network;
 pub mod spiral;
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use ndarray::{Array3, s};
+use num_complex::Complex32;
 use serde::Serialize;
 
 use crate::beamform::DasParams;
-use crate::channel::Acquisition;
+use crate::channel::{Acquisition, ChannelData, Samples};
 use crate::clutter::{ClutterParams, RankCut};
 use crate::decode::EventAlignment;
 use crate::error::Result;
@@ -39,6 +43,7 @@ use crate::images::AngleImages;
 use crate::phantom::{FrameHeld, Phantom};
 use crate::pipeline::{self, ProcessParams};
 use crate::simulate::{self, NoiseSpec, SimParams};
+use crate::source::FrameSource;
 use crate::vector::IrlsParams;
 
 /// A study's progress callback: (task, steps done, steps in the task). Tasks follow one another;
@@ -170,6 +175,7 @@ pub fn process_params(
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment,
+        dealias: Default::default(),
     }
 }
 
@@ -192,13 +198,184 @@ pub struct Acquire<'a> {
 }
 
 /// Simulates the echoes and the noise of `what` apart and beamforms both on `grid`; adds the
-/// simulation and beamforming times to `timing`.
+/// simulation and beamforming times to `timing`. The recordings are simulated and formed a block
+/// of frames at a time ([`pipeline::blocks_for`]), so only their images are ever held whole.
 pub fn simulate_and_form(
     what: Acquire<'_>,
     grid: &Grid,
     timing: &mut Timings,
     progress: Progress<'_>,
 ) -> Result<Formed> {
+    let frames = what.frames;
+    let mut signal: Vec<Array3<Complex32>> = Vec::new();
+    let mut noise: Vec<Array3<Complex32>> = Vec::new();
+    let (acquisition, metadata) = form_echo_and_noise(
+        what,
+        grid,
+        timing,
+        progress,
+        &mut |block, echo, unit_noise| {
+            if signal.is_empty() {
+                let shape = |a: &Array3<Complex32>| (a.dim().0, a.dim().1, frames);
+                signal = echo.iter().map(|a| Array3::zeros(shape(a))).collect();
+                noise = echo.iter().map(|a| Array3::zeros(shape(a))).collect();
+            }
+            for (k, (e, n)) in echo.iter().zip(unit_noise).enumerate() {
+                signal[k].slice_mut(s![.., .., block.clone()]).assign(e);
+                noise[k].slice_mut(s![.., .., block.clone()]).assign(n);
+            }
+        },
+    )?;
+    Ok(Formed {
+        acquisition,
+        signal: metadata.with_series(signal),
+        noise: metadata.with_series(noise),
+    })
+}
+
+/// Echo-plus-noise images of one mode at the simulated noise level, with the time-mean power of
+/// the compounded echo and noise images apart (what SNR by depth compares).
+#[derive(Debug, Clone)]
+pub struct FormedSum {
+    /// The simulated acquisition.
+    pub acquisition: Acquisition,
+    /// Beamformed echoes plus receiver noise, per angle.
+    pub images: AngleImages,
+    /// Time-mean power of the compounded echo images (nz, nx), |IQ|² units.
+    pub echo_power: ndarray::Array2<f64>,
+    /// Time-mean power of the compounded noise images (nz, nx), |IQ|² units.
+    pub noise_power: ndarray::Array2<f64>,
+}
+
+/// As [`simulate_and_form`], holding only the sum of echoes and noise (the network study needs no
+/// other noise level): half the memory of [`Formed`]. The compounded powers equal
+/// [`compound_mean_power`] of the echo and noise images [`simulate_and_form`] gives.
+pub fn simulate_and_form_sum(
+    what: Acquire<'_>,
+    grid: &Grid,
+    timing: &mut Timings,
+    progress: Progress<'_>,
+) -> Result<FormedSum> {
+    let frames = what.frames;
+    let mut series: Vec<Array3<Complex32>> = Vec::new();
+    let mut sums: [ndarray::Array2<f64>; 2] = Default::default();
+    let (acquisition, metadata) = form_echo_and_noise(
+        what,
+        grid,
+        timing,
+        progress,
+        &mut |block, echo, unit_noise| {
+            if series.is_empty() {
+                let (nz, nx, _) = echo[0].dim();
+                series = echo
+                    .iter()
+                    .map(|_| Array3::zeros((nz, nx, frames)))
+                    .collect();
+                sums = [
+                    ndarray::Array2::zeros((nz, nx)),
+                    ndarray::Array2::zeros((nz, nx)),
+                ];
+            }
+            for (sum, part) in sums.iter_mut().zip([echo, unit_noise]) {
+                let compound = crate::beamform::compound(part).expect("one block per angle");
+                ndarray::Zip::from(sum)
+                    .and(compound.lanes(ndarray::Axis(2)))
+                    .for_each(|s, lane| {
+                        *s += lane.iter().map(|c| c.norm_sqr() as f64).sum::<f64>()
+                    });
+            }
+            for (k, (e, n)) in echo.iter().zip(unit_noise).enumerate() {
+                let mut out = series[k].slice_mut(s![.., .., block.clone()]);
+                out.assign(e);
+                out += n;
+            }
+        },
+    )?;
+    let [echo_power, noise_power] = sums.map(|sum| sum / frames as f64);
+    Ok(FormedSum {
+        acquisition,
+        images: metadata.with_series(series),
+        echo_power,
+        noise_power,
+    })
+}
+
+/// A phantom's echoes or its receiver noise, simulated on demand a block of frames at a time.
+struct SimulatedFrames<'a> {
+    phantom: &'a dyn Phantom,
+    params: SimParams,
+    acquisition: Acquisition,
+    frames: usize,
+    /// Echoes (noise-free) when false; the receiver noise alone when true.
+    noise: bool,
+    /// Seconds spent simulating, as f64 bits (read_frames takes `&self`).
+    seconds: std::sync::atomic::AtomicU64,
+}
+
+impl<'a> SimulatedFrames<'a> {
+    fn new(phantom: &'a dyn Phantom, params: SimParams, frames: usize, noise: bool) -> Self {
+        SimulatedFrames {
+            acquisition: params.acquisition(),
+            phantom,
+            params,
+            frames,
+            noise,
+            seconds: std::sync::atomic::AtomicU64::new(0f64.to_bits()),
+        }
+    }
+
+    fn seconds(&self) -> f64 {
+        f64::from_bits(self.seconds.load(std::sync::atomic::Ordering::Relaxed))
+    }
+}
+
+impl FrameSource for SimulatedFrames<'_> {
+    fn acquisition(&self) -> &Acquisition {
+        &self.acquisition
+    }
+
+    fn n_frames(&self) -> usize {
+        self.frames
+    }
+
+    fn trace_shape(&self) -> (usize, usize) {
+        (self.params.probe.n_elements, self.params.n_samples)
+    }
+
+    fn read_frames(&self, frames: std::ops::Range<usize>) -> Result<ChannelData> {
+        let clock = Instant::now();
+        let n = self.params.sequence.n_angles();
+        let events = frames.start * n..frames.end * n;
+        let rf = if self.noise {
+            simulate::simulate_noise_events(self.phantom, &self.params, self.frames, events)?
+        } else {
+            simulate::simulate_events(self.phantom, &self.params, self.frames, events, &|_, _| {})?
+        };
+        let spent = self.seconds() + clock.elapsed().as_secs_f64();
+        self.seconds
+            .store(spent.to_bits(), std::sync::atomic::Ordering::Relaxed);
+        Ok(ChannelData {
+            acquisition: self.acquisition.clone(),
+            samples: Samples::Rf(rf),
+        })
+    }
+}
+
+/// Receives each block of [`form_echo_and_noise`]: its frames, then per angle the echo images and
+/// the noise images (nz, nx, block frames).
+type BlockSink<'a> =
+    dyn FnMut(std::ops::Range<usize>, &[Array3<Complex32>], &[Array3<Complex32>]) + 'a;
+
+/// Simulates and forms the echoes and the unit-level noise of `what`, a block of frames at a time,
+/// handing each block's per-angle images (echo, noise) to `sink(block frames, echo, noise)`.
+/// Returns the acquisition and the image metadata (an [`AngleImages`] without series).
+fn form_echo_and_noise(
+    what: Acquire<'_>,
+    grid: &Grid,
+    timing: &mut Timings,
+    progress: Progress<'_>,
+    sink: &mut BlockSink<'_>,
+) -> Result<(Acquisition, AngleImages)> {
     let Acquire {
         phantom,
         mut params,
@@ -209,7 +386,6 @@ pub fn simulate_and_form(
         label,
     } = what;
     params.noise = None;
-    let events = frames * params.sequence.n_angles();
     let held = FrameHeld {
         inner: phantom,
         frame_period: params.sequence.n_angles() as f64 / params.sequence.event_prf,
@@ -218,27 +394,38 @@ pub fn simulate_and_form(
         Motion::PerEvent => phantom,
         Motion::PerFrame => &held,
     };
-    let clock = Instant::now();
-    let task = format!("simulate {label}");
-    let signal = simulate::simulate(phantom, &params, frames, &|done, _| {
-        progress(&task, done, events)
-    })?;
+    let echoes = SimulatedFrames::new(phantom, params.clone(), frames, false);
     params.noise = Some(NoiseSpec::new(noise_db));
-    let noise = simulate::simulate_noise(phantom, &params, frames)?;
-    timing.insert(format!("simulate_{label}_s"), clock.elapsed().as_secs_f64());
-
+    let noise = SimulatedFrames::new(phantom, params, frames, true);
+    let acquisition = echoes.acquisition.clone();
+    let process = process_params(grid, &acquisition, (1, 1), alignment);
+    let blocks = pipeline::blocks_for(&echoes, alignment);
+    let ranges = blocks.ranges(frames);
+    let task = format!("simulate + beamform {label}");
     let clock = Instant::now();
-    let process = process_params(grid, &signal.acquisition, (1, 1), alignment);
-    let (signal_images, _) = pipeline::form_images(&signal, &process, &|s, d, t| {
-        progress(&format!("{label} echoes: {}", s.label()), d, t)
-    })?;
-    let (noise_images, _) = pipeline::form_images(&noise, &process, &|s, d, t| {
-        progress(&format!("{label} noise: {}", s.label()), d, t)
-    })?;
-    timing.insert(format!("beamform_{label}_s"), clock.elapsed().as_secs_f64());
-    Ok(Formed {
-        acquisition: signal.acquisition,
-        signal: signal_images,
-        noise: noise_images,
-    })
+    for (b, (block, decoded)) in ranges.iter().enumerate() {
+        progress(&task, 2 * b, 2 * ranges.len());
+        let quiet = |_: pipeline::Stage, _: usize| {};
+        let echo = pipeline::form_block(&echoes, &process, block.clone(), decoded.clone(), &quiet)?;
+        progress(&task, 2 * b + 1, 2 * ranges.len());
+        let unit = pipeline::form_block(&noise, &process, block.clone(), decoded.clone(), &quiet)?;
+        sink(block.clone(), &echo.images, &unit.images);
+    }
+    progress(&task, 2 * ranges.len(), 2 * ranges.len());
+    let simulate_s = echoes.seconds() + noise.seconds();
+    timing.insert(format!("simulate_{label}_s"), simulate_s);
+    timing.insert(
+        format!("beamform_{label}_s"),
+        clock.elapsed().as_secs_f64() - simulate_s,
+    );
+    let metadata = AngleImages {
+        grid: grid.clone(),
+        angles: acquisition.sequence.angles.clone(),
+        frame_rate: acquisition.frame_rate(),
+        sound_speed: acquisition.sound_speed,
+        demodulation_frequency: acquisition.probe.center_frequency,
+        coverage: Some(pipeline::angle_coverage(&acquisition, grid)),
+        series: Vec::new(),
+    };
+    Ok((acquisition, metadata))
 }

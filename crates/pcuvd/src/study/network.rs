@@ -13,7 +13,9 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use super::spiral::{SnrByDepth, alignment_label};
-use super::{Acquire, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
+use super::{
+    Acquire, FormedSum, Mode, Motion, Progress, Timings, process_params, simulate_and_form_sum,
+};
 use crate::decode::EventAlignment;
 use crate::doppler::DopplerEstimator;
 use crate::dynamics::{
@@ -152,7 +154,8 @@ impl NetworkSettings {
 pub struct ModeResult {
     /// Which mode.
     pub mode: Mode,
-    /// The whole recording, processed.
+    /// The whole recording, processed; its filtered series (`out.filtered.series`) is dropped
+    /// once the dynamics and spectrograms are computed, to bound the study's memory.
     pub out: ProcessOutput,
     /// Vector velocity in sliding windows.
     pub series: VelocitySeries,
@@ -374,7 +377,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         let mut params = simulate::rat_params(mode == Mode::Coded)?;
         params.seed = settings.seed;
         let label = format!("network_{}", mode.label());
-        let formed = simulate_and_form(
+        let formed = simulate_and_form_sum(
             Acquire {
                 phantom: &phantom,
                 params,
@@ -389,22 +392,26 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             progress,
         )?;
         let clock = Instant::now();
-        let echo_power = super::compound_mean_power(&formed.signal)?;
-        let noise_power = super::compound_mean_power(&formed.noise)?;
-        let acquisition = formed.acquisition.clone();
-        let images = formed.at_gain(1.0);
-        drop(formed);
+        let FormedSum {
+            acquisition,
+            images,
+            echo_power,
+            noise_power,
+        } = formed;
         let process = ProcessParams {
             doppler_estimator: settings.doppler_estimator,
             ..process_params(&grid, &acquisition, (1, 1), settings.event_alignment)
         };
-        let out = pipeline::analyse(images, &process, &|_, _, _| {})?;
+        let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
-        let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests)?;
+        let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests, None)?;
         let spectrograms = sites
             .iter()
             .map(|p| dynamics::spectrogram(&out.filtered, p.pixel, &SpectrogramParams::rat()))
             .collect::<Result<Vec<_>>>()?;
+        // The filtered series (the largest thing a mode holds) has given all it will: drop it
+        // so that the other mode is simulated and processed in its place.
+        out.filtered.series = Vec::new();
         timing.insert(format!("{label}_analysis_s"), clock.elapsed().as_secs_f64());
         results.push(ModeResult {
             mode,

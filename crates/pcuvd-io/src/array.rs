@@ -1,0 +1,842 @@
+//! Stored sample arrays (an `.npy` file, an `.npz` member, an HDF5 dataset, a MATLAB variable)
+//! read a hyperslab at a time, and the [`ArrayFrames`] that hands out a recording's compound frames
+//! from one: whatever the axis order the file names, int16 stays int16 on disk or in memory until
+//! a block is converted.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use ndarray::{Array3, ArrayD, IxDyn};
+use num_complex::Complex32;
+use pcuvd::source::FrameSource;
+use pcuvd::{Acquisition, ChannelData, Samples};
+
+use crate::error::IoError;
+
+/// The element type of stored samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dtype {
+    /// Signed 8-bit integer.
+    I8,
+    /// Unsigned 8-bit integer.
+    U8,
+    /// Signed 16-bit integer (scanners' samples).
+    I16,
+    /// Unsigned 16-bit integer.
+    U16,
+    /// Signed 32-bit integer.
+    I32,
+    /// 32-bit float.
+    F32,
+    /// 64-bit float.
+    F64,
+    /// Complex of two 32-bit floats.
+    C64,
+    /// Complex of two 64-bit floats.
+    C128,
+}
+
+impl Dtype {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
+        match self {
+            Dtype::I8 | Dtype::U8 => 1,
+            Dtype::I16 | Dtype::U16 => 2,
+            Dtype::I32 | Dtype::F32 => 4,
+            Dtype::F64 | Dtype::C64 => 8,
+            Dtype::C128 => 16,
+        }
+    }
+
+    /// True for complex elements.
+    pub fn is_complex(self) -> bool {
+        matches!(self, Dtype::C64 | Dtype::C128)
+    }
+
+    /// NumPy's name of the type.
+    pub fn name(self) -> &'static str {
+        match self {
+            Dtype::I8 => "int8",
+            Dtype::U8 => "uint8",
+            Dtype::I16 => "int16",
+            Dtype::U16 => "uint16",
+            Dtype::I32 => "int32",
+            Dtype::F32 => "float32",
+            Dtype::F64 => "float64",
+            Dtype::C64 => "complex64",
+            Dtype::C128 => "complex128",
+        }
+    }
+
+    /// The type of a NumPy type code without its byte-order mark ("f4", "i2", "c8"...).
+    pub fn from_numpy(code: &str) -> Option<Dtype> {
+        Some(match code {
+            "i1" => Dtype::I8,
+            // Booleans ("b1") are masks, not samples: refused with the type named.
+            "u1" => Dtype::U8,
+            "i2" => Dtype::I16,
+            "u2" => Dtype::U16,
+            "i4" => Dtype::I32,
+            "f4" => Dtype::F32,
+            "f8" => Dtype::F64,
+            "c8" => Dtype::C64,
+            "c16" => Dtype::C128,
+            _ => return None,
+        })
+    }
+
+    /// Decodes element `i` of little- or big-endian bytes as (re, im) (im = 0 for real types).
+    fn decode(self, bytes: &[u8], little: bool) -> (f32, f32) {
+        macro_rules! num {
+            ($t:ty, $b:expr) => {{
+                let arr: [u8; std::mem::size_of::<$t>()] =
+                    $b.try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
+                if little {
+                    <$t>::from_le_bytes(arr)
+                } else {
+                    <$t>::from_be_bytes(arr)
+                }
+            }};
+        }
+        match self {
+            Dtype::I8 => (f32::from(bytes[0] as i8), 0.0),
+            Dtype::U8 => (f32::from(bytes[0]), 0.0),
+            Dtype::I16 => (f32::from(num!(i16, &bytes[..2])), 0.0),
+            Dtype::U16 => (f32::from(num!(u16, &bytes[..2])), 0.0),
+            Dtype::I32 => (num!(i32, &bytes[..4]) as f32, 0.0),
+            Dtype::F32 => (num!(f32, &bytes[..4]), 0.0),
+            Dtype::F64 => (num!(f64, &bytes[..8]) as f32, 0.0),
+            Dtype::C64 => (num!(f32, &bytes[..4]), num!(f32, &bytes[4..8])),
+            Dtype::C128 => (
+                num!(f64, &bytes[..8]) as f32,
+                num!(f64, &bytes[8..16]) as f32,
+            ),
+        }
+    }
+}
+
+/// Where a stored array's values are.
+#[derive(Debug, Clone)]
+pub enum Backing {
+    /// Raw bytes at `offset` in a file (a `.npy`, or an uncompressed `.npz` member).
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset of the first element.
+        offset: u64,
+        /// Little-endian elements.
+        little: bool,
+    },
+    /// Raw bytes held in memory (a compressed `.npz` member, as stored: int16 stays int16).
+    Bytes {
+        /// The elements.
+        bytes: Arc<Vec<u8>>,
+        /// Little-endian elements.
+        little: bool,
+    },
+    /// Values already decoded (a MATLAB v5 variable: real and imaginary parts as f64).
+    Values {
+        /// Real parts.
+        real: Arc<Vec<f64>>,
+        /// Imaginary parts, for complex values.
+        imag: Option<Arc<Vec<f64>>>,
+    },
+    /// An HDF5 dataset, or two (the real and imaginary parts, as USTB stores complex data).
+    Hdf5 {
+        /// The file.
+        path: PathBuf,
+        /// The dataset (of real parts, when `imag` is given).
+        dataset: String,
+        /// The dataset of imaginary parts.
+        imag: Option<String>,
+    },
+}
+
+/// An N-d array of samples as a file stores it: its shape, element type, memory order and where
+/// its values are; read a hyperslab at a time.
+#[derive(Debug, Clone)]
+pub struct StoredArray {
+    /// Shape, in the order the file gives it.
+    pub shape: Vec<usize>,
+    /// Element type as stored (the real part's, for two HDF5 datasets).
+    pub dtype: Dtype,
+    /// Column-major (MATLAB, Fortran-ordered NumPy) instead of row-major.
+    pub fortran: bool,
+    /// Where the values are.
+    pub backing: Backing,
+    /// How the array is named in messages (file and member).
+    pub label: String,
+}
+
+/// A hyperslab read and converted: real values as f32 or complex as complex64, C order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Block {
+    /// Real values.
+    Real(ArrayD<f32>),
+    /// Complex values.
+    Complex(ArrayD<Complex32>),
+}
+
+impl StoredArray {
+    /// True for complex values.
+    pub fn is_complex(&self) -> bool {
+        self.dtype.is_complex()
+            || matches!(
+                &self.backing,
+                Backing::Values { imag: Some(_), .. } | Backing::Hdf5 { imag: Some(_), .. }
+            )
+    }
+
+    /// The element type as a person reads it ("int16", "complex (2 × float32)"...).
+    pub fn dtype_name(&self) -> String {
+        match &self.backing {
+            Backing::Hdf5 { imag: Some(_), .. } => {
+                format!(
+                    "complex (real and imaginary {} datasets)",
+                    self.dtype.name()
+                )
+            }
+            Backing::Values { imag: Some(_), .. } => "complex (MATLAB)".to_string(),
+            _ => self.dtype.name().to_string(),
+        }
+    }
+
+    /// The file the values are read from, when not already in memory.
+    pub fn file(&self) -> Option<&Path> {
+        match &self.backing {
+            Backing::File { path, .. } | Backing::Hdf5 { path, .. } => Some(path),
+            _ => None,
+        }
+    }
+
+    /// Bytes of samples held in memory (0 when read from the file block by block).
+    pub fn resident_bytes(&self) -> u64 {
+        match &self.backing {
+            Backing::Bytes { bytes, .. } => bytes.len() as u64,
+            Backing::Values { real, imag } => {
+                8 * (real.len() + imag.as_ref().map_or(0, |i| i.len())) as u64
+            }
+            _ => 0,
+        }
+    }
+
+    /// Reads `ranges` (one per axis, in the stored order) as a C-ordered array of the ranges'
+    /// lengths.
+    pub fn read(&self, ranges: &[Range<usize>]) -> Result<Block, IoError> {
+        let bad = || {
+            IoError::invalid(
+                Path::new(&self.label),
+                "the samples",
+                format!(
+                    "a read of {ranges:?} does not fit the stored shape {:?}",
+                    self.shape
+                ),
+            )
+        };
+        if ranges.len() != self.shape.len()
+            || ranges
+                .iter()
+                .zip(&self.shape)
+                .any(|(r, &n)| r.start > r.end || r.end > n)
+        {
+            return Err(bad());
+        }
+        let counts: Vec<usize> = ranges.iter().map(|r| r.len()).collect();
+        let n = crate::hdf5::element_count(&counts).ok_or_else(bad)?;
+        let complex = self.is_complex();
+        match &self.backing {
+            Backing::Hdf5 {
+                path,
+                dataset,
+                imag,
+            } => read_hdf5(path, dataset, imag.as_deref(), self.dtype, ranges, &counts),
+            Backing::Values { real, imag } => {
+                let mut re = Vec::with_capacity(n);
+                let mut im = Vec::with_capacity(if complex { n } else { 0 });
+                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                    re.push(real.get(i).copied().unwrap_or(0.0) as f32);
+                    if let Some(imag) = imag {
+                        im.push(imag.get(i).copied().unwrap_or(0.0) as f32);
+                    }
+                });
+                finish(&counts, re, complex.then_some(im))
+            }
+            Backing::Bytes { bytes, little } => {
+                let size = self.dtype.size();
+                let mut re = Vec::with_capacity(n);
+                let mut im = Vec::with_capacity(if complex { n } else { 0 });
+                let mut short = false;
+                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                    let b = bytes.get(i * size..(i + 1) * size);
+                    short |= b.is_none();
+                    let (r, m) = b.map_or((0.0, 0.0), |b| self.dtype.decode(b, *little));
+                    re.push(r);
+                    if complex {
+                        im.push(m);
+                    }
+                });
+                if short {
+                    return Err(IoError::malformed(
+                        Path::new(&self.label),
+                        "holds fewer bytes than its header announces",
+                    ));
+                }
+                finish(&counts, re, complex.then_some(im))
+            }
+            Backing::File {
+                path,
+                offset,
+                little,
+            } => {
+                // Read only the span of the file the selection covers (one frame block of an
+                // array stored with frames as the slowest axis is one contiguous range).
+                let size = self.dtype.size();
+                let (mut lo, mut hi) = (usize::MAX, 0usize);
+                for_each_index_bounds(&self.shape, self.fortran, ranges, &mut lo, &mut hi);
+                if n == 0 {
+                    return finish(&counts, vec![], complex.then_some(vec![]));
+                }
+                let span = read_span(path, *offset, lo * size, (hi + 1 - lo) * size)?;
+                let mut re = Vec::with_capacity(n);
+                let mut im = Vec::with_capacity(if complex { n } else { 0 });
+                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                    let at = (i - lo) * size;
+                    let (r, m) = self.dtype.decode(&span[at..at + size], *little);
+                    re.push(r);
+                    if complex {
+                        im.push(m);
+                    }
+                });
+                finish(&counts, re, complex.then_some(im))
+            }
+        }
+    }
+}
+
+fn read_span(path: &Path, offset: u64, start: usize, len: usize) -> Result<Vec<u8>, IoError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, "read", e))?;
+    file.seek(SeekFrom::Start(offset + start as u64))
+        .map_err(|e| IoError::io(path, "read", e))?;
+    let mut bytes = vec![0u8; len];
+    file.read_exact(&mut bytes)
+        .map_err(|e| IoError::io(path, "read", e))?;
+    Ok(bytes)
+}
+
+fn finish(counts: &[usize], re: Vec<f32>, im: Option<Vec<f32>>) -> Result<Block, IoError> {
+    let shape = IxDyn(counts);
+    let err = |e: ndarray::ShapeError| IoError::malformed(Path::new(""), e.to_string());
+    Ok(match im {
+        None => Block::Real(ArrayD::from_shape_vec(shape, re).map_err(err)?),
+        Some(im) => Block::Complex(
+            ArrayD::from_shape_vec(
+                shape,
+                re.into_iter()
+                    .zip(im)
+                    .map(|(r, i)| Complex32::new(r, i))
+                    .collect(),
+            )
+            .map_err(err)?,
+        ),
+    })
+}
+
+/// Calls `f` with the linear storage index of every element of the selection, in C order of the
+/// selection.
+fn for_each_index(
+    shape: &[usize],
+    fortran: bool,
+    ranges: &[Range<usize>],
+    mut f: impl FnMut(usize),
+) {
+    let nd = shape.len();
+    // Stride of each axis in storage.
+    let mut strides = vec![1usize; nd];
+    if fortran {
+        for k in 1..nd {
+            strides[k] = strides[k - 1] * shape[k - 1];
+        }
+    } else {
+        for k in (0..nd.saturating_sub(1)).rev() {
+            strides[k] = strides[k + 1] * shape[k + 1];
+        }
+    }
+    if ranges.iter().any(|r| r.is_empty()) {
+        return;
+    }
+    let mut idx: Vec<usize> = ranges.iter().map(|r| r.start).collect();
+    loop {
+        let base: usize = idx.iter().zip(&strides).map(|(i, s)| i * s).sum();
+        // Innermost axis in a tight loop.
+        if nd == 0 {
+            f(base);
+            return;
+        }
+        let last = nd - 1;
+        let row = base - idx[last] * strides[last];
+        for i in ranges[last].clone() {
+            f(row + i * strides[last]);
+        }
+        // Advance the outer axes.
+        let mut k = last;
+        loop {
+            if k == 0 {
+                return;
+            }
+            k -= 1;
+            idx[k] += 1;
+            if idx[k] < ranges[k].end {
+                break;
+            }
+            idx[k] = ranges[k].start;
+        }
+    }
+}
+
+fn for_each_index_bounds(
+    shape: &[usize],
+    fortran: bool,
+    ranges: &[Range<usize>],
+    lo: &mut usize,
+    hi: &mut usize,
+) {
+    // The first and last selected elements bound every other one (strides are positive).
+    let first: Vec<Range<usize>> = ranges.iter().map(|r| r.start..r.start + 1).collect();
+    let last: Vec<Range<usize>> = ranges
+        .iter()
+        .map(|r| r.end.saturating_sub(1)..r.end)
+        .collect();
+    if ranges.iter().any(|r| r.is_empty()) {
+        return;
+    }
+    for_each_index(shape, fortran, &first, |i| *lo = (*lo).min(i));
+    for_each_index(shape, fortran, &last, |i| *hi = (*hi).max(i));
+}
+
+fn read_hdf5(
+    path: &Path,
+    dataset: &str,
+    imag: Option<&str>,
+    dtype: Dtype,
+    ranges: &[Range<usize>],
+    counts: &[usize],
+) -> Result<Block, IoError> {
+    use crate::hdf5::guard;
+    let file = crate::hdf5::Hdf5::open(path)?;
+    let starts: Vec<usize> = ranges.iter().map(|r| r.start).collect();
+    let what = format!("{dataset}: read");
+    let real = |name: &str| -> Result<Vec<f32>, IoError> {
+        let ds = file.dataset(name)?;
+        Ok(match dtype {
+            Dtype::F32 => guard(path, &what, || ds.read_slice::<f32>(&starts, counts))?,
+            Dtype::I16 => guard(path, &what, || ds.read_slice::<i16>(&starts, counts))?
+                .into_iter()
+                .map(f32::from)
+                .collect(),
+            _ => {
+                let kind = crate::hdf5::kind_of(&guard(path, &what, || ds.datatype())?);
+                crate::hdf5::read_slice_f64(path, name, &ds, kind, &starts, counts)?
+                    .into_iter()
+                    .map(|v| v as f32)
+                    .collect()
+            }
+        })
+    };
+    match (dtype, imag) {
+        (Dtype::C64 | Dtype::C128, _) => {
+            let ds = file.dataset(dataset)?;
+            let values: Vec<Complex32> = if dtype == Dtype::C64 {
+                guard(path, &what, || {
+                    ds.read_slice::<rust_hdf5::types::Complex32>(&starts, counts)
+                })?
+                .into_iter()
+                .map(|c| Complex32::new(c.re, c.im))
+                .collect()
+            } else {
+                guard(path, &what, || {
+                    ds.read_slice::<rust_hdf5::types::Complex64>(&starts, counts)
+                })?
+                .into_iter()
+                .map(|c| Complex32::new(c.re as f32, c.im as f32))
+                .collect()
+            };
+            Ok(Block::Complex(
+                ArrayD::from_shape_vec(IxDyn(counts), values)
+                    .map_err(|e| IoError::malformed(path, e.to_string()))?,
+            ))
+        }
+        (_, Some(imag)) => finish(counts, real(dataset)?, Some(real(imag)?)),
+        (_, None) => finish(counts, real(dataset)?, None),
+    }
+}
+
+/// The most one compound frame may hold (bytes as complex64): a header announcing more is taken
+/// as corrupt rather than allocated (a real frame holds megabytes).
+pub const MAX_FRAME_BYTES: u64 = 4 << 30;
+
+/// Refuses a compound frame of `events` × `channels` × `samples` beyond [`MAX_FRAME_BYTES`].
+pub fn check_frame_size(
+    file: &Path,
+    events: usize,
+    channels: usize,
+    samples: usize,
+) -> Result<(), IoError> {
+    let bytes = (events as u128) * (channels as u128) * (samples as u128) * 8;
+    if bytes > u128::from(MAX_FRAME_BYTES) {
+        return Err(IoError::invalid(
+            file,
+            "the samples",
+            format!(
+                "announce compound frames of {events} events × {channels} channels × {samples} \
+                 samples ({:.1} GB each as complex64): more than {} GB per frame, taken as a \
+                 corrupt header",
+                bytes as f64 / 1e9,
+                MAX_FRAME_BYTES >> 30
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// What one axis of a stored array is, in pcuvd's terms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Axis {
+    /// Compound frames.
+    Frames,
+    /// The transmits (angles) of a compound frame.
+    Angles,
+    /// Transmit events in time order (frames × angles).
+    Events,
+    /// Receive channels (elements).
+    Channels,
+    /// Fast-time samples.
+    Samples,
+    /// Two values, real and imaginary parts (zea's IQ `n_ch` = 2).
+    ReIm,
+    /// An axis of length 1 (zea's RF `n_ch` = 1, MATLAB's trailing singletons).
+    Unit,
+}
+
+impl Axis {
+    /// The axis name a manifest or message uses.
+    pub fn name(self) -> &'static str {
+        match self {
+            Axis::Frames => "frames",
+            Axis::Angles => "angles",
+            Axis::Events => "events",
+            Axis::Channels => "channels",
+            Axis::Samples => "samples",
+            Axis::ReIm => "re_im",
+            Axis::Unit => "unit",
+        }
+    }
+}
+
+/// A recording read from a [`StoredArray`] a block of frames at a time: the array's axes are named
+/// ([`Axis`]), any order; blocks come out as (events, channels, samples).
+#[derive(Debug, Clone)]
+pub struct ArrayFrames {
+    acquisition: Acquisition,
+    array: StoredArray,
+    axes: Vec<Axis>,
+    /// Demodulation frequency of IQ samples (Hz); `None` for RF.
+    demod: Option<f64>,
+    /// (events, channels, samples).
+    shape: (usize, usize, usize),
+}
+
+impl ArrayFrames {
+    /// Checks `axes` against `array` and `acquisition` (channels = elements, angles, whole frames,
+    /// IQ ⇔ `demod`) and returns the source. `file` names the recording in messages.
+    pub fn new(
+        file: &Path,
+        acquisition: Acquisition,
+        array: StoredArray,
+        axes: Vec<Axis>,
+        demod: Option<f64>,
+    ) -> Result<ArrayFrames, IoError> {
+        let field = "the samples";
+        let fail = |p: String| IoError::invalid(file, field, p);
+        if axes.len() != array.shape.len() {
+            return Err(fail(format!(
+                "{} has {} axes (shape {:?}) but {} are named",
+                array.label,
+                array.shape.len(),
+                array.shape,
+                axes.len()
+            )));
+        }
+        let size = |a: Axis| axes.iter().position(|&b| b == a).map(|i| array.shape[i]);
+        for a in [
+            Axis::Frames,
+            Axis::Angles,
+            Axis::Events,
+            Axis::Channels,
+            Axis::Samples,
+            Axis::ReIm,
+        ] {
+            if axes.iter().filter(|&&b| b == a).count() > 1 {
+                return Err(fail(format!("axis '{}' is named twice", a.name())));
+            }
+        }
+        if let Some(i) = axes
+            .iter()
+            .zip(&array.shape)
+            .position(|(&a, &n)| a == Axis::Unit && n != 1)
+        {
+            return Err(fail(format!(
+                "axis {i} of {} has length {} but must be 1 (shape {:?})",
+                array.label, array.shape[i], array.shape
+            )));
+        }
+        let n = acquisition.sequence.n_angles();
+        let events = match (size(Axis::Frames), size(Axis::Angles), size(Axis::Events)) {
+            (Some(f), Some(a), None) => {
+                if a != n {
+                    return Err(fail(format!(
+                        "the acquisition has {n} angles but the 'angles' axis of {} has {a} (shape {:?})",
+                        array.label, array.shape
+                    )));
+                }
+                f.checked_mul(a)
+                    .ok_or_else(|| fail("too many events".into()))?
+            }
+            (Some(f), None, None) if n == 1 => f,
+            (None, None, Some(e)) => e,
+            _ => {
+                return Err(fail(format!(
+                    "the axes of {} must include 'frames' and 'angles', or 'events' (named: {})",
+                    array.label,
+                    axes.iter().map(|a| a.name()).collect::<Vec<_>>().join(", ")
+                )));
+            }
+        };
+        let channels = size(Axis::Channels)
+            .ok_or_else(|| fail(format!("no axis of {} is 'channels'", array.label)))?;
+        let samples = size(Axis::Samples)
+            .ok_or_else(|| fail(format!("no axis of {} is 'samples'", array.label)))?;
+        let re_im = size(Axis::ReIm);
+        if let Some(k) = re_im
+            && (k != 2 || array.is_complex())
+        {
+            return Err(fail(format!(
+                "its real/imaginary axis has length {k} (must be 2, on real values)"
+            )));
+        }
+        let iq = array.is_complex() || re_im.is_some();
+        match (iq, demod) {
+            (true, None) => {
+                return Err(fail(format!(
+                    "{} holds IQ (complex) values but no demodulation frequency is known",
+                    array.label
+                )));
+            }
+            (false, Some(_)) => {
+                return Err(fail(format!(
+                    "{} holds real (RF) values but a demodulation frequency was given",
+                    array.label
+                )));
+            }
+            _ => {}
+        }
+        if channels != acquisition.probe.n_elements {
+            return Err(fail(format!(
+                "do not match the probe: it has {} elements ([probe].n_elements in a manifest) \
+                 but the 'channels' axis of {} has {channels} (shape {:?})",
+                acquisition.probe.n_elements, array.label, array.shape
+            )));
+        }
+        if events == 0 || events % n != 0 {
+            return Err(fail(format!(
+                "{events} transmit events is not a whole number of compound frames of {n}"
+            )));
+        }
+        if samples < 2 {
+            return Err(fail(format!(
+                "each trace needs at least 2 samples, got {samples}"
+            )));
+        }
+        check_frame_size(file, n, channels, samples)?;
+        Ok(ArrayFrames {
+            acquisition,
+            array,
+            axes,
+            demod,
+            shape: (events, channels, samples),
+        })
+    }
+
+    /// The stored array.
+    pub fn array(&self) -> &StoredArray {
+        &self.array
+    }
+
+    /// The named axes, in the stored order.
+    pub fn axes(&self) -> &[Axis] {
+        &self.axes
+    }
+
+    /// Reads every frame (for readers that hand back the whole recording).
+    pub fn read_all(&self) -> Result<ChannelData, IoError> {
+        let n = FrameSource::n_frames(self);
+        self.read_frames(0..n).map_err(|e| IoError::Recording {
+            path: PathBuf::from(&self.array.label),
+            source: e,
+        })
+    }
+}
+
+impl FrameSource for ArrayFrames {
+    fn acquisition(&self) -> &Acquisition {
+        &self.acquisition
+    }
+
+    fn n_frames(&self) -> usize {
+        self.shape.0 / self.acquisition.sequence.n_angles()
+    }
+
+    fn trace_shape(&self) -> (usize, usize) {
+        (self.shape.1, self.shape.2)
+    }
+
+    fn resident_bytes(&self) -> u64 {
+        self.array.resident_bytes()
+    }
+
+    fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
+        let n = self.acquisition.sequence.n_angles();
+        let total = FrameSource::n_frames(self);
+        if frames.start >= frames.end || frames.end > total {
+            return Err(pcuvd::error::invalid(
+                "frames",
+                format!("block {frames:?} is not within the recording's {total} frames"),
+            ));
+        }
+        let events = frames.start * n..frames.end * n;
+        let ranges: Vec<Range<usize>> = self
+            .axes
+            .iter()
+            .zip(&self.array.shape)
+            .map(|(a, &len)| match a {
+                Axis::Frames => frames.clone(),
+                Axis::Events => events.clone(),
+                _ => 0..len,
+            })
+            .collect();
+        let block = self
+            .array
+            .read(&ranges)
+            .map_err(|e| pcuvd::Error::Read(e.to_string()))?;
+        // Permute to (frames, angles | events, channels, samples[, re_im]) and merge.
+        let order: Vec<usize> = [
+            Axis::Frames,
+            Axis::Angles,
+            Axis::Events,
+            Axis::Channels,
+            Axis::Samples,
+            Axis::ReIm,
+        ]
+        .iter()
+        .filter_map(|a| self.axes.iter().position(|b| b == a))
+        .chain(
+            self.axes
+                .iter()
+                .enumerate()
+                .filter(|(_, a)| **a == Axis::Unit)
+                .map(|(i, _)| i),
+        )
+        .collect();
+        let shape = (events.len(), self.shape.1, self.shape.2);
+        let shape_error = |e: ndarray::ShapeError| pcuvd::Error::Shape(e.to_string());
+        let samples = match block {
+            Block::Real(a) if self.axes.contains(&Axis::ReIm) => {
+                let p = a.permuted_axes(order);
+                let values: Vec<f32> = p.iter().copied().collect();
+                let pairs: Vec<Complex32> = values
+                    .chunks_exact(2)
+                    .map(|c| Complex32::new(c[0], c[1]))
+                    .collect();
+                Samples::Iq {
+                    data: Array3::from_shape_vec(shape, pairs).map_err(shape_error)?,
+                    demod_frequency: self.demod.unwrap_or(0.0),
+                }
+            }
+            Block::Real(a) => {
+                let p = a.permuted_axes(order);
+                let data = if p.is_standard_layout() {
+                    p.into_shape_with_order(shape).map_err(shape_error)?
+                } else {
+                    Array3::from_shape_vec(shape, p.iter().copied().collect())
+                        .map_err(shape_error)?
+                };
+                Samples::Rf(data)
+            }
+            Block::Complex(a) => {
+                let p = a.permuted_axes(order);
+                Samples::Iq {
+                    data: Array3::from_shape_vec(shape, p.iter().copied().collect())
+                        .map_err(shape_error)?,
+                    demod_frequency: self.demod.unwrap_or(0.0),
+                }
+            }
+        };
+        let data = ChannelData {
+            acquisition: self.acquisition.clone(),
+            samples,
+        };
+        let finite = match &data.samples {
+            Samples::Rf(a) => a.iter().all(|v| v.is_finite()),
+            Samples::Iq { data, .. } => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
+        };
+        if !finite {
+            return Err(pcuvd::Error::NonFinite(format!(
+                "the samples of {} (NaN or Inf in frames {frames:?})",
+                self.array.label
+            )));
+        }
+        Ok(data)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn selections_follow_either_memory_order() {
+        // A 2 × 3 × 4 array, values = C-order linear index; the same values column-major.
+        let shape = [2usize, 3, 4];
+        let c: Vec<f64> = (0..24).map(f64::from).collect();
+        let mut f = vec![0.0; 24];
+        for i in 0..2 {
+            for j in 0..3 {
+                for k in 0..4 {
+                    f[i + 2 * (j + 3 * k)] = c[(i * 3 + j) * 4 + k];
+                }
+            }
+        }
+        for (values, fortran) in [(c.clone(), false), (f, true)] {
+            let a = StoredArray {
+                shape: shape.to_vec(),
+                dtype: Dtype::F64,
+                fortran,
+                backing: Backing::Values {
+                    real: Arc::new(values),
+                    imag: None,
+                },
+                label: "test".into(),
+            };
+            let Block::Real(b) = a.read(&[1..2, 0..3, 1..3]).unwrap() else {
+                panic!()
+            };
+            assert_eq!(b.shape(), &[1, 3, 2]);
+            assert_eq!(
+                b.iter().copied().collect::<Vec<_>>(),
+                vec![13.0, 14.0, 17.0, 18.0, 21.0, 22.0]
+            );
+            assert!(a.read(&[0..3, 0..3, 0..4]).is_err());
+        }
+    }
+}

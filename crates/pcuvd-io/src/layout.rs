@@ -1,0 +1,147 @@
+//! Checks the HDF5 readers share: element positions that make a uniform linear array, one t0 for
+//! every transmit, and scalars read from a dataset of any of the shapes writers use.
+
+use std::path::Path;
+
+use crate::error::IoError;
+use crate::hdf5::Hdf5;
+
+/// (elements, pitch in m) of the element centres `x` (m), which must be evenly spaced along x
+/// (pcuvd's beamformer knows linear arrays); `field` names them in errors.
+pub fn linear_array(
+    path: &Path,
+    field: &str,
+    x: &[f64],
+    off_axis: &[f64],
+) -> Result<(usize, f64), IoError> {
+    let n = x.len();
+    if n < 2 {
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!("holds {n} element(s); at least 2 are needed"),
+        ));
+    }
+    if let Some(v) = x.iter().chain(off_axis).find(|v| !v.is_finite()) {
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!("holds a non-finite position ({v})"),
+        ));
+    }
+    let pitch = (x[n - 1] - x[0]) / (n - 1) as f64;
+    if pitch <= 0.0 {
+        return Err(IoError::invalid(
+            path,
+            field,
+            "does not increase along x with the element index (pcuvd's x axis follows the elements)",
+        ));
+    }
+    let worst = x
+        .iter()
+        .enumerate()
+        .map(|(i, &xi)| (xi - (x[0] + i as f64 * pitch)).abs())
+        .fold(0.0, f64::max);
+    if worst > 0.01 * pitch {
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!(
+                "is not a uniform linear array (an element sits {:.3} µm off the even spacing of \
+                 {:.3} µm): pcuvd reads linear arrays",
+                worst * 1e6,
+                pitch * 1e6
+            ),
+        ));
+    }
+    if let Some(v) = off_axis.iter().find(|v| v.abs() > 0.01 * pitch) {
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!(
+                "puts an element {:.3} mm off the array's line (y or z ≠ 0): pcuvd reads flat \
+                 linear arrays, not curved or matrix ones",
+                v * 1e3
+            ),
+        ));
+    }
+    Ok((n, pitch))
+}
+
+/// The one t0 (s) of `per_transmit` values; they must agree within a hundredth of a sample.
+pub fn common_t0(path: &Path, field: &str, per_transmit: &[f64], fs: f64) -> Result<f64, IoError> {
+    let (lo, hi) = per_transmit
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    if per_transmit.is_empty() || !lo.is_finite() || !hi.is_finite() {
+        return Err(IoError::invalid(path, field, "holds no finite time"));
+    }
+    if hi - lo > 0.01 / fs {
+        return Err(IoError::invalid(
+            path,
+            field,
+            format!(
+                "gives transmits first samples at different times after their first element \
+                 fires ({:.4} to {:.4} µs): pcuvd needs one t0 for every transmit",
+                lo * 1e6,
+                hi * 1e6
+            ),
+        ));
+    }
+    Ok(per_transmit.iter().sum::<f64>() / per_transmit.len() as f64)
+}
+
+/// A scalar dataset (shape (), (1,) or (1, 1)), `None` when absent.
+pub fn scalar(h5: &Hdf5, path: &str) -> Result<Option<f64>, IoError> {
+    if !h5.is_dataset(path) {
+        return Ok(None);
+    }
+    let (_, v) = h5.read_f64(path)?;
+    match v.as_slice() {
+        [x] => Ok(Some(*x)),
+        _ => Err(IoError::invalid(
+            &h5.path,
+            path,
+            format!("must be one number, found {} values", v.len()),
+        )),
+    }
+}
+
+/// Values of a dataset that must hold one per transmit, or one for all (broadcast to `n`).
+pub fn per_transmit(h5: &Hdf5, path: &str, n: usize) -> Result<Option<Vec<f64>>, IoError> {
+    if !h5.is_dataset(path) {
+        return Ok(None);
+    }
+    let (_, v) = h5.read_f64(path)?;
+    match v.len() {
+        1 => Ok(Some(vec![v[0]; n])),
+        k if k == n => Ok(Some(v)),
+        k => Err(IoError::invalid(
+            &h5.path,
+            path,
+            format!("holds {k} values; expected one, or one per transmit ({n})"),
+        )),
+    }
+}
+
+/// Checks a value that must be finite and > 0.
+pub fn positive(path: &Path, name: &str, v: f64) -> Result<f64, IoError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(IoError::invalid(
+            path,
+            name,
+            format!("must be finite and > 0, got {v}"),
+        ))
+    }
+}
+
+/// Time (s) from the first element's firing until a plane wave steered by `angle` (rad) crosses
+/// the centre of an array of `n` elements of `pitch` (m) in a medium of sound speed `c`: USTB's
+/// time origin is that crossing, pcuvd's the first firing.
+pub fn crossing_time(angle: f64, n: usize, pitch: f64, c: f64) -> f64 {
+    (n as f64 - 1.0) / 2.0 * pitch * angle.sin().abs() / c
+}

@@ -1,0 +1,444 @@
+//! zea / OpenH-RF HDF5: `data/raw_data` (n_frames, n_tx, n_ax, n_el, n_ch; n_ch 1 = RF, 2 = IQ
+//! as real and imaginary parts), in the legacy single-track layout (`/data`, `/scan`) or the
+//! first track that holds raw data (`/tracks/track_N/{data, scan}`); `scan/` sampling_frequency,
+//! center_frequency, demodulation_frequency, initial_times (the first sample after the first
+//! element fires: pcuvd's t0), polar_angles, t0_delays (checked against the angles), sound_speed,
+//! time_to_next_transmit; `probe/probe_geometry` (n_el, 3), element_width,
+//! probe_bandwidth_percent.
+//!
+//! The PRF is per transmit: `time_to_next_transmit` holds the time from each transmit to the next
+//! ((n_frames, n_tx), or flat n_frames·n_tx − 1), so a compound frame lasts the sum of a row, and
+//! pcuvd's event PRF is n_tx / that frame period (each angle's slow-time rate is then right even
+//! when frames are separated by a pause). Summing it gives the frame rate, not the PRF.
+//!
+//! zea's colour Doppler is positive toward the transducer; pcuvd's `color_doppler.npy` is
+//! positive away from it.
+
+use std::path::Path;
+
+use serde_json::json;
+
+use crate::array::{ArrayFrames, Axis};
+use crate::error::IoError;
+use crate::hdf5::Hdf5;
+use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
+use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
+use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
+
+/// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
+/// recording of `n_tx` transmits per frame: n_tx over the median frame period.
+pub fn event_prf_from_intervals(
+    intervals: &[f64],
+    n_tx: usize,
+) -> Result<(f64, Option<String>), String> {
+    if n_tx == 0 || intervals.len() < n_tx.max(1) {
+        return Err(format!(
+            "holds {} intervals: fewer than one frame of {n_tx} transmits",
+            intervals.len()
+        ));
+    }
+    if let Some(v) = intervals.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+        return Err(format!(
+            "holds an interval of {v} s (must be finite and > 0)"
+        ));
+    }
+    // Frame k starts at the sum of the intervals before transmit k·n_tx.
+    let mut periods: Vec<f64> = intervals
+        .chunks_exact(n_tx)
+        .map(|frame| frame.iter().sum())
+        .collect();
+    periods.sort_by(f64::total_cmp);
+    let period = periods[periods.len() / 2];
+    let prf = n_tx as f64 / period;
+    let mut within: Vec<f64> = intervals
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % n_tx != n_tx - 1)
+        .map(|(_, &v)| v)
+        .collect();
+    within.sort_by(f64::total_cmp);
+    let warning = within.get(within.len() / 2).and_then(|&spacing| {
+        ((spacing * n_tx as f64 - period).abs() > 0.01 * period).then(|| {
+            format!(
+                "the transmits of a frame are {:.1} µs apart but frames start every {:.1} µs: \
+                 pcuvd takes the frame rate (each angle's Doppler sampling rate) from the frame \
+                 period, i.e. an event PRF of {:.1} Hz, not 1/{:.1} µs",
+                spacing * 1e6,
+                period * 1e6,
+                prf,
+                spacing * 1e6
+            )
+        })
+    });
+    Ok((prf, warning))
+}
+
+/// Opens a zea file.
+pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
+    let mut warnings = Vec::new();
+    let track = if h5.is_dataset("data/raw_data") {
+        String::new()
+    } else {
+        let mut tracks: Vec<String> = h5
+            .members("tracks")?
+            .into_iter()
+            .filter(|t| h5.is_dataset(&format!("tracks/{t}/data/raw_data")))
+            .collect();
+        tracks.sort();
+        let first = tracks.first().cloned().ok_or_else(|| {
+            IoError::missing(
+                path,
+                "the zea file",
+                "raw channel data (data/raw_data in /tracks/track_N)",
+            )
+        })?;
+        if tracks.len() > 1 {
+            warnings.push(format!(
+                "the file holds raw data in {} tracks ({}); pcuvd reads {first} only",
+                tracks.len(),
+                tracks.join(", ")
+            ));
+        }
+        format!("tracks/{first}/")
+    };
+    let scan = |name: &str| format!("{track}scan/{name}");
+    let raw = format!("{track}data/raw_data");
+    let array = crate::datafile::open_hdf5_array(path, &raw)?;
+    let [_n_frames, n_tx, _n_ax, n_el, n_ch] = array.shape[..] else {
+        return Err(IoError::invalid(
+            path,
+            &raw,
+            format!(
+                "has shape {:?}; expected (n_frames, n_tx, n_ax, n_el, n_ch)",
+                array.shape
+            ),
+        ));
+    };
+    let iq = match n_ch {
+        1 => false,
+        2 => true,
+        k => {
+            return Err(IoError::invalid(
+                path,
+                &raw,
+                format!("has n_ch = {k}; expected 1 (RF) or 2 (IQ)"),
+            ));
+        }
+    };
+    let mut r = Resolver::new(overrides);
+    let missing = |name: &str| {
+        let n = scan(name);
+        move || IoError::missing(path, "the zea scan group", format!("dataset '{n}'"))
+    };
+    let fs = r.number(
+        "sampling_frequency_hz",
+        scalar(h5, &scan("sampling_frequency"))?.map(|v| (v, field(scan("sampling_frequency")))),
+        None,
+        missing("sampling_frequency"),
+    )?;
+    let fs = positive(path, &scan("sampling_frequency"), fs)?;
+    let one = |name: &str| -> Result<Option<f64>, IoError> {
+        match per_transmit(h5, &scan(name), n_tx)? {
+            None => Ok(None),
+            Some(v) if v.iter().all(|&x| x == v[0]) => Ok(Some(v[0])),
+            Some(_) => Err(IoError::invalid(
+                path,
+                scan(name),
+                "differs between transmits: pcuvd needs one value for the recording",
+            )),
+        }
+    };
+    let fc = r.number(
+        "center_frequency_hz",
+        one("center_frequency")?.map(|v| (v, field(scan("center_frequency")))),
+        None,
+        missing("center_frequency"),
+    )?;
+    let fc = positive(path, &scan("center_frequency"), fc)?;
+    let c = r.number(
+        "sound_speed_m_s",
+        scalar(h5, &scan("sound_speed"))?.map(|v| (v, field(scan("sound_speed")))),
+        Some((1540.0, "scan/sound_speed is absent")),
+        missing("sound_speed"),
+    )?;
+    let c = positive(path, &scan("sound_speed"), c)?;
+    let t0_found = match per_transmit(h5, &scan("initial_times"), n_tx)? {
+        Some(v) => Some((
+            common_t0(path, &scan("initial_times"), &v, fs)?,
+            field(scan("initial_times")),
+        )),
+        None => None,
+    };
+    let t0 = r.number("t0_s", t0_found, None, || {
+        missing_t0(path, &scan("initial_times"))
+    })?;
+
+    // Probe.
+    let geometry = "probe/probe_geometry";
+    let (gshape, g) = h5
+        .read_f64(geometry)
+        .map_err(|_| IoError::missing(path, "the zea file", "dataset 'probe/probe_geometry'"))?;
+    if gshape.len() != 2 || gshape[1] != 3 || gshape[0] != n_el {
+        return Err(IoError::invalid(
+            path,
+            geometry,
+            format!("has shape {gshape:?}; expected ({n_el}, 3): x, y, z of each element"),
+        ));
+    }
+    let x: Vec<f64> = g.chunks_exact(3).map(|p| p[0]).collect();
+    let off: Vec<f64> = g.chunks_exact(3).flat_map(|p| [p[1], p[2]]).collect();
+    let (n, pitch) = linear_array(path, geometry, &x, &off)?;
+    r.record(
+        "n_elements",
+        json!(n),
+        derived(format!("{geometry} (its rows)")),
+    );
+    r.record(
+        "pitch_m",
+        json!(pitch),
+        derived(format!("{geometry} (element x spacing)")),
+    );
+    let width = scalar(h5, "probe/element_width")?;
+    let width = match width {
+        Some(w) => {
+            r.record("element_width_m", json!(w), field("probe/element_width"));
+            positive(path, "probe/element_width", w)?
+        }
+        None => {
+            r.record(
+                "element_width_m",
+                json!(pitch),
+                ParamSource::Default {
+                    note: "probe/element_width is absent: the pitch".into(),
+                },
+            );
+            pitch
+        }
+    };
+    let bandwidth = r.number(
+        "bandwidth",
+        scalar(h5, "probe/probe_bandwidth_percent")?
+            .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
+        Some((
+            crate::uff::DEFAULT_BANDWIDTH,
+            "probe/probe_bandwidth_percent is absent",
+        )),
+        || IoError::malformed(path, "unreachable"),
+    )?;
+    let bandwidth = positive(path, "probe/probe_bandwidth_percent", bandwidth)?;
+
+    // Steering: polar angles, checked against the delay laws when both are there.
+    let angles = match per_transmit(h5, &scan("polar_angles"), n_tx)? {
+        Some(a) => {
+            if let Some(d) = per_transmit_rows(h5, &scan("t0_delays"), n_tx, n)? {
+                let xs: Vec<f64> = (0..n)
+                    .map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch)
+                    .collect();
+                for (k, row) in d.chunks_exact(n).enumerate() {
+                    let fitted = crate::must::plane_wave_angle(row, &xs, c).map_err(|e| {
+                        IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e)
+                    })?;
+                    if (fitted - a[k]).abs() > 0.05f64.to_radians() {
+                        warnings.push(format!(
+                            "transmit {}: {} says {:.3}° but its t0_delays steer {:.3}°; pcuvd \
+                             uses polar_angles",
+                            k + 1,
+                            scan("polar_angles"),
+                            a[k].to_degrees(),
+                            fitted.to_degrees()
+                        ));
+                    }
+                }
+            }
+            (a, field(scan("polar_angles")))
+        }
+        None => {
+            let d = per_transmit_rows(h5, &scan("t0_delays"), n_tx, n)?.ok_or_else(|| {
+                IoError::missing(
+                    path,
+                    "the zea scan group",
+                    format!("dataset '{}' (or t0_delays)", scan("polar_angles")),
+                )
+            })?;
+            let xs: Vec<f64> = (0..n)
+                .map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch)
+                .collect();
+            let a = d
+                .chunks_exact(n)
+                .enumerate()
+                .map(|(k, row)| {
+                    crate::must::plane_wave_angle(row, &xs, c).map_err(|e| {
+                        IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e)
+                    })
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            (
+                a,
+                derived(format!(
+                    "{} (plane-wave fit of each row)",
+                    scan("t0_delays")
+                )),
+            )
+        }
+    };
+    let angles = r.angles(angles);
+    let ttnt = scan("time_to_next_transmit");
+    let prf_found = if h5.is_dataset(&ttnt) {
+        let (_, intervals) = h5.read_f64(&ttnt)?;
+        let (prf, warning) = event_prf_from_intervals(&intervals, n_tx)
+            .map_err(|e| IoError::invalid(path, &ttnt, e))?;
+        warnings.extend(warning);
+        Some((
+            prf,
+            derived(format!(
+                "{ttnt}: n_tx / the frame period (the time to the next transmit is per transmit; \
+                 its sum over a frame is the frame period)"
+            )),
+        ))
+    } else {
+        None
+    };
+    let prf = r.number("event_prf_hz", prf_found, None, || missing_prf(path, &ttnt))?;
+    let prf = positive(path, &ttnt, prf)?;
+    r.record(
+        "coding",
+        json!("none"),
+        ParamSource::Default {
+            note: "zea describes one transmit per event".into(),
+        },
+    );
+    let pulse_cycles = r.number(
+        "pulse_cycles",
+        None,
+        Some((
+            crate::must::DEFAULT_PULSE_CYCLES,
+            "zea does not record the pulse length",
+        )),
+        || IoError::malformed(path, "unreachable"),
+    )?;
+    let demod = if iq {
+        Some(r.number(
+            "demod_frequency_hz",
+            one("demodulation_frequency")?.map(|v| (v, field(scan("demodulation_frequency")))),
+            None,
+            missing("demodulation_frequency"),
+        )?)
+    } else {
+        None
+    };
+    let axes = vec![
+        Axis::Frames,
+        Axis::Angles,
+        Axis::Samples,
+        Axis::Channels,
+        if iq { Axis::ReIm } else { Axis::Unit },
+    ];
+    let acquisition = pcuvd::Acquisition {
+        probe: pcuvd::Probe {
+            name: h5
+                .dataset("probe/name")
+                .ok()
+                .and_then(|d| crate::hdf5::guard(path, "probe/name", || d.read_strings()).ok())
+                .and_then(|v| v.into_iter().next())
+                .unwrap_or_else(|| "zea probe".into()),
+            n_elements: n,
+            pitch,
+            element_width: width,
+            center_frequency: fc,
+            bandwidth,
+        },
+        sequence: pcuvd::Sequence {
+            angles,
+            event_prf: prf,
+            coding: pcuvd::Coding::Conventional,
+            pulse_cycles,
+            pulse: None,
+        },
+        sampling_frequency: fs,
+        sound_speed: c,
+        t0,
+    };
+    acquisition
+        .validate()
+        .map_err(|source| IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    warnings.push(
+        "zea's colour Doppler is positive toward the transducer; pcuvd's color_doppler is \
+         positive away from it"
+            .into(),
+    );
+    let stored = StoredSamples {
+        array: array.label.clone(),
+        shape: array.shape.clone(),
+        axes: vec![
+            "frames",
+            "angles",
+            "samples",
+            "channels",
+            if iq { "re_im" } else { "unit" },
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect(),
+        dtype: array.dtype_name(),
+        kind: if iq { "iq" } else { "rf" }.into(),
+    };
+    let frames = ArrayFrames::new(path, acquisition, array, axes, demod)?;
+    Ok(OpenedRecording {
+        source: Box::new(frames),
+        info: SourceInfo {
+            files: vec![path.to_path_buf()],
+            format: "zea / OpenH-RF (HDF5)".into(),
+            reader: "pcuvd_io::zea (rust-hdf5 hyperslabs, Blosc/zstd chunks, a block of frames at a time)".into(),
+            parameters: r.params,
+            stored: Some(stored),
+            warnings,
+        },
+    })
+}
+
+/// A (n_tx, n_el) dataset as rows of `n_el`, or `None` when absent.
+fn per_transmit_rows(
+    h5: &Hdf5,
+    path: &str,
+    n_tx: usize,
+    n_el: usize,
+) -> Result<Option<Vec<f64>>, IoError> {
+    if !h5.is_dataset(path) {
+        return Ok(None);
+    }
+    let (shape, v) = h5.read_f64(path)?;
+    if shape != [n_tx, n_el] {
+        return Err(IoError::invalid(
+            &h5.path,
+            path,
+            format!("has shape {shape:?}; expected ({n_tx}, {n_el})"),
+        ));
+    }
+    Ok(Some(v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prf_is_per_transmit_not_per_frame() {
+        // 3 transmits 100 µs apart, frames every 300 µs: 10 kHz events, 3.33 kHz frames.
+        let even = vec![100e-6; 12];
+        let (prf, w) = event_prf_from_intervals(&even, 3).unwrap();
+        assert!((prf - 10_000.0).abs() < 1e-6 && w.is_none());
+        // The same transmits with a 700 µs pause after each frame: frames every 900 µs, so each
+        // angle is sampled at 1.11 kHz, i.e. pcuvd's event PRF 3/900 µs, with a warning.
+        let paused: Vec<f64> = (0..12)
+            .map(|i| if i % 3 == 2 { 700e-6 } else { 100e-6 })
+            .collect();
+        let (prf, w) = event_prf_from_intervals(&paused, 3).unwrap();
+        assert!((prf - 3.0 / 900e-6).abs() < 1e-6, "{prf}");
+        assert!(w.unwrap().contains("100.0 µs apart"));
+        assert!(event_prf_from_intervals(&[1e-4, -1.0, 1e-4], 3).is_err());
+        assert!(event_prf_from_intervals(&[1e-4], 3).is_err());
+    }
+}

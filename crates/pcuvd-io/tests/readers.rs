@@ -1,0 +1,372 @@
+//! Every reader against files written by the format's own, independent writer
+//! (`tests/fixtures/readers/make_reader_fixtures.py`: numpy, hdf5storage, pyuff-ustb, zea, scipy,
+//! PyMUST): the real rotating disk (its first 8 transmits) in each format gives the samples and
+//! the maps of the original `.mat`; a steered recording simulated by pcuvd gives back its angles,
+//! PRF and t0; reading a block of frames at a time gives the frames read whole, bit for bit.
+
+use std::path::{Path, PathBuf};
+
+use pcuvd::decode::EventAlignment;
+use pcuvd::grid::Grid;
+use pcuvd::pipeline::{self, ProcessOutput};
+use pcuvd::source::{Blocks, FrameSource};
+use pcuvd::{ChannelData, Samples};
+use pcuvd_io::{OpenedRecording, Overrides, ParamSource, open_recording};
+use serde_json::Value;
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/readers")
+        .join(name)
+}
+
+fn expected() -> Value {
+    serde_json::from_str(&std::fs::read_to_string(fixture("expected.json")).unwrap()).unwrap()
+}
+
+fn disk_mat() -> PathBuf {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/PWI_disk.mat");
+    assert!(
+        path.exists(),
+        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} (shared/data/ \
+         beside the repository)",
+        path.display()
+    );
+    path
+}
+
+fn open(name: &str) -> OpenedRecording {
+    open_recording(&fixture(name), &Overrides::default()).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+/// The first `events` transmits of the original disk recording.
+fn disk_reference(events: usize) -> ChannelData {
+    let whole = open_recording(&disk_mat(), &Overrides::default()).unwrap();
+    whole.source.read_frames(0..events).unwrap()
+}
+
+fn quiet(_: pipeline::Stage, _: usize, _: usize) {}
+
+fn maps(source: &dyn FrameSource, grid: &Grid) -> ProcessOutput {
+    let params =
+        pcuvd::study::process_params(grid, source.acquisition(), (1, 1), EventAlignment::MidFrame);
+    let blocks = Blocks::whole(source.n_frames());
+    let (images, _) = pipeline::form_images_in_blocks(source, &params, blocks, &quiet).unwrap();
+    pipeline::analyse(images, &params, &quiet).unwrap()
+}
+
+/// Largest |a − b| over the largest |b|.
+fn relative(a: &ndarray::Array2<f64>, b: &ndarray::Array2<f64>) -> f64 {
+    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let diff = a
+        .iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    diff / scale
+}
+
+/// Frames read in blocks of `block` equal the frames read whole, bit for bit.
+fn assert_blocks_match_whole(name: &str, source: &dyn FrameSource, block: usize) {
+    let n = source.n_frames();
+    let whole = source.read_frames(0..n).unwrap();
+    let mut start = 0;
+    while start < n {
+        let end = (start + block).min(n);
+        let part = source.read_frames(start..end).unwrap();
+        let k = source.acquisition().sequence.n_angles();
+        match (&part.samples, &whole.samples) {
+            (Samples::Rf(p), Samples::Rf(w)) => assert_eq!(
+                p,
+                &w.slice(ndarray::s![start * k..end * k, .., ..]),
+                "{name}: frames {start}..{end}"
+            ),
+            (Samples::Iq { data: p, .. }, Samples::Iq { data: w, .. }) => assert_eq!(
+                p,
+                &w.slice(ndarray::s![start * k..end * k, .., ..]),
+                "{name}: frames {start}..{end}"
+            ),
+            _ => panic!("{name}: RF and IQ mixed"),
+        }
+        start = end;
+    }
+}
+
+const DISK_FILES: [(&str, &str); 7] = [
+    ("disk.npz", "PyMUST-style NumPy .npz"),
+    (
+        "disk_npz.toml",
+        "pcuvd recording manifest (.toml) + NumPy .npz (RF)",
+    ),
+    ("disk_v73.mat", "MUST/PyMUST MATLAB v7.3 (HDF5 .mat)"),
+    ("disk.uff", "USTB UFF channel data (HDF5)"),
+    (
+        "disk_uff.toml",
+        "pcuvd recording manifest (.toml) + HDF5 dataset (/channel_data/data)",
+    ),
+    ("disk_zea.hdf5", "zea / OpenH-RF (HDF5)"),
+    ("disk_verasonics.mat", "Verasonics workspace (MATLAB v7.3)"),
+];
+
+#[test]
+fn every_format_of_the_disk_gives_the_samples_of_the_mat() {
+    let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
+    let reference = disk_reference(events);
+    for (name, format) in DISK_FILES {
+        let opened = open(name);
+        assert_eq!(opened.info.format, format, "{name}");
+        let data = opened.read_all().unwrap();
+        let (a, b) = (&data.acquisition, &reference.acquisition);
+        assert_eq!(a.sequence.angles, b.sequence.angles, "{name}");
+        assert_eq!(a.probe.n_elements, b.probe.n_elements, "{name}");
+        // Parameters pass through float32 in zea and through MHz/wavelengths in Verasonics.
+        let close = |x: f64, y: f64, what: &str| {
+            assert!((x - y).abs() <= 1e-6 * y.abs(), "{name}: {what} {x} vs {y}")
+        };
+        close(a.sampling_frequency, b.sampling_frequency, "f_s");
+        close(a.sound_speed, b.sound_speed, "c");
+        close(a.t0, b.t0, "t0");
+        close(a.sequence.event_prf, b.sequence.event_prf, "PRF");
+        close(a.probe.pitch, b.probe.pitch, "pitch");
+        close(a.probe.center_frequency, b.probe.center_frequency, "f_c");
+        close(a.probe.bandwidth, b.probe.bandwidth, "bandwidth");
+        close(
+            a.probe.element_width,
+            b.probe.element_width,
+            "element width",
+        );
+        assert_eq!(data.samples, reference.samples, "{name}: samples");
+        assert_blocks_match_whole(name, opened.source.as_ref(), 3);
+    }
+}
+
+#[test]
+fn every_format_of_the_disk_gives_the_maps_of_the_mat() {
+    let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
+    let reference = disk_reference(events);
+    let grid = Grid::new(-10e-3, 10e-3, 12e-3, 32e-3, 0.2e-3).unwrap();
+    for (name, _) in DISK_FILES {
+        let opened = open(name);
+        // zea stores f_s, t0 and c as float32 (its schema): the reference takes the parameters
+        // as the file holds them (the samples test checks them against the .mat to 1e-6), so
+        // that what is compared is the samples and how the reader lays them out.
+        let mut same = reference.clone();
+        same.acquisition = opened.source.acquisition().clone();
+        let want = maps(&same, &grid);
+        let got = maps(opened.source.as_ref(), &grid);
+        let power = relative(&got.power_doppler, &want.power_doppler);
+        let color = relative(&got.color_doppler, &want.color_doppler);
+        assert!(
+            power <= 1e-5 && color <= 1e-5,
+            "{name}: power {power:e}, colour {color:e}"
+        );
+    }
+}
+
+#[test]
+fn steered_recordings_give_back_their_angles_prf_and_t0() {
+    let e = &expected()["steered"];
+    let angles: Vec<f64> = e["angles_rad"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let prf = e["event_prf_hz"].as_f64().unwrap();
+    let t0 = e["t0_s"].as_f64().unwrap();
+    let frames = e["frames"].as_u64().unwrap() as usize;
+    let grid = Grid::new(-4e-3, 4e-3, 8e-3, 16e-3, 0.1e-3).unwrap();
+    let mut rf_maps: Vec<(String, ProcessOutput)> = Vec::new();
+    for name in [
+        "steered_must.mat",
+        "steered.uff",
+        "steered_zea.hdf5",
+        "steered_must_iq.mat",
+        "steered_iq.uff",
+    ] {
+        let opened = open(name);
+        let acq = opened.source.acquisition().clone();
+        // MUST's txdelay and zea's float32 angles: within a millidegree.
+        for (a, b) in acq.sequence.angles.iter().zip(&angles) {
+            assert!(
+                (a - b).abs() < 2e-5,
+                "{name}: angles {:?}",
+                acq.sequence.angles
+            );
+        }
+        assert_eq!(acq.sequence.n_angles(), 3, "{name}");
+        assert!(
+            (acq.sequence.event_prf - prf).abs() < 1e-3,
+            "{name}: PRF {}",
+            acq.sequence.event_prf
+        );
+        assert!((acq.t0 - t0).abs() < 1e-12, "{name}: t0 {}", acq.t0);
+        assert_eq!(opened.source.n_frames(), frames, "{name}");
+        assert_blocks_match_whole(name, opened.source.as_ref(), 4);
+        let out = maps(opened.source.as_ref(), &grid);
+        if name.contains("iq") {
+            // IQ from PyMUST's rf2iq (its own filter, decimated by 4) against pcuvd's own
+            // demodulation of the same RF: the same flow where there is signal.
+            let (_, rf) = &rf_maps[0];
+            let scale = rf.power_doppler.iter().fold(0.0f64, |m, v| m.max(*v));
+            let mut diffs: Vec<f64> = out
+                .color_doppler
+                .iter()
+                .zip(&rf.color_doppler)
+                .zip(&rf.power_doppler)
+                .filter(|(_, p)| **p > 0.1 * scale)
+                .map(|((a, b), _)| (a - b).abs())
+                .collect();
+            diffs.sort_by(f64::total_cmp);
+            let median = diffs[diffs.len() / 2];
+            assert!(
+                median < 0.02 * rf.nyquist_velocity,
+                "{name}: colour Doppler differs from the RF's by {median} m/s (median)"
+            );
+        } else {
+            rf_maps.push((name.to_string(), out));
+        }
+    }
+    let (first, reference) = &rf_maps[0];
+    let must = open(first).read_all().unwrap();
+    for (name, out) in &rf_maps[1..] {
+        // As for the disk: the reference takes the file's own (float32 in zea) parameters.
+        let mut same = must.clone();
+        same.acquisition = open(name).source.acquisition().clone();
+        let reference = &maps(&same, &grid);
+        let power = relative(&out.power_doppler, &reference.power_doppler);
+        let color = relative(&out.color_doppler, &reference.color_doppler);
+        assert!(
+            power <= 1e-5 && color <= 1e-5,
+            "{name} vs {first}: {power:e} {color:e}"
+        );
+    }
+    // The disk turns: its colour Doppler changes sign across its centre (x = 0).
+    let out = reference;
+    let col = |x: f64| ((x - out.grid.x[0]) / 0.1e-3).round() as usize;
+    let row = ((12e-3 - out.grid.z[0]) / 0.1e-3).round() as usize;
+    let left = out.color_doppler[[row, col(-1.5e-3)]];
+    let right = out.color_doppler[[row, col(1.5e-3)]];
+    assert!(left * right < 0.0, "no rotation seen: {left} {right}");
+}
+
+#[test]
+fn parameters_say_where_they_came_from() {
+    let opened = open("disk.uff");
+    let find = |n: &str| {
+        opened
+            .info
+            .parameters
+            .iter()
+            .find(|p| p.name == n)
+            .unwrap_or_else(|| panic!("no {n}"))
+            .clone()
+    };
+    assert_eq!(
+        find("sampling_frequency_hz").source,
+        ParamSource::File {
+            field: "channel_data/sampling_frequency".into()
+        }
+    );
+    assert!(matches!(find("t0_s").source, ParamSource::Derived { .. }));
+    assert!(matches!(
+        find("pulse_cycles").source,
+        ParamSource::Default { .. }
+    ));
+    let overridden = open_recording(
+        &fixture("disk.uff"),
+        &Overrides {
+            t0_s: Some(1e-6),
+            ..Overrides::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(overridden.source.acquisition().t0, 1e-6);
+    let t0 = overridden
+        .info
+        .parameters
+        .iter()
+        .find(|p| p.name == "t0_s")
+        .unwrap();
+    assert_eq!(t0.source, ParamSource::Override);
+    // zea: the PRF is per transmit.
+    let zea = open("steered_zea.hdf5");
+    let prf = zea
+        .info
+        .parameters
+        .iter()
+        .find(|p| p.name == "event_prf_hz")
+        .unwrap();
+    assert!(
+        prf.source.to_string().contains("time_to_next_transmit"),
+        "{}",
+        prf.source
+    );
+}
+
+#[test]
+fn a_must_file_without_t0_is_an_error_that_says_how_to_give_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = pcuvd_io::read_mat(&fixture("steered_must.mat")).unwrap();
+    if let Some(pcuvd_io::MatValue::Struct(p)) = file.variables.get_mut("param") {
+        p.remove("t0");
+    }
+    let path = dir.path().join("no_t0.mat");
+    let vars: Vec<(&str, &pcuvd_io::MatValue)> = file
+        .variables
+        .iter()
+        .map(|(k, v)| (k.as_str(), v))
+        .collect();
+    pcuvd_io::write_mat(&path, &vars, true).unwrap();
+    let e = open_recording(&path, &Overrides::default())
+        .unwrap_err()
+        .to_string();
+    for want in ["param.t0", "is absent", "0.77 mm per µs", "--t0-s"] {
+        assert!(e.contains(want), "{e} (wanted {want})");
+    }
+    let given = open_recording(
+        &path,
+        &Overrides {
+            t0_s: Some(9.75e-6),
+            ..Overrides::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(given.source.acquisition().t0, 9.75e-6);
+}
+
+#[test]
+fn unrecognised_files_say_what_they_look_like() {
+    let dir = tempfile::tempdir().unwrap();
+    let check = |bytes: &[u8], name: &str, want: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        let e = open_recording(&path, &Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with(&path.display().to_string()), "{e}");
+        assert!(e.contains(want), "{e} (wanted {want})");
+    };
+    check(b"", "empty.mat", "it is empty");
+    check(
+        b"\x00\x01\x02\x03garbage",
+        "x.bin",
+        "binary starting with bytes 00 01 02 03",
+    );
+    check(
+        b"hello world\n",
+        "notes.txt",
+        "text starting \"hello world\"",
+    );
+    check(
+        b"\x93NUMPY\x01\x00",
+        "bare.npy",
+        "Write a pcuvd recording manifest",
+    );
+    let e = open_recording(dir.path(), &Overrides::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("is a folder, not a file"), "{e}");
+    // An archive that is not PyMUST-style asks for a manifest.
+    let e = open_recording(&fixture("disk.npz"), &Overrides::default()).map(|_| ());
+    assert!(e.is_ok());
+}

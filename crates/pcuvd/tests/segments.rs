@@ -1,0 +1,410 @@
+//! A long recording processed in segments ([`pcuvd::segments`]): one segment gives the
+//! whole-recording path's maps; several stay within the estimator's own spread, and the time
+//! series' ensembles, each filtered on its own, are the whole-recording path's exactly. Vector
+//! dealiasing applies on both paths alike. Both Doppler estimators: Kasai (the lag-1 sums) and
+//! Loupas (the lag-1 and the spatial lags at temporal lags ±1, summed per core alike).
+
+use ndarray::{Array2, Array3};
+use pcuvd::dealias::Dealias;
+use pcuvd::decode::EventAlignment;
+use pcuvd::doppler::DopplerEstimator;
+use pcuvd::dynamics::DynamicsParams;
+use pcuvd::ensembles::{self, EnsembleSpec};
+use pcuvd::phantom::{Phantom, TubePhantom, TubeSpec};
+use pcuvd::pipeline::{self, ProcessParams, Stage};
+use pcuvd::segments::{Segments, process_in_segments};
+use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
+use pcuvd::{ChannelData, Coding, Probe, Sequence};
+
+const FRAMES: usize = 64;
+
+fn quiet(_: Stage, _: usize, _: usize) {}
+
+/// A 48-element, 5-angle conventional recording of a tube 6 mm deep flowing at 30 mm/s, noise
+/// −20 dB: every frame's images stand alone, so segments image exactly what the whole path does.
+fn recording() -> ChannelData {
+    recording_of(&tube())
+}
+
+fn recording_of(phantom: &TubePhantom) -> ChannelData {
+    let probe = Probe {
+        n_elements: 48,
+        ..Probe::l22_14vx()
+    };
+    let sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(5, 12f64.to_radians()),
+        event_prf: 9e3,
+        coding: Coding::Conventional,
+        pulse_cycles: 2.0,
+        pulse: None,
+    };
+    let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
+    params.noise = Some(NoiseSpec::new(-20.0));
+    params.seed = 5;
+    simulate(phantom, &params, FRAMES, &|_, _| {}).unwrap()
+}
+
+fn tube() -> TubePhantom {
+    tube_at(0.03)
+}
+
+/// The tube of [`recording`] with a peak speed of `peak_speed` (m/s).
+fn tube_at(peak_speed: f64) -> TubePhantom {
+    TubePhantom::new(
+        TubeSpec {
+            centre: [0.0, 6e-3],
+            angle: 20f64.to_radians(),
+            length: 6e-3,
+            radius: 0.5e-3,
+            peak_speed,
+            density: 300e6,
+        },
+        3,
+    )
+    .unwrap()
+}
+
+fn params(data: &ChannelData) -> ProcessParams {
+    params_with(data, DopplerEstimator::default())
+}
+
+/// The processing settings of these tests with the Doppler estimator `estimator` (0.05 mm grid:
+/// fine enough for Loupas).
+fn params_with(data: &ChannelData, estimator: DopplerEstimator) -> ProcessParams {
+    let grid = pcuvd::grid::Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
+    ProcessParams {
+        doppler_estimator: estimator,
+        ..pcuvd::study::process_params(&grid, &data.acquisition, (1, 1), EventAlignment::MidFrame)
+    }
+}
+
+/// Windows of 16 frames every 8, reading velocity with `estimator`.
+fn windows_with(estimator: DopplerEstimator) -> DynamicsParams {
+    DynamicsParams {
+        doppler: estimator,
+        ..windows()
+    }
+}
+
+/// Windows of 16 frames every 8; no heart rate needed for the windows themselves.
+fn windows() -> DynamicsParams {
+    DynamicsParams {
+        window: 16,
+        step: 8,
+        heart_rate_hz: None,
+        ..DynamicsParams::rat()
+    }
+}
+
+const ENSEMBLES: EnsembleSpec = EnsembleSpec {
+    frames: 12,
+    step: 6,
+};
+
+/// Largest |a − b| over the pixels where both are finite, relative to b's largest |value|; and
+/// whether both are NaN at the same pixels.
+fn relative_difference(a: &Array2<f64>, b: &Array2<f64>) -> (f64, bool) {
+    let scale = b
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    let same_nan = a.iter().zip(b).all(|(x, y)| x.is_nan() == y.is_nan());
+    let diff = a
+        .iter()
+        .zip(b)
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    (diff / scale.max(f64::MIN_POSITIVE), same_nan)
+}
+
+fn per_angle(a: &Array3<f64>) -> Vec<Array2<f64>> {
+    a.outer_iter().map(|m| m.to_owned()).collect()
+}
+
+#[test]
+fn one_segment_gives_the_whole_recording_maps() {
+    let data = recording();
+    for estimator in DopplerEstimator::ALL {
+        one_segment_is_the_whole_path(&data, estimator);
+    }
+}
+
+fn one_segment_is_the_whole_path(data: &ChannelData, estimator: DopplerEstimator) {
+    let params = params_with(data, estimator);
+    let windows = || windows_with(estimator);
+    let whole = pipeline::process(data, &params, &quiet).unwrap();
+    let one = Segments {
+        core: FRAMES,
+        overlap: 0,
+    };
+    let done = process_in_segments(
+        data,
+        &params,
+        &one,
+        Some(&windows()),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    assert_eq!(done.ranges, vec![(0..FRAMES, 0..FRAMES)]);
+    let out = &done.out;
+    let mut maps = vec![
+        ("B-mode", out.bmode_db.clone(), whole.bmode_db.clone()),
+        (
+            "power",
+            out.power_doppler.clone(),
+            whole.power_doppler.clone(),
+        ),
+        (
+            "colour",
+            out.color_doppler.clone(),
+            whole.color_doppler.clone(),
+        ),
+    ];
+    for (k, (a, b)) in per_angle(&out.projections)
+        .into_iter()
+        .zip(per_angle(&whole.projections))
+        .enumerate()
+    {
+        maps.push((if k == 0 { "projection 0" } else { "projection" }, a, b));
+    }
+    let (irls, reference) = (
+        out.vector_irls.as_ref().unwrap(),
+        whole.vector_irls.as_ref().unwrap(),
+    );
+    maps.push(("Vx", irls.vx.clone(), reference.vx.clone()));
+    maps.push(("Vz", irls.vz.clone(), reference.vz.clone()));
+    for (name, a, b) in &maps {
+        let (diff, same_nan) = relative_difference(a, b);
+        assert!(same_nan, "{estimator:?} {name}: NaN at other pixels");
+        assert!(
+            diff < 1e-5,
+            "{estimator:?} {name}: differs by {diff:.2e} of its peak"
+        );
+    }
+    // The dynamics windows and ensembles of the one segment are the whole path's.
+    let series = done.series.unwrap();
+    let reference = pcuvd::dynamics::sliding_vectors(&whole.filtered, &windows()).unwrap();
+    assert_eq!(series.times_s, reference.times_s);
+    assert_eq!(series.vx, reference.vx);
+    let (images, _) = pipeline::form_images(data, &params, &quiet).unwrap();
+    let ensembles = ensembles::ensemble_maps(&images, &params, ENSEMBLES, &quiet).unwrap();
+    assert_eq!(done.ensembles.unwrap(), ensembles);
+}
+
+#[test]
+fn segments_stay_within_the_estimators_spread() {
+    let data = recording();
+    let mut read = Vec::new();
+    for estimator in DopplerEstimator::ALL {
+        read.push(segments_against_the_whole_path(&data, estimator));
+    }
+    // Loupas sums its own moments per core: its segmented projections are not Kasai's.
+    assert!(
+        (read[0] - read[1]).abs() > 1e-6,
+        "Kasai and Loupas segments read alike: {read:?}"
+    );
+}
+
+/// Runs the several-segment check with `estimator`; returns the segmented projections' RMS
+/// error against the truth in the tube (m/s).
+fn segments_against_the_whole_path(data: &ChannelData, estimator: DopplerEstimator) -> f64 {
+    let params = params_with(data, estimator);
+    let windows = || windows_with(estimator);
+    let whole = pipeline::process(data, &params, &quiet).unwrap();
+    // 24-frame cores (a multiple of both steps), each imaged with the 8 frames after it that the
+    // last window starting in it (16 frames from 8 before its end) reaches.
+    let segments = Segments::plan(FRAMES, 40, Some(&windows()), Some(ENSEMBLES))
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        segments,
+        Segments {
+            core: 24,
+            overlap: 8
+        }
+    );
+    let done = process_in_segments(
+        data,
+        &params,
+        &segments,
+        Some(&windows()),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    assert_eq!(
+        done.ranges,
+        vec![(0..24, 0..32), (24..48, 24..56), (48..64, 48..64)]
+    );
+
+    // The estimator's own spread: the whole-recording projections against the truth, in the tube.
+    let truth = tube().truth(&params.grid.x, &params.grid.z, 0.0);
+    let angles = &data.acquisition.sequence.angles;
+    let rms_against = |projections: &Array3<f64>, reference: Option<&Array3<f64>>| {
+        let mut squares = Vec::new();
+        for (k, &theta) in angles.iter().enumerate() {
+            let (s, c) = pcuvd::vector::projection_weights(theta);
+            for ((iz, ix), &inside) in truth.mask.indexed_iter() {
+                let v = projections[[k, iz, ix]];
+                let expected = match reference {
+                    Some(r) => r[[k, iz, ix]],
+                    None => (truth.vx[[iz, ix]] * s + truth.vz[[iz, ix]] * c) / 2.0,
+                };
+                if inside && v.is_finite() && expected.is_finite() {
+                    squares.push((v - expected).powi(2));
+                }
+            }
+        }
+        (squares.iter().sum::<f64>() / squares.len() as f64).sqrt()
+    };
+    let spread = rms_against(&whole.projections, None);
+    let segmented = rms_against(&done.out.projections, None);
+    let apart = rms_against(&done.out.projections, Some(&whole.projections));
+    eprintln!(
+        "{estimator:?} projections in the tube: whole path {:.3} mm/s RMS from the truth, \
+         segments {:.3} mm/s; segments against the whole path {:.3} mm/s RMS",
+        spread * 1e3,
+        segmented * 1e3,
+        apart * 1e3
+    );
+    assert!(apart < spread, "{apart} against the estimator's {spread}");
+    assert!(segmented < 1.2 * spread, "{segmented} against {spread}");
+
+    // The B-mode is unfiltered: its mean envelope summed over the segments is the whole path's.
+    let (diff, _) = relative_difference(&done.out.bmode_db, &whole.bmode_db);
+    assert!(diff < 1e-5, "B-mode differs by {diff:.2e}");
+
+    // Every dynamics window and ensemble of the whole path, at the same times.
+    let series = done.series.unwrap();
+    let reference = pcuvd::dynamics::sliding_vectors(&whole.filtered, &windows()).unwrap();
+    assert_eq!(series.len(), reference.len());
+    for (a, b) in series.times_s.iter().zip(&reference.times_s) {
+        assert!((a - b).abs() < 1e-12, "window at {a} s against {b} s");
+    }
+    let (images, _) = pipeline::form_images(data, &params, &quiet).unwrap();
+    let ensembles = ensembles::ensemble_maps(&images, &params, ENSEMBLES, &quiet).unwrap();
+    // Each ensemble is filtered on its own from the same images: the same maps.
+    assert_eq!(done.ensembles.unwrap(), ensembles);
+    segmented
+}
+
+#[test]
+fn a_segment_too_short_for_the_windows_is_refused_by_name() {
+    let e = Segments::plan(FRAMES, 20, Some(&windows()), Some(ENSEMBLES))
+        .unwrap_err()
+        .to_string();
+    // 8 frames of overlap and a core of one 24-frame alignment step.
+    assert!(
+        e.contains("segment frames") && e.contains("at least 32"),
+        "{e}"
+    );
+    assert_eq!(Segments::shortest(Some(&windows()), Some(ENSEMBLES)), 32);
+    assert_eq!(
+        Segments::plan(FRAMES, FRAMES, Some(&windows()), None).unwrap(),
+        None
+    );
+}
+
+/// `--dealias auto` in segments: the maps from the totals, every ensemble and every dynamics
+/// window are dealiased, as on the whole-recording path; one segment gives the whole path's
+/// dealiased vectors, windows (at the K the maps chose) and ensembles.
+#[test]
+fn segments_dealias_as_the_whole_path_does() {
+    let probe = recording().acquisition;
+    let nyquist = pcuvd::doppler::nyquist_velocity(
+        probe.sound_speed,
+        probe.frame_rate(),
+        probe.probe.center_frequency,
+    );
+    // 3.5 × the Nyquist velocity at f_0: with this 20° tube the largest projection (at +12°) is
+    // about 0.44 of the peak speed, 1.5 v_N. Loupas (the default) scales by the echo's mean
+    // frequency, here about 9 % below f_0, so its own Nyquist velocity is that much higher, and
+    // a tube at 2.5 × (1.1 v_N at f_0) would barely wrap.
+    let data = recording_of(&tube_at(3.5 * nyquist));
+    let params = ProcessParams {
+        dealias: Dealias::Auto,
+        ..params(&data)
+    };
+    let dynamics = DynamicsParams {
+        dealias: Dealias::Auto,
+        ..windows()
+    };
+    let whole = pipeline::process(&data, &params, &quiet).unwrap();
+    let dealiased = whole.dealias.clone().expect("the whole path dealiases");
+    assert!(
+        dealiased.irls.unwrapped_pixels > 0,
+        "the fast tube aliases: {dealiased:?}"
+    );
+    let at_k = DynamicsParams {
+        dealias: Dealias::Intervals(dealiased.intervals),
+        ..dynamics
+    };
+    let reference = pcuvd::dynamics::sliding_vectors(&whole.filtered, &at_k).unwrap();
+    let plain = pcuvd::dynamics::sliding_vectors(
+        &whole.filtered,
+        &DynamicsParams {
+            dealias: Dealias::Off,
+            ..dynamics
+        },
+    )
+    .unwrap();
+    assert_ne!(reference.vx, plain.vx, "the windows need dealiasing");
+    let (images, _) = pipeline::form_images(&data, &params, &quiet).unwrap();
+    let ensembles = ensembles::ensemble_maps(&images, &params, ENSEMBLES, &quiet).unwrap();
+
+    let one = Segments {
+        core: FRAMES,
+        overlap: 0,
+    };
+    let done = process_in_segments(
+        &data,
+        &params,
+        &one,
+        Some(&dynamics),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    assert_eq!(out_dealiased.intervals, dealiased.intervals);
+    assert_eq!(
+        out_dealiased.irls.unwrapped_pixels,
+        dealiased.irls.unwrapped_pixels
+    );
+    let (irls, reference_irls) = (
+        done.out.vector_irls.as_ref().unwrap(),
+        whole.vector_irls.as_ref().unwrap(),
+    );
+    for (name, a, b) in [
+        ("Vx", &irls.vx, &reference_irls.vx),
+        ("Vz", &irls.vz, &reference_irls.vz),
+    ] {
+        let (diff, same_nan) = relative_difference(a, b);
+        assert!(same_nan, "{name}: NaN at other pixels");
+        assert!(diff < 1e-5, "{name}: differs by {diff:.2e} of its peak");
+    }
+    let series = done.series.unwrap();
+    assert_eq!(series.vx, reference.vx);
+    assert_eq!(series.vz, reference.vz);
+    assert_eq!(done.ensembles.unwrap(), ensembles);
+
+    // Several segments: the maps from the totals are dealiased too, and every window.
+    let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
+        .unwrap()
+        .unwrap();
+    let done = process_in_segments(
+        &data,
+        &params,
+        &segments,
+        Some(&dynamics),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    assert!(done.ranges.len() > 1);
+    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    assert!(out_dealiased.irls.unwrapped_pixels > 0, "{out_dealiased:?}");
+    assert_eq!(done.series.unwrap().len(), reference.len());
+    assert_eq!(done.ensembles.unwrap(), ensembles);
+}
