@@ -333,7 +333,9 @@ fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usize) -> Array
 /// Band-limited interpolation by a finite windowed sinc: each output frame is a weighted sum of
 /// the [`ALIGN_HALF`] frames on either side of it (a Kaiser-windowed sinc, weights summing to 1),
 /// so a frame depends only on its neighbours and a block of frames decoded with that many frames
-/// of margin gives the whole recording's values exactly. Beyond the first and last frames the
+/// of margin gives the whole recording's values exactly (where the decoded frames reach an end
+/// of the recording they must also hold the [`ALIGN_FIT_FRAMES`] the predictor below is fitted
+/// on: [`crate::source::Blocks::END_FRAMES`]). Beyond the first and last frames the
 /// series is continued by linear prediction: an autoregressive model of order [`ALIGN_ORDER`],
 /// fitted by forward–backward least squares on the [`ALIGN_FIT_FRAMES`] frames nearest that end,
 /// pooled over the tile of neighbouring samples aligned together (they share a Doppler

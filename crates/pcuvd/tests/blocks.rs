@@ -123,6 +123,9 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
         (12, Blocks::ALIGNMENT_MARGIN),
         (24, 16),
         (24, 24),
+        // The last block (42..48) decoded with 12 frames of margin would hold 18 frames, fewer
+        // than the linear predictor past the recording's end is fitted on.
+        (7, Blocks::ALIGNMENT_MARGIN),
     ] {
         let blocked = series(&data, &params, Blocks { frames, margin });
         let image_error = blocked
@@ -160,5 +163,10 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
         errors[4],
         (0.0, 0.0),
         "a margin that reaches the ends is the whole path"
+    );
+    assert_eq!(
+        errors[5],
+        (0.0, 0.0),
+        "short blocks at the recording's ends: {errors:?}"
     );
 }
