@@ -496,7 +496,7 @@ impl ProcessingOptions {
         };
         irls.validate()
             .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
-        Ok(ProcessParams {
+        let params = ProcessParams {
             grid,
             das: DasParams {
                 f_number: self.f_number,
@@ -514,7 +514,16 @@ impl ProcessingOptions {
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
             dealias: self.dealias()?,
-        })
+        };
+        // Refused now, not after imaging: an estimator the grid cannot serve.
+        pipeline::check_doppler_estimator(data.acquisition(), &params).with_context(|| {
+            format!(
+                "--doppler-estimator {} on a {:.1} µm axial grid step",
+                params.doppler_estimator.label(),
+                params.grid.axial_step() * 1e6
+            )
+        })?;
+        Ok(params)
     }
 }
 

@@ -321,6 +321,15 @@ impl DopplerEstimator {
         }
     }
 
+    /// Refuses a series this estimator cannot read on `geometry`: Loupas on an axial step too
+    /// coarse for [`AxialSampling::with_weight`] (the error says what to do); Kasai reads any.
+    pub fn check(self, geometry: &DopplerGeometry) -> Result<()> {
+        match self {
+            DopplerEstimator::Kasai => Ok(()),
+            DopplerEstimator::Loupas => geometry.loupas_axial().map(|_| ()),
+        }
+    }
+
     /// One sentence for reports.
     pub fn describe(self) -> &'static str {
         match self {

@@ -170,6 +170,7 @@ pub fn process(
     params: &ProcessParams,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<ProcessOutput> {
+    check_doppler_estimator(&data.acquisition, params)?;
     let (images, mut timings) = form_images(data, params, progress)?;
     let mut out = analyse(images, params, progress)?;
     timings.append(&mut out.timings);
@@ -407,23 +408,61 @@ pub fn doppler_geometry(
     grid: &Grid,
     angle: Option<usize>,
 ) -> DopplerGeometry {
-    let n = images.angles.len().max(1) as f64;
+    geometry_of(
+        &images.angles,
+        (
+            images.sound_speed,
+            images.frame_rate,
+            images.demodulation_frequency,
+        ),
+        grid,
+        angle,
+    )
+}
+
+/// [`doppler_geometry`] from the angles (rad) and (speed of sound (m/s), frame rate (Hz),
+/// demodulation frequency (Hz)).
+fn geometry_of(
+    angles: &[f64],
+    (sound_speed, frame_rate, demodulation_frequency): (f64, f64, f64),
+    grid: &Grid,
+    angle: Option<usize>,
+) -> DopplerGeometry {
+    let n = angles.len().max(1) as f64;
     let (lateral_weight, axial_weight) = match angle {
-        Some(k) => vector::projection_weights(images.angles[k]),
+        Some(k) => vector::projection_weights(angles[k]),
         None => (
-            images.angles.iter().map(|a| a.sin()).sum::<f64>() / n,
-            1.0 + images.angles.iter().map(|a| a.cos()).sum::<f64>() / n,
+            angles.iter().map(|a| a.sin()).sum::<f64>() / n,
+            1.0 + angles.iter().map(|a| a.cos()).sum::<f64>() / n,
         ),
     };
     DopplerGeometry {
-        sound_speed: images.sound_speed,
-        frame_rate: images.frame_rate,
-        demodulation_frequency: images.demodulation_frequency,
+        sound_speed,
+        frame_rate,
+        demodulation_frequency,
         axial_step: grid.axial_step(),
         axial_weight,
         lateral_step: grid.step(),
         lateral_weight,
     }
+}
+
+/// Refuses, before any work, a Doppler estimator that `params.grid` cannot serve for the
+/// recording `acq`: Loupas on an axial step too coarse to read the echo's mean frequency
+/// ([`doppler::AxialSampling::with_weight`]), at any angle or their compound.
+pub fn check_doppler_estimator(acq: &Acquisition, params: &ProcessParams) -> Result<()> {
+    let angles = &acq.sequence.angles;
+    let scales = (
+        acq.sound_speed,
+        acq.frame_rate(),
+        acq.probe.center_frequency,
+    );
+    for angle in (0..angles.len()).map(Some).chain([None]) {
+        params
+            .doppler_estimator
+            .check(&geometry_of(angles, scales, &params.grid, angle))?;
+    }
+    Ok(())
 }
 
 /// The Doppler moments ([`doppler::moments`]) of each angle's clutter-filtered series of

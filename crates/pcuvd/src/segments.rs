@@ -197,6 +197,7 @@ pub fn process_in_segments(
     let count = ranges.len();
     let shape = params.grid.shape();
     let n = source.acquisition().sequence.n_angles();
+    pipeline::check_doppler_estimator(source.acquisition(), params)?;
     if let Some(d) = dynamics {
         d.validate(source.acquisition().frame_rate())?;
     }
