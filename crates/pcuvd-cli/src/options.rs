@@ -33,6 +33,11 @@ pub struct ProcessingOptions {
     /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd), e.g. 3x3.
     #[arg(long, default_value = "1x1")]
     pub doppler_kernel: String,
+    /// Which frequency turns the Doppler phase into velocity: "loupas" (the mean RF frequency
+    /// measured at every pixel: unbiased whatever the echo spectrum, depth or attenuation) or
+    /// "kasai" (the nominal centre frequency, the paper's eq. 5: reads a few per cent low).
+    #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(pcuvd::doppler::DopplerEstimator::default()))]
+    pub doppler_estimator: DopplerEstimatorOption,
     /// IRLS regularisation λ (mm/s) of the weights 1/(|residual| + λ).
     #[arg(long, default_value_t = IrlsParams::default().lambda_mm_s)]
     pub irls_lambda: f64,
@@ -92,6 +97,33 @@ impl ProcessingOptions {
         spec.starts(frames)
             .context("--ensemble-frames / --ensemble-step")?;
         Ok(Some(spec))
+    }
+}
+
+/// Which frequency turns the Doppler phase into velocity ([`pcuvd::doppler::DopplerEstimator`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+pub enum DopplerEstimatorOption {
+    /// The nominal centre frequency (Kasai; the paper's eq. 5).
+    Kasai,
+    /// The mean RF frequency measured at every pixel (2-D autocorrelation, Loupas).
+    Loupas,
+}
+
+impl From<pcuvd::doppler::DopplerEstimator> for DopplerEstimatorOption {
+    fn from(e: pcuvd::doppler::DopplerEstimator) -> Self {
+        match e {
+            pcuvd::doppler::DopplerEstimator::Kasai => Self::Kasai,
+            pcuvd::doppler::DopplerEstimator::Loupas => Self::Loupas,
+        }
+    }
+}
+
+impl From<DopplerEstimatorOption> for pcuvd::doppler::DopplerEstimator {
+    fn from(e: DopplerEstimatorOption) -> Self {
+        match e {
+            DopplerEstimatorOption::Kasai => Self::Kasai,
+            DopplerEstimatorOption::Loupas => Self::Loupas,
+        }
     }
 }
 
@@ -464,7 +496,7 @@ impl ProcessingOptions {
         };
         irls.validate()
             .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
-        Ok(ProcessParams {
+        let params = ProcessParams {
             grid,
             das: DasParams {
                 f_number: self.f_number,
@@ -477,11 +509,21 @@ impl ProcessingOptions {
                 ..ClutterParams::default()
             },
             doppler_kernel: (rows, cols),
+            doppler_estimator: self.doppler_estimator.into(),
             irls,
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
             dealias: self.dealias()?,
-        })
+        };
+        // Refused now, not after imaging: an estimator the grid cannot serve.
+        pipeline::check_doppler_estimator(data.acquisition(), &params).with_context(|| {
+            format!(
+                "--doppler-estimator {} on a {:.1} µm axial grid step",
+                params.doppler_estimator.label(),
+                params.grid.axial_step() * 1e6
+            )
+        })?;
+        Ok(params)
     }
 }
 

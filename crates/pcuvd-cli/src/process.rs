@@ -286,12 +286,16 @@ impl Plan {
             None
         } else {
             Some(DynamicsSettings {
-                params: dynamics.params(
-                    data.acquisition().frame_rate(),
-                    params.irls,
-                    params.dealias,
-                    params.grid.step(),
-                )?,
+                params: pcuvd::dynamics::DynamicsParams {
+                    // The windows read velocity as the whole-recording maps do.
+                    doppler: params.doppler_estimator,
+                    ..dynamics.params(
+                        data.acquisition().frame_rate(),
+                        params.irls,
+                        params.dealias,
+                        params.grid.step(),
+                    )?
+                },
                 vessel: dynamics.vessel_tests()?,
                 triggers: dynamics.triggers()?,
             })

@@ -24,6 +24,10 @@ fn reduced_paper_study_orders_the_methods() {
             "12",
             "--grid-step",
             "0.1",
+            // Kasai, with which the bounds below were measured: the 0.1 mm grid is too coarse
+            // for Loupas, the default (its axial lag needs a step of at most 99 µm at 15.6 MHz).
+            "--doppler-estimator",
+            "kasai",
             "--noise-db=5",
             "--sweep=-20,5,15",
             "--seed",
@@ -50,6 +54,7 @@ fn reduced_paper_study_orders_the_methods() {
         "noise_sweep",
         "noise_definition",
         "snr_definition",
+        "calibrated",
     ] {
         assert!(!m[key].is_null(), "metrics.json lacks {key}");
     }
@@ -88,10 +93,10 @@ fn reduced_paper_study_orders_the_methods() {
             "{c}: IRLS worse than LS at high noise"
         );
     }
-    // Each method's own bound at this set-up (12 frames, +5 dB, 0.1 mm grid, seed 4), where noise
-    // dominates: measured UVD 46.7 / 4.6 mm/s, PC-UVD 14.5 / 2.2 mm/s (Vx / Vz). Coding raises the
-    // SNR by 10·log10(8) = 9 dB, which should cut a noise-limited phase error by about √8 ≈ 2.8:
-    // PC-UVD must at least halve UVD's error, and neither may regress by more than a third.
+    // Each method's own bound at this set-up (12 frames, +5 dB, 0.1 mm grid, seed 4, Kasai):
+    // measured UVD 42.1 / 4.56 mm/s, PC-UVD 13.2 / 2.57 mm/s (Vx / Vz); neither may regress by
+    // more than about a third of the figures first measured here (46.7 / 4.6 and 14.5 / 2.2,
+    // before the simulator's frequency-dependent attenuation).
     for (est, vx_max, vz_max) in [("uvd_ls", 62.0, 6.1), ("pcuvd_irls", 19.4, 2.9)] {
         assert!(
             r(est, "vx") <= vx_max && r(est, "vz") <= vz_max,
@@ -100,14 +105,44 @@ fn reduced_paper_study_orders_the_methods() {
             r(est, "vz")
         );
     }
+    // Coding against the baseline: the paper's own claim, PC-UVD at least 30 % better than UVD in
+    // each component (its 43.5 % / 30.3 %, Vx / Vz). This test once asked for "at least half",
+    // reasoning that coding's 9 dB cuts a noise-limited phase error by √8 ≈ 2.8. That holds only
+    // where both errors are noise-limited, and PC-UVD's Vz is not here: with frequency-dependent
+    // attenuation the echo's mean frequency falls with depth (about 1 % per mm), and Kasai, which
+    // divides the Doppler phase by the nominal f_0, reads the deeper flow low whatever the noise.
+    // That raised the noise-free Vz floor of this set-up from 1.97 to 2.48 mm/s (−20 dB, both
+    // modes; measured by switching the attenuation's frequency dependence off), above half of
+    // UVD's 4.56. The old bound was an artefact of a simulator whose echoes kept f_0.
     for c in ["vx", "vz"] {
         assert!(
-            r("pcuvd_irls", c) <= 0.5 * r("uvd_ls", c),
-            "{c}: PC-UVD {} vs UVD {}: coding's 9 dB should at least halve a noise-limited error",
+            r("pcuvd_irls", c) <= 0.7 * r("uvd_ls", c),
+            "{c}: PC-UVD {} vs UVD {}: the paper's 30 % improvement",
             r("pcuvd_irls", c),
             r("uvd_ls", c)
         );
     }
+    // And where that floor is, coding's 9 dB must bring PC-UVD's Vz to it: within 15 % of its
+    // own error without noise (the sweep's −20 dB), while UVD's stays far above its floor.
+    let swept = |db: f64, est: &str, c: &str| {
+        m["noise_sweep"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|row| (row["noise_db"].as_f64().unwrap() - db).abs() < 1e-9)
+            .map(|row| row[est][c].as_f64().unwrap())
+            .unwrap()
+    };
+    let floor = swept(-20.0, "pcuvd_irls", "vz");
+    assert!(
+        r("pcuvd_irls", "vz") <= 1.15 * floor,
+        "PC-UVD Vz {} at +5 dB against {floor} without noise",
+        r("pcuvd_irls", "vz")
+    );
+    assert!(
+        r("uvd_ls", "vz") >= 1.5 * swept(-20.0, "uvd_ls", "vz"),
+        "UVD's Vz at +5 dB is not noise-limited"
+    );
     assert!(
         !m["rmse_definition"].is_null(),
         "metrics.json lacks the RMSE definition"

@@ -46,7 +46,9 @@ fn simulated_tube_round_trips_through_process() {
         dir.path().join("coded.toml").to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-        "--grid=-2,2,6,10,0.1",
+        // 0.08 mm: fine enough for the default (Loupas) estimator, which reads the echo's mean
+        // frequency from the axial lag and refuses steps over 98.7 µm at 15.6 MHz.
+        "--grid=-2,2,6,10,0.08",
         "--svd-low",
         "off",
     ]);
@@ -65,6 +67,28 @@ fn simulated_tube_round_trips_through_process() {
     assert_eq!(
         summary["acquisition"]["coding"]["event_alignment"], "mid-frame",
         "coded events are aligned to mid-frame by default"
+    );
+
+    // A grid too coarse for Loupas is refused before any work, saying what to do instead.
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "process",
+        dir.path().join("coded.toml").to_str().unwrap(),
+        "--out",
+        dir.path().join("coarse").to_str().unwrap(),
+        "--grid=-2,2,6,10,0.1",
+    ]);
+    assert!(!ok, "a 0.1 mm axial step is too coarse for Loupas");
+    assert!(
+        stderr.contains("--doppler-estimator loupas")
+            && stderr.contains("finer grid")
+            && stderr.contains("kasai")
+            && stderr.trim_end().lines().count() == 1,
+        "{stderr}"
+    );
+    assert!(
+        !dir.path().join("coarse").exists(),
+        "refused after the output folder was made"
     );
 
     // A recording whose samples file is named like an output, processed into its own folder: the

@@ -442,6 +442,18 @@ pub struct AliasCounts {
     pub at_limit_pixels: usize,
 }
 
+impl AliasCounts {
+    /// Nothing unwrapped: every count 0 for projections of shape `dim` (angles, nz, nx).
+    pub fn none(dim: (usize, usize, usize)) -> AliasCounts {
+        AliasCounts {
+            alias_counts: Array3::zeros(dim),
+            dealiased_pixels: 0,
+            unwrapped_pixels: 0,
+            at_limit_pixels: 0,
+        }
+    }
+}
+
 /// Vector field from projection maps `v_theta` (angles, nz, nx) (m/s; NaN where an angle does not
 /// reach a pixel) at `angles` (rad), dealiased as `dealias` says (see the module docs): projection
 /// Nyquist velocity `nyquist` of each angle and pixel (angles, nz, nx) (m/s; broadcast one value
@@ -478,12 +490,7 @@ pub fn dealiased_vectors(
             return Ok(DealiasedField {
                 field: vector::vector_velocity(angles, v_theta, estimator)?,
                 intervals: 0,
-                counts: AliasCounts {
-                    alias_counts: Array3::zeros((n, nz, nx)),
-                    dealiased_pixels: 0,
-                    unwrapped_pixels: 0,
-                    at_limit_pixels: 0,
-                },
+                counts: AliasCounts::none((n, nz, nx)),
             });
         }
         Dealias::Intervals(k) => k,
@@ -492,6 +499,43 @@ pub fn dealiased_vectors(
     dealias_with(
         angles, v_theta, nyquist, estimator, intervals, quality, flow,
     )
+}
+
+/// As [`dealiased_vectors`], the vectors fitted with measured lateral weights `lateral` (angles,
+/// nz, nx; see [`vector::vector_velocity_measured`]) in place of sin θ; `None` is
+/// [`dealiased_vectors`]. The alias pattern is chosen with the model's rows: measured weights
+/// differ from sin θ by a few hundredths, which moves a projection by a fraction of a mm/s at
+/// the paper's speeds, far less than the 2·v_N a wrong count costs. The unwrapped projections
+/// V_θ + 2k·v_N are then fitted with the measured rows.
+#[allow(clippy::too_many_arguments)]
+pub fn dealiased_vectors_measured(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    lateral: Option<ArrayView3<f64>>,
+    nyquist: ArrayView3<f64>,
+    estimator: &Estimator,
+    dealias: Dealias,
+    quality: ArrayView2<f64>,
+    flow: ArrayView2<bool>,
+) -> Result<DealiasedField> {
+    let Some(lateral) = lateral else {
+        return dealiased_vectors(angles, v_theta, nyquist, estimator, dealias, quality, flow);
+    };
+    if matches!(dealias, Dealias::Off | Dealias::Intervals(0)) {
+        return Ok(DealiasedField {
+            field: vector::vector_velocity_measured(angles, v_theta, lateral, estimator)?,
+            intervals: 0,
+            counts: AliasCounts::none(v_theta.dim()),
+        });
+    }
+    let mut out = dealiased_vectors(angles, v_theta, nyquist, estimator, dealias, quality, flow)?;
+    let mut unwrapped = v_theta.to_owned();
+    ndarray::Zip::from(&mut unwrapped)
+        .and(&out.counts.alias_counts)
+        .and(nyquist)
+        .for_each(|u, &k, &vn| *u += 2.0 * k as f64 * vn);
+    out.field = vector::vector_velocity_measured(angles, unwrapped.view(), lateral, estimator)?;
+    Ok(out)
 }
 
 /// The K that [`Dealias::Auto`] picks for these projections (see there).

@@ -83,6 +83,14 @@ impl Grid {
         }
     }
 
+    /// Axial pixel spacing (m): z[1] − z[0]; NaN for a one-row grid.
+    pub fn axial_step(&self) -> f64 {
+        match self.z.as_slice() {
+            [z0, z1, ..] => z1 - z0,
+            _ => f64::NAN,
+        }
+    }
+
     /// The (row, column) of the pixel nearest to (x, z) (m); a tie goes to the lower index,
     /// and an empty axis gives index 0.
     pub fn nearest_pixel(&self, x: f64, z: f64) -> (usize, usize) {

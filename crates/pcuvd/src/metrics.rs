@@ -137,17 +137,20 @@ pub fn speed_within_fraction_of_peak(
 /// How [`alias_patterns_right`] counts: the definition printed in every report.
 pub const ALIAS_PATTERN_DEFINITION: &str = "fraction of the pixels of the true vessel where the \
 alias count k chosen for every angle that reaches the pixel equals the true one, \
-round((V_θ,true − V_θ,measured)/(2 v_N)): the count that brings the measured projection nearest \
-to the true one (without dealiasing every count is 0)";
+round((V_θ,true − V_θ,measured)/(2 v_N)), v_N the projection's Nyquist velocity at that pixel \
+(c·f_frame/(4 f), f the frequency its phase was scaled by): the count that brings the measured \
+projection nearest to the true one (without dealiasing every count is 0)";
 
 /// Fraction of the true vessel's pixels whose alias counts `counts` (angles, nz, nx) are right
 /// for every angle with a finite projection in `projections` (angles, nz, nx, m/s) at `angles`
-/// (rad), projection Nyquist velocity `nyquist` (m/s); see [`ALIAS_PATTERN_DEFINITION`].
+/// (rad), projection Nyquist velocity `nyquist` (angles, nz, nx, m/s: each pixel's own, as
+/// [`crate::pipeline::ProcessOutput::projection_nyquist`] gives it); see
+/// [`ALIAS_PATTERN_DEFINITION`].
 pub fn alias_patterns_right(
     projections: &Array3<f64>,
     counts: &Array3<i8>,
     angles: &[f64],
-    nyquist: f64,
+    nyquist: &Array3<f64>,
     truth: &Truth,
 ) -> f64 {
     let (mut good, mut total) = (0usize, 0usize);
@@ -164,7 +167,7 @@ pub fn alias_patterns_right(
             }
             let (s, c) = crate::vector::projection_weights(theta);
             let true_projection = 0.5 * (vx * s + vz * c);
-            let k = ((true_projection - measured) / (2.0 * nyquist)).round();
+            let k = ((true_projection - measured) / (2.0 * nyquist[[a, iz, ix]])).round();
             k == f64::from(counts[[a, iz, ix]])
         });
         good += usize::from(right);

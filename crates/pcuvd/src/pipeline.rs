@@ -10,7 +10,7 @@ use crate::channel::{Acquisition, AngleSamples, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
-use crate::doppler::{self, Autocorrelation};
+use crate::doppler::{self, DopplerEstimator, DopplerGeometry, Moments};
 use crate::dynamics::{self, DynamicsParams, RiMaps, VelocitySeries, VesselTests};
 use crate::error::{Error, Result, invalid};
 use crate::grid::Grid;
@@ -31,6 +31,8 @@ pub struct ProcessParams {
     pub clutter: ClutterParams,
     /// Spatial averaging box (rows, cols) of the autocorrelation; odd sizes.
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scales the Doppler phase (see [`doppler::DopplerEstimator`]).
+    pub doppler_estimator: doppler::DopplerEstimator,
     /// IRLS settings of the PC-UVD estimator.
     pub irls: IrlsParams,
     /// IQ low-pass cut-off (Hz); `None` picks [`iq::default_cutoff`].
@@ -88,14 +90,22 @@ pub struct ProcessOutput {
     pub projections: Array3<f64>,
     /// Per angle, the pixels its plane wave reaches (angles, nz, nx); see [`angle_coverage`].
     pub coverage: Array3<bool>,
+    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx):
+    /// sin θ (Kasai) or measured from the images (Loupas); see
+    /// [`doppler::DopplerMaps::lateral_weight`].
+    pub lateral_weights: Array3<f64>,
     /// Vector field by least squares (UVD); `None` with a single angle.
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
     pub vector_irls: Option<VectorField>,
     /// What vector dealiasing did; `None` when it is off or with a single angle.
     pub dealias: Option<DealiasOutcome>,
-    /// Nyquist velocity of each projection (m/s).
+    /// Nyquist velocity of each projection at the demodulation frequency (m/s): Kasai's.
     pub nyquist_velocity: f64,
+    /// Nyquist velocity of each projection at each pixel (angles, nz, nx), m/s: c·f_frame/(4 f̄),
+    /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
+    /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
+    pub projection_nyquist: Array3<f64>,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
     /// Clutter-filtered per-angle IQ series, each (nz, nx, frames), with their metadata; kept
@@ -128,10 +138,12 @@ impl ProcessOutput {
             power_per_angle: maps.power_per_angle,
             projections: maps.projections,
             coverage: maps.coverage,
+            lateral_weights: maps.lateral_weights,
             vector_ls: maps.vector_ls,
             vector_irls: maps.vector_irls,
             dealias: maps.dealias,
             nyquist_velocity: maps.nyquist_velocity,
+            projection_nyquist: maps.projection_nyquist,
             clutter,
             filtered,
             timings,
@@ -158,6 +170,7 @@ pub fn process(
     params: &ProcessParams,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<ProcessOutput> {
+    check_doppler_estimator(&data.acquisition, params)?;
     let (images, mut timings) = form_images(data, params, progress)?;
     let mut out = analyse(images, params, progress)?;
     timings.append(&mut out.timings);
@@ -450,7 +463,7 @@ pub fn analyse(
 
     let clock = Instant::now();
     progress(Stage::Doppler, 0, 1);
-    let (per_angle, compound) = autocorrelations(&images.series, params.doppler_kernel)?;
+    let (per_angle, compound) = moments(&images, params, None)?;
     let maps = doppler_maps(&per_angle, &compound, &images, params)?;
     progress(Stage::Doppler, 1, 1);
     timings.push((Stage::Doppler, clock.elapsed().as_secs_f64()));
@@ -465,17 +478,98 @@ pub fn analyse(
     ))
 }
 
-/// Power and lag-1 autocorrelation of each angle's clutter-filtered series (nz, nx, frames) and
-/// of their compound, averaged over `kernel` (see [`doppler::autocorrelation`]).
-pub fn autocorrelations(
-    series: &[Array3<Complex32>],
-    kernel: (usize, usize),
-) -> Result<(Vec<Autocorrelation>, Autocorrelation)> {
-    let per_angle = series
+/// What turns angle `angle`'s series (`None`: the compound's) of `images` into velocity: the
+/// sampling of `grid` and the echo path's weights, (sin θ, 1 + cos θ) for one angle and the
+/// angles' means for their compound.
+pub fn doppler_geometry(
+    images: &AngleImages,
+    grid: &Grid,
+    angle: Option<usize>,
+) -> DopplerGeometry {
+    geometry_of(
+        &images.angles,
+        (
+            images.sound_speed,
+            images.frame_rate,
+            images.demodulation_frequency,
+        ),
+        grid,
+        angle,
+    )
+}
+
+/// [`doppler_geometry`] from the angles (rad) and (speed of sound (m/s), frame rate (Hz),
+/// demodulation frequency (Hz)).
+fn geometry_of(
+    angles: &[f64],
+    (sound_speed, frame_rate, demodulation_frequency): (f64, f64, f64),
+    grid: &Grid,
+    angle: Option<usize>,
+) -> DopplerGeometry {
+    let n = angles.len().max(1) as f64;
+    let (lateral_weight, axial_weight) = match angle {
+        Some(k) => vector::projection_weights(angles[k]),
+        None => (
+            angles.iter().map(|a| a.sin()).sum::<f64>() / n,
+            1.0 + angles.iter().map(|a| a.cos()).sum::<f64>() / n,
+        ),
+    };
+    DopplerGeometry {
+        sound_speed,
+        frame_rate,
+        demodulation_frequency,
+        axial_step: grid.axial_step(),
+        axial_weight,
+        lateral_step: grid.step(),
+        lateral_weight,
+    }
+}
+
+/// Refuses, before any work, a Doppler estimator that `params.grid` cannot serve for the
+/// recording `acq`: Loupas on an axial step too coarse to read the echo's mean frequency
+/// ([`doppler::AxialSampling::with_weight`]), at any angle or their compound.
+pub fn check_doppler_estimator(acq: &Acquisition, params: &ProcessParams) -> Result<()> {
+    let angles = &acq.sequence.angles;
+    let scales = (
+        acq.sound_speed,
+        acq.frame_rate(),
+        acq.probe.center_frequency,
+    );
+    for angle in (0..angles.len()).map(Some).chain([None]) {
+        params
+            .doppler_estimator
+            .check(&geometry_of(angles, scales, &params.grid, angle))?;
+    }
+    Ok(())
+}
+
+/// The Doppler moments ([`doppler::moments`]) of each angle's clutter-filtered series of
+/// `images` (nz, nx, frames) and of their compound, for `params.doppler_estimator`; a range of
+/// `frames` only, when given (a segment's own frames).
+pub fn moments(
+    images: &AngleImages,
+    params: &ProcessParams,
+    frames: Option<std::ops::Range<usize>>,
+) -> Result<(Vec<Moments>, Moments)> {
+    let range = frames.unwrap_or(0..images.n_frames());
+    let per_angle = images
+        .series
         .iter()
-        .map(|image| doppler::autocorrelation(image.view(), kernel))
+        .enumerate()
+        .map(|(k, image)| {
+            doppler::moments(
+                image.slice(ndarray::s![.., .., range.clone()]),
+                params.doppler_estimator,
+                &doppler_geometry(images, &params.grid, Some(k)),
+            )
+        })
         .collect::<Result<Vec<_>>>()?;
-    let compound = doppler::autocorrelation(beamform::compound(series)?.view(), kernel)?;
+    let compound = beamform::compound(&images.series)?;
+    let compound = doppler::moments(
+        compound.slice(ndarray::s![.., .., range]),
+        params.doppler_estimator,
+        &doppler_geometry(images, &params.grid, None),
+    )?;
     Ok((per_angle, compound))
 }
 
@@ -492,22 +586,30 @@ pub struct DopplerMaps {
     pub projections: Array3<f64>,
     /// Per angle, the pixels its plane wave reaches (angles, nz, nx).
     pub coverage: Array3<bool>,
+    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx): sin θ
+    /// (Kasai) or measured (Loupas); see [`doppler::DopplerMaps::lateral_weight`].
+    pub lateral_weights: Array3<f64>,
     /// Vector field by least squares (UVD); `None` with a single angle.
     pub vector_ls: Option<VectorField>,
     /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
     pub vector_irls: Option<VectorField>,
     /// What vector dealiasing did; `None` when it is off or with a single angle.
     pub dealias: Option<DealiasOutcome>,
-    /// Nyquist velocity of each projection (m/s).
+    /// Nyquist velocity of each projection at the demodulation frequency (m/s); Loupas unwraps
+    /// each pixel with its own, c·f_frame/(4 f̄).
     pub nyquist_velocity: f64,
+    /// Each projection's Nyquist velocity at each pixel (angles, nz, nx), m/s; see
+    /// [`ProcessOutput::projection_nyquist`].
+    pub projection_nyquist: Array3<f64>,
 }
 
-/// Velocities and vectors from autocorrelations ([`autocorrelations`], or sums of them over the
-/// segments of a long recording): `images` gives the angles, frame rate, speed of sound,
-/// demodulation frequency and coverage (its series are not read).
+/// Velocities and vectors from Doppler moments ([`moments`], or those of several segments of a
+/// long recording merged, [`doppler::Moments::merge`]) with `params`' kernel, estimator and
+/// dealiasing: `images` gives the angles, frame rate, speed of sound, demodulation frequency and
+/// coverage (its series are not read).
 pub fn doppler_maps(
-    per_angle: &[Autocorrelation],
-    compound: &Autocorrelation,
+    per_angle: &[Moments],
+    compound: &Moments,
     images: &AngleImages,
     params: &ProcessParams,
 ) -> Result<DopplerMaps> {
@@ -515,7 +617,7 @@ pub fn doppler_maps(
     let n = angles.len();
     if per_angle.len() != n {
         return Err(invalid(
-            "autocorrelations",
+            "Doppler moments",
             format!("{} for {n} angles", per_angle.len()),
         ));
     }
@@ -524,27 +626,54 @@ pub fn doppler_maps(
     let (nz, nx) = params.grid.shape();
     let mut projections = Array3::<f64>::zeros((n, nz, nx));
     let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
-    for (k, ac) in per_angle.iter().enumerate() {
+    let mut lateral_weights = Array3::<f64>::zeros((n, nz, nx));
+    // Each pixel's projection Nyquist velocity, c·f_frame/(4 f̄): its own mean frequency's.
+    let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
+    for (k, m) in per_angle.iter().enumerate() {
+        let maps = doppler::maps_of_moments(
+            m,
+            params.doppler_kernel,
+            params.doppler_estimator,
+            &doppler_geometry(images, &params.grid, Some(k)),
+        )?;
         projections
             .index_axis_mut(Axis(0), k)
-            .assign(&doppler::projection_velocity(&ac.r1, c, frame_rate, f0)?);
-        power_per_angle.index_axis_mut(Axis(0), k).assign(&ac.power);
+            .assign(&maps.velocity);
+        lateral_weights
+            .index_axis_mut(Axis(0), k)
+            .assign(&maps.lateral_weight);
+        nyquist.index_axis_mut(Axis(0), k).assign(
+            &maps
+                .mean_frequency
+                .mapv(|f| doppler::nyquist_velocity(c, frame_rate, f)),
+        );
+        power_per_angle
+            .index_axis_mut(Axis(0), k)
+            .assign(&maps.power);
     }
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
-    // angle sets): rescale its projection to the axial velocity.
+    // angle sets): rescale its velocity to the axial velocity.
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
-    let axial = doppler::projection_velocity(&compound.r1, c, frame_rate, f0)?
-        .mapv(|v| 2.0 * v / (1.0 + mean_cos));
+    let doppler::DopplerMaps {
+        power, velocity, ..
+    } = doppler::maps_of_moments(
+        compound,
+        params.doppler_kernel,
+        params.doppler_estimator,
+        &doppler_geometry(images, &params.grid, None),
+    )?;
+    let axial = velocity.mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = images
         .coverage
         .clone()
         .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
     let nyquist_velocity = doppler::nyquist_velocity(c, frame_rate, f0);
-    let power = &compound.power;
+    // Kasai's rows are the model's; Loupas fits its measured lateral weights.
+    let lateral =
+        (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
     let (vector_ls, vector_irls, dealiased) = if n >= 2 {
-        let flow = doppler::above_noise_floor(power, dealias::FLOW_MARGIN_DB);
-        let nyquist = dealias::uniform(nyquist_velocity, projections.dim());
+        let flow = doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB);
         let setting = match params.dealias {
             Dealias::Auto => Dealias::Intervals(dealias::auto_intervals(
                 angles,
@@ -556,9 +685,10 @@ pub fn doppler_maps(
             other => other,
         };
         let solve = |estimator: &Estimator| {
-            dealias::dealiased_vectors(
+            dealias::dealiased_vectors_measured(
                 angles,
                 projections.view(),
+                lateral,
                 nyquist.view(),
                 estimator,
                 setting,
@@ -579,15 +709,17 @@ pub fn doppler_maps(
         (None, None, None)
     };
     Ok(DopplerMaps {
-        power_doppler: power.clone(),
+        power_doppler: power,
         color_doppler: axial,
         power_per_angle,
         projections,
         coverage,
+        lateral_weights,
         vector_ls,
         vector_irls,
         dealias: dealiased,
         nyquist_velocity,
+        projection_nyquist: nyquist,
     })
 }
 
@@ -699,9 +831,7 @@ fn block_bytes_per_frame(source: &dyn FrameSource) -> u64 {
 /// recordings aligned at mid-frame.
 pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -> Blocks {
     let frames = source.n_frames();
-    // A multiple of 16 frames: with 8 frames of margin on either side a block decodes 16·k
-    // frames, and the alignment's FFTs (of twice that length) stay fast; a prime length made
-    // decoding five times slower.
+    // A multiple of 16 frames, so that blocks of a long recording are all alike.
     let fit = ((BLOCK_BYTES / block_bytes_per_frame(source).max(1)) as usize / 16).max(1) * 16;
     if fit >= frames {
         return Blocks::whole(frames);

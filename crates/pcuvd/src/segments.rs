@@ -7,10 +7,12 @@
 //! starting in it lies inside one segment), clutter-filtered on its own, and then dropped. What
 //! the maps need accumulates across segments:
 //!
-//! - power and lag-1 autocorrelation are sums over frames and frame pairs, so each core's sums are
-//!   added (before the spatial box average, which is linear) and the velocities taken from the
-//!   totals: the maps are those of one long ensemble, except that each segment has its own clutter
-//!   subspace and the pairs across a cut are not counted;
+//! - the Doppler moments ([`crate::doppler::Moments`]: power, lag-1 autocorrelation and, for
+//!   Loupas, the axial (and lateral) lags at temporal lags ±1) are means over frames and frame
+//!   pairs, so each core's are combined ([`crate::doppler::Moments::merge`], before the spatial
+//!   box average, which is linear) and the velocities taken from the totals: the maps are those
+//!   of one long ensemble, except that each segment has its own clutter subspace and the pairs
+//!   across a cut are not counted;
 //! - the B-mode's mean envelope is summed over the cores the same way (unfiltered: exact);
 //! - dynamics windows and ensembles start on the same frames as the whole-recording path's, each
 //!   computed in the segment whose core holds its start;
@@ -24,12 +26,11 @@
 use std::ops::Range;
 
 use ndarray::{Array2, Axis, Zip, s};
-use num_complex::{Complex32, Complex64};
 
 use crate::beamform;
 use crate::clutter::{self, ClutterReport};
 use crate::dealias::Dealias;
-use crate::doppler::{self, Autocorrelation};
+use crate::doppler::Moments;
 use crate::dynamics::{self, DynamicsParams, VelocitySeries};
 use crate::ensembles::{self, EnsembleMaps, EnsembleSpec};
 use crate::error::{Result, invalid};
@@ -158,46 +159,24 @@ pub struct Segmented {
     pub clutter: Vec<Vec<ClutterReport>>,
 }
 
-/// Running sums of power and lag-1 autocorrelation over frames and frame pairs.
-struct Sums {
-    power: Array2<f64>,
-    r1: Array2<Complex64>,
-    frames: usize,
-    pairs: usize,
-}
+/// The Doppler moments of the cores so far, merged ([`doppler::Moments::merge`]).
+#[derive(Default)]
+struct Sums(Option<Moments>);
 
 impl Sums {
-    fn new(shape: (usize, usize)) -> Sums {
-        Sums {
-            power: Array2::zeros(shape),
-            r1: Array2::zeros(shape),
-            frames: 0,
-            pairs: 0,
+    /// Adds the moments of a core's frames.
+    fn add(&mut self, moments: Moments) -> Result<()> {
+        match &mut self.0 {
+            None => self.0 = Some(moments),
+            Some(total) => total.merge(&moments)?,
         }
-    }
-
-    /// Adds the frames of `series` (nz, nx, frames ≥ 2).
-    fn add(&mut self, series: ndarray::ArrayView3<Complex32>) -> Result<()> {
-        let frames = series.dim().2;
-        let ac = doppler::autocorrelation(series, (1, 1))?;
-        Zip::from(&mut self.power)
-            .and(&ac.power)
-            .for_each(|s, &p| *s += p * frames as f64);
-        Zip::from(&mut self.r1)
-            .and(&ac.r1)
-            .for_each(|s, &r| *s += r * (frames - 1) as f64);
-        self.frames += frames;
-        self.pairs += frames - 1;
         Ok(())
     }
 
-    fn mean(&self, kernel: (usize, usize)) -> Result<Autocorrelation> {
-        let (frames, pairs) = (self.frames.max(1) as f64, self.pairs.max(1) as f64);
-        Autocorrelation {
-            power: &self.power / frames,
-            r1: &self.r1 / pairs,
-        }
-        .box_averaged(kernel)
+    fn total(&self) -> Result<&Moments> {
+        self.0
+            .as_ref()
+            .ok_or_else(|| invalid("frames", "the recording has no frames"))
     }
 }
 
@@ -218,13 +197,14 @@ pub fn process_in_segments(
     let count = ranges.len();
     let shape = params.grid.shape();
     let n = source.acquisition().sequence.n_angles();
+    pipeline::check_doppler_estimator(source.acquisition(), params)?;
     if let Some(d) = dynamics {
         d.validate(source.acquisition().frame_rate())?;
     }
     // The windows' dealiasing; an automatic K is settled on the first segment's maps below.
     let mut dynamics = dynamics.copied();
-    let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::new(shape)).collect();
-    let mut compound = Sums::new(shape);
+    let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::default()).collect();
+    let mut compound = Sums::default();
     let mut envelope = Array2::<f64>::zeros(shape);
     let mut windows: Vec<VelocitySeries> = Vec::new();
     let mut ensemble_parts: Vec<EnsembleMaps> = Vec::new();
@@ -285,10 +265,12 @@ pub fn process_in_segments(
 
         let clock = std::time::Instant::now();
         progress(Stage::Doppler, k, count);
-        for (sums, image) in per_angle.iter_mut().zip(&images.series) {
-            sums.add(image.slice(s![.., .., own.clone()]))?;
+        let (angle_moments, compound_moments) =
+            pipeline::moments(&images, params, Some(own.clone()))?;
+        for (sums, m) in per_angle.iter_mut().zip(angle_moments) {
+            sums.add(m)?;
         }
-        compound.add(beamform::compound(&images.series)?.slice(s![.., .., own.clone()]))?;
+        compound.add(compound_moments)?;
         if k == 0
             && let Some(d) = dynamics.as_mut()
             && d.dealias == Dealias::Auto
@@ -300,9 +282,9 @@ pub fn process_in_segments(
             let first = pipeline::doppler_maps(
                 &per_angle
                     .iter()
-                    .map(|s| s.mean(params.doppler_kernel))
+                    .map(|s| s.total().cloned())
                     .collect::<Result<Vec<_>>>()?,
-                &compound.mean(params.doppler_kernel)?,
+                compound.total()?,
                 &images,
                 params,
             )?;
@@ -327,12 +309,11 @@ pub fn process_in_segments(
     progress(Stage::Doppler, count, count);
     let images = meta.ok_or_else(|| invalid("frames", "the recording has no frames"))?;
     let per_angle = per_angle
-        .into_iter()
-        .map(|s| s.mean(params.doppler_kernel))
+        .iter()
+        .map(|s| s.total().cloned())
         .collect::<Result<Vec<_>>>()?;
-    let compound = compound.mean(params.doppler_kernel)?;
     let clock = std::time::Instant::now();
-    let maps = pipeline::doppler_maps(&per_angle, &compound, &images, params)?;
+    let maps = pipeline::doppler_maps(&per_angle, compound.total()?, &images, params)?;
     add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
     let bmode_db = beamform::bmode_db_of_envelope(envelope / total as f64);
     let series = match dynamics {

@@ -102,14 +102,17 @@ pub struct Blocks {
 }
 
 impl Blocks {
-    /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording. The
-    /// alignment resamples each event's slow-time series by FFT, so a series cut at a block's
-    /// decoded ends differs from the whole recording's by an error that falls about as 1/distance
-    /// into the block: with 8 frames the images differ by at most 7·10⁻⁴ of their peak, and the
-    /// projections inside a tube by 0.3 µm/s RMS, against the estimator's own 0.8 mm/s
-    /// (`tests/blocks.rs`, 12-frame blocks, noise −20 dB); on the 360-frame coded rat network,
-    /// in 31-frame blocks, the vessels' projections by 0.3 µm/s RMS (largest 9 µm/s).
-    pub const ALIGNMENT_MARGIN: usize = 8;
+    /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording: the
+    /// alignment's reach ([`crate::decode::ALIGN_HALF`]). Each aligned frame is a weighted sum of
+    /// that many frames on either side, so a block's frames come out as the whole recording's
+    /// (`tests/blocks.rs`); near the recording's own ends see [`Blocks::END_FRAMES`].
+    pub const ALIGNMENT_MARGIN: usize = crate::decode::ALIGN_HALF;
+
+    /// Frames a decoded range holds at least where it reaches an end of the recording (with a
+    /// margin): those the alignment's linear predictor is fitted on
+    /// ([`crate::decode::ALIGN_FIT_FRAMES`]), so that it predicts beyond the end as the whole
+    /// recording's does.
+    pub const END_FRAMES: usize = crate::decode::ALIGN_FIT_FRAMES;
 
     /// The whole recording of `frames` frames as one block: the reference path.
     pub fn whole(frames: usize) -> Blocks {
@@ -126,7 +129,10 @@ impl Blocks {
 
     /// As [`Blocks::ranges`], for the frames `frames` of a recording of `total` frames: the
     /// blocks tile `frames`, and their margins reach into the frames around it (a segment of a
-    /// long recording decodes as the whole recording would).
+    /// long recording decodes as the whole recording would). With a margin, a decoded range
+    /// that reaches the recording's first or last frame holds at least [`Blocks::END_FRAMES`]
+    /// frames (all, when fewer): beyond its ends the alignment continues the series by a
+    /// predictor fitted on that many frames, which must be the whole recording's.
     pub fn ranges_in(
         &self,
         frames: Range<usize>,
@@ -134,12 +140,24 @@ impl Blocks {
     ) -> Vec<(Range<usize>, Range<usize>)> {
         let step = self.frames.max(1);
         let end_of_frames = frames.end.min(total);
+        let at_ends = if self.margin > 0 {
+            Self::END_FRAMES.min(total)
+        } else {
+            0
+        };
         (frames.start..end_of_frames)
             .step_by(step)
             .map(|start| {
                 let end = (start + step).min(end_of_frames);
-                let decoded = start.saturating_sub(self.margin)..(end + self.margin).min(total);
-                (start..end, decoded)
+                let mut first = start.saturating_sub(self.margin);
+                let mut last = (end + self.margin).min(total);
+                if first == 0 {
+                    last = last.max(at_ends);
+                }
+                if last == total {
+                    first = first.min(total - at_ends);
+                }
+                (start..end, first..last)
             })
             .collect()
     }
@@ -155,10 +173,26 @@ mod tests {
             frames: 4,
             margin: 2,
         };
+        // Ranges that reach an end hold the predictor's END_FRAMES frames: here all 10.
         assert_eq!(
             blocks.ranges(10),
-            vec![(0..4, 0..6), (4..8, 2..10), (8..10, 6..10)]
+            vec![(0..4, 0..10), (4..8, 0..10), (8..10, 0..10)]
         );
         assert_eq!(Blocks::whole(10).ranges(10), vec![(0..10, 0..10)]);
+        let blocks = Blocks {
+            frames: 8,
+            margin: 2,
+        };
+        let ranges = blocks.ranges(60);
+        assert_eq!(ranges[0], (0..8, 0..Blocks::END_FRAMES));
+        assert_eq!(ranges[1], (8..16, 6..18));
+        assert_eq!(ranges[6], (48..56, 46..58));
+        assert_eq!(ranges[7], (56..60, 60 - Blocks::END_FRAMES..60));
+        // Without a margin (nothing aligned) every block decodes only itself.
+        let bare = Blocks {
+            frames: 8,
+            margin: 0,
+        };
+        assert!(bare.ranges(60).iter().all(|(b, d)| b == d));
     }
 }

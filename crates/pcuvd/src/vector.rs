@@ -89,11 +89,11 @@ pub fn projection_weights(theta: f64) -> (f64, f64) {
     (theta.sin(), theta.cos() + 1.0)
 }
 
-/// Weighted least-squares solution (Vx, Vz) of A·v = 2·V_θ with weights `w`.
-fn weighted_solve(angles: &[f64], v_theta: &[f64], w: &[f64]) -> Option<(f64, f64)> {
+/// Weighted least-squares solution (Vx, Vz) of rows·v = 2·V_θ with weights `w`; each row is an
+/// angle's (lateral, axial) weight, (sin θ, 1 + cos θ) in the paper's model.
+fn weighted_solve(rows: &[(f64, f64)], v_theta: &[f64], w: &[f64]) -> Option<(f64, f64)> {
     let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((&th, &v), &wi) in angles.iter().zip(v_theta).zip(w) {
-        let (s, c) = projection_weights(th);
+    for ((&(s, c), &v), &wi) in rows.iter().zip(v_theta).zip(w) {
         a11 += wi * s * s;
         a12 += wi * s * c;
         a22 += wi * c * c;
@@ -109,32 +109,39 @@ fn weighted_solve(angles: &[f64], v_theta: &[f64], w: &[f64]) -> Option<(f64, f6
 
 /// Solves one pixel: (Vx, Vz) in m/s from projections `v_theta` (m/s) at `angles` (rad).
 pub fn solve_pixel(angles: &[f64], v_theta: &[f64], estimator: &Estimator) -> (f64, f64) {
+    let rows: Vec<(f64, f64)> = angles.iter().map(|&a| projection_weights(a)).collect();
+    solve_rows(&rows, v_theta, estimator)
+}
+
+/// Solves one pixel: (Vx, Vz) in m/s from projections `v_theta` (m/s) whose model rows are
+/// `rows` = (lateral, axial) weights per angle: lateral·Vx + axial·Vz = 2·V_θ. A projection that
+/// is not finite is left out; fewer than two left give NaN.
+pub fn solve_rows(rows: &[(f64, f64)], v_theta: &[f64], estimator: &Estimator) -> (f64, f64) {
     if v_theta.iter().any(|v| !v.is_finite()) {
-        let (kept_angles, kept): (Vec<f64>, Vec<f64>) = angles
+        let (kept_rows, kept): (Vec<(f64, f64)>, Vec<f64>) = rows
             .iter()
             .zip(v_theta)
             .filter(|(_, v)| v.is_finite())
-            .map(|(&a, &v)| (a, v))
+            .map(|(&r, &v)| (r, v))
             .unzip();
         if kept.len() < 2 {
             return (f64::NAN, f64::NAN);
         }
-        return solve_pixel(&kept_angles, &kept, estimator);
+        return solve_rows(&kept_rows, &kept, estimator);
     }
-    let n = angles.len();
+    let n = rows.len();
     let mut w = vec![1.0 / n as f64; n];
-    let Some(mut v) = weighted_solve(angles, v_theta, &w) else {
+    let Some(mut v) = weighted_solve(rows, v_theta, &w) else {
         return (f64::NAN, f64::NAN);
     };
     let Estimator::Irls(p) = estimator else {
         return v;
     };
     for _ in 0..p.max_iterations {
-        let mut new_w: Vec<f64> = angles
+        let mut new_w: Vec<f64> = rows
             .iter()
             .zip(v_theta)
-            .map(|(&th, &vt)| {
-                let (s, c) = projection_weights(th);
+            .map(|(&(s, c), &vt)| {
                 let residual_mm_s = (2.0 * vt - v.1 * c - v.0 * s) * 1e3;
                 1.0 / (residual_mm_s.abs() + p.lambda_mm_s)
             })
@@ -147,7 +154,7 @@ pub fn solve_pixel(angles: &[f64], v_theta: &[f64], estimator: &Estimator) -> (f
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
         w = new_w;
-        match weighted_solve(angles, v_theta, &w) {
+        match weighted_solve(rows, v_theta, &w) {
             Some(next) => v = next,
             None => break,
         }
@@ -174,6 +181,35 @@ pub fn vector_velocity(
     v_theta: ArrayView3<f64>,
     estimator: &Estimator,
 ) -> Result<VectorField> {
+    field(angles, v_theta, None, estimator)
+}
+
+/// As [`vector_velocity`], each projection with its own lateral weight `lateral` (angles, nz,
+/// nx) in place of sin θ (the model row of angle k at a pixel is (lateral[k], 1 + cos θ_k)): the
+/// weights [`crate::doppler::doppler_maps`] measures (Loupas), which follow the receive aperture
+/// and the speckle. A weight that is not finite falls back to sin θ.
+pub fn vector_velocity_measured(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    lateral: ArrayView3<f64>,
+    estimator: &Estimator,
+) -> Result<VectorField> {
+    if lateral.dim() != v_theta.dim() {
+        return Err(Error::Shape(format!(
+            "lateral weights {:?} for projections {:?}",
+            lateral.dim(),
+            v_theta.dim()
+        )));
+    }
+    field(angles, v_theta, Some(lateral), estimator)
+}
+
+fn field(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    lateral: Option<ArrayView3<f64>>,
+    estimator: &Estimator,
+) -> Result<VectorField> {
     let (n, nz, nx) = v_theta.dim();
     if n != angles.len() {
         return Err(Error::Shape(format!(
@@ -187,15 +223,28 @@ pub fn vector_velocity(
     if let Estimator::Irls(p) = estimator {
         p.validate()?;
     }
+    let nominal: Vec<(f64, f64)> = angles.iter().map(|&a| projection_weights(a)).collect();
     let mut vx = Array2::<f64>::zeros((nz, nx));
     let mut vz = Array2::<f64>::zeros((nz, nx));
     let lanes = v_theta.permuted_axes([1, 2, 0]);
-    Zip::from(&mut vx)
+    let lateral = lateral.map(|l| l.permuted_axes([1, 2, 0]));
+    Zip::indexed(&mut vx)
         .and(&mut vz)
         .and(lanes.lanes(Axis(2)))
-        .par_for_each(|x, z, proj| {
+        .par_for_each(|(iz, ix), x, z, proj| {
             let proj: Vec<f64> = proj.to_vec();
-            (*x, *z) = solve_pixel(angles, &proj, estimator);
+            let rows: Vec<(f64, f64)> = match &lateral {
+                None => nominal.clone(),
+                Some(l) => nominal
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &(s, c))| {
+                        let m = l[[iz, ix, k]];
+                        (if m.is_finite() { m } else { s }, c)
+                    })
+                    .collect(),
+            };
+            (*x, *z) = solve_rows(&rows, &proj, estimator);
         });
     Ok(VectorField { vx, vz })
 }

@@ -25,6 +25,16 @@ const C: f64 = 1540.0;
 const FRAME_RATE: f64 = 1800.0;
 const F0: f64 = 15.625e6;
 
+/// The rat preset with the nominal-frequency (Kasai) Doppler: the synthetic series below are a
+/// Doppler tone per pixel with no echo along depth (their mean frequency is the nominal one by
+/// construction, and a 0.1 mm grid is too coarse to measure one at 15.6 MHz).
+fn rat() -> DynamicsParams {
+    DynamicsParams {
+        doppler: pcuvd::doppler::DopplerEstimator::Kasai,
+        ..DynamicsParams::rat()
+    }
+}
+
 /// `iq` (per angle, (nz, nx, frames)) with the test's sound speed and centre frequency, at
 /// `frame_rate` (Hz), on a 0.1 mm grid of its shape.
 fn images(
@@ -216,7 +226,7 @@ fn pulsatile_case() -> (Vec<Array3<Complex32>>, Vec<Vessel>, f64) {
 fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     let (iq, vessels, hr) = pulsatile_case();
     let angles = paper_angles();
-    let mut params = DynamicsParams::rat();
+    let mut params = rat();
     params.heart_rate_hz = None;
     let series = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &params).unwrap();
     assert_eq!(series.len(), (750 - 36) / 9 + 1);
@@ -315,7 +325,7 @@ fn rat_preset_measures_one_cycle_in_a_fifth_of_a_second() {
         dir: unit(10.0, true),
     };
     let iq = synthetic_iq(&[vessel], (1, 2), 360, 5.5, 4e-4, 11);
-    let params = DynamicsParams::rat();
+    let params = rat();
     let series = sliding_vectors(&images(&iq, &paper_angles(), FRAME_RATE, None), &params).unwrap();
     assert_eq!(series.len(), 37);
     let maps = ri_maps(&series, &params).unwrap();
@@ -419,7 +429,7 @@ fn angles_that_miss_a_pixel_are_left_out_of_its_vectors() {
     let mut coverage = Array3::from_elem((angles.len(), 2, 3), true);
     coverage[[0, iz, ix]] = false;
     coverage[[1, iz, ix]] = false;
-    let params = DynamicsParams::rat();
+    let params = rat();
     let vessel = vessels.iter().find(|v| v.pixel == (iz, ix)).unwrap();
     let rms = |series: &VelocitySeries| {
         let sq: f64 = series
@@ -487,7 +497,7 @@ fn bad_input_is_refused_with_clear_errors() {
     let run = |p: DynamicsParams| sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &p);
     let base = DynamicsParams {
         heart_rate_hz: None,
-        ..DynamicsParams::rat()
+        ..rat()
     };
     is_invalid(
         run(DynamicsParams {
@@ -658,7 +668,7 @@ fn harmonic_fit_removes_the_outward_bias_of_noisy_extremes() {
         })
         .collect();
     let iq = synthetic_iq(&vessels, (1, 40), 360, hr, 0.1, 11);
-    let params = DynamicsParams::rat();
+    let params = rat();
     let series = sliding_vectors(&images(&iq, &paper_angles(), FRAME_RATE, None), &params).unwrap();
     let median_ri = |harmonics| {
         let maps = ri_maps(
@@ -704,7 +714,7 @@ fn vessel_pooling_cuts_ri_jitter_without_mixing_opposite_flows() {
         })
         .collect();
     let series = noisy_window_series(&rows, 24, sigma, 9);
-    let params = DynamicsParams::rat();
+    let params = rat();
     let maps = |pooling| ri_maps(&series, &DynamicsParams { pooling, ..params }).unwrap();
     let alone = maps(None);
     let pooling = VesselPooling::from_metres(0.15e-3, 0.15e-3, 30.0, 0.05e-3)
@@ -843,7 +853,7 @@ fn vessel_pooling_follows_the_vessel_and_keeps_parallel_vessels_apart() {
     for iz in 3..7 {
         series.power.slice_mut(ndarray::s![.., iz, ..]).fill(0.0);
     }
-    let params = DynamicsParams::rat();
+    let params = rat();
     let maps = |along, across| {
         let pooling = VesselPooling {
             along,

@@ -261,3 +261,392 @@ fn block_projections_with(
         }
     }
 }
+
+/// A probe, its receive grid step and the block of one round trip.
+struct BlockCase {
+    depth: f64,
+    speed: f64,
+    /// Flow direction (degrees) from +z (deeper) toward +x.
+    direction_deg: f64,
+    /// Element pitch (m): the L22-14vX's 0.1 mm, or half of it.
+    pitch: f64,
+}
+
+/// What the pipeline read from one translating block: per-angle projection error (region mean
+/// minus truth, as a fraction of the speed) and the region-mean vector's speed error (fraction)
+/// and direction error (degrees).
+struct BlockReading {
+    /// The image's mean RF frequency over f_c (median over the region, the angle nearest 0°).
+    mean_frequency_ratio: f64,
+    projection_errors: Vec<f64>,
+    speed_error: f64,
+    direction_error_deg: f64,
+}
+
+/// A noiseless block translating through the whole pipeline (simulate, IQ, beamform, Doppler,
+/// least-squares vector), 8 angles in [−15°, 15°] at 14.4 kHz (the paper's sequence), 32 frames,
+/// read on a λ/4 grid over a 1.6 × 0.8 mm region well inside the block; `attenuation` in
+/// dB/cm/MHz (0: none).
+fn block_reading(
+    case: &BlockCase,
+    estimator: pcuvd::doppler::DopplerEstimator,
+    attenuation: f64,
+    seed: u64,
+) -> BlockReading {
+    use pcuvd::pipeline;
+    let BlockCase {
+        depth,
+        speed,
+        direction_deg,
+        pitch,
+    } = *case;
+    let direction = direction_deg.to_radians();
+    let velocity = [speed * direction.sin(), speed * direction.cos()];
+    let probe = Probe {
+        n_elements: (12.8e-3 / pitch).round() as usize,
+        pitch,
+        element_width: 0.8 * pitch,
+        ..Probe::l22_14vx()
+    };
+    let sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
+        event_prf: 14.4e3,
+        coding: Coding::Conventional,
+        pulse_cycles: 2.0,
+        pulse: None,
+    };
+    let mut p = SimParams::new(
+        probe,
+        sequence,
+        65e6,
+        1540.0,
+        (depth - 1.5e-3, depth + 1.5e-3),
+    )
+    .unwrap();
+    p.attenuation_db_cm_mhz = attenuation;
+    let frames = 32;
+    let travel = speed * frames as f64 / p.sequence.frame_rate();
+    let block = BlockPhantom::new(
+        BlockSpec {
+            x: (-2.5e-3 - travel, 2.5e-3 + travel),
+            z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
+            velocity,
+            density: 300e6,
+        },
+        seed,
+    )
+    .unwrap();
+    let data = simulate(&block, &p, frames, &|_, _| {}).unwrap();
+    let grid = Grid::new(-0.8e-3, 0.8e-3, depth - 0.4e-3, depth + 0.4e-3, 25e-6).unwrap();
+    let params = pipeline::ProcessParams {
+        doppler_estimator: estimator,
+        ..pcuvd::study::process_params(
+            &grid,
+            &data.acquisition,
+            (1, 1),
+            pcuvd::decode::EventAlignment::MidFrame,
+        )
+    };
+    let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
+    let mean = |m: ndarray::ArrayView2<f64>| m.iter().sum::<f64>() / m.len() as f64;
+    let projection_errors = p
+        .sequence
+        .angles
+        .iter()
+        .enumerate()
+        .map(|(k, &theta)| {
+            let (s, c) = pcuvd::vector::projection_weights(theta);
+            let truth = 0.5 * (velocity[0] * s + velocity[1] * c);
+            (mean(out.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
+        })
+        .collect();
+    let k0 = p.sequence.angles.len() / 2;
+    let fc = p.probe.center_frequency;
+    let maps = pcuvd::doppler::doppler_maps(
+        out.filtered.series[k0].view(),
+        (1, 1),
+        pcuvd::doppler::DopplerEstimator::Loupas,
+        &pcuvd::doppler::DopplerGeometry {
+            sound_speed: p.sound_speed,
+            frame_rate: p.sequence.frame_rate(),
+            demodulation_frequency: fc,
+            axial_step: grid.axial_step(),
+            axial_weight: pcuvd::vector::projection_weights(p.sequence.angles[k0]).1,
+            lateral_step: grid.step(),
+            lateral_weight: pcuvd::vector::projection_weights(p.sequence.angles[k0]).0,
+        },
+    )
+    .unwrap();
+    let mean_frequency_ratio =
+        pcuvd::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
+    let field = out.vector_ls.unwrap();
+    let (vx, vz) = (mean(field.vx.view()), mean(field.vz.view()));
+    let turn = (vx.atan2(vz) - direction + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+        - std::f64::consts::PI;
+    BlockReading {
+        mean_frequency_ratio,
+        projection_errors,
+        speed_error: vx.hypot(vz) / speed - 1.0,
+        direction_error_deg: turn.to_degrees(),
+    }
+}
+
+/// The bias target of the accuracy issue: a noiseless uniform translation, depths 2–12 mm,
+/// speeds 5–40 mm/s, every direction quadrant, read by the default estimator (Loupas with
+/// measured lateral weights): every per-angle projection within 1 % (of the speed, so that
+/// near-zero projections of flow across an angle's Doppler direction are held to the same
+/// absolute standard) and the vector within 1 % in speed and 1° in direction.
+///
+/// Measured (seed 1): per-angle errors ≤ 0.89 % of the speed, vectors within 0.93 % and 0.37°;
+/// Kasai (the nominal frequency) on the same data reads every projection 2–6 % low and vectors
+/// up to 9 % and 3° off. At 2 and 4 mm the cases use a probe of half the L22-14vX's pitch: the
+/// real probe's pitch is about λ, so its receive grating lobes, 42–90° off each pixel, see the
+/// block's scatterers that lie more than ~0.9 × the depth to the side, whose Doppler is that of
+/// another direction. With the L22-14vX the 2 mm block reads 1.5 % low (axial flow) and the 4 mm
+/// one 2.3 % fast (oblique flow); from 7 mm on the block lies inside the lobe-free cone.
+#[test]
+fn translating_block_reads_projections_and_vector_within_one_percent() {
+    use pcuvd::doppler::DopplerEstimator;
+    let l22 = 0.1e-3;
+    let cases = [
+        BlockCase {
+            depth: 2e-3,
+            speed: 0.005,
+            direction_deg: 0.0,
+            pitch: 0.05e-3,
+        },
+        BlockCase {
+            depth: 4e-3,
+            speed: 0.02,
+            direction_deg: 60.0,
+            pitch: 0.05e-3,
+        },
+        BlockCase {
+            depth: 7e-3,
+            speed: 0.04,
+            direction_deg: 45.0,
+            pitch: l22,
+        },
+        BlockCase {
+            depth: 7e-3,
+            speed: 0.02,
+            direction_deg: 135.0,
+            pitch: l22,
+        },
+        BlockCase {
+            depth: 12e-3,
+            speed: 0.02,
+            direction_deg: -80.0,
+            pitch: l22,
+        },
+        BlockCase {
+            depth: 12e-3,
+            speed: 0.005,
+            direction_deg: 180.0,
+            pitch: l22,
+        },
+    ];
+    let mut kasai_worst = 0.0f64;
+    for case in &cases {
+        let r = block_reading(case, DopplerEstimator::Loupas, 0.0, 1);
+        let worst = r
+            .projection_errors
+            .iter()
+            .map(|e| e.abs())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "depth {:4.1} mm, {:4.1} mm/s at {:6.1}°: worst projection error {:5.2} % of the speed, speed {:+5.2} %, direction {:+5.2}°",
+            case.depth * 1e3,
+            case.speed * 1e3,
+            case.direction_deg,
+            worst * 100.0,
+            r.speed_error * 100.0,
+            r.direction_error_deg
+        );
+        assert!(
+            worst < 0.01,
+            "projection error {:.2} % of the speed",
+            worst * 100.0
+        );
+        assert!(
+            r.speed_error.abs() < 0.01,
+            "speed error {:.2} %",
+            r.speed_error * 100.0
+        );
+        assert!(
+            r.direction_error_deg.abs() < 1.0,
+            "direction error {:.2}°",
+            r.direction_error_deg
+        );
+        if case.direction_deg == 0.0 {
+            let k = block_reading(case, DopplerEstimator::Kasai, 0.0, 1);
+            kasai_worst = k
+                .projection_errors
+                .iter()
+                .map(|e| e.abs())
+                .fold(0.0, f64::max);
+        }
+    }
+    // The nominal frequency misses the same target: the image's mean frequency is ≈ 0.97 f_0.
+    assert!(
+        kasai_worst > 0.02,
+        "Kasai worst projection error {:.2} %",
+        kasai_worst * 100.0
+    );
+}
+
+/// Frequency-dependent attenuation (the simulator's default, 0.5 dB/cm/MHz) lowers the echo
+/// spectrum with depth: at 6 mm the received echo's mean frequency is 6.2 % below f_c
+/// (`tests/simulate.rs`) and the image's, where each frequency also counts by its beam width
+/// (∝ 1/f), 12 % below. The default estimator (Loupas) still reads every projection and the
+/// vector within 1 % and 1°; the nominal frequency (Kasai) does not. Measured (seed 1): image
+/// mean frequency 0.876 f_c; Loupas worst projection error 0.57 % of the speed, speed −0.53 %,
+/// direction −0.74°; Kasai worst 11.2 %.
+#[test]
+fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
+    use pcuvd::doppler::DopplerEstimator;
+    let case = BlockCase {
+        depth: 6e-3,
+        speed: 0.02,
+        direction_deg: 30.0,
+        pitch: 0.1e-3,
+    };
+    let attenuation = SimParams::DEFAULT_ATTENUATION;
+    let r = block_reading(&case, DopplerEstimator::Loupas, attenuation, 1);
+    let worst = r
+        .projection_errors
+        .iter()
+        .map(|e| e.abs())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "image mean frequency {:.3} f_c; Loupas: worst projection error {:.2} % of the speed, speed {:+.2} %, direction {:+.2}°",
+        r.mean_frequency_ratio,
+        worst * 100.0,
+        r.speed_error * 100.0,
+        r.direction_error_deg
+    );
+    // The premise: the image's spectrum has moved well below the nominal frequency.
+    assert!(
+        (0.80..0.92).contains(&r.mean_frequency_ratio),
+        "image mean frequency {:.3} f_c",
+        r.mean_frequency_ratio
+    );
+    assert!(
+        worst < 0.01,
+        "projection error {:.2} % of the speed",
+        worst * 100.0
+    );
+    assert!(
+        r.speed_error.abs() < 0.01,
+        "speed error {:.2} %",
+        r.speed_error * 100.0
+    );
+    assert!(
+        r.direction_error_deg.abs() < 1.0,
+        "direction error {:.2}°",
+        r.direction_error_deg
+    );
+    let k = block_reading(&case, DopplerEstimator::Kasai, attenuation, 1);
+    let kasai_worst = k
+        .projection_errors
+        .iter()
+        .map(|e| e.abs())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "Kasai: worst projection error {:.2} % of the speed",
+        kasai_worst * 100.0
+    );
+    assert!(
+        kasai_worst > 0.05,
+        "Kasai worst {:.2} %",
+        kasai_worst * 100.0
+    );
+}
+
+/// Per-angle projections (m/s, region means) that the pipeline reads from one noiseless block
+/// translating at 25 mm/s, 20° from +z, at 7 mm, recorded over `frames` frames with `coding`
+/// (8 angles in [−15°, 15°] at 14.4 kHz, the same scatterers for every coding), the coded one
+/// decoded with mid-frame event alignment.
+fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64> {
+    use pcuvd::pipeline;
+    let (depth, speed, direction) = (7e-3, 0.025, 20f64.to_radians());
+    let velocity = [speed * direction.sin(), speed * direction.cos()];
+    let sequence = Sequence {
+        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
+        event_prf: 14.4e3,
+        coding,
+        pulse_cycles: 2.0,
+        pulse: None,
+    };
+    let mut p = SimParams::new(
+        Probe::l22_14vx(),
+        sequence,
+        65e6,
+        1540.0,
+        (depth - 1.5e-3, depth + 1.5e-3),
+    )
+    .unwrap();
+    p.attenuation_db_cm_mhz = 0.0;
+    let travel = speed * frames as f64 / p.sequence.frame_rate();
+    let block = BlockPhantom::new(
+        BlockSpec {
+            x: (-2.5e-3 - travel, 2.5e-3 + travel),
+            z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
+            velocity,
+            density: 300e6,
+        },
+        seed,
+    )
+    .unwrap();
+    let data = simulate(&block, &p, frames, &|_, _| {}).unwrap();
+    let grid = Grid::new(-0.8e-3, 0.8e-3, depth - 0.4e-3, depth + 0.4e-3, 25e-6).unwrap();
+    let params = pcuvd::study::process_params(
+        &grid,
+        &data.acquisition,
+        (1, 1),
+        pcuvd::decode::EventAlignment::MidFrame,
+    );
+    let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
+    out.projections
+        .outer_iter()
+        .map(|m| m.iter().sum::<f64>() / m.len() as f64)
+        .collect()
+}
+
+/// Decoded projections of a coded recording against the conventional recording of the same
+/// scatterers: the mid-frame alignment interpolates each event's slow-time series over ±12
+/// frames and continues it beyond the recording's ends by linear prediction (an order-4 model,
+/// fewer on short series: order ⌊(frames − 2)/2⌋), so every angle's projection is within 1 % of
+/// the conventional one from 4 frames on. With 3 frames or fewer no predictor can be fitted, the
+/// series is held at its end values, and the projections read low.
+///
+/// Measured (seed 1, worst angle, decoded / conventional − 1): −8.9 %, −0.47 %, −0.42 %, −0.11 %
+/// and +0.02 % at 3, 4, 6, 12 and 32 frames; the FFT over the mirror-extended series used
+/// before read −3.3 % and −1.5 % at 6 and 12 frames.
+#[test]
+fn decoded_projections_match_conventional_from_twelve_frames() {
+    for frames in [3usize, 4, 6, 12, 32] {
+        let coded = block_projections_coded(frames, Coding::Hadamard { slot_delay: 1e-6 }, 1);
+        let conventional = block_projections_coded(frames, Coding::Conventional, 1);
+        let worst = coded
+            .iter()
+            .zip(&conventional)
+            .map(|(a, b)| a / b - 1.0)
+            .fold(0.0f64, |w, e| if e.abs() > w.abs() { e } else { w });
+        eprintln!(
+            "{frames} frames: worst decoded / conventional − 1 = {:+.2} % (conventional {:?} mm/s)",
+            worst * 100.0,
+            conventional
+                .iter()
+                .map(|v| (v * 1e4).round() / 10.0)
+                .collect::<Vec<_>>()
+        );
+        if frames >= 4 {
+            assert!(
+                worst.abs() < 0.01,
+                "{frames} frames: decoded projections {:.2} % off the conventional ones",
+                worst * 100.0
+            );
+        }
+    }
+}

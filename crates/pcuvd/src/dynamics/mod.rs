@@ -88,6 +88,8 @@ pub struct DynamicsParams {
     pub dealias: Dealias,
     /// Spatial averaging box (rows, cols) of each window's autocorrelation; odd sizes.
     pub kernel: (usize, usize),
+    /// Which frequency scales each window's Doppler phase ([`doppler::DopplerEstimator`]).
+    pub doppler: doppler::DopplerEstimator,
     /// Smallest RI (dimensionless) of an arteriole (paper: arterioles 0.55–0.9).
     pub artery_ri_min: f64,
     /// Largest RI (dimensionless) of a venule (paper: venules < 0.5).
@@ -118,7 +120,8 @@ impl DynamicsParams {
     ///   too few to measure the period from the data, so the preset supplies it; set `None` for
     ///   recordings of two cycles or more.
     /// - `estimator` = IRLS with the paper's λ = 0.01 mm/s (PC-UVD), no dealiasing; `kernel` =
-    ///   (1, 1) (no spatial averaging: small vessels are a few pixels wide).
+    ///   (1, 1) (no spatial averaging: small vessels are a few pixels wide); `doppler` = the
+    ///   library's default Doppler estimator (Loupas: the measured mean frequency).
     /// - `artery_ri_min` = 0.55, `vein_ri_max` = 0.5 (paper §4 and its ref. 29).
     /// - `min_power_db` = −30 dB: about the displayed dynamic range of the paper's power Doppler
     ///   images (Fig. 6); below it the speed is mostly noise and its RI meaningless.
@@ -131,6 +134,7 @@ impl DynamicsParams {
             estimator: Estimator::Irls(IrlsParams::default()),
             dealias: Dealias::Off,
             kernel: (1, 1),
+            doppler: doppler::DopplerEstimator::default(),
             artery_ri_min: 0.55,
             vein_ri_max: 0.5,
             min_power_db: -30.0,

@@ -223,9 +223,10 @@ pub(super) fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
     Ok((period, len))
 }
 
-/// Vector velocity in sliding windows over slow time: per angle, the lag-1 autocorrelation of each
-/// window's frames → projection V_θ (m/s) → (Vx, Vz) with `params.estimator`, dealiased as
-/// `params.dealias` says (each window's mean power orders and masks its flow pixels).
+/// Vector velocity in sliding windows over slow time: per angle, the autocorrelations of each
+/// window's frames → projection V_θ (m/s, with `params.doppler`) → (Vx, Vz) with
+/// `params.estimator`, dealiased as `params.dealias` says (each window's mean power orders and
+/// masks its flow pixels; Loupas unwraps each pixel with its own Nyquist velocity).
 ///
 /// `images`: clutter-filtered IQ per angle, each (nz, nx, frames), with their angles, compound
 /// frame rate, sound speed and demodulation frequency; an angle is used only where its
@@ -264,34 +265,55 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     }
 
     let n = angles.len();
-    let nyquist = doppler::nyquist_velocity(sound_speed, frame_rate, center_frequency);
     let maps = (0..n_windows)
         .into_par_iter()
         .map(|k| {
             let start = k * params.step;
             let mut projections = Array3::<f64>::zeros((n, nz, nx));
+            let mut lateral = Array3::<f64>::zeros((n, nz, nx));
+            let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
             let mut power = Array2::<f64>::zeros((nz, nx));
             for (a, series) in filtered.iter().enumerate() {
                 let window = series.slice(s![.., .., start..start + params.window]);
-                let ac = doppler::autocorrelation(window, params.kernel)?;
-                projections
-                    .index_axis_mut(Axis(0), a)
-                    .assign(&doppler::projection_velocity(
-                        &ac.r1,
+                let maps = doppler::doppler_maps(
+                    window,
+                    params.kernel,
+                    params.doppler,
+                    &doppler::DopplerGeometry {
                         sound_speed,
                         frame_rate,
-                        center_frequency,
-                    )?);
-                power += &ac.power;
+                        demodulation_frequency: center_frequency,
+                        axial_step: images.grid.axial_step(),
+                        axial_weight: vector::projection_weights(angles[a]).1,
+                        lateral_step: images.grid.step(),
+                        lateral_weight: vector::projection_weights(angles[a]).0,
+                    },
+                )?;
+                projections
+                    .index_axis_mut(Axis(0), a)
+                    .assign(&maps.velocity);
+                lateral
+                    .index_axis_mut(Axis(0), a)
+                    .assign(&maps.lateral_weight);
+                nyquist.index_axis_mut(Axis(0), a).assign(
+                    &maps
+                        .mean_frequency
+                        .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
+                );
+                power += &maps.power;
             }
             power /= n as f64;
             if let Some(c) = coverage {
                 vector::drop_unreached(&mut projections, c);
             }
-            let field = dealias::dealiased_vectors(
+            // Kasai's rows are the model's; Loupas fits its measured lateral weights.
+            let measured =
+                (params.doppler == doppler::DopplerEstimator::Loupas).then(|| lateral.view());
+            let field = dealias::dealiased_vectors_measured(
                 angles,
                 projections.view(),
-                dealias::uniform(nyquist, projections.dim()).view(),
+                measured,
+                nyquist.view(),
                 &params.estimator,
                 params.dealias,
                 power.view(),

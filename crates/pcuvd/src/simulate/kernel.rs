@@ -39,7 +39,17 @@ struct EventScatterers {
     tx_frac: Vec<f32>,
     /// Per slot and scatterer (slot-major): scatterer amplitude × polarity × transmit field.
     tx_amp: Vec<f32>,
+    /// Per slot and scatterer (slot-major): transmit path z / cos θ (m), for the echo's spectrum.
+    tx_path: Vec<f32>,
     slots: usize,
+}
+
+/// One channel task's working memory: the Farrow accumulators (one per spectral band, each
+/// n_samples + taps + 1 rows), the rows each may hold, and one band's trace.
+struct Scratch {
+    impulses: Vec<[f32; FARROW_TERMS]>,
+    written: Vec<std::ops::Range<usize>>,
+    band_trace: Vec<f32>,
 }
 
 /// Scatterers per block of the per-channel loop.
@@ -48,6 +58,11 @@ const BLOCK: usize = 128;
 /// Per-call constants of the simulator: waveform table, element positions, amplitude models.
 pub(crate) struct Simulator {
     wf: EchoWaveform,
+    /// The echo after frequency-dependent attenuation over round-trip paths 0, Δ, 2Δ, … (Δ =
+    /// `band_step`); empty when attenuation only scales the amplitude, so one table (`wf`) serves.
+    bands: Vec<EchoWaveform>,
+    /// Path between consecutive `bands` tables (m).
+    band_step: f64,
     element_x: Vec<f64>,
     aperture: (f64, f64),
     /// Outer edges of the array face (m).
@@ -89,8 +104,27 @@ impl Simulator {
         let kappa = params.attenuation_db_cm_mhz * (probe.center_frequency / 1e6) * 100.0
             / (20.0 * std::f64::consts::LOG10_E);
         let aperture = probe.aperture();
+        let (bands, band_step) = if params.frequency_dependent_attenuation && kappa > 0.0 {
+            // α (Np/m per Hz); the Gaussian part's amplitude width σ. A band of path Δ moves the
+            // spectrum by α·Δ·σ²: at most σ/8, so that blending two neighbours stays faithful.
+            let fc = probe.center_frequency;
+            let alpha = kappa / fc;
+            let sigma = probe.bandwidth * fc / (2.0 * (2.0 * std::f64::consts::LN_2).sqrt());
+            let step = 1.0 / (8.0 * alpha * sigma);
+            // No recorded echo travels farther than sound does until the record ends.
+            let longest = c * (params.t0 + params.window_duration()) + c * wf.half_duration();
+            let count = (longest / step).ceil() as usize + 2;
+            let bands = (0..count)
+                .map(|k| wf.attenuated(probe, &params.sequence, alpha * step * k as f64))
+                .collect::<Result<Vec<_>>>()?;
+            (bands, step)
+        } else {
+            (Vec::new(), f64::INFINITY)
+        };
         Ok(Simulator {
             wf,
+            bands,
+            band_step,
             element_x: probe.element_x(),
             aperture,
             edges: (
@@ -163,6 +197,14 @@ impl Simulator {
         // Slot-major (k, scatterer), so that the per-channel loops read them contiguously.
         let mut tx_pos = vec![0.0f64; n * nk];
         let mut tx_amp = vec![0.0f32; n * nk];
+        let tx_path: Vec<f32> = if self.bands.is_empty() {
+            Vec::new()
+        } else {
+            geometry
+                .iter()
+                .flat_map(|g| positions.iter().map(|p| (p[1] * g.inv_cos).max(0.0) as f32))
+                .collect()
+        };
         const CHUNK: usize = 1024;
         for (g, (pos, amp)) in geometry
             .iter()
@@ -205,6 +247,11 @@ impl Simulator {
                 .map(|j| split(tx_pos[j]).1)
                 .collect(),
             tx_amp: (0..nk).flat_map(slot_major).map(|j| tx_amp[j]).collect(),
+            tx_path: if self.bands.is_empty() {
+                Vec::new()
+            } else {
+                (0..nk).flat_map(slot_major).map(|j| tx_path[j]).collect()
+            },
             slots: nk,
         }
     }
@@ -224,10 +271,17 @@ impl Simulator {
             .into_par_iter()
             .enumerate()
             .for_each_init(
-                || vec![[0.0f32; FARROW_TERMS]; self.n_samples + self.wf.taps() + 1],
-                |impulses, (e, mut row)| {
+                || Scratch {
+                    impulses: vec![
+                        [0.0f32; FARROW_TERMS];
+                        (self.n_samples + self.wf.taps() + 1) * self.bands.len().max(1)
+                    ],
+                    written: vec![0..0; self.bands.len().max(1)],
+                    band_trace: vec![0.0; self.n_samples],
+                },
+                |scratch, (e, mut row)| {
                     let trace = row.as_slice_mut().expect("rows of a standard-layout array");
-                    self.render_channel(self.element_x[e], &ev, impulses, trace);
+                    self.render_channel(self.element_x[e], &ev, scratch, trace);
                     if let Some((generator, first)) = noise {
                         generator.add(trace, first + e as u64);
                     }
@@ -236,25 +290,60 @@ impl Simulator {
     }
 
     /// Writes into `trace` the echoes of every scatterer of `ev` received on the element at `xe`
-    /// (m), using `impulses` (n_samples + taps + 1 rows, zero, and left zero) as the Farrow
-    /// accumulator.
+    /// (m), using `scratch` (its accumulators zero, and left zero).
     fn render_channel(
         &self,
         xe: f64,
         ev: &EventScatterers,
-        impulses: &mut [[f32; FARROW_TERMS]],
+        scratch: &mut Scratch,
         trace: &mut [f32],
     ) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA, checked just above.
-            unsafe { self.render_channel_avx2(xe, ev, impulses, trace) };
+            unsafe { self.render_channel_avx2(xe, ev, scratch, trace) };
             return;
         }
-        let rows = self.accumulate(xe, ev, impulses, Insert::Portable);
-        self.convolve(impulses, rows.clone(), trace);
-        impulses[rows].fill([0.0; FARROW_TERMS]);
+        self.accumulate(
+            xe,
+            ev,
+            &mut scratch.impulses,
+            Insert::Portable,
+            &mut scratch.written,
+        );
+        self.convolve_bands(scratch, trace);
+    }
+
+    /// The trace from every band's accumulator (each convolved with its own table, summed), then
+    /// the accumulators cleared.
+    #[inline(always)]
+    fn convolve_bands(&self, scratch: &mut Scratch, trace: &mut [f32]) {
+        let stride = self.n_samples + self.wf.taps() + 1;
+        let Scratch {
+            impulses,
+            written,
+            band_trace,
+        } = scratch;
+        if self.bands.is_empty() {
+            let rows = written[0].clone();
+            self.convolve(self.wf.farrow(), impulses, rows.clone(), trace);
+            impulses[rows].fill([0.0; FARROW_TERMS]);
+            return;
+        }
+        trace.fill(0.0);
+        for (b, table) in self.bands.iter().enumerate() {
+            let rows = written[b].clone();
+            if rows.is_empty() {
+                continue;
+            }
+            let band = &mut impulses[b * stride..(b + 1) * stride];
+            self.convolve(table.farrow(), band, rows.clone(), band_trace);
+            for (t, v) in trace.iter_mut().zip(band_trace.iter()) {
+                *t += v;
+            }
+            band[rows].fill([0.0; FARROW_TERMS]);
+        }
     }
 
     /// [`Self::render_channel`] compiled for AVX2 and FMA, with an explicit transpose in the
@@ -267,18 +356,25 @@ impl Simulator {
         &self,
         xe: f64,
         ev: &EventScatterers,
-        impulses: &mut [[f32; FARROW_TERMS]],
+        scratch: &mut Scratch,
         trace: &mut [f32],
     ) {
-        let rows = self.accumulate(xe, ev, impulses, Insert::Avx2);
-        self.convolve(impulses, rows.clone(), trace);
-        impulses[rows].fill([0.0; FARROW_TERMS]);
+        self.accumulate(
+            xe,
+            ev,
+            &mut scratch.impulses,
+            Insert::Avx2,
+            &mut scratch.written,
+        );
+        self.convolve_bands(scratch, trace);
     }
 
     /// Adds every echo of `ev` on the element at `xe` (m) to the Farrow accumulator: an echo whose
     /// row starts at buffer index n with sub-sample delay μ adds a·(μ − ½)^q to `impulses[n][q]`.
     /// Each stage is a branch-free loop over a block of scatterers in f32, so that it runs 8 wide.
-    /// Returns the range of rows that may have been written.
+    /// With spectral bands, `impulses` holds one accumulator per band (`stride` rows apart) and
+    /// each echo is split between the two bands around its path. Fills `written` with the range
+    /// of rows of each band's accumulator that may have been written.
     #[inline(always)]
     fn accumulate(
         &self,
@@ -286,13 +382,20 @@ impl Simulator {
         ev: &EventScatterers,
         impulses: &mut [[f32; FARROW_TERMS]],
         insert: Insert,
-    ) -> std::ops::Range<usize> {
-        let (mut first, mut last) = (i32::MAX, -1i32);
+        written: &mut [std::ops::Range<usize>],
+    ) {
+        let stride = self.n_samples + self.wf.taps() + 1;
+        let n_bands = self.bands.len();
+        let mut bounds = vec![(i32::MAX, -1i32); written.len()];
+        let inv_step = (1.0 / self.band_step) as f32;
+        let mut band = [0i32; BLOCK];
+        let mut start_hi = [0i32; BLOCK];
+        let mut amp_hi = [0.0f32; BLOCK];
         let nk = ev.slots;
         let taps = self.wf.taps();
         // Largest row start whose row ends inside the padded trace.
         let max_start = (self.n_samples + taps) as i32;
-        debug_assert_eq!(impulses.len(), max_start as usize + 1);
+        debug_assert_eq!(impulses.len(), stride * n_bands.max(1));
         let xe = xe as f32;
         let fs_over_c = (self.fs / self.c) as f32;
         let att = (self.kappa * std::f64::consts::LOG2_E) as f32;
@@ -376,27 +479,61 @@ impl Simulator {
                     *st = if inside { s } else { 0 };
                     *mu = (pos - n0f) - 0.5;
                 }
-                for (st, a) in start[..m].iter().zip(&amp[..m]) {
-                    let used = *a != 0.0;
-                    first = first.min(if used { *st } else { i32::MAX });
-                    last = last.max(if used { *st } else { -1 });
-                }
-                match insert {
-                    #[cfg(target_arch = "x86_64")]
-                    // SAFETY: `Insert::Avx2` is only passed from the AVX2-enabled path.
-                    Insert::Avx2 => unsafe {
-                        insert_avx2(impulses, &start[..m], &amp[..m], &mu[..m])
-                    },
-                    Insert::Portable => {
-                        insert_portable(impulses, &start[..m], &amp[..m], &mu[..m], 0)
+                if n_bands > 0 {
+                    // The echo's round-trip path picks the two tables around it: band b and b + 1
+                    // with weights 1 − β and β.
+                    let tp = &ev.tx_path[k * n_active + lo..k * n_active + lo + m];
+                    for (((tp, r), b), ((st, a), (sh, ah))) in
+                        tp.iter().zip(&r[..m]).zip(&mut band[..m]).zip(
+                            start[..m]
+                                .iter_mut()
+                                .zip(amp[..m].iter_mut())
+                                .zip(start_hi[..m].iter_mut().zip(amp_hi[..m].iter_mut())),
+                        )
+                    {
+                        let position = (tp + r) * inv_step;
+                        let whole = position.floor().clamp(0.0, (n_bands - 2) as f32);
+                        let beta = (position - whole).clamp(0.0, 1.0);
+                        *b = whole as i32;
+                        *ah = *a * beta;
+                        *a *= 1.0 - beta;
+                        *sh = *st + (*b + 1) * stride as i32;
+                        *st += *b * stride as i32;
+                    }
+                    for ((b, (st, a)), (sh, ah)) in band[..m]
+                        .iter()
+                        .zip(start[..m].iter().zip(&amp[..m]))
+                        .zip(start_hi[..m].iter().zip(&amp_hi[..m]))
+                    {
+                        let (b, lo_row) = (*b as usize, *st - *b * stride as i32);
+                        let bound = &mut bounds[b];
+                        if *a != 0.0 {
+                            *bound = (bound.0.min(lo_row), bound.1.max(lo_row));
+                        }
+                        let bound = &mut bounds[b + 1];
+                        if *ah != 0.0 {
+                            let hi_row = *sh - (b as i32 + 1) * stride as i32;
+                            *bound = (bound.0.min(hi_row), bound.1.max(hi_row));
+                        }
+                    }
+                    insert.run(impulses, &start_hi[..m], &amp_hi[..m], &mu[..m]);
+                } else {
+                    for (st, a) in start[..m].iter().zip(&amp[..m]) {
+                        let used = *a != 0.0;
+                        let bound = &mut bounds[0];
+                        bound.0 = bound.0.min(if used { *st } else { i32::MAX });
+                        bound.1 = bound.1.max(if used { *st } else { -1 });
                     }
                 }
+                insert.run(impulses, &start[..m], &amp[..m], &mu[..m]);
             }
         }
-        if last < first {
-            0..0
-        } else {
-            first as usize..last as usize + 1
+        for (range, &(first, last)) in written.iter_mut().zip(&bounds) {
+            *range = if last < first {
+                0..0
+            } else {
+                first as usize..last as usize + 1
+            };
         }
     }
 
@@ -406,11 +543,11 @@ impl Simulator {
     #[inline(always)]
     fn convolve(
         &self,
+        coeffs: &[[f32; FARROW_TERMS]],
         impulses: &[[f32; FARROW_TERMS]],
         rows: std::ops::Range<usize>,
         trace: &mut [f32],
     ) {
-        let coeffs = self.wf.farrow();
         match coeffs.len() {
             16 => convolve_taps::<16>(coeffs, impulses, rows, trace),
             24 => convolve_taps::<24>(coeffs, impulses, rows, trace),
@@ -430,6 +567,19 @@ enum Insert {
     Avx2,
     /// Plain Rust.
     Portable,
+}
+
+impl Insert {
+    /// impulses[start[i]][q] += amp[i]·mu[i]^q for every scatterer i, in order.
+    #[inline(always)]
+    fn run(self, impulses: &mut [[f32; FARROW_TERMS]], start: &[i32], amp: &[f32], mu: &[f32]) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Insert::Avx2` is only passed from the AVX2-enabled path.
+            Insert::Avx2 => unsafe { insert_avx2(impulses, start, amp, mu) },
+            Insert::Portable => insert_portable(impulses, start, amp, mu, 0),
+        }
+    }
 }
 
 /// impulses[start[i]][q] += amp[i]·mu[i]^q (the power built by repeated multiplication) for

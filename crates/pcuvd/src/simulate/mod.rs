@@ -14,12 +14,18 @@
 //!   shadow line). Attenuation over the path z / cos θ.
 //! * **Receive amplitude**: element directivity sinc(π w sin φ / λ)·cos φ (soft baffle), 2-D
 //!   cylindrical spreading √(1 mm / r) (r ≥ λ/2), attenuation over r.
-//! * **Attenuation**: α·f_c (dB/cm/MHz × MHz) applied as an amplitude factor at f_c. This is an
-//!   approximation: real frequency-dependent attenuation also lowers the echo's centre frequency
-//!   with depth — for a Gaussian spectrum by α·σ_f²·(round-trip path), about 0.8 MHz (5 %) at
-//!   1 cm depth for the L22-14vX echo (σ_f ≈ 2.6 MHz, 0.5 dB/cm/MHz) — which is not modelled:
-//!   every echo keeps the same spectrum. (On real data this downshift is one more reason to
-//!   prefer the mean-frequency Doppler estimator, `doppler::projection_velocity_loupas`.)
+//! * **Attenuation**: α·f (dB/cm/MHz × MHz) over the two-way path L (transmit z / cos θ plus
+//!   receive r). Its value at f_c scales each echo's amplitude; with
+//!   `SimParams::frequency_dependent_attenuation` (the default) it also lowers the echo's
+//!   spectrum, as tissue does: the spectrum is multiplied by exp(−α (|f| − f_c) L), which moves a
+//!   Gaussian spectrum of amplitude width σ down by α·σ²·L — for the L22-14vX 2-cycle echo at
+//!   0.5 dB/cm/MHz its mean frequency falls by about 1 % per mm of depth (12 % at 12 mm;
+//!   `tests/simulate.rs`). The
+//!   echo table is tabulated at path lengths a few mm apart (each band shifts the spectrum by at
+//!   most an eighth of its width) and each echo is blended linearly between the two tables
+//!   around its path, so the spectrum changes smoothly with depth at twice the insertion work of
+//!   a single table. A Doppler estimator that divides by the nominal f_c reads low in proportion;
+//!   the mean-frequency (Loupas) estimator does not.
 //! * **Coding**: a coded event superposes all n slots of `Sequence::event_pulses` with their
 //!   polarity (or weight) and slot start; event i is simulated at its own time i / PRF.
 //! * **Noise**: see [`NOISE_DEFINITION`]; added to every recorded event, before any decoding.
@@ -90,8 +96,11 @@ pub struct SimParams {
     pub sampling_frequency: f64,
     /// Speed of sound (m/s).
     pub sound_speed: f64,
-    /// Attenuation (dB/cm/MHz), applied at f_c over the two-way path; 0 disables it.
+    /// Attenuation (dB/cm/MHz) over the two-way path; 0 disables it.
     pub attenuation_db_cm_mhz: f64,
+    /// Whether attenuation also lowers each echo's spectrum with its path (α·f, linear in
+    /// frequency, as in tissue) or only scales its amplitude at f_c. See the module docs.
+    pub frequency_dependent_attenuation: bool,
     /// Time of the first sample after the first element of the event's first slot fires (s).
     pub t0: f64,
     /// Samples per trace (the receive window).
@@ -107,7 +116,8 @@ impl SimParams {
     pub const DEFAULT_ATTENUATION: f64 = 0.5;
 
     /// Parameters with a receive window covering depths `depth` = (z_min, z_max) (m) for every
-    /// angle, slot offset and element ([`receive_window`]), 0.5 dB/cm/MHz, no noise, seed 0.
+    /// angle, slot offset and element ([`receive_window`]), 0.5 dB/cm/MHz (frequency-dependent),
+    /// no noise, seed 0.
     pub fn new(
         probe: Probe,
         sequence: Sequence,
@@ -123,6 +133,7 @@ impl SimParams {
             sampling_frequency,
             sound_speed,
             attenuation_db_cm_mhz: Self::DEFAULT_ATTENUATION,
+            frequency_dependent_attenuation: true,
             t0,
             n_samples,
             noise: None,

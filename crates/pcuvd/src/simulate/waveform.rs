@@ -24,6 +24,10 @@ use crate::sequence::{Sequence, TransmitPulse};
 #[derive(Debug, Clone)]
 pub struct EchoWaveform {
     fs: f64,
+    /// Peak of the unattenuated waveform before normalisation (the scale of every table).
+    peak: f64,
+    /// Half-span in samples of the fine grid.
+    half_fine: usize,
     taps: usize,
     half: usize,
     table: Vec<f32>,
@@ -51,6 +55,36 @@ impl EchoWaveform {
 
     /// The echo waveform of `probe` for a pulse of `pulse_cycles` cycles, sampled at `fs` (Hz).
     pub fn new(probe: &Probe, pulse_cycles: f64, fs: f64) -> Result<Self> {
+        Self::build(probe, pulse_cycles, fs, 0.0, None)
+    }
+
+    /// The same echo after frequency-dependent attenuation over a path whose attenuation is
+    /// `tilt` (s) per Hz beyond f_c: its spectrum multiplied by exp(−tilt·(|f| − f_c)), so that
+    /// the gain at f_c stays 1 (the simulator applies the attenuation at f_c apart). With linear
+    /// attenuation α (Np/m/Hz) over a round-trip path L, tilt = α·L; a Gaussian echo spectrum of
+    /// amplitude width σ then moves down by α·L·σ². Same time span, taps and scale as `self`, so
+    /// that tables of several paths can be blended.
+    /// `sequence` gives the transmit pulse, as for [`EchoWaveform::for_sequence`].
+    pub fn attenuated(&self, probe: &Probe, sequence: &Sequence, tilt: f64) -> Result<Self> {
+        if !(tilt.is_finite() && tilt >= 0.0) {
+            return Err(invalid(
+                "attenuation",
+                format!("the spectral tilt must be finite and ≥ 0 s, got {tilt}"),
+            ));
+        }
+        match &sequence.pulse {
+            Some(pulse) => Self::pulse_echo(probe, pulse, self.fs, tilt, Some(self)),
+            None => Self::build(probe, sequence.pulse_cycles, self.fs, tilt, Some(self)),
+        }
+    }
+
+    fn build(
+        probe: &Probe,
+        pulse_cycles: f64,
+        fs: f64,
+        tilt: f64,
+        like: Option<&EchoWaveform>,
+    ) -> Result<Self> {
         probe.validate()?;
         require_positive("pulse cycles", pulse_cycles)?;
         require_positive("sampling frequency", fs)?;
@@ -100,7 +134,7 @@ impl EchoWaveform {
             let d = (freq(k).abs() - fc) / sigma_f;
             *v *= (-0.5 * d * d).exp() / n as f64;
         }
-        Self::from_spectrum(fs, spec, origin, &mut planner)
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
     }
 
     /// The echo waveform of `probe` for the transmit pulse of `sequence` (its sampled
@@ -117,6 +151,18 @@ impl EchoWaveform {
     /// with its time origin moved to the envelope peak, so that an echo arriving at τ peaks at τ
     /// as the default pulse's does.
     pub fn from_pulse(probe: &Probe, pulse: &TransmitPulse, fs: f64) -> Result<Self> {
+        Self::pulse_echo(probe, pulse, fs, 0.0, None)
+    }
+
+    /// [`EchoWaveform::from_pulse`], attenuated by `tilt` and tabulated like `like` as
+    /// [`EchoWaveform::attenuated`] says.
+    fn pulse_echo(
+        probe: &Probe,
+        pulse: &TransmitPulse,
+        fs: f64,
+        tilt: f64,
+        like: Option<&EchoWaveform>,
+    ) -> Result<Self> {
         probe.validate()?;
         pulse.validate()?;
         require_positive("sampling frequency", fs)?;
@@ -197,20 +243,35 @@ impl EchoWaveform {
                 2.0 * std::f64::consts::PI * freq(k) * t_peak,
             );
         }
-        Self::from_spectrum(fs, spec, origin, &mut planner)
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
     }
 
     /// The tables from the echo's spectrum `spec` on the fine grid (PHASES·`fs`, its time origin
-    /// at index `origin`), already filtered and scaled by 1/len.
+    /// at index `origin`), already filtered and scaled by 1/len, after the attenuation
+    /// `(f_c, tilt)` (exp(−tilt·(|f| − f_c)); tilt 0 leaves it); `like` gives the scale, span and
+    /// taps of an attenuated table ([`EchoWaveform::attenuated`]).
     fn from_spectrum(
         fs: f64,
         mut spec: Vec<Complex64>,
         origin: usize,
         planner: &mut FftPlanner<f64>,
+        (fc, tilt): (f64, f64),
+        like: Option<&EchoWaveform>,
     ) -> Result<Self> {
         let p = Self::PHASES;
         let fine_rate = fs * p as f64;
         let n = spec.len();
+        if tilt > 0.0 {
+            for (k, v) in spec.iter_mut().enumerate() {
+                let f = if k <= n / 2 {
+                    k as f64
+                } else {
+                    k as f64 - n as f64
+                } * fine_rate
+                    / n as f64;
+                *v *= (-tilt * (f.abs() - fc)).exp();
+            }
+        }
         // Analytic signal for the envelope: keep positive frequencies, doubled.
         let mut analytic: Vec<Complex64> = spec
             .iter()
@@ -226,7 +287,11 @@ impl EchoWaveform {
         inverse.process(&mut spec);
         inverse.process(&mut analytic);
         let mut fine: Vec<f64> = spec.iter().map(|v| v.re).collect();
-        let peak = fine.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // A blended table keeps the unattenuated echo's scale, span and taps.
+        let peak = like.map_or_else(
+            || fine.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+            |w| w.peak,
+        );
         if !(peak > 0.0 && peak.is_finite()) {
             return Err(invalid(
                 "pulse",
@@ -245,7 +310,7 @@ impl EchoWaveform {
             .iter()
             .rposition(|v| v.abs() > TRUNCATION)
             .unwrap_or(n - 1);
-        let half_fine = (origin - lo).max(hi - origin);
+        let half_fine = like.map_or((origin - lo).max(hi - origin), |w| w.half_fine);
         let half_duration = half_fine as f64 / fine_rate;
         // Row p covers (j − half − p/P) samples for j < taps: [−half, taps − half − 1] ⊇ [−H, H + 1].
         let half = half_fine.div_ceil(p);
@@ -309,6 +374,8 @@ impl EchoWaveform {
             .collect();
         Ok(EchoWaveform {
             fs,
+            peak,
+            half_fine,
             taps,
             half,
             table,

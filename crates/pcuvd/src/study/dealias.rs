@@ -414,7 +414,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                                 &out.projections,
                                 counts,
                                 &out.filtered.angles,
-                                out.nyquist_velocity,
+                                &out.projection_nyquist,
                                 &truth,
                             ),
                             rmse_mm_s: metrics::rmse(field, &truth),

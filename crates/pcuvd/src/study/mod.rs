@@ -171,6 +171,7 @@ pub fn process_params(
             ..ClutterParams::default()
         },
         doppler_kernel,
+        doppler_estimator: crate::doppler::DopplerEstimator::default(),
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment,

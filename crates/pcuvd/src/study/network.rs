@@ -17,6 +17,7 @@ use super::{
     Acquire, FormedSum, Mode, Motion, Progress, Timings, process_params, simulate_and_form_sum,
 };
 use crate::decode::EventAlignment;
+use crate::doppler::DopplerEstimator;
 use crate::dynamics::{
     self, DynamicsParams, PoolingSummary, RiMaps, Spectrogram, SpectrogramParams, VelocitySeries,
     VesselPooling, VesselTests,
@@ -26,7 +27,7 @@ use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores};
 use crate::phantom::Phantom;
 use crate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
-use crate::pipeline::{self, ProcessOutput};
+use crate::pipeline::{self, ProcessOutput, ProcessParams};
 use crate::simulate;
 use crate::vector::{Estimator, IrlsParams, VectorField};
 
@@ -56,6 +57,8 @@ pub struct NetworkSettings {
     pub event_alignment: EventAlignment,
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
+    /// Which frequency scales the Doppler phase (whole-recording maps and windows alike).
+    pub doppler_estimator: DopplerEstimator,
 }
 
 impl Default for NetworkSettings {
@@ -68,6 +71,7 @@ impl Default for NetworkSettings {
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
             grid_step_m: 0.05e-3,
+            doppler_estimator: DopplerEstimator::default(),
         }
     }
 }
@@ -102,6 +106,7 @@ impl NetworkSettings {
                 Mode::Coded => Estimator::Irls(IrlsParams::default()),
             },
             pooling,
+            doppler: self.doppler_estimator,
             ..DynamicsParams::rat()
         })
     }
@@ -393,7 +398,10 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             echo_power,
             noise_power,
         } = formed;
-        let process = process_params(&grid, &acquisition, (1, 1), settings.event_alignment);
+        let process = ProcessParams {
+            doppler_estimator: settings.doppler_estimator,
+            ..process_params(&grid, &acquisition, (1, 1), settings.event_alignment)
+        };
         let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
         let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests, None)?;

@@ -13,11 +13,12 @@ use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
 use crate::decode::EventAlignment;
+use crate::doppler::DopplerEstimator;
 use crate::error::{Result, invalid};
 use crate::grid::Grid;
 use crate::metrics::{self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, snr_by_depth};
 use crate::phantom::{Phantom, SpiralPhantom, Truth};
-use crate::pipeline::{self, ProcessOutput};
+use crate::pipeline::{self, ProcessOutput, ProcessParams};
 use crate::simulate::{self, NOISE_DEFINITION};
 use crate::vector::VectorField;
 
@@ -54,8 +55,13 @@ pub struct SpiralSettings {
     pub event_alignment: EventAlignment,
     /// Spatial averaging of the autocorrelation (rows, cols) pixels, odd.
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scales the Doppler phase.
+    pub doppler_estimator: DopplerEstimator,
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
+    /// Conventional UVD's Vx RMSE (m/s) at which to calibrate one more noise level, the paper's
+    /// baseline (5.70 mm/s); `None`: no calibration.
+    pub calibrate_uvd_vx_m_s: Option<f64>,
 }
 
 /// Serialises an event alignment as its option value ("mid-frame", "simultaneous").
@@ -76,7 +82,9 @@ impl Default for SpiralSettings {
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
             doppler_kernel: (1, 1),
+            doppler_estimator: DopplerEstimator::default(),
             grid_step_m: 0.05e-3,
+            calibrate_uvd_vx_m_s: Some(paper::UVD_RMSE_MM_S.0 * 1e-3),
         }
     }
 }
@@ -88,6 +96,14 @@ impl SpiralSettings {
             return Err(invalid(
                 "frames",
                 format!("{}: the Doppler estimate needs at least 2", self.frames),
+            ));
+        }
+        if let Some(target) = self.calibrate_uvd_vx_m_s
+            && !(target > 0.0 && target.is_finite())
+        {
+            return Err(invalid(
+                "calibration RMSE",
+                format!("{target} m/s: must be a positive number"),
             ));
         }
         if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
@@ -152,6 +168,32 @@ pub struct PerComponent {
     /// Of Vz.
     pub vz: f64,
 }
+
+/// The noise level at which conventional UVD (LS) reads Vx with a given RMSE — the paper's baseline,
+/// 5.70 mm/s — found by bisection on the level (dB) over the same scatterers and noise realisation
+/// as the sweep, and every estimator's RMSE there.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Calibrated {
+    /// UVD Vx RMSE aimed at (mm/s).
+    pub target_uvd_vx_mm_s: f64,
+    /// Noise level found (dB); `None` when no level reaches the target (see `note`).
+    pub noise_db: Option<f64>,
+    /// RMSE of every estimator at that level (mm/s).
+    pub rmse_mm_s: Option<EstimatorRmse>,
+    /// Improvement of PC-UVD (coded + IRLS) over UVD (conventional + LS) there, percent.
+    pub improvement_pct: Option<PerComponent>,
+    /// Levels tried (dB) and the UVD Vx RMSE at each (mm/s), in order.
+    pub tried: Vec<(f64, f64)>,
+    /// How the level was found, or why none was.
+    pub note: String,
+}
+
+/// UVD Vx RMSE within which (mm/s) the calibration stops.
+const CALIBRATION_TOLERANCE_MM_S: f64 = 0.02;
+/// Width of the bracket (dB) at which the bisection stops short of the tolerance: the RMSE then
+/// steps across the target there (one pixel whose estimate wraps or fails as the noise grows moves
+/// it by a few hundredths of a mm/s) and the closer side is taken.
+const CALIBRATION_MIN_BRACKET_DB: f64 = 1e-4;
 
 /// SNR gain of coding per depth band.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -227,6 +269,8 @@ pub struct SpiralMetrics {
     pub improvement_pct: PerComponent,
     /// RMSE at every level of the sweep.
     pub noise_sweep: Vec<SweepRow>,
+    /// The noise level calibrated to the paper's baseline, when asked for.
+    pub calibrated: Option<Calibrated>,
     /// Main noise level (dB).
     pub noise_db: f64,
     /// What the noise level is relative to.
@@ -239,6 +283,8 @@ pub struct SpiralMetrics {
     pub event_alignment: &'static str,
     /// Autocorrelation averaging (rows, cols).
     pub doppler_kernel: (usize, usize),
+    /// Which frequency scaled the Doppler phase.
+    pub doppler_estimator: DopplerEstimator,
     /// Seed.
     pub seed: u64,
     /// Nyquist velocity of each projection (m/s).
@@ -310,6 +356,31 @@ fn estimator_rmse(conv: &ProcessOutput, coded: &ProcessOutput, truth: &Truth) ->
     }
 }
 
+/// Improvement (%) of an error `b` over a reference error `a`.
+fn improvement(a: f64, b: f64) -> f64 {
+    100.0 * (a - b) / a
+}
+
+/// Gain on the noise images that turns the simulated level `simulated_db` into `level_db`.
+fn gain_of(simulated_db: f64, level_db: f64) -> f32 {
+    10f64.powf((level_db - simulated_db) / 20.0) as f32
+}
+
+/// Conventional UVD's (LS) Vx RMSE (mm/s) on `conventional`, simulated at `simulated_db`, with its
+/// noise brought to `level_db`.
+fn uvd_vx_at(
+    conventional: &Formed,
+    simulated_db: f64,
+    level_db: f64,
+    params: &ProcessParams,
+    truth: &Truth,
+) -> Result<f64> {
+    let quiet = |_: pipeline::Stage, _: usize, _: usize| {};
+    let gain = gain_of(simulated_db, level_db);
+    let out = pipeline::analyse(conventional.at_gain(gain), params, &quiet)?;
+    Ok(metrics::rmse(out.vector_ls.as_ref().expect("8 angles"), truth).vx)
+}
+
 /// Runs the spiral study: simulation, processing, noise sweep and scores.
 pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralStudy> {
     settings.validate()?;
@@ -344,12 +415,15 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
 
     // Main study at the requested noise level.
     let clock = Instant::now();
-    let params = process_params(
-        &grid,
-        &formed[0].acquisition,
-        settings.doppler_kernel,
-        settings.event_alignment,
-    );
+    let params = ProcessParams {
+        doppler_estimator: settings.doppler_estimator,
+        ..process_params(
+            &grid,
+            &formed[0].acquisition,
+            settings.doppler_kernel,
+            settings.event_alignment,
+        )
+    };
     let quiet = |_: pipeline::Stage, _: usize, _: usize| {};
     let mut main: Vec<ProcessOutput> = formed
         .iter()
@@ -369,7 +443,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
     let mut noise_sweep = Vec::new();
     for (i, &level) in settings.sweep_db.iter().enumerate() {
         progress(task, i, settings.sweep_db.len());
-        let gain = 10f64.powf((level - settings.noise_db) / 20.0) as f32;
+        let gain = gain_of(settings.noise_db, level);
         let rmse = if level == settings.noise_db {
             // The main study's level is already analysed: reuse it.
             estimator_rmse(&main[0], &main[1], &truth)
@@ -389,6 +463,41 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         clock.elapsed().as_secs_f64(),
     );
 
+    let clock = Instant::now();
+    let calibrated = match settings.calibrate_uvd_vx_m_s {
+        Some(target) => {
+            progress("calibration", 0, 1);
+            let swept: Vec<(f64, f64)> = noise_sweep
+                .iter()
+                .map(|r| (r.noise_db, r.rmse.uvd_ls.vx))
+                .collect();
+            let uvd_vx =
+                |level: f64| uvd_vx_at(&formed[0], settings.noise_db, level, &params, &truth);
+            let c = calibrate(target * 1e3, &swept, uvd_vx)?;
+            let c = match c.noise_db {
+                Some(level) => {
+                    let gain = gain_of(settings.noise_db, level);
+                    let conv = pipeline::analyse(formed[0].at_gain(gain), &params, &quiet)?;
+                    let coded = pipeline::analyse(formed[1].at_gain(gain), &params, &quiet)?;
+                    let rmse = estimator_rmse(&conv, &coded, &truth);
+                    Calibrated {
+                        rmse_mm_s: Some(rmse),
+                        improvement_pct: Some(PerComponent {
+                            vx: improvement(rmse.uvd_ls.vx, rmse.pcuvd_irls.vx),
+                            vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
+                        }),
+                        ..c
+                    }
+                }
+                None => c,
+            };
+            progress("calibration", 1, 1);
+            Some(c)
+        }
+        None => None,
+    };
+    timing.insert("calibration_s".into(), clock.elapsed().as_secs_f64());
+
     // Numbers.
     let n_angles = formed[1].acquisition.sequence.n_angles();
     let theory = metrics::power_to_db(n_angles as f64);
@@ -403,7 +512,6 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         .collect();
     let gain_mean = gain_db.iter().sum::<f64>() / gain_db.len().max(1) as f64;
     let rmse = estimator_rmse(&main[0], &main[1], &truth);
-    let improvement = |a: f64, b: f64| 100.0 * (a - b) / a;
     timing.insert("total_s".into(), started.elapsed().as_secs_f64());
     let coded = main.pop().expect("two modes");
     let conventional = main.pop().expect("two modes");
@@ -423,12 +531,14 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
             vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
         },
         noise_sweep,
+        calibrated,
         noise_db: settings.noise_db,
         noise_definition: NOISE_DEFINITION,
         frames: settings.frames,
         motion: settings.motion,
         event_alignment: settings.event_alignment.label(),
         doppler_kernel: settings.doppler_kernel,
+        doppler_estimator: settings.doppler_estimator,
         seed: settings.seed,
         nyquist_velocity_m_s: coded.nyquist_velocity,
         vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
@@ -447,4 +557,208 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         noise_power: [noise_conv, noise_coded],
         snr,
     })
+}
+
+/// Finds the noise level (dB) at which `uvd_vx(level)` (mm/s) equals `target` (mm/s), given
+/// `swept`, the (level, UVD Vx RMSE) pairs already measured: brackets it between those levels (or, when every swept level reads below the target, by 10 dB steps
+/// upward, up to 60 dB above the loudest), then bisects until within
+/// [`CALIBRATION_TOLERANCE_MM_S`]. UVD's error grows with the noise, so the first bracket holds
+/// the crossing. The RMSE fields are left for the caller to fill at the level found.
+fn calibrate(
+    target: f64,
+    swept: &[(f64, f64)],
+    mut uvd_vx: impl FnMut(f64) -> Result<f64>,
+) -> Result<Calibrated> {
+    let mut tried = swept.to_vec();
+    tried.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let fail = |tried: Vec<(f64, f64)>, note: String| Calibrated {
+        target_uvd_vx_mm_s: target,
+        noise_db: None,
+        rmse_mm_s: None,
+        improvement_pct: None,
+        tried,
+        note,
+    };
+    let below = tried.iter().rev().find(|r| r.1 <= target).copied();
+    let Some(mut low) = below else {
+        let floor = tried.first().map_or(f64::NAN, |r| r.1);
+        return Ok(fail(
+            tried,
+            format!(
+                "UVD's Vx RMSE is {floor:.2} mm/s already at the quietest level swept: the target \
+                 lies below its noise-free floor"
+            ),
+        ));
+    };
+    let mut high = tried.iter().find(|r| r.0 > low.0 && r.1 > target).copied();
+    let loudest = tried.last().map_or(low.0, |r| r.0);
+    let mut level = loudest;
+    while high.is_none() && level < loudest + 60.0 {
+        level += 10.0;
+        let v = uvd_vx(level)?;
+        tried.push((level, v));
+        if v > target {
+            high = Some((level, v));
+        } else {
+            low = (level, v);
+        }
+    }
+    let Some(mut high) = high else {
+        return Ok(fail(
+            tried,
+            format!("UVD's Vx RMSE stays below {target:.2} mm/s up to {level} dB"),
+        ));
+    };
+    let mut best = if (low.1 - target).abs() < (high.1 - target).abs() {
+        low
+    } else {
+        high
+    };
+    while (best.1 - target).abs() > CALIBRATION_TOLERANCE_MM_S
+        && high.0 - low.0 > CALIBRATION_MIN_BRACKET_DB
+    {
+        let mid = 0.5 * (low.0 + high.0);
+        let v = uvd_vx(mid)?;
+        tried.push((mid, v));
+        if v > target {
+            high = (mid, v);
+        } else {
+            low = (mid, v);
+        }
+        if (v - target).abs() <= (best.1 - target).abs() {
+            best = (mid, v);
+        }
+    }
+    let within = (best.1 - target).abs() <= CALIBRATION_TOLERANCE_MM_S;
+    Ok(Calibrated {
+        target_uvd_vx_mm_s: target,
+        noise_db: Some(best.0),
+        rmse_mm_s: None,
+        improvement_pct: None,
+        note: format!(
+            "bisection on the noise level, {} levels tried: UVD Vx RMSE {:.3} mm/s at {:.4} dB{}",
+            tried.len(),
+            best.1,
+            best.0,
+            if within {
+                String::new()
+            } else {
+                format!(
+                    "; not within {CALIBRATION_TOLERANCE_MM_S} mm/s of the target: the RMSE steps \
+                     from {:.3} to {:.3} mm/s between {:.5} and {:.5} dB",
+                    low.1, high.1, low.0, high.0
+                )
+            }
+        ),
+        tried,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An error that grows as a floor plus noise in quadrature (3 mm/s at 0 dB): the level found
+    /// is the analytic one, whether the sweep brackets it or it lies above the loudest level swept.
+    #[test]
+    fn calibration_finds_the_analytic_level() {
+        let error = |level: f64| (4.0f64.powi(2) + (3.0 * 10f64.powf(level / 20.0)).powi(2)).sqrt();
+        let want = 20.0 * ((5.7f64.powi(2) - 16.0).sqrt() / 3.0).log10();
+        for levels in [vec![-20.0, 0.0, 10.0], vec![-20.0, -10.0]] {
+            let sweep: Vec<(f64, f64)> = levels.iter().map(|&l| (l, error(l))).collect();
+            let c = calibrate(5.7, &sweep, |l| Ok(error(l))).unwrap();
+            let got = c.noise_db.unwrap();
+            assert!(
+                (error(got) - 5.7).abs() <= CALIBRATION_TOLERANCE_MM_S,
+                "{c:?}"
+            );
+            assert!((got - want).abs() < 0.1, "{got} dB against {want}");
+        }
+        // An error that steps across the target (a pixel that wraps): the bisection stops at the
+        // step, on its closer side, and says so.
+        let step = |level: f64| if level < 3.0 { 5.6 } else { 5.9 };
+        let c = calibrate(5.7, &[(-20.0, 5.6), (10.0, 5.9)], |l| Ok(step(l))).unwrap();
+        let got = c.noise_db.unwrap();
+        assert!((got - 3.0).abs() <= CALIBRATION_MIN_BRACKET_DB, "{c:?}");
+        assert!(
+            step(got) == 5.6 && c.note.contains("steps from 5.600 to 5.900"),
+            "{c:?}"
+        );
+        // A floor above the target: no level.
+        let sweep = [(-20.0, 6.0), (0.0, 8.0)];
+        let c = calibrate(5.7, &sweep, |_| Ok(f64::NAN)).unwrap();
+        assert!(c.noise_db.is_none() && c.note.contains("floor"), "{c:?}");
+    }
+
+    /// At reduced size (6 frames, 90 µm grid), on a simulated conventional spiral: the bisection's
+    /// level is checked independently, by simulating the recording afresh at that level (its noise
+    /// set by the level, not by a gain) and scoring it, once for a target the sweep brackets and
+    /// once for one above every swept level (the bracket is then extended upward). The targets lie
+    /// between −20 and about −5 dB: louder, 6 frames leave pixels whose estimate wraps, and the
+    /// RMSE steps by 0.05–0.15 mm/s where one does (seen at −2.84 and +1.85 dB), which the
+    /// bisection reports instead of meeting the tolerance (the analytic test's step).
+    #[test]
+    fn calibrated_level_reproduces_the_target_rmse() {
+        let settings = SpiralSettings {
+            frames: 6,
+            grid_step_m: 0.09e-3,
+            seed: 3,
+            ..SpiralSettings::default()
+        };
+        let phantom = SpiralPhantom::paper(settings.seed).unwrap();
+        let grid = settings.grid().unwrap();
+        let truth = phantom.truth(&grid.x, &grid.z, 0.0);
+        let quiet_progress = |_: &str, _: usize, _: usize| {};
+        let form = |noise_db: f64| {
+            let mut params = simulate::paper_spiral_params(false).unwrap();
+            params.seed = settings.seed;
+            simulate_and_form(
+                Acquire {
+                    phantom: &phantom,
+                    params,
+                    frames: settings.frames,
+                    noise_db,
+                    motion: settings.motion,
+                    alignment: settings.event_alignment,
+                    label: "conventional",
+                },
+                &grid,
+                &mut Timings::new(),
+                &quiet_progress,
+            )
+            .unwrap()
+        };
+        let simulated_db = 0.0;
+        let conv = form(simulated_db);
+        let params = ProcessParams {
+            doppler_estimator: settings.doppler_estimator,
+            ..process_params(
+                &grid,
+                &conv.acquisition,
+                settings.doppler_kernel,
+                settings.event_alignment,
+            )
+        };
+        let vx = |level: f64| uvd_vx_at(&conv, simulated_db, level, &params, &truth).unwrap();
+        let (quiet, loud) = (vx(-20.0), vx(-10.0));
+        assert!(
+            loud > quiet + 1.0,
+            "UVD Vx {quiet} mm/s at -20 dB, {loud} at 10 dB"
+        );
+        for (swept, target) in [
+            (vec![(-20.0, quiet), (-10.0, loud)], 0.5 * (quiet + loud)),
+            (vec![(-20.0, quiet)], 1.1 * loud),
+        ] {
+            let c = calibrate(target, &swept, |l| Ok(vx(l))).unwrap();
+            let level = c.noise_db.unwrap_or_else(|| panic!("no level: {c:?}"));
+            let again = form(level);
+            let quiet_stage = |_: pipeline::Stage, _: usize, _: usize| {};
+            let out = pipeline::analyse(again.at_gain(1.0), &params, &quiet_stage).unwrap();
+            let measured = metrics::rmse(out.vector_ls.as_ref().unwrap(), &truth).vx;
+            assert!(
+                (measured - target).abs() <= CALIBRATION_TOLERANCE_MM_S,
+                "target {target} mm/s, level {level} dB, recomputed {measured}: {c:?}"
+            );
+        }
+    }
 }
