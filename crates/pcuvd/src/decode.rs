@@ -23,7 +23,7 @@
 use std::ops::Range;
 use std::sync::Arc;
 
-use ndarray::{Array2, Array3, Array4, ArrayView3, Axis, s};
+use ndarray::{Array3, Array4, ArrayView3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use num_traits::Zero;
 use rayon::prelude::*;
@@ -488,40 +488,132 @@ impl SlowTimeAligner {
         }
     }
 
-    /// Aligns one channel's block, shape (events, samples), in place.
-    fn align<T: SlowTimeSample>(&self, block: &mut Array2<T>) {
-        let (n, f, per) = (self.events_per_frame, self.frames, T::PER_LANE);
-        let ns = block.ncols();
-        let data = block.as_slice_mut().expect("an owned array is contiguous");
-        let len = f + 2 * ALIGN_HALF;
-        let mut lanes = vec![Complex32::new(0.0, 0.0); TILE * len];
-        for event in 0..n {
-            for s0 in (0..ns).step_by(per * TILE) {
-                let samples = (per * TILE).min(ns - s0);
-                let count = samples.div_ceil(per);
-                let lanes = &mut lanes[..count * len];
-                for frame in 0..f {
-                    let start = (frame * n + event) * ns + s0;
-                    let row = &data[start..start + samples];
-                    for (j, lane) in row.chunks(per).enumerate() {
-                        lanes[j * len + ALIGN_HALF + frame] = T::pack(lane);
-                    }
-                }
-                extend(lanes, f, T::REAL);
-                let w = &self.weights[event];
-                for frame in 0..f {
-                    let start = (frame * n + event) * ns + s0;
-                    let row = &mut data[start..start + samples];
-                    for (j, lane) in row.chunks_mut(per).enumerate() {
-                        let series = &lanes[j * len + frame..j * len + frame + 2 * ALIGN_HALF + 1];
-                        let mut acc = Complex32::new(0.0, 0.0);
-                        for (v, &wk) in series.iter().zip(w) {
-                            acc += v * wk;
+    /// Aligned events of the frames `kept` of one channel, into `out` (kept frames × events
+    /// rows of `ns` samples): each row the weighted sum of the event's rows of the
+    /// 2·ALIGN_HALF + 1 frames around it. `row(i)` is event row i (frame · events + event) of the
+    /// channel's recording. Frames beyond the recording's ends are predicted, and only where a
+    /// kept frame's window reaches them (the first and last block): a block's margin frames are
+    /// read, never aligned.
+    fn align_kept<'a, T>(
+        &self,
+        row: impl Fn(usize) -> &'a [T],
+        ns: usize,
+        kept: Range<usize>,
+        scratch: &mut AlignScratch<T>,
+        out: &mut [T],
+    ) where
+        T: SlowTimeSample + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign + 'a,
+    {
+        let (n, f) = (self.events_per_frame, self.frames);
+        let h = ALIGN_HALF;
+        let need_head = kept.start < h;
+        let need_tail = kept.end + h > f;
+        if need_head || need_tail {
+            scratch.head.resize(h * n * ns, T::zero());
+            scratch.tail.resize(h * n * ns, T::zero());
+            self.predict_ends(&row, ns, need_head, need_tail, scratch);
+        }
+        let (head, tail) = (&scratch.head, &scratch.tail);
+        // Frame g (from −ALIGN_HALF to f + ALIGN_HALF), event e.
+        let frame_row = |g: isize, e: usize| -> &[T] {
+            if g < 0 {
+                let t = (g + h as isize) as usize;
+                &head[(t * n + e) * ns..(t * n + e + 1) * ns]
+            } else if g as usize >= f {
+                let t = g as usize - f;
+                &tail[(t * n + e) * ns..(t * n + e + 1) * ns]
+            } else {
+                row(g as usize * n + e)
+            }
+        };
+        // In runs of samples whose rows stay in L2 while every kept frame sums them; the
+        // sum runs along each row, which vectorises.
+        const RUN: usize = 512;
+        for s0 in (0..ns).step_by(RUN) {
+            let s1 = (s0 + RUN).min(ns);
+            for e in 0..n {
+                let w = &self.weights[e];
+                for (kf, frame) in kept.clone().enumerate() {
+                    let dest = &mut out[(kf * n + e) * ns + s0..(kf * n + e) * ns + s1];
+                    dest.fill(T::zero());
+                    for (k, &wk) in w.iter().enumerate() {
+                        let g = frame as isize + k as isize - h as isize;
+                        let source = &frame_row(g, e)[s0..s1];
+                        for (a, &x) in dest.iter_mut().zip(source) {
+                            *a += x * wk;
                         }
-                        T::unpack(acc, lane);
                     }
                 }
             }
+        }
+    }
+
+    /// The ALIGN_HALF frames predicted before the first frame (`scratch.head`, frame −ALIGN_HALF
+    /// first) and after the last (`scratch.tail`), each (frames × events) rows, as [`extend`]
+    /// continues a series: from the ALIGN_FIT_FRAMES frames at that end, pooled over tiles of
+    /// neighbouring samples.
+    fn predict_ends<'a, T: SlowTimeSample + 'a>(
+        &self,
+        row: &impl Fn(usize) -> &'a [T],
+        ns: usize,
+        head: bool,
+        tail: bool,
+        scratch: &mut AlignScratch<T>,
+    ) {
+        let (n, f, per, h) = (self.events_per_frame, self.frames, T::PER_LANE, ALIGN_HALF);
+        // The predictors see only the frames they are fitted on: a series of those frames
+        // alone continues as the whole series does.
+        let fit = ALIGN_FIT_FRAMES.min(f);
+        let len = fit + 2 * h;
+        scratch.lanes.resize(TILE * len, Complex32::new(0.0, 0.0));
+        for (is_tail, wanted) in [(false, head), (true, tail)] {
+            if !wanted {
+                continue;
+            }
+            let first = if is_tail { f - fit } else { 0 };
+            for e in 0..n {
+                for s0 in (0..ns).step_by(per * TILE) {
+                    let samples = (per * TILE).min(ns - s0);
+                    let count = samples.div_ceil(per);
+                    let lanes = &mut scratch.lanes[..count * len];
+                    for frame in 0..fit {
+                        let source = &row((first + frame) * n + e)[s0..s0 + samples];
+                        for (j, lane) in source.chunks(per).enumerate() {
+                            lanes[j * len + h + frame] = T::pack(lane);
+                        }
+                    }
+                    extend(lanes, fit, T::REAL);
+                    let (out, from) = if is_tail {
+                        (&mut scratch.tail, h + fit)
+                    } else {
+                        (&mut scratch.head, 0)
+                    };
+                    for t in 0..h {
+                        let dest = &mut out[(t * n + e) * ns + s0..(t * n + e) * ns + s0 + samples];
+                        for (j, lane) in dest.chunks_mut(per).enumerate() {
+                            T::unpack(lanes[j * len + from + t], lane);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Working arrays of [`SlowTimeAligner::align_kept`] for one channel, kept by a worker from one
+/// channel to the next.
+struct AlignScratch<T> {
+    head: Vec<T>,
+    tail: Vec<T>,
+    lanes: Vec<Complex32>,
+}
+
+impl<T> Default for AlignScratch<T> {
+    fn default() -> Self {
+        AlignScratch {
+            head: Vec::new(),
+            tail: Vec::new(),
+            lanes: Vec::new(),
         }
     }
 }
@@ -748,7 +840,7 @@ where
     F: Fn(&TraceShifter, &mut [T], f64) + Sync,
 {
     let n = plan.shifts.len();
-    let (ne, nc, ns) = events.dim();
+    let (_, nc, ns) = events.dim();
     let max_shift = plan.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
     let shifter = TraceShifter::new(ns, max_shift);
     // Every element is written below, so a reused array needs no clearing.
@@ -756,47 +848,56 @@ where
     let reuse = reuse.filter(|array| array.dim() == shape && array.is_standard_layout());
     // (An array of another shape is dropped by now, before a new one is allocated.)
     let mut out = reuse.unwrap_or_else(|| Array4::<T>::from_elem(shape, T::zero()));
+    // Rows of samples are read where they lie: event i of channel c is row i·nc + c.
+    let events = events.as_standard_layout();
+    let data = events.as_slice().expect("standard layout");
+    let row = |c: usize| move |i: usize| &data[(i * nc + c) * ns..(i * nc + c + 1) * ns];
     out.axis_iter_mut(Axis(2))
         .into_par_iter()
         .enumerate()
-        .for_each(|(c, mut channel_out)| {
-            // Gathered and summed through plain slices: ndarray's strided copies and row
-            // iterators made decoding 2.4 times slower.
-            let mut block = Array2::from_elem((ne, ns), T::zero());
-            for (e, mut row) in block.outer_iter_mut().enumerate() {
-                let source = events.slice(s![e, c, ..]);
-                match (row.as_slice_mut(), source.as_slice()) {
-                    (Some(dst), Some(src)) => dst.copy_from_slice(src),
-                    _ => row.assign(&source),
-                }
-            }
-            if let Some(aligner) = aligner {
-                aligner.align(&mut block);
-            }
-            let block = block.as_slice().expect("an owned array is contiguous");
-            let mut trace = vec![T::zero(); ns];
-            for (kept_f, f) in kept.clone().enumerate() {
-                for k in 0..n {
-                    trace.fill(T::zero());
-                    for i in 0..n {
-                        let weight = plan.matrix[k * n + i];
-                        if weight == 0.0 {
-                            continue;
+        .for_each_init(
+            || (AlignScratch::default(), Vec::new(), vec![T::zero(); ns]),
+            |(scratch, aligned, trace), (c, mut channel_out)| {
+                let row = row(c);
+                // The kept frames' events, aligned or as recorded: kept frames × events rows.
+                let kept_rows: &[T] = match aligner {
+                    Some(aligner) => {
+                        aligned.resize(kept.len() * n * ns, T::zero());
+                        aligner.align_kept(row, ns, kept.clone(), scratch, aligned);
+                        aligned
+                    }
+                    None => {
+                        aligned.clear();
+                        for i in kept.start * n..kept.end * n {
+                            aligned.extend_from_slice(row(i));
                         }
-                        let event = &block[(f * n + i) * ns..(f * n + i + 1) * ns];
-                        for (a, &m) in trace.iter_mut().zip(event) {
-                            *a += m * weight;
+                        aligned
+                    }
+                };
+                for kept_f in 0..kept.len() {
+                    for k in 0..n {
+                        trace.fill(T::zero());
+                        for i in 0..n {
+                            let weight = plan.matrix[k * n + i];
+                            if weight == 0.0 {
+                                continue;
+                            }
+                            let event =
+                                &kept_rows[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
+                            for (a, &m) in trace.iter_mut().zip(event) {
+                                *a += m * weight;
+                            }
+                        }
+                        shift(&shifter, trace, plan.shifts[k]);
+                        let mut dest = channel_out.slice_mut(s![k, kept_f, ..]);
+                        match dest.as_slice_mut() {
+                            Some(dest) => dest.copy_from_slice(trace),
+                            None => dest.assign(&ndarray::ArrayView1::from(&trace[..])),
                         }
                     }
-                    shift(&shifter, &mut trace, plan.shifts[k]);
-                    let mut dest = channel_out.slice_mut(s![k, kept_f, ..]);
-                    match dest.as_slice_mut() {
-                        Some(dest) => dest.copy_from_slice(&trace),
-                        None => dest.assign(&ndarray::ArrayView1::from(&trace)),
-                    }
                 }
-            }
-        });
+            },
+        );
     out
 }
 
