@@ -706,27 +706,47 @@ fn predictor(series: &[Vec<Complex64>], order: usize, real: bool) -> Vec<Complex
     if order == 0 {
         return hold();
     }
-    let p = order;
-    let mut gram = vec![vec![Complex64::new(0.0, 0.0); p]; p];
-    let mut rhs = vec![Complex64::new(0.0, 0.0); p];
-    let mut add = |past: &[Complex64], target: Complex64| {
+    let p = order.min(ALIGN_ORDER);
+    const ZERO: Complex64 = Complex64::new(0.0, 0.0);
+    // On the stack, and only the upper triangle: the Gram matrix is Hermitian, and the lower
+    // triangle, conjugated from the upper, comes out bit for bit as summed term by term.
+    let mut upper = [[ZERO; ALIGN_ORDER]; ALIGN_ORDER];
+    let mut rhs = vec![ZERO; p];
+    let mut add = |past: &[Complex64; ALIGN_ORDER], target: Complex64| {
         for j in 0..p {
-            for k in 0..p {
-                gram[j][k] += past[j].conj() * past[k];
+            for k in j..p {
+                upper[j][k] += past[j].conj() * past[k];
             }
             rhs[j] += past[j].conj() * target;
         }
     };
+    let (mut past, mut future) = ([ZERO; ALIGN_ORDER], [ZERO; ALIGN_ORDER]);
     for x in series {
         for t in p..x.len() {
-            // Forward: x[t] from x[t − 1], …, x[t − p].
-            let past: Vec<Complex64> = (1..=p).map(|j| x[t - j]).collect();
+            for j in 1..=p {
+                // Forward: x[t] from x[t − 1], …, x[t − p].
+                past[j - 1] = x[t - j];
+                // Backward: x[t − p] from x[t − p + 1], …, x[t], conjugated so the same a_j
+                // serve.
+                future[j - 1] = x[t - p + j].conj();
+            }
             add(&past, x[t]);
-            // Backward: x[t − p] from x[t − p + 1], …, x[t], conjugated so the same a_j serve.
-            let future: Vec<Complex64> = (1..=p).map(|j| x[t - p + j].conj()).collect();
             add(&future, x[t - p].conj());
         }
     }
+    let mut gram: Vec<Vec<Complex64>> = (0..p)
+        .map(|j| {
+            (0..p)
+                .map(|k| {
+                    if k >= j {
+                        upper[j][k]
+                    } else {
+                        upper[k][j].conj()
+                    }
+                })
+                .collect()
+        })
+        .collect();
     if real {
         for row in gram.iter_mut() {
             for v in row.iter_mut() {
