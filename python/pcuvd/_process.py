@@ -155,6 +155,9 @@ def process(
     with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
     `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity),
+    `doppler_estimator="kasai"` (divide the Doppler phase by the nominal centre frequency; the
+    default "loupas" divides it by each pixel's measured mean frequency and needs an axial grid
+    step of at most about a wavelength),
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message

@@ -39,7 +39,7 @@ def batch(tmp_path_factory, disk, cli) -> list[tuple[str, dict]]:
         cli, "simulate", "--preset", "tube", "--mode", "both", "--frames", "8", "--out", folder
     )
     assert done.returncode == 0, done.stderr
-    small = {"grid_mm": (-3, 3, 4, 10, 0.1), "dynamics": "off"}
+    small = {"grid_mm": (-3, 3, 4, 10, 0.08), "dynamics": "off"}
     return [
         (str(disk), {}),
         (str(folder / "coded.toml"), small),

@@ -41,7 +41,7 @@ def tube(tmp_path_factory, cli) -> Path:
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     source = disk if which == "disk" else tube
     tube_options = [
-        "--grid=-3,3,4,10,0.1",
+        "--grid=-3,3,4,10,0.08",
         "--dynamics=off",
         "--ensemble-frames=4",
         "--ensemble-step=3",
@@ -61,7 +61,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     assert done.returncode == 0, done.stderr
 
     tube_kwargs = {
-        "grid_mm": (-3, 3, 4, 10, 0.1),
+        "grid_mm": (-3, 3, 4, 10, 0.08),
         "dynamics": "off",
         "ensemble_frames": 4,
         "ensemble_step": 3,
@@ -219,7 +219,7 @@ def test_threads_run_at_once_and_agree(disk):
 def test_dynamics_rerun_equals_processing_with_those_settings():
     """pcuvd.dynamics re-runs only the dynamics stage: the same RI maps as a full process."""
     recording, _ = pcuvd.simulate("tube", "coded", frames=60, noise_db=None, quiet=True)
-    grid = {"grid_mm": (-3, 3, 4, 10, 0.1)}
+    grid = {"grid_mm": (-3, 3, 4, 10, 0.08)}
     # A steady tube, read as if a 40 Hz heart beat (one 25 ms cycle in the 33 ms recording).
     beat = {"heart_rate_hz": 40, "window_ms": 5, "window_step_ms": 1}
     without = pcuvd.process(recording, dynamics="off", quiet=True, **grid)
@@ -235,3 +235,28 @@ def test_dynamics_rerun_equals_processing_with_those_settings():
         pcuvd.dynamics(without, grid_mm=(-1, 1, 4, 5, 0.1))
     with pytest.raises(ValueError, match="window"):
         pcuvd.dynamics(without, heart_rate_hz=40, window_ms=-1)
+
+
+def test_doppler_estimator_is_the_cli_option(tube, cli, tmp_path):
+    """`doppler_estimator=` is `--doppler-estimator`. Both estimators share the lag-1 phase and
+    differ in the frequency they divide it by: Kasai the nominal f_0, Loupas (the default) each
+    pixel's measured mean frequency, which on these attenuated echoes is below f_0 (the image's
+    harmonic mean and the attenuation's downshift), so Loupas reads faster by f_0 / f̄."""
+    grid = (-3, 3, 4, 10, 0.08)
+    loupas = pcuvd.process(tube, grid_mm=grid, dynamics="off", quiet=True)
+    kasai = pcuvd.process(tube, grid_mm=grid, dynamics="off", doppler_estimator="kasai", quiet=True)
+    assert loupas.summary["doppler"]["estimator"] == "loupas"
+    assert kasai.summary["doppler"]["estimator"] == "kasai"
+    by_cli = tmp_path / "cli"
+    done = run_cli(
+        cli, "process", tube, "--out", by_cli, "--grid=-3,3,4,10,0.08", "--dynamics=off",
+        "--doppler-estimator=kasai",
+    )
+    assert done.returncode == 0, done.stderr
+    assert_same_array(kasai.projections, np.load(by_cli / "projections.npy"), "projections")
+    moving = np.isfinite(kasai.projections) & (np.abs(kasai.projections) > 2e-3)
+    ratio = np.median(loupas.projections[moving] / kasai.projections[moving])
+    assert 1.0 < ratio < 1.2, ratio
+    # A grid too coarse for Loupas's axial lag: the command's message, before any work.
+    with pytest.raises(ValueError, match="doppler-estimator loupas"):
+        pcuvd.process(tube, grid_mm=(-3, 3, 4, 10, 0.1), dynamics="off", quiet=True)

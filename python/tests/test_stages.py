@@ -10,9 +10,11 @@ from conftest import assert_same_array
 
 
 def test_chain_of_stages_equals_process_on_the_disk(disk):
-    """rf_to_iq → beamform → svd_filter → power_doppler / kasai is exactly what process runs."""
+    """rf_to_iq → beamform → svd_filter → power_doppler / kasai is exactly what process runs
+    with the Kasai estimator (the default, Loupas, divides the same phase by each pixel's mean
+    frequency instead of f_0)."""
     recording = pcuvd.read_recording(disk)
-    result = pcuvd.process(recording, quiet=True)
+    result = pcuvd.process(recording, doppler_estimator="kasai", quiet=True)
     summary = result.summary
     fc = recording.probe["center_freq_hz"]
     iq = pcuvd.rf_to_iq(
@@ -52,7 +54,7 @@ def test_chain_of_stages_equals_process_on_the_disk(disk):
 
 def test_vector_fits_equal_process_on_a_coded_tube(tmp_path):
     recording, truth = pcuvd.simulate("tube", "coded", frames=10, noise_db=None, quiet=True)
-    result = pcuvd.process(recording, grid_mm=(-3, 3, 4, 10, 0.1), dynamics="off", quiet=True)
+    result = pcuvd.process(recording, grid_mm=(-3, 3, 4, 10, 0.08), dynamics="off", quiet=True)
     vx, vz = pcuvd.vector_ls(result.projections, recording.angles_rad)
     assert_same_array(vx, result.vx_ls, "vx_ls")
     assert_same_array(vz, result.vz_ls, "vz_ls")

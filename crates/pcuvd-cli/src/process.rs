@@ -1041,7 +1041,11 @@ pub fn summary_json(
             "tissue_frequency_fraction": params.clutter.tissue_frequency,
             "cut_offs_per_angle": out.clutter.iter().map(|r| json!({"low": r.low, "high": r.high})).collect::<Vec<_>>(),
         },
-        "doppler": { "kernel": [params.doppler_kernel.0, params.doppler_kernel.1] },
+        "doppler": {
+            "kernel": [params.doppler_kernel.0, params.doppler_kernel.1],
+            "estimator": params.doppler_estimator.label(),
+            "estimator_description": params.doppler_estimator.describe(),
+        },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,
         "dealias": dealias_summary(params, out),

@@ -173,6 +173,10 @@ fn paper_rejects_bad_arguments() {
         vec!["--part", "network", "--heart-rate", "0"],
         vec!["--part", "network", "--heart-rate", "400"],
         vec!["--part", "network", "--network-noise-db", "inf"],
+        // A grid too coarse for Loupas, the default estimator, in every study.
+        vec!["--grid-step", "0.2"],
+        vec!["--part", "network", "--grid-step", "0.2"],
+        vec!["--part", "dealias", "--grid-step", "0.2"],
     ] {
         let out = tempfile::tempdir().unwrap();
         let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
@@ -189,5 +193,13 @@ fn paper_rejects_bad_arguments() {
                 && !stderr.contains("panicked"),
             "{args:?}: {stderr}"
         );
+        if args.contains(&"0.2") {
+            // Refused before anything is simulated: nothing written, and the way out named.
+            assert!(stderr.contains("finer grid"), "{args:?}: {stderr}");
+            assert!(
+                std::fs::read_dir(out.path()).unwrap().next().is_none(),
+                "{args:?}: wrote before refusing"
+            );
+        }
     }
 }

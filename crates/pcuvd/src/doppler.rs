@@ -760,9 +760,11 @@ pub fn maps_of_moments(
             (f_bar, lateral)
         }
     };
+    // −scale·arg R with scale = c·f_frame/(4π f̄), in the order of [`projection_velocity`], so
+    // that Kasai's maps are bit for bit those of the lag-1 stage functions.
     let velocity = Zip::from(&r1).and(&mean_frequency).map_collect(|&r, &f| {
         if r.norm() > 0.0 {
-            -sound_speed * frame_rate * r.arg() / (4.0 * std::f64::consts::PI * f)
+            -(sound_speed * frame_rate / (4.0 * std::f64::consts::PI * f)) * r.arg()
         } else {
             0.0
         }
@@ -879,6 +881,29 @@ mod tests {
         assert!(v.iter().all(|&x| (x - v_true).abs() < 1e-6), "{v:?}");
         assert!(ac.power.iter().all(|&p| (p - 4.0).abs() < 1e-5));
         assert!(v_true < nyquist_velocity(c, fr, f0));
+        // Kasai's maps are the lag-1 stage's velocity bit for bit (Python's `kasai` stage
+        // function and `process` must agree exactly).
+        let geometry = DopplerGeometry {
+            sound_speed: c,
+            frame_rate: fr,
+            demodulation_frequency: f0,
+            axial_step: 50e-6,
+            axial_weight: 2.0,
+            lateral_step: 50e-6,
+            lateral_weight: 0.0,
+        };
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut draw = || -> f32 { StandardNormal.sample(&mut rng) };
+        let speckle = Array3::from_shape_fn((6, 5, 9), |_| Complex32::new(draw(), draw()));
+        let maps =
+            doppler_maps(speckle.view(), (1, 1), DopplerEstimator::Kasai, &geometry).unwrap();
+        let lag1 = autocorrelation(speckle.view(), (1, 1)).unwrap();
+        assert_eq!(
+            maps.velocity,
+            projection_velocity(&lag1.r1, c, fr, f0).unwrap()
+        );
     }
 
     /// A pulse moving axially through depth: the axial lag gives its frequency (not f_0), and the

@@ -312,6 +312,11 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
     let started = Instant::now();
     let mut timing = Timings::new();
     let grid = settings.grid()?;
+    super::check_estimator(
+        &simulate::paper_spiral_params(true)?,
+        &grid,
+        crate::doppler::DopplerEstimator::default(),
+    )?;
     // The reference level at which the noise is simulated: the loudest asked for (any works:
     // the noise images scale linearly).
     let reference_db = settings

@@ -179,6 +179,24 @@ pub fn process_params(
     }
 }
 
+/// Refuses, before anything is simulated, a Doppler `estimator` that a study's `grid` cannot
+/// serve for the acquisition `params` ([`crate::pipeline::check_doppler_estimator`]: Loupas on
+/// an axial step too coarse for it).
+pub fn check_estimator(
+    params: &crate::simulate::SimParams,
+    grid: &Grid,
+    estimator: crate::doppler::DopplerEstimator,
+) -> Result<()> {
+    let acq = params.acquisition();
+    crate::pipeline::check_doppler_estimator(
+        &acq,
+        &ProcessParams {
+            doppler_estimator: estimator,
+            ..process_params(grid, &acq, (1, 1), EventAlignment::MidFrame)
+        },
+    )
+}
+
 /// What [`simulate_and_form`] simulates.
 pub struct Acquire<'a> {
     /// The phantom.

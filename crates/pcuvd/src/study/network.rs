@@ -367,6 +367,11 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
     };
     let phantom = NetworkPhantom::new(spec, settings.seed)?;
     let grid = settings.grid()?;
+    super::check_estimator(
+        &simulate::rat_params(true)?,
+        &grid,
+        settings.doppler_estimator,
+    )?;
     let truth = phantom.cycle_truth(&grid.x, &grid.z);
     let motion_truth = phantom.truth(&grid.x, &grid.z, 0.0);
     let sites = spectrogram_sites(&phantom, &truth, &grid);

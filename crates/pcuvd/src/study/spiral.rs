@@ -390,6 +390,11 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
     let clock = Instant::now();
     let phantom = SpiralPhantom::paper(settings.seed)?;
     let grid = settings.grid()?;
+    super::check_estimator(
+        &simulate::paper_spiral_params(true)?,
+        &grid,
+        settings.doppler_estimator,
+    )?;
     let truth = phantom.truth(&grid.x, &grid.z, 0.0);
     timing.insert("phantom_s".into(), clock.elapsed().as_secs_f64());
 
