@@ -886,12 +886,10 @@ impl SlowTimeSample for Complex32 {
         samples[0] = lane;
     }
     fn floats(samples: &[Complex32]) -> &[f32] {
-        // SAFETY: `Complex<f32>` is `#[repr(C)]` { re, im }: two f32 each, no padding.
-        unsafe { std::slice::from_raw_parts(samples.as_ptr().cast(), 2 * samples.len()) }
+        crate::iq::complex_floats(samples)
     }
     fn floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
-        // SAFETY: as in `floats`; the borrow is unique.
-        unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
+        crate::iq::complex_floats_mut(samples)
     }
 }
 

@@ -188,14 +188,8 @@ pub fn demodulate_into(
 /// an odd, symmetric FIR; zero beyond the trace ends. `y` has the shape of `x`. Every column is
 /// filtered alike, with the terms summed in the same order as one trace at a time.
 fn fir_same_rows(x: &[Complex32], width: usize, taps: &[f32], y: &mut [Complex32]) {
-    // SAFETY: `Complex<f32>` is `#[repr(C)]` { re, im }: two f32 each, no padding; a real tap
-    // scales both alike.
-    let (x, y) = unsafe {
-        (
-            std::slice::from_raw_parts(x.as_ptr().cast::<f32>(), 2 * x.len()),
-            std::slice::from_raw_parts_mut(y.as_mut_ptr().cast::<f32>(), 2 * y.len()),
-        )
-    };
+    // A real tap scales the real and imaginary parts alike.
+    let (x, y) = (complex_floats(x), complex_floats_mut(y));
     #[cfg(target_arch = "x86_64")]
     {
         if is_x86_feature_detected!("avx512f") {
@@ -208,6 +202,18 @@ fn fir_same_rows(x: &[Complex32], width: usize, taps: &[f32], y: &mut [Complex32
         }
     }
     fir_same_rows_floats(x, 2 * width, taps, y)
+}
+
+/// Complex samples as their floats, (re, im) after each other.
+pub(crate) fn complex_floats(samples: &[Complex32]) -> &[f32] {
+    // SAFETY: `Complex<f32>` is `#[repr(C)]` { re, im }: two f32 each, no padding.
+    unsafe { std::slice::from_raw_parts(samples.as_ptr().cast(), 2 * samples.len()) }
+}
+
+/// [`complex_floats`], writable.
+pub(crate) fn complex_floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
+    // SAFETY: as in `complex_floats`; the borrow is unique.
+    unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
 }
 
 /// [`fir_same_rows`] compiled for AVX-512 (the same sums: no fused multiply-adds).
