@@ -579,7 +579,8 @@ impl SlowTimeAligner {
                             lanes[j * len + h + frame] = T::pack(lane);
                         }
                     }
-                    extend(lanes, fit, T::REAL);
+                    let end = if is_tail { End::Tail } else { End::Head };
+                    extend(lanes, fit, T::REAL, end);
                     let (out, from) = if is_tail {
                         (&mut scratch.tail, h + fit)
                     } else {
@@ -690,44 +691,56 @@ fn interpolation_weights(advance: f64) -> [f32; 2 * ALIGN_HALF + 1] {
     w
 }
 
+/// An end of a series of frames.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum End {
+    /// Before the first frame.
+    Head,
+    /// After the last frame.
+    Tail,
+}
+
 /// Continues every series of `lanes` (consecutive runs of `frames` + 2·ALIGN_HALF, the frames at
-/// ALIGN_HALF..ALIGN_HALF + frames) by ALIGN_HALF predicted frames before and after: a linear
-/// predictor fitted on the series' ALIGN_FIT_FRAMES frames nearest each end, pooled over the lanes,
-/// with real coefficients when each lane carries two real series (`real`).
-fn extend(lanes: &mut [Complex32], frames: usize, real: bool) {
+/// ALIGN_HALF..ALIGN_HALF + frames) by ALIGN_HALF predicted frames beyond `end`: a linear
+/// predictor fitted on the series' ALIGN_FIT_FRAMES frames nearest that end, pooled over the
+/// lanes, with real coefficients when each lane carries two real series (`real`). The other end's
+/// slots are left as they are: an end predictor sees only its own end's frames.
+fn extend(lanes: &mut [Complex32], frames: usize, real: bool, end: End) {
     let len = frames + 2 * ALIGN_HALF;
     let order = ALIGN_ORDER.min(frames.saturating_sub(2) / 2);
     let fit_frames = ALIGN_FIT_FRAMES.min(frames);
-    let view = |lanes: &[Complex32], from: usize| -> Vec<Vec<Complex64>> {
-        lanes
-            .chunks_exact(len)
-            .map(|series| {
-                series[ALIGN_HALF + from..ALIGN_HALF + from + fit_frames]
-                    .iter()
-                    .map(|v| Complex64::new(v.re as f64, v.im as f64))
-                    .collect()
-            })
-            .collect()
+    let from = match end {
+        End::Head => 0,
+        End::Tail => frames - fit_frames,
     };
-    let tail = predictor(&view(lanes, frames - fit_frames), order, real);
-    let head = predictor(&view(lanes, 0), order, real);
+    let fitted = lanes
+        .chunks_exact(len)
+        .map(|series| &series[ALIGN_HALF + from..ALIGN_HALF + from + fit_frames]);
+    let a = predictor(fitted, order, real);
     for series in lanes.chunks_exact_mut(len) {
-        // After the last frame: x[t] = Σ_j a_j x[t − j]; before the first: x[t] = Σ_j a_j* x[t + j].
-        for t in ALIGN_HALF + frames..len {
-            let mut v = Complex64::new(0.0, 0.0);
-            for (j, a) in tail.iter().enumerate() {
-                let x = series[t - 1 - j];
-                v += a * Complex64::new(x.re as f64, x.im as f64);
+        match end {
+            // After the last frame: x[t] = Σ_j a_j x[t − j].
+            End::Tail => {
+                for t in ALIGN_HALF + frames..len {
+                    let mut v = Complex64::new(0.0, 0.0);
+                    for (j, a) in a.iter().enumerate() {
+                        let x = series[t - 1 - j];
+                        v += a * Complex64::new(x.re as f64, x.im as f64);
+                    }
+                    series[t] = Complex32::new(v.re as f32, v.im as f32);
+                }
             }
-            series[t] = Complex32::new(v.re as f32, v.im as f32);
-        }
-        for t in (0..ALIGN_HALF).rev() {
-            let mut v = Complex64::new(0.0, 0.0);
-            for (j, a) in head.iter().enumerate() {
-                let x = series[t + 1 + j];
-                v += a.conj() * Complex64::new(x.re as f64, x.im as f64);
+            // Before the first: x[t] = Σ_j a_j* x[t + j].
+            End::Head => {
+                for t in (0..ALIGN_HALF).rev() {
+                    let mut v = Complex64::new(0.0, 0.0);
+                    for (j, a) in a.iter().enumerate() {
+                        let x = series[t + 1 + j];
+                        v += a.conj() * Complex64::new(x.re as f64, x.im as f64);
+                    }
+                    series[t] = Complex32::new(v.re as f32, v.im as f32);
+                }
             }
-            series[t] = Complex32::new(v.re as f32, v.im as f32);
         }
     }
 }
@@ -735,7 +748,11 @@ fn extend(lanes: &mut [Complex32], frames: usize, real: bool) {
 /// Coefficients a_1..a_p of the forward–backward least-squares linear predictor of `series`
 /// (x[t] ≈ Σ_j a_j x[t − j], and x[t] ≈ Σ_j a_j* x[t + j]), real when `real`. With fewer than
 /// one equation per unknown, or a singular system, the predictor repeats the last value.
-fn predictor(series: &[Vec<Complex64>], order: usize, real: bool) -> Vec<Complex64> {
+fn predictor<'a>(
+    series: impl Iterator<Item = &'a [Complex32]>,
+    order: usize,
+    real: bool,
+) -> Vec<Complex64> {
     let hold = || {
         let mut a = vec![Complex64::new(0.0, 0.0); order.max(1)];
         a[0] = Complex64::new(1.0, 0.0);
@@ -759,7 +776,13 @@ fn predictor(series: &[Vec<Complex64>], order: usize, real: bool) -> Vec<Complex
         }
     };
     let (mut past, mut future) = ([ZERO; ALIGN_ORDER], [ZERO; ALIGN_ORDER]);
-    for x in series {
+    let mut widened = [ZERO; ALIGN_FIT_FRAMES];
+    for narrow in series {
+        // Series are at most ALIGN_FIT_FRAMES long (the frames a predictor is fitted on).
+        let x = &mut widened[..narrow.len()];
+        for (wide, v) in x.iter_mut().zip(narrow) {
+            *wide = Complex64::new(v.re as f64, v.im as f64);
+        }
         for t in p..x.len() {
             for j in 1..=p {
                 // Forward: x[t] from x[t − 1], …, x[t − p].
@@ -1076,7 +1099,8 @@ mod tests {
         for v in lanes[ALIGN_HALF + frames..].iter_mut() {
             *v = Complex32::new(9.0, 9.0);
         }
-        extend(&mut lanes, frames, false);
+        extend(&mut lanes, frames, false, End::Tail);
+        extend(&mut lanes, frames, false, End::Head);
         let worst = lanes
             .iter()
             .zip(&truth)
