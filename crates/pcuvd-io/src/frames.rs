@@ -8,20 +8,13 @@ use std::path::{Path, PathBuf};
 use ndarray::Array3;
 use ndarray_npy::npy::header::{Header, Layout};
 use num_complex::Complex32;
-use pcuvd::source::FrameSource;
+use num_traits::Zero;
+use pcuvd::source::{FrameSource, array_reusing};
 use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
 
 use crate::error::IoError;
 use crate::manifest::{event_shape, kind_error, parse_manifest};
-
-/// `values` converted one by one, in parallel.
-fn convert<T: Copy + Sync, U: Send>(
-    values: std::io::Result<Vec<T>>,
-    f: impl Fn(T) -> U + Sync + Send,
-) -> std::io::Result<Vec<U>> {
-    Ok(values?.par_iter().map(|&v| f(v)).collect())
-}
 
 /// How one stored sample reads (little-endian).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -188,6 +181,28 @@ impl ManifestFrames {
         Ok(())
     }
 
+    /// The stored values of `events` converted by `f` into an array of `shape`, in `reuse`'s
+    /// memory where it has room.
+    fn read_converted<T: bytemuck::Pod + Sync, U: Clone + Zero + Send>(
+        &self,
+        events: Range<usize>,
+        shape: (usize, usize, usize),
+        reuse: Option<Array3<U>>,
+        f: impl Fn(T) -> U + Sync + Send,
+    ) -> pcuvd::Result<Array3<U>> {
+        let stored = self.read_stored::<T>(events).map_err(|e| {
+            pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
+        })?;
+        let mut array = array_reusing(reuse, shape);
+        array
+            .as_slice_mut()
+            .expect("a new array is contiguous")
+            .par_iter_mut()
+            .zip(stored.par_iter())
+            .for_each(|(out, &v)| *out = f(v));
+        Ok(array)
+    }
+
     /// Frames `frames` as [`FrameSource::read_frames`] reads them, into `reuse`'s samples
     /// where they are float32 samples of the same shape (a block after another).
     fn read_block(
@@ -210,63 +225,39 @@ impl ManifestFrames {
         let read_error = |e: std::io::Error| {
             pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
         };
-        let real = |values: Vec<f32>| Array3::from_shape_vec(shape, values);
-        let complex = |values: Vec<Complex32>| Array3::from_shape_vec(shape, values);
-        let shape_error = |e: ndarray::ShapeError| pcuvd::Error::Shape(e.to_string());
-        let reusable = match reuse {
-            Some(ChannelData {
-                samples: Samples::Rf(array),
-                ..
-            }) if self.stored == Stored::F4
-                && array.dim() == shape
-                && array.is_standard_layout() =>
-            {
-                Some(array)
-            }
-            _ => None,
+        let (reuse_rf, reuse_iq) = match reuse.map(|block| block.samples) {
+            Some(Samples::Rf(array)) => (Some(array), None),
+            Some(Samples::Iq { data, .. }) => (None, Some(data)),
+            None => (None, None),
         };
         // Conversions run on every core: single-threaded, they held the other core idle for
         // about a tenth of a run.
         let samples = match self.stored {
-            Stored::F4 => Samples::Rf(match reusable {
-                Some(mut array) => {
-                    let values = array.as_slice_mut().expect("standard layout (checked)");
-                    self.read_stored_into(events, values).map_err(read_error)?;
-                    array
-                }
-                None => real(self.read_stored::<f32>(events).map_err(read_error)?)
-                    .map_err(shape_error)?,
-            }),
-            Stored::F8 => Samples::Rf(
-                real(convert(self.read_stored::<f64>(events), |v| v as f32).map_err(read_error)?)
-                    .map_err(shape_error)?,
-            ),
-            Stored::I2 => Samples::Rf(
-                real(convert(self.read_stored::<i16>(events), f32::from).map_err(read_error)?)
-                    .map_err(shape_error)?,
-            ),
-            Stored::I4 => Samples::Rf(
-                real(convert(self.read_stored::<i32>(events), |v| v as f32).map_err(read_error)?)
-                    .map_err(shape_error)?,
-            ),
+            Stored::F4 => {
+                let mut array = array_reusing(reuse_rf, shape);
+                let values = array.as_slice_mut().expect("a new array is contiguous");
+                self.read_stored_into(events, values).map_err(read_error)?;
+                Samples::Rf(array)
+            }
+            Stored::F8 => {
+                Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: f64| v as f32)?)
+            }
+            Stored::I2 => {
+                Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: i16| f32::from(v))?)
+            }
+            Stored::I4 => {
+                Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: i32| v as f32)?)
+            }
             Stored::C8 => Samples::Iq {
-                data: complex(
-                    convert(self.read_stored::<[f32; 2]>(events), |[re, im]| {
-                        Complex32::new(re, im)
-                    })
-                    .map_err(read_error)?,
-                )
-                .map_err(shape_error)?,
+                data: self.read_converted(events, shape, reuse_iq, |[re, im]: [f32; 2]| {
+                    Complex32::new(re, im)
+                })?,
                 demod_frequency: self.demod.unwrap_or(0.0),
             },
             Stored::C16 => Samples::Iq {
-                data: complex(
-                    convert(self.read_stored::<[f64; 2]>(events), |[re, im]| {
-                        Complex32::new(re as f32, im as f32)
-                    })
-                    .map_err(read_error)?,
-                )
-                .map_err(shape_error)?,
+                data: self.read_converted(events, shape, reuse_iq, |[re, im]: [f64; 2]| {
+                    Complex32::new(re as f32, im as f32)
+                })?,
                 demod_frequency: self.demod.unwrap_or(0.0),
             },
         };

@@ -941,10 +941,7 @@ where
     let max_shift = plan.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
     let shifter = TraceShifter::new(ns, max_shift);
     // Every element is written below, so a reused array needs no clearing.
-    let shape = (n, kept.len(), nc, ns);
-    let reuse = reuse.filter(|array| array.dim() == shape && array.is_standard_layout());
-    // (An array of another shape is dropped by now, before a new one is allocated.)
-    let mut out = reuse.unwrap_or_else(|| Array4::<T>::from_elem(shape, T::zero()));
+    let mut out = crate::source::array_reusing(reuse, (n, kept.len(), nc, ns));
     // Rows of samples are read where they lie: event i of channel c is row i·nc + c.
     let events = events.as_standard_layout();
     let data = events.as_slice().expect("standard layout");

@@ -111,9 +111,9 @@ pub fn demodulate_into(
     iq.t0 = t0;
     iq.demod_frequency = demod_frequency;
     if iq.data.dim() != (channels, n_samples, frames) || !iq.data.is_standard_layout() {
-        // The old array goes before the new one is allocated.
-        iq.data = Array3::<Complex32>::zeros((0, 0, 0));
-        iq.data = Array3::<Complex32>::zeros((channels, n_samples, frames));
+        // Every element is written below.
+        let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
+        iq.data = crate::source::array_reusing(Some(old), (channels, n_samples, frames));
     }
     let out = &mut iq.data;
     match samples {

@@ -202,17 +202,26 @@ pub fn form_images_in_blocks(
     blocks: Blocks,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
-    form_images_of(source, params, blocks, 0..source.n_frames(), progress)
+    form_images_of(
+        source,
+        params,
+        blocks,
+        0..source.n_frames(),
+        Vec::new(),
+        progress,
+    )
 }
 
 /// As [`form_images_in_blocks`], for the compound frames `frames` of `source` only (a segment of
 /// a long recording): their images are those of the whole recording's path, the decoding
-/// margins reaching into the frames around them.
+/// margins reaching into the frames around them. The series are formed in `spare`'s memory
+/// where it has room (the previous segment's series, done with).
 pub fn form_images_of(
     source: &dyn FrameSource,
     params: &ProcessParams,
     blocks: Blocks,
     frames: std::ops::Range<usize>,
+    mut spare: Vec<Array3<Complex32>>,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
     let acq = source.acquisition();
@@ -232,13 +241,16 @@ pub fn form_images_of(
     let n = angles.len();
     let first = frames.start;
     let (nz, nx) = params.grid.shape();
+    // The beamformer writes every element of the series.
+    spare.truncate(n);
     let mut series: Vec<Array3<Complex32>> = (0..n)
-        .map(|_| Array3::zeros((nz, nx, frames.len())))
+        .map(|_| crate::source::array_reusing(spare.pop(), (nz, nx, frames.len())))
         .collect();
     let ranges = blocks.ranges_in(frames, source.n_frames());
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
-    let mut buffers = BlockBuffers::default();
+    let largest = ranges.iter().map(|(_, decoded)| decoded.len()).max();
+    let mut buffers = BlockBuffers::with_room(acq, largest.unwrap_or(0) * n, source.trace_shape());
     for (b, (block, decoded)) in ranges.iter().enumerate() {
         let frames_of_block = ndarray::s![.., .., block.start - first..block.end - first];
         let formed = form_block_into(
@@ -365,6 +377,25 @@ impl Default for BlockBuffers {
                 t0: 0.0,
                 demod_frequency: 0.0,
             },
+        }
+    }
+}
+
+impl BlockBuffers {
+    /// Buffers whose array of events read has room for `events` events of `trace` (channels,
+    /// samples) real samples from the start: a recording's first block is shorter than the
+    /// next (it has no frames before it), and would otherwise leave an array too small for them.
+    /// The room is reserved, not touched: pages are faulted in as samples are read into them.
+    fn with_room(acquisition: &Acquisition, events: usize, trace: (usize, usize)) -> Self {
+        let room = Vec::with_capacity(events * trace.0 * trace.1);
+        let empty =
+            Array3::from_shape_vec((0, trace.0, trace.1), room).expect("no events, no samples");
+        BlockBuffers {
+            read: Some(ChannelData {
+                acquisition: acquisition.clone(),
+                samples: crate::channel::Samples::Rf(empty),
+            }),
+            ..BlockBuffers::default()
         }
     }
 }

@@ -25,7 +25,8 @@
 
 use std::ops::Range;
 
-use ndarray::{Array2, Axis, Zip, s};
+use ndarray::{Array2, Array3, Zip};
+use num_complex::Complex32;
 
 use crate::beamform;
 use crate::clutter::{self, ClutterReport};
@@ -180,6 +181,30 @@ impl Sums {
     }
 }
 
+/// Adds to `envelope` (nz, nx) the sum over frames `own` of the compound (angle-summed) images'
+/// magnitude, as [`beamform::compound`] would sum them, without forming the compound series.
+fn add_envelope(envelope: &mut Array2<f64>, series: &[Array3<Complex32>], own: Range<usize>) {
+    let frames = series.first().map_or(0, |s| s.dim().2);
+    let lanes: Vec<&[Complex32]> = series
+        .iter()
+        .map(|s| s.as_slice().expect("formed series are contiguous"))
+        .collect();
+    let nx = envelope.dim().1;
+    Zip::indexed(envelope).par_for_each(|(iz, ix), e| {
+        let base = (iz * nx + ix) * frames;
+        *e += own
+            .clone()
+            .map(|f| {
+                let mut sum = lanes[0][base + f];
+                for lane in &lanes[1..] {
+                    sum += lane[base + f];
+                }
+                sum.norm() as f64
+            })
+            .sum::<f64>();
+    });
+}
+
 /// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
 /// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
 /// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
@@ -222,11 +247,17 @@ pub fn process_in_segments(
         None => timings.push((stage, seconds)),
     };
     let blocks = pipeline::blocks_for(source, params.event_alignment);
+    // The previous segment's series, whose memory the next one's are formed in.
+    let mut spare = Vec::new();
     for (k, (core, imaged)) in ranges.iter().enumerate() {
-        let (mut images, formed) =
-            pipeline::form_images_of(source, params, blocks, imaged.clone(), &|stage, d, t| {
-                progress(stage, k * t + d, count * t)
-            })?;
+        let (mut images, formed) = pipeline::form_images_of(
+            source,
+            params,
+            blocks,
+            imaged.clone(),
+            std::mem::take(&mut spare),
+            &|stage, d, t| progress(stage, k * t + d, count * t),
+        )?;
         for (stage, seconds) in formed {
             add_time(stage, seconds);
         }
@@ -248,11 +279,7 @@ pub fn process_in_segments(
             progress(Stage::Ensembles, k + 1, count);
             add_time(Stage::Ensembles, clock.elapsed().as_secs_f64());
         }
-        let unfiltered = beamform::compound(&images.series)?;
-        Zip::from(&mut envelope)
-            .and(unfiltered.slice(s![.., .., own.clone()]).lanes(Axis(2)))
-            .for_each(|e, lane| *e += lane.iter().map(|c| c.norm() as f64).sum::<f64>());
-        drop(unfiltered);
+        add_envelope(&mut envelope, &images.series, own.clone());
 
         let clock = std::time::Instant::now();
         let mut reports = Vec::with_capacity(n);
@@ -303,7 +330,7 @@ pub fn process_in_segments(
             windows.push(part);
         }
         add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
-        images.series = Vec::new();
+        spare = std::mem::take(&mut images.series);
         meta = Some(images);
     }
     progress(Stage::Doppler, count, count);

@@ -417,6 +417,17 @@ fn frames_read_in_blocks_are_the_recording() {
                 "dtype case {rewrite}"
             );
         }
+        // Into the previous block's memory, as processing reads them: shorter, longer (beyond
+        // the memory's room) and the same length again.
+        let mut block = None;
+        for range in [1..2, 0..3, 2..3, 0..2, 1..3] {
+            frames.read_frames_into(range.clone(), &mut block).unwrap();
+            assert_eq!(
+                block.as_ref().unwrap(),
+                &whole.read_frames(range).unwrap(),
+                "dtype case {rewrite}, into a reused block"
+            );
+        }
         assert!(frames.read_frames(2..4).is_err());
     }
     // Another axis order: read whole instead.
