@@ -69,12 +69,13 @@ pub fn autocorrelation(
         .and(&mut r1)
         .and(series.lanes(Axis(2)))
         .par_for_each(|p, r, s| {
+            let s = contiguous(&s);
             let mut acc_p = 0.0f64;
             let mut acc_r = Complex64::new(0.0, 0.0);
-            for t in 0..nf {
-                acc_p += s[t].norm_sqr() as f64;
-                if t + 1 < nf {
-                    let v = s[t].conj() * s[t + 1];
+            for (t, x) in s.iter().enumerate() {
+                acc_p += x.norm_sqr() as f64;
+                if let Some(next) = s.get(t + 1) {
+                    let v = x.conj() * next;
                     acc_r += Complex64::new(v.re as f64, v.im as f64);
                 }
             }
@@ -86,6 +87,15 @@ pub fn autocorrelation(
         r1 = box_average(&r1, kernel);
     }
     Ok(Autocorrelation { power, r1 })
+}
+
+/// A pixel's frames as a slice: borrowed where they lie contiguous (a formed series), else
+/// copied.
+fn contiguous<'a>(frames: &'a ndarray::ArrayView1<'_, Complex32>) -> std::borrow::Cow<'a, [Complex32]> {
+    match frames.as_slice() {
+        Some(slice) => std::borrow::Cow::Borrowed(slice),
+        None => std::borrow::Cow::Owned(frames.to_vec()),
+    }
 }
 
 /// Refuses an averaging box with an even size (it would have no centre pixel).
@@ -522,10 +532,13 @@ fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<Spati
                     }
                 };
                 let (a, b) = (at(first), at(second));
+                // A pixel's frames are contiguous in a formed series: summed as slices, without
+                // an index computation per term.
+                let (a, b) = (contiguous(&a), contiguous(&b));
                 let (mut p, mut m) = (Complex64::new(0.0, 0.0), Complex64::new(0.0, 0.0));
-                for t in 0..nf - 1 {
-                    let up = a[t].conj() * b[t + 1];
-                    let down = a[t + 1].conj() * b[t];
+                for ((a0, a1), (b0, b1)) in a.iter().zip(&a[1..]).zip(b.iter().zip(&b[1..])) {
+                    let up = a0.conj() * b1;
+                    let down = a1.conj() * b0;
                     p += Complex64::new(up.re as f64, up.im as f64);
                     m += Complex64::new(down.re as f64, down.im as f64);
                 }
