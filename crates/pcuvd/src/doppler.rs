@@ -91,7 +91,9 @@ pub fn autocorrelation(
 
 /// A pixel's frames as a slice: borrowed where they lie contiguous (a formed series), else
 /// copied.
-fn contiguous<'a>(frames: &'a ndarray::ArrayView1<'_, Complex32>) -> std::borrow::Cow<'a, [Complex32]> {
+fn contiguous<'a>(
+    frames: &'a ndarray::ArrayView1<'_, Complex32>,
+) -> std::borrow::Cow<'a, [Complex32]> {
     match frames.as_slice() {
         Some(slice) => std::borrow::Cow::Borrowed(slice),
         None => std::borrow::Cow::Owned(frames.to_vec()),

@@ -322,7 +322,13 @@ pub fn process_in_segments(
         if let Some(d) = &dynamics
             && images.n_frames() >= d.window
         {
-            let mut part = dynamics::sliding_vectors(&images, d)?;
+            // A segment may be shorter than a cardiac cycle: the joined windows are checked
+            // against a given heart rate when the RI maps are made, not each segment's.
+            let segment_windows = DynamicsParams {
+                heart_rate_hz: None,
+                ..*d
+            };
+            let mut part = dynamics::sliding_vectors(&images, &segment_windows)?;
             // Windows start every `step` frames; keep those starting in this core.
             let keep = own.end.div_ceil(d.step.max(1)).min(part.len());
             part.truncate(keep);

@@ -408,3 +408,33 @@ fn segments_dealias_as_the_whole_path_does() {
     assert_eq!(done.series.unwrap().len(), reference.len());
     assert_eq!(done.ensembles.unwrap(), ensembles);
 }
+
+/// A given heart rate whose cycle is longer than a segment, but not than the recording: each
+/// segment keeps its windows (the cycle is checked, and the RI maps made, on the joined windows),
+/// and they are the whole path's.
+#[test]
+fn segments_shorter_than_a_cardiac_cycle_keep_their_windows() {
+    let data = recording();
+    let params = params(&data);
+    // A cycle of 40 frames: 5 windows, more than a segment's 3 (32 frames imaged), fewer than
+    // the recording's 7.
+    let beating = DynamicsParams {
+        heart_rate_hz: Some(data.acquisition.frame_rate() / 40.0),
+        ..windows()
+    };
+    let segments = Segments {
+        core: 24,
+        overlap: 8,
+    };
+    let done =
+        process_in_segments(&data, &params, &segments, Some(&beating), None, &quiet).unwrap();
+    let whole = pipeline::process(&data, &params, &quiet).unwrap();
+    let reference = pcuvd::dynamics::sliding_vectors(&whole.filtered, &beating).unwrap();
+    let series = done.series.unwrap();
+    assert_eq!(series.len(), reference.len());
+    for (a, b) in series.times_s.iter().zip(&reference.times_s) {
+        assert!((a - b).abs() < 1e-12, "window at {a} s against {b} s");
+    }
+    let maps = pcuvd::dynamics::ri_maps(&series, &beating).unwrap();
+    assert_eq!(maps.ri.dim(), params.grid.shape());
+}
