@@ -838,9 +838,11 @@ pub fn angle_coverage(acq: &Acquisition, grid: &Grid) -> Array3<bool> {
 pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none when they are \
 read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
-smaller) + 2 × pixels × frames × angles × 8 bytes (the beamformed and the filtered image series, \
-complex64; frames: the recording's, or one segment's when it is processed in segments, \
-segments::SERIES_BYTES). FFT and filter lengths are bounded by the data: a slot shift by less than a record \
+smaller) + (1 + 1/angles) × pixels × frames × angles × 8 bytes (the image series, complex64, \
+filtered in place, and a compound of it; frames: the recording's, or one segment's when it is \
+processed in segments: as few segments of even length as fit in segments::SERIES_BYTES, before \
+the frames that dynamics windows and ensembles reach past a segment). FFT and filter lengths are \
+bounded by the data: a slot shift by less than a record \
 (check_record), an IQ filter of at most 3·10⁴ taps (iq::MIN_CUTOFF_RATIO), a slow-time FFT of \
 twice the frames of a block";
 
@@ -883,15 +885,17 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
 pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let (nz, nx) = grid.shape();
     let angles = source.acquisition().sequence.n_angles();
-    // A recording longer than one segment holds one segment's images at a time.
-    let frames = source
-        .n_frames()
-        .min(crate::segments::frames_that_fit(nz * nx, angles)) as u128;
+    // A recording longer than one segment holds one segment's images at a time, and segments
+    // share the recording evenly.
+    let total = source.n_frames();
+    let fit = crate::segments::frames_that_fit(nz * nx, angles).max(1);
+    let frames = total.div_ceil(total.div_ceil(fit).max(1)) as u128;
     let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
-    let block = (blocks.frames + 2 * blocks.margin).min(source.n_frames()) as u128
+    let block = (blocks.frames + 2 * blocks.margin).min(total) as u128
         * block_bytes_per_frame(source) as u128;
-    source.resident_bytes() as u128 + block + 2 * (nz * nx) as u128 * frames * angles * 8
+    let series = (nz * nx) as u128 * frames * angles * 8;
+    source.resident_bytes() as u128 + block + series + series / angles.max(1)
 }
 
 /// Checks, before any work, that every pulse slot of `acq` starts within a record of `n_samples`

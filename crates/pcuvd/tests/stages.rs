@@ -432,8 +432,8 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
 /// The memory estimate by hand: 8 events (4 angles × 2 frames) × 16 channels × 100 samples, and a
 /// 3 × 5 pixel grid: the input, 12,800 × 4 bytes; one block, here the whole recording, of 2 frames
 /// × (2 copies (the events read and their decoded records) × 4 angles × 1,600 samples × 4 bytes +
-/// one angle's IQ, 1,600 × 8 bytes); and the
-/// two image series, 2 × 15 pixels × 2 frames × 4 angles × 8 bytes.
+/// one angle's IQ, 1,600 × 8 bytes); the image series, 15 pixels × 2 frames × 4 angles × 8
+/// bytes, filtered in place; and its compound, a quarter of it.
 #[test]
 fn memory_estimate_counts_samples_and_image_series() {
     let rec = coded_recording(Array3::zeros((8, 16, 100)), 4, 1e-6, 20e6);
@@ -442,6 +442,6 @@ fn memory_estimate_counts_samples_and_image_series() {
     assert_eq!(grid.shape(), (3, 5));
     assert_eq!(
         pcuvd::pipeline::memory_estimate(&rec, &grid),
-        8 * 16 * 100 * 4 + 2 * (2 * 4 * 1600 * 4 + 1600 * 8) + 2 * 15 * 2 * 4 * 8
+        8 * 16 * 100 * 4 + 2 * (2 * 4 * 1600 * 4 + 1600 * 8) + 15 * 2 * 4 * 8 + 15 * 2 * 8
     );
 }
