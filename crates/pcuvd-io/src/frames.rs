@@ -190,9 +190,9 @@ impl ManifestFrames {
         reuse: Option<Array3<U>>,
         f: impl Fn(T) -> U + Sync + Send,
     ) -> pcuvd::Result<Array3<U>> {
-        let stored = self.read_stored::<T>(events).map_err(|e| {
-            pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
-        })?;
+        let stored = self
+            .read_stored::<T>(events)
+            .map_err(|e| self.read_error(e))?;
         let mut array = array_reusing(reuse, shape);
         array
             .as_slice_mut()
@@ -203,8 +203,13 @@ impl ManifestFrames {
         Ok(array)
     }
 
-    /// Frames `frames` as [`FrameSource::read_frames`] reads them, into `reuse`'s samples
-    /// where they are float32 samples of the same shape (a block after another).
+    /// The error of a samples file that cannot be read, naming it.
+    fn read_error(&self, e: std::io::Error) -> pcuvd::Error {
+        pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
+    }
+
+    /// Frames `frames` as [`FrameSource::read_frames`] reads them, in `reuse`'s memory where
+    /// it has room for them ([`array_reusing`]: a block after another).
     fn read_block(
         &self,
         frames: Range<usize>,
@@ -222,9 +227,6 @@ impl ManifestFrames {
         }
         let events = frames.start * n..frames.end * n;
         let shape = (events.len(), self.shape.1, self.shape.2);
-        let read_error = |e: std::io::Error| {
-            pcuvd::Error::Read(format!("{}: cannot read: {e}", self.data_path.display()))
-        };
         let (reuse_rf, reuse_iq) = match reuse.map(|block| block.samples) {
             Some(Samples::Rf(array)) => (Some(array), None),
             Some(Samples::Iq { data, .. }) => (None, Some(data)),
@@ -236,7 +238,8 @@ impl ManifestFrames {
             Stored::F4 => {
                 let mut array = array_reusing(reuse_rf, shape);
                 let values = array.as_slice_mut().expect("a new array is contiguous");
-                self.read_stored_into(events, values).map_err(read_error)?;
+                self.read_stored_into(events, values)
+                    .map_err(|e| self.read_error(e))?;
                 Samples::Rf(array)
             }
             Stored::F8 => {

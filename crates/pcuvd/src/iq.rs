@@ -110,11 +110,9 @@ pub fn demodulate_into(
     iq.sampling_frequency = sampling_frequency;
     iq.t0 = t0;
     iq.demod_frequency = demod_frequency;
-    if iq.data.dim() != (channels, n_samples, frames) || !iq.data.is_standard_layout() {
-        // Every element is written below.
-        let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
-        iq.data = crate::source::array_reusing(Some(old), (channels, n_samples, frames));
-    }
+    // Every element is written below.
+    let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
+    iq.data = crate::source::array_reusing(Some(old), (channels, n_samples, frames));
     let out = &mut iq.data;
     match samples {
         AngleSamples::Iq {
