@@ -71,7 +71,7 @@ pub struct ProcessingOptions {
     #[arg(long, requires = "ensemble_frames")]
     pub ensemble_step: Option<usize>,
     /// Long recordings: compound frames per segment, each imaged, clutter-filtered and analysed
-    /// on its own so that memory stays bounded (default: as many as fit in 1.5 GiB of image
+    /// on its own so that memory stays bounded (default: as many as fit in 1.25 GiB of image
     /// series; the whole recording in one when it fits, which gives the exact whole-recording
     /// maps).
     #[arg(long)]

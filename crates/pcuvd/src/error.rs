@@ -25,6 +25,10 @@ pub enum Error {
     /// A recording's samples could not be read from their file (the message names the file).
     #[error("{0}")]
     Read(String),
+    /// The scratch file that holds finished windows' maps while a long recording's later segments
+    /// are processed could not be written or read back (the message says why, e.g. a full disk).
+    #[error("scratch file of the segments' maps (in the temporary folder, TMPDIR): {0}")]
+    Scratch(String),
 }
 
 /// Result of a pcuvd computation.

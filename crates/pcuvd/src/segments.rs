@@ -25,7 +25,9 @@
 
 use std::ops::Range;
 
-use ndarray::{Array2, Array3, Zip};
+use std::io::{Read, Seek, SeekFrom, Write};
+
+use ndarray::{Array2, Array3, Zip, s};
 use num_complex::Complex32;
 
 use crate::beamform;
@@ -34,14 +36,17 @@ use crate::dealias::Dealias;
 use crate::doppler::Moments;
 use crate::dynamics::{self, DynamicsParams, VelocitySeries};
 use crate::ensembles::{self, EnsembleMaps, EnsembleSpec};
-use crate::error::{Result, invalid};
+use crate::error::{Error, Result, invalid};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
 use crate::source::FrameSource;
 
-/// Bytes of per-angle image series (complex64) one segment may hold: 1.5 GiB, with a block's
-/// working memory (1 GiB) about 2 GB of peak whatever the recording's length (the paper's 360-frame
-/// rat recording, 2.2 GB of series, runs in two segments of 180 frames).
-pub const SERIES_BYTES: u64 = 3 << 29;
+/// Bytes of per-angle image series (complex64) one segment may hold: 1.25 GiB. With a block's
+/// working memory (up to 1 GiB) and the series' compound, a segmented run peaks near 2.6 GB
+/// whatever the recording's length. A smaller budget means more, shorter segments, each with
+/// its own clutter filter and its overlap imaged twice; at 1.25 GiB the rat grid's segments
+/// hold 180–221 frames (0.1 s or more), and the paper's 360-frame recording, like a five times
+/// longer one, is cut into segments of about 200 frames, so both peak alike.
+pub const SERIES_BYTES: u64 = 5 << 28;
 
 /// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
 /// with `overlap` frames after it.
@@ -160,6 +165,89 @@ pub struct Segmented {
     pub clutter: Vec<Vec<ClutterReport>>,
 }
 
+/// Finished parts' maps set aside in a scratch file while later segments are processed, so that
+/// the outputs that grow with the recording (dynamics windows, time-series ensembles: 3 or 4 maps
+/// of 8 bytes per pixel per window) do not add to the segments' peak: 197 windows of the rat
+/// grid are 0.45 GB. Each part gives the same fields (e.g. Vx, Vz, power), (samples, nz, nx) f64.
+/// The file is anonymous: the system removes it however the process ends.
+struct SetAside {
+    file: Option<std::fs::File>,
+    /// Time samples of each part, in order.
+    lengths: Vec<usize>,
+    fields: usize,
+    map: (usize, usize),
+}
+
+fn scratch(e: std::io::Error) -> Error {
+    Error::Scratch(e.to_string())
+}
+
+impl SetAside {
+    fn new() -> Self {
+        SetAside {
+            file: None,
+            lengths: Vec::new(),
+            fields: 0,
+            map: (0, 0),
+        }
+    }
+
+    /// Writes one part's maps, one array per field (same fields, in the same order, for every
+    /// part), and leaves empty (0, nz, nx) arrays in their place.
+    fn put(&mut self, maps: &mut [&mut Array3<f64>]) -> Result<()> {
+        let Some(first) = maps.first() else {
+            return Ok(());
+        };
+        let (samples, nz, nx) = first.dim();
+        if maps.iter().any(|m| m.dim() != (samples, nz, nx))
+            || (!self.lengths.is_empty() && (self.fields != maps.len() || self.map != (nz, nx)))
+        {
+            return Err(Error::Shape(
+                "maps set aside between segments differ in shape".into(),
+            ));
+        }
+        let file = match &mut self.file {
+            Some(file) => file,
+            None => self.file.insert(tempfile::tempfile().map_err(scratch)?),
+        };
+        for map in maps.iter_mut() {
+            let taken = std::mem::replace(&mut **map, Array3::zeros((0, nz, nx)));
+            let standard = taken.as_standard_layout();
+            let values = standard.as_slice().expect("standard layout is contiguous");
+            file.write_all(bytemuck::cast_slice(values))
+                .map_err(scratch)?;
+        }
+        self.lengths.push(samples);
+        self.fields = maps.len();
+        self.map = (nz, nx);
+        Ok(())
+    }
+
+    /// Every part read back: per field, the parts joined along time.
+    fn take(self) -> Result<Vec<Array3<f64>>> {
+        let total: usize = self.lengths.iter().sum();
+        let mut joined: Vec<Array3<f64>> = (0..self.fields)
+            .map(|_| Array3::zeros((total, self.map.0, self.map.1)))
+            .collect();
+        if let Some(mut file) = self.file {
+            file.seek(SeekFrom::Start(0)).map_err(scratch)?;
+            let mut start = 0;
+            for &len in &self.lengths {
+                for field in joined.iter_mut() {
+                    let mut part = field.slice_mut(s![start..start + len, .., ..]);
+                    let values = part
+                        .as_slice_mut()
+                        .expect("whole time samples of a standard array are contiguous");
+                    file.read_exact(bytemuck::cast_slice_mut(values))
+                        .map_err(scratch)?;
+                }
+                start += len;
+            }
+        }
+        Ok(joined)
+    }
+}
+
 /// The Doppler moments of the cores so far, merged ([`doppler::Moments::merge`]).
 #[derive(Default)]
 struct Sums(Option<Moments>);
@@ -205,6 +293,15 @@ fn add_envelope(envelope: &mut Array2<f64>, series: &[Array3<Complex32>], own: R
     });
 }
 
+/// An ensemble part's maps, in the order they are set aside: power, colour, and Vx, Vz where the
+/// recording gives vectors.
+fn ensemble_fields(maps: &mut EnsembleMaps) -> Vec<&mut Array3<f64>> {
+    let mut fields = vec![&mut maps.power_doppler, &mut maps.color_doppler];
+    fields.extend(maps.vx.as_mut());
+    fields.extend(maps.vz.as_mut());
+    fields
+}
+
 /// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
 /// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
 /// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
@@ -231,8 +328,11 @@ pub fn process_in_segments(
     let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::default()).collect();
     let mut compound = Sums::default();
     let mut envelope = Array2::<f64>::zeros(shape);
+    // Each part's times and settings; their maps wait in the scratch files.
     let mut windows: Vec<VelocitySeries> = Vec::new();
+    let mut windows_aside = SetAside::new();
     let mut ensemble_parts: Vec<EnsembleMaps> = Vec::new();
+    let mut ensembles_aside = SetAside::new();
     let mut clutter_reports = Vec::with_capacity(count);
     let mut meta = None;
     let mut timings: Timings = vec![
@@ -274,6 +374,7 @@ pub fn process_in_segments(
                 let mut part =
                     ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
                 part.shift(core.start, spec, images.frame_rate);
+                ensembles_aside.put(&mut ensemble_fields(&mut part))?;
                 ensemble_parts.push(part);
             }
             progress(Stage::Ensembles, k + 1, count);
@@ -333,6 +434,7 @@ pub fn process_in_segments(
             let keep = own.end.div_ceil(d.step.max(1)).min(part.len());
             part.truncate(keep);
             part.shift(core.start as f64 / images.frame_rate);
+            windows_aside.put(&mut [&mut part.vx, &mut part.vz, &mut part.power])?;
             windows.push(part);
         }
         add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
@@ -340,6 +442,8 @@ pub fn process_in_segments(
         meta = Some(images);
     }
     progress(Stage::Doppler, count, count);
+    // The windows' maps come back once the last series is gone.
+    drop(spare);
     let images = meta.ok_or_else(|| invalid("frames", "the recording has no frames"))?;
     let per_angle = per_angle
         .iter()
@@ -350,11 +454,28 @@ pub fn process_in_segments(
     add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
     let bmode_db = beamform::bmode_db_of_envelope(envelope / total as f64);
     let series = match dynamics {
-        Some(_) => Some(VelocitySeries::concatenate(windows)?),
+        Some(_) => {
+            let mut series = VelocitySeries::concatenate(windows)?;
+            let [vx, vz, power]: [Array3<f64>; 3] = windows_aside
+                .take()?
+                .try_into()
+                .map_err(|_| Error::Shape("velocity windows set aside".into()))?;
+            (series.vx, series.vz, series.power) = (vx, vz, power);
+            Some(series)
+        }
         None => None,
     };
     let ensembles = match ensemble_spec {
-        Some(_) => Some(EnsembleMaps::concatenate(ensemble_parts)?),
+        Some(_) => {
+            let mut maps = EnsembleMaps::concatenate(ensemble_parts)?;
+            let mut joined = ensembles_aside.take()?.into_iter();
+            for field in ensemble_fields(&mut maps) {
+                *field = joined
+                    .next()
+                    .ok_or_else(|| Error::Shape("ensemble maps set aside".into()))?;
+            }
+            Some(maps)
+        }
         None => None,
     };
     Ok(Segmented {
