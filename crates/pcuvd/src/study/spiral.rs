@@ -62,6 +62,10 @@ pub struct SpiralSettings {
     /// Conventional UVD's Vx RMSE (m/s) at which to calibrate one more noise level, the paper's
     /// baseline (5.70 mm/s); `None`: no calibration.
     pub calibrate_uvd_vx_m_s: Option<f64>,
+    /// Spatial averaging kernels (rows, cols) pixels, odd, each scored without noise and at its
+    /// own calibrated level (when `calibrate_uvd_vx_m_s` is given) beside what it costs in
+    /// resolution ([`Averaging`]). Empty: none.
+    pub averaging_kernels: Vec<(usize, usize)>,
 }
 
 /// Serialises an event alignment as its option value ("mid-frame", "simultaneous").
@@ -85,6 +89,7 @@ impl Default for SpiralSettings {
             doppler_estimator: DopplerEstimator::default(),
             grid_step_m: 0.05e-3,
             calibrate_uvd_vx_m_s: Some(paper::UVD_RMSE_MM_S.0 * 1e-3),
+            averaging_kernels: vec![(1, 1), (3, 1), (5, 1), (7, 1), (3, 3)],
         }
     }
 }
@@ -109,12 +114,13 @@ impl SpiralSettings {
         if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
-        let (r, c) = self.doppler_kernel;
-        if r % 2 == 0 || c % 2 == 0 {
-            return Err(invalid(
-                "Doppler kernel",
-                format!("{r} × {c}: both sizes must be odd"),
-            ));
+        for &(r, c) in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
+            if r % 2 == 0 || c % 2 == 0 || r == 0 || c == 0 {
+                return Err(invalid(
+                    "Doppler kernel",
+                    format!("{r} × {c}: both sizes must be odd"),
+                ));
+            }
         }
         self.grid().map(|_| ())
     }
@@ -186,6 +192,68 @@ pub struct Calibrated {
     pub tried: Vec<(f64, f64)>,
     /// How the level was found, or why none was.
     pub note: String,
+}
+
+/// The estimators with the autocorrelation averaged over a spatial kernel before its phase is
+/// taken: their error floor, their scores at the paper's baseline, and the resolution they give
+/// up for it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Averaging {
+    /// Kernel (rows, cols) pixels.
+    pub kernel: (usize, usize),
+    /// Its extent (axial, lateral) in mm.
+    pub extent_mm: (f64, f64),
+    /// RMSE of every estimator without noise (the echoes alone), mm/s: the floor the averaging
+    /// lowers.
+    pub floor_mm_s: EstimatorRmse,
+    /// Resolution cost: RMSE (mm/s) of the true velocity averaged over the kernel's vessel
+    /// pixels against the true velocity, over the vessel — the error a perfect estimator would
+    /// make through this kernel alone (see [`AVERAGING_BLUR_DEFINITION`]).
+    pub blur_rmse_mm_s: Rmse,
+    /// Level where UVD's (LS, same kernel) Vx RMSE is the calibration's target, and every
+    /// estimator's RMSE there; `None` without calibration.
+    pub calibrated: Option<Calibrated>,
+}
+
+/// What [`Averaging::blur_rmse_mm_s`] measures.
+pub const AVERAGING_BLUR_DEFINITION: &str = "resolution cost of a kernel: RMSE over the true \
+vessel of (the true velocity averaged over the kernel's pixels that lie in the vessel − the true \
+velocity), per component, in mm/s. The autocorrelation is averaged weighted by the echo power, \
+and outside the vessel there are no echoes, so this is what the averaging alone does to a \
+noiseless estimate: it flattens the parabolic profile's peak and lifts its edge";
+
+/// Every vessel pixel's true velocity (Vx, Vz) averaged over the vessel pixels of the `kernel`
+/// (rows, cols) around it (m/s); 0 outside the vessel.
+fn blurred_truth(truth: &Truth, kernel: (usize, usize)) -> (Array2<f64>, Array2<f64>) {
+    let (nz, nx) = truth.mask.dim();
+    let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
+    let mut vx = Array2::zeros((nz, nx));
+    let mut vz = Array2::zeros((nz, nx));
+    for ((z, x), &inside) in truth.mask.indexed_iter() {
+        if !inside {
+            continue;
+        }
+        let (mut ax, mut az, mut k) = (0.0, 0.0, 0usize);
+        for zz in z.saturating_sub(hz)..(z + hz + 1).min(nz) {
+            for xx in x.saturating_sub(hx)..(x + hx + 1).min(nx) {
+                if truth.mask[[zz, xx]] {
+                    ax += truth.vx[[zz, xx]];
+                    az += truth.vz[[zz, xx]];
+                    k += 1;
+                }
+            }
+        }
+        vx[[z, x]] = ax / k as f64;
+        vz[[z, x]] = az / k as f64;
+    }
+    (vx, vz)
+}
+
+/// RMSE (mm/s) of [`blurred_truth`] against the truth, over the vessel: a kernel's resolution
+/// cost ([`AVERAGING_BLUR_DEFINITION`]).
+fn blur_rmse(truth: &Truth, kernel: (usize, usize)) -> Rmse {
+    let (vx, vz) = blurred_truth(truth, kernel);
+    metrics::rmse(&VectorField { vx, vz }, truth)
 }
 
 /// UVD Vx RMSE within which (mm/s) the calibration stops.
@@ -271,6 +339,11 @@ pub struct SpiralMetrics {
     pub noise_sweep: Vec<SweepRow>,
     /// The noise level calibrated to the paper's baseline, when asked for.
     pub calibrated: Option<Calibrated>,
+    /// The estimators with spatial averaging of the autocorrelation, per kernel of
+    /// `averaging_kernels`.
+    pub averaging: Vec<Averaging>,
+    /// How each kernel's resolution cost is measured.
+    pub averaging_blur_definition: &'static str,
     /// Main noise level (dB).
     pub noise_db: f64,
     /// What the noise level is relative to.
@@ -469,6 +542,29 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
     );
 
     let clock = Instant::now();
+    // The level where UVD (LS) with `params` reads Vx at `target` (m/s), starting from `swept`,
+    // and every estimator's scores there.
+    let calibrate_with = |target: f64, params: &ProcessParams, swept: &[(f64, f64)]| {
+        let uvd_vx = |level: f64| uvd_vx_at(&formed[0], settings.noise_db, level, params, &truth);
+        let c = calibrate(target * 1e3, swept, uvd_vx)?;
+        Ok::<_, crate::error::Error>(match c.noise_db {
+            Some(level) => {
+                let gain = gain_of(settings.noise_db, level);
+                let conv = pipeline::analyse(formed[0].at_gain(gain), params, &quiet)?;
+                let coded = pipeline::analyse(formed[1].at_gain(gain), params, &quiet)?;
+                let rmse = estimator_rmse(&conv, &coded, &truth);
+                Calibrated {
+                    rmse_mm_s: Some(rmse),
+                    improvement_pct: Some(PerComponent {
+                        vx: improvement(rmse.uvd_ls.vx, rmse.pcuvd_irls.vx),
+                        vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
+                    }),
+                    ..c
+                }
+            }
+            None => c,
+        })
+    };
     let calibrated = match settings.calibrate_uvd_vx_m_s {
         Some(target) => {
             progress("calibration", 0, 1);
@@ -476,32 +572,60 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
                 .iter()
                 .map(|r| (r.noise_db, r.rmse.uvd_ls.vx))
                 .collect();
-            let uvd_vx =
-                |level: f64| uvd_vx_at(&formed[0], settings.noise_db, level, &params, &truth);
-            let c = calibrate(target * 1e3, &swept, uvd_vx)?;
-            let c = match c.noise_db {
-                Some(level) => {
-                    let gain = gain_of(settings.noise_db, level);
-                    let conv = pipeline::analyse(formed[0].at_gain(gain), &params, &quiet)?;
-                    let coded = pipeline::analyse(formed[1].at_gain(gain), &params, &quiet)?;
-                    let rmse = estimator_rmse(&conv, &coded, &truth);
-                    Calibrated {
-                        rmse_mm_s: Some(rmse),
-                        improvement_pct: Some(PerComponent {
-                            vx: improvement(rmse.uvd_ls.vx, rmse.pcuvd_irls.vx),
-                            vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
-                        }),
-                        ..c
-                    }
-                }
-                None => c,
-            };
+            let c = calibrate_with(target, &params, &swept)?;
             progress("calibration", 1, 1);
             Some(c)
         }
         None => None,
     };
     timing.insert("calibration_s".into(), clock.elapsed().as_secs_f64());
+
+    let clock = Instant::now();
+    let mut averaging = Vec::new();
+    {
+        let task = "spatial averaging";
+        let kernels = &settings.averaging_kernels;
+        for (i, &kernel) in kernels.iter().enumerate() {
+            progress(task, i, kernels.len());
+            let params = ProcessParams {
+                doppler_kernel: kernel,
+                ..params.clone()
+            };
+            let floor = {
+                let conv = pipeline::analyse(formed[0].at_gain(0.0), &params, &quiet)?;
+                let coded = pipeline::analyse(formed[1].at_gain(0.0), &params, &quiet)?;
+                estimator_rmse(&conv, &coded, &truth)
+            };
+            // Averaging lowers UVD's error at every level, so its calibrated level is louder
+            // than the pixel-wise one: bracket it from the main level (and one far quieter, in
+            // case the main level is loud) upward.
+            let calibrated = match settings.calibrate_uvd_vx_m_s {
+                Some(target) => {
+                    let main = settings.noise_db;
+                    let swept = [main - 40.0, main]
+                        .into_iter()
+                        .map(|level| {
+                            uvd_vx_at(&formed[0], main, level, &params, &truth).map(|v| (level, v))
+                        })
+                        .collect::<Result<Vec<_>>>()?;
+                    Some(calibrate_with(target, &params, &swept)?)
+                }
+                None => None,
+            };
+            averaging.push(Averaging {
+                kernel,
+                extent_mm: (
+                    kernel.0 as f64 * settings.grid_step_m * 1e3,
+                    kernel.1 as f64 * settings.grid_step_m * 1e3,
+                ),
+                floor_mm_s: floor,
+                blur_rmse_mm_s: blur_rmse(&truth, kernel),
+                calibrated,
+            });
+        }
+        progress(task, kernels.len(), kernels.len());
+    }
+    timing.insert("averaging_s".into(), clock.elapsed().as_secs_f64());
 
     // Numbers.
     let n_angles = formed[1].acquisition.sequence.n_angles();
@@ -537,6 +661,8 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         },
         noise_sweep,
         calibrated,
+        averaging,
+        averaging_blur_definition: AVERAGING_BLUR_DEFINITION,
         noise_db: settings.noise_db,
         noise_definition: NOISE_DEFINITION,
         frames: settings.frames,
@@ -693,6 +819,48 @@ mod tests {
         let sweep = [(-20.0, 6.0), (0.0, 8.0)];
         let c = calibrate(5.7, &sweep, |_| Ok(f64::NAN)).unwrap();
         assert!(c.noise_db.is_none() && c.note.contains("floor"), "{c:?}");
+    }
+
+    /// A kernel's resolution cost against analytic truth: uniform flow costs nothing; a
+    /// parabolic profile u(z) = u_c·(1 − (z/R)²) averaged over 2h + 1 rows reads
+    /// u_c·Δ²·h(h + 1)/(3R²) low wherever the kernel lies inside the vessel, and linear shear
+    /// (a symmetric kernel's mean of a line is the line) costs nothing there either.
+    #[test]
+    fn blur_of_a_kernel_matches_the_analytic_profile() {
+        let (nz, nx, step, radius) = (41usize, 9usize, 0.05e-3, 1.0e-3);
+        let z = |iz: usize| (iz as f64 - 20.0) * step;
+        let mask = Array2::from_shape_fn((nz, nx), |(iz, _)| z(iz).abs() <= radius);
+        let uniform = Truth {
+            vx: Array2::from_elem((nz, nx), 0.02),
+            vz: Array2::from_elem((nz, nx), -0.01),
+            mask: mask.clone(),
+        };
+        let cost = blur_rmse(&uniform, (7, 7));
+        assert!(cost.vx < 1e-12 && cost.vz < 1e-12, "{cost:?}");
+
+        let peak = 0.025;
+        let parabolic = Truth {
+            vx: Array2::from_shape_fn((nz, nx), |(iz, _)| peak * (1.0 - (z(iz) / radius).powi(2))),
+            vz: Array2::from_shape_fn((nz, nx), |(iz, _)| 0.3 * z(iz)),
+            mask,
+        };
+        for h in [1usize, 2, 3] {
+            let (vx, vz) = blurred_truth(&parabolic, (2 * h + 1, 3));
+            let low = peak * step * step * (h * (h + 1)) as f64 / (3.0 * radius * radius);
+            for iz in (20 - (20 - h))..=(20 + (20 - h)) {
+                if z(iz).abs() + h as f64 * step > radius + 1e-12 {
+                    continue;
+                }
+                for ix in 0..nx {
+                    let want = parabolic.vx[[iz, ix]] - low;
+                    assert!((vx[[iz, ix]] - want).abs() < 1e-12, "h {h}, row {iz}");
+                    assert!((vz[[iz, ix]] - parabolic.vz[[iz, ix]]).abs() < 1e-12);
+                }
+            }
+            // Near the wall the kernel is cut by the vessel, and the cost grows.
+            let cost = blur_rmse(&parabolic, (2 * h + 1, 3));
+            assert!(cost.vx > 1e3 * low, "{cost:?} against {low}");
+        }
     }
 
     /// At reduced size (6 frames, 90 µm grid), on a simulated conventional spiral: the bisection's
