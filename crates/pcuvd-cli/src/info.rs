@@ -105,6 +105,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "duration_s": frames as f64 / acq.frame_rate(),
             "nyquist_velocity_m_s": acq.nyquist_velocity(),
             "recorded_depth_m": depth,
+            "cardiac_triggers_s": info.cardiac_triggers_s,
         },
         "processing": {
             "default_grid_nz_nx": [nz, nx],
@@ -205,6 +206,15 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         "  processing   default grid {nz} × {nx} pixels; about {} of memory",
         size(memory_bytes)
     );
+    if let Some(times) = &info.cardiac_triggers_s {
+        println!(
+            "  cardiac      {} recorded triggers ([cardiac]): {} cycle(s) from {:.3} to {:.3} s, used by the dynamics stage",
+            times.len(),
+            times.len() - 1,
+            times[0],
+            times[times.len() - 1]
+        );
+    }
     println!("  parameters   (value: where it came from)");
     for p in &info.parameters {
         println!("    {:<24} {}: {}", p.name, p.value, p.source);

@@ -162,7 +162,12 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let input_files = opened.info.files.clone();
     let data = opened.source.as_ref();
     let read_s = clock.elapsed().as_secs_f64();
-    let mut plan = Plan::new(&args.options, &args.dynamics, data)?;
+    let mut plan = Plan::new(
+        &args.options,
+        &args.dynamics,
+        data,
+        opened.info.cardiac_triggers_s.as_deref(),
+    )?;
     // Overrides change the results: a re-run with others is not the same run.
     if !args.acquisition.to_overrides().is_empty() {
         plan.options_text
@@ -276,10 +281,13 @@ pub struct Plan {
 
 impl Plan {
     /// Reads and checks the options against the recording `data`, before the long processing.
+    /// `recorded_triggers`: cardiac cycle start times (s) recorded with the recording (a
+    /// manifest's `[cardiac]`), used unless `--cardiac-triggers` or `--heart-rate` is given.
     pub fn new(
         options: &ProcessingOptions,
         dynamics: &DynamicsOptions,
         data: &dyn FrameSource,
+        recorded_triggers: Option<&[f64]>,
     ) -> Result<Plan> {
         let params = options.params(data)?;
         let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
@@ -297,7 +305,15 @@ impl Plan {
                     )?
                 },
                 vessel: dynamics.vessel_tests()?,
-                triggers: dynamics.triggers()?,
+                triggers: match (dynamics.triggers()?, recorded_triggers) {
+                    (Some(given), _) => Some((given, "--cardiac-triggers".into())),
+                    // The recording's own triggers, unless the user gave a heart rate.
+                    (None, Some(recorded)) if dynamics.heart_rate.is_none() => Some((
+                        recorded.to_vec(),
+                        "the recording's manifest ([cardiac])".into(),
+                    )),
+                    (None, _) => None,
+                },
             })
         };
         if dynamics.explicit()
@@ -475,7 +491,7 @@ fn compute_in_segments(
                 &done.out.grid,
                 &settings.params,
                 &settings.vessel,
-                settings.triggers.as_deref(),
+                settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
             )?;
             Ok((series, maps))
         }
@@ -523,7 +539,7 @@ pub fn run_dynamics(out: &ProcessOutput, plan: &Plan) -> Result<DynamicsOutcome>
             out,
             &settings.params,
             &settings.vessel,
-            settings.triggers.as_deref(),
+            settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
         )
     })
 }
@@ -716,8 +732,9 @@ pub struct DynamicsSettings {
     pub params: DynamicsParams,
     /// Whole-recording vessel tests (noise-floor margin, local peak).
     pub vessel: VesselTests,
-    /// Cardiac cycle start times (s from the first frame), when given.
-    pub triggers: Option<Vec<f64>>,
+    /// Cardiac cycle start times (s from the first frame), when given, and where they came from
+    /// (the option or the recording's manifest).
+    pub triggers: Option<(Vec<f64>, String)>,
 }
 
 /// The summary.json of a `process` run (without the writing timings): every parameter used, the
@@ -796,6 +813,7 @@ fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
         "heart_rate_hz": maps.heart_rate_hz,
         "heart_rate_given": dparams.heart_rate_hz.is_some(),
         "cycles_from": maps.cycle_source.describe(),
+        "triggers_from": settings.triggers.as_ref().map(|(_, from)| from.as_str()),
         "cycles_count": maps.cycles.len(),
         "spread": "psv_spread.npy, edv_spread.npy, ri_spread.npy: standard deviation across the complete cycles of each cycle's PSV (m/s), EDV (m/s) and RI, each cycle's speed fitted on its own; NaN with one cycle",
         "window_frames": dparams.window,

@@ -212,6 +212,85 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         "with triggers: arteriole RI {artery_t} (true 0.7), venule RI {vein_t} (true 0.3)"
     );
 
+    // The same triggers recorded with the recording, in its manifest's [cardiac] table (a file
+    // beside it, or the times inline): used without any option, and the same RI bit for bit.
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    for (name, table) in [
+        (
+            "with_file.toml",
+            "[cardiac]\ntriggers_file = \"r_waves.txt\"\n",
+        ),
+        ("inline.toml", "[cardiac]\ntriggers_s = [0.012, 0.095333]\n"),
+    ] {
+        let recorded = dir.path().join(name);
+        std::fs::write(&recorded, format!("{text}\n{table}")).unwrap();
+        let out_recorded = dir.path().join(format!("out_{name}"));
+        let (ok, _, stderr) = pcuvd(&[
+            "process",
+            recorded.to_str().unwrap(),
+            "--out",
+            out_recorded.to_str().unwrap(),
+            grid,
+            estimator,
+            "--svd-low",
+            "off",
+        ]);
+        assert!(ok, "{name}: {stderr}");
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out_recorded.join("summary.json")).unwrap(),
+        )
+        .unwrap();
+        let dynamics = &summary["dynamics"];
+        assert!(
+            dynamics["triggers_from"]
+                .as_str()
+                .unwrap()
+                .contains("manifest")
+                && dynamics["cycles_count"] == 1,
+            "{name}: {dynamics}"
+        );
+        let ri_recorded: Array2<f64> = read_npy(out_recorded.join("ri.npy")).unwrap();
+        assert!(
+            ri_recorded
+                .iter()
+                .zip(&ri_triggered)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{name}: RI differs from --cardiac-triggers'"
+        );
+    }
+    // A heart rate given on the command line wins over the recorded triggers.
+    let recorded = dir.path().join("inline.toml");
+    let over = dir.path().join("over");
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        recorded.to_str().unwrap(),
+        "--out",
+        over.to_str().unwrap(),
+        grid,
+        estimator,
+        "--svd-low",
+        "off",
+        "--heart-rate",
+        "12",
+    ]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(over.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["dynamics"]["triggers_from"].is_null(), "{summary}");
+    assert_eq!(summary["dynamics"]["heart_rate_hz"], 12.0);
+    // Recorded triggers that cannot be cycles are refused, naming the key.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        format!("{text}\n[cardiac]\ntriggers_s = [0.09, 0.01]\n"),
+    )
+    .unwrap();
+    let (ok, _, stderr) = pcuvd(&["process", bad.to_str().unwrap(), "--out", o, grid]);
+    assert!(
+        !ok && stderr.starts_with("error: ") && stderr.contains("[cardiac].triggers_s"),
+        "{stderr}"
+    );
+
     // Refusals: one line, naming the problem.
     // --force: each run reuses the folder of the first (the earlier run's outputs are replaced).
     let base = [

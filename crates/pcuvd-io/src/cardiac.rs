@@ -70,10 +70,15 @@ fn parse_times(path: &Path, text: &str) -> Result<Vec<f64>, IoError> {
 }
 
 fn check_times(path: &Path, times: &[f64]) -> Result<(), IoError> {
+    check_times_of(path, "the trigger times", times)
+}
+
+/// Checks cycle start times (s) named `key` in `path`: at least two, finite, increasing.
+pub(crate) fn check_times_of(path: &Path, key: &str, times: &[f64]) -> Result<(), IoError> {
     if times.len() < 2 {
         return Err(IoError::invalid(
             path,
-            "the trigger times",
+            key,
             format!(
                 "hold {} time(s); at least two are needed for one cardiac cycle",
                 times.len()
@@ -83,14 +88,14 @@ fn check_times(path: &Path, times: &[f64]) -> Result<(), IoError> {
     if let Some(i) = times.iter().position(|t| !t.is_finite()) {
         return Err(IoError::invalid(
             path,
-            "the trigger times",
+            key,
             format!("time {i} is {}: every time must be finite", times[i]),
         ));
     }
     if let Some(i) = times.windows(2).position(|w| w[1] <= w[0]) {
         return Err(IoError::invalid(
             path,
-            "the trigger times",
+            key,
             format!(
                 "must increase: time {} is {} s, time {} is {} s",
                 i,

@@ -53,8 +53,19 @@ struct ManifestFile {
     probe: Option<ProbeSection>,
     acquisition: Option<AcquisitionSection>,
     data: Option<DataSection>,
+    cardiac: Option<CardiacSection>,
     #[serde(default)]
     provenance: toml::Table,
+}
+
+/// `[cardiac]`: the cardiac cycles recorded beside the ultrasound, for the dynamics stage.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CardiacSection {
+    /// Cycle start times (s from the first frame): ECG R-waves or scanner triggers.
+    triggers_s: Option<Vec<f64>>,
+    /// A 1-D `.npy` or text file of such times, relative to the manifest's folder.
+    triggers_file: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -166,6 +177,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, IoError> {
         axes,
         perm,
         demod,
+        ..
     } = parsed;
     let array = crate::datafile::read_whole(&crate::datafile::DataSpec {
         path: data_path.clone(),
@@ -264,6 +276,40 @@ pub(crate) struct Parsed {
     pub(crate) perm: Vec<usize>,
     /// The demodulation frequency of IQ samples; `None` for RF.
     pub(crate) demod: Option<f64>,
+    /// Cardiac cycle start times (s from the first frame) of `[cardiac]`, checked.
+    pub(crate) cardiac_triggers_s: Option<Vec<f64>>,
+}
+
+/// The cycle start times of a manifest's `[cardiac]` table (inline or from its file), checked.
+fn cardiac_triggers(
+    path: &Path,
+    cardiac: Option<CardiacSection>,
+) -> Result<Option<Vec<f64>>, IoError> {
+    let Some(c) = cardiac else {
+        return Ok(None);
+    };
+    match (c.triggers_s, c.triggers_file) {
+        (Some(times), None) => {
+            crate::cardiac::check_times_of(path, "[cardiac].triggers_s", &times)?;
+            Ok(Some(times))
+        }
+        (None, Some(file)) => {
+            let file = path.parent().unwrap_or(Path::new("")).join(file);
+            crate::cardiac::read_trigger_times(&file)
+                .map(Some)
+                .map_err(|e| IoError::invalid(path, "[cardiac].triggers_file", format!("{e}")))
+        }
+        (Some(_), Some(_)) => Err(IoError::invalid(
+            path,
+            "[cardiac]",
+            "give triggers_s or triggers_file, not both",
+        )),
+        (None, None) => Err(IoError::missing(
+            path,
+            "table [cardiac]",
+            "key 'triggers_s' or 'triggers_file'",
+        )),
+    }
 }
 
 /// Reads and checks a manifest, up to (not including) its samples.
@@ -371,7 +417,9 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     let perm =
         axis_permutation(&axes, version).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
     let data = crate::datafile::parse_data_file(path, &file)?;
+    let cardiac_triggers_s = cardiac_triggers(path, m.cardiac)?;
     Ok(Parsed {
+        cardiac_triggers_s,
         acquisition,
         provenance: m.provenance,
         data_path: data.path,

@@ -194,6 +194,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         parameters: r.params,
         stored: Some(stored),
         warnings: vec![],
+        cardiac_triggers_s: parsed.cardiac_triggers_s.clone(),
     };
     if plain_npy
         && overrides.is_empty()

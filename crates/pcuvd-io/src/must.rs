@@ -626,6 +626,7 @@ fn build(
             parameters: r.params,
             stored: Some(stored),
             warnings,
+            cardiac_triggers_s: None,
         },
     };
     // A block holds whole frames only: check finiteness of every sample up front for files read

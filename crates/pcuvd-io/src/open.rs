@@ -49,6 +49,10 @@ pub struct SourceInfo {
     pub stored: Option<StoredSamples>,
     /// Things the user should know (a default taken, a field ignored).
     pub warnings: Vec<String>,
+    /// Cardiac cycle start times (s from the first frame) recorded with the recording (a
+    /// manifest's `[cardiac]`), for the dynamics stage; `None` when it has none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cardiac_triggers_s: Option<Vec<f64>>,
 }
 
 /// A recording opened for reading: its frames and what was read.

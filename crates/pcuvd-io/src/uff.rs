@@ -310,6 +310,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             parameters: r.params,
             stored: Some(stored),
             warnings: vec![],
+            cardiac_triggers_s: None,
         },
     })
 }

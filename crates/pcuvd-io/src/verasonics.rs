@@ -526,6 +526,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             parameters: r.params,
             stored: Some(stored),
             warnings,
+            cardiac_triggers_s: None,
         },
     })
 }

@@ -123,6 +123,7 @@ impl PyRecording {
                 parameters: vec![],
                 stored: None,
                 warnings: vec![],
+                cardiac_triggers_s: None,
             },
         }
     }
@@ -486,7 +487,12 @@ fn process(
     let (plan, processed) = py
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
-            let plan = Plan::new(&call.options, &call.dynamics, &*data)?;
+            let plan = Plan::new(
+                &call.options,
+                &call.dynamics,
+                &*data,
+                recording.info.cardiac_triggers_s.as_deref(),
+            )?;
             cli_process::check_memory(&*data, &plan, call.max_memory_gb)?;
             let progress = PipelineProgress::new("");
             let processed =
@@ -586,7 +592,12 @@ impl PyProcessResult {
         set_quiet(quiet);
         let (plan, dynamics, seconds) = py
             .detach(|| -> anyhow::Result<_> {
-                let plan = Plan::new(&self.options, &call.dynamics, &*self.recording)?;
+                let plan = Plan::new(
+                    &self.options,
+                    &call.dynamics,
+                    &*self.recording,
+                    self.info.cardiac_triggers_s.as_deref(),
+                )?;
                 let clock = std::time::Instant::now();
                 let dynamics = cli_process::run_dynamics(&self.processed.out, &plan)?;
                 Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
