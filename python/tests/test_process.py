@@ -260,3 +260,27 @@ def test_doppler_estimator_is_the_cli_option(tube, cli, tmp_path):
     # A grid too coarse for Loupas's axial lag: the command's message, before any work.
     with pytest.raises(ValueError, match="doppler-estimator loupas"):
         pcuvd.process(tube, grid_mm=(-3, 3, 4, 10, 0.1), dynamics="off", quiet=True)
+
+
+def test_triggers_recorded_in_the_manifest_are_used(cli, tmp_path):
+    """A manifest's [cardiac] triggers give the dynamics stage its cycles without any keyword,
+    exactly as `cardiac_triggers=` with the same times does; a heart rate given wins."""
+    done = run_cli(cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "60",
+                   "--noise-db", "off", "--out", tmp_path)
+    assert done.returncode == 0, done.stderr
+    plain = tmp_path / "coded.toml"
+    recorded = tmp_path / "with_triggers.toml"
+    # One 25 ms cycle of the 33 ms recording, as in the dynamics re-run test.
+    recorded.write_text(plain.read_text() + "\n[cardiac]\ntriggers_s = [0.002, 0.027]\n")
+    (tmp_path / "triggers.txt").write_text("0.002\n0.027\n")
+    settings = {"grid_mm": (-3, 3, 4, 10, 0.08), "window_ms": 5, "window_step_ms": 1}
+    from_manifest = pcuvd.process(str(recorded), quiet=True, **settings)
+    dynamics = from_manifest.summary["dynamics"]
+    assert "manifest" in dynamics["triggers_from"] and dynamics["cycles_count"] == 1, dynamics
+    given = pcuvd.process(str(plain), quiet=True, cardiac_triggers=str(tmp_path / "triggers.txt"),
+                          **settings)
+    assert given.summary["dynamics"]["triggers_from"] == "--cardiac-triggers"
+    assert_same_array(from_manifest.ri, given.ri, "ri")
+    rate = pcuvd.process(str(recorded), quiet=True, heart_rate_hz=40, **settings)
+    assert rate.summary["dynamics"].get("triggers_from") is None
+    assert rate.summary["dynamics"]["heart_rate_hz"] == 40
