@@ -214,6 +214,26 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
 
     // The same triggers recorded with the recording, in its manifest's [cardiac] table (a file
     // beside it, or the times inline): used without any option, and the same RI bit for bit.
+    // `pcuvd process INPUT --out OUT` as above plus `extra`, which must succeed: its summary.json.
+    let process_ok = |input: &std::path::Path, out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "process",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            grid,
+            estimator,
+            "--svd-low",
+            "off",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, stderr) = pcuvd(&args);
+        assert!(ok, "{args:?}: {stderr}");
+        serde_json::from_str::<serde_json::Value>(
+            &std::fs::read_to_string(out.join("summary.json")).unwrap(),
+        )
+        .unwrap()
+    };
     let text = std::fs::read_to_string(&manifest).unwrap();
     for (name, table) in [
         (
@@ -225,21 +245,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         let recorded = dir.path().join(name);
         std::fs::write(&recorded, format!("{text}\n{table}")).unwrap();
         let out_recorded = dir.path().join(format!("out_{name}"));
-        let (ok, _, stderr) = pcuvd(&[
-            "process",
-            recorded.to_str().unwrap(),
-            "--out",
-            out_recorded.to_str().unwrap(),
-            grid,
-            estimator,
-            "--svd-low",
-            "off",
-        ]);
-        assert!(ok, "{name}: {stderr}");
-        let summary: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(out_recorded.join("summary.json")).unwrap(),
-        )
-        .unwrap();
+        let summary = process_ok(&recorded, &out_recorded, &[]);
         let dynamics = &summary["dynamics"];
         assert!(
             dynamics["triggers_from"]
@@ -259,23 +265,11 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         );
     }
     // A heart rate given on the command line wins over the recorded triggers.
-    let recorded = dir.path().join("inline.toml");
-    let over = dir.path().join("over");
-    let (ok, _, stderr) = pcuvd(&[
-        "process",
-        recorded.to_str().unwrap(),
-        "--out",
-        over.to_str().unwrap(),
-        grid,
-        estimator,
-        "--svd-low",
-        "off",
-        "--heart-rate",
-        "12",
-    ]);
-    assert!(ok, "{stderr}");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(over.join("summary.json")).unwrap()).unwrap();
+    let summary = process_ok(
+        &dir.path().join("inline.toml"),
+        &dir.path().join("over"),
+        &["--heart-rate", "12"],
+    );
     assert!(summary["dynamics"]["triggers_from"].is_null(), "{summary}");
     assert_eq!(summary["dynamics"]["heart_rate_hz"], 12.0);
     // Recorded triggers that cannot be cycles are refused, naming the key.

@@ -515,6 +515,12 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         .iter()
         .map(|f| super::compound_mean_power(&f.signal))
         .collect::<Result<_>>()?;
+    // The four estimators' RMSE with both recordings' noise at `gain` × the simulated level.
+    let rmse_at_gain = |gain: f32, params: &ProcessParams| -> Result<EstimatorRmse> {
+        let conv = pipeline::analyse(formed[0].at_gain(gain), params, &quiet)?;
+        let coded = pipeline::analyse(formed[1].at_gain(gain), params, &quiet)?;
+        Ok(estimator_rmse(&conv, &coded, &truth))
+    };
 
     // Noise sweep: four estimators at every level.
     let task = "noise sweep";
@@ -526,9 +532,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
             // The main study's level is already analysed: reuse it.
             estimator_rmse(&main[0], &main[1], &truth)
         } else {
-            let conv = pipeline::analyse(formed[0].at_gain(gain), &params, &quiet)?;
-            let coded = pipeline::analyse(formed[1].at_gain(gain), &params, &quiet)?;
-            estimator_rmse(&conv, &coded, &truth)
+            rmse_at_gain(gain, &params)?
         };
         noise_sweep.push(SweepRow {
             noise_db: level,
@@ -549,10 +553,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         let c = calibrate(target * 1e3, swept, uvd_vx)?;
         Ok::<_, crate::error::Error>(match c.noise_db {
             Some(level) => {
-                let gain = gain_of(settings.noise_db, level);
-                let conv = pipeline::analyse(formed[0].at_gain(gain), params, &quiet)?;
-                let coded = pipeline::analyse(formed[1].at_gain(gain), params, &quiet)?;
-                let rmse = estimator_rmse(&conv, &coded, &truth);
+                let rmse = rmse_at_gain(gain_of(settings.noise_db, level), params)?;
                 Calibrated {
                     rmse_mm_s: Some(rmse),
                     improvement_pct: Some(PerComponent {
@@ -591,11 +592,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
                 doppler_kernel: kernel,
                 ..params.clone()
             };
-            let floor = {
-                let conv = pipeline::analyse(formed[0].at_gain(0.0), &params, &quiet)?;
-                let coded = pipeline::analyse(formed[1].at_gain(0.0), &params, &quiet)?;
-                estimator_rmse(&conv, &coded, &truth)
-            };
+            let floor = rmse_at_gain(0.0, &params)?;
             // Averaging lowers UVD's error at every level, so its calibrated level is louder
             // than the pixel-wise one: bracket it from the main level (and one far quieter, in
             // case the main level is loud) upward.
