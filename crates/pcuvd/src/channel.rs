@@ -1,7 +1,8 @@
 //! Channel data: what the scanner records, one trace per element per transmit event.
 
-use ndarray::{Array3, Array4};
+use ndarray::{Array3, Array4, ArrayView4};
 use num_complex::Complex32;
+use rayon::prelude::*;
 
 use crate::error::{Error, Result, invalid, require_positive};
 use crate::probe::Probe;
@@ -167,12 +168,60 @@ impl Samples {
         }
     }
 
+    /// The records of compound frames `frames` of `n` events as [`decode::decode_in_place`]
+    /// leaves them (event f·n + k: angle k's record of frame f), viewed per angle: (angles,
+    /// frames, channels, samples). Samples in standard layout (as read, and as decoding in
+    /// place leaves them), or an error.
+    ///
+    /// [`decode::decode_in_place`]: crate::decode::decode_in_place
+    pub fn decoded_frames(
+        &self,
+        n: usize,
+        frames: std::ops::Range<usize>,
+    ) -> Result<AngleSamplesView<'_>> {
+        fn per_angle<T>(
+            events: &Array3<T>,
+            n: usize,
+            frames: std::ops::Range<usize>,
+        ) -> Result<ArrayView4<'_, T>> {
+            let (total, channels, samples) = events.dim();
+            if n == 0 || frames.start > frames.end || frames.end * n > total {
+                return Err(Error::Shape(format!(
+                    "frames {frames:?} of {n} events from {total} events"
+                )));
+            }
+            let kept = events.slice(ndarray::s![frames.start * n..frames.end * n, .., ..]);
+            let by_frame = kept
+                .into_shape_with_order((frames.len(), n, channels, samples))
+                .map_err(|e| Error::Shape(format!("decoded frames not in standard layout: {e}")))?;
+            Ok(by_frame.permuted_axes([1, 0, 2, 3]))
+        }
+        Ok(match self {
+            Samples::Rf(a) => AngleSamplesView::Rf(per_angle(a, n, frames)?),
+            Samples::Iq {
+                data,
+                demod_frequency,
+            } => AngleSamplesView::Iq {
+                data: per_angle(data, n, frames)?,
+                demod_frequency: *demod_frequency,
+            },
+        })
+    }
+
     /// (events, channels, samples).
     pub fn dim(&self) -> (usize, usize, usize) {
         match self {
             Samples::Rf(a) => a.dim(),
             Samples::Iq { data, .. } => data.dim(),
         }
+    }
+}
+
+/// Whether `test` holds for every value of `array`: over contiguous memory on every core.
+fn all_of<T: Sync>(array: &Array3<T>, test: impl Fn(&T) -> bool + Sync) -> bool {
+    match array.as_slice_memory_order() {
+        Some(values) => values.par_chunks(1 << 16).all(|c| c.iter().all(&test)),
+        None => array.iter().all(test),
     }
 }
 
@@ -211,9 +260,11 @@ impl ChannelData {
                 "{events} transmit events is not a whole number of compound frames of {n} events"
             )));
         }
+        // On every core: a block of a recording is about a gigabyte, which one core takes a
+        // noticeable share of a run to scan.
         let finite = match &self.samples {
-            Samples::Rf(a) => a.iter().all(|v| v.is_finite()),
-            Samples::Iq { data, .. } => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
+            Samples::Rf(a) => all_of(a, |v| v.is_finite()),
+            Samples::Iq { data, .. } => all_of(data, |v| v.re.is_finite() && v.im.is_finite()),
         };
         if !finite {
             return Err(Error::NonFinite("the channel samples (NaN or Inf)".into()));
@@ -242,7 +293,46 @@ pub enum AngleSamples {
     },
 }
 
+/// Per-angle records borrowed where they lie, (angles, frames, channels, samples): an
+/// [`AngleSamples`] or a block decoded in place ([`Samples::decoded_frames`]).
+#[derive(Debug, Clone, Copy)]
+pub enum AngleSamplesView<'a> {
+    /// Real RF.
+    Rf(ArrayView4<'a, f32>),
+    /// Complex baseband.
+    Iq {
+        /// The samples.
+        data: ArrayView4<'a, Complex32>,
+        /// Demodulation frequency (Hz).
+        demod_frequency: f64,
+    },
+}
+
+impl AngleSamplesView<'_> {
+    /// (angles, frames, channels, samples).
+    pub fn dim(&self) -> (usize, usize, usize, usize) {
+        match self {
+            AngleSamplesView::Rf(a) => a.dim(),
+            AngleSamplesView::Iq { data, .. } => data.dim(),
+        }
+    }
+}
+
 impl AngleSamples {
+    /// The records, borrowed.
+    pub fn view(&self) -> AngleSamplesView<'_> {
+        match self {
+            AngleSamples::Rf(a) => AngleSamplesView::Rf(a.view()),
+            AngleSamples::Iq {
+                data,
+                demod_frequency,
+            } => AngleSamplesView::Iq {
+                data: data.view(),
+                demod_frequency: *demod_frequency,
+            },
+        }
+    }
+
     /// The frames `frames` of every angle (a copy).
     pub fn frames(&self, frames: std::ops::Range<usize>) -> AngleSamples {
         match self {

@@ -23,7 +23,7 @@
 use std::ops::Range;
 use std::sync::Arc;
 
-use ndarray::{Array3, Array4, ArrayView3, Axis, s};
+use ndarray::{Array3, Array4, ArrayView3, ArrayViewMut3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use num_traits::Zero;
 use rayon::prelude::*;
@@ -168,6 +168,53 @@ pub fn decode_aligned_frames_into(
     Ok(())
 }
 
+/// As [`decode_aligned_frames`], in the memory of `data`'s samples rather than a new array:
+/// afterwards event `f·n + k` of each compound frame f in `frames` holds angle k's record of
+/// that frame, to the bit what [`decode_aligned_frames`] returns
+/// ([`Samples::decoded_frames`] views them per angle); the other events are left as read. A
+/// block of a long recording then needs half the memory, so it can hold twice the frames.
+pub fn decode_in_place(
+    data: &mut ChannelData,
+    alignment: EventAlignment,
+    frames: Range<usize>,
+) -> Result<()> {
+    data.validate()?;
+    let acq = &data.acquisition;
+    let n = acq.sequence.n_angles();
+    check_frames(&data.samples, n)?;
+    check_kept(&data.samples, n, &frames)?;
+    let fs = acq.sampling_frequency;
+    crate::error::require_positive("sampling frequency", fs)?;
+    let plan = match &acq.sequence.coding {
+        // Event f·n + k already is angle k's record of frame f.
+        Coding::Conventional => return Ok(()),
+        Coding::Hadamard { slot_delay } => hadamard_plan(n, checked_slot_shift(slot_delay * fs)?)?,
+        Coding::Matrix(code) => code_plan(code, fs)?,
+    };
+    let (events, _, ns) = data.samples.dim();
+    let aligner = checked_aligner(&plan, alignment, events, ns)?;
+    let aligner = aligner.as_ref();
+    match &mut data.samples {
+        Samples::Rf(rf) => {
+            if !rf.is_standard_layout() {
+                *rf = rf.as_standard_layout().into_owned();
+            }
+            decode_events_in_place(rf.view_mut(), &plan, shift_rf, aligner, frames)
+        }
+        Samples::Iq {
+            data: iq,
+            demod_frequency,
+        } => {
+            if !iq.is_standard_layout() {
+                *iq = iq.as_standard_layout().into_owned();
+            }
+            let shift = shift_iq(*demod_frequency, fs);
+            decode_events_in_place(iq.view_mut(), &plan, shift, aligner, frames)
+        }
+    }
+    Ok(())
+}
+
 fn decode_reusing(
     data: &ChannelData,
     alignment: EventAlignment,
@@ -241,14 +288,7 @@ fn decode_samples_frames(
 ) -> Result<AngleSamples> {
     check_frames(samples, n)?;
     check_kept(samples, n, &frames)?;
-    if let Some(shift) = slot_shift
-        && !(shift.is_finite() && shift >= 0.0)
-    {
-        return Err(crate::error::invalid(
-            "slot delay",
-            format!("must be finite and ≥ 0 samples, got {shift}"),
-        ));
-    }
+    let slot_shift = slot_shift.map(checked_slot_shift).transpose()?;
     crate::error::require_positive("sampling frequency", sampling_frequency)?;
     match slot_shift {
         None => {
@@ -265,15 +305,7 @@ fn decode_samples_frames(
             })
         }
         Some(shift) => {
-            let h = Hadamard::new(n)?;
-            // Hᵀ: slot k gathers event i with the polarity H[i][k].
-            let matrix = (0..n * n).map(|j| h.get(j % n, j / n)).collect::<Vec<_>>();
-            let shifts = (0..n).map(|k| k as f64 * shift).collect::<Vec<_>>();
-            let plan = DecodePlan {
-                matrix,
-                shifts,
-                align: true,
-            };
+            let plan = hadamard_plan(n, shift)?;
             decode_with(samples, &plan, sampling_frequency, alignment, frames, reuse)
         }
     }
@@ -308,7 +340,35 @@ fn decode_code_frames(
     check_frames(samples, n)?;
     check_kept(samples, n, &frames)?;
     crate::error::require_positive("sampling frequency", sampling_frequency)?;
-    let plan = DecodePlan {
+    let plan = code_plan(code, sampling_frequency)?;
+    decode_with(samples, &plan, sampling_frequency, alignment, frames, reuse)
+}
+
+/// `shift` (samples between pulse slots) if it is finite and ≥ 0, or an error.
+fn checked_slot_shift(shift: f64) -> Result<f64> {
+    if !(shift.is_finite() && shift >= 0.0) {
+        return Err(crate::error::invalid(
+            "slot delay",
+            format!("must be finite and ≥ 0 samples, got {shift}"),
+        ));
+    }
+    Ok(shift)
+}
+
+/// The plan of a Hadamard code of order `n` with slots `shift` samples apart: Hᵀ, slot k
+/// gathering event i with the polarity H[i][k].
+fn hadamard_plan(n: usize, shift: f64) -> Result<DecodePlan> {
+    let h = Hadamard::new(n)?;
+    Ok(DecodePlan {
+        matrix: (0..n * n).map(|j| h.get(j % n, j / n)).collect(),
+        shifts: (0..n).map(|k| k as f64 * shift).collect(),
+        align: true,
+    })
+}
+
+/// The plan of an explicit code sampled at `sampling_frequency` (Hz).
+fn code_plan(code: &TransmitCode, sampling_frequency: f64) -> Result<DecodePlan> {
+    Ok(DecodePlan {
         matrix: code
             .decoding_matrix()?
             .into_iter()
@@ -320,8 +380,7 @@ fn decode_code_frames(
             .map(|t| t * sampling_frequency)
             .collect(),
         align: code.is_coded(),
-    };
-    decode_with(samples, &plan, sampling_frequency, alignment, frames, reuse)
+    })
 }
 
 /// A whole number of compound frames of `n` events, or an error.
@@ -363,25 +422,8 @@ fn decode_with(
     kept: Range<usize>,
     reuse: Option<AngleSamples>,
 ) -> Result<AngleSamples> {
-    let n = plan.shifts.len();
     let (events, _, ns) = samples.dim();
-    let frames = events / n;
-    if let Some(k) = plan.shifts.iter().position(|s| s.abs() >= ns as f64) {
-        return Err(crate::error::invalid(
-            "slot delays",
-            format!(
-                "slot {k} is shifted by {:.1} samples, more than its {ns}-sample record: its echoes \
-                 are not in the recording",
-                plan.shifts[k]
-            ),
-        ));
-    }
-    let aligner = match alignment {
-        EventAlignment::MidFrame if plan.align && n > 1 && frames > 1 => {
-            Some(SlowTimeAligner::new(frames, n))
-        }
-        _ => None,
-    };
+    let aligner = checked_aligner(plan, alignment, events, ns)?;
     let aligner = aligner.as_ref();
     let (reuse_rf, reuse_iq) = match reuse {
         Some(AngleSamples::Rf(a)) => (Some(a), None),
@@ -392,7 +434,7 @@ fn decode_with(
         Samples::Rf(rf) => Ok(AngleSamples::Rf(decode_events(
             rf.view(),
             plan,
-            |shifter, tr, s| shifter.shift_real(tr, s),
+            shift_rf,
             aligner,
             kept,
             reuse_rf,
@@ -402,17 +444,10 @@ fn decode_with(
             demod_frequency,
         } => {
             let fd = *demod_frequency;
-            let fs = sampling_frequency;
             let out = decode_events(
                 iq.view(),
                 plan,
-                |shifter, tr, s| {
-                    shifter.shift_complex(tr, s);
-                    // Baseband of an advanced analytic signal: IQ(t + τ)·exp(+2πi f_d τ).
-                    let phase = 2.0 * std::f64::consts::PI * fd * s / fs;
-                    let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
-                    tr.iter_mut().for_each(|v| *v *= rot);
-                },
+                shift_iq(fd, sampling_frequency),
                 aligner,
                 kept,
                 reuse_iq,
@@ -422,6 +457,50 @@ fn decode_with(
                 demod_frequency: fd,
             })
         }
+    }
+}
+
+/// Refuses slot shifts beyond a record of `ns` samples; the slow-time aligner of `events`
+/// events when `alignment` asks for one and the plan's events mix slots.
+fn checked_aligner(
+    plan: &DecodePlan,
+    alignment: EventAlignment,
+    events: usize,
+    ns: usize,
+) -> Result<Option<SlowTimeAligner>> {
+    let n = plan.shifts.len();
+    if let Some(k) = plan.shifts.iter().position(|s| s.abs() >= ns as f64) {
+        return Err(crate::error::invalid(
+            "slot delays",
+            format!(
+                "slot {k} is shifted by {:.1} samples, more than its {ns}-sample record: its echoes \
+                 are not in the recording",
+                plan.shifts[k]
+            ),
+        ));
+    }
+    let frames = events / n.max(1);
+    Ok(match alignment {
+        EventAlignment::MidFrame if plan.align && n > 1 && frames > 1 => {
+            Some(SlowTimeAligner::new(frames, n))
+        }
+        _ => None,
+    })
+}
+
+/// Advances an RF trace by a slot's start.
+fn shift_rf(shifter: &TraceShifter, trace: &mut [f32], shift: f64) {
+    shifter.shift_real(trace, shift)
+}
+
+/// Advances an IQ trace demodulated at `fd` (Hz), sampled at `fs` (Hz), by a slot's start.
+fn shift_iq(fd: f64, fs: f64) -> impl Fn(&TraceShifter, &mut [Complex32], f64) + Sync {
+    move |shifter, trace, shift| {
+        shifter.shift_complex(trace, shift);
+        // Baseband of an advanced analytic signal: IQ(t + τ)·exp(+2πi f_d τ).
+        let phase = 2.0 * std::f64::consts::PI * fd * shift / fs;
+        let rot = Complex32::new(phase.cos() as f32, phase.sin() as f32);
+        trace.iter_mut().for_each(|v| *v *= rot);
     }
 }
 
@@ -938,8 +1017,7 @@ where
 {
     let n = plan.shifts.len();
     let (_, nc, ns) = events.dim();
-    let max_shift = plan.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
-    let shifter = TraceShifter::new(ns, max_shift);
+    let shifter = plan.shifter(ns);
     // Every element is written below, so a reused array needs no clearing.
     let mut out = crate::source::array_reusing(reuse, (n, kept.len(), nc, ns));
     // Rows of samples are read where they lie: event i of channel c is row i·nc + c.
@@ -949,50 +1027,162 @@ where
     out.axis_iter_mut(Axis(2))
         .into_par_iter()
         .enumerate()
-        .for_each_init(
-            || (AlignScratch::default(), Vec::new(), vec![T::zero(); ns]),
-            |(scratch, aligned, trace), (c, mut channel_out)| {
-                let row = row(c);
-                // The kept frames' events, aligned or as recorded: kept frames × events rows.
-                let kept_rows: &[T] = match aligner {
-                    Some(aligner) => {
-                        aligned.resize(kept.len() * n * ns, T::zero());
-                        aligner.align_kept(row, ns, kept.clone(), scratch, aligned);
-                        aligned
+        .for_each_init(ChannelScratch::default, |scratch, (c, mut channel_out)| {
+            scratch.align(row(c), ns, n, aligner, kept.clone());
+            scratch.decode(
+                plan,
+                &shifter,
+                &shift,
+                ns,
+                kept.len(),
+                |k, kept_f, trace| {
+                    let mut dest = channel_out.slice_mut(s![k, kept_f, ..]);
+                    match dest.as_slice_mut() {
+                        Some(dest) => dest.copy_from_slice(trace),
+                        None => dest.assign(&ndarray::ArrayView1::from(trace)),
                     }
-                    None => {
-                        aligned.clear();
-                        for i in kept.start * n..kept.end * n {
-                            aligned.extend_from_slice(row(i));
-                        }
-                        aligned
-                    }
+                },
+            );
+        });
+    out
+}
+
+/// As [`decode_events`], in `events`' own memory: after it, event `f·n + k` of every frame f in
+/// `kept` holds slot k's record of that frame. Each channel's events are read (aligned) into a
+/// scratch buffer before any of them is overwritten, so the result is [`decode_events`]'s to
+/// the bit.
+fn decode_events_in_place<T, F>(
+    mut events: ArrayViewMut3<T>,
+    plan: &DecodePlan,
+    shift: F,
+    aligner: Option<&SlowTimeAligner>,
+    kept: Range<usize>,
+) where
+    T: SlowTimeSample + Send + Sync + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
+    F: Fn(&TraceShifter, &mut [T], f64) + Sync,
+{
+    let n = plan.shifts.len();
+    let ns = events.dim().2;
+    let shifter = plan.shifter(ns);
+    events.axis_iter_mut(Axis(1)).into_par_iter().for_each_init(
+        ChannelScratch::default,
+        |scratch, mut channel| {
+            {
+                let rows = channel.view();
+                let row = |i: usize| {
+                    rows.index_axis_move(Axis(0), i)
+                        .to_slice()
+                        .expect("a row of samples is contiguous")
                 };
-                for kept_f in 0..kept.len() {
-                    for k in 0..n {
-                        trace.fill(T::zero());
-                        for i in 0..n {
-                            let weight = plan.matrix[k * n + i];
-                            if weight == 0.0 {
-                                continue;
-                            }
-                            let event =
-                                &kept_rows[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
-                            for (a, &m) in trace.iter_mut().zip(event) {
-                                *a += m * weight;
-                            }
-                        }
-                        shift(&shifter, trace, plan.shifts[k]);
-                        let mut dest = channel_out.slice_mut(s![k, kept_f, ..]);
-                        match dest.as_slice_mut() {
-                            Some(dest) => dest.copy_from_slice(trace),
-                            None => dest.assign(&ndarray::ArrayView1::from(&trace[..])),
-                        }
+                scratch.align(row, ns, n, aligner, kept.clone());
+            }
+            scratch.decode(
+                plan,
+                &shifter,
+                &shift,
+                ns,
+                kept.len(),
+                |k, kept_f, trace| {
+                    channel
+                        .row_mut((kept.start + kept_f) * n + k)
+                        .as_slice_mut()
+                        .expect("a row of samples is contiguous")
+                        .copy_from_slice(trace)
+                },
+            );
+        },
+    );
+}
+
+impl DecodePlan {
+    /// The shifter of this plan's slot advances for records of `ns` samples.
+    fn shifter(&self, ns: usize) -> TraceShifter {
+        let max_shift = self.shifts.iter().fold(0.0f64, |m, s| m.max(s.abs()));
+        TraceShifter::new(ns, max_shift)
+    }
+}
+
+/// One worker's buffers for decoding a channel: the kept frames' events (aligned or as recorded)
+/// and the trace being decoded.
+struct ChannelScratch<T> {
+    align: AlignScratch<T>,
+    /// Kept frames × events rows.
+    events: Vec<T>,
+    trace: Vec<T>,
+}
+
+impl<T> Default for ChannelScratch<T> {
+    fn default() -> Self {
+        ChannelScratch {
+            align: AlignScratch::default(),
+            events: Vec::new(),
+            trace: Vec::new(),
+        }
+    }
+}
+
+impl<T> ChannelScratch<T>
+where
+    T: SlowTimeSample + Zero + std::ops::Mul<f32, Output = T> + std::ops::AddAssign,
+{
+    /// The kept frames' events of one channel (`row(i)`: its event i), aligned by `aligner` if
+    /// given, into `self.events`.
+    fn align<'a>(
+        &mut self,
+        row: impl Fn(usize) -> &'a [T],
+        ns: usize,
+        n: usize,
+        aligner: Option<&SlowTimeAligner>,
+        kept: Range<usize>,
+    ) where
+        T: 'a,
+    {
+        match aligner {
+            Some(aligner) => {
+                self.events.resize(kept.len() * n * ns, T::zero());
+                aligner.align_kept(row, ns, kept, &mut self.align, &mut self.events);
+            }
+            None => {
+                self.events.clear();
+                for i in kept.start * n..kept.end * n {
+                    self.events.extend_from_slice(row(i));
+                }
+            }
+        }
+    }
+
+    /// Per kept frame and slot k, Σ_i D[k][i]·event_i advanced by slot k's start, handed to
+    /// `write(k, kept frame, trace)`.
+    fn decode(
+        &mut self,
+        plan: &DecodePlan,
+        shifter: &TraceShifter,
+        shift: &impl Fn(&TraceShifter, &mut [T], f64),
+        ns: usize,
+        kept: usize,
+        mut write: impl FnMut(usize, usize, &[T]),
+    ) {
+        let n = plan.shifts.len();
+        self.trace.resize(ns, T::zero());
+        let trace = &mut self.trace;
+        for kept_f in 0..kept {
+            for k in 0..n {
+                trace.fill(T::zero());
+                for i in 0..n {
+                    let weight = plan.matrix[k * n + i];
+                    if weight == 0.0 {
+                        continue;
+                    }
+                    let event = &self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
+                    for (a, &m) in trace.iter_mut().zip(event) {
+                        *a += m * weight;
                     }
                 }
-            },
-        );
-    out
+                shift(shifter, trace, plan.shifts[k]);
+                write(k, kept_f, trace);
+            }
+        }
+    }
 }
 
 /// Encodes per-angle records (angles, channels, samples) into the n events of one coded compound

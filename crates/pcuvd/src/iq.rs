@@ -10,7 +10,7 @@ use ndarray::{Array3, Axis, s};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
-use crate::channel::AngleSamples;
+use crate::channel::{AngleSamples, AngleSamplesView};
 use crate::error::{Error, Result, invalid, require_positive};
 
 /// Baseband channel data of one angle, laid out (channels, samples, frames) so that the beamformer
@@ -76,7 +76,7 @@ pub fn demodulate(
         demod_frequency,
     };
     demodulate_into(
-        samples,
+        samples.view(),
         angle,
         t0,
         sampling_frequency,
@@ -87,11 +87,12 @@ pub fn demodulate(
     Ok(out)
 }
 
-/// As [`demodulate`], into `out`, whose array is reused when it has the shape (an angle after
-/// another of the same block).
+/// As [`demodulate`], of records where they lie (an [`AngleSamples`]' or a block decoded in
+/// place), into `out`, whose array is reused when it has the shape (an angle after another of
+/// the same block).
 #[allow(clippy::too_many_arguments)]
 pub fn demodulate_into(
-    samples: &AngleSamples,
+    samples: AngleSamplesView,
     angle: usize,
     t0: f64,
     sampling_frequency: f64,
@@ -115,15 +116,15 @@ pub fn demodulate_into(
     iq.data = crate::source::array_reusing(Some(old), (channels, n_samples, frames));
     let out = &mut iq.data;
     match samples {
-        AngleSamples::Iq {
+        AngleSamplesView::Iq {
             data,
             demod_frequency: fd,
         } => {
             out.assign(&data.slice(s![angle, .., .., ..]).permuted_axes([1, 2, 0]));
-            iq.demod_frequency = *fd;
+            iq.demod_frequency = fd;
             return Ok(());
         }
-        AngleSamples::Rf(rf) => {
+        AngleSamplesView::Rf(rf) => {
             let cutoff =
                 cutoff.unwrap_or_else(|| default_cutoff(demod_frequency, sampling_frequency));
             // The filter is about 3·f_s/cutoff taps long: a cut-off below 10⁻⁴·f_s (a
@@ -166,10 +167,16 @@ pub fn demodulate_into(
                     // output is laid out: each tap then multiplies a whole row of frames, which
                     // vectorises, where one trace at a time did not.
                     mixed.resize(n_samples * frames, Complex32::new(0.0, 0.0));
-                    for f in 0..frames {
-                        let trace = rf.slice(s![f, ch, ..]);
-                        for (n, (&x, &w)) in trace.iter().zip(&mixer).enumerate() {
-                            mixed[n * frames + f] = w * x;
+                    // A band of samples at a time, so that the rows it writes (every frame of
+                    // each sample) stay in L1 while the traces are transposed into them.
+                    const BAND: usize = 32;
+                    for n0 in (0..n_samples).step_by(BAND) {
+                        let n1 = (n0 + BAND).min(n_samples);
+                        for f in 0..frames {
+                            let trace = rf.slice(s![f, ch, n0..n1]);
+                            for (n, (&x, &w)) in trace.iter().zip(&mixer[n0..n1]).enumerate() {
+                                mixed[(n0 + n) * frames + f] = w * x;
+                            }
                         }
                     }
                     let dest = dest

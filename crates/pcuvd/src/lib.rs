@@ -43,7 +43,9 @@ pub mod study;
 pub mod vector;
 pub mod vessel;
 
-pub use channel::{Acquisition, AngleSamples, BandSampling, ChannelData, Samples};
+pub use channel::{
+    Acquisition, AngleSamples, AngleSamplesView, BandSampling, ChannelData, Samples,
+};
 pub use error::{Error, Result};
 pub use hadamard::Hadamard;
 pub use probe::Probe;

@@ -6,7 +6,7 @@ use std::time::Instant;
 use ndarray::{Array2, Array3, ArrayViewMut3, Axis};
 
 use crate::beamform::{self, DasParams};
-use crate::channel::{Acquisition, AngleSamples, ChannelData};
+use crate::channel::{Acquisition, ChannelData};
 use crate::clutter::{self, ClutterParams, ClutterReport};
 use crate::dealias::{self, AliasCounts, Dealias};
 use crate::decode;
@@ -357,12 +357,11 @@ pub fn form_block(
     })
 }
 
-/// The working arrays of [`form_block_into`], kept from one block to the next: the events read,
-/// the decoded records and one angle's IQ. Fresh arrays of that size (about 1 GB) cost more to
+/// The working arrays of [`form_block_into`], kept from one block to the next: the events read
+/// (and decoded in place) and one angle's IQ. Fresh arrays of that size (about 1 GB) cost more to
 /// fault in and zero than decoding them takes.
 pub struct BlockBuffers {
     read: Option<ChannelData>,
-    decoded: Option<AngleSamples>,
     iq: iq::IqChannels,
 }
 
@@ -370,7 +369,6 @@ impl Default for BlockBuffers {
     fn default() -> Self {
         BlockBuffers {
             read: None,
-            decoded: None,
             iq: iq::IqChannels {
                 data: Array3::zeros((0, 0, 0)),
                 sampling_frequency: 0.0,
@@ -431,8 +429,9 @@ pub fn form_block_into(
     let data = buffers.read.as_ref().expect("just read");
     let recorded = data.samples.any_nonzero();
     let kept = block.start - decoded.start..block.end - decoded.start;
-    decode::decode_aligned_frames_into(data, params.event_alignment, kept, &mut buffers.decoded)?;
-    let per_angle = buffers.decoded.as_ref().expect("just decoded");
+    let data = buffers.read.as_mut().expect("just read");
+    decode::decode_in_place(data, params.event_alignment, kept.clone())?;
+    let per_angle = data.samples.decoded_frames(acq.sequence.n_angles(), kept)?;
     let decode_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
@@ -850,33 +849,43 @@ twice the frames of a block";
 /// (bytes): [`blocks_for`] sizes blocks to it.
 pub const BLOCK_BYTES: u64 = 1 << 30;
 
-/// Bytes one compound frame takes while its block is formed into images: its events and their
-/// decoded per-angle records (f32), and one angle's IQ (complex64).
-fn block_bytes_per_frame(source: &dyn FrameSource) -> u64 {
+/// Bytes one compound frame takes while its block is formed into images: (events read and
+/// decoded in place (f32), one angle's IQ (complex64)). Margin frames are only read.
+fn block_bytes_per_frame(source: &dyn FrameSource) -> (u64, u64) {
     let (channels, samples) = source.trace_shape();
     let trace = (channels * samples) as u64;
     let angles = source.acquisition().sequence.n_angles() as u64;
-    2 * angles * trace * 4 + trace * 8
+    (angles * trace * 4, trace * 8)
 }
 
-/// The blocks `process` forms images in: as many frames as fit in [`BLOCK_BYTES`] (the whole
-/// recording when it fits), with [`Blocks::ALIGNMENT_MARGIN`] frames on either side for coded
-/// recordings aligned at mid-frame.
+/// Bytes a block of `frames` frames and `margin` frames on either side takes while it is
+/// formed into images.
+fn block_bytes(source: &dyn FrameSource, frames: usize, margin: usize) -> u64 {
+    let (read, iq) = block_bytes_per_frame(source);
+    (frames + 2 * margin) as u64 * read + frames as u64 * iq
+}
+
+/// The blocks `process` forms images in: as many frames as fit in [`BLOCK_BYTES`] with their
+/// margins (the whole recording when it fits), with [`Blocks::ALIGNMENT_MARGIN`] frames on
+/// either side for coded recordings aligned at mid-frame.
 pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -> Blocks {
     let frames = source.n_frames();
-    // A multiple of 16 frames, so that blocks of a long recording are all alike.
-    let fit = ((BLOCK_BYTES / block_bytes_per_frame(source).max(1)) as usize / 16).max(1) * 16;
-    if fit >= frames {
+    if block_bytes(source, frames, 0) <= BLOCK_BYTES {
         return Blocks::whole(frames);
     }
     let coded = source.acquisition().sequence.is_coded();
+    let margin = if coded && alignment == decode::EventAlignment::MidFrame {
+        Blocks::ALIGNMENT_MARGIN
+    } else {
+        0
+    };
+    let (read, iq) = block_bytes_per_frame(source);
+    let room = BLOCK_BYTES.saturating_sub(2 * margin as u64 * read);
+    // At least a margin's worth of frames, or the margins would be most of the work.
+    let fit = ((room / (read + iq).max(1)) as usize).max(margin).max(1);
     Blocks {
         frames: fit,
-        margin: if coded && alignment == decode::EventAlignment::MidFrame {
-            Blocks::ALIGNMENT_MARGIN
-        } else {
-            0
-        },
+        margin,
     }
 }
 
@@ -892,8 +901,11 @@ pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let frames = total.div_ceil(total.div_ceil(fit).max(1)) as u128;
     let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
-    let block = (blocks.frames + 2 * blocks.margin).min(total) as u128
-        * block_bytes_per_frame(source) as u128;
+    let block = block_bytes(
+        source,
+        blocks.frames.min(total),
+        blocks.margin.min(total.saturating_sub(blocks.frames) / 2),
+    ) as u128;
     let series = (nz * nx) as u128 * frames * angles * 8;
     source.resident_bytes() as u128 + block + series + series / angles.max(1)
 }

@@ -120,7 +120,7 @@ impl FrameSource for ChannelData {
 /// neighbours; only the block's own frames are beamformed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Blocks {
-    /// Compound frames per block (≥ 1).
+    /// Compound frames per block at most (≥ 1); the blocks of a range share it evenly.
     pub frames: usize,
     /// Frames decoded on either side of a block and then dropped.
     pub margin: usize,
@@ -170,10 +170,14 @@ impl Blocks {
         } else {
             0
         };
-        (frames.start..end_of_frames)
-            .step_by(step)
-            .map(|start| {
-                let end = (start + step).min(end_of_frames);
+        // As few blocks as hold at most `step` frames each, sharing the frames evenly: a last
+        // block of a few frames would cost a whole block's margins.
+        let len = end_of_frames.saturating_sub(frames.start);
+        let count = len.div_ceil(step);
+        (0..count)
+            .map(|i| {
+                let start = frames.start + i * len / count;
+                let end = frames.start + (i + 1) * len / count;
                 let mut first = start.saturating_sub(self.margin);
                 let mut last = (end + self.margin).min(total);
                 if first == 0 {
@@ -221,7 +225,7 @@ mod tests {
         // Ranges that reach an end hold the predictor's END_FRAMES frames: here all 10.
         assert_eq!(
             blocks.ranges(10),
-            vec![(0..4, 0..10), (4..8, 0..10), (8..10, 0..10)]
+            vec![(0..3, 0..10), (3..6, 1..8), (6..10, 0..10)]
         );
         assert_eq!(Blocks::whole(10).ranges(10), vec![(0..10, 0..10)]);
         let blocks = Blocks {
@@ -229,10 +233,13 @@ mod tests {
             margin: 2,
         };
         let ranges = blocks.ranges(60);
-        assert_eq!(ranges[0], (0..8, 0..Blocks::END_FRAMES));
-        assert_eq!(ranges[1], (8..16, 6..18));
-        assert_eq!(ranges[6], (48..56, 46..58));
-        assert_eq!(ranges[7], (56..60, 60 - Blocks::END_FRAMES..60));
+        // Eight blocks of 7 or 8 frames, not seven of 8 and one of 4.
+        assert_eq!(ranges.len(), 8);
+        assert!(ranges.iter().all(|(b, _)| (7..=8).contains(&b.len())));
+        assert_eq!(ranges[0], (0..7, 0..Blocks::END_FRAMES));
+        assert_eq!(ranges[1], (7..15, 5..17));
+        assert_eq!(ranges[6], (45..52, 43..54));
+        assert_eq!(ranges[7], (52..60, 60 - Blocks::END_FRAMES..60));
         // Without a margin (nothing aligned) every block decodes only itself.
         let bare = Blocks {
             frames: 8,

@@ -1,12 +1,12 @@
 //! Stage tests against analytic truth: Hadamard coding round trip, point-scatterer beamforming.
 
-use ndarray::{Array3, Array4};
+use ndarray::{Array3, Array4, Axis};
 use num_complex::Complex32;
 use pcuvd::beamform::{self, DasParams};
-use pcuvd::channel::{Acquisition, AngleSamples, ChannelData, Samples};
+use pcuvd::channel::{Acquisition, AngleSamples, AngleSamplesView, ChannelData, Samples};
 use pcuvd::decode::{
     EventAlignment, decode, decode_aligned, decode_aligned_frames, decode_aligned_frames_into,
-    encode, encode_code,
+    decode_in_place, encode, encode_code,
 };
 use pcuvd::geometry::round_trip_delay;
 use pcuvd::grid::Grid;
@@ -154,20 +154,64 @@ fn conventional_events_are_split_by_angle() {
 }
 
 /// Decoding only some frames (a block's, the others read only by the alignment) gives those
-/// frames of the whole recording's decoding bit for bit: conventional and coded, with and without
-/// mid-frame alignment, and into the array of an earlier block of the same shape, whose values
-/// must all be overwritten. A range outside the recording is an error.
+/// frames of the whole recording's decoding bit for bit: conventional, Hadamard-coded (RF and
+/// IQ, whole-sample and fractional slot shifts) and with an explicit code, with and without
+/// mid-frame alignment; into the array of an earlier block of the same shape, whose values must
+/// all be overwritten; and in the recording's own memory, for the first, a middle and the last
+/// frames. A range outside the recording is an error.
 #[test]
 fn decoding_some_frames_gives_those_frames_of_the_whole() {
     let events = Array3::from_shape_fn((4 * 7, 16, 120), |(e, c, s)| {
         (((e * 31 + c * 7 + s * 13) % 17) as f32 - 8.0) * (1.0 + 0.1 * (s as f32 * 0.3).sin())
     });
-    let coded = coded_recording(events, 4, 0.3e-6, 62.5e6);
+    let coded = coded_recording(events.clone(), 4, 0.3e-6, 62.5e6);
+    let mut whole_samples = coded.clone();
+    whole_samples.acquisition.sequence.coding = Coding::Hadamard {
+        slot_delay: 2.0 / 62.5e6,
+    };
     let mut conventional = coded.clone();
     conventional.acquisition.sequence.coding = Coding::Conventional;
-    for rec in [&coded, &conventional] {
+    let mut iq = coded.clone();
+    iq.samples = Samples::Iq {
+        data: events.mapv(|v| Complex32::new(v, 0.5 * v - 1.0)),
+        demod_frequency: 15.625e6,
+    };
+    let mut explicit = coded.clone();
+    let h = Hadamard::new(4).unwrap();
+    explicit.acquisition.sequence.coding = Coding::Matrix(TransmitCode {
+        weights: (0..16).map(|j| -h.get(3 - j / 4, j % 4) as f64).collect(),
+        slot_starts: vec![0.1e-6, 0.5e-6, 1.2e-6, 1.3e-6],
+    });
+    for rec in [&coded, &whole_samples, &conventional, &iq, &explicit] {
         for alignment in [EventAlignment::Simultaneous, EventAlignment::MidFrame] {
             let whole = decode_aligned(rec, alignment).unwrap();
+            for kept in [0..3, 2..5, 4..7] {
+                let mut in_place = rec.clone();
+                decode_in_place(&mut in_place, alignment, kept.clone()).unwrap();
+                let view = in_place.samples.decoded_frames(4, kept.clone()).unwrap();
+                let expected = whole.frames(kept.clone());
+                match (view, expected.view()) {
+                    (AngleSamplesView::Rf(a), AngleSamplesView::Rf(b)) => assert_eq!(a, b),
+                    (
+                        AngleSamplesView::Iq { data: a, .. },
+                        AngleSamplesView::Iq { data: b, .. },
+                    ) => assert_eq!(a, b),
+                    _ => panic!("RF in, RF out; IQ in, IQ out"),
+                }
+                // The events of the other frames are left as read.
+                let n_events = rec.samples.dim().0;
+                for e in (0..n_events).filter(|e| !kept.contains(&(e / 4))) {
+                    match (&in_place.samples, &rec.samples) {
+                        (Samples::Rf(a), Samples::Rf(b)) => {
+                            assert_eq!(a.index_axis(Axis(0), e), b.index_axis(Axis(0), e))
+                        }
+                        (Samples::Iq { data: a, .. }, Samples::Iq { data: b, .. }) => {
+                            assert_eq!(a.index_axis(Axis(0), e), b.index_axis(Axis(0), e))
+                        }
+                        _ => unreachable!(),
+                    }
+                }
+            }
             let part = decode_aligned_frames(rec, alignment, 2..5).unwrap();
             assert_eq!(part, whole.frames(2..5), "{alignment:?}");
             let mut earlier = Some(decode_aligned_frames(rec, alignment, 4..7).unwrap());
@@ -178,7 +222,9 @@ fn decoding_some_frames_gives_those_frames_of_the_whole() {
                 "{alignment:?}, reused"
             );
             for outside in [3..3, 5..8] {
-                let err = decode_aligned_frames(rec, alignment, outside).unwrap_err();
+                let err = decode_aligned_frames(rec, alignment, outside.clone()).unwrap_err();
+                assert!(err.to_string().contains("frames"), "{err}");
+                let err = decode_in_place(&mut rec.clone(), alignment, outside).unwrap_err();
                 assert!(err.to_string().contains("frames"), "{err}");
             }
         }
@@ -431,9 +477,9 @@ fn mid_frame_alignment_of_rf_at_the_recording_ends() {
 
 /// The memory estimate by hand: 8 events (4 angles × 2 frames) × 16 channels × 100 samples, and a
 /// 3 × 5 pixel grid: the input, 12,800 × 4 bytes; one block, here the whole recording, of 2 frames
-/// × (2 copies (the events read and their decoded records) × 4 angles × 1,600 samples × 4 bytes +
-/// one angle's IQ, 1,600 × 8 bytes); the image series, 15 pixels × 2 frames × 4 angles × 8
-/// bytes, filtered in place; and its compound, a quarter of it.
+/// × (the events read, decoded in place: 4 angles × 1,600 samples × 4 bytes + one angle's IQ,
+/// 1,600 × 8 bytes); the image series, 15 pixels × 2 frames × 4 angles × 8 bytes, filtered in
+/// place; and its compound, a quarter of it.
 #[test]
 fn memory_estimate_counts_samples_and_image_series() {
     let rec = coded_recording(Array3::zeros((8, 16, 100)), 4, 1e-6, 20e6);
@@ -442,6 +488,6 @@ fn memory_estimate_counts_samples_and_image_series() {
     assert_eq!(grid.shape(), (3, 5));
     assert_eq!(
         pcuvd::pipeline::memory_estimate(&rec, &grid),
-        8 * 16 * 100 * 4 + 2 * (2 * 4 * 1600 * 4 + 1600 * 8) + 15 * 2 * 4 * 8 + 15 * 2 * 8
+        8 * 16 * 100 * 4 + 2 * (4 * 1600 * 4 + 1600 * 8) + 15 * 2 * 4 * 8 + 15 * 2 * 8
     );
 }
