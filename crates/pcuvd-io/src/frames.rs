@@ -1,7 +1,7 @@
 //! Recordings read from their file a block of frames at a time ([`pcuvd::source::FrameSource`]),
 //! so that processing a long recording never holds all of it in memory.
 
-use std::io::{Read, Seek, SeekFrom};
+use std::io::Seek;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
@@ -12,6 +12,9 @@ use num_traits::Zero;
 use pcuvd::source::{FrameSource, array_reusing};
 use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
+
+/// Bytes each core reads at a time from a samples file.
+const READ_PIECE: usize = 32 << 20;
 
 use crate::error::IoError;
 use crate::manifest::{event_shape, kind_error, parse_manifest};
@@ -167,11 +170,28 @@ impl ManifestFrames {
         values: &mut [T],
     ) -> std::io::Result<()> {
         let event_bytes = self.shape.1 * self.shape.2 * self.stored.bytes();
+        #[cfg_attr(unix, allow(unused_mut))]
         let mut file = std::fs::File::open(&self.data_path)?;
-        file.seek(SeekFrom::Start(
-            self.data_offset + (events.start * event_bytes) as u64,
-        ))?;
-        file.read_exact(bytemuck::cast_slice_mut(values))?;
+        let start = self.data_offset + (events.start * event_bytes) as u64;
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(values);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::FileExt;
+            // In pieces on every core: one core copying a block (about a gigabyte) out of the
+            // page cache held the other idle for a second per block.
+            bytes
+                .par_chunks_mut(READ_PIECE)
+                .enumerate()
+                .try_for_each(|(i, piece)| {
+                    file.read_exact_at(piece, start + (i * READ_PIECE) as u64)
+                })?;
+        }
+        #[cfg(not(unix))]
+        {
+            use std::io::{Read, SeekFrom};
+            file.seek(SeekFrom::Start(start))?;
+            file.read_exact(bytes)?;
+        }
         if cfg!(target_endian = "big") {
             // The file is little-endian.
             values
