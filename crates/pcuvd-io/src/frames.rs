@@ -284,19 +284,7 @@ impl ManifestFrames {
                 demod_frequency: self.demod.unwrap_or(0.0),
             },
         };
-        let finite = match &samples {
-            Samples::Rf(a) => a
-                .as_slice()
-                .expect("read in standard layout")
-                .par_iter()
-                .all(|v| v.is_finite()),
-            Samples::Iq { data, .. } => data
-                .as_slice()
-                .expect("read in standard layout")
-                .par_iter()
-                .all(|v| v.re.is_finite() && v.im.is_finite()),
-        };
-        if !finite {
+        if !samples.all_finite() {
             return Err(pcuvd::Error::Read(format!(
                 "{}: the samples hold NaN or Inf values in frames {frames:?} (every sample must be \
                  finite)",

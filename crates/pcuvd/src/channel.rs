@@ -208,6 +208,14 @@ impl Samples {
         })
     }
 
+    /// Whether every sample is finite (no NaN or Inf), checked on every core.
+    pub fn all_finite(&self) -> bool {
+        match self {
+            Samples::Rf(a) => all_of(a, |v| v.is_finite()),
+            Samples::Iq { data, .. } => all_of(data, |v| v.re.is_finite() && v.im.is_finite()),
+        }
+    }
+
     /// (events, channels, samples).
     pub fn dim(&self) -> (usize, usize, usize) {
         match self {
@@ -262,11 +270,7 @@ impl ChannelData {
         }
         // On every core: a block of a recording is about a gigabyte, which one core takes a
         // noticeable share of a run to scan.
-        let finite = match &self.samples {
-            Samples::Rf(a) => all_of(a, |v| v.is_finite()),
-            Samples::Iq { data, .. } => all_of(data, |v| v.re.is_finite() && v.im.is_finite()),
-        };
-        if !finite {
+        if !self.samples.all_finite() {
             return Err(Error::NonFinite("the channel samples (NaN or Inf)".into()));
         }
         Ok(())
