@@ -969,10 +969,11 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::V
         "rule": format!(
             "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
              scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
-             sum of absolute residuals); the common shift of all angles chosen over regions of \
-             neighbouring flow pixels (power {} dB above the row's noise floor) grown by power, \
-             each region's offset by its summed score; regions under {} pixels and other pixels \
-             keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
+             sum of absolute residuals); the common shift of all angles settled over the flow \
+             pixels (power {} dB above the row's noise floor) by unwrapping the levels as a \
+             phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
+             joined to speed 0 (blood is slow at a wall); regions under {} pixels and other \
+             pixels keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
              unwrapped pixels reach ±K; alias_counts.npy (PC-UVD) and alias_counts_ls.npy (UVD) \
              hold the counts (angles, nz, nx)",
             pcuvd::dealias::FLOW_MARGIN_DB,

@@ -153,26 +153,42 @@ pub fn alias_patterns_right(
     nyquist: &Array3<f64>,
     truth: &Truth,
 ) -> f64 {
+    let right_counts = true_alias_counts(projections, angles, nyquist, truth);
     let (mut good, mut total) = (0usize, 0usize);
     for ((iz, ix), &inside) in truth.mask.indexed_iter() {
         if !inside {
             continue;
         }
         total += 1;
-        let (vx, vz) = (truth.vx[[iz, ix]], truth.vz[[iz, ix]]);
-        let right = angles.iter().enumerate().all(|(a, &theta)| {
-            let measured = projections[[a, iz, ix]];
-            if !measured.is_finite() {
-                return true;
-            }
-            let (s, c) = crate::vector::projection_weights(theta);
-            let true_projection = 0.5 * (vx * s + vz * c);
-            let k = ((true_projection - measured) / (2.0 * nyquist[[a, iz, ix]])).round();
-            k == f64::from(counts[[a, iz, ix]])
+        let right = (0..angles.len()).all(|a| {
+            !projections[[a, iz, ix]].is_finite()
+                || counts[[a, iz, ix]] == right_counts[[a, iz, ix]]
         });
         good += usize::from(right);
     }
     good as f64 / total.max(1) as f64
+}
+
+/// The alias counts (angles, nz, nx) that unwrap the measured `projections` (m/s) nearest to the
+/// true vessel's projections at `angles` (rad), each angle and pixel by its own Nyquist velocity
+/// `nyquist` (m/s): k = round((V_true − V_measured)/(2 v_N)); 0 outside the vessel and where a
+/// projection is not finite.
+pub fn true_alias_counts(
+    projections: &Array3<f64>,
+    angles: &[f64],
+    nyquist: &Array3<f64>,
+    truth: &Truth,
+) -> Array3<i8> {
+    Array3::from_shape_fn(projections.dim(), |(a, iz, ix)| {
+        let measured = projections[[a, iz, ix]];
+        if !truth.mask[[iz, ix]] || !measured.is_finite() {
+            return 0;
+        }
+        let (s, c) = crate::vector::projection_weights(angles[a]);
+        let true_projection = 0.5 * (truth.vx[[iz, ix]] * s + truth.vz[[iz, ix]] * c);
+        let k = ((true_projection - measured) / (2.0 * nyquist[[a, iz, ix]])).round();
+        k.clamp(f64::from(i8::MIN), f64::from(i8::MAX)) as i8
+    })
 }
 
 /// Time-mean power |IQ|² of an image series (nz, nx, frames): the power Doppler without any
