@@ -144,13 +144,14 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
                     .iter()
                     .map(|&k| 100.0 * mean(method, k, level, &pick))
                     .collect();
-                series.push(line(
-                    &format!("{}, {suffix}", method.label()),
-                    multiples.clone(),
-                    y,
-                    style,
-                    colour(method),
-                ));
+                // The true pattern's markers go unlabelled (the caption names them): nine
+                // legend rows would cover the dealiased lines.
+                let label = if style == SeriesStyle::Points {
+                    String::new()
+                } else {
+                    format!("{}, {suffix}", method.label())
+                };
+                series.push(line(&label, multiples.clone(), y, style, colour(method)));
             }
         }
         panels.push(Panel::Plot(PlotPanel {
@@ -201,7 +202,7 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
         dir,
         DEALIAS_FIGURES[1],
         &format!(
-            "Dealiasing scores against the tube's peak speed (multiples of v_N = {:.1} mm/s): the fraction of lumen pixels whose vector error is within 10 % of the peak speed at each noise level, and the fraction whose per-angle alias counts are right; dashed without dealiasing, solid with ({}), markers alone with the true alias pattern (the most any dealiasing can reach with this estimator); mean over seeds {}.",
+            "Dealiasing scores against the tube's peak speed (multiples of v_N = {:.1} mm/s): the fraction of lumen pixels whose vector error is within 10 % of the peak speed at each noise level, and the fraction whose per-angle alias counts are right; dashed without dealiasing, solid with ({}), unlabelled markers with the true alias pattern (the most any dealiasing can reach with this estimator); mean over seeds {}.",
             vn_mm_s,
             m.settings.dealias.label(),
             seeds.join(", ")
