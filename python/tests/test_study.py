@@ -27,13 +27,14 @@ STUDIES = {
         ["--frames", "8", "--grid-step", "0.2", "--sweep=-10,5", "--doppler-estimator", "kasai"],
         {"frames": 8, "grid_step": 0.2, "sweep": (-10, 5), "doppler_estimator": "kasai"},
     ),
-    # A fast heart makes one cardiac cycle fit in 130 frames, so RI can be measured quickly.
+    # A fast heart makes one cardiac cycle fit in 72 frames (two 36-frame windows), so RI can be
+    # measured quickly.
     "network": (
         [
-            "--network-frames", "130", "--heart-rate", "20", "--grid-step", "0.2",
+            "--network-frames", "104", "--heart-rate", "25", "--grid-step", "0.2",
             "--doppler-estimator", "kasai",
         ],
-        {"network_frames": 130, "heart_rate": 20, "grid_step": 0.2, "doppler_estimator": "kasai"},
+        {"network_frames": 104, "heart_rate": 25, "grid_step": 0.2, "doppler_estimator": "kasai"},
     ),
 }
 
