@@ -539,13 +539,24 @@ pub fn dealiased_vectors_measured(
         });
     }
     let mut out = dealiased_vectors(angles, v_theta, nyquist, estimator, dealias, quality, flow)?;
-    let mut unwrapped = v_theta.to_owned();
-    ndarray::Zip::from(&mut unwrapped)
-        .and(&out.counts.alias_counts)
-        .and(nyquist)
-        .for_each(|u, &k, &vn| *u += 2.0 * k as f64 * vn);
+    let unwrapped = unwrap(v_theta, out.counts.alias_counts.view(), nyquist);
     out.field = vector::vector_velocity_measured(angles, unwrapped.view(), lateral, estimator)?;
     Ok(out)
+}
+
+/// Projections `v_theta` (angles, nz, nx; m/s) unwrapped by alias counts `counts`: V_θ + 2k·v_N,
+/// with each projection's Nyquist velocity `nyquist` (m/s); all three of one shape.
+pub fn unwrap(
+    v_theta: ArrayView3<f64>,
+    counts: ArrayView3<i8>,
+    nyquist: ArrayView3<f64>,
+) -> Array3<f64> {
+    let mut unwrapped = v_theta.to_owned();
+    ndarray::Zip::from(&mut unwrapped)
+        .and(counts)
+        .and(nyquist)
+        .for_each(|u, &k, &vn| *u += 2.0 * f64::from(k) * vn);
+    unwrapped
 }
 
 /// The K that [`Dealias::Auto`] picks for these projections (see there).
@@ -580,6 +591,26 @@ pub fn uniform(nyquist: f64, dim: (usize, usize, usize)) -> Array3<f64> {
     Array3::from_elem(dim, nyquist)
 }
 
+/// The 8-neighbours of pixel `p` (row-major) inside a grid of `nz` × `nx` pixels.
+fn neighbours(p: usize, (nz, nx): (usize, usize)) -> impl Iterator<Item = usize> {
+    let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
+    (-1i64..=1)
+        .flat_map(|dz| (-1i64..=1).map(move |dx| (dz, dx)))
+        .filter(|&d| d != (0, 0))
+        .filter_map(move |(dz, dx)| {
+            let (z, x) = (iz + dz, ix + dx);
+            (z >= 0 && x >= 0 && (z as usize) < nz && (x as usize) < nx)
+                .then(|| z as usize * nx + x as usize)
+        })
+}
+
+/// The index in `candidates` (one pixel's) of the candidate `offset` levels from candidate `from`;
+/// `None` when the pixel has none at that level.
+fn at_level(candidates: &[Candidate], from: usize, offset: i32) -> Option<usize> {
+    let level = candidates[from].level + offset;
+    candidates.iter().position(|c| c.level == level)
+}
+
 /// Where unwrapping left a jump of more than half a level between neighbours, the region is cut
 /// there into parts; every part but the largest that reaches the region's edge (pixels next to
 /// non-flow) takes the whole-level offset that makes its edge slowest (fewest jumps with the
@@ -594,25 +625,14 @@ fn settle_cut_parts(
     along: &(dyn Fn(&Candidate) -> f64 + Sync),
     spacing: f64,
     k_max: i32,
-    (nz, nx): (usize, usize),
-    is_edge: &dyn Fn(usize) -> bool,
+    dim: (usize, usize),
+    at_wall: &[bool],
 ) {
     const NONE: usize = usize::MAX;
-    let mut part = vec![NONE; nz * nx];
+    let mut part = vec![NONE; dim.0 * dim.1];
     for &p in members {
         part[p] = 0;
     }
-    let neighbours = |p: usize| {
-        let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-        (-1i64..=1)
-            .flat_map(move |dz| (-1i64..=1).map(move |dx| (dz, dx)))
-            .filter(|&d| d != (0, 0))
-            .filter_map(move |(dz, dx)| {
-                let (z, x) = (iz + dz, ix + dx);
-                (z >= 0 && x >= 0 && (z as usize) < nz && (x as usize) < nx)
-                    .then(|| z as usize * nx + x as usize)
-            })
-    };
     let value = |p: usize, choice: &[usize]| along(&candidates[p][choice[p]]);
     let jump = |p: usize, q: usize, choice: &[usize]| {
         (value(p, choice) - value(q, choice)).abs() > 0.5 * spacing
@@ -628,7 +648,7 @@ fn settle_cut_parts(
         part[seed] = id;
         let mut stack = vec![seed];
         while let Some(p) = stack.pop() {
-            for q in neighbours(p) {
+            for q in neighbours(p, dim) {
                 if part[q] == 0 && !jump(p, q, choice) {
                     part[q] = id;
                     parts[id - 1].push(q);
@@ -644,19 +664,15 @@ fn settle_cut_parts(
         .max_by_key(|&i| parts[i].len())
         .unwrap_or(0);
     for (i, pixels) in parts.iter().enumerate() {
-        if i == largest || pixels.len() < MIN_REGION_PIXELS || !pixels.iter().any(|&p| is_edge(p)) {
+        if i == largest || pixels.len() < MIN_REGION_PIXELS || !pixels.iter().any(|&p| at_wall[p]) {
             continue;
         }
         let id = i + 1;
-        let at_level = |p: usize, offset: i32, choice: &[usize]| {
-            let level = candidates[p][choice[p]].level + offset;
-            candidates[p].iter().position(|c| c.level == level)
-        };
         let mut best: Option<((i64, usize, i32), i32)> = None;
         for offset in -2 * k_max..=2 * k_max {
             let moved: Option<Vec<usize>> = pixels
                 .iter()
-                .map(|&p| at_level(p, offset, choice))
+                .map(|&p| at_level(&candidates[p], choice[p], offset))
                 .collect();
             let Some(moved) = moved else {
                 continue;
@@ -664,14 +680,14 @@ fn settle_cut_parts(
             let speeds: Vec<f64> = pixels
                 .iter()
                 .zip(&moved)
-                .filter(|&(&p, _)| is_edge(p))
+                .filter(|&(&p, _)| at_wall[p])
                 .map(|(&p, &c)| along(&candidates[p][c]).abs())
                 .collect();
             let edge_levels = (crate::stats::median(speeds) / spacing).round() as i64;
             let jumps = pixels
                 .iter()
                 .zip(&moved)
-                .flat_map(|(&p, &c)| neighbours(p).map(move |q| (p, c, q)))
+                .flat_map(|(&p, &c)| neighbours(p, dim).map(move |q| (p, c, q)))
                 .filter(|&(_, _, q)| part[q] != NONE && part[q] != id)
                 .filter(|&(p, c, q)| {
                     (along(&candidates[p][c]) - value(q, choice)).abs() > 0.5 * spacing
@@ -684,7 +700,7 @@ fn settle_cut_parts(
         }
         if let Some((_, offset)) = best.filter(|&(_, o)| o != 0) {
             for &p in pixels {
-                if let Some(c) = at_level(p, offset, choice) {
+                if let Some(c) = at_level(&candidates[p], choice[p], offset) {
                     choice[p] = c;
                 }
             }
@@ -709,6 +725,7 @@ fn unwrap_levels(
     along: &(dyn Fn(&Candidate) -> f64 + Sync),
     spacing: f64,
     quality: ArrayView2<f64>,
+    at_wall: &[bool],
 ) -> (Vec<(Vec<usize>, bool)>, Vec<usize>) {
     let (nz, nx) = quality.dim();
     let best = |p: usize| {
@@ -765,22 +782,6 @@ fn unwrap_levels(
     // The wall: every pixel next to non-flow joins a fixed node at speed 0 (blood is slow at a
     // wall), as reliably as the pixel itself.
     let ground = nz * nx;
-    let at_wall: Vec<bool> = (0..nz * nx)
-        .map(|p| {
-            let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-            phase[p].is_finite()
-                && (-1i64..=1).any(|dz| {
-                    (-1i64..=1).any(|dx| {
-                        let (z, x) = (iz + dz, ix + dx);
-                        z >= 0
-                            && x >= 0
-                            && (z as usize) < nz
-                            && (x as usize) < nx
-                            && !phase[z as usize * nx + x as usize].is_finite()
-                    })
-                })
-        })
-        .collect();
     for p in (0..nz * nx).filter(|&p| at_wall[p]) {
         edges.push((reliability[p], 0.0, p, ground));
     }
@@ -867,12 +868,8 @@ fn unwrap_levels(
                 if !phase[p].is_finite() {
                     return choice[p];
                 }
-                let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-                let around: Vec<f64> = (-1i64..=1)
-                    .flat_map(|dz| (-1i64..=1).map(move |dx| (dz, dx)))
-                    .filter(|&d| d != (0, 0))
-                    .filter_map(|(dz, dx)| at(iz + dz, ix + dx))
-                    .filter(|&q| group[q] == group[p])
+                let around: Vec<f64> = neighbours(p, (nz, nx))
+                    .filter(|&q| phase[q].is_finite() && group[q] == group[p])
                     .map(|q| along(&candidates[q][choice[q]]))
                     .collect();
                 if around.len() < 3 {
@@ -970,7 +967,13 @@ fn dealias_with(
     };
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 
-    let (regions, choice) = unwrap_levels(candidates, &along, spacing, quality);
+    // Flow pixels next to a pixel that is not flow (the grid's border is none): the wall.
+    let at_wall: Vec<bool> = (0..nz * nx)
+        .map(|p| {
+            !candidates[p].is_empty() && neighbours(p, (nz, nx)).any(|q| candidates[q].is_empty())
+        })
+        .collect();
+    let (regions, choice) = unwrap_levels(candidates, &along, spacing, quality, &at_wall);
 
     // Each region's common offset: none where the wall node settled the levels. Elsewhere, blood
     // being slow at a vessel's wall and noise reading within ±v_N, the offset that makes the
@@ -982,19 +985,6 @@ fn dealias_with(
     let mut alias_counts = Array3::<i8>::zeros((n, nz, nx));
     let (mut dealiased, mut unwrapped, mut at_limit) = (0, 0, 0);
     let k_max = intervals as i32;
-    let is_edge = |p: usize| {
-        let (iz, ix) = ((p / nx) as i64, (p % nx) as i64);
-        (-1i64..=1).any(|dz| {
-            (-1i64..=1).any(|dx| {
-                let (z, x) = (iz + dz, ix + dx);
-                z >= 0
-                    && x >= 0
-                    && (z as usize) < nz
-                    && (x as usize) < nx
-                    && candidates[z as usize * nx + x as usize].is_empty()
-            })
-        })
-    };
     let mut choice = choice;
     for (members, _) in &regions {
         if members.len() < MIN_REGION_PIXELS {
@@ -1008,17 +998,14 @@ fn dealias_with(
             spacing,
             k_max,
             (nz, nx),
-            &is_edge,
+            &at_wall,
         );
     }
     for (members, walled) in &regions {
         if members.len() < MIN_REGION_PIXELS {
             continue;
         }
-        let at_level = |p: usize, offset: i32| {
-            let level = candidates[p][choice[p]].level + offset;
-            candidates[p].iter().position(|c| c.level == level)
-        };
+        let at_level = |p: usize, offset: i32| at_level(&candidates[p], choice[p], offset);
         // (edge speed in levels, rounded so that noise within a level does not decide; members
         // without a candidate at the offset (beyond ±K, they keep the plain fit); summed score of
         // the others; offset)
@@ -1042,7 +1029,7 @@ fn dealias_with(
             };
             let total: f64 = present().map(|(p, i)| candidates[p][i].score).sum();
             let speeds: Vec<f64> = present()
-                .filter(|&(p, _)| is_edge(p))
+                .filter(|&(p, _)| at_wall[p])
                 .map(|(p, i)| along(&candidates[p][i]).abs())
                 .collect();
             let edge_levels = if speeds.is_empty() {

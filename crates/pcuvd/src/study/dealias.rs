@@ -198,6 +198,27 @@ impl Method {
         )
     }
 
+    /// The method's fit of `out`'s projections unwrapped with the true alias counts
+    /// ([`metrics::true_alias_counts`] against `truth`), and those counts.
+    fn true_pattern_fit(
+        self,
+        out: &ProcessOutput,
+        truth: &Truth,
+    ) -> Result<(VectorField, ndarray::Array3<i8>)> {
+        let counts = metrics::true_alias_counts(
+            &out.projections,
+            &out.filtered.angles,
+            &out.projection_nyquist,
+            truth,
+        );
+        let unwrapped = crate::dealias::unwrap(
+            out.projections.view(),
+            counts.view(),
+            out.projection_nyquist.view(),
+        );
+        Ok((self.fit(out, unwrapped.view())?, counts))
+    }
+
     fn field(self, out: &ProcessOutput) -> &VectorField {
         let field = match self {
             Method::UvdLs => &out.vector_ls,
@@ -419,52 +440,38 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                         Mode::Coded => &outputs[1],
                     };
                     let [off, on] = [&recording[0], &recording[1]];
-                    let scores = |out: &ProcessOutput, counts: Option<&ndarray::Array3<i8>>| {
-                        let field = method.field(out);
-                        let zeros;
-                        let counts = match counts {
-                            Some(c) => c,
-                            None => {
-                                zeros = ndarray::Array3::zeros(out.projections.dim());
-                                &zeros
+                    let scores =
+                        |field: &VectorField,
+                         out: &ProcessOutput,
+                         counts: Option<&ndarray::Array3<i8>>| {
+                            let zeros;
+                            let counts = match counts {
+                                Some(c) => c,
+                                None => {
+                                    zeros = ndarray::Array3::zeros(out.projections.dim());
+                                    &zeros
+                                }
+                            };
+                            Scores {
+                                within_10pct_of_peak: metrics::within_fraction_of_peak(
+                                    field, &truth, peak, 0.1,
+                                ),
+                                speed_within_10pct_of_peak: metrics::speed_within_fraction_of_peak(
+                                    field, &truth, peak, 0.1,
+                                ),
+                                alias_pattern_right: metrics::alias_patterns_right(
+                                    &out.projections,
+                                    counts,
+                                    &out.filtered.angles,
+                                    &out.projection_nyquist,
+                                    &truth,
+                                ),
+                                rmse_mm_s: metrics::rmse(field, &truth),
                             }
                         };
-                        Scores {
-                            within_10pct_of_peak: metrics::within_fraction_of_peak(
-                                field, &truth, peak, 0.1,
-                            ),
-                            speed_within_10pct_of_peak: metrics::speed_within_fraction_of_peak(
-                                field, &truth, peak, 0.1,
-                            ),
-                            alias_pattern_right: metrics::alias_patterns_right(
-                                &out.projections,
-                                counts,
-                                &out.filtered.angles,
-                                &out.projection_nyquist,
-                                &truth,
-                            ),
-                            rmse_mm_s: metrics::rmse(field, &truth),
-                        }
-                    };
                     let true_pattern = {
-                        let counts = metrics::true_alias_counts(
-                            &off.projections,
-                            &off.filtered.angles,
-                            &off.projection_nyquist,
-                            &truth,
-                        );
-                        let mut unwrapped = off.projections.clone();
-                        ndarray::Zip::from(&mut unwrapped)
-                            .and(&counts)
-                            .and(&off.projection_nyquist)
-                            .for_each(|u, &k, &vn| *u += 2.0 * f64::from(k) * vn);
-                        let field = method.fit(off, unwrapped.view())?;
-                        let mut fitted = off.clone();
-                        match method {
-                            Method::UvdLs => fitted.vector_ls = Some(field),
-                            _ => fitted.vector_irls = Some(field),
-                        }
-                        scores(&fitted, Some(&counts))
+                        let (field, counts) = method.true_pattern_fit(off, &truth)?;
+                        scores(&field, off, Some(&counts))
                     };
                     let done = on.dealias.as_ref();
                     let counts = done.map(|d| match method {
@@ -486,8 +493,8 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                         noise_db: level,
                         seed,
                         method,
-                        off: scores(off, None),
-                        on: scores(on, counts),
+                        off: scores(method.field(off), off, None),
+                        on: scores(method.field(on), on, counts),
                         true_pattern,
                         intervals: done.map_or(0, |d| d.intervals),
                         unwrapped_lumen_pixels: unwrapped,
@@ -694,13 +701,6 @@ mod tests {
         let (off, on) = (analyse(Dealias::Off), analyse(Dealias::Auto));
         let done = on.dealias.as_ref().expect("dealiased");
         let angles = &off.filtered.angles;
-        let right =
-            metrics::true_alias_counts(&off.projections, angles, &off.projection_nyquist, &truth);
-        let mut unwrapped = off.projections.clone();
-        ndarray::Zip::from(&mut unwrapped)
-            .and(&right)
-            .and(&off.projection_nyquist)
-            .for_each(|u, &k, &vn| *u += 2.0 * f64::from(k) * vn);
         let zeros = ndarray::Array3::zeros(off.projections.dim());
         for (method, counts) in [
             (Method::UvdLs, &done.ls.alias_counts),
@@ -717,7 +717,7 @@ mod tests {
             };
             let within =
                 |field: &VectorField| metrics::within_fraction_of_peak(field, &truth, peak, 0.1);
-            let ceiling = within(&method.fit(&off, unwrapped.view()).unwrap());
+            let ceiling = within(&method.true_pattern_fit(&off, &truth).unwrap().0);
             let (before, after) = (within(method.field(&off)), within(method.field(&on)));
             let label = method.label();
             assert!(patterns(&zeros) < 0.5, "{label}: {}", patterns(&zeros));
