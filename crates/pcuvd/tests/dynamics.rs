@@ -1015,6 +1015,7 @@ fn heart_rate_from_two_upstrokes_in_little_more_than_one_cycle() {
         message.contains("upstrokes found: 1") && message.contains("give the heart rate"),
         "{message}"
     );
+    assert_eq!(message.matches("invalid recording").count(), 1, "{message}");
 }
 
 /// A beat-to-beat waveform sampled at `times`: beat k starts at `starts[k]` (s) and lasts to the

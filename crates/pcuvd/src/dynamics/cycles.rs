@@ -258,10 +258,15 @@ pub fn cardiac_cycles(
                 Err(e) => match beats {
                     Some(beats) => return Ok(beats),
                     None => {
+                        // The estimate's own reason, without its "invalid recording:" again.
+                        let why = match e {
+                            Error::InvalidParameter { reason, .. } => reason,
+                            other => other.to_string(),
+                        };
                         return Err(invalid(
                             "recording",
                             format!(
-                                "{e} (systolic upstrokes found: {}; two are needed to measure \
+                                "{why} (systolic upstrokes found: {}; two are needed to measure \
                                  the period from about one cycle)",
                                 upstrokes.len()
                             ),
