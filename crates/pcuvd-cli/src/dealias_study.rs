@@ -92,7 +92,8 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
         dir,
         DEALIAS_FIGURES[0],
         &format!(
-            "Dealiasing: speed of a tube (radius 0.5 mm, parabolic, {}° below +x) at 1–3× the projection Nyquist velocity v_N = {:.1} mm/s, {}, seed {}: the truth, UVD (conventional + LS) without and with dealiasing ({}), and PC-UVD (coded + IRLS) with dealiasing — whose Hadamard decoding cannot separate the angles of echoes whose Doppler exceeds half the frame rate. Pixels farther than 0.2 mm from the lumen are blank.",
+            "Dealiasing: speed of a tube (radius 0.5 mm, {}, {}° below +x) at 1–3× the projection Nyquist velocity v_N = {:.1} mm/s, {}, seed {}: the truth, UVD (conventional + LS) without and with dealiasing ({}), and PC-UVD (coded + IRLS) with dealiasing — whose Hadamard decoding cannot separate the angles of echoes whose Doppler exceeds half the frame rate. Pixels farther than 0.2 mm from the lumen are blank.",
+            m.settings.tube_profile.label(),
             m.settings.tube_angle_deg,
             vn_mm_s,
             noise_text(level),
@@ -234,8 +235,9 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
     let seeds: Vec<String> = s.seeds.iter().map(|v| v.to_string()).collect();
     report.heading("Vector dealiasing: a tube at 1–3× the Nyquist velocity (beyond the paper)");
     report.paragraph(&format!(
-        "The paper's acquisition (L22-14vX, 15.625 MHz, 8 plane waves −15…15°, event PRF 14.4 kHz, 1.8 kHz compound rate, {} frames) of a straight tube (radius 0.5 mm, parabolic, 300 scatterers/mm², {}° below +x through (0, 7 mm)) whose peak speed is {} × the projection Nyquist velocity v_N = c·PRF/(4 f₀ n) = {:.1} mm/s, conventional and Hadamard-coded, seeds {}. Each is processed without dealiasing and with --dealias {} (every angle's projection unwrapped by up to ±K intervals of 2 v_N, the pattern chosen by the smallest residual of the vector fit, the common shift of all angles over each vessel). {} pixels in the true lumen.",
+        "The paper's acquisition (L22-14vX, 15.625 MHz, 8 plane waves −15…15°, event PRF 14.4 kHz, 1.8 kHz compound rate, {} frames) of a straight tube (radius 0.5 mm, {} profile, 300 scatterers/mm², {}° below +x through (0, 7 mm)) whose peak speed is {} × the projection Nyquist velocity v_N = c·PRF/(4 f₀ n) = {:.1} mm/s, conventional and Hadamard-coded, seeds {}. Each is processed without dealiasing and with --dealias {} (every angle's projection unwrapped by up to ±K intervals of 2 v_N, the pattern chosen by the smallest residual of the vector fit, the common shift of all angles over each vessel). {} pixels in the true lumen.",
         s.frames,
+        s.tube_profile.label(),
         s.tube_angle_deg,
         s.multiples
             .iter()

@@ -127,6 +127,33 @@ impl From<DopplerEstimatorOption> for pcuvd::doppler::DopplerEstimator {
     }
 }
 
+/// The tube's flow profile ([`pcuvd::phantom::FlowProfile`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+pub enum TubeProfile {
+    /// Laminar: peak·(1 − (l/R)²), zero at the wall.
+    Parabolic,
+    /// The peak speed across the whole lumen, a step at the wall.
+    Plug,
+}
+
+impl From<pcuvd::phantom::FlowProfile> for TubeProfile {
+    fn from(p: pcuvd::phantom::FlowProfile) -> Self {
+        match p {
+            pcuvd::phantom::FlowProfile::Parabolic => Self::Parabolic,
+            pcuvd::phantom::FlowProfile::Plug => Self::Plug,
+        }
+    }
+}
+
+impl From<TubeProfile> for pcuvd::phantom::FlowProfile {
+    fn from(p: TubeProfile) -> Self {
+        match p {
+            TubeProfile::Parabolic => Self::Parabolic,
+            TubeProfile::Plug => Self::Plug,
+        }
+    }
+}
+
 /// How coded events are aligned in slow time before decoding ([`EventAlignment`]).
 #[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
 pub enum Alignment {

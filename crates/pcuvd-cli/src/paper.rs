@@ -109,6 +109,11 @@ pub struct StudyOptions {
     /// Dealiasing study: flow direction of the tube, degrees below +x.
     #[arg(long, default_value_t = DealiasSettings::default().tube_angle_deg)]
     pub dealias_tube_angle_deg: f64,
+    /// Dealiasing study: the tube's flow profile. Plug flow has no gradient inside the
+    /// resolution cell, which shows the estimator's accuracy apart from it; dealiasing cannot
+    /// settle its levels (they are anchored on slow flow at the wall).
+    #[arg(long, value_enum, default_value_t = DealiasSettings::default().tube_profile.into())]
+    pub dealias_tube_profile: crate::options::TubeProfile,
 }
 
 /// Values as comma-separated text, as the list options take them.
@@ -263,6 +268,7 @@ impl StudyOptions {
             seeds,
             frames: self.frames,
             tube_angle_deg: self.dealias_tube_angle_deg,
+            tube_profile: self.dealias_tube_profile.into(),
             dealias: pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")?,
             motion: self.motion.into(),
             event_alignment: self.event_alignment.into(),

@@ -73,7 +73,7 @@ fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) ->
 pub enum Preset {
     /// The paper's spiral (§2.3): L22-14vX, 15.625 MHz, 2-cycle pulse, f_s 65 MHz, c 1540 m/s, 8 angles in [−15°, 15°], event PRF 14.4 kHz (1.8 kHz compound), Hadamard order 8 with 1 µs slots, 100 frames, noise −10 dB.
     PaperSpiral,
-    /// A straight tube (radius 0.5 mm, 25 mm/s peak unless --peak-velocity-mm-s, parabolic) at 30° below +x through (0, 8 mm), with the paper-spiral acquisition.
+    /// A straight tube (radius 0.5 mm, 25 mm/s peak unless --peak-velocity-mm-s, parabolic unless --tube-profile) at 30° below +x through (0, 8 mm), with the paper-spiral acquisition.
     Tube,
     /// The in-vivo-like pulsatile vessel network at 5.5 Hz (4 arterioles RI 0.7, 4 venules RI 0.3, flowing up and down, 1–13 mm deep) with the paper's rat acquisition (Table 1): as paper-spiral but 360 frames (0.2 s), receive window 0–13 mm; writes the RI truth too.
     RatNetwork,
@@ -121,6 +121,11 @@ pub struct SimulationOptions {
     /// --dealias`).
     #[arg(long)]
     pub peak_velocity_mm_s: Option<f64>,
+    /// Flow profile of the tube preset: parabolic (laminar, zero at the wall) or plug (the peak
+    /// speed across the lumen). Vector dealiasing anchors its levels on slow flow at the wall,
+    /// so it cannot dealias plug flow.
+    #[arg(long, value_enum)]
+    pub tube_profile: Option<crate::options::TubeProfile>,
 }
 
 /// Arguments of `pcuvd simulate`.
@@ -191,6 +196,9 @@ impl Simulation {
             }
             given => given.map(|v| v * 1e-3),
         };
+        if args.tube_profile.is_some() && args.preset != Preset::Tube {
+            bail!("--tube-profile applies to --preset tube only");
+        }
         let network = match args.preset {
             Preset::RatNetwork => {
                 let spec = NetworkSpec::rat();
@@ -213,7 +221,10 @@ impl Simulation {
                 Box::new(SpiralPhantom::new(spec, args.seed)?)
             }
             (_, None) => Box::new(TubePhantom::new(
-                TubeSpec::preset(peak.unwrap_or(25e-3)),
+                TubeSpec {
+                    profile: args.tube_profile.map_or_else(Default::default, Into::into),
+                    ..TubeSpec::preset(peak.unwrap_or(25e-3))
+                },
                 args.seed,
             )?),
         };

@@ -117,11 +117,67 @@ fn simulated_tube_round_trips_through_process() {
 }
 
 #[test]
+fn a_plug_tube_moves_at_its_peak_speed_up_to_the_wall() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "simulate",
+        "--preset",
+        "tube",
+        "--tube-profile",
+        "plug",
+        "--peak-velocity-mm-s",
+        "90",
+        "--mode",
+        "conventional",
+        "--frames",
+        "1",
+        "--angles",
+        "2",
+        "--noise-db",
+        "off",
+        "--out",
+        d,
+    ]);
+    assert!(ok, "{stderr}");
+    let read = |name: &str| -> ndarray::Array2<f64> {
+        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
+    };
+    let (vx, vz) = (read("truth_vx.npy"), read("truth_vz.npy"));
+    let mask: ndarray::Array2<u8> =
+        ndarray_npy::read_npy(dir.path().join("truth_mask.npy")).unwrap();
+    let lumen = mask.iter().filter(|&&m| m == 1).count();
+    assert!(lumen > 100, "{lumen} lumen pixels");
+    for ((&m, &x), &z) in mask.iter().zip(&vx).zip(&vz) {
+        let speed = x.hypot(z);
+        if m == 1 {
+            assert!(
+                (speed - 0.09).abs() < 1e-9,
+                "speed {speed} m/s inside a plug tube"
+            );
+        }
+    }
+}
+
+#[test]
 fn bad_simulation_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
-    let cases: [(&[&str], &str); 5] = [
+    let cases: [(&[&str], &str); 6] = [
         (&["simulate", "--preset", "nope", "--out", d], "nope"),
+        (
+            &[
+                "simulate",
+                "--preset",
+                "paper-spiral",
+                "--tube-profile",
+                "plug",
+                "--out",
+                d,
+            ],
+            "--tube-profile applies to --preset tube only",
+        ),
         (&["simulate", "--frames", "0", "--out", d], "--frames"),
         (
             &[

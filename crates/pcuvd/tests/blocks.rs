@@ -5,7 +5,7 @@
 use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::decode::EventAlignment;
-use pcuvd::phantom::{TubePhantom, TubeSpec};
+use pcuvd::phantom::{FlowProfile, TubePhantom, TubeSpec};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
 use pcuvd::source::Blocks;
@@ -48,6 +48,7 @@ fn tube() -> TubePhantom {
             radius: 0.5e-3,
             peak_speed: 0.03,
             density: 300e6,
+            profile: FlowProfile::Parabolic,
         },
         3,
     )

@@ -10,7 +10,7 @@ use pcuvd::decode::EventAlignment;
 use pcuvd::doppler::DopplerEstimator;
 use pcuvd::dynamics::DynamicsParams;
 use pcuvd::ensembles::{self, EnsembleSpec};
-use pcuvd::phantom::{Phantom, TubePhantom, TubeSpec};
+use pcuvd::phantom::{FlowProfile, Phantom, TubePhantom, TubeSpec};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::segments::{Segments, process_in_segments};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
@@ -58,6 +58,7 @@ fn tube_at(peak_speed: f64) -> TubePhantom {
             radius: 0.5e-3,
             peak_speed,
             density: 300e6,
+            profile: FlowProfile::Parabolic,
         },
         3,
     )

@@ -5,8 +5,8 @@ use num_complex::Complex64;
 use pcuvd::channel::AngleSamples;
 use pcuvd::decode::{EventAlignment, decode, decode_aligned};
 use pcuvd::phantom::{
-    BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, Phantom, PointPhantom, SpiralPhantom,
-    SpiralSpec, TubePhantom, TubeSpec,
+    BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, FlowProfile, Phantom, PointPhantom,
+    SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec,
 };
 use pcuvd::simulate::{
     EchoWaveform, NOISE_DEFINITION, NoiseSpec, SimParams, echo_time, paper_spiral_params, simulate,
@@ -581,6 +581,7 @@ fn tube_truth_and_wrap_around() {
         radius: 0.5e-3,
         peak_speed: 20e-3,
         density: 200e6,
+        profile: FlowProfile::Parabolic,
     };
     let tube = TubePhantom::new(spec.clone(), 4).unwrap();
     assert_eq!(tube.n_scatterers(), (200.0 * 6.0 * 1.0f64).round() as usize);
@@ -622,6 +623,56 @@ fn tube_truth_and_wrap_around() {
             assert!(s.abs() <= 0.5 * spec.length + 1e-12 && l.abs() <= spec.radius + 1e-12);
         }
     }
+}
+
+#[test]
+fn plug_tube_moves_its_whole_lumen_at_the_peak() {
+    let angle = -40f64.to_radians();
+    let spec = TubeSpec {
+        centre: [0.0, 5e-3],
+        angle,
+        length: 8e-3,
+        radius: 0.4e-3,
+        peak_speed: 0.12,
+        density: 200e6,
+        profile: FlowProfile::Plug,
+    };
+    let tube = TubePhantom::new(spec.clone(), 2).unwrap();
+    let (d, nrm) = ([angle.cos(), angle.sin()], [-angle.sin(), angle.cos()]);
+    // Truth: the peak up to the wall, nothing beyond it.
+    for (l, inside) in [
+        (0.0, true),
+        (0.39e-3, true),
+        (-0.39e-3, true),
+        (0.41e-3, false),
+    ] {
+        let (x, z) = (spec.centre[0] + l * nrm[0], spec.centre[1] + l * nrm[1]);
+        let t = tube.truth(&[x], &[z], 0.0);
+        assert_eq!(t.mask[[0, 0]], inside, "l = {l}");
+        if inside {
+            assert!((t.vx[[0, 0]] - 0.12 * d[0]).abs() < 1e-12);
+            assert!((t.vz[[0, 0]] - 0.12 * d[1]).abs() < 1e-12);
+        }
+    }
+    // Every scatterer, at the wall too, moves 0.12 m/s × 1 ms = 0.12 mm along the axis.
+    let (mut p0, mut p1) = (Vec::new(), Vec::new());
+    tube.positions_at(0.0, &mut p0);
+    tube.positions_at(1e-3, &mut p1);
+    let mut moved = 0;
+    for (a, b) in p0.iter().zip(&p1) {
+        let along = (b[0] - a[0]) * d[0] + (b[1] - a[1]) * d[1];
+        let across = (b[0] - a[0]) * nrm[0] + (b[1] - a[1]) * nrm[1];
+        assert!(across.abs() < 1e-12);
+        // Those that wrapped round the tube's ends jump back by its length.
+        let along = if along < 0.0 {
+            along + spec.length
+        } else {
+            along
+        };
+        assert!((along - 0.12e-3).abs() < 1e-12, "moved {along}");
+        moved += 1;
+    }
+    assert_eq!(moved, tube.n_scatterers());
 }
 
 #[test]

@@ -26,7 +26,7 @@ pub mod tube;
 pub use network::{NetworkPhantom, NetworkSpec, NetworkTruth};
 pub use rigid::{BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, PointPhantom};
 pub use spiral::{SpiralPhantom, SpiralSpec};
-pub use tube::{TubePhantom, TubeSpec};
+pub use tube::{FlowProfile, TubePhantom, TubeSpec};
 
 /// Largest number of scatterers a phantom may draw (guards against absurd densities).
 pub const MAX_SCATTERERS: usize = 20_000_000;

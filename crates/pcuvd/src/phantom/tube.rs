@@ -1,11 +1,44 @@
-//! A straight tube with a parabolic (laminar) profile.
+//! A straight tube with a parabolic (laminar) or plug profile.
 
 use rand::RngExt;
+use serde::Serialize;
 
 use super::{Phantom, Truth, normal_amplitudes, parabolic, require_finite, rng, scatterer_count};
 use crate::error::{Result, require_positive};
 
-/// A straight tube with a parabolic (laminar) profile, SI units.
+/// How the speed varies across a tube, from its axis to its wall.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FlowProfile {
+    /// Laminar (Poiseuille): peak·(1 − (l/R)²) at distance l from the axis, zero at the wall.
+    #[default]
+    Parabolic,
+    /// Plug: the peak speed across the whole lumen, no gradient inside it, a step at the wall
+    /// (the blunt profile of large arteries in systole, taken to its limit).
+    Plug,
+}
+
+impl FlowProfile {
+    /// Speed (m/s) at distance `l` (m) from the axis of a tube of `radius` (m) whose centreline
+    /// speed is `peak` (m/s); zero outside.
+    pub fn speed(self, peak: f64, l: f64, radius: f64) -> f64 {
+        match self {
+            FlowProfile::Parabolic => parabolic(peak, l, radius),
+            FlowProfile::Plug if l.abs() <= radius => peak,
+            FlowProfile::Plug => 0.0,
+        }
+    }
+
+    /// Lower-case name, as the command line takes it.
+    pub fn label(self) -> &'static str {
+        match self {
+            FlowProfile::Parabolic => "parabolic",
+            FlowProfile::Plug => "plug",
+        }
+    }
+}
+
+/// A straight tube with a parabolic or plug profile, SI units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TubeSpec {
     /// Centre of the tube (x, z) (m).
@@ -20,12 +53,14 @@ pub struct TubeSpec {
     pub peak_speed: f64,
     /// Scatterer density (scatterers/m²).
     pub density: f64,
+    /// How the speed falls from the centreline to the wall.
+    pub profile: FlowProfile,
 }
 
 impl TubeSpec {
     /// The `tube` preset's vessel: radius 0.5 mm, 16 mm long, 300 scatterers/mm², centred at
-    /// (0, 8 mm), flowing 30° below +x (toward +x and deeper) at a peak speed of `peak_speed` (m/s;
-    /// the preset's default is 25 mm/s).
+    /// (0, 8 mm), flowing 30° below +x (toward +x and deeper), parabolic, at a peak speed of
+    /// `peak_speed` (m/s; the preset's default is 25 mm/s).
     pub fn preset(peak_speed: f64) -> Self {
         TubeSpec {
             centre: [0.0, 8e-3],
@@ -34,6 +69,7 @@ impl TubeSpec {
             radius: 0.5e-3,
             peak_speed,
             density: 300e6,
+            profile: FlowProfile::Parabolic,
         }
     }
 }
@@ -68,7 +104,7 @@ impl TubePhantom {
         }
         let speed = offset
             .iter()
-            .map(|&l| parabolic(spec.peak_speed, l, spec.radius))
+            .map(|&l| spec.profile.speed(spec.peak_speed, l, spec.radius))
             .collect();
         let amplitudes = normal_amplitudes(&mut rng, n);
         Ok(TubePhantom {
@@ -115,7 +151,7 @@ impl Phantom for TubePhantom {
             let s = dx * d[0] + dz * d[1];
             let l = dx * n[0] + dz * n[1];
             (s.abs() <= 0.5 * spec.length && l.abs() <= spec.radius).then(|| {
-                let u = parabolic(spec.peak_speed, l, spec.radius);
+                let u = spec.profile.speed(spec.peak_speed, l, spec.radius);
                 [u * d[0], u * d[1]]
             })
         })

@@ -22,7 +22,7 @@ use crate::metrics::{
     self, ALIAS_PATTERN_DEFINITION, RMSE_DEFINITION, Rmse, SPEED_WITHIN_PEAK_DEFINITION,
     WITHIN_PEAK_DEFINITION,
 };
-use crate::phantom::{Phantom, Truth, TubePhantom, TubeSpec};
+use crate::phantom::{FlowProfile, Phantom, Truth, TubePhantom, TubeSpec};
 use crate::pipeline::{self, ProcessOutput};
 use crate::simulate::{self, NOISE_DEFINITION};
 use crate::vector::VectorField;
@@ -45,6 +45,9 @@ pub struct DealiasSettings {
     /// Flow direction of the tube (degrees below +x): at 60° the projections reach 0.79–0.92 of
     /// the speed, so the speed's multiple of v_N is nearly the projections' own.
     pub tube_angle_deg: f64,
+    /// The tube's flow profile: parabolic (the default; slow at the wall, where dealiasing
+    /// anchors its levels) or plug (no gradient inside the resolution cell).
+    pub tube_profile: FlowProfile,
     /// The dealiasing compared with none.
     #[serde(serialize_with = "dealias_label")]
     pub dealias: Dealias,
@@ -74,6 +77,7 @@ impl Default for DealiasSettings {
             seeds: vec![1],
             frames: simulate::PAPER_FRAMES,
             tube_angle_deg: 60.0,
+            tube_profile: FlowProfile::Parabolic,
             dealias: Dealias::Auto,
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
@@ -137,7 +141,7 @@ impl DealiasSettings {
     }
 
     /// The tube of peak speed `peak` (m/s): radius 0.5 mm, 14 mm long through (0, 7 mm) at
-    /// `tube_angle_deg`, 300 scatterers/mm² (the spiral's density).
+    /// `tube_angle_deg`, 300 scatterers/mm² (the spiral's density), `tube_profile`.
     pub fn tube(&self, peak: f64) -> TubeSpec {
         TubeSpec {
             centre: [0.0, 7e-3],
@@ -146,6 +150,7 @@ impl DealiasSettings {
             radius: 0.5e-3,
             peak_speed: peak,
             density: 300e6,
+            profile: self.tube_profile,
         }
     }
 }
