@@ -62,6 +62,10 @@
 //! On the tube at 3× v_N this leaves under 1 % of the lumen's patterns wrong, and the vectors as
 //! good as the true pattern makes them (`pcuvd paper --part dealias`'s "true pattern" column):
 //! what still separates them from the truth is the estimator's error at that speed, not aliasing.
+//!
+//! The wall node is an assumption about the flow, not a measurement: flow that is fast up to the
+//! wall (a plug profile, [`crate::phantom::FlowProfile::Plug`]) is set a whole level too slow,
+//! and nothing in the data flags it.
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
