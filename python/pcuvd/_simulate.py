@@ -48,7 +48,8 @@ def simulate(
     preset: "paper-spiral", "tube" or "rat-network" (see `pcuvd simulate --help`); mode:
     "coded" (Hadamard), "conventional" or "both"; frames: compound frames (default: the
     preset's); noise_db: noise level in dB (None: no noise); seed of scatterers and noise;
-    options: the other `simulate` options (angles, slot_delay_us). Returns (recording, truth),
+    options: the other `simulate` options (angles, slot_delay_us, peak_velocity_mm_s,
+    tube_profile="plug" for the tube without a gradient across it). Returns (recording, truth),
     or ({"conventional": ..., "coded": ...}, truth) for mode "both".
     """
     given = dict(options)

@@ -163,6 +163,8 @@ def test_bad_simulation_requests():
         pcuvd.simulate("tube", "coded", frames=0)
     with pytest.raises(TypeError, match="unexpected keyword 'colour'"):
         pcuvd.simulate("tube", colour="red")
+    with pytest.raises(ValueError, match="--tube-profile applies to --preset tube only"):
+        pcuvd.simulate("paper-spiral", frames=1, tube_profile="plug")
 
 
 def test_nothing_crashes_the_interpreter(disk):

@@ -64,6 +64,21 @@ def test_vector_fits_equal_process_on_a_coded_tube(tmp_path):
     assert truth.vx.shape == truth.mask.shape and truth.mask.any()
 
 
+def test_a_plug_tube_moves_at_its_peak_speed_up_to_the_wall():
+    _, truth = pcuvd.simulate(
+        "tube", "conventional", frames=1, noise_db=None, angles=2, quiet=True,
+        tube_profile="plug", peak_velocity_mm_s=90,
+    )
+    speed = np.hypot(truth.vx, truth.vz)[truth.mask]
+    assert speed.size > 100
+    np.testing.assert_allclose(speed, 0.09, rtol=1e-9)
+    _, laminar = pcuvd.simulate(
+        "tube", "conventional", frames=1, noise_db=None, angles=2, quiet=True,
+        peak_velocity_mm_s=90,
+    )
+    assert np.hypot(laminar.vx, laminar.vz)[laminar.mask].min() < 0.02, "parabolic by default"
+
+
 def test_vector_fits_recover_an_exact_vector():
     angles = np.radians(np.linspace(-15, 15, 8))
     vx, vz = 0.012, -0.02
