@@ -101,7 +101,12 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
             m.settings.dealias.label()
         ),
         Figure {
-            title: format!("Tube at 1–3× v_N ({:.1} mm/s), {}", vn_mm_s, noise_text(level)),
+            title: format!(
+                "Tube ({}) at 1–3× v_N ({:.1} mm/s), {}",
+                m.settings.tube_profile.label(),
+                vn_mm_s,
+                noise_text(level)
+            ),
             panels,
             ncols: 4,
             panel_size_px: (420, 420),
