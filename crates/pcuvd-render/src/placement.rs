@@ -3,31 +3,17 @@
 
 use crate::canvas::Rect;
 
-/// How many line samples one marker of a points-only series counts for: a box may cover a stretch
-/// of a line (the line stays readable on either side) sooner than a marker, which is a value shown
-/// nowhere else.
-pub(crate) const MARKER_WEIGHT: usize = 20;
-
-/// Pixels a text box should not cover: points, and samples along polylines, each with a weight.
+/// Pixels a text box should not cover: points, and samples along polylines.
 #[derive(Debug, Default)]
 pub(crate) struct Occupied {
-    pts: Vec<(f64, f64, usize)>,
+    pts: Vec<(f64, f64)>,
 }
 
 impl Occupied {
     /// One drawn point (ignored unless finite).
     pub(crate) fn point(&mut self, p: (f64, f64)) {
-        self.weighted_point(p, 1);
-    }
-
-    /// One marker of a points-only series: [`MARKER_WEIGHT`] points.
-    pub(crate) fn marker(&mut self, p: (f64, f64)) {
-        self.weighted_point(p, MARKER_WEIGHT);
-    }
-
-    fn weighted_point(&mut self, p: (f64, f64), weight: usize) {
         if p.0.is_finite() && p.1.is_finite() {
-            self.pts.push((p.0, p.1, weight));
+            self.pts.push(p);
         }
     }
 
@@ -50,15 +36,14 @@ impl Occupied {
         }
     }
 
-    /// Weight of the points inside `r` grown by `margin`.
+    /// Points inside `r` grown by `margin`.
     fn count(&self, r: Rect, margin: f64) -> usize {
         self.pts
             .iter()
-            .filter(|&&(x, y, _)| {
+            .filter(|&&(x, y)| {
                 x >= r.x0 - margin && x <= r.x1 + margin && y >= r.y0 - margin && y <= r.y1 + margin
             })
-            .map(|&(_, _, w)| w)
-            .sum()
+            .count()
     }
 }
 
@@ -154,25 +139,6 @@ mod tests {
         // The annotation then takes the other bottom corner, clear of the legend.
         let a = place(area, 2.0, (30.0, 20.0), &ANNOTATION_ORDER, &occ, &[b], 1.0);
         assert_eq!(a, box_at(area, 2.0, (30.0, 20.0), Corner::BottomLeft));
-    }
-
-    #[test]
-    fn a_box_covers_a_stretch_of_line_before_a_marker() {
-        let area = Rect::new(0.0, 0.0, 100.0, 100.0);
-        let mut occ = Occupied::default();
-        // Two markers in the upper right, a line across the bottom: 10 samples under a bottom
-        // box, against two markers.
-        occ.marker((90.0, 10.0));
-        occ.marker((80.0, 15.0));
-        occ.polyline(&[(0.0, 95.0), (100.0, 95.0)], 3.0);
-        let b = place(area, 2.0, (30.0, 20.0), &LEGEND_ORDER, &occ, &[], 1.0);
-        assert_eq!(b, box_at(area, 2.0, (30.0, 20.0), Corner::TopLeft));
-        // With markers along the whole top, the line's stretch is covered, not a marker (counted
-        // one for one, a single marker would have weighed less than the 11 line samples).
-        occ.marker((10.0, 10.0));
-        occ.marker((50.0, 10.0));
-        let b = place(area, 2.0, (30.0, 20.0), &LEGEND_ORDER, &occ, &[], 1.0);
-        assert_eq!(b, box_at(area, 2.0, (30.0, 20.0), Corner::BottomRight));
     }
 
     #[test]

@@ -626,7 +626,7 @@ fn occupied(pp: &PlotPanel, l: &PlotLayout, st: &Style) -> Occupied {
     for s in &pp.series {
         let pts = series_pixels(s, l);
         match s.style {
-            SeriesStyle::Points => pts.iter().for_each(|&p| occ.marker(p)),
+            SeriesStyle::Points => pts.iter().for_each(|&p| occ.point(p)),
             _ => occ.polyline(&pts, step),
         }
         if let Some(err) = &s.y_err {
