@@ -56,9 +56,9 @@ pub struct ProcessingOptions {
     /// Vector dealiasing: "off", "auto" or K. A projection beyond the Nyquist velocity v_N wraps
     /// by 2·v_N; K unwraps up to ±K such intervals per angle (speeds up to (2K + 1)·v_N), choosing
     /// each pixel's alias pattern by the smallest residual of the vector fit and the common shift
-    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor), the
-    /// shift at which its wall pixels read slowest: flow fast up to the wall (plug flow) comes
-    /// out a whole interval too slow. "auto"
+    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor): the
+    /// shift at which its wall pixels read slowest, unless another makes the vessel's
+    /// power-weighted residual less than half as large (flow fast up to the wall). "auto"
     /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies
     /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
     /// decode flow above v_N wrongly (see the README), so it helps conventional recordings most.

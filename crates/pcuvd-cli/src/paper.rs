@@ -110,8 +110,8 @@ pub struct StudyOptions {
     #[arg(long, default_value_t = DealiasSettings::default().tube_angle_deg)]
     pub dealias_tube_angle_deg: f64,
     /// Dealiasing study: the tube's flow profile. Plug flow has no gradient inside the
-    /// resolution cell, which shows the estimator's accuracy apart from it; dealiasing cannot
-    /// settle its levels (they are anchored on slow flow at the wall).
+    /// resolution cell, which shows the estimator's accuracy apart from it, and is fast up to the
+    /// wall, where dealiasing must settle its level by the vessel's residual.
     #[arg(long, value_enum, default_value_t = DealiasSettings::default().tube_profile.into())]
     pub dealias_tube_profile: crate::options::TubeProfile,
 }

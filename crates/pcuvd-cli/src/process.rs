@@ -972,11 +972,14 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::V
              sum of absolute residuals); the common shift of all angles settled over the flow \
              pixels (power {} dB above the row's noise floor) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
-             joined to speed 0 (blood is slow at a wall); regions under {} pixels and other \
+             joined to speed 0 (blood is slow at a wall), unless another common shift makes the \
+             vessel's power-weighted summed residual less than {} times as large; regions under \
+             {} pixels and other \
              pixels keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
              unwrapped pixels reach ±K; alias_counts.npy (PC-UVD) and alias_counts_ls.npy (UVD) \
              hold the counts (angles, nz, nx)",
             pcuvd::dealias::FLOW_MARGIN_DB,
+            pcuvd::dealias::DECISIVE_SCORE_RATIO,
             pcuvd::dealias::MIN_REGION_PIXELS,
             pcuvd::dealias::MAX_AUTO_INTERVALS,
             pcuvd::dealias::AUTO_LIMIT_FRACTION * 100.0

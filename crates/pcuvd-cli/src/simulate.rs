@@ -122,8 +122,8 @@ pub struct SimulationOptions {
     #[arg(long)]
     pub peak_velocity_mm_s: Option<f64>,
     /// Flow profile of the tube preset: parabolic (laminar, zero at the wall) or plug (the peak
-    /// speed across the lumen). Vector dealiasing anchors its levels on slow flow at the wall,
-    /// so it cannot dealias plug flow.
+    /// speed across the lumen): fast up to the wall, where vector dealiasing settles its level
+    /// by the vessel's residual rather than by slow flow at the wall.
     #[arg(long, value_enum)]
     pub tube_profile: Option<crate::options::TubeProfile>,
 }

@@ -28,15 +28,19 @@
 //! alias count becomes "an outlier" of weight ≈ 0), so a wrong pattern would win by overfitting; the
 //! unweighted objective charges it the full 2·v_N at each angle it gets wrong.
 //!
-//! # The common shift, which one pixel cannot settle
+//! # The common shift, which one pixel hardly settles
 //! Adding the same count c to every angle moves every unwrapped projection by 2c·v_N. With transmit
 //! angles within ±15° and straight receive every projection is nearly axial (1 + cos θ spans only
-//! 1.966–2), so the shift is almost exactly a change of Vz by ≈ 2c·v_N: its residual comes only
-//! from the 1.7 % spread of 1 + cos θ, about 0.6 % of 2·v_N per angle RMS (0.5 mm/s at the paper's
-//! settings), against per-angle errors of 2–5 mm/s in simulated images. A pixel's residual settles
-//! which angles are wrapped relative to the others, not how many times all of them are. The
-//! candidates are therefore grouped by level ℓ = round(mean k) (a common shift moves the level by
-//! c), the best of each level is kept, and the level is chosen over space.
+//! 1.966–2), so with one v_N for all angles the shift is almost exactly a change of Vz by
+//! ≈ 2c·v_N, whose residual is only the 1.7 % spread of 1 + cos θ (0.5 mm/s per angle at the
+//! paper's settings). With Loupas each angle unwraps by its own 2·v_N, from its own mean frequency,
+//! and those differ by about 2 % between the angles at a pixel: a wrong level leaves about 2 mm/s
+//! per angle, where the estimator scatters by about 0.5 mm/s without noise. Measured on the tube
+//! with the truth's patterns, the true level has the smallest residual at only 80–94 % of the
+//! lumen's pixels: one pixel's residual settles which angles are wrapped relative to the others
+//! far better than how many times all of them are. The candidates are therefore grouped by level
+//! ℓ = round(mean k) (a common shift moves the level by c), the best of each level is kept, and
+//! the level is chosen over space.
 //!
 //! # Levels over space ([`dealiased_vectors`])
 //! Flow is continuous, so the levels are settled as a phase map is unwrapped: the coordinate of
@@ -63,16 +67,15 @@
 //! good as the true pattern makes them (`pcuvd paper --part dealias`'s "true pattern" column):
 //! what still separates them from the truth is the estimator's error at that speed, not aliasing.
 //!
-//! The wall node is an assumption about the flow, not a measurement: flow that is fast up to the
-//! wall (a plug profile, [`crate::phantom::FlowProfile::Plug`]) is set a whole level too slow.
-//!
-//! The estimate of the common shift's residual above is too low, measured with the truth's alias
-//! patterns on the tube. With Loupas each angle unwraps by its own 2·v_N, and the angles' mean
-//! frequencies differ by about 2 % at a pixel, so a wrong level leaves about 2 mm/s per angle,
-//! where the estimator scatters by about 0.5 mm/s without noise. The true level has the smallest
-//! residual at 80–94 % of the lumen's pixels, and summed over the lumen it wins by a factor of
-//! 3.5–48, plug flow included. Choosing each region's level by that sum, rather than by its wall,
-//! is the next step (README, "Aliasing and vector dealiasing").
+//! The wall node is an assumption about the flow, not a measurement, so a region joined to it is
+//! then checked against its residual: summed over the region, weighted by echo power (the haze a
+//! flow mask lets in around a vessel, whose projections fit any level about equally, counts
+//! little), a common offset whose score is below [`DECISIVE_SCORE_RATIO`] times the wall level's
+//! replaces it. That sets flow that is fast up to the wall (a plug profile,
+//! [`crate::phantom::FlowProfile::Plug`]), which the wall alone put a whole level too slow; on the
+//! tube with the truth's patterns the true level's summed residual is 3.5–48 times smaller than
+//! a level's off. Where the residual does not decide (decoded coded data beyond v_N fit no level)
+//! the wall's level stays.
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
@@ -83,6 +86,10 @@ use crate::vector::{self, Estimator, VectorField, projection_weights};
 /// Smallest region (pixels) whose levels are chosen by its summed score; smaller ones keep the
 /// plain fit (a few noise pixels above the flow threshold carry too little evidence).
 pub const MIN_REGION_PIXELS: usize = 16;
+
+/// A walled region leaves its wall's level only for one whose power-weighted summed score is below
+/// this fraction of the wall level's ([`decisive_offset`]).
+pub const DECISIVE_SCORE_RATIO: f64 = 0.5;
 
 /// How many times [`unwrap_levels`] lets each pixel move to the level of its neighbours' median.
 const CONSISTENCY_PASSES: usize = 4;
@@ -908,6 +915,47 @@ fn unwrap_levels(
     (regions, choice)
 }
 
+/// A walled region's level settled by its residual rather than its wall: the common offset whose
+/// candidates' scores, summed over the region weighted by echo power (so that the haze a flow mask
+/// lets in around a vessel counts little), are below [`DECISIVE_SCORE_RATIO`] times those of the
+/// wall's level, with no member losing its candidate. `None` keeps the wall's level.
+///
+/// With Loupas each angle unwraps by its own 2·v_N (its own mean frequency, ~2 % apart between
+/// angles at a pixel), so a wrong level leaves residuals of about 2 mm/s per angle and the sum
+/// over a vessel tells levels apart. This is what sets flow that is fast up to the wall (plug
+/// flow) right; the wall's level stays where the residuals do not decide (decoded coded data
+/// beyond v_N, whose projections fit no level).
+fn decisive_offset(
+    members: &[usize],
+    candidates: &[Vec<Candidate>],
+    choice: &[usize],
+    quality: ArrayView2<f64>,
+) -> Option<i32> {
+    let nx = quality.dim().1;
+    let total = |offset: i32| -> Option<f64> {
+        members
+            .iter()
+            .map(|&p| {
+                at_level(&candidates[p], choice[p], offset)
+                    .map(|i| quality[[p / nx, p % nx]] * candidates[p][i].score)
+            })
+            .sum()
+    };
+    let wall = total(0)?;
+    let levels = members.iter().flat_map(|&p| {
+        candidates[p]
+            .iter()
+            .map(move |c| c.level - candidates[p][choice[p]].level)
+    });
+    let (lowest, highest) = levels.fold((0, 0), |(lo, hi), o| (lo.min(o), hi.max(o)));
+    (lowest..=highest)
+        .filter(|&o| o != 0)
+        .filter_map(|o| total(o).map(|t| (t, o)))
+        .filter(|&(t, _)| t < DECISIVE_SCORE_RATIO * wall)
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, o)| o)
+}
+
 fn dealias_with(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
@@ -1059,7 +1107,10 @@ fn dealias_with(
                 best = Some(key);
             }
         }
-        let offset = best.map_or(0, |(_, _, _, o)| o);
+        let mut offset = best.map_or(0, |(_, _, _, o)| o);
+        if *walled {
+            offset = decisive_offset(members, candidates, &choice, quality).unwrap_or(offset);
+        }
 
         for &p in members {
             let Some(i) = at_level(p, offset) else {

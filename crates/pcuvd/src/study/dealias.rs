@@ -45,8 +45,8 @@ pub struct DealiasSettings {
     /// Flow direction of the tube (degrees below +x): at 60° the projections reach 0.79–0.92 of
     /// the speed, so the speed's multiple of v_N is nearly the projections' own.
     pub tube_angle_deg: f64,
-    /// The tube's flow profile: parabolic (the default; slow at the wall, where dealiasing
-    /// anchors its levels) or plug (no gradient inside the resolution cell).
+    /// The tube's flow profile: parabolic (the default; slow at the wall) or plug (no gradient
+    /// inside the resolution cell, fast up to the wall).
     pub tube_profile: FlowProfile,
     /// The dealiasing compared with none.
     #[serde(serialize_with = "dealias_label")]
@@ -663,7 +663,21 @@ mod tests {
     /// what the true pattern gives, for both estimators of the conventional recording.
     #[test]
     fn a_tube_at_three_times_nyquist_is_dealiased_as_the_true_pattern_would() {
-        let settings = DealiasSettings::default();
+        tube_is_dealiased_as_the_true_pattern_would(FlowProfile::Parabolic, 3.0);
+    }
+
+    /// The same for plug flow at 2× v_N: fast up to the wall, so the wall's level (one interval
+    /// too slow everywhere) is wrong, and the vessel's summed residual must set it.
+    #[test]
+    fn plug_flow_at_twice_nyquist_is_set_by_its_residual_not_its_wall() {
+        tube_is_dealiased_as_the_true_pattern_would(FlowProfile::Plug, 2.0);
+    }
+
+    fn tube_is_dealiased_as_the_true_pattern_would(profile: FlowProfile, multiple: f64) {
+        let settings = DealiasSettings {
+            tube_profile: profile,
+            ..Default::default()
+        };
         let grid = Grid::new(-1e-3, 1e-3, 5.5e-3, 8.5e-3, settings.grid_step_m).unwrap();
         let params = simulate::paper_spiral_params(false).unwrap();
         let acq = params.acquisition();
@@ -672,7 +686,7 @@ mod tests {
             acq.frame_rate(),
             acq.probe.center_frequency,
         );
-        let peak = 3.0 * nyquist;
+        let peak = multiple * nyquist;
         let tube = TubeSpec {
             length: 5e-3,
             ..settings.tube(peak)
