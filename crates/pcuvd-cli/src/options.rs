@@ -58,7 +58,7 @@ pub struct ProcessingOptions {
     /// each pixel's alias pattern by the smallest residual of the vector fit and the common shift
     /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor): the
     /// shift at which its wall pixels read slowest, unless another makes the vessel's
-    /// power-weighted residual less than half as large (flow fast up to the wall). "auto"
+    /// power-weighted residual below 0.8 times as large (flow fast up to the wall). "auto"
     /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies
     /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
     /// decode flow above v_N wrongly (see the README), so it helps conventional recordings most.
