@@ -74,8 +74,8 @@
 //! replaces it. That sets flow that is fast up to the wall (a plug profile,
 //! [`crate::phantom::FlowProfile::Plug`]), which the wall alone put a whole level too slow; on the
 //! tube with the truth's patterns the true level's summed residual is 3.5–48 times smaller than
-//! a level's off. Where the residual does not decide (decoded coded data beyond v_N fit no level)
-//! the wall's level stays.
+//! a level's off. Where the residual does not decide the wall's level stays; decoded coded data
+//! beyond v_N, which fit no level, can go either way.
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
@@ -89,9 +89,9 @@ pub const MIN_REGION_PIXELS: usize = 16;
 
 /// A walled region leaves its wall's level only for one whose power-weighted summed score is below
 /// this fraction of the wall level's ([`decisive_offset`]). On the plug tube at 3× v_N the right
-/// level scored 0.38–0.69 of the wall's, on decoded coded data beyond v_N (which fit no level) the
-/// nearest offset 0.91, and on the parabolic tube, whose wall is right, every other offset more
-/// than the wall's.
+/// level scored 0.38–0.69 of the wall's; on the parabolic tube, whose wall is right, no other
+/// offset of a conventional recording scored below it (seeds 1–2). Decoded coded data beyond v_N
+/// fit no level and score near 1, sometimes below this (garbage either way).
 pub const DECISIVE_SCORE_RATIO: f64 = 0.8;
 
 /// [`decisive_offset`] weighs an offset only where the pixels with a candidate at it (within ±K)
