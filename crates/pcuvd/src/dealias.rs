@@ -931,8 +931,8 @@ fn unwrap_levels(
 /// With Loupas each angle unwraps by its own 2·v_N (its own mean frequency, ~2 % apart between
 /// angles at a pixel), so a wrong level leaves residuals of about 2 mm/s per angle and the sum
 /// over a vessel tells levels apart. This is what sets flow that is fast up to the wall (plug
-/// flow) right; the wall's level stays where the residuals do not decide (decoded coded data
-/// beyond v_N, whose projections fit no level).
+/// flow) right; the wall's level stays where the residuals do not decide. Decoded coded data
+/// beyond v_N fit no level and can go either way.
 fn decisive_offset(
     members: &[usize],
     candidates: &[Vec<Candidate>],
@@ -961,10 +961,9 @@ fn decisive_offset(
             .map(move |c| c.level - candidates[p][choice[p]].level)
     });
     let (lowest, highest) = levels.fold((0, 0), |(lo, hi), o| (lo.min(o), hi.max(o)));
-    let ratios = (lowest..=highest)
+    (lowest..=highest)
         .filter(|&o| o != 0)
-        .filter_map(|o| totals(o).map(|(t, w)| (t / w, o)));
-    ratios
+        .filter_map(|o| totals(o).map(|(t, w)| (t / w, o)))
         .filter(|&(ratio, _)| ratio < DECISIVE_SCORE_RATIO)
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, o)| o)
