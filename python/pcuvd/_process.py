@@ -154,7 +154,8 @@ def process(
     recording: a `Recording` or a path (read with `read_recording`). options: the CLI's options
     with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
-    `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity),
+    `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity;
+    for conventional recordings: on a Hadamard-coded one a UserWarning says it cannot help),
     `doppler_estimator="kasai"` (divide the Doppler phase by the nominal centre frequency; the
     default "loupas" divides it by each pixel's measured mean frequency and needs an axial grid
     step of at most about a wavelength),

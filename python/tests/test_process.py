@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ def tube(tmp_path_factory, cli) -> Path:
     return folder / "coded.toml"
 
 
+@pytest.mark.filterwarnings("ignore:dealiasing cannot recover")  # the coded tube; tested below
 @pytest.mark.parametrize("which", ["disk", "tube", "tube in segments"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     source = disk if which == "disk" else tube
@@ -286,3 +288,30 @@ def test_triggers_recorded_in_the_manifest_are_used(cli, tmp_path):
     rate = pcuvd.process(str(recorded), quiet=True, heart_rate_hz=40, **settings)
     assert rate.summary["dynamics"].get("triggers_from") is None
     assert rate.summary["dynamics"]["heart_rate_hz"] == 40
+
+
+def test_dealiasing_a_coded_recording_warns(tube, cli, tmp_path):
+    """Coded flow beyond the Nyquist velocity decodes wrongly, which dealiasing cannot mend: the
+    command warns on stderr, summary.json says so, and Python raises a UserWarning; dealiasing a
+    conventional recording does none of that."""
+    options = ["--grid=-3,3,4,10,0.08", "--dynamics=off", "--dealias=auto"]
+    done = run_cli(cli, "process", tube, "--out", tmp_path / "cli", *options)
+    assert done.returncode == 0, done.stderr
+    assert "Hadamard-coded" in done.stderr and "44.4 mm/s" in done.stderr, done.stderr
+    summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
+    assert "Hadamard-coded" in summary["dealias"]["warning"]
+    kwargs = {"grid_mm": (-3, 3, 4, 10, 0.08), "dynamics": "off", "dealias": "auto"}
+    with pytest.warns(UserWarning, match="Hadamard-coded"):
+        result = pcuvd.process(tube, quiet=True, **kwargs)
+    assert result.summary["dealias"]["warning"] == summary["dealias"]["warning"]
+
+    simulate = ["simulate", "--preset", "tube", "--mode", "conventional", "--frames", "10"]
+    done = run_cli(cli, *simulate, "--out", tmp_path / "conventional")
+    assert done.returncode == 0, done.stderr
+    conventional = tmp_path / "conventional" / "conventional.toml"
+    done = run_cli(cli, "process", conventional, "--out", tmp_path / "cli2", *options)
+    assert done.returncode == 0 and "warning" not in done.stderr, done.stderr
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = pcuvd.process(conventional, quiet=True, **kwargs)
+    assert result.summary["dealias"]["warning"] is None

@@ -61,7 +61,8 @@ pub struct ProcessingOptions {
     /// power-weighted residual below 0.8 times as large (flow fast up to the wall). "auto"
     /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies
     /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
-    /// decode flow above v_N wrongly (see the README), so it helps conventional recordings most.
+    /// decode flow above v_N wrongly, which dealiasing cannot mend (a warning says so): it is for
+    /// conventional recordings.
     #[arg(long, default_value = "off")]
     pub dealias: String,
     /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter

@@ -222,6 +222,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    if data.acquisition().sequence.is_coded() && processed.out.dealias.is_some() {
+        let warning = pcuvd::pipeline::coded_dealias_warning(processed.out.nyquist_velocity);
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
     let (source, checksum_s) = match checksums {
         Checksums::Done(source, seconds) => (source, seconds),
         Checksums::Running(thread) => thread
@@ -946,9 +950,10 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     Ok(())
 }
 
-/// The `dealias` entry of summary.json: the setting, the K used, the speeds it reaches, and per
-/// estimator how many flow pixels were dealiased, unwrapped, and reached ±K.
-fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::Value {
+/// The `dealias` entry of summary.json: the setting, the K used, the speeds it reaches, per
+/// estimator how many flow pixels were dealiased, unwrapped, and reached ±K, and the warning for a
+/// `coded` recording ([`pcuvd::pipeline::coded_dealias_warning`]; null otherwise).
+fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> serde_json::Value {
     let Some(done) = &out.dealias else {
         return json!({ "setting": params.dealias.label() });
     };
@@ -966,10 +971,13 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::V
         "flow_pixels": done.flow_pixels,
         "pcuvd_irls": counts(&done.irls),
         "uvd_ls": counts(&done.ls),
+        "warning": coded.then(|| pcuvd::pipeline::coded_dealias_warning(out.nyquist_velocity)),
         "rule": format!(
             "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
              scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
-             sum of absolute residuals); the common shift of all angles settled over the flow \
+             sum of absolute residuals); within a level a mixed pattern kept only where its \
+             summed squared residual is below {} times the level's common shift's; the common \
+             shift of all angles settled over the flow \
              pixels (power {} dB above the row's noise floor) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
              joined to speed 0 (blood is slow at a wall), unless another common shift makes the \
@@ -978,6 +986,7 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput) -> serde_json::V
              pixels keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
              unwrapped pixels reach ±K; alias_counts.npy (PC-UVD) and alias_counts_ls.npy (UVD) \
              hold the counts (angles, nz, nx)",
+            pcuvd::dealias::MIXED_PATTERN_RATIO,
             pcuvd::dealias::FLOW_MARGIN_DB,
             pcuvd::dealias::DECISIVE_SCORE_RATIO,
             pcuvd::dealias::MIN_REGION_PIXELS,
@@ -1075,7 +1084,7 @@ pub fn summary_json(
         },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,
-        "dealias": dealias_summary(params, out),
+        "dealias": dealias_summary(params, out, seq.is_coded()),
         "timings_s": timings,
     })
 }

@@ -501,6 +501,17 @@ fn process(
             Ok((plan, processed))
         })
         .map_err(to_py)?;
+    if data.acquisition.sequence.is_coded() && processed.out.dealias.is_some() {
+        let warning = pcuvd::pipeline::coded_dealias_warning(processed.out.nyquist_velocity);
+        let message = std::ffi::CString::new(format!("{input}: {warning}"))
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        PyErr::warn(
+            py,
+            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+            &message,
+            1,
+        )?;
+    }
     Ok(PyProcessResult {
         options: call.options,
         recording: data,

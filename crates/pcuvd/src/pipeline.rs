@@ -164,6 +164,21 @@ pub struct DealiasOutcome {
     pub ls: AliasCounts,
 }
 
+/// The warning that goes with dealiasing a Hadamard-coded recording whose projection Nyquist
+/// velocity is `nyquist_velocity` (m/s). Why: decoding needs every projection within ±v_N (blood
+/// moves between the events of a frame), so coded flow beyond v_N decodes wrongly, fits no alias
+/// pattern, and is left as garbage with or without dealiasing (on a simulated tube at 2.5× v_N
+/// dealiasing unwrapped none of its lumen), and the maps do not flag it.
+pub fn coded_dealias_warning(nyquist_velocity: f64) -> String {
+    format!(
+        "dealiasing cannot recover flow faster than the Nyquist velocity ({:.1} mm/s) in a \
+         Hadamard-coded recording: decoding needs every projection within it, so such flow \
+         decodes wrongly whatever the dealiasing; dealias conventional recordings (or record at \
+         a higher PRF)",
+        nyquist_velocity * 1e3
+    )
+}
+
 /// Runs the pipeline on a recording. `progress(stage, done, total)` is called as work completes.
 pub fn process(
     data: &ChannelData,
