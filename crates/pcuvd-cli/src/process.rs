@@ -222,8 +222,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let progress = PipelineProgress::new("");
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
-    if data.acquisition().sequence.is_coded() && processed.out.dealias.is_some() {
-        let warning = pcuvd::pipeline::coded_dealias_warning(processed.out.nyquist_velocity);
+    let coded = data.acquisition().sequence.is_coded();
+    if let Some(warning) = pcuvd::pipeline::coded_dealias_warning(coded, &processed.out) {
         eprintln!("warning: {}: {warning}", args.input.display());
     }
     let (source, checksum_s) = match checksums {
@@ -971,7 +971,7 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
         "flow_pixels": done.flow_pixels,
         "pcuvd_irls": counts(&done.irls),
         "uvd_ls": counts(&done.ls),
-        "warning": coded.then(|| pcuvd::pipeline::coded_dealias_warning(out.nyquist_velocity)),
+        "warning": pcuvd::pipeline::coded_dealias_warning(coded, out),
         "rule": format!(
             "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
              scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \

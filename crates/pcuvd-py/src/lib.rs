@@ -501,8 +501,8 @@ fn process(
             Ok((plan, processed))
         })
         .map_err(to_py)?;
-    if data.acquisition.sequence.is_coded() && processed.out.dealias.is_some() {
-        let warning = pcuvd::pipeline::coded_dealias_warning(processed.out.nyquist_velocity);
+    let coded = data.acquisition.sequence.is_coded();
+    if let Some(warning) = pcuvd::pipeline::coded_dealias_warning(coded, &processed.out) {
         let message = std::ffi::CString::new(format!("{input}: {warning}"))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         PyErr::warn(

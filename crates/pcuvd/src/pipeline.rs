@@ -164,12 +164,16 @@ pub struct DealiasOutcome {
     pub ls: AliasCounts,
 }
 
-/// The warning that goes with dealiasing a Hadamard-coded recording whose projection Nyquist
-/// velocity is `nyquist_velocity` (m/s). Why: decoding needs every projection within ±v_N (blood
-/// moves between the events of a frame), so coded flow beyond v_N decodes wrongly, fits no alias
-/// pattern, and is left as garbage with or without dealiasing (on a simulated tube at 2.5× v_N
-/// dealiasing unwrapped none of its lumen), and the maps do not flag it.
-pub fn coded_dealias_warning(nyquist_velocity: f64) -> String {
+/// The warning for maps `out` of a recording that was dealiased and is Hadamard-`coded`; `None`
+/// for a conventional recording or without dealiasing. Why: decoding needs every projection within
+/// ±v_N (blood moves between the events of a frame), so coded flow beyond v_N decodes wrongly,
+/// fits no alias pattern, and is left as garbage with or without dealiasing (on a simulated tube
+/// at 2.5× v_N dealiasing unwrapped none of its lumen), and the maps do not flag it.
+pub fn coded_dealias_warning(coded: bool, out: &ProcessOutput) -> Option<String> {
+    (coded && out.dealias.is_some()).then(|| coded_dealias_message(out.nyquist_velocity))
+}
+
+fn coded_dealias_message(nyquist_velocity: f64) -> String {
     format!(
         "dealiasing cannot recover flow faster than the Nyquist velocity ({:.1} mm/s) in a \
          Hadamard-coded recording: decoding needs every projection within it, so such flow \
