@@ -1363,24 +1363,25 @@ mod tests {
         }
     }
 
+    /// A synthetic tube's wrapped projections and what they came from.
+    struct TubeMap {
+        /// Wrapped projections (angles, nz, nx), m/s.
+        v_theta: Array3<f64>,
+        /// True (vx, vz), m/s.
+        truth: Array2<(f64, f64)>,
+        lumen: Array2<bool>,
+        /// The lumen and a rim two pixels wide.
+        flow: Array2<bool>,
+        power: Array2<f64>,
+        /// Distance from the axis in radii.
+        distance: Array2<f64>,
+    }
+
     /// A synthetic vessel map: a tube 1 mm wide at 60° below +x across a 6 × 3 mm field on a
     /// 0.05 mm grid, parabolic profile of peak `peak` (m/s); per-angle projections wrapped, with
     /// independent Gaussian errors of `sigma` (m/s) and an angle-dependent gain error of ±`gain`
-    /// (odd in θ, ±2 % measured on simulated images); outside the tube uniform noise. Returns
-    /// (projections, truth (vx, vz), lumen, flow mask (lumen grown by 2 pixels), power).
-    #[allow(clippy::type_complexity)]
-    fn tube_map(
-        peak: f64,
-        sigma: f64,
-        gain: f64,
-        seed: u64,
-    ) -> (
-        Array3<f64>,
-        Array2<(f64, f64)>,
-        Array2<bool>,
-        Array2<bool>,
-        Array2<f64>,
-    ) {
+    /// (odd in θ, ±2 % measured on simulated images); outside the tube uniform noise.
+    fn tube_map(peak: f64, sigma: f64, gain: f64, seed: u64) -> TubeMap {
         use rand::{RngExt, SeedableRng};
         use rand_distr::{Distribution, Normal};
         let angles = paper_angles();
@@ -1418,7 +1419,14 @@ mod tests {
                 + normal.sample(&mut rng);
             (u + VN).rem_euclid(2.0 * VN) - VN
         });
-        (v_theta, truth, lumen, flow, power)
+        TubeMap {
+            v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            distance,
+        }
     }
 
     /// [`dealiased_vectors`] of `v_theta` at the paper's angles, one v_N everywhere.
@@ -1486,7 +1494,14 @@ mod tests {
         // pattern is right.
         let angles = paper_angles();
         let peak = 3.0 * VN;
-        let (v_theta, truth, lumen, flow, power) = tube_map(peak, 2e-3, 0.02, 7);
+        let TubeMap {
+            v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            ..
+        } = tube_map(peak, 2e-3, 0.02, 7);
         let lumen_pixels: Vec<(usize, usize)> = lumen
             .indexed_iter()
             .filter(|(_, l)| **l)
@@ -1527,7 +1542,14 @@ mod tests {
         // With errors of 0.5 mm/s and no gain error the speeds follow: every lumen pixel within
         // 10 % of the peak. (A ±2 % gain error odd in θ alone biases Vx by ≈ 15 % of the speed:
         // Vx rests on the small differences between angles.)
-        let (v_theta, truth, lumen, flow, power) = tube_map(peak, 0.5e-3, 0.0, 8);
+        let TubeMap {
+            v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            ..
+        } = tube_map(peak, 0.5e-3, 0.0, 8);
         for est in estimators() {
             let out = dealiased_map(&v_theta, &est, Dealias::Auto, &power, &flow);
             let plain = vector::vector_velocity(&angles, v_theta.view(), &est).unwrap();
@@ -1543,12 +1565,72 @@ mod tests {
     }
 
     #[test]
+    fn an_enclosed_part_a_level_off_rejoins_its_surroundings() {
+        // A 20 × 20 region of uniform flow at 0.3 of a level, every pixel offering levels −2…2,
+        // with a 5 × 5 island inside it (reaching no wall) settled a level too high, and a strip
+        // along the wall a level too high as well: both go back to level 0.
+        let (nz, nx, spacing, k_max) = (20, 20, 1.0, 1);
+        let members: Vec<usize> = (0..nz * nx).collect();
+        let at_wall: Vec<bool> = members
+            .iter()
+            .map(|&p| {
+                let (iz, ix) = (p / nx, p % nx);
+                iz == 0 || ix == 0 || iz == nz - 1 || ix == nx - 1
+            })
+            .collect();
+        let candidates: Vec<Vec<Candidate>> = members
+            .iter()
+            .map(|_| {
+                (-2..=2)
+                    .map(|level| Candidate {
+                        alias_counts: vec![level as i8; 8],
+                        vx: 0.0,
+                        vz: 0.3 * spacing + f64::from(level) * spacing,
+                        score: 0.0,
+                        level,
+                    })
+                    .collect()
+            })
+            .collect();
+        let level_zero = 2;
+        let island = |p: usize| (8..13).contains(&(p / nx)) && (8..13).contains(&(p % nx));
+        let strip = |p: usize| p / nx <= 1 && (5..15).contains(&(p % nx));
+        let mut choice: Vec<usize> = members
+            .iter()
+            .map(|&p| level_zero + usize::from(island(p) || strip(p)))
+            .collect();
+        settle_cut_parts(
+            &members,
+            &candidates,
+            &mut choice,
+            &|c: &Candidate| c.vz,
+            spacing,
+            k_max,
+            (nz, nx),
+            &at_wall,
+        );
+        let off: Vec<usize> = members
+            .iter()
+            .copied()
+            .filter(|&p| choice[p] != level_zero)
+            .collect();
+        assert!(off.is_empty(), "pixels left a level off: {off:?}");
+    }
+
+    #[test]
     fn slow_flow_is_left_as_it_was() {
         // A tube below the Nyquist velocity: dealiasing changes no lumen pixel's reading by more
         // than the noise, and reads them as well as the plain fit.
         let angles = paper_angles();
         let peak = 0.8 * VN;
-        let (v_theta, truth, lumen, flow, power) = tube_map(peak, 2e-3, 0.02, 3);
+        let TubeMap {
+            v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            ..
+        } = tube_map(peak, 2e-3, 0.02, 3);
         for est in estimators() {
             let plain = vector::vector_velocity(&angles, v_theta.view(), &est).unwrap();
             let out = dealiased_map(&v_theta, &est, Dealias::Auto, &power, &flow);
@@ -1570,16 +1652,20 @@ mod tests {
         // common shift; otherwise noise would read as flow several times v_N.
         use rand::{RngExt, SeedableRng};
         let angles = paper_angles();
-        let (mut v_theta, _, lumen, mut flow, mut power) = tube_map(0.8 * VN, 2e-3, 0.02, 5);
+        let TubeMap {
+            mut v_theta,
+            lumen,
+            mut flow,
+            mut power,
+            distance,
+            ..
+        } = tube_map(0.8 * VN, 2e-3, 0.02, 5);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let (nz, nx) = flow.dim();
-        let dir = 60f64.to_radians();
         let mut haze = Array2::from_elem((nz, nx), false);
         for iz in 0..nz {
             for ix in 0..nx {
-                let (x, z) = ((ix as f64 - 60.0) * 0.05e-3, (iz as f64 - 30.0) * 0.05e-3);
-                let d = (-x * dir.sin() + z * dir.cos()).abs() / 0.5e-3;
-                if !flow[[iz, ix]] && d <= 3.0 {
+                if !flow[[iz, ix]] && distance[[iz, ix]] <= 3.0 {
                     haze[[iz, ix]] = true;
                     flow[[iz, ix]] = true;
                     power[[iz, ix]] = 1e-3 * rng.random_range(0.3..1.0);
