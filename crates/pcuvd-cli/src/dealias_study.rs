@@ -92,9 +92,10 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
         dir,
         DEALIAS_FIGURES[0],
         &format!(
-            "Dealiasing: speed of a tube (radius 0.5 mm, {}, {}° below +x) at 1–3× the projection Nyquist velocity v_N = {:.1} mm/s, {}, seed {}: the truth, UVD (conventional + LS) without and with dealiasing ({}), and PC-UVD (coded + IRLS) with dealiasing — whose Hadamard decoding cannot separate the angles of echoes whose Doppler exceeds half the frame rate. Pixels farther than 0.2 mm from the lumen are blank.",
+            "Dealiasing: speed of a tube (radius 0.5 mm, {}, {}° below +x) at {} the projection Nyquist velocity v_N = {:.1} mm/s, {}, seed {}: the truth, UVD (conventional + LS) without and with dealiasing ({}), and PC-UVD (coded + IRLS) with dealiasing — whose Hadamard decoding cannot separate the angles of echoes whose Doppler exceeds half the frame rate. Pixels farther than 0.2 mm from the lumen are blank.",
             m.settings.tube_profile.label(),
             m.settings.tube_angle_deg,
+            multiples_text(&m.settings.multiples),
             vn_mm_s,
             noise_text(level),
             m.settings.seeds[0],
@@ -102,8 +103,9 @@ pub fn dealias_figures(dir: &Path, study: &DealiasStudy) -> Result<Vec<Rendered>
         ),
         Figure {
             title: format!(
-                "Tube ({}) at 1–3× v_N ({:.1} mm/s), {}",
+                "Tube ({}) at {} v_N ({:.1} mm/s), {}",
                 m.settings.tube_profile.label(),
+                multiples_text(&m.settings.multiples),
                 vn_mm_s,
                 noise_text(level)
             ),
@@ -218,12 +220,26 @@ fn near_lumen(mask: &Array2<bool>, radius: usize) -> Array2<bool> {
     })
 }
 
+/// The study's peak speeds as multiples of v_N, as a range: "1–3×" (or "2×" for one).
+fn multiples_text(multiples: &[f64]) -> String {
+    let lowest = multiples.iter().copied().fold(f64::INFINITY, f64::min);
+    let highest = multiples.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if lowest == highest {
+        format!("{lowest}×")
+    } else {
+        format!("{lowest}–{highest}×")
+    }
+}
+
 /// The dealiasing section of the report: set-up, definitions, a table of every case (mean and
 /// worst over the seeds), the targets, and the figures.
 pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]) {
     let s = &m.settings;
     let seeds: Vec<String> = s.seeds.iter().map(|v| v.to_string()).collect();
-    report.heading("Vector dealiasing: a tube at 1–3× the Nyquist velocity (beyond the paper)");
+    report.heading(&format!(
+        "Vector dealiasing: a tube at {} the Nyquist velocity (beyond the paper)",
+        multiples_text(&s.multiples)
+    ));
     report.paragraph(&format!(
         "The paper's acquisition (L22-14vX, 15.625 MHz, 8 plane waves −15…15°, event PRF 14.4 kHz, 1.8 kHz compound rate, {} frames) of a straight tube (radius 0.5 mm, {} profile, 300 scatterers/mm², {}° below +x through (0, 7 mm)) whose peak speed is {} × the projection Nyquist velocity v_N = c·PRF/(4 f₀ n) = {:.1} mm/s, conventional and Hadamard-coded, seeds {}. Each is processed without dealiasing and with --dealias {} (every angle's projection unwrapped by up to ±K intervals of 2 v_N, the pattern chosen by the smallest residual of the vector fit, the common shift of all angles over each vessel). {} pixels in the true lumen.",
         s.frames,
@@ -338,5 +354,17 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
     );
     for fig in figs {
         report.image_png(&format!("{} ({})", fig.caption, fig.file), &fig.png);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::multiples_text;
+
+    #[test]
+    fn titles_name_the_speeds_studied() {
+        assert_eq!(multiples_text(&[1.0, 2.0, 3.0]), "1–3×");
+        assert_eq!(multiples_text(&[0.9, 0.7, 1.0]), "0.7–1×");
+        assert_eq!(multiples_text(&[2.5]), "2.5×");
     }
 }
