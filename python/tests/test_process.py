@@ -97,6 +97,8 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         # The in-memory maps are the saved ones.
         assert_same_array(np.asarray(getattr(result, name)), cli_arrays[name], name)
     assert sorted(p.name for p in by_cli.glob("*.png")) == sorted(p.name for p in figures)
+    # Where dealiasing unwrapped is drawn only when it ran.
+    assert ((by_cli / "dealias.png").exists()) == (which != "disk")
 
     cli_summary = json.loads((by_cli / "summary.json").read_text())
     py_summary = json.loads((by_python / "summary.json").read_text())

@@ -289,6 +289,31 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
             size,
         )?);
     }
+    if let Some(done) = &out.dealias {
+        written.push(save(
+            &dir.join("dealias.png"),
+            &format!(
+                "{name}: dealiasing (K = {}, up to {:.0} mm/s): {} of {} flow pixels unwrapped (UVD), {} (PC-UVD)",
+                done.intervals,
+                (2 * done.intervals + 1) as f64 * out.nyquist_velocity * 1e3,
+                done.ls.unwrapped_pixels,
+                done.flow_pixels,
+                done.irls.unwrapped_pixels,
+            ),
+            vec![
+                alias_panel("UVD (least squares)", &done.ls, done.intervals, out, &background),
+                alias_panel(
+                    "PC-UVD estimator (IRLS-WLS)",
+                    &done.irls,
+                    done.intervals,
+                    out,
+                    &background,
+                ),
+            ],
+            2,
+            size,
+        )?);
+    }
     Ok(written)
 }
 
@@ -329,6 +354,39 @@ pub fn vector_panel(
     panel.arrows = Some(vector_overlay(field, grid, mask, vmax));
     // B-mode under triangles coloured by speed: a speed-coloured underlay would hide them.
     panel.mask = Some(Array2::from_elem(mask.dim(), false));
+    panel.background = Some(background.clone());
+    Panel::Image(panel)
+}
+
+/// Where dealiasing unwrapped: each pixel's alias count averaged over the angles that reach it
+/// (a whole number where every angle was shifted alike, the common level; in between where the
+/// pattern is mixed) on a scale of ±`intervals` (K), over the B-mode where nothing was unwrapped.
+fn alias_panel(
+    title: &str,
+    counts: &pcuvd::dealias::AliasCounts,
+    intervals: u32,
+    out: &ProcessOutput,
+    background: &Array2<f64>,
+) -> Panel {
+    let k = &counts.alias_counts;
+    let (_, nz, nx) = k.dim();
+    let mean = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+        let reached: Vec<f64> = (0..k.dim().0)
+            .filter(|&a| out.coverage[[a, iz, ix]])
+            .map(|a| f64::from(k[[a, iz, ix]]))
+            .collect();
+        reached.iter().sum::<f64>() / reached.len().max(1) as f64
+    });
+    let limit = f64::from(intervals.max(1));
+    let mut panel = map_panel(
+        title,
+        mean.clone(),
+        &out.grid,
+        Colormap::RedBlue,
+        (-limit, limit),
+        "alias count k, mean over the angles: V_θ + 2k·v_N",
+    );
+    panel.mask = Some(mean.mapv(|m| m != 0.0));
     panel.background = Some(background.clone());
     Panel::Image(panel)
 }

@@ -43,6 +43,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "power_doppler.png",
     "color_doppler.png",
     "vector.png",
+    "dealias.png",
     "ri.png",
     "waveform.png",
     "ensembles.png",
