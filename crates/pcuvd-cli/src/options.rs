@@ -56,7 +56,8 @@ pub struct ProcessingOptions {
     /// Vector dealiasing: "off", "auto" or K. A projection beyond the Nyquist velocity v_N wraps
     /// by 2·v_N; K unwraps up to ±K such intervals per angle (speeds up to (2K + 1)·v_N), choosing
     /// each pixel's alias pattern by the smallest residual of the vector fit and the common shift
-    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor): the
+    /// of all angles over each vessel (flow pixels only: power 3 dB above the noise floor and
+    /// within 20 dB of the brightest pixel within 1 mm; dealias.png shows the counts): the
     /// shift at which its wall pixels read slowest, unless another makes the vessel's
     /// power-weighted residual below 0.8 times as large (flow fast up to the wall). "auto"
     /// picks the smallest K of 1–4 at which under 1 % of the unwrapped pixels reach ±K. Applies

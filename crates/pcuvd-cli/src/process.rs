@@ -978,7 +978,8 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
              sum of absolute residuals); within a level a mixed pattern kept only where its \
              summed squared residual is below {} times the level's common shift's; the common \
              shift of all angles settled over the flow \
-             pixels (power {} dB above the row's noise floor) by unwrapping the levels as a \
+             pixels (power {} dB above the row's noise floor and within {} dB of the \
+             brightest pixel within {} mm) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
              joined to speed 0 (blood is slow at a wall), unless another common shift makes the \
              vessel's power-weighted summed residual less than {} times as large; regions under \
@@ -988,6 +989,8 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
              hold the counts (angles, nz, nx)",
             pcuvd::dealias::MIXED_PATTERN_RATIO,
             pcuvd::dealias::FLOW_MARGIN_DB,
+            pcuvd::dynamics::VESSEL_LOCAL_DB,
+            pcuvd::dynamics::VESSEL_LOCAL_RADIUS_M * 1e3,
             pcuvd::dealias::DECISIVE_SCORE_RATIO,
             pcuvd::dealias::MIN_REGION_PIXELS,
             pcuvd::dealias::MAX_AUTO_INTERVALS,

@@ -156,7 +156,7 @@ impl ProcessOutput {
 pub struct DealiasOutcome {
     /// Nyquist intervals K unwrapped per angle (as set, or as [`Dealias::Auto`] chose).
     pub intervals: u32,
-    /// Flow pixels: power Doppler [`dealias::FLOW_MARGIN_DB`] above the noise floor of its row.
+    /// Flow pixels, the ones dealiased ([`dealias::flow_mask`]).
     pub flow_pixels: usize,
     /// The alias counts of the PC-UVD (IRLS) vectors.
     pub irls: AliasCounts,
@@ -722,7 +722,7 @@ pub fn doppler_maps(
     let lateral =
         (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
     let (vector_ls, vector_irls, dealiased) = if n >= 2 {
-        let flow = doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB);
+        let flow = dealias::flow_mask(&power, params.grid.step());
         let setting = match params.dealias {
             Dealias::Auto => Dealias::Intervals(dealias::auto_intervals(
                 angles,

@@ -317,7 +317,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
                 &params.estimator,
                 params.dealias,
                 power.view(),
-                doppler::above_noise_floor(&power, dealias::FLOW_MARGIN_DB).view(),
+                dealias::flow_mask(&power, images.grid.step()).view(),
             )?
             .field;
             Ok((field.vx, field.vz, power))
