@@ -7,7 +7,8 @@
 //! events taken as simultaneous and aligned to mid-frame (the extra slow-time resampling).
 //! Dealiasing: a 256 × 256 map (0.05 mm grid) with two tubes 1 mm wide at 3× v_N, parabolic, 8
 //! angles within ±15°, wrapped projections with 1 mm/s of deterministic scatter; flow pixels are
-//! the tubes and a 0.1 mm rim; K = 2, against the plain fit of the whole map.
+//! the tubes and a 0.1 mm rim; K = 2, each estimator alone and both at once (as `process` runs
+//! them), against the plain fit of the whole map.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
@@ -15,7 +16,7 @@ use num_complex::Complex32;
 use pcuvd::beamform::{Apodization, DasParams, beamform};
 use pcuvd::channel::{Acquisition, ChannelData, Samples};
 use pcuvd::clutter::{ClutterParams, RankCut, svd_filter};
-use pcuvd::dealias::{Dealias, dealiased_vectors, uniform};
+use pcuvd::dealias::{Dealias, dealiased_vectors, dealiased_vectors_each, uniform};
 use pcuvd::decode::{EventAlignment, decode_aligned};
 use pcuvd::grid::Grid;
 use pcuvd::iq::IqChannels;
@@ -199,6 +200,26 @@ fn dealias(c: &mut Criterion) {
     ] {
         group.bench_function(name, |b| b.iter(|| run(&estimator)));
     }
+    // What `process` runs: both estimators, the levels settled once.
+    let both = [
+        Estimator::LeastSquares,
+        Estimator::Irls(IrlsParams::default()),
+    ];
+    group.bench_function("ls_and_irls_k2_256x256px_8angles", |b| {
+        b.iter(|| {
+            dealiased_vectors_each(
+                &angles,
+                v_theta.view(),
+                None,
+                nyquist.view(),
+                &both,
+                Dealias::Intervals(2),
+                power.view(),
+                flow.view(),
+            )
+            .unwrap()
+        })
+    });
     group.bench_function("plain_ls_256x256px_8angles", |b| {
         b.iter(|| vector_velocity(&angles, v_theta.view(), &Estimator::LeastSquares).unwrap())
     });

@@ -733,20 +733,18 @@ pub fn doppler_maps(
             )?),
             other => other,
         };
-        let solve = |estimator: &Estimator| {
-            dealias::dealiased_vectors_measured(
-                angles,
-                projections.view(),
-                lateral,
-                nyquist.view(),
-                estimator,
-                setting,
-                power.view(),
-                flow.view(),
-            )
-        };
-        let ls = solve(&Estimator::LeastSquares)?;
-        let irls = solve(&Estimator::Irls(params.irls))?;
+        let [ls, irls]: [dealias::DealiasedField; 2] = dealias::dealiased_vectors_each(
+            angles,
+            projections.view(),
+            lateral,
+            nyquist.view(),
+            &[Estimator::LeastSquares, Estimator::Irls(params.irls)],
+            setting,
+            power.view(),
+            flow.view(),
+        )?
+        .try_into()
+        .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
         let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
             intervals: ls.intervals,
             flow_pixels: flow.iter().filter(|&&f| f).count(),
