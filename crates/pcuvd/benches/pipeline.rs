@@ -16,7 +16,7 @@ use num_complex::Complex32;
 use pcuvd::beamform::{Apodization, DasParams, beamform};
 use pcuvd::channel::{Acquisition, ChannelData, Samples};
 use pcuvd::clutter::{ClutterParams, RankCut, svd_filter};
-use pcuvd::dealias::{Dealias, dealiased_vectors, dealiased_vectors_each, uniform};
+use pcuvd::dealias::{Dealias, auto_intervals, dealiased_vectors, dealiased_vectors_each, uniform};
 use pcuvd::decode::{EventAlignment, decode_aligned};
 use pcuvd::grid::Grid;
 use pcuvd::iq::IqChannels;
@@ -218,6 +218,34 @@ fn dealias(c: &mut Criterion) {
                 flow.view(),
             )
             .unwrap()
+        })
+    });
+    // Auto: K is searched from 1 (this map settles at 2), and the levels of the K found serve
+    // the fits; before, the fits settled them again after the search.
+    group.bench_function("ls_and_irls_auto_256x256px_8angles", |b| {
+        b.iter(|| {
+            dealiased_vectors_each(
+                &angles,
+                v_theta.view(),
+                None,
+                nyquist.view(),
+                &both,
+                Dealias::Auto,
+                power.view(),
+                flow.view(),
+            )
+            .unwrap()
+        })
+    });
+    group.bench_function("auto_search_256x256px_8angles", |b| {
+        b.iter(|| {
+            auto_intervals(
+                &angles,
+                v_theta.view(),
+                nyquist.view(),
+                power.view(),
+                flow.view(),
+            )
         })
     });
     group.bench_function("plain_ls_256x256px_8angles", |b| {

@@ -624,7 +624,7 @@ pub fn dealiased_vectors_each(
         Some(lateral) => vector::vector_velocity_measured(angles, projections, lateral, estimator),
         None => vector::vector_velocity(angles, projections, estimator),
     };
-    let intervals = match dealias {
+    let settled = match dealias {
         Dealias::Off | Dealias::Intervals(0) => {
             return estimators
                 .iter()
@@ -637,12 +637,10 @@ pub fn dealiased_vectors_each(
                 })
                 .collect();
         }
-        Dealias::Intervals(k) => k,
-        Dealias::Auto => auto_intervals(angles, v_theta, nyquist, quality, flow)?,
+        Dealias::Intervals(k) => settle(angles, v_theta, nyquist, k, quality, flow)?,
+        Dealias::Auto => auto_settle(angles, v_theta, nyquist, quality, flow)?,
     };
-    let mut out = dealias_with(
-        angles, v_theta, nyquist, estimators, intervals, quality, flow,
-    )?;
+    let mut out = dealias_with(angles, v_theta, nyquist, estimators, &settled, flow)?;
     if lateral.is_some() {
         for (done, estimator) in out.iter_mut().zip(estimators) {
             let unwrapped = unwrap(v_theta, done.counts.alias_counts.view(), nyquist);
@@ -675,22 +673,29 @@ pub fn auto_intervals(
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<u32> {
+    Ok(auto_settle(angles, v_theta, nyquist, quality, flow)?.intervals)
+}
+
+/// [`Dealias::Auto`]'s K and the levels settled at it: the search settles every K it tries, and
+/// the last is the one dealiasing needs.
+fn auto_settle(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    nyquist: ArrayView3<f64>,
+    quality: ArrayView2<f64>,
+    flow: ArrayView2<bool>,
+) -> Result<Settled> {
+    let plain = vector::vector_velocity(angles, v_theta, &Estimator::LeastSquares)?;
     for k in 1..MAX_AUTO_INTERVALS {
-        let out = dealias_with(
-            angles,
-            v_theta,
-            nyquist,
-            &[Estimator::LeastSquares],
-            k,
-            quality,
-            flow,
-        )?;
-        let counts = &out[0].counts;
+        let settled = settle(angles, v_theta, nyquist, k, quality, flow)?;
+        let n = v_theta.dim().0;
+        let counts =
+            apply_levels(plain.clone(), &settled.least_squares, &settled.levels, n, k).counts;
         if (counts.at_limit_pixels as f64) < AUTO_LIMIT_FRACTION * counts.dealiased_pixels as f64 {
-            return Ok(k);
+            return Ok(settled);
         }
     }
-    Ok(MAX_AUTO_INTERVALS)
+    settle(angles, v_theta, nyquist, MAX_AUTO_INTERVALS, quality, flow)
 }
 
 /// One Nyquist velocity (m/s) for every angle and pixel of projections of shape `dim`
@@ -1060,19 +1065,28 @@ fn decisive_offset(
         .map(|(_, o)| o)
 }
 
-/// Dealiased vectors of `v_theta` for each of `estimators`, K = `intervals`. The levels are
-/// settled once, on least-squares candidates, and each estimator then takes its own best pattern
-/// within each pixel's level: `process` fits both UVD and PC-UVD, and computing the
-/// least-squares candidates and the unwrapping once for both saves about a quarter of the work.
-fn dealias_with(
+/// Every flow pixel's least-squares candidates at K = `intervals` and the level each pixel of a
+/// settled region takes ([`settle_levels`]).
+struct Settled {
+    intervals: u32,
+    least_squares: Vec<Vec<Candidate>>,
+    levels: Vec<Option<i32>>,
+}
+
+/// The levels of `v_theta`'s flow pixels at K = `intervals`, settled on least-squares candidates
+/// whatever the estimator: their vectors vary smoothly over the vessel. IRLS's best candidate of a
+/// level can switch between relative patterns near a wall (it discards the angles that
+/// disagree), and the jumps this puts in its vectors made the unwrapping shift a whole vessel's
+/// core by a level on one seed of five. IRLS still chooses, within each level, the pattern of
+/// its smallest residual ([`dealias_with`]).
+fn settle(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
     nyquist: ArrayView3<f64>,
-    estimators: &[Estimator],
     intervals: u32,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
-) -> Result<Vec<DealiasedField>> {
+) -> Result<Settled> {
     if let Some(bad) = nyquist.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
         return Err(invalid(
             "Nyquist velocity",
@@ -1086,29 +1100,60 @@ fn dealias_with(
             angles.len()
         )));
     }
-    let candidates_by = |estimator: &Estimator| {
-        flow_candidates(angles, v_theta, nyquist, intervals, flow, estimator)
-    };
-    // The levels are settled on least-squares candidates whatever the estimator: their vectors
-    // vary smoothly over the vessel. IRLS's best candidate of a level can switch between
-    // relative patterns near a wall (it discards the angles that disagree), and the jumps this
-    // puts in its vectors made the unwrapping shift a whole vessel's core by a level on one seed
-    // of five. IRLS still chooses, within each level, the pattern of its smallest residual.
-    let least_squares = candidates_by(&Estimator::LeastSquares);
+    let least_squares = flow_candidates(
+        angles,
+        v_theta,
+        nyquist,
+        intervals,
+        flow,
+        &Estimator::LeastSquares,
+    );
     let levels = settle_levels(angles, &least_squares, nyquist, intervals, quality);
+    Ok(Settled {
+        intervals,
+        least_squares,
+        levels,
+    })
+}
+
+/// Dealiased vectors of `v_theta` for each of `estimators` at the `settled` levels: each takes
+/// its own best pattern within each pixel's level. `process` fits both UVD and PC-UVD, and one
+/// settling for both saves the least-squares candidates and the unwrapping a second time.
+fn dealias_with(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    nyquist: ArrayView3<f64>,
+    estimators: &[Estimator],
+    settled: &Settled,
+    flow: ArrayView2<bool>,
+) -> Result<Vec<DealiasedField>> {
+    let n = v_theta.dim().0;
     estimators
         .iter()
         .map(|estimator| {
             let plain = vector::vector_velocity(angles, v_theta, estimator)?;
             let own_candidates;
             let own = match estimator {
-                Estimator::LeastSquares => &least_squares,
+                Estimator::LeastSquares => &settled.least_squares,
                 _ => {
-                    own_candidates = candidates_by(estimator);
+                    own_candidates = flow_candidates(
+                        angles,
+                        v_theta,
+                        nyquist,
+                        settled.intervals,
+                        flow,
+                        estimator,
+                    );
                     &own_candidates
                 }
             };
-            Ok(apply_levels(plain, own, &levels, n, intervals))
+            Ok(apply_levels(
+                plain,
+                own,
+                &settled.levels,
+                n,
+                settled.intervals,
+            ))
         })
         .collect()
 }

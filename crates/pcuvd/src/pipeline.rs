@@ -723,23 +723,13 @@ pub fn doppler_maps(
         (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
     let (vector_ls, vector_irls, dealiased) = if n >= 2 {
         let flow = dealias::flow_mask(&power, params.grid.step());
-        let setting = match params.dealias {
-            Dealias::Auto => Dealias::Intervals(dealias::auto_intervals(
-                angles,
-                projections.view(),
-                nyquist.view(),
-                power.view(),
-                flow.view(),
-            )?),
-            other => other,
-        };
         let [ls, irls]: [dealias::DealiasedField; 2] = dealias::dealiased_vectors_each(
             angles,
             projections.view(),
             lateral,
             nyquist.view(),
             &[Estimator::LeastSquares, Estimator::Irls(params.irls)],
-            setting,
+            params.dealias,
             power.view(),
             flow.view(),
         )?
