@@ -205,37 +205,26 @@ fn dealias(c: &mut Criterion) {
         Estimator::LeastSquares,
         Estimator::Irls(IrlsParams::default()),
     ];
+    let each = |dealias: Dealias| {
+        dealiased_vectors_each(
+            &angles,
+            v_theta.view(),
+            None,
+            nyquist.view(),
+            &both,
+            dealias,
+            power.view(),
+            flow.view(),
+        )
+        .unwrap()
+    };
     group.bench_function("ls_and_irls_k2_256x256px_8angles", |b| {
-        b.iter(|| {
-            dealiased_vectors_each(
-                &angles,
-                v_theta.view(),
-                None,
-                nyquist.view(),
-                &both,
-                Dealias::Intervals(2),
-                power.view(),
-                flow.view(),
-            )
-            .unwrap()
-        })
+        b.iter(|| each(Dealias::Intervals(2)))
     });
     // Auto: K is searched from 1 (this map settles at 2), and the levels of the K found serve
     // the fits; before, the fits settled them again after the search.
     group.bench_function("ls_and_irls_auto_256x256px_8angles", |b| {
-        b.iter(|| {
-            dealiased_vectors_each(
-                &angles,
-                v_theta.view(),
-                None,
-                nyquist.view(),
-                &both,
-                Dealias::Auto,
-                power.view(),
-                flow.view(),
-            )
-            .unwrap()
-        })
+        b.iter(|| each(Dealias::Auto))
     });
     group.bench_function("auto_search_256x256px_8angles", |b| {
         b.iter(|| {

@@ -559,11 +559,9 @@ pub fn dealiased_vectors(
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<DealiasedField> {
-    let estimators = std::slice::from_ref(estimator);
-    let mut out = dealiased_vectors_each(
-        angles, v_theta, None, nyquist, estimators, dealias, quality, flow,
-    )?;
-    Ok(out.remove(0))
+    dealiased_vectors_measured(
+        angles, v_theta, None, nyquist, estimator, dealias, quality, flow,
+    )
 }
 
 /// As [`dealiased_vectors`], the vectors fitted with measured lateral weights `lateral` (angles,
