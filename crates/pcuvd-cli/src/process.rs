@@ -976,8 +976,9 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
             "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
              scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
              sum of absolute residuals); within a level a mixed pattern kept only where its \
-             summed squared residual is below {} times the level's common shift's; the common \
-             shift of all angles settled over the flow \
+             summed squared residual is below {} times the level's common shift's (even where \
+             that shift's fit is beyond the speed limit; a pixel left without a level-0 \
+             candidate keeps the plain fit); the common shift of all angles settled over the flow \
              pixels (power {} dB above the row's noise floor and within {} dB of the \
              brightest pixel within {} mm) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
