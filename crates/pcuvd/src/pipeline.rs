@@ -310,7 +310,7 @@ pub fn form_images_of(
         frame_rate: acq.frame_rate(),
         sound_speed: acq.sound_speed,
         demodulation_frequency: acq.probe.center_frequency,
-        coverage: Some(angle_coverage(acq, &params.grid)),
+        coverage: Some(angle_coverage(acq, n_samples, &params.grid)),
         series,
     };
     Ok((
@@ -821,22 +821,34 @@ pub fn ri_maps_of(
     dynamics::ri_maps_triggered(series, params, Some(&flow), triggers)
 }
 
-/// Per steering angle, the pixels of `grid` that its plane wave reaches (angles, nz, nx): those
-/// whose ray back along the steering direction lands on the array face
-/// ([`geometry::insonified`](crate::geometry::insonified)). Near the lateral edges, deeper than a
-/// few mm, the widest angles miss a pixel (|x| > half-aperture − z·tan θ_max); their Doppler there
-/// is noise or edge-wave leakage, and fitting it biased the lateral velocity (the spiral's UVD Vx
-/// RMSE was 13.6 mm/s with it, 4.1 without).
-pub fn angle_coverage(acq: &Acquisition, grid: &Grid) -> Array3<bool> {
+/// Per steering angle, the pixels of `grid` that its plane wave reaches and whose echo a record of
+/// `n_samples` samples holds (angles, nz, nx):
+/// - the ray back along the steering direction lands on the array face
+///   ([`geometry::insonified`](crate::geometry::insonified)). Near the lateral edges, deeper than
+///   a few mm, the widest angles miss a pixel (|x| > half-aperture − z·tan θ_max); their Doppler
+///   there is noise or edge-wave leakage, and fitting it biased the lateral velocity (the spiral's
+///   UVD Vx RMSE was 13.6 mm/s with it, 4.1 without);
+/// - the echo's shortest way back (to the element nearest the pixel) arrives before the record
+///   ends. A steered wave reaches a pixel later than the unsteered one by (x − x_first)·sin θ / c,
+///   so the deepest rows of a grid that reaches [`recorded_depth_of`] lie beyond the record for
+///   the steep angles: their images there are exactly zero, and read as a projection of 0 m/s
+///   (on the default grid of the `rat-network` preset, 3,903 pixels of the deepest 1.2 mm had
+///   such angles in their vector fit).
+pub fn angle_coverage(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Array3<bool> {
     let xs = acq.probe.element_x();
     let aperture = (
         xs.first().copied().unwrap_or(0.0),
         xs.last().copied().unwrap_or(0.0),
     );
+    let c = acq.sound_speed;
+    let record_end = acq.t0 + (n_samples as f64 - 1.0) / acq.sampling_frequency;
     let angles = &acq.sequence.angles;
     let (nz, nx) = grid.shape();
     Array3::from_shape_fn((angles.len(), nz, nx), |(k, iz, ix)| {
-        crate::geometry::insonified(grid.x[ix], grid.z[iz], angles[k], aperture)
+        let (x, z) = (grid.x[ix], grid.z[iz]);
+        let nearest = x.clamp(aperture.0, aperture.1);
+        let earliest = crate::geometry::round_trip_delay(x, z, angles[k], nearest, aperture, c);
+        crate::geometry::insonified(x, z, angles[k], aperture) && earliest <= record_end
     })
 }
 

@@ -442,7 +442,11 @@ fn form_echo_and_noise(
         frame_rate: acquisition.frame_rate(),
         sound_speed: acquisition.sound_speed,
         demodulation_frequency: acquisition.probe.center_frequency,
-        coverage: Some(pipeline::angle_coverage(&acquisition, grid)),
+        coverage: Some(pipeline::angle_coverage(
+            &acquisition,
+            echoes.trace_shape().1,
+            grid,
+        )),
         series: Vec::new(),
     };
     Ok((acquisition, metadata))
