@@ -20,6 +20,10 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "power_doppler": (("z", "x"), "power Doppler of the compounded, filtered series (|IQ|²)"),
     "color_doppler": (("z", "x"), "axial velocity (m/s, > 0 moving away from the probe)"),
     "projections": (("angle", "z", "x"), "per-angle projection velocity V_θ (m/s; NaN unreached)"),
+    "projection_nyquist": (
+        ("angle", "z", "x"),
+        "Nyquist velocity v_N of each projection (m/s; from its mean frequency with Loupas)",
+    ),
     "vx": (("z", "x"), "lateral velocity, PC-UVD IRLS-WLS (m/s, > 0 toward +x)"),
     "vz": (("z", "x"), "axial velocity, PC-UVD IRLS-WLS (m/s, > 0 deeper)"),
     "speed": (("z", "x"), "speed, PC-UVD IRLS-WLS (m/s)"),
@@ -56,7 +60,7 @@ class ProcessResult:
     """What `process` returns: the maps (numpy, SI units), the summary, `save` and `to_xarray`.
 
     Maps are attributes named as the files `pcuvd process` writes: `bmode_db`, `power_doppler`,
-    `color_doppler` (nz, nx); `projections` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
+    `color_doppler` (nz, nx); `projections` and `projection_nyquist` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
     `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `alias_counts`,
     `alias_counts_ls` (angles, nz, nx) int8 with `dealias` on; `ri`, `psv`, `edv`,
     `psv_spread`, `edv_spread`, `ri_spread` (across cardiac cycles), `vessel_class`, `flow_up`

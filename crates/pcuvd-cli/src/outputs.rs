@@ -15,6 +15,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "power_doppler.npy",
     "color_doppler.npy",
     "projections.npy",
+    "projection_nyquist.npy",
     "vx.npy",
     "vz.npy",
     "speed.npy",

@@ -935,6 +935,7 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     npy(dir, "power_doppler.npy", &out.power_doppler)?;
     npy(dir, "color_doppler.npy", &out.color_doppler)?;
     pcuvd_io::write_npy(&dir.join("projections.npy"), &out.projections)?;
+    pcuvd_io::write_npy(&dir.join("projection_nyquist.npy"), &out.projection_nyquist)?;
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
         npy(dir, "vx.npy", &irls.vx)?;
         npy(dir, "vz.npy", &irls.vz)?;

@@ -545,6 +545,7 @@ impl PyProcessResult {
         dict.set_item("power_doppler", out.power_doppler.to_pyarray(py))?;
         dict.set_item("color_doppler", out.color_doppler.to_pyarray(py))?;
         dict.set_item("projections", out.projections.to_pyarray(py))?;
+        dict.set_item("projection_nyquist", out.projection_nyquist.to_pyarray(py))?;
         if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
             dict.set_item("vx", irls.vx.to_pyarray(py))?;
             dict.set_item("vz", irls.vz.to_pyarray(py))?;
