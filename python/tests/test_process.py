@@ -262,6 +262,19 @@ def test_doppler_estimator_is_the_cli_option(tube, cli, tmp_path):
     moving = np.isfinite(kasai.projections) & (np.abs(kasai.projections) > 2e-3)
     ratio = np.median(loupas.projections[moving] / kasai.projections[moving])
     assert 1.0 < ratio < 1.2, ratio
+    # Each projection's Nyquist velocity: Kasai's the summary's everywhere, Loupas's from each
+    # pixel's mean frequency, so a projection (a phase within ±π) never exceeds its own, and the
+    # two differ by the same ratio as the projections.
+    assert_same_array(
+        kasai.projection_nyquist, np.load(by_cli / "projection_nyquist.npy"), "projection_nyquist"
+    )
+    np.testing.assert_allclose(kasai.projection_nyquist, kasai.summary["nyquist_velocity_m_s"])
+    reached = np.isfinite(loupas.projections)
+    assert np.all(np.abs(loupas.projections[reached]) <= loupas.projection_nyquist[reached])
+    nyquist_ratio = loupas.projection_nyquist[moving] / kasai.projection_nyquist[moving]
+    np.testing.assert_allclose(
+        nyquist_ratio, loupas.projections[moving] / kasai.projections[moving], rtol=1e-9
+    )
     # A grid too coarse for Loupas's axial lag: the command's message, before any work.
     with pytest.raises(ValueError, match="doppler-estimator loupas"):
         pcuvd.process(tube, grid_mm=(-3, 3, 4, 10, 0.1), dynamics="off", quiet=True)
