@@ -656,14 +656,20 @@ pub fn dealiased_vectors_each(
         Dealias::Intervals(k) => settle(angles, v_theta, nyquist, k, quality, flow)?,
         Dealias::Auto => auto_settle(angles, v_theta, nyquist, quality, flow)?,
     };
-    let mut out = dealias_with(angles, v_theta, nyquist, estimators, &settled, flow)?;
-    if lateral.is_some() {
-        for (done, estimator) in out.iter_mut().zip(estimators) {
-            let unwrapped = unwrap(v_theta, done.counts.alias_counts.view(), nyquist);
-            done.field = fit(unwrapped.view(), estimator)?;
-        }
-    }
-    Ok(out)
+    // Each estimator's own pattern within each pixel's level, then its fit of the projections
+    // those counts unwrap (the plain fit where nothing is unwrapped).
+    estimators
+        .iter()
+        .map(|estimator| {
+            let counts = counts_with(angles, v_theta, nyquist, estimator, &settled, flow);
+            let unwrapped = unwrap(v_theta, counts.alias_counts.view(), nyquist);
+            Ok(DealiasedField {
+                field: fit(unwrapped.view(), estimator)?,
+                intervals: settled.intervals,
+                counts,
+            })
+        })
+        .collect()
 }
 
 /// Projections `v_theta` (angles, nz, nx; m/s) unwrapped by alias counts `counts`: V_θ + 2k·v_N,
@@ -701,12 +707,9 @@ fn auto_settle(
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<Settled> {
-    let plain = vector::vector_velocity(angles, v_theta, &Estimator::LeastSquares)?;
     for k in 1..MAX_AUTO_INTERVALS {
         let settled = settle(angles, v_theta, nyquist, k, quality, flow)?;
-        let n = v_theta.dim().0;
-        let counts =
-            apply_levels(plain.clone(), &settled.least_squares, &settled.levels, n, k).counts;
+        let counts = counts_at_levels(&settled.least_squares, &settled.levels, v_theta.dim(), k);
         if (counts.at_limit_pixels as f64) < AUTO_LIMIT_FRACTION * counts.dealiased_pixels as f64 {
             return Ok(settled);
         }
@@ -1139,46 +1142,27 @@ fn settle(
     })
 }
 
-/// Dealiased vectors of `v_theta` for each of `estimators` at the `settled` levels: each takes
-/// its own best pattern within each pixel's level. `process` fits both UVD and PC-UVD, and one
-/// settling for both saves the least-squares candidates and the unwrapping a second time.
-fn dealias_with(
+/// The alias counts of `v_theta` under `estimator` at the `settled` levels: its own best pattern
+/// within each pixel's level. `process` fits both UVD and PC-UVD on one settling, which saves the
+/// least-squares candidates and the unwrapping a second time.
+fn counts_with(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
     nyquist: ArrayView3<f64>,
-    estimators: &[Estimator],
+    estimator: &Estimator,
     settled: &Settled,
     flow: ArrayView2<bool>,
-) -> Result<Vec<DealiasedField>> {
-    let n = v_theta.dim().0;
-    estimators
-        .iter()
-        .map(|estimator| {
-            let plain = vector::vector_velocity(angles, v_theta, estimator)?;
-            let own_candidates;
-            let own = match estimator {
-                Estimator::LeastSquares => &settled.least_squares,
-                _ => {
-                    own_candidates = flow_candidates(
-                        angles,
-                        v_theta,
-                        nyquist,
-                        settled.intervals,
-                        flow,
-                        estimator,
-                    );
-                    &own_candidates
-                }
-            };
-            Ok(apply_levels(
-                plain,
-                own,
-                &settled.levels,
-                n,
-                settled.intervals,
-            ))
-        })
-        .collect()
+) -> AliasCounts {
+    let own_candidates;
+    let own = match estimator {
+        Estimator::LeastSquares => &settled.least_squares,
+        _ => {
+            own_candidates =
+                flow_candidates(angles, v_theta, nyquist, settled.intervals, flow, estimator);
+            &own_candidates
+        }
+    };
+    counts_at_levels(own, &settled.levels, v_theta.dim(), settled.intervals)
 }
 
 /// Each flow pixel's candidates under `estimator` (row-major; none elsewhere).
@@ -1347,18 +1331,16 @@ fn settle_levels(
     levels
 }
 
-/// `plain` with every pixel that has a level in `levels` (row-major) replaced by its candidate
-/// of that level in `own`; n angles, K = `intervals`.
-fn apply_levels(
-    plain: VectorField,
+/// The alias counts (shape `dim`: angles, nz, nx) of every pixel that has a level in `levels`
+/// (row-major): those of its candidate of that level in `own`; K = `intervals`.
+fn counts_at_levels(
     own: &[Vec<Candidate>],
     levels: &[Option<i32>],
-    n: usize,
+    dim: (usize, usize, usize),
     intervals: u32,
-) -> DealiasedField {
-    let (nz, nx) = plain.vx.dim();
-    let mut field = plain;
-    let mut alias_counts = Array3::<i8>::zeros((n, nz, nx));
+) -> AliasCounts {
+    let nx = dim.2;
+    let mut alias_counts = Array3::<i8>::zeros(dim);
     let (mut dealiased, mut unwrapped, mut at_limit) = (0, 0, 0);
     let k_max = intervals as i32;
     for (p, level) in levels.iter().enumerate() {
@@ -1369,8 +1351,6 @@ fn apply_levels(
             continue;
         };
         let (iz, ix) = (p / nx, p % nx);
-        field.vx[[iz, ix]] = c.vx;
-        field.vz[[iz, ix]] = c.vz;
         for (a, &k) in c.alias_counts.iter().enumerate() {
             alias_counts[[a, iz, ix]] = k;
         }
@@ -1378,15 +1358,11 @@ fn apply_levels(
         unwrapped += usize::from(c.alias_counts.iter().any(|&k| k != 0));
         at_limit += usize::from(c.alias_counts.iter().any(|&k| i32::from(k).abs() == k_max));
     }
-    DealiasedField {
-        field,
-        intervals,
-        counts: AliasCounts {
-            alias_counts,
-            dealiased_pixels: dealiased,
-            unwrapped_pixels: unwrapped,
-            at_limit_pixels: at_limit,
-        },
+    AliasCounts {
+        alias_counts,
+        dealiased_pixels: dealiased,
+        unwrapped_pixels: unwrapped,
+        at_limit_pixels: at_limit,
     }
 }
 
