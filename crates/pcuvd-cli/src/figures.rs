@@ -10,8 +10,8 @@ use pcuvd::masks;
 use pcuvd::pipeline::ProcessOutput;
 use pcuvd::vector::VectorField;
 use pcuvd_render::{
-    Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Series, SeriesStyle, VectorOverlay,
-    render_png_bytes,
+    Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Polyline, Series, SeriesStyle,
+    VectorOverlay, render_png_bytes,
 };
 
 pub use pcuvd::stats::{median, quantile};
@@ -388,7 +388,74 @@ fn alias_panel(
     );
     panel.mask = Some(mean.mapv(|m| m != 0.0));
     panel.background = Some(background.clone());
+    let unwrapped = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+        (0..k.dim().0).any(|a| k[[a, iz, ix]] != 0)
+    });
+    panel.lines = small_spot_rings(&unwrapped, &out.grid);
     Panel::Image(panel)
+}
+
+/// Unwrapped spots of at most this many pixels get a ring in `dealias.png`: a lone pixel is a
+/// dot a few screen pixels wide, and such spots are where dealiasing is least sure.
+const SMALL_SPOT_PIXELS: usize = 8;
+
+/// At most this many rings are drawn; beyond it they would hide the map.
+const MAX_SPOT_RINGS: usize = 200;
+
+/// Rings (mm) around the 8-connected spots of `spots` of at most [`SMALL_SPOT_PIXELS`] pixels, the
+/// largest first, at most [`MAX_SPOT_RINGS`].
+fn small_spot_rings(spots: &Array2<bool>, grid: &Grid) -> Vec<Polyline> {
+    let (nz, nx) = spots.dim();
+    let mut seen = Array2::from_elem((nz, nx), false);
+    let mut small: Vec<Vec<(usize, usize)>> = Vec::new();
+    for start in spots.indexed_iter().filter(|(_, s)| **s).map(|(i, _)| i) {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        let (mut spot, mut stack) = (Vec::new(), vec![start]);
+        while let Some((iz, ix)) = stack.pop() {
+            spot.push((iz, ix));
+            for z in iz.saturating_sub(1)..(iz + 2).min(nz) {
+                for x in ix.saturating_sub(1)..(ix + 2).min(nx) {
+                    if spots[[z, x]] && !seen[[z, x]] {
+                        seen[[z, x]] = true;
+                        stack.push((z, x));
+                    }
+                }
+            }
+        }
+        if spot.len() <= SMALL_SPOT_PIXELS {
+            small.push(spot);
+        }
+    }
+    small.sort_by_key(|spot| std::cmp::Reverse(spot.len()));
+    // A ring wide enough to find at a glance: 2 % of the field, at least 4 pixels.
+    let width = grid.x.last().unwrap_or(&0.0) - grid.x.first().unwrap_or(&0.0);
+    let radius_mm = (0.02 * width).max(4.0 * grid.step()) * 1e3;
+    let label = format!("unwrapped spots of ≤ {SMALL_SPOT_PIXELS} pixels");
+    small
+        .iter()
+        .take(MAX_SPOT_RINGS)
+        .map(|spot| {
+            let n = spot.len() as f64;
+            let cx = spot.iter().map(|&(_, ix)| grid.x[ix]).sum::<f64>() / n * 1e3;
+            let cz = spot.iter().map(|&(iz, _)| grid.z[iz]).sum::<f64>() / n * 1e3;
+            let (x_mm, z_mm) = (0..=32)
+                .map(|i| {
+                    let t = std::f64::consts::TAU * i as f64 / 32.0;
+                    (cx + radius_mm * t.cos(), cz + radius_mm * t.sin())
+                })
+                .unzip();
+            Polyline {
+                x_mm,
+                z_mm,
+                dashed: false,
+                rgb: (0, 170, 0),
+                label: label.clone(),
+            }
+        })
+        .collect()
 }
 
 /// A class map for display: +PSV (mm/s) where the flow goes up, −PSV where it goes down, NaN
