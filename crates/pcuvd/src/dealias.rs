@@ -1104,7 +1104,7 @@ struct Settled {
 /// level can switch between relative patterns near a wall (it discards the angles that
 /// disagree), and the jumps this puts in its vectors made the unwrapping shift a whole vessel's
 /// core by a level on one seed of five. IRLS still chooses, within each level, the pattern of
-/// its smallest residual ([`dealias_with`]).
+/// its smallest residual ([`counts_with`]).
 fn settle(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
