@@ -2,57 +2,21 @@
 //! conventional recordings and for the paper's (simultaneous) decoding, and for coded recordings
 //! aligned at mid-frame when each block is decoded with the alignment's reach of margin.
 
+mod common;
+
 use ndarray::Array3;
 use num_complex::Complex32;
+use pcuvd::ChannelData;
 use pcuvd::decode::EventAlignment;
-use pcuvd::phantom::{FlowProfile, TubePhantom, TubeSpec};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
-use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
 use pcuvd::source::Blocks;
-use pcuvd::{ChannelData, Coding, Probe, Sequence};
 
 const FRAMES: usize = 48;
 
 fn quiet(_: Stage, _: usize, _: usize) {}
 
-/// A 48-element, 8-angle recording of a tube 6 mm deep flowing at 30 mm/s (0.7 of the projection
-/// Nyquist velocity at 1.8 kHz), conventional or coded, noise −20 dB.
 fn recording(coded: bool) -> ChannelData {
-    let probe = Probe {
-        n_elements: 48,
-        ..Probe::l22_14vx()
-    };
-    let sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding: if coded {
-            Coding::Hadamard { slot_delay: 1e-6 }
-        } else {
-            Coding::Conventional
-        },
-        pulse_cycles: 2.0,
-        pulse: None,
-    };
-    let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
-    params.noise = Some(NoiseSpec::new(-20.0));
-    params.seed = 3;
-    simulate(&tube(), &params, FRAMES, &|_, _| {}).unwrap()
-}
-
-fn tube() -> TubePhantom {
-    TubePhantom::new(
-        TubeSpec {
-            centre: [0.0, 6e-3],
-            angle: 20f64.to_radians(),
-            length: 6e-3,
-            radius: 0.5e-3,
-            peak_speed: 0.03,
-            density: 300e6,
-            profile: FlowProfile::Parabolic,
-        },
-        3,
-    )
-    .unwrap()
+    common::tube_recording(coded, FRAMES)
 }
 
 fn params(data: &ChannelData, alignment: EventAlignment) -> ProcessParams {
@@ -100,7 +64,8 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     };
     let reference = projections(whole.clone());
     // The estimator's own spread: the whole-recording projections against the truth.
-    let truth = pcuvd::phantom::Phantom::truth(&tube(), &params.grid.x, &params.grid.z, 0.0);
+    let truth =
+        pcuvd::phantom::Phantom::truth(&common::tube(), &params.grid.x, &params.grid.z, 0.0);
     let mut own = Vec::new();
     for (k, &theta) in data.acquisition.sequence.angles.iter().enumerate() {
         let (s, c) = pcuvd::vector::projection_weights(theta);

@@ -1,12 +1,11 @@
 //! Which angles reach which pixels: the coverage map that leaves unreached angles out of the
 //! vector fit agrees with the images the beamformer actually forms.
 
+mod common;
+
 use ndarray::s;
 use pcuvd::decode::EventAlignment;
-use pcuvd::phantom::{FlowProfile, TubePhantom, TubeSpec};
 use pcuvd::pipeline::{self, Stage};
-use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
-use pcuvd::{Coding, Probe, Sequence};
 
 fn quiet(_: Stage, _: usize, _: usize) {}
 
@@ -14,33 +13,7 @@ fn quiet(_: Stage, _: usize, _: usize) {}
 fn the_deepest_rows_are_left_to_the_angles_whose_echo_the_record_holds() {
     // A steered wave reaches a deep pixel on its far side later than the record lasts: there its
     // image is exactly zero, and a projection of 0 m/s must not enter the vector fit.
-    let probe = Probe {
-        n_elements: 48,
-        ..Probe::l22_14vx()
-    };
-    let sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding: Coding::Conventional,
-        pulse_cycles: 2.0,
-        pulse: None,
-    };
-    let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
-    params.noise = Some(NoiseSpec::new(-20.0));
-    let tube = TubePhantom::new(
-        TubeSpec {
-            centre: [0.0, 6e-3],
-            angle: 20f64.to_radians(),
-            length: 6e-3,
-            radius: 0.5e-3,
-            peak_speed: 0.03,
-            density: 300e6,
-            profile: FlowProfile::Parabolic,
-        },
-        3,
-    )
-    .unwrap();
-    let data = simulate(&tube, &params, 4, &|_, _| {}).unwrap();
+    let data = common::tube_recording(false, 4);
     let grid = pipeline::default_grid(&data).unwrap();
     let process =
         pcuvd::study::process_params(&grid, &data.acquisition, (1, 1), EventAlignment::MidFrame);
