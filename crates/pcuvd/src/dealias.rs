@@ -73,9 +73,10 @@
 //! smaller group by the whole levels that make the edge continuous. Blood is slow at a vessel's
 //! wall, and whatever the flow mask lets in beyond it (noise, the blurred wall) reads within
 //! ±v_N at level 0, so every pixel next to non-flow is also joined, as reliably as the pixel
-//! itself, to a fixed node at speed 0: the vessel is unwrapped from its slow rim inward, and the
-//! jump a fast vessel's blurred wall leaves in the measured field is put where the data are least
-//! reliable. Then a few passes move every pixel to the level nearest its neighbours' median
+//! itself, to a fixed node at speed 0 (pixels without candidates enclosed by flow are holes that
+//! the unwrapping goes around, not wall: [`wall_pixels`]): the vessel is unwrapped from its slow
+//! rim inward, and the jump a fast vessel's blurred wall leaves in the measured field is put
+//! where the data are least reliable. Then a few passes move every pixel to the level nearest its neighbours' median
 //! (a pixel joined through a noisy neighbour), and where a jump of more than half a level still
 //! cuts a part off a region, that part, if it reaches the wall, takes the level that makes its
 //! wall slowest, and if it is enclosed, the level of fewest jumps to its surroundings. A region
@@ -1099,6 +1100,30 @@ struct Settled {
     levels: Vec<Option<i32>>,
 }
 
+/// The vessel's wall (row-major): pixels with candidates next to the outside, which is every
+/// pixel not in the `flow` mask and every pixel without candidates joined to one through pixels
+/// without candidates (the grid's border is none). A part without candidates enclosed by the flow
+/// (a drop-out: fewer than 3 angles, or projections that fit no vector) is a hole, not a wall:
+/// taken for the wall, it tied its neighbours in the middle of fast flow to speed 0. A synthetic
+/// tube at 3× v_N with one lumen pixel in twenty such a hole had 72 % of the rest's patterns wrong;
+/// the study's tube went as wrong when a stricter test left 6 % of its lumen without candidates.
+fn wall_pixels(candidates: &[Vec<Candidate>], flow: ArrayView2<bool>) -> Vec<bool> {
+    let dim = flow.dim();
+    let mut outside: Vec<bool> = flow.iter().map(|&f| !f).collect();
+    let mut stack: Vec<usize> = (0..outside.len()).filter(|&p| outside[p]).collect();
+    while let Some(p) = stack.pop() {
+        for q in neighbours(p, dim) {
+            if !outside[q] && candidates[q].is_empty() {
+                outside[q] = true;
+                stack.push(q);
+            }
+        }
+    }
+    (0..outside.len())
+        .map(|p| !candidates[p].is_empty() && neighbours(p, dim).any(|q| outside[q]))
+        .collect()
+}
+
 /// The levels of `v_theta`'s flow pixels at K = `intervals`, settled on least-squares candidates
 /// whatever the estimator: their vectors vary smoothly over the vessel. IRLS's best candidate of a
 /// level can switch between relative patterns near a wall (it discards the angles that
@@ -1134,7 +1159,15 @@ fn settle(
         flow,
         &Estimator::LeastSquares,
     );
-    let levels = settle_levels(angles, v_theta, &least_squares, nyquist, intervals, quality);
+    let levels = settle_levels(
+        angles,
+        v_theta,
+        &least_squares,
+        nyquist,
+        intervals,
+        quality,
+        flow,
+    );
     Ok(Settled {
         intervals,
         least_squares,
@@ -1201,6 +1234,7 @@ fn settle_levels(
     nyquist: ArrayView3<f64>,
     intervals: u32,
     quality: ArrayView2<f64>,
+    flow: ArrayView2<bool>,
 ) -> Vec<Option<i32>> {
     let (n, nz, nx) = nyquist.dim();
     // The common-shift direction of the whole angle set: the change of the LS vector when every
@@ -1220,12 +1254,7 @@ fn settle_levels(
     };
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 
-    // Flow pixels next to a pixel that is not flow (the grid's border is none): the wall.
-    let at_wall: Vec<bool> = (0..nz * nx)
-        .map(|p| {
-            !candidates[p].is_empty() && neighbours(p, (nz, nx)).any(|q| candidates[q].is_empty())
-        })
-        .collect();
+    let at_wall = wall_pixels(candidates, flow);
     // Each pixel's own spacing of levels: the along-shift change of its fit when each reached
     // angle's projection grows by its own 2·v_N.
     let spacing_at: Vec<f64> = (0..nz * nx)
@@ -2019,6 +2048,56 @@ mod tests {
             assert_eq!(unwrapped_haze, 0, "{est:?} of {haze_pixels} haze pixels");
             let good = within_tenth(&out.field, &truth, &lumen, peak);
             assert!(good > 0.95, "{est:?}: lumen within 10 % {good}");
+        }
+    }
+
+    #[test]
+    fn pixels_without_candidates_inside_a_vessel_are_not_its_wall() {
+        // Drop-outs inside fast flow (pixels without candidates: here no angle reaches them) are
+        // holes that the unwrapping goes around. Taken for the vessel's wall, one lumen pixel in
+        // twenty tied its fast neighbours to speed 0: 72 % of the rest's patterns were wrong
+        // (31 % with errors of 0.5 mm/s).
+        use rand::{RngExt, SeedableRng};
+        let peak = 3.0 * VN;
+        let TubeMap {
+            mut v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            ..
+        } = tube_map(peak, 2e-3, 0.02, 11);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (nz, nx) = flow.dim();
+        let mut hole = Array2::from_elem((nz, nx), false);
+        for ((iz, ix), &inside) in lumen.indexed_iter() {
+            if inside && rng.random_range(0.0..1.0) < 0.05 {
+                hole[[iz, ix]] = true;
+                v_theta.slice_mut(s![.., iz, ix]).fill(f64::NAN);
+            }
+        }
+        let kept: Vec<(usize, usize)> = lumen
+            .indexed_iter()
+            .filter(|&((iz, ix), &l)| l && !hole[[iz, ix]])
+            .map(|(i, _)| i)
+            .collect();
+        let holes = hole.iter().filter(|&&h| h).count();
+        assert!(holes > 50, "{holes}");
+        for est in estimators() {
+            let out = dealiased_map(&v_theta, &est, Dealias::Intervals(2), &power, &flow);
+            let right = kept
+                .iter()
+                .filter(|&&(iz, ix)| {
+                    pattern_is_right(&v_theta, &truth, (iz, ix), |a| {
+                        out.counts.alias_counts[[a, iz, ix]]
+                    })
+                })
+                .count() as f64
+                / kept.len() as f64;
+            assert!(
+                right >= 0.99,
+                "{est:?}: {right} of the lumen around {holes} holes"
+            );
         }
     }
 
