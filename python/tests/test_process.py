@@ -330,3 +330,23 @@ def test_dealiasing_a_coded_recording_warns(tube, cli, tmp_path):
         warnings.simplefilter("error")
         result = pcuvd.process(conventional, quiet=True, **kwargs)
     assert result.summary["dealias"]["warning"] is None
+
+
+def test_dealiasing_too_few_angles_warns(disk, cli, tmp_path):
+    """Alias patterns need three or more distinct angles to be told apart: asked of the real
+    single-angle disk recording, dealiasing unwraps nothing, and the command, summary.json and
+    Python say so rather than leave the user to find it out from the maps; without --dealias
+    nothing is said."""
+    done = run_cli(cli, "process", disk, "--out", tmp_path / "cli", "--dealias=2")
+    assert done.returncode == 0, done.stderr
+    assert "3 or more distinct steering angles" in done.stderr, done.stderr
+    assert "has 1: nothing was unwrapped" in done.stderr, done.stderr
+    summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
+    assert "nothing was unwrapped (--dealias 2 had no effect)" in summary["dealias"]["warning"]
+    with pytest.warns(UserWarning, match="distinct steering angles"):
+        result = pcuvd.process(disk, quiet=True, dealias=2)
+    assert result.summary["dealias"]["warning"] == summary["dealias"]["warning"]
+    done = run_cli(cli, "process", disk, "--out", tmp_path / "off")
+    assert "dealiasing" not in done.stderr, done.stderr
+    summary = json.loads((tmp_path / "off" / "summary.json").read_text())
+    assert summary["dealias"]["warning"] is None

@@ -223,7 +223,9 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let processed = compute(data, &plan, &|s, d, t| progress.update(s, d, t))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     let coded = data.acquisition().sequence.is_coded();
-    if let Some(warning) = pcuvd::pipeline::coded_dealias_warning(coded, &processed.out) {
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
+    {
         eprintln!("warning: {}: {warning}", args.input.display());
     }
     let (source, checksum_s) = match checksums {
@@ -953,10 +955,12 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
 
 /// The `dealias` entry of summary.json: the setting, the K used, the speeds it reaches, per
 /// estimator how many flow pixels were dealiased, unwrapped, and reached ±K, and the warning for a
-/// `coded` recording ([`pcuvd::pipeline::coded_dealias_warning`]; null otherwise).
+/// `coded` recording or one of too few angles ([`pcuvd::pipeline::dealias_warning`]; null
+/// otherwise).
 fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> serde_json::Value {
+    let warning = pcuvd::pipeline::dealias_warning(params.dealias, coded, out);
     let Some(done) = &out.dealias else {
-        return json!({ "setting": params.dealias.label() });
+        return json!({ "setting": params.dealias.label(), "warning": warning });
     };
     let counts = |c: &pcuvd::dealias::AliasCounts| {
         json!({
@@ -972,7 +976,7 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
         "flow_pixels": done.flow_pixels,
         "pcuvd_irls": counts(&done.irls),
         "uvd_ls": counts(&done.ls),
-        "warning": pcuvd::pipeline::coded_dealias_warning(coded, out),
+        "warning": warning,
         "rule": format!(
             "alias patterns up to ±K Nyquist intervals (2 v_N) per angle, from trial vectors; \
              scored by the estimator's unweighted objective (LS: sum of squared residuals, IRLS: \
@@ -983,7 +987,8 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
              pixels (power {} dB above the row's noise floor and within {} dB of the \
              brightest pixel within {} mm) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
-             joined to speed 0 (blood is slow at a wall), unless another common shift makes the \
+             joined to speed 0 (blood is slow at a wall; pixels without candidates enclosed by \
+             flow are holes, not wall), unless another common shift makes the \
              vessel's power-weighted summed residual less than {} times as large; regions under \
              {} pixels and other \
              pixels keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \

@@ -502,7 +502,9 @@ fn process(
         })
         .map_err(to_py)?;
     let coded = data.acquisition.sequence.is_coded();
-    if let Some(warning) = pcuvd::pipeline::coded_dealias_warning(coded, &processed.out) {
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
+    {
         let message = std::ffi::CString::new(format!("{input}: {warning}"))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         PyErr::warn(

@@ -164,14 +164,32 @@ pub struct DealiasOutcome {
     pub ls: AliasCounts,
 }
 
-/// The warning for maps `out` of a recording that was dealiased and is Hadamard-`coded`; `None`
-/// for a conventional recording or without dealiasing. Why: decoding needs every projection within
-/// ±v_N (blood moves between the events of a frame), so coded flow beyond v_N decodes wrongly,
-/// fits no alias pattern, and is left as garbage with or without dealiasing (on a simulated tube
-/// at 2.5× v_N dealiasing unwrapped none of its lumen), and the maps do not flag it.
-pub fn coded_dealias_warning(coded: bool, out: &ProcessOutput) -> Option<String> {
+/// The warning for maps `out` of a recording processed with dealiasing `setting`; `None` where
+/// dealiasing is off or did what it was asked. Two cases:
+/// - fewer than 3 steering angles: the vector fit leaves nothing to tell alias patterns apart
+///   (with 2 angles every pattern fits exactly, with 1 there is no vector), so nothing was
+///   unwrapped, and a user who asked for it should not have to find that out from the maps;
+/// - a Hadamard-`coded` recording: decoding needs every projection within ±v_N (blood moves
+///   between the events of a frame), so coded flow beyond v_N decodes wrongly, fits no alias
+///   pattern, and is left as garbage with or without dealiasing (on a simulated tube at 2.5× v_N
+///   dealiasing unwrapped none of its lumen), and the maps do not flag it.
+pub fn dealias_warning(setting: Dealias, coded: bool, out: &ProcessOutput) -> Option<String> {
+    let mut distinct = out.filtered.angles.clone();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    let angles = distinct.len();
+    if setting != Dealias::Off && angles < MIN_DEALIAS_ANGLES {
+        return Some(format!(
+            "vector dealiasing needs {MIN_DEALIAS_ANGLES} or more distinct steering angles and \
+             the recording has {angles}: nothing was unwrapped (--dealias {} had no effect)",
+            setting.label()
+        ));
+    }
     (coded && out.dealias.is_some()).then(|| coded_dealias_message(out.nyquist_velocity))
 }
+
+/// Fewest distinct steering angles with which alias patterns can be told apart.
+pub const MIN_DEALIAS_ANGLES: usize = 3;
 
 fn coded_dealias_message(nyquist_velocity: f64) -> String {
     format!(
