@@ -988,7 +988,9 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
              brightest pixel within {} mm) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \
              joined to speed 0 (blood is slow at a wall; pixels without candidates enclosed by \
-             flow are holes, not wall), unless another common shift makes the \
+             flow are holes, not wall; pixels whose angles' Nyquist velocities differ by more \
+             than {}x take the level of the flow around them, or keep the plain fit outside \
+             it), unless another common shift makes the \
              vessel's power-weighted summed residual less than {} times as large; regions under \
              {} pixels and other \
              pixels keep the plain fit; auto: the smallest K of 1-{} at which under {} % of the \
@@ -998,6 +1000,7 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
             pcuvd::dealias::FLOW_MARGIN_DB,
             pcuvd::dynamics::VESSEL_LOCAL_DB,
             pcuvd::dynamics::VESSEL_LOCAL_RADIUS_M * 1e3,
+            pcuvd::dealias::NYQUIST_SPREAD_LIMIT,
             pcuvd::dealias::DECISIVE_SCORE_RATIO,
             pcuvd::dealias::MIN_REGION_PIXELS,
             pcuvd::dealias::MAX_AUTO_INTERVALS,
