@@ -469,10 +469,23 @@ fn candidates_of(
         }
     }
     // Projections that no vector within the limit explains better than their plain fit does are
-    // not flow that dealiasing can mend: without a level-0 candidate the pixel has none at all,
-    // rather than ones at other levels that the spatial settling would then prefer.
+    // not flow that dealiasing can mend: without a level-0 candidate, and without one at another
+    // level that explains them far better than the plain fit (by the mixed-pattern ratio), the
+    // pixel has none at all, rather than ones at other levels that the spatial settling would
+    // then prefer. The second condition keeps fast flow whose wrapped projections have a plain fit
+    // beyond the limit: with angles a few degrees apart, the v_N of each angle 5 % apart shifts
+    // the wrapped projections enough to put that fit far off sideways.
     if best[intervals as usize].is_none() {
-        return vec![];
+        u.copy_from_slice(&model.p);
+        let v = model.ls(&u);
+        let plain_ssr: f64 = model.residuals(&u, v).map(|r| r * r).sum();
+        let explained = best
+            .iter()
+            .flatten()
+            .any(|&(ssr, _)| ssr < MIXED_PATTERN_RATIO * plain_ssr);
+        if !explained {
+            return vec![];
+        }
     }
     let reached_angles: Vec<f64> = model.index.iter().map(|&i| angles[i]).collect();
     best.iter()
@@ -2267,6 +2280,38 @@ mod tests {
         for est in estimators() {
             let candidates = pixel_candidates(&angles, &v_theta, &[VN; 8], 1, &est).unwrap();
             assert!(candidates.is_empty(), "{est:?}: {candidates:?}");
+        }
+    }
+
+    #[test]
+    fn fast_flow_whose_wrapped_projections_fit_no_vector_is_still_unwrapped() {
+        // Three angles 2° apart, their v_N 5 % apart, a vector at 2.5× v_N: every angle wraps
+        // once, by its own 2·v_N, and those differences, seen through angles this close, put the
+        // plain fit far beyond the speed limit. The common shift by one interval explains the
+        // projections exactly; a rule that took "no candidate at level 0" for "projections that
+        // fit no vector" gave this pixel no candidates (proptest found it).
+        let angles: Vec<f64> = [-5.0f64, -3.0, -1.0]
+            .iter()
+            .map(|a| a.to_radians())
+            .collect();
+        let nyquist = [0.95 * VN, 0.95 * VN, 1.048 * VN];
+        let speed = 0.8614 * 3.0 * 0.95 * VN;
+        let direction = 2.3389f64;
+        let v = (speed * direction.cos(), speed * direction.sin());
+        let p = wrapped_each(&angles, v, &nyquist);
+        let plain = vector::solve_pixel(&angles, &p, &Estimator::LeastSquares);
+        assert!(
+            plain.0.hypot(plain.1) > SPEED_MARGIN * 3.0 * 1.048 * VN,
+            "{plain:?}"
+        );
+        for est in estimators() {
+            let c = solve_pixel_dealiased(&angles, &p, &nyquist, 1, &est)
+                .unwrap()
+                .expect("a candidate");
+            assert!(
+                (c.vx - v.0).abs() < 1e-7 && (c.vz - v.1).abs() < 1e-7,
+                "{est:?}: {c:?} for {v:?}"
+            );
         }
     }
 
