@@ -983,7 +983,8 @@ fn dealias_summary(params: &ProcessParams, out: &ProcessOutput, coded: bool) -> 
              sum of absolute residuals); within a level a mixed pattern kept only where its \
              summed squared residual is below {} times the level's common shift's (even where \
              that shift's fit is beyond the speed limit; a pixel left without a level-0 \
-             candidate keeps the plain fit); the common shift of all angles settled over the flow \
+             candidate keeps the plain fit unless another level's fits it with under that ratio \
+             times the plain fit's squared residual); the common shift of all angles settled over the flow \
              pixels (power {} dB above the row's noise floor and within {} dB of the \
              brightest pixel within {} mm) by unwrapping the levels as a \
              phase map, most reliable joins first (Herraez et al. 2002), pixels next to non-flow \

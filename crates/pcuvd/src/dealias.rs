@@ -55,7 +55,10 @@
 //!
 //! The common shift is that yardstick even when its own fit lies beyond the speed limit, and a
 //! pixel without a candidate at level 0 (no pattern within the limit explains its projections
-//! better than their plain fit) has none at all and keeps the plain fit. Projections that no
+//! better than their plain fit) has none at all and keeps the plain fit, unless a candidate at
+//! another level fits with under [`MIXED_PATTERN_RATIO`] times the plain fit's squared residual
+//! (fast flow whose wrapped projections, through angles a few degrees apart and v_N a few % apart,
+//! also fit far off sideways). Projections that no
 //! vector explains (haze at a vessel's end whose angles disagree in sign) have a plain fit far
 //! faster than any flow; before, the mixed test was skipped there and a pattern that fitted them
 //! worse than none was kept as fast flow (the vessel network at 80 mm/s: 55 of the 59 pixels
