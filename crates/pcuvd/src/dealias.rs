@@ -1183,8 +1183,7 @@ fn nyquist_disagrees(v_theta: ArrayView3<f64>, nyquist: ArrayView3<f64>) -> Vec<
 /// (not set aside): each takes its candidate whose along-shift velocity is nearest the median of
 /// theirs. The others keep the plain fit. Fills do not feed further fills: grown inward from a
 /// rim, they would repeat the region growing that the unwrapping replaced (which put the fast
-/// side of a tube at 3× v_N a level off), and on decoded coded data beyond v_N, where the whole
-/// core of a tube was set aside, they turned it into uniform fast garbage.
+/// side of a tube at 3× v_N a level off).
 fn fill_holes(
     levels: &mut [Option<i32>],
     candidates: &[Vec<Candidate>],
