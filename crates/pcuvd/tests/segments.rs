@@ -4,13 +4,16 @@
 //! dealiasing applies on both paths alike. Both Doppler estimators: Kasai (the lag-1 sums) and
 //! Loupas (the lag-1 and the spatial lags at temporal lags ±1, summed per core alike).
 
+mod common;
+
+use common::{tube, tube_at};
 use ndarray::{Array2, Array3};
 use pcuvd::dealias::Dealias;
 use pcuvd::decode::EventAlignment;
 use pcuvd::doppler::DopplerEstimator;
 use pcuvd::dynamics::DynamicsParams;
 use pcuvd::ensembles::{self, EnsembleSpec};
-use pcuvd::phantom::{FlowProfile, Phantom, TubePhantom, TubeSpec};
+use pcuvd::phantom::{Phantom, TubePhantom};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::segments::{Segments, process_in_segments};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
@@ -42,27 +45,6 @@ fn recording_of(phantom: &TubePhantom) -> ChannelData {
     params.noise = Some(NoiseSpec::new(-20.0));
     params.seed = 5;
     simulate(phantom, &params, FRAMES, &|_, _| {}).unwrap()
-}
-
-fn tube() -> TubePhantom {
-    tube_at(0.03)
-}
-
-/// The tube of [`recording`] with a peak speed of `peak_speed` (m/s).
-fn tube_at(peak_speed: f64) -> TubePhantom {
-    TubePhantom::new(
-        TubeSpec {
-            centre: [0.0, 6e-3],
-            angle: 20f64.to_radians(),
-            length: 6e-3,
-            radius: 0.5e-3,
-            peak_speed,
-            density: 300e6,
-            profile: FlowProfile::Parabolic,
-        },
-        3,
-    )
-    .unwrap()
 }
 
 fn params(data: &ChannelData) -> ProcessParams {
