@@ -1709,6 +1709,33 @@ mod tests {
         distance: Array2<f64>,
     }
 
+    impl TubeMap {
+        /// Puts into the flow mask, as haze, the pixels outside it at which `at(iz, ix, distance
+        /// in radii)` holds: echo power `power`·U(0.3, 1), each angle's projection from
+        /// `projection(rng, angle, (iz, ix))`, in that order. Returns the haze pixels.
+        fn add_haze(
+            &mut self,
+            rng: &mut rand_chacha::ChaCha8Rng,
+            power: f64,
+            at: impl Fn(usize, usize, f64) -> bool,
+            mut projection: impl FnMut(&mut rand_chacha::ChaCha8Rng, usize, (usize, usize)) -> f64,
+        ) -> Array2<bool> {
+            use rand::RngExt;
+            let mut haze = Array2::from_elem(self.flow.dim(), false);
+            for ((iz, ix), &d) in self.distance.indexed_iter() {
+                if !self.flow[[iz, ix]] && at(iz, ix, d) {
+                    haze[[iz, ix]] = true;
+                    self.flow[[iz, ix]] = true;
+                    self.power[[iz, ix]] = power * rng.random_range(0.3..1.0);
+                    for a in 0..self.v_theta.dim().0 {
+                        self.v_theta[[a, iz, ix]] = projection(rng, a, (iz, ix));
+                    }
+                }
+            }
+            haze
+        }
+    }
+
     /// A synthetic vessel map: a tube 1 mm wide at 60° below +x across a 6 × 3 mm field on a
     /// 0.05 mm grid, parabolic profile of peak `peak` (m/s); per-angle projections wrapped, with
     /// independent Gaussian errors of `sigma` (m/s) and an angle-dependent gain error of ±`gain`
@@ -2017,29 +2044,21 @@ mod tests {
         // common shift; otherwise noise would read as flow several times v_N.
         use rand::{RngExt, SeedableRng};
         let angles = paper_angles();
-        let TubeMap {
-            mut v_theta,
-            lumen,
-            mut flow,
-            mut power,
-            distance,
-            ..
-        } = tube_map(0.8 * VN, 2e-3, 0.02, 5);
+        let mut map = tube_map(0.8 * VN, 2e-3, 0.02, 5);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let (nz, nx) = flow.dim();
-        let mut haze = Array2::from_elem((nz, nx), false);
-        for iz in 0..nz {
-            for ix in 0..nx {
-                if !flow[[iz, ix]] && distance[[iz, ix]] <= 3.0 {
-                    haze[[iz, ix]] = true;
-                    flow[[iz, ix]] = true;
-                    power[[iz, ix]] = 1e-3 * rng.random_range(0.3..1.0);
-                    for a in 0..angles.len() {
-                        v_theta[[a, iz, ix]] = rng.random_range(-VN..VN);
-                    }
-                }
-            }
-        }
+        let haze = map.add_haze(
+            &mut rng,
+            1e-3,
+            |_, _, d| d <= 3.0,
+            |rng, _, _| rng.random_range(-VN..VN),
+        );
+        let TubeMap {
+            v_theta,
+            lumen,
+            flow,
+            power,
+            ..
+        } = map;
         let haze_pixels = haze.iter().filter(|&&h| h).count();
         assert!(haze_pixels > 1000, "{haze_pixels}");
         for est in estimators() {
@@ -2076,30 +2095,27 @@ mod tests {
         use rand::{RngExt, SeedableRng};
         let angles = paper_angles();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
-        let TubeMap {
-            mut v_theta,
-            lumen,
-            mut flow,
-            mut power,
-            distance,
-            ..
-        } = tube_map(0.8 * VN, 2e-3, 0.02, 5);
-        let (nz, nx) = flow.dim();
+        let mut map = tube_map(0.8 * VN, 2e-3, 0.02, 5);
+        let (nz, nx) = map.flow.dim();
         let mut nyquist =
-            Array3::from_shape_fn(v_theta.dim(), |_| VN * rng.random_range(0.99..1.01));
-        let mut haze = Array2::from_elem((nz, nx), false);
-        for ((iz, ix), &d) in distance.indexed_iter() {
-            if !flow[[iz, ix]] && d <= 3.0 {
-                haze[[iz, ix]] = true;
-                flow[[iz, ix]] = true;
-                power[[iz, ix]] = 1e-3 * rng.random_range(0.3..1.0);
-                for a in 0..angles.len() {
-                    let vn = VN * rng.random_range(0.7..1.8);
-                    nyquist[[a, iz, ix]] = vn;
-                    v_theta[[a, iz, ix]] = rng.random_range(-vn..vn);
-                }
-            }
-        }
+            Array3::from_shape_fn(map.v_theta.dim(), |_| VN * rng.random_range(0.99..1.01));
+        let haze = map.add_haze(
+            &mut rng,
+            1e-3,
+            |_, _, d| d <= 3.0,
+            |rng, a, (iz, ix)| {
+                let vn = VN * rng.random_range(0.7..1.8);
+                nyquist[[a, iz, ix]] = vn;
+                rng.random_range(-vn..vn)
+            },
+        );
+        let TubeMap {
+            v_theta,
+            lumen,
+            flow,
+            power,
+            ..
+        } = map;
         for est in estimators() {
             let plain = vector::vector_velocity(&angles, v_theta.view(), &est).unwrap();
             let out = dealiased_map_with(
@@ -2320,33 +2336,29 @@ mod tests {
     #[test]
     fn split_haze_beside_a_vessel_keeps_its_plain_fit() {
         // The same split beside an aliased vessel: the vessel is unwrapped, the haze is not.
-        use rand::{RngExt, SeedableRng};
+        use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let angles = paper_angles();
         let peak = 2.5 * VN;
-        let TubeMap {
-            mut v_theta,
-            truth,
-            lumen,
-            mut flow,
-            mut power,
-            distance,
-        } = tube_map(peak, 0.5e-3, 0.0, 3);
+        let mut map = tube_map(peak, 0.5e-3, 0.0, 3);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let scatter = Normal::new(0.0, 1.5e-3).unwrap();
-        let (nz, nx) = flow.dim();
-        let mut haze = Array2::from_elem((nz, nx), false);
-        for ((iz, ix), &d) in distance.indexed_iter() {
-            // A patch on one side of the tube, touching its rim.
-            if !flow[[iz, ix]] && d <= 2.5 && ix < nx / 2 && iz > nz / 3 {
-                haze[[iz, ix]] = true;
-                flow[[iz, ix]] = true;
-                power[[iz, ix]] = 0.05 * rng.random_range(0.3..1.0);
-                for a in 0..angles.len() {
-                    v_theta[[a, iz, ix]] = 1e-3 * SPLIT_HAZE_MM_S[a] + scatter.sample(&mut rng);
-                }
-            }
-        }
+        let (nz, nx) = map.flow.dim();
+        // A patch on one side of the tube, touching its rim.
+        let haze = map.add_haze(
+            &mut rng,
+            0.05,
+            |iz, ix, d| d <= 2.5 && ix < nx / 2 && iz > nz / 3,
+            |rng, a, _| 1e-3 * SPLIT_HAZE_MM_S[a] + scatter.sample(rng),
+        );
+        let TubeMap {
+            v_theta,
+            truth,
+            lumen,
+            flow,
+            power,
+            ..
+        } = map;
         let haze_pixels = haze.iter().filter(|&&h| h).count();
         assert!(haze_pixels > 100, "{haze_pixels}");
         for est in estimators() {
