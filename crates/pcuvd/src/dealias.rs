@@ -1180,7 +1180,7 @@ fn nyquist_disagrees(v_theta: ArrayView3<f64>, nyquist: ArrayView3<f64>) -> Vec<
 
 /// Fills the `levels` of the pixels `set_aside` from the settling (row-major) that lie in a hole
 /// of the flow (not joined to the `outside`) with at least [`FILL_NEIGHBOURS`] settled neighbours
-/// (not set aside): each takes its candidate whose along-shift velocity is nearest the median of
+/// (not among the pixels whose v_N `disagree`): each takes its candidate whose along-shift velocity is nearest the median of
 /// theirs. The others keep the plain fit. Fills do not feed further fills: grown inward from a
 /// rim, they would repeat the region growing that the unwrapping replaced (which put the fast
 /// side of a tube at 3× v_N a level off).
@@ -1188,11 +1188,11 @@ fn fill_holes(
     levels: &mut [Option<i32>],
     candidates: &[Vec<Candidate>],
     set_aside: &[usize],
+    disagree: &[bool],
     outside: &[bool],
     along: &dyn Fn(&Candidate) -> f64,
     dim: (usize, usize),
 ) {
-    let aside: std::collections::HashSet<usize> = set_aside.iter().copied().collect();
     let value =
         |q: usize| levels[q].and_then(|l| candidates[q].iter().find(|c| c.level == l).map(along));
     let fills: Vec<(usize, i32)> = set_aside
@@ -1200,7 +1200,7 @@ fn fill_holes(
         .filter(|&&p| !outside[p])
         .filter_map(|&p| {
             let around: Vec<f64> = neighbours(p, dim)
-                .filter(|q| !aside.contains(q))
+                .filter(|&q| !disagree[q])
                 .filter_map(value)
                 .collect();
             if around.len() < FILL_NEIGHBOURS {
@@ -1222,16 +1222,14 @@ fn fill_holes(
     }
 }
 
-/// The vessel's wall (row-major): pixels with candidates next to the outside, which is every
-/// pixel not in the `flow` mask and every pixel without candidates joined to one through pixels
-/// without candidates (the grid's border is none). A part without candidates enclosed by the flow
+/// The vessel's wall (row-major, a grid of `dim` pixels): pixels with candidates next to the
+/// `outside` ([`outside_of`]: every pixel not in the flow mask and every pixel without candidates
+/// joined to one through pixels without candidates; the grid's border is none). A part without candidates enclosed by the flow
 /// (a drop-out: fewer than 3 angles, or projections that fit no vector) is a hole, not a wall:
 /// taken for the wall, it tied its neighbours in the middle of fast flow to speed 0. A synthetic
 /// tube at 3× v_N with one lumen pixel in twenty such a hole had 72 % of the rest's patterns wrong;
 /// the study's tube went as wrong when a stricter test left 6 % of its lumen without candidates.
-fn wall_pixels(candidates: &[Vec<Candidate>], flow: ArrayView2<bool>) -> Vec<bool> {
-    let dim = flow.dim();
-    let outside = outside_of(candidates, flow);
+fn wall_pixels(candidates: &[Vec<Candidate>], outside: &[bool], dim: (usize, usize)) -> Vec<bool> {
     (0..outside.len())
         .map(|p| !candidates[p].is_empty() && neighbours(p, dim).any(|q| outside[q]))
         .collect()
@@ -1300,6 +1298,8 @@ fn settle(
         .iter()
         .map(|&p| std::mem::take(&mut least_squares[p]))
         .collect();
+    let outside = outside_of(&least_squares, flow);
+    let shift = common_shift(angles, nyquist);
     let mut levels = settle_levels(
         angles,
         v_theta,
@@ -1307,17 +1307,18 @@ fn settle(
         nyquist,
         intervals,
         quality,
-        flow,
+        &outside,
+        shift,
     );
-    let outside = outside_of(&least_squares, flow);
     for (&p, c) in set_aside.iter().zip(aside) {
         least_squares[p] = c;
     }
-    let (unit, _) = common_shift(angles, nyquist);
+    let (unit, _) = shift;
     fill_holes(
         &mut levels,
         &least_squares,
         &set_aside,
+        &disagree,
         &outside,
         &|c: &Candidate| c.vx * unit.0 + c.vz * unit.1,
         flow.dim(),
@@ -1380,7 +1381,9 @@ fn flow_candidates(
 }
 
 /// The level each pixel of a settled region takes (row-major; `None`: the pixel keeps the plain
-/// fit), from the least-squares `candidates` of every flow pixel.
+/// fit), from the least-squares `candidates` of every flow pixel, the `outside` of the flow
+/// ([`outside_of`]) and the angle set's common shift ([`common_shift`]).
+#[allow(clippy::too_many_arguments)]
 fn settle_levels(
     angles: &[f64],
     v_theta: ArrayView3<f64>,
@@ -1388,13 +1391,13 @@ fn settle_levels(
     nyquist: ArrayView3<f64>,
     intervals: u32,
     quality: ArrayView2<f64>,
-    flow: ArrayView2<bool>,
+    outside: &[bool],
+    (unit, spacing): ((f64, f64), f64),
 ) -> Vec<Option<i32>> {
     let (n, nz, nx) = nyquist.dim();
-    let (unit, spacing) = common_shift(angles, nyquist);
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 
-    let at_wall = wall_pixels(candidates, flow);
+    let at_wall = wall_pixels(candidates, outside, (nz, nx));
     // Each pixel's own spacing of levels: the along-shift change of its fit when each reached
     // angle's projection grows by its own 2·v_N.
     let spacing_at: Vec<f64> = (0..nz * nx)
