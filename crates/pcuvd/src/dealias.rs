@@ -166,6 +166,17 @@ pub const NYQUIST_SPREAD_LIMIT: f64 = 1.25;
 /// at least this many settled 8-neighbours.
 const FILL_NEIGHBOURS: usize = 3;
 
+/// Fewest distinct steering angles with which alias patterns can be told apart.
+pub const MIN_DISTINCT_ANGLES: usize = 3;
+
+/// How many of `angles` (rad) differ from one another by more than 1e-9 rad.
+pub fn distinct_angles(angles: &[f64]) -> usize {
+    let mut distinct = angles.to_vec();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    distinct.len()
+}
+
 /// Fits faster than this times (2K + 1)·v_N are outside the limit.
 const SPEED_MARGIN: f64 = 1.1;
 
@@ -212,6 +223,11 @@ impl Dealias {
                 )),
             },
         }
+    }
+
+    /// Whether the setting unwraps anything: not [`Dealias::Off`], nor 0 intervals.
+    pub fn is_on(&self) -> bool {
+        !matches!(self, Dealias::Off | Dealias::Intervals(0))
     }
 
     /// Refuses more than [`MAX_INTERVALS`] intervals.
@@ -278,16 +294,15 @@ struct PixelModel {
 }
 
 impl PixelModel {
-    /// `None` when fewer than 3 distinct angles reach the pixel: a common shift of the alias counts
-    /// is then a vector like any other (with 2 angles every pattern fits exactly).
+    /// `None` when fewer than [`MIN_DISTINCT_ANGLES`] distinct angles reach the pixel: a common
+    /// shift of the alias counts is then a vector like any other (with 2 angles every pattern
+    /// fits exactly).
     fn new(angles: &[f64], v_theta: &[f64], nyquist: &[f64]) -> Option<Self> {
         let index: Vec<usize> = (0..angles.len())
             .filter(|&i| v_theta[i].is_finite())
             .collect();
-        let mut distinct: Vec<f64> = index.iter().map(|&i| angles[i]).collect();
-        distinct.sort_by(f64::total_cmp);
-        distinct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-        if distinct.len() < 3 {
+        let reached: Vec<f64> = index.iter().map(|&i| angles[i]).collect();
+        if distinct_angles(&reached) < MIN_DISTINCT_ANGLES {
             return None;
         }
         let weights: Vec<(f64, f64)> = index
@@ -1696,6 +1711,15 @@ mod tests {
         for d in [Dealias::Off, Dealias::Auto, Dealias::Intervals(3)] {
             assert_eq!(Dealias::parse(&d.label()).unwrap(), d);
         }
+        // "00" reads as 0 intervals, which unwraps nothing, as "off" does.
+        assert!(!Dealias::parse("00").unwrap().is_on() && !Dealias::Off.is_on());
+        assert!(Dealias::Auto.is_on() && Dealias::Intervals(1).is_on());
+        let deg = |d: f64| d.to_radians();
+        assert_eq!(
+            distinct_angles(&[deg(-5.0), deg(0.0), deg(-5.0), deg(5.0)]),
+            3
+        );
+        assert_eq!(distinct_angles(&[deg(2.0), deg(2.0)]), 1);
     }
 
     /// A synthetic tube's wrapped projections and what they came from.

@@ -174,22 +174,17 @@ pub struct DealiasOutcome {
 ///   pattern, and is left as garbage with or without dealiasing (on a simulated tube at 2.5× v_N
 ///   dealiasing unwrapped none of its lumen), and the maps do not flag it.
 pub fn dealias_warning(setting: Dealias, coded: bool, out: &ProcessOutput) -> Option<String> {
-    let mut distinct = out.filtered.angles.clone();
-    distinct.sort_by(f64::total_cmp);
-    distinct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    let angles = distinct.len();
-    if setting != Dealias::Off && angles < MIN_DEALIAS_ANGLES {
+    let angles = dealias::distinct_angles(&out.filtered.angles);
+    if setting.is_on() && angles < dealias::MIN_DISTINCT_ANGLES {
         return Some(format!(
-            "vector dealiasing needs {MIN_DEALIAS_ANGLES} or more distinct steering angles and \
+            "vector dealiasing needs {} or more distinct steering angles and \
              the recording has {angles}: nothing was unwrapped (--dealias {} had no effect)",
+            dealias::MIN_DISTINCT_ANGLES,
             setting.label()
         ));
     }
     (coded && out.dealias.is_some()).then(|| coded_dealias_message(out.nyquist_velocity))
 }
-
-/// Fewest distinct steering angles with which alias patterns can be told apart.
-pub const MIN_DEALIAS_ANGLES: usize = 3;
 
 fn coded_dealias_message(nyquist_velocity: f64) -> String {
     format!(
