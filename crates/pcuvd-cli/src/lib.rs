@@ -29,7 +29,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Process a recording (MUST-style .mat or pcuvd manifest .toml) into B-mode, power, colour and vector Doppler maps.
+    /// Process a recording (any format `pcuvd info` reads: MUST, USTB UFF, zea, Verasonics, pcuvd manifest) into B-mode, power, colour and vector Doppler maps.
     Process(Box<process::ProcessArgs>),
     /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
     Simulate(simulate::SimulateArgs),
