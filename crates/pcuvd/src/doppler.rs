@@ -597,6 +597,9 @@ pub struct Moments {
     /// The lateral lag at temporal lags ±1 (Loupas on a grid that
     /// [`DopplerGeometry::measures_lateral`]; else `None`).
     pub lateral: Option<SpatialLag>,
+    /// The spatial lags within frames, summed over the image: the resolution cell
+    /// ([`crate::partial_volume`]).
+    pub cell: crate::partial_volume::CellLags,
     /// Frames the power is a mean over.
     pub frames: usize,
     /// Frame pairs the lag-1 products are means over.
@@ -638,6 +641,7 @@ impl Moments {
                 by_pairs(&mut m.minus, &t.minus);
             }
         }
+        self.cell = self.cell.merged(self.frames, &other.cell, other.frames);
         self.frames += other.frames;
         self.pairs += other.pairs;
         Ok(())
@@ -672,6 +676,7 @@ pub fn moments(
         r1: raw.r1,
         axial,
         lateral,
+        cell: crate::partial_volume::CellLags::of(series),
         frames: nf,
         pairs: nf - 1,
     })

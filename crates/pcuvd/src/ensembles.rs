@@ -271,6 +271,7 @@ mod tests {
             iq_cutoff: None,
             event_alignment: Default::default(),
             dealias: Default::default(),
+            partial_volume: false,
         };
         (images, params)
     }

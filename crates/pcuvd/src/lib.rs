@@ -5,7 +5,8 @@
 //! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
 //! demodulates; [`beamform`] forms per-angle IQ images on a [`grid`] of pixels; [`clutter`] removes
 //! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz),
-//! [`dealias`] unwraps projections beyond the Nyquist velocity;
+//! [`dealias`] unwraps projections beyond the Nyquist velocity, [`partial_volume`] moves them from
+//! each resolution cell's power centroid back to its pixel;
 //! [`dynamics`] follows it over the cardiac cycle (PSV, EDV, RI, [`vessel`] classes). [`images`]
 //! carries per-angle image series with their metadata; [`pipeline`] runs the chain in order.
 //!
@@ -31,6 +32,7 @@ pub mod images;
 pub mod iq;
 pub mod masks;
 pub mod metrics;
+pub mod partial_volume;
 pub mod phantom;
 pub mod pipeline;
 pub mod probe;

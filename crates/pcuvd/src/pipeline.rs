@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayViewMut3, Axis};
+use ndarray::{Array2, Array3, ArrayViewMut3, Axis, Zip};
 
 use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
@@ -16,6 +16,7 @@ use crate::error::{Error, Result, invalid};
 use crate::grid::Grid;
 use crate::images::AngleImages;
 use crate::iq;
+use crate::partial_volume;
 use crate::source::{Blocks, FrameSource};
 use crate::vector::{self, Estimator, IrlsParams, VectorField};
 use num_complex::Complex32;
@@ -41,6 +42,9 @@ pub struct ProcessParams {
     pub event_alignment: decode::EventAlignment,
     /// Vector dealiasing of both estimators ([`crate::dealias`]); off by default.
     pub dealias: Dealias,
+    /// Move each projection from its resolution cell's power centroid back to its pixel before
+    /// the vector fit ([`crate::partial_volume`]); off by default.
+    pub partial_volume: bool,
 }
 
 /// Pipeline stages, in order, as reported to a progress callback.
@@ -748,13 +752,54 @@ pub fn doppler_maps(
         )?
         .try_into()
         .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
+        let (mut ls_field, mut irls_field) = (ls.field, irls.field);
+        if params.partial_volume {
+            let cells: Vec<_> = per_angle
+                .iter()
+                .map(|m| {
+                    // The Doppler of a kernel averages its pixels' cells: its centroid is that of
+                    // the cell widened by the kernel, on the kernel-averaged power.
+                    partial_volume::CellCovariance::from_lags(&m.cell, params.grid.step())
+                        .map(|c| c.through_kernel(params.doppler_kernel, params.grid.step()))
+                })
+                .collect();
+            let reference = ls_field.clone();
+            for (field, counts, estimator) in [
+                (&mut ls_field, &ls.counts, Estimator::LeastSquares),
+                (&mut irls_field, &irls.counts, Estimator::Irls(params.irls)),
+            ] {
+                let mut unwrapped = projections.clone();
+                Zip::from(&mut unwrapped)
+                    .and(&counts.alias_counts)
+                    .and(&nyquist)
+                    .for_each(|v, &k, &vn| *v += 2.0 * f64::from(k) * vn);
+                let corrected = partial_volume::corrected_projections(
+                    unwrapped.view(),
+                    power_per_angle.view(),
+                    &cells,
+                    angles,
+                    &reference,
+                    flow.view(),
+                    params.grid.step(),
+                )?;
+                *field = match lateral {
+                    Some(lateral) => vector::vector_velocity_measured(
+                        angles,
+                        corrected.view(),
+                        lateral,
+                        &estimator,
+                    )?,
+                    None => vector::vector_velocity(angles, corrected.view(), &estimator)?,
+                };
+            }
+        }
         let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
             intervals: ls.intervals,
             flow_pixels: flow.iter().filter(|&&f| f).count(),
             irls: irls.counts,
             ls: ls.counts,
         });
-        (Some(ls.field), Some(irls.field), outcome)
+        (Some(ls_field), Some(irls_field), outcome)
     } else {
         (None, None, None)
     };

@@ -82,6 +82,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         iq_cutoff: None,
         event_alignment: Default::default(),
         dealias: Default::default(),
+        partial_volume: false,
     };
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
     let dparams = DynamicsParams {

@@ -176,6 +176,7 @@ pub fn process_params(
         iq_cutoff: None,
         event_alignment,
         dealias: Default::default(),
+        partial_volume: false,
     }
 }
 
