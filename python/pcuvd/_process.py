@@ -162,7 +162,8 @@ def process(
     for conventional recordings: on a Hadamard-coded one a UserWarning says it cannot help),
     `doppler_estimator="kasai"` (divide the Doppler phase by the nominal centre frequency; the
     default "loupas" divides it by each pixel's measured mean frequency and needs an axial grid
-    step of at most about a wavelength),
+    step of at most about a wavelength), `partial_volume="on"` (move each angle's projection
+    from its resolution cell's power centroid back to the pixel before the vector fit),
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message

@@ -66,6 +66,13 @@ pub struct ProcessingOptions {
     /// conventional recordings.
     #[arg(long, default_value = "off")]
     pub dealias: String,
+    /// Partial-volume correction: "on" moves each angle's projection from its resolution cell's
+    /// power centroid back to the pixel before the vector fit (the cell measured from that
+    /// angle's speckle, the centroid from its power Doppler's gradient): the wall of a vessel and
+    /// the speckle inside it no longer pull the velocity toward where the echoes are brighter.
+    /// Applies to the vector maps and the ensembles' (not yet to the dynamics windows').
+    #[arg(long, value_enum, default_value = "off")]
+    pub partial_volume: Switch,
     /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter
     /// filter and its own power, colour and vector maps (ensemble_*.npy, ensembles.png). Default:
     /// none (the whole recording is one ensemble, as the other maps are).
@@ -293,6 +300,15 @@ pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
         bail!("--doppler-kernel {text:?}: expected ROWSxCOLS, e.g. 3x3");
     };
     Ok((rows, cols))
+}
+
+/// An option that is on or off.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Switch {
+    /// Off.
+    Off,
+    /// On.
+    On,
 }
 
 /// Whether `pcuvd process` runs the dynamics stage (cardiac cycle, PSV/EDV/RI maps).
@@ -545,6 +561,7 @@ impl ProcessingOptions {
             iq_cutoff: None,
             event_alignment: self.event_alignment.into(),
             dealias: self.dealias()?,
+            partial_volume: self.partial_volume == Switch::On,
         };
         // Refused now, not after imaging: an estimator the grid cannot serve.
         pipeline::check_doppler_estimator(data.acquisition(), &params).with_context(|| {

@@ -1095,6 +1095,7 @@ pub fn summary_json(
             "kernel": [params.doppler_kernel.0, params.doppler_kernel.1],
             "estimator": params.doppler_estimator.label(),
             "estimator_description": params.doppler_estimator.describe(),
+            "partial_volume": params.partial_volume,
         },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,
