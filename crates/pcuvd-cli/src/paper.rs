@@ -73,6 +73,10 @@ pub struct StudyOptions {
     /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
     #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(SpiralSettings::default().doppler_estimator))]
     pub doppler_estimator: DopplerEstimatorOption,
+    /// The spiral study with the partial-volume correction (`process --partial-volume`): each
+    /// angle's projection moved from its resolution cell's power centroid to its pixel.
+    #[arg(long, value_enum, default_value = "off")]
+    pub partial_volume: crate::options::Switch,
     /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
     /// study (the paper's baseline: 5.70), or "off".
     #[arg(long, default_value = "5.7")]
@@ -216,6 +220,7 @@ impl StudyOptions {
             event_alignment: self.event_alignment.into(),
             doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
             doppler_estimator: self.doppler_estimator.into(),
+            partial_volume: self.partial_volume == crate::options::Switch::On,
             grid_step_m: self.grid_step * 1e-3,
             calibrate_uvd_vx_m_s: match self.calibrate_uvd_vx.trim() {
                 "off" => None,

@@ -66,6 +66,9 @@ pub struct SpiralSettings {
     /// own calibrated level (when `calibrate_uvd_vx_m_s` is given) beside what it costs in
     /// resolution ([`Averaging`]). Empty: none.
     pub averaging_kernels: Vec<(usize, usize)>,
+    /// The partial-volume correction of every estimate ([`crate::partial_volume`]); the paper
+    /// has none.
+    pub partial_volume: bool,
 }
 
 /// Serialises an event alignment as its option value ("mid-frame", "simultaneous").
@@ -90,6 +93,7 @@ impl Default for SpiralSettings {
             grid_step_m: 0.05e-3,
             calibrate_uvd_vx_m_s: Some(paper::UVD_RMSE_MM_S.0 * 1e-3),
             averaging_kernels: vec![(1, 1), (3, 1), (5, 1), (7, 1), (3, 3)],
+            partial_volume: false,
         }
     }
 }
@@ -358,6 +362,8 @@ pub struct SpiralMetrics {
     pub doppler_kernel: (usize, usize),
     /// Which frequency scaled the Doppler phase.
     pub doppler_estimator: DopplerEstimator,
+    /// Whether the partial-volume correction moved each projection to its pixel.
+    pub partial_volume: bool,
     /// Seed.
     pub seed: u64,
     /// Nyquist velocity of each projection (m/s).
@@ -495,6 +501,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
     let clock = Instant::now();
     let params = ProcessParams {
         doppler_estimator: settings.doppler_estimator,
+        partial_volume: settings.partial_volume,
         ..process_params(
             &grid,
             &formed[0].acquisition,
@@ -667,6 +674,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         event_alignment: settings.event_alignment.label(),
         doppler_kernel: settings.doppler_kernel,
         doppler_estimator: settings.doppler_estimator,
+        partial_volume: settings.partial_volume,
         seed: settings.seed,
         nyquist_velocity_m_s: coded.nyquist_velocity,
         vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
@@ -929,6 +937,59 @@ mod tests {
                 (measured - target).abs() <= CALIBRATION_TOLERANCE_MM_S,
                 "target {target} mm/s, level {level} dB, recomputed {measured}: {c:?}"
             );
+        }
+    }
+
+    /// The partial-volume correction ([`crate::partial_volume`]) on a simulated conventional
+    /// spiral (24 frames, the paper's 50 µm grid, −30 dB, seed 3): each angle's projection moved
+    /// from its cell's power centroid to its pixel lowers both estimators' RMSE of Vx and of Vz
+    /// against the truth by more than a tenth (measured: about a fifth of Vx and a third of Vz).
+    #[test]
+    fn partial_volume_correction_lowers_the_vector_error() {
+        let settings = SpiralSettings {
+            frames: 24,
+            seed: 3,
+            ..SpiralSettings::default()
+        };
+        let phantom = SpiralPhantom::paper(settings.seed).unwrap();
+        let grid = settings.grid().unwrap();
+        let truth = phantom.truth(&grid.x, &grid.z, 0.0);
+        let mut params = simulate::paper_spiral_params(false).unwrap();
+        params.seed = settings.seed;
+        let formed = simulate_and_form(
+            Acquire {
+                phantom: &phantom,
+                params,
+                frames: settings.frames,
+                noise_db: -30.0,
+                motion: settings.motion,
+                alignment: settings.event_alignment,
+                label: "conventional",
+            },
+            &grid,
+            &mut Timings::new(),
+            &|_: &str, _: usize, _: usize| {},
+        )
+        .unwrap();
+        let rmse = |partial_volume: bool| {
+            let params = ProcessParams {
+                partial_volume,
+                ..process_params(&grid, &formed.acquisition, (1, 1), settings.event_alignment)
+            };
+            let out = pipeline::analyse(formed.at_gain(1.0), &params, &|_, _, _| {}).unwrap();
+            [out.vector_ls.unwrap(), out.vector_irls.unwrap()].map(|f| metrics::rmse(&f, &truth))
+        };
+        let (plain, corrected) = (rmse(false), rmse(true));
+        for (name, p, c) in [
+            ("LS", &plain[0], &corrected[0]),
+            ("IRLS", &plain[1], &corrected[1]),
+        ] {
+            eprintln!(
+                "{name}: Vx {:.2} -> {:.2}, Vz {:.2} -> {:.2} mm/s",
+                p.vx, c.vx, p.vz, c.vz
+            );
+            assert!(c.vx < 0.9 * p.vx, "{name} Vx {} -> {}", p.vx, c.vx);
+            assert!(c.vz < 0.9 * p.vz, "{name} Vz {} -> {}", p.vz, c.vz);
         }
     }
 }
