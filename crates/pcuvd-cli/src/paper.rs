@@ -73,8 +73,10 @@ pub struct StudyOptions {
     /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
     #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(SpiralSettings::default().doppler_estimator))]
     pub doppler_estimator: DopplerEstimatorOption,
-    /// The spiral study with the partial-volume correction (`process --partial-volume`): each
-    /// angle's projection moved from its resolution cell's power centroid to its pixel.
+    /// The spiral and dealiasing studies with the partial-volume correction (`process
+    /// --partial-volume`): each angle's projection moved from its resolution cell's power centroid
+    /// to its pixel (the vessel network's RI maps come from the dynamics windows, which it does
+    /// not reach yet).
     #[arg(long, value_enum, default_value = "off")]
     pub partial_volume: crate::options::Switch,
     /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
@@ -279,6 +281,7 @@ impl StudyOptions {
             event_alignment: self.event_alignment.into(),
             doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
             grid_step_m: self.grid_step * 1e-3,
+            partial_volume: self.partial_volume == crate::options::Switch::On,
         };
         settings.validate().context(
             "--dealias-multiples / --dealias-noise-db / --dealias-seeds / --dealias / --frames / --doppler-kernel / --grid-step",

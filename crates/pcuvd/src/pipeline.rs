@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayViewMut3, Axis, Zip};
+use ndarray::{Array2, Array3, ArrayViewMut3, Axis};
 
 use crate::beamform::{self, DasParams};
 use crate::channel::{Acquisition, ChannelData};
@@ -110,6 +110,9 @@ pub struct ProcessOutput {
     /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
     /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
     pub projection_nyquist: Array3<f64>,
+    /// Each angle's resolution cell as the partial-volume correction sees it (its speckle's,
+    /// widened by the Doppler kernel; [`crate::partial_volume`]); `None` where not measurable.
+    pub cells: Vec<Option<partial_volume::CellCovariance>>,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
     /// Clutter-filtered per-angle IQ series, each (nz, nx, frames), with their metadata; kept
@@ -148,6 +151,7 @@ impl ProcessOutput {
             dealias: maps.dealias,
             nyquist_velocity: maps.nyquist_velocity,
             projection_nyquist: maps.projection_nyquist,
+            cells: maps.cells,
             clutter,
             filtered,
             timings,
@@ -667,6 +671,9 @@ pub struct DopplerMaps {
     /// Each projection's Nyquist velocity at each pixel (angles, nz, nx), m/s; see
     /// [`ProcessOutput::projection_nyquist`].
     pub projection_nyquist: Array3<f64>,
+    /// Each angle's resolution cell as the partial-volume correction sees it; see
+    /// [`ProcessOutput::cells`].
+    pub cells: Vec<Option<partial_volume::CellCovariance>>,
 }
 
 /// Velocities and vectors from Doppler moments ([`moments`], or those of several segments of a
@@ -735,6 +742,15 @@ pub fn doppler_maps(
         .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
     let nyquist_velocity = doppler::nyquist_velocity(c, frame_rate, f0);
+    // The Doppler of a kernel averages its pixels' cells: its centroid is that of the cell
+    // widened by the kernel, on the kernel-averaged power.
+    let cells: Vec<_> = per_angle
+        .iter()
+        .map(|m| {
+            partial_volume::CellCovariance::from_lags(&m.cell, params.grid.step())
+                .map(|c| c.through_kernel(params.doppler_kernel, params.grid.step()))
+        })
+        .collect();
     // Kasai's rows are the model's; Loupas fits its measured lateral weights.
     let lateral =
         (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
@@ -754,43 +770,27 @@ pub fn doppler_maps(
         .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
         let (mut ls_field, mut irls_field) = (ls.field, irls.field);
         if params.partial_volume {
-            let cells: Vec<_> = per_angle
-                .iter()
-                .map(|m| {
-                    // The Doppler of a kernel averages its pixels' cells: its centroid is that of
-                    // the cell widened by the kernel, on the kernel-averaged power.
-                    partial_volume::CellCovariance::from_lags(&m.cell, params.grid.step())
-                        .map(|c| c.through_kernel(params.doppler_kernel, params.grid.step()))
-                })
-                .collect();
             let reference = ls_field.clone();
             for (field, counts, estimator) in [
                 (&mut ls_field, &ls.counts, Estimator::LeastSquares),
                 (&mut irls_field, &irls.counts, Estimator::Irls(params.irls)),
             ] {
-                let mut unwrapped = projections.clone();
-                Zip::from(&mut unwrapped)
-                    .and(&counts.alias_counts)
-                    .and(&nyquist)
-                    .for_each(|v, &k, &vn| *v += 2.0 * f64::from(k) * vn);
-                let corrected = partial_volume::corrected_projections(
+                let unwrapped = dealias::unwrap(
+                    projections.view(),
+                    counts.alias_counts.view(),
+                    nyquist.view(),
+                );
+                *field = partial_volume_fit(
+                    angles,
                     unwrapped.view(),
                     power_per_angle.view(),
                     &cells,
-                    angles,
-                    &reference,
+                    lateral,
                     flow.view(),
+                    &reference,
                     params.grid.step(),
+                    &estimator,
                 )?;
-                *field = match lateral {
-                    Some(lateral) => vector::vector_velocity_measured(
-                        angles,
-                        corrected.view(),
-                        lateral,
-                        &estimator,
-                    )?,
-                    None => vector::vector_velocity(angles, corrected.view(), &estimator)?,
-                };
             }
         }
         let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
@@ -815,7 +815,43 @@ pub fn doppler_maps(
         dealias: dealiased,
         nyquist_velocity,
         projection_nyquist: nyquist,
+        cells,
     })
+}
+
+/// `estimator`'s vectors from projections `unwrapped` (angles, nz, nx; m/s, each with its alias
+/// count applied) after the partial-volume correction
+/// ([`partial_volume::corrected_projections`]) in the pixels of `flow`: `power_per_angle` and
+/// `cells` as [`ProcessOutput`] holds them, ∇V from `reference` (the least-squares vectors of the
+/// same projections, before the correction), `lateral` the measured lateral weights (Loupas) or
+/// `None` (the model's sin θ), `step` the grid's (m).
+#[allow(clippy::too_many_arguments)]
+pub fn partial_volume_fit(
+    angles: &[f64],
+    unwrapped: ndarray::ArrayView3<f64>,
+    power_per_angle: ndarray::ArrayView3<f64>,
+    cells: &[Option<partial_volume::CellCovariance>],
+    lateral: Option<ndarray::ArrayView3<f64>>,
+    flow: ndarray::ArrayView2<bool>,
+    reference: &VectorField,
+    step: f64,
+    estimator: &Estimator,
+) -> Result<VectorField> {
+    let corrected = partial_volume::corrected_projections(
+        unwrapped,
+        power_per_angle,
+        cells,
+        angles,
+        reference,
+        flow,
+        step,
+    )?;
+    match lateral {
+        Some(lateral) => {
+            vector::vector_velocity_measured(angles, corrected.view(), lateral, estimator)
+        }
+        None => vector::vector_velocity(angles, corrected.view(), estimator),
+    }
 }
 
 /// The dynamics stage on a processed recording: vector velocity in sliding windows over the

@@ -60,6 +60,9 @@ pub struct DealiasSettings {
     pub doppler_kernel: (usize, usize),
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
+    /// The partial-volume correction of every fit, the true pattern's too
+    /// ([`crate::partial_volume`]).
+    pub partial_volume: bool,
 }
 
 fn dealias_label<S: serde::Serializer>(
@@ -83,6 +86,7 @@ impl Default for DealiasSettings {
             event_alignment: EventAlignment::MidFrame,
             doppler_kernel: (1, 1),
             grid_step_m: 0.05e-3,
+            partial_volume: false,
         }
     }
 }
@@ -204,11 +208,13 @@ impl Method {
     }
 
     /// The method's fit of `out`'s projections unwrapped with the true alias counts
-    /// ([`metrics::true_alias_counts`] against `truth`), and those counts.
+    /// ([`metrics::true_alias_counts`] against `truth`), and those counts; with the
+    /// partial-volume correction when `partial_volume`, as the pipeline would have applied it.
     fn true_pattern_fit(
         self,
         out: &ProcessOutput,
         truth: &Truth,
+        partial_volume: bool,
     ) -> Result<(VectorField, ndarray::Array3<i8>)> {
         let counts = metrics::true_alias_counts(
             &out.projections,
@@ -221,7 +227,26 @@ impl Method {
             counts.view(),
             out.projection_nyquist.view(),
         );
-        Ok((self.fit(out, unwrapped.view())?, counts))
+        if !partial_volume {
+            return Ok((self.fit(out, unwrapped.view())?, counts));
+        }
+        let estimator = match self {
+            Method::UvdLs => crate::vector::Estimator::LeastSquares,
+            _ => crate::vector::Estimator::Irls(crate::vector::IrlsParams::default()),
+        };
+        let step = out.grid.step();
+        let field = pipeline::partial_volume_fit(
+            &out.filtered.angles,
+            unwrapped.view(),
+            out.power_per_angle.view(),
+            &out.cells,
+            Some(out.lateral_weights.view()),
+            crate::dealias::flow_mask(&out.power_doppler, step).view(),
+            &Method::UvdLs.fit(out, unwrapped.view())?,
+            step,
+            &estimator,
+        )?;
+        Ok((field, counts))
     }
 
     fn field(self, out: &ProcessOutput) -> &VectorField {
@@ -427,6 +452,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                     for dealias in [Dealias::Off, settings.dealias] {
                         let params = pipeline::ProcessParams {
                             dealias,
+                            partial_volume: settings.partial_volume,
                             ..process_params(
                                 &grid,
                                 &f.acquisition,
@@ -475,7 +501,8 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                             }
                         };
                     let true_pattern = {
-                        let (field, counts) = method.true_pattern_fit(off, &truth)?;
+                        let (field, counts) =
+                            method.true_pattern_fit(off, &truth, settings.partial_volume)?;
                         scores(&field, off, Some(&counts))
                     };
                     let done = on.dealias.as_ref();
@@ -736,7 +763,7 @@ mod tests {
             };
             let within =
                 |field: &VectorField| metrics::within_fraction_of_peak(field, &truth, peak, 0.1);
-            let ceiling = within(&method.true_pattern_fit(&off, &truth).unwrap().0);
+            let ceiling = within(&method.true_pattern_fit(&off, &truth, false).unwrap().0);
             let (before, after) = (within(method.field(&off)), within(method.field(&on)));
             let label = method.label();
             assert!(patterns(&zeros) < 0.5, "{label}: {}", patterns(&zeros));
