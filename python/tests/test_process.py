@@ -361,6 +361,10 @@ def test_partial_volume_is_the_cli_option(tube, cli, tmp_path):
     on = pcuvd.process(tube, grid_mm=grid, dynamics="off", partial_volume="on", quiet=True)
     assert off.summary["doppler"]["partial_volume"] is False
     assert on.summary["doppler"]["partial_volume"] is True
+    # Each angle's measured cell: the L22-14vX's is wider than it is deep (about 0.09 × 0.025 mm).
+    cells = on.summary["doppler"]["partial_volume_cells"]
+    assert len(cells) == 8
+    assert all(0.02 < c["sigma_z_mm"] < c["sigma_x_mm"] < 0.3 for c in cells), cells
     by_cli = tmp_path / "cli"
     done = run_cli(
         cli, "process", tube, "--out", by_cli, "--grid=-3,3,4,10,0.08", "--dynamics=off",
