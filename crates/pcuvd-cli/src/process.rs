@@ -1098,11 +1098,11 @@ pub fn summary_json(
             "partial_volume": params.partial_volume,
             // Each angle's intensity cell (its speckle's, widened by the kernel) as the
             // correction saw it; null where it could not be measured.
-            "partial_volume_cells": out.cells.iter().map(|c| c.map(|c| json!({
+            "partial_volume_cells": params.partial_volume.then(|| out.cells.iter().map(|c| c.map(|c| json!({
                 "sigma_x_mm": c.xx.sqrt() * 1e3,
                 "sigma_z_mm": c.zz.sqrt() * 1e3,
                 "covariance_xz_mm2": c.xz * 1e6,
-            }))).collect::<Vec<_>>(),
+            }))).collect::<Vec<_>>()),
         },
         "irls": { "lambda_mm_s": params.irls.lambda_mm_s, "epsilon": params.irls.epsilon, "max_iterations": params.irls.max_iterations },
         "nyquist_velocity_m_s": out.nyquist_velocity,

@@ -598,8 +598,9 @@ pub struct Moments {
     /// [`DopplerGeometry::measures_lateral`]; else `None`).
     pub lateral: Option<SpatialLag>,
     /// The spatial lags within frames, summed over the image: the resolution cell
-    /// ([`crate::partial_volume`]).
-    pub cell: crate::partial_volume::CellLags,
+    /// ([`crate::partial_volume`]); measured only when asked for (`None` from [`moments`];
+    /// [`crate::pipeline::moments`] with the partial-volume correction on).
+    pub cell: Option<crate::partial_volume::CellLags>,
     /// Frames the power is a mean over.
     pub frames: usize,
     /// Frame pairs the lag-1 products are means over.
@@ -641,7 +642,10 @@ impl Moments {
                 by_pairs(&mut m.minus, &t.minus);
             }
         }
-        self.cell = self.cell.merged(self.frames, &other.cell, other.frames);
+        self.cell = match (&self.cell, &other.cell) {
+            (Some(mine), Some(theirs)) => Some(mine.merged(self.frames, theirs, other.frames)),
+            _ => None,
+        };
         self.frames += other.frames;
         self.pairs += other.pairs;
         Ok(())
@@ -676,7 +680,7 @@ pub fn moments(
         r1: raw.r1,
         axial,
         lateral,
-        cell: crate::partial_volume::CellLags::of(series),
+        cell: None,
         frames: nf,
         pairs: nf - 1,
     })

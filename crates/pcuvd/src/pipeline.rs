@@ -111,7 +111,8 @@ pub struct ProcessOutput {
     /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
     pub projection_nyquist: Array3<f64>,
     /// Each angle's resolution cell as the partial-volume correction sees it (its speckle's,
-    /// widened by the Doppler kernel; [`crate::partial_volume`]); `None` where not measurable.
+    /// widened by the Doppler kernel; [`crate::partial_volume`]); `None` where not measurable or
+    /// not measured (the correction off).
     pub cells: Vec<Option<partial_volume::CellCovariance>>,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
@@ -627,11 +628,16 @@ pub fn moments(
         .iter()
         .enumerate()
         .map(|(k, image)| {
-            doppler::moments(
-                image.slice(ndarray::s![.., .., range.clone()]),
+            let series = image.slice(ndarray::s![.., .., range.clone()]);
+            let mut m = doppler::moments(
+                series,
                 params.doppler_estimator,
                 &doppler_geometry(images, &params.grid, Some(k)),
-            )
+            )?;
+            if params.partial_volume {
+                m.cell = Some(partial_volume::CellLags::of(series));
+            }
+            Ok(m)
         })
         .collect::<Result<Vec<_>>>()?;
     let compound = beamform::compound(&images.series)?;
@@ -747,8 +753,11 @@ pub fn doppler_maps(
     let cells: Vec<_> = per_angle
         .iter()
         .map(|m| {
-            partial_volume::CellCovariance::from_lags(&m.cell, params.grid.step())
-                .map(|c| c.through_kernel(params.doppler_kernel, params.grid.step()))
+            let step = params.grid.step();
+            m.cell
+                .as_ref()
+                .and_then(|lags| partial_volume::CellCovariance::from_lags(lags, step))
+                .map(|c| c.through_kernel(params.doppler_kernel, step))
         })
         .collect();
     // Kasai's rows are the model's; Loupas fits its measured lateral weights.
