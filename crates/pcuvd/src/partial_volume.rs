@@ -295,15 +295,15 @@ fn gradient(map: &Array2<f64>, step: f64) -> (Array2<f64>, Array2<f64>) {
     (dx, dz)
 }
 
-/// The projections `projections` (angles, nz, nx; m/s, unwrapped where dealiasing unwrapped
-/// them) moved from each angle's cell centroid back to the pixel, in the pixels of `flow`:
-/// V_θ − ∇V_θ·(Σ_θ ∇ln P_θ), with P_θ = `power[θ]` (that angle's power Doppler), Σ_θ =
-/// `cells[θ]` and ∇V_θ that of the projection of `flow_field` (the vectors, m/s), fitted over
-/// about one cell ([`local_gradient_in_mask`]). `angles` (rad) give the projection weights; `step` is
-/// the grid's (m). An angle without a cell (`None`) and pixels where anything is not finite are
-/// left as they are.
-pub fn corrected_projections(
-    projections: ArrayView3<f64>,
+/// Each angle's partial-volume shift (angles, nz, nx; m/s): how far its projection reads from
+/// the pixel's because it is the velocity at its cell's centroid, ∇V_θ·(Σ_θ ∇ln P_θ), in the
+/// pixels of `flow`, with P_θ = `power[θ]` (that angle's power Doppler), Σ_θ = `cells[θ]` and
+/// ∇V_θ that of the projection of `flow_field` (the vectors, m/s), fitted over about one cell
+/// ([`local_gradient_in_mask`]). `angles` (rad) give the projection weights; `step` is the
+/// grid's (m). Zero for an angle without a cell (`None`), outside `flow` and where anything is
+/// not finite. Subtract it from any estimate of the same projections
+/// ([`corrected_projections`]): it depends on the flow and the cells, not on the fit.
+pub fn projection_shifts(
     power: ArrayView3<f64>,
     cells: &[Option<CellCovariance>],
     angles: &[f64],
@@ -311,17 +311,15 @@ pub fn corrected_projections(
     flow: ArrayView2<bool>,
     step: f64,
 ) -> Result<Array3<f64>> {
-    let (n, nz, nx) = projections.dim();
-    if power.dim() != (n, nz, nx)
-        || cells.len() != n
+    let (n, nz, nx) = power.dim();
+    if cells.len() != n
         || angles.len() != n
         || flow.dim() != (nz, nx)
         || flow_field.vx.dim() != (nz, nx)
     {
         return Err(Error::Shape(format!(
-            "partial-volume correction of projections {:?} with power {:?}, {} cells, {} angles, \
-             flow mask {:?} and vectors {:?}",
-            projections.dim(),
+            "partial-volume shifts of power {:?} with {} cells, {} angles, flow mask {:?} and \
+             vectors {:?}",
             power.dim(),
             cells.len(),
             angles.len(),
@@ -329,7 +327,7 @@ pub fn corrected_projections(
             flow_field.vx.dim()
         )));
     }
-    let mut out = projections.to_owned();
+    let mut shifts = Array3::zeros((n, nz, nx));
     // Smooth over the widest cell's lateral extent, at least one pixel: finer than the cell the
     // field's gradient is the speckle's, not the flow's.
     let sigma_px = cells
@@ -349,7 +347,7 @@ pub fn corrected_projections(
         let log_power = p.mapv(|v| v.max(floor).ln());
         let (lp_dx, lp_dz) = gradient(&log_power, step);
         let (lateral, axial) = projection_weights(angles[k]);
-        Zip::indexed(out.index_axis_mut(Axis(0), k)).for_each(|(iz, ix), v| {
+        Zip::indexed(shifts.index_axis_mut(Axis(0), k)).for_each(|(iz, ix), shift| {
             if !flow[[iz, ix]] {
                 return;
             }
@@ -357,13 +355,30 @@ pub fn corrected_projections(
             // ∇V_θ = ½ (sin θ ∇Vx + (1 + cos θ) ∇Vz).
             let gx = 0.5 * (lateral * vx_dx[[iz, ix]] + axial * vz_dx[[iz, ix]]);
             let gz = 0.5 * (lateral * vx_dz[[iz, ix]] + axial * vz_dz[[iz, ix]]);
-            let shift = gx * ox + gz * oz;
-            if shift.is_finite() && v.is_finite() {
-                *v -= shift;
+            let moved = gx * ox + gz * oz;
+            if moved.is_finite() {
+                *shift = moved;
             }
         });
     }
-    Ok(out)
+    Ok(shifts)
+}
+
+/// The projections `projections` (angles, nz, nx; m/s, unwrapped where dealiasing unwrapped
+/// them) moved from each angle's cell centroid back to the pixel: minus their
+/// [`projection_shifts`] `shifts` (same shape).
+pub fn corrected_projections(
+    projections: ArrayView3<f64>,
+    shifts: ArrayView3<f64>,
+) -> Result<Array3<f64>> {
+    if projections.dim() != shifts.dim() {
+        return Err(Error::Shape(format!(
+            "partial-volume correction of projections {:?} by shifts {:?}",
+            projections.dim(),
+            shifts.dim()
+        )));
+    }
+    Ok(&projections - &shifts)
 }
 
 #[cfg(test)]
@@ -469,8 +484,7 @@ mod tests {
             vz: Array2::from_shape_fn((nz, nx), |(iz, ix)| vz_at(pos(iz, ix).0, pos(iz, ix).1)),
         };
         let flow = Array2::from_elem((nz, nx), true);
-        let out = corrected_projections(
-            projections.view(),
+        let shifts = projection_shifts(
             power.view(),
             &[Some(cell); 3],
             &angles,
@@ -479,6 +493,7 @@ mod tests {
             step,
         )
         .unwrap();
+        let out = corrected_projections(projections.view(), shifts.view()).unwrap();
         let mut before = 0.0f64;
         for (k, &theta) in angles.iter().enumerate() {
             let (l, c) = projection_weights(theta);

@@ -779,7 +779,15 @@ pub fn doppler_maps(
         .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
         let (mut ls_field, mut irls_field) = (ls.field, irls.field);
         if params.partial_volume {
-            let reference = ls_field.clone();
+            // The shifts rest on the least-squares vectors alone; both fits take them.
+            let shifts = partial_volume::projection_shifts(
+                power_per_angle.view(),
+                &cells,
+                angles,
+                &ls_field,
+                flow.view(),
+                params.grid.step(),
+            )?;
             for (field, counts, estimator) in [
                 (&mut ls_field, &ls.counts, Estimator::LeastSquares),
                 (&mut irls_field, &irls.counts, Estimator::Irls(params.irls)),
@@ -792,12 +800,8 @@ pub fn doppler_maps(
                 *field = partial_volume_fit(
                     angles,
                     unwrapped.view(),
-                    power_per_angle.view(),
-                    &cells,
+                    shifts.view(),
                     lateral,
-                    flow.view(),
-                    &reference,
-                    params.grid.step(),
                     &estimator,
                 )?;
             }
@@ -829,32 +833,16 @@ pub fn doppler_maps(
 }
 
 /// `estimator`'s vectors from projections `unwrapped` (angles, nz, nx; m/s, each with its alias
-/// count applied) after the partial-volume correction
-/// ([`partial_volume::corrected_projections`]) in the pixels of `flow`: `power_per_angle` and
-/// `cells` as [`ProcessOutput`] holds them, ∇V from `reference` (the least-squares vectors of the
-/// same projections, before the correction), `lateral` the measured lateral weights (Loupas) or
-/// `None` (the model's sin θ), `step` the grid's (m).
-#[allow(clippy::too_many_arguments)]
+/// count applied) less their partial-volume `shifts` ([`partial_volume::projection_shifts`]),
+/// `lateral` the measured lateral weights (Loupas) or `None` (the model's sin θ).
 pub fn partial_volume_fit(
     angles: &[f64],
     unwrapped: ndarray::ArrayView3<f64>,
-    power_per_angle: ndarray::ArrayView3<f64>,
-    cells: &[Option<partial_volume::CellCovariance>],
+    shifts: ndarray::ArrayView3<f64>,
     lateral: Option<ndarray::ArrayView3<f64>>,
-    flow: ndarray::ArrayView2<bool>,
-    reference: &VectorField,
-    step: f64,
     estimator: &Estimator,
 ) -> Result<VectorField> {
-    let corrected = partial_volume::corrected_projections(
-        unwrapped,
-        power_per_angle,
-        cells,
-        angles,
-        reference,
-        flow,
-        step,
-    )?;
+    let corrected = partial_volume::corrected_projections(unwrapped, shifts)?;
     match lateral {
         Some(lateral) => {
             vector::vector_velocity_measured(angles, corrected.view(), lateral, estimator)

@@ -235,15 +235,19 @@ impl Method {
             _ => crate::vector::Estimator::Irls(crate::vector::IrlsParams::default()),
         };
         let step = out.grid.step();
+        let shifts = crate::partial_volume::projection_shifts(
+            out.power_per_angle.view(),
+            &out.cells,
+            &out.filtered.angles,
+            &Method::UvdLs.fit(out, unwrapped.view())?,
+            crate::dealias::flow_mask(&out.power_doppler, step).view(),
+            step,
+        )?;
         let field = pipeline::partial_volume_fit(
             &out.filtered.angles,
             unwrapped.view(),
-            out.power_per_angle.view(),
-            &out.cells,
+            shifts.view(),
             Some(out.lateral_weights.view()),
-            crate::dealias::flow_mask(&out.power_doppler, step).view(),
-            &Method::UvdLs.fit(out, unwrapped.view())?,
-            step,
             &estimator,
         )?;
         Ok((field, counts))
