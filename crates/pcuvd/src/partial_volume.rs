@@ -15,7 +15,10 @@
 //! Doppler and Σ_θ its cell measured from its own speckle ([`CellLags`], [`CellCovariance`]).
 //! The gradient is the slope of a plane fitted to the vector field over about one cell within
 //! the flow ([`local_gradient_in_mask`]), through the angle's projection weights, so that it is
-//! the flow's and not the speckle's, and stays whole up to the wall.
+//! the flow's and not the speckle's, and stays whole up to the wall. The vectors of uncorrected
+//! projections have a flatter gradient at the wall than the flow (the cells smear it too), so the
+//! shifts are estimated again from the corrected vectors, [`REFINEMENT_ROUNDS`] times in all
+//! ([`refined_shifts`]).
 
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip, s};
 use num_complex::{Complex32, Complex64};
@@ -364,6 +367,43 @@ pub fn projection_shifts(
     Ok(shifts)
 }
 
+/// How many times the pipeline estimates the shifts ([`refined_shifts`]). The gradient of the
+/// uncorrected vectors is itself smeared by the cells (flatter than the flow's at the wall), so
+/// the first shifts fall short; on the `tube` preset (no noise, dealiased, 3× v_N) the outer
+/// fifth's Vx bias goes +11.9, +9.0, +7.9, +7.4 mm/s over the first four rounds and
+/// +6.9 at eight.
+pub const REFINEMENT_ROUNDS: usize = 4;
+
+/// [`projection_shifts`] of `projections` (angles, nz, nx; m/s, unwrapped), estimated `rounds`
+/// times: first from the vectors `initial` (the fit of the uncorrected projections), then each
+/// time from the vectors `fit` gives on the projections corrected by the previous round's
+/// shifts. One round is [`projection_shifts`] of `initial`; zero rounds are no shifts.
+#[allow(clippy::too_many_arguments)]
+pub fn refined_shifts(
+    projections: ArrayView3<f64>,
+    power: ArrayView3<f64>,
+    cells: &[Option<CellCovariance>],
+    angles: &[f64],
+    initial: &VectorField,
+    flow: ArrayView2<bool>,
+    step: f64,
+    rounds: usize,
+    fit: impl Fn(ArrayView3<f64>) -> Result<VectorField>,
+) -> Result<Array3<f64>> {
+    let mut shifts = Array3::zeros(projections.dim());
+    for round in 0..rounds {
+        let corrected;
+        let reference = if round == 0 {
+            initial
+        } else {
+            corrected = fit(corrected_projections(projections, shifts.view())?.view())?;
+            &corrected
+        };
+        shifts = projection_shifts(power, cells, angles, reference, flow, step)?;
+    }
+    Ok(shifts)
+}
+
 /// The projections `projections` (angles, nz, nx; m/s, unwrapped where dealiasing unwrapped
 /// them) moved from each angle's cell centroid back to the pixel: minus their
 /// [`projection_shifts`] `shifts` (same shape).
@@ -510,6 +550,105 @@ mod tests {
         assert!(
             before > 1e-5,
             "the test's centroid offset moves nothing: {before}"
+        );
+    }
+
+    /// A lateral flow with a parabolic profile across a band of blood (rows `wall..nz − wall`),
+    /// each angle's projection the power-weighted mean of the flow over its own tilted Gaussian
+    /// cell, as the Doppler of a cell measures it: at the wall the cell holds blood on one side
+    /// only and reads the faster flow inside. Returns the fitted Vx's RMS error (m/s) in the
+    /// outer fifth of the band after `rounds` estimates of the shifts.
+    fn wall_error_after(rounds: usize) -> f64 {
+        let (nz, nx, wall, step) = (48usize, 40usize, 12usize, 5e-5);
+        let (centre, radius) = ((nz - 1) as f64 / 2.0, (nz - 2 * wall) as f64 / 2.0);
+        let blood = |iz: usize| (wall..nz - wall).contains(&iz);
+        let truth = |iz: usize| {
+            let r = (iz as f64 - centre) / radius;
+            if blood(iz) { 0.03 * (1.0 - r * r) } else { 0.0 }
+        };
+        let angles = [-0.26, 0.0, 0.26];
+        // Intensity cells (pixels²), tilted about half the steering, widest laterally.
+        let cells_px = [[4.0, -0.6, 1.2], [4.0, 0.0, 1.0], [4.0, 0.6, 1.2]];
+        let (mut projections, mut power) = (
+            Array3::<f64>::zeros((3, nz, nx)),
+            Array3::<f64>::zeros((3, nz, nx)),
+        );
+        for (k, &[xx, xz, zz]) in cells_px.iter().enumerate() {
+            let det = xx * zz - xz * xz;
+            let (lateral, axial) = projection_weights(angles[k]);
+            for iz in 0..nz {
+                for ix in 0..nx {
+                    let (mut weight, mut moment) = (0.0, 0.0);
+                    for jz in iz.saturating_sub(8)..(iz + 9).min(nz) {
+                        for jx in ix.saturating_sub(10)..(ix + 11).min(nx) {
+                            let (dx, dz) = (jx as f64 - ix as f64, jz as f64 - iz as f64);
+                            let quadratic =
+                                (zz * dx * dx - 2.0 * xz * dx * dz + xx * dz * dz) / det;
+                            let g = if blood(jz) {
+                                (-0.5 * quadratic).exp()
+                            } else {
+                                0.0
+                            };
+                            weight += g;
+                            moment += g * 0.5 * (lateral * truth(jz) + axial * 0.0);
+                        }
+                    }
+                    power[[k, iz, ix]] = weight;
+                    projections[[k, iz, ix]] = if weight > 0.0 { moment / weight } else { 0.0 };
+                }
+            }
+        }
+        let cells: Vec<_> = cells_px
+            .iter()
+            .map(|&[xx, xz, zz]| {
+                let h2 = step * step;
+                Some(CellCovariance {
+                    xx: xx * h2,
+                    xz: xz * h2,
+                    zz: zz * h2,
+                })
+            })
+            .collect();
+        let flow = Array2::from_shape_fn((nz, nx), |(iz, _)| blood(iz));
+        let fit = |p: ArrayView3<f64>| {
+            crate::vector::vector_velocity(&angles, p, &crate::vector::Estimator::LeastSquares)
+        };
+        let initial = fit(projections.view()).unwrap();
+        let shifts = refined_shifts(
+            projections.view(),
+            power.view(),
+            &cells,
+            &angles,
+            &initial,
+            flow.view(),
+            step,
+            rounds,
+            fit,
+        )
+        .unwrap();
+        let field = fit(corrected_projections(projections.view(), shifts.view())
+            .unwrap()
+            .view())
+        .unwrap();
+        let outer: Vec<f64> = (0..nz)
+            .filter(|&iz| blood(iz) && ((iz as f64 - centre) / radius).abs() >= 0.8)
+            .flat_map(|iz| (10..nx - 10).map(move |ix| (iz, ix)))
+            .map(|(iz, ix)| field.vx[[iz, ix]] - truth(iz))
+            .collect();
+        (outer.iter().map(|e| e * e).sum::<f64>() / outer.len() as f64).sqrt()
+    }
+
+    #[test]
+    fn refining_the_shifts_from_corrected_vectors_mends_the_wall() {
+        // Measured: 1.93 mm/s uncorrected, 0.45 after one round, 0.24 after two, 0.22 after four.
+        let [none, one, refined] = [0, 1, REFINEMENT_ROUNDS].map(wall_error_after);
+        assert!(
+            one < 0.3 * none,
+            "one round: {one} against {none} m/s uncorrected"
+        );
+        assert!(
+            refined < 0.6 * one,
+            "{REFINEMENT_ROUNDS} rounds: {refined} against {one} m/s after one"
         );
     }
 

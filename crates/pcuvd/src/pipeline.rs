@@ -780,13 +780,21 @@ pub fn doppler_maps(
         let (mut ls_field, mut irls_field) = (ls.field, irls.field);
         if params.partial_volume {
             // The shifts rest on the least-squares vectors alone; both fits take them.
-            let shifts = partial_volume::projection_shifts(
+            let unwrapped_ls = dealias::unwrap(
+                projections.view(),
+                ls.counts.alias_counts.view(),
+                nyquist.view(),
+            );
+            let shifts = partial_volume::refined_shifts(
+                unwrapped_ls.view(),
                 power_per_angle.view(),
                 &cells,
                 angles,
                 &ls_field,
                 flow.view(),
                 params.grid.step(),
+                partial_volume::REFINEMENT_ROUNDS,
+                |corrected| fit_vectors(angles, corrected, lateral, &Estimator::LeastSquares),
             )?;
             for (field, counts, estimator) in [
                 (&mut ls_field, &ls.counts, Estimator::LeastSquares),
@@ -843,11 +851,20 @@ pub fn partial_volume_fit(
     estimator: &Estimator,
 ) -> Result<VectorField> {
     let corrected = partial_volume::corrected_projections(unwrapped, shifts)?;
+    fit_vectors(angles, corrected.view(), lateral, estimator)
+}
+
+/// `estimator`'s vectors from `projections` (angles, nz, nx; m/s) with the measured lateral
+/// weights `lateral` (Loupas) or the model's sin θ (`None`).
+fn fit_vectors(
+    angles: &[f64],
+    projections: ndarray::ArrayView3<f64>,
+    lateral: Option<ndarray::ArrayView3<f64>>,
+    estimator: &Estimator,
+) -> Result<VectorField> {
     match lateral {
-        Some(lateral) => {
-            vector::vector_velocity_measured(angles, corrected.view(), lateral, estimator)
-        }
-        None => vector::vector_velocity(angles, corrected.view(), estimator),
+        Some(lateral) => vector::vector_velocity_measured(angles, projections, lateral, estimator),
+        None => vector::vector_velocity(angles, projections, estimator),
     }
 }
 

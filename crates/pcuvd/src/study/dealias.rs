@@ -235,13 +235,16 @@ impl Method {
             _ => crate::vector::Estimator::Irls(crate::vector::IrlsParams::default()),
         };
         let step = out.grid.step();
-        let shifts = crate::partial_volume::projection_shifts(
+        let shifts = crate::partial_volume::refined_shifts(
+            unwrapped.view(),
             out.power_per_angle.view(),
             &out.cells,
             &out.filtered.angles,
             &Method::UvdLs.fit(out, unwrapped.view())?,
             crate::dealias::flow_mask(&out.power_doppler, step).view(),
             step,
+            crate::partial_volume::REFINEMENT_ROUNDS,
+            |corrected| Method::UvdLs.fit(out, corrected),
         )?;
         let field = pipeline::partial_volume_fit(
             &out.filtered.angles,

@@ -943,7 +943,8 @@ mod tests {
     /// The partial-volume correction ([`crate::partial_volume`]) on a simulated conventional
     /// spiral (24 frames, the paper's 50 µm grid, −30 dB, seed 3): each angle's projection moved
     /// from its cell's power centroid to its pixel lowers both estimators' RMSE of Vx and of Vz
-    /// against the truth by more than a tenth (measured: about a fifth of Vx and a third of Vz).
+    /// against the truth by more than a tenth (measured, with the refined shifts: LS Vx 7.10 → 5.42,
+    /// Vz 1.66 → 1.01 mm/s; IRLS alike).
     #[test]
     fn partial_volume_correction_lowers_the_vector_error() {
         let settings = SpiralSettings {
