@@ -70,7 +70,7 @@ pub struct ProcessingOptions {
     /// power centroid back to the pixel before the vector fit (the cell measured from that
     /// angle's speckle, the centroid from its power Doppler's gradient): the wall of a vessel and
     /// the speckle inside it no longer pull the velocity toward where the echoes are brighter.
-    /// Applies to the vector maps and the ensembles' (not yet to the dynamics windows'). Where
+    /// Applies to the vector maps, the ensembles' and the dynamics windows' (RI maps). Where
     /// flow exceeds the Nyquist velocity, use it with --dealias (it works on the unwrapped
     /// projections; across a wrap the gradient it needs is meaningless).
     #[arg(long, value_enum, default_value = "off")]

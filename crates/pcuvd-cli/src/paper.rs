@@ -73,10 +73,9 @@ pub struct StudyOptions {
     /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
     #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(SpiralSettings::default().doppler_estimator))]
     pub doppler_estimator: DopplerEstimatorOption,
-    /// The spiral and dealiasing studies with the partial-volume correction (`process
-    /// --partial-volume`): each angle's projection moved from its resolution cell's power centroid
-    /// to its pixel (the vessel network's RI maps come from the dynamics windows, which it does
-    /// not reach yet).
+    /// Every study with the partial-volume correction (`process --partial-volume`): each
+    /// angle's projection moved from its resolution cell's power centroid to its pixel, in the
+    /// vector maps and in the vessel network's dynamics windows.
     #[arg(long, value_enum, default_value = "off")]
     pub partial_volume: crate::options::Switch,
     /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
@@ -300,6 +299,7 @@ impl StudyOptions {
             event_alignment: self.event_alignment.into(),
             grid_step_m: self.grid_step * 1e-3,
             doppler_estimator: self.doppler_estimator.into(),
+            partial_volume: self.partial_volume == crate::options::Switch::On,
         };
         settings.validate().with_context(|| {
             format!(

@@ -306,6 +306,7 @@ impl Plan {
                 params: pcuvd::dynamics::DynamicsParams {
                     // The windows read velocity as the whole-recording maps do.
                     doppler: params.doppler_estimator,
+                    partial_volume: params.partial_volume,
                     ..dynamics.params(
                         data.acquisition().frame_rate(),
                         params.irls,

@@ -691,9 +691,8 @@ pub fn dealiased_vectors_each(
             flow.dim()
         )));
     }
-    let fit = |projections: ArrayView3<f64>, estimator: &Estimator| match lateral {
-        Some(lateral) => vector::vector_velocity_measured(angles, projections, lateral, estimator),
-        None => vector::vector_velocity(angles, projections, estimator),
+    let fit = |projections: ArrayView3<f64>, estimator: &Estimator| {
+        vector::vector_velocity_with(angles, projections, lateral, estimator)
     };
     let settled = match dealias {
         Dealias::Off | Dealias::Intervals(0) => {

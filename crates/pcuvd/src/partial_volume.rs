@@ -24,8 +24,9 @@ use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip, s};
 use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 
+use crate::dealias::DealiasedField;
 use crate::error::{Error, Result};
-use crate::vector::{VectorField, projection_weights};
+use crate::vector::{Estimator, VectorField, projection_weights, vector_velocity_with};
 
 /// Products of each pixel of an image series with its neighbour one pixel step away, within
 /// frames, summed over the image and averaged over the frames: the spatial autocorrelation of
@@ -402,6 +403,53 @@ pub fn refined_shifts(
         shifts = projection_shifts(power, cells, angles, reference, flow, step)?;
     }
     Ok(shifts)
+}
+
+/// The vectors of each `(estimator, fit)` of `fits` (the dealiased fits of `projections`,
+/// angles × nz × nx, m/s; the first least squares) again after the partial-volume correction:
+/// each fit's projections unwrapped with its own alias counts (Nyquist velocities `nyquist`,
+/// m/s) less the [`refined_shifts`] of the first's, in the pixels of `flow`, and fitted again by
+/// its estimator with the lateral weights `lateral` (Loupas) or sin θ (`None`). `power` and
+/// `cells` are each angle's power Doppler and cell (widened by the Doppler kernel), `step` the
+/// grid's (m).
+#[allow(clippy::too_many_arguments)]
+pub fn corrected_fits(
+    angles: &[f64],
+    projections: ArrayView3<f64>,
+    nyquist: ArrayView3<f64>,
+    lateral: Option<ArrayView3<f64>>,
+    fits: &[(Estimator, &DealiasedField)],
+    power: ArrayView3<f64>,
+    cells: &[Option<CellCovariance>],
+    flow: ArrayView2<bool>,
+    step: f64,
+) -> Result<Vec<VectorField>> {
+    let Some((_, reference)) = fits.first() else {
+        return Ok(Vec::new());
+    };
+    let unwrapped = |fit: &DealiasedField| {
+        crate::dealias::unwrap(projections, fit.counts.alias_counts.view(), nyquist)
+    };
+    let least_squares =
+        |p: ArrayView3<f64>| vector_velocity_with(angles, p, lateral, &Estimator::LeastSquares);
+    // The shifts rest on the least-squares vectors alone; every fit takes them.
+    let shifts = refined_shifts(
+        unwrapped(reference).view(),
+        power,
+        cells,
+        angles,
+        &reference.field,
+        flow,
+        step,
+        REFINEMENT_ROUNDS,
+        least_squares,
+    )?;
+    fits.iter()
+        .map(|(estimator, fit)| {
+            let corrected = corrected_projections(unwrapped(fit).view(), shifts.view())?;
+            vector_velocity_with(angles, corrected.view(), lateral, estimator)
+        })
+        .collect()
 }
 
 /// The projections `projections` (angles, nz, nx; m/s, unwrapped where dealiasing unwrapped

@@ -777,43 +777,27 @@ pub fn doppler_maps(
         )?
         .try_into()
         .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
-        let (mut ls_field, mut irls_field) = (ls.field, irls.field);
-        if params.partial_volume {
-            // The shifts rest on the least-squares vectors alone; both fits take them.
-            let unwrapped_ls = dealias::unwrap(
+        let (ls_field, irls_field) = if params.partial_volume {
+            let [ls_field, irls_field]: [VectorField; 2] = partial_volume::corrected_fits(
+                angles,
                 projections.view(),
-                ls.counts.alias_counts.view(),
                 nyquist.view(),
-            );
-            let shifts = partial_volume::refined_shifts(
-                unwrapped_ls.view(),
+                lateral,
+                &[
+                    (Estimator::LeastSquares, &ls),
+                    (Estimator::Irls(params.irls), &irls),
+                ],
                 power_per_angle.view(),
                 &cells,
-                angles,
-                &ls_field,
                 flow.view(),
                 params.grid.step(),
-                partial_volume::REFINEMENT_ROUNDS,
-                |corrected| fit_vectors(angles, corrected, lateral, &Estimator::LeastSquares),
-            )?;
-            for (field, counts, estimator) in [
-                (&mut ls_field, &ls.counts, Estimator::LeastSquares),
-                (&mut irls_field, &irls.counts, Estimator::Irls(params.irls)),
-            ] {
-                let unwrapped = dealias::unwrap(
-                    projections.view(),
-                    counts.alias_counts.view(),
-                    nyquist.view(),
-                );
-                *field = partial_volume_fit(
-                    angles,
-                    unwrapped.view(),
-                    shifts.view(),
-                    lateral,
-                    &estimator,
-                )?;
-            }
-        }
+            )?
+            .try_into()
+            .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
+            (ls_field, irls_field)
+        } else {
+            (ls.field.clone(), irls.field.clone())
+        };
         let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
             intervals: ls.intervals,
             flow_pixels: flow.iter().filter(|&&f| f).count(),
@@ -838,34 +822,6 @@ pub fn doppler_maps(
         projection_nyquist: nyquist,
         cells,
     })
-}
-
-/// `estimator`'s vectors from projections `unwrapped` (angles, nz, nx; m/s, each with its alias
-/// count applied) less their partial-volume `shifts` ([`partial_volume::projection_shifts`]),
-/// `lateral` the measured lateral weights (Loupas) or `None` (the model's sin θ).
-pub fn partial_volume_fit(
-    angles: &[f64],
-    unwrapped: ndarray::ArrayView3<f64>,
-    shifts: ndarray::ArrayView3<f64>,
-    lateral: Option<ndarray::ArrayView3<f64>>,
-    estimator: &Estimator,
-) -> Result<VectorField> {
-    let corrected = partial_volume::corrected_projections(unwrapped, shifts)?;
-    fit_vectors(angles, corrected.view(), lateral, estimator)
-}
-
-/// `estimator`'s vectors from `projections` (angles, nz, nx; m/s) with the measured lateral
-/// weights `lateral` (Loupas) or the model's sin θ (`None`).
-fn fit_vectors(
-    angles: &[f64],
-    projections: ndarray::ArrayView3<f64>,
-    lateral: Option<ndarray::ArrayView3<f64>>,
-    estimator: &Estimator,
-) -> Result<VectorField> {
-    match lateral {
-        Some(lateral) => vector::vector_velocity_measured(angles, projections, lateral, estimator),
-        None => vector::vector_velocity(angles, projections, estimator),
-    }
 }
 
 /// The dynamics stage on a processed recording: vector velocity in sliding windows over the

@@ -204,6 +204,20 @@ pub fn vector_velocity_measured(
     field(angles, v_theta, Some(lateral), estimator)
 }
 
+/// [`vector_velocity_measured`] with the lateral weights `lateral` when given, else
+/// [`vector_velocity`] (the model's sin θ).
+pub fn vector_velocity_with(
+    angles: &[f64],
+    v_theta: ArrayView3<f64>,
+    lateral: Option<ArrayView3<f64>>,
+    estimator: &Estimator,
+) -> Result<VectorField> {
+    match lateral {
+        Some(lateral) => vector_velocity_measured(angles, v_theta, lateral, estimator),
+        None => vector_velocity(angles, v_theta, estimator),
+    }
+}
+
 fn field(
     angles: &[f64],
     v_theta: ArrayView3<f64>,

@@ -2,6 +2,8 @@
 //! sliding vector Doppler on synthetic pulsatile IQ series, the compounded spectrogram, and every
 //! refusal of bad input.
 
+mod common;
+
 use std::f64::consts::PI;
 
 use ndarray::Array3;
@@ -1129,4 +1131,88 @@ fn triggers_delimit_the_cycles_and_the_spread_measures_beat_to_beat_change() {
         ri_maps_triggered(&series, &params, None, Some(&[0.3, 0.1])),
         "increasing order",
     );
+}
+
+/// The partial-volume correction reaches the dynamics windows: on a parabolic tube (0.7 v_N,
+/// −20 dB, 8 angles), each window's vectors move from their cells' power centroids back to their
+/// pixels, and their RMSE against the truth falls as the whole-recording maps' does (measured,
+/// mean over the 32-frame windows: Vx 5.51 → 5.02, Vz 0.67 → 0.55 mm/s; the maps 4.24 → 3.69
+/// and 0.59 → 0.48).
+#[test]
+fn partial_volume_correction_reaches_the_dynamics_windows() {
+    use pcuvd::decode::EventAlignment;
+    use pcuvd::metrics;
+    use pcuvd::phantom::Phantom;
+    use pcuvd::pipeline::{self, ProcessParams};
+    use pcuvd::vector::{Estimator, VectorField};
+
+    let data = common::tube_recording(false, 64);
+    let grid = Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
+    let processed = |partial_volume| {
+        let params = ProcessParams {
+            partial_volume,
+            ..pcuvd::study::process_params(
+                &grid,
+                &data.acquisition,
+                (1, 1),
+                EventAlignment::MidFrame,
+            )
+        };
+        pipeline::process(&data, &params, &|_, _, _| {}).unwrap()
+    };
+    let truth = common::tube().truth(&grid.x, &grid.z, 0.0);
+    let out = processed(false);
+    // Each window's RMSE, averaged over the windows (mm/s).
+    let windows_error = |partial_volume| {
+        let params = DynamicsParams {
+            window: 32,
+            step: 16,
+            heart_rate_hz: None,
+            estimator: Estimator::LeastSquares,
+            kernel: (1, 1),
+            partial_volume,
+            ..DynamicsParams::rat()
+        };
+        let series = sliding_vectors(&out.filtered, &params).unwrap();
+        let each: Vec<metrics::Rmse> = series
+            .vx
+            .outer_iter()
+            .zip(series.vz.outer_iter())
+            .map(|(vx, vz)| {
+                let field = VectorField {
+                    vx: vx.to_owned(),
+                    vz: vz.to_owned(),
+                };
+                metrics::rmse(&field, &truth)
+            })
+            .collect();
+        let mean =
+            |f: fn(&metrics::Rmse) -> f64| each.iter().map(f).sum::<f64>() / each.len() as f64;
+        (mean(|r| r.vx), mean(|r| r.vz))
+    };
+    let (plain, corrected) = (windows_error(false), windows_error(true));
+    let maps =
+        |out: &pipeline::ProcessOutput| metrics::rmse(out.vector_ls.as_ref().unwrap(), &truth);
+    let (maps_plain, maps_corrected) = (maps(&out), maps(&processed(true)));
+    eprintln!(
+        "windows Vx {:.2} -> {:.2}, Vz {:.2} -> {:.2} mm/s; whole-recording maps Vx {:.2} -> {:.2}, \
+         Vz {:.2} -> {:.2} mm/s",
+        plain.0,
+        corrected.0,
+        plain.1,
+        corrected.1,
+        maps_plain.vx,
+        maps_corrected.vx,
+        maps_plain.vz,
+        maps_corrected.vz
+    );
+    assert!(
+        corrected.0 < 0.95 * plain.0,
+        "windows' Vx {plain:?} -> {corrected:?}"
+    );
+    assert!(
+        corrected.1 < 0.9 * plain.1,
+        "windows' Vz {plain:?} -> {corrected:?}"
+    );
+    assert!(maps_corrected.vz < 0.9 * maps_plain.vz);
 }

@@ -105,6 +105,10 @@ pub struct DynamicsParams {
     /// Pools each pixel's normalised waveform with those of its same-vessel neighbours before PSV
     /// and EDV are read ([`VesselPooling`]); `None` reads every pixel alone.
     pub pooling: Option<VesselPooling>,
+    /// Moves each window's projections from their cells' power centroids back to their pixels
+    /// before the vector fit ([`crate::partial_volume`]; each angle's cell measured once on the
+    /// whole series, widened by `kernel`).
+    pub partial_volume: bool,
 }
 
 impl DynamicsParams {
@@ -140,6 +144,7 @@ impl DynamicsParams {
             min_power_db: -30.0,
             harmonics: None,
             pooling: None,
+            partial_volume: false,
         }
     }
 

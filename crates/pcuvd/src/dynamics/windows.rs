@@ -1,6 +1,7 @@
 //! Vector velocity in sliding windows over slow time.
 
 use super::*;
+use crate::partial_volume::{CellCovariance, CellLags};
 
 /// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -265,6 +266,20 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     }
 
     let n = angles.len();
+    let grid_step = images.grid.step();
+    // A cell is the beamformer's and the speckle's, not the window's: measured once, on every
+    // frame.
+    let cells: Vec<_> = if params.partial_volume {
+        filtered
+            .par_iter()
+            .map(|series| {
+                CellCovariance::from_lags(&CellLags::of(series.view()), grid_step)
+                    .map(|c| c.through_kernel(params.kernel, grid_step))
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let maps = (0..n_windows)
         .into_par_iter()
         .map(|k| {
@@ -272,7 +287,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             let mut projections = Array3::<f64>::zeros((n, nz, nx));
             let mut lateral = Array3::<f64>::zeros((n, nz, nx));
             let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
-            let mut power = Array2::<f64>::zeros((nz, nx));
+            let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
             for (a, series) in filtered.iter().enumerate() {
                 let window = series.slice(s![.., .., start..start + params.window]);
                 let maps = doppler::doppler_maps(
@@ -300,7 +315,13 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
                         .mean_frequency
                         .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
                 );
-                power += &maps.power;
+                power_per_angle
+                    .index_axis_mut(Axis(0), a)
+                    .assign(&maps.power);
+            }
+            let mut power = Array2::<f64>::zeros((nz, nx));
+            for angle_power in power_per_angle.outer_iter() {
+                power += &angle_power;
             }
             power /= n as f64;
             if let Some(c) = coverage {
@@ -309,17 +330,42 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             // Kasai's rows are the model's; Loupas fits its measured lateral weights.
             let measured =
                 (params.doppler == doppler::DopplerEstimator::Loupas).then(|| lateral.view());
-            let field = dealias::dealiased_vectors_measured(
+            let flow = dealias::flow_mask(&power, grid_step);
+            // The correction's shifts rest on a least-squares fit; the window's estimator fits
+            // the corrected projections.
+            let estimators = if params.partial_volume {
+                vec![Estimator::LeastSquares, params.estimator]
+            } else {
+                vec![params.estimator]
+            };
+            let fits = dealias::dealiased_vectors_each(
                 angles,
                 projections.view(),
                 measured,
                 nyquist.view(),
-                &params.estimator,
+                &estimators,
                 params.dealias,
                 power.view(),
-                dealias::flow_mask(&power, images.grid.step()).view(),
-            )?
-            .field;
+                flow.view(),
+            )?;
+            let field = if params.partial_volume {
+                let pairs: Vec<_> = estimators.iter().copied().zip(&fits).collect();
+                crate::partial_volume::corrected_fits(
+                    angles,
+                    projections.view(),
+                    nyquist.view(),
+                    measured,
+                    &pairs,
+                    power_per_angle.view(),
+                    &cells,
+                    flow.view(),
+                    grid_step,
+                )?
+                .pop()
+            } else {
+                fits.into_iter().next().map(|f| f.field)
+            }
+            .ok_or_else(|| Error::Shape("one vector field per estimator".into()))?;
             Ok((field.vx, field.vz, power))
         })
         .collect::<Result<Vec<_>>>()?;

@@ -230,10 +230,6 @@ impl Method {
         if !partial_volume {
             return Ok((self.fit(out, unwrapped.view())?, counts));
         }
-        let estimator = match self {
-            Method::UvdLs => crate::vector::Estimator::LeastSquares,
-            _ => crate::vector::Estimator::Irls(crate::vector::IrlsParams::default()),
-        };
         let step = out.grid.step();
         let shifts = crate::partial_volume::refined_shifts(
             unwrapped.view(),
@@ -246,13 +242,9 @@ impl Method {
             crate::partial_volume::REFINEMENT_ROUNDS,
             |corrected| Method::UvdLs.fit(out, corrected),
         )?;
-        let field = pipeline::partial_volume_fit(
-            &out.filtered.angles,
-            unwrapped.view(),
-            shifts.view(),
-            Some(out.lateral_weights.view()),
-            &estimator,
-        )?;
+        let corrected =
+            crate::partial_volume::corrected_projections(unwrapped.view(), shifts.view())?;
+        let field = self.fit(out, corrected.view())?;
         Ok((field, counts))
     }
 

@@ -59,6 +59,9 @@ pub struct NetworkSettings {
     pub grid_step_m: f64,
     /// Which frequency scales the Doppler phase (whole-recording maps and windows alike).
     pub doppler_estimator: DopplerEstimator,
+    /// The partial-volume correction ([`crate::partial_volume`]) of the maps and of every
+    /// dynamics window.
+    pub partial_volume: bool,
 }
 
 impl Default for NetworkSettings {
@@ -72,6 +75,7 @@ impl Default for NetworkSettings {
             event_alignment: EventAlignment::MidFrame,
             grid_step_m: 0.05e-3,
             doppler_estimator: DopplerEstimator::default(),
+            partial_volume: false,
         }
     }
 }
@@ -107,6 +111,7 @@ impl NetworkSettings {
             },
             pooling,
             doppler: self.doppler_estimator,
+            partial_volume: self.partial_volume,
             ..DynamicsParams::rat()
         })
     }
@@ -405,6 +410,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         } = formed;
         let process = ProcessParams {
             doppler_estimator: settings.doppler_estimator,
+            partial_volume: settings.partial_volume,
             ..process_params(&grid, &acquisition, (1, 1), settings.event_alignment)
         };
         let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
