@@ -796,7 +796,7 @@ pub fn doppler_maps(
             .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
             (ls_field, irls_field)
         } else {
-            (ls.field.clone(), irls.field.clone())
+            (ls.field, irls.field)
         };
         let outcome = (ls.intervals > 0).then(|| DealiasOutcome {
             intervals: ls.intervals,

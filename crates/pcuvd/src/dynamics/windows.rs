@@ -333,7 +333,8 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             let flow = dealias::flow_mask(&power, grid_step);
             // The correction's shifts rest on a least-squares fit; the window's estimator fits
             // the corrected projections.
-            let estimators = if params.partial_volume {
+            let estimators = if params.partial_volume && params.estimator != Estimator::LeastSquares
+            {
                 vec![Estimator::LeastSquares, params.estimator]
             } else {
                 vec![params.estimator]
