@@ -13,7 +13,7 @@ use pcuvd::source::FrameSource;
 use serde_json::json;
 
 use crate::figures;
-use crate::options::{DynamicsChoice, DynamicsOptions, ProcessingOptions};
+use crate::options::{DynamicsChoice, DynamicsOptions, ProcessingOptions, Switch};
 use crate::outputs;
 use crate::progress::PipelineProgress;
 
@@ -306,7 +306,7 @@ impl Plan {
                 params: pcuvd::dynamics::DynamicsParams {
                     // The windows read velocity as the whole-recording maps do.
                     doppler: params.doppler_estimator,
-                    partial_volume: params.partial_volume,
+                    partial_volume: dynamics.dynamics_partial_volume == Switch::On,
                     ..dynamics.params(
                         data.acquisition().frame_rate(),
                         params.irls,
@@ -835,6 +835,7 @@ fn dynamics_summary(plan: &Plan, processed: &Processed) -> serde_json::Value {
         "harmonics": dparams.harmonics.unwrap_or_else(|| dynamics::auto_harmonics(maps.heart_rate_hz, series.window_s)),
         "estimator": "IRLS-WLS (PC-UVD)",
         "kernel": [dparams.kernel.0, dparams.kernel.1],
+        "partial_volume": dparams.partial_volume,
         "artery_ri_min": dparams.artery_ri_min,
         "vein_ri_max": dparams.vein_ri_max,
         "vessel_threshold_db": dparams.min_power_db,

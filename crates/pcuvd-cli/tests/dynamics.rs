@@ -147,6 +147,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     );
     assert_eq!(summary["dynamics"]["vessel_local_db"], 20.0);
     assert_eq!(summary["dynamics"]["vessel_local_radius_mm"], 1.0);
+    assert_eq!(summary["dynamics"]["partial_volume"], false);
     // The accuracy of the RI maps under noise is checked in the library's network test and by
     // `pcuvd paper`; this small noise-free 4-angle recording checks the command with its default
     // kernel and vessel pooling, and that both vessels read their RI everywhere in the lumen. (With
@@ -185,12 +186,18 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         "off",
         "--cardiac-triggers",
         triggers.to_str().unwrap(),
+        // The windows corrected too: RI stays right.
+        "--partial-volume",
+        "on",
+        "--dynamics-partial-volume",
+        "on",
     ]);
     assert!(ok, "{stderr}");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(triggered.join("summary.json")).unwrap())
             .unwrap();
     let dynamics = &summary["dynamics"];
+    assert_eq!(dynamics["partial_volume"], true);
     assert!(
         dynamics["cycles_from"]
             .as_str()
@@ -213,7 +220,8 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     );
 
     // The same triggers recorded with the recording, in its manifest's [cardiac] table (a file
-    // beside it, or the times inline): used without any option, and the same RI bit for bit.
+    // beside it, or the times inline): used without any trigger option, and the same RI bit for
+    // bit.
     // `pcuvd process INPUT --out OUT` as above plus `extra`, which must succeed: its summary.json.
     let process_ok = |input: &std::path::Path, out: &std::path::Path, extra: &[&str]| {
         let mut args = vec![
@@ -245,7 +253,8 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         let recorded = dir.path().join(name);
         std::fs::write(&recorded, format!("{text}\n{table}")).unwrap();
         let out_recorded = dir.path().join(format!("out_{name}"));
-        let summary = process_ok(&recorded, &out_recorded, &[]);
+        let corrected = ["--partial-volume", "on", "--dynamics-partial-volume", "on"];
+        let summary = process_ok(&recorded, &out_recorded, &corrected);
         let dynamics = &summary["dynamics"];
         assert!(
             dynamics["triggers_from"]
