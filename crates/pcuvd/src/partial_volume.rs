@@ -153,6 +153,13 @@ impl CellCovariance {
         })
     }
 
+    /// The cell of echoes whose lags are `lags` ([`CellCovariance::from_lags`]) as a Doppler
+    /// averaged over `kernel` = (rows, cols) pixels `step` (m) apart sees it
+    /// ([`CellCovariance::through_kernel`]): what the correction moves each projection with.
+    pub fn of_kernel(lags: &CellLags, kernel: (usize, usize), step: f64) -> Option<CellCovariance> {
+        CellCovariance::from_lags(lags, step).map(|c| c.through_kernel(kernel, step))
+    }
+
     /// The cell seen through an averaging box of `kernel` = (rows, cols) pixels `step` (m)
     /// apart: a box of n pixels adds the variance (n² − 1)/12 pixels² along its axis (the
     /// Gaussian of the same variance stands in for the box).

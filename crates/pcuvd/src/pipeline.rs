@@ -753,11 +753,13 @@ pub fn doppler_maps(
     let cells: Vec<_> = per_angle
         .iter()
         .map(|m| {
-            let step = params.grid.step();
-            m.cell
-                .as_ref()
-                .and_then(|lags| partial_volume::CellCovariance::from_lags(lags, step))
-                .map(|c| c.through_kernel(params.doppler_kernel, step))
+            m.cell.as_ref().and_then(|lags| {
+                partial_volume::CellCovariance::of_kernel(
+                    lags,
+                    params.doppler_kernel,
+                    params.grid.step(),
+                )
+            })
         })
         .collect();
     // Kasai's rows are the model's; Loupas fits its measured lateral weights.

@@ -273,8 +273,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
         filtered
             .par_iter()
             .map(|series| {
-                CellCovariance::from_lags(&CellLags::of(series.view()), grid_step)
-                    .map(|c| c.through_kernel(params.kernel, grid_step))
+                CellCovariance::of_kernel(&CellLags::of(series.view()), params.kernel, grid_step)
             })
             .collect()
     } else {
