@@ -242,22 +242,32 @@ def test_dynamics_rerun_equals_processing_with_those_settings():
         pcuvd.dynamics(without, heart_rate_hz=40, window_ms=-1)
 
 
+TUBE_GRID_MM = (-3, 3, 4, 10, 0.08)
+
+
+def tube_by_python_and_cli(tube, cli, out, **option):
+    """The tube on a 0.08 mm grid without dynamics, with the one keyword `option`: the Python
+    result, and the command's completed process with the same option, writing into `out`."""
+    ((name, value),) = option.items()
+    result = pcuvd.process(tube, grid_mm=TUBE_GRID_MM, dynamics="off", quiet=True, **option)
+    done = run_cli(
+        cli, "process", tube, "--out", out, "--grid=" + ",".join(map(str, TUBE_GRID_MM)),
+        "--dynamics=off", f"--{name.replace('_', '-')}={value}",
+    )
+    assert done.returncode == 0, done.stderr
+    return result, done
+
+
 def test_doppler_estimator_is_the_cli_option(tube, cli, tmp_path):
     """`doppler_estimator=` is `--doppler-estimator`. Both estimators share the lag-1 phase and
     differ in the frequency they divide it by: Kasai the nominal f_0, Loupas (the default) each
     pixel's measured mean frequency, which on these attenuated echoes is below f_0 (the image's
     harmonic mean and the attenuation's downshift), so Loupas reads faster by f_0 / f̄."""
-    grid = (-3, 3, 4, 10, 0.08)
-    loupas = pcuvd.process(tube, grid_mm=grid, dynamics="off", quiet=True)
-    kasai = pcuvd.process(tube, grid_mm=grid, dynamics="off", doppler_estimator="kasai", quiet=True)
+    loupas = pcuvd.process(tube, grid_mm=TUBE_GRID_MM, dynamics="off", quiet=True)
+    by_cli = tmp_path / "cli"
+    kasai, _ = tube_by_python_and_cli(tube, cli, by_cli, doppler_estimator="kasai")
     assert loupas.summary["doppler"]["estimator"] == "loupas"
     assert kasai.summary["doppler"]["estimator"] == "kasai"
-    by_cli = tmp_path / "cli"
-    done = run_cli(
-        cli, "process", tube, "--out", by_cli, "--grid=-3,3,4,10,0.08", "--dynamics=off",
-        "--doppler-estimator=kasai",
-    )
-    assert done.returncode == 0, done.stderr
     assert_same_array(kasai.projections, np.load(by_cli / "projections.npy"), "projections")
     moving = np.isfinite(kasai.projections) & (np.abs(kasai.projections) > 2e-3)
     ratio = np.median(loupas.projections[moving] / kasai.projections[moving])
@@ -356,21 +366,15 @@ def test_partial_volume_is_the_cli_option(tube, cli, tmp_path):
     """`partial_volume="on"` is `--partial-volume on`: the same vectors from both, recorded in
     summary.json. It moves the vectors (each projection from its cell's power centroid to its
     pixel before the fit) and leaves the projections written as they were measured."""
-    grid = (-3, 3, 4, 10, 0.08)
-    off = pcuvd.process(tube, grid_mm=grid, dynamics="off", quiet=True)
-    on = pcuvd.process(tube, grid_mm=grid, dynamics="off", partial_volume="on", quiet=True)
+    off = pcuvd.process(tube, grid_mm=TUBE_GRID_MM, dynamics="off", quiet=True)
+    by_cli = tmp_path / "cli"
+    on, _ = tube_by_python_and_cli(tube, cli, by_cli, partial_volume="on")
     assert off.summary["doppler"]["partial_volume"] is False
     assert on.summary["doppler"]["partial_volume"] is True
     # Each angle's measured cell: the L22-14vX's is wider than it is deep (about 0.09 × 0.025 mm).
     cells = on.summary["doppler"]["partial_volume_cells"]
     assert len(cells) == 8
     assert all(0.02 < c["sigma_z_mm"] < c["sigma_x_mm"] < 0.3 for c in cells), cells
-    by_cli = tmp_path / "cli"
-    done = run_cli(
-        cli, "process", tube, "--out", by_cli, "--grid=-3,3,4,10,0.08", "--dynamics=off",
-        "--partial-volume=on",
-    )
-    assert done.returncode == 0, done.stderr
     assert_same_array(on.vx, np.load(by_cli / "vx.npy"), "vx")
     assert_same_array(on.projections, off.projections, "projections")
     both = np.isfinite(on.vx) & np.isfinite(off.vx)
