@@ -85,11 +85,14 @@
 //! the edges between neighbouring pixels are joined most reliable first, each join shifting the
 //! smaller group by the whole levels that make the edge continuous. Blood is slow at a vessel's
 //! wall, and whatever the flow mask lets in beyond it (noise, the blurred wall) reads within
-//! ±v_N at level 0, so every pixel next to non-flow is also joined, as reliably as the pixel
-//! itself, to a fixed node at speed 0 (pixels without candidates enclosed by flow are holes that
-//! the unwrapping goes around, not wall: [`wall_pixels`]): the vessel is unwrapped from its slow
-//! rim inward, and the jump a fast vessel's blurred wall leaves in the measured field is put
-//! where the data are least reliable. Then a few passes move every pixel to the level nearest its neighbours' median
+//! ±v_N at level 0, so every pixel next to non-flow is also joined to a fixed node at speed 0
+//! (pixels without candidates enclosed by flow are holes that the unwrapping goes around, not
+//! wall: [`wall_pixels`]), after every join between flow pixels: the jump a fast vessel's blurred
+//! wall leaves in the measured field is put where the data are least reliable, and the median of
+//! all the vessel's wall pixels then sets its level. (Joined as reliably as each pixel, the wall
+//! let a vessel that ends inside the image, or leaves the plane, set its whole core by its fast
+//! end: at 3× v_N the study's tube imaged to its far end read 6 % of its lumen within 10 % of the
+//! peak instead of 43 %; the study's own field, which the tube crosses, is unchanged.) Then a few passes move every pixel to the level nearest its neighbours' median
 //! (a pixel joined through a noisy neighbour), and where a jump of more than half a level still
 //! cuts a part off a region, that part, if it reaches the wall, takes the level that makes its
 //! wall slowest, and if it is enclosed, the level of fewest jumps to its surroundings. A region
@@ -909,8 +912,8 @@ fn settle_cut_parts(
 /// reliability is the inverse of its second differences (small inside smooth flow, even on a
 /// steep gradient; large on noise), and the edges between 8-neighbours are joined most reliable
 /// first, each join shifting the smaller group by the whole levels that make the edge continuous.
-/// Every pixel next to non-flow is also joined, as reliably as itself, to a fixed node at speed 0
-/// (blood is slow at a wall). Every connected group of flow pixels ends as one region: levels fixed
+/// Every pixel next to non-flow is then joined to a fixed node at speed 0 (blood is slow at a
+/// wall): each group takes the level at which its wall pixels read slowest, by their median. Every connected group of flow pixels ends as one region: levels fixed
 /// by the wall where it reaches one, else up to one common offset. Then a few passes move each
 /// pixel to the level nearest its neighbours' median. `quality` breaks ties between equally
 /// reliable edges. Returns the regions (pixel indices, row-major; whether the wall settled its
@@ -980,17 +983,23 @@ fn unwrap_levels(
             edges.push((reliability[p] + reliability[q], strength, p, q));
         }
     }
-    // The wall: every pixel next to non-flow joins a fixed node at speed 0 (blood is slow at a
-    // wall), as reliably as the pixel itself.
-    let ground = nz * nx;
-    for p in (0..nz * nx).filter(|&p| at_wall[p]) {
-        edges.push((reliability[p], 0.0, p, ground));
-    }
     edges.sort_by(|a, b| {
         b.0.total_cmp(&a.0)
             .then(b.1.total_cmp(&a.1))
             .then((a.2, a.3).cmp(&(b.2, b.3)))
     });
+    // The wall: every pixel next to non-flow joins a fixed node at speed 0 (blood is slow at a
+    // wall), after every join between flow pixels, so that each vessel's relative levels are
+    // its data's and the median of all its wall pixels sets its level. Joined as reliably as
+    // the pixel itself, a vessel that ends in the image (or leaves the plane) met the node first
+    // through its fast end, whose level then held the whole core: at 3× v_N the core is joined
+    // along the flow long before across the blurred wall, where the lag-1 coherence collapses.
+    let ground = nz * nx;
+    edges.extend(
+        (0..nz * nx)
+            .filter(|&p| at_wall[p])
+            .map(|p| (reliability[p], 0.0, p, ground)),
+    );
     // Each pixel's group (the index of a pixel of it) and its whole-level shift.
     let mut group: Vec<usize> = (0..=nz * nx).collect();
     let mut members: Vec<Vec<usize>> = (0..=nz * nx)
@@ -1980,6 +1989,80 @@ mod tests {
         assert!(!mask.slice(s![.., 20..26]).iter().any(|&m| m));
         assert!(mask.slice(s![.., 76..80]).iter().all(|&m| m));
         assert!(!mask.slice(s![.., 40..60]).iter().any(|&m| m));
+    }
+
+    #[test]
+    fn a_vessel_that_ends_in_the_image_is_settled_by_its_side_walls() {
+        // A vessel that leaves the imaging plane (or ends) inside the image meets non-flow with
+        // its fast core: its end is no slow wall. At 3× v_N the lag-1 coherence collapses in the
+        // blurred wall, so the projections there scatter widely (here up to ±0.6 v_N at the
+        // wall against 1 mm/s in the core) and the core is joined along the flow long before
+        // across the wall. Settled wall-first, the core's first contact with the wall node was
+        // the vessel's end, which set the whole core a level slow (the study's tube imaged to
+        // its far end: 6 % of the lumen within 10 % of the peak instead of 43 %).
+        use rand::{RngExt, SeedableRng};
+        use rand_distr::{Distribution, Normal};
+        let angles = paper_angles();
+        let peak = 3.0 * VN;
+        let TubeMap {
+            truth,
+            mut lumen,
+            mut flow,
+            mut power,
+            distance,
+            ..
+        } = tube_map(peak, 0.0, 0.0, 11);
+        let (nz, nx) = lumen.dim();
+        let step = 0.05e-3;
+        let dir = 60f64.to_radians();
+        let along = |iz: usize, ix: usize| {
+            let (x, z) = ((ix as f64 - 60.0) * step, (iz as f64 - 30.0) * step);
+            x * dir.cos() + z * dir.sin()
+        };
+        // The vessel ends 0.8 mm past the field's centre, well inside the field.
+        for iz in 0..nz {
+            for ix in 0..nx {
+                if along(iz, ix) > 0.8e-3 {
+                    lumen[[iz, ix]] = false;
+                    flow[[iz, ix]] = false;
+                    power[[iz, ix]] = 1e-3;
+                }
+            }
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        let v_theta = Array3::from_shape_fn((angles.len(), nz, nx), |(a, iz, ix)| {
+            if !flow[[iz, ix]] {
+                return rng.random_range(-VN..VN);
+            }
+            let (s, c) = projection_weights(angles[a]);
+            let (vx, vz) = truth[[iz, ix]];
+            let d: f64 = distance[[iz, ix]].min(1.0);
+            let sigma = 1e-3 + 0.3 * VN * d.powi(6);
+            let u = 0.5 * (vx * s + vz * c) + sigma * unit.sample(&mut rng);
+            (u + VN).rem_euclid(2.0 * VN) - VN
+        });
+        let core: Vec<(usize, usize)> = lumen
+            .indexed_iter()
+            .filter(|&((iz, ix), &l)| l && distance[[iz, ix]] < 0.5)
+            .map(|(i, _)| i)
+            .collect();
+        for est in estimators() {
+            let out = dealiased_map(&v_theta, &est, Dealias::Intervals(2), &power, &flow);
+            let right = core
+                .iter()
+                .filter(|&&(iz, ix)| {
+                    pattern_is_right(&v_theta, &truth, (iz, ix), |a| {
+                        out.counts.alias_counts[[a, iz, ix]]
+                    })
+                })
+                .count() as f64
+                / core.len() as f64;
+            assert!(
+                right >= 0.99,
+                "{est:?}: {right} of the core's patterns right"
+            );
+        }
     }
 
     #[test]
