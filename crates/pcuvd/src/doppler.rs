@@ -411,6 +411,31 @@ pub fn mean_frequency_kernel(kernel: (usize, usize)) -> (usize, usize) {
     (kernel.0 + 2, kernel.1 + 2)
 }
 
+/// Weight of the same-frame spatial lag in the spatial phase that turns a Doppler phase into
+/// velocity (the mean frequency f̄, and the lateral wavenumber); the pair at temporal lags ±1
+/// ([`axial_autocorrelation_lag1`]) takes the rest.
+///
+/// Why a mix: a speckle pattern that moves by a delay τ_d per frame has the spatio-temporal
+/// autocorrelation C(τ − m·τ_d) at spatial lag τ and temporal lag m, with
+/// arg C(τ) = 2π f̄ τ − a·τ³ + … (a ∝ the spectrum's third cumulant, its skew). The Doppler
+/// phase is arg C(−τ_d), so the frequency that converts it exactly is the secant
+/// f̄ − a·τ_d²/2π. Per unit lag Δ, the same-frame lag reads f̄ − a·Δ²/2π (short of the secant by
+/// a·τ_d²/2π) and the pair at temporal lags ±1 reads f̄ − a·(Δ² + 3τ_d²)/2π (beyond it by twice
+/// that): 2/3 and 1/3 of them leave only the a·Δ² of the grid step, whatever the speed, wrapped or
+/// not. The pair alone was unbiased by white noise but its error grows as the square of the
+/// speed: a plug-flow tube at 3× v_N (60°, 100 frames, no noise, 0.056 mm grid) read 71.6 % of
+/// its lumen within 10 % of the peak, Vx RMSE 11.6 mm/s; the same-frame lag alone 93.9 %,
+/// 7.1 mm/s; the mix 98.9 %, 4.7 mm/s (at 0 dB noise 65.7, 84.9 and 90.5 %). The same-frame lag
+/// also holds the receiver noise's own spatial correlation, which pulls f̄ toward the noise band
+/// at low SNR; the mix keeps a third of the noise-immune pair.
+pub const SAME_FRAME_WEIGHT: f64 = 2.0 / 3.0;
+
+/// The [`SAME_FRAME_WEIGHT`] mix of a same-frame and a temporal-lag-±1 reading of one quantity
+/// (a frequency, or an unwrapped phase).
+fn secant(same: f64, turned: f64) -> f64 {
+    SAME_FRAME_WEIGHT * same + (1.0 - SAME_FRAME_WEIGHT) * turned
+}
+
 /// Noise-immune axial-lag autocorrelation per pixel, (nz, nx): with R(1, ±1) the means over
 /// frames of S*(z, t)·S(z + 1, t + 1) and S*(z, t + 1)·S(z + 1, t) (the last row pairs with the
 /// row above), each averaged over `kernel`, R(1, +1)·e^{−iφ} + R(1, −1)·e^{+iφ}, φ = arg `r1`
@@ -455,10 +480,11 @@ fn spatial_lag1(
     Ok(spatial_lag_means(series, along)?.rotated(r1, kernel))
 }
 
-/// The two spatial-lag products of one pixel step at temporal lags ±1, per pixel (nz, nx), as
-/// means over the frame pairs and not yet averaged in space: the raw material of
-/// [`axial_autocorrelation_lag1`] and [`lateral_autocorrelation_lag1`]. Means over different
-/// frames add as any mean does ([`Moments::merge`]).
+/// The spatial-lag products of one pixel step at temporal lags ±1 and within frames, per pixel
+/// (nz, nx), as means over the frame pairs (frames) and not yet averaged in space: the raw
+/// material of [`axial_autocorrelation_lag1`], [`lateral_autocorrelation_lag1`] and of the
+/// phase that scales Loupas's velocity ([`SAME_FRAME_WEIGHT`]). Means over different frames add
+/// as any mean does ([`Moments::merge`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpatialLag {
     /// Mean over frame pairs of S*(p, t)·S(p′, t + 1), p′ the pixel one step along the lag (the
@@ -466,6 +492,8 @@ pub struct SpatialLag {
     pub plus: Array2<Complex64>,
     /// Mean over frame pairs of S*(p, t + 1)·S(p′, t).
     pub minus: Array2<Complex64>,
+    /// Mean over frames of S*(p, t)·S(p′, t): the same lag within each frame.
+    pub same: Array2<Complex64>,
 }
 
 impl SpatialLag {
@@ -512,11 +540,13 @@ fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<Spati
     }
     let mut plus = Array2::<Complex64>::zeros((nz, nx));
     let mut minus = Array2::<Complex64>::zeros((nz, nx));
+    let mut same = Array2::<Complex64>::zeros((nz, nx));
     plus.axis_iter_mut(Axis(0))
         .into_par_iter()
         .zip(minus.axis_iter_mut(Axis(0)))
+        .zip(same.axis_iter_mut(Axis(0)))
         .enumerate()
-        .for_each(|(iz, (mut p_row, mut m_row))| {
+        .for_each(|(iz, ((mut p_row, mut m_row), mut q_row))| {
             for ix in 0..nx {
                 // The pixel and its neighbour one step along `along`; the last one pairs with the
                 // one before it, roles swapped, so the phase keeps its sign.
@@ -544,12 +574,18 @@ fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<Spati
                     p += Complex64::new(up.re as f64, up.im as f64);
                     m += Complex64::new(down.re as f64, down.im as f64);
                 }
+                let mut q = Complex64::new(0.0, 0.0);
+                for (a0, b0) in a.iter().zip(b.iter()) {
+                    let same = a0.conj() * b0;
+                    q += Complex64::new(same.re as f64, same.im as f64);
+                }
                 let pairs = (nf - 1) as f64;
                 p_row[ix] = p / pairs;
                 m_row[ix] = m / pairs;
+                q_row[ix] = q / nf as f64;
             }
         });
-    Ok(SpatialLag { plus, minus })
+    Ok(SpatialLag { plus, minus, same })
 }
 
 impl DopplerGeometry {
@@ -640,6 +676,9 @@ impl Moments {
             if let (Some(m), Some(t)) = (mine, theirs) {
                 by_pairs(&mut m.plus, &t.plus);
                 by_pairs(&mut m.minus, &t.minus);
+                Zip::from(&mut m.same)
+                    .and(&t.same)
+                    .for_each(|a, &b| *a = (*a * f0 + b * f1) / frames);
             }
         }
         self.cell = match (&self.cell, &other.cell) {
@@ -754,30 +793,39 @@ pub fn maps_of_moments(
             let wide = mean_frequency_kernel(kernel);
             let r1_wide = averaged(&moments.r1, wide);
             let r_axial = axial_lag.rotated(&r1_wide, wide);
-            let f_bar = r_axial.mapv(|r| {
-                let f = axial.mean_frequency(r);
-                if r.norm() > 0.0 && f > 0.0 {
-                    f
-                } else {
-                    f_demod
-                }
-            });
+            let r_axial_same = averaged(&axial_lag.same, wide);
+            let f_bar = Zip::from(&r_axial)
+                .and(&r_axial_same)
+                .map_collect(|&r, &q| {
+                    let f = secant(axial.mean_frequency(q), axial.mean_frequency(r));
+                    if r.norm() > 0.0 && q.norm() > 0.0 && f > 0.0 {
+                        f
+                    } else {
+                        f_demod
+                    }
+                });
             let lateral = match &moments.lateral {
                 Some(lateral_lag) if geometry.measures_lateral() => {
                     let r_lateral = lateral_lag.rotated(&r1_wide, wide);
+                    let r_lateral_same = averaged(&lateral_lag.same, wide);
                     let step = geometry.lateral_step;
                     let wavelength = sound_speed / f_demod;
                     let tau = std::f64::consts::TAU;
                     let expected = tau * geometry.lateral_weight * step / wavelength;
-                    Zip::from(&r_lateral).and(&f_bar).map_collect(|&r, &f| {
-                        if r.norm() > 0.0 {
-                            let phase = r.arg() + tau * ((expected - r.arg()) / tau).round();
-                            // k̄x / k̄, k̄ = 2π f̄ / c.
-                            phase / step * sound_speed / (tau * f)
-                        } else {
-                            geometry.lateral_weight
-                        }
-                    })
+                    let unwrapped =
+                        |r: Complex64| r.arg() + tau * ((expected - r.arg()) / tau).round();
+                    Zip::from(&r_lateral)
+                        .and(&r_lateral_same)
+                        .and(&f_bar)
+                        .map_collect(|&r, &q, &f| {
+                            if r.norm() > 0.0 && q.norm() > 0.0 {
+                                let phase = secant(unwrapped(q), unwrapped(r));
+                                // k̄x / k̄, k̄ = 2π f̄ / c.
+                                phase / step * sound_speed / (tau * f)
+                            } else {
+                                geometry.lateral_weight
+                            }
+                        })
                 }
                 _ => Array2::from_elem(r1.dim(), geometry.lateral_weight),
             };
