@@ -21,11 +21,13 @@
 //!
 //! Loupas reads f̄ from the phase of the axial-lag autocorrelation (one pixel deeper). The plain
 //! R(1, 0) = ⟨S*(z, t)·S(z + 1, t)⟩ also holds the receiver noise's own axial correlation, which
-//! pulls f̄ toward the noise band's centre at low SNR; pcuvd pairs the axial lag with a temporal
-//! lag of one frame instead, ⟨S*(z, t)·S(z + 1, t ± 1)⟩, where white noise does not correlate, and
-//! removes the Doppler phase they carry with arg R ([`axial_autocorrelation_lag1`]). The mean
-//! frequency changes slowly across the image, so it is averaged over the Doppler kernel widened by
-//! one pixel on each side ([`mean_frequency_kernel`]).
+//! pulls f̄ toward the noise band's centre at low SNR; the axial lag paired with a temporal lag of
+//! one frame, ⟨S*(z, t)·S(z + 1, t ± 1)⟩, where white noise does not correlate, with the Doppler
+//! phase they carry removed by arg R ([`axial_autocorrelation_lag1`]), is immune to that but errs
+//! as the square of the speed with a skewed spectrum. pcuvd mixes the two 2:1
+//! ([`SAME_FRAME_WEIGHT`], which says why), the lateral lag alike. The mean frequency changes
+//! slowly across the image, so it is averaged over the Doppler kernel widened by one pixel on
+//! each side ([`mean_frequency_kernel`]).
 //!
 //! Its limit is the axial pixel step: the axial phase 2π f̄ (1 + cos θ) Δz / c is read modulo 2π
 //! around the demodulation frequency, and with a wide echo spectrum its third cumulant (skew)
@@ -349,7 +351,7 @@ impl DopplerEstimator {
                 "lag-1 autocorrelation phase scaled by the nominal centre frequency (Kasai; the paper's eq. 5)"
             }
             DopplerEstimator::Loupas => {
-                "lag-1 autocorrelation phase scaled by the mean RF frequency measured at each pixel from the axial lag at temporal lags ±1 (2-D autocorrelation, Loupas), unbiased by the echo spectrum, attenuation and white noise"
+                "lag-1 autocorrelation phase scaled by the mean RF frequency measured at each pixel from the axial lags within frames and at temporal lags ±1, mixed 2:1 (2-D autocorrelation, Loupas), unbiased by the echo spectrum and attenuation, and by the speed of fast flow"
             }
         }
     }
@@ -628,9 +630,9 @@ pub struct Moments {
     pub power: Array2<f64>,
     /// Mean S*(t)·S(t + 1) over the frame pairs (|IQ|² units).
     pub r1: Array2<Complex64>,
-    /// The axial lag at temporal lags ±1 (Loupas only; `None` for Kasai).
+    /// The axial lags at temporal lags ±1 and within frames (Loupas only; `None` for Kasai).
     pub axial: Option<SpatialLag>,
-    /// The lateral lag at temporal lags ±1 (Loupas on a grid that
+    /// The lateral lags at temporal lags ±1 and within frames (Loupas on a grid that
     /// [`DopplerGeometry::measures_lateral`]; else `None`).
     pub lateral: Option<SpatialLag>,
     /// The spatial lags within frames, summed over the image: the resolution cell

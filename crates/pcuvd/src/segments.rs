@@ -8,11 +8,11 @@
 //! the maps need accumulates across segments:
 //!
 //! - the Doppler moments ([`crate::doppler::Moments`]: power, lag-1 autocorrelation and, for
-//!   Loupas, the axial (and lateral) lags at temporal lags ±1) are means over frames and frame
-//!   pairs, so each core's are combined ([`crate::doppler::Moments::merge`], before the spatial
-//!   box average, which is linear) and the velocities taken from the totals: the maps are those
-//!   of one long ensemble, except that each segment has its own clutter subspace and the pairs
-//!   across a cut are not counted;
+//!   Loupas, the axial (and lateral) lags within frames and at temporal lags ±1) are means over
+//!   frames and frame pairs, so each core's are combined ([`crate::doppler::Moments::merge`],
+//!   before the spatial box average, which is linear) and the velocities taken from the totals:
+//!   the maps are those of one long ensemble, except that each segment has its own clutter
+//!   subspace and the pairs across a cut are not counted;
 //! - the B-mode's mean envelope is summed over the cores the same way (unfiltered: exact);
 //! - dynamics windows and ensembles start on the same frames as the whole-recording path's, each
 //!   computed in the segment whose core holds its start;

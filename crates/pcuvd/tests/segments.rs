@@ -2,7 +2,8 @@
 //! whole-recording path's maps; several stay within the estimator's own spread, and the time
 //! series' ensembles, each filtered on its own, are the whole-recording path's exactly. Vector
 //! dealiasing applies on both paths alike. Both Doppler estimators: Kasai (the lag-1 sums) and
-//! Loupas (the lag-1 and the spatial lags at temporal lags ±1, summed per core alike).
+//! Loupas (the lag-1 and the spatial lags within frames and at temporal lags ±1, summed per core
+//! alike).
 
 mod common;
 
