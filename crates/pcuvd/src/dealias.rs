@@ -1742,6 +1742,8 @@ mod tests {
         power: Array2<f64>,
         /// Distance from the axis in radii.
         distance: Array2<f64>,
+        /// Position along the axis (m) from the field's centre, in the direction of flow.
+        along: Array2<f64>,
     }
 
     impl TubeMap {
@@ -1786,11 +1788,13 @@ mod tests {
         let mut truth = Array2::from_elem((nz, nx), (0.0, 0.0));
         let mut lumen = Array2::from_elem((nz, nx), false);
         let mut distance = Array2::zeros((nz, nx));
+        let mut along = Array2::zeros((nz, nx));
         for iz in 0..nz {
             for ix in 0..nx {
                 let (x, z) = ((ix as f64 - 60.0) * step, (iz as f64 - 30.0) * step);
                 let l = -x * dir.sin() + z * dir.cos();
                 distance[[iz, ix]] = l.abs() / radius;
+                along[[iz, ix]] = x * dir.cos() + z * dir.sin();
                 if l.abs() <= radius {
                     let u = peak * (1.0 - (l / radius).powi(2));
                     truth[[iz, ix]] = (u * dir.cos(), u * dir.sin());
@@ -1820,6 +1824,7 @@ mod tests {
             flow,
             power,
             distance,
+            along,
         }
     }
 
@@ -1898,6 +1903,21 @@ mod tests {
         })
     }
 
+    /// Fraction of `pixels` whose alias counts `counts(pixel, angle)` are right
+    /// ([`pattern_is_right`]).
+    fn fraction_right(
+        v_theta: &Array3<f64>,
+        truth: &Array2<(f64, f64)>,
+        pixels: &[(usize, usize)],
+        counts: impl Fn((usize, usize), usize) -> i8,
+    ) -> f64 {
+        pixels
+            .iter()
+            .filter(|&&px| pattern_is_right(v_theta, truth, px, |a| counts(px, a)))
+            .count() as f64
+            / pixels.len() as f64
+    }
+
     #[test]
     fn the_common_shift_is_settled_over_the_vessel() {
         // At 3× the Nyquist velocity with 2 mm/s errors per angle (and ±2 % gain errors) the
@@ -1921,11 +1941,7 @@ mod tests {
         for est in estimators() {
             let out = dealiased_map(&v_theta, &est, Dealias::Intervals(2), &power, &flow);
             let right = |counts: &dyn Fn((usize, usize), usize) -> i8| {
-                lumen_pixels
-                    .iter()
-                    .filter(|&&px| pattern_is_right(&v_theta, &truth, px, |a| counts(px, a)))
-                    .count() as f64
-                    / lumen_pixels.len() as f64
+                fraction_right(&v_theta, &truth, &lumen_pixels, counts)
             };
             let spatial = right(&|(iz, ix), a| out.counts.alias_counts[[a, iz, ix]]);
             let per_pixel = right(&|(iz, ix), a| {
@@ -2010,23 +2026,16 @@ mod tests {
             mut flow,
             mut power,
             distance,
+            along,
             ..
         } = tube_map(peak, 0.0, 0.0, 11);
         let (nz, nx) = lumen.dim();
-        let step = 0.05e-3;
-        let dir = 60f64.to_radians();
-        let along = |iz: usize, ix: usize| {
-            let (x, z) = ((ix as f64 - 60.0) * step, (iz as f64 - 30.0) * step);
-            x * dir.cos() + z * dir.sin()
-        };
         // The vessel ends 0.8 mm past the field's centre, well inside the field.
-        for iz in 0..nz {
-            for ix in 0..nx {
-                if along(iz, ix) > 0.8e-3 {
-                    lumen[[iz, ix]] = false;
-                    flow[[iz, ix]] = false;
-                    power[[iz, ix]] = 1e-3;
-                }
+        for ((iz, ix), &a) in along.indexed_iter() {
+            if a > 0.8e-3 {
+                lumen[[iz, ix]] = false;
+                flow[[iz, ix]] = false;
+                power[[iz, ix]] = 1e-3;
             }
         }
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
@@ -2049,15 +2058,9 @@ mod tests {
             .collect();
         for est in estimators() {
             let out = dealiased_map(&v_theta, &est, Dealias::Intervals(2), &power, &flow);
-            let right = core
-                .iter()
-                .filter(|&&(iz, ix)| {
-                    pattern_is_right(&v_theta, &truth, (iz, ix), |a| {
-                        out.counts.alias_counts[[a, iz, ix]]
-                    })
-                })
-                .count() as f64
-                / core.len() as f64;
+            let right = fraction_right(&v_theta, &truth, &core, |(iz, ix), a| {
+                out.counts.alias_counts[[a, iz, ix]]
+            });
             assert!(
                 right >= 0.99,
                 "{est:?}: {right} of the core's patterns right"
@@ -2525,15 +2528,9 @@ mod tests {
         assert!(holes > 50, "{holes}");
         for est in estimators() {
             let out = dealiased_map(&v_theta, &est, Dealias::Intervals(2), &power, &flow);
-            let right = kept
-                .iter()
-                .filter(|&&(iz, ix)| {
-                    pattern_is_right(&v_theta, &truth, (iz, ix), |a| {
-                        out.counts.alias_counts[[a, iz, ix]]
-                    })
-                })
-                .count() as f64
-                / kept.len() as f64;
+            let right = fraction_right(&v_theta, &truth, &kept, |(iz, ix), a| {
+                out.counts.alias_counts[[a, iz, ix]]
+            });
             assert!(
                 right >= 0.99,
                 "{est:?}: {right} of the lumen around {holes} holes"
