@@ -49,7 +49,8 @@ def simulate(
     "coded" (Hadamard), "conventional" or "both"; frames: compound frames (default: the
     preset's); noise_db: noise level in dB (None: no noise); seed of scatterers and noise;
     options: the other `simulate` options (angles, slot_delay_us, peak_velocity_mm_s,
-    tube_profile="plug" for the tube without a gradient across it). Returns (recording, truth),
+    tube_profile="plug" for the tube without a gradient across it, tube_angle_deg,
+    tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm). Returns (recording, truth),
     or ({"conventional": ..., "coded": ...}, truth) for mode "both".
     """
     given = dict(options)

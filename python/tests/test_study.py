@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 import pcuvd
@@ -59,3 +60,24 @@ def test_study_refuses_an_unknown_option_and_a_bad_value():
     # Loupas (the default) on a grid too coarse for it, refused before anything is simulated.
     with pytest.raises(ValueError, match="finer grid"):
         pcuvd.study.spiral(frames=8, grid_step=0.2, quiet=True)
+
+
+def test_simulate_places_the_tube_where_its_options_say():
+    """`tube_centre_mm` as a pair, like every list option: a vertical tube through (1, 7) mm."""
+    _, truth = pcuvd.simulate(
+        "tube",
+        "conventional",
+        frames=1,
+        noise_db=None,
+        angles=2,
+        quiet=True,
+        tube_angle_deg=90,
+        tube_centre_mm=(1, 7),
+        tube_radius_mm=0.3,
+        tube_length_mm=4,
+    )
+    rows, cols = np.nonzero(truth.mask)
+    x, z = truth.x[cols], truth.z[rows]
+    assert abs(x.mean() - 1e-3) < 0.02e-3 and abs(z.mean() - 7e-3) < 0.05e-3
+    assert x.max() - x.min() <= 0.6e-3 + 1e-9 and z.max() - z.min() <= 4e-3 + 1e-9
+    assert np.all(truth.vx[truth.mask] == 0) and truth.vz[truth.mask].max() > 24e-3

@@ -11,6 +11,7 @@ use pcuvd::pipeline;
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
 
+use crate::options::parse_numbers;
 use crate::process::create_dir;
 use crate::progress::bar;
 
@@ -126,6 +127,20 @@ pub struct SimulationOptions {
     /// by the vessel's residual rather than by slow flow at the wall.
     #[arg(long, value_enum)]
     pub tube_profile: Option<crate::options::TubeProfile>,
+    /// Flow direction of the tube preset (degrees from +x toward +z: 30 flows toward +x and
+    /// deeper, 90 straight down; default 30).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tube_angle_deg: Option<f64>,
+    /// Centre of the tube preset "x,z" (mm; default 0,8).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tube_centre_mm: Option<String>,
+    /// Length of the tube preset along its axis (mm; default 16): scatterers leaving one end
+    /// re-enter at the other, so an end inside the image is a vessel that starts or stops there.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tube_length_mm: Option<f64>,
+    /// Radius of the tube preset (mm; default 0.5).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tube_radius_mm: Option<f64>,
 }
 
 /// Arguments of `pcuvd simulate`.
@@ -151,6 +166,8 @@ pub struct Simulation {
     pub phantom: Box<dyn Phantom>,
     /// The vessel network, for its cardiac-cycle truth (the `rat-network` preset only).
     pub network: Option<NetworkPhantom>,
+    /// The tube's geometry and flow (the `tube` preset only).
+    pub tube: Option<TubeSpec>,
     /// Each recording to simulate: its name ("conventional", "coded") and settings.
     pub modes: Vec<(&'static str, SimParams)>,
 }
@@ -196,9 +213,22 @@ impl Simulation {
             }
             given => given.map(|v| v * 1e-3),
         };
-        if args.tube_profile.is_some() && args.preset != Preset::Tube {
-            bail!("--tube-profile applies to --preset tube only");
-        }
+        let tube = match args.preset {
+            Preset::Tube => Some(tube_spec(args, peak.unwrap_or(25e-3))?),
+            _ => {
+                let tube_flags = [
+                    ("--tube-profile", args.tube_profile.is_some()),
+                    ("--tube-angle-deg", args.tube_angle_deg.is_some()),
+                    ("--tube-centre-mm", args.tube_centre_mm.is_some()),
+                    ("--tube-length-mm", args.tube_length_mm.is_some()),
+                    ("--tube-radius-mm", args.tube_radius_mm.is_some()),
+                ];
+                if let Some((flag, _)) = tube_flags.iter().find(|(_, given)| *given) {
+                    bail!("{flag} applies to --preset tube only");
+                }
+                None
+            }
+        };
         let network = match args.preset {
             Preset::RatNetwork => {
                 let spec = NetworkSpec::rat();
@@ -221,10 +251,7 @@ impl Simulation {
                 Box::new(SpiralPhantom::new(spec, args.seed)?)
             }
             (_, None) => Box::new(TubePhantom::new(
-                TubeSpec {
-                    profile: args.tube_profile.map_or_else(Default::default, Into::into),
-                    ..TubeSpec::preset(peak.unwrap_or(25e-3))
-                },
+                tube.clone().context("the tube preset's vessel")?,
                 args.seed,
             )?),
         };
@@ -246,6 +273,7 @@ impl Simulation {
             noise_db,
             phantom,
             network,
+            tube,
             modes,
         })
     }
@@ -299,6 +327,22 @@ impl Simulation {
             "attenuation_db_cm_mhz".into(),
             params.attenuation_db_cm_mhz.into(),
         );
+        if let Some(tube) = &self.tube {
+            let mm = |v: f64| toml::Value::from(v * 1e3);
+            let mut vessel = toml::Table::new();
+            vessel.insert(
+                "centre_mm".into(),
+                toml::Value::Array(tube.centre.iter().map(|&v| mm(v)).collect()),
+            );
+            // Rounded to 1e-9° so that the 60 given reads back as 60, not 59.99999999999999.
+            let degrees = (tube.angle.to_degrees() * 1e9).round() / 1e9;
+            vessel.insert("angle_deg".into(), degrees.into());
+            vessel.insert("length_mm".into(), mm(tube.length));
+            vessel.insert("radius_mm".into(), mm(tube.radius));
+            vessel.insert("peak_velocity_mm_s".into(), mm(tube.peak_speed));
+            vessel.insert("profile".into(), tube.profile.label().into());
+            provenance.insert("tube".into(), vessel.into());
+        }
         provenance
     }
 
@@ -390,6 +434,36 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The `tube` preset's vessel with the `--tube-*` options applied, peak speed `peak` (m/s).
+fn tube_spec(args: &SimulationOptions, peak: f64) -> Result<TubeSpec> {
+    let preset = TubeSpec::preset(peak);
+    let centre = match &args.tube_centre_mm {
+        None => preset.centre,
+        Some(text) => match parse_numbers(text).as_deref() {
+            Ok(&[x, z]) => [x * 1e-3, z * 1e-3],
+            _ => bail!("--tube-centre-mm {text:?}: expected two finite numbers \"x,z\" in mm"),
+        },
+    };
+    let positive_mm = |flag: &str, value: Option<f64>, default: f64| match value {
+        None => Ok(default),
+        Some(v) if v.is_finite() && v > 0.0 => Ok(v * 1e-3),
+        Some(v) => bail!("{flag} {v}: must be a finite length > 0 mm"),
+    };
+    let angle = match args.tube_angle_deg {
+        None => preset.angle,
+        Some(deg) if deg.is_finite() => deg.to_radians(),
+        Some(deg) => bail!("--tube-angle-deg {deg}: must be a finite number of degrees"),
+    };
+    Ok(TubeSpec {
+        centre,
+        angle,
+        length: positive_mm("--tube-length-mm", args.tube_length_mm, preset.length)?,
+        radius: positive_mm("--tube-radius-mm", args.tube_radius_mm, preset.radius)?,
+        profile: args.tube_profile.map_or(preset.profile, Into::into),
+        ..preset
+    })
 }
 
 /// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.

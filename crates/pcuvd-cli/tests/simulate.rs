@@ -161,10 +161,111 @@ fn a_plug_tube_moves_at_its_peak_speed_up_to_the_wall() {
 }
 
 #[test]
+fn a_tube_placed_by_its_options_is_where_its_truth_and_provenance_say() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    // A vertical tube (90°: flowing deeper) of radius 0.3 mm and 4 mm long through (1, 7) mm.
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "simulate",
+        "--preset",
+        "tube",
+        "--tube-angle-deg",
+        "90",
+        "--tube-centre-mm",
+        "1,7",
+        "--tube-radius-mm",
+        "0.3",
+        "--tube-length-mm",
+        "4",
+        "--mode",
+        "conventional",
+        "--frames",
+        "1",
+        "--angles",
+        "2",
+        "--noise-db",
+        "off",
+        "--out",
+        d,
+    ]);
+    assert!(ok, "{stderr}");
+    let read = |name: &str| -> ndarray::Array2<f64> {
+        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
+    };
+    let (vx, vz) = (read("truth_vx.npy"), read("truth_vz.npy"));
+    let axis = |name: &str| -> ndarray::Array1<f64> {
+        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
+    };
+    let (x, z) = (axis("truth_x.npy"), axis("truth_z.npy"));
+    let mask: ndarray::Array2<u8> =
+        ndarray_npy::read_npy(dir.path().join("truth_mask.npy")).unwrap();
+    let mut lumen = 0;
+    let mut peak = 0f64;
+    for ((iz, ix), &m) in mask.indexed_iter() {
+        let (dx, dz) = (x[ix] - 1e-3, z[iz] - 7e-3);
+        let inside = dx.abs() <= 0.3e-3 && dz.abs() <= 2e-3;
+        // Pixels on the wall itself may fall either side of it.
+        let on_edge = (dx.abs() - 0.3e-3).abs() < 1e-9 || (dz.abs() - 2e-3).abs() < 1e-9;
+        if !on_edge {
+            assert_eq!(
+                m == 1,
+                inside,
+                "pixel ({}, {}) mm",
+                x[ix] * 1e3,
+                z[iz] * 1e3
+            );
+        }
+        if m == 1 {
+            lumen += 1;
+            assert!(vx[(iz, ix)].abs() < 1e-12, "a vertical tube has no Vx");
+            let parabolic = 25e-3 * (1.0 - (dx / 0.3e-3).powi(2));
+            assert!(
+                (vz[(iz, ix)] - parabolic).abs() < 1e-9,
+                "Vz {}",
+                vz[(iz, ix)]
+            );
+            peak = peak.max(vz[(iz, ix)]);
+        }
+    }
+    assert!(lumen > 100, "{lumen} lumen pixels");
+    assert!(peak > 24e-3, "centreline speed {peak} m/s");
+    let manifest: toml::Table =
+        toml::from_str(&std::fs::read_to_string(dir.path().join("conventional.toml")).unwrap())
+            .unwrap();
+    let tube = &manifest["provenance"]["tube"];
+    let number = |key: &str| tube[key].as_float().unwrap();
+    for (key, expected) in [
+        ("angle_deg", 90.0),
+        ("radius_mm", 0.3),
+        ("length_mm", 4.0),
+        ("peak_velocity_mm_s", 25.0),
+    ] {
+        assert!(
+            (number(key) - expected).abs() < 1e-9,
+            "{key} {}",
+            number(key)
+        );
+    }
+    assert_eq!(tube["profile"].as_str(), Some("parabolic"));
+    let centre: Vec<f64> = tube["centre_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_float().unwrap())
+        .collect();
+    assert!(
+        (centre[0] - 1.0).abs() < 1e-9 && (centre[1] - 7.0).abs() < 1e-9,
+        "{centre:?}"
+    );
+}
+
+#[test]
 fn bad_simulation_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
-    let cases: [(&[&str], &str); 6] = [
+    let tube = ["simulate", "--preset", "tube", "--frames", "1", "--out", d];
+    let cases: [(&[&str], &str); 10] = [
         (&["simulate", "--preset", "nope", "--out", d], "nope"),
         (
             &[
@@ -208,6 +309,22 @@ fn bad_simulation_requests_are_refused() {
                 "/proc/pcuvd-cannot-write-here",
             ],
             "pcuvd-cannot-write-here",
+        ),
+        (
+            &["simulate", "--tube-angle-deg", "45", "--out", d],
+            "--tube-angle-deg applies to --preset tube only",
+        ),
+        (
+            &[&tube[..], &["--tube-centre-mm", "1"]].concat(),
+            "--tube-centre-mm \"1\": expected two finite numbers",
+        ),
+        (
+            &[&tube[..], &["--tube-radius-mm", "0"]].concat(),
+            "--tube-radius-mm 0: must be a finite length > 0 mm",
+        ),
+        (
+            &[&tube[..], &["--tube-length-mm", "-2"]].concat(),
+            "--tube-length-mm -2: must be a finite length > 0 mm",
         ),
     ];
     for (args, needle) in cases {
