@@ -241,7 +241,7 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
         multiples_text(&s.multiples)
     ));
     report.paragraph(&format!(
-        "The paper's acquisition (L22-14vX, 15.625 MHz, 8 plane waves −15…15°, event PRF 14.4 kHz, 1.8 kHz compound rate, {} frames) of a straight tube (radius 0.5 mm, {} profile, 300 scatterers/mm², {}° below +x through (0, 7 mm)) whose peak speed is {} × the projection Nyquist velocity v_N = c·PRF/(4 f₀ n) = {:.1} mm/s, conventional and Hadamard-coded, seeds {}. Each is processed without dealiasing and with --dealias {} (every angle's projection unwrapped by up to ±K intervals of 2 v_N, the pattern chosen by the smallest residual of the vector fit, the common shift of all angles over each vessel). {} pixels in the true lumen.",
+        "The paper's acquisition (L22-14vX, 15.625 MHz, 8 plane waves −15…15°, event PRF 14.4 kHz, 1.8 kHz compound rate, {} frames) of a straight tube (radius 0.5 mm, {} profile, 300 scatterers/mm², {}° below +x through (0, 7 mm)) whose peak speed is {} × the projection Nyquist velocity v_N = c·PRF/(4 f₀ n) = {:.1} mm/s, conventional and Hadamard-coded, seeds {}, beamformed at receive F# {} (Hann). Each is processed without dealiasing and with --dealias {} (every angle's projection unwrapped by up to ±K intervals of 2 v_N, the pattern chosen by the smallest residual of the vector fit, the common shift of all angles over each vessel). {} pixels in the true lumen.",
         s.frames,
         s.tube_profile.label(),
         s.tube_angle_deg,
@@ -252,6 +252,7 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
             .join(", "),
         m.nyquist_velocity_m_s * 1e3,
         seeds.join(", "),
+        s.f_number,
         s.dealias.label(),
         m.lumen_pixels
     ));

@@ -484,11 +484,12 @@ pub fn report_section(
     };
     report.heading("In-vivo-like vessel network over a cardiac cycle (paper §4, Fig. 6–8)");
     report.paragraph(&format!(
-        "The paper's rat setting (L22-14vX at 15.625 MHz, 8 plane waves from −15° to 15°, Hadamard order 8 with 1 µs slots, event PRF 14.4 kHz, 1.8 kHz compound rate) over {} compound frames, on a phantom with ground truth: eight straight vessels 1–13 mm deep at several orientations, four arterioles (RI 0.7, peak 20–30 mm/s, radius 0.15 mm) and four venules (RI 0.3, peak 10–14 mm/s, radius 0.2 mm), flowing up and down, parabolic profiles, pulsatile waveform w(t) = (1 − RI) + RI·((1 + cos 2πf_h t)/2)³ at {} Hz, {}; decoding: {}. Attenuation 0.5 dB/cm/MHz makes the echoes, and the SNR, fall with depth. Noise {} dB ({}). No clutter filter (no tissue). Seed {}.",
+        "The paper's rat setting (L22-14vX at 15.625 MHz, 8 plane waves from −15° to 15°, Hadamard order 8 with 1 µs slots, event PRF 14.4 kHz, 1.8 kHz compound rate) over {} compound frames, on a phantom with ground truth: eight straight vessels 1–13 mm deep at several orientations, four arterioles (RI 0.7, peak 20–30 mm/s, radius 0.15 mm) and four venules (RI 0.3, peak 10–14 mm/s, radius 0.2 mm), flowing up and down, parabolic profiles, pulsatile waveform w(t) = (1 − RI) + RI·((1 + cos 2πf_h t)/2)³ at {} Hz, {}; decoding: {}; receive F# {}. Attenuation 0.5 dB/cm/MHz makes the echoes, and the SNR, fall with depth. Noise {} dB ({}). No clutter filter (no tissue). Seed {}.",
         settings.frames,
         settings.heart_rate_hz,
         settings.motion.describe(),
         describe_alignment(settings.event_alignment),
+        settings.f_number,
         settings.noise_db,
         pcuvd::simulate::NOISE_DEFINITION,
         settings.seed

@@ -78,6 +78,11 @@ pub struct StudyOptions {
     /// vector maps and in the vessel network's dynamics windows.
     #[arg(long, value_enum, default_value = "off")]
     pub partial_volume: crate::options::Switch,
+    /// Receive f-number of the beamformer in every study (as `process --f-number`): the
+    /// lateral size of each angle's resolution cell, which averages the velocity gradient
+    /// inside it.
+    #[arg(long, default_value_t = SpiralSettings::default().f_number, allow_hyphen_values = true)]
+    pub f_number: f64,
     /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
     /// study (the paper's baseline: 5.70), or "off".
     #[arg(long, default_value = "5.7")]
@@ -222,6 +227,7 @@ impl StudyOptions {
             doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
             doppler_estimator: self.doppler_estimator.into(),
             partial_volume: self.partial_volume == crate::options::Switch::On,
+            f_number: self.f_number,
             grid_step_m: self.grid_step * 1e-3,
             calibrate_uvd_vx_m_s: match self.calibrate_uvd_vx.trim() {
                 "off" => None,
@@ -281,6 +287,7 @@ impl StudyOptions {
             doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
             grid_step_m: self.grid_step * 1e-3,
             partial_volume: self.partial_volume == crate::options::Switch::On,
+            f_number: self.f_number,
         };
         settings.validate().context(
             "--dealias-multiples / --dealias-noise-db / --dealias-seeds / --dealias / --frames / --doppler-kernel / --grid-step",
@@ -300,6 +307,7 @@ impl StudyOptions {
             grid_step_m: self.grid_step * 1e-3,
             doppler_estimator: self.doppler_estimator.into(),
             partial_volume: self.partial_volume == crate::options::Switch::On,
+            f_number: self.f_number,
         };
         settings.validate().with_context(|| {
             format!(
@@ -897,9 +905,10 @@ fn spiral_report(
         m.noise_definition, settings.noise_db
     ));
     report.paragraph(&format!(
-        "Motion: {}. Decoding: {}. Doppler autocorrelation averaged over {}x{} pixels.",
+        "Motion: {}. Decoding: {}. Delay-and-sum beamforming at receive F# {} (Hann). Doppler autocorrelation averaged over {}x{} pixels.",
         settings.motion.describe(),
         describe_alignment(settings.event_alignment),
+        settings.f_number,
         settings.doppler_kernel.0,
         settings.doppler_kernel.1
     ));

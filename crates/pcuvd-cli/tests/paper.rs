@@ -223,6 +223,10 @@ fn paper_rejects_bad_arguments() {
         vec!["--grid-step", "0.2"],
         vec!["--part", "network", "--grid-step", "0.2"],
         vec!["--part", "dealias", "--grid-step", "0.2"],
+        // A receive aperture that cannot be, in every study.
+        vec!["--f-number", "0"],
+        vec!["--part", "network", "--f-number", "nan"],
+        vec!["--part", "dealias", "--f-number", "-1"],
     ] {
         let out = tempfile::tempdir().unwrap();
         let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
@@ -239,6 +243,13 @@ fn paper_rejects_bad_arguments() {
                 && !stderr.contains("panicked"),
             "{args:?}: {stderr}"
         );
+        if args.contains(&"--f-number") {
+            assert!(stderr.contains("f-number"), "{args:?}: {stderr}");
+            assert!(
+                std::fs::read_dir(out.path()).unwrap().next().is_none(),
+                "{args:?}: wrote before refusing"
+            );
+        }
         if args.contains(&"0.2") {
             // Refused before anything is simulated: nothing written, and the way out named.
             assert!(stderr.contains("finer grid"), "{args:?}: {stderr}");

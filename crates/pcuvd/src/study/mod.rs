@@ -180,6 +180,18 @@ pub fn process_params(
     }
 }
 
+/// Refuses a receive f-number that is not finite and positive.
+pub fn check_f_number(f_number: f64) -> Result<()> {
+    if f_number.is_finite() && f_number > 0.0 {
+        Ok(())
+    } else {
+        Err(crate::error::invalid(
+            "f-number",
+            format!("{f_number}: must be finite and > 0 (depth / receive aperture width)"),
+        ))
+    }
+}
+
 /// Refuses, before anything is simulated, a Doppler `estimator` that a study's `grid` cannot
 /// serve for the acquisition `params` ([`crate::pipeline::check_doppler_estimator`]: Loupas on
 /// an axial step too coarse for it).
@@ -214,6 +226,8 @@ pub struct Acquire<'a> {
     pub alignment: EventAlignment,
     /// Name of the progress tasks and timing keys.
     pub label: &'a str,
+    /// Receive f-number of the beamformer.
+    pub f_number: f64,
 }
 
 /// Simulates the echoes and the noise of `what` apart and beamforms both on `grid`; adds the
@@ -403,6 +417,7 @@ fn form_echo_and_noise(
         motion,
         alignment,
         label,
+        f_number,
     } = what;
     params.noise = None;
     let held = FrameHeld {
@@ -417,7 +432,8 @@ fn form_echo_and_noise(
     params.noise = Some(NoiseSpec::new(noise_db));
     let noise = SimulatedFrames::new(phantom, params, frames, true);
     let acquisition = echoes.acquisition.clone();
-    let process = process_params(grid, &acquisition, (1, 1), alignment);
+    let mut process = process_params(grid, &acquisition, (1, 1), alignment);
+    process.das.f_number = f_number;
     let blocks = pipeline::blocks_for(&echoes, alignment);
     let ranges = blocks.ranges(frames);
     let task = format!("simulate + beamform {label}");

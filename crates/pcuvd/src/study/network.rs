@@ -16,6 +16,7 @@ use super::spiral::{SnrByDepth, alignment_label};
 use super::{
     Acquire, FormedSum, Mode, Motion, Progress, Timings, process_params, simulate_and_form_sum,
 };
+use crate::beamform::DasParams;
 use crate::decode::EventAlignment;
 use crate::doppler::DopplerEstimator;
 use crate::dynamics::{
@@ -62,6 +63,10 @@ pub struct NetworkSettings {
     /// The partial-volume correction ([`crate::partial_volume`]) of the maps and of every
     /// dynamics window.
     pub partial_volume: bool,
+    /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
+    /// the lateral size of each angle's resolution cell, over which a velocity gradient is
+    /// averaged.
+    pub f_number: f64,
 }
 
 impl Default for NetworkSettings {
@@ -76,6 +81,7 @@ impl Default for NetworkSettings {
             grid_step_m: 0.05e-3,
             doppler_estimator: DopplerEstimator::default(),
             partial_volume: false,
+            f_number: DasParams::DEFAULT_F_NUMBER,
         }
     }
 }
@@ -121,6 +127,7 @@ impl NetworkSettings {
         if !self.noise_db.is_finite() {
             return Err(invalid("noise level", "must be a finite number of dB"));
         }
+        super::check_f_number(self.f_number)?;
         if !(self.heart_rate_hz.is_finite() && self.heart_rate_hz > 0.0) {
             return Err(invalid(
                 "heart rate",
@@ -396,6 +403,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
                 motion: settings.motion,
                 alignment: settings.event_alignment,
                 label: &label,
+                f_number: settings.f_number,
             },
             &grid,
             &mut timing,

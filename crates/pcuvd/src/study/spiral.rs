@@ -12,6 +12,7 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
+use crate::beamform::DasParams;
 use crate::decode::EventAlignment;
 use crate::doppler::DopplerEstimator;
 use crate::error::{Result, invalid};
@@ -69,6 +70,10 @@ pub struct SpiralSettings {
     /// The partial-volume correction of every estimate ([`crate::partial_volume`]); the paper
     /// has none.
     pub partial_volume: bool,
+    /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
+    /// the lateral size of each angle's resolution cell, over which a velocity gradient is
+    /// averaged.
+    pub f_number: f64,
 }
 
 /// Serialises an event alignment as its option value ("mid-frame", "simultaneous").
@@ -94,6 +99,7 @@ impl Default for SpiralSettings {
             calibrate_uvd_vx_m_s: Some(paper::UVD_RMSE_MM_S.0 * 1e-3),
             averaging_kernels: vec![(1, 1), (3, 1), (5, 1), (7, 1), (3, 3)],
             partial_volume: false,
+            f_number: DasParams::DEFAULT_F_NUMBER,
         }
     }
 }
@@ -118,6 +124,7 @@ impl SpiralSettings {
         if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
+        super::check_f_number(self.f_number)?;
         for &(r, c) in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
             if r % 2 == 0 || c % 2 == 0 || r == 0 || c == 0 {
                 return Err(invalid(
@@ -490,6 +497,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
                 motion: settings.motion,
                 alignment: settings.event_alignment,
                 label: mode.label(),
+                f_number: settings.f_number,
             },
             &grid,
             &mut timing,
@@ -899,6 +907,7 @@ mod tests {
                     motion: settings.motion,
                     alignment: settings.event_alignment,
                     label: "conventional",
+                    f_number: settings.f_number,
                 },
                 &grid,
                 &mut Timings::new(),
@@ -966,6 +975,7 @@ mod tests {
                 motion: settings.motion,
                 alignment: settings.event_alignment,
                 label: "conventional",
+                f_number: settings.f_number,
             },
             &grid,
             &mut Timings::new(),
