@@ -283,6 +283,8 @@ pub struct NetworkInfo {
     pub motion: Motion,
     /// How coded events were decoded.
     pub event_alignment: &'static str,
+    /// Receive f-number of the beamformer.
+    pub f_number: f64,
     /// Seed.
     pub seed: u64,
     /// Scatterers in the phantom.
@@ -479,6 +481,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             heart_rate_hz: settings.heart_rate_hz,
             motion: settings.motion,
             event_alignment: settings.event_alignment.label(),
+            f_number: settings.f_number,
             seed: settings.seed,
             scatterers: phantom.n_scatterers(),
             vessel_pixels: truth.mask().iter().filter(|&&m| m).count(),

@@ -371,6 +371,8 @@ pub struct SpiralMetrics {
     pub doppler_estimator: DopplerEstimator,
     /// Whether the partial-volume correction moved each projection to its pixel.
     pub partial_volume: bool,
+    /// Receive f-number of the beamformer.
+    pub f_number: f64,
     /// Seed.
     pub seed: u64,
     /// Nyquist velocity of each projection (m/s).
@@ -683,6 +685,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         doppler_kernel: settings.doppler_kernel,
         doppler_estimator: settings.doppler_estimator,
         partial_volume: settings.partial_volume,
+        f_number: settings.f_number,
         seed: settings.seed,
         nyquist_velocity_m_s: coded.nyquist_velocity,
         vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
