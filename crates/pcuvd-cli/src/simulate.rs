@@ -74,7 +74,7 @@ fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) ->
 pub enum Preset {
     /// The paper's spiral (§2.3): L22-14vX, 15.625 MHz, 2-cycle pulse, f_s 65 MHz, c 1540 m/s, 8 angles in [−15°, 15°], event PRF 14.4 kHz (1.8 kHz compound), Hadamard order 8 with 1 µs slots, 100 frames, noise −10 dB.
     PaperSpiral,
-    /// A straight tube (radius 0.5 mm, 25 mm/s peak unless --peak-velocity-mm-s, parabolic unless --tube-profile) at 30° below +x through (0, 8 mm), with the paper-spiral acquisition.
+    /// A straight tube (radius 0.5 mm, 16 mm long, 25 mm/s peak unless --peak-velocity-mm-s, parabolic unless --tube-profile) at 30° below +x through (0, 8 mm) unless the --tube-* options place it, with the paper-spiral acquisition.
     Tube,
     /// The in-vivo-like pulsatile vessel network at 5.5 Hz (4 arterioles RI 0.7, 4 venules RI 0.3, flowing up and down, 1–13 mm deep) with the paper's rat acquisition (Table 1): as paper-spiral but 360 frames (0.2 s), receive window 0–13 mm; writes the RI truth too.
     RatNetwork,
