@@ -80,4 +80,5 @@ def test_simulate_places_the_tube_where_its_options_say():
     x, z = truth.x[cols], truth.z[rows]
     assert abs(x.mean() - 1e-3) < 0.02e-3 and abs(z.mean() - 7e-3) < 0.05e-3
     assert x.max() - x.min() <= 0.6e-3 + 1e-9 and z.max() - z.min() <= 4e-3 + 1e-9
-    assert np.all(truth.vx[truth.mask] == 0) and truth.vz[truth.mask].max() > 24e-3
+    # cos 90° in floating point: Vx of order 1e-18 m/s, not 0.
+    assert np.abs(truth.vx[truth.mask]).max() < 1e-12 and truth.vz[truth.mask].max() > 24e-3
