@@ -125,7 +125,7 @@ impl DealiasSettings {
         if self.noise_db.iter().flatten().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
-        super::check_f_number(self.f_number)?;
+        crate::error::require_positive("f-number", self.f_number)?;
         if !self.tube_angle_deg.is_finite() {
             return Err(invalid("tube angle", "must be a finite number of degrees"));
         }

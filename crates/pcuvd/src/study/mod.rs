@@ -180,18 +180,6 @@ pub fn process_params(
     }
 }
 
-/// Refuses a receive f-number that is not finite and positive.
-pub fn check_f_number(f_number: f64) -> Result<()> {
-    if f_number.is_finite() && f_number > 0.0 {
-        Ok(())
-    } else {
-        Err(crate::error::invalid(
-            "f-number",
-            format!("{f_number}: must be finite and > 0 (depth / receive aperture width)"),
-        ))
-    }
-}
-
 /// Refuses, before anything is simulated, a Doppler `estimator` that a study's `grid` cannot
 /// serve for the acquisition `params` ([`crate::pipeline::check_doppler_estimator`]: Loupas on
 /// an axial step too coarse for it).

@@ -127,7 +127,7 @@ impl NetworkSettings {
         if !self.noise_db.is_finite() {
             return Err(invalid("noise level", "must be a finite number of dB"));
         }
-        super::check_f_number(self.f_number)?;
+        crate::error::require_positive("f-number", self.f_number)?;
         if !(self.heart_rate_hz.is_finite() && self.heart_rate_hz > 0.0) {
             return Err(invalid(
                 "heart rate",

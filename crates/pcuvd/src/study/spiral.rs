@@ -124,7 +124,7 @@ impl SpiralSettings {
         if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
-        super::check_f_number(self.f_number)?;
+        crate::error::require_positive("f-number", self.f_number)?;
         for &(r, c) in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
             if r % 2 == 0 || c % 2 == 0 || r == 0 || c == 0 {
                 return Err(invalid(
