@@ -16,6 +16,49 @@ fn pcuvd(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// The truth `pcuvd simulate --preset tube` writes for one conventional noiseless frame of two
+/// angles with `tube_options`: (Vx, Vz) in m/s, the lumen mask, x and z (m), and the folder.
+struct TubeTruth {
+    vx: ndarray::Array2<f64>,
+    vz: ndarray::Array2<f64>,
+    mask: ndarray::Array2<u8>,
+    x: ndarray::Array1<f64>,
+    z: ndarray::Array1<f64>,
+    dir: tempfile::TempDir,
+}
+
+fn simulated_tube(tube_options: &[&str]) -> TubeTruth {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let fixed = [
+        "--quiet",
+        "simulate",
+        "--preset",
+        "tube",
+        "--mode",
+        "conventional",
+        "--frames",
+        "1",
+        "--angles",
+        "2",
+        "--noise-db",
+        "off",
+        "--out",
+        d,
+    ];
+    let (ok, _, stderr) = pcuvd(&[&fixed[..], tube_options].concat());
+    assert!(ok, "{stderr}");
+    let path = |name: &str| dir.path().join(name);
+    TubeTruth {
+        vx: ndarray_npy::read_npy(path("truth_vx.npy")).unwrap(),
+        vz: ndarray_npy::read_npy(path("truth_vz.npy")).unwrap(),
+        mask: ndarray_npy::read_npy(path("truth_mask.npy")).unwrap(),
+        x: ndarray_npy::read_npy(path("truth_x.npy")).unwrap(),
+        z: ndarray_npy::read_npy(path("truth_z.npy")).unwrap(),
+        dir,
+    }
+}
+
 #[test]
 fn simulated_tube_round_trips_through_process() {
     let dir = tempfile::tempdir().unwrap();
@@ -118,35 +161,8 @@ fn simulated_tube_round_trips_through_process() {
 
 #[test]
 fn a_plug_tube_moves_at_its_peak_speed_up_to_the_wall() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path().to_str().unwrap();
-    let (ok, _, stderr) = pcuvd(&[
-        "--quiet",
-        "simulate",
-        "--preset",
-        "tube",
-        "--tube-profile",
-        "plug",
-        "--peak-velocity-mm-s",
-        "90",
-        "--mode",
-        "conventional",
-        "--frames",
-        "1",
-        "--angles",
-        "2",
-        "--noise-db",
-        "off",
-        "--out",
-        d,
-    ]);
-    assert!(ok, "{stderr}");
-    let read = |name: &str| -> ndarray::Array2<f64> {
-        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
-    };
-    let (vx, vz) = (read("truth_vx.npy"), read("truth_vz.npy"));
-    let mask: ndarray::Array2<u8> =
-        ndarray_npy::read_npy(dir.path().join("truth_mask.npy")).unwrap();
+    let TubeTruth { vx, vz, mask, .. } =
+        simulated_tube(&["--tube-profile", "plug", "--peak-velocity-mm-s", "90"]);
     let lumen = mask.iter().filter(|&&m| m == 1).count();
     assert!(lumen > 100, "{lumen} lumen pixels");
     for ((&m, &x), &z) in mask.iter().zip(&vx).zip(&vz) {
@@ -162,14 +178,15 @@ fn a_plug_tube_moves_at_its_peak_speed_up_to_the_wall() {
 
 #[test]
 fn a_tube_placed_by_its_options_is_where_its_truth_and_provenance_say() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path().to_str().unwrap();
     // A vertical tube (90°: flowing deeper) of radius 0.3 mm and 4 mm long through (1, 7) mm.
-    let (ok, _, stderr) = pcuvd(&[
-        "--quiet",
-        "simulate",
-        "--preset",
-        "tube",
+    let TubeTruth {
+        vx,
+        vz,
+        mask,
+        x,
+        z,
+        dir,
+    } = simulated_tube(&[
         "--tube-angle-deg",
         "90",
         "--tube-centre-mm",
@@ -178,28 +195,7 @@ fn a_tube_placed_by_its_options_is_where_its_truth_and_provenance_say() {
         "0.3",
         "--tube-length-mm",
         "4",
-        "--mode",
-        "conventional",
-        "--frames",
-        "1",
-        "--angles",
-        "2",
-        "--noise-db",
-        "off",
-        "--out",
-        d,
     ]);
-    assert!(ok, "{stderr}");
-    let read = |name: &str| -> ndarray::Array2<f64> {
-        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
-    };
-    let (vx, vz) = (read("truth_vx.npy"), read("truth_vz.npy"));
-    let axis = |name: &str| -> ndarray::Array1<f64> {
-        ndarray_npy::read_npy(dir.path().join(name)).unwrap()
-    };
-    let (x, z) = (axis("truth_x.npy"), axis("truth_z.npy"));
-    let mask: ndarray::Array2<u8> =
-        ndarray_npy::read_npy(dir.path().join("truth_mask.npy")).unwrap();
     let mut lumen = 0;
     let mut peak = 0f64;
     for ((iz, ix), &m) in mask.indexed_iter() {
