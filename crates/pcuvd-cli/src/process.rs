@@ -1098,8 +1098,8 @@ pub fn summary_json(
             "estimator": params.doppler_estimator.label(),
             "estimator_description": params.doppler_estimator.describe(),
             "partial_volume": params.partial_volume,
-            // Each angle's intensity cell (its speckle's, widened by the kernel) as the
-            // correction saw it; null where it could not be measured.
+            // Each angle's intensity cell at one pixel (its speckle's) as the correction saw
+            // it; null where it could not be measured.
             "partial_volume_cells": params.partial_volume.then(|| out.cells.iter().map(|c| c.map(|c| json!({
                 "sigma_x_mm": c.xx.sqrt() * 1e3,
                 "sigma_z_mm": c.zz.sqrt() * 1e3,

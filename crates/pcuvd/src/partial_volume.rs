@@ -153,16 +153,10 @@ impl CellCovariance {
         })
     }
 
-    /// The cell of echoes whose lags are `lags` ([`CellCovariance::from_lags`]) as a Doppler
-    /// averaged over `kernel` = (rows, cols) pixels `step` (m) apart sees it
-    /// ([`CellCovariance::through_kernel`]): what the correction moves each projection with.
-    pub fn of_kernel(lags: &CellLags, kernel: (usize, usize), step: f64) -> Option<CellCovariance> {
-        CellCovariance::from_lags(lags, step).map(|c| c.through_kernel(kernel, step))
-    }
-
     /// The cell seen through an averaging box of `kernel` = (rows, cols) pixels `step` (m)
     /// apart: a box of n pixels adds the variance (n² − 1)/12 pixels² along its axis (the
-    /// Gaussian of the same variance stands in for the box).
+    /// Gaussian of the same variance stands in for the box). Its extent only: the correction
+    /// sums the box's own pixels' centroids ([`projection_shifts`]).
     pub fn through_kernel(&self, kernel: (usize, usize), step: f64) -> CellCovariance {
         let box_variance = |n: usize| ((n * n) as f64 - 1.0) / 12.0 * step * step;
         CellCovariance {
@@ -306,22 +300,89 @@ fn gradient(map: &Array2<f64>, step: f64) -> (Array2<f64>, Array2<f64>) {
     (dx, dz)
 }
 
+/// What the correction knows of each angle's resolution cells: each pixel's own power Doppler,
+/// each angle's cell of one pixel, and the box the Doppler averaged its products over.
+#[derive(Debug, Clone, Copy)]
+pub struct AngleCells<'a> {
+    /// Each angle's power Doppler (angles, nz, nx; |IQ|² units), pixel by pixel: before the
+    /// Doppler kernel's averaging.
+    pub power: ArrayView3<'a, f64>,
+    /// Each angle's cell of echoes at one pixel ([`CellCovariance::from_lags`]); `None` where
+    /// not measurable.
+    pub cells: &'a [Option<CellCovariance>],
+    /// The Doppler kernel (rows, cols) pixels, odd: (1, 1) for pixel-wise Doppler.
+    pub kernel: (usize, usize),
+}
+
+/// The offset (x, z) (m) of the power-weighted centroid of the echoes a Doppler averaged over a
+/// box of `kernel` pixels `step` apart reads, from the box's centre pixel, at each pixel:
+/// Σ_k P_k·(x_k − x + Σ ∇ln P_k) / Σ_k P_k over the box's pixels k, each pixel's cell centroid
+/// weighted by its power P = `power` as the averaged products weight it. A box is not a
+/// Gaussian: its sum's log-gradient reads only its two ends, so widening Σ by the box and
+/// taking ∇ln of the averaged power (as this did before) put the centroid far off in speckle.
+fn kernel_centroid_offsets(
+    power: ArrayView2<f64>,
+    log_power_gradient: (&Array2<f64>, &Array2<f64>),
+    cell: &CellCovariance,
+    kernel: (usize, usize),
+    step: f64,
+) -> (Array2<f64>, Array2<f64>) {
+    let (lp_dx, lp_dz) = log_power_gradient;
+    let split = |offsets: Array2<(f64, f64)>| (offsets.mapv(|o| o.0), offsets.mapv(|o| o.1));
+    if kernel == (1, 1) {
+        return split(
+            Zip::from(lp_dx)
+                .and(lp_dz)
+                .map_collect(|&gx, &gz| cell.centroid_offset((gx, gz))),
+        );
+    }
+    let ones = |n: usize| vec![1.0; n];
+    let moment = |n: usize| {
+        let r = (n / 2) as f64;
+        (0..n).map(|i| i as f64 - r).collect::<Vec<_>>()
+    };
+    let (rows, cols) = kernel;
+    let power = power.to_owned();
+    let sum = correlate(&power, &ones(rows), &ones(cols));
+    let first_x = correlate(&power, &ones(rows), &moment(cols));
+    let first_z = correlate(&power, &moment(rows), &ones(cols));
+    let pulled_x = correlate(&(&power * lp_dx), &ones(rows), &ones(cols));
+    let pulled_z = correlate(&(&power * lp_dz), &ones(rows), &ones(cols));
+    split(
+        Zip::from(&sum)
+            .and(&first_x)
+            .and(&first_z)
+            .and(&pulled_x)
+            .and(&pulled_z)
+            .map_collect(|&s, &mx, &mz, &gx, &gz| {
+                let (cx, cz) = cell.centroid_offset((gx, gz));
+                ((mx * step + cx) / s, (mz * step + cz) / s)
+            }),
+    )
+}
+
 /// Each angle's partial-volume shift (angles, nz, nx; m/s): how far its projection reads from
-/// the pixel's because it is the velocity at its cell's centroid, ∇V_θ·(Σ_θ ∇ln P_θ), in the
-/// pixels of `flow`, with P_θ = `power[θ]` (that angle's power Doppler), Σ_θ = `cells[θ]` and
-/// ∇V_θ that of the projection of `flow_field` (the vectors, m/s), fitted over about one cell
-/// ([`local_gradient_in_mask`]). `angles` (rad) give the projection weights; `step` is the
-/// grid's (m). Zero for an angle without a cell (`None`), outside `flow` and where anything is
-/// not finite. Subtract it from any estimate of the same projections
-/// ([`corrected_projections`]): it depends on the flow and the cells, not on the fit.
+/// the pixel's because it is the velocity at the power-weighted centroid of the echoes its
+/// Doppler averaged, ∇V_θ·(Σ_θ ∇ln P_θ) for pixel-wise Doppler (the box's pixels' centroids
+/// weighted by their power with a kernel), in the pixels of `flow`, with P_θ and Σ_θ that
+/// angle's power and cell in `cells` and ∇V_θ that of the projection of `flow_field` (the
+/// vectors, m/s), fitted over about one cell ([`local_gradient_in_mask`]). `angles` (rad) give
+/// the projection weights; `step` is the grid's (m). Zero for an angle without a cell (`None`),
+/// outside `flow` and where anything is not finite. Subtract it from any estimate of the same
+/// projections ([`corrected_projections`]): it depends on the flow and the cells, not on the
+/// fit.
 pub fn projection_shifts(
-    power: ArrayView3<f64>,
-    cells: &[Option<CellCovariance>],
+    cells: &AngleCells,
     angles: &[f64],
     flow_field: &VectorField,
     flow: ArrayView2<bool>,
     step: f64,
 ) -> Result<Array3<f64>> {
+    let AngleCells {
+        power,
+        cells,
+        kernel,
+    } = *cells;
     let (n, nz, nx) = power.dim();
     if cells.len() != n
         || angles.len() != n
@@ -344,7 +405,7 @@ pub fn projection_shifts(
     let sigma_px = cells
         .iter()
         .flatten()
-        .map(|c| c.xx.sqrt() / step)
+        .map(|c| c.through_kernel(kernel, step).xx.sqrt() / step)
         .fold(1.0, f64::max);
     let (vx_dx, vx_dz) = local_gradient_in_mask(&flow_field.vx, flow, sigma_px, step);
     let (vz_dx, vz_dz) = local_gradient_in_mask(&flow_field.vz, flow, sigma_px, step);
@@ -357,12 +418,13 @@ pub fn projection_shifts(
         }
         let log_power = p.mapv(|v| v.max(floor).ln());
         let (lp_dx, lp_dz) = gradient(&log_power, step);
+        let (offset_x, offset_z) = kernel_centroid_offsets(p, (&lp_dx, &lp_dz), cell, kernel, step);
         let (lateral, axial) = projection_weights(angles[k]);
         Zip::indexed(shifts.index_axis_mut(Axis(0), k)).for_each(|(iz, ix), shift| {
             if !flow[[iz, ix]] {
                 return;
             }
-            let (ox, oz) = cell.centroid_offset((lp_dx[[iz, ix]], lp_dz[[iz, ix]]));
+            let (ox, oz) = (offset_x[[iz, ix]], offset_z[[iz, ix]]);
             // ∇V_θ = ½ (sin θ ∇Vx + (1 + cos θ) ∇Vz).
             let gx = 0.5 * (lateral * vx_dx[[iz, ix]] + axial * vz_dx[[iz, ix]]);
             let gz = 0.5 * (lateral * vx_dz[[iz, ix]] + axial * vz_dz[[iz, ix]]);
@@ -389,8 +451,7 @@ pub const REFINEMENT_ROUNDS: usize = 4;
 #[allow(clippy::too_many_arguments)]
 pub fn refined_shifts(
     projections: ArrayView3<f64>,
-    power: ArrayView3<f64>,
-    cells: &[Option<CellCovariance>],
+    cells: &AngleCells,
     angles: &[f64],
     initial: &VectorField,
     flow: ArrayView2<bool>,
@@ -407,7 +468,7 @@ pub fn refined_shifts(
             corrected = fit(corrected_projections(projections, shifts.view())?.view())?;
             &corrected
         };
-        shifts = projection_shifts(power, cells, angles, reference, flow, step)?;
+        shifts = projection_shifts(cells, angles, reference, flow, step)?;
     }
     Ok(shifts)
 }
@@ -416,9 +477,8 @@ pub fn refined_shifts(
 /// angles × nz × nx, m/s; the first least squares) again after the partial-volume correction:
 /// each fit's projections unwrapped with its own alias counts (Nyquist velocities `nyquist`,
 /// m/s) less the [`refined_shifts`] of the first's, in the pixels of `flow`, and fitted again by
-/// its estimator with the lateral weights `lateral` (Loupas) or sin θ (`None`). `power` and
-/// `cells` are each angle's power Doppler and cell (widened by the Doppler kernel), `step` the
-/// grid's (m).
+/// its estimator with the lateral weights `lateral` (Loupas) or sin θ (`None`). `cells` are each
+/// angle's power Doppler and cell ([`AngleCells`]), `step` the grid's (m).
 #[allow(clippy::too_many_arguments)]
 pub fn corrected_fits(
     angles: &[f64],
@@ -426,8 +486,7 @@ pub fn corrected_fits(
     nyquist: ArrayView3<f64>,
     lateral: Option<ArrayView3<f64>>,
     fits: &[(Estimator, &DealiasedField)],
-    power: ArrayView3<f64>,
-    cells: &[Option<CellCovariance>],
+    cells: &AngleCells,
     flow: ArrayView2<bool>,
     step: f64,
 ) -> Result<Vec<VectorField>> {
@@ -442,7 +501,6 @@ pub fn corrected_fits(
     // The shifts rest on the least-squares vectors alone; every fit takes them.
     let shifts = refined_shifts(
         unwrapped(reference).view(),
-        power,
         cells,
         angles,
         &reference.field,
@@ -580,8 +638,11 @@ mod tests {
         };
         let flow = Array2::from_elem((nz, nx), true);
         let shifts = projection_shifts(
-            power.view(),
-            &[Some(cell); 3],
+            &AngleCells {
+                power: power.view(),
+                cells: &[Some(cell); 3],
+                kernel: (1, 1),
+            },
             &angles,
             &field,
             flow.view(),
@@ -605,6 +666,109 @@ mod tests {
         assert!(
             before > 1e-5,
             "the test's centroid offset moves nothing: {before}"
+        );
+    }
+
+    /// A Doppler averaged over a box of pixels reads the power-weighted mean of its pixels'
+    /// readings, each the flow at its own cell's centroid (Σ·∇ln P from the pixel). With a
+    /// speckled power (a pseudo-random field over 20 dB) and a linear flow the correction moves
+    /// that reading back to the box's centre pixel exactly, at the image's edges too; a Gaussian
+    /// cell widened by the box on the box-averaged power (the model before) leaves errors of the
+    /// size of the uncorrected ones.
+    #[test]
+    fn moves_a_kernel_reading_back_to_its_centre_pixel() {
+        let (nz, nx, step, kernel) = (24usize, 20usize, 5e-5, (5usize, 3usize));
+        let h2 = step * step;
+        let cell = CellCovariance {
+            xx: 4.0 * h2,
+            xz: 0.5 * h2,
+            zz: 1.0 * h2,
+        };
+        let angles = [-0.26, 0.0, 0.26];
+        let vx_at = |x: f64, z: f64| 0.01 + 30.0 * x - 12.0 * z;
+        let vz_at = |x: f64, z: f64| -0.004 + 8.0 * x + 20.0 * z;
+        let pos = |iz: usize, ix: usize| (ix as f64 * step, iz as f64 * step);
+        let speckle = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+            let h = ((iz * 7919 + ix * 104_729) % 1009) as f64 / 1009.0;
+            10f64.powf(2.0 * h)
+        });
+        let (lp_dx, lp_dz) = gradient(&speckle.mapv(f64::ln), step);
+        let in_box = |iz: usize, ix: usize| {
+            let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
+            (iz.saturating_sub(hz)..(iz + hz + 1).min(nz)).flat_map(move |jz| {
+                (ix.saturating_sub(hx)..(ix + hx + 1).min(nx)).map(move |jx| (jz, jx))
+            })
+        };
+        let mut readings = Array3::<f64>::zeros((3, nz, nx));
+        let mut power = Array3::<f64>::zeros((3, nz, nx));
+        for (k, &theta) in angles.iter().enumerate() {
+            let (l, c) = projection_weights(theta);
+            let pixel_reading = |jz: usize, jx: usize| {
+                let (x, z) = pos(jz, jx);
+                let (ox, oz) = cell.centroid_offset((lp_dx[[jz, jx]], lp_dz[[jz, jx]]));
+                0.5 * (l * vx_at(x + ox, z + oz) + c * vz_at(x + ox, z + oz))
+            };
+            for iz in 0..nz {
+                for ix in 0..nx {
+                    let (weighted, total) = in_box(iz, ix).fold((0.0, 0.0), |(w, t), (jz, jx)| {
+                        let p = speckle[[jz, jx]];
+                        (w + p * pixel_reading(jz, jx), t + p)
+                    });
+                    readings[[k, iz, ix]] = weighted / total;
+                }
+            }
+            power.index_axis_mut(Axis(0), k).assign(&speckle);
+        }
+        let field = VectorField {
+            vx: Array2::from_shape_fn((nz, nx), |(iz, ix)| vx_at(pos(iz, ix).0, pos(iz, ix).1)),
+            vz: Array2::from_shape_fn((nz, nx), |(iz, ix)| vz_at(pos(iz, ix).0, pos(iz, ix).1)),
+        };
+        let flow = Array2::from_elem((nz, nx), true);
+        let shifts = projection_shifts(
+            &AngleCells {
+                power: power.view(),
+                cells: &[Some(cell); 3],
+                kernel,
+            },
+            &angles,
+            &field,
+            flow.view(),
+            step,
+        )
+        .unwrap();
+        let corrected = corrected_projections(readings.view(), shifts.view()).unwrap();
+        // The model before: the cell widened by the box, the log-gradient of the box's power.
+        let widened = cell.through_kernel(kernel, step);
+        let box_power = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+            in_box(iz, ix)
+                .map(|(jz, jx)| speckle[[jz, jx]])
+                .sum::<f64>()
+        });
+        let (bp_dx, bp_dz) = gradient(&box_power.mapv(f64::ln), step);
+        let (mut uncorrected, mut before) = (0.0f64, 0.0f64);
+        for (k, &theta) in angles.iter().enumerate() {
+            let (l, c) = projection_weights(theta);
+            for iz in 0..nz {
+                for ix in 0..nx {
+                    let (x, z) = pos(iz, ix);
+                    let truth = 0.5 * (l * vx_at(x, z) + c * vz_at(x, z));
+                    let err = (corrected[[k, iz, ix]] - truth).abs();
+                    assert!(err < 1e-9, "angle {k} pixel ({iz}, {ix}): {err} m/s");
+                    uncorrected = uncorrected.max((readings[[k, iz, ix]] - truth).abs());
+                    let (ox, oz) = widened.centroid_offset((bp_dx[[iz, ix]], bp_dz[[iz, ix]]));
+                    let gx = 0.5 * (l * 30.0 + c * 8.0);
+                    let gz = 0.5 * (l * -12.0 + c * 20.0);
+                    before = before.max((readings[[k, iz, ix]] - gx * ox - gz * oz - truth).abs());
+                }
+            }
+        }
+        eprintln!(
+            "worst error uncorrected {uncorrected:.3e} m/s, by the earlier model {before:.3e}"
+        );
+        assert!(uncorrected > 1e-5, "nothing to correct: {uncorrected} m/s");
+        assert!(
+            before > 0.5 * uncorrected,
+            "the earlier model's worst error {before} against {uncorrected} m/s uncorrected"
         );
     }
 
@@ -671,8 +835,11 @@ mod tests {
         let initial = fit(projections.view()).unwrap();
         let shifts = refined_shifts(
             projections.view(),
-            power.view(),
-            &cells,
+            &AngleCells {
+                power: power.view(),
+                cells: &cells,
+                kernel: (1, 1),
+            },
             &angles,
             &initial,
             flow.view(),

@@ -87,7 +87,8 @@ pub struct ProcessOutput {
     pub power_doppler: Array2<f64>,
     /// Colour Doppler: axial velocity from the compounded series (m/s, positive = away from the probe).
     pub color_doppler: Array2<f64>,
-    /// Per-angle power Doppler (angles, nz, nx).
+    /// Per-angle power Doppler (angles, nz, nx), each pixel's own (not averaged over the
+    /// Doppler kernel).
     pub power_per_angle: Array3<f64>,
     /// Per-angle projection velocities V_θ (angles, nz, nx), m/s; NaN where the angle's plane
     /// wave does not reach the pixel (see [`angle_coverage`]).
@@ -110,9 +111,9 @@ pub struct ProcessOutput {
     /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
     /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
     pub projection_nyquist: Array3<f64>,
-    /// Each angle's resolution cell as the partial-volume correction sees it (its speckle's,
-    /// widened by the Doppler kernel; [`crate::partial_volume`]); `None` where not measurable or
-    /// not measured (the correction off).
+    /// Each angle's resolution cell at one pixel, as its speckle measures it (the partial-volume
+    /// correction's; [`crate::partial_volume`]); `None` where not measurable or not measured
+    /// (the correction off).
     pub cells: Vec<Option<partial_volume::CellCovariance>>,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
@@ -656,7 +657,8 @@ pub struct DopplerMaps {
     pub power_doppler: Array2<f64>,
     /// Axial velocity from the compounded series (m/s, positive = away from the probe).
     pub color_doppler: Array2<f64>,
-    /// Per-angle power Doppler (angles, nz, nx).
+    /// Per-angle power Doppler (angles, nz, nx), each pixel's own (not averaged over the
+    /// Doppler kernel).
     pub power_per_angle: Array3<f64>,
     /// Per-angle projection velocities (angles, nz, nx), m/s; NaN where the angle does not reach.
     pub projections: Array3<f64>,
@@ -726,9 +728,7 @@ pub fn doppler_maps(
                 .mean_frequency
                 .mapv(|f| doppler::nyquist_velocity(c, frame_rate, f)),
         );
-        power_per_angle
-            .index_axis_mut(Axis(0), k)
-            .assign(&maps.power);
+        power_per_angle.index_axis_mut(Axis(0), k).assign(&m.power);
     }
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
     // angle sets): rescale its velocity to the axial velocity.
@@ -748,17 +748,11 @@ pub fn doppler_maps(
         .unwrap_or_else(|| Array3::from_elem((n, nz, nx), true));
     vector::drop_unreached(&mut projections, coverage.view());
     let nyquist_velocity = doppler::nyquist_velocity(c, frame_rate, f0);
-    // The Doppler of a kernel averages its pixels' cells: its centroid is that of the cell
-    // widened by the kernel, on the kernel-averaged power.
     let cells: Vec<_> = per_angle
         .iter()
         .map(|m| {
             m.cell.as_ref().and_then(|lags| {
-                partial_volume::CellCovariance::of_kernel(
-                    lags,
-                    params.doppler_kernel,
-                    params.grid.step(),
-                )
+                partial_volume::CellCovariance::from_lags(lags, params.grid.step())
             })
         })
         .collect();
@@ -789,8 +783,11 @@ pub fn doppler_maps(
                     (Estimator::LeastSquares, &ls),
                     (Estimator::Irls(params.irls), &irls),
                 ],
-                power_per_angle.view(),
-                &cells,
+                &partial_volume::AngleCells {
+                    power: power_per_angle.view(),
+                    cells: &cells,
+                    kernel: params.doppler_kernel,
+                },
                 flow.view(),
                 params.grid.step(),
             )?

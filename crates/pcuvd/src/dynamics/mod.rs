@@ -107,7 +107,8 @@ pub struct DynamicsParams {
     pub pooling: Option<VesselPooling>,
     /// Moves each window's projections from their cells' power centroids back to their pixels
     /// before the vector fit ([`crate::partial_volume`]; each angle's cell measured once on the
-    /// whole series, widened by `kernel`).
+    /// whole series; with a `kernel`, each window's reading is the power-weighted mean of its
+    /// pixels' centroids).
     pub partial_volume: bool,
 }
 

@@ -272,9 +272,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     let cells: Vec<_> = if params.partial_volume {
         filtered
             .par_iter()
-            .map(|series| {
-                CellCovariance::of_kernel(&CellLags::of(series.view()), params.kernel, grid_step)
-            })
+            .map(|series| CellCovariance::from_lags(&CellLags::of(series.view()), grid_step))
             .collect()
     } else {
         Vec::new()
@@ -356,8 +354,11 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
                     nyquist.view(),
                     measured,
                     &pairs,
-                    power_per_angle.view(),
-                    &cells,
+                    &crate::partial_volume::AngleCells {
+                        power: power_per_angle.view(),
+                        cells: &cells,
+                        kernel: params.kernel,
+                    },
                     flow.view(),
                     grid_step,
                 )?

@@ -216,12 +216,14 @@ impl Method {
 
     /// The method's fit of `out`'s projections unwrapped with the true alias counts
     /// ([`metrics::true_alias_counts`] against `truth`), and those counts; with the
-    /// partial-volume correction when `partial_volume`, as the pipeline would have applied it.
+    /// partial-volume correction when `partial_volume`, as the pipeline would have applied it
+    /// after a Doppler averaged over `doppler_kernel`.
     fn true_pattern_fit(
         self,
         out: &ProcessOutput,
         truth: &Truth,
         partial_volume: bool,
+        doppler_kernel: (usize, usize),
     ) -> Result<(VectorField, ndarray::Array3<i8>)> {
         let counts = metrics::true_alias_counts(
             &out.projections,
@@ -240,8 +242,11 @@ impl Method {
         let step = out.grid.step();
         let shifts = crate::partial_volume::refined_shifts(
             unwrapped.view(),
-            out.power_per_angle.view(),
-            &out.cells,
+            &crate::partial_volume::AngleCells {
+                power: out.power_per_angle.view(),
+                cells: &out.cells,
+                kernel: doppler_kernel,
+            },
             &out.filtered.angles,
             &Method::UvdLs.fit(out, unwrapped.view())?,
             crate::dealias::flow_mask(&out.power_doppler, step).view(),
@@ -508,8 +513,12 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                             }
                         };
                     let true_pattern = {
-                        let (field, counts) =
-                            method.true_pattern_fit(off, &truth, settings.partial_volume)?;
+                        let (field, counts) = method.true_pattern_fit(
+                            off,
+                            &truth,
+                            settings.partial_volume,
+                            settings.doppler_kernel,
+                        )?;
                         scores(&field, off, Some(&counts))
                     };
                     let done = on.dealias.as_ref();
@@ -809,7 +818,12 @@ mod tests {
             };
             let within =
                 |field: &VectorField| metrics::within_fraction_of_peak(field, &truth, peak, 0.1);
-            let ceiling = within(&method.true_pattern_fit(&off, &truth, false).unwrap().0);
+            let ceiling = within(
+                &method
+                    .true_pattern_fit(&off, &truth, false, (1, 1))
+                    .unwrap()
+                    .0,
+            );
             let (before, after) = (within(method.field(&off)), within(method.field(&on)));
             let label = method.label();
             assert!(patterns(&zeros) < 0.5, "{label}: {}", patterns(&zeros));
