@@ -318,8 +318,8 @@ pub struct AngleCells<'a> {
 /// box of `kernel` pixels `step` apart reads, from the box's centre pixel, at each pixel:
 /// Σ_k P_k·(x_k − x + Σ ∇ln P_k) / Σ_k P_k over the box's pixels k, each pixel's cell centroid
 /// weighted by its power P = `power` as the averaged products weight it. A box is not a
-/// Gaussian: its sum's log-gradient reads only its two ends, so widening Σ by the box and
-/// taking ∇ln of the averaged power (as this did before) put the centroid far off in speckle.
+/// Gaussian: its sum's log-gradient reads only its two ends, so Σ widened by the box times ∇ln
+/// of the box-averaged power would put the centroid far off in speckle.
 fn kernel_centroid_offsets(
     power: ArrayView2<f64>,
     log_power_gradient: (&Array2<f64>, &Array2<f64>),
@@ -602,6 +602,55 @@ mod tests {
         assert!((merged.down_left - whole.down_left).norm() < 1e-9 * whole.zero);
     }
 
+    /// A flow whose velocity varies linearly, V = V₀ + G·(x, z) (m/s, metres): the offsets and
+    /// gradients (∂/∂x, ∂/∂z, 1/s) of Vx and of Vz.
+    const LINEAR_VX: [f64; 3] = [0.01, 30.0, -12.0];
+    const LINEAR_VZ: [f64; 3] = [-0.004, 8.0, 20.0];
+
+    fn linear(coefficients: [f64; 3], x: f64, z: f64) -> f64 {
+        coefficients[0] + coefficients[1] * x + coefficients[2] * z
+    }
+
+    /// The projection of the linear flow at (x, z) (m) onto the angle with projection weights
+    /// (`lateral`, `axial`), m/s.
+    fn linear_projection(lateral: f64, axial: f64, x: f64, z: f64) -> f64 {
+        0.5 * (lateral * linear(LINEAR_VX, x, z) + axial * linear(LINEAR_VZ, x, z))
+    }
+
+    /// The shifts [`projection_shifts`] gives for the linear flow on an (nz, nx) grid of square
+    /// pixels `step` (m) apart, its origin at pixel (0, 0), every pixel flow, each angle with
+    /// `cell`.
+    fn linear_flow_shifts(
+        power: ArrayView3<f64>,
+        cell: CellCovariance,
+        kernel: (usize, usize),
+        angles: &[f64],
+        step: f64,
+    ) -> Array3<f64> {
+        let (_, nz, nx) = power.dim();
+        let at = |coefficients, iz: usize, ix: usize| {
+            linear(coefficients, ix as f64 * step, iz as f64 * step)
+        };
+        let field = VectorField {
+            vx: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(LINEAR_VX, iz, ix)),
+            vz: Array2::from_shape_fn((nz, nx), |(iz, ix)| at(LINEAR_VZ, iz, ix)),
+        };
+        let flow = Array2::from_elem((nz, nx), true);
+        let cells = vec![Some(cell); angles.len()];
+        projection_shifts(
+            &AngleCells {
+                power,
+                cells: &cells,
+                kernel,
+            },
+            angles,
+            &field,
+            flow.view(),
+            step,
+        )
+        .unwrap()
+    }
+
     #[test]
     fn moves_a_linear_flow_back_from_the_centroid_to_the_pixel() {
         // Blood power falling off toward the edge of a vessel, ln P = a·x + b·z, puts every cell's
@@ -615,8 +664,6 @@ mod tests {
             zz: 1e-9,
         };
         let (a, b) = (-900.0, 400.0);
-        let vx_at = |x: f64, z: f64| 0.01 + 30.0 * x - 12.0 * z;
-        let vz_at = |x: f64, z: f64| -0.004 + 8.0 * x + 20.0 * z;
         let pos = |iz: usize, ix: usize| (ix as f64 * step, iz as f64 * step);
         let (ox, oz) = cell.centroid_offset((a, b));
         let mut projections = Array3::<f64>::zeros((3, nz, nx));
@@ -627,28 +674,12 @@ mod tests {
                 for ix in 0..nx {
                     let (x, z) = pos(iz, ix);
                     let (cx, cz) = (x + ox, z + oz);
-                    projections[[k, iz, ix]] = 0.5 * (l * vx_at(cx, cz) + c * vz_at(cx, cz));
+                    projections[[k, iz, ix]] = linear_projection(l, c, cx, cz);
                     power[[k, iz, ix]] = (a * x + b * z).exp();
                 }
             }
         }
-        let field = VectorField {
-            vx: Array2::from_shape_fn((nz, nx), |(iz, ix)| vx_at(pos(iz, ix).0, pos(iz, ix).1)),
-            vz: Array2::from_shape_fn((nz, nx), |(iz, ix)| vz_at(pos(iz, ix).0, pos(iz, ix).1)),
-        };
-        let flow = Array2::from_elem((nz, nx), true);
-        let shifts = projection_shifts(
-            &AngleCells {
-                power: power.view(),
-                cells: &[Some(cell); 3],
-                kernel: (1, 1),
-            },
-            &angles,
-            &field,
-            flow.view(),
-            step,
-        )
-        .unwrap();
+        let shifts = linear_flow_shifts(power.view(), cell, (1, 1), &angles, step);
         let out = corrected_projections(projections.view(), shifts.view()).unwrap();
         let mut before = 0.0f64;
         for (k, &theta) in angles.iter().enumerate() {
@@ -656,7 +687,7 @@ mod tests {
             for iz in 0..nz {
                 for ix in 0..nx {
                     let (x, z) = pos(iz, ix);
-                    let truth = 0.5 * (l * vx_at(x, z) + c * vz_at(x, z));
+                    let truth = linear_projection(l, c, x, z);
                     before = before.max((projections[[k, iz, ix]] - truth).abs());
                     let err = (out[[k, iz, ix]] - truth).abs();
                     assert!(err < 1e-9, "angle {k} pixel ({iz}, {ix}): {err} m/s");
@@ -685,8 +716,6 @@ mod tests {
             zz: 1.0 * h2,
         };
         let angles = [-0.26, 0.0, 0.26];
-        let vx_at = |x: f64, z: f64| 0.01 + 30.0 * x - 12.0 * z;
-        let vz_at = |x: f64, z: f64| -0.004 + 8.0 * x + 20.0 * z;
         let pos = |iz: usize, ix: usize| (ix as f64 * step, iz as f64 * step);
         let speckle = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
             let h = ((iz * 7919 + ix * 104_729) % 1009) as f64 / 1009.0;
@@ -706,7 +735,7 @@ mod tests {
             let pixel_reading = |jz: usize, jx: usize| {
                 let (x, z) = pos(jz, jx);
                 let (ox, oz) = cell.centroid_offset((lp_dx[[jz, jx]], lp_dz[[jz, jx]]));
-                0.5 * (l * vx_at(x + ox, z + oz) + c * vz_at(x + ox, z + oz))
+                linear_projection(l, c, x + ox, z + oz)
             };
             for iz in 0..nz {
                 for ix in 0..nx {
@@ -719,23 +748,7 @@ mod tests {
             }
             power.index_axis_mut(Axis(0), k).assign(&speckle);
         }
-        let field = VectorField {
-            vx: Array2::from_shape_fn((nz, nx), |(iz, ix)| vx_at(pos(iz, ix).0, pos(iz, ix).1)),
-            vz: Array2::from_shape_fn((nz, nx), |(iz, ix)| vz_at(pos(iz, ix).0, pos(iz, ix).1)),
-        };
-        let flow = Array2::from_elem((nz, nx), true);
-        let shifts = projection_shifts(
-            &AngleCells {
-                power: power.view(),
-                cells: &[Some(cell); 3],
-                kernel,
-            },
-            &angles,
-            &field,
-            flow.view(),
-            step,
-        )
-        .unwrap();
+        let shifts = linear_flow_shifts(power.view(), cell, kernel, &angles, step);
         let corrected = corrected_projections(readings.view(), shifts.view()).unwrap();
         // The model before: the cell widened by the box, the log-gradient of the box's power.
         let widened = cell.through_kernel(kernel, step);
@@ -751,13 +764,13 @@ mod tests {
             for iz in 0..nz {
                 for ix in 0..nx {
                     let (x, z) = pos(iz, ix);
-                    let truth = 0.5 * (l * vx_at(x, z) + c * vz_at(x, z));
+                    let truth = linear_projection(l, c, x, z);
                     let err = (corrected[[k, iz, ix]] - truth).abs();
                     assert!(err < 1e-9, "angle {k} pixel ({iz}, {ix}): {err} m/s");
                     uncorrected = uncorrected.max((readings[[k, iz, ix]] - truth).abs());
                     let (ox, oz) = widened.centroid_offset((bp_dx[[iz, ix]], bp_dz[[iz, ix]]));
-                    let gx = 0.5 * (l * 30.0 + c * 8.0);
-                    let gz = 0.5 * (l * -12.0 + c * 20.0);
+                    let gx = 0.5 * (l * LINEAR_VX[1] + c * LINEAR_VZ[1]);
+                    let gz = 0.5 * (l * LINEAR_VX[2] + c * LINEAR_VZ[2]);
                     before = before.max((readings[[k, iz, ix]] - gx * ox - gz * oz - truth).abs());
                 }
             }
