@@ -43,6 +43,6 @@ pub fn samples_npy() -> PathBuf {
 /// anything decoding then panics on.
 pub fn decode(data: &pcuvd::ChannelData) {
     let _ = pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2).and_then(|()| {
-        pcuvd::decode::decode_aligned(data, pcuvd::decode::EventAlignment::MidFrame)
+        pcuvd::form::decode::decode_aligned(data, pcuvd::form::decode::EventAlignment::MidFrame)
     });
 }

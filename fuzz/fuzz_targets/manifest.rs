@@ -14,7 +14,7 @@ fuzz_target!(|text: &[u8]| {
     }
     // The block reader parses the same manifest and checks the samples' header against it.
     if let Ok(Some(frames)) = pcuvd_io::ManifestFrames::open(&path) {
-        use pcuvd::source::FrameSource;
+        use pcuvd::acquisition::source::FrameSource;
         let _ = frames.read_frames(0..frames.n_frames());
     }
 });

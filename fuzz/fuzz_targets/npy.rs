@@ -18,7 +18,7 @@ fuzz_target!(|bytes: &[u8]| {
         common::decode(&recording.data);
     }
     if let Ok(Some(frames)) = pcuvd_io::ManifestFrames::open(&manifest) {
-        use pcuvd::source::FrameSource;
+        use pcuvd::acquisition::source::FrameSource;
         let _ = frames.read_frames(0..frames.n_frames());
     }
 });

@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use pcuvd::phantom::rigid::{DiskPhantom, DiskSpec};
+use pcuvd::simulate::phantom::rigid::{DiskPhantom, DiskSpec};
 use pcuvd::simulate::{SimParams, simulate};
 use pcuvd::{Coding, Probe, Sequence};
 

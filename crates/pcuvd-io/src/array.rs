@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use ndarray::{Array3, ArrayD, IxDyn};
 use num_complex::Complex32;
-use pcuvd::source::FrameSource;
+use pcuvd::acquisition::source::FrameSource;
 use pcuvd::{Acquisition, ChannelData, Samples};
 
 use crate::error::IoError;
@@ -709,7 +709,7 @@ impl FrameSource for ArrayFrames {
         let n = self.acquisition.sequence.n_angles();
         let total = FrameSource::n_frames(self);
         if frames.start >= frames.end || frames.end > total {
-            return Err(pcuvd::error::invalid(
+            return Err(pcuvd::core::error::invalid(
                 "frames",
                 format!("block {frames:?} is not within the recording's {total} frames"),
             ));

@@ -1,4 +1,4 @@
-//! Recordings read from their file a block of frames at a time ([`pcuvd::source::FrameSource`]),
+//! Recordings read from their file a block of frames at a time ([`pcuvd::acquisition::source::FrameSource`]),
 //! so that processing a long recording never holds all of it in memory.
 
 use std::io::Seek;
@@ -9,7 +9,8 @@ use ndarray::Array3;
 use ndarray_npy::npy::header::{Header, Layout};
 use num_complex::Complex32;
 use num_traits::Zero;
-use pcuvd::source::{FrameSource, array_reusing};
+use pcuvd::acquisition::source::FrameSource;
+use pcuvd::core::buffers::array_reusing;
 use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
 
@@ -237,7 +238,7 @@ impl ManifestFrames {
     ) -> pcuvd::Result<ChannelData> {
         let n = self.acquisition.sequence.n_angles();
         if frames.start >= frames.end || frames.end > FrameSource::n_frames(self) {
-            return Err(pcuvd::error::invalid(
+            return Err(pcuvd::core::error::invalid(
                 "frames",
                 format!(
                     "block {frames:?} is not within the recording's {} frames",

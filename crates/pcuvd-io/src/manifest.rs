@@ -528,16 +528,16 @@ fn acquisition_of(
     }
     probe.validate().map_err(refuse)?;
     let c = acq.sound_speed_m_s.ok_or_else(|| miss("sound_speed_m_s"))?;
-    pcuvd::error::require_range(
+    pcuvd::core::error::require_range(
         "speed of sound",
         c,
-        pcuvd::channel::SOUND_SPEED_RANGE,
+        pcuvd::acquisition::channel::SOUND_SPEED_RANGE,
         "m/s",
     )
     .map_err(refuse)?;
 
     // Per-element transmit delays: one plane wave per slot, or an error.
-    let tolerance = pcuvd::geometry::PLANE_WAVE_TOLERANCE_PERIODS / probe.center_frequency;
+    let tolerance = pcuvd::core::geometry::PLANE_WAVE_TOLERANCE_PERIODS / probe.center_frequency;
     let waves = match &acq.transmit_delays_s {
         None => None,
         Some(rows) if rows.is_empty() => {
@@ -551,10 +551,12 @@ fn acquisition_of(
             let xs = probe.element_x();
             let mut waves = Vec::with_capacity(rows.len());
             for (k, row) in rows.iter().enumerate() {
-                let mut wave = pcuvd::geometry::plane_wave_from_delays(row, &xs, c, tolerance)
-                    .map_err(|e| {
-                        IoError::invalid(path, key("transmit_delays_s"), format!("row {k} {e}"))
-                    })?;
+                let mut wave = pcuvd::core::geometry::plane_wave_from_delays(
+                    row, &xs, c, tolerance,
+                )
+                .map_err(|e| {
+                    IoError::invalid(path, key("transmit_delays_s"), format!("row {k} {e}"))
+                })?;
                 // Delays quantised by the scanner's clock may put the first firing a hair
                 // before the origin.
                 if wave.start < 0.0 && wave.start >= -tolerance {

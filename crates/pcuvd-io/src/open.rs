@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use pcuvd::ChannelData;
-use pcuvd::source::FrameSource;
+use pcuvd::acquisition::source::FrameSource;
 use serde::Serialize;
 
 use crate::error::IoError;

@@ -25,7 +25,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use ndarray::Array3;
-use pcuvd::source::FrameSource;
+use pcuvd::acquisition::source::FrameSource;
 use pcuvd::{Acquisition, ChannelData, Samples};
 use serde_json::json;
 
@@ -548,7 +548,7 @@ impl FrameSource for VerasonicsFrames {
         let n = self.acquisition.sequence.n_angles();
         let total = FrameSource::n_frames(self);
         if frames.start >= frames.end || frames.end > total {
-            return Err(pcuvd::error::invalid(
+            return Err(pcuvd::core::error::invalid(
                 "frames",
                 format!("block {frames:?} is not within the recording's {total} frames"),
             ));

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use pcuvd::source::FrameSource;
+use pcuvd::acquisition::source::FrameSource;
 
 /// The samples a fuzzed manifest points at (`rf.npy`): the fuzz targets' own.
 fn samples_npy(dir: &Path) {
@@ -20,7 +20,8 @@ const NPY_MANIFEST: &str = include_str!("../../../fuzz/npy_target.toml");
 
 fn decode(data: &pcuvd::ChannelData) -> Result<(), pcuvd::Error> {
     pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2)?;
-    pcuvd::decode::decode_aligned(data, pcuvd::decode::EventAlignment::MidFrame).map(|_| ())
+    pcuvd::form::decode::decode_aligned(data, pcuvd::form::decode::EventAlignment::MidFrame)
+        .map(|_| ())
 }
 
 /// Reads `bytes` as target `target` does; Ok(()) when every reader accepted it.

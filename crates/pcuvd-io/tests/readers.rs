@@ -6,10 +6,11 @@
 
 use std::path::{Path, PathBuf};
 
-use pcuvd::decode::EventAlignment;
-use pcuvd::grid::Grid;
+use pcuvd::acquisition::source::FrameSource;
+use pcuvd::core::grid::Grid;
+use pcuvd::form::decode::EventAlignment;
+use pcuvd::pipeline::blocks::Blocks;
 use pcuvd::pipeline::{self, ProcessOutput};
-use pcuvd::source::{Blocks, FrameSource};
 use pcuvd::{ChannelData, Samples};
 use pcuvd_io::{OpenedRecording, Overrides, ParamSource, open_recording};
 use serde_json::Value;

@@ -13,14 +13,16 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
 use num_complex::Complex32;
-use pcuvd::beamform::{Apodization, DasParams, beamform};
-use pcuvd::channel::{Acquisition, ChannelData, Samples};
-use pcuvd::clutter::{ClutterParams, RankCut, svd_filter};
-use pcuvd::dealias::{Dealias, auto_intervals, dealiased_vectors, dealiased_vectors_each, uniform};
-use pcuvd::decode::{EventAlignment, decode_aligned};
-use pcuvd::grid::Grid;
-use pcuvd::iq::IqChannels;
-use pcuvd::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
+use pcuvd::acquisition::channel::{Acquisition, ChannelData, Samples};
+use pcuvd::core::grid::Grid;
+use pcuvd::estimate::clutter::{ClutterParams, RankCut, svd_filter};
+use pcuvd::estimate::dealias::{
+    Dealias, auto_intervals, dealiased_vectors, dealiased_vectors_each, uniform,
+};
+use pcuvd::estimate::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
+use pcuvd::form::beamform::{Apodization, DasParams, beamform};
+use pcuvd::form::decode::{EventAlignment, decode_aligned};
+use pcuvd::form::iq::IqChannels;
 use pcuvd::{Coding, Probe, Sequence};
 
 fn das_input(probe: &Probe, frames: usize) -> IqChannels {

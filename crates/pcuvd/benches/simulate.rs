@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use pcuvd::phantom::{Phantom, SpiralPhantom};
+use pcuvd::simulate::phantom::{Phantom, SpiralPhantom};
 use pcuvd::simulate::{SimParams, paper_spiral_params, simulate};
 
 /// Single-angle (0°), uncoded, noiseless variant of the paper's acquisition.

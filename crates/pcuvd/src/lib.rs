@@ -1,54 +1,36 @@
 //! pcuvd — pulse-coded ultrafast vector Doppler: the science.
 //!
-//! One module per pipeline stage, in the order data flows through them:
-//! [`probe`] and [`sequence`] describe an acquisition, [`hadamard`] its code, [`geometry`] the one
-//! time-of-flight convention; [`channel`] holds recordings; [`decode`] separates angles; [`iq`]
-//! demodulates; [`beamform`] forms per-angle IQ images on a [`grid`] of pixels; [`clutter`] removes
-//! tissue; [`doppler`] measures power and projection velocity; [`vector`] solves for (Vx, Vz),
-//! [`dealias`] unwraps projections beyond the Nyquist velocity, [`partial_volume`] moves them from
-//! each resolution cell's power centroid back to its pixel;
-//! [`dynamics`] follows it over the cardiac cycle (PSV, EDV, RI, [`vessel`] classes). [`images`]
-//! carries per-angle image series with their metadata; [`pipeline`] runs the chain in order.
-//!
-//! [`phantom`] and [`simulate`] make recordings with ground truth; [`metrics`] and [`masks`] score
-//! estimates against it, each measure with its written definition; [`study`] runs the paper's two
-//! studies (spiral, vessel network) end to end with settings and typed results.
+//! Folders in the order data flows through them:
+//! - [`core`]: the error type, statistics, the one time-of-flight convention ([`core::geometry`]),
+//!   the pixel [`core::grid`], vessel class codes;
+//! - [`acquisition`]: the probe, the transmit sequence and its Hadamard code, channel data, and
+//!   recordings read a block of frames at a time;
+//! - [`simulate`]: RF channel data of flow phantoms ([`simulate::phantom`]) with ground truth;
+//! - [`form`]: Hadamard decoding, IQ demodulation, delay-and-sum beamforming per angle, the
+//!   per-angle image series;
+//! - [`estimate`]: SVD clutter filtering, autocorrelation Doppler, flow masks, the vector solve
+//!   (LS = UVD, IRLS = PC-UVD), vector dealiasing, the partial-volume correction;
+//! - [`dynamics`]: velocities over the cardiac cycle (PSV, EDV, RI, artery/vein classes);
+//! - [`pipeline`]: the chain in order, on a whole recording, in segments, or as ensembles;
+//! - [`evaluate`]: scores against truth, each with its written definition;
+//! - [`study`]: the paper's studies end to end, with settings and typed results.
 //!
 //! Units are SI throughout (m, s, Hz, m/s). No printing, no file formats, no plotting here.
 
-pub mod beamform;
-pub mod channel;
-pub mod clutter;
-pub mod dealias;
-pub mod decode;
-pub mod doppler;
+pub mod acquisition;
+pub mod core;
 pub mod dynamics;
-pub mod ensembles;
-pub mod error;
-pub mod geometry;
-pub mod grid;
-pub mod hadamard;
-pub mod images;
-pub mod iq;
-pub mod masks;
-pub mod metrics;
-pub mod partial_volume;
-pub mod phantom;
+pub mod estimate;
+pub mod evaluate;
+pub mod form;
 pub mod pipeline;
-pub mod probe;
-pub mod segments;
-pub mod sequence;
 pub mod simulate;
-pub mod source;
-pub mod stats;
 pub mod study;
-pub mod vector;
-pub mod vessel;
 
-pub use channel::{
+pub use acquisition::channel::{
     Acquisition, AngleSamples, AngleSamplesView, BandSampling, ChannelData, Samples,
 };
-pub use error::{Error, Result};
-pub use hadamard::Hadamard;
-pub use probe::Probe;
-pub use sequence::{Coding, Sequence, TransmitCode, TransmitPulse};
+pub use acquisition::hadamard::Hadamard;
+pub use acquisition::probe::Probe;
+pub use acquisition::sequence::{Coding, Sequence, TransmitCode, TransmitPulse};
+pub use core::error::{Error, Result};

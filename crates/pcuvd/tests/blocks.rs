@@ -7,9 +7,9 @@ mod common;
 use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::ChannelData;
-use pcuvd::decode::EventAlignment;
+use pcuvd::form::decode::EventAlignment;
+use pcuvd::pipeline::blocks::Blocks;
 use pcuvd::pipeline::{self, ProcessParams, Stage};
-use pcuvd::source::Blocks;
 
 const FRAMES: usize = 48;
 
@@ -20,7 +20,7 @@ fn recording(coded: bool) -> ChannelData {
 }
 
 fn params(data: &ChannelData, alignment: EventAlignment) -> ProcessParams {
-    let grid = pcuvd::grid::Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
+    let grid = pcuvd::core::grid::Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
     pcuvd::study::process_params(&grid, &data.acquisition, (1, 1), alignment)
 }
 
@@ -64,11 +64,15 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     };
     let reference = projections(whole.clone());
     // The estimator's own spread: the whole-recording projections against the truth.
-    let truth =
-        pcuvd::phantom::Phantom::truth(&common::tube(), &params.grid.x, &params.grid.z, 0.0);
+    let truth = pcuvd::simulate::phantom::Phantom::truth(
+        &common::tube(),
+        &params.grid.x,
+        &params.grid.z,
+        0.0,
+    );
     let mut own = Vec::new();
     for (k, &theta) in data.acquisition.sequence.angles.iter().enumerate() {
-        let (s, c) = pcuvd::vector::projection_weights(theta);
+        let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
         for ((iz, ix), &inside) in truth.mask.indexed_iter() {
             let v = reference[[k, iz, ix]];
             let expected = (truth.vx[[iz, ix]] * s + truth.vz[[iz, ix]] * c) / 2.0;

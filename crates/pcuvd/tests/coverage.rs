@@ -4,7 +4,7 @@
 mod common;
 
 use ndarray::s;
-use pcuvd::decode::EventAlignment;
+use pcuvd::form::decode::EventAlignment;
 use pcuvd::pipeline::{self, Stage};
 
 fn quiet(_: Stage, _: usize, _: usize) {}
@@ -28,7 +28,7 @@ fn the_deepest_rows_are_left_to_the_angles_whose_echo_the_record_holds() {
                     .slice(s![iz, ix, ..])
                     .iter()
                     .any(|v| v.norm_sqr() > 0.0);
-                let insonified = pcuvd::geometry::insonified(
+                let insonified = pcuvd::core::geometry::insonified(
                     grid.x[ix],
                     grid.z[iz],
                     images.angles[k],

@@ -9,16 +9,16 @@ use std::f64::consts::PI;
 use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::Error;
-use pcuvd::doppler::velocity_scale;
+use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::{
     self, ARTERIOLE, BACKGROUND, CycleSource, DynamicsParams, SpectrogramParams, VENULE,
     VelocitySeries, VesselPooling, cardiac_cycles, estimate_heart_rate, find_cycles, psv_edv,
     resistivity_index, ri_maps, ri_maps_triggered, sliding_vectors, spectrogram,
     systolic_upstrokes,
 };
-use pcuvd::grid::Grid;
-use pcuvd::images::AngleImages;
-use pcuvd::phantom::network::CardiacWaveform;
+use pcuvd::estimate::doppler::velocity_scale;
+use pcuvd::form::images::AngleImages;
+use pcuvd::simulate::phantom::network::CardiacWaveform;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -32,7 +32,7 @@ const F0: f64 = 15.625e6;
 /// construction, and a 0.1 mm grid is too coarse to measure one at 15.6 MHz).
 fn rat() -> DynamicsParams {
     DynamicsParams {
-        doppler: pcuvd::doppler::DopplerEstimator::Kasai,
+        doppler: pcuvd::estimate::doppler::DopplerEstimator::Kasai,
         ..DynamicsParams::rat()
     }
 }
@@ -1140,11 +1140,11 @@ fn triggers_delimit_the_cycles_and_the_spread_measures_beat_to_beat_change() {
 /// and 0.59 → 0.48).
 #[test]
 fn partial_volume_correction_reaches_the_dynamics_windows() {
-    use pcuvd::decode::EventAlignment;
-    use pcuvd::metrics;
-    use pcuvd::phantom::Phantom;
+    use pcuvd::estimate::vector::{Estimator, VectorField};
+    use pcuvd::evaluate::metrics;
+    use pcuvd::form::decode::EventAlignment;
     use pcuvd::pipeline::{self, ProcessParams};
-    use pcuvd::vector::{Estimator, VectorField};
+    use pcuvd::simulate::phantom::Phantom;
 
     let data = common::tube_recording(false, 64);
     let grid = Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();

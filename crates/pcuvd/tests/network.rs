@@ -3,15 +3,15 @@
 //! phantom's ground truth: per pixel, the ordering the paper reports (PC-UVD no worse than UVD);
 //! with the vessel tests and vessel pooling that `pcuvd process` applies, the targets.
 
-use pcuvd::beamform::DasParams;
-use pcuvd::clutter::{ClutterParams, RankCut};
+use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::{self, DynamicsParams, RiMaps, VesselPooling, VesselTests};
-use pcuvd::grid::Grid;
-use pcuvd::metrics::score_ri as score;
-use pcuvd::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
+use pcuvd::estimate::clutter::{ClutterParams, RankCut};
+use pcuvd::estimate::vector::{Estimator, IrlsParams};
+use pcuvd::evaluate::metrics::score_ri as score;
+use pcuvd::form::beamform::DasParams;
 use pcuvd::pipeline::{self, ProcessParams};
+use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
 use pcuvd::simulate::{self, NoiseSpec, SimParams};
-use pcuvd::vector::{Estimator, IrlsParams};
 
 const HEART_RATE: f64 = 12.0;
 const FRAMES: usize = 200;
@@ -77,7 +77,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
         doppler_kernel: (1, 1),
         // Kasai, with which this test's figures were measured: the 0.1 mm grid is too coarse
         // for Loupas, the default, whose axial lag needs a step of at most 99 µm at 15.6 MHz.
-        doppler_estimator: pcuvd::doppler::DopplerEstimator::Kasai,
+        doppler_estimator: pcuvd::estimate::doppler::DopplerEstimator::Kasai,
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment: Default::default(),
@@ -98,7 +98,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
             Estimator::LeastSquares
         },
         // Kasai, as in `params` above.
-        doppler: pcuvd::doppler::DopplerEstimator::Kasai,
+        doppler: pcuvd::estimate::doppler::DopplerEstimator::Kasai,
         ..DynamicsParams::rat()
     };
     let series = dynamics::sliding_vectors(&out.filtered, &dparams).unwrap();

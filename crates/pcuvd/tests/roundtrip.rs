@@ -3,15 +3,16 @@
 //! directions of motion.
 
 use num_complex::Complex64;
-use pcuvd::beamform::{DasParams, beamform};
-use pcuvd::decode::{EventAlignment, decode, decode_aligned};
-use pcuvd::doppler::{
+use pcuvd::core::grid::Grid;
+use pcuvd::estimate::doppler::{
     AxialSampling, autocorrelation, axial_autocorrelation, loupas_velocity, velocity_scale,
 };
-use pcuvd::grid::Grid;
-use pcuvd::phantom::{BlockPhantom, BlockSpec, Phantom, PointPhantom};
+use pcuvd::form::beamform::{DasParams, beamform};
+use pcuvd::form::decode::{EventAlignment, decode, decode_aligned};
+use pcuvd::form::iq;
+use pcuvd::simulate::phantom::{BlockPhantom, BlockSpec, Phantom, PointPhantom};
 use pcuvd::simulate::{SimParams, simulate};
-use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode, iq};
+use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode};
 
 fn params(angles_deg: &[f64], coding: Coding, n_elements: usize) -> SimParams {
     let probe = Probe {
@@ -295,7 +296,7 @@ struct BlockReading {
 /// (F# 1.5), which the bias targets would read as bias.
 fn block_reading(
     case: &BlockCase,
-    estimator: pcuvd::doppler::DopplerEstimator,
+    estimator: pcuvd::estimate::doppler::DopplerEstimator,
     attenuation: f64,
     seed: u64,
 ) -> BlockReading {
@@ -309,22 +310,22 @@ fn block_reading(
         .iter()
         .enumerate()
         .map(|(k, &theta)| {
-            let (s, c) = pcuvd::vector::projection_weights(theta);
+            let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
             let truth = 0.5 * (velocity[0] * s + velocity[1] * c);
             (mean(out.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
         })
         .collect();
     let k0 = p.sequence.angles.len() / 2;
     let fc = p.probe.center_frequency;
-    let maps = pcuvd::doppler::doppler_maps(
+    let maps = pcuvd::estimate::doppler::doppler_maps(
         out.filtered.series[k0].view(),
         (1, 1),
-        pcuvd::doppler::DopplerEstimator::Loupas,
+        pcuvd::estimate::doppler::DopplerEstimator::Loupas,
         &angle_geometry(&p, &grid, k0),
     )
     .unwrap();
     let mean_frequency_ratio =
-        pcuvd::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
+        pcuvd::core::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
     let field = out.vector_ls.unwrap();
     let (vx, vz) = (mean(field.vx.view()), mean(field.vz.view()));
     let turn = (vx.atan2(vz) - direction + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
@@ -338,9 +339,14 @@ fn block_reading(
 }
 
 /// The Doppler geometry of angle `k`'s image on `grid`.
-fn angle_geometry(p: &SimParams, grid: &Grid, k: usize) -> pcuvd::doppler::DopplerGeometry {
-    let (lateral_weight, axial_weight) = pcuvd::vector::projection_weights(p.sequence.angles[k]);
-    pcuvd::doppler::DopplerGeometry {
+fn angle_geometry(
+    p: &SimParams,
+    grid: &Grid,
+    k: usize,
+) -> pcuvd::estimate::doppler::DopplerGeometry {
+    let (lateral_weight, axial_weight) =
+        pcuvd::estimate::vector::projection_weights(p.sequence.angles[k]);
+    pcuvd::estimate::doppler::DopplerGeometry {
         sound_speed: p.sound_speed,
         frame_rate: p.sequence.frame_rate(),
         demodulation_frequency: p.probe.center_frequency,
@@ -355,7 +361,7 @@ fn angle_geometry(p: &SimParams, grid: &Grid, k: usize) -> pcuvd::doppler::Doppl
 /// parameters, the grid, the pipeline's output and the true velocity (vx, vz), m/s.
 fn block_processed(
     case: &BlockCase,
-    estimator: pcuvd::doppler::DopplerEstimator,
+    estimator: pcuvd::estimate::doppler::DopplerEstimator,
     attenuation: f64,
     seed: u64,
 ) -> (SimParams, Grid, pcuvd::pipeline::ProcessOutput, [f64; 2]) {
@@ -409,7 +415,7 @@ fn block_processed(
         &grid,
         &data.acquisition,
         (1, 1),
-        pcuvd::decode::EventAlignment::MidFrame,
+        pcuvd::form::decode::EventAlignment::MidFrame,
     );
     let params = pipeline::ProcessParams {
         doppler_estimator: estimator,
@@ -435,7 +441,7 @@ fn block_processed(
 /// truth at 7 of the 8 angles (the skew's sign differs between angles).
 #[test]
 fn fast_block_projections_need_the_mixed_spatial_lag() {
-    use pcuvd::doppler::{
+    use pcuvd::estimate::doppler::{
         DopplerEstimator, axial_autocorrelation_lag1, doppler_maps, mean_frequency_kernel,
     };
     let v_n = 1540.0 * 1800.0 / (4.0 * 15.625e6);
@@ -450,7 +456,7 @@ fn fast_block_projections_need_the_mixed_spatial_lag() {
     let (c, frame_rate) = (p.sound_speed, p.sequence.frame_rate());
     let mut worst = [0.0f64; 3];
     for (k, &theta) in p.sequence.angles.iter().enumerate() {
-        let (s, cz) = pcuvd::vector::projection_weights(theta);
+        let (s, cz) = pcuvd::estimate::vector::projection_weights(theta);
         let truth = 0.5 * (velocity[0] * s + velocity[1] * cz);
         let series = out.filtered.series[k].view();
         let geometry = angle_geometry(&p, &grid, k);
@@ -472,7 +478,7 @@ fn fast_block_projections_need_the_mixed_spatial_lag() {
                     (-scale * (r.arg() + turns * std::f64::consts::TAU) - truth) / case.speed
                 })
                 .collect();
-            pcuvd::stats::median(errors)
+            pcuvd::core::stats::median(errors)
         };
         let readings = [
             error(&|px| maps.mean_frequency[px]),
@@ -516,7 +522,7 @@ fn fast_block_projections_need_the_mixed_spatial_lag() {
 /// one 2.3 % fast (oblique flow); from 7 mm on the block lies inside the lobe-free cone.
 #[test]
 fn translating_block_reads_projections_and_vector_within_one_percent() {
-    use pcuvd::doppler::DopplerEstimator;
+    use pcuvd::estimate::doppler::DopplerEstimator;
     let l22 = 0.1e-3;
     let cases = [
         BlockCase {
@@ -629,7 +635,7 @@ fn translating_block_reads_projections_and_vector_within_one_percent() {
 /// direction −0.30°; Kasai worst 9.6 %.
 #[test]
 fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
-    use pcuvd::doppler::DopplerEstimator;
+    use pcuvd::estimate::doppler::DopplerEstimator;
     let case = BlockCase {
         depth: 6e-3,
         speed: 0.02,
@@ -730,7 +736,7 @@ fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64>
         &grid,
         &data.acquisition,
         (1, 1),
-        pcuvd::decode::EventAlignment::MidFrame,
+        pcuvd::form::decode::EventAlignment::MidFrame,
     );
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
     out.projections

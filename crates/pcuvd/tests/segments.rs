@@ -1,4 +1,4 @@
-//! A long recording processed in segments ([`pcuvd::segments`]): one segment gives the
+//! A long recording processed in segments ([`pcuvd::pipeline::segments`]): one segment gives the
 //! whole-recording path's maps; several stay within the estimator's own spread, and the time
 //! series' ensembles, each filtered on its own, are the whole-recording path's exactly. Vector
 //! dealiasing applies on both paths alike. Both Doppler estimators: Kasai (the lag-1 sums) and
@@ -9,14 +9,14 @@ mod common;
 
 use common::{tube, tube_at};
 use ndarray::{Array2, Array3};
-use pcuvd::dealias::Dealias;
-use pcuvd::decode::EventAlignment;
-use pcuvd::doppler::DopplerEstimator;
 use pcuvd::dynamics::DynamicsParams;
-use pcuvd::ensembles::{self, EnsembleSpec};
-use pcuvd::phantom::{Phantom, TubePhantom};
+use pcuvd::estimate::dealias::Dealias;
+use pcuvd::estimate::doppler::DopplerEstimator;
+use pcuvd::form::decode::EventAlignment;
+use pcuvd::pipeline::ensembles::{self, EnsembleSpec};
+use pcuvd::pipeline::segments::{Segments, process_in_segments};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
-use pcuvd::segments::{Segments, process_in_segments};
+use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
 use pcuvd::{ChannelData, Coding, Probe, Sequence};
 
@@ -55,7 +55,7 @@ fn params(data: &ChannelData) -> ProcessParams {
 /// The processing settings of these tests with the Doppler estimator `estimator` (0.05 mm grid:
 /// fine enough for Loupas).
 fn params_with(data: &ChannelData, estimator: DopplerEstimator) -> ProcessParams {
-    let grid = pcuvd::grid::Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
+    let grid = pcuvd::core::grid::Grid::new(-1.5e-3, 1.5e-3, 5e-3, 7e-3, 0.05e-3).unwrap();
     ProcessParams {
         doppler_estimator: estimator,
         ..pcuvd::study::process_params(&grid, &data.acquisition, (1, 1), EventAlignment::MidFrame)
@@ -228,7 +228,7 @@ fn segments_against_the_whole_path(data: &ChannelData, estimator: DopplerEstimat
     let rms_against = |projections: &Array3<f64>, reference: Option<&Array3<f64>>| {
         let mut squares = Vec::new();
         for (k, &theta) in angles.iter().enumerate() {
-            let (s, c) = pcuvd::vector::projection_weights(theta);
+            let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
             for ((iz, ix), &inside) in truth.mask.indexed_iter() {
                 let v = projections[[k, iz, ix]];
                 let expected = match reference {
@@ -296,7 +296,7 @@ fn a_segment_too_short_for_the_windows_is_refused_by_name() {
 #[test]
 fn segments_dealias_as_the_whole_path_does() {
     let probe = recording().acquisition;
-    let nyquist = pcuvd::doppler::nyquist_velocity(
+    let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
         probe.sound_speed,
         probe.frame_rate(),
         probe.probe.center_frequency,

@@ -2,9 +2,9 @@
 
 use ndarray::{Array4, s};
 use num_complex::Complex64;
-use pcuvd::channel::AngleSamples;
-use pcuvd::decode::{EventAlignment, decode, decode_aligned};
-use pcuvd::phantom::{
+use pcuvd::acquisition::channel::AngleSamples;
+use pcuvd::form::decode::{EventAlignment, decode, decode_aligned};
+use pcuvd::simulate::phantom::{
     BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, FlowProfile, Phantom, PointPhantom,
     SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec,
 };
@@ -269,7 +269,7 @@ impl Phantom for HeldAtMidFrame<'_> {
         self.inner.positions_at(mid, out);
     }
 
-    fn truth(&self, x: &[f64], z: &[f64], t: f64) -> pcuvd::phantom::Truth {
+    fn truth(&self, x: &[f64], z: &[f64], t: f64) -> pcuvd::simulate::phantom::Truth {
         self.inner.truth(x, z, t)
     }
 }

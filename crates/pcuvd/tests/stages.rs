@@ -2,15 +2,18 @@
 
 use ndarray::{Array3, Array4, Axis};
 use num_complex::Complex32;
-use pcuvd::beamform::{self, DasParams};
-use pcuvd::channel::{Acquisition, AngleSamples, AngleSamplesView, ChannelData, Samples};
-use pcuvd::decode::{
+use pcuvd::acquisition::channel::{
+    Acquisition, AngleSamples, AngleSamplesView, ChannelData, Samples,
+};
+use pcuvd::core::geometry::round_trip_delay;
+use pcuvd::core::grid::Grid;
+use pcuvd::form::beamform::{self, DasParams};
+use pcuvd::form::decode::{
     EventAlignment, decode, decode_aligned, decode_aligned_frames, decode_aligned_frames_into,
     decode_in_place, encode, encode_code,
 };
-use pcuvd::geometry::round_trip_delay;
-use pcuvd::grid::Grid;
-use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode, iq};
+use pcuvd::form::iq;
+use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode};
 use proptest::prelude::*;
 
 /// Band-limited random traces: random tones inside the probe band under a Gaussian envelope.

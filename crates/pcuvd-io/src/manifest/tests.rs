@@ -382,7 +382,7 @@ fn streamed_recording_equals_the_one_written_at_once() {
 /// stored dtype; samples in another axis order are left to the whole reader.
 #[test]
 fn frames_read_in_blocks_are_the_recording() {
-    use pcuvd::source::FrameSource;
+    use pcuvd::acquisition::source::FrameSource;
     let dir = tempfile::tempdir().unwrap();
     let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
     let samples = rf(3 * 4, 6, 11);
@@ -652,7 +652,7 @@ fn plane_waves_as_delays_read_as_their_angles() {
                 .map(|&x| {
                     format!(
                         "{:?}",
-                        pcuvd::geometry::element_firing_delay(x, a, aperture, 1540.0)
+                        pcuvd::core::geometry::element_firing_delay(x, a, aperture, 1540.0)
                     )
                 })
                 .collect();

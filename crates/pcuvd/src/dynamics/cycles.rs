@@ -369,7 +369,7 @@ fn cycles_between(
     if durations.is_empty() {
         return None;
     }
-    let median = crate::stats::median(durations.clone());
+    let median = crate::core::stats::median(durations.clone());
     let (f_lo, f_hi) = HEART_RATE_SEARCH_HZ;
     let plausible = |d: f64| (0.65 * median..=1.35 * median).contains(&d);
     if source == CycleSource::Upstrokes && !(1.0 / f_hi..=1.0 / f_lo).contains(&median) {

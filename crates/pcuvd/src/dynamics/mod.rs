@@ -4,7 +4,7 @@
 //!
 //! Data flow: the clutter-filtered per-angle IQ series (nz, nx, frames) are cut into windows of
 //! `window` frames, `step` frames apart ([`sliding_vectors`]); each window gives per-angle lag-1
-//! autocorrelations → projections V_θ → (Vx, Vz) (the same estimators as [`crate::vector`]). The
+//! autocorrelations → projections V_θ → (Vx, Vz) (the same estimators as [`crate::estimate::vector`]). The
 //! spatial mean speed over vessel pixels gives the cardiac period and the cycles ([`find_cycles`]);
 //! per pixel, PSV is the largest speed of each cycle and EDV the smallest (end-diastole: the
 //! minimum just before the next systolic upstroke), both averaged over the complete cycles in the
@@ -31,15 +31,15 @@ use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 use rustfft::FftPlanner;
 
-use crate::dealias::{self, Dealias};
-use crate::doppler;
-use crate::error::{Error, Result, invalid, require_positive};
-use crate::images::AngleImages;
-use crate::metrics::power_to_db;
-use crate::vector::{self, Estimator, IrlsParams};
+use crate::core::error::{Error, Result, invalid, require_positive};
+use crate::core::units::power_to_db;
+use crate::estimate::dealias::{self, Dealias};
+use crate::estimate::doppler;
+use crate::estimate::vector::{self, Estimator, IrlsParams};
+use crate::form::images::AngleImages;
 
 // The class codes are shared with the phantoms' ground truth, which must not depend on this stage.
-pub use crate::vessel::{ARTERIOLE, BACKGROUND, UNDETERMINED, VENULE};
+pub use crate::core::vessel::{ARTERIOLE, BACKGROUND, UNDETERMINED, VENULE};
 
 mod cycles;
 mod harmonics;
@@ -83,7 +83,7 @@ pub struct DynamicsParams {
     pub heart_rate_hz: Option<f64>,
     /// Vector estimator applied in every window (LS = UVD, IRLS = PC-UVD).
     pub estimator: Estimator,
-    /// Vector dealiasing of every window ([`crate::dealias`]; auto decides in each window);
+    /// Vector dealiasing of every window ([`crate::estimate::dealias`]; auto decides in each window);
     /// systole beyond the Nyquist velocity needs it for RI.
     pub dealias: Dealias,
     /// Spatial averaging box (rows, cols) of each window's autocorrelation; odd sizes.
@@ -106,7 +106,7 @@ pub struct DynamicsParams {
     /// and EDV are read ([`VesselPooling`]); `None` reads every pixel alone.
     pub pooling: Option<VesselPooling>,
     /// Moves each window's projections from their cells' power centroids back to their pixels
-    /// before the vector fit ([`crate::partial_volume`]; each angle's cell measured once on the
+    /// before the vector fit ([`crate::estimate::partial_volume`]; each angle's cell measured once on the
     /// whole series; with a `kernel`, each window's reading is the power-weighted mean of its
     /// pixels' centroids).
     pub partial_volume: bool,

@@ -47,7 +47,7 @@ pub fn ri_maps(series: &VelocitySeries, params: &DynamicsParams) -> Result<RiMap
 
 /// As [`ri_maps`], with vessel pixels restricted to where `flow` (nz, nx) holds as well: for
 /// example the pixels of the whole recording's power Doppler above its noise floor
-/// ([`crate::doppler::above_noise_floor`]), a steadier test than the power of 20 ms windows.
+/// ([`crate::estimate::masks::above_noise_floor`]), a steadier test than the power of 20 ms windows.
 pub fn ri_maps_where(
     series: &VelocitySeries,
     params: &DynamicsParams,

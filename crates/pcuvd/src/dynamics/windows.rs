@@ -1,7 +1,7 @@
 //! Vector velocity in sliding windows over slow time.
 
 use super::*;
-use crate::partial_volume::{CellCovariance, CellLags};
+use crate::estimate::partial_volume::{CellCovariance, CellLags};
 
 /// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -43,7 +43,7 @@ impl VelocitySeries {
         (mean(&self.vx), mean(&self.vz))
     }
 
-    /// Keeps the first `windows` windows (a segment's own, [`crate::segments`]).
+    /// Keeps the first `windows` windows (a segment's own, [`crate::pipeline::segments`]).
     pub fn truncate(&mut self, windows: usize) {
         let keep = windows.min(self.len());
         self.times_s.truncate(keep);
@@ -348,13 +348,13 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             )?;
             let field = if params.partial_volume {
                 let pairs: Vec<_> = estimators.iter().copied().zip(&fits).collect();
-                crate::partial_volume::corrected_fits(
+                crate::estimate::partial_volume::corrected_fits(
                     angles,
                     projections.view(),
                     nyquist.view(),
                     measured,
                     &pairs,
-                    &crate::partial_volume::AngleCells {
+                    &crate::estimate::partial_volume::AngleCells {
                         power: power_per_angle.view(),
                         cells: &cells,
                         kernel: params.kernel,

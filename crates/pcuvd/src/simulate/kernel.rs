@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use super::SimParams;
 use super::noise::NoiseGenerator;
 use super::waveform::{EchoWaveform, FARROW_TERMS};
-use crate::error::Result;
+use crate::core::error::Result;
 
 /// One pulse slot of an event: steering angle (rad), polarity (±1) and start within the event (s).
 #[derive(Debug, Clone, Copy)]
@@ -88,7 +88,7 @@ struct SlotGeometry {
     cos: f64,
     tan: f64,
     inv_cos: f64,
-    /// x of the element that fires first (m), see [`crate::geometry`].
+    /// x of the element that fires first (m), see [`crate::core::geometry`].
     x_ref: f64,
     /// Slot start − t0 (s).
     offset: f64,
@@ -813,8 +813,13 @@ mod tests {
             };
             let g = sim.slot_geometry(&slot);
             for &(x, z) in &[(0.0, 5e-3), (-6e-3, 1e-3), (6.3e-3, 13e-3), (2e-3, 0.2e-3)] {
-                let exact =
-                    crate::geometry::transmit_delay(x, z, angle, aperture, params.sound_speed);
+                let exact = crate::core::geometry::transmit_delay(
+                    x,
+                    z,
+                    angle,
+                    aperture,
+                    params.sound_speed,
+                );
                 assert!((sim.transmit_delay(&g, x, z) - exact).abs() < 1e-18);
             }
             // The shadow's raised-cosine edge: ½ on the shadow line, 1 well inside, 0 well outside.

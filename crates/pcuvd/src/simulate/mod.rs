@@ -43,6 +43,7 @@
 
 mod kernel;
 mod noise;
+pub mod phantom;
 mod presets;
 mod waveform;
 
@@ -52,12 +53,12 @@ use rayon::prelude::*;
 use self::kernel::{Simulator, Slot};
 pub use self::presets::{PAPER_FRAMES, RAT_FRAMES, paper_spiral_params, rat_params};
 pub use self::waveform::EchoWaveform;
-use crate::channel::{Acquisition, ChannelData, Samples};
-use crate::error::{Error, Result, invalid, require_positive};
-use crate::geometry::round_trip_delay;
-use crate::phantom::Phantom;
-use crate::probe::Probe;
-use crate::sequence::{Coding, Sequence};
+use crate::acquisition::channel::{Acquisition, ChannelData, Samples};
+use crate::acquisition::probe::Probe;
+use crate::acquisition::sequence::{Coding, Sequence};
+use crate::core::error::{Error, Result, invalid, require_positive};
+use crate::core::geometry::round_trip_delay;
+use crate::simulate::phantom::Phantom;
 
 /// What a noise level in dB means, for code docs and reports.
 pub const NOISE_DEFINITION: &str = "noise level D dB: band-limited white Gaussian noise whose RMS is \

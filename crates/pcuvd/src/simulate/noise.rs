@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rustfft::{Fft, FftPlanner};
 
-use crate::error::{Result, invalid};
+use crate::core::error::{Result, invalid};
 
 /// FFT length of the noise of traces of `len` samples: a power of two, at least 64.
 fn fft_len(len: usize) -> usize {

@@ -2,9 +2,9 @@
 //! rat set-up of the vessel network (Table 1).
 
 use super::{NoiseSpec, SimParams};
-use crate::error::Result;
-use crate::probe::Probe;
-use crate::sequence::{Coding, Sequence};
+use crate::acquisition::probe::Probe;
+use crate::acquisition::sequence::{Coding, Sequence};
+use crate::core::error::Result;
 
 /// Frames of the paper's spiral simulation.
 pub const PAPER_FRAMES: usize = 100;

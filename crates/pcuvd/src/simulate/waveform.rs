@@ -3,9 +3,9 @@
 use num_complex::Complex64;
 use rustfft::FftPlanner;
 
-use crate::error::{Result, invalid, require_positive};
-use crate::probe::Probe;
-use crate::sequence::{Sequence, TransmitPulse};
+use crate::acquisition::probe::Probe;
+use crate::acquisition::sequence::{Sequence, TransmitPulse};
+use crate::core::error::{Result, invalid, require_positive};
 
 /// The echo of a point scatterer as received on one element: the transmit pulse (`pulse_cycles`
 /// cycles of f_c under a Hann window, cosine phase) filtered by the probe's two-way impulse response

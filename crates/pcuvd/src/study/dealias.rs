@@ -1,7 +1,7 @@
 //! Vector dealiasing on a fast tube: the paper's acquisition ([`simulate::paper_spiral_params`]:
 //! 8 angles, −15…15°, 1.8 kHz compound rate, projection Nyquist velocity v_N ≈ 44 mm/s) of a
 //! straight tube whose peak speed is 1×, 2× and 3× v_N, processed without and with dealiasing
-//! ([`crate::dealias`]), scored against the truth.
+//! ([`crate::estimate::dealias`]), scored against the truth.
 //!
 //! Each (speed, seed) is simulated once per mode; its echoes and receiver noise are formed apart
 //! (see [`super`]) and every noise level reuses them. Three method rows: UVD (conventional + least
@@ -14,19 +14,19 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::{Acquire, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform::DasParams;
-use crate::dealias::Dealias;
-use crate::decode::EventAlignment;
-use crate::error::{Result, invalid};
-use crate::grid::Grid;
-use crate::metrics::{
+use crate::core::error::{Result, invalid};
+use crate::core::grid::Grid;
+use crate::estimate::dealias::Dealias;
+use crate::estimate::vector::VectorField;
+use crate::evaluate::metrics::{
     self, ALIAS_PATTERN_DEFINITION, RMSE_DEFINITION, Rmse, SPEED_WITHIN_PEAK_DEFINITION,
     WITHIN_PEAK_DEFINITION,
 };
-use crate::phantom::{FlowProfile, Phantom, Truth, TubePhantom, TubeSpec};
+use crate::form::beamform::DasParams;
+use crate::form::decode::EventAlignment;
 use crate::pipeline::{self, ProcessOutput};
+use crate::simulate::phantom::{FlowProfile, Phantom, Truth, TubePhantom, TubeSpec};
 use crate::simulate::{self, NOISE_DEFINITION};
-use crate::vector::VectorField;
 
 /// Field of view of the study (m): x from, x to, z from, z to: the middle of the tube, away from
 /// its ends (where scatterers re-enter).
@@ -62,7 +62,7 @@ pub struct DealiasSettings {
     /// Pixel size of the imaging grid (m).
     pub grid_step_m: f64,
     /// The partial-volume correction of every fit, the true pattern's too
-    /// ([`crate::partial_volume`]).
+    /// ([`crate::estimate::partial_volume`]).
     pub partial_volume: bool,
     /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
     /// the lateral size of each angle's resolution cell, over which a velocity gradient is
@@ -125,7 +125,7 @@ impl DealiasSettings {
         if self.noise_db.iter().flatten().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
-        crate::error::require_positive("f-number", self.f_number)?;
+        crate::core::error::require_positive("f-number", self.f_number)?;
         if !self.tube_angle_deg.is_finite() {
             return Err(invalid("tube angle", "must be a finite number of degrees"));
         }
@@ -203,10 +203,12 @@ impl Method {
     /// study's IRLS settings.
     fn fit(self, out: &ProcessOutput, v_theta: ndarray::ArrayView3<f64>) -> Result<VectorField> {
         let estimator = match self {
-            Method::UvdLs => crate::vector::Estimator::LeastSquares,
-            _ => crate::vector::Estimator::Irls(crate::vector::IrlsParams::default()),
+            Method::UvdLs => crate::estimate::vector::Estimator::LeastSquares,
+            _ => crate::estimate::vector::Estimator::Irls(
+                crate::estimate::vector::IrlsParams::default(),
+            ),
         };
-        crate::vector::vector_velocity_measured(
+        crate::estimate::vector::vector_velocity_measured(
             &out.filtered.angles,
             v_theta,
             out.lateral_weights.view(),
@@ -231,7 +233,7 @@ impl Method {
             &out.projection_nyquist,
             truth,
         );
-        let unwrapped = crate::dealias::unwrap(
+        let unwrapped = crate::estimate::dealias::unwrap(
             out.projections.view(),
             counts.view(),
             out.projection_nyquist.view(),
@@ -240,22 +242,24 @@ impl Method {
             return Ok((self.fit(out, unwrapped.view())?, counts));
         }
         let step = out.grid.step();
-        let shifts = crate::partial_volume::refined_shifts(
+        let shifts = crate::estimate::partial_volume::refined_shifts(
             unwrapped.view(),
-            &crate::partial_volume::AngleCells {
+            &crate::estimate::partial_volume::AngleCells {
                 power: out.power_per_angle.view(),
                 cells: &out.cells,
                 kernel: doppler_kernel,
             },
             &out.filtered.angles,
             &Method::UvdLs.fit(out, unwrapped.view())?,
-            crate::dealias::flow_mask(&out.power_doppler, step).view(),
+            crate::estimate::dealias::flow_mask(&out.power_doppler, step).view(),
             step,
-            crate::partial_volume::REFINEMENT_ROUNDS,
+            crate::estimate::partial_volume::REFINEMENT_ROUNDS,
             |corrected| Method::UvdLs.fit(out, corrected),
         )?;
-        let corrected =
-            crate::partial_volume::corrected_projections(unwrapped.view(), shifts.view())?;
+        let corrected = crate::estimate::partial_volume::corrected_projections(
+            unwrapped.view(),
+            shifts.view(),
+        )?;
         let field = self.fit(out, corrected.view())?;
         Ok((field, counts))
     }
@@ -398,7 +402,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
     super::check_estimator(
         &simulate::paper_spiral_params(true)?,
         &grid,
-        crate::doppler::DopplerEstimator::default(),
+        crate::estimate::doppler::DopplerEstimator::default(),
     )?;
     // The reference level at which the noise is simulated: the loudest asked for (any works:
     // the noise images scale linearly).
@@ -419,7 +423,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
     let acquisition = |coded: bool| simulate::paper_spiral_params(coded);
     let nyquist = {
         let acq = acquisition(true)?.acquisition();
-        crate::doppler::nyquist_velocity(
+        crate::estimate::doppler::nyquist_velocity(
             acq.sound_speed,
             acq.frame_rate(),
             acq.probe.center_frequency,
@@ -732,7 +736,7 @@ mod tests {
         let grid = Grid::new(-1e-3, 1e-3, 5.5e-3, 8.5e-3, settings.grid_step_m).unwrap();
         let params = simulate::paper_spiral_params(false).unwrap();
         let acq = params.acquisition();
-        let nyquist = crate::doppler::nyquist_velocity(
+        let nyquist = crate::estimate::doppler::nyquist_velocity(
             acq.sound_speed,
             acq.frame_rate(),
             acq.probe.center_frequency,

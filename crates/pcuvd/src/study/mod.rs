@@ -33,18 +33,18 @@ use ndarray::{Array3, s};
 use num_complex::Complex32;
 use serde::Serialize;
 
-use crate::beamform::DasParams;
-use crate::channel::{Acquisition, ChannelData, Samples};
-use crate::clutter::{ClutterParams, RankCut};
-use crate::decode::EventAlignment;
-use crate::error::Result;
-use crate::grid::Grid;
-use crate::images::AngleImages;
-use crate::phantom::{FrameHeld, Phantom};
+use crate::acquisition::channel::{Acquisition, ChannelData, Samples};
+use crate::acquisition::source::FrameSource;
+use crate::core::error::Result;
+use crate::core::grid::Grid;
+use crate::estimate::clutter::{ClutterParams, RankCut};
+use crate::estimate::vector::IrlsParams;
+use crate::form::beamform::DasParams;
+use crate::form::decode::EventAlignment;
+use crate::form::images::AngleImages;
 use crate::pipeline::{self, ProcessParams};
+use crate::simulate::phantom::{FrameHeld, Phantom};
 use crate::simulate::{self, NoiseSpec, SimParams};
-use crate::source::FrameSource;
-use crate::vector::IrlsParams;
 
 /// A study's progress callback: (task, steps done, steps in the task). Tasks follow one another;
 /// a new task label starts a new count.
@@ -151,7 +151,8 @@ impl Formed {
 /// Time-mean power of the compounded (angle-summed) image series, shape (nz, nx): the power
 /// Doppler of echo-only or noise-only images that SNR by depth compares.
 pub fn compound_mean_power(images: &AngleImages) -> Result<ndarray::Array2<f64>> {
-    crate::beamform::compound(&images.series).map(|c| crate::metrics::mean_power(&c))
+    crate::form::beamform::compound(&images.series)
+        .map(|c| crate::evaluate::metrics::mean_power(&c))
 }
 
 /// Processing settings of the studies: the pipeline's defaults on `grid` with no clutter filter
@@ -171,7 +172,7 @@ pub fn process_params(
             ..ClutterParams::default()
         },
         doppler_kernel,
-        doppler_estimator: crate::doppler::DopplerEstimator::default(),
+        doppler_estimator: crate::estimate::doppler::DopplerEstimator::default(),
         irls: IrlsParams::default(),
         iq_cutoff: None,
         event_alignment,
@@ -186,7 +187,7 @@ pub fn process_params(
 pub fn check_estimator(
     params: &crate::simulate::SimParams,
     grid: &Grid,
-    estimator: crate::doppler::DopplerEstimator,
+    estimator: crate::estimate::doppler::DopplerEstimator,
 ) -> Result<()> {
     let acq = params.acquisition();
     crate::pipeline::check_doppler_estimator(
@@ -298,7 +299,7 @@ pub fn simulate_and_form_sum(
                 ];
             }
             for (sum, part) in sums.iter_mut().zip([echo, unit_noise]) {
-                let compound = crate::beamform::compound(part).expect("one block per angle");
+                let compound = crate::form::beamform::compound(part).expect("one block per angle");
                 ndarray::Zip::from(sum)
                     .and(compound.lanes(ndarray::Axis(2)))
                     .for_each(|s, lane| {

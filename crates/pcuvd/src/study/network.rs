@@ -16,21 +16,21 @@ use super::spiral::{SnrByDepth, alignment_label};
 use super::{
     Acquire, FormedSum, Mode, Motion, Progress, Timings, process_params, simulate_and_form_sum,
 };
-use crate::beamform::DasParams;
-use crate::decode::EventAlignment;
-use crate::doppler::DopplerEstimator;
+use crate::core::error::{Result, invalid};
+use crate::core::grid::Grid;
 use crate::dynamics::{
     self, DynamicsParams, PoolingSummary, RiMaps, Spectrogram, SpectrogramParams, VelocitySeries,
     VesselPooling, VesselTests,
 };
-use crate::error::{Result, invalid};
-use crate::grid::Grid;
-use crate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores};
-use crate::phantom::Phantom;
-use crate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
+use crate::estimate::doppler::DopplerEstimator;
+use crate::estimate::vector::{Estimator, IrlsParams, VectorField};
+use crate::evaluate::metrics::{self, DepthSnr, RI_SCORE_DEFINITION, RiScore, RiScores};
+use crate::form::beamform::DasParams;
+use crate::form::decode::EventAlignment;
 use crate::pipeline::{self, ProcessOutput, ProcessParams};
 use crate::simulate;
-use crate::vector::{Estimator, IrlsParams, VectorField};
+use crate::simulate::phantom::Phantom;
+use crate::simulate::phantom::network::{NetworkPhantom, NetworkSpec, NetworkTruth, VesselKind};
 
 /// Field of view of the network study (m): the probe's aperture, 1–13 mm deep.
 pub const FIELD_M: (f64, f64, f64, f64) = (-6.4e-3, 6.4e-3, 1.0e-3, 13.0e-3);
@@ -60,7 +60,7 @@ pub struct NetworkSettings {
     pub grid_step_m: f64,
     /// Which frequency scales the Doppler phase (whole-recording maps and windows alike).
     pub doppler_estimator: DopplerEstimator,
-    /// The partial-volume correction ([`crate::partial_volume`]) of the maps and of every
+    /// The partial-volume correction ([`crate::estimate::partial_volume`]) of the maps and of every
     /// dynamics window.
     pub partial_volume: bool,
     /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
@@ -127,7 +127,7 @@ impl NetworkSettings {
         if !self.noise_db.is_finite() {
             return Err(invalid("noise level", "must be a finite number of dB"));
         }
-        crate::error::require_positive("f-number", self.f_number)?;
+        crate::core::error::require_positive("f-number", self.f_number)?;
         if !(self.heart_rate_hz.is_finite() && self.heart_rate_hz > 0.0) {
             return Err(invalid(
                 "heart rate",

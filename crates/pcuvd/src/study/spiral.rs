@@ -12,16 +12,18 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use super::{Acquire, Formed, Mode, Motion, Progress, Timings, process_params, simulate_and_form};
-use crate::beamform::DasParams;
-use crate::decode::EventAlignment;
-use crate::doppler::DopplerEstimator;
-use crate::error::{Result, invalid};
-use crate::grid::Grid;
-use crate::metrics::{self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, snr_by_depth};
-use crate::phantom::{Phantom, SpiralPhantom, Truth};
+use crate::core::error::{Result, invalid};
+use crate::core::grid::Grid;
+use crate::estimate::doppler::DopplerEstimator;
+use crate::estimate::vector::VectorField;
+use crate::evaluate::metrics::{
+    self, DepthSnr, RMSE_DEFINITION, Rmse, SNR_DEFINITION, snr_by_depth,
+};
+use crate::form::beamform::DasParams;
+use crate::form::decode::EventAlignment;
 use crate::pipeline::{self, ProcessOutput, ProcessParams};
+use crate::simulate::phantom::{Phantom, SpiralPhantom, Truth};
 use crate::simulate::{self, NOISE_DEFINITION};
-use crate::vector::VectorField;
 
 /// Field of view of the spiral study (m): x from, x to, z from, z to.
 pub const FIELD_M: (f64, f64, f64, f64) = (-6.4e-3, 6.4e-3, 1.0e-3, 13.2e-3);
@@ -67,7 +69,7 @@ pub struct SpiralSettings {
     /// own calibrated level (when `calibrate_uvd_vx_m_s` is given) beside what it costs in
     /// resolution ([`Averaging`]). Empty: none.
     pub averaging_kernels: Vec<(usize, usize)>,
-    /// The partial-volume correction of every estimate ([`crate::partial_volume`]); the paper
+    /// The partial-volume correction of every estimate ([`crate::estimate::partial_volume`]); the paper
     /// has none.
     pub partial_volume: bool,
     /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
@@ -124,7 +126,7 @@ impl SpiralSettings {
         if !self.noise_db.is_finite() || self.sweep_db.iter().any(|v| !v.is_finite()) {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
-        crate::error::require_positive("f-number", self.f_number)?;
+        crate::core::error::require_positive("f-number", self.f_number)?;
         for &(r, c) in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
             if r % 2 == 0 || c % 2 == 0 || r == 0 || c == 0 {
                 return Err(invalid(
@@ -568,7 +570,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
     let calibrate_with = |target: f64, params: &ProcessParams, swept: &[(f64, f64)]| {
         let uvd_vx = |level: f64| uvd_vx_at(&formed[0], settings.noise_db, level, params, &truth);
         let c = calibrate(target * 1e3, swept, uvd_vx)?;
-        Ok::<_, crate::error::Error>(match c.noise_db {
+        Ok::<_, crate::core::error::Error>(match c.noise_db {
             Some(level) => {
                 let rmse = rmse_at_gain(gain_of(settings.noise_db, level), params)?;
                 Calibrated {
@@ -643,7 +645,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
 
     // Numbers.
     let n_angles = formed[1].acquisition.sequence.n_angles();
-    let theory = metrics::power_to_db(n_angles as f64);
+    let theory = crate::core::units::power_to_db(n_angles as f64);
     let snr = [
         snr_by_depth(&echo_power[0], &noise_power[0], &truth.mask, &grid),
         snr_by_depth(&echo_power[1], &noise_power[1], &truth.mask, &grid),
@@ -952,7 +954,7 @@ mod tests {
         }
     }
 
-    /// The partial-volume correction ([`crate::partial_volume`]) on a simulated conventional
+    /// The partial-volume correction ([`crate::estimate::partial_volume`]) on a simulated conventional
     /// spiral (24 frames, the paper's 50 µm grid, −30 dB, seed 3): each angle's projection moved
     /// from its cell's power centroid to its pixel lowers both estimators' RMSE of Vx and of Vz
     /// against the truth by more than a tenth, pixel-wise and with the Doppler averaged over 5x1

@@ -2,7 +2,7 @@
 // Each test crate that includes this module uses a part of it.
 #![allow(dead_code)]
 
-use pcuvd::phantom::{FlowProfile, TubePhantom, TubeSpec};
+use pcuvd::simulate::phantom::{FlowProfile, TubePhantom, TubeSpec};
 use pcuvd::simulate::{NoiseSpec, SimParams, rat_params, simulate};
 use pcuvd::{ChannelData, Probe};
 

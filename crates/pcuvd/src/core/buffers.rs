@@ -1,0 +1,53 @@
+//! Array memory reused from one block of frames to the next.
+
+use ndarray::{Array, Dimension, IntoDimension};
+use num_traits::Zero;
+
+/// An array of `shape` in `old`'s memory where that has room for it, else a new one: blocks of
+/// frames come one after another in sizes that differ a little (a recording's first and last),
+/// and fresh pages cost more to fault in and zero than the work done on them. The elements'
+/// values are unspecified (the old array's or zeros): callers write every one.
+pub fn array_reusing<T: Clone + Zero, D: Dimension>(
+    old: Option<Array<T, D>>,
+    shape: impl IntoDimension<Dim = D>,
+) -> Array<T, D> {
+    let shape = shape.into_dimension();
+    let len = shape.size();
+    let memory = old
+        .map(|array| array.into_raw_vec_and_offset().0)
+        .filter(|memory| memory.capacity() >= len);
+    // (Memory too small is dropped by now, before the new array is allocated.)
+    let memory = match memory {
+        Some(mut memory) => {
+            memory.resize(len, T::zero());
+            memory
+        }
+        None => vec![T::zero(); len],
+    };
+    Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An array takes the old one's memory where it has room (shorter, then as long again),
+    /// and new memory where it has not; either way it has the asked-for shape, in standard
+    /// layout.
+    #[test]
+    fn arrays_reuse_memory_with_room() {
+        let old = ndarray::Array3::<f32>::from_elem((4, 3, 5), 1.5);
+        let memory = old.as_ptr();
+        let shorter = array_reusing(Some(old), (2, 3, 5));
+        assert_eq!(shorter.dim(), (2, 3, 5));
+        assert_eq!(shorter.as_ptr(), memory);
+        let again = array_reusing(Some(shorter), (4, 3, 5));
+        assert_eq!(again.as_ptr(), memory);
+        assert!(again.is_standard_layout());
+        let longer = array_reusing(Some(again), (5, 3, 5));
+        assert_eq!(longer.dim(), (5, 3, 5));
+        assert!(longer.is_standard_layout());
+        let fresh = array_reusing::<f32, _>(None, (1, 2, 3));
+        assert!(fresh.iter().all(|&v| v == 0.0));
+    }
+}

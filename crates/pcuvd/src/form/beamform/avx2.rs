@@ -1,0 +1,108 @@
+//! The AVX2 + FMA accumulation kernel: a pixel's run of frames, 4 complex frames per 256-bit
+//! vector and up to 20 frames, kept in registers across a group of elements.
+
+use super::taps::prefetch_near;
+use super::taps::{PF, Taps};
+use num_complex::Complex32;
+use std::arch::x86_64::*;
+
+/// The most 4-frame vectors of one pixel whose sums stay in registers across the element loop:
+/// two sums per vector (see [`run`]) and four weights leave no register to spare at 6.
+pub(super) const MAX_VECTORS: usize = 5;
+
+/// Dispatches a run of 1..=MAX_VECTORS vectors to its register-resident instance.
+///
+/// # Safety
+/// AVX2 and FMA must be available; for every tap k in `start..start + len`,
+/// `(rows[k] + 1)·row + f0 + acc.len()` must lie within `data`; `taps.rows` must hold PF
+/// entries beyond them.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub(super) unsafe fn pixel_chunk(
+    acc: &mut [Complex32],
+    next: *const Complex32,
+    data: &[Complex32],
+    f0: usize,
+    row: usize,
+    taps: &Taps,
+    start: usize,
+    len: usize,
+) {
+    debug_assert!(acc.len().is_multiple_of(4) && acc.len() / 4 <= MAX_VECTORS);
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        match acc.len() / 4 {
+            1 => run::<1>(acc, next, data, f0, row, taps, start, len),
+            2 => run::<2>(acc, next, data, f0, row, taps, start, len),
+            3 => run::<3>(acc, next, data, f0, row, taps, start, len),
+            4 => run::<4>(acc, next, data, f0, row, taps, start, len),
+            5 => run::<5>(acc, next, data, f0, row, taps, start, len),
+            _ => {}
+        }
+    }
+}
+
+/// Asks for the lines of N 8-float vectors at `a` and, if `row` > 0, one row further into L1.
+#[inline(always)]
+fn prefetch<const N: usize>(a: *const f32, row: usize) {
+    prefetch_near(a, 32 * N, row);
+}
+
+/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs. With c = (p, q) and
+/// a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums p·a and q·a in two registers
+/// per vector, and the swap and sign of the second are applied once, after the loop, so
+/// that each tap costs four FMAs per vector and no shuffle.
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn run<const N: usize>(
+    acc: &mut [Complex32],
+    next: *const Complex32,
+    data: &[Complex32],
+    f0: usize,
+    row: usize,
+    taps: &Taps,
+    start: usize,
+    len: usize,
+) {
+    let out = acc.as_mut_ptr().cast::<f32>();
+    // SAFETY: acc holds 4·N complex values.
+    let mut sp: [__m256; N] = std::array::from_fn(|j| unsafe { _mm256_loadu_ps(out.add(8 * j)) });
+    let mut sq: [__m256; N] = [_mm256_setzero_ps(); N];
+    prefetch::<N>(next.cast::<f32>(), 0);
+    // SAFETY (all pointer arithmetic below): the caller guarantees the tap arrays hold
+    // start + len entries, `rows` PF more, and that every tap's rows lie within `data`.
+    let base = unsafe { data.as_ptr().add(f0).cast::<f32>() };
+    let rows = unsafe { taps.rows.as_ptr().add(start) };
+    let c0r = unsafe { taps.c0_re.as_ptr().add(start) };
+    let c0i = unsafe { taps.c0_im.as_ptr().add(start) };
+    let c1r = unsafe { taps.c1_re.as_ptr().add(start) };
+    let c1i = unsafe { taps.c1_im.as_ptr().add(start) };
+    for k in 0..len {
+        unsafe {
+            let a = base.add(2 * row * *rows.add(k) as usize);
+            let b = a.add(2 * row);
+            // Prefetch PF taps ahead, running on into the next pixel's.
+            prefetch::<N>(base.wrapping_add(2 * row * *rows.add(k + PF) as usize), row);
+            let p0 = _mm256_broadcast_ss(&*c0r.add(k));
+            let q0 = _mm256_broadcast_ss(&*c0i.add(k));
+            let p1 = _mm256_broadcast_ss(&*c1r.add(k));
+            let q1 = _mm256_broadcast_ss(&*c1i.add(k));
+            for j in 0..N {
+                // 8 floats = 4 frames, inside the run of frames.
+                let u = _mm256_loadu_ps(a.add(8 * j));
+                let v = _mm256_loadu_ps(b.add(8 * j));
+                sp[j] = _mm256_fmadd_ps(u, p0, sp[j]);
+                sq[j] = _mm256_fmadd_ps(u, q0, sq[j]);
+                sp[j] = _mm256_fmadd_ps(v, p1, sp[j]);
+                sq[j] = _mm256_fmadd_ps(v, q1, sq[j]);
+            }
+        }
+    }
+    let sign = _mm256_setr_ps(-0.0, 0.0, -0.0, 0.0, -0.0, 0.0, -0.0, 0.0);
+    for j in 0..N {
+        // (q u, q v) → (−q v, q u).
+        let t = _mm256_xor_ps(_mm256_permute_ps(sq[j], 0b1011_0001), sign);
+        // SAFETY: acc holds 4·N complex values.
+        unsafe { _mm256_storeu_ps(out.add(8 * j), _mm256_add_ps(sp[j], t)) };
+    }
+}

@@ -1,0 +1,252 @@
+//! Which accumulation kernel runs: the fastest that the CPU supports, detected once at run time
+//! (so that one build runs everywhere), and the dispatch of a pixel's run of frames to it.
+
+use num_complex::Complex32;
+
+#[cfg(target_arch = "x86_64")]
+use super::avx2;
+#[cfg(target_arch = "x86_64")]
+use super::avx512;
+use super::portable;
+use super::taps::{PF, Setup, Span, Taps};
+
+/// The accumulation kernel in use: chosen once per call from the running CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Kernel {
+    /// Explicit AVX-512 (F, DQ) on interleaved complex frames, eight frames per vector, the last
+    /// vector of a run masked.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+    /// Explicit AVX2 + FMA on interleaved complex frames.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    /// Plain Rust, any target.
+    Portable,
+}
+
+impl Kernel {
+    /// The kernels this CPU runs, fastest first; the portable loop is always last.
+    fn supported() -> &'static [Kernel] {
+        use std::sync::OnceLock;
+        static SUPPORTED: OnceLock<Vec<Kernel>> = OnceLock::new();
+        SUPPORTED.get_or_init(|| {
+            let mut kernels = Vec::new();
+            #[cfg(target_arch = "x86_64")]
+            {
+                let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+                if avx2
+                    && is_x86_feature_detected!("avx512f")
+                    && is_x86_feature_detected!("avx512dq")
+                {
+                    kernels.push(Kernel::Avx512);
+                }
+                if avx2 {
+                    kernels.push(Kernel::Avx2);
+                }
+            }
+            kernels.push(Kernel::Portable);
+            kernels
+        })
+    }
+
+    /// The fastest kernel this CPU runs.
+    pub(super) fn detect() -> Kernel {
+        Kernel::supported()[0]
+    }
+
+    /// Adds to `out`, frames `f0..f0 + out.len()` of pixel `p`, Σ over its taps of c0·a + c1·b,
+    /// a and b being the tap element's frames at samples i0 and i0 + 1. `next` (the next
+    /// pixel's sums) is only prefetched.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn accumulate(
+        self,
+        out: &mut [Complex32],
+        f0: usize,
+        data: &[Complex32],
+        setup: &Setup,
+        taps: &Taps,
+        p: usize,
+        next: *const Complex32,
+    ) {
+        let (frames, n_samples) = (setup.frames, setup.n_samples);
+        let row = frames;
+        let Span { start, len } = taps.spans[p];
+        let end = start + len;
+        assert!(f0 + out.len() <= frames && data.len() >= setup.element_x.len() * n_samples * row);
+        assert!(taps.rows.len() >= end + PF && taps.c1_im.len() >= end);
+        #[cfg(target_arch = "x86_64")]
+        if self == Kernel::Avx512 && !out.is_empty() && out.len() <= 8 * avx512::MAX_VECTORS {
+            // SAFETY: AVX-512F/DQ, AVX2 and FMA were detected. Reads stay within `data` as for
+            // AVX2 below; the masked last vector reads and writes only frames below
+            // f0 + out.len().
+            unsafe { avx512::pixel_chunk(out, next, data, f0, row, taps, start, len) };
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self == Kernel::Avx2 && out.len().is_multiple_of(4) && out.len() <= 4 * avx2::MAX_VECTORS
+        {
+            // SAFETY: AVX2 and FMA were detected. Reads stay within `data`: each row index is
+            // that of an element below the channel count and a sample i0 with
+            // i0 + 1 < n_samples (the `Taps` invariant), frames below f0 + out.len() ≤ frames
+            // (asserted above); the tap arrays hold `end` entries and `rows` PF more (asserted
+            // above).
+            unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len) };
+            return;
+        }
+        portable::pixel_chunk(out, data, f0, row, taps, start, len);
+    }
+}
+
+/// Runs of frames that the kernel keeps in registers, of near-equal whole numbers of vectors and
+/// at most its register budget each; then, for a kernel without masked loads, the frames left
+/// over from whole vectors (summed by the portable loop). With masks, the last run ends in a
+/// partial vector instead.
+pub(super) fn frame_chunks(frames: usize, kernel: Kernel) -> Vec<std::ops::Range<usize>> {
+    let simd = match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => Some((8, avx512::MAX_VECTORS, true)),
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => Some((4, avx2::MAX_VECTORS, false)),
+        Kernel::Portable => None,
+    };
+    let Some((width, max, masked)) = simd else {
+        // One run of all the frames (not a list of its frame indices).
+        #[allow(clippy::single_range_in_vec_init)]
+        return vec![0..frames];
+    };
+    let vectors = if masked {
+        frames.div_ceil(width)
+    } else {
+        frames / width
+    };
+    let n = vectors.div_ceil(max);
+    let mut chunks: Vec<_> = (0..n)
+        .map(|i| width * (i * vectors / n)..(width * ((i + 1) * vectors / n)).min(frames))
+        .collect();
+    if width * vectors < frames {
+        chunks.push(width * vectors..frames);
+    }
+    chunks
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::acquisition::probe::Probe;
+    use crate::core::grid::Grid;
+    use crate::form::beamform::tests::{noise, random_iq};
+    use crate::form::beamform::tiling::beamform_with;
+    use crate::form::beamform::{Apodization, DasParams};
+
+    /// Runs `kernel`'s accumulation against the portable loop's on random taps and data, over
+    /// every run of frames it is given for several frame counts (whole vectors, partial last
+    /// vectors, more than one run), and on a whole image. Both sum the same f32 products in a
+    /// different order and with or without FMA, so they differ by rounding only: a few ulps of
+    /// the largest partial sum (here |sum| ≲ 8·|terms|), hence a relative bound of 1e-5 of the
+    /// sum's size, or of 1 where the sum nearly cancels.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    fn kernel_matches_portable_loop(kernel: Kernel) {
+        for frames in [1, 3, 8, 37, 100, 104, 105, 230] {
+            let (channels, samples) = (5, 40);
+            let iq = random_iq(channels, samples, frames, 3);
+            let data = iq.data.as_slice().unwrap();
+            let setup = Setup {
+                element_x: vec![0.0; channels],
+                sorted: true,
+                angle: 0.0,
+                aperture: (0.0, 0.0),
+                c: 1540.0,
+                fs: 1.0,
+                t0: 0.0,
+                demod_frequency: 1.0,
+                f_number: 1.0,
+                apodization: Apodization::Boxcar,
+                n_samples: samples,
+                frames,
+            };
+            let mut r = noise(11);
+            // Two pixels, with four and three taps, on elements 1..5; the first tap of the
+            // second reads the last sample pair of its element.
+            let mut taps = Taps::default();
+            for (n, offset) in [(4, 3), (3, 38)] {
+                let start = taps.push(n, 1);
+                for k in 0..n {
+                    let i0 = (k * 9 + offset).min(samples - 2);
+                    taps.rows[start + k] = ((1 + k) * samples + i0) as u32;
+                    taps.c0_re[start + k] = r();
+                    taps.c0_im[start + k] = r();
+                    taps.c1_re[start + k] = r();
+                    taps.c1_im[start + k] = r();
+                }
+            }
+            taps.finish();
+            let chunks = frame_chunks(frames, kernel);
+            assert_eq!(chunks.first().map(|c| c.start), Some(0));
+            assert_eq!(chunks.last().map(|c| c.end), Some(frames));
+            assert!(chunks.windows(2).all(|w| w[0].end == w[1].start));
+            for p in 0..2 {
+                for range in chunks.clone() {
+                    let mut r = noise(range.start as u64);
+                    let start: Vec<Complex32> =
+                        range.clone().map(|_| Complex32::new(r(), r())).collect();
+                    let (mut fast, mut slow) = (start.clone(), start);
+                    let next = data.as_ptr();
+                    kernel.accumulate(&mut fast, range.start, data, &setup, &taps, p, next);
+                    Kernel::Portable.accumulate(
+                        &mut slow,
+                        range.start,
+                        data,
+                        &setup,
+                        &taps,
+                        p,
+                        next,
+                    );
+                    for (a, b) in fast.iter().zip(&slow) {
+                        assert!(
+                            (a - b).norm() <= 1e-5 * b.norm().max(1.0),
+                            "{kernel:?}, {frames} frames: {a} vs {b}"
+                        );
+                    }
+                }
+            }
+        }
+        // A whole image, 21 frames (a partial last vector for either kernel), against the
+        // portable kernel's.
+        let probe = Probe::l22_14vx();
+        let grid = Grid::new(-1e-3, 1e-3, 3e-3, 4e-3, 0.1e-3).unwrap();
+        let iq = random_iq(probe.n_elements, 400, 21, 5);
+        let params = DasParams::new(1540.0);
+        let fast = beamform_with(kernel, &iq, &probe, 0.1, &grid, &params).unwrap();
+        let slow = beamform_with(Kernel::Portable, &iq, &probe, 0.1, &grid, &params).unwrap();
+        let scale = slow.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+        assert!(scale > 1.0);
+        for (a, b) in fast.iter().zip(slow.iter()) {
+            assert!((a - b).norm() <= 1e-5 * scale, "{kernel:?}: {a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn avx512_kernel_matches_portable_loop() {
+        #[cfg(target_arch = "x86_64")]
+        if Kernel::supported().contains(&Kernel::Avx512) {
+            return kernel_matches_portable_loop(Kernel::Avx512);
+        }
+        eprintln!("skipped: this CPU has no AVX-512F/DQ (or no AVX2 + FMA)");
+    }
+
+    #[test]
+    fn avx2_kernel_matches_portable_loop() {
+        #[cfg(target_arch = "x86_64")]
+        if Kernel::supported().contains(&Kernel::Avx2) {
+            return kernel_matches_portable_loop(Kernel::Avx2);
+        }
+        eprintln!("skipped: this CPU has no AVX2 + FMA");
+    }
+
+    #[test]
+    fn detect_picks_the_first_supported_kernel() {
+        let supported = Kernel::supported();
+        assert_eq!(Kernel::detect(), supported[0]);
+        assert_eq!(supported.last(), Some(&Kernel::Portable));
+    }
+}

@@ -1,0 +1,129 @@
+//! The tables a delay-and-sum kernel reads: each pixel's taps (sample rows and rotated
+//! interpolation weights) and the fixed setup of one call, shared by the tiling that fills them
+//! and the per-ISA kernels that sum them.
+
+use super::Apodization;
+
+/// Taps ahead whose samples are prefetched.
+pub(super) const PF: usize = 3;
+
+/// Everything the per-pixel delay and weight computation needs, fixed for one call.
+pub(super) struct Setup {
+    pub(super) element_x: Vec<f64>,
+    /// Whether element positions increase, so that each aperture is a contiguous element range.
+    pub(super) sorted: bool,
+    pub(super) angle: f64,
+    pub(super) aperture: (f64, f64),
+    pub(super) c: f64,
+    pub(super) fs: f64,
+    pub(super) t0: f64,
+    pub(super) demod_frequency: f64,
+    pub(super) f_number: f64,
+    pub(super) apodization: Apodization,
+    pub(super) n_samples: usize,
+    pub(super) frames: usize,
+}
+
+/// Delays and weights of the pixels of a tile for one group of elements, in flat arrays so that
+/// the kernel runs from one pixel's taps into the next one's: pixel p's taps are
+/// `spans[p].start..spans[p].start + spans[p].len`. Per tap: `rows`, the index
+/// element · n_samples + i0 of its element's row of frames at sample i0, and the rotated
+/// interpolation weights c0, c1 of samples i0 and i0 + 1.
+/// Invariant (by construction where filled): 0 ≤ i0 and i0 + 1 < n_samples; `rows` has `PF`
+/// more entries than there are taps (zeros), so that the kernel may read ahead to prefetch.
+#[derive(Default)]
+pub(super) struct Taps {
+    /// Per pixel, the taps the kernel runs now: those of the selected group of elements.
+    pub(super) spans: Vec<Span>,
+    /// Per pixel, all its taps and the element of the first: (span, element).
+    apertures: Vec<(Span, usize)>,
+    /// 32 bits (the caller checks that every row index fits) so that the delay loop fills them
+    /// vectorised, along with the weights.
+    pub(super) rows: Vec<u32>,
+    pub(super) c0_re: Vec<f32>,
+    pub(super) c0_im: Vec<f32>,
+    pub(super) c1_re: Vec<f32>,
+    pub(super) c1_im: Vec<f32>,
+}
+
+/// Where one pixel's taps lie in the arrays of [`Taps`].
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Span {
+    pub(super) start: usize,
+    pub(super) len: usize,
+}
+
+impl Taps {
+    /// Empties the tables, keeping their allocations for the next group.
+    pub(super) fn clear(&mut self) {
+        self.spans.clear();
+        self.apertures.clear();
+        self.rows.clear();
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.clear();
+        }
+    }
+
+    /// Room for `len` more taps of a new pixel, of elements from `first` on; returns where
+    /// they start.
+    pub(super) fn push(&mut self, len: usize, first: usize) -> usize {
+        let start = self.rows.len();
+        self.spans.push(Span { start, len });
+        self.apertures.push((Span { start, len }, first));
+        let end = start + len;
+        self.rows.resize(end, 0);
+        for v in [
+            &mut self.c0_re,
+            &mut self.c0_im,
+            &mut self.c1_re,
+            &mut self.c1_im,
+        ] {
+            v.resize(end, 0.0);
+        }
+        start
+    }
+
+    /// Points every pixel's span at its taps of `elements` (an empty span where its aperture
+    /// has none of them).
+    pub(super) fn select(&mut self, elements: std::ops::Range<usize>) {
+        for (span, &(all, first)) in self.spans.iter_mut().zip(&self.apertures) {
+            let lo = elements.start.clamp(first, first + all.len);
+            let hi = elements.end.clamp(lo, first + all.len);
+            *span = Span {
+                start: all.start + lo - first,
+                len: hi - lo,
+            };
+        }
+    }
+
+    /// Pads `rows` for the kernel's look-ahead once all pixels are in.
+    pub(super) fn finish(&mut self) {
+        self.rows.extend([0; PF]);
+    }
+}
+
+/// Asks for the cache lines of the `bytes` at `a` and, if `row` > 0, of the same span `row`
+/// complex samples further, into L1: the two rows a tap interpolates between, for the SIMD kernels.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(super) fn prefetch_near(a: *const f32, bytes: usize, row: usize) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    let a = a.cast::<i8>();
+    let b = a.wrapping_add(8 * row);
+    let mut l = 0;
+    while l < bytes + 63 {
+        // SAFETY: prefetches never fault, whatever the address; SSE is part of x86_64.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(a.wrapping_add(l));
+            if row > 0 {
+                _mm_prefetch::<_MM_HINT_T0>(b.wrapping_add(l));
+            }
+        }
+        l += 64;
+    }
+}

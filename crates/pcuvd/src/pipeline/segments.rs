@@ -1,0 +1,483 @@
+//! Long recordings in segments: memory bounded by a segment's image series, not by the recording.
+//!
+//! The whole-recording path holds every frame's per-angle images, because the SVD clutter filter
+//! sees the whole ensemble at once: 2.2 GB for the paper's 0.2 s rat recording, 11 GB for 1 s. A
+//! recording too long for that is cut into consecutive *cores* of frames; each core is imaged with
+//! some following frames (the *overlap*, so that every dynamics window and time-series ensemble
+//! starting in it lies inside one segment), clutter-filtered on its own, and then dropped. What
+//! the maps need accumulates across segments:
+//!
+//! - the Doppler moments ([`crate::estimate::doppler::Moments`]: power, lag-1 autocorrelation and, for
+//!   Loupas, the axial (and lateral) lags within frames and at temporal lags ±1) are means over
+//!   frames and frame pairs, so each core's are combined ([`crate::estimate::doppler::Moments::merge`],
+//!   before the spatial box average, which is linear) and the velocities taken from the totals:
+//!   the maps are those of one long ensemble, except that each segment has its own clutter
+//!   subspace and the pairs across a cut are not counted;
+//! - the B-mode's mean envelope is summed over the cores the same way (unfiltered: exact);
+//! - dynamics windows and ensembles start on the same frames as the whole-recording path's, each
+//!   computed in the segment whose core holds its start;
+//! - vector dealiasing ([`crate::estimate::dealias`]) applies where the whole-recording path applies it: to
+//!   the maps from the totals (in [`pipeline::doppler_maps`]), to every ensemble, and to every
+//!   dynamics window. Where the whole path's windows take an automatic K from the recording's
+//!   maps, the segments' take it from the first segment's (the totals come too late).
+//!
+//! Where one segment holds the whole recording the results are the whole-recording path's.
+
+use std::ops::Range;
+
+use std::io::{Read, Seek, SeekFrom, Write};
+
+use ndarray::{Array2, Array3, Zip, s};
+use num_complex::Complex32;
+
+use crate::acquisition::source::FrameSource;
+use crate::core::error::{Error, Result, invalid};
+use crate::dynamics::{self, DynamicsParams, VelocitySeries};
+use crate::estimate::clutter::{self, ClutterReport};
+use crate::estimate::dealias::Dealias;
+use crate::estimate::doppler::Moments;
+use crate::form::beamform;
+use crate::pipeline::ensembles::{self, EnsembleMaps, EnsembleSpec};
+pub use crate::pipeline::memory::{SERIES_BYTES, frames_that_fit};
+use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
+
+/// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
+/// with `overlap` frames after it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Segments {
+    /// Compound frames of each core (a multiple of the dynamics and ensemble steps).
+    pub core: usize,
+    /// Frames imaged after each core, for the windows and ensembles starting near its end.
+    pub overlap: usize,
+}
+
+impl Segments {
+    /// Cuts a recording of `total` frames for processing in segments of at most `segment_frames`
+    /// frames (core + overlap), or `None` when one segment holds it (the whole-recording path).
+    /// `dynamics` and `ensembles`, when they run, set the overlap (their window) and the cores'
+    /// alignment (their steps); a segment too short for them is refused, naming both.
+    pub fn plan(
+        total: usize,
+        segment_frames: usize,
+        dynamics: Option<&DynamicsParams>,
+        ensembles: Option<EnsembleSpec>,
+    ) -> Result<Option<Segments>> {
+        if segment_frames >= total {
+            return Ok(None);
+        }
+        let (overlap, align) = Self::reach(dynamics, ensembles);
+        let longest = segment_frames.saturating_sub(overlap) / align * align;
+        if longest < Self::shortest_core(align) {
+            return Err(invalid(
+                "segment frames",
+                format!(
+                    "{segment_frames} frames per segment leave {longest} for its own frames after \
+                     the {overlap} that the dynamics windows or ensembles reach into: give a \
+                     larger --segment-frames (at least {})",
+                    Self::shortest(dynamics, ensembles)
+                ),
+            ));
+        }
+        // As few segments as fit, of even length: a short last segment would get a clutter
+        // filter of few frames. The even share, rounded up to the steps, is at most `longest`.
+        let count = total.div_ceil(longest);
+        let core = total.div_ceil(count).div_ceil(align) * align;
+        Ok(Some(Segments { core, overlap }))
+    }
+
+    /// The fewest frames a segment may have with these windows and ensembles.
+    pub fn shortest(dynamics: Option<&DynamicsParams>, ensembles: Option<EnsembleSpec>) -> usize {
+        let (overlap, align) = Self::reach(dynamics, ensembles);
+        overlap + Self::shortest_core(align)
+    }
+
+    /// The clutter filter and the lag-1 autocorrelation need several frames per core, and cores
+    /// start on the windows' and ensembles' steps.
+    fn shortest_core(align: usize) -> usize {
+        4usize.div_ceil(align) * align
+    }
+
+    /// (overlap, alignment): windows and ensembles start every `step` frames, so the last one
+    /// starting in a core (a multiple of the steps long) starts `step` before its end and needs
+    /// `frames − step` frames after it; cores start on a multiple of every step.
+    fn reach(dynamics: Option<&DynamicsParams>, ensembles: Option<EnsembleSpec>) -> (usize, usize) {
+        let overlap = dynamics
+            .map_or(0, |d| d.window.saturating_sub(d.step))
+            .max(ensembles.map_or(0, |e| e.frames.saturating_sub(e.step)));
+        let align = lcm(
+            dynamics.map_or(1, |d| d.step.max(1)),
+            ensembles.map_or(1, |e| e.step.max(1)),
+        );
+        (overlap, align)
+    }
+
+    /// Each segment's core and the frames imaged for it: (core, imaged), in order. The cores
+    /// tile the recording; a remainder too short to filter joins the last core.
+    pub fn ranges(&self, total: usize) -> Vec<(Range<usize>, Range<usize>)> {
+        let core = self.core.max(1);
+        let mut starts: Vec<usize> = (0..total).step_by(core).collect();
+        if starts.len() > 1 && total - starts[starts.len() - 1] < 4 {
+            starts.pop();
+        }
+        starts
+            .iter()
+            .enumerate()
+            .map(|(k, &start)| {
+                let end = starts.get(k + 1).copied().unwrap_or(total);
+                (start..end, start..(end + self.overlap).min(total))
+            })
+            .collect()
+    }
+}
+
+fn lcm(a: usize, b: usize) -> usize {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    a / gcd(a, b) * b
+}
+
+/// What [`process_in_segments`] gives: the maps, and the stages that run over time.
+#[derive(Debug, Clone)]
+pub struct Segmented {
+    /// The maps from the sums over every core. Its `filtered` holds no series (they were dropped
+    /// segment by segment) and its `clutter` is the first segment's.
+    pub out: ProcessOutput,
+    /// The dynamics stage's velocity series, when `dynamics` was given.
+    pub series: Option<VelocitySeries>,
+    /// The Doppler time series, when `ensembles` was given.
+    pub ensembles: Option<EnsembleMaps>,
+    /// Each segment's core and imaged frames.
+    pub ranges: Vec<(Range<usize>, Range<usize>)>,
+    /// Each segment's clutter cut-offs, per angle.
+    pub clutter: Vec<Vec<ClutterReport>>,
+}
+
+/// Finished parts' maps set aside in a scratch file while later segments are processed, so that
+/// the outputs that grow with the recording (dynamics windows, time-series ensembles: 3 or 4 maps
+/// of 8 bytes per pixel per window) do not add to the segments' peak: 197 windows of the rat
+/// grid are 0.45 GB. Each part gives the same fields (e.g. Vx, Vz, power), (samples, nz, nx) f64.
+/// The file is anonymous: the system removes it however the process ends.
+struct SetAside {
+    file: Option<std::fs::File>,
+    /// Time samples of each part, in order.
+    lengths: Vec<usize>,
+    fields: usize,
+    map: (usize, usize),
+}
+
+fn scratch(e: std::io::Error) -> Error {
+    Error::Scratch(e.to_string())
+}
+
+impl SetAside {
+    fn new() -> Self {
+        SetAside {
+            file: None,
+            lengths: Vec::new(),
+            fields: 0,
+            map: (0, 0),
+        }
+    }
+
+    /// Writes one part's maps, one array per field (same fields, in the same order, for every
+    /// part), and leaves empty (0, nz, nx) arrays in their place.
+    fn put(&mut self, maps: &mut [&mut Array3<f64>]) -> Result<()> {
+        let Some(first) = maps.first() else {
+            return Ok(());
+        };
+        let (samples, nz, nx) = first.dim();
+        if maps.iter().any(|m| m.dim() != (samples, nz, nx))
+            || (!self.lengths.is_empty() && (self.fields != maps.len() || self.map != (nz, nx)))
+        {
+            return Err(Error::Shape(
+                "maps set aside between segments differ in shape".into(),
+            ));
+        }
+        let file = match &mut self.file {
+            Some(file) => file,
+            None => self.file.insert(tempfile::tempfile().map_err(scratch)?),
+        };
+        for map in maps.iter_mut() {
+            let taken = std::mem::replace(&mut **map, Array3::zeros((0, nz, nx)));
+            let standard = taken.as_standard_layout();
+            let values = standard.as_slice().expect("standard layout is contiguous");
+            file.write_all(bytemuck::cast_slice(values))
+                .map_err(scratch)?;
+        }
+        self.lengths.push(samples);
+        self.fields = maps.len();
+        self.map = (nz, nx);
+        Ok(())
+    }
+
+    /// Every part read back: per field, the parts joined along time.
+    fn take(self) -> Result<Vec<Array3<f64>>> {
+        let total: usize = self.lengths.iter().sum();
+        let mut joined: Vec<Array3<f64>> = (0..self.fields)
+            .map(|_| Array3::zeros((total, self.map.0, self.map.1)))
+            .collect();
+        if let Some(mut file) = self.file {
+            file.seek(SeekFrom::Start(0)).map_err(scratch)?;
+            let mut start = 0;
+            for &len in &self.lengths {
+                for field in joined.iter_mut() {
+                    let mut part = field.slice_mut(s![start..start + len, .., ..]);
+                    let values = part
+                        .as_slice_mut()
+                        .expect("whole time samples of a standard array are contiguous");
+                    file.read_exact(bytemuck::cast_slice_mut(values))
+                        .map_err(scratch)?;
+                }
+                start += len;
+            }
+        }
+        Ok(joined)
+    }
+}
+
+/// The Doppler moments of the cores so far, merged ([`doppler::Moments::merge`]).
+#[derive(Default)]
+struct Sums(Option<Moments>);
+
+impl Sums {
+    /// Adds the moments of a core's frames.
+    fn add(&mut self, moments: Moments) -> Result<()> {
+        match &mut self.0 {
+            None => self.0 = Some(moments),
+            Some(total) => total.merge(&moments)?,
+        }
+        Ok(())
+    }
+
+    fn total(&self) -> Result<&Moments> {
+        self.0
+            .as_ref()
+            .ok_or_else(|| invalid("frames", "the recording has no frames"))
+    }
+}
+
+/// Adds to `envelope` (nz, nx) the sum over frames `own` of the compound (angle-summed) images'
+/// magnitude, as [`beamform::compound`] would sum them, without forming the compound series.
+fn add_envelope(envelope: &mut Array2<f64>, series: &[Array3<Complex32>], own: Range<usize>) {
+    let frames = series.first().map_or(0, |s| s.dim().2);
+    let lanes: Vec<&[Complex32]> = series
+        .iter()
+        .map(|s| s.as_slice().expect("formed series are contiguous"))
+        .collect();
+    let nx = envelope.dim().1;
+    Zip::indexed(envelope).par_for_each(|(iz, ix), e| {
+        let base = (iz * nx + ix) * frames;
+        *e += own
+            .clone()
+            .map(|f| {
+                let mut sum = lanes[0][base + f];
+                for lane in &lanes[1..] {
+                    sum += lane[base + f];
+                }
+                sum.norm() as f64
+            })
+            .sum::<f64>();
+    });
+}
+
+/// An ensemble part's maps, in the order they are set aside: power, colour, and Vx, Vz where the
+/// recording gives vectors.
+fn ensemble_fields(maps: &mut EnsembleMaps) -> Vec<&mut Array3<f64>> {
+    let mut fields = vec![&mut maps.power_doppler, &mut maps.color_doppler];
+    fields.extend(maps.vx.as_mut());
+    fields.extend(maps.vz.as_mut());
+    fields
+}
+
+/// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
+/// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
+/// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
+/// series, not the recording's. `progress` sees every stage's work over the whole recording.
+pub fn process_in_segments(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    segments: &Segments,
+    dynamics: Option<&DynamicsParams>,
+    ensemble_spec: Option<EnsembleSpec>,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<Segmented> {
+    let total = source.n_frames();
+    let ranges = segments.ranges(total);
+    let count = ranges.len();
+    let shape = params.grid.shape();
+    let n = source.acquisition().sequence.n_angles();
+    pipeline::check_doppler_estimator(source.acquisition(), params)?;
+    if let Some(d) = dynamics {
+        d.validate(source.acquisition().frame_rate())?;
+    }
+    // The windows' dealiasing; an automatic K is settled on the first segment's maps below.
+    let mut dynamics = dynamics.copied();
+    let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::default()).collect();
+    let mut compound = Sums::default();
+    let mut envelope = Array2::<f64>::zeros(shape);
+    // Each part's times and settings; their maps wait in the scratch files.
+    let mut windows: Vec<VelocitySeries> = Vec::new();
+    let mut windows_aside = SetAside::new();
+    let mut ensemble_parts: Vec<EnsembleMaps> = Vec::new();
+    let mut ensembles_aside = SetAside::new();
+    let mut clutter_reports = Vec::with_capacity(count);
+    let mut meta = None;
+    let mut timings: Timings = vec![
+        (Stage::Decode, 0.0),
+        (Stage::Beamform, 0.0),
+        (Stage::Clutter, 0.0),
+        (Stage::Doppler, 0.0),
+    ];
+    let mut add_time = |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage)
+    {
+        Some(t) => t.1 += seconds,
+        None => timings.push((stage, seconds)),
+    };
+    let blocks = pipeline::blocks_for(source, params.event_alignment);
+    // The previous segment's series, whose memory the next one's are formed in.
+    let mut spare = Vec::new();
+    for (k, (core, imaged)) in ranges.iter().enumerate() {
+        let (mut images, formed) = pipeline::form_images_of(
+            source,
+            params,
+            blocks,
+            imaged.clone(),
+            std::mem::take(&mut spare),
+            &|stage, d, t| progress(stage, k * t + d, count * t),
+        )?;
+        for (stage, seconds) in formed {
+            add_time(stage, seconds);
+        }
+        let own = 0..core.len();
+        let clock = std::time::Instant::now();
+        if let Some(spec) = ensemble_spec {
+            // Ensembles start every `step` frames from the recording's first; those starting in
+            // this core are this segment's.
+            let starts: Vec<usize> = (0..own.end)
+                .step_by(spec.step.max(1))
+                .filter(|&s| s + spec.frames <= images.n_frames())
+                .collect();
+            if !starts.is_empty() {
+                let mut part =
+                    ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
+                part.shift(core.start, spec, images.frame_rate);
+                ensembles_aside.put(&mut ensemble_fields(&mut part))?;
+                ensemble_parts.push(part);
+            }
+            progress(Stage::Ensembles, k + 1, count);
+            add_time(Stage::Ensembles, clock.elapsed().as_secs_f64());
+        }
+        add_envelope(&mut envelope, &images.series, own.clone());
+
+        let clock = std::time::Instant::now();
+        let mut reports = Vec::with_capacity(n);
+        for (a, image) in images.series.iter_mut().enumerate() {
+            progress(Stage::Clutter, k * n + a, count * n);
+            reports.push(clutter::svd_filter(image, &params.clutter)?);
+        }
+        clutter_reports.push(reports);
+        add_time(Stage::Clutter, clock.elapsed().as_secs_f64());
+
+        let clock = std::time::Instant::now();
+        progress(Stage::Doppler, k, count);
+        let (angle_moments, compound_moments) =
+            pipeline::moments(&images, params, Some(own.clone()))?;
+        for (sums, m) in per_angle.iter_mut().zip(angle_moments) {
+            sums.add(m)?;
+        }
+        compound.add(compound_moments)?;
+        if k == 0
+            && let Some(d) = dynamics.as_mut()
+            && d.dealias == Dealias::Auto
+            && params.dealias != Dealias::Off
+            && n >= 2
+        {
+            // As `pipeline::dynamics` does with the recording's maps: windows unwrap as far as
+            // the maps needed, here the first segment's (one segment: the whole path's K).
+            let first = pipeline::doppler_maps(
+                &per_angle
+                    .iter()
+                    .map(|s| s.total().cloned())
+                    .collect::<Result<Vec<_>>>()?,
+                compound.total()?,
+                &images,
+                params,
+            )?;
+            if let Some(done) = first.dealias {
+                d.dealias = Dealias::Intervals(done.intervals);
+            }
+        }
+        if let Some(d) = &dynamics
+            && images.n_frames() >= d.window
+        {
+            // A segment may be shorter than a cardiac cycle: the joined windows are checked
+            // against a given heart rate when the RI maps are made, not each segment's.
+            let segment_windows = DynamicsParams {
+                heart_rate_hz: None,
+                ..*d
+            };
+            let mut part = dynamics::sliding_vectors(&images, &segment_windows)?;
+            // Windows start every `step` frames; keep those starting in this core.
+            let keep = own.end.div_ceil(d.step.max(1)).min(part.len());
+            part.truncate(keep);
+            part.shift(core.start as f64 / images.frame_rate);
+            windows_aside.put(&mut [&mut part.vx, &mut part.vz, &mut part.power])?;
+            windows.push(part);
+        }
+        add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
+        spare = std::mem::take(&mut images.series);
+        meta = Some(images);
+    }
+    progress(Stage::Doppler, count, count);
+    // The windows' maps come back once the last series is gone.
+    drop(spare);
+    let images = meta.ok_or_else(|| invalid("frames", "the recording has no frames"))?;
+    let per_angle = per_angle
+        .iter()
+        .map(|s| s.total().cloned())
+        .collect::<Result<Vec<_>>>()?;
+    let clock = std::time::Instant::now();
+    let maps = pipeline::doppler_maps(&per_angle, compound.total()?, &images, params)?;
+    add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
+    let bmode_db = beamform::bmode_db_of_envelope(envelope / total as f64);
+    let series = match dynamics {
+        Some(_) => {
+            let mut series = VelocitySeries::concatenate(windows)?;
+            let [vx, vz, power]: [Array3<f64>; 3] = windows_aside
+                .take()?
+                .try_into()
+                .map_err(|_| Error::Shape("velocity windows set aside".into()))?;
+            (series.vx, series.vz, series.power) = (vx, vz, power);
+            Some(series)
+        }
+        None => None,
+    };
+    let ensembles = match ensemble_spec {
+        Some(_) => {
+            let mut maps = EnsembleMaps::concatenate(ensemble_parts)?;
+            let mut joined = ensembles_aside.take()?.into_iter();
+            for field in ensemble_fields(&mut maps) {
+                *field = joined
+                    .next()
+                    .ok_or_else(|| Error::Shape("ensemble maps set aside".into()))?;
+            }
+            Some(maps)
+        }
+        None => None,
+    };
+    Ok(Segmented {
+        out: ProcessOutput::from_maps(
+            maps,
+            params.grid.clone(),
+            bmode_db,
+            clutter_reports[0].clone(),
+            images,
+            timings,
+        ),
+        series,
+        ensembles,
+        ranges,
+        clutter: clutter_reports,
+    })
+}
