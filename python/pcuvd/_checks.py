@@ -1,7 +1,9 @@
-"""Input checks shared by the API: dtype, rank, finiteness, and keyword options → CLI arguments."""
+"""Input checks shared by the API: dtype, rank, finiteness, and keyword options → settings."""
 
 from __future__ import annotations
 
+import json
+import os
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -95,30 +97,31 @@ def finite_number(name: str, value: Any, positive: bool = True) -> float:
     return number
 
 
-def _text(key: str, value: Any) -> str:
-    if isinstance(value, str):
-        return value
-    if isinstance(value, Iterable):
-        separator = "x" if key.endswith("kernel") else ","
-        return separator.join(_text(key, v) for v in value)
-    if isinstance(value, float):
-        return repr(value)
-    return str(value)
-
-
-def to_args(function: str, options: Mapping[str, Any], known: Iterable[str]) -> list[str]:
-    """Keyword options as command-line arguments (`window_ms=20` → `--window-ms=20`); an unknown
-    keyword is a TypeError that lists the known ones."""
+def to_options(function: str, options: Mapping[str, Any], known: Iterable[str]) -> str:
+    """Keyword options as the JSON object the native half reads into its settings (`None`
+    values dropped: the default); an unknown keyword is a TypeError that lists the known ones."""
     known = set(known)
-    args = []
+    given = {}
     for key, value in options.items():
-        flag = key.replace("_", "-")
-        if flag not in known:
-            valid = ", ".join(sorted(k.replace("-", "_") for k in known))
+        if key not in known:
+            valid = ", ".join(sorted(known))
             raise TypeError(f"{function}() got an unexpected keyword {key!r}; valid: {valid}")
         if value is None:
             continue
         if isinstance(value, bool):
             raise TypeError(f"{function}(): {key} takes a value, not {value!r}")
-        args.append(f"--{flag}={_text(key, value)}")
-    return args
+        given[key] = _plain(value)
+    return json.dumps(given)
+
+
+def _plain(value: Any) -> Any:
+    """`value` as JSON holds it: numpy scalars and arrays as numbers and lists, paths as text."""
+    if isinstance(value, (str, int, float)):
+        return value
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Iterable):
+        return [_plain(v) for v in value]
+    return value

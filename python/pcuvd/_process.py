@@ -52,8 +52,9 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
 
 
 def process_option_names() -> list[str]:
-    """The keyword options `process` accepts (the CLI's option names with `_` for `-`)."""
-    return sorted(n.replace("-", "_") for n in _pcuvd.option_names_of("process"))
+    """The keyword options `process` accepts (the settings' names: the CLI's options with `_`
+    for `-`)."""
+    return sorted(_pcuvd.option_names_of("process"))
 
 
 class ProcessResult:
@@ -145,8 +146,12 @@ def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> P
     `dynamics="on"` (an error rather than a skipped stage when RI cannot be measured).
     Returns a new result with the same maps and the new RI maps (`ri`, `psv`, `edv`, ...).
     """
-    args = _checks.to_args("dynamics", options, _pcuvd.option_names_of("dynamics"))
-    return ProcessResult(result._native.with_dynamics(args, bool(quiet)))
+    if not isinstance(result, ProcessResult):
+        raise TypeError(
+            f"dynamics() expects the ProcessResult of pcuvd.process, got {type(result).__name__}"
+        )
+    given = _checks.to_options("dynamics", options, _pcuvd.option_names_of("dynamics"))
+    return ProcessResult(result._native.with_dynamics(given, bool(quiet)))
 
 
 def process(
@@ -179,5 +184,5 @@ def process(
         if grid_m is not None:
             values = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
             options["grid_mm"] = [v * 1e3 for v in values]
-    args = _checks.to_args("process", options, _pcuvd.option_names_of("process"))
-    return ProcessResult(_pcuvd.process(recording._native, args, bool(quiet)))
+    given = _checks.to_options("process", options, _pcuvd.option_names_of("process"))
+    return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))

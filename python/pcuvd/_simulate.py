@@ -30,7 +30,7 @@ class Truth:
 
 def simulate_option_names() -> list[str]:
     """The keyword options `simulate` accepts."""
-    return sorted(n.replace("-", "_") for n in _pcuvd.option_names_of("simulate"))
+    return sorted(_pcuvd.option_names_of("simulate"))
 
 
 def simulate(
@@ -61,8 +61,8 @@ def simulate(
         noise_db="off" if noise_db is None else noise_db,
         seed=seed,
     )
-    args = _checks.to_args("simulate", given, _pcuvd.option_names_of("simulate"))
-    recordings, arrays = _pcuvd.simulate(args, bool(quiet))
+    settings = _checks.to_options("simulate", given, _pcuvd.option_names_of("simulate"))
+    recordings, arrays = _pcuvd.simulate(settings, bool(quiet))
     cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up")
     truth = Truth(
         x=arrays["x"],

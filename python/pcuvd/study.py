@@ -10,7 +10,7 @@ from . import _checks, _pcuvd
 
 def option_names() -> list[str]:
     """The keyword options the studies accept (`pcuvd paper`'s, with `_` for `-`)."""
-    return sorted(n.replace("-", "_") for n in _pcuvd.option_names_of("study"))
+    return sorted(_pcuvd.option_names_of("study"))
 
 
 def spiral(*, quiet: bool = False, **options: Any) -> dict:
@@ -19,8 +19,8 @@ def spiral(*, quiet: bool = False, **options: Any) -> dict:
     sweep=(-30, -20, ...), grid_step=0.05 (mm), motion="per-event",
     event_alignment="mid-frame", doppler_kernel=(1, 1). Returns its metrics (SNR gain, RMSE
     per estimator in mm/s, improvements, noise sweep, definitions, timings) as a dict."""
-    args = _checks.to_args("spiral", options, _pcuvd.option_names_of("study"))
-    return json.loads(_pcuvd.study("spiral", args, bool(quiet)))
+    given = _checks.to_options("spiral", options, _pcuvd.option_names_of("study"))
+    return json.loads(_pcuvd.study("spiral", given, bool(quiet)))
 
 
 def network(*, quiet: bool = False, **options: Any) -> dict:
@@ -28,5 +28,5 @@ def network(*, quiet: bool = False, **options: Any) -> dict:
     UVD and PC-UVD against the truth. options: `pcuvd paper`'s, e.g. network_frames=360,
     network_noise_db=5, heart_rate=5.5 (Hz), seed=1, grid_step=0.05 (mm). Returns its metrics
     as a dict."""
-    args = _checks.to_args("network", options, _pcuvd.option_names_of("study"))
-    return json.loads(_pcuvd.study("network", args, bool(quiet)))
+    given = _checks.to_options("network", options, _pcuvd.option_names_of("study"))
+    return json.loads(_pcuvd.study("network", given, bool(quiet)))

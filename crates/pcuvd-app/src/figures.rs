@@ -4,17 +4,17 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use ndarray::{Array2, Zip};
+use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, VENULE, VelocitySeries};
-use pcuvd::grid::Grid;
-use pcuvd::masks;
+use pcuvd::estimate::masks;
+use pcuvd::estimate::vector::VectorField;
 use pcuvd::pipeline::ProcessOutput;
-use pcuvd::vector::VectorField;
 use pcuvd_render::{
     Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Polyline, Series, SeriesStyle,
     VectorOverlay, render_png_bytes,
 };
 
-pub use pcuvd::stats::{median, quantile};
+pub use pcuvd::core::stats::{median, quantile};
 
 /// A rendered figure: file name, caption, PNG bytes.
 pub struct Rendered {
@@ -363,7 +363,7 @@ pub fn vector_panel(
 /// pattern is mixed) on a scale of ±`intervals` (K), over the B-mode where nothing was unwrapped.
 fn alias_panel(
     title: &str,
-    counts: &pcuvd::dealias::AliasCounts,
+    counts: &pcuvd::estimate::dealias::AliasCounts,
     intervals: u32,
     out: &ProcessOutput,
     background: &Array2<f64>,
@@ -599,7 +599,7 @@ pub fn dynamics_figures(
 pub fn ensemble_figure(
     dir: &Path,
     out: &ProcessOutput,
-    maps: &pcuvd::ensembles::EnsembleMaps,
+    maps: &pcuvd::pipeline::ensembles::EnsembleMaps,
     name: &str,
 ) -> Result<PathBuf> {
     let grid = &out.grid;

@@ -1,57 +1,71 @@
-//! Command-line options shared by the commands that process recordings.
+//! The settings of a processing run, in the units people give them, shared by every front end:
+//! the command line maps its options into them (with the `clap` feature they are its options),
+//! Python maps keywords into them (a dict, through serde). `Default` is the command's defaults.
+//!
+//! Values that are a word or a number ("auto", "off", 3) are kept as the text the user gave and
+//! read when the run is planned, so that every front end gets the same checks and messages.
 
 use anyhow::{Context, Result, bail};
-use clap::Args;
-use pcuvd::beamform::{Apodization, DasParams};
-use pcuvd::clutter::{ClutterParams, RankCut};
+use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::{self, DynamicsParams, VesselPooling, VesselTests};
-use pcuvd::grid::Grid;
+use pcuvd::estimate::clutter::{ClutterParams, RankCut};
+use pcuvd::estimate::vector::{Estimator, IrlsParams};
+use pcuvd::form::beamform::{Apodization, DasParams};
 use pcuvd::pipeline::{self, ProcessParams};
-use pcuvd::vector::{Estimator, IrlsParams};
+use serde::{Deserialize, Deserializer, Serialize};
 
 /// Processing options (grid, beamforming, clutter filter, Doppler, IRLS).
-#[derive(Args, Debug, Clone)]
-pub struct ProcessingOptions {
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[serde(default, deny_unknown_fields)]
+pub struct ProcessingSettings {
     /// Imaging grid XMIN,XMAX,ZMIN,ZMAX,STEP in mm (e.g. --grid=-12.5,12.5,10,35,0.1); default: the
     /// array's width, from 1 mm to the recorded depth, half-wavelength step.
-    #[arg(
-        long,
-        visible_alias = "grid-mm",
-        allow_hyphen_values = true,
-        value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP"
+    #[cfg_attr(
+        feature = "clap",
+        arg(
+            long,
+            visible_alias = "grid-mm",
+            allow_hyphen_values = true,
+            value_name = "XMIN,XMAX,ZMIN,ZMAX,STEP"
+        )
     )]
+    #[serde(alias = "grid_mm", deserialize_with = "optional_text")]
     pub grid: Option<String>,
     /// Receive f-number (depth / active aperture width).
-    #[arg(long, default_value_t = DasParams::DEFAULT_F_NUMBER)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().f_number))]
     pub f_number: f64,
     /// SVD clutter filter: tissue components removed: "auto", "off" or a number.
-    #[arg(long, default_value = "auto")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().svd_low))]
+    #[serde(deserialize_with = "text")]
     pub svd_low: String,
     /// SVD clutter filter: first noise component removed: "off", "auto" or a number.
-    #[arg(long, default_value = "off")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().svd_high))]
+    #[serde(deserialize_with = "text")]
     pub svd_high: String,
     /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd), e.g. 3x3.
-    #[arg(long, default_value = "1x1")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().doppler_kernel))]
+    #[serde(deserialize_with = "text")]
     pub doppler_kernel: String,
     /// Which frequency turns the Doppler phase into velocity: "loupas" (the mean RF frequency
     /// measured at every pixel: unbiased whatever the echo spectrum, depth or attenuation) or
     /// "kasai" (the nominal centre frequency, the paper's eq. 5: reads a few per cent low).
-    #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(pcuvd::doppler::DopplerEstimator::default()))]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = ProcessingSettings::default().doppler_estimator))]
     pub doppler_estimator: DopplerEstimatorOption,
     /// IRLS regularisation λ (mm/s) of the weights 1/(|residual| + λ).
-    #[arg(long, default_value_t = IrlsParams::default().lambda_mm_s)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().irls_lambda))]
     pub irls_lambda: f64,
     /// IRLS convergence threshold on the largest weight change.
-    #[arg(long, default_value_t = IrlsParams::default().epsilon)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().irls_epsilon))]
     pub irls_epsilon: f64,
     /// IRLS iteration cap.
-    #[arg(long, default_value_t = IrlsParams::default().max_iterations)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().irls_max_iterations))]
     pub irls_max_iterations: usize,
     /// How coded (Hadamard) events are decoded: "mid-frame" (each event's slow-time series
     /// resampled to the frame's mid-event time first, so moving blood does not leak angles into
     /// each other) or "simultaneous" (the paper's decoding: the events of a frame taken as
     /// simultaneous). Conventional recordings are not affected.
-    #[arg(long, value_enum, default_value_t = Alignment::from(pcuvd::decode::EventAlignment::default()))]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = ProcessingSettings::default().event_alignment))]
     pub event_alignment: Alignment,
     /// Vector dealiasing: "off", "auto" or K. A projection beyond the Nyquist velocity v_N wraps
     /// by 2·v_N; K unwraps up to ±K such intervals per angle (speeds up to (2K + 1)·v_N), choosing
@@ -64,7 +78,8 @@ pub struct ProcessingOptions {
     /// to the vector maps, the ensembles and the dynamics windows. Hadamard-coded recordings
     /// decode flow above v_N wrongly, which dealiasing cannot mend (a warning says so): it is for
     /// conventional recordings.
-    #[arg(long, default_value = "off")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().dealias))]
+    #[serde(deserialize_with = "text")]
     pub dealias: String,
     /// Partial-volume correction: "on" moves each angle's projection from its resolution cell's
     /// power centroid back to the pixel before the vector fit (the cell measured from that
@@ -74,37 +89,62 @@ pub struct ProcessingOptions {
     /// --dynamics-partial-volume on). Where
     /// flow exceeds the Nyquist velocity, use it with --dealias (it works on the unwrapped
     /// projections; across a wrap the gradient it needs is meaningless).
-    #[arg(long, value_enum, default_value = "off")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = ProcessingSettings::default().partial_volume))]
     pub partial_volume: Switch,
     /// Doppler time series: compound frames per ensemble; each ensemble gets its own clutter
     /// filter and its own power, colour and vector maps (ensemble_*.npy, ensembles.png). Default:
     /// none (the whole recording is one ensemble, as the other maps are).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub ensemble_frames: Option<usize>,
     /// Frames from one ensemble's start to the next's (default: --ensemble-frames, no overlap).
-    #[arg(long, requires = "ensemble_frames")]
+    #[cfg_attr(feature = "clap", arg(long, requires = "ensemble_frames"))]
     pub ensemble_step: Option<usize>,
     /// Long recordings: compound frames per segment, each imaged, clutter-filtered and analysed
     /// on its own so that memory stays bounded (default: as many as fit in 1.25 GiB of image
     /// series; the whole recording in one when it fits, which gives the exact whole-recording
     /// maps).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub segment_frames: Option<usize>,
 }
 
-impl ProcessingOptions {
+impl Default for ProcessingSettings {
+    fn default() -> Self {
+        ProcessingSettings {
+            grid: None,
+            f_number: DasParams::DEFAULT_F_NUMBER,
+            svd_low: "auto".into(),
+            svd_high: "off".into(),
+            doppler_kernel: "1x1".into(),
+            doppler_estimator: pcuvd::estimate::doppler::DopplerEstimator::default().into(),
+            irls_lambda: IrlsParams::default().lambda_mm_s,
+            irls_epsilon: IrlsParams::default().epsilon,
+            irls_max_iterations: IrlsParams::default().max_iterations,
+            event_alignment: pcuvd::form::decode::EventAlignment::default().into(),
+            dealias: "off".into(),
+            partial_volume: Switch::Off,
+            ensemble_frames: None,
+            ensemble_step: None,
+            segment_frames: None,
+        }
+    }
+}
+
+impl ProcessingSettings {
     /// The dealiasing of `--dealias`.
-    pub fn dealias(&self) -> Result<pcuvd::dealias::Dealias> {
-        pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")
+    pub fn dealias(&self) -> Result<pcuvd::estimate::dealias::Dealias> {
+        pcuvd::estimate::dealias::Dealias::parse(&self.dealias).context("--dealias")
     }
 
     /// The ensembles of `--ensemble-frames` / `--ensemble-step`, checked against a recording of
     /// `frames` frames; `None` when no time series was asked for.
-    pub fn ensembles(&self, frames: usize) -> Result<Option<pcuvd::ensembles::EnsembleSpec>> {
+    pub fn ensembles(
+        &self,
+        frames: usize,
+    ) -> Result<Option<pcuvd::pipeline::ensembles::EnsembleSpec>> {
         let Some(ensemble_frames) = self.ensemble_frames else {
             return Ok(None);
         };
-        let spec = pcuvd::ensembles::EnsembleSpec {
+        let spec = pcuvd::pipeline::ensembles::EnsembleSpec {
             frames: ensemble_frames,
             step: self.ensemble_step.unwrap_or(ensemble_frames),
         };
@@ -114,8 +154,52 @@ impl ProcessingOptions {
     }
 }
 
-/// Which frequency turns the Doppler phase into velocity ([`pcuvd::doppler::DopplerEstimator`]).
-#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+/// A setting that is a word or a number ("auto", "off", 3) or a list of numbers ("3x3", [3, 3]),
+/// as the text the command line would hold: a list joins with ",", which every list-reading
+/// setting accepts (a kernel reads "3,3" as "3x3").
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum TextValue {
+    Text(String),
+    Whole(i64),
+    Number(f64),
+    List(Vec<TextValue>),
+}
+
+impl TextValue {
+    fn into_text(self) -> String {
+        match self {
+            TextValue::Text(text) => text,
+            TextValue::Whole(n) => n.to_string(),
+            // As Python's repr writes a float: the shortest text that reads back the same.
+            TextValue::Number(v) => format!("{v:?}"),
+            TextValue::List(items) => items
+                .into_iter()
+                .map(TextValue::into_text)
+                .collect::<Vec<_>>()
+                .join(","),
+        }
+    }
+}
+
+/// Deserialises a word, number or list setting as its text ([`TextValue`]).
+pub(crate) fn text<'de, D: Deserializer<'de>>(
+    deserializer: D,
+) -> std::result::Result<String, D::Error> {
+    TextValue::deserialize(deserializer).map(TextValue::into_text)
+}
+
+/// As [`text`], for a setting that may be absent (null).
+pub(crate) fn optional_text<'de, D: Deserializer<'de>>(
+    deserializer: D,
+) -> std::result::Result<Option<String>, D::Error> {
+    Option::<TextValue>::deserialize(deserializer).map(|v| v.map(TextValue::into_text))
+}
+
+/// Which frequency turns the Doppler phase into velocity ([`pcuvd::estimate::doppler::DopplerEstimator`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum DopplerEstimatorOption {
     /// The nominal centre frequency (Kasai; the paper's eq. 5).
     Kasai,
@@ -123,16 +207,16 @@ pub enum DopplerEstimatorOption {
     Loupas,
 }
 
-impl From<pcuvd::doppler::DopplerEstimator> for DopplerEstimatorOption {
-    fn from(e: pcuvd::doppler::DopplerEstimator) -> Self {
+impl From<pcuvd::estimate::doppler::DopplerEstimator> for DopplerEstimatorOption {
+    fn from(e: pcuvd::estimate::doppler::DopplerEstimator) -> Self {
         match e {
-            pcuvd::doppler::DopplerEstimator::Kasai => Self::Kasai,
-            pcuvd::doppler::DopplerEstimator::Loupas => Self::Loupas,
+            pcuvd::estimate::doppler::DopplerEstimator::Kasai => Self::Kasai,
+            pcuvd::estimate::doppler::DopplerEstimator::Loupas => Self::Loupas,
         }
     }
 }
 
-impl From<DopplerEstimatorOption> for pcuvd::doppler::DopplerEstimator {
+impl From<DopplerEstimatorOption> for pcuvd::estimate::doppler::DopplerEstimator {
     fn from(e: DopplerEstimatorOption) -> Self {
         match e {
             DopplerEstimatorOption::Kasai => Self::Kasai,
@@ -141,8 +225,10 @@ impl From<DopplerEstimatorOption> for pcuvd::doppler::DopplerEstimator {
     }
 }
 
-/// The tube's flow profile ([`pcuvd::phantom::FlowProfile`]).
-#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+/// The tube's flow profile ([`pcuvd::simulate::phantom::FlowProfile`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum TubeProfile {
     /// Laminar: peak·(1 − (l/R)²), zero at the wall.
     Parabolic,
@@ -150,16 +236,16 @@ pub enum TubeProfile {
     Plug,
 }
 
-impl From<pcuvd::phantom::FlowProfile> for TubeProfile {
-    fn from(p: pcuvd::phantom::FlowProfile) -> Self {
+impl From<pcuvd::simulate::phantom::FlowProfile> for TubeProfile {
+    fn from(p: pcuvd::simulate::phantom::FlowProfile) -> Self {
         match p {
-            pcuvd::phantom::FlowProfile::Parabolic => Self::Parabolic,
-            pcuvd::phantom::FlowProfile::Plug => Self::Plug,
+            pcuvd::simulate::phantom::FlowProfile::Parabolic => Self::Parabolic,
+            pcuvd::simulate::phantom::FlowProfile::Plug => Self::Plug,
         }
     }
 }
 
-impl From<TubeProfile> for pcuvd::phantom::FlowProfile {
+impl From<TubeProfile> for pcuvd::simulate::phantom::FlowProfile {
     fn from(p: TubeProfile) -> Self {
         match p {
             TubeProfile::Parabolic => Self::Parabolic,
@@ -169,7 +255,9 @@ impl From<TubeProfile> for pcuvd::phantom::FlowProfile {
 }
 
 /// How coded events are aligned in slow time before decoding ([`EventAlignment`]).
-#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum Alignment {
     /// Each event resampled to the frame's mid-event time (exact for Doppler below half the
     /// frame rate).
@@ -181,20 +269,20 @@ pub enum Alignment {
 impl Alignment {
     /// The option's value, as written on the command line and in reports.
     pub fn label(self) -> &'static str {
-        pcuvd::decode::EventAlignment::from(self).label()
+        pcuvd::form::decode::EventAlignment::from(self).label()
     }
 }
 
-impl From<pcuvd::decode::EventAlignment> for Alignment {
-    fn from(a: pcuvd::decode::EventAlignment) -> Self {
+impl From<pcuvd::form::decode::EventAlignment> for Alignment {
+    fn from(a: pcuvd::form::decode::EventAlignment) -> Self {
         match a {
-            pcuvd::decode::EventAlignment::MidFrame => Self::MidFrame,
-            pcuvd::decode::EventAlignment::Simultaneous => Self::Simultaneous,
+            pcuvd::form::decode::EventAlignment::MidFrame => Self::MidFrame,
+            pcuvd::form::decode::EventAlignment::Simultaneous => Self::Simultaneous,
         }
     }
 }
 
-impl From<Alignment> for pcuvd::decode::EventAlignment {
+impl From<Alignment> for pcuvd::form::decode::EventAlignment {
     fn from(a: Alignment) -> Self {
         match a {
             Alignment::MidFrame => Self::MidFrame,
@@ -306,7 +394,9 @@ pub fn parse_kernel(text: &str) -> Result<(usize, usize)> {
 }
 
 /// An option that is on or off.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum Switch {
     /// Off.
     Off,
@@ -315,7 +405,9 @@ pub enum Switch {
 }
 
 /// Whether `pcuvd process` runs the dynamics stage (cardiac cycle, PSV/EDV/RI maps).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum DynamicsChoice {
     /// When the recording holds a cardiac cycle and several angles; otherwise skipped with a note.
     Auto,
@@ -326,52 +418,58 @@ pub enum DynamicsChoice {
 }
 
 /// Options of the dynamics stage of `pcuvd process`.
-#[derive(Args, Debug, Clone)]
-pub struct DynamicsOptions {
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[serde(default, deny_unknown_fields)]
+pub struct DynamicsSettings {
     /// Sliding-window vector velocity, PSV/EDV/RI and artery/vein maps: "auto" (when the recording
     /// holds a cardiac cycle), "on" (required) or "off".
-    #[arg(long, value_enum, default_value = "auto")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = DynamicsSettings::default().dynamics))]
     pub dynamics: DynamicsChoice,
     /// Heart rate (Hz); default: measured from the data — from its systolic upstrokes where two
     /// are recorded (about one cycle or more), else from its autocorrelation (about 1.5 cycles).
-    #[arg(long, visible_alias = "heart-rate-hz")]
+    #[cfg_attr(feature = "clap", arg(long, visible_alias = "heart-rate-hz"))]
+    #[serde(alias = "heart_rate_hz")]
     pub heart_rate: Option<f64>,
     /// Cardiac cycle start times (s from the recording's first frame: ECG R-waves or scanner
     /// triggers), a 1-D .npy file or a text file of numbers: each cycle runs from one to the next.
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub cardiac_triggers: Option<std::path::PathBuf>,
     /// Sliding-window length (ms); default 20 ms (36 frames at the rat's 1.8 kHz).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub window_ms: Option<f64>,
     /// Time between window starts (ms); default 5 ms.
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub window_step_ms: Option<f64>,
     /// Smallest RI of an arteriole (paper: arterioles 0.55–0.9).
-    #[arg(long, default_value_t = DynamicsParams::rat().artery_ri_min)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().artery_ri_min))]
     pub artery_ri_min: f64,
     /// Largest RI of a venule (paper: below 0.5).
-    #[arg(long, default_value_t = DynamicsParams::rat().vein_ri_max)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().vein_ri_max))]
     pub vein_ri_max: f64,
     /// Vessel threshold for the RI maps (dB re. the brightest pixel's mean power).
-    #[arg(long, default_value_t = DynamicsParams::rat().min_power_db, allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().vessel_threshold_db, allow_hyphen_values = true))]
     pub vessel_threshold_db: f64,
     /// Vessel pixels of the RI maps must also have a whole-recording power Doppler at least this
     /// many dB above the noise floor of their depth (the 30th percentile of the row); "off" leaves
     /// only --vessel-threshold-db.
-    #[arg(long, default_value_t = dynamics::VESSEL_MARGIN_DB.to_string(), allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().vessel_margin_db, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "text")]
     pub vessel_margin_db: String,
     /// Vessel pixels of the RI maps must also have a whole-recording power Doppler within this
     /// many dB of the brightest pixel within --vessel-local-radius-mm: drops the side-lobe haze
     /// that bright vessels cast over their surroundings in clean recordings; "off" drops the test.
-    #[arg(long, default_value_t = dynamics::VESSEL_LOCAL_DB.to_string(), allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().vessel_local_db, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "text")]
     pub vessel_local_db: String,
     /// Half-width (mm) of the square searched for the local peak of --vessel-local-db.
-    #[arg(long, default_value_t = dynamics::VESSEL_LOCAL_RADIUS_M * 1e3)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().vessel_local_radius_mm))]
     pub vessel_local_radius_mm: f64,
     /// Spatial averaging of each window's autocorrelation for the RI maps, ROWSxCOLS pixels (odd):
     /// a 20 ms window sees only a few speckle renewals, so per-pixel speeds jitter and the extremes
     /// (PSV, EDV) of a jittery waveform inflate RI; 5x5 is 0.25 mm on a 0.05 mm grid.
-    #[arg(long, default_value_t = kernel_text(dynamics::RI_KERNEL))]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().dynamics_kernel))]
+    #[serde(deserialize_with = "text")]
     pub dynamics_kernel: String,
     /// The partial-volume correction (--partial-volume) in every dynamics window too: each
     /// angle's cell measured once on the whole recording, each window corrected with its own
@@ -379,25 +477,49 @@ pub struct DynamicsOptions {
     /// (median |ΔRI| 0.0145 → 0.0179, classes right 99.9 → 98.7 %), though it helped the vessel
     /// network study's (0.015 → 0.012); a 20 ms window's power is too speckled to place each
     /// cell's centroid reliably.
-    #[arg(long, value_enum, default_value = "off")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = DynamicsSettings::default().dynamics_partial_volume))]
     pub dynamics_partial_volume: Switch,
     /// Vessel pooling for the RI maps, half-length (mm) along the flow: each pixel's waveform
     /// shape is averaged over same-direction neighbours in an ellipse aligned with its flow (RI
     /// does not change with the lumen's velocity profile nor along a vessel, only the jitter
     /// does); 0 with --pool-across-mm 0 turns it off.
-    #[arg(long, default_value_t = VesselPooling::DEFAULT_ALONG_M * 1e3)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().pool_along_mm))]
     pub pool_along_mm: f64,
     /// Vessel pooling half-width (mm) across the flow: parallel vessels farther apart than this
     /// are never pooled together.
-    #[arg(long, default_value_t = VesselPooling::DEFAULT_ACROSS_M * 1e3)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().pool_across_mm))]
     pub pool_across_mm: f64,
     /// Largest angle (degrees) between the mean flow directions of pooled pixels: keeps an
     /// arteriole and a venule side by side, flowing opposite ways, apart.
-    #[arg(long, default_value_t = VesselPooling::DEFAULT_MAX_ANGLE_DEG)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().pool_max_angle_deg))]
     pub pool_max_angle_deg: f64,
 }
 
-impl DynamicsOptions {
+impl Default for DynamicsSettings {
+    fn default() -> Self {
+        let rat = DynamicsParams::rat();
+        DynamicsSettings {
+            dynamics: DynamicsChoice::Auto,
+            heart_rate: None,
+            cardiac_triggers: None,
+            window_ms: None,
+            window_step_ms: None,
+            artery_ri_min: rat.artery_ri_min,
+            vein_ri_max: rat.vein_ri_max,
+            vessel_threshold_db: rat.min_power_db,
+            vessel_margin_db: dynamics::VESSEL_MARGIN_DB.to_string(),
+            vessel_local_db: dynamics::VESSEL_LOCAL_DB.to_string(),
+            vessel_local_radius_mm: dynamics::VESSEL_LOCAL_RADIUS_M * 1e3,
+            dynamics_kernel: kernel_text(dynamics::RI_KERNEL),
+            dynamics_partial_volume: Switch::Off,
+            pool_along_mm: VesselPooling::DEFAULT_ALONG_M * 1e3,
+            pool_across_mm: VesselPooling::DEFAULT_ACROSS_M * 1e3,
+            pool_max_angle_deg: VesselPooling::DEFAULT_MAX_ANGLE_DEG,
+        }
+    }
+}
+
+impl DynamicsSettings {
     /// True when the user set any dynamics setting (then a recording that cannot honour it is an
     /// error even with `--dynamics auto`).
     pub fn explicit(&self) -> bool {
@@ -447,7 +569,7 @@ impl DynamicsOptions {
         &self,
         frame_rate: f64,
         irls: IrlsParams,
-        dealias: pcuvd::dealias::Dealias,
+        dealias: pcuvd::estimate::dealias::Dealias,
         grid_step_m: f64,
     ) -> Result<DynamicsParams> {
         let kernel = parse_kernel(&self.dynamics_kernel)
@@ -519,9 +641,12 @@ impl DynamicsOptions {
     }
 }
 
-impl ProcessingOptions {
+impl ProcessingSettings {
     /// Stage settings for `data`.
-    pub fn params(&self, data: &dyn pcuvd::source::FrameSource) -> Result<ProcessParams> {
+    pub fn params(
+        &self,
+        data: &dyn pcuvd::acquisition::source::FrameSource,
+    ) -> Result<ProcessParams> {
         let grid = match &self.grid {
             Some(text) => {
                 let grid = parse_grid(text)?;

@@ -1,76 +1,20 @@
-//! `pcuvd simulate`: RF recordings of flow phantoms, conventional and Hadamard-coded, with ground truth.
-
-use std::path::{Path, PathBuf};
+//! Simulated recordings of flow phantoms, conventional and Hadamard-coded, with ground truth:
+//! the settings of `pcuvd simulate` (and `pcuvd.simulate`) and the [`Simulation`] they set up.
 
 use anyhow::{Context, Result, bail};
-use clap::{Args, ValueEnum};
-use ndarray::Array1;
-use pcuvd::phantom::network::{NetworkPhantom, NetworkSpec};
-use pcuvd::phantom::{Phantom, SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec};
 use pcuvd::pipeline;
+use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec};
+use pcuvd::simulate::phantom::{Phantom, SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec};
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
+use serde::{Deserialize, Serialize};
 
-use crate::options::parse_numbers;
-use crate::process::create_dir;
-use crate::progress::bar;
-
-/// Ground-truth files every preset writes (on the default processing grid).
-const TRUTH_FILES: [&str; 5] = [
-    "truth_x.npy",
-    "truth_z.npy",
-    "truth_vx.npy",
-    "truth_vz.npy",
-    "truth_mask.npy",
-];
-/// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
-const NETWORK_TRUTH_FILES: [&str; 5] = [
-    "truth_ri.npy",
-    "truth_psv.npy",
-    "truth_edv.npy",
-    "truth_vessel_class.npy",
-    "truth_flow_up.npy",
-];
-/// Samples `pcuvd simulate` holds in memory at once (bytes): it simulates and writes blocks of
-/// frames this large.
-const SIMULATE_BLOCK_BYTES: usize = 256 << 20;
-
-/// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
-const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
-
-/// Removes the files of `pcuvd simulate`'s own naming in `dir` that this run will not rewrite, so
-/// that a folder reused for another preset or mode holds no stale truth or recording beside the new
-/// ones (a `truth_ri.npy` of an earlier network run beside a tube would be read as the tube's truth).
-/// Files of any other name are left alone.
-fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) -> Result<()> {
-    let stale_recordings = RECORDING_NAMES
-        .iter()
-        .filter(|name| !recordings.contains(name))
-        .flat_map(|name| [format!("{name}.toml"), format!("{name}.npy")]);
-    let stale_truth = NETWORK_TRUTH_FILES
-        .iter()
-        .filter(|_| !network_truth)
-        .map(|name| name.to_string());
-    for name in stale_recordings.chain(stale_truth) {
-        let path = dir.join(name);
-        match std::fs::remove_file(&path) {
-            Ok(()) => println!(
-                "removed {} (stale: this run does not write it)",
-                path.display()
-            ),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => {
-                return Err(e).with_context(|| {
-                    format!("{}: cannot remove this stale output", path.display())
-                });
-            }
-        }
-    }
-    Ok(())
-}
+use crate::settings::parse_numbers;
 
 /// Built-in simulation set-ups.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum Preset {
     /// The paper's spiral (§2.3): L22-14vX, 15.625 MHz, 2-cycle pulse, f_s 65 MHz, c 1540 m/s, 8 angles in [−15°, 15°], event PRF 14.4 kHz (1.8 kHz compound), Hadamard order 8 with 1 µs slots, 100 frames, noise −10 dB.
     PaperSpiral,
@@ -81,7 +25,9 @@ pub enum Preset {
 }
 
 /// Which transmit modes to simulate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
 pub enum ModeChoice {
     /// Hadamard-coded: every event fires all angles.
     Coded,
@@ -92,72 +38,86 @@ pub enum ModeChoice {
 }
 
 /// What to simulate: every option of `pcuvd simulate` but the output folder.
-#[derive(Args, Debug, Clone)]
-pub struct SimulationOptions {
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[serde(default, deny_unknown_fields)]
+pub struct SimulationSettings {
     /// The set-up to simulate.
-    #[arg(long, value_enum, default_value = "paper-spiral")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().preset))]
     pub preset: Preset,
     /// Transmit mode(s).
-    #[arg(long, value_enum, default_value = "both")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().mode))]
     pub mode: ModeChoice,
     /// Compound frames (default: the preset's: 100, or 360 for rat-network).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub frames: Option<usize>,
     /// Noise level in dB (see the noise definition in `--help` of the report; default −10); "off" for none.
-    #[arg(long, default_value = "-10", allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().noise_db, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "crate::settings::text")]
     pub noise_db: String,
     /// Seed of the scatterers and the noise.
-    #[arg(long, default_value_t = 1)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().seed))]
     pub seed: u64,
     /// Number of steering angles, evenly spaced over [−15°, 15°] (coded: a Hadamard order: 1, 2, 4, 8, 12, 16, ...).
-    #[arg(long, default_value_t = 8)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().angles))]
     pub angles: usize,
     /// Hadamard slot delay (µs).
-    #[arg(long, default_value_t = 1.0)]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().slot_delay_us))]
     pub slot_delay_us: f64,
     /// Peak flow speed (mm/s): the centreline speed of the tube and the spiral, the peak
     /// systolic speed of the network's fastest vessel (the others scaled alike). Default: the
     /// preset's (25 mm/s; the network's fastest arteriole 30 mm/s). The projection Nyquist
     /// velocity of the 8-angle presets is about 44 mm/s: faster flow aliases (see `process
     /// --dealias`).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub peak_velocity_mm_s: Option<f64>,
     /// Flow profile of the tube preset: parabolic (laminar, zero at the wall) or plug (the peak
     /// speed across the lumen): fast up to the wall, where vector dealiasing settles its level
     /// by the vessel's residual rather than by slow flow at the wall.
-    #[arg(long, value_enum)]
-    pub tube_profile: Option<crate::options::TubeProfile>,
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub tube_profile: Option<crate::settings::TubeProfile>,
     /// Flow direction of the tube preset (degrees from +x toward +z: 30 flows toward +x and
     /// deeper, 90 straight down; default 30).
-    #[arg(long, allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_angle_deg: Option<f64>,
     /// Centre of the tube preset "x,z" (mm; default 0,8).
-    #[arg(long, allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "crate::settings::optional_text")]
     pub tube_centre_mm: Option<String>,
     /// Length of the tube preset along its axis (mm; default 16): scatterers leaving one end
     /// re-enter at the other, so an end inside the image is a vessel that starts or stops there.
-    #[arg(long, allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_length_mm: Option<f64>,
     /// Radius of the tube preset (mm; default 0.5).
-    #[arg(long, allow_hyphen_values = true)]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_radius_mm: Option<f64>,
 }
 
-/// Arguments of `pcuvd simulate`.
-#[derive(Args, Debug)]
-pub struct SimulateArgs {
-    #[command(flatten)]
-    pub options: SimulationOptions,
-    /// Output folder (created if needed).
-    #[arg(long)]
-    pub out: PathBuf,
+impl Default for SimulationSettings {
+    fn default() -> Self {
+        SimulationSettings {
+            preset: Preset::PaperSpiral,
+            mode: ModeChoice::Both,
+            frames: None,
+            noise_db: "-10".into(),
+            seed: 1,
+            angles: 8,
+            slot_delay_us: 1.0,
+            peak_velocity_mm_s: None,
+            tube_profile: None,
+            tube_angle_deg: None,
+            tube_centre_mm: None,
+            tube_length_mm: None,
+            tube_radius_mm: None,
+        }
+    }
 }
 
 /// A simulation, set up and checked before anything is simulated: the phantom and each transmit
 /// mode's settings.
 pub struct Simulation {
     /// The options it was set up from.
-    pub options: SimulationOptions,
+    pub options: SimulationSettings,
     /// Compound frames per recording.
     pub frames: usize,
     /// Noise level (dB), `None` for none.
@@ -179,15 +139,15 @@ pub struct SimulatedTruth {
     /// Pixel rows (m).
     pub z: Vec<f64>,
     /// Velocity and flow mask at t = 0, shape (nz, nx).
-    pub truth: pcuvd::phantom::Truth,
+    pub truth: pcuvd::simulate::phantom::Truth,
     /// The vessel network's cardiac-cycle truth (RI, PSV, EDV, classes), when it is one.
-    pub cycle: Option<pcuvd::phantom::network::NetworkTruth>,
+    pub cycle: Option<pcuvd::simulate::phantom::network::NetworkTruth>,
 }
 
 impl Simulation {
     /// Sets up the simulation `options` describe; every mode's settings are checked, so that a
     /// refused request (`--mode both --angles 6`: no Hadamard order) fails before any work.
-    pub fn new(options: &SimulationOptions) -> Result<Simulation> {
+    pub fn new(options: &SimulationSettings) -> Result<Simulation> {
         let args = options;
         let frames = args.frames.unwrap_or(match args.preset {
             Preset::RatNetwork => simulate::RAT_FRAMES,
@@ -367,77 +327,8 @@ impl Simulation {
     }
 }
 
-/// Runs `pcuvd simulate`.
-pub fn run(args: &SimulateArgs) -> Result<()> {
-    let simulation = Simulation::new(&args.options)?;
-    create_dir(&args.out)?;
-    let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
-    for (mode_index, (name, params)) in simulation.modes.iter().enumerate() {
-        let events = simulation.frames * params.sequence.n_angles();
-        let progress = bar(&format!("simulate {name}"), events as u64);
-        if mode_index == 0 {
-            // Once every setting is checked: a refused run deletes nothing.
-            remove_stale_outputs(&args.out, &recordings, simulation.network.is_some())?;
-        }
-        // Simulated and written a block of frames at a time: memory stays bounded whatever the
-        // recording's length, and the samples are those of one whole-recording simulation.
-        let shape = (events, params.probe.n_elements, params.n_samples);
-        let mut writer = pcuvd_io::RecordingWriter::create(
-            &args.out,
-            name,
-            &params.acquisition(),
-            shape,
-            &simulation.provenance(mode_index),
-        )?;
-        let frame_bytes = params.sequence.n_angles() * shape.1 * shape.2 * 4;
-        let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
-        for first in (0..simulation.frames).step_by(block) {
-            let last = (first + block).min(simulation.frames);
-            let n = params.sequence.n_angles();
-            let samples = simulation.events(mode_index, first * n..last * n, &|done, _| {
-                progress.set_position(done as u64)
-            })?;
-            writer.append(samples.view())?;
-        }
-        let manifest = writer.finish()?;
-        progress.finish();
-        println!(
-            "wrote {} ({} events of {} channels × {} samples)",
-            manifest.display(),
-            events,
-            params.probe.n_elements,
-            params.n_samples
-        );
-        // The truth is the same for every mode (same phantom, same default grid): write it once,
-        // whatever an earlier run left in the folder.
-        if mode_index == 0 {
-            let truth = simulation.truth_for(&params.acquisition(), params.n_samples)?;
-            let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
-            pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
-            pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
-            pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
-            pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
-            pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
-            if let Some(cycle) = &truth.cycle {
-                let [ri, psv, edv, vessel_class, flow_up] =
-                    NETWORK_TRUTH_FILES.map(|name| args.out.join(name));
-                pcuvd_io::write_npy(&ri, &cycle.ri)?;
-                pcuvd_io::write_npy(&psv, &cycle.psv)?;
-                pcuvd_io::write_npy(&edv, &cycle.edv)?;
-                pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
-                pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
-            }
-            println!(
-                "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
-                args.out.display()
-            );
-        }
-    }
-    Ok(())
-}
-
 /// The `tube` preset's vessel with the `--tube-*` options applied, peak speed `peak` (m/s).
-fn tube_spec(args: &SimulationOptions, peak: f64) -> Result<TubeSpec> {
+fn tube_spec(args: &SimulationSettings, peak: f64) -> Result<TubeSpec> {
     let preset = TubeSpec::preset(peak);
     let centre = match &args.tube_centre_mm {
         None => preset.centre,
@@ -467,7 +358,7 @@ fn tube_spec(args: &SimulationOptions, peak: f64) -> Result<TubeSpec> {
 }
 
 /// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
-fn mode_params(args: &SimulationOptions, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
+fn mode_params(args: &SimulationSettings, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
     let mut params: SimParams = match args.preset {
         Preset::RatNetwork => simulate::rat_params(true)?,
         _ => simulate::paper_spiral_params(true)?,

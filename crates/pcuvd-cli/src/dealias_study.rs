@@ -8,7 +8,7 @@ use ndarray::{Array2, Zip};
 use pcuvd::study::dealias::{DealiasMetrics, DealiasStudy, Method};
 use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Report, SeriesStyle};
 
-use crate::figures::{PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, line, map_panel, render};
+use pcuvd_app::figures::{PCUVD_RGB, Rendered, TRUTH_RGB, UVD_RGB, line, map_panel, render};
 
 /// The figures the dealiasing part writes into the output folder.
 pub const DEALIAS_FIGURES: [&str; 2] = ["fig_dealias_maps.png", "fig_dealias_scores.png"];
@@ -289,15 +289,16 @@ pub fn report_section(report: &mut Report, m: &DealiasMetrics, figs: &[Rendered]
                         format!("{:.1}", 100.0 * mean)
                     }
                 };
-                let rmse =
-                    |f: &dyn Fn(&pcuvd::study::dealias::DealiasRow) -> pcuvd::metrics::Rmse| {
-                        let n = cases.len() as f64;
-                        let (x, z) = cases.iter().fold((0.0, 0.0), |(x, z), r| {
-                            let e = f(r);
-                            (x + e.vx / n, z + e.vz / n)
-                        });
-                        format!("{x:.1} / {z:.1}")
-                    };
+                let rmse = |f: &dyn Fn(
+                    &pcuvd::study::dealias::DealiasRow,
+                ) -> pcuvd::evaluate::metrics::Rmse| {
+                    let n = cases.len() as f64;
+                    let (x, z) = cases.iter().fold((0.0, 0.0), |(x, z), r| {
+                        let e = f(r);
+                        (x + e.vx / n, z + e.vz / n)
+                    });
+                    format!("{x:.1} / {z:.1}")
+                };
                 rows.push(vec![
                     noise_text(level),
                     format!("{multiple}×"),

@@ -7,7 +7,8 @@ use clap::Args;
 use pcuvd::Coding;
 use serde_json::json;
 
-use crate::process::{AcquisitionOverrides, open_input};
+use crate::process::AcquisitionOverrides;
+use pcuvd_app::input::open_input;
 
 /// Arguments of `pcuvd info`.
 #[derive(Args, Debug)]
@@ -58,7 +59,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     });
     let mut warnings = info.warnings.clone();
     if demod.is_none()
-        && let Some(warning) = crate::process::band_pass_warning(acq)
+        && let Some(warning) = pcuvd_app::input::band_pass_warning(acq)
     {
         warnings.push(warning);
     }
@@ -72,7 +73,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
-    let coding = crate::process::coding_json(seq);
+    let coding = pcuvd_app::summary::coding_json(seq);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -98,7 +99,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding,
             "pulse_cycles": seq.pulse_cycles,
-            "transmit_pulse": crate::process::pulse_json(seq),
+            "transmit_pulse": pcuvd_app::summary::pulse_json(seq),
             "event_prf_hz": seq.event_prf,
             "frames": frames,
             "frame_rate_hz": acq.frame_rate(),

@@ -1,12 +1,10 @@
-//! The `pcuvd` command as a library: every subcommand's options, checks, computation and outputs,
-//! so that other front ends (the Python package) run exactly what the command runs.
+//! The `pcuvd` command: its subcommands' arguments (the application layer's settings, as
+//! options), progress bars, Ctrl-C, and what it prints. The settings, the run and its outputs
+//! are [`pcuvd_app`]'s, which every front end shares.
 
 pub mod dealias_study;
-pub mod figures;
 pub mod info;
 pub mod network_study;
-pub mod options;
-pub mod outputs;
 pub mod paper;
 pub mod process;
 pub mod progress;
@@ -73,23 +71,4 @@ pub fn main() -> ExitCode {
 /// a usage error: 2. (0: success; 130: interrupted.)
 pub const ERROR_EXIT_CODE: u8 = 2;
 
-/// The cause chain on one line (line breaks inside a cause become spaces), without the captured
-/// backtrace, skipping a cause whose text an outer message already quotes.
-pub fn one_line(error: &anyhow::Error) -> String {
-    let mut line = String::new();
-    for cause in error.chain() {
-        // One line, whatever a cause's own message holds.
-        let text = cause
-            .to_string()
-            .split_whitespace()
-            .collect::<Vec<_>>()
-            .join(" ");
-        if !line.contains(&text) {
-            if !line.is_empty() {
-                line.push_str(": ");
-            }
-            line.push_str(&text);
-        }
-    }
-    line
-}
+pub use pcuvd_app::one_line;

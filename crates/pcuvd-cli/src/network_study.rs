@@ -5,23 +5,23 @@ use std::path::Path;
 
 use anyhow::Result;
 use ndarray::{Array2, Axis, Zip, s};
+use pcuvd::core::grid::Roi;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, Spectrogram, VENULE};
-use pcuvd::grid::Roi;
-use pcuvd::masks;
-use pcuvd::metrics::DepthSnr;
-use pcuvd::phantom::network::{NetworkPhantom, NetworkTruth};
+use pcuvd::estimate::masks;
+use pcuvd::estimate::vector::VectorField;
+use pcuvd::evaluate::metrics::DepthSnr;
+use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkTruth};
 use pcuvd::study::describe_alignment;
 use pcuvd::study::network::{
     DYNAMICS_KERNEL, ModeResult, NetworkMetrics, NetworkSettings, NetworkStudy, Site,
 };
-use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
-use crate::figures::{
+use pcuvd_app::Progress;
+use pcuvd_app::figures::{
     PROFILE_LINE_RGB, PSV_UP_LABEL, ROI_BOX_RGB, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB,
     class_map, line, map_panel, render, shared_db_range, vector_panel,
 };
-use crate::progress::TaskProgress;
 
 /// The figures the network part writes into the output folder.
 pub const NETWORK_FIGURES: [&str; 5] = [
@@ -40,7 +40,7 @@ fn finite_mask(a: &Array2<f64>) -> Array2<bool> {
 pub fn network_figures(
     dir: &Path,
     study: &NetworkStudy,
-    progress: &TaskProgress,
+    progress: &dyn Progress,
 ) -> Result<Vec<Rendered>> {
     let (phantom, truth, grid) = (&study.phantom, &study.truth, &study.grid);
     let (results, scores, snr, sites) = (&study.modes, &study.scores, &study.snr, &study.sites);
@@ -63,7 +63,7 @@ pub fn network_figures(
         .collect();
 
     // One speed scale for every vector map of Fig. 6 and 7 (both modes), so colours compare.
-    let speed_max = crate::figures::speed_scale(
+    let speed_max = pcuvd_app::figures::speed_scale(
         &results
             .iter()
             .zip(&flows)

@@ -7,22 +7,23 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Args;
 use ndarray::{Array2, Zip};
-use pcuvd::masks;
-use pcuvd::study::dealias::{DealiasMetrics, DealiasSettings};
+use pcuvd::estimate::masks;
+use pcuvd::estimate::vector::VectorField;
+use pcuvd::study::dealias::DealiasMetrics;
+use pcuvd::study::describe_alignment;
 use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
 use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
-use pcuvd::study::{Motion as StudyMotion, describe_alignment};
-use pcuvd::vector::VectorField;
 use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, Series, SeriesStyle};
 use serde::Serialize;
 
-use crate::figures::{
+use crate::progress::Bars;
+use pcuvd_app::figures::{
     self, PCUVD_RGB, PROFILE_LINE_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line,
     map_panel, render, vector_overlay,
 };
-use crate::options::{Alignment, DopplerEstimatorOption};
-use crate::process::create_dir;
-use crate::progress::TaskProgress;
+use pcuvd_app::input::create_dir;
+use pcuvd_app::settings::kernel_text;
+use pcuvd_app::study::StudySettings;
 
 /// Arguments of `pcuvd paper`; every default is the library's (`SpiralSettings::default()`,
 /// `NetworkSettings::default()`).
@@ -36,136 +37,7 @@ pub struct PaperArgs {
     #[arg(long, value_enum, default_value = "all")]
     pub part: Part,
     #[command(flatten)]
-    pub study: StudyOptions,
-}
-
-/// The studies' settings as options; every default is the library's.
-#[derive(Args, Debug, Clone)]
-pub struct StudyOptions {
-    /// Compound frames per acquisition (the paper: 100).
-    #[arg(long, default_value_t = SpiralSettings::default().frames)]
-    pub frames: usize,
-    /// Seed of the scatterers and of the noise.
-    #[arg(long, default_value_t = SpiralSettings::default().seed)]
-    pub seed: u64,
-    /// Noise level of the main study, dB (see the noise definition in the report); the paper: −10.
-    #[arg(long, default_value_t = SpiralSettings::default().noise_db, allow_hyphen_values = true)]
-    pub noise_db: f64,
-    /// Noise levels (dB) of the RMSE sweep, comma-separated.
-    #[arg(long, default_value_t = default_sweep(), allow_hyphen_values = true)]
-    pub sweep: String,
-    /// Scatterer motion: "per-event" (physical: blood moves between the events of a frame) or
-    /// "per-frame" (held still within each compound frame, as the paper's simulation assumed).
-    #[arg(long, value_enum, default_value_t = Motion::from(SpiralSettings::default().motion))]
-    pub motion: Motion,
-    /// How coded events are decoded: "mid-frame" (each event's slow-time series resampled to the
-    /// frame's mid-event time first, so moving blood does not leak angles into each other) or
-    /// "simultaneous" (the paper's decoding, which takes the events of a frame as simultaneous).
-    #[arg(long, value_enum, default_value_t = Alignment::from(SpiralSettings::default().event_alignment))]
-    pub event_alignment: Alignment,
-    /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd).
-    #[arg(long, default_value_t = crate::options::kernel_text(SpiralSettings::default().doppler_kernel))]
-    pub doppler_kernel: String,
-    /// Pixel size of the imaging grid (mm).
-    #[arg(long, default_value_t = SpiralSettings::default().grid_step_m * 1e3)]
-    pub grid_step: f64,
-    /// Which frequency turns the Doppler phase into velocity: "loupas" (the mean RF frequency
-    /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
-    #[arg(long, value_enum, default_value_t = DopplerEstimatorOption::from(SpiralSettings::default().doppler_estimator))]
-    pub doppler_estimator: DopplerEstimatorOption,
-    /// Every study with the partial-volume correction (`process --partial-volume`): each
-    /// angle's projection moved from its resolution cell's power centroid to its pixel, in the
-    /// vector maps and in the vessel network's dynamics windows.
-    #[arg(long, value_enum, default_value = "off")]
-    pub partial_volume: crate::options::Switch,
-    /// Receive f-number of the beamformer in every study (as `process --f-number`): the
-    /// lateral size of each angle's resolution cell, which averages the velocity gradient
-    /// inside it.
-    #[arg(long, default_value_t = SpiralSettings::default().f_number, allow_hyphen_values = true)]
-    pub f_number: f64,
-    /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
-    /// study (the paper's baseline: 5.70), or "off".
-    #[arg(long, default_value = "5.7")]
-    pub calibrate_uvd_vx: String,
-    /// Spatial averaging kernels of the autocorrelation to score beside the main one (each
-    /// without noise and at its own calibrated level, with its resolution cost),
-    /// comma-separated ROWSxCOLS pixels, or "off".
-    #[arg(long, default_value_t = default_averaging())]
-    pub averaging_kernels: String,
-    /// Compound frames of each vessel-network recording (the paper's rat: 360 = 0.2 s at 1.8 kHz).
-    #[arg(long, default_value_t = NetworkSettings::default().frames)]
-    pub network_frames: usize,
-    /// Noise level of the vessel-network recordings, dB (same definition as --noise-db); at +5 dB
-    /// the conventional SNR falls from ≈ 18 dB at 2 mm to ≈ 3 dB at 12 mm, so coding matters.
-    #[arg(long, default_value_t = NetworkSettings::default().noise_db, allow_hyphen_values = true)]
-    pub network_noise_db: f64,
-    /// Heart rate of the vessel network (Hz); the RI analysis is given the same rate, since 0.2 s
-    /// holds too few beats to measure it.
-    #[arg(long, default_value_t = NetworkSettings::default().heart_rate_hz)]
-    pub heart_rate: f64,
-    /// Dealiasing study: the tube's peak speeds as multiples of the projection Nyquist velocity,
-    /// comma-separated.
-    #[arg(long, default_value_t = join(&DealiasSettings::default().multiples))]
-    pub dealias_multiples: String,
-    /// Dealiasing study: noise levels (dB, comma-separated; "off" for none).
-    #[arg(long, default_value_t = default_dealias_noise(), allow_hyphen_values = true)]
-    pub dealias_noise_db: String,
-    /// Dealiasing study: seeds, comma-separated (each speed and seed is one simulation per mode).
-    #[arg(long, default_value_t = join(&DealiasSettings::default().seeds))]
-    pub dealias_seeds: String,
-    /// Dealiasing study: the dealiasing compared with none, "auto" or K (see `process --dealias`).
-    #[arg(long, default_value_t = DealiasSettings::default().dealias.label())]
-    pub dealias: String,
-    /// Dealiasing study: flow direction of the tube, degrees below +x.
-    #[arg(long, default_value_t = DealiasSettings::default().tube_angle_deg)]
-    pub dealias_tube_angle_deg: f64,
-    /// Dealiasing study: the tube's flow profile. Plug flow has no gradient inside the
-    /// resolution cell, which shows the estimator's accuracy apart from it, and is fast up to the
-    /// wall, where dealiasing must settle its level by the vessel's residual.
-    #[arg(long, value_enum, default_value_t = DealiasSettings::default().tube_profile.into())]
-    pub dealias_tube_profile: crate::options::TubeProfile,
-}
-
-/// Values as comma-separated text, as the list options take them.
-fn join<T: ToString>(values: &[T]) -> String {
-    values
-        .iter()
-        .map(|v| v.to_string())
-        .collect::<Vec<_>>()
-        .join(",")
-}
-
-/// The library's dealiasing noise levels, as the option's default text ("off" for none).
-fn default_dealias_noise() -> String {
-    let levels: Vec<String> = DealiasSettings::default()
-        .noise_db
-        .iter()
-        .map(|v| v.map_or("off".into(), |db| db.to_string()))
-        .collect();
-    levels.join(",")
-}
-
-/// The library's averaging kernels, as the option's default text ("off" for none).
-fn default_averaging() -> String {
-    let kernels = SpiralSettings::default().averaging_kernels;
-    if kernels.is_empty() {
-        return "off".into();
-    }
-    let texts: Vec<String> = kernels
-        .into_iter()
-        .map(crate::options::kernel_text)
-        .collect();
-    texts.join(",")
-}
-
-/// The library's sweep levels, as the option's default text.
-fn default_sweep() -> String {
-    let levels: Vec<String> = SpiralSettings::default()
-        .sweep_db
-        .iter()
-        .map(|v| v.to_string())
-        .collect();
-    levels.join(",")
+    pub study: StudySettings,
 }
 
 /// Which of the paper's studies `pcuvd paper` runs.
@@ -179,144 +51,6 @@ pub enum Part {
     Network,
     /// Vector dealiasing of a tube at 1–3× the projection Nyquist velocity (beyond the paper).
     Dealias,
-}
-
-/// When scatterers move ([`pcuvd::study::Motion`]).
-#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
-pub enum Motion {
-    /// At every transmit event (physical).
-    PerEvent,
-    /// Once per compound frame (the paper's simulation; Hadamard decoding then sees a still medium).
-    PerFrame,
-}
-
-impl From<StudyMotion> for Motion {
-    fn from(m: StudyMotion) -> Self {
-        match m {
-            StudyMotion::PerEvent => Motion::PerEvent,
-            StudyMotion::PerFrame => Motion::PerFrame,
-        }
-    }
-}
-
-impl From<Motion> for StudyMotion {
-    fn from(m: Motion) -> Self {
-        match m {
-            Motion::PerEvent => StudyMotion::PerEvent,
-            Motion::PerFrame => StudyMotion::PerFrame,
-        }
-    }
-}
-
-impl StudyOptions {
-    /// The spiral study's settings, checked.
-    pub fn spiral_settings(&self) -> Result<SpiralSettings> {
-        let sweep_db = crate::options::parse_numbers(&self.sweep).with_context(|| {
-            format!(
-                "--sweep {:?}: expected comma-separated noise levels in dB",
-                self.sweep
-            )
-        })?;
-        let settings = SpiralSettings {
-            frames: self.frames,
-            seed: self.seed,
-            noise_db: self.noise_db,
-            sweep_db,
-            motion: self.motion.into(),
-            event_alignment: self.event_alignment.into(),
-            doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
-            doppler_estimator: self.doppler_estimator.into(),
-            partial_volume: self.partial_volume == crate::options::Switch::On,
-            f_number: self.f_number,
-            grid_step_m: self.grid_step * 1e-3,
-            calibrate_uvd_vx_m_s: match self.calibrate_uvd_vx.trim() {
-                "off" => None,
-                text => Some(
-                    text.parse::<f64>().with_context(|| {
-                        format!("--calibrate-uvd-vx {text:?}: expected mm/s or \"off\"")
-                    })? * 1e-3,
-                ),
-            },
-            averaging_kernels: match self.averaging_kernels.trim() {
-                "off" => Vec::new(),
-                text => text
-                    .split(',')
-                    .map(|k| crate::options::parse_kernel(k.trim()))
-                    .collect::<Result<Vec<_>>>()
-                    .with_context(|| format!("--averaging-kernels {text:?}"))?,
-            },
-        };
-        settings.validate().context(
-            "--frames / --noise-db / --sweep / --doppler-kernel / --averaging-kernels / --grid-step",
-        )?;
-        Ok(settings)
-    }
-
-    /// The dealiasing study's settings, checked (with `--frames`, `--motion`,
-    /// `--event-alignment`, `--doppler-kernel` and `--grid-step` shared with the spiral study).
-    pub fn dealias_settings(&self) -> Result<DealiasSettings> {
-        let multiples = crate::options::parse_numbers(&self.dealias_multiples)
-            .with_context(|| format!("--dealias-multiples {:?}", self.dealias_multiples))?;
-        let noise_db = self
-            .dealias_noise_db
-            .split(',')
-            .map(crate::options::parse_db_or_off)
-            .collect::<Result<Vec<_>>>()
-            .with_context(|| format!("--dealias-noise-db {:?}", self.dealias_noise_db))?;
-        let seeds = self
-            .dealias_seeds
-            .split(',')
-            .map(|t| t.trim().parse::<u64>())
-            .collect::<std::result::Result<Vec<_>, _>>()
-            .with_context(|| {
-                format!(
-                    "--dealias-seeds {:?}: expected comma-separated whole numbers",
-                    self.dealias_seeds
-                )
-            })?;
-        let settings = DealiasSettings {
-            multiples,
-            noise_db,
-            seeds,
-            frames: self.frames,
-            tube_angle_deg: self.dealias_tube_angle_deg,
-            tube_profile: self.dealias_tube_profile.into(),
-            dealias: pcuvd::dealias::Dealias::parse(&self.dealias).context("--dealias")?,
-            motion: self.motion.into(),
-            event_alignment: self.event_alignment.into(),
-            doppler_kernel: crate::options::parse_kernel(&self.doppler_kernel)?,
-            grid_step_m: self.grid_step * 1e-3,
-            partial_volume: self.partial_volume == crate::options::Switch::On,
-            f_number: self.f_number,
-        };
-        settings.validate().context(
-            "--dealias-multiples / --dealias-noise-db / --dealias-seeds / --dealias / --frames / --doppler-kernel / --grid-step",
-        )?;
-        Ok(settings)
-    }
-
-    /// The network study's settings, checked.
-    pub fn network_settings(&self) -> Result<NetworkSettings> {
-        let settings = NetworkSettings {
-            frames: self.network_frames,
-            seed: self.seed,
-            noise_db: self.network_noise_db,
-            heart_rate_hz: self.heart_rate,
-            motion: self.motion.into(),
-            event_alignment: self.event_alignment.into(),
-            grid_step_m: self.grid_step * 1e-3,
-            doppler_estimator: self.doppler_estimator.into(),
-            partial_volume: self.partial_volume == crate::options::Switch::On,
-            f_number: self.f_number,
-        };
-        settings.validate().with_context(|| {
-            format!(
-                "--network-frames {} / --network-noise-db / --heart-rate {} Hz / --grid-step",
-                self.network_frames, self.heart_rate
-            )
-        })?;
-        Ok(settings)
-    }
 }
 
 /// What `metrics.json` holds: the studies' typed results side by side.
@@ -347,9 +81,8 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     create_dir(&args.out)?;
     remove_other_part(&args.out, args.part)?;
     let started = Instant::now();
-    let progress = TaskProgress::new();
-    let report_progress =
-        |task: &str, done: usize, total: usize| progress.update(task, done, total);
+    let progress = Bars::new("");
+    let report_progress = pcuvd_app::progress::tasks(&progress);
 
     // Each study's maps are dropped once drawn: only its numbers and settings stay for the report.
     let mut spiral_done = None;
@@ -399,7 +132,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
             };
             println!(
                 "spiral, autocorrelation averaged over {} ({:.2} × {:.2} mm): RMSE Vx/Vz mm/s without noise UVD {:.2}/{:.2}, PC-UVD {:.2}/{:.2}{at_baseline}; resolution cost {:.2}/{:.2}",
-                crate::options::kernel_text(a.kernel),
+                kernel_text(a.kernel),
                 a.extent_mm.0,
                 a.extent_mm.1,
                 a.floor_mm_s.uvd_ls.vx,
@@ -595,10 +328,10 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
         panel.lines = profile_lines.clone();
         panels.push(Panel::Image(panel));
     }
-    let depth_mm = |rows: &[pcuvd::metrics::DepthSnr]| {
+    let depth_mm = |rows: &[pcuvd::evaluate::metrics::DepthSnr]| {
         rows.iter().map(|r| r.depth_m * 1e3).collect::<Vec<_>>()
     };
-    let snr_db = |rows: &[pcuvd::metrics::DepthSnr], plus: f64| {
+    let snr_db = |rows: &[pcuvd::evaluate::metrics::DepthSnr], plus: f64| {
         rows.iter().map(|r| r.snr_db + plus).collect::<Vec<_>>()
     };
     let theory = study.metrics.snr_gain_theory_db;
@@ -750,7 +483,7 @@ fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rendered>> {
     // Figure 5: estimated versus true, binned per 1 mm/s, error bars = standard deviation.
     let mut panels = Vec::new();
     for (name, field) in [("UVD", &rows[1].1), ("PC-UVD", &rows[2].1)] {
-        let err = pcuvd::metrics::rmse(field, truth);
+        let err = pcuvd::evaluate::metrics::rmse(field, truth);
         for (component, est, tru, value) in [
             ("Vx", &field.vx, &truth.vx, err.vx),
             ("Vz", &field.vz, &truth.vz, err.vz),
@@ -878,7 +611,7 @@ fn write_report(
     }
     report.heading("Every number and parameter (metrics.json)");
     report.preformatted(&serde_json::to_string_pretty(metrics).unwrap_or_default());
-    crate::figures::write_file(&dir.join("report.html"), report.to_html().as_bytes())
+    pcuvd_app::figures::write_file(&dir.join("report.html"), report.to_html().as_bytes())
 }
 
 fn spiral_report(
@@ -894,7 +627,7 @@ fn spiral_report(
             "–".into()
         }
     };
-    let pair = |r: pcuvd::metrics::Rmse| format!("{} / {}", f(r.vx), f(r.vz));
+    let pair = |r: pcuvd::evaluate::metrics::Rmse| format!("{} / {}", f(r.vx), f(r.vz));
     report.heading("Spiral-flow simulation (paper §2.3, §3, Fig. 2–5)");
     report.paragraph(&format!(
         "Reproduction of the simulation study of Yan et al. (PC-UVD): an Archimedes-spiral vessel (a = 1 mm, b = 0.28 mm/rad, α up to 4.2π, R = 0.6 mm, 300 scatterers/mm², parabolic flow with 25 mm/s peak, centre at z = 7 mm) imaged by an L22-14vX probe at 15.625 MHz (f_s 65 MHz, 2-cycle pulse, c 1540 m/s), 8 plane waves from −15° to 15° at an event PRF of 14.4 kHz (1.8 kHz compound rate), {} compound frames, conventionally and with Hadamard coding of order 8 (1 µs slot delay). No clutter filter (the phantom has no tissue). Seed {}.",
@@ -1067,12 +800,12 @@ fn calibrated_report(report: &mut Report, c: &spiral::Calibrated) {
 /// at the paper's baseline, and its resolution cost.
 fn averaging_report(report: &mut Report, m: &spiral::SpiralMetrics) {
     let f = |x: f64| format!("{x:.2}");
-    let pair = |r: pcuvd::metrics::Rmse| format!("{} / {}", f(r.vx), f(r.vz));
+    let pair = |r: pcuvd::evaluate::metrics::Rmse| format!("{} / {}", f(r.vx), f(r.vz));
     report.heading("Spatial averaging of the autocorrelation: error floor against resolution");
     report.paragraph(&format!(
         "Without noise the estimators keep an error of their own (the floor): each angle's Doppler phase varies with the speckle, and Vx rests on the small differences between angles. Averaging the per-angle autocorrelations (and the Loupas lags) over a kernel of pixels before taking their phase lowers that floor, at a cost in resolution. Each kernel is scored without noise (the echoes alone) and at its own calibrated level, where conventional UVD with the same kernel reads Vx with the paper's RMSE. Resolution cost: {}. Main study's kernel: {}.",
         m.averaging_blur_definition,
-        crate::options::kernel_text(m.doppler_kernel)
+        kernel_text(m.doppler_kernel)
     ));
     let paper_pc = spiral::paper::PCUVD_RMSE_MM_S;
     let mut rows = Vec::new();
@@ -1083,7 +816,7 @@ fn averaging_report(report: &mut Report, m: &spiral::SpiralMetrics) {
         rows.push(vec![
             format!(
                 "{} ({} × {} mm)",
-                crate::options::kernel_text(a.kernel),
+                kernel_text(a.kernel),
                 f(a.extent_mm.0),
                 f(a.extent_mm.1)
             ),

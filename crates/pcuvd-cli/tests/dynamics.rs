@@ -8,7 +8,7 @@ use std::process::Command;
 use ndarray::{Array1, Array2};
 use ndarray_npy::read_npy;
 use pcuvd::dynamics::{ARTERIOLE, VENULE};
-use pcuvd::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
+use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
 use pcuvd::simulate::{self, SimParams};
 use pcuvd::{Coding, Probe, Sequence};
 

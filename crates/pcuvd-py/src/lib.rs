@@ -1,39 +1,45 @@
 //! `pcuvd._pcuvd`: the native half of the `pcuvd` Python package.
 //!
-//! Every entry calls the library (`pcuvd`, `pcuvd-io`) or the command's own steps (`pcuvd_cli`),
-//! so a result from Python is the one `pcuvd process` / `simulate` / `paper` gives, with the same
-//! defaults and the same messages. Computation runs with the GIL released, on the Rust thread
+//! Every entry calls the library (`pcuvd`, `pcuvd-io`) or the application layer every front end
+//! shares (`pcuvd_app`): keyword options arrive as a dict (JSON) that becomes the same typed
+//! settings the command line's options are, so a result from Python is the one `pcuvd process` /
+//! `simulate` / `paper` gives, with the same defaults and the same messages. Computation runs with the GIL released, on the Rust thread
 //! pool. The Python half (`python/pcuvd/`) checks dtypes and shapes, casts, and documents.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use clap::{CommandFactory, Parser};
 use ndarray::{Array2, Axis};
 use num_complex::Complex32;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArray4, PyReadonlyArray2, PyReadonlyArray3,
     ToPyArray,
 };
-use pcuvd::beamform::{self, Apodization, DasParams};
-use pcuvd::clutter::{self, ClutterParams, RankCut};
-use pcuvd::decode::{self, EventAlignment};
-use pcuvd::grid::Grid;
-use pcuvd::iq;
-use pcuvd::vector::{self, Estimator, IrlsParams};
+use pcuvd::core::grid::Grid;
+use pcuvd::estimate::clutter::{self, ClutterParams, RankCut};
+use pcuvd::estimate::vector::{self, Estimator, IrlsParams};
+use pcuvd::form::beamform::{self, Apodization, DasParams};
+use pcuvd::form::decode::{self, EventAlignment};
+use pcuvd::form::iq;
 use pcuvd::{AngleSamples, ChannelData, Coding, Probe, Samples, Sequence};
-use pcuvd_cli::process::{self as cli_process, DynamicsOutcome, Plan, Processed};
-use pcuvd_cli::progress::{PipelineProgress, TaskProgress};
+use pcuvd_app::Progress;
+use pcuvd_app::progress::Lines;
+use pcuvd_app::run::{DynamicsOutcome, Plan, Processed};
+use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
+use pcuvd_app::simulation::SimulationSettings;
+use pcuvd_app::study::StudySettings;
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
 
 /// A `ValueError` (or `OSError` when the operating system refused a file) with the message the
 /// command line prints for the same error.
 fn to_py(error: anyhow::Error) -> PyErr {
-    let message = pcuvd_cli::one_line(&error);
+    let message = pcuvd_app::one_line(&error);
     // What the file system refused (a missing file, a folder, a pipe, a read error) is an
     // OSError, a missing file a FileNotFoundError, as Python's own open() raises them.
     let missing = error.chain().any(|cause| {
@@ -62,40 +68,31 @@ fn lib_err(error: pcuvd::Error) -> PyErr {
     to_py(error.into())
 }
 
-/// Parses keyword options turned into command-line arguments by the Python half; a clap error
-/// becomes a `ValueError` with clap's first line (which names the option and the problem).
-fn parse_options<T: Parser>(args: Vec<String>) -> PyResult<T> {
-    T::try_parse_from(args).map_err(|e| {
-        let text = e.render().to_string();
-        let first = text
-            .lines()
-            .find(|l| !l.trim().is_empty())
-            .unwrap_or("invalid option");
-        PyValueError::new_err(first.trim_start_matches("error: ").to_string())
-    })
+/// Settings from keyword options, given as a JSON object by the Python half (`None` values
+/// dropped there): a field it does not know, or a value of the wrong kind, is a `ValueError` that
+/// names it; checks of the values themselves come later, with the command line's messages.
+fn settings<T: DeserializeOwned>(options: &str) -> PyResult<T> {
+    serde_json::from_str(options).map_err(|e| PyValueError::new_err(format!("options: {e}")))
 }
 
-/// The long option names a parser accepts (aliases included), for the Python half's keyword check.
-fn option_names<T: CommandFactory>() -> Vec<String> {
-    T::command()
-        .get_arguments()
-        .flat_map(|a| {
-            let mut names: Vec<String> = a.get_long().map(str::to_string).into_iter().collect();
-            names.extend(
-                a.get_visible_aliases()
-                    .into_iter()
-                    .flatten()
-                    .map(str::to_string),
-            );
-            names
-        })
-        .filter(|n| n != "help")
+/// The keyword names settings `T` takes: its fields (as its `Default` serialises them) and
+/// `aliases`.
+fn field_names<T: Serialize + Default>(aliases: &[&str]) -> Vec<String> {
+    let fields = match serde_json::to_value(T::default()) {
+        Ok(Value::Object(map)) => map.keys().cloned().collect(),
+        _ => Vec::new(),
+    };
+    fields
+        .into_iter()
+        .chain(aliases.iter().map(|a| a.to_string()))
         .collect()
 }
 
-fn set_quiet(quiet: bool) {
-    pcuvd_cli::progress::set_quiet(quiet);
-}
+/// The keyword aliases of [`ProcessingSettings`]: units in the name, as the command line's
+/// visible aliases.
+const PROCESSING_ALIASES: [&str; 1] = ["grid_mm"];
+/// The keyword aliases of [`DynamicsSettings`].
+const DYNAMICS_ALIASES: [&str; 1] = ["heart_rate_hz"];
 
 // ---------------------------------------------------------------------------------------------
 // Recordings
@@ -439,32 +436,40 @@ fn recording_from_arrays(
 // ---------------------------------------------------------------------------------------------
 // process
 
-/// `pcuvd process`'s options, without the input and the output folder.
-#[derive(Parser, Debug)]
-#[command(name = "pcuvd.process", no_binary_name = true)]
+/// `pcuvd process`'s options, without the input and the output folder: keywords split between
+/// the processing and the dynamics settings by their names.
 struct ProcessCall {
-    #[command(flatten)]
-    options: pcuvd_cli::options::ProcessingOptions,
-    #[command(flatten)]
-    dynamics: pcuvd_cli::options::DynamicsOptions,
-    /// Memory processing may use (GB); default: what the machine has available now.
-    #[arg(long)]
+    options: ProcessingSettings,
+    dynamics: DynamicsSettings,
     max_memory_gb: Option<f64>,
 }
 
-/// `pcuvd process`'s dynamics options alone.
-#[derive(Parser, Debug)]
-#[command(name = "pcuvd.dynamics", no_binary_name = true)]
-struct DynamicsCall {
-    #[command(flatten)]
-    dynamics: pcuvd_cli::options::DynamicsOptions,
+impl ProcessCall {
+    fn from_json(options: &str) -> PyResult<Self> {
+        let mut map: serde_json::Map<String, Value> = settings(options)?;
+        let max_memory_gb = match map.remove("max_memory_gb") {
+            None | Some(Value::Null) => None,
+            Some(v) => Some(v.as_f64().ok_or_else(|| {
+                PyValueError::new_err(format!("max_memory_gb: expected a number, got {v}"))
+            })?),
+        };
+        let dynamics_keys = field_names::<DynamicsSettings>(&DYNAMICS_ALIASES);
+        let (dynamics, processing): (serde_json::Map<_, _>, serde_json::Map<_, _>) = map
+            .into_iter()
+            .partition(|(key, _)| dynamics_keys.contains(key));
+        Ok(ProcessCall {
+            options: settings(&Value::Object(processing).to_string())?,
+            dynamics: settings(&Value::Object(dynamics).to_string())?,
+            max_memory_gb,
+        })
+    }
 }
 
 /// What `pcuvd.process` returns: the maps, the summary, and `save` writing what the CLI writes.
 #[pyclass(frozen, name = "ProcessResult", module = "pcuvd._pcuvd")]
 struct PyProcessResult {
-    /// The processing options it ran with (a dynamics re-run keeps them).
-    options: pcuvd_cli::options::ProcessingOptions,
+    /// The processing settings it ran with (a dynamics re-run keeps them).
+    options: ProcessingSettings,
     recording: Arc<ChannelData>,
     input: String,
     info: pcuvd_io::SourceInfo,
@@ -472,17 +477,17 @@ struct PyProcessResult {
     processed: Processed,
 }
 
-/// Runs `pcuvd process`'s chain on `recording` with the options of `args` (as on the command line).
+/// Runs `pcuvd process`'s chain on `recording` with the keyword options in `options` (JSON).
 #[pyfunction]
 fn process(
     py: Python<'_>,
     recording: &PyRecording,
-    args: Vec<String>,
+    options: &str,
     quiet: bool,
 ) -> PyResult<PyProcessResult> {
-    let call: ProcessCall = parse_options(args)?;
+    let call = ProcessCall::from_json(options)?;
     let data = recording.data.clone();
-    set_quiet(quiet);
+    let progress = Lines::new(quiet);
     let input = &recording.input;
     let (plan, processed) = py
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
@@ -493,11 +498,9 @@ fn process(
                 &*data,
                 recording.info.cardiac_triggers_s.as_deref(),
             )?;
-            cli_process::check_memory(&*data, &plan, call.max_memory_gb)?;
-            let progress = PipelineProgress::new("");
-            let processed =
-                cli_process::compute(&*data, &plan, &|s, d, t| progress.update(s, d, t))
-                    .with_context(|| format!("{input}: processing failed"))?;
+            pcuvd_app::memory::check_memory(&*data, &plan, call.max_memory_gb)?;
+            let processed = pcuvd_app::run(&*data, &plan, &progress)
+                .with_context(|| format!("{input}: processing failed"))?;
             Ok((plan, processed))
         })
         .map_err(to_py)?;
@@ -526,7 +529,7 @@ fn process(
 
 impl PyProcessResult {
     fn source(&self) -> anyhow::Result<Value> {
-        cli_process::provenance(
+        pcuvd_app::summary::provenance(
             &self.input,
             &self.info,
             &self.plan.options_text,
@@ -599,21 +602,21 @@ impl PyProcessResult {
         Ok(dict)
     }
 
-    /// The same maps with the dynamics stage run again with the options of `args` (as on the
-    /// command line: heart rate, windows, RI thresholds, vessel tests, pooling).
-    fn with_dynamics(&self, py: Python<'_>, args: Vec<String>, quiet: bool) -> PyResult<Self> {
-        let call: DynamicsCall = parse_options(args)?;
-        set_quiet(quiet);
+    /// The same maps with the dynamics stage run again with the keyword options in `options`
+    /// (JSON: heart rate, windows, RI thresholds, vessel tests, pooling).
+    fn with_dynamics(&self, py: Python<'_>, options: &str, quiet: bool) -> PyResult<Self> {
+        let dynamics: DynamicsSettings = settings(options)?;
+        let progress = Lines::new(quiet);
         let (plan, dynamics, seconds) = py
             .detach(|| -> anyhow::Result<_> {
                 let plan = Plan::new(
                     &self.options,
-                    &call.dynamics,
+                    &dynamics,
                     &*self.recording,
                     self.info.cardiac_triggers_s.as_deref(),
                 )?;
                 let clock = std::time::Instant::now();
-                let dynamics = cli_process::run_dynamics(&self.processed.out, &plan)?;
+                let dynamics = pcuvd_app::run::run_dynamics(&self.processed.out, &plan, &progress)?;
                 Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
             })
             .map_err(to_py)?;
@@ -637,7 +640,10 @@ impl PyProcessResult {
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        Ok(cli_process::summary(&*self.recording, &self.plan, &self.processed, source).to_string())
+        Ok(
+            pcuvd_app::summary::summary(&*self.recording, &self.plan, &self.processed, source)
+                .to_string(),
+        )
     }
 
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
@@ -647,9 +653,9 @@ impl PyProcessResult {
             let clock = std::time::Instant::now();
             let source = self.source()?;
             let checksum_s = clock.elapsed().as_secs_f64();
-            pcuvd_cli::outputs::prepare(
+            pcuvd_app::outputs::prepare(
                 &folder,
-                pcuvd_cli::outputs::PROCESS_OUTPUTS,
+                pcuvd_app::outputs::PROCESS_OUTPUTS,
                 &self.info.files,
                 force,
             )?;
@@ -657,14 +663,17 @@ impl PyProcessResult {
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            cli_process::save(
+            pcuvd_app::summary::save(
                 &folder,
                 &*self.recording,
                 &self.plan,
                 &self.processed,
-                source,
-                &name,
-                &[("checksum", checksum_s)],
+                pcuvd_app::summary::Record {
+                    source,
+                    name: &name,
+                    extra_timings: &[("checksum", checksum_s)],
+                },
+                &Lines::new(true),
             )
         })
         .map_err(to_py)
@@ -772,12 +781,12 @@ fn grid_from(
                     z[0]
                 )));
             }
-            if x.len().saturating_mul(z.len()) > pcuvd::grid::MAX_PIXELS {
+            if x.len().saturating_mul(z.len()) > pcuvd::core::grid::MAX_PIXELS {
                 return Err(PyValueError::new_err(format!(
                     "{} × {} pixels is too many (at most {})",
                     z.len(),
                     x.len(),
-                    pcuvd::grid::MAX_PIXELS
+                    pcuvd::core::grid::MAX_PIXELS
                 )));
             }
             Ok(Grid { x, z })
@@ -837,7 +846,7 @@ fn beamform_iq<'py>(
     let (nz, nx) = grid.shape();
     let frames = iq_samples.as_array().dim().0;
     let bytes = (nz * nx) as f64 * frames as f64 * std::mem::size_of::<Complex32>() as f64;
-    if let Some(available) = cli_process::available_memory()
+    if let Some(available) = pcuvd_app::memory::available_memory()
         && bytes > available as f64
     {
         return Err(PyValueError::new_err(format!(
@@ -865,8 +874,8 @@ fn beamform_iq<'py>(
     };
     let image = py
         .detach(|| {
-            pcuvd::error::require_positive("sampling frequency", sampling_freq_hz)?;
-            pcuvd::error::require_positive("speed of sound", sound_speed_m_s)?;
+            pcuvd::core::error::require_positive("sampling frequency", sampling_freq_hz)?;
+            pcuvd::core::error::require_positive("speed of sound", sound_speed_m_s)?;
             beamform::beamform(&iq, &probe, angle_rad, &grid, &params)
         })
         .map_err(lib_err)?;
@@ -919,9 +928,9 @@ fn autocorrelation(
     py: Python<'_>,
     series: &PyReadonlyArray3<'_, Complex32>,
     kernel: (usize, usize),
-) -> PyResult<pcuvd::doppler::Autocorrelation> {
+) -> PyResult<pcuvd::estimate::doppler::Autocorrelation> {
     let view = series.as_array();
-    py.detach(|| pcuvd::doppler::autocorrelation(view, kernel))
+    py.detach(|| pcuvd::estimate::doppler::autocorrelation(view, kernel))
         .map_err(lib_err)
 }
 
@@ -947,9 +956,13 @@ fn kasai<'py>(
     kernel: (usize, usize),
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let r = autocorrelation(py, &series, kernel)?;
-    let v =
-        pcuvd::doppler::projection_velocity(&r.r1, sound_speed_m_s, frame_rate_hz, center_freq_hz)
-            .map_err(lib_err)?;
+    let v = pcuvd::estimate::doppler::projection_velocity(
+        &r.r1,
+        sound_speed_m_s,
+        frame_rate_hz,
+        center_freq_hz,
+    )
+    .map_err(lib_err)?;
     Ok(v.into_pyarray(py))
 }
 
@@ -1005,31 +1018,22 @@ fn resistivity_index<'py>(
 // ---------------------------------------------------------------------------------------------
 // Simulation and the paper's studies
 
-/// `pcuvd simulate`'s options, without the output folder.
-#[derive(Parser, Debug)]
-#[command(name = "pcuvd.simulate", no_binary_name = true)]
-struct SimulateCall {
-    #[command(flatten)]
-    options: pcuvd_cli::simulate::SimulationOptions,
-}
-
 /// Recordings by mode name, and the truth arrays by name.
 type Simulated<'py> = (Vec<(String, PyRecording)>, Bound<'py, PyDict>);
 
-/// Simulates as `pcuvd simulate` does (options as on its command line): the recordings by mode
-/// name, and the ground truth arrays on the default processing grid.
+/// Simulates as `pcuvd simulate` does (keyword options in `options`, JSON): the recordings by
+/// mode name, and the ground truth arrays on the default processing grid.
 #[pyfunction]
-fn simulate<'py>(py: Python<'py>, args: Vec<String>, quiet: bool) -> PyResult<Simulated<'py>> {
-    let call: SimulateCall = parse_options(args)?;
-    set_quiet(quiet);
+fn simulate<'py>(py: Python<'py>, options: &str, quiet: bool) -> PyResult<Simulated<'py>> {
+    let options: SimulationSettings = settings(options)?;
+    let progress = Lines::new(quiet);
     type Made = (
         Vec<(String, ChannelData, toml::Table)>,
-        pcuvd_cli::simulate::SimulatedTruth,
+        pcuvd_app::simulation::SimulatedTruth,
     );
     let (recordings, truth) = py
         .detach(|| -> anyhow::Result<Made> {
-            let simulation = pcuvd_cli::simulate::Simulation::new(&call.options)?;
-            let progress = TaskProgress::new();
+            let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             let mut made = Vec::new();
             for (index, (name, _)) in simulation.modes.iter().enumerate() {
                 let task = format!("simulate {name}");
@@ -1067,31 +1071,22 @@ fn simulate<'py>(py: Python<'py>, args: Vec<String>, quiet: bool) -> PyResult<Si
     Ok((recordings, dict))
 }
 
-/// `pcuvd paper`'s study options.
-#[derive(Parser, Debug)]
-#[command(name = "pcuvd.study", no_binary_name = true)]
-struct StudyCall {
-    #[command(flatten)]
-    options: pcuvd_cli::paper::StudyOptions,
-}
-
-/// Runs one of the paper's studies ("spiral" or "network") with `pcuvd paper`'s options; returns
-/// its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
+/// Runs one of the paper's studies ("spiral" or "network") with `pcuvd paper`'s options (JSON);
+/// returns its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
 #[pyfunction]
-fn study(py: Python<'_>, which: &str, args: Vec<String>, quiet: bool) -> PyResult<String> {
-    let call: StudyCall = parse_options(args)?;
-    set_quiet(quiet);
+fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> PyResult<String> {
+    let options: StudySettings = settings(options)?;
     let which = which.to_string();
     py.detach(|| -> anyhow::Result<String> {
-        let progress = TaskProgress::new();
-        let report = |task: &str, done: usize, total: usize| progress.update(task, done, total);
+        let progress = Lines::new(quiet);
+        let report = pcuvd_app::progress::tasks(&progress);
         let value = match which.as_str() {
             "spiral" => {
-                let settings = call.options.spiral_settings()?;
+                let settings = options.spiral_settings()?;
                 serde_json::to_value(pcuvd::study::spiral::run(&settings, &report)?.metrics)?
             }
             "network" => {
-                let settings = call.options.network_settings()?;
+                let settings = options.network_settings()?;
                 serde_json::to_value(pcuvd::study::network::run(&settings, &report)?.metrics)?
             }
             other => anyhow::bail!("study {other:?}: expected \"spiral\" or \"network\""),
@@ -1101,15 +1096,20 @@ fn study(py: Python<'_>, which: &str, args: Vec<String>, quiet: bool) -> PyResul
     .map_err(to_py)
 }
 
-/// The long option names (aliases included) that `command` ("process", "dynamics", "simulate"
-/// or "study") accepts, for the Python half's keyword check.
+/// The keyword names (aliases included) that `command` ("process", "dynamics", "simulate" or
+/// "study") accepts, for the Python half's keyword check: the settings' field names.
 #[pyfunction]
 fn option_names_of(command: &str) -> PyResult<Vec<String>> {
     match command {
-        "process" => Ok(option_names::<ProcessCall>()),
-        "dynamics" => Ok(option_names::<DynamicsCall>()),
-        "simulate" => Ok(option_names::<SimulateCall>()),
-        "study" => Ok(option_names::<StudyCall>()),
+        "process" => {
+            let mut names = field_names::<ProcessingSettings>(&PROCESSING_ALIASES);
+            names.extend(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES));
+            names.push("max_memory_gb".into());
+            Ok(names)
+        }
+        "dynamics" => Ok(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES)),
+        "simulate" => Ok(field_names::<SimulationSettings>(&[])),
+        "study" => Ok(field_names::<StudySettings>(&[])),
         other => Err(PyValueError::new_err(format!("no command {other:?}"))),
     }
 }

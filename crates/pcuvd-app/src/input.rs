@@ -1,0 +1,83 @@
+//! Opening a recording, any format, with the user's overrides, and the checks and warnings that
+//! come before any work.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use pcuvd::ChannelData;
+use pcuvd::acquisition::source::FrameSource;
+use pcuvd::pipeline;
+
+/// Reads a whole recording, any format (recognised from its content). Returns the data and every
+/// file it was read from (a manifest and its samples, or the one file).
+pub fn read_input(path: &Path) -> Result<(ChannelData, Vec<PathBuf>)> {
+    let opened = open_input(path, &pcuvd_io::Overrides::default())?;
+    let data = opened.read_all()?;
+    Ok((data, opened.info.files))
+}
+
+/// Opens a recording for `process` and `info`, any format, with the user's overrides: its frames
+/// are read a block at a time, and its [`pcuvd_io::SourceInfo`] says what was read, by which
+/// reader, and where every acquisition parameter came from.
+pub fn open_input(
+    path: &Path,
+    overrides: &pcuvd_io::Overrides,
+) -> Result<pcuvd_io::OpenedRecording> {
+    let opened = pcuvd_io::open_recording(path, overrides)?;
+    check_recording(path, opened.source.as_ref())?;
+    Ok(opened)
+}
+
+/// The warning for RF that is band-pass sampled (f_s below twice the band's top, the band whole in
+/// one Nyquist zone: valid, and demodulated as such); `None` when f_s is above twice the band's top
+/// or the band folds (an error the readers give).
+pub fn band_pass_warning(acq: &pcuvd::Acquisition) -> Option<String> {
+    match acq.rf_band_sampling() {
+        Ok(pcuvd::BandSampling::BandPass { zone }) => {
+            let probe = &acq.probe;
+            let (low, high) = (
+                probe.center_frequency * (1.0 - probe.bandwidth / 2.0),
+                probe.center_frequency * (1.0 + probe.bandwidth / 2.0),
+            );
+            let half = acq.sampling_frequency / 2.0;
+            Some(format!(
+                "f_s {:.3} MHz is below twice the band's top ({:.3} MHz): the RF is band-pass \
+                 sampled, its band {:.3}–{:.3} MHz lying in Nyquist zone {zone} ({:.3}–{:.3} MHz); \
+                 pcuvd demodulates it as such, but a band wider than the probe's stated bandwidth \
+                 would fold onto itself",
+                acq.sampling_frequency * 1e-6,
+                2.0 * high * 1e-6,
+                low * 1e-6,
+                high * 1e-6,
+                zone as f64 * half * 1e-6,
+                (zone + 1) as f64 * half * 1e-6
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// [`band_pass_warning`] for a recording whose samples are RF (read from its first frame).
+pub fn rf_band_pass_warning(data: &dyn FrameSource) -> Result<Option<String>> {
+    if data.n_frames() == 0 {
+        return Ok(None);
+    }
+    let first = data.read_frames(0..1)?;
+    Ok(match first.samples {
+        pcuvd::Samples::Rf(_) => band_pass_warning(data.acquisition()),
+        pcuvd::Samples::Iq { .. } => None,
+    })
+}
+
+/// Checks what a recording's acquisition says against its samples' shape before any work (every
+/// pulse slot starts within the record), naming the file.
+fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
+    pipeline::check_record(data.acquisition(), data.trace_shape().1)
+        .with_context(|| path.display().to_string())
+}
+
+/// Creates `dir` (and parents), with a message naming it on failure.
+pub fn create_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the output folder", dir.display()))
+}

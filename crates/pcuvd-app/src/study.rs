@@ -1,0 +1,320 @@
+//! The settings of the paper's studies as `pcuvd paper` (and `pcuvd.study`) take them, each
+//! read into the library's typed study settings ([`SpiralSettings`], [`NetworkSettings`],
+//! [`DealiasSettings`]) with the command's checks and messages.
+
+use anyhow::{Context, Result};
+use pcuvd::study::Motion as StudyMotion;
+use pcuvd::study::dealias::DealiasSettings;
+use pcuvd::study::network::NetworkSettings;
+use pcuvd::study::spiral::SpiralSettings;
+use serde::{Deserialize, Serialize};
+
+use crate::settings::{Alignment, DopplerEstimatorOption, Switch, TubeProfile, kernel_text};
+
+/// The studies' settings as options; every default is the library's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[serde(default, deny_unknown_fields)]
+pub struct StudySettings {
+    /// Compound frames per acquisition (the paper: 100).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().frames))]
+    pub frames: usize,
+    /// Seed of the scatterers and of the noise.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().seed))]
+    pub seed: u64,
+    /// Noise level of the main study, dB (see the noise definition in the report); the paper: −10.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().noise_db, allow_hyphen_values = true))]
+    pub noise_db: f64,
+    /// Noise levels (dB) of the RMSE sweep, comma-separated.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().sweep, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub sweep: String,
+    /// Scatterer motion: "per-event" (physical: blood moves between the events of a frame) or
+    /// "per-frame" (held still within each compound frame, as the paper's simulation assumed).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().motion))]
+    pub motion: Motion,
+    /// How coded events are decoded: "mid-frame" (each event's slow-time series resampled to the
+    /// frame's mid-event time first, so moving blood does not leak angles into each other) or
+    /// "simultaneous" (the paper's decoding, which takes the events of a frame as simultaneous).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().event_alignment))]
+    pub event_alignment: Alignment,
+    /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().doppler_kernel))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub doppler_kernel: String,
+    /// Pixel size of the imaging grid (mm).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().grid_step))]
+    pub grid_step: f64,
+    /// Which frequency turns the Doppler phase into velocity: "loupas" (the mean RF frequency
+    /// measured at every pixel) or "kasai" (the nominal centre frequency, the paper's eq. 5).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().doppler_estimator))]
+    pub doppler_estimator: DopplerEstimatorOption,
+    /// Every study with the partial-volume correction (`process --partial-volume`): each
+    /// angle's projection moved from its resolution cell's power centroid to its pixel, in the
+    /// vector maps and in the vessel network's dynamics windows.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().partial_volume))]
+    pub partial_volume: Switch,
+    /// Receive f-number of the beamformer in every study (as `process --f-number`): the
+    /// lateral size of each angle's resolution cell, which averages the velocity gradient
+    /// inside it.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().f_number, allow_hyphen_values = true))]
+    pub f_number: f64,
+    /// Conventional UVD's Vx RMSE (mm/s) at which to calibrate one more noise level of the spiral
+    /// study (the paper's baseline: 5.70), or "off".
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().calibrate_uvd_vx))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub calibrate_uvd_vx: String,
+    /// Spatial averaging kernels of the autocorrelation to score beside the main one (each
+    /// without noise and at its own calibrated level, with its resolution cost),
+    /// comma-separated ROWSxCOLS pixels, or "off".
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().averaging_kernels))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub averaging_kernels: String,
+    /// Compound frames of each vessel-network recording (the paper's rat: 360 = 0.2 s at 1.8 kHz).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().network_frames))]
+    pub network_frames: usize,
+    /// Noise level of the vessel-network recordings, dB (same definition as --noise-db); at +5 dB
+    /// the conventional SNR falls from ≈ 18 dB at 2 mm to ≈ 3 dB at 12 mm, so coding matters.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().network_noise_db, allow_hyphen_values = true))]
+    pub network_noise_db: f64,
+    /// Heart rate of the vessel network (Hz); the RI analysis is given the same rate, since 0.2 s
+    /// holds too few beats to measure it.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().heart_rate))]
+    pub heart_rate: f64,
+    /// Dealiasing study: the tube's peak speeds as multiples of the projection Nyquist velocity,
+    /// comma-separated.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().dealias_multiples))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub dealias_multiples: String,
+    /// Dealiasing study: noise levels (dB, comma-separated; "off" for none).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().dealias_noise_db, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub dealias_noise_db: String,
+    /// Dealiasing study: seeds, comma-separated (each speed and seed is one simulation per mode).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().dealias_seeds))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub dealias_seeds: String,
+    /// Dealiasing study: the dealiasing compared with none, "auto" or K (see `process --dealias`).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().dealias))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub dealias: String,
+    /// Dealiasing study: flow direction of the tube, degrees below +x.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().dealias_tube_angle_deg))]
+    pub dealias_tube_angle_deg: f64,
+    /// Dealiasing study: the tube's flow profile. Plug flow has no gradient inside the
+    /// resolution cell, which shows the estimator's accuracy apart from it, and is fast up to the
+    /// wall, where dealiasing must settle its level by the vessel's residual.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().dealias_tube_profile))]
+    pub dealias_tube_profile: TubeProfile,
+}
+
+impl Default for StudySettings {
+    fn default() -> Self {
+        StudySettings {
+            frames: SpiralSettings::default().frames,
+            seed: SpiralSettings::default().seed,
+            noise_db: SpiralSettings::default().noise_db,
+            sweep: default_sweep(),
+            motion: Motion::from(SpiralSettings::default().motion),
+            event_alignment: Alignment::from(SpiralSettings::default().event_alignment),
+            doppler_kernel: kernel_text(SpiralSettings::default().doppler_kernel),
+            grid_step: SpiralSettings::default().grid_step_m * 1e3,
+            doppler_estimator: DopplerEstimatorOption::from(
+                SpiralSettings::default().doppler_estimator,
+            ),
+            partial_volume: Switch::Off,
+            f_number: SpiralSettings::default().f_number,
+            calibrate_uvd_vx: "5.7".into(),
+            averaging_kernels: default_averaging(),
+            network_frames: NetworkSettings::default().frames,
+            network_noise_db: NetworkSettings::default().noise_db,
+            heart_rate: NetworkSettings::default().heart_rate_hz,
+            dealias_multiples: join(&DealiasSettings::default().multiples),
+            dealias_noise_db: default_dealias_noise(),
+            dealias_seeds: join(&DealiasSettings::default().seeds),
+            dealias: DealiasSettings::default().dealias.label(),
+            dealias_tube_angle_deg: DealiasSettings::default().tube_angle_deg,
+            dealias_tube_profile: DealiasSettings::default().tube_profile.into(),
+        }
+    }
+}
+
+/// Values as comma-separated text, as the list options take them.
+fn join<T: ToString>(values: &[T]) -> String {
+    values
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// The library's dealiasing noise levels, as the option's default text ("off" for none).
+fn default_dealias_noise() -> String {
+    let levels: Vec<String> = DealiasSettings::default()
+        .noise_db
+        .iter()
+        .map(|v| v.map_or("off".into(), |db| db.to_string()))
+        .collect();
+    levels.join(",")
+}
+
+/// The library's averaging kernels, as the option's default text ("off" for none).
+fn default_averaging() -> String {
+    let kernels = SpiralSettings::default().averaging_kernels;
+    if kernels.is_empty() {
+        return "off".into();
+    }
+    let texts: Vec<String> = kernels.into_iter().map(kernel_text).collect();
+    texts.join(",")
+}
+
+/// The library's sweep levels, as the option's default text.
+fn default_sweep() -> String {
+    let levels: Vec<String> = SpiralSettings::default()
+        .sweep_db
+        .iter()
+        .map(|v| v.to_string())
+        .collect();
+    levels.join(",")
+}
+
+/// When scatterers move ([`pcuvd::study::Motion`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Motion {
+    /// At every transmit event (physical).
+    PerEvent,
+    /// Once per compound frame (the paper's simulation; Hadamard decoding then sees a still medium).
+    PerFrame,
+}
+
+impl From<StudyMotion> for Motion {
+    fn from(m: StudyMotion) -> Self {
+        match m {
+            StudyMotion::PerEvent => Motion::PerEvent,
+            StudyMotion::PerFrame => Motion::PerFrame,
+        }
+    }
+}
+
+impl StudySettings {
+    /// The spiral study's settings, checked.
+    pub fn spiral_settings(&self) -> Result<SpiralSettings> {
+        let sweep_db = crate::settings::parse_numbers(&self.sweep).with_context(|| {
+            format!(
+                "--sweep {:?}: expected comma-separated noise levels in dB",
+                self.sweep
+            )
+        })?;
+        let settings = SpiralSettings {
+            frames: self.frames,
+            seed: self.seed,
+            noise_db: self.noise_db,
+            sweep_db,
+            motion: self.motion.into(),
+            event_alignment: self.event_alignment.into(),
+            doppler_kernel: crate::settings::parse_kernel(&self.doppler_kernel)?,
+            doppler_estimator: self.doppler_estimator.into(),
+            partial_volume: self.partial_volume == Switch::On,
+            f_number: self.f_number,
+            grid_step_m: self.grid_step * 1e-3,
+            calibrate_uvd_vx_m_s: match self.calibrate_uvd_vx.trim() {
+                "off" => None,
+                text => Some(
+                    text.parse::<f64>().with_context(|| {
+                        format!("--calibrate-uvd-vx {text:?}: expected mm/s or \"off\"")
+                    })? * 1e-3,
+                ),
+            },
+            averaging_kernels: match self.averaging_kernels.trim() {
+                "off" => Vec::new(),
+                text => text
+                    .split(',')
+                    .map(|k| crate::settings::parse_kernel(k.trim()))
+                    .collect::<Result<Vec<_>>>()
+                    .with_context(|| format!("--averaging-kernels {text:?}"))?,
+            },
+        };
+        settings.validate().context(
+            "--frames / --noise-db / --sweep / --doppler-kernel / --averaging-kernels / --grid-step",
+        )?;
+        Ok(settings)
+    }
+
+    /// The dealiasing study's settings, checked (with `--frames`, `--motion`,
+    /// `--event-alignment`, `--doppler-kernel` and `--grid-step` shared with the spiral study).
+    pub fn dealias_settings(&self) -> Result<DealiasSettings> {
+        let multiples = crate::settings::parse_numbers(&self.dealias_multiples)
+            .with_context(|| format!("--dealias-multiples {:?}", self.dealias_multiples))?;
+        let noise_db = self
+            .dealias_noise_db
+            .split(',')
+            .map(crate::settings::parse_db_or_off)
+            .collect::<Result<Vec<_>>>()
+            .with_context(|| format!("--dealias-noise-db {:?}", self.dealias_noise_db))?;
+        let seeds = self
+            .dealias_seeds
+            .split(',')
+            .map(|t| t.trim().parse::<u64>())
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .with_context(|| {
+                format!(
+                    "--dealias-seeds {:?}: expected comma-separated whole numbers",
+                    self.dealias_seeds
+                )
+            })?;
+        let settings = DealiasSettings {
+            multiples,
+            noise_db,
+            seeds,
+            frames: self.frames,
+            tube_angle_deg: self.dealias_tube_angle_deg,
+            tube_profile: self.dealias_tube_profile.into(),
+            dealias: pcuvd::estimate::dealias::Dealias::parse(&self.dealias)
+                .context("--dealias")?,
+            motion: self.motion.into(),
+            event_alignment: self.event_alignment.into(),
+            doppler_kernel: crate::settings::parse_kernel(&self.doppler_kernel)?,
+            grid_step_m: self.grid_step * 1e-3,
+            partial_volume: self.partial_volume == Switch::On,
+            f_number: self.f_number,
+        };
+        settings.validate().context(
+            "--dealias-multiples / --dealias-noise-db / --dealias-seeds / --dealias / --frames / --doppler-kernel / --grid-step",
+        )?;
+        Ok(settings)
+    }
+
+    /// The network study's settings, checked.
+    pub fn network_settings(&self) -> Result<NetworkSettings> {
+        let settings = NetworkSettings {
+            frames: self.network_frames,
+            seed: self.seed,
+            noise_db: self.network_noise_db,
+            heart_rate_hz: self.heart_rate,
+            motion: self.motion.into(),
+            event_alignment: self.event_alignment.into(),
+            grid_step_m: self.grid_step * 1e-3,
+            doppler_estimator: self.doppler_estimator.into(),
+            partial_volume: self.partial_volume == Switch::On,
+            f_number: self.f_number,
+        };
+        settings.validate().with_context(|| {
+            format!(
+                "--network-frames {} / --network-noise-db / --heart-rate {} Hz / --grid-step",
+                self.network_frames, self.heart_rate
+            )
+        })?;
+        Ok(settings)
+    }
+}
+
+impl From<Motion> for StudyMotion {
+    fn from(m: Motion) -> Self {
+        match m {
+            Motion::PerEvent => StudyMotion::PerEvent,
+            Motion::PerFrame => StudyMotion::PerFrame,
+        }
+    }
+}

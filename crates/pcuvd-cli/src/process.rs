@@ -1,0 +1,202 @@
+//! `pcuvd process`: a recording in, maps, numbers and figures out. The options are the
+//! application layer's settings ([`pcuvd_app::settings`]); the run is [`pcuvd_app::run`].
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use pcuvd_app::input::{open_input, rf_band_pass_warning};
+use pcuvd_app::memory::check_memory;
+use pcuvd_app::outputs;
+use pcuvd_app::run::Plan;
+use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
+use pcuvd_app::summary::{Record, already_done, provenance, save};
+
+use crate::progress::Bars;
+
+/// Arguments of `pcuvd process`.
+#[derive(Args, Debug)]
+pub struct ProcessArgs {
+    /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
+    /// a Verasonics workspace .mat, or a pcuvd recording manifest .toml); recognised by content.
+    pub input: PathBuf,
+    /// Output folder (created if needed; a folder that holds anything is refused unless --force).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Reuse a non-empty output folder: pcuvd's own outputs of an earlier run there are removed
+    /// first (no stale map beside the new summary.json); other files are never touched.
+    #[arg(long)]
+    pub force: bool,
+    /// Memory processing may use (GB); default: what the machine has available now. Set it on a
+    /// shared node whose job limit is below the machine's free memory (a Slurm --mem, say).
+    #[arg(long)]
+    pub max_memory_gb: Option<f64>,
+    #[command(flatten)]
+    pub acquisition: AcquisitionOverrides,
+    #[command(flatten)]
+    pub options: ProcessingSettings,
+    #[command(flatten)]
+    pub dynamics: DynamicsSettings,
+}
+
+/// Acquisition values that replace (or fill in) what the recording says, SI units; each is
+/// recorded as given by the user in `pcuvd info` and summary.json.
+#[derive(Args, Debug, Clone, Default)]
+pub struct AcquisitionOverrides {
+    /// Time of the first sample after the first element fires (s), e.g. --t0-s 9.95e-6.
+    #[arg(long, allow_hyphen_values = true)]
+    pub t0_s: Option<f64>,
+    /// Speed of sound (m/s).
+    #[arg(long)]
+    pub sound_speed_m_s: Option<f64>,
+    /// Transmit-event repetition frequency (Hz).
+    #[arg(long)]
+    pub event_prf_hz: Option<f64>,
+    /// Sampling frequency of the traces (Hz).
+    #[arg(long)]
+    pub sampling_freq_hz: Option<f64>,
+    /// Probe centre frequency (Hz).
+    #[arg(long)]
+    pub center_freq_hz: Option<f64>,
+    /// Demodulation frequency of IQ samples (Hz).
+    #[arg(long)]
+    pub demod_freq_hz: Option<f64>,
+}
+
+impl AcquisitionOverrides {
+    /// The overrides as the readers take them.
+    pub fn to_overrides(&self) -> pcuvd_io::Overrides {
+        pcuvd_io::Overrides {
+            t0_s: self.t0_s,
+            sound_speed_m_s: self.sound_speed_m_s,
+            event_prf_hz: self.event_prf_hz,
+            sampling_freq_hz: self.sampling_freq_hz,
+            center_freq_hz: self.center_freq_hz,
+            demod_freq_hz: self.demod_freq_hz,
+            ..pcuvd_io::Overrides::default()
+        }
+    }
+}
+
+/// Runs `pcuvd process`.
+pub fn run(args: &ProcessArgs) -> Result<()> {
+    let clock = std::time::Instant::now();
+    let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
+    let input_files = opened.info.files.clone();
+    let data = opened.source.as_ref();
+    let read_s = clock.elapsed().as_secs_f64();
+    let mut plan = Plan::new(
+        &args.options,
+        &args.dynamics,
+        data,
+        opened.info.cardiac_triggers_s.as_deref(),
+    )?;
+    // Overrides change the results: a re-run with others is not the same run.
+    if !args.acquisition.to_overrides().is_empty() {
+        plan.options_text
+            .push_str(&format!(" {:?}", args.acquisition));
+    }
+    let band_warning = rf_band_pass_warning(data)?;
+    check_memory(data, &plan, args.max_memory_gb)?;
+    let provenance_of_run = {
+        let (input, info) = (args.input.display().to_string(), opened.info.clone());
+        let options_text = plan.options_text.clone();
+        move || {
+            let clock = std::time::Instant::now();
+            let source = provenance(&input, &info, &options_text, std::env::args().collect());
+            source.map(|source| (source, clock.elapsed().as_secs_f64()))
+        }
+    };
+    // The checksums read the whole input, on one core (3 s for 2.8 GB): they are needed before
+    // any work only to skip a folder processed before; otherwise they are computed beside the
+    // processing, on a thread of their own that takes only the time the processing leaves idle.
+    let checksums = if !args.force && args.out.join("summary.json").is_file() {
+        let (source, seconds) = provenance_of_run()?;
+        if already_done(&args.out, &source) {
+            println!(
+                "{}: already processed from the same input (checksums) with the same options and \
+                 pcuvd version (summary.json); skipped (--force redoes it)",
+                args.out.display()
+            );
+            return Ok(());
+        }
+        Checksums::Done(source, seconds)
+    } else {
+        Checksums::Running(std::thread::spawn(move || {
+            lower_this_threads_priority();
+            provenance_of_run()
+        }))
+    };
+    outputs::prepare(
+        &args.out,
+        outputs::PROCESS_OUTPUTS,
+        &input_files,
+        args.force,
+    )?;
+    let name = args
+        .input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // Said once the run is accepted (not before an error, which stays the only line).
+    if let Some(warning) = band_warning {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
+    let progress = Bars::new("");
+    let processed = pcuvd_app::run(data, &plan, &progress)
+        .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    let coded = data.acquisition().sequence.is_coded();
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
+    {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
+    let (source, checksum_s) = match checksums {
+        Checksums::Done(source, seconds) => (source, seconds),
+        Checksums::Running(thread) => thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
+    };
+    let extra_timings = [("read", read_s), ("checksum", checksum_s)];
+    let record = Record {
+        source,
+        name: &name,
+        extra_timings: &extra_timings,
+    };
+    let pngs = save(&args.out, data, &plan, &processed, record, &progress)?;
+    println!(
+        "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
+        args.input.display(),
+        data.acquisition().sequence.n_angles(),
+        data.n_frames(),
+        data.acquisition().frame_rate(),
+        processed.out.nyquist_velocity * 1e3,
+        processed.out.grid.z.len(),
+        processed.out.grid.x.len()
+    );
+    println!(
+        "wrote maps (.npy), summary.json and {} figures to {}",
+        pngs.len(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The input's provenance with its checksums, and the seconds they took: computed, or being
+/// computed beside the processing.
+enum Checksums {
+    Done(serde_json::Value, f64),
+    Running(std::thread::JoinHandle<Result<(serde_json::Value, f64)>>),
+}
+
+/// Gives the calling thread the lowest priority (nice 19), so that work beside the processing
+/// runs on what the processing leaves idle (its serial stretches) instead of taking a core from
+/// it. On Linux the nice value is per thread.
+fn lower_this_threads_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: plain system calls on the calling thread's own id; a failure only leaves the
+    // priority as it was.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19);
+    }
+}

@@ -1,0 +1,146 @@
+//! `pcuvd simulate`: RF recordings of flow phantoms, conventional and Hadamard-coded, with ground
+//! truth, written as recording manifests. The settings and the simulation are the application
+//! layer's ([`pcuvd_app::simulation`]).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+use ndarray::Array1;
+use pcuvd_app::input::create_dir;
+use pcuvd_app::simulation::{Simulation, SimulationSettings};
+
+use crate::progress::bar;
+
+/// Ground-truth files every preset writes (on the default processing grid).
+const TRUTH_FILES: [&str; 5] = [
+    "truth_x.npy",
+    "truth_z.npy",
+    "truth_vx.npy",
+    "truth_vz.npy",
+    "truth_mask.npy",
+];
+/// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
+const NETWORK_TRUTH_FILES: [&str; 5] = [
+    "truth_ri.npy",
+    "truth_psv.npy",
+    "truth_edv.npy",
+    "truth_vessel_class.npy",
+    "truth_flow_up.npy",
+];
+/// Samples `pcuvd simulate` holds in memory at once (bytes): it simulates and writes blocks of
+/// frames this large.
+const SIMULATE_BLOCK_BYTES: usize = 256 << 20;
+
+/// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
+const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
+
+/// Removes the files of `pcuvd simulate`'s own naming in `dir` that this run will not rewrite, so
+/// that a folder reused for another preset or mode holds no stale truth or recording beside the new
+/// ones (a `truth_ri.npy` of an earlier network run beside a tube would be read as the tube's truth).
+/// Files of any other name are left alone.
+fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) -> Result<()> {
+    let stale_recordings = RECORDING_NAMES
+        .iter()
+        .filter(|name| !recordings.contains(name))
+        .flat_map(|name| [format!("{name}.toml"), format!("{name}.npy")]);
+    let stale_truth = NETWORK_TRUTH_FILES
+        .iter()
+        .filter(|_| !network_truth)
+        .map(|name| name.to_string());
+    for name in stale_recordings.chain(stale_truth) {
+        let path = dir.join(name);
+        match std::fs::remove_file(&path) {
+            Ok(()) => println!(
+                "removed {} (stale: this run does not write it)",
+                path.display()
+            ),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(e).with_context(|| {
+                    format!("{}: cannot remove this stale output", path.display())
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Arguments of `pcuvd simulate`.
+#[derive(Args, Debug)]
+pub struct SimulateArgs {
+    #[command(flatten)]
+    pub options: SimulationSettings,
+    /// Output folder (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `pcuvd simulate`.
+pub fn run(args: &SimulateArgs) -> Result<()> {
+    let simulation = Simulation::new(&args.options)?;
+    create_dir(&args.out)?;
+    let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
+    for (mode_index, (name, params)) in simulation.modes.iter().enumerate() {
+        let events = simulation.frames * params.sequence.n_angles();
+        let progress = bar(&format!("simulate {name}"), events as u64);
+        if mode_index == 0 {
+            // Once every setting is checked: a refused run deletes nothing.
+            remove_stale_outputs(&args.out, &recordings, simulation.network.is_some())?;
+        }
+        // Simulated and written a block of frames at a time: memory stays bounded whatever the
+        // recording's length, and the samples are those of one whole-recording simulation.
+        let shape = (events, params.probe.n_elements, params.n_samples);
+        let mut writer = pcuvd_io::RecordingWriter::create(
+            &args.out,
+            name,
+            &params.acquisition(),
+            shape,
+            &simulation.provenance(mode_index),
+        )?;
+        let frame_bytes = params.sequence.n_angles() * shape.1 * shape.2 * 4;
+        let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        for first in (0..simulation.frames).step_by(block) {
+            let last = (first + block).min(simulation.frames);
+            let n = params.sequence.n_angles();
+            let samples = simulation.events(mode_index, first * n..last * n, &|done, _| {
+                progress.set_position(done as u64)
+            })?;
+            writer.append(samples.view())?;
+        }
+        let manifest = writer.finish()?;
+        progress.finish();
+        println!(
+            "wrote {} ({} events of {} channels × {} samples)",
+            manifest.display(),
+            events,
+            params.probe.n_elements,
+            params.n_samples
+        );
+        // The truth is the same for every mode (same phantom, same default grid): write it once,
+        // whatever an earlier run left in the folder.
+        if mode_index == 0 {
+            let truth = simulation.truth_for(&params.acquisition(), params.n_samples)?;
+            let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
+            pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
+            pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
+            pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
+            pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
+            pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
+            if let Some(cycle) = &truth.cycle {
+                let [ri, psv, edv, vessel_class, flow_up] =
+                    NETWORK_TRUTH_FILES.map(|name| args.out.join(name));
+                pcuvd_io::write_npy(&ri, &cycle.ri)?;
+                pcuvd_io::write_npy(&psv, &cycle.psv)?;
+                pcuvd_io::write_npy(&edv, &cycle.edv)?;
+                pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
+                pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
+            }
+            println!(
+                "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
+                args.out.display()
+            );
+        }
+    }
+    Ok(())
+}
