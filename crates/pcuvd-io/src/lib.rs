@@ -19,6 +19,7 @@
 
 pub mod array;
 pub mod cardiac;
+pub mod container;
 pub mod datafile;
 pub mod error;
 pub mod frames;

@@ -7,9 +7,10 @@ use std::path::Path;
 use serde_json::json;
 
 use crate::array::{ArrayFrames, Axis};
+use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
 use crate::frames::ManifestFrames;
-use crate::open::{Container, OpenedRecording, SourceInfo, StoredSamples, read_head, sniff};
+use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, field};
 
 /// Opens the manifest at `path`.
