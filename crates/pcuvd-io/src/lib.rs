@@ -35,6 +35,7 @@ pub mod npz;
 pub mod open;
 pub mod params;
 pub mod paths;
+pub mod recording;
 pub mod uff;
 pub mod verasonics;
 pub mod zea;

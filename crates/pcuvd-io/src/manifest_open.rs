@@ -10,8 +10,8 @@ use crate::array::{ArrayFrames, Axis};
 use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
 use crate::frames::ManifestFrames;
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, field};
+use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
 
 /// Opens the manifest at `path`.
 pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {

@@ -22,16 +22,14 @@ use serde_json::json;
 use crate::array::{ArrayFrames, Axis, Backing, Dtype, StoredArray};
 use crate::error::IoError;
 use crate::mat::{MatFile, MatValue, read_mat};
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
+pub use crate::recording::{DEFAULT_PULSE_CYCLES, plane_wave_angle};
+use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
 
 /// MUST's default fractional bandwidth when `param.bandwidth` is absent (%).
 pub const DEFAULT_BANDWIDTH_PERCENT: f64 = 75.0;
 /// MUST's default speed of sound when `param.c` is absent (m/s).
 pub const DEFAULT_SOUND_SPEED: f64 = 1540.0;
-/// Transmit pulse length assumed when `param.TXnow` is absent (cycles).
-pub const DEFAULT_PULSE_CYCLES: f64 = 2.0;
-
 /// A parameter array in C order over its dimensions (MATLAB's dimensions for a MAT-file).
 #[derive(Debug, Clone)]
 struct ParamArray {
@@ -733,63 +731,6 @@ fn transmit_angles(
     })
 }
 
-/// Steering angle θ (rad) of a linear transmit-delay profile d_i = d_0 + x_i·sinθ/c; refuses
-/// delays that are not linear in x (focused or diverging waves).
-pub fn plane_wave_angle(delays: &[f64], element_x: &[f64], c: f64) -> Result<f64, String> {
-    if delays.len() != element_x.len() {
-        return Err(format!(
-            "has {} delays but the probe has {} elements",
-            delays.len(),
-            element_x.len()
-        ));
-    }
-    if let Some(d) = delays.iter().find(|d| !d.is_finite()) {
-        return Err(format!("holds a non-finite delay ({d})"));
-    }
-    let n = delays.len() as f64;
-    if delays.len() < 2 || delays.iter().all(|&d| d == delays[0]) {
-        return Ok(0.0);
-    }
-    let mx = element_x.iter().sum::<f64>() / n;
-    let md = delays.iter().sum::<f64>() / n;
-    let sxx: f64 = element_x.iter().map(|x| (x - mx).powi(2)).sum();
-    let sxd: f64 = element_x
-        .iter()
-        .zip(delays)
-        .map(|(x, d)| (x - mx) * (d - md))
-        .sum();
-    if sxx <= 0.0 {
-        return Err("cannot be fitted: the elements all share one position".into());
-    }
-    let slope = sxd / sxx;
-    let (lo, hi) = delays
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &d| {
-            (l.min(d), h.max(d))
-        });
-    let residual = element_x
-        .iter()
-        .zip(delays)
-        .map(|(x, d)| (d - (md + slope * (x - mx))).abs())
-        .fold(0.0, f64::max);
-    // Delays quantised by a scanner's clock stay well inside 2 % of their span.
-    if residual > 0.02 * (hi - lo) + 1e-12 {
-        return Err(format!(
-            "is not a plane-wave delay profile (not linear across the elements: the best linear fit \
-             misses by up to {:.3} µs over a span of {:.3} µs; focused and diverging waves are not supported)",
-            residual * 1e6,
-            (hi - lo) * 1e6
-        ));
-    }
-    let s = c * slope;
-    if s.abs() >= 1.0 {
-        return Err(format!(
-            "implies sin θ = {s:.3} (|sin θ| must be < 1): delays too steep for c = {c} m/s"
-        ));
-    }
-    Ok(s.asin())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -861,33 +802,6 @@ mod tests {
         // 2-D RF is one transmit.
         let path = write(dir.path(), &rf(vec![10, 4]), &param(4));
         assert_eq!(read_must_mat(&path).unwrap().samples.dim(), (1, 4, 10));
-    }
-
-    #[test]
-    fn steered_delays_give_the_angle() {
-        let x = Probe {
-            name: String::new(),
-            n_elements: 64,
-            pitch: 3e-4,
-            element_width: 2.5e-4,
-            center_frequency: 5e6,
-            bandwidth: 0.7,
-        }
-        .element_x();
-        let theta = 7f64.to_radians();
-        let c = 1540.0;
-        let x0 = x[0];
-        let d: Vec<f64> = x.iter().map(|xi| (xi - x0) * theta.sin() / c).collect();
-        assert!((plane_wave_angle(&d, &x, c).unwrap() - theta).abs() < 1e-12);
-        let neg: Vec<f64> = d.iter().map(|v| d[63] - v).collect();
-        assert!((plane_wave_angle(&neg, &x, c).unwrap() + theta).abs() < 1e-12);
-        // Diverging wave: delays ∝ distance from a virtual source behind the array.
-        let div: Vec<f64> = x
-            .iter()
-            .map(|xi| (xi * xi + 0.01f64.powi(2)).sqrt() / c)
-            .collect();
-        let e = plane_wave_angle(&div, &x, c).unwrap_err();
-        assert!(e.contains("is not a plane-wave delay profile"), "{e}");
     }
 
     #[test]

@@ -3,15 +3,12 @@
 //! [`FrameSource`] that reads a block of frames at a time, with what was read: the files, the
 //! format and reader, every acquisition parameter with its source, and warnings.
 
-use std::path::{Path, PathBuf};
-
-use pcuvd::ChannelData;
-use pcuvd::source::FrameSource;
-use serde::Serialize;
+use std::path::Path;
 
 pub use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
-use crate::params::{Overrides, Parameter};
+use crate::params::Overrides;
+pub use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
 
 /// The formats [`open_recording`] reads, for messages.
 pub const FORMATS: &str = "MUST/PyMUST MATLAB (v5 or v7.3: RF or IQ + param), a PyMUST-style \
@@ -19,76 +16,6 @@ pub const FORMATS: &str = "MUST/PyMUST MATLAB (v5 or v7.3: RF or IQ + param), a 
      (.hdf5, /data/raw_data or /tracks), a Verasonics workspace saved with -v7.3 (RcvData, \
      Receive, Trans), and a pcuvd recording manifest (.toml) naming .npy, .npz, HDF5 or MATLAB \
      samples";
-
-/// How the samples are stored in the file.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct StoredSamples {
-    /// The array, as the file names it (file and variable, member or dataset).
-    pub array: String,
-    /// Its shape, in the file's order.
-    pub shape: Vec<usize>,
-    /// What each axis is ("frames", "angles", "events", "channels", "samples"...).
-    pub axes: Vec<String>,
-    /// Element type as stored ("int16", "float32", "complex64"...).
-    pub dtype: String,
-    /// "rf" or "iq".
-    pub kind: String,
-}
-
-/// What a reader understood of a recording, besides its samples.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SourceInfo {
-    /// Every file read (a manifest and its samples file, or the one file).
-    pub files: Vec<PathBuf>,
-    /// The format, e.g. "USTB UFF (HDF5)".
-    pub format: String,
-    /// The reader, e.g. "pcuvd_io::uff (a block of frames at a time)".
-    pub reader: String,
-    /// Every acquisition parameter with its value and source.
-    pub parameters: Vec<Parameter>,
-    /// How the samples are stored.
-    pub stored: Option<StoredSamples>,
-    /// Things the user should know (a default taken, a field ignored).
-    pub warnings: Vec<String>,
-    /// Cardiac cycle start times (s from the first frame) recorded with the recording (a
-    /// manifest's `[cardiac]`), for the dynamics stage; `None` when it has none.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub cardiac_triggers_s: Option<Vec<f64>>,
-}
-
-/// A recording opened for reading: its frames and what was read.
-pub struct OpenedRecording {
-    /// The compound frames, read a block at a time.
-    pub source: Box<dyn FrameSource + Send>,
-    /// Files, format, reader, parameters and their sources, warnings.
-    pub info: SourceInfo,
-}
-
-impl std::fmt::Debug for OpenedRecording {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("OpenedRecording")
-            .field("info", &self.info)
-            .finish_non_exhaustive()
-    }
-}
-
-impl OpenedRecording {
-    /// Reads every frame into memory (validated), for callers that need the whole recording.
-    pub fn read_all(&self) -> Result<ChannelData, IoError> {
-        let path = self.info.files.first().cloned().unwrap_or_default();
-        let n = self.source.n_frames();
-        let data = self
-            .source
-            .read_frames(0..n)
-            .map_err(|source| IoError::Recording {
-                path: path.clone(),
-                source,
-            })?;
-        data.validate()
-            .map_err(|source| IoError::Recording { path, source })?;
-        Ok(data)
-    }
-}
 
 /// A short description of what an unrecognised file looks like.
 fn looks_like(head: &[u8]) -> String {

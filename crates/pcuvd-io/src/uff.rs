@@ -19,11 +19,9 @@ use crate::array::{ArrayFrames, Axis};
 use crate::error::IoError;
 use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, crossing_time, linear_array, positive, scalar};
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
-
-/// pcuvd's fractional bandwidth when `pulse/fractional_bandwidth` is absent.
-pub const DEFAULT_BANDWIDTH: f64 = 0.67;
+pub use crate::recording::DEFAULT_BANDWIDTH;
+use crate::recording::{DEFAULT_PULSE_CYCLES, OpenedRecording, SourceInfo, StoredSamples};
 
 /// Opens a UFF file's `/channel_data`.
 pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
@@ -223,10 +221,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
-        Some((
-            crate::must::DEFAULT_PULSE_CYCLES,
-            "UFF does not record the pulse length",
-        )),
+        Some((DEFAULT_PULSE_CYCLES, "UFF does not record the pulse length")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let array = crate::datafile::open_hdf5_array(path, &f("data"))?;
