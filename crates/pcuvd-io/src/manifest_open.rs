@@ -11,7 +11,7 @@ use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
 use crate::frames::ManifestFrames;
 use crate::params::{Overrides, ParamSource, Resolver, field};
-use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
+use crate::recording::{OpenedRecording, SourceInfo, StoredSamples, checked_acquisition};
 
 /// Opens the manifest at `path`.
 pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
@@ -169,10 +169,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         )?),
         None => None,
     };
-    acq.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let acq = checked_acquisition(path, acq)?;
     let spec = crate::datafile::DataSpec {
         path: parsed.data_path.clone(),
         member: parsed.data_member.clone(),

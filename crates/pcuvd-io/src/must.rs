@@ -16,15 +16,16 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
-use pcuvd::{Acquisition, ChannelData, Coding, Probe, Sequence};
+use pcuvd::{ChannelData, Probe};
 use serde_json::json;
 
 use crate::array::{ArrayFrames, Axis, Backing, Dtype, StoredArray};
 use crate::error::IoError;
+use crate::layout::positive;
 use crate::mat::{MatFile, MatValue, read_mat};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 pub use crate::recording::{DEFAULT_PULSE_CYCLES, plane_wave_angle};
-use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
+use crate::recording::{OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples};
 
 /// MUST's default fractional bandwidth when `param.bandwidth` is absent (%).
 pub const DEFAULT_BANDWIDTH_PERCENT: f64 = 75.0;
@@ -136,19 +137,6 @@ impl MustParams {
                 ),
             )),
         }
-    }
-}
-
-/// Checks a value that must be finite and > 0.
-fn positive(path: &Path, name: &str, v: f64) -> Result<f64, IoError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(IoError::invalid(
-            path,
-            name,
-            format!("must be finite and > 0, got {v}"),
-        ))
     }
 }
 
@@ -573,25 +561,16 @@ fn build(
     } else {
         None
     };
-    let acquisition = Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe,
-        sequence: Sequence {
-            angles,
-            event_prf: prf,
-            coding: Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     let n = acquisition.sequence.n_angles();
     if n_samples < 2 {
         return Err(IoError::Recording {
@@ -601,13 +580,7 @@ fn build(
             )),
         });
     }
-    let stored = StoredSamples {
-        array: samples.array.label.clone(),
-        shape: samples.array.shape.clone(),
-        axes: samples.axes.iter().map(|a| a.name().to_string()).collect(),
-        dtype: samples.array.dtype_name(),
-        kind: if demod.is_some() { "iq" } else { "rf" }.into(),
-    };
+    let stored = StoredSamples::of(&samples.array, &samples.axes, demod.is_some());
     let frames = ArrayFrames::new(path, acquisition, samples.array, samples.axes, demod)?;
     let mut warnings = Vec::new();
     if n_transmits % n != 0 {

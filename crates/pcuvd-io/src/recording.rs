@@ -5,12 +5,13 @@
 //! plane-wave fit of a transmit delay law ([`plane_wave_angle`]). Nothing here knows a format:
 //! the readers ([`crate::readers`]) import it, and it imports none of them.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use pcuvd::ChannelData;
 use pcuvd::source::FrameSource;
+use pcuvd::{Acquisition, ChannelData, Coding, Probe, Sequence};
 use serde::Serialize;
 
+use crate::array::{Axis, StoredArray};
 use crate::error::IoError;
 use crate::params::Parameter;
 
@@ -35,6 +36,19 @@ pub struct StoredSamples {
     pub dtype: String,
     /// "rf" or "iq".
     pub kind: String,
+}
+
+impl StoredSamples {
+    /// How `array`, whose axes are `axes`, is stored; `iq` for complex baseband samples.
+    pub fn of(array: &StoredArray, axes: &[Axis], iq: bool) -> StoredSamples {
+        StoredSamples {
+            array: array.label.clone(),
+            shape: array.shape.clone(),
+            axes: axes.iter().map(|a| a.name().to_string()).collect(),
+            dtype: array.dtype_name(),
+            kind: if iq { "iq" } else { "rf" }.into(),
+        }
+    }
 }
 
 /// What a reader understood of a recording, besides its samples.
@@ -90,6 +104,61 @@ impl OpenedRecording {
             .map_err(|source| IoError::Recording { path, source })?;
         Ok(data)
     }
+}
+
+/// A conventional plane-wave acquisition as a reader finds it in a file (SI units): one plane
+/// wave per transmit event, no coding, no sampled pulse — what MUST, UFF, zea and Verasonics
+/// recordings describe. [`PlaneWaveAcquisition::build`] makes it a checked [`Acquisition`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlaneWaveAcquisition {
+    /// The probe.
+    pub probe: Probe,
+    /// Steering angles of a compound frame (rad), in transmit order.
+    pub angles: Vec<f64>,
+    /// Transmit-event repetition frequency (Hz).
+    pub event_prf: f64,
+    /// Transmit pulse length (cycles of the centre frequency).
+    pub pulse_cycles: f64,
+    /// Sampling frequency of the samples (Hz).
+    pub sampling_frequency: f64,
+    /// Speed of sound (m/s).
+    pub sound_speed: f64,
+    /// Time of the first sample after the first element fires (s).
+    pub t0: f64,
+}
+
+impl PlaneWaveAcquisition {
+    /// The acquisition of the recording at `path`, checked ([`checked_acquisition`]).
+    pub fn build(self, path: &Path) -> Result<Acquisition, IoError> {
+        checked_acquisition(
+            path,
+            Acquisition {
+                probe: self.probe,
+                sequence: Sequence {
+                    angles: self.angles,
+                    event_prf: self.event_prf,
+                    coding: Coding::Conventional,
+                    pulse_cycles: self.pulse_cycles,
+                    pulse: None,
+                },
+                sampling_frequency: self.sampling_frequency,
+                sound_speed: self.sound_speed,
+                t0: self.t0,
+            },
+        )
+    }
+}
+
+/// `acquisition` when pcuvd accepts it ([`Acquisition::validate`]), else its refusal as an
+/// [`IoError::Recording`] naming the recording at `path`.
+pub fn checked_acquisition(path: &Path, acquisition: Acquisition) -> Result<Acquisition, IoError> {
+    acquisition
+        .validate()
+        .map_err(|source| IoError::Recording {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    Ok(acquisition)
 }
 
 /// Steering angle θ (rad) of a linear transmit-delay profile d_i = d_0 + x_i·sinθ/c; refuses
@@ -152,7 +221,6 @@ pub fn plane_wave_angle(delays: &[f64], element_x: &[f64], c: f64) -> Result<f64
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pcuvd::Probe;
 
     #[test]
     fn steered_delays_give_the_angle() {

@@ -35,7 +35,8 @@ use crate::layout::{common_t0, linear_array, positive};
 use crate::mat::MatValue;
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf};
 use crate::recording::{
-    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, SourceInfo, StoredSamples,
+    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
+    StoredSamples,
 };
 
 /// The receive buffer of a Verasonics workspace, read a block of frames at a time in
@@ -464,7 +465,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             0
         }
     };
-    let acquisition = Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe: pcuvd::Probe {
             name: trans
                 .field("name")
@@ -477,23 +478,14 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence {
-            angles,
-            event_prf: prf,
-            coding: pcuvd::Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     let stored = StoredSamples {
         array: format!("{}:RcvData{{1}} ({dataset})", path.display()),
         shape: shape.clone(),

@@ -24,8 +24,8 @@ use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 use crate::recording::{
-    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, SourceInfo, StoredSamples,
-    plane_wave_angle,
+    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
+    StoredSamples, plane_wave_angle,
 };
 
 /// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
@@ -330,7 +330,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         Axis::Channels,
         if iq { Axis::ReIm } else { Axis::Unit },
     ];
-    let acquisition = pcuvd::Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe: pcuvd::Probe {
             name: h5
                 .dataset("probe/name")
@@ -344,44 +344,20 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence {
-            angles,
-            event_prf: prf,
-            coding: pcuvd::Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     warnings.push(
         "zea's colour Doppler is positive toward the transducer; pcuvd's color_doppler is \
          positive away from it"
             .into(),
     );
-    let stored = StoredSamples {
-        array: array.label.clone(),
-        shape: array.shape.clone(),
-        axes: vec![
-            "frames",
-            "angles",
-            "samples",
-            "channels",
-            if iq { "re_im" } else { "unit" },
-        ]
-        .into_iter()
-        .map(String::from)
-        .collect(),
-        dtype: array.dtype_name(),
-        kind: if iq { "iq" } else { "rf" }.into(),
-    };
+    let stored = StoredSamples::of(&array, &axes, iq);
     let frames = ArrayFrames::new(path, acquisition, array, axes, demod)?;
     Ok(OpenedRecording {
         source: Box::new(frames),
