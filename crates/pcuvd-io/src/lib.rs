@@ -22,23 +22,21 @@ pub mod cardiac;
 pub mod container;
 pub mod datafile;
 pub mod error;
-pub mod frames;
 pub mod hdf5;
 pub mod layout;
 pub mod manifest;
-mod manifest_open;
 pub mod mat;
 pub mod mat73;
-pub mod must;
 pub mod npy;
 pub mod npz;
 pub mod open;
 pub mod params;
 pub mod paths;
+pub mod readers;
 pub mod recording;
-pub mod uff;
-pub mod verasonics;
-pub mod zea;
+
+pub use readers::manifest::frames;
+pub use readers::{must, uff, verasonics, zea};
 
 pub use cardiac::read_trigger_times;
 pub use error::IoError;

@@ -264,7 +264,7 @@ pub(crate) fn kind_error(path: &Path, data_path: &Path, iq_said: bool) -> IoErro
 }
 
 /// A manifest read and checked, its samples not yet: what [`read_recording`] and
-/// [`crate::frames::ManifestFrames`] share.
+/// [`crate::readers::manifest::frames::ManifestFrames`] share.
 pub(crate) struct Parsed {
     pub(crate) acquisition: Acquisition,
     pub(crate) provenance: toml::Table,

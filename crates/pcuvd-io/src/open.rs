@@ -67,9 +67,9 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         }
     };
     match container {
-        Container::Manifest => crate::manifest_open::open(path, overrides),
-        Container::MatV5 => crate::must::open_v5(path, overrides),
-        Container::Zip => crate::must::open_npz(path, overrides),
+        Container::Manifest => crate::readers::manifest::open(path, overrides),
+        Container::MatV5 => crate::readers::must::open_v5(path, overrides),
+        Container::Zip => crate::readers::must::open_npz(path, overrides),
         Container::Npy => Err(IoError::malformed(
             path,
             "is a bare NumPy .npy array: it holds samples but not how they were acquired. Write \
@@ -86,16 +86,16 @@ fn open_hdf5(path: &Path, overrides: &Overrides, ext: &str) -> Result<OpenedReco
     let top = h5.members("/")?;
     let has = |n: &str| top.iter().any(|m| m == n);
     if has("channel_data") {
-        return crate::uff::open(path, &h5, overrides);
+        return crate::readers::uff::open(path, &h5, overrides);
     }
     if has("RcvData") && has("Receive") && has("Trans") {
-        return crate::verasonics::open(path, &h5, overrides);
+        return crate::readers::verasonics::open(path, &h5, overrides);
     }
     if (has("data") && h5.exists("data/raw_data")) || has("tracks") {
-        return crate::zea::open(path, &h5, overrides);
+        return crate::readers::zea::open(path, &h5, overrides);
     }
     if (has("RF") || has("IQ")) && has("param") {
-        return crate::must::open_v73(path, &h5, overrides);
+        return crate::readers::must::open_v73(path, &h5, overrides);
     }
     let ext_hint = match ext {
         "uff" => " (the .uff extension suggests USTB UFF, but there is no /channel_data group)",
