@@ -36,15 +36,22 @@ pub mod readers;
 pub mod recording;
 
 pub use readers::manifest::frames;
-pub use readers::{must, uff, verasonics, zea};
+pub use readers::{uff, verasonics, zea};
+
+/// MUST/PyMUST-style recordings: the reader [`readers::must`], and [`read_must_mat`], which reads
+/// one whole through the format detection ([`open_recording`]) above the readers.
+pub mod must {
+    pub use crate::open::read_must_mat;
+    pub use crate::readers::must::*;
+}
 
 pub use cardiac::read_trigger_times;
 pub use error::IoError;
 pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
-pub use must::read_must_mat;
 pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
+pub use open::read_must_mat;
 pub use open::{OpenedRecording, SourceInfo, StoredSamples, open_recording};
 pub use params::{Overrides, ParamSource, Parameter};
 pub use paths::check_regular_file;

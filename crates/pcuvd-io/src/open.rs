@@ -5,6 +5,8 @@
 
 use std::path::Path;
 
+use pcuvd::ChannelData;
+
 pub use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
 use crate::params::Overrides;
@@ -78,6 +80,12 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         )),
         Container::Hdf5 { .. } => open_hdf5(path, overrides, &ext),
     }
+}
+
+/// Reads a MUST-style MAT-file (v5 or v7.3) or `.npz` into channel data (whole, validated): any
+/// recording [`open_recording`] recognises, read whole.
+pub fn read_must_mat(path: &Path) -> Result<ChannelData, IoError> {
+    open_recording(path, &Overrides::default())?.read_all()
 }
 
 /// Recognises an HDF5 recording by its structure and opens it.

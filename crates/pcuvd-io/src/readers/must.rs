@@ -148,11 +148,6 @@ struct MustSamples {
     variable: &'static str,
 }
 
-/// Reads a MUST-style MAT-file (v5 or v7.3) or `.npz` into channel data (whole, validated).
-pub fn read_must_mat(path: &Path) -> Result<ChannelData, IoError> {
-    crate::open::open_recording(path, &Overrides::default())?.read_all()
-}
-
 /// Builds channel data from an already-read MUST-style v5 MAT-file (`path` only names it in
 /// errors).
 pub fn from_mat(path: &Path, file: &MatFile) -> Result<ChannelData, IoError> {
@@ -708,6 +703,7 @@ fn transmit_angles(
 mod tests {
     use super::*;
     use crate::mat::{NumericClass, write_mat};
+    use crate::open::read_must_mat;
     use std::collections::BTreeMap;
 
     fn param(n: usize) -> BTreeMap<String, MatValue> {
