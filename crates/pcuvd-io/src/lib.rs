@@ -1,17 +1,22 @@
 //! pcuvd-io — reading and writing pcuvd recordings and results.
 //!
-//! - [`mat`]: a MATLAB v5 MAT-file reader (numeric, logical, char, struct, cell; compressed or not)
-//!   and a small writer;
-//! - [`must`]: MUST/PyMUST-style recordings (`RF` + `param`) as [`pcuvd::ChannelData`];
-//! - [`manifest`]: the "pcuvd-recording" TOML manifest + `.npy` samples, read and write;
-//! - [`frames`]: a manifest's samples read a block of frames at a time;
-//! - [`cardiac`]: cardiac cycle start times (ECG R-waves, triggers) recorded beside a recording;
-//! - [`npy`]: thin `.npy`/JSON writers for results;
-//! - [`open`]: [`open_recording`], the one entry point that recognises any supported recording
-//!   from its content (MUST v5/v7.3/npz, UFF, zea, Verasonics, manifests) and reads it a block of
-//!   frames at a time, with every acquisition parameter's source ([`params`]);
-//! - [`array`], [`npz`], [`hdf5`], [`mat73`], [`datafile`]: the stored arrays those readers share;
-//! - [`paths`]: what a path names (a folder, a pipe, a link loop), said before it is opened.
+//! Readers over one vocabulary, in layers that import only downward:
+//! - on top, [`open`]: [`open_recording`], the one entry point that recognises any supported
+//!   recording from its content (MUST v5/v7.3/npz, UFF, zea, Verasonics, manifests) and hands it
+//!   to its reader;
+//! - [`readers`]: one reader per format ([`must`], [`uff`], [`zea`], [`verasonics`], and
+//!   [`readers::manifest`] with [`frames`]), each reading a block of frames at a time; no reader
+//!   imports another;
+//! - [`recording`]: what every reader returns ([`OpenedRecording`], [`SourceInfo`],
+//!   [`StoredSamples`]), the defaults they share, and the one acquisition builder they all use
+//!   ([`recording::PlaneWaveAcquisition`]); with [`params`], every acquisition parameter's source;
+//! - the formats and stored arrays below: [`manifest`] (the "pcuvd-recording" TOML manifest,
+//!   read and write), [`datafile`] (a manifest's samples file), [`container`] (what a file's first
+//!   bytes say it is), [`mat`] (a MATLAB v5 MAT-file reader and a small writer), [`mat73`],
+//!   [`hdf5`], [`npz`], [`array`], [`layout`];
+//! - beside them: [`cardiac`] (cardiac cycle start times recorded beside a recording), [`npy`]
+//!   (thin `.npy`/JSON writers for results), [`paths`] (what a path names, said before it is
+//!   opened).
 //!
 //! Every error is an [`IoError`] whose message names the file, the field and the problem.
 
@@ -51,7 +56,7 @@ pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, NumericClass, read_mat, write_mat};
 pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
-pub use open::read_must_mat;
-pub use open::{OpenedRecording, SourceInfo, StoredSamples, open_recording};
+pub use open::{open_recording, read_must_mat};
 pub use params::{Overrides, ParamSource, Parameter};
 pub use paths::check_regular_file;
+pub use recording::{OpenedRecording, SourceInfo, StoredSamples};
