@@ -13,7 +13,7 @@
 //! - the formats and stored arrays below: [`manifest`] (the "pcuvd-recording" TOML manifest,
 //!   read and write), [`datafile`] (a manifest's samples file), [`container`] (what a file's first
 //!   bytes say it is), [`mat`] (a MATLAB v5 MAT-file reader and a small writer), [`mat73`],
-//!   [`hdf5`], [`npz`], [`array`], [`layout`];
+//!   [`hdf5`], [`npz`], [`array`](mod@array), [`layout`];
 //! - beside them: [`cardiac`] (cardiac cycle start times recorded beside a recording), [`npy`]
 //!   (thin `.npy`/JSON writers for results), [`paths`] (what a path names, said before it is
 //!   opened).

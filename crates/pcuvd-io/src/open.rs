@@ -1,7 +1,9 @@
 //! One entry point for every recording pcuvd reads: [`open_recording`] recognises the format from
-//! the file's content (magic bytes, then structure; the extension only breaks ties) and returns a
-//! [`FrameSource`] that reads a block of frames at a time, with what was read: the files, the
-//! format and reader, every acquisition parameter with its source, and warnings.
+//! the file's content (magic bytes, then structure; the extension only breaks ties) and hands it
+//! to its reader ([`crate::readers`]), which returns a
+//! [`FrameSource`](pcuvd::source::FrameSource) that reads a block of frames at a time, with what
+//! was read: the files, the format and reader, every acquisition parameter with its source, and
+//! warnings. This module sits on top: it imports the readers, and no reader imports it.
 
 use std::path::Path;
 
