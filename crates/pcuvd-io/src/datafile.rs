@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use crate::array::{Backing, Block, Dtype, StoredArray};
+use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
 use crate::hdf5::H5Kind;
 use crate::npy::NpyArray;
-use crate::open::{Container, read_head, sniff};
 
 /// A samples file and the array in it.
 #[derive(Debug, Clone, PartialEq, Eq)]

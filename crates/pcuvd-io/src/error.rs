@@ -43,7 +43,7 @@ pub enum IoError {
     Missing {
         /// The file, as given.
         path: PathBuf,
-        /// Where it was looked for, e.g. "variable 'param'" or "table [probe]".
+        /// Where it was looked for, e.g. "variable 'param'" or "table \[probe\]".
         container: String,
         /// What is missing, e.g. "field 'fs'".
         item: String,
@@ -53,7 +53,7 @@ pub enum IoError {
     Invalid {
         /// The file, as given.
         path: PathBuf,
-        /// The variable, field or key, e.g. "param.fs" or "[acquisition].angles_deg".
+        /// The variable, field or key, e.g. "param.fs" or "\[acquisition\].angles_deg".
         field: String,
         /// What is wrong, phrased to follow the field name ("must be > 0, got -1").
         problem: String,

@@ -1,5 +1,6 @@
-//! Checks the HDF5 readers share: element positions that make a uniform linear array, one t0 for
-//! every transmit, and scalars read from a dataset of any of the shapes writers use.
+//! Checks the readers share (the HDF5 ones above all): element positions that make a uniform
+//! linear array, one t0 for every transmit, values that must be positive, and scalars read from a
+//! dataset of any of the shapes writers use.
 
 use std::path::Path;
 

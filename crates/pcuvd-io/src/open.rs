@@ -1,16 +1,18 @@
 //! One entry point for every recording pcuvd reads: [`open_recording`] recognises the format from
-//! the file's content (magic bytes, then structure; the extension only breaks ties) and returns a
-//! [`FrameSource`] that reads a block of frames at a time, with what was read: the files, the
-//! format and reader, every acquisition parameter with its source, and warnings.
+//! the file's content (magic bytes, then structure; the extension only breaks ties) and hands it
+//! to its reader ([`crate::readers`]), which returns a
+//! [`FrameSource`](pcuvd::acquisition::source::FrameSource) that reads a block of frames at a time, with what
+//! was read: the files, the format and reader, every acquisition parameter with its source, and
+//! warnings. This module sits on top: it imports the readers, and no reader imports it.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use pcuvd::ChannelData;
-use pcuvd::acquisition::source::FrameSource;
-use serde::Serialize;
 
+pub use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
-use crate::params::{Overrides, Parameter};
+use crate::params::Overrides;
+pub use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
 
 /// The formats [`open_recording`] reads, for messages.
 pub const FORMATS: &str = "MUST/PyMUST MATLAB (v5 or v7.3: RF or IQ + param), a PyMUST-style \
@@ -18,128 +20,6 @@ pub const FORMATS: &str = "MUST/PyMUST MATLAB (v5 or v7.3: RF or IQ + param), a 
      (.hdf5, /data/raw_data or /tracks), a Verasonics workspace saved with -v7.3 (RcvData, \
      Receive, Trans), and a pcuvd recording manifest (.toml) naming .npy, .npz, HDF5 or MATLAB \
      samples";
-
-/// How the samples are stored in the file.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct StoredSamples {
-    /// The array, as the file names it (file and variable, member or dataset).
-    pub array: String,
-    /// Its shape, in the file's order.
-    pub shape: Vec<usize>,
-    /// What each axis is ("frames", "angles", "events", "channels", "samples"...).
-    pub axes: Vec<String>,
-    /// Element type as stored ("int16", "float32", "complex64"...).
-    pub dtype: String,
-    /// "rf" or "iq".
-    pub kind: String,
-}
-
-/// What a reader understood of a recording, besides its samples.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SourceInfo {
-    /// Every file read (a manifest and its samples file, or the one file).
-    pub files: Vec<PathBuf>,
-    /// The format, e.g. "USTB UFF (HDF5)".
-    pub format: String,
-    /// The reader, e.g. "pcuvd_io::uff (a block of frames at a time)".
-    pub reader: String,
-    /// Every acquisition parameter with its value and source.
-    pub parameters: Vec<Parameter>,
-    /// How the samples are stored.
-    pub stored: Option<StoredSamples>,
-    /// Things the user should know (a default taken, a field ignored).
-    pub warnings: Vec<String>,
-    /// Cardiac cycle start times (s from the first frame) recorded with the recording (a
-    /// manifest's `[cardiac]`), for the dynamics stage; `None` when it has none.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub cardiac_triggers_s: Option<Vec<f64>>,
-}
-
-/// A recording opened for reading: its frames and what was read.
-pub struct OpenedRecording {
-    /// The compound frames, read a block at a time.
-    pub source: Box<dyn FrameSource + Send>,
-    /// Files, format, reader, parameters and their sources, warnings.
-    pub info: SourceInfo,
-}
-
-impl std::fmt::Debug for OpenedRecording {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("OpenedRecording")
-            .field("info", &self.info)
-            .finish_non_exhaustive()
-    }
-}
-
-impl OpenedRecording {
-    /// Reads every frame into memory (validated), for callers that need the whole recording.
-    pub fn read_all(&self) -> Result<ChannelData, IoError> {
-        let path = self.info.files.first().cloned().unwrap_or_default();
-        let n = self.source.n_frames();
-        let data = self
-            .source
-            .read_frames(0..n)
-            .map_err(|source| IoError::Recording {
-                path: path.clone(),
-                source,
-            })?;
-        data.validate()
-            .map_err(|source| IoError::Recording { path, source })?;
-        Ok(data)
-    }
-}
-
-/// What the first bytes of a file say it is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Container {
-    /// A NumPy `.npy` array (`\x93NUMPY`).
-    Npy,
-    /// A zip archive (NumPy `.npz`).
-    Zip,
-    /// A MATLAB v5/v7 MAT-file (text header, version 0x0100).
-    MatV5,
-    /// An HDF5 file whose superblock is at `offset` (0, or 512, 1024... after a user block:
-    /// MATLAB v7.3 writes 512).
-    Hdf5 {
-        /// Bytes of user block before the superblock.
-        offset: u64,
-    },
-    /// Text that reads as a pcuvd recording manifest (TOML).
-    Manifest,
-}
-
-const HDF5_SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
-
-/// Recognises a file from its first bytes (`head`, at least the first 8 KiB when the file has
-/// them); `None` when nothing pcuvd reads starts that way.
-pub fn sniff(head: &[u8]) -> Option<Container> {
-    if head.starts_with(b"\x93NUMPY") {
-        return Some(Container::Npy);
-    }
-    if head.starts_with(b"PK\x03\x04") || head.starts_with(b"PK\x05\x06") {
-        return Some(Container::Zip);
-    }
-    let mut offset = 0usize;
-    while offset + 8 <= head.len() {
-        if &head[offset..offset + 8] == HDF5_SIGNATURE {
-            return Some(Container::Hdf5 {
-                offset: offset as u64,
-            });
-        }
-        offset = if offset == 0 { 512 } else { offset * 2 };
-    }
-    if head.len() >= 128 && head.starts_with(b"MATLAB") {
-        let version = &head[124..126];
-        if version == [0x00, 0x01] || version == [0x01, 0x00] {
-            return Some(Container::MatV5);
-        }
-    }
-    let text = String::from_utf8_lossy(&head[..head.len().min(4096)]);
-    if text.contains("pcuvd-recording") {
-        return Some(Container::Manifest);
-    }
-    None
-}
 
 /// A short description of what an unrecognised file looks like.
 fn looks_like(head: &[u8]) -> String {
@@ -163,40 +43,6 @@ fn looks_like(head: &[u8]) -> String {
     }
     let hex: Vec<String> = head.iter().take(8).map(|b| format!("{b:02x}")).collect();
     format!("it is binary starting with bytes {}", hex.join(" "))
-}
-
-/// Reads up to the first `n` bytes of `path`, with a message that says what `path` is when it is
-/// not a regular file.
-pub fn read_head(path: &Path, n: usize) -> Result<Vec<u8>, IoError> {
-    use std::io::Read;
-    let meta = std::fs::metadata(path).map_err(|e| IoError::io(path, "read", e))?;
-    if meta.is_dir() {
-        return Err(IoError::io(
-            path,
-            "read",
-            std::io::Error::new(
-                std::io::ErrorKind::IsADirectory,
-                "it is a folder, not a recording file (give the recording file or its manifest .toml)",
-            ),
-        ));
-    }
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileTypeExt;
-        let t = meta.file_type();
-        if t.is_fifo() || t.is_socket() || t.is_char_device() || t.is_block_device() {
-            return Err(IoError::malformed(
-                path,
-                "is a pipe, socket or device, not a recording file",
-            ));
-        }
-    }
-    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, "read", e))?;
-    let mut head = Vec::with_capacity(n);
-    file.take(n as u64)
-        .read_to_end(&mut head)
-        .map_err(|e| IoError::io(path, "read", e))?;
-    Ok(head)
 }
 
 /// Opens the recording at `path`, whatever its format, applying the user's `overrides`.
@@ -225,9 +71,9 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         }
     };
     match container {
-        Container::Manifest => crate::manifest_open::open(path, overrides),
-        Container::MatV5 => crate::must::open_v5(path, overrides),
-        Container::Zip => crate::must::open_npz(path, overrides),
+        Container::Manifest => crate::readers::manifest::open(path, overrides),
+        Container::MatV5 => crate::readers::must::open_v5(path, overrides),
+        Container::Zip => crate::readers::must::open_npz(path, overrides),
         Container::Npy => Err(IoError::malformed(
             path,
             "is a bare NumPy .npy array: it holds samples but not how they were acquired. Write \
@@ -238,22 +84,28 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
     }
 }
 
+/// Reads a MUST-style MAT-file (v5 or v7.3) or `.npz` into channel data (whole, validated): any
+/// recording [`open_recording`] recognises, read whole.
+pub fn read_must_mat(path: &Path) -> Result<ChannelData, IoError> {
+    open_recording(path, &Overrides::default())?.read_all()
+}
+
 /// Recognises an HDF5 recording by its structure and opens it.
 fn open_hdf5(path: &Path, overrides: &Overrides, ext: &str) -> Result<OpenedRecording, IoError> {
     let h5 = crate::hdf5::Hdf5::open(path)?;
     let top = h5.members("/")?;
     let has = |n: &str| top.iter().any(|m| m == n);
     if has("channel_data") {
-        return crate::uff::open(path, &h5, overrides);
+        return crate::readers::uff::open(path, &h5, overrides);
     }
     if has("RcvData") && has("Receive") && has("Trans") {
-        return crate::verasonics::open(path, &h5, overrides);
+        return crate::readers::verasonics::open(path, &h5, overrides);
     }
     if (has("data") && h5.exists("data/raw_data")) || has("tracks") {
-        return crate::zea::open(path, &h5, overrides);
+        return crate::readers::zea::open(path, &h5, overrides);
     }
     if (has("RF") || has("IQ")) && has("param") {
-        return crate::must::open_v73(path, &h5, overrides);
+        return crate::readers::must::open_v73(path, &h5, overrides);
     }
     let ext_hint = match ext {
         "uff" => " (the .uff extension suggests USTB UFF, but there is no /channel_data group)",
@@ -284,22 +136,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn sniffs_each_container() {
-        assert_eq!(sniff(b"\x93NUMPY\x01\x00"), Some(Container::Npy));
-        assert_eq!(sniff(b"PK\x03\x04rest"), Some(Container::Zip));
-        let mut hdf = vec![0u8; 1024];
-        hdf[512..520].copy_from_slice(HDF5_SIGNATURE);
-        assert_eq!(sniff(&hdf), Some(Container::Hdf5 { offset: 512 }));
-        let mut mat = b"MATLAB 5.0 MAT-file".to_vec();
-        mat.resize(128, b' ');
-        mat[124] = 0;
-        mat[125] = 1;
-        assert_eq!(sniff(&mat), Some(Container::MatV5));
-        assert_eq!(
-            sniff(b"format = \"pcuvd-recording\"\nversion = 1\n"),
-            Some(Container::Manifest)
-        );
-        assert_eq!(sniff(b"hello"), None);
+    fn says_what_an_unrecognised_file_looks_like() {
         assert!(looks_like(b"").contains("empty"));
         assert!(looks_like(&[0u8, 1, 2]).contains("00 01 02"));
     }

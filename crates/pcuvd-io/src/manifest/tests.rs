@@ -1,6 +1,11 @@
-use super::*;
-use ndarray::{Array, Array4};
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array, Array3, Array4};
 use num_complex::Complex32;
+use pcuvd::{Acquisition, Coding, Hadamard, Probe, Samples, Sequence, TransmitCode, TransmitPulse};
+
+use super::*;
+use crate::npy::write_npy;
 
 fn acquisition(n_angles: usize, coding: Coding, probe: Probe) -> Acquisition {
     Acquisition {

@@ -33,8 +33,11 @@ use crate::error::IoError;
 use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, linear_array, positive};
 use crate::mat::MatValue;
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf};
+use crate::recording::{
+    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
+    StoredSamples,
+};
 
 /// The receive buffer of a Verasonics workspace, read a block of frames at a time in
 /// chronological order.
@@ -203,7 +206,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 derived("Trans.Bandwidth ([low high] MHz) / Trans.frequency"),
             )
         }),
-        Some((crate::uff::DEFAULT_BANDWIDTH, "Trans.Bandwidth is absent")),
+        Some((DEFAULT_BANDWIDTH, "Trans.Bandwidth is absent")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, "Trans.Bandwidth", bandwidth)?;
@@ -381,7 +384,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let pulse_cycles = r.number(
         "pulse_cycles",
         half_cycles.map(|h| (h / 2.0, derived("TW(1).Parameters(3) (half cycles) / 2"))),
-        Some((crate::must::DEFAULT_PULSE_CYCLES, "TW.Parameters is absent")),
+        Some((DEFAULT_PULSE_CYCLES, "TW.Parameters is absent")),
         || IoError::malformed(path, "unreachable"),
     )?;
     r.record(
@@ -462,7 +465,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             0
         }
     };
-    let acquisition = Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe: pcuvd::Probe {
             name: trans
                 .field("name")
@@ -475,23 +478,14 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence {
-            angles,
-            event_prf: prf,
-            coding: pcuvd::Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     let stored = StoredSamples {
         array: format!("{}:RcvData{{1}} ({dataset})", path.display()),
         shape: shape.clone(),

@@ -16,22 +16,21 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
-use pcuvd::{Acquisition, ChannelData, Coding, Probe, Sequence};
+use pcuvd::{ChannelData, Probe};
 use serde_json::json;
 
 use crate::array::{ArrayFrames, Axis, Backing, Dtype, StoredArray};
 use crate::error::IoError;
+use crate::layout::positive;
 use crate::mat::{MatFile, MatValue, read_mat};
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
+pub use crate::recording::{DEFAULT_PULSE_CYCLES, plane_wave_angle};
+use crate::recording::{OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples};
 
 /// MUST's default fractional bandwidth when `param.bandwidth` is absent (%).
 pub const DEFAULT_BANDWIDTH_PERCENT: f64 = 75.0;
 /// MUST's default speed of sound when `param.c` is absent (m/s).
 pub const DEFAULT_SOUND_SPEED: f64 = 1540.0;
-/// Transmit pulse length assumed when `param.TXnow` is absent (cycles).
-pub const DEFAULT_PULSE_CYCLES: f64 = 2.0;
-
 /// A parameter array in C order over its dimensions (MATLAB's dimensions for a MAT-file).
 #[derive(Debug, Clone)]
 struct ParamArray {
@@ -141,30 +140,12 @@ impl MustParams {
     }
 }
 
-/// Checks a value that must be finite and > 0.
-fn positive(path: &Path, name: &str, v: f64) -> Result<f64, IoError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(IoError::invalid(
-            path,
-            name,
-            format!("must be finite and > 0, got {v}"),
-        ))
-    }
-}
-
 /// The samples of a MUST recording: the stored array and what its axes are.
 struct MustSamples {
     array: StoredArray,
     axes: Vec<Axis>,
     /// "RF" or "IQ".
     variable: &'static str,
-}
-
-/// Reads a MUST-style MAT-file (v5 or v7.3) or `.npz` into channel data (whole, validated).
-pub fn read_must_mat(path: &Path) -> Result<ChannelData, IoError> {
-    crate::open::open_recording(path, &Overrides::default())?.read_all()
 }
 
 /// Builds channel data from an already-read MUST-style v5 MAT-file (`path` only names it in
@@ -575,25 +556,16 @@ fn build(
     } else {
         None
     };
-    let acquisition = Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe,
-        sequence: Sequence {
-            angles,
-            event_prf: prf,
-            coding: Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     let n = acquisition.sequence.n_angles();
     if n_samples < 2 {
         return Err(IoError::Recording {
@@ -603,13 +575,7 @@ fn build(
             )),
         });
     }
-    let stored = StoredSamples {
-        array: samples.array.label.clone(),
-        shape: samples.array.shape.clone(),
-        axes: samples.axes.iter().map(|a| a.name().to_string()).collect(),
-        dtype: samples.array.dtype_name(),
-        kind: if demod.is_some() { "iq" } else { "rf" }.into(),
-    };
+    let stored = StoredSamples::of(&samples.array, &samples.axes, demod.is_some());
     let frames = ArrayFrames::new(path, acquisition, samples.array, samples.axes, demod)?;
     let mut warnings = Vec::new();
     if n_transmits % n != 0 {
@@ -733,317 +699,5 @@ fn transmit_angles(
     })
 }
 
-/// Steering angle θ (rad) of a linear transmit-delay profile d_i = d_0 + x_i·sinθ/c; refuses
-/// delays that are not linear in x (focused or diverging waves).
-pub fn plane_wave_angle(delays: &[f64], element_x: &[f64], c: f64) -> Result<f64, String> {
-    if delays.len() != element_x.len() {
-        return Err(format!(
-            "has {} delays but the probe has {} elements",
-            delays.len(),
-            element_x.len()
-        ));
-    }
-    if let Some(d) = delays.iter().find(|d| !d.is_finite()) {
-        return Err(format!("holds a non-finite delay ({d})"));
-    }
-    let n = delays.len() as f64;
-    if delays.len() < 2 || delays.iter().all(|&d| d == delays[0]) {
-        return Ok(0.0);
-    }
-    let mx = element_x.iter().sum::<f64>() / n;
-    let md = delays.iter().sum::<f64>() / n;
-    let sxx: f64 = element_x.iter().map(|x| (x - mx).powi(2)).sum();
-    let sxd: f64 = element_x
-        .iter()
-        .zip(delays)
-        .map(|(x, d)| (x - mx) * (d - md))
-        .sum();
-    if sxx <= 0.0 {
-        return Err("cannot be fitted: the elements all share one position".into());
-    }
-    let slope = sxd / sxx;
-    let (lo, hi) = delays
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &d| {
-            (l.min(d), h.max(d))
-        });
-    let residual = element_x
-        .iter()
-        .zip(delays)
-        .map(|(x, d)| (d - (md + slope * (x - mx))).abs())
-        .fold(0.0, f64::max);
-    // Delays quantised by a scanner's clock stay well inside 2 % of their span.
-    if residual > 0.02 * (hi - lo) + 1e-12 {
-        return Err(format!(
-            "is not a plane-wave delay profile (not linear across the elements: the best linear fit \
-             misses by up to {:.3} µs over a span of {:.3} µs; focused and diverging waves are not supported)",
-            residual * 1e6,
-            (hi - lo) * 1e6
-        ));
-    }
-    let s = c * slope;
-    if s.abs() >= 1.0 {
-        return Err(format!(
-            "implies sin θ = {s:.3} (|sin θ| must be < 1): delays too steep for c = {c} m/s"
-        ));
-    }
-    Ok(s.asin())
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::mat::{NumericClass, write_mat};
-    use std::collections::BTreeMap;
-
-    fn param(n: usize) -> BTreeMap<String, MatValue> {
-        let mut p = BTreeMap::new();
-        for (k, v) in [
-            ("fs", 2e7),
-            ("fc", 5e6),
-            ("c", 1500.0),
-            ("pitch", 3e-4),
-            ("width", 2.5e-4),
-            ("t0", 1e-6),
-            ("PRF", 5e3),
-            ("Nelements", n as f64),
-        ] {
-            p.insert(k.to_string(), MatValue::scalar(v));
-        }
-        p.insert(
-            "TXdelay".into(),
-            MatValue::double(vec![1, n], vec![0.0; n]).unwrap(),
-        );
-        p
-    }
-
-    fn rf(dims: Vec<usize>) -> MatValue {
-        let n: usize = dims.iter().product();
-        MatValue::Numeric {
-            class: NumericClass::Int16,
-            dims,
-            real: (0..n).map(|i| (i % 200) as f64 - 100.0).collect(),
-            imag: None,
-        }
-    }
-
-    fn write(dir: &Path, rf: &MatValue, p: &BTreeMap<String, MatValue>) -> std::path::PathBuf {
-        let path = dir.join("rec.mat");
-        let pv = MatValue::Struct(p.clone());
-        write_mat(&path, &[("RF", rf), ("param", &pv)], true).unwrap();
-        path
-    }
-
-    #[test]
-    fn reads_a_small_must_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = write(dir.path(), &rf(vec![10, 4, 3]), &param(4));
-        let d = read_must_mat(&path).unwrap();
-        let a = &d.acquisition;
-        assert_eq!(a.probe.n_elements, 4);
-        assert_eq!(a.probe.bandwidth, 0.75);
-        assert_eq!(a.probe.name, "from MAT file");
-        assert_eq!(a.sequence.angles, vec![0.0]);
-        assert_eq!(a.sequence.pulse_cycles, 2.0);
-        assert_eq!(a.sampling_frequency, 2e7);
-        assert_eq!(a.t0, 1e-6);
-        assert_eq!(d.samples.dim(), (3, 4, 10));
-        // RF(s, e, t) lands at [t, e, s].
-        if let pcuvd::Samples::Rf(x) = &d.samples {
-            let s = 7;
-            let e = 2;
-            let t = 1;
-            assert_eq!(
-                x[[t, e, s]],
-                (((s + 10 * (e + 4 * t)) % 200) as f32) - 100.0
-            );
-        }
-        // 2-D RF is one transmit.
-        let path = write(dir.path(), &rf(vec![10, 4]), &param(4));
-        assert_eq!(read_must_mat(&path).unwrap().samples.dim(), (1, 4, 10));
-    }
-
-    #[test]
-    fn steered_delays_give_the_angle() {
-        let x = Probe {
-            name: String::new(),
-            n_elements: 64,
-            pitch: 3e-4,
-            element_width: 2.5e-4,
-            center_frequency: 5e6,
-            bandwidth: 0.7,
-        }
-        .element_x();
-        let theta = 7f64.to_radians();
-        let c = 1540.0;
-        let x0 = x[0];
-        let d: Vec<f64> = x.iter().map(|xi| (xi - x0) * theta.sin() / c).collect();
-        assert!((plane_wave_angle(&d, &x, c).unwrap() - theta).abs() < 1e-12);
-        let neg: Vec<f64> = d.iter().map(|v| d[63] - v).collect();
-        assert!((plane_wave_angle(&neg, &x, c).unwrap() + theta).abs() < 1e-12);
-        // Diverging wave: delays ∝ distance from a virtual source behind the array.
-        let div: Vec<f64> = x
-            .iter()
-            .map(|xi| (xi * xi + 0.01f64.powi(2)).sqrt() / c)
-            .collect();
-        let e = plane_wave_angle(&div, &x, c).unwrap_err();
-        assert!(e.contains("is not a plane-wave delay profile"), "{e}");
-    }
-
-    #[test]
-    fn steered_transmits_cycle_through_the_angles_of_a_frame() {
-        let dir = tempfile::tempdir().unwrap();
-        let n = 8;
-        let x = Probe {
-            name: String::new(),
-            n_elements: n,
-            pitch: 3e-4,
-            element_width: 2.5e-4,
-            center_frequency: 5e6,
-            bandwidth: 0.7,
-        }
-        .element_x();
-        let c = 1500.0;
-        // MUST's txdelay: x·sin θ / c shifted so that the first element fires at 0.
-        let law = |deg: f64| -> Vec<f64> {
-            let d: Vec<f64> = x.iter().map(|xi| xi * deg.to_radians().sin() / c).collect();
-            let min = d.iter().copied().fold(f64::INFINITY, f64::min);
-            d.iter().map(|v| v - min).collect()
-        };
-        let matrix = |rows: &[Vec<f64>]| {
-            // MATLAB rows × elements, column-major.
-            let r = rows.len();
-            let mut v = vec![0.0; r * n];
-            for (i, row) in rows.iter().enumerate() {
-                for (j, d) in row.iter().enumerate() {
-                    v[i + r * j] = *d;
-                }
-            }
-            MatValue::double(vec![r, n], v).unwrap()
-        };
-        let angles = [-5.0, 0.0, 5.0];
-        // One row per angle, 6 transmits: two frames of three angles.
-        let mut p = param(n);
-        p.insert("c".into(), MatValue::scalar(c));
-        p.insert("TXdelay".into(), matrix(&angles.map(law)));
-        let d = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p)).unwrap();
-        let got: Vec<f64> = d
-            .acquisition
-            .sequence
-            .angles
-            .iter()
-            .map(|a| a.to_degrees())
-            .collect();
-        assert_eq!(got.len(), 3);
-        for (g, w) in got.iter().zip(angles) {
-            assert!((g - w).abs() < 1e-9, "{got:?}");
-        }
-        assert_eq!(d.n_frames(), 2);
-        // One row per transmit, the same cycle: the same frame.
-        let rows: Vec<Vec<f64>> = (0..6).map(|i| law(angles[i % 3])).collect();
-        p.insert("TXdelay".into(), matrix(&rows));
-        let e = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p)).unwrap();
-        assert_eq!(e.acquisition.sequence.angles, d.acquisition.sequence.angles);
-        // Transmits that do not cycle through distinct angles are refused.
-        let rows: Vec<Vec<f64>> = [0.0, 0.0, 5.0, 5.0, 0.0, 0.0].map(law).to_vec();
-        p.insert("TXdelay".into(), matrix(&rows));
-        let err = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("same steering angle"), "{err}");
-        // Rows that do not divide the transmits are refused with the counts.
-        p.insert(
-            "TXdelay".into(),
-            matrix(&[law(0.0), law(5.0), law(-5.0), law(1.0)]),
-        );
-        let err = read_must_mat(&write(dir.path(), &rf(vec![10, n, 6]), &p))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("has 4 rows") && err.contains("6 transmits"),
-            "{err}"
-        );
-    }
-
-    #[test]
-    fn errors_name_file_field_and_problem() {
-        let dir = tempfile::tempdir().unwrap();
-        let check = |rf: &MatValue, p: &BTreeMap<String, MatValue>, want: &str| {
-            let path = write(dir.path(), rf, p);
-            let e = read_must_mat(&path).unwrap_err().to_string();
-            assert!(e.starts_with(&path.display().to_string()), "{e}");
-            assert!(e.contains(want), "{e} (wanted {want})");
-        };
-        let mut p = param(4);
-        p.remove("fs");
-        check(
-            &rf(vec![10, 4, 3]),
-            &p,
-            "variable 'param' has no field 'fs'",
-        );
-        let mut p = param(4);
-        p.insert("fs".into(), MatValue::scalar(-1.0));
-        check(&rf(vec![10, 4, 3]), &p, "param.fs must be finite and > 0");
-        let mut p = param(4);
-        p.insert("pitch".into(), MatValue::scalar(0.0));
-        check(&rf(vec![10, 4, 3]), &p, "param.pitch");
-        check(
-            &rf(vec![10, 5, 3]),
-            &param(4),
-            "param.Nelements is 4 but RF has 5",
-        );
-        check(
-            &rf(vec![10, 4, 3, 2]),
-            &param(4),
-            "variable 'RF' must be samples",
-        );
-        let mut p = param(4);
-        p.insert(
-            "TXdelay".into(),
-            MatValue::double(vec![1, 4], vec![1e-6, 0.0, 0.0, 1e-6]).unwrap(),
-        );
-        check(
-            &rf(vec![10, 4, 3]),
-            &p,
-            "TXdelay is not a plane-wave delay profile",
-        );
-        let mut bad = rf(vec![10, 4, 3]);
-        if let MatValue::Numeric { class, real, .. } = &mut bad {
-            *class = NumericClass::Double;
-            real[5] = f64::NAN;
-        }
-        check(&bad, &param(4), "non-finite");
-        check(&rf(vec![1, 4, 3]), &param(4), "at least 2 samples");
-
-        let path = dir.path().join("norf.mat");
-        let pv = MatValue::Struct(param(4));
-        write_mat(&path, &[("param", &pv)], false).unwrap();
-        let e = read_must_mat(&path).unwrap_err().to_string();
-        assert!(e.contains("the file has no variable 'RF'"), "{e}");
-    }
-
-    #[test]
-    fn pwi_disk() {
-        let path = Path::new(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../../shared/data/PWI_disk.mat"
-        ));
-        // Beside the repository, not in it; missing, the test fails rather than passing unrun.
-        assert!(
-            path.exists(),
-            "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
-             (shared/data/ beside the repository)",
-            path.display()
-        );
-        let d = read_must_mat(path).unwrap();
-        let a = &d.acquisition;
-        println!("{a:#?}\nsamples dim {:?}", d.samples.dim());
-        assert_eq!(d.samples.dim(), (32, 128, 334));
-        assert_eq!(a.probe.n_elements, 128);
-        assert!((a.probe.bandwidth - 0.15).abs() < 1e-12);
-        assert_eq!(a.sequence.angles, vec![0.0]);
-        assert_eq!(a.sequence.event_prf, 1e4);
-        assert_eq!(a.sound_speed, 1480.0);
-        assert_eq!(d.n_frames(), 32);
-    }
-}
+mod tests;

@@ -1,16 +1,22 @@
 //! A pcuvd recording manifest opened through [`crate::open_recording`]: the acquisition from the
 //! manifest (each parameter's source is its key), the samples from `[data].file` (`.npy`,
-//! `.npz:ARRAY`, `.h5:/dataset`, `.mat:VARIABLE`) read a block of frames at a time.
+//! `.npz:ARRAY`, `.h5:/dataset`, `.mat:VARIABLE`) read a block of frames at a time
+//! ([`frames::ManifestFrames`] for a plain `.npy` in event order, else
+//! [`crate::array::ArrayFrames`]). The manifest's format itself (schema, checks, writer) is
+//! [`crate::manifest`], below this reader.
+
+pub mod frames;
 
 use std::path::Path;
 
 use serde_json::json;
 
 use crate::array::{ArrayFrames, Axis};
+use crate::container::{Container, read_head, sniff};
 use crate::error::IoError;
-use crate::frames::ManifestFrames;
-use crate::open::{Container, OpenedRecording, SourceInfo, StoredSamples, read_head, sniff};
 use crate::params::{Overrides, ParamSource, Resolver, field};
+use crate::recording::{OpenedRecording, SourceInfo, StoredSamples, checked_acquisition};
+use frames::ManifestFrames;
 
 /// Opens the manifest at `path`.
 pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
@@ -168,10 +174,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         )?),
         None => None,
     };
-    acq.validate().map_err(|source| IoError::Recording {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let acq = checked_acquisition(path, acq)?;
     let spec = crate::datafile::DataSpec {
         path: parsed.data_path.clone(),
         member: parsed.data_member.clone(),

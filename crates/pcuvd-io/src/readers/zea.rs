@@ -22,8 +22,11 @@ use crate::array::{ArrayFrames, Axis};
 use crate::error::IoError;
 use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
+use crate::recording::{
+    DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
+    StoredSamples, plane_wave_angle,
+};
 
 /// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
 /// recording of `n_tx` transmits per frame: n_tx over the median frame period.
@@ -219,10 +222,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         "bandwidth",
         scalar(h5, "probe/probe_bandwidth_percent")?
             .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
-        Some((
-            crate::uff::DEFAULT_BANDWIDTH,
-            "probe/probe_bandwidth_percent is absent",
-        )),
+        Some((DEFAULT_BANDWIDTH, "probe/probe_bandwidth_percent is absent")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, "probe/probe_bandwidth_percent", bandwidth)?;
@@ -235,7 +235,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                     .map(|i| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch)
                     .collect();
                 for (k, row) in d.chunks_exact(n).enumerate() {
-                    let fitted = crate::must::plane_wave_angle(row, &xs, c).map_err(|e| {
+                    let fitted = plane_wave_angle(row, &xs, c).map_err(|e| {
                         IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e)
                     })?;
                     if (fitted - a[k]).abs() > 0.05f64.to_radians() {
@@ -267,7 +267,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 .chunks_exact(n)
                 .enumerate()
                 .map(|(k, row)| {
-                    crate::must::plane_wave_angle(row, &xs, c).map_err(|e| {
+                    plane_wave_angle(row, &xs, c).map_err(|e| {
                         IoError::invalid(path, format!("{} row {}", scan("t0_delays"), k + 1), e)
                     })
                 })
@@ -310,10 +310,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
-        Some((
-            crate::must::DEFAULT_PULSE_CYCLES,
-            "zea does not record the pulse length",
-        )),
+        Some((DEFAULT_PULSE_CYCLES, "zea does not record the pulse length")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let demod = if iq {
@@ -333,7 +330,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         Axis::Channels,
         if iq { Axis::ReIm } else { Axis::Unit },
     ];
-    let acquisition = pcuvd::Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe: pcuvd::Probe {
             name: h5
                 .dataset("probe/name")
@@ -347,44 +344,20 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence {
-            angles,
-            event_prf: prf,
-            coding: pcuvd::Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    }
+    .build(path)?;
     warnings.push(
         "zea's colour Doppler is positive toward the transducer; pcuvd's color_doppler is \
          positive away from it"
             .into(),
     );
-    let stored = StoredSamples {
-        array: array.label.clone(),
-        shape: array.shape.clone(),
-        axes: vec![
-            "frames",
-            "angles",
-            "samples",
-            "channels",
-            if iq { "re_im" } else { "unit" },
-        ]
-        .into_iter()
-        .map(String::from)
-        .collect(),
-        dtype: array.dtype_name(),
-        kind: if iq { "iq" } else { "rf" }.into(),
-    };
+    let stored = StoredSamples::of(&array, &axes, iq);
     let frames = ArrayFrames::new(path, acquisition, array, axes, demod)?;
     Ok(OpenedRecording {
         source: Box::new(frames),

@@ -19,11 +19,11 @@ use crate::array::{ArrayFrames, Axis};
 use crate::error::IoError;
 use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, crossing_time, linear_array, positive, scalar};
-use crate::open::{OpenedRecording, SourceInfo, StoredSamples};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
-
-/// pcuvd's fractional bandwidth when `pulse/fractional_bandwidth` is absent.
-pub const DEFAULT_BANDWIDTH: f64 = 0.67;
+pub use crate::recording::DEFAULT_BANDWIDTH;
+use crate::recording::{
+    DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples,
+};
 
 /// Opens a UFF file's `/channel_data`.
 pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
@@ -223,10 +223,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
-        Some((
-            crate::must::DEFAULT_PULSE_CYCLES,
-            "UFF does not record the pulse length",
-        )),
+        Some((DEFAULT_PULSE_CYCLES, "UFF does not record the pulse length")),
         || IoError::malformed(path, "unreachable"),
     )?;
     let array = crate::datafile::open_hdf5_array(path, &f("data"))?;
@@ -265,7 +262,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     };
-    let acquisition = pcuvd::Acquisition {
+    let acquisition = PlaneWaveAcquisition {
         probe: pcuvd::Probe {
             name: h5
                 .attr_string(&f("probe"), "class")
@@ -276,30 +273,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             center_frequency: fc,
             bandwidth,
         },
-        sequence: pcuvd::Sequence {
-            angles,
-            event_prf: prf,
-            coding: pcuvd::Coding::Conventional,
-            pulse_cycles,
-            pulse: None,
-        },
+        angles,
+        event_prf: prf,
+        pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
         t0,
-    };
-    acquisition
-        .validate()
-        .map_err(|source| IoError::Recording {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let stored = StoredSamples {
-        array: array.label.clone(),
-        shape: array.shape.clone(),
-        axes: axes.iter().map(|a| a.name().to_string()).collect(),
-        dtype: array.dtype_name(),
-        kind: if iq { "iq" } else { "rf" }.into(),
-    };
+    }
+    .build(path)?;
+    let stored = StoredSamples::of(&array, &axes, iq);
     let frames = ArrayFrames::new(path, acquisition, array, axes, demod)?;
     Ok(OpenedRecording {
         source: Box::new(frames),
