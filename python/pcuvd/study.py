@@ -13,6 +13,14 @@ def option_names() -> list[str]:
     return sorted(_pcuvd.option_names_of("study"))
 
 
+def settings(**options: Any) -> dict:
+    """The settings each study ("spiral", "network", "dealias") would run with for these
+    options, every default filled in and every check made: what `pcuvd paper --print-settings`
+    prints for the same options. Raises ValueError for a value the studies refuse."""
+    given = _checks.to_options("settings", options, _pcuvd.option_names_of("study"))
+    return json.loads(_pcuvd.study_settings(given))
+
+
 def spiral(*, quiet: bool = False, **options: Any) -> dict:
     """The spiral-flow study (Fig. 2–5): simulate conventional and coded recordings, process,
     compare with the truth. options: `pcuvd paper`'s, e.g. frames=100, seed=1, noise_db=-10,

@@ -22,31 +22,44 @@ def _without_timings(value):
 
 # A 0.2 mm grid keeps these quick; it is too coarse for Loupas's axial lag (at most 98.7 µm at
 # 15.6 MHz), so both read velocity with Kasai, which also checks that `doppler_estimator=` is
-# `--doppler-estimator`.
-STUDIES = {
-    "spiral": (
-        ["--frames", "8", "--grid-step", "0.2", "--sweep=-10,5", "--doppler-estimator", "kasai"],
-        {"frames": 8, "grid_step": 0.2, "sweep": (-10, 5), "doppler_estimator": "kasai"},
-    ),
-    # A fast heart makes one cardiac cycle fit in 72 frames (two 36-frame windows), so RI can be
-    # measured quickly.
-    "network": (
-        [
-            "--network-frames", "104", "--heart-rate", "25", "--grid-step", "0.2",
-            "--doppler-estimator", "kasai",
-        ],
-        {"network_frames": 104, "heart_rate": 25, "grid_step": 0.2, "doppler_estimator": "kasai"},
-    ),
+# `--doppler-estimator`. A fast heart makes one cardiac cycle fit in the network's 104 frames.
+CLI_ARGS = [
+    "--frames", "8", "--grid-step", "0.2", "--sweep=-10,5", "--doppler-estimator", "kasai",
+    "--network-frames", "104", "--heart-rate", "25", "--doppler-kernel", "3x1",
+    "--dealias-seeds", "2,3", "--partial-volume", "on",
+]
+KEYWORDS = {
+    "frames": 8, "grid_step": 0.2, "sweep": (-10, 5), "doppler_estimator": "kasai",
+    "network_frames": 104, "heart_rate": 25, "doppler_kernel": (3, 1),
+    "dealias_seeds": (2, 3), "partial_volume": "on",
 }
 
 
-@pytest.mark.parametrize("which", sorted(STUDIES))
-def test_study_numbers_equal_pcuvd_paper(which, cli, tmp_path):
-    args, kwargs = STUDIES[which]
-    done = run_cli(cli, "paper", "--part", which, *args, "--out", tmp_path)
+def test_study_keywords_give_the_settings_of_pcuvd_paper(cli):
+    """Every study's settings, from the command's options and from the same keywords, are the
+    same once read (defaults filled in, checks made): both front ends run one settings type."""
+    done = run_cli(cli, "paper", "--print-settings", *CLI_ARGS)
+    assert done.returncode == 0, done.stderr
+    by_cli = json.loads(done.stdout)
+    by_python = pcuvd.study.settings(**KEYWORDS)
+    assert by_python == by_cli
+    assert by_python["spiral"]["doppler_kernel"] == [3, 1]
+    assert by_python["network"]["frames"] == 104 and by_python["dealias"]["seeds"] == [2, 3]
+    # And the defaults are the command's. (The network and dealiasing studies run the library's
+    # `study::network::run` / `study::dealias::run` on these settings, tested in Rust's slow tier;
+    # the spiral below runs from both front ends.)
+    defaults = run_cli(cli, "paper", "--print-settings")
+    assert pcuvd.study.settings() == json.loads(defaults.stdout)
+
+
+def test_small_spiral_study_numbers_equal_pcuvd_paper(cli, tmp_path):
+    args = ["--frames", "8", "--grid-step", "0.2", "--sweep=-10,5", "--doppler-estimator", "kasai"]
+    done = run_cli(cli, "paper", "--part", "spiral", *args, "--out", tmp_path)
     assert done.returncode == 0, done.stderr
     written = json.loads((tmp_path / "metrics.json").read_text())
-    metrics = getattr(pcuvd.study, which)(quiet=True, **kwargs)
+    metrics = pcuvd.study.spiral(
+        quiet=True, frames=8, grid_step=0.2, sweep=(-10, 5), doppler_estimator="kasai"
+    )
     assert metrics, "no metrics"
     expected = {k: written[k] for k in metrics}
     assert _without_timings(metrics) == _without_timings(expected)

@@ -724,4 +724,68 @@ mod tests {
         assert!(parse_grid("a,2,3,4,5").is_err());
         assert!(parse_grid("0,1,1,2,-0.1").is_err());
     }
+
+    #[test]
+    fn unknown_keys_are_refused_by_name() {
+        let error = serde_json::from_str::<ProcessingSettings>(r#"{"svd_lo": "auto"}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("svd_lo"), "{error}");
+        let error = serde_json::from_str::<DynamicsSettings>(r#"{"window_ms": "long"}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("long"), "{error}");
+    }
+
+    #[test]
+    fn words_numbers_and_lists_read_as_the_command_line_would_hold_them() {
+        let settings: ProcessingSettings = serde_json::from_str(
+            r#"{"svd_low": 4, "doppler_kernel": [3, 1], "grid_mm": [-5, 5, 200, 210, 0.1],
+                "dealias": "auto", "f_number": 2}"#,
+        )
+        .unwrap();
+        assert_eq!(settings.svd_low, "4");
+        assert_eq!(parse_kernel(&settings.doppler_kernel).unwrap(), (3, 1));
+        assert_eq!(settings.grid.as_deref(), Some("-5,5,200,210,0.1"));
+        assert_eq!(settings.dealias, "auto");
+        assert_eq!(settings.f_number, 2.0);
+        // What is not given keeps its default.
+        assert_eq!(settings.svd_high, ProcessingSettings::default().svd_high);
+        let dynamics: DynamicsSettings =
+            serde_json::from_str(r#"{"heart_rate_hz": 5.5, "vessel_margin_db": "off"}"#).unwrap();
+        assert_eq!(dynamics.heart_rate, Some(5.5));
+        assert_eq!(parse_db_or_off(&dynamics.vessel_margin_db).unwrap(), None);
+    }
+
+    #[test]
+    fn settings_read_back_as_they_were_written() {
+        let settings = ProcessingSettings {
+            grid: Some("-6,6,2,14,0.05".into()),
+            partial_volume: Switch::On,
+            event_alignment: Alignment::Simultaneous,
+            ..ProcessingSettings::default()
+        };
+        let text = serde_json::to_string(&settings).unwrap();
+        assert_eq!(
+            serde_json::from_str::<ProcessingSettings>(&text).unwrap(),
+            settings
+        );
+    }
+
+    /// The command line's defaults are the settings' `Default`, read back through the text clap
+    /// shows in `--help` (so no default loses digits on the way).
+    #[cfg(feature = "clap")]
+    #[test]
+    fn the_command_line_defaults_are_the_settings_defaults() {
+        #[derive(clap::Parser)]
+        struct Command {
+            #[command(flatten)]
+            processing: ProcessingSettings,
+            #[command(flatten)]
+            dynamics: DynamicsSettings,
+        }
+        let parsed = <Command as clap::Parser>::parse_from(["pcuvd"]);
+        assert_eq!(parsed.processing, ProcessingSettings::default());
+        assert_eq!(parsed.dynamics, DynamicsSettings::default());
+    }
 }

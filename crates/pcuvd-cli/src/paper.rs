@@ -30,8 +30,12 @@ use pcuvd_app::study::StudySettings;
 #[derive(Args, Debug)]
 pub struct PaperArgs {
     /// Output folder (created if needed).
+    #[arg(long, required_unless_present = "print_settings")]
+    pub out: Option<std::path::PathBuf>,
+    /// Print the settings each study of this run would use (every default filled in, every
+    /// check made), as JSON, and stop: a record of a run, or a check of what options do.
     #[arg(long)]
-    pub out: std::path::PathBuf,
+    pub print_settings: bool,
     /// Which study to run: all, spiral (Fig. 2–5), network (in-vivo-like, Fig. 6–8, RI maps) or
     /// dealias (vector dealiasing of a tube at 1–3× the Nyquist velocity).
     #[arg(long, value_enum, default_value = "all")]
@@ -78,8 +82,20 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     let dealias_settings = runs(Part::Dealias)
         .then(|| args.study.dealias_settings())
         .transpose()?;
-    create_dir(&args.out)?;
-    remove_other_part(&args.out, args.part)?;
+    if args.print_settings {
+        let settings = serde_json::json!({
+            "spiral": spiral_settings,
+            "network": network_settings,
+            "dealias": dealias_settings,
+        });
+        println!("{}", serde_json::to_string_pretty(&settings)?);
+        return Ok(());
+    }
+    let Some(out) = &args.out else {
+        anyhow::bail!("--out: the output folder is required");
+    };
+    create_dir(out)?;
+    remove_other_part(out, args.part)?;
     let started = Instant::now();
     let progress = Bars::new("");
     let report_progress = pcuvd_app::progress::tasks(&progress);
@@ -143,7 +159,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
                 a.blur_rmse_mm_s.vz,
             );
         }
-        spiral_figs = paper_figures(&args.out, &study)?;
+        spiral_figs = paper_figures(out, &study)?;
         spiral_done = Some((study.metrics, study.settings));
     }
     let mut network = None;
@@ -160,7 +176,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
             100.0 * pc.classification_accuracy,
             clock.elapsed().as_secs_f64()
         );
-        network_figs = crate::network_study::network_figures(&args.out, &study, &progress)?;
+        network_figs = crate::network_study::network_figures(out, &study, &progress)?;
         network = Some((study.metrics, study.settings));
     }
     let mut dealias = None;
@@ -175,7 +191,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
                 if t.holds { "holds" } else { "does not hold" }
             );
         }
-        dealias_figs = crate::dealias_study::dealias_figures(&args.out, &study)?;
+        dealias_figs = crate::dealias_study::dealias_figures(out, &study)?;
         dealias = Some(study.metrics);
     }
     let metrics = PaperMetrics {
@@ -186,9 +202,9 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     };
     // Through a JSON value, whose keys are sorted: the file reads the same whatever the struct order.
     let value = serde_json::to_value(&metrics).context("metrics.json")?;
-    pcuvd_io::write_json(&args.out.join("metrics.json"), &value)?;
+    pcuvd_io::write_json(&out.join("metrics.json"), &value)?;
     write_report(
-        &args.out,
+        out,
         &value,
         spiral_done
             .as_ref()
@@ -201,7 +217,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     println!(
         "wrote metrics.json, report.html and {} figures to {} ({:.0} s)",
         spiral_figs.len() + network_figs.len() + dealias_figs.len(),
-        args.out.display(),
+        out.display(),
         started.elapsed().as_secs_f64()
     );
     Ok(())

@@ -96,6 +96,7 @@ fn median_ri_of(truth: &Array2<u8>, ri: &Array2<f64>, kind: u8) -> f64 {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     let dir = tempfile::tempdir().unwrap();
     let manifest = write_recording(dir.path());

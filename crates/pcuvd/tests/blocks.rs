@@ -30,6 +30,7 @@ fn series(data: &ChannelData, params: &ProcessParams, blocks: Blocks) -> Vec<Arr
 }
 
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn blocks_are_exact_where_every_frame_stands_alone() {
     for (coded, alignment) in [
         (false, EventAlignment::MidFrame),
@@ -48,6 +49,7 @@ fn blocks_are_exact_where_every_frame_stands_alone() {
 }
 
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     let data = recording(true);
     let params = params(&data, EventAlignment::MidFrame);

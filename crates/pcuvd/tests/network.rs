@@ -121,6 +121,7 @@ fn ri_of(phantom: &NetworkPhantom, grid: &Grid, coded: bool, noise_db: f64) -> M
 }
 
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn pc_uvd_ri_maps_match_the_truth_no_worse_than_uvd() {
     let phantom = reduced_network();
     let grid = Grid::new(-2.5e-3, 2.5e-3, 5e-3, 8e-3, 0.1e-3).unwrap();

@@ -294,6 +294,7 @@ fn a_segment_too_short_for_the_windows_is_refused_by_name() {
 /// window are dealiased, as on the whole-recording path; one segment gives the whole path's
 /// dealiased vectors, windows (at the K the maps chose) and ensembles.
 #[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
 fn segments_dealias_as_the_whole_path_does() {
     let probe = recording().acquisition;
     let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
