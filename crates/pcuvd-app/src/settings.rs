@@ -711,6 +711,39 @@ impl ProcessingSettings {
     }
 }
 
+/// Checks every settings type passes, for the settings modules' tests.
+#[cfg(test)]
+pub(crate) mod testing {
+    use std::fmt::Debug;
+
+    use serde::Serialize;
+    use serde::de::DeserializeOwned;
+
+    /// The command line's defaults of `T` are its `Default`, read back through the text clap
+    /// shows in `--help` (so no default loses digits on the way).
+    #[cfg(feature = "clap")]
+    pub fn command_line_defaults_are_default<T: clap::Args + Default + PartialEq + Debug>() {
+        let command = T::augment_args(clap::Command::new("pcuvd"));
+        let matches = command.try_get_matches_from(["pcuvd"]).unwrap();
+        let parsed = <T as clap::FromArgMatches>::from_arg_matches(&matches).unwrap();
+        assert_eq!(parsed, T::default());
+    }
+
+    /// `settings` read back from JSON as they were written, and an unknown key is refused by
+    /// name.
+    pub fn reads_back_and_refuses_unknown_keys<T>(settings: &T)
+    where
+        T: Serialize + DeserializeOwned + PartialEq + Debug,
+    {
+        let text = serde_json::to_string(settings).unwrap();
+        assert_eq!(&serde_json::from_str::<T>(&text).unwrap(), settings);
+        let error = serde_json::from_str::<T>(r#"{"no_such_setting": 1}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("no_such_setting"), "{error}");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -765,27 +798,14 @@ mod tests {
             event_alignment: Alignment::Simultaneous,
             ..ProcessingSettings::default()
         };
-        let text = serde_json::to_string(&settings).unwrap();
-        assert_eq!(
-            serde_json::from_str::<ProcessingSettings>(&text).unwrap(),
-            settings
-        );
+        testing::reads_back_and_refuses_unknown_keys(&settings);
+        testing::reads_back_and_refuses_unknown_keys(&DynamicsSettings::default());
     }
 
-    /// The command line's defaults are the settings' `Default`, read back through the text clap
-    /// shows in `--help` (so no default loses digits on the way).
     #[cfg(feature = "clap")]
     #[test]
     fn the_command_line_defaults_are_the_settings_defaults() {
-        #[derive(clap::Parser)]
-        struct Command {
-            #[command(flatten)]
-            processing: ProcessingSettings,
-            #[command(flatten)]
-            dynamics: DynamicsSettings,
-        }
-        let parsed = <Command as clap::Parser>::parse_from(["pcuvd"]);
-        assert_eq!(parsed.processing, ProcessingSettings::default());
-        assert_eq!(parsed.dynamics, DynamicsSettings::default());
+        testing::command_line_defaults_are_default::<ProcessingSettings>();
+        testing::command_line_defaults_are_default::<DynamicsSettings>();
     }
 }

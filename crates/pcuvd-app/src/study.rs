@@ -322,32 +322,16 @@ impl From<Motion> for StudyMotion {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::settings::testing;
 
-    /// The command line's defaults are the settings' `Default`, read back through the text clap
-    /// shows in `--help`; and the settings read back from JSON as they were written.
     #[cfg(feature = "clap")]
     #[test]
     fn the_command_line_defaults_are_the_settings_defaults() {
-        #[derive(clap::Parser)]
-        struct Command {
-            #[command(flatten)]
-            settings: StudySettings,
-        }
-        let parsed = <Command as clap::Parser>::parse_from(["pcuvd"]);
-        assert_eq!(parsed.settings, StudySettings::default());
+        testing::command_line_defaults_are_default::<StudySettings>();
     }
 
     #[test]
     fn settings_read_back_as_they_were_written() {
-        let settings = StudySettings::default();
-        let text = serde_json::to_string(&settings).unwrap();
-        assert_eq!(
-            serde_json::from_str::<StudySettings>(&text).unwrap(),
-            settings
-        );
-        let error = serde_json::from_str::<StudySettings>(r#"{"no_such_setting": 1}"#)
-            .unwrap_err()
-            .to_string();
-        assert!(error.contains("no_such_setting"), "{error}");
+        testing::reads_back_and_refuses_unknown_keys(&StudySettings::default());
     }
 }

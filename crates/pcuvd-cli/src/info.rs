@@ -16,6 +16,7 @@ pub struct InfoArgs {
     /// Recording: MUST .mat (v5 or v7.3) or .npz, USTB .uff, zea .hdf5, a Verasonics workspace
     /// .mat, or a pcuvd recording manifest .toml; recognised from its content.
     pub input: PathBuf,
+    /// Acquisition values given on the command line.
     #[command(flatten)]
     pub acquisition: AcquisitionOverrides,
     /// Print JSON (for programs) instead of text.

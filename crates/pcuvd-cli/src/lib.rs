@@ -2,6 +2,8 @@
 //! options), progress bars, Ctrl-C, and what it prints. The settings, the run and its outputs
 //! are [`pcuvd_app`]'s, which every front end shares.
 
+#![warn(missing_docs)]
+
 pub mod dealias_study;
 pub mod info;
 pub mod network_study;

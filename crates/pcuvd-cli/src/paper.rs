@@ -40,6 +40,7 @@ pub struct PaperArgs {
     /// dealias (vector dealiasing of a tube at 1–3× the Nyquist velocity).
     #[arg(long, value_enum, default_value = "all")]
     pub part: Part,
+    /// The studies' settings.
     #[command(flatten)]
     pub study: StudySettings,
 }

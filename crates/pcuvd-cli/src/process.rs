@@ -31,10 +31,13 @@ pub struct ProcessArgs {
     /// shared node whose job limit is below the machine's free memory (a Slurm --mem, say).
     #[arg(long)]
     pub max_memory_gb: Option<f64>,
+    /// Acquisition values given on the command line.
     #[command(flatten)]
     pub acquisition: AcquisitionOverrides,
+    /// Processing settings.
     #[command(flatten)]
     pub options: ProcessingSettings,
+    /// Dynamics-stage settings.
     #[command(flatten)]
     pub dynamics: DynamicsSettings,
 }

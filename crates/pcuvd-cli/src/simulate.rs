@@ -69,6 +69,7 @@ fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) ->
 /// Arguments of `pcuvd simulate`.
 #[derive(Args, Debug)]
 pub struct SimulateArgs {
+    /// What to simulate.
     #[command(flatten)]
     pub options: SimulationSettings,
     /// Output folder (created if needed).

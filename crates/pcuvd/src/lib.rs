@@ -17,6 +17,8 @@
 //!
 //! Units are SI throughout (m, s, Hz, m/s). No printing, no file formats, no plotting here.
 
+#![warn(missing_docs)]
+
 pub mod acquisition;
 pub mod core;
 pub mod dynamics;
