@@ -18,7 +18,7 @@ impl Blocks {
     /// Frames decoded beyond each side of a block of a coded, mid-frame-aligned recording: the
     /// alignment's reach ([`crate::form::decode::ALIGN_HALF`]). Each aligned frame is a weighted sum of
     /// that many frames on either side, so a block's frames come out as the whole recording's
-    /// (`tests/blocks.rs`); near the recording's own ends see [`Blocks::END_FRAMES`].
+    /// (`tests/integration/blocks.rs`); near the recording's own ends see [`Blocks::END_FRAMES`].
     pub const ALIGNMENT_MARGIN: usize = crate::form::decode::ALIGN_HALF;
 
     /// Frames a decoded range holds at least where it reaches an end of the recording (with a

@@ -20,7 +20,7 @@
 //!   spectrum, as tissue does: the spectrum is multiplied by exp(−α (|f| − f_c) L), which moves a
 //!   Gaussian spectrum of amplitude width σ down by α·σ²·L — for the L22-14vX 2-cycle echo at
 //!   0.5 dB/cm/MHz its mean frequency falls by about 1 % per mm of depth (12 % at 12 mm;
-//!   `tests/simulate.rs`). The
+//!   `tests/integration/simulate.rs`). The
 //!   echo table is tabulated at path lengths a few mm apart (each band shifts the spectrum by at
 //!   most an eighth of its width) and each echo is blended linearly between the two tables
 //!   around its path, so the spectrum changes smoothly with depth at twice the insertion work of

@@ -16,7 +16,7 @@ fn samples_npy(dir: &Path) {
 }
 
 /// The npy target's manifest, reading `fuzzed.npy`.
-const NPY_MANIFEST: &str = include_str!("../../../fuzz/npy_target.toml");
+const NPY_MANIFEST: &str = include_str!("../../../../fuzz/npy_target.toml");
 
 fn decode(data: &pcuvd::ChannelData) -> Result<(), pcuvd::Error> {
     pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2)?;

@@ -1,7 +1,7 @@
 //! Which angles reach which pixels: the coverage map that leaves unreached angles out of the
 //! vector fit agrees with the images the beamformer actually forms.
 
-mod common;
+use crate::common;
 
 use ndarray::s;
 use pcuvd::form::decode::EventAlignment;

@@ -5,7 +5,7 @@
 //! Loupas (the lag-1 and the spatial lags within frames and at temporal lags ±1, summed per core
 //! alike).
 
-mod common;
+use crate::common;
 
 use common::{tube, tube_at};
 use ndarray::{Array2, Array3};

@@ -631,7 +631,7 @@ fn translating_block_reads_projections_and_vector_within_one_percent() {
 
 /// Frequency-dependent attenuation (the simulator's default, 0.5 dB/cm/MHz) lowers the echo
 /// spectrum with depth: at 6 mm the received echo's mean frequency is 6.2 % below f_c
-/// (`tests/simulate.rs`) and the image's, where each frequency also counts by its beam width
+/// (`tests/integration/simulate.rs`) and the image's, where each frequency also counts by its beam width
 /// (∝ 1/f), about 10 % below (median over the read region, 5.2–6.8 mm). The default estimator (Loupas) still reads every projection and the
 /// vector within 1 % and 1°; the nominal frequency (Kasai) does not. Measured (seed 1): image
 /// mean frequency 0.896 f_c; Loupas worst projection error 0.17 % of the speed, speed −0.28 %,
