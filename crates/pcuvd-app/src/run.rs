@@ -186,21 +186,8 @@ pub fn run(data: &dyn FrameSource, plan: &Plan, progress: &dyn Progress) -> Resu
     if let Some(segments) = &plan.segments {
         return run_in_segments(data, plan, segments, blocks, progress);
     }
-    let (images, mut timings) =
-        pipeline::form_images_in_blocks(data, &plan.params, blocks, stages)?;
-    let ensembles = match plan.ensembles {
-        None => None,
-        Some(spec) => {
-            let clock = std::time::Instant::now();
-            let maps =
-                pcuvd::pipeline::ensembles::ensemble_maps(&images, &plan.params, spec, stages)?;
-            timings.push((pipeline::Stage::Ensembles, clock.elapsed().as_secs_f64()));
-            Some(maps)
-        }
-    };
-    let mut out = pipeline::analyse(images, &plan.params, stages)?;
-    timings.append(&mut out.timings);
-    out.timings = timings;
+    let (out, ensembles) =
+        pipeline::process_source(data, &plan.params, blocks, plan.ensembles, stages)?;
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan, progress)?;
     Ok(Processed {

@@ -1,6 +1,7 @@
 //! The processing chain in order: decode → IQ → beamform ([`form`]), then clutter filter →
-//! Doppler → vector velocity → dynamics ([`analyse`]). [`process`] runs it on a whole recording in
-//! memory; [`segments`] runs it on a long recording a segment at a time with memory bounded by a
+//! Doppler → vector velocity → dynamics ([`analyse`]). [`process_source`] runs it on a recording
+//! held whole (images formed a block at a time, with the time series when asked), [`process`]
+//! on one in memory; [`segments`] runs it on a long recording a segment at a time with memory bounded by a
 //! segment, and [`ensembles`] cuts the result into successive Doppler ensembles. [`memory`] sizes
 //! the blocks and segments, [`record`] says what a recording's samples reach.
 
@@ -19,4 +20,4 @@ pub use form::*;
 pub use memory::*;
 pub use params::*;
 pub use record::*;
-pub use whole::process;
+pub use whole::{process, process_source};
