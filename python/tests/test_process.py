@@ -162,6 +162,17 @@ def test_every_format_reads_through_the_same_reader(disk):
     np.testing.assert_array_equal(uff.samples, mat.samples[:8])
 
 
+def test_bandwidth_is_a_keyword_for_files_that_do_not_state_it():
+    # UFF written by pyuff-ustb without pulse/fractional_bandwidth: read with the band the
+    # sampling holds (a note says so), or with the probe's own given as bandwidth=.
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    unstated = pcuvd.read_recording(fixtures / "disk_no_bandwidth.uff")
+    assert "widest band" in unstated.parameters["bandwidth"]["source"]["note"]
+    given = pcuvd.read_recording(fixtures / "disk_no_bandwidth.uff", bandwidth=0.15)
+    assert given.parameters["bandwidth"] == {"value": 0.15, "source": {"kind": "override"}}
+    assert given.probe["bandwidth"] == 0.15
+
+
 def test_from_arrays_equals_the_file(disk):
     recording = pcuvd.read_recording(disk)
     samples = np.transpose(recording.samples, (2, 0, 1))  # (samples, events, channels)

@@ -64,6 +64,10 @@ pub struct AcquisitionOverrides {
     /// Demodulation frequency of IQ samples (Hz).
     #[arg(long)]
     pub demod_freq_hz: Option<f64>,
+    /// Probe's two-way −6 dB fractional bandwidth (0.6 = 60 %), for a file that does not state
+    /// it (pcuvd then takes 67 %, or the widest band the sampling holds) or states it wrongly.
+    #[arg(long)]
+    pub bandwidth: Option<f64>,
 }
 
 impl AcquisitionOverrides {
@@ -76,6 +80,7 @@ impl AcquisitionOverrides {
             sampling_freq_hz: self.sampling_freq_hz,
             center_freq_hz: self.center_freq_hz,
             demod_freq_hz: self.demod_freq_hz,
+            bandwidth: self.bandwidth,
             ..pcuvd_io::Overrides::default()
         }
     }

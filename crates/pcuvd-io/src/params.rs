@@ -27,6 +27,8 @@ pub struct Overrides {
     pub angles_rad: Option<Vec<f64>>,
     /// Transmit pulse length (cycles).
     pub pulse_cycles: Option<f64>,
+    /// Probe's two-way −6 dB fractional bandwidth (0.6 = 60 %).
+    pub bandwidth: Option<f64>,
 }
 
 impl Overrides {
@@ -120,6 +122,7 @@ impl<'a> Resolver<'a> {
             "center_frequency_hz" => o.center_freq_hz,
             "demod_frequency_hz" => o.demod_freq_hz,
             "pulse_cycles" => o.pulse_cycles,
+            "bandwidth" => o.bandwidth,
             _ => None,
         }
     }

@@ -20,8 +20,47 @@ use crate::params::Parameter;
 pub const DEFAULT_PULSE_CYCLES: f64 = 2.0;
 
 /// pcuvd's fractional bandwidth when the file does not record it (UFF's
-/// `pulse/fractional_bandwidth`, zea's `probe_bandwidth_percent`, Verasonics' `Trans.Bandwidth`).
+/// `pulse/fractional_bandwidth`, zea's `probe_bandwidth_percent`, Verasonics' `Trans.Bandwidth`)
+/// and the sampling holds it ([`unstated_bandwidth`]).
 pub const DEFAULT_BANDWIDTH: f64 = 0.67;
+
+/// The fractional bandwidth to take when a file does not state it: `default` (with its `note`)
+/// when RF sampled at `sampling_frequency` (Hz) holds that band around `center_frequency` (Hz),
+/// else the widest band centred on f_c that one Nyquist zone of the sampling holds, with a note
+/// saying so. The bandwidth only decides whether the sampling folds the band (processing never
+/// filters by it), so a file that does not state it must not be refused for a guess that folds;
+/// the user states the probe's own with `--bandwidth` (Python: `bandwidth=`).
+pub fn unstated_bandwidth(
+    default: f64,
+    note: &str,
+    center_frequency: f64,
+    sampling_frequency: f64,
+) -> (f64, String) {
+    let half = sampling_frequency / 2.0;
+    if !(center_frequency > 0.0 && half > 0.0) {
+        return (default, note.to_string());
+    }
+    let zone = (center_frequency / half).floor();
+    let room = (center_frequency - zone * half).min((zone + 1.0) * half - center_frequency);
+    let widest = 2.0 * room / center_frequency;
+    // Just inside the zone, so that rounding never puts a band edge across it.
+    let widest = widest * (1.0 - 1e-9);
+    if default <= widest || widest <= 0.0 {
+        (default, note.to_string())
+    } else {
+        (
+            widest,
+            format!(
+                "{note}, narrowed to {:.1} %, the widest band around f_c {:.3} MHz that sampling \
+                 at {:.4} MHz holds without folding; state the probe's with --bandwidth \
+                 (Python: bandwidth=)",
+                widest * 100.0,
+                center_frequency * 1e-6,
+                sampling_frequency * 1e-6
+            ),
+        )
+    }
+}
 
 /// How the samples are stored in the file.
 #[derive(Debug, Clone, PartialEq, Serialize)]

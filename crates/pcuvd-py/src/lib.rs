@@ -237,6 +237,7 @@ fn reader_overrides(map: &serde_json::Map<String, Value>) -> anyhow::Result<pcuv
         demod_freq_hz: None,
         angles_rad: angles,
         pulse_cycles: number(map, "pulse_cycles")?,
+        bandwidth: number(map, "bandwidth")?,
     })
 }
 
@@ -251,7 +252,7 @@ fn number(map: &serde_json::Map<String, Value>, key: &str) -> anyhow::Result<Opt
 }
 
 /// The acquisition fields a user may set or override, in SI units.
-const ACQUISITION_KEYS: [&str; 9] = [
+const ACQUISITION_KEYS: [&str; 10] = [
     "sampling_freq_hz",
     "sound_speed_m_s",
     "t0_s",
@@ -261,6 +262,7 @@ const ACQUISITION_KEYS: [&str; 9] = [
     "coding",
     "slot_delay_s",
     "pulse_cycles",
+    "bandwidth",
 ];
 
 fn apply_overrides(
@@ -291,6 +293,9 @@ fn apply_overrides(
     }
     if let Some(v) = number(map, "pulse_cycles")? {
         acq.sequence.pulse_cycles = v;
+    }
+    if let Some(v) = number(map, "bandwidth")? {
+        acq.probe.bandwidth = v;
     }
     if let Some(v) = map.get("angles_rad").filter(|v| !v.is_null()) {
         acq.sequence.angles = serde_json::from_value(v.clone())

@@ -25,7 +25,9 @@ use crate::layout::positive;
 use crate::mat::{MatFile, MatValue, read_mat};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 pub use crate::recording::{DEFAULT_PULSE_CYCLES, plane_wave_angle};
-use crate::recording::{OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples};
+use crate::recording::{
+    OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples, unstated_bandwidth,
+};
 
 /// MUST's default fractional bandwidth when `param.bandwidth` is absent (%).
 pub const DEFAULT_BANDWIDTH_PERCENT: f64 = 75.0;
@@ -449,25 +451,27 @@ fn build(
             req("c"),
         )?,
     )?;
-    let bandwidth_pct = positive(
+    let (default_bw, default_note) = unstated_bandwidth(
+        DEFAULT_BANDWIDTH_PERCENT / 100.0,
+        &format!("MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"),
+        fc,
+        fs,
+    );
+    let bandwidth = positive(
         path,
         &p.name("bandwidth"),
-        p.scalar(path, "bandwidth")?
-            .map_or(DEFAULT_BANDWIDTH_PERCENT, |(v, _)| v),
+        r.number(
+            "bandwidth",
+            p.scalar(path, "bandwidth")?.map(|(v, _)| {
+                (
+                    v / 100.0,
+                    derived(format!("{} (%) / 100", p.name("bandwidth"))),
+                )
+            }),
+            Some((default_bw, &default_note)),
+            req("bandwidth"),
+        )?,
     )?;
-    r.record(
-        "bandwidth",
-        json!(bandwidth_pct / 100.0),
-        if p.fields.contains_key("bandwidth") {
-            derived(format!("{} (%) / 100", p.name("bandwidth")))
-        } else {
-            ParamSource::Default {
-                note: format!(
-                    "MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"
-                ),
-            }
-        },
-    );
     let pulse_cycles = positive(
         path,
         &p.name("TXnow"),
@@ -505,7 +509,7 @@ fn build(
         pitch,
         element_width: width,
         center_frequency: fc,
-        bandwidth: bandwidth_pct / 100.0,
+        bandwidth,
     };
     let steering = transmit_angles(path, p, &probe.element_x(), c, n_transmits, fs)?;
     let t0_field = p.scalar(path, "t0")?.map(|(t0, src)| {

@@ -25,7 +25,7 @@ use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 use crate::recording::{
     DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
-    StoredSamples, plane_wave_angle,
+    StoredSamples, plane_wave_angle, unstated_bandwidth,
 };
 
 /// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
@@ -218,11 +218,17 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             pitch
         }
     };
+    let (default_bw, default_note) = unstated_bandwidth(
+        DEFAULT_BANDWIDTH,
+        "probe/probe_bandwidth_percent is absent: pcuvd's",
+        fc,
+        fs,
+    );
     let bandwidth = r.number(
         "bandwidth",
         scalar(h5, "probe/probe_bandwidth_percent")?
             .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
-        Some((DEFAULT_BANDWIDTH, "probe/probe_bandwidth_percent is absent")),
+        Some((default_bw, &default_note)),
         || IoError::malformed(path, "unreachable"),
     )?;
     let bandwidth = positive(path, "probe/probe_bandwidth_percent", bandwidth)?;

@@ -163,6 +163,67 @@ fn every_format_of_the_disk_gives_the_maps_of_the_mat() {
     }
 }
 
+/// UFF and zea may leave the bandwidth out. pcuvd's 67 % would fold at the disk's 6.67 MHz
+/// sampling (it was refused); the reader takes the widest band centred on f_c that one Nyquist
+/// zone holds, says so, and the recording gives the maps of the `.mat` (the bandwidth only decides
+/// whether the sampling folds). `--bandwidth` states the probe's; a stated band that folds is
+/// still refused.
+#[test]
+fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
+    let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
+    let reference = disk_reference(events);
+    let grid = Grid::new(-10e-3, 10e-3, 12e-3, 32e-3, 0.2e-3).unwrap();
+    for name in ["disk_no_bandwidth.uff", "disk_no_bandwidth_zea.hdf5"] {
+        let opened = open(name);
+        let acq = opened.source.acquisition().clone();
+        let (fc, fs) = (acq.probe.center_frequency, acq.sampling_frequency);
+        // f_c = 5 MHz lies in the zone [f_s/2, f_s] = [3.33, 6.67] MHz, 1.67 MHz from either edge.
+        let widest = 2.0 * (fc - fs / 2.0).min(fs - fc) / fc;
+        assert!(
+            (acq.probe.bandwidth - widest).abs() < 1e-6 && widest < 0.67,
+            "{name}: {} vs {widest}",
+            acq.probe.bandwidth
+        );
+        let param = opened
+            .info
+            .parameters
+            .iter()
+            .find(|p| p.name == "bandwidth")
+            .unwrap();
+        assert!(
+            matches!(&param.source, ParamSource::Default { note } if note.contains("widest band")
+                && note.contains("--bandwidth")),
+            "{name}: {:?}",
+            param.source
+        );
+        let mut same = reference.clone();
+        same.acquisition = acq.clone();
+        same.acquisition.probe.bandwidth = reference.acquisition.probe.bandwidth;
+        let want = maps(&same, &grid);
+        let got = maps(opened.source.as_ref(), &grid);
+        let power = relative(&got.power_doppler, &want.power_doppler);
+        let color = relative(&got.color_doppler, &want.color_doppler);
+        assert!(
+            power <= 1e-5 && color <= 1e-5,
+            "{name}: power {power:e}, colour {color:e}"
+        );
+
+        let stated = |bandwidth: f64| {
+            let overrides = Overrides {
+                bandwidth: Some(bandwidth),
+                ..Overrides::default()
+            };
+            open_recording(&fixture(name), &overrides).unwrap()
+        };
+        let given = stated(0.15);
+        assert_eq!(given.source.acquisition().probe.bandwidth, 0.15, "{name}");
+        let param = given.info.parameters.iter().find(|p| p.name == "bandwidth");
+        assert_eq!(param.unwrap().source, ParamSource::Override, "{name}");
+        let folds = stated(0.9).read_all().unwrap_err().to_string();
+        assert!(folds.contains("folds the RF band"), "{name}: {folds}");
+    }
+}
+
 #[test]
 fn steered_recordings_give_back_their_angles_prf_and_t0() {
     let e = &expected()["steered"];

@@ -80,11 +80,12 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         json!(acq.probe.element_width),
         src("probe", "element_width_m"),
     );
-    r.record(
+    acq.probe.bandwidth = r.number(
         "bandwidth",
-        json!(acq.probe.bandwidth),
-        src("probe", "bandwidth"),
-    );
+        Some((acq.probe.bandwidth, src("probe", "bandwidth"))),
+        None,
+        never,
+    )?;
     acq.sound_speed = r.number(
         "sound_speed_m_s",
         Some((acq.sound_speed, src("acquisition", "sound_speed_m_s"))),
