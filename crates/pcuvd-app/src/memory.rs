@@ -36,38 +36,140 @@ fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
 }
 
 /// Refuses, before any work, a recording, grid and stages whose processing would need more memory
-/// than the machine has available ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`]),
-/// instead of aborting on allocation.
+/// than this process may take ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`] against
+/// [`memory_room`], or the user's `limit_gb`), instead of aborting on allocation.
 pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
     let params = &plan.params;
-    let available = match limit_gb {
-        Some(gb) if gb.is_finite() && gb > 0.0 => Some(gb * 1e9),
+    let room = match limit_gb {
+        Some(gb) if gb.is_finite() && gb > 0.0 => Some(MemoryRoom {
+            bytes: gb * 1e9,
+            bound: format!(
+                "--max-memory-gb {}",
+                crate::settings::shown("--max-memory-gb", gb)
+            ),
+        }),
         Some(gb) => bail!(
             "--max-memory-gb {}: must be a positive number of GB",
             crate::settings::shown("--max-memory-gb", gb)
         ),
-        None => available_memory().map(|b| b as f64),
+        None => memory_room(),
     };
     let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
-    if let Some(available) = available
-        && needed > available
+    if let Some(room) = room
+        && needed > room.bytes
     {
-        let what = match limit_gb {
-            Some(gb) => format!(
-                "--max-memory-gb {}",
-                crate::settings::shown("--max-memory-gb", gb)
-            ),
-            None => "the machine".to_string(),
-        };
         bail!(
             "processing needs about {:.3} GB ({} {STAGE_MEMORY_RULE}) but {:.3} GB are \
-             available ({what}): use a coarser or smaller --grid, or a shorter recording",
+             available ({}): use a coarser or smaller --grid, or a shorter recording",
             needed / 1e9,
             pipeline::MEMORY_ESTIMATE_RULE,
-            available / 1e9
+            room.bytes.max(0.0) / 1e9,
+            room.bound
         );
     }
     Ok(())
+}
+
+/// Memory a run may still take (bytes), and what bounds it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MemoryRoom {
+    /// Bytes that may still be allocated (negative when the process is already past a limit).
+    pub bytes: f64,
+    /// What sets it, in the user's words ("the machine", "the address-space limit (ulimit -v)
+    /// of 1.500 GB, 0.120 GB in use"...).
+    pub bound: String,
+}
+
+/// The tightest bound on what this process may still allocate: the machine's available memory,
+/// the address-space limit (RLIMIT_AS, `ulimit -v`) less the process's virtual size, the data
+/// limit (RLIMIT_DATA) less its data segment, and its control group's `memory.max` (v2) or
+/// `memory.limit_in_bytes` (v1) less what the group uses. A batch scheduler's limit is one of
+/// these: without them a run that the machine could hold aborts on a failed allocation.
+pub fn memory_room() -> Option<MemoryRoom> {
+    let gb = |b: f64| b / 1e9;
+    let mut bounds: Vec<MemoryRoom> = Vec::new();
+    if let Some(available) = available_memory() {
+        bounds.push(MemoryRoom {
+            bytes: available as f64,
+            bound: "the machine".into(),
+        });
+    }
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    for (resource, field, name) in [
+        (
+            rlimit::Resource::AS,
+            "VmSize:",
+            "address-space limit (ulimit -v)",
+        ),
+        (
+            rlimit::Resource::DATA,
+            "VmData:",
+            "data-segment limit (ulimit -d)",
+        ),
+    ] {
+        if let Ok((soft, _)) = resource.get()
+            && soft != rlimit::INFINITY
+        {
+            let used = status_kib(&status, field).map_or(0.0, |kib| kib as f64 * 1024.0);
+            bounds.push(MemoryRoom {
+                bytes: soft as f64 - used,
+                bound: format!(
+                    "the process's {name} of {:.3} GB, {:.3} GB of it in use",
+                    gb(soft as f64),
+                    gb(used)
+                ),
+            });
+        }
+    }
+    if let Some((limit, used)) = cgroup_memory() {
+        bounds.push(MemoryRoom {
+            bytes: limit - used,
+            bound: format!(
+                "the control group's memory limit of {:.3} GB, {:.3} GB of it in use",
+                gb(limit),
+                gb(used)
+            ),
+        });
+    }
+    bounds
+        .into_iter()
+        .min_by(|a, b| a.bytes.total_cmp(&b.bytes))
+}
+
+/// A `Name:  N kB` line of /proc/self/status (kibibytes).
+fn status_kib(status: &str, field: &str) -> Option<u64> {
+    let line = status.lines().find(|l| l.starts_with(field))?;
+    line[field.len()..].split_whitespace().next()?.parse().ok()
+}
+
+/// This process's control group's memory limit and use (bytes), when it has a limit: cgroup v2's
+/// `memory.max` and `memory.current`, else v1's `memory.limit_in_bytes` and `memory.usage_in_bytes`.
+fn cgroup_memory() -> Option<(f64, f64)> {
+    let groups = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    let read =
+        |path: String| -> Option<f64> { std::fs::read_to_string(path).ok()?.trim().parse().ok() };
+    for line in groups.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (_, controllers, path) = (parts.next()?, parts.next()?, parts.next()?);
+        let path = path.trim_end_matches('/');
+        if controllers.is_empty() {
+            let dir = format!("/sys/fs/cgroup{path}");
+            if let (Some(limit), Some(used)) = (
+                read(format!("{dir}/memory.max")),
+                read(format!("{dir}/memory.current")),
+            ) {
+                return Some((limit, used));
+            }
+        } else if controllers.split(',').any(|c| c == "memory") {
+            let dir = format!("/sys/fs/cgroup/memory{path}");
+            let limit = read(format!("{dir}/memory.limit_in_bytes"))?;
+            // v1 writes "no limit" as a number near 2^63.
+            if limit < 1e18 {
+                return Some((limit, read(format!("{dir}/memory.usage_in_bytes"))?));
+            }
+        }
+    }
+    None
 }
 
 /// Memory available to a new process (bytes): `MemAvailable` of /proc/meminfo, where there is one.

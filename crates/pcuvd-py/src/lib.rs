@@ -851,14 +851,15 @@ fn beamform_iq<'py>(
     let (nz, nx) = grid.shape();
     let frames = iq_samples.as_array().dim().0;
     let bytes = (nz * nx) as f64 * frames as f64 * std::mem::size_of::<Complex32>() as f64;
-    if let Some(available) = pcuvd_app::memory::available_memory()
-        && bytes > available as f64
+    if let Some(room) = pcuvd_app::memory::memory_room()
+        && bytes > room.bytes
     {
         return Err(PyValueError::new_err(format!(
             "the image series would need {:.1} GB ({nz} × {nx} pixels × {frames} frames) but \
-             {:.1} GB are available: use a coarser or smaller grid, or fewer frames",
+             {:.1} GB are available ({}): use a coarser or smaller grid, or fewer frames",
             bytes / 1e9,
-            available as f64 / 1e9
+            room.bytes.max(0.0) / 1e9,
+            room.bound
         )));
     }
     let channels_first = iq_samples

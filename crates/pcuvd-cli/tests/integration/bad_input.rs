@@ -191,6 +191,45 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
     expect_error(&ok, &["--max-memory-gb=-1"], &["--max-memory-gb -1"]);
 }
 
+/// Under an address-space limit (`ulimit -v`, as a batch scheduler sets), a grid that the machine
+/// could hold but the process may not is refused with what it needs and what bounds it, not
+/// aborted on a failed allocation.
+#[test]
+fn a_process_memory_limit_is_honoured() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 8;
+    let eight_frames = must_file(dir.path(), "eight.mat", |rf, _| {
+        let (ns, ne) = (64usize, 4usize);
+        let data: Vec<f64> = (0..ns * ne * frames)
+            .map(|i| ((i * 37) % 19) as f64 - 9.0)
+            .collect();
+        *rf = MatValue::double(vec![ns, ne, frames], data).unwrap();
+    });
+    // 20001 × 2001 = 4·10⁷ pixels × 8 frames × 16 bytes ≈ 5 GB (2.6 GB in segments), against
+    // 1.5 GB of address space.
+    let out = dir.path().join("o");
+    let result = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 1500000 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["--quiet", "process"])
+        .arg(&eight_frames)
+        .arg("--out")
+        .arg(&out)
+        .arg("--grid=-5,5,1,2,0.0005")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(2), "{stderr}");
+    for needle in [
+        "needs about 2.",
+        "address-space limit (ulimit -v) of 1.536 GB",
+        "--grid",
+    ] {
+        assert!(stderr.contains(needle), "{needle:?} missing from: {stderr}");
+    }
+}
+
 #[test]
 fn unreadable_manifest_and_missing_file() {
     let dir = tempfile::tempdir().unwrap();
@@ -815,7 +854,11 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
         &base,
         "npy_wrong_dtype",
         npy_bytes("|b1", &[2, 4, 4, 96], &vec![1u8; 2 * 4 * 4 * 96]),
-        &["b1"],
+        // The accepted types, every one of them (int8 and uint16 were read but not named).
+        &[
+            "b1",
+            "int8, uint8, int16, uint16, int32, float32, float64, complex64 or complex128",
+        ],
     );
     cases.npy(
         &base,
