@@ -551,7 +551,7 @@ pub fn dynamics_figures(
         .context("cannot lay out the figures")?,
     )?];
     let mean: Vec<f64> = series
-        .mean_speed(&vessels)
+        .mean_speed(&vessels)?
         .iter()
         .map(|v| v * 1e3)
         .collect();

@@ -304,7 +304,9 @@ fn dynamics_outcome(
                 series: Box::new(series),
                 maps: Box::new(maps),
             },
-            Err(e) if !plan.dynamics_required => {
+            // Settings the user gave are errors when the recording cannot meet them; a
+            // recording without flow (noise alone) is not: its other results stand.
+            Err(e) if !plan.dynamics_required || matches!(e, pcuvd::Error::NoFlow(_)) => {
                 let reason = format!("{e:#}");
                 progress.note(&format!(
                     "no RI maps: {reason} (use --dynamics off to silence this)"

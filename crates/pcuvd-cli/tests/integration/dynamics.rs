@@ -360,3 +360,68 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     assert!(ok, "{stderr}");
     assert!(stderr.contains("note: no RI maps"), "{stderr}");
 }
+
+/// A small valid coded recording without flow (16 elements, 4 angles, 64 frames at 1 kHz, echoes
+/// far below any vessel's power) processed with dynamics settings given: the maps are written and
+/// the missing RI maps are a note and a line of summary.json, not a failed run (it failed with "no
+/// pixel has power").
+#[test]
+fn a_recording_without_flow_is_processed_with_a_note_on_its_ri_maps() {
+    use pcuvd::{Acquisition, ChannelData, Samples};
+    let dir = tempfile::tempdir().unwrap();
+    let (elements, angles, frames) = (16, 4, 64);
+    let acquisition = Acquisition {
+        probe: Probe {
+            name: "small".into(),
+            n_elements: elements,
+            pitch: 3e-4,
+            element_width: 2.5e-4,
+            center_frequency: 5e6,
+            bandwidth: 0.6,
+        },
+        sequence: Sequence {
+            angles: Sequence::evenly_spaced_angles(angles, 10f64.to_radians()),
+            event_prf: 1e3 * angles as f64,
+            coding: Coding::Hadamard { slot_delay: 1e-6 },
+            pulse_cycles: 2.0,
+            pulse: None,
+        },
+        sampling_frequency: 20e6,
+        sound_speed: 1540.0,
+        t0: 0.0,
+    };
+    // Scrambled values in [−1, 1) × 10⁻³⁰: no two events alike, no structure.
+    let samples = ndarray::Array3::from_shape_fn((frames * angles, elements, 256), |(e, c, s)| {
+        let scrambled = ((e * 7919 + c * 104_729 + s * 15_485_863) % 1000) as f32;
+        1e-30 * (scrambled / 500.0 - 1.0)
+    });
+    let data = ChannelData {
+        acquisition,
+        samples: Samples::Rf(samples),
+    };
+    pcuvd_io::write_recording(dir.path(), "silent", &data, &toml::Table::new()).unwrap();
+    let input = dir.path().join("silent.toml");
+    let out = dir.path().join("out");
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--heart-rate",
+        "40",
+        "--window-ms",
+        "10",
+        "--window-step-ms",
+        "2",
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("no RI maps: no flow to analyse"),
+        "{stderr}"
+    );
+    assert!(out.join("power_doppler.npy").exists());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let skipped = summary["dynamics"]["skipped"].as_str().unwrap_or_default();
+    assert!(skipped.contains("no flow"), "{}", summary["dynamics"]);
+}

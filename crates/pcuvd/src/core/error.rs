@@ -19,6 +19,10 @@ pub enum Error {
         "no Hadamard matrix of order {0}: pcuvd builds orders 1, 2 and multiples of 4 reachable by Sylvester doubling and Paley I constructions (e.g. 4, 8, 12, 16, 20, 24, 28, 32)"
     )]
     HadamardOrder(usize),
+    /// The data holds no flow a stage can analyse (noise alone, no vessel): a property of the
+    /// recording, not a fault of the settings; a run notes it and keeps its other results.
+    #[error("no flow to analyse: {0}")]
+    NoFlow(String),
     /// NaN or infinite samples in input data.
     #[error("non-finite value in {0}")]
     NonFinite(String),

@@ -111,12 +111,11 @@ pub fn ri_maps_triggered(
         mask.zip_mut_with(flow, |m, &f| *m &= f);
     }
     if !mask.iter().any(|&m| m) {
-        return Err(invalid(
-            "velocity series",
-            "no pixel has power (no vessel to analyse)",
+        return Err(Error::NoFlow(
+            "no pixel has power (no vessel to analyse)".into(),
         ));
     }
-    let waveform = series.mean_speed(&mask);
+    let waveform = series.mean_speed(&mask)?;
     let found = cardiac_cycles(&waveform, &series.times_s, params.heart_rate_hz, triggers)?;
     let hr = found.heart_rate_hz;
     check_period_vs_window(hr, series.window_s)?;

@@ -119,10 +119,14 @@ impl VelocitySeries {
         self.mean_power_db().mapv(|p| p >= min_power_db)
     }
 
-    /// Spatial mean speed (m/s) over the `mask` pixels at each time (finite values only).
-    pub fn mean_speed(&self, mask: &Array2<bool>) -> Vec<f64> {
+    /// Spatial mean speed (m/s) over the `mask` pixels at each time (finite values only). A
+    /// window in which no masked pixel has a finite speed (noise alone, or too few angles reaching
+    /// them) takes the value interpolated linearly between its nearest windows that have one (the
+    /// nearest one's at either end), so that it cannot break the waveform the cycles are found on;
+    /// [`Error::NoFlow`] when no window has one.
+    pub fn mean_speed(&self, mask: &Array2<bool>) -> Result<Vec<f64>> {
         let speed = self.speed();
-        speed
+        let means: Vec<Option<f64>> = speed
             .outer_iter()
             .map(|frame| {
                 let (mut sum, mut count) = (0.0, 0usize);
@@ -132,13 +136,32 @@ impl VelocitySeries {
                         count += 1;
                     }
                 }
-                if count > 0 {
-                    sum / count as f64
-                } else {
-                    f64::NAN
+                (count > 0).then(|| sum / count as f64)
+            })
+            .collect();
+        let known: Vec<(usize, f64)> = means
+            .iter()
+            .enumerate()
+            .filter_map(|(k, m)| m.map(|v| (k, v)))
+            .collect();
+        if known.is_empty() {
+            return Err(Error::NoFlow(
+                "no vessel pixel has a finite speed in any window".into(),
+            ));
+        }
+        Ok((0..means.len())
+            .map(|k| {
+                let after = known.partition_point(|&(j, _)| j < k);
+                match (after.checked_sub(1).map(|i| known[i]), known.get(after)) {
+                    (_, Some(&(j, v))) if j == k => v,
+                    (Some((j0, v0)), Some(&(j1, v1))) => {
+                        v0 + (v1 - v0) * (k - j0) as f64 / (j1 - j0) as f64
+                    }
+                    (Some((_, v)), None) | (None, Some(&(_, v))) => v,
+                    (None, None) => unreachable!("known is not empty"),
                 }
             })
-            .collect()
+            .collect())
     }
 }
 

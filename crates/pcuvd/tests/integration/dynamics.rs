@@ -6,7 +6,7 @@ use crate::common;
 
 use std::f64::consts::PI;
 
-use ndarray::Array3;
+use ndarray::{Array2, Array3, s};
 use num_complex::Complex32;
 use pcuvd::Error;
 use pcuvd::core::grid::Grid;
@@ -1071,6 +1071,61 @@ fn long_recordings_follow_the_beats_as_the_heart_rate_drifts() {
             times[b]
         );
     }
+}
+
+/// Windows in which no vessel pixel has a finite speed (noise alone, or too few angles reaching
+/// the pixels) are bridged in the waveform the cycles are found on, so they cannot fail the RI
+/// maps (they did: "non-finite value in waveform"); a series with no finite speed at all has no
+/// flow to analyse, which a run notes rather than fails on.
+#[test]
+fn windows_without_a_finite_speed_cannot_fail_the_ri_maps() {
+    let (f, step, psv, edv) = (6.0, 0.005, 0.021, 0.0065);
+    let times: Vec<f64> = (0..120).map(|i| 0.01 + i as f64 * step).collect();
+    let nt = times.len();
+    let wave: Vec<f64> = times
+        .iter()
+        .map(|&t| edv + (psv - edv) * (2.0 * PI * f * t).sin().max(0.0).powi(3))
+        .collect();
+    let series = VelocitySeries {
+        times_s: times.clone(),
+        vx: Array3::zeros((nt, 1, 2)),
+        vz: Array3::from_shape_fn((nt, 1, 2), |(k, _, _)| wave[k]),
+        power: Array3::from_elem((nt, 1, 2), 1.0),
+        window_s: 0.02,
+        step_s: step,
+    };
+    let params = DynamicsParams {
+        heart_rate_hz: Some(f),
+        ..DynamicsParams::rat()
+    };
+    let whole = ri_maps(&series, &params).unwrap();
+    // Every pixel loses window 40 (mid-diastole), and one pixel windows 50–59 as well.
+    let mut gaps = series.clone();
+    gaps.vz.slice_mut(s![40, .., ..]).fill(f64::NAN);
+    gaps.vz.slice_mut(s![50..60, .., 1]).fill(f64::NAN);
+    let mask = Array2::from_elem((1, 2), true);
+    let bridged = gaps.mean_speed(&mask).unwrap();
+    assert!(
+        (bridged[40] - (wave[39] + wave[41]) / 2.0).abs() < 1e-15,
+        "{} vs the neighbours' {} {}",
+        bridged[40],
+        wave[39],
+        wave[41]
+    );
+    assert_eq!(bridged[55], wave[55], "the other pixel's finite speed");
+    let maps = ri_maps(&gaps, &params).unwrap();
+    assert_eq!(maps.cycles, whole.cycles);
+    // A pixel with a gap is read from its raw extremes (the harmonic fit needs every window),
+    // without the fit's flattening of this spiky systole: both near the true RI.
+    let truth = resistivity_index(psv, edv);
+    for (name, ri) in [("whole", whole.ri[[0, 0]]), ("with gaps", maps.ri[[0, 0]])] {
+        assert!((ri - truth).abs() < 0.07, "{name}: RI {ri}, true {truth}");
+    }
+    let none = VelocitySeries {
+        vz: series.vz.mapv(|_| f64::NAN),
+        ..series
+    };
+    assert!(matches!(ri_maps(&none, &params), Err(Error::NoFlow(_))));
 }
 
 #[test]
