@@ -174,6 +174,11 @@ def process(
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
     for a bad option or recording, before any work where the CLI would.
     """
+    if not isinstance(recording, (Recording, str, os.PathLike)):
+        raise TypeError(
+            "process() expects a Recording or the path of a recording, got "
+            f"{type(recording).__name__} (arrays: pcuvd.Recording.from_arrays)"
+        )
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
     options = dict(options)

@@ -167,6 +167,16 @@ def test_bad_simulation_requests():
         pcuvd.simulate("paper-spiral", frames=1, tube_profile="plug")
 
 
+def test_a_wrong_argument_type_is_a_type_error_naming_what_is_expected():
+    # An array where a process result is expected raised AttributeError on '_native'.
+    with pytest.raises(TypeError, match="ProcessResult of pcuvd.process, got ndarray"):
+        pcuvd.dynamics(np.zeros((4, 4)))
+    with pytest.raises(TypeError, match="a Recording or the path of a recording, got ndarray"):
+        pcuvd.process(np.zeros((8, 4, 64), np.float32))
+    with pytest.raises(TypeError, match="the path of a recording, got int"):
+        pcuvd.read_recording(3)
+
+
 def test_nothing_crashes_the_interpreter(disk):
     """A battery of bad calls in a fresh interpreter: it ends normally, having raised each time."""
     script = f"""

@@ -69,6 +69,35 @@ impl Dtype {
         }
     }
 
+    /// Every element type pcuvd reads samples of.
+    pub const ALL: [Dtype; 9] = [
+        Dtype::I8,
+        Dtype::U8,
+        Dtype::I16,
+        Dtype::U16,
+        Dtype::I32,
+        Dtype::F32,
+        Dtype::F64,
+        Dtype::C64,
+        Dtype::C128,
+    ];
+
+    /// The accepted element types by NumPy's names ("int8, uint8, …, complex64 or complex128"),
+    /// for messages that refuse another.
+    pub fn accepted() -> String {
+        let names: Vec<&str> = Dtype::ALL.iter().map(|d| d.name()).collect();
+        let (last, rest) = names.split_last().expect("ALL is not empty");
+        format!("{} or {last}", rest.join(", "))
+    }
+
+    /// The refusal of NumPy type `descr` (as the file writes it), naming the accepted types.
+    pub fn unsupported(descr: &str) -> String {
+        format!(
+            "dtype '{descr}' is not supported (use {})",
+            Dtype::accepted()
+        )
+    }
+
     /// The type of a NumPy type code without its byte-order mark ("f4", "i2", "c8"...).
     pub fn from_numpy(code: &str) -> Option<Dtype> {
         Some(match code {

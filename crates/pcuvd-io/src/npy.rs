@@ -7,6 +7,7 @@ use ndarray_npy::npy::header::Header;
 use ndarray_npy::{ReadNpyExt, WritableElement, WriteNpyError};
 use num_complex::{Complex32, Complex64};
 
+use crate::array::Dtype;
 use crate::error::IoError;
 
 /// Writes `path` atomically: `write` fills a temporary file beside it (`.NAME.part`), which is
@@ -99,7 +100,7 @@ impl NpyArray {
     }
 }
 
-/// Reads a `.npy` file of dtype f4, f8, i2, i4 (→ [`NpyArray::Real`]) or c8, c16
+/// Reads a `.npy` file of any [`Dtype`]: real types (→ [`NpyArray::Real`]) or c8, c16
 /// (→ [`NpyArray::Complex`]), either byte order, C or Fortran order.
 pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
     use std::io::{Seek, SeekFrom};
@@ -127,19 +128,9 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
         .cloned()
         .unwrap_or_else(|| header.type_descriptor.to_string());
     let code = descr.trim_start_matches(['<', '>', '=', '|']);
-    let item = match code {
-        "f4" | "i4" | "c8" => 4 * if code == "c8" { 2 } else { 1 },
-        "f8" | "c16" => 8 * if code == "c16" { 2 } else { 1 },
-        "i2" => 2,
-        _ => {
-            return Err(IoError::malformed(
-                path,
-                format!(
-                    "dtype '{descr}' is not supported (use float32, float64, int16, int32, complex64 or complex128)"
-                ),
-            ));
-        }
-    };
+    let dtype = Dtype::from_numpy(code)
+        .ok_or_else(|| IoError::malformed(path, Dtype::unsupported(&descr)))?;
+    let item = dtype.size();
     let expected = header
         .shape
         .iter()
@@ -160,13 +151,17 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
         .seek(SeekFrom::Start(0))
         .map_err(|e| IoError::io(path, "read", e))?;
     let r = reader;
-    Ok(match code {
-        "f4" => NpyArray::Real(ArrayD::<f32>::read_npy(r).map_err(bad)?),
-        "f8" => NpyArray::Real(ArrayD::<f64>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
-        "i2" => NpyArray::Real(ArrayD::<i16>::read_npy(r).map_err(bad)?.mapv(f32::from)),
-        "i4" => NpyArray::Real(ArrayD::<i32>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
-        "c8" => NpyArray::Complex(ArrayD::<Complex32>::read_npy(r).map_err(bad)?),
-        _ => NpyArray::Complex(
+    let real = |a: ArrayD<f32>| NpyArray::Real(a);
+    Ok(match dtype {
+        Dtype::F32 => real(ArrayD::<f32>::read_npy(r).map_err(bad)?),
+        Dtype::F64 => real(ArrayD::<f64>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
+        Dtype::I8 => real(ArrayD::<i8>::read_npy(r).map_err(bad)?.mapv(f32::from)),
+        Dtype::U8 => real(ArrayD::<u8>::read_npy(r).map_err(bad)?.mapv(f32::from)),
+        Dtype::I16 => real(ArrayD::<i16>::read_npy(r).map_err(bad)?.mapv(f32::from)),
+        Dtype::U16 => real(ArrayD::<u16>::read_npy(r).map_err(bad)?.mapv(f32::from)),
+        Dtype::I32 => real(ArrayD::<i32>::read_npy(r).map_err(bad)?.mapv(|v| v as f32)),
+        Dtype::C64 => NpyArray::Complex(ArrayD::<Complex32>::read_npy(r).map_err(bad)?),
+        Dtype::C128 => NpyArray::Complex(
             ArrayD::<Complex64>::read_npy(r)
                 .map_err(bad)?
                 .mapv(|v| Complex32::new(v.re as f32, v.im as f32)),
@@ -203,14 +198,25 @@ mod tests {
             read_npy(&p).unwrap(),
             NpyArray::Complex(array![Complex32::new(1.0, -1.0)].into_dyn())
         );
-        let u = array![1u8, 2];
-        write_npy(&p, &u).unwrap();
-        assert!(
-            read_npy(&p)
-                .unwrap_err()
-                .to_string()
-                .contains("not supported")
+        // Every accepted type reads, as the streaming reader reads it.
+        write_npy(&p, &array![1u8, 255]).unwrap();
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Real(array![1.0f32, 255.0].into_dyn())
         );
+        write_npy(&p, &array![-128i8, 7]).unwrap();
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Real(array![-128.0f32, 7.0].into_dyn())
+        );
+        write_npy(&p, &array![65535u16, 3]).unwrap();
+        assert_eq!(
+            read_npy(&p).unwrap(),
+            NpyArray::Real(array![65535.0f32, 3.0].into_dyn())
+        );
+        write_npy(&p, &array![true, false]).unwrap();
+        let e = read_npy(&p).unwrap_err().to_string();
+        assert!(e.contains(&crate::array::Dtype::unsupported("|b1")), "{e}");
         // Truncated data, bad header: errors, not panics.
         write_npy(&p, &a).unwrap();
         let bytes = std::fs::read(&p).unwrap();

@@ -29,15 +29,8 @@ fn parse_header(
         .unwrap_or_else(|| header.type_descriptor.to_string());
     let little = !descr.starts_with('>');
     let code = descr.trim_start_matches(['<', '>', '=', '|']);
-    let dtype = Dtype::from_numpy(code).ok_or_else(|| {
-        IoError::malformed(
-            label,
-            format!(
-                "dtype '{descr}' is not supported (use int16, int32, float32, float64, complex64 \
-                 or complex128)"
-            ),
-        )
-    })?;
+    let dtype = Dtype::from_numpy(code)
+        .ok_or_else(|| IoError::malformed(label, Dtype::unsupported(&descr)))?;
     Ok((
         header.shape,
         dtype,
