@@ -62,20 +62,24 @@ pub fn save(
 }
 
 /// Where the results came from: pcuvd's version, the command line, every input file with its
-/// size and SHA-256, the format and the reader that read it (as the reader reports them), every
-/// acquisition parameter with its source, the reader's warnings, and the options.
+/// size and `checksum` (keyed by its name: "blake3" or "sha256"), the format and the reader that
+/// read it (as the reader reports them), every acquisition parameter with its source, the
+/// reader's warnings, and the options.
 pub fn provenance(
     input: &str,
     info: &pcuvd_io::SourceInfo,
     options_text: &str,
     command_line: Vec<String>,
+    checksum: outputs::Checksum,
 ) -> Result<serde_json::Value> {
     let files = info
         .files
         .iter()
         .map(|path| {
-            let (size, sha256) = outputs::fingerprint(path)?;
-            Ok(json!({ "path": path.display().to_string(), "size_bytes": size, "sha256": sha256 }))
+            let (size, hex) = outputs::fingerprint(path, checksum)?;
+            let mut file = json!({ "path": path.display().to_string(), "size_bytes": size });
+            file[checksum.key()] = json!(hex);
+            Ok(file)
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(json!({
@@ -93,7 +97,7 @@ pub fn provenance(
 }
 
 /// True when `out` holds a complete earlier run (its summary.json) of the same input files (by
-/// size and SHA-256), options (every processing and dynamics setting, defaults included) and
+/// size and checksum, of the same kind), options (every processing and dynamics setting, defaults included) and
 /// pcuvd version as `source` describes: a batch re-run can skip it.
 pub fn already_done(out: &Path, source: &serde_json::Value) -> bool {
     let Ok(text) = std::fs::read_to_string(out.join("summary.json")) else {
@@ -103,11 +107,16 @@ pub fn already_done(out: &Path, source: &serde_json::Value) -> bool {
         return false;
     };
     let earlier = &summary["source"];
-    let fingerprints = |s: &serde_json::Value| -> Option<Vec<(u64, String)>> {
+    let fingerprints = |s: &serde_json::Value| -> Option<Vec<(u64, &'static str, String)>> {
         s["files"]
             .as_array()?
             .iter()
-            .map(|f| Some((f["size_bytes"].as_u64()?, f["sha256"].as_str()?.to_string())))
+            .map(|f| {
+                let key = ["blake3", "sha256"]
+                    .into_iter()
+                    .find(|k| f[*k].is_string())?;
+                Some((f["size_bytes"].as_u64()?, key, f[key].as_str()?.to_string()))
+            })
             .collect()
     };
     fingerprints(earlier).is_some()

@@ -539,6 +539,7 @@ impl PyProcessResult {
             &self.info,
             &self.plan.options_text,
             vec![format!("python: pcuvd.process({:?})", self.input)],
+            pcuvd_app::outputs::Checksum::default(),
         )
     }
 }

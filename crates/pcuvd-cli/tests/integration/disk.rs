@@ -45,8 +45,35 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         Some(std::fs::metadata(&input).unwrap().len())
     );
     assert_eq!(
-        source["files"][0]["sha256"].as_str().map(str::len),
+        source["files"][0]["blake3"].as_str().map(str::len),
         Some(64)
+    );
+    // SHA-256 for those who check with sha256sum: the same digest as coreutils'.
+    let sha_out = tempfile::tempdir().unwrap();
+    let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args([
+            "--quiet",
+            "process",
+            "--dynamics",
+            "off",
+            "--checksum",
+            "sha256",
+        ])
+        .arg(&input)
+        .arg("--out")
+        .arg(sha_out.path())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let sha_summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(sha_out.path().join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    let coreutils = Command::new("sha256sum").arg(&input).output().unwrap();
+    let coreutils = String::from_utf8_lossy(&coreutils.stdout);
+    assert_eq!(
+        sha_summary["source"]["files"][0]["sha256"].as_str(),
+        coreutils.split_whitespace().next()
     );
     // The format and reader as the reader reports them, and each parameter's source.
     assert_eq!(source["format"], "MUST/PyMUST MATLAB v5 (.mat)");
