@@ -253,6 +253,22 @@ impl StoredArray {
     /// Reads `ranges` (one per axis, in the stored order) as a C-ordered array of the ranges'
     /// lengths.
     pub fn read(&self, ranges: &[Range<usize>]) -> Result<Block, IoError> {
+        let identity: Vec<usize> = (0..self.shape.len()).collect();
+        self.read_ordered(ranges, &identity)
+    }
+
+    /// Reads `ranges` (one per axis, in the stored order) as a C-ordered array whose axes are the
+    /// stored axes in `order` (a permutation): the block a reader wants, laid out as it wants it
+    /// in one pass, rather than read in the stored order and copied again to permute it.
+    pub fn read_ordered(&self, ranges: &[Range<usize>], order: &[usize]) -> Result<Block, IoError> {
+        let mut sorted = order.to_vec();
+        sorted.sort_unstable();
+        if sorted != (0..self.shape.len()).collect::<Vec<_>>() {
+            return Err(IoError::malformed(
+                Path::new(&self.label),
+                format!("axis order {order:?} is not a permutation of the stored axes"),
+            ));
+        }
         let bad = || {
             IoError::invalid(
                 Path::new(&self.label),
@@ -271,7 +287,8 @@ impl StoredArray {
         {
             return Err(bad());
         }
-        let counts: Vec<usize> = ranges.iter().map(|r| r.len()).collect();
+        let stored_counts: Vec<usize> = ranges.iter().map(|r| r.len()).collect();
+        let counts: Vec<usize> = order.iter().map(|&k| stored_counts[k]).collect();
         let n = crate::hdf5::element_count(&counts).ok_or_else(bad)?;
         let complex = self.is_complex();
         match &self.backing {
@@ -279,11 +296,24 @@ impl StoredArray {
                 path,
                 dataset,
                 imag,
-            } => read_hdf5(path, dataset, imag.as_deref(), self.dtype, ranges, &counts),
+            } => {
+                let block = read_hdf5(
+                    path,
+                    dataset,
+                    imag.as_deref(),
+                    self.dtype,
+                    ranges,
+                    &stored_counts,
+                )?;
+                Ok(match block {
+                    Block::Real(a) => Block::Real(standard(a.permuted_axes(order))),
+                    Block::Complex(a) => Block::Complex(standard(a.permuted_axes(order))),
+                })
+            }
             Backing::Values { real, imag } => {
                 let mut re = Vec::with_capacity(n);
                 let mut im = Vec::with_capacity(if complex { n } else { 0 });
-                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                for_each_index(&self.shape, self.fortran, ranges, order, |i| {
                     re.push(real.get(i).copied().unwrap_or(0.0) as f32);
                     if let Some(imag) = imag {
                         im.push(imag.get(i).copied().unwrap_or(0.0) as f32);
@@ -296,7 +326,7 @@ impl StoredArray {
                 let mut re = Vec::with_capacity(n);
                 let mut im = Vec::with_capacity(if complex { n } else { 0 });
                 let mut short = false;
-                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                for_each_index(&self.shape, self.fortran, ranges, order, |i| {
                     let b = bytes.get(i * size..(i + 1) * size);
                     short |= b.is_none();
                     let (r, m) = b.map_or((0.0, 0.0), |b| self.dtype.decode(b, *little));
@@ -329,7 +359,7 @@ impl StoredArray {
                 let span = read_span(path, *offset, lo * size, (hi + 1 - lo) * size)?;
                 let mut re = Vec::with_capacity(n);
                 let mut im = Vec::with_capacity(if complex { n } else { 0 });
-                for_each_index(&self.shape, self.fortran, ranges, |i| {
+                for_each_index(&self.shape, self.fortran, ranges, order, |i| {
                     let at = (i - lo) * size;
                     let (r, m) = self.dtype.decode(&span[at..at + size], *little);
                     re.push(r);
@@ -372,12 +402,22 @@ fn finish(counts: &[usize], re: Vec<f32>, im: Option<Vec<f32>>) -> Result<Block,
     })
 }
 
+/// An array in standard (C) layout, copied only when its layout is another.
+fn standard<A: Clone>(a: ArrayD<A>) -> ArrayD<A> {
+    if a.is_standard_layout() {
+        a
+    } else {
+        a.as_standard_layout().into_owned()
+    }
+}
+
 /// Calls `f` with the linear storage index of every element of the selection, in C order of the
-/// selection.
+/// selection with its axes taken in `order` (a permutation of the stored axes).
 fn for_each_index(
     shape: &[usize],
     fortran: bool,
     ranges: &[Range<usize>],
+    order: &[usize],
     mut f: impl FnMut(usize),
 ) {
     let nd = shape.len();
@@ -395,6 +435,8 @@ fn for_each_index(
     if ranges.iter().any(|r| r.is_empty()) {
         return;
     }
+    let strides: Vec<usize> = order.iter().map(|&k| strides[k]).collect();
+    let ranges: Vec<Range<usize>> = order.iter().map(|&k| ranges[k].clone()).collect();
     let mut idx: Vec<usize> = ranges.iter().map(|r| r.start).collect();
     loop {
         let base: usize = idx.iter().zip(&strides).map(|(i, s)| i * s).sum();
@@ -440,8 +482,9 @@ fn for_each_index_bounds(
     if ranges.iter().any(|r| r.is_empty()) {
         return;
     }
-    for_each_index(shape, fortran, &first, |i| *lo = (*lo).min(i));
-    for_each_index(shape, fortran, &last, |i| *hi = (*hi).max(i));
+    let identity: Vec<usize> = (0..shape.len()).collect();
+    for_each_index(shape, fortran, &first, &identity, |i| *lo = (*lo).min(i));
+    for_each_index(shape, fortran, &last, &identity, |i| *hi = (*hi).max(i));
 }
 
 fn read_hdf5(
@@ -754,11 +797,7 @@ impl FrameSource for ArrayFrames {
                 _ => 0..len,
             })
             .collect();
-        let block = self
-            .array
-            .read(&ranges)
-            .map_err(|e| pcuvd::Error::Read(e.to_string()))?;
-        // Permute to (frames, angles | events, channels, samples[, re_im]) and merge.
+        // Read as (frames, angles | events, channels, samples[, re_im]), then merge.
         let order: Vec<usize> = [
             Axis::Frames,
             Axis::Angles,
@@ -777,13 +816,17 @@ impl FrameSource for ArrayFrames {
                 .map(|(i, _)| i),
         )
         .collect();
+        let block = self
+            .array
+            .read_ordered(&ranges, &order)
+            .map_err(|e| pcuvd::Error::Read(e.to_string()))?;
         let shape = (events.len(), self.shape.1, self.shape.2);
         let shape_error = |e: ndarray::ShapeError| pcuvd::Error::Shape(e.to_string());
         let samples = match block {
             Block::Real(a) if self.axes.contains(&Axis::ReIm) => {
-                let p = a.permuted_axes(order);
-                let values: Vec<f32> = p.iter().copied().collect();
-                let pairs: Vec<Complex32> = values
+                let pairs: Vec<Complex32> = a
+                    .as_slice()
+                    .unwrap_or_default()
                     .chunks_exact(2)
                     .map(|c| Complex32::new(c[0], c[1]))
                     .collect();
@@ -792,24 +835,11 @@ impl FrameSource for ArrayFrames {
                     demod_frequency: self.demod.unwrap_or(0.0),
                 }
             }
-            Block::Real(a) => {
-                let p = a.permuted_axes(order);
-                let data = if p.is_standard_layout() {
-                    p.into_shape_with_order(shape).map_err(shape_error)?
-                } else {
-                    Array3::from_shape_vec(shape, p.iter().copied().collect())
-                        .map_err(shape_error)?
-                };
-                Samples::Rf(data)
-            }
-            Block::Complex(a) => {
-                let p = a.permuted_axes(order);
-                Samples::Iq {
-                    data: Array3::from_shape_vec(shape, p.iter().copied().collect())
-                        .map_err(shape_error)?,
-                    demod_frequency: self.demod.unwrap_or(0.0),
-                }
-            }
+            Block::Real(a) => Samples::Rf(a.into_shape_with_order(shape).map_err(shape_error)?),
+            Block::Complex(a) => Samples::Iq {
+                data: a.into_shape_with_order(shape).map_err(shape_error)?,
+                demod_frequency: self.demod.unwrap_or(0.0),
+            },
         };
         let data = ChannelData {
             acquisition: self.acquisition.clone(),
@@ -866,6 +896,17 @@ mod tests {
                 vec![13.0, 14.0, 17.0, 18.0, 21.0, 22.0]
             );
             assert!(a.read(&[0..3, 0..3, 0..4]).is_err());
+            // Axes in another order, laid out as asked: element [k, i, j] = stored [i, j, k].
+            let Block::Real(p) = a.read_ordered(&[1..2, 0..3, 1..3], &[2, 0, 1]).unwrap() else {
+                panic!()
+            };
+            assert_eq!(p.shape(), &[2, 1, 3]);
+            assert!(p.is_standard_layout());
+            assert_eq!(
+                p.iter().copied().collect::<Vec<_>>(),
+                vec![13.0, 17.0, 21.0, 14.0, 18.0, 22.0]
+            );
+            assert!(a.read_ordered(&[1..2, 0..3, 1..3], &[0, 0, 1]).is_err());
         }
     }
 }
