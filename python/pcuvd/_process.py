@@ -19,6 +19,10 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "bmode_db": (("z", "x"), "B-mode (dB, 0 at the brightest pixel)"),
     "power_doppler": (("z", "x"), "power Doppler of the compounded, filtered series (|IQ|²)"),
     "color_doppler": (("z", "x"), "axial velocity (m/s, > 0 moving away from the probe)"),
+    "signed_power_doppler": (
+        ("z", "x"),
+        "power Doppler signed by the colour Doppler (|IQ|², > 0 moving away from the probe)",
+    ),
     "projections": (("angle", "z", "x"), "per-angle projection velocity V_θ (m/s; NaN unreached)"),
     "projection_nyquist": (
         ("angle", "z", "x"),
@@ -44,6 +48,10 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "times": (("time",), "window centres (s)"),
     "ensemble_power_doppler": (("ensemble", "z", "x"), "power Doppler of each ensemble"),
     "ensemble_color_doppler": (("ensemble", "z", "x"), "axial velocity of each ensemble (m/s)"),
+    "ensemble_signed_power_doppler": (
+        ("ensemble", "z", "x"),
+        "signed power Doppler of each ensemble (|IQ|², > 0 moving away from the probe)",
+    ),
     "ensemble_vx": (("ensemble", "z", "x"), "lateral velocity of each ensemble (m/s)"),
     "ensemble_vz": (("ensemble", "z", "x"), "axial vector velocity of each ensemble (m/s)"),
     "ensemble_speed": (("ensemble", "z", "x"), "speed of each ensemble (m/s)"),
@@ -61,12 +69,14 @@ class ProcessResult:
     """What `process` returns: the maps (numpy, SI units), the summary, `save` and `to_xarray`.
 
     Maps are attributes named as the files `pcuvd process` writes: `bmode_db`, `power_doppler`,
-    `color_doppler` (nz, nx); `projections` and `projection_nyquist` (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
+    `color_doppler`, `signed_power_doppler` (nz, nx); `projections` and `projection_nyquist`
+    (angles, nz, nx); `vx`, `vz`, `speed` (PC-UVD) and
     `vx_ls`, `vz_ls`, `speed_ls` (UVD) with two or more angles; `alias_counts`,
     `alias_counts_ls` (angles, nz, nx) int8 with `dealias` on; `ri`, `psv`, `edv`,
     `psv_spread`, `edv_spread`, `ri_spread` (across cardiac cycles), `vessel_class`, `flow_up`
     (nz, nx), `speed_series` (windows, nz, nx) and `times` when the
-    dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`, `ensemble_vx`,
+    dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`,
+    `ensemble_signed_power_doppler`, `ensemble_vx`,
     `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
     `ensemble_frames=N`; `x` (nx) and `z` (nz) in m.
     """

@@ -284,6 +284,10 @@ fn write_dynamics(
 fn write_ensembles(dir: &Path, maps: &pcuvd::pipeline::ensembles::EnsembleMaps) -> Result<()> {
     pcuvd_io::write_npy(&dir.join("ensemble_power_doppler.npy"), &maps.power_doppler)?;
     pcuvd_io::write_npy(&dir.join("ensemble_color_doppler.npy"), &maps.color_doppler)?;
+    pcuvd_io::write_npy(
+        &dir.join("ensemble_signed_power_doppler.npy"),
+        &maps.signed_power_doppler(),
+    )?;
     if let (Some(vx), Some(vz), Some(speed)) = (&maps.vx, &maps.vz, maps.speed()) {
         pcuvd_io::write_npy(&dir.join("ensemble_vx.npy"), vx)?;
         pcuvd_io::write_npy(&dir.join("ensemble_vz.npy"), vz)?;
@@ -317,6 +321,7 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     npy(dir, "bmode_db.npy", &out.bmode_db)?;
     npy(dir, "power_doppler.npy", &out.power_doppler)?;
     npy(dir, "color_doppler.npy", &out.color_doppler)?;
+    npy(dir, "signed_power_doppler.npy", &out.signed_power_doppler())?;
     pcuvd_io::write_npy(&dir.join("projections.npy"), &out.projections)?;
     pcuvd_io::write_npy(&dir.join("projection_nyquist.npy"), &out.projection_nyquist)?;
     if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {

@@ -555,6 +555,8 @@ impl PyProcessResult {
         dict.set_item("bmode_db", out.bmode_db.to_pyarray(py))?;
         dict.set_item("power_doppler", out.power_doppler.to_pyarray(py))?;
         dict.set_item("color_doppler", out.color_doppler.to_pyarray(py))?;
+        let signed = out.signed_power_doppler();
+        dict.set_item("signed_power_doppler", signed.into_pyarray(py))?;
         dict.set_item("projections", out.projections.to_pyarray(py))?;
         dict.set_item("projection_nyquist", out.projection_nyquist.to_pyarray(py))?;
         if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
@@ -590,6 +592,10 @@ impl PyProcessResult {
                 (
                     "ensemble_color_doppler",
                     Some(ensembles.color_doppler.clone()),
+                ),
+                (
+                    "ensemble_signed_power_doppler",
+                    Some(ensembles.signed_power_doppler()),
                 ),
                 ("ensemble_vx", ensembles.vx.clone()),
                 ("ensemble_vz", ensembles.vz.clone()),

@@ -105,6 +105,40 @@ fn simulated_tube_round_trips_through_process() {
     ] {
         assert!(out.join(f).exists(), "{f} missing");
     }
+    // Signed power Doppler: the power, carrying the sign of the flow's axial direction. The
+    // straight tube's flow has one axial direction (truth_vz, > 0 deeper = away from the probe):
+    // the lumen's pixels (power within 6 dB of the peak) carry its sign.
+    let power: ndarray::Array2<f64> = ndarray_npy::read_npy(out.join("power_doppler.npy")).unwrap();
+    let signed: ndarray::Array2<f64> =
+        ndarray_npy::read_npy(out.join("signed_power_doppler.npy")).unwrap();
+    let truth_vz: ndarray::Array2<f64> =
+        ndarray_npy::read_npy(dir.path().join("truth_vz.npy")).unwrap();
+    let truth_mask: ndarray::Array2<u8> =
+        ndarray_npy::read_npy(dir.path().join("truth_mask.npy")).unwrap();
+    let away = truth_vz
+        .iter()
+        .zip(&truth_mask)
+        .filter(|(_, m)| **m != 0)
+        .map(|(v, _)| v.signum())
+        .sum::<f64>()
+        .signum();
+    assert!(away != 0.0);
+    let peak = power.iter().cloned().fold(0.0, f64::max);
+    let lumen: Vec<f64> = power
+        .iter()
+        .zip(&signed)
+        .filter(|(p, _)| **p >= peak / 4.0)
+        .map(|(p, s)| {
+            assert_eq!(s.abs(), *p, "|signed power| is the power");
+            s.signum()
+        })
+        .collect();
+    let along = lumen.iter().filter(|&&s| s == away).count();
+    assert!(
+        along * 10 >= lumen.len() * 9,
+        "{along} of {} lumen pixels carry the flow's sign {away}",
+        lumen.len()
+    );
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(

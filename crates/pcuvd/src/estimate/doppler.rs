@@ -851,6 +851,25 @@ pub fn maps_of_moments(
     })
 }
 
+/// Signed power Doppler (|IQ|² units): each pixel's power Doppler carrying the sign of its colour
+/// Doppler (axial velocity, positive = away from the probe), the direction-coded map that
+/// functional-ultrasound work reads arteries and veins from first (flow towards and away from the
+/// probe). Zero where the axial velocity is zero; NaN where either input is not finite.
+pub fn signed_power<D: ndarray::Dimension>(
+    power: &ndarray::Array<f64, D>,
+    axial_velocity: &ndarray::Array<f64, D>,
+) -> ndarray::Array<f64, D> {
+    Zip::from(power).and(axial_velocity).map_collect(|&p, &v| {
+        if !(p.is_finite() && v.is_finite()) {
+            f64::NAN
+        } else if v == 0.0 {
+            0.0
+        } else {
+            p.copysign(v)
+        }
+    })
+}
+
 /// Velocity scale of the phase of R: V = −scale · arg R, scale = c·f_frame/(4π f_0) (m/s per rad).
 pub fn velocity_scale(sound_speed: f64, frame_rate: f64, center_frequency: f64) -> Result<f64> {
     require_positive("speed of sound", sound_speed)?;
@@ -884,6 +903,16 @@ pub fn projection_velocity(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn signed_power_is_the_power_with_the_flow_direction() {
+        let power = ndarray::array![[2.0, 3.0, 5.0], [7.0, f64::NAN, 1.0]];
+        let axial = ndarray::array![[0.01, -0.002, 0.0], [f64::INFINITY, 0.1, -1e-300]];
+        let signed = signed_power(&power, &axial);
+        assert_eq!(signed.row(0).to_vec(), vec![2.0, -3.0, 0.0]);
+        assert!(signed[[1, 0]].is_nan() && signed[[1, 1]].is_nan());
+        assert_eq!(signed[[1, 2]], -1.0);
+    }
     use ndarray::Array3;
 
     #[test]

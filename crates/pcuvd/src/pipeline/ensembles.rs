@@ -72,6 +72,12 @@ pub struct EnsembleMaps {
 }
 
 impl EnsembleMaps {
+    /// Signed power Doppler of each ensemble (|IQ|² units, the sign of its colour Doppler:
+    /// positive = away from the probe); see [`crate::estimate::doppler::signed_power`].
+    pub fn signed_power_doppler(&self) -> Array3<f64> {
+        crate::estimate::doppler::signed_power(&self.power_doppler, &self.color_doppler)
+    }
+
     /// Moves every ensemble of `spec` `frames` frames later (a segment's ensembles, counted from
     /// the recording's first frame), at `frame_rate` (Hz).
     pub fn shift(&mut self, frames: usize, spec: EnsembleSpec, frame_rate: f64) {

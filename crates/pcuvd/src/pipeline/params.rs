@@ -118,6 +118,12 @@ pub struct ProcessOutput {
 pub type Timings = Vec<(Stage, f64)>;
 
 impl ProcessOutput {
+    /// Signed power Doppler (|IQ|² units, the sign of the colour Doppler: positive = away from
+    /// the probe); see [`doppler::signed_power`].
+    pub fn signed_power_doppler(&self) -> Array2<f64> {
+        doppler::signed_power(&self.power_doppler, &self.color_doppler)
+    }
+
     /// Gathers the Doppler maps ([`doppler_maps`]) with the rest of what the chain measured: the
     /// one place both the whole-recording path and the segmented one ([`crate::pipeline::segments`]) build
     /// their output.
