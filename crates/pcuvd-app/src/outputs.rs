@@ -135,14 +135,21 @@ impl Checksum {
     }
 }
 
-/// Size (bytes) and checksum (hex) of a file, read in 8 MiB blocks so that a recording of any
-/// length hashes in bounded memory.
+/// Size (bytes) and checksum (hex) of a file, in bounded memory whatever its length: BLAKE3 over
+/// the file mapped into memory, SHA-256 read in 8 MiB blocks.
 pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
     use sha2::Digest;
     use std::io::Read;
+    if checksum == Checksum::Blake3 {
+        // Mapped, the bytes are hashed where the page cache holds them: no copy into a buffer.
+        let mut hasher = blake3::Hasher::new();
+        hasher
+            .update_mmap(path)
+            .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
+        return Ok((hasher.count(), hasher.finalize().to_hex().to_string()));
+    }
     let mut file = std::fs::File::open(path)
         .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
-    let mut blake3 = blake3::Hasher::new();
     let mut sha256 = sha2::Sha256::new();
     let mut buffer = vec![0u8; 8 << 20];
     let mut size = 0u64;
@@ -154,21 +161,13 @@ pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
             break;
         }
         size += n as u64;
-        match checksum {
-            Checksum::Blake3 => {
-                blake3.update(&buffer[..n]);
-            }
-            Checksum::Sha256 => sha256.update(&buffer[..n]),
-        }
+        sha256.update(&buffer[..n]);
     }
-    let hex = match checksum {
-        Checksum::Blake3 => blake3.finalize().to_hex().to_string(),
-        Checksum::Sha256 => sha256
-            .finalize()
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect::<String>(),
-    };
+    let hex = sha256
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<String>();
     Ok((size, hex))
 }
 
