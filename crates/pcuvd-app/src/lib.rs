@@ -21,6 +21,7 @@
 pub mod figures;
 pub mod input;
 pub mod memory;
+pub mod nifti;
 pub mod outputs;
 pub mod progress;
 pub mod run;

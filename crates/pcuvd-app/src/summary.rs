@@ -23,6 +23,8 @@ pub struct Record<'a> {
     pub name: &'a str,
     /// Seconds of work outside the run (reading, checksums), by name, for `timings_s`.
     pub extra_timings: &'a [(&'a str, f64)],
+    /// NIfTI images with BEP040 sidecars besides the `.npy` maps, named so; `None` for none.
+    pub nifti: Option<&'a crate::nifti::NiftiNaming>,
 }
 
 /// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
@@ -40,6 +42,7 @@ pub fn save(
         source,
         name,
         extra_timings,
+        nifti,
     } = record;
     let clock = std::time::Instant::now();
     let out = &processed.out;
@@ -50,6 +53,14 @@ pub fn save(
     if let Some(maps) = &processed.ensembles {
         write_ensembles(dir, maps)?;
         pngs.push(figures::ensemble_figure(dir, out, maps, name)?);
+    }
+    if let Some(naming) = nifti {
+        let images = crate::nifti::write_nifti(dir, data, plan, processed, naming)?;
+        let names: Vec<String> = images
+            .iter()
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect();
+        summary["nifti"] = json!(names);
     }
     for (key, seconds) in extra_timings {
         summary["timings_s"][*key] = json!(seconds);

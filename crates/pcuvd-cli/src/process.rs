@@ -36,6 +36,20 @@ pub struct ProcessArgs {
     /// folder processed from the same input): blake3 (b3sum), or sha256 to check with sha256sum.
     #[arg(long, value_enum, default_value_t = outputs::Checksum::Blake3)]
     pub checksum: outputs::Checksum,
+    /// Also write the maps and the time series as NIfTI images (.nii.gz) with fUSI-BIDS (BEP040)
+    /// JSON sidecars, named by map (power_doppler.nii.gz…), as nibabel and BIDS tools read them.
+    #[arg(long)]
+    pub nifti: bool,
+    /// BIDS subject label: name the NIfTI images by BIDS entities (sub-<label>[_ses-…][_task-…]
+    /// [_desc-…]_pwd.nii.gz for the power maps); implies --nifti.
+    #[arg(long)]
+    pub bids_subject: Option<String>,
+    /// BIDS session label (with --bids-subject).
+    #[arg(long)]
+    pub bids_session: Option<String>,
+    /// BIDS task label (with --bids-subject).
+    #[arg(long)]
+    pub bids_task: Option<String>,
     /// Acquisition values given on the command line.
     #[command(flatten)]
     pub acquisition: AcquisitionOverrides,
@@ -94,6 +108,19 @@ impl AcquisitionOverrides {
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
+    // Checked before any work, like every other option.
+    let nifti = (args.nifti
+        || args.bids_subject.is_some()
+        || args.bids_session.is_some()
+        || args.bids_task.is_some())
+    .then(|| pcuvd_app::nifti::NiftiNaming {
+        subject: args.bids_subject.clone(),
+        session: args.bids_session.clone(),
+        task: args.bids_task.clone(),
+    });
+    if let Some(naming) = &nifti {
+        naming.validate()?;
+    }
     let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
     let input_files = opened.info.files.clone();
     let data = opened.source.as_ref();
@@ -177,6 +204,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         source,
         name: &name,
         extra_timings: &extra_timings,
+        nifti: nifti.as_ref(),
     };
     let pngs = save(&args.out, data, &plan, &processed, record, &progress)?;
     println!(

@@ -684,6 +684,7 @@ impl PyProcessResult {
                     source,
                     name: &name,
                     extra_timings: &[("checksum", checksum_s)],
+                    nifti: None,
                 },
                 &Lines::new(true),
             )

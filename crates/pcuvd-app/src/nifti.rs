@@ -1,0 +1,383 @@
+//! The maps and the Doppler time series as NIfTI-1 images (`.nii.gz`) with fUSI-BIDS (BEP040)
+//! JSON sidecars: the form functional-ultrasound tools (ConfUSIus, nibabel, BIDS datasets) share
+//! derived maps in.
+//!
+//! Voxel axes: i = lateral x, j = elevation (one plane), k = depth z, and for a time series
+//! l = the ensembles. The affine (sform, "scanner" code) maps them to millimetres with depth
+//! downwards: x = x₀ + i·Δx, y = 0, z = −(z₀ + k·Δz), so that viewers that show the superior
+//! direction up show the probe at the top. Times are in seconds (`xyzt_units` mm and s).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use ndarray::{Array2, Array3};
+use pcuvd::acquisition::source::FrameSource;
+use pcuvd::pipeline::ProcessOutput;
+use serde_json::json;
+
+use crate::run::{DynamicsOutcome, Plan, Processed};
+
+/// How the files are named: pcuvd's map names, or BIDS entities.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct NiftiNaming {
+    /// BIDS subject label (`sub-<label>`); `None` names files by pcuvd's map names.
+    pub subject: Option<String>,
+    /// BIDS session label (`ses-<label>`).
+    pub session: Option<String>,
+    /// BIDS task label (`task-<label>`).
+    pub task: Option<String>,
+}
+
+impl NiftiNaming {
+    /// Checks that every label is BIDS's alphanumeric form and that a session or task comes with
+    /// a subject.
+    pub fn validate(&self) -> Result<()> {
+        for (entity, label) in [
+            ("--bids-subject", &self.subject),
+            ("--bids-session", &self.session),
+            ("--bids-task", &self.task),
+        ] {
+            if let Some(label) = label
+                && (label.is_empty() || !label.chars().all(|c| c.is_ascii_alphanumeric()))
+            {
+                bail!("{entity} {label:?}: a BIDS label is letters and digits only");
+            }
+        }
+        if self.subject.is_none() && (self.session.is_some() || self.task.is_some()) {
+            bail!("--bids-session and --bids-task need --bids-subject (BIDS names start with it)");
+        }
+        Ok(())
+    }
+
+    /// The file stem of map `map` ([`MAPS`]).
+    fn stem(&self, map: &MapKind) -> String {
+        let Some(subject) = &self.subject else {
+            return map.name.to_string();
+        };
+        let mut stem = format!("sub-{subject}");
+        if let Some(session) = &self.session {
+            stem.push_str(&format!("_ses-{session}"));
+        }
+        if let Some(task) = &self.task {
+            stem.push_str(&format!("_task-{task}"));
+        }
+        if let Some(desc) = map.bids_desc {
+            stem.push_str(&format!("_desc-{desc}"));
+        }
+        format!("{stem}_{}", map.bids_suffix)
+    }
+}
+
+/// One kind of map: pcuvd's name, its BIDS `desc` and suffix, unit and description.
+struct MapKind {
+    name: &'static str,
+    bids_desc: Option<&'static str>,
+    bids_suffix: &'static str,
+    units: &'static str,
+    description: &'static str,
+}
+
+const fn map(
+    name: &'static str,
+    bids_desc: Option<&'static str>,
+    bids_suffix: &'static str,
+    units: &'static str,
+    description: &'static str,
+) -> MapKind {
+    MapKind {
+        name,
+        bids_desc,
+        bids_suffix,
+        units,
+        description,
+    }
+}
+
+/// Every map written, BIDS's `pwd` (power Doppler) suffix for the power maps; pcuvd's own
+/// suffixes (`vel`, `ri`) and BIDS's `dseg` (a discrete segmentation) for the others.
+const MAPS: [MapKind; 13] = [
+    map(
+        "power_doppler",
+        None,
+        "pwd",
+        "|IQ|^2",
+        "power Doppler of the compounded, clutter-filtered series",
+    ),
+    map(
+        "signed_power_doppler",
+        Some("signed"),
+        "pwd",
+        "|IQ|^2",
+        "power Doppler signed by the colour Doppler (> 0 moving away from the probe)",
+    ),
+    map(
+        "color_doppler",
+        Some("axial"),
+        "vel",
+        "m/s",
+        "axial velocity (> 0 moving away from the probe)",
+    ),
+    map(
+        "vx",
+        Some("x"),
+        "vel",
+        "m/s",
+        "lateral velocity, PC-UVD IRLS-WLS (> 0 toward +x)",
+    ),
+    map(
+        "vz",
+        Some("z"),
+        "vel",
+        "m/s",
+        "axial velocity, PC-UVD IRLS-WLS (> 0 deeper)",
+    ),
+    map(
+        "speed",
+        Some("speed"),
+        "vel",
+        "m/s",
+        "speed, PC-UVD IRLS-WLS",
+    ),
+    map(
+        "ri",
+        None,
+        "ri",
+        "1",
+        "resistivity index (PSV - EDV)/PSV, NaN outside vessels",
+    ),
+    map(
+        "vessel_class",
+        Some("vessels"),
+        "dseg",
+        "1",
+        "0 background, 1 arteriole, 2 venule, 3 undetermined",
+    ),
+    map(
+        "ensemble_power_doppler",
+        Some("ensembles"),
+        "pwd",
+        "|IQ|^2",
+        "power Doppler of each ensemble",
+    ),
+    map(
+        "ensemble_signed_power_doppler",
+        Some("ensemblesSigned"),
+        "pwd",
+        "|IQ|^2",
+        "signed power Doppler of each ensemble (> 0 moving away from the probe)",
+    ),
+    map(
+        "ensemble_color_doppler",
+        Some("ensemblesAxial"),
+        "vel",
+        "m/s",
+        "axial velocity of each ensemble",
+    ),
+    map(
+        "ensemble_vx",
+        Some("ensemblesX"),
+        "vel",
+        "m/s",
+        "lateral velocity of each ensemble",
+    ),
+    map(
+        "ensemble_vz",
+        Some("ensemblesZ"),
+        "vel",
+        "m/s",
+        "axial vector velocity of each ensemble",
+    ),
+];
+
+fn kind(name: &str) -> &'static MapKind {
+    MAPS.iter()
+        .find(|m| m.name == name)
+        .expect("every written map is listed")
+}
+
+/// The NIfTI header every map shares: voxel sizes and the affine in mm, times in s.
+fn header(out: &ProcessOutput, time_step_s: f64) -> nifti::NiftiHeader {
+    let grid = &out.grid;
+    let dx_mm = (grid.step() * 1e3) as f32;
+    let dz_mm = (grid.axial_step() * 1e3) as f32;
+    let x0_mm = (grid.x[0] * 1e3) as f32;
+    let z0_mm = (grid.z[0] * 1e3) as f32;
+    let mut header = nifti::NiftiHeader {
+        pixdim: [1.0, dx_mm, 1.0, dz_mm, time_step_s as f32, 1.0, 1.0, 1.0],
+        // NIFTI_UNITS_MM | NIFTI_UNITS_SEC.
+        xyzt_units: 2 | 8,
+        sform_code: 1,
+        qform_code: 0,
+        srow_x: [dx_mm, 0.0, 0.0, x0_mm],
+        srow_y: [0.0, 1.0, 0.0, 0.0],
+        srow_z: [0.0, 0.0, -dz_mm, -z0_mm],
+        ..nifti::NiftiHeader::default()
+    };
+    header.descrip = format!("pcuvd {}", env!("CARGO_PKG_VERSION")).into_bytes();
+    header
+}
+
+/// A (nz, nx) map as NIfTI's (i = x, j = 1, k = z) volume.
+fn volume<A: Copy>(map: &Array2<A>) -> ndarray16::Array3<A> {
+    let (nz, nx) = map.dim();
+    ndarray16::Array3::from_shape_fn((nx, 1, nz), |(ix, _, iz)| map[[iz, ix]])
+}
+
+/// An (ensembles, nz, nx) series as NIfTI's (i = x, j = 1, k = z, l = time) volume.
+fn series(maps: &Array3<f64>) -> ndarray16::Array4<f32> {
+    let (nt, nz, nx) = maps.dim();
+    ndarray16::Array4::from_shape_fn((nx, 1, nz, nt), |(ix, _, iz, it)| maps[[it, iz, ix]] as f32)
+}
+
+/// The fUSI-BIDS (BEP040) fields pcuvd knows of a run, in BEP040's units (MHz, mm, Hz, degrees,
+/// ms), with the clutter filter of the whole recording or of each ensemble.
+fn acquisition_fields(
+    data: &dyn FrameSource,
+    out: &ProcessOutput,
+    integration_frames: usize,
+) -> serde_json::Value {
+    let acq = data.acquisition();
+    let frame_rate = acq.frame_rate();
+    let window_ms = integration_frames as f64 / frame_rate * 1e3;
+    let angles: Vec<f64> = acq.sequence.angles.iter().map(|a| a.to_degrees()).collect();
+    let filters: Vec<serde_json::Value> = out
+        .clutter
+        .first()
+        .map(|c| {
+            vec![json!({
+                "FilterType": "Index-based SVD",
+                "LowThreshold": c.low,
+                "HighThreshold": c.high,
+            })]
+        })
+        .unwrap_or_default();
+    json!({
+        "ProbeCentralFrequency": acq.probe.center_frequency * 1e-6,
+        "ProbeNumberOfElements": acq.probe.n_elements,
+        "ProbePitch": acq.probe.pitch * 1e3,
+        "ProbeType": "linear",
+        "Depth": [out.grid.z[0] * 1e3, out.grid.z[out.grid.z.len() - 1] * 1e3],
+        "UltrasoundPulseRepetitionFrequency": acq.sequence.event_prf,
+        "PlaneWaveAngles": angles,
+        "CompoundSamplingFrequency": frame_rate,
+        "ClutterFilterWindowDuration": window_ms,
+        "ClutterFilters": filters,
+        "PowerDopplerIntegrationDuration": window_ms,
+        "SoundSpeed": acq.sound_speed,
+        "TransmitCoding": if acq.sequence.is_coded() { "hadamard" } else { "none" },
+        "SoftwareVersions": format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
+    })
+}
+
+/// Writes one image and its sidecar; returns the image's path.
+fn write_one<A, D>(
+    dir: &Path,
+    naming: &NiftiNaming,
+    map: &MapKind,
+    image: &ndarray16::Array<A, D>,
+    header: &nifti::NiftiHeader,
+    mut sidecar: serde_json::Value,
+) -> Result<PathBuf>
+where
+    A: nifti::DataElement + bytemuck::Pod,
+    D: ndarray16::Dimension + ndarray16::RemoveAxis,
+{
+    let stem = naming.stem(map);
+    let path = dir.join(format!("{stem}.nii.gz"));
+    nifti::writer::WriterOptions::new(&path)
+        .reference_header(header)
+        .write_nifti(image)
+        .with_context(|| format!("{}: cannot write the NIfTI image", path.display()))?;
+    sidecar["Units"] = json!(map.units);
+    sidecar["Description"] = json!(map.description);
+    sidecar["Sources"] = json!([format!("pcuvd:{}", map.name)]);
+    pcuvd_io::write_json(&dir.join(format!("{stem}.json")), &sidecar)?;
+    Ok(path)
+}
+
+/// Writes the maps (power, signed power, colour, the vector components, RI and vessel classes
+/// when the stages made them) and the ensembles' time series as NIfTI images with BEP040
+/// sidecars into `dir`. Returns the images written.
+pub fn write_nifti(
+    dir: &Path,
+    data: &dyn FrameSource,
+    plan: &Plan,
+    processed: &Processed,
+    naming: &NiftiNaming,
+) -> Result<Vec<PathBuf>> {
+    naming.validate()?;
+    let out = &processed.out;
+    let frame_rate = data.acquisition().frame_rate();
+    let still = header(out, 0.0);
+    let fields = acquisition_fields(data, out, data.n_frames());
+    let mut written = Vec::new();
+    let mut maps: Vec<(&str, Array2<f64>)> = vec![
+        ("power_doppler", out.power_doppler.clone()),
+        ("signed_power_doppler", out.signed_power_doppler()),
+        ("color_doppler", out.color_doppler.clone()),
+    ];
+    if let Some(irls) = &out.vector_irls {
+        maps.push(("vx", irls.vx.clone()));
+        maps.push(("vz", irls.vz.clone()));
+        maps.push(("speed", irls.speed()));
+    }
+    if let DynamicsOutcome::Done { maps: ri, .. } = &processed.dynamics {
+        maps.push(("ri", ri.ri.clone()));
+        let classes = volume(&ri.vessel_class);
+        written.push(write_one(
+            dir,
+            naming,
+            kind("vessel_class"),
+            &classes,
+            &still,
+            fields.clone(),
+        )?);
+    }
+    for (name, values) in maps {
+        let image = volume(&values.mapv(|v| v as f32));
+        written.push(write_one(
+            dir,
+            naming,
+            kind(name),
+            &image,
+            &still,
+            fields.clone(),
+        )?);
+    }
+    if let (Some(ensembles), Some(spec)) = (&processed.ensembles, plan.ensembles) {
+        let step_s = spec.step as f64 / frame_rate;
+        let timed = header(out, step_s);
+        let mut fields = acquisition_fields(data, out, spec.frames);
+        // Ensembles are evenly spaced: RepetitionTime says when each starts after the first,
+        // DelayAfterTrigger when the first one's centre lies after the recording's first frame.
+        fields["RepetitionTime"] = json!(step_s);
+        // Each ensemble has its own SVD cut-offs (one pair per angle).
+        fields["ClutterFilters"] = json!([{ "FilterType": "Index-based SVD, per ensemble" }]);
+        fields["ClutterCutoffsPerEnsemble"] = json!(ensembles.clutter);
+        fields["DelayAfterTrigger"] = json!(ensembles.times_s.first().copied().unwrap_or(0.0));
+        let mut series_maps: Vec<(&str, Array3<f64>)> = vec![
+            ("ensemble_power_doppler", ensembles.power_doppler.clone()),
+            (
+                "ensemble_signed_power_doppler",
+                ensembles.signed_power_doppler(),
+            ),
+            ("ensemble_color_doppler", ensembles.color_doppler.clone()),
+        ];
+        if let (Some(vx), Some(vz)) = (&ensembles.vx, &ensembles.vz) {
+            series_maps.push(("ensemble_vx", vx.clone()));
+            series_maps.push(("ensemble_vz", vz.clone()));
+        }
+        for (name, values) in series_maps {
+            let image = series(&values);
+            written.push(write_one(
+                dir,
+                naming,
+                kind(name),
+                &image,
+                &timed,
+                fields.clone(),
+            )?);
+        }
+    }
+    Ok(written)
+}

@@ -1,0 +1,93 @@
+"""`pcuvd process --nifti` and `--bids-*`: the maps and the time series as NIfTI images that
+nibabel reads, with their voxels where the .npy maps put them, the affine in mm with depth
+downwards, and fUSI-BIDS (BEP040) sidecars."""
+
+import json
+
+import nibabel as nib
+import numpy as np
+import pytest
+
+from conftest import run_cli
+
+
+@pytest.fixture(scope="module")
+def coded_tube(tmp_path_factory, cli):
+    folder = tmp_path_factory.mktemp("nifti_tube")
+    done = run_cli(
+        cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "8", "--angles", "4",
+        "--out", folder,
+    )
+    assert done.returncode == 0, done.stderr
+    return folder / "coded.toml"
+
+
+GRID = "--grid=-2,2,6,10,0.08"
+
+
+def test_maps_and_time_series_open_in_nibabel_where_the_npy_maps_are(coded_tube, cli, tmp_path):
+    out = tmp_path / "out"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", out, GRID, "--nifti", "--dynamics=off",
+        "--ensemble-frames=4", "--ensemble-step=2",
+    )
+    assert done.returncode == 0, done.stderr
+    x, z = np.load(out / "x.npy"), np.load(out / "z.npy")
+    for name in ["power_doppler", "signed_power_doppler", "color_doppler", "vx", "vz", "speed"]:
+        image = nib.load(out / f"{name}.nii.gz")
+        volume = image.get_fdata()
+        expected = np.load(out / f"{name}.npy")
+        assert volume.shape == (x.size, 1, z.size), name
+        np.testing.assert_array_equal(volume[:, 0, :], expected.T.astype(np.float32), name)
+        # Voxel (i, 0, k) lies at x[i] mm laterally and z[k] mm deep (world z = −depth).
+        i, k = 7, 11
+        world = image.affine @ np.array([i, 0, k, 1.0])
+        np.testing.assert_allclose(world[[0, 2]], [x[i] * 1e3, -z[k] * 1e3], atol=1e-4)
+        assert image.header.get_xyzt_units() == ("mm", "sec")
+    sidecar = json.loads((out / "power_doppler.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    acquisition = summary["acquisition"]
+    assert sidecar["ProbeCentralFrequency"] == pytest.approx(15.625)  # MHz, BEP040's unit
+    assert sidecar["ProbeNumberOfElements"] == 128
+    assert sidecar["PlaneWaveAngles"] == pytest.approx([-15, -5, 5, 15])
+    assert sidecar["CompoundSamplingFrequency"] == pytest.approx(acquisition["frame_rate_hz"])
+    # The whole recording's power Doppler integrates its 8 frames (ms).
+    assert sidecar["PowerDopplerIntegrationDuration"] == pytest.approx(
+        8 / acquisition["frame_rate_hz"] * 1e3
+    )
+    assert sidecar["ClutterFilters"][0]["FilterType"] == "Index-based SVD"
+    # The time series: (x, 1, z, ensembles), one ensemble every 2 frames.
+    series = nib.load(out / "ensemble_power_doppler.nii.gz")
+    expected = np.load(out / "ensemble_power_doppler.npy")
+    assert series.shape == (x.size, 1, z.size, expected.shape[0]) and expected.shape[0] == 3
+    np.testing.assert_array_equal(
+        np.transpose(series.get_fdata()[:, 0], (2, 1, 0)), expected.astype(np.float32)
+    )
+    step_s = 2 / acquisition["frame_rate_hz"]
+    assert series.header.get_zooms()[3] == pytest.approx(step_s)
+    timing = json.loads((out / "ensemble_power_doppler.json").read_text())
+    assert timing["RepetitionTime"] == pytest.approx(step_s)
+    assert timing["PowerDopplerIntegrationDuration"] == pytest.approx(step_s * 2 * 1e3)
+    assert len(timing["ClutterCutoffsPerEnsemble"]) == 3
+    assert sorted(summary["nifti"]) == sorted(p.name for p in out.glob("*.nii.gz"))
+
+
+def test_bids_names_and_refused_labels(coded_tube, cli, tmp_path):
+    out = tmp_path / "bids"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", out, GRID, "--dynamics=off",
+        "--bids-subject", "01", "--bids-session", "baseline", "--bids-task", "rest",
+    )
+    assert done.returncode == 0, done.stderr
+    stem = "sub-01_ses-baseline_task-rest"
+    for name in [f"{stem}_pwd", f"{stem}_desc-signed_pwd", f"{stem}_desc-axial_vel"]:
+        assert (out / f"{name}.nii.gz").is_file() and (out / f"{name}.json").is_file(), name
+    power = nib.load(out / f"{stem}_pwd.nii.gz").get_fdata()[:, 0, :]
+    np.testing.assert_array_equal(power, np.load(out / "power_doppler.npy").T.astype(np.float32))
+    for bad, needle in [
+        (["--bids-subject", "0_1"], "letters and digits"),
+        (["--bids-task", "rest"], "need --bids-subject"),
+    ]:
+        refused = run_cli(cli, "process", coded_tube, "--out", tmp_path / "no", GRID, *bad)
+        assert refused.returncode == 2 and needle in refused.stderr, refused.stderr
+        assert not (tmp_path / "no").exists()
