@@ -114,11 +114,29 @@ class ProcessResult:
         stage timings, dynamics, provenance), as a dict."""
         return json.loads(self._native.summary_json())
 
-    def save(self, folder: str | os.PathLike, force: bool = False) -> list[Path]:
+    def save(
+        self,
+        folder: str | os.PathLike,
+        force: bool = False,
+        *,
+        nifti: bool = False,
+        bids_subject: str | None = None,
+        bids_session: str | None = None,
+        bids_task: str | None = None,
+    ) -> list[Path]:
         """Writes exactly what `pcuvd process` writes into `folder`: maps as .npy, figures,
         summary.json last. A folder that holds anything is refused unless `force`, which first
-        removes pcuvd's own outputs there (never other files). Returns the figures written."""
-        return [Path(p) for p in self._native.save(os.fspath(folder), bool(force))]
+        removes pcuvd's own outputs there (never other files). `nifti=True` (`--nifti`) also
+        writes NIfTI images with fUSI-BIDS sidecars; `bids_subject=` and friends name them by
+        BIDS entities (`--bids-subject`...). Returns the figures written."""
+        bids = (bids_subject, bids_session, bids_task)
+        for label in bids:
+            if label is not None and not isinstance(label, str):
+                raise TypeError(f"save(): a BIDS label is a str, got {type(label).__name__}")
+        return [
+            Path(p)
+            for p in self._native.save(os.fspath(folder), bool(force), bool(nifti), bids)
+        ]
 
     def to_xarray(self) -> Any:
         """The maps as an `xarray.Dataset` with coordinates x, z (m), angle (rad), time (s)."""

@@ -8,6 +8,7 @@ import nibabel as nib
 import numpy as np
 import pytest
 
+import pcuvd
 from conftest import run_cli
 
 
@@ -91,3 +92,19 @@ def test_bids_names_and_refused_labels(coded_tube, cli, tmp_path):
         refused = run_cli(cli, "process", coded_tube, "--out", tmp_path / "no", GRID, *bad)
         assert refused.returncode == 2 and needle in refused.stderr, refused.stderr
         assert not (tmp_path / "no").exists()
+
+
+def test_python_saves_the_same_images(coded_tube, cli, tmp_path):
+    result = pcuvd.process(coded_tube, grid_mm=(-2, 2, 6, 10, 0.08), dynamics="off", quiet=True)
+    result.save(tmp_path / "py", bids_subject="01", bids_task="rest")
+    done = run_cli(
+        cli, "process", coded_tube, "--out", tmp_path / "cli", GRID, "--dynamics=off",
+        "--bids-subject", "01", "--bids-task", "rest",
+    )
+    assert done.returncode == 0, done.stderr
+    for image in sorted((tmp_path / "cli").glob("*.nii.gz")):
+        np.testing.assert_array_equal(
+            nib.load(tmp_path / "py" / image.name).get_fdata(), nib.load(image).get_fdata()
+        )
+    with pytest.raises(ValueError, match="letters and digits"):
+        result.save(tmp_path / "bad", bids_subject="a-b")

@@ -659,8 +659,31 @@ impl PyProcessResult {
     }
 
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
-    /// a folder that holds anything is refused unless `force`. Returns the figures written.
-    fn save(&self, py: Python<'_>, folder: PathBuf, force: bool) -> PyResult<Vec<PathBuf>> {
+    /// a folder that holds anything is refused unless `force`. `nifti`: also the NIfTI images,
+    /// named by map, or by BIDS entities `bids` = (subject, session, task). Returns the figures.
+    #[pyo3(signature = (folder, force, nifti=false, bids=(None, None, None)))]
+    fn save(
+        &self,
+        py: Python<'_>,
+        folder: PathBuf,
+        force: bool,
+        nifti: bool,
+        bids: (Option<String>, Option<String>, Option<String>),
+    ) -> PyResult<Vec<PathBuf>> {
+        let (subject, session, task) = bids;
+        let naming =
+            (nifti || subject.is_some() || session.is_some() || task.is_some()).then(|| {
+                pcuvd_app::nifti::NiftiNaming {
+                    subject,
+                    session,
+                    task,
+                }
+            });
+        if let Some(naming) = &naming {
+            naming
+                .validate()
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        }
         py.detach(|| -> anyhow::Result<Vec<PathBuf>> {
             let clock = std::time::Instant::now();
             let source = self.source()?;
@@ -684,7 +707,7 @@ impl PyProcessResult {
                     source,
                     name: &name,
                     extra_timings: &[("checksum", checksum_s)],
-                    nifti: None,
+                    nifti: naming.as_ref(),
                 },
                 &Lines::new(true),
             )
