@@ -671,14 +671,12 @@ impl PyProcessResult {
         bids: (Option<String>, Option<String>, Option<String>),
     ) -> PyResult<Vec<PathBuf>> {
         let (subject, session, task) = bids;
-        let naming =
-            (nifti || subject.is_some() || session.is_some() || task.is_some()).then(|| {
-                pcuvd_app::nifti::NiftiNaming {
-                    subject,
-                    session,
-                    task,
-                }
-            });
+        let wanted = nifti || subject.is_some() || session.is_some() || task.is_some();
+        let naming = wanted.then_some(pcuvd_app::nifti::NiftiNaming {
+            subject,
+            session,
+            task,
+        });
         if let Some(naming) = &naming {
             naming
                 .validate()
