@@ -171,9 +171,10 @@ pub fn vector_overlay(
 }
 
 /// The figures [`process_figures`] writes.
-pub const PROCESS_FIGURES: [&str; 4] = [
+pub const PROCESS_FIGURES: [&str; 5] = [
     "bmode.png",
     "power_doppler.png",
+    "signed_power_doppler.png",
     "color_doppler.png",
     "vector.png",
 ];
@@ -243,6 +244,38 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         &dir.join("power_doppler.png"),
         &format!("{name}: power Doppler"),
         vec![Panel::Image(pd)],
+        1,
+        size,
+    )?);
+
+    // Signed power Doppler: the power's level above −40 dB re peak, signed by the flow's axial
+    // direction (red toward the probe, as the colour Doppler), so that brightness is power and
+    // hue is direction.
+    let floor_db = 40.0;
+    let toward_level = ndarray::Zip::from(&masks::power_db_re_peak(&out.power_doppler))
+        .and(&out.color_doppler)
+        .map_collect(|&db, &v| {
+            let level = (db + floor_db).clamp(0.0, floor_db);
+            if v < 0.0 {
+                level
+            } else if v > 0.0 {
+                -level
+            } else {
+                0.0
+            }
+        });
+    let spd = map_panel(
+        "Signed power Doppler",
+        toward_level,
+        grid,
+        Colormap::RedBlue,
+        (-floor_db, floor_db),
+        "dB above -40 dB re peak; red: toward the probe",
+    );
+    written.push(save(
+        &dir.join("signed_power_doppler.png"),
+        &format!("{name}: signed power Doppler"),
+        vec![Panel::Image(spd)],
         1,
         size,
     )?);

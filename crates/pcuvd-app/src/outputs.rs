@@ -44,6 +44,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ensemble_times.npy",
     "bmode.png",
     "power_doppler.png",
+    "signed_power_doppler.png",
     "color_doppler.png",
     "vector.png",
     "dealias.png",

@@ -110,7 +110,12 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         serde_json::from_str(&std::fs::read_to_string(out.path().join("summary.json")).unwrap())
             .unwrap();
     let nyquist = summary["nyquist_velocity_m_s"].as_f64().unwrap();
-    for name in ["bmode.png", "power_doppler.png", "color_doppler.png"] {
+    for name in [
+        "bmode.png",
+        "power_doppler.png",
+        "signed_power_doppler.png",
+        "color_doppler.png",
+    ] {
         assert!(out.path().join(name).exists(), "{name} missing");
     }
 
