@@ -4,6 +4,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bench;
 pub mod dealias_study;
 pub mod info;
 pub mod network_study;
@@ -35,6 +36,8 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
     Info(info::InfoArgs),
+    /// Time each stage on a recording and report its throughput beside its bound (memory bandwidth, beamformer points/s), naming the CPU: a speed report to run by hand in a release build.
+    Bench(bench::BenchArgs),
     /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),
 }
@@ -59,6 +62,7 @@ pub fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(&args),
         Command::Paper(args) => paper::run(&args),
         Command::Info(args) => info::run(&args),
+        Command::Bench(args) => bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -484,3 +484,56 @@ fn info_reports_the_acquisition_without_processing() {
     let depth = 0.5 * c * (t0 + 333.0 / fs);
     assert!((acq["recorded_depth_m"].as_f64().unwrap() - depth).abs() < 1e-12);
 }
+
+/// `pcuvd bench` counts the beamformer's work as other beamformers publish it (points = pixels ×
+/// elements × images) on the grid `process` uses, and reports it against the stage's own median
+/// time. Its speeds are measured, not checked here: timing assertions would be flaky.
+#[test]
+fn bench_counts_the_beamformers_points_on_the_process_grid() {
+    let input = disk_file();
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["bench", "--repeat", "1", "--json"])
+        .arg(&json)
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let info = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["info", "--json"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let recording = &report["recording"];
+    let grid = &info["processing"]["default_grid_nz_nx"];
+    let pixels = grid[0].as_f64().unwrap() * grid[1].as_f64().unwrap();
+    assert_eq!(recording["pixels"].as_f64(), Some(pixels), "{info}");
+    assert_eq!(recording["elements"], 128);
+    assert_eq!(recording["images"], 32);
+    let beamform_s = report["median_s"]["stages"]["demodulate + beamform"]
+        .as_f64()
+        .unwrap();
+    let points_per_s = report["throughput"]["beamform_points_per_s"]
+        .as_f64()
+        .unwrap();
+    let expected = pixels * 128.0 * 32.0 / beamform_s;
+    assert!((points_per_s - expected).abs() <= 1e-9 * expected);
+    // The active aperture: some, not all, of the 128 elements reach each pixel at F# 1.5.
+    let active = report["throughput"]["mean_active_aperture_elements"]
+        .as_f64()
+        .unwrap();
+    assert!(active > 1.0 && active < 128.0, "{active}");
+    assert!(
+        report["machine"]["cpu"]
+            .as_str()
+            .is_some_and(|c| !c.is_empty())
+    );
+}

@@ -1,0 +1,219 @@
+//! `pcuvd bench`: each stage's throughput on this machine beside the bound that limits it, for a
+//! speed report that shows regressions. Run by hand on a quiet machine, in a release build (CI
+//! keeps its time budget and never runs it).
+//!
+//! Bounds: reading and decoding move the recording's bytes, so their bound is the memory
+//! bandwidth measured here (one core copying a buffer far larger than the caches, and all cores
+//! at once); the beamformer's work is counted as other beamformers publish it, points = pixels ×
+//! elements × frames (all elements, every angle's image), with the active aperture (the elements
+//! within the receive f-number's reach of each pixel) beside it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use pcuvd::pipeline::Stage;
+use pcuvd_app::input::open_input;
+use pcuvd_app::progress::Silent;
+use pcuvd_app::run::Plan;
+use pcuvd_app::settings::{DynamicsChoice, DynamicsSettings, ProcessingSettings};
+use serde_json::json;
+
+/// Arguments of `pcuvd bench`.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Recording to time (any format `pcuvd info` reads), processed with the default settings
+    /// and no dynamics stage.
+    pub input: PathBuf,
+    /// Runs to time; each stage reports its median.
+    #[arg(long, default_value_t = 5)]
+    pub repeat: usize,
+    /// Also write the report as JSON (machine, commit-independent numbers) to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// The CPU's model name and the instruction sets that matter here, from /proc/cpuinfo.
+fn cpu() -> (String, Vec<&'static str>, usize) {
+    let text = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let model = text
+        .lines()
+        .find(|l| l.starts_with("model name"))
+        .and_then(|l| l.split(':').nth(1))
+        .map_or_else(|| "unknown".to_string(), |m| m.trim().to_string());
+    let flags: Vec<&str> = text
+        .lines()
+        .find(|l| l.starts_with("flags"))
+        .map(|l| l.split_whitespace().collect())
+        .unwrap_or_default();
+    let features = ["avx2", "fma", "avx512f", "sha_ni"]
+        .into_iter()
+        .filter(|f| flags.contains(f))
+        .collect();
+    (model, features, rayon::current_num_threads())
+}
+
+/// Memory bandwidth (bytes/s, read + written) of copying a 256 MiB buffer: one core, and every
+/// core on its own share. The best of three.
+fn memory_bandwidth() -> (f64, f64) {
+    use rayon::prelude::*;
+    let len = 256 << 20;
+    let source = vec![1u8; len];
+    let mut target = vec![0u8; len];
+    let mut best = |parallel: bool| {
+        (0..3)
+            .map(|_| {
+                let clock = Instant::now();
+                if parallel {
+                    let chunk = len / rayon::current_num_threads().max(1);
+                    target
+                        .par_chunks_mut(chunk)
+                        .zip(source.par_chunks(chunk))
+                        .for_each(|(t, s)| t.copy_from_slice(s));
+                } else {
+                    target.copy_from_slice(&source);
+                }
+                std::hint::black_box(&target);
+                2.0 * len as f64 / clock.elapsed().as_secs_f64()
+            })
+            .fold(0.0, f64::max)
+    };
+    (best(false), best(true))
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// Runs `pcuvd bench`.
+pub fn run(args: &BenchArgs) -> Result<()> {
+    if args.repeat == 0 {
+        bail!("--repeat 0: time at least one run");
+    }
+    if cfg!(debug_assertions) {
+        eprintln!(
+            "note: this pcuvd is a debug build; time a release build (cargo build --release)"
+        );
+    }
+    let (model, features, threads) = cpu();
+    let (copy_one, copy_all) = memory_bandwidth();
+    let mut stage_times: std::collections::BTreeMap<&'static str, Vec<f64>> = Default::default();
+    let mut read_times = Vec::new();
+    let mut total_times = Vec::new();
+    let dynamics = DynamicsSettings {
+        dynamics: DynamicsChoice::Off,
+        ..DynamicsSettings::default()
+    };
+    let mut shape = None;
+    for _ in 0..args.repeat {
+        let clock = Instant::now();
+        let opened = open_input(&args.input, &pcuvd_io::Overrides::default())?;
+        read_times.push(clock.elapsed().as_secs_f64());
+        let data = opened.source.as_ref();
+        let plan = Plan::new(&ProcessingSettings::default(), &dynamics, data, None)?;
+        let processed = pcuvd_app::run(data, &plan, &Silent)
+            .with_context(|| format!("{}: processing failed", args.input.display()))?;
+        total_times.push(clock.elapsed().as_secs_f64());
+        for (stage, seconds) in &processed.out.timings {
+            stage_times.entry(stage.label()).or_default().push(*seconds);
+        }
+        let acq = data.acquisition();
+        let grid = &plan.params.grid;
+        let (nz, nx) = grid.shape();
+        // Elements within each pixel's receive aperture, |x_e − x| ≤ z / (2 F#), summed.
+        let element_x = acq.probe.element_x();
+        let f_number = plan.params.das.f_number;
+        let active: f64 = grid
+            .z
+            .iter()
+            .map(|&z| {
+                let half = z / (2.0 * f_number);
+                grid.x
+                    .iter()
+                    .map(|&x| element_x.iter().filter(|&&e| (e - x).abs() <= half).count())
+                    .sum::<usize>() as f64
+            })
+            .sum();
+        let (channels, samples) = data.trace_shape();
+        shape = Some((
+            nz * nx,
+            acq.probe.n_elements,
+            data.n_frames() * acq.sequence.n_angles(),
+            active / (nz * nx) as f64,
+            data.n_frames() * acq.sequence.n_angles() * channels * samples * 4,
+        ));
+    }
+    let (pixels, elements, images, mean_active, input_bytes) = shape.context("no run was timed")?;
+    let stage = |s: Stage| median(stage_times.get(s.label()).cloned().unwrap_or_default());
+    let beamform_s = stage(Stage::Beamform);
+    let points = pixels as f64 * elements as f64 * images as f64;
+    let decode_s = stage(Stage::Decode);
+    let report = json!({
+        "input": args.input.display().to_string(),
+        "runs": args.repeat,
+        "machine": { "cpu": model, "features": features, "threads": threads },
+        "memory_bandwidth_bytes_per_s": { "one_core": copy_one, "all_cores": copy_all },
+        "recording": {
+            "pixels": pixels, "elements": elements, "images": images,
+            "samples_bytes_as_f32": input_bytes,
+        },
+        "median_s": {
+            "read": median(read_times.clone()),
+            "stages": stage_times.keys().map(|k| (k.to_string(), json!(median(stage_times[k].clone())))).collect::<serde_json::Map<_, _>>(),
+            "total": median(total_times.clone()),
+        },
+        "throughput": {
+            "decode_bytes_per_s": input_bytes as f64 / decode_s,
+            "beamform_points_per_s": points / beamform_s,
+            "beamform_active_points_per_s": points * mean_active / elements as f64 / beamform_s,
+            "mean_active_aperture_elements": mean_active,
+        },
+    });
+    println!(
+        "pcuvd bench: {} ({} runs, medians)",
+        args.input.display(),
+        args.repeat
+    );
+    println!(
+        "  machine      {model} ({}; {threads} threads)",
+        features.join(", ")
+    );
+    println!(
+        "  memory       copy {:.1} GB/s on one core, {:.1} GB/s on all (read + write)",
+        copy_one * 1e-9,
+        copy_all * 1e-9
+    );
+    println!(
+        "  read         {:.3} s (open and parse the file)",
+        median(read_times)
+    );
+    println!(
+        "  decode       {:.3} s: {:.2} GB/s of f32 samples ({:.0} % of one core's copy bandwidth)",
+        decode_s,
+        input_bytes as f64 / decode_s * 1e-9,
+        100.0 * input_bytes as f64 / decode_s / copy_one
+    );
+    println!(
+        "  beamform     {:.3} s: {:.2}e9 points/s ({pixels} pixels × {elements} elements × \
+         {images} images), {:.2}e9 active points/s ({:.1} elements in each pixel's aperture)",
+        beamform_s,
+        points / beamform_s * 1e-9,
+        points * mean_active / elements as f64 / beamform_s * 1e-9,
+        mean_active
+    );
+    for (label, times) in &stage_times {
+        if *label != Stage::Decode.label() && *label != Stage::Beamform.label() {
+            println!("  {label:<12} {:.3} s", median(times.clone()));
+        }
+    }
+    println!(
+        "  total        {:.3} s (read to vector maps, no figures)",
+        median(total_times)
+    );
+    if let Some(path) = &args.json {
+        pcuvd_io::write_json(path, &report)?;
+    }
+    Ok(())
+}
