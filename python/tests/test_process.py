@@ -173,6 +173,18 @@ def test_bandwidth_is_a_keyword_for_files_that_do_not_state_it():
     assert given.probe["bandwidth"] == 0.15
 
 
+def test_a_zea_track_is_a_keyword():
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    two = fixtures / "disk_two_tracks_zea.hdf5"
+    assert pcuvd.read_recording(two).n_frames == 4
+    for track in (1, "disk"):
+        chosen = pcuvd.read_recording(two, track=track)
+        assert chosen.n_frames == 8
+        assert chosen.parameters["track"] == {"value": "track_1", "source": {"kind": "override"}}
+    with pytest.raises(ValueError, match="not tracks to choose from"):
+        pcuvd.read_recording(fixtures / "disk.uff", track=1)
+
+
 def test_from_arrays_equals_the_file(disk):
     recording = pcuvd.read_recording(disk)
     samples = np.transpose(recording.samples, (2, 0, 1))  # (samples, events, channels)

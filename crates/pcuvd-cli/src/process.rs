@@ -87,6 +87,10 @@ pub struct AcquisitionOverrides {
     /// it (pcuvd then takes 67 %, or the widest band the sampling holds) or states it wrongly.
     #[arg(long)]
     pub bandwidth: Option<f64>,
+    /// The track to read from a file of several (zea / OpenH-RF): its index N (tracks/track_N)
+    /// or its label; default the first with raw data (`pcuvd info` lists them).
+    #[arg(long)]
+    pub track: Option<String>,
 }
 
 impl AcquisitionOverrides {
@@ -100,6 +104,7 @@ impl AcquisitionOverrides {
             center_freq_hz: self.center_freq_hz,
             demod_freq_hz: self.demod_freq_hz,
             bandwidth: self.bandwidth,
+            track: self.track.clone(),
             ..pcuvd_io::Overrides::default()
         }
     }

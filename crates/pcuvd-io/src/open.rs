@@ -70,7 +70,7 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
             ));
         }
     };
-    match container {
+    let opened = match container {
         Container::Manifest => crate::readers::manifest::open(path, overrides),
         Container::MatV5 => crate::readers::must::open_v5(path, overrides),
         Container::Zip => crate::readers::must::open_npz(path, overrides),
@@ -81,7 +81,22 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
              file in [data].file (see crates/pcuvd-io/examples/recording.toml)",
         )),
         Container::Hdf5 { .. } => open_hdf5(path, overrides, &ext),
+    }?;
+    // A track names one of several acquisitions in a file: a reader that has none to choose
+    // from says so rather than ignore the choice.
+    if let Some(track) = &overrides.track
+        && !opened.info.parameters.iter().any(|p| p.name == "track")
+    {
+        return Err(IoError::invalid(
+            path,
+            "--track",
+            format!(
+                "{track:?}: {} holds one acquisition, not tracks to choose from",
+                opened.info.format
+            ),
+        ));
     }
+    Ok(opened)
 }
 
 /// Reads a MUST-style MAT-file (v5 or v7.3) or `.npz` into channel data (whole, validated): any

@@ -29,6 +29,9 @@ pub struct Overrides {
     pub pulse_cycles: Option<f64>,
     /// Probe's two-way −6 dB fractional bandwidth (0.6 = 60 %).
     pub bandwidth: Option<f64>,
+    /// The track to read from a file of several (zea's `tracks/track_N`): its index N or its
+    /// label.
+    pub track: Option<String>,
 }
 
 impl Overrides {

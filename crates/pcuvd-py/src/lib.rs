@@ -238,6 +238,12 @@ fn reader_overrides(map: &serde_json::Map<String, Value>) -> anyhow::Result<pcuv
         angles_rad: angles,
         pulse_cycles: number(map, "pulse_cycles")?,
         bandwidth: number(map, "bandwidth")?,
+        track: match map.get("track") {
+            None | Some(Value::Null) => None,
+            Some(Value::String(label)) => Some(label.clone()),
+            Some(Value::Number(n)) if n.is_u64() => Some(n.to_string()),
+            Some(v) => anyhow::bail!("track: expected a track's index or label, got {v}"),
+        },
     })
 }
 
@@ -252,7 +258,7 @@ fn number(map: &serde_json::Map<String, Value>, key: &str) -> anyhow::Result<Opt
 }
 
 /// The acquisition fields a user may set or override, in SI units.
-const ACQUISITION_KEYS: [&str; 10] = [
+const ACQUISITION_KEYS: [&str; 11] = [
     "sampling_freq_hz",
     "sound_speed_m_s",
     "t0_s",
@@ -263,6 +269,7 @@ const ACQUISITION_KEYS: [&str; 10] = [
     "slot_delay_s",
     "pulse_cycles",
     "bandwidth",
+    "track",
 ];
 
 fn apply_overrides(

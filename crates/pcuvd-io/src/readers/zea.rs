@@ -76,18 +76,51 @@ pub fn event_prf_from_intervals(
     Ok((prf, warning))
 }
 
-/// Opens a zea file.
-pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
-    let mut warnings = Vec::new();
-    let track = if h5.is_dataset("data/raw_data") {
-        String::new()
-    } else {
-        let mut tracks: Vec<String> = h5
-            .members("tracks")?
-            .into_iter()
-            .filter(|t| h5.is_dataset(&format!("tracks/{t}/data/raw_data")))
-            .collect();
-        tracks.sort();
+/// The track a reader reads and why: its group name (`track_N`) and the parameter source that
+/// says so (the user's choice, or the first of several, listing them all).
+struct ChosenTrack {
+    name: String,
+    source: ParamSource,
+}
+
+/// The tracks of a multi-track zea file that hold raw data, in index order, each with its label
+/// and frame count, for messages: `track_1 "disk" (8 frames)`.
+fn describe_tracks(h5: &Hdf5, tracks: &[String]) -> String {
+    tracks
+        .iter()
+        .map(|t| {
+            let label = h5
+                .dataset(&format!("tracks/{t}/label"))
+                .ok()
+                .and_then(|d| d.read_strings().ok())
+                .and_then(|v| v.into_iter().next())
+                .map_or_else(String::new, |l| format!(" {l:?}"));
+            let frames = h5
+                .describe(&format!("tracks/{t}/data/raw_data"))
+                .ok()
+                .and_then(|(shape, _)| shape.first().copied())
+                .map_or_else(String::new, |n| format!(" ({n} frames)"));
+            format!("{t}{label}{frames}")
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Chooses the track to read: `asked` (an index N of `track_N`, or a label), else the first that
+/// holds raw data.
+fn choose_track(path: &Path, h5: &Hdf5, asked: Option<&str>) -> Result<ChosenTrack, IoError> {
+    let index = |t: &str| {
+        t.strip_prefix("track_")
+            .and_then(|n| n.parse::<usize>().ok())
+    };
+    let mut tracks: Vec<String> = h5
+        .members("tracks")?
+        .into_iter()
+        .filter(|t| h5.is_dataset(&format!("tracks/{t}/data/raw_data")))
+        .collect();
+    tracks.sort_by_key(|t| (index(t), t.clone()));
+    let listed = describe_tracks(h5, &tracks);
+    let Some(asked) = asked else {
         let first = tracks.first().cloned().ok_or_else(|| {
             IoError::missing(
                 path,
@@ -95,14 +128,71 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 "raw channel data (data/raw_data in /tracks/track_N)",
             )
         })?;
-        if tracks.len() > 1 {
-            warnings.push(format!(
-                "the file holds raw data in {} tracks ({}); pcuvd reads {first} only",
-                tracks.len(),
-                tracks.join(", ")
+        let note = if tracks.len() > 1 {
+            format!(
+                "the first of {} tracks with raw data: {listed}; --track (Python: track=) \
+                 chooses another, by index or label",
+                tracks.len()
+            )
+        } else {
+            "the file's one track with raw data".to_string()
+        };
+        return Ok(ChosenTrack {
+            name: first,
+            source: ParamSource::Default { note },
+        });
+    };
+    let label_of = |t: &str| {
+        h5.dataset(&format!("tracks/{t}/label"))
+            .ok()
+            .and_then(|d| d.read_strings().ok())
+            .and_then(|v| v.into_iter().next())
+    };
+    let found = tracks.iter().find(|t| {
+        asked
+            .parse::<usize>()
+            .ok()
+            .is_some_and(|n| index(t) == Some(n))
+            || label_of(t).as_deref() == Some(asked)
+    });
+    match found {
+        Some(t) => Ok(ChosenTrack {
+            name: t.clone(),
+            source: ParamSource::Override,
+        }),
+        None => Err(IoError::invalid(
+            path,
+            "--track",
+            format!(
+                "{asked:?} is neither the index nor the label of a track with raw data; the \
+                 file's are {listed}"
+            ),
+        )),
+    }
+}
+
+/// Opens a zea file (the track `overrides.track` names, else the first with raw data).
+pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
+    let mut warnings = Vec::new();
+    let mut r = Resolver::new(overrides);
+    let track = if h5.is_dataset("data/raw_data") {
+        if let Some(asked) = &overrides.track {
+            return Err(IoError::invalid(
+                path,
+                "--track",
+                format!("{asked:?}: the file holds one acquisition (data/raw_data), not tracks"),
             ));
         }
-        format!("tracks/{first}/")
+        String::new()
+    } else {
+        let chosen = choose_track(path, h5, overrides.track.as_deref())?;
+        if let ParamSource::Default { note } = &chosen.source
+            && note.starts_with("the first of")
+        {
+            warnings.push(format!("pcuvd reads {}, {note}", chosen.name));
+        }
+        r.record("track", json!(chosen.name), chosen.source);
+        format!("tracks/{}/", chosen.name)
     };
     let scan = |name: &str| format!("{track}scan/{name}");
     let raw = format!("{track}data/raw_data");
@@ -128,7 +218,6 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     };
-    let mut r = Resolver::new(overrides);
     let missing = |name: &str| {
         let n = scan(name);
         move || IoError::missing(path, "the zea scan group", format!("dataset '{n}'"))

@@ -224,6 +224,62 @@ fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
     }
 }
 
+/// A zea file of several tracks (OpenH-RF stores sequences so), written by zea itself: the first
+/// track with raw data unless `--track` names another by index or label; the choice, and every
+/// track with its label and frames, are said; a track that is not there is refused naming them.
+#[test]
+fn a_zea_track_is_chosen_by_index_or_label() {
+    let name = "disk_two_tracks_zea.hdf5";
+    let default = open(name);
+    assert_eq!(default.source.n_frames(), 4);
+    let listed = "track_0 \"first4\" (4 frames), track_1 \"disk\" (8 frames)";
+    assert!(
+        default.info.warnings.iter().any(|w| w.contains(listed)),
+        "{:?}",
+        default.info.warnings
+    );
+    let with = |track: &str| {
+        let overrides = Overrides {
+            track: Some(track.into()),
+            ..Overrides::default()
+        };
+        open_recording(&fixture(name), &overrides)
+    };
+    let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
+    let reference = disk_reference(events);
+    let grid = Grid::new(-10e-3, 10e-3, 12e-3, 32e-3, 0.2e-3).unwrap();
+    for track in ["1", "disk"] {
+        let opened = with(track).unwrap();
+        assert_eq!(opened.source.n_frames(), 8, "{track}");
+        let param = opened.info.parameters.iter().find(|p| p.name == "track");
+        assert_eq!(param.unwrap().value, "track_1");
+        assert_eq!(param.unwrap().source, ParamSource::Override);
+        assert!(opened.info.warnings.iter().all(|w| !w.contains("first of")));
+        let mut same = reference.clone();
+        same.acquisition = opened.source.acquisition().clone();
+        let want = maps(&same, &grid);
+        let got = maps(opened.source.as_ref(), &grid);
+        let power = relative(&got.power_doppler, &want.power_doppler);
+        assert!(power <= 1e-5, "{track}: power {power:e}");
+    }
+    let missing = with("7").unwrap_err().to_string();
+    assert!(
+        missing.contains("--track") && missing.contains(listed),
+        "{missing}"
+    );
+    let overrides = Overrides {
+        track: Some("1".into()),
+        ..Overrides::default()
+    };
+    for single in ["disk.uff", "disk.npz"] {
+        let refused = open_recording(&fixture(single), &overrides).unwrap_err();
+        assert!(
+            refused.to_string().contains("not tracks to choose from"),
+            "{single}: {refused}"
+        );
+    }
+}
+
 #[test]
 fn steered_recordings_give_back_their_angles_prf_and_t0() {
     let e = &expected()["steered"];
