@@ -29,6 +29,26 @@ pub struct NiftiNaming {
 }
 
 impl NiftiNaming {
+    /// The naming a front end's options ask for (`--nifti` or any BIDS label), checked; `None`
+    /// when they ask for no NIfTI images.
+    pub fn requested(
+        nifti: bool,
+        subject: Option<String>,
+        session: Option<String>,
+        task: Option<String>,
+    ) -> Result<Option<NiftiNaming>> {
+        if !(nifti || subject.is_some() || session.is_some() || task.is_some()) {
+            return Ok(None);
+        }
+        let naming = NiftiNaming {
+            subject,
+            session,
+            task,
+        };
+        naming.validate()?;
+        Ok(Some(naming))
+    }
+
     /// Checks that every label is BIDS's alphanumeric form and that a session or task comes with
     /// a subject.
     pub fn validate(&self) -> Result<()> {

@@ -154,6 +154,9 @@ pub enum Checksum {
 }
 
 impl Checksum {
+    /// Every kind, as `summary.json` may name it.
+    pub const ALL: [Checksum; 2] = [Checksum::Blake3, Checksum::Sha256];
+
     /// Its key in `summary.json`'s `source.files` ("blake3", "sha256").
     pub fn key(self) -> &'static str {
         match self {

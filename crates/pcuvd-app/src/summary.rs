@@ -123,7 +123,8 @@ pub fn already_done(out: &Path, source: &serde_json::Value) -> bool {
             .as_array()?
             .iter()
             .map(|f| {
-                let key = ["blake3", "sha256"]
+                let key = outputs::Checksum::ALL
+                    .map(outputs::Checksum::key)
                     .into_iter()
                     .find(|k| f[*k].is_string())?;
                 Some((f["size_bytes"].as_u64()?, key, f[key].as_str()?.to_string()))

@@ -119,6 +119,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         for (stage, seconds) in &processed.out.timings {
             stage_times.entry(stage.label()).or_default().push(*seconds);
         }
+        if shape.is_some() {
+            continue;
+        }
+        // What the runs process, counted once (after the first run's timings are taken).
         let acq = data.acquisition();
         let grid = &plan.params.grid;
         let (nz, nx) = grid.shape();

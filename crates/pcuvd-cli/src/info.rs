@@ -42,9 +42,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let (channels, samples) = source.trace_shape();
     let iq = info.stored.as_ref().is_some_and(|s| s.kind == "iq");
     let demod = info
-        .parameters
-        .iter()
-        .find(|p| p.name == "demod_frequency_hz")
+        .parameter("demod_frequency_hz")
         .and_then(|p| p.value.as_f64());
     let (kind, bytes_per_sample) = if iq {
         ("IQ (complex)", 8usize)

@@ -114,18 +114,12 @@ impl AcquisitionOverrides {
 pub fn run(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
     // Checked before any work, like every other option.
-    let nifti = (args.nifti
-        || args.bids_subject.is_some()
-        || args.bids_session.is_some()
-        || args.bids_task.is_some())
-    .then(|| pcuvd_app::nifti::NiftiNaming {
-        subject: args.bids_subject.clone(),
-        session: args.bids_session.clone(),
-        task: args.bids_task.clone(),
-    });
-    if let Some(naming) = &nifti {
-        naming.validate()?;
-    }
+    let nifti = pcuvd_app::nifti::NiftiNaming::requested(
+        args.nifti,
+        args.bids_subject.clone(),
+        args.bids_session.clone(),
+        args.bids_task.clone(),
+    )?;
     let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
     let input_files = opened.info.files.clone();
     let data = opened.source.as_ref();

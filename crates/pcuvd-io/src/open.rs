@@ -85,7 +85,7 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
     // A track names one of several acquisitions in a file: a reader that has none to choose
     // from says so rather than ignore the choice.
     if let Some(track) = &overrides.track
-        && !opened.info.parameters.iter().any(|p| p.name == "track")
+        && opened.info.parameter("track").is_none()
     {
         return Err(IoError::invalid(
             path,

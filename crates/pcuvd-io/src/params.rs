@@ -125,7 +125,6 @@ impl<'a> Resolver<'a> {
             "center_frequency_hz" => o.center_freq_hz,
             "demod_frequency_hz" => o.demod_freq_hz,
             "pulse_cycles" => o.pulse_cycles,
-            "bandwidth" => o.bandwidth,
             _ => None,
         }
     }

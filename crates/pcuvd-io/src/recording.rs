@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::array::{Axis, StoredArray};
 use crate::error::IoError;
-use crate::params::Parameter;
+use crate::params::{ParamSource, Parameter, Resolver};
 
 /// Transmit pulse length (cycles) a reader assumes when the file does not record it (MUST's
 /// default when `param.TXnow` is absent).
@@ -30,7 +30,7 @@ pub const DEFAULT_BANDWIDTH: f64 = 0.67;
 /// saying so. The bandwidth only decides whether the sampling folds the band (processing never
 /// filters by it), so a file that does not state it must not be refused for a guess that folds;
 /// the user states the probe's own with `--bandwidth` (Python: `bandwidth=`).
-pub fn unstated_bandwidth(
+fn unstated_bandwidth(
     default: f64,
     note: &str,
     center_frequency: f64,
@@ -60,6 +60,29 @@ pub fn unstated_bandwidth(
             ),
         )
     }
+}
+
+/// Resolves a reader's fractional bandwidth and records it in `r`: the user's (`--bandwidth`),
+/// else `found` in the file, else `default` (with its `note`) narrowed to what the sampling holds
+/// ([`unstated_bandwidth`]); f_c and f_s in Hz.
+pub fn resolve_bandwidth(
+    r: &mut Resolver<'_>,
+    found: Option<(f64, ParamSource)>,
+    (default, note): (f64, &str),
+    center_frequency: f64,
+    sampling_frequency: f64,
+) -> f64 {
+    let (value, source) = match (r.overrides.bandwidth, found) {
+        (Some(given), _) => (given, ParamSource::Override),
+        (None, Some(found)) => found,
+        (None, None) => {
+            let (value, note) =
+                unstated_bandwidth(default, note, center_frequency, sampling_frequency);
+            (value, ParamSource::Default { note })
+        }
+    };
+    r.record("bandwidth", serde_json::json!(value), source);
+    value
 }
 
 /// How the samples are stored in the file.
@@ -124,6 +147,13 @@ impl std::fmt::Debug for OpenedRecording {
         f.debug_struct("OpenedRecording")
             .field("info", &self.info)
             .finish_non_exhaustive()
+    }
+}
+
+impl SourceInfo {
+    /// The acquisition parameter named `name` ("bandwidth", "t0_s"...), if the reader recorded it.
+    pub fn parameter(&self, name: &str) -> Option<&Parameter> {
+        self.parameters.iter().find(|p| p.name == name)
     }
 }
 

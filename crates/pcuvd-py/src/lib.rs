@@ -678,17 +678,8 @@ impl PyProcessResult {
         bids: (Option<String>, Option<String>, Option<String>),
     ) -> PyResult<Vec<PathBuf>> {
         let (subject, session, task) = bids;
-        let wanted = nifti || subject.is_some() || session.is_some() || task.is_some();
-        let naming = wanted.then_some(pcuvd_app::nifti::NiftiNaming {
-            subject,
-            session,
-            task,
-        });
-        if let Some(naming) = &naming {
-            naming
-                .validate()
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        }
+        let naming = pcuvd_app::nifti::NiftiNaming::requested(nifti, subject, session, task)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
         py.detach(|| -> anyhow::Result<Vec<PathBuf>> {
             let clock = std::time::Instant::now();
             let source = self.source()?;

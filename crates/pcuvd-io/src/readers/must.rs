@@ -26,7 +26,7 @@ use crate::mat::{MatFile, MatValue, read_mat};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 pub use crate::recording::{DEFAULT_PULSE_CYCLES, plane_wave_angle};
 use crate::recording::{
-    OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples, unstated_bandwidth,
+    OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples, resolve_bandwidth,
 };
 
 /// MUST's default fractional bandwidth when `param.bandwidth` is absent (%).
@@ -451,26 +451,24 @@ fn build(
             req("c"),
         )?,
     )?;
-    let (default_bw, default_note) = unstated_bandwidth(
-        DEFAULT_BANDWIDTH_PERCENT / 100.0,
-        &format!("MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"),
-        fc,
-        fs,
-    );
     let bandwidth = positive(
         path,
         &p.name("bandwidth"),
-        r.number(
-            "bandwidth",
+        resolve_bandwidth(
+            &mut r,
             p.scalar(path, "bandwidth")?.map(|(v, _)| {
                 (
                     v / 100.0,
                     derived(format!("{} (%) / 100", p.name("bandwidth"))),
                 )
             }),
-            Some((default_bw, &default_note)),
-            req("bandwidth"),
-        )?,
+            (
+                DEFAULT_BANDWIDTH_PERCENT / 100.0,
+                &format!("MUST's {DEFAULT_BANDWIDTH_PERCENT} % when param.bandwidth is absent"),
+            ),
+            fc,
+            fs,
+        ),
     )?;
     let pulse_cycles = positive(
         path,

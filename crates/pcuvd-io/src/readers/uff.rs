@@ -21,7 +21,7 @@ use crate::hdf5::Hdf5;
 use crate::layout::{common_t0, crossing_time, linear_array, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 pub use crate::recording::DEFAULT_BANDWIDTH;
-use crate::recording::unstated_bandwidth;
+use crate::recording::resolve_bandwidth;
 use crate::recording::{
     DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo, StoredSamples,
 };
@@ -129,18 +129,16 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     )?;
     let fc = positive(path, &fc_field, fc)?;
     let bw_field = f("pulse/fractional_bandwidth");
-    let (default_bw, default_note) = unstated_bandwidth(
-        DEFAULT_BANDWIDTH,
-        "pcuvd's when pulse/fractional_bandwidth is absent",
+    let bandwidth = resolve_bandwidth(
+        &mut r,
+        scalar(h5, &bw_field)?.map(|v| (v, field(bw_field.clone()))),
+        (
+            DEFAULT_BANDWIDTH,
+            "pcuvd's when pulse/fractional_bandwidth is absent",
+        ),
         fc,
         fs,
     );
-    let bandwidth = r.number(
-        "bandwidth",
-        scalar(h5, &bw_field)?.map(|v| (v, field(bw_field.clone()))),
-        Some((default_bw, &default_note)),
-        || IoError::malformed(path, "unreachable"),
-    )?;
     let bandwidth = positive(path, &bw_field, bandwidth)?;
 
     // Sequence: the waves of a compound frame.

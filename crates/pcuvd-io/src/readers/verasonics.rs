@@ -36,7 +36,7 @@ use crate::mat::MatValue;
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf};
 use crate::recording::{
     DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
-    StoredSamples, unstated_bandwidth,
+    StoredSamples, resolve_bandwidth,
 };
 
 /// The receive buffer of a Verasonics workspace, read a block of frames at a time in
@@ -321,23 +321,18 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let fs = positive(path, "Receive.decimSampleRate", fs)?;
     let band = numbers(trans.field("Bandwidth"));
     // Resolved once the sampling is known, which decides the default's width.
-    let (default_bw, default_note) = unstated_bandwidth(
-        DEFAULT_BANDWIDTH,
-        "Trans.Bandwidth is absent: pcuvd's",
-        fc,
-        fs,
-    );
-    let bandwidth = r.number(
-        "bandwidth",
+    let bandwidth = resolve_bandwidth(
+        &mut r,
         (band.len() == 2).then(|| {
             (
                 (band[1] - band[0]) / f_mhz,
                 derived("Trans.Bandwidth ([low high] MHz) / Trans.frequency"),
             )
         }),
-        Some((default_bw, &default_note)),
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (DEFAULT_BANDWIDTH, "Trans.Bandwidth is absent: pcuvd's"),
+        fc,
+        fs,
+    );
     let bandwidth = positive(path, "Trans.Bandwidth", bandwidth)?;
     let n_samples = rows[0].len();
     if rows.iter().any(|r| r.len() != n_samples) {

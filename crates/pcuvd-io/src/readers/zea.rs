@@ -25,7 +25,7 @@ use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 use crate::recording::{
     DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
-    StoredSamples, plane_wave_angle, unstated_bandwidth,
+    StoredSamples, plane_wave_angle, resolve_bandwidth,
 };
 
 /// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
@@ -76,11 +76,21 @@ pub fn event_prf_from_intervals(
     Ok((prf, warning))
 }
 
-/// The track a reader reads and why: its group name (`track_N`) and the parameter source that
-/// says so (the user's choice, or the first of several, listing them all).
+/// The track a reader reads and why: its group name (`track_N`), the parameter source that says
+/// so (the user's choice, or the first of several, listing them all), and the warning to give
+/// when the file holds others that were not chosen.
 struct ChosenTrack {
     name: String,
     source: ParamSource,
+    warning: Option<String>,
+}
+
+/// The `label` of track `track` (a group name, `track_N`), if it has one.
+fn track_label(h5: &Hdf5, track: &str) -> Option<String> {
+    h5.dataset(&format!("tracks/{track}/label"))
+        .ok()
+        .and_then(|d| d.read_strings().ok())
+        .and_then(|v| v.into_iter().next())
 }
 
 /// The tracks of a multi-track zea file that hold raw data, in index order, each with its label
@@ -89,12 +99,7 @@ fn describe_tracks(h5: &Hdf5, tracks: &[String]) -> String {
     tracks
         .iter()
         .map(|t| {
-            let label = h5
-                .dataset(&format!("tracks/{t}/label"))
-                .ok()
-                .and_then(|d| d.read_strings().ok())
-                .and_then(|v| v.into_iter().next())
-                .map_or_else(String::new, |l| format!(" {l:?}"));
+            let label = track_label(h5, t).map_or_else(String::new, |l| format!(" {l:?}"));
             let frames = h5
                 .describe(&format!("tracks/{t}/data/raw_data"))
                 .ok()
@@ -128,37 +133,35 @@ fn choose_track(path: &Path, h5: &Hdf5, asked: Option<&str>) -> Result<ChosenTra
                 "raw channel data (data/raw_data in /tracks/track_N)",
             )
         })?;
-        let note = if tracks.len() > 1 {
-            format!(
+        let (note, warning) = if tracks.len() > 1 {
+            let note = format!(
                 "the first of {} tracks with raw data: {listed}; --track (Python: track=) \
                  chooses another, by index or label",
                 tracks.len()
-            )
+            );
+            let warning = format!("pcuvd reads {first}, {note}");
+            (note, Some(warning))
         } else {
-            "the file's one track with raw data".to_string()
+            ("the file's one track with raw data".to_string(), None)
         };
         return Ok(ChosenTrack {
             name: first,
             source: ParamSource::Default { note },
+            warning,
         });
-    };
-    let label_of = |t: &str| {
-        h5.dataset(&format!("tracks/{t}/label"))
-            .ok()
-            .and_then(|d| d.read_strings().ok())
-            .and_then(|v| v.into_iter().next())
     };
     let found = tracks.iter().find(|t| {
         asked
             .parse::<usize>()
             .ok()
             .is_some_and(|n| index(t) == Some(n))
-            || label_of(t).as_deref() == Some(asked)
+            || track_label(h5, t).as_deref() == Some(asked)
     });
     match found {
         Some(t) => Ok(ChosenTrack {
             name: t.clone(),
             source: ParamSource::Override,
+            warning: None,
         }),
         None => Err(IoError::invalid(
             path,
@@ -186,11 +189,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         String::new()
     } else {
         let chosen = choose_track(path, h5, overrides.track.as_deref())?;
-        if let ParamSource::Default { note } = &chosen.source
-            && note.starts_with("the first of")
-        {
-            warnings.push(format!("pcuvd reads {}, {note}", chosen.name));
-        }
+        warnings.extend(chosen.warning);
         r.record("track", json!(chosen.name), chosen.source);
         format!("tracks/{}/", chosen.name)
     };
@@ -307,19 +306,17 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             pitch
         }
     };
-    let (default_bw, default_note) = unstated_bandwidth(
-        DEFAULT_BANDWIDTH,
-        "probe/probe_bandwidth_percent is absent: pcuvd's",
+    let bandwidth = resolve_bandwidth(
+        &mut r,
+        scalar(h5, "probe/probe_bandwidth_percent")?
+            .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
+        (
+            DEFAULT_BANDWIDTH,
+            "probe/probe_bandwidth_percent is absent: pcuvd's",
+        ),
         fc,
         fs,
     );
-    let bandwidth = r.number(
-        "bandwidth",
-        scalar(h5, "probe/probe_bandwidth_percent")?
-            .map(|v| (v / 100.0, derived("probe/probe_bandwidth_percent / 100"))),
-        Some((default_bw, &default_note)),
-        || IoError::malformed(path, "unreachable"),
-    )?;
     let bandwidth = positive(path, "probe/probe_bandwidth_percent", bandwidth)?;
 
     // Steering: polar angles, checked against the delay laws when both are there.

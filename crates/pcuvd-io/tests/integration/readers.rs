@@ -184,12 +184,7 @@ fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
             "{name}: {} vs {widest}",
             acq.probe.bandwidth
         );
-        let param = opened
-            .info
-            .parameters
-            .iter()
-            .find(|p| p.name == "bandwidth")
-            .unwrap();
+        let param = opened.info.parameter("bandwidth").unwrap();
         assert!(
             matches!(&param.source, ParamSource::Default { note } if note.contains("widest band")
                 && note.contains("--bandwidth")),
@@ -217,7 +212,7 @@ fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
         };
         let given = stated(0.15);
         assert_eq!(given.source.acquisition().probe.bandwidth, 0.15, "{name}");
-        let param = given.info.parameters.iter().find(|p| p.name == "bandwidth");
+        let param = given.info.parameter("bandwidth");
         assert_eq!(param.unwrap().source, ParamSource::Override, "{name}");
         let folds = stated(0.9).read_all().unwrap_err().to_string();
         assert!(folds.contains("folds the RF band"), "{name}: {folds}");
@@ -251,7 +246,7 @@ fn a_zea_track_is_chosen_by_index_or_label() {
     for track in ["1", "disk"] {
         let opened = with(track).unwrap();
         assert_eq!(opened.source.n_frames(), 8, "{track}");
-        let param = opened.info.parameters.iter().find(|p| p.name == "track");
+        let param = opened.info.parameter("track");
         assert_eq!(param.unwrap().value, "track_1");
         assert_eq!(param.unwrap().source, ParamSource::Override);
         assert!(opened.info.warnings.iter().all(|w| !w.contains("first of")));
@@ -373,9 +368,7 @@ fn parameters_say_where_they_came_from() {
     let find = |n: &str| {
         opened
             .info
-            .parameters
-            .iter()
-            .find(|p| p.name == n)
+            .parameter(n)
             .unwrap_or_else(|| panic!("no {n}"))
             .clone()
     };
@@ -399,21 +392,11 @@ fn parameters_say_where_they_came_from() {
     )
     .unwrap();
     assert_eq!(overridden.source.acquisition().t0, 1e-6);
-    let t0 = overridden
-        .info
-        .parameters
-        .iter()
-        .find(|p| p.name == "t0_s")
-        .unwrap();
+    let t0 = overridden.info.parameter("t0_s").unwrap();
     assert_eq!(t0.source, ParamSource::Override);
     // zea: the PRF is per transmit.
     let zea = open("steered_zea.hdf5");
-    let prf = zea
-        .info
-        .parameters
-        .iter()
-        .find(|p| p.name == "event_prf_hz")
-        .unwrap();
+    let prf = zea.info.parameter("event_prf_hz").unwrap();
     assert!(
         prf.source.to_string().contains("time_to_next_transmit"),
         "{}",

@@ -80,12 +80,14 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         json!(acq.probe.element_width),
         src("probe", "element_width_m"),
     );
-    acq.probe.bandwidth = r.number(
-        "bandwidth",
+    // A manifest always states it (or its preset does): the default is never taken.
+    acq.probe.bandwidth = crate::recording::resolve_bandwidth(
+        &mut r,
         Some((acq.probe.bandwidth, src("probe", "bandwidth"))),
-        None,
-        never,
-    )?;
+        (acq.probe.bandwidth, "[probe].bandwidth"),
+        acq.probe.center_frequency,
+        acq.sampling_frequency,
+    );
     acq.sound_speed = r.number(
         "sound_speed_m_s",
         Some((acq.sound_speed, src("acquisition", "sound_speed_m_s"))),
