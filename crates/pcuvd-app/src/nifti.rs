@@ -13,7 +13,7 @@ use anyhow::{Context, Result, bail};
 use ndarray::{Array2, Array3};
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline::ProcessOutput;
-use serde_json::json;
+use serde::Serialize;
 
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
@@ -249,44 +249,101 @@ fn series(maps: &Array3<f64>) -> ndarray16::Array4<f32> {
     ndarray16::Array4::from_shape_fn((nx, 1, nz, nt), |(ix, _, iz, it)| maps[[it, iz, ix]] as f32)
 }
 
-/// The fUSI-BIDS (BEP040) fields pcuvd knows of a run, in BEP040's units (MHz, mm, Hz, degrees,
-/// ms), with the clutter filter of the whole recording or of each ensemble.
+/// A BEP040 JSON sidecar: the fUSI-BIDS fields pcuvd knows of a run, in BEP040's units (MHz, mm,
+/// Hz, degrees, ms, s), and what the image beside it holds.
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "PascalCase")]
+struct Sidecar {
+    /// Probe centre frequency (MHz).
+    probe_central_frequency: f64,
+    probe_number_of_elements: usize,
+    /// Element pitch (mm).
+    probe_pitch: f64,
+    probe_type: &'static str,
+    /// Depths of the first and last rows (mm).
+    depth: [f64; 2],
+    /// Transmit events per second (Hz).
+    ultrasound_pulse_repetition_frequency: f64,
+    /// Plane-wave angles (degrees).
+    plane_wave_angles: Vec<f64>,
+    /// Compound frames per second (Hz).
+    compound_sampling_frequency: f64,
+    /// Frames one clutter filter saw (ms).
+    clutter_filter_window_duration: f64,
+    clutter_filters: Vec<ClutterFilter>,
+    /// Frames one power Doppler map integrates (ms).
+    power_doppler_integration_duration: f64,
+    /// Speed of sound (m/s).
+    sound_speed: f64,
+    transmit_coding: &'static str,
+    software_versions: String,
+    /// A time series' step between images (s).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    repetition_time: Option<f64>,
+    /// A time series' clutter cut-offs, per ensemble and angle (low, high).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    clutter_cutoffs_per_ensemble: Option<Vec<Vec<(usize, usize)>>>,
+    /// When a time series' first image's centre lies after the recording's first frame (s).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    delay_after_trigger: Option<f64>,
+    units: &'static str,
+    description: &'static str,
+    sources: Vec<String>,
+}
+
+/// One clutter filter of a BEP040 sidecar: SVD, with its cut-offs when they are one pair.
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "PascalCase")]
+struct ClutterFilter {
+    filter_type: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    low_threshold: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    high_threshold: Option<usize>,
+}
+
+/// The sidecar fields of a run whose clutter filter saw `integration_frames` frames, with the
+/// whole recording's clutter filter (its first angle's cut-offs).
 fn acquisition_fields(
     data: &dyn FrameSource,
     out: &ProcessOutput,
     integration_frames: usize,
-) -> serde_json::Value {
+) -> Sidecar {
     let acq = data.acquisition();
     let frame_rate = acq.frame_rate();
     let window_ms = integration_frames as f64 / frame_rate * 1e3;
-    let angles: Vec<f64> = acq.sequence.angles.iter().map(|a| a.to_degrees()).collect();
-    let filters: Vec<serde_json::Value> = out
-        .clutter
-        .first()
-        .map(|c| {
-            vec![json!({
-                "FilterType": "Index-based SVD",
-                "LowThreshold": c.low,
-                "HighThreshold": c.high,
-            })]
-        })
-        .unwrap_or_default();
-    json!({
-        "ProbeCentralFrequency": acq.probe.center_frequency * 1e-6,
-        "ProbeNumberOfElements": acq.probe.n_elements,
-        "ProbePitch": acq.probe.pitch * 1e3,
-        "ProbeType": "linear",
-        "Depth": [out.grid.z[0] * 1e3, out.grid.z[out.grid.z.len() - 1] * 1e3],
-        "UltrasoundPulseRepetitionFrequency": acq.sequence.event_prf,
-        "PlaneWaveAngles": angles,
-        "CompoundSamplingFrequency": frame_rate,
-        "ClutterFilterWindowDuration": window_ms,
-        "ClutterFilters": filters,
-        "PowerDopplerIntegrationDuration": window_ms,
-        "SoundSpeed": acq.sound_speed,
-        "TransmitCoding": if acq.sequence.is_coded() { "hadamard" } else { "none" },
-        "SoftwareVersions": format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
-    })
+    Sidecar {
+        probe_central_frequency: acq.probe.center_frequency * 1e-6,
+        probe_number_of_elements: acq.probe.n_elements,
+        probe_pitch: acq.probe.pitch * 1e3,
+        probe_type: "linear",
+        depth: [out.grid.z[0] * 1e3, out.grid.z[out.grid.z.len() - 1] * 1e3],
+        ultrasound_pulse_repetition_frequency: acq.sequence.event_prf,
+        plane_wave_angles: acq.sequence.angles.iter().map(|a| a.to_degrees()).collect(),
+        compound_sampling_frequency: frame_rate,
+        clutter_filter_window_duration: window_ms,
+        clutter_filters: (out.clutter.first().iter())
+            .map(|c| ClutterFilter {
+                filter_type: "Index-based SVD",
+                low_threshold: Some(c.low),
+                high_threshold: Some(c.high),
+            })
+            .collect(),
+        power_doppler_integration_duration: window_ms,
+        sound_speed: acq.sound_speed,
+        transmit_coding: if acq.sequence.is_coded() {
+            "hadamard"
+        } else {
+            "none"
+        },
+        software_versions: format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
+        repetition_time: None,
+        clutter_cutoffs_per_ensemble: None,
+        delay_after_trigger: None,
+        units: "",
+        description: "",
+        sources: vec![],
+    }
 }
 
 /// Writes one image and its sidecar; returns the image's path.
@@ -296,7 +353,7 @@ fn write_one<A, D>(
     map: &MapKind,
     image: &ndarray16::Array<A, D>,
     header: &nifti::NiftiHeader,
-    mut sidecar: serde_json::Value,
+    mut sidecar: Sidecar,
 ) -> Result<PathBuf>
 where
     A: nifti::DataElement + bytemuck::Pod,
@@ -308,9 +365,9 @@ where
         .reference_header(header)
         .write_nifti(image)
         .with_context(|| format!("{}: cannot write the NIfTI image", path.display()))?;
-    sidecar["Units"] = json!(map.units);
-    sidecar["Description"] = json!(map.description);
-    sidecar["Sources"] = json!([format!("pcuvd:{}", map.name)]);
+    sidecar.units = map.units;
+    sidecar.description = map.description;
+    sidecar.sources = vec![format!("pcuvd:{}", map.name)];
     pcuvd_io::write_json(&dir.join(format!("{stem}.json")), &sidecar)?;
     Ok(path)
 }
@@ -370,11 +427,15 @@ pub fn write_nifti(
         let mut fields = acquisition_fields(data, out, spec.frames);
         // Ensembles are evenly spaced: RepetitionTime says when each starts after the first,
         // DelayAfterTrigger when the first one's centre lies after the recording's first frame.
-        fields["RepetitionTime"] = json!(step_s);
+        fields.repetition_time = Some(step_s);
         // Each ensemble has its own SVD cut-offs (one pair per angle).
-        fields["ClutterFilters"] = json!([{ "FilterType": "Index-based SVD, per ensemble" }]);
-        fields["ClutterCutoffsPerEnsemble"] = json!(ensembles.clutter);
-        fields["DelayAfterTrigger"] = json!(ensembles.times_s.first().copied().unwrap_or(0.0));
+        fields.clutter_filters = vec![ClutterFilter {
+            filter_type: "Index-based SVD, per ensemble",
+            low_threshold: None,
+            high_threshold: None,
+        }];
+        fields.clutter_cutoffs_per_ensemble = Some(ensembles.clutter.clone());
+        fields.delay_after_trigger = Some(ensembles.times_s.first().copied().unwrap_or(0.0));
         let mut series_maps: Vec<(&str, Array3<f64>)> = vec![
             ("ensemble_power_doppler", ensembles.power_doppler.clone()),
             (

@@ -333,5 +333,17 @@ pub struct DynamicsPlan {
 /// Every processing and dynamics setting, defaults included, as one line of text (JSON): what
 /// summary.json records and a re-run compares, the same whichever front end gave them.
 pub fn settings_text(options: &ProcessingSettings, dynamics: &DynamicsSettings) -> String {
-    serde_json::json!({ "processing": options, "dynamics": dynamics }).to_string()
+    #[derive(serde::Serialize)]
+    struct Settings<'a> {
+        processing: &'a ProcessingSettings,
+        dynamics: &'a DynamicsSettings,
+    }
+    // Through a `Value`, whose keys are sorted: the text does not change when fields move. (It
+    // cannot fail: the settings are numbers, words and lists, with no map keyed otherwise.)
+    serde_json::to_value(Settings {
+        processing: options,
+        dynamics,
+    })
+    .map(|settings| settings.to_string())
+    .unwrap_or_default()
 }

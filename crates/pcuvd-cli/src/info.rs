@@ -72,7 +72,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
-    let coding = pcuvd_app::summary::coding_json(seq);
+    let coding = pcuvd_app::summary::CodingRecord::of(seq);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -86,11 +86,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "bytes_in_memory": input_bytes,
             "demodulation_frequency_hz": demod,
         },
-        "probe": {
-            "name": probe.name, "n_elements": probe.n_elements, "pitch_m": probe.pitch,
-            "element_width_m": probe.element_width, "center_frequency_hz": probe.center_frequency,
-            "bandwidth": probe.bandwidth,
-        },
+        "probe": pcuvd_app::summary::ProbeRecord::of(probe),
         "acquisition": {
             "sampling_frequency_hz": acq.sampling_frequency,
             "sound_speed_m_s": acq.sound_speed,
@@ -98,7 +94,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "angles_deg": seq.angles.iter().map(|a| a.to_degrees()).collect::<Vec<_>>(),
             "coding": coding,
             "pulse_cycles": seq.pulse_cycles,
-            "transmit_pulse": pcuvd_app::summary::pulse_json(seq),
+            "transmit_pulse": pcuvd_app::summary::PulseRecord::of(seq),
             "event_prf_hz": seq.event_prf,
             "frames": frames,
             "frame_rate_hz": acq.frame_rate(),

@@ -10,7 +10,7 @@ use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
 use pcuvd_app::run::Plan;
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
-use pcuvd_app::summary::{Record, already_done, provenance, save};
+use pcuvd_app::summary::{Provenance, Record, already_done, provenance, save};
 
 use crate::progress::Bars;
 
@@ -161,7 +161,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             );
             return Ok(());
         }
-        Checksums::Done(source, seconds)
+        Checksums::Done(Box::new(source), seconds)
     } else {
         Checksums::Running(std::thread::spawn(move || {
             lower_this_threads_priority();
@@ -193,7 +193,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         eprintln!("warning: {}: {warning}", args.input.display());
     }
     let (source, checksum_s) = match checksums {
-        Checksums::Done(source, seconds) => (source, seconds),
+        Checksums::Done(source, seconds) => (*source, seconds),
         Checksums::Running(thread) => thread
             .join()
             .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
@@ -227,8 +227,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
 /// The input's provenance with its checksums, and the seconds they took: computed, or being
 /// computed beside the processing.
 enum Checksums {
-    Done(serde_json::Value, f64),
-    Running(std::thread::JoinHandle<Result<(serde_json::Value, f64)>>),
+    Done(Box<Provenance>, f64),
+    Running(std::thread::JoinHandle<Result<(Provenance, f64)>>),
 }
 
 /// Gives the calling thread the lowest priority (nice 19), so that work beside the processing

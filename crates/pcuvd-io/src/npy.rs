@@ -72,7 +72,7 @@ where
 }
 
 /// Writes a JSON value to a file, pretty-printed, with a final newline, atomically.
-pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), IoError> {
+pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), IoError> {
     let mut text = serde_json::to_string_pretty(value)
         .map_err(|e| IoError::malformed(path, format!("cannot format JSON: {e}")))?;
     text.push('\n');

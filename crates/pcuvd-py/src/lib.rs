@@ -540,7 +540,7 @@ fn process(
 }
 
 impl PyProcessResult {
-    fn source(&self) -> anyhow::Result<Value> {
+    fn source(&self) -> anyhow::Result<pcuvd_app::summary::Provenance> {
         pcuvd_app::summary::provenance(
             &self.input,
             &self.info,
@@ -659,10 +659,9 @@ impl PyProcessResult {
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        Ok(
-            pcuvd_app::summary::summary(&*self.recording, &self.plan, &self.processed, source)
-                .to_string(),
-        )
+        let summary =
+            pcuvd_app::summary::Summary::of(&*self.recording, &self.plan, &self.processed, source);
+        serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
