@@ -1,0 +1,80 @@
+"""`pcuvd.dynamics`: the dynamics stage re-run on a processed result, and the cardiac cycles a
+manifest records, on a steady coded tube."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import pcuvd
+from conftest import assert_same_array, run_cli
+
+STEADY_GRID = {"grid_mm": (-1.5, 1.5, 6.5, 9.5, 0.08)}
+STEADY_WINDOWS = {"window_ms": 5, "window_step_ms": 1}
+BEAT = {"heart_rate_hz": 40, **STEADY_WINDOWS}
+
+
+@pytest.fixture(scope="module")
+def steady_tube(tmp_path_factory, cli) -> Path:
+    """A steady coded tube, 60 frames without noise, written by `pcuvd simulate`: `coded.toml`,
+    the same recording with one cardiac cycle's triggers in its manifest (`with_triggers.toml`)
+    and those triggers as a text file (`triggers.txt`)."""
+    folder = tmp_path_factory.mktemp("steady_tube")
+    done = run_cli(cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "60",
+                   "--noise-db", "off", "--out", folder)
+    assert done.returncode == 0, done.stderr
+    plain = folder / "coded.toml"
+    (folder / "with_triggers.toml").write_text(
+        plain.read_text() + "\n[cardiac]\ntriggers_s = [0.002, 0.027]\n"
+    )
+    (folder / "triggers.txt").write_text("0.002\n0.027\n")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def steady_without_dynamics(steady_tube):
+    return pcuvd.process(str(steady_tube / "coded.toml"), dynamics="off", quiet=True, **STEADY_GRID)
+
+
+def test_dynamics_rerun_equals_processing_with_those_settings(
+    steady_tube, steady_without_dynamics
+):
+    """pcuvd.dynamics re-runs only the dynamics stage: the same RI maps as a full process."""
+    without = steady_without_dynamics
+    assert without.summary["dynamics"] == {"skipped": "--dynamics off"}
+    with pytest.raises(AttributeError, match="dynamics"):
+        without.ri
+    rerun = pcuvd.dynamics(without, quiet=True, **BEAT)
+    full = pcuvd.process(str(steady_tube / "coded.toml"), quiet=True, **STEADY_GRID, **BEAT)
+    for name in ("ri", "psv", "edv", "vessel_class", "flow_up", "speed_series", "times", "vx"):
+        assert_same_array(getattr(rerun, name), getattr(full, name), name)
+    assert rerun.summary["dynamics"] == full.summary["dynamics"]
+    with pytest.raises(TypeError, match="unexpected keyword 'grid_mm'"):
+        pcuvd.dynamics(without, grid_mm=(-1, 1, 4, 5, 0.1))
+    with pytest.raises(ValueError, match="window"):
+        pcuvd.dynamics(without, heart_rate_hz=40, window_ms=-1)
+    with pytest.raises(TypeError, match="ProcessResult"):
+        pcuvd.dynamics(without.power_doppler)
+
+
+def test_triggers_recorded_in_the_manifest_are_used(steady_tube, steady_without_dynamics):
+    """A manifest's [cardiac] triggers give the dynamics stage its cycles without any keyword,
+    exactly as `cardiac_triggers=` with the same times does; a heart rate given wins. (The
+    stage re-run gives what processing gives: the test above.)"""
+    from_manifest = pcuvd.process(
+        str(steady_tube / "with_triggers.toml"), quiet=True, **STEADY_GRID, **STEADY_WINDOWS
+    )
+    dynamics = from_manifest.summary["dynamics"]
+    assert "manifest" in dynamics["triggers_from"] and dynamics["cycles_count"] == 1, dynamics
+    given = pcuvd.dynamics(
+        steady_without_dynamics,
+        quiet=True,
+        cardiac_triggers=str(steady_tube / "triggers.txt"),
+        **STEADY_WINDOWS,
+    )
+    assert given.summary["dynamics"]["triggers_from"] == "--cardiac-triggers"
+    assert_same_array(from_manifest.ri, given.ri, "ri")
+    rate = pcuvd.dynamics(from_manifest, quiet=True, **BEAT)
+    assert rate.summary["dynamics"].get("triggers_from") is None
+    assert rate.summary["dynamics"]["heart_rate_hz"] == 40
