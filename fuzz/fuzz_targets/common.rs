@@ -43,6 +43,7 @@ pub fn samples_npy() -> PathBuf {
 /// anything decoding then panics on.
 pub fn decode(data: &pcuvd::ChannelData) {
     let _ = pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2).and_then(|()| {
-        pcuvd::form::decode::decode_aligned(data, pcuvd::form::decode::EventAlignment::MidFrame)
+        pcuvd::form::decode::Decoder::new(data, pcuvd::form::decode::EventAlignment::MidFrame)
+            .and_then(|decoder| decoder.decode(&data.samples))
     });
 }

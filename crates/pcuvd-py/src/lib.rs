@@ -739,13 +739,13 @@ fn decode_hadamard_rf<'py>(
     let samples = Samples::Rf(rf.as_array().to_owned());
     let decoded = py
         .detach(|| {
-            decode::decode_samples(
-                &samples,
+            decode::Decoder::hadamard(
                 n_angles,
                 Some(slot_delay_s * sampling_freq_hz),
                 sampling_freq_hz,
                 align,
-            )
+            )?
+            .decode(&samples)
         })
         .map_err(lib_err)?;
     match decoded {

@@ -21,7 +21,7 @@ use pcuvd::estimate::dealias::{
 };
 use pcuvd::estimate::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
 use pcuvd::form::beamform::{Apodization, DasParams, beamform};
-use pcuvd::form::decode::{EventAlignment, decode_aligned};
+use pcuvd::form::decode::{Decoder, EventAlignment};
 use pcuvd::form::iq::IqChannels;
 use pcuvd::{Coding, Probe, Sequence};
 
@@ -120,9 +120,8 @@ fn decode(c: &mut Criterion) {
         ),
         ("mid_frame_8x100fr_128ch_1000s", EventAlignment::MidFrame),
     ] {
-        group.bench_function(name, |b| {
-            b.iter(|| decode_aligned(&data, alignment).unwrap())
-        });
+        let decoder = Decoder::new(&data, alignment).unwrap();
+        group.bench_function(name, |b| b.iter(|| decoder.decode(&data.samples).unwrap()));
     }
     group.finish();
 }

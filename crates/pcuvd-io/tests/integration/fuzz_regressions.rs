@@ -20,7 +20,9 @@ const NPY_MANIFEST: &str = include_str!("../../../../fuzz/npy_target.toml");
 
 fn decode(data: &pcuvd::ChannelData) -> Result<(), pcuvd::Error> {
     pcuvd::pipeline::check_record(&data.acquisition, data.samples.dim().2)?;
-    pcuvd::form::decode::decode_aligned(data, pcuvd::form::decode::EventAlignment::MidFrame)
+    let alignment = pcuvd::form::decode::EventAlignment::MidFrame;
+    pcuvd::form::decode::Decoder::new(data, alignment)?
+        .decode(&data.samples)
         .map(|_| ())
 }
 

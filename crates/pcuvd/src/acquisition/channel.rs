@@ -173,12 +173,12 @@ impl Samples {
         }
     }
 
-    /// The records of compound frames `frames` of `n` events as [`decode::decode_in_place`]
+    /// The records of compound frames `frames` of `n` events as [`Decoder::decode_in_place`]
     /// leaves them (event f·n + k: angle k's record of frame f), viewed per angle: (angles,
     /// frames, channels, samples). Samples in standard layout (as read, and as decoding in
     /// place leaves them), or an error.
     ///
-    /// [`decode::decode_in_place`]: crate::form::decode::decode_in_place
+    /// [`Decoder::decode_in_place`]: crate::form::decode::Decoder::decode_in_place
     pub fn decoded_frames(
         &self,
         n: usize,

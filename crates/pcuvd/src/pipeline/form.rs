@@ -268,7 +268,8 @@ pub fn form_block_into(
     let recorded = data.samples.any_nonzero();
     let kept = block.start - decoded.start..block.end - decoded.start;
     let data = buffers.read.as_mut().expect("just read");
-    decode::decode_in_place(data, params.event_alignment, kept.clone())?;
+    decode::Decoder::new(data, params.event_alignment)?
+        .decode_in_place(&mut data.samples, kept.clone())?;
     let per_angle = data.samples.decoded_frames(acq.sequence.n_angles(), kept)?;
     let decode_s = clock.elapsed().as_secs_f64();
 

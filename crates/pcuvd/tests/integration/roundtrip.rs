@@ -8,7 +8,7 @@ use pcuvd::estimate::doppler::{
     AxialSampling, autocorrelation, axial_autocorrelation, loupas_velocity, velocity_scale,
 };
 use pcuvd::form::beamform::{DasParams, beamform};
-use pcuvd::form::decode::{EventAlignment, decode, decode_aligned};
+use pcuvd::form::decode::{Decoder, EventAlignment};
 use pcuvd::form::iq;
 use pcuvd::simulate::phantom::{BlockPhantom, BlockSpec, Phantom, PointPhantom};
 use pcuvd::simulate::{SimParams, simulate};
@@ -52,10 +52,10 @@ fn images_aligned(
     alignment: Option<EventAlignment>,
 ) -> Vec<ndarray::Array3<num_complex::Complex32>> {
     let data = simulate(phantom, p, frames, &|_, _| {}).unwrap();
-    let per_angle = match alignment {
-        None => decode(&data).unwrap(),
-        Some(alignment) => decode_aligned(&data, alignment).unwrap(),
-    };
+    let alignment = alignment.unwrap_or(EventAlignment::Simultaneous);
+    let per_angle = (Decoder::new(&data, alignment).unwrap())
+        .decode(&data.samples)
+        .unwrap();
     let acq = &data.acquisition;
     acq.sequence
         .angles

@@ -3,7 +3,7 @@
 use ndarray::{Array4, s};
 use num_complex::Complex64;
 use pcuvd::acquisition::channel::AngleSamples;
-use pcuvd::form::decode::{EventAlignment, decode, decode_aligned};
+use pcuvd::form::decode::{Decoder, EventAlignment};
 use pcuvd::simulate::phantom::{
     BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, FlowProfile, Phantom, PointPhantom,
     SpiralPhantom, SpiralSpec, TubePhantom, TubeSpec,
@@ -45,7 +45,8 @@ fn rf(data: &ChannelData) -> &ndarray::Array3<f32> {
 }
 
 fn per_angle(data: &ChannelData) -> Array4<f32> {
-    match decode(data).expect("decode") {
+    let decoder = Decoder::new(data, EventAlignment::Simultaneous).expect("decoder");
+    match decoder.decode(&data.samples).expect("decode") {
         AngleSamples::Rf(a) => a,
         _ => panic!("RF in, RF out"),
     }
@@ -291,7 +292,10 @@ fn mid_frame_alignment_decodes_moving_blood_as_if_still() {
     };
     let recorded = simulate(&moving, &coded, frames, &no_progress).unwrap();
     let reference = per_angle(&simulate(&held, &coded, frames, &no_progress).unwrap());
-    let decode_with = |alignment| match decode_aligned(&recorded, alignment).unwrap() {
+    let decode_with = |alignment| match (Decoder::new(&recorded, alignment))
+        .and_then(|decoder| decoder.decode(&recorded.samples))
+        .unwrap()
+    {
         AngleSamples::Rf(a) => a,
         _ => unreachable!(),
     };

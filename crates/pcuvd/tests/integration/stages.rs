@@ -8,13 +8,20 @@ use pcuvd::acquisition::channel::{
 use pcuvd::core::geometry::round_trip_delay;
 use pcuvd::core::grid::Grid;
 use pcuvd::form::beamform::{self, DasParams};
-use pcuvd::form::decode::{
-    EventAlignment, decode, decode_aligned, decode_aligned_frames, decode_aligned_frames_into,
-    decode_in_place, encode, encode_code,
-};
+use pcuvd::form::decode::{Decoder, EventAlignment, encode, encode_code};
 use pcuvd::form::iq;
 use pcuvd::{Coding, Hadamard, Probe, Sequence, TransmitCode};
 use proptest::prelude::*;
+
+/// The whole recording decoded by the [`Decoder`] of its sequence, aligned as `alignment` says.
+fn decode_aligned(data: &ChannelData, alignment: EventAlignment) -> pcuvd::Result<AngleSamples> {
+    Decoder::new(data, alignment)?.decode(&data.samples)
+}
+
+/// [`decode_aligned`] with coded events taken as simultaneous.
+fn decode(data: &ChannelData) -> pcuvd::Result<AngleSamples> {
+    decode_aligned(data, EventAlignment::Simultaneous)
+}
 
 /// Band-limited random traces: random tones inside the probe band under a Gaussian envelope.
 fn random_traces(
@@ -187,10 +194,11 @@ fn decoding_some_frames_gives_those_frames_of_the_whole() {
     });
     for rec in [&coded, &whole_samples, &conventional, &iq, &explicit] {
         for alignment in [EventAlignment::Simultaneous, EventAlignment::MidFrame] {
-            let whole = decode_aligned(rec, alignment).unwrap();
+            let decoder = Decoder::new(rec, alignment).unwrap();
+            let whole = decoder.decode(&rec.samples).unwrap();
             for kept in [0..3, 2..5, 4..7] {
                 let mut in_place = rec.clone();
-                decode_in_place(&mut in_place, alignment, kept.clone()).unwrap();
+                (decoder.decode_in_place(&mut in_place.samples, kept.clone())).unwrap();
                 let view = in_place.samples.decoded_frames(4, kept.clone()).unwrap();
                 let expected = whole.frames(kept.clone());
                 match (view, expected.view()) {
@@ -215,19 +223,16 @@ fn decoding_some_frames_gives_those_frames_of_the_whole() {
                     }
                 }
             }
-            let part = decode_aligned_frames(rec, alignment, 2..5).unwrap();
+            let part = decoder.decode_frames(&rec.samples, 2..5, None).unwrap();
             assert_eq!(part, whole.frames(2..5), "{alignment:?}");
-            let mut earlier = Some(decode_aligned_frames(rec, alignment, 4..7).unwrap());
-            decode_aligned_frames_into(rec, alignment, 2..5, &mut earlier).unwrap();
-            assert_eq!(
-                earlier.unwrap(),
-                whole.frames(2..5),
-                "{alignment:?}, reused"
-            );
+            let earlier = decoder.decode_frames(&rec.samples, 4..7, None).unwrap();
+            let reused = decoder.decode_frames(&rec.samples, 2..5, Some(earlier));
+            assert_eq!(reused.unwrap(), whole.frames(2..5), "{alignment:?}, reused");
             for outside in [3..3, 5..8] {
-                let err = decode_aligned_frames(rec, alignment, outside.clone()).unwrap_err();
+                let err = (decoder.decode_frames(&rec.samples, outside.clone(), None)).unwrap_err();
                 assert!(err.to_string().contains("frames"), "{err}");
-                let err = decode_in_place(&mut rec.clone(), alignment, outside).unwrap_err();
+                let mut in_place = rec.samples.clone();
+                let err = decoder.decode_in_place(&mut in_place, outside).unwrap_err();
                 assert!(err.to_string().contains("frames"), "{err}");
             }
         }

@@ -1,0 +1,177 @@
+//! Extending a slow-time series past the recording's ends by linear prediction, so that the
+//! alignment's interpolation has samples to read at the first and last frames.
+
+use super::*;
+
+/// An end of a series of frames.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub(super) enum End {
+    /// Before the first frame.
+    Head,
+    /// After the last frame.
+    Tail,
+}
+
+/// Continues every series of `lanes` (consecutive runs of `frames` + 2·ALIGN_HALF, the frames at
+/// ALIGN_HALF..ALIGN_HALF + frames) by ALIGN_HALF predicted frames beyond `end`: a linear
+/// predictor fitted on the series' ALIGN_FIT_FRAMES frames nearest that end, pooled over the
+/// lanes, with real coefficients when each lane carries two real series (`real`). The other end's
+/// slots are left as they are: an end predictor sees only its own end's frames.
+pub(super) fn extend(lanes: &mut [Complex32], frames: usize, real: bool, end: End) {
+    let len = frames + 2 * ALIGN_HALF;
+    let order = ALIGN_ORDER.min(frames.saturating_sub(2) / 2);
+    let fit_frames = ALIGN_FIT_FRAMES.min(frames);
+    let from = match end {
+        End::Head => 0,
+        End::Tail => frames - fit_frames,
+    };
+    let fitted = lanes
+        .chunks_exact(len)
+        .map(|series| &series[ALIGN_HALF + from..ALIGN_HALF + from + fit_frames]);
+    let a = predictor(fitted, order, real);
+    for series in lanes.chunks_exact_mut(len) {
+        match end {
+            // After the last frame: x[t] = Σ_j a_j x[t − j].
+            End::Tail => {
+                for t in ALIGN_HALF + frames..len {
+                    let mut v = Complex64::new(0.0, 0.0);
+                    for (j, a) in a.iter().enumerate() {
+                        let x = series[t - 1 - j];
+                        v += a * Complex64::new(x.re as f64, x.im as f64);
+                    }
+                    series[t] = Complex32::new(v.re as f32, v.im as f32);
+                }
+            }
+            // Before the first: x[t] = Σ_j a_j* x[t + j].
+            End::Head => {
+                for t in (0..ALIGN_HALF).rev() {
+                    let mut v = Complex64::new(0.0, 0.0);
+                    for (j, a) in a.iter().enumerate() {
+                        let x = series[t + 1 + j];
+                        v += a.conj() * Complex64::new(x.re as f64, x.im as f64);
+                    }
+                    series[t] = Complex32::new(v.re as f32, v.im as f32);
+                }
+            }
+        }
+    }
+}
+
+/// Coefficients a_1..a_p of the forward–backward least-squares linear predictor of `series`
+/// (x[t] ≈ Σ_j a_j x[t − j], and x[t] ≈ Σ_j a_j* x[t + j]), real when `real`. With fewer than
+/// one equation per unknown, or a singular system, the predictor repeats the last value.
+pub(super) fn predictor<'a>(
+    series: impl Iterator<Item = &'a [Complex32]>,
+    order: usize,
+    real: bool,
+) -> Vec<Complex64> {
+    let hold = || {
+        let mut a = vec![Complex64::new(0.0, 0.0); order.max(1)];
+        a[0] = Complex64::new(1.0, 0.0);
+        a
+    };
+    if order == 0 {
+        return hold();
+    }
+    let p = order.min(ALIGN_ORDER);
+    const ZERO: Complex64 = Complex64::new(0.0, 0.0);
+    // On the stack, and only the upper triangle: the Gram matrix is Hermitian, and the lower
+    // triangle, conjugated from the upper, comes out bit for bit as summed term by term.
+    let mut upper = [[ZERO; ALIGN_ORDER]; ALIGN_ORDER];
+    let mut rhs = vec![ZERO; p];
+    let mut add = |past: &[Complex64; ALIGN_ORDER], target: Complex64| {
+        for j in 0..p {
+            for k in j..p {
+                upper[j][k] += past[j].conj() * past[k];
+            }
+            rhs[j] += past[j].conj() * target;
+        }
+    };
+    let (mut past, mut future) = ([ZERO; ALIGN_ORDER], [ZERO; ALIGN_ORDER]);
+    let mut widened = [ZERO; ALIGN_FIT_FRAMES];
+    for narrow in series {
+        // Series are at most ALIGN_FIT_FRAMES long (the frames a predictor is fitted on).
+        let x = &mut widened[..narrow.len()];
+        for (wide, v) in x.iter_mut().zip(narrow) {
+            *wide = Complex64::new(v.re as f64, v.im as f64);
+        }
+        for t in p..x.len() {
+            for j in 1..=p {
+                // Forward: x[t] from x[t − 1], …, x[t − p].
+                past[j - 1] = x[t - j];
+                // Backward: x[t − p] from x[t − p + 1], …, x[t], conjugated so the same a_j
+                // serve.
+                future[j - 1] = x[t - p + j].conj();
+            }
+            add(&past, x[t]);
+            add(&future, x[t - p].conj());
+        }
+    }
+    let mut gram: Vec<Vec<Complex64>> = (0..p)
+        .map(|j| {
+            (0..p)
+                .map(|k| {
+                    if k >= j {
+                        upper[j][k]
+                    } else {
+                        upper[k][j].conj()
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    if real {
+        for row in gram.iter_mut() {
+            for v in row.iter_mut() {
+                *v = Complex64::new(v.re, 0.0);
+            }
+        }
+        for v in rhs.iter_mut() {
+            *v = Complex64::new(v.re, 0.0);
+        }
+    }
+    // A light ridge keeps the solve stable on series that are nearly constant or zero.
+    let scale = (0..p).map(|j| gram[j][j].re).fold(0.0, f64::max);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return hold();
+    }
+    for (j, row) in gram.iter_mut().enumerate() {
+        row[j] += 1e-6 * scale;
+    }
+    solve_small(gram, rhs).unwrap_or_else(hold)
+}
+
+/// Solves a small complex linear system by Gaussian elimination with partial pivoting.
+pub(super) fn solve_small(
+    mut a: Vec<Vec<Complex64>>,
+    mut b: Vec<Complex64>,
+) -> Option<Vec<Complex64>> {
+    let n = b.len();
+    for col in 0..n {
+        let pivot = (col..n).max_by(|&i, &j| a[i][col].norm().total_cmp(&a[j][col].norm()))?;
+        if a[pivot][col].norm() == 0.0 {
+            return None;
+        }
+        a.swap(col, pivot);
+        b.swap(col, pivot);
+        let (upper, lower) = a.split_at_mut(col + 1);
+        let pivot_row = &upper[col];
+        let pivot_b = b[col];
+        for (row, rhs) in lower.iter_mut().zip(&mut b[col + 1..]) {
+            let f = row[col] / pivot_row[col];
+            for (v, p) in row[col..].iter_mut().zip(&pivot_row[col..]) {
+                *v -= f * p;
+            }
+            *rhs -= f * pivot_b;
+        }
+    }
+    let mut x = vec![Complex64::new(0.0, 0.0); n];
+    for row in (0..n).rev() {
+        let mut v = b[row];
+        for k in row + 1..n {
+            v -= a[row][k] * x[k];
+        }
+        x[row] = v / a[row][row];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
