@@ -15,7 +15,9 @@ use crate::progress::Progress;
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
 mod record;
+mod stages;
 pub use record::*;
+pub use stages::*;
 
 /// What a saved run records beside its results.
 pub struct Record<'a> {
