@@ -1,0 +1,267 @@
+//! `pcuvd.process`: a recording processed as `pcuvd process` does it, its result's arrays, summary,
+//! dynamics re-run and saving.
+
+use crate::*;
+
+/// `pcuvd process`'s options, without the input and the output folder: keywords split between
+/// the processing and the dynamics settings by their names.
+pub(crate) struct ProcessCall {
+    pub(crate) options: ProcessingSettings,
+    pub(crate) dynamics: DynamicsSettings,
+    pub(crate) max_memory_gb: Option<f64>,
+}
+
+impl ProcessCall {
+    fn from_json(options: &str) -> PyResult<Self> {
+        let mut map: serde_json::Map<String, Value> = settings(options)?;
+        let max_memory_gb = match map.remove("max_memory_gb") {
+            None | Some(Value::Null) => None,
+            Some(v) => Some(v.as_f64().ok_or_else(|| {
+                PyValueError::new_err(format!("max_memory_gb: expected a number, got {v}"))
+            })?),
+        };
+        let dynamics_keys = field_names::<DynamicsSettings>(&DYNAMICS_ALIASES);
+        let (dynamics, processing): (serde_json::Map<_, _>, serde_json::Map<_, _>) = map
+            .into_iter()
+            .partition(|(key, _)| dynamics_keys.contains(key));
+        Ok(ProcessCall {
+            options: settings(&Value::Object(processing).to_string())?,
+            dynamics: settings(&Value::Object(dynamics).to_string())?,
+            max_memory_gb,
+        })
+    }
+}
+
+/// What `pcuvd.process` returns: the maps, the summary, and `save` writing what the CLI writes.
+#[pyclass(frozen, name = "ProcessResult", module = "pcuvd._pcuvd")]
+pub(crate) struct PyProcessResult {
+    /// The processing settings it ran with (a dynamics re-run keeps them).
+    pub(crate) options: ProcessingSettings,
+    pub(crate) recording: Arc<ChannelData>,
+    pub(crate) input: String,
+    pub(crate) info: pcuvd_io::SourceInfo,
+    pub(crate) plan: Plan,
+    pub(crate) processed: Processed,
+}
+
+/// Runs `pcuvd process`'s chain on `recording` with the keyword options in `options` (JSON).
+#[pyfunction]
+pub(crate) fn process(
+    py: Python<'_>,
+    recording: &PyRecording,
+    options: &str,
+    quiet: bool,
+) -> PyResult<PyProcessResult> {
+    let call = ProcessCall::from_json(options)?;
+    let data = recording.data.clone();
+    let progress = Lines::new(quiet);
+    let input = &recording.input;
+    let (plan, processed) = py
+        .detach(|| -> anyhow::Result<(Plan, Processed)> {
+            // As `pcuvd process`: options and memory are checked before any work.
+            let plan = Plan::new(
+                &call.options,
+                &call.dynamics,
+                &*data,
+                recording.info.cardiac_triggers_s.as_deref(),
+            )?;
+            pcuvd_app::memory::check_memory(&*data, &plan, call.max_memory_gb)?;
+            let processed = pcuvd_app::run(&*data, &plan, &progress)
+                .with_context(|| format!("{input}: processing failed"))?;
+            Ok((plan, processed))
+        })
+        .map_err(to_py)?;
+    let coded = data.acquisition.sequence.is_coded();
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
+    {
+        let message = std::ffi::CString::new(format!("{input}: {warning}"))
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        PyErr::warn(
+            py,
+            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+            &message,
+            1,
+        )?;
+    }
+    Ok(PyProcessResult {
+        options: call.options,
+        recording: data,
+        input: recording.input.clone(),
+        info: recording.info.clone(),
+        plan,
+        processed,
+    })
+}
+
+impl PyProcessResult {
+    fn source(&self) -> anyhow::Result<pcuvd_app::summary::Provenance> {
+        pcuvd_app::summary::provenance(
+            &self.input,
+            &self.info,
+            &self.plan.options_text,
+            vec![format!("python: pcuvd.process({:?})", self.input)],
+            pcuvd_app::outputs::Checksum::default(),
+        )
+    }
+}
+
+#[pymethods]
+impl PyProcessResult {
+    /// Every map `pcuvd process` writes as .npy, by file stem: numpy arrays in SI units.
+    fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = &self.processed.out;
+        let dict = PyDict::new(py);
+        dict.set_item("x", PyArray1::from_slice(py, &out.grid.x))?;
+        dict.set_item("z", PyArray1::from_slice(py, &out.grid.z))?;
+        dict.set_item("bmode_db", out.bmode_db.to_pyarray(py))?;
+        dict.set_item("power_doppler", out.power_doppler.to_pyarray(py))?;
+        dict.set_item("color_doppler", out.color_doppler.to_pyarray(py))?;
+        let signed = out.signed_power_doppler();
+        dict.set_item("signed_power_doppler", signed.into_pyarray(py))?;
+        dict.set_item("projections", out.projections.to_pyarray(py))?;
+        dict.set_item("projection_nyquist", out.projection_nyquist.to_pyarray(py))?;
+        if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+            dict.set_item("vx", irls.vx.to_pyarray(py))?;
+            dict.set_item("vz", irls.vz.to_pyarray(py))?;
+            dict.set_item("speed", irls.speed().into_pyarray(py))?;
+            dict.set_item("vx_ls", ls.vx.to_pyarray(py))?;
+            dict.set_item("vz_ls", ls.vz.to_pyarray(py))?;
+            dict.set_item("speed_ls", ls.speed().into_pyarray(py))?;
+        }
+        if let Some(done) = &out.dealias {
+            dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
+            dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
+        }
+        if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
+            dict.set_item("ri", maps.ri.to_pyarray(py))?;
+            dict.set_item("psv", maps.psv.to_pyarray(py))?;
+            dict.set_item("edv", maps.edv.to_pyarray(py))?;
+            dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
+            dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
+            dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
+            dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
+            dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
+            dict.set_item("speed_series", series.speed().into_pyarray(py))?;
+            dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+        }
+        if let Some(ensembles) = &self.processed.ensembles {
+            let maps = [
+                (
+                    "ensemble_power_doppler",
+                    Some(ensembles.power_doppler.clone()),
+                ),
+                (
+                    "ensemble_color_doppler",
+                    Some(ensembles.color_doppler.clone()),
+                ),
+                (
+                    "ensemble_signed_power_doppler",
+                    Some(ensembles.signed_power_doppler()),
+                ),
+                ("ensemble_vx", ensembles.vx.clone()),
+                ("ensemble_vz", ensembles.vz.clone()),
+                ("ensemble_speed", ensembles.speed()),
+            ];
+            for (name, map) in maps {
+                if let Some(map) = map {
+                    dict.set_item(name, map.into_pyarray(py))?;
+                }
+            }
+            dict.set_item(
+                "ensemble_times",
+                PyArray1::from_slice(py, &ensembles.times_s),
+            )?;
+        }
+        Ok(dict)
+    }
+
+    /// The same maps with the dynamics stage run again with the keyword options in `options`
+    /// (JSON: heart rate, windows, RI thresholds, vessel tests, pooling).
+    fn with_dynamics(&self, py: Python<'_>, options: &str, quiet: bool) -> PyResult<Self> {
+        let dynamics: DynamicsSettings = settings(options)?;
+        let progress = Lines::new(quiet);
+        let (plan, dynamics, seconds) = py
+            .detach(|| -> anyhow::Result<_> {
+                let plan = Plan::new(
+                    &self.options,
+                    &dynamics,
+                    &*self.recording,
+                    self.info.cardiac_triggers_s.as_deref(),
+                )?;
+                let clock = std::time::Instant::now();
+                let dynamics = pcuvd_app::run::run_dynamics(&self.processed.out, &plan, &progress)?;
+                Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
+            })
+            .map_err(to_py)?;
+        Ok(PyProcessResult {
+            options: self.options.clone(),
+            recording: self.recording.clone(),
+            input: self.input.clone(),
+            info: self.info.clone(),
+            plan,
+            processed: Processed {
+                out: self.processed.out.clone(),
+                dynamics,
+                dynamics_s: seconds,
+                ensembles: self.processed.ensembles.clone(),
+                blocks: self.processed.blocks,
+                segments: self.processed.segments.clone(),
+            },
+        })
+    }
+
+    /// The summary.json this result would be saved with (less the writing timings), as JSON.
+    fn summary_json(&self) -> PyResult<String> {
+        let source = self.source().map_err(to_py)?;
+        let summary =
+            pcuvd_app::summary::Summary::of(&*self.recording, &self.plan, &self.processed, source);
+        serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+
+    /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
+    /// a folder that holds anything is refused unless `force`. `nifti`: also the NIfTI images,
+    /// named by map, or by BIDS entities `bids` = (subject, session, task). Returns the figures.
+    #[pyo3(signature = (folder, force, nifti=false, bids=(None, None, None)))]
+    fn save(
+        &self,
+        py: Python<'_>,
+        folder: PathBuf,
+        force: bool,
+        nifti: bool,
+        bids: (Option<String>, Option<String>, Option<String>),
+    ) -> PyResult<Vec<PathBuf>> {
+        let (subject, session, task) = bids;
+        let naming = pcuvd_app::nifti::NiftiNaming::requested(nifti, subject, session, task)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        py.detach(|| -> anyhow::Result<Vec<PathBuf>> {
+            let clock = std::time::Instant::now();
+            let source = self.source()?;
+            let checksum_s = clock.elapsed().as_secs_f64();
+            pcuvd_app::outputs::prepare(
+                &folder,
+                pcuvd_app::outputs::PROCESS_OUTPUTS,
+                &self.info.files,
+                force,
+            )?;
+            let name = std::path::Path::new(&self.input)
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            pcuvd_app::summary::save(
+                &folder,
+                &*self.recording,
+                &self.plan,
+                &self.processed,
+                pcuvd_app::summary::Record {
+                    source,
+                    name: &name,
+                    extra_timings: &[("checksum", checksum_s)],
+                    nifti: naming.as_ref(),
+                },
+                &Lines::new(true),
+            )
+        })
+        .map_err(to_py)
+    }
+}

@@ -1,0 +1,119 @@
+//! Simulation and the paper's studies, and the option names of each command.
+
+use crate::*;
+
+/// Recordings by mode name, and the truth arrays by name.
+pub(crate) type Simulated<'py> = (Vec<(String, PyRecording)>, Bound<'py, PyDict>);
+
+/// Simulates as `pcuvd simulate` does (keyword options in `options`, JSON): the recordings by
+/// mode name, and the ground truth arrays on the default processing grid.
+#[pyfunction]
+pub(crate) fn simulate<'py>(
+    py: Python<'py>,
+    options: &str,
+    quiet: bool,
+) -> PyResult<Simulated<'py>> {
+    let options: SimulationSettings = settings(options)?;
+    let progress = Lines::new(quiet);
+    type Made = (
+        Vec<(String, ChannelData, toml::Table)>,
+        pcuvd_app::simulation::SimulatedTruth,
+    );
+    let (recordings, truth) = py
+        .detach(|| -> anyhow::Result<Made> {
+            let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
+            let mut made = Vec::new();
+            for (index, (name, _)) in simulation.modes.iter().enumerate() {
+                let task = format!("simulate {name}");
+                let data = simulation
+                    .recording(index, &|done, total| progress.update(&task, done, total))?;
+                made.push((name.to_string(), data, simulation.provenance(index)));
+            }
+            let truth = simulation.truth(&made[0].1)?;
+            Ok((made, truth))
+        })
+        .map_err(to_py)?;
+    let dict = PyDict::new(py);
+    dict.set_item("x", PyArray1::from_slice(py, &truth.x))?;
+    dict.set_item("z", PyArray1::from_slice(py, &truth.z))?;
+    dict.set_item("vx", truth.truth.vx.to_pyarray(py))?;
+    dict.set_item("vz", truth.truth.vz.to_pyarray(py))?;
+    dict.set_item("mask", truth.truth.mask.to_pyarray(py))?;
+    if let Some(cycle) = &truth.cycle {
+        dict.set_item("ri", cycle.ri.to_pyarray(py))?;
+        dict.set_item("psv", cycle.psv.to_pyarray(py))?;
+        dict.set_item("edv", cycle.edv.to_pyarray(py))?;
+        dict.set_item("vessel_class", cycle.vessel_class.to_pyarray(py))?;
+        dict.set_item("flow_up", cycle.flow_up.to_pyarray(py))?;
+    }
+    let recordings = recordings
+        .into_iter()
+        .map(|(name, data, provenance)| {
+            let label = format!("pcuvd simulate ({name}): {provenance}");
+            (
+                name,
+                PyRecording::new(data, vec![], label, ("simulation", "pcuvd.simulate")),
+            )
+        })
+        .collect();
+    Ok((recordings, dict))
+}
+
+/// Runs one of the paper's studies ("spiral" or "network") with `pcuvd paper`'s options (JSON);
+/// returns its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
+#[pyfunction]
+pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> PyResult<String> {
+    let options: StudySettings = settings(options)?;
+    let which = which.to_string();
+    py.detach(|| -> anyhow::Result<String> {
+        let progress = Lines::new(quiet);
+        let report = pcuvd_app::progress::tasks(&progress);
+        let value = match which.as_str() {
+            "spiral" => {
+                let settings = options.spiral_settings()?;
+                serde_json::to_value(pcuvd::study::spiral::run(&settings, &report)?.metrics)?
+            }
+            "network" => {
+                let settings = options.network_settings()?;
+                serde_json::to_value(pcuvd::study::network::run(&settings, &report)?.metrics)?
+            }
+            other => anyhow::bail!("study {other:?}: expected \"spiral\" or \"network\""),
+        };
+        Ok(value.to_string())
+    })
+    .map_err(to_py)
+}
+
+/// The settings each of the paper's studies would run with for the keyword options in `options`
+/// (JSON), every default filled in and every check made, as `pcuvd paper --print-settings`
+/// prints them: {"spiral": ..., "network": ..., "dealias": ...}.
+#[pyfunction]
+pub(crate) fn study_settings(options: &str) -> PyResult<String> {
+    let options: StudySettings = settings(options)?;
+    let resolved = || -> anyhow::Result<Value> {
+        Ok(json!({
+            "spiral": options.spiral_settings()?,
+            "network": options.network_settings()?,
+            "dealias": options.dealias_settings()?,
+        }))
+    };
+    Ok(resolved().map_err(to_py)?.to_string())
+}
+
+/// The keyword names (aliases included) that `command` ("process", "dynamics", "simulate" or
+/// "study") accepts, for the Python half's keyword check: the settings' field names.
+#[pyfunction]
+pub(crate) fn option_names_of(command: &str) -> PyResult<Vec<String>> {
+    match command {
+        "process" => {
+            let mut names = field_names::<ProcessingSettings>(&PROCESSING_ALIASES);
+            names.extend(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES));
+            names.push("max_memory_gb".into());
+            Ok(names)
+        }
+        "dynamics" => Ok(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES)),
+        "simulate" => Ok(field_names::<SimulationSettings>(&[])),
+        "study" => Ok(field_names::<StudySettings>(&[])),
+        other => Err(PyValueError::new_err(format!("no command {other:?}"))),
+    }
+}
