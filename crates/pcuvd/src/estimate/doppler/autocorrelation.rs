@@ -1,0 +1,309 @@
+//! Lag-1 autocorrelations of the slow-time series: the temporal one (Kasai's), its box average
+//! over a kernel, and the spatial lags (axial, lateral) that give each echo's mean frequency.
+
+use super::*;
+
+/// Power and lag-1 autocorrelation per pixel, shape (nz, nx).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Autocorrelation {
+    /// Mean |S|² over frames (power Doppler).
+    pub power: Array2<f64>,
+    /// Lag-1 autocorrelation R (eq. 4).
+    pub r1: Array2<Complex64>,
+}
+
+/// Computes power and lag-1 autocorrelation of `series` (nz, nx, frames), each averaged over a
+/// spatial box of `kernel` = (rows, cols) pixels (odd sizes; (1, 1) means no averaging).
+pub fn autocorrelation(
+    series: ArrayView3<Complex32>,
+    kernel: (usize, usize),
+) -> Result<Autocorrelation> {
+    let (nz, nx, nf) = series.dim();
+    if nf < 2 {
+        return Err(invalid(
+            "Doppler",
+            format!("needs at least 2 frames, got {nf}"),
+        ));
+    }
+    check_kernel(kernel)?;
+    let mut power = Array2::<f64>::zeros((nz, nx));
+    let mut r1 = Array2::<Complex64>::zeros((nz, nx));
+    Zip::from(&mut power)
+        .and(&mut r1)
+        .and(series.lanes(Axis(2)))
+        .par_for_each(|p, r, s| {
+            let s = contiguous(&s);
+            let mut acc_p = 0.0f64;
+            let mut acc_r = Complex64::new(0.0, 0.0);
+            for (t, x) in s.iter().enumerate() {
+                acc_p += x.norm_sqr() as f64;
+                if let Some(next) = s.get(t + 1) {
+                    let v = x.conj() * next;
+                    acc_r += Complex64::new(v.re as f64, v.im as f64);
+                }
+            }
+            *p = acc_p / nf as f64;
+            *r = acc_r / (nf - 1) as f64;
+        });
+    if kernel != (1, 1) {
+        power = box_average(&power, kernel);
+        r1 = box_average(&r1, kernel);
+    }
+    Ok(Autocorrelation { power, r1 })
+}
+
+/// A pixel's frames as a slice: borrowed where they lie contiguous (a formed series), else
+/// copied.
+pub(super) fn contiguous<'a>(
+    frames: &'a ndarray::ArrayView1<'_, Complex32>,
+) -> std::borrow::Cow<'a, [Complex32]> {
+    match frames.as_slice() {
+        Some(slice) => std::borrow::Cow::Borrowed(slice),
+        None => std::borrow::Cow::Owned(frames.to_vec()),
+    }
+}
+
+/// Refuses an averaging box with an even size (it would have no centre pixel).
+pub(super) fn check_kernel(kernel: (usize, usize)) -> Result<()> {
+    if kernel.0.is_multiple_of(2) || kernel.1.is_multiple_of(2) {
+        return Err(invalid(
+            "Doppler averaging kernel",
+            format!("sizes must be odd, got {kernel:?}"),
+        ));
+    }
+    Ok(())
+}
+
+impl Autocorrelation {
+    /// The same estimates averaged over a spatial box of `kernel` = (rows, cols) pixels (odd
+    /// sizes), as [`autocorrelation`] averages them: for estimates summed over several segments of
+    /// a recording before averaging (the average is linear, so the order does not matter).
+    pub fn box_averaged(self, kernel: (usize, usize)) -> Result<Autocorrelation> {
+        check_kernel(kernel)?;
+        if kernel == (1, 1) {
+            return Ok(self);
+        }
+        Ok(Autocorrelation {
+            power: box_average(&self.power, kernel),
+            r1: box_average(&self.r1, kernel),
+        })
+    }
+}
+
+pub(super) fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
+where
+    T: Copy + Default + std::ops::AddAssign + std::ops::Div<f64, Output = T>,
+{
+    let (nz, nx) = map.dim();
+    let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
+    Array2::from_shape_fn((nz, nx), |(z, x)| {
+        let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
+        let (x0, x1) = (x.saturating_sub(hx), (x + hx + 1).min(nx));
+        let mut acc = T::default();
+        for zz in z0..z1 {
+            for xx in x0..x1 {
+                acc += map[[zz, xx]];
+            }
+        }
+        acc / ((z1 - z0) * (x1 - x0)) as f64
+    })
+}
+
+/// Axial-lag autocorrelation R(1, 0) per pixel, shape (nz, nx): the mean over frames of
+/// S*(z)·S(z + 1 pixel) (the last row uses the pair above it), averaged over a spatial box of
+/// `kernel` = (rows, cols) pixels like [`autocorrelation`]. `series` is (nz, nx, frames) with the
+/// carrier phase restored (as [`crate::form::beamform::beamform`] gives it) and needs nz ≥ 2.
+pub fn axial_autocorrelation(
+    series: ArrayView3<Complex32>,
+    kernel: (usize, usize),
+) -> Result<Array2<Complex64>> {
+    let (nz, nx, nf) = series.dim();
+    if nz < 2 || nf < 1 {
+        return Err(invalid(
+            "Doppler",
+            format!(
+                "the axial autocorrelation needs at least 2 rows and 1 frame, got {nz} rows and {nf} frames"
+            ),
+        ));
+    }
+    check_kernel(kernel)?;
+    let mut r = Array2::<Complex64>::zeros((nz, nx));
+    r.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(iz, mut row)| {
+            let z0 = iz.min(nz - 2);
+            for (ix, out) in row.iter_mut().enumerate() {
+                let (a, b) = (
+                    series.slice(s![z0, ix, ..]),
+                    series.slice(s![z0 + 1, ix, ..]),
+                );
+                let mut acc = Complex64::new(0.0, 0.0);
+                for (u, v) in a.iter().zip(b.iter()) {
+                    let p = u.conj() * v;
+                    acc += Complex64::new(p.re as f64, p.im as f64);
+                }
+                *out = acc / nf as f64;
+            }
+        });
+    if kernel != (1, 1) {
+        r = box_average(&r, kernel);
+    }
+    Ok(r)
+}
+
+/// Noise-immune axial-lag autocorrelation per pixel, (nz, nx): with R(1, ±1) the means over
+/// frames of S*(z, t)·S(z + 1, t + 1) and S*(z, t + 1)·S(z + 1, t) (the last row pairs with the
+/// row above), each averaged over `kernel`, R(1, +1)·e^{−iφ} + R(1, −1)·e^{+iφ}, φ = arg `r1`
+/// (the lag-1 autocorrelation, same shape). Both terms carry the axial phase ± the Doppler phase;
+/// removing φ leaves the axial phase of [`axial_autocorrelation`] without the receiver noise's
+/// own axial correlation (white noise does not correlate across frames). Needs nz ≥ 2 and ≥ 2
+/// frames.
+pub fn axial_autocorrelation_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+) -> Result<Array2<Complex64>> {
+    spatial_lag1(series, r1, kernel, Axis(0))
+}
+
+/// As [`axial_autocorrelation_lag1`], one pixel to the side (+x): its phase is the mean lateral
+/// wavenumber times the lateral step. Needs nx ≥ 2 and ≥ 2 frames.
+pub fn lateral_autocorrelation_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+) -> Result<Array2<Complex64>> {
+    spatial_lag1(series, r1, kernel, Axis(1))
+}
+
+/// The spatial lag of one pixel along `along` (Axis(0): depth, Axis(1): lateral) at temporal lags
+/// ±1, with the Doppler phase of `r1` removed; see [`axial_autocorrelation_lag1`].
+pub(super) fn spatial_lag1(
+    series: ArrayView3<Complex32>,
+    r1: &Array2<Complex64>,
+    kernel: (usize, usize),
+    along: Axis,
+) -> Result<Array2<Complex64>> {
+    check_kernel(kernel)?;
+    let (nz, nx, _) = series.dim();
+    if r1.dim() != (nz, nx) {
+        return Err(Error::Shape(format!(
+            "lag-1 autocorrelation {:?} for a series of {nz} × {nx} pixels",
+            r1.dim()
+        )));
+    }
+    Ok(spatial_lag_means(series, along)?.rotated(r1, kernel))
+}
+
+/// The spatial-lag products of one pixel step at temporal lags ±1 and within frames, per pixel
+/// (nz, nx), as means over the frame pairs (frames) and not yet averaged in space: the raw
+/// material of [`axial_autocorrelation_lag1`], [`lateral_autocorrelation_lag1`] and of the
+/// phase that scales Loupas's velocity ([`SAME_FRAME_WEIGHT`]). Means over different frames add
+/// as any mean does ([`Moments::merge`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialLag {
+    /// Mean over frame pairs of S*(p, t)·S(p′, t + 1), p′ the pixel one step along the lag (the
+    /// last pixel of a line pairs with the one before it, roles swapped).
+    pub plus: Array2<Complex64>,
+    /// Mean over frame pairs of S*(p, t + 1)·S(p′, t).
+    pub minus: Array2<Complex64>,
+    /// Mean over frames of S*(p, t)·S(p′, t): the same lag within each frame.
+    pub same: Array2<Complex64>,
+}
+
+impl SpatialLag {
+    /// Both products averaged over `kernel` (odd sizes), then R(+1)·e^{−iφ} + R(−1)·e^{+iφ} with
+    /// φ = arg `r1` (same shape): the spatial phase without the Doppler phase.
+    pub(super) fn rotated(
+        &self,
+        r1: &Array2<Complex64>,
+        kernel: (usize, usize),
+    ) -> Array2<Complex64> {
+        let (plus, minus) = if kernel == (1, 1) {
+            (self.plus.clone(), self.minus.clone())
+        } else {
+            (
+                box_average(&self.plus, kernel),
+                box_average(&self.minus, kernel),
+            )
+        };
+        Zip::from(&plus)
+            .and(&minus)
+            .and(r1)
+            .map_collect(|&p, &m, &r| {
+                let turn = if r.norm() > 0.0 {
+                    r / r.norm()
+                } else {
+                    Complex64::new(1.0, 0.0)
+                };
+                p * turn.conj() + m * turn
+            })
+    }
+}
+
+/// [`SpatialLag`] of `series` (nz, nx, frames) one pixel along `along`.
+pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<SpatialLag> {
+    let (nz, nx, nf) = series.dim();
+    let (n_along, what) = if along == Axis(0) {
+        (nz, "rows")
+    } else {
+        (nx, "columns")
+    };
+    if n_along < 2 || nf < 2 {
+        return Err(invalid(
+            "Doppler",
+            format!(
+                "a spatial-lag autocorrelation needs at least 2 {what} and 2 frames, got {n_along} {what} and {nf} frames"
+            ),
+        ));
+    }
+    let mut plus = Array2::<Complex64>::zeros((nz, nx));
+    let mut minus = Array2::<Complex64>::zeros((nz, nx));
+    let mut same = Array2::<Complex64>::zeros((nz, nx));
+    plus.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .zip(minus.axis_iter_mut(Axis(0)))
+        .zip(same.axis_iter_mut(Axis(0)))
+        .enumerate()
+        .for_each(|(iz, ((mut p_row, mut m_row), mut q_row))| {
+            for ix in 0..nx {
+                // The pixel and its neighbour one step along `along`; the last one pairs with the
+                // one before it, roles swapped, so the phase keeps its sign.
+                let i = if along == Axis(0) { iz } else { ix };
+                let (first, second) = if i + 1 < n_along {
+                    (i, i + 1)
+                } else {
+                    (i - 1, i)
+                };
+                let at = |j: usize| {
+                    if along == Axis(0) {
+                        series.slice(s![j, ix, ..])
+                    } else {
+                        series.slice(s![iz, j, ..])
+                    }
+                };
+                let (a, b) = (at(first), at(second));
+                // A pixel's frames are contiguous in a formed series: summed as slices, without
+                // an index computation per term.
+                let (a, b) = (contiguous(&a), contiguous(&b));
+                let (mut p, mut m) = (Complex64::new(0.0, 0.0), Complex64::new(0.0, 0.0));
+                for ((a0, a1), (b0, b1)) in a.iter().zip(&a[1..]).zip(b.iter().zip(&b[1..])) {
+                    let up = a0.conj() * b1;
+                    let down = a1.conj() * b0;
+                    p += Complex64::new(up.re as f64, up.im as f64);
+                    m += Complex64::new(down.re as f64, down.im as f64);
+                }
+                let mut q = Complex64::new(0.0, 0.0);
+                for (a0, b0) in a.iter().zip(b.iter()) {
+                    let same = a0.conj() * b0;
+                    q += Complex64::new(same.re as f64, same.im as f64);
+                }
+                let pairs = (nf - 1) as f64;
+                p_row[ix] = p / pairs;
+                m_row[ix] = m / pairs;
+                q_row[ix] = q / nf as f64;
+            }
+        });
+    Ok(SpatialLag { plus, minus, same })
+}
