@@ -153,19 +153,6 @@ pub enum Checksum {
     Sha256,
 }
 
-impl Checksum {
-    /// Every kind, as `summary.json` may name it.
-    pub const ALL: [Checksum; 2] = [Checksum::Blake3, Checksum::Sha256];
-
-    /// Its key in `summary.json`'s `source.files` ("blake3", "sha256").
-    pub fn key(self) -> &'static str {
-        match self {
-            Checksum::Blake3 => "blake3",
-            Checksum::Sha256 => "sha256",
-        }
-    }
-}
-
 /// Size (bytes) and checksum (hex) of a file, in bounded memory whatever its length: BLAKE3 over
 /// the file mapped into memory, SHA-256 read in 8 MiB blocks.
 pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
