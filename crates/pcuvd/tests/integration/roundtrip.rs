@@ -295,47 +295,142 @@ struct BlockReading {
 /// still a speckle estimate: over 1.6 × 0.8 mm the per-angle errors of seeds 1–5 changed sign
 /// from seed to seed by up to ±1.5 % of the speed (F# 1.0) and the direction by ±1.1° at 5 mm/s
 /// (F# 1.5), which the bias targets would read as bias.
-fn block_reading(
-    case: &BlockCase,
-    estimator: pcuvd::estimate::doppler::DopplerEstimator,
-    attenuation: f64,
-    seed: u64,
-) -> BlockReading {
-    let (p, grid, out, velocity) = block_processed(case, estimator, attenuation, seed);
-    let speed = case.speed;
-    let direction = case.direction_deg.to_radians();
-    let mean = |m: ndarray::ArrayView2<f64>| m.iter().sum::<f64>() / m.len() as f64;
-    let projection_errors = p
-        .sequence
-        .angles
-        .iter()
-        .enumerate()
-        .map(|(k, &theta)| {
-            let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
-            let truth = 0.5 * (velocity[0] * s + velocity[1] * c);
-            (mean(out.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
-        })
-        .collect();
-    let k0 = p.sequence.angles.len() / 2;
-    let fc = p.probe.center_frequency;
-    let maps = pcuvd::estimate::doppler::doppler_maps(
-        out.filtered.series[k0].view(),
-        (1, 1),
-        pcuvd::estimate::doppler::DopplerEstimator::Loupas,
-        &angle_geometry(&p, &grid, k0),
-    )
-    .unwrap();
-    let mean_frequency_ratio =
-        pcuvd::core::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
-    let field = out.vector_ls.unwrap();
-    let (vx, vz) = (mean(field.vx.view()), mean(field.vz.view()));
-    let turn = (vx.atan2(vz) - direction + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-        - std::f64::consts::PI;
-    BlockReading {
-        mean_frequency_ratio,
-        projection_errors,
-        speed_error: vx.hypot(vz) / speed - 1.0,
-        direction_error_deg: turn.to_degrees(),
+///
+/// The recording does not depend on the case's f-number or on the estimator: it is simulated
+/// once and read by as many processings as a test needs.
+struct SimulatedBlock {
+    params: SimParams,
+    data: pcuvd::ChannelData,
+    /// The true velocity (vx, vz), m/s.
+    velocity: [f64; 2],
+}
+
+impl SimulatedBlock {
+    /// The block of `case` (its f-number aside) with `attenuation` (dB/cm/MHz) and `seed`.
+    fn new(case: &BlockCase, attenuation: f64, seed: u64) -> Self {
+        let BlockCase {
+            depth,
+            speed,
+            direction_deg,
+            pitch,
+            f_number: _,
+        } = *case;
+        let direction = direction_deg.to_radians();
+        let velocity = [speed * direction.sin(), speed * direction.cos()];
+        let probe = Probe {
+            n_elements: (12.8e-3 / pitch).round() as usize,
+            pitch,
+            element_width: 0.8 * pitch,
+            ..Probe::l22_14vx()
+        };
+        let sequence = Sequence {
+            angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
+            event_prf: 14.4e3,
+            coding: Coding::Conventional,
+            pulse_cycles: 2.0,
+            pulse: None,
+        };
+        let mut params = SimParams::new(
+            probe,
+            sequence,
+            65e6,
+            1540.0,
+            (depth - 1.5e-3, depth + 1.5e-3),
+        )
+        .unwrap();
+        params.attenuation_db_cm_mhz = attenuation;
+        let frames = 32;
+        let travel = speed * frames as f64 / params.sequence.frame_rate();
+        let block = BlockPhantom::new(
+            BlockSpec {
+                x: (-2.5e-3 - travel, 2.5e-3 + travel),
+                z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
+                velocity,
+                density: 300e6,
+            },
+            seed,
+        )
+        .unwrap();
+        let data = simulate(&block, &params, frames, &|_, _| {}).unwrap();
+        SimulatedBlock {
+            params,
+            data,
+            velocity,
+        }
+    }
+
+    /// The recording processed at the case's depth and f-number with `estimator`: the grid and
+    /// the pipeline's output.
+    fn processed(
+        &self,
+        case: &BlockCase,
+        estimator: pcuvd::estimate::doppler::DopplerEstimator,
+    ) -> (Grid, pcuvd::pipeline::ProcessOutput) {
+        use pcuvd::pipeline;
+        let depth = case.depth;
+        let grid = Grid::new(-2.0e-3, 2.0e-3, depth - 0.8e-3, depth + 0.8e-3, 25e-6).unwrap();
+        let defaults = pcuvd::study::process_params(
+            &grid,
+            &self.data.acquisition,
+            (1, 1),
+            pcuvd::form::decode::EventAlignment::MidFrame,
+        );
+        let params = pipeline::ProcessParams {
+            doppler_estimator: estimator,
+            das: DasParams {
+                f_number: case.f_number,
+                ..defaults.das
+            },
+            ..defaults
+        };
+        let out = pipeline::process(&self.data, &params, &|_, _, _| {}).unwrap();
+        (grid, out)
+    }
+
+    /// What the pipeline read, processed as [`Self::processed`].
+    fn reading(
+        &self,
+        case: &BlockCase,
+        estimator: pcuvd::estimate::doppler::DopplerEstimator,
+    ) -> BlockReading {
+        let (grid, out) = self.processed(case, estimator);
+        let (p, velocity) = (&self.params, self.velocity);
+        let speed = case.speed;
+        let direction = case.direction_deg.to_radians();
+        let mean = |m: ndarray::ArrayView2<f64>| m.iter().sum::<f64>() / m.len() as f64;
+        let projection_errors = p
+            .sequence
+            .angles
+            .iter()
+            .enumerate()
+            .map(|(k, &theta)| {
+                let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
+                let truth = 0.5 * (velocity[0] * s + velocity[1] * c);
+                (mean(out.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
+            })
+            .collect();
+        let k0 = p.sequence.angles.len() / 2;
+        let fc = p.probe.center_frequency;
+        let maps = pcuvd::estimate::doppler::doppler_maps(
+            out.filtered.series[k0].view(),
+            (1, 1),
+            pcuvd::estimate::doppler::DopplerEstimator::Loupas,
+            &angle_geometry(p, &grid, k0),
+        )
+        .unwrap();
+        let mean_frequency_ratio =
+            pcuvd::core::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
+        let field = out.vector_ls.unwrap();
+        let (vx, vz) = (mean(field.vx.view()), mean(field.vz.view()));
+        let turn = (vx.atan2(vz) - direction + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        BlockReading {
+            mean_frequency_ratio,
+            projection_errors,
+            speed_error: vx.hypot(vz) / speed - 1.0,
+            direction_error_deg: turn.to_degrees(),
+        }
     }
 }
 
@@ -356,78 +451,6 @@ fn angle_geometry(
         lateral_step: grid.step(),
         lateral_weight,
     }
-}
-
-/// The block of `case` simulated and processed as [`block_reading`] describes: the simulation's
-/// parameters, the grid, the pipeline's output and the true velocity (vx, vz), m/s.
-fn block_processed(
-    case: &BlockCase,
-    estimator: pcuvd::estimate::doppler::DopplerEstimator,
-    attenuation: f64,
-    seed: u64,
-) -> (SimParams, Grid, pcuvd::pipeline::ProcessOutput, [f64; 2]) {
-    use pcuvd::pipeline;
-    let BlockCase {
-        depth,
-        speed,
-        direction_deg,
-        pitch,
-        f_number,
-    } = *case;
-    let direction = direction_deg.to_radians();
-    let velocity = [speed * direction.sin(), speed * direction.cos()];
-    let probe = Probe {
-        n_elements: (12.8e-3 / pitch).round() as usize,
-        pitch,
-        element_width: 0.8 * pitch,
-        ..Probe::l22_14vx()
-    };
-    let sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding: Coding::Conventional,
-        pulse_cycles: 2.0,
-        pulse: None,
-    };
-    let mut p = SimParams::new(
-        probe,
-        sequence,
-        65e6,
-        1540.0,
-        (depth - 1.5e-3, depth + 1.5e-3),
-    )
-    .unwrap();
-    p.attenuation_db_cm_mhz = attenuation;
-    let frames = 32;
-    let travel = speed * frames as f64 / p.sequence.frame_rate();
-    let block = BlockPhantom::new(
-        BlockSpec {
-            x: (-2.5e-3 - travel, 2.5e-3 + travel),
-            z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
-            velocity,
-            density: 300e6,
-        },
-        seed,
-    )
-    .unwrap();
-    let data = simulate(&block, &p, frames, &|_, _| {}).unwrap();
-    let grid = Grid::new(-2.0e-3, 2.0e-3, depth - 0.8e-3, depth + 0.8e-3, 25e-6).unwrap();
-    let defaults = pcuvd::study::process_params(
-        &grid,
-        &data.acquisition,
-        (1, 1),
-        pcuvd::form::decode::EventAlignment::MidFrame,
-    );
-    let params = pipeline::ProcessParams {
-        doppler_estimator: estimator,
-        das: DasParams {
-            f_number,
-            ..defaults.das
-        },
-        ..defaults
-    };
-    let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
-    (p, grid, out, velocity)
 }
 
 /// Fast flow: a noiseless block at 3× the projection Nyquist velocity (133 mm/s, 30° from +z
@@ -454,7 +477,9 @@ fn fast_block_projections_need_the_mixed_spatial_lag() {
         pitch: 0.1e-3,
         f_number: DasParams::DEFAULT_F_NUMBER,
     };
-    let (p, grid, out, velocity) = block_processed(&case, DopplerEstimator::Loupas, 0.0, 1);
+    let block = SimulatedBlock::new(&case, 0.0, 1);
+    let (grid, out) = block.processed(&case, DopplerEstimator::Loupas);
+    let (p, velocity) = (&block.params, block.velocity);
     let (c, frame_rate) = (p.sound_speed, p.sequence.frame_rate());
     let mut worst = [0.0f64; 3];
     for (k, &theta) in p.sequence.angles.iter().enumerate() {
@@ -576,8 +601,10 @@ fn translating_block_reads_projections_and_vector_within_one_percent() {
         f_number: 1.0,
         ..case
     });
-    for case in cases.iter().chain(&wider) {
-        let r = block_reading(case, DopplerEstimator::Loupas, 0.0, 1);
+    // Each case's recording once, read at both f-numbers.
+    let blocks = cases.map(|case| SimulatedBlock::new(&case, 0.0, 1));
+    for (case, block) in cases.iter().chain(&wider).zip(blocks.iter().chain(&blocks)) {
+        let r = block.reading(case, DopplerEstimator::Loupas);
         let worst = r
             .projection_errors
             .iter()
@@ -609,7 +636,7 @@ fn translating_block_reads_projections_and_vector_within_one_percent() {
             r.direction_error_deg
         );
         if case.direction_deg == 0.0 && case.f_number == DasParams::DEFAULT_F_NUMBER {
-            let k = block_reading(case, DopplerEstimator::Kasai, 0.0, 1);
+            let k = block.reading(case, DopplerEstimator::Kasai);
             kasai_worst = k
                 .projection_errors
                 .iter()
@@ -648,7 +675,8 @@ fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
         f_number: DasParams::DEFAULT_F_NUMBER,
     };
     let attenuation = SimParams::DEFAULT_ATTENUATION;
-    let r = block_reading(&case, DopplerEstimator::Loupas, attenuation, 1);
+    let block = SimulatedBlock::new(&case, attenuation, 1);
+    let r = block.reading(&case, DopplerEstimator::Loupas);
     let worst = r
         .projection_errors
         .iter()
@@ -682,7 +710,7 @@ fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
         "direction error {:.2}°",
         r.direction_error_deg
     );
-    let k = block_reading(&case, DopplerEstimator::Kasai, attenuation, 1);
+    let k = block.reading(&case, DopplerEstimator::Kasai);
     let kasai_worst = k
         .projection_errors
         .iter()
