@@ -55,12 +55,12 @@ def test_study_keywords_give_the_settings_of_pcuvd_paper(cli):
 def test_small_spiral_study_numbers_equal_pcuvd_paper(cli, tmp_path):
     """One noise level: the two front ends run one study function, so a second level would check
     the study again, not their agreement (its settings' agreement is the test above)."""
-    args = ["--frames", "8", "--grid-step", "0.2", "--sweep=-10", "--doppler-estimator", "kasai"]
+    args = ["--frames", "4", "--grid-step", "0.2", "--sweep=-10", "--doppler-estimator", "kasai"]
     done = run_cli(cli, "paper", "--part", "spiral", *args, "--out", tmp_path)
     assert done.returncode == 0, done.stderr
     written = json.loads((tmp_path / "metrics.json").read_text())
     metrics = pcuvd.study.spiral(
-        quiet=True, frames=8, grid_step=0.2, sweep=(-10,), doppler_estimator="kasai"
+        quiet=True, frames=4, grid_step=0.2, sweep=(-10,), doppler_estimator="kasai"
     )
     assert metrics, "no metrics"
     expected = {k: written[k] for k in metrics}
