@@ -19,6 +19,7 @@ use pcuvd::estimate::clutter::{ClutterParams, RankCut, svd_filter};
 use pcuvd::estimate::dealias::{
     Dealias, auto_intervals, dealiased_vectors, dealiased_vectors_each, uniform,
 };
+use pcuvd::estimate::projections::Projections;
 use pcuvd::estimate::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
 use pcuvd::form::beamform::{Apodization, DasParams, beamform};
 use pcuvd::form::decode::{Decoder, EventAlignment};
@@ -159,11 +160,10 @@ fn dealias(c: &mut Criterion) {
     });
     let power = flow.mapv(|f| if f { 1.0 } else { 1e-3 });
     let nyquist = uniform(vn, (n, nz, nx));
+    let projections = Projections::new(&angles, v_theta.view(), None, nyquist.view()).unwrap();
     let run = |estimator: &Estimator| {
         dealiased_vectors(
-            &angles,
-            v_theta.view(),
-            nyquist.view(),
+            &projections,
             estimator,
             Dealias::Intervals(2),
             power.view(),
@@ -207,17 +207,7 @@ fn dealias(c: &mut Criterion) {
         Estimator::Irls(IrlsParams::default()),
     ];
     let each = |dealias: Dealias| {
-        dealiased_vectors_each(
-            &angles,
-            v_theta.view(),
-            None,
-            nyquist.view(),
-            &both,
-            dealias,
-            power.view(),
-            flow.view(),
-        )
-        .unwrap()
+        dealiased_vectors_each(&projections, &both, dealias, power.view(), flow.view()).unwrap()
     };
     group.bench_function("ls_and_irls_k2_256x256px_8angles", |b| {
         b.iter(|| each(Dealias::Intervals(2)))
@@ -228,15 +218,7 @@ fn dealias(c: &mut Criterion) {
         b.iter(|| each(Dealias::Auto))
     });
     group.bench_function("auto_search_256x256px_8angles", |b| {
-        b.iter(|| {
-            auto_intervals(
-                &angles,
-                v_theta.view(),
-                nyquist.view(),
-                power.view(),
-                flow.view(),
-            )
-        })
+        b.iter(|| auto_intervals(&projections, power.view(), flow.view()))
     });
     group.bench_function("plain_ls_256x256px_8angles", |b| {
         b.iter(|| vector_velocity(&angles, v_theta.view(), &Estimator::LeastSquares).unwrap())

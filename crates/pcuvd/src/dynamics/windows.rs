@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::estimate::partial_volume::{CellCovariance, CellLags};
+use crate::estimate::projections::Projections;
 
 /// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -359,11 +360,9 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             } else {
                 vec![params.estimator]
             };
+            let maps = Projections::new(angles, projections.view(), measured, nyquist.view())?;
             let fits = dealias::dealiased_vectors_each(
-                angles,
-                projections.view(),
-                measured,
-                nyquist.view(),
+                &maps,
                 &estimators,
                 params.dealias,
                 power.view(),
@@ -372,10 +371,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             let field = if params.partial_volume {
                 let pairs: Vec<_> = estimators.iter().copied().zip(&fits).collect();
                 crate::estimate::partial_volume::corrected_fits(
-                    angles,
-                    projections.view(),
-                    nyquist.view(),
-                    measured,
+                    &maps,
                     &pairs,
                     &crate::estimate::partial_volume::AngleCells {
                         power: power_per_angle.view(),

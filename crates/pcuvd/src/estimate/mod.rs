@@ -7,4 +7,5 @@ pub mod dealias;
 pub mod doppler;
 pub mod masks;
 pub mod partial_volume;
+pub mod projections;
 pub mod vector;

@@ -26,6 +26,7 @@ use rayon::prelude::*;
 
 use crate::core::error::{Error, Result};
 use crate::estimate::dealias::DealiasedField;
+use crate::estimate::projections::Projections;
 use crate::estimate::vector::{Estimator, VectorField, projection_weights, vector_velocity_with};
 
 /// Products of each pixel of an image series with its neighbour one pixel step away, within
@@ -473,23 +474,24 @@ pub fn refined_shifts(
     Ok(shifts)
 }
 
-/// The vectors of each `(estimator, fit)` of `fits` (the dealiased fits of `projections`,
-/// angles × nz × nx, m/s; the first least squares) again after the partial-volume correction:
-/// each fit's projections unwrapped with its own alias counts (Nyquist velocities `nyquist`,
-/// m/s) less the [`refined_shifts`] of the first's, in the pixels of `flow`, and fitted again by
-/// its estimator with the lateral weights `lateral` (Loupas) or sin θ (`None`). `cells` are each
-/// angle's power Doppler and cell ([`AngleCells`]), `step` the grid's (m).
-#[allow(clippy::too_many_arguments)]
+/// The vectors of each `(estimator, fit)` of `fits` (the dealiased fits of `projections`; the
+/// first least squares) again after the partial-volume correction: each fit's projections
+/// unwrapped with its own alias counts less the [`refined_shifts`] of the first's, in the pixels
+/// of `flow`, and fitted again by its estimator with the projections' lateral weights. `cells`
+/// are each angle's power Doppler and cell ([`AngleCells`]), `step` the grid's (m).
 pub fn corrected_fits(
-    angles: &[f64],
-    projections: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
-    lateral: Option<ArrayView3<f64>>,
+    projections: &Projections,
     fits: &[(Estimator, &DealiasedField)],
     cells: &AngleCells,
     flow: ArrayView2<bool>,
     step: f64,
 ) -> Result<Vec<VectorField>> {
+    let Projections {
+        angles,
+        velocities: projections,
+        lateral,
+        nyquist,
+    } = *projections;
     let Some((_, reference)) = fits.first() else {
         return Ok(Vec::new());
     };

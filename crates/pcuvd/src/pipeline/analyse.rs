@@ -15,6 +15,7 @@ use crate::estimate::clutter::{self};
 use crate::estimate::dealias::{self, Dealias};
 use crate::estimate::doppler::{self, DopplerEstimator, DopplerGeometry, Moments};
 use crate::estimate::partial_volume;
+use crate::estimate::projections::Projections;
 use crate::estimate::vector::{self, Estimator, VectorField};
 use crate::form::beamform::{self};
 use crate::form::images::AngleImages;
@@ -240,11 +241,9 @@ pub fn doppler_maps(
         (params.doppler_estimator == DopplerEstimator::Loupas).then(|| lateral_weights.view());
     let (vector_ls, vector_irls, dealiased) = if n >= 2 {
         let flow = dealias::flow_mask(&power, params.grid.step());
+        let maps = Projections::new(angles, projections.view(), lateral, nyquist.view())?;
         let [ls, irls]: [dealias::DealiasedField; 2] = dealias::dealiased_vectors_each(
-            angles,
-            projections.view(),
-            lateral,
-            nyquist.view(),
+            &maps,
             &[Estimator::LeastSquares, Estimator::Irls(params.irls)],
             params.dealias,
             power.view(),
@@ -254,10 +253,7 @@ pub fn doppler_maps(
         .map_err(|_| Error::Shape("two estimators, two fields".into()))?;
         let (ls_field, irls_field) = if params.partial_volume {
             let [ls_field, irls_field]: [VectorField; 2] = partial_volume::corrected_fits(
-                angles,
-                projections.view(),
-                nyquist.view(),
-                lateral,
+                &maps,
                 &[
                     (Estimator::LeastSquares, &ls),
                     (Estimator::Irls(params.irls), &irls),

@@ -486,7 +486,7 @@ fn fast_block_projections_need_the_mixed_spatial_lag() {
         let (s, cz) = pcuvd::estimate::vector::projection_weights(theta);
         let truth = 0.5 * (velocity[0] * s + velocity[1] * cz);
         let series = out.filtered.series[k].view();
-        let geometry = angle_geometry(&p, &grid, k);
+        let geometry = angle_geometry(p, &grid, k);
         let maps = doppler_maps(series, (1, 1), DopplerEstimator::Loupas, &geometry).unwrap();
         let wide = mean_frequency_kernel((1, 1));
         let r1_wide = autocorrelation(series, wide).unwrap().r1;

@@ -23,6 +23,7 @@ use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use crate::core::error::{Error, Result, invalid};
+use crate::estimate::projections::Projections;
 use crate::estimate::vector::{self, Estimator, VectorField, projection_weights};
 
 mod candidates;
@@ -217,72 +218,40 @@ impl AliasCounts {
     }
 }
 
-/// Vector field from projection maps `v_theta` (angles, nz, nx) (m/s; NaN where an angle does not
-/// reach a pixel) at `angles` (rad), dealiased as `dealias` says (see the module docs): projection
-/// Nyquist velocity `nyquist` of each angle and pixel (angles, nz, nx) (m/s; broadcast one value
-/// with [`uniform`]); `quality` (nz, nx), e.g. power Doppler, breaks ties between equally
-/// reliable joins (strongest first); only pixels of `flow` (nz, nx) are unwrapped. With [`Dealias::Off`] it is [`vector::vector_velocity`].
+/// Vector field from the projection maps `projections` (see [`Projections`]), dealiased as
+/// `dealias` says (see the module docs): each projection unwrapped by its own Nyquist velocity
+/// (broadcast one value with [`uniform`]); `quality` (nz, nx), e.g. power Doppler, breaks ties
+/// between equally reliable joins (strongest first); only pixels of `flow` (nz, nx) are
+/// unwrapped. With [`Dealias::Off`] it is [`vector::vector_velocity_with`].
+///
+/// With measured lateral weights the alias pattern is still chosen with the model's rows:
+/// measured weights differ from sin θ by a few hundredths, which moves a projection by a
+/// fraction of a mm/s at the paper's speeds, far less than the 2·v_N a wrong count costs. The
+/// unwrapped projections V_θ + 2k·v_N are then fitted with the measured rows.
 pub fn dealiased_vectors(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
-    estimator: &Estimator,
-    dealias: Dealias,
-    quality: ArrayView2<f64>,
-    flow: ArrayView2<bool>,
-) -> Result<DealiasedField> {
-    dealiased_vectors_measured(
-        angles, v_theta, None, nyquist, estimator, dealias, quality, flow,
-    )
-}
-
-/// As [`dealiased_vectors`], the vectors fitted with measured lateral weights `lateral` (angles,
-/// nz, nx; see [`vector::vector_velocity_measured`]) in place of sin θ; `None` is
-/// [`dealiased_vectors`]. The alias pattern is chosen with the model's rows: measured weights
-/// differ from sin θ by a few hundredths, which moves a projection by a fraction of a mm/s at
-/// the paper's speeds, far less than the 2·v_N a wrong count costs. The unwrapped projections
-/// V_θ + 2k·v_N are then fitted with the measured rows.
-#[allow(clippy::too_many_arguments)]
-pub fn dealiased_vectors_measured(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    lateral: Option<ArrayView3<f64>>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     estimator: &Estimator,
     dealias: Dealias,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<DealiasedField> {
     let estimators = std::slice::from_ref(estimator);
-    let mut out = dealiased_vectors_each(
-        angles, v_theta, lateral, nyquist, estimators, dealias, quality, flow,
-    )?;
+    let mut out = dealiased_vectors_each(projections, estimators, dealias, quality, flow)?;
     Ok(out.remove(0))
 }
 
-/// [`dealiased_vectors_measured`] for each of `estimators`, in order, at the cost of little more
+/// [`dealiased_vectors`] for each of `estimators`, in order, at the cost of little more
 /// than the most expensive one: the levels are settled once, on least-squares candidates, for
 /// all of them (as each alone would).
-#[allow(clippy::too_many_arguments)]
 pub fn dealiased_vectors_each(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    lateral: Option<ArrayView3<f64>>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     estimators: &[Estimator],
     dealias: Dealias,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<Vec<DealiasedField>> {
     dealias.validate()?;
-    let (n, nz, nx) = v_theta.dim();
-    if nyquist.dim() != (n, nz, nx) {
-        return Err(Error::Shape(format!(
-            "Nyquist velocities {:?} for projections {:?}",
-            nyquist.dim(),
-            v_theta.dim()
-        )));
-    }
+    let (n, nz, nx) = projections.dim();
     if quality.dim() != (nz, nx) || flow.dim() != (nz, nx) {
         return Err(Error::Shape(format!(
             "quality {:?} and flow mask {:?} for projections of {nz} × {nx} pixels",
@@ -290,6 +259,12 @@ pub fn dealiased_vectors_each(
             flow.dim()
         )));
     }
+    let Projections {
+        angles,
+        velocities: v_theta,
+        lateral,
+        nyquist,
+    } = *projections;
     let fit = |projections: ArrayView3<f64>, estimator: &Estimator| {
         vector::vector_velocity_with(angles, projections, lateral, estimator)
     };
@@ -306,15 +281,15 @@ pub fn dealiased_vectors_each(
                 })
                 .collect();
         }
-        Dealias::Intervals(k) => settle(angles, v_theta, nyquist, k, quality, flow)?,
-        Dealias::Auto => auto_settle(angles, v_theta, nyquist, quality, flow)?,
+        Dealias::Intervals(k) => settle(projections, k, quality, flow)?,
+        Dealias::Auto => auto_settle(projections, quality, flow)?,
     };
     // Each estimator's own pattern within each pixel's level, then its fit of the projections
     // those counts unwrap (the plain fit where nothing is unwrapped).
     estimators
         .iter()
         .map(|estimator| {
-            let counts = counts_with(angles, v_theta, nyquist, estimator, &settled, flow);
+            let counts = counts_with(projections, estimator, &settled, flow);
             let unwrapped = unwrap(v_theta, counts.alias_counts.view(), nyquist);
             Ok(DealiasedField {
                 field: fit(unwrapped.view(), estimator)?,
@@ -342,32 +317,33 @@ pub fn unwrap(
 
 /// The K that [`Dealias::Auto`] picks for these projections (see there).
 pub fn auto_intervals(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<u32> {
-    Ok(auto_settle(angles, v_theta, nyquist, quality, flow)?.intervals)
+    Ok(auto_settle(projections, quality, flow)?.intervals)
 }
 
 /// [`Dealias::Auto`]'s K and the levels settled at it: the search settles every K it tries, and
 /// the last is the one dealiasing needs.
 fn auto_settle(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<Settled> {
     for k in 1..MAX_AUTO_INTERVALS {
-        let settled = settle(angles, v_theta, nyquist, k, quality, flow)?;
-        let counts = counts_at_levels(&settled.least_squares, &settled.levels, v_theta.dim(), k);
+        let settled = settle(projections, k, quality, flow)?;
+        let counts = counts_at_levels(
+            &settled.least_squares,
+            &settled.levels,
+            projections.dim(),
+            k,
+        );
         if (counts.at_limit_pixels as f64) < AUTO_LIMIT_FRACTION * counts.dealiased_pixels as f64 {
             return Ok(settled);
         }
     }
-    settle(angles, v_theta, nyquist, MAX_AUTO_INTERVALS, quality, flow)
+    settle(projections, MAX_AUTO_INTERVALS, quality, flow)
 }
 
 /// One Nyquist velocity (m/s) for every angle and pixel of projections of shape `dim`

@@ -47,13 +47,17 @@ pub(super) fn nyquist_disagrees(v_theta: ArrayView3<f64>, nyquist: ArrayView3<f6
 /// core by a level on one seed of five. IRLS still chooses, within each level, the pattern of
 /// its smallest residual ([`counts_with`]).
 pub(super) fn settle(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     intervals: u32,
     quality: ArrayView2<f64>,
     flow: ArrayView2<bool>,
 ) -> Result<Settled> {
+    let Projections {
+        angles,
+        velocities: v_theta,
+        nyquist,
+        ..
+    } = *projections;
     if let Some(bad) = nyquist.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
         return Err(invalid(
             "Nyquist velocity",
@@ -67,14 +71,7 @@ pub(super) fn settle(
             angles.len()
         )));
     }
-    let mut least_squares = flow_candidates(
-        angles,
-        v_theta,
-        nyquist,
-        intervals,
-        flow,
-        &Estimator::LeastSquares,
-    );
+    let mut least_squares = flow_candidates(projections, intervals, flow, &Estimator::LeastSquares);
     // Pixels whose angles disagree on v_N (with Loupas: on the echo's mean frequency, which blood
     // at one place shares) are haze or noise, or speckle of the lumen: they do not settle levels,
     // and take their neighbours' where they lie inside flow.
@@ -89,10 +86,8 @@ pub(super) fn settle(
     let outside = outside_of(&least_squares, flow);
     let shift = common_shift(angles, nyquist);
     let mut levels = settle_levels(
-        angles,
-        v_theta,
+        projections,
         &least_squares,
-        nyquist,
         intervals,
         quality,
         &outside,
@@ -122,9 +117,7 @@ pub(super) fn settle(
 /// within each pixel's level. `process` fits both UVD and PC-UVD on one settling, which saves the
 /// least-squares candidates and the unwrapping a second time.
 pub(super) fn counts_with(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     estimator: &Estimator,
     settled: &Settled,
     flow: ArrayView2<bool>,
@@ -133,23 +126,26 @@ pub(super) fn counts_with(
     let own = match estimator {
         Estimator::LeastSquares => &settled.least_squares,
         _ => {
-            own_candidates =
-                flow_candidates(angles, v_theta, nyquist, settled.intervals, flow, estimator);
+            own_candidates = flow_candidates(projections, settled.intervals, flow, estimator);
             &own_candidates
         }
     };
-    counts_at_levels(own, &settled.levels, v_theta.dim(), settled.intervals)
+    counts_at_levels(own, &settled.levels, projections.dim(), settled.intervals)
 }
 
 /// Each flow pixel's candidates under `estimator` (row-major; none elsewhere).
 pub(super) fn flow_candidates(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
-    nyquist: ArrayView3<f64>,
+    projections: &Projections,
     intervals: u32,
     flow: ArrayView2<bool>,
     estimator: &Estimator,
 ) -> Vec<Vec<Candidate>> {
+    let Projections {
+        angles,
+        velocities: v_theta,
+        nyquist,
+        ..
+    } = *projections;
     let (_, nz, nx) = v_theta.dim();
     let lanes = v_theta.permuted_axes([1, 2, 0]);
     let nyquist_lanes = nyquist.permuted_axes([1, 2, 0]);
@@ -171,17 +167,20 @@ pub(super) fn flow_candidates(
 /// The level each pixel of a settled region takes (row-major; `None`: the pixel keeps the plain
 /// fit), from the least-squares `candidates` of every flow pixel, the `outside` of the flow
 /// ([`outside_of`]) and the angle set's common shift ([`common_shift`]).
-#[allow(clippy::too_many_arguments)]
 pub(super) fn settle_levels(
-    angles: &[f64],
-    v_theta: ArrayView3<f64>,
+    projections: &Projections,
     candidates: &[Vec<Candidate>],
-    nyquist: ArrayView3<f64>,
     intervals: u32,
     quality: ArrayView2<f64>,
     outside: &[bool],
     (unit, spacing): ((f64, f64), f64),
 ) -> Vec<Option<i32>> {
+    let Projections {
+        angles,
+        velocities: v_theta,
+        nyquist,
+        ..
+    } = *projections;
     let (n, nz, nx) = nyquist.dim();
     let along = |c: &Candidate| c.vx * unit.0 + c.vz * unit.1;
 

@@ -290,16 +290,9 @@ fn dealiased_map_with(
     power: &Array2<f64>,
     flow: &Array2<bool>,
 ) -> DealiasedField {
-    dealiased_vectors(
-        &paper_angles(),
-        v_theta.view(),
-        nyquist.view(),
-        est,
-        dealias,
-        power.view(),
-        flow.view(),
-    )
-    .unwrap()
+    let angles = paper_angles();
+    let projections = Projections::new(&angles, v_theta.view(), None, nyquist.view()).unwrap();
+    dealiased_vectors(&projections, est, dealias, power.view(), flow.view()).unwrap()
 }
 
 /// Fraction of lumen pixels whose speed error is within 10 % of `peak`.
@@ -795,11 +788,10 @@ fn levels_are_counted_in_each_pixels_own_nyquist_velocity() {
             v_theta[[a, iz, ix]] = wrapped[a] + scatter.sample(&mut rng);
         }
     }
+    let projections = Projections::new(&angles, v_theta.view(), None, nyquist.view()).unwrap();
     for est in estimators() {
         let out = dealiased_vectors(
-            &angles,
-            v_theta.view(),
-            nyquist.view(),
+            &projections,
             &est,
             Dealias::Intervals(3),
             power.view(),
