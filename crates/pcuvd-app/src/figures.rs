@@ -234,7 +234,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
 
     let pd = map_panel(
         "Power Doppler",
-        masks::power_db_re_peak(&out.power_doppler),
+        masks::power_db_re_peak(&out.maps.power_doppler),
         grid,
         Colormap::Hot,
         (-40.0, 0.0),
@@ -252,8 +252,8 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     // direction (red toward the probe, as the colour Doppler), so that brightness is power and
     // hue is direction.
     let floor_db = 40.0;
-    let toward_level = ndarray::Zip::from(&masks::power_db_re_peak(&out.power_doppler))
-        .and(&out.color_doppler)
+    let toward_level = ndarray::Zip::from(&masks::power_db_re_peak(&out.maps.power_doppler))
+        .and(&out.maps.color_doppler)
         .map_collect(|&db, &v| {
             let level = (db + floor_db).clamp(0.0, floor_db);
             if v < 0.0 {
@@ -280,11 +280,11 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         size,
     )?);
 
-    let mask = masks::within_db_of_peak(&out.power_doppler, masks::FLOW_FIGURE_DB);
+    let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::FLOW_FIGURE_DB);
     let background = bmode_background(&out.bmode_db);
     // Red = toward the probe (upward), as in the paper's colour maps.
-    let upward_mm_s = out.color_doppler.mapv(|v| -v * 1e3);
-    let vmax = out.nyquist_velocity * 1e3;
+    let upward_mm_s = out.maps.color_doppler.mapv(|v| -v * 1e3);
+    let vmax = out.maps.nyquist_velocity * 1e3;
     let mut cd = map_panel(
         "Colour Doppler",
         upward_mm_s,
@@ -303,8 +303,8 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         size,
     )?);
 
-    if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
-        let mask = masks::within_db_of_peak(&out.power_doppler, masks::VECTOR_FIGURE_DB);
+    if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
+        let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::VECTOR_FIGURE_DB);
         // One speed scale for both estimators, so that their colours compare.
         let vmax = speed_scale(&[(ls, &mask), (irls, &mask)]);
         let panels = [
@@ -322,13 +322,13 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
             size,
         )?);
     }
-    if let Some(done) = &out.dealias {
+    if let Some(done) = &out.maps.dealias {
         written.push(save(
             &dir.join("dealias.png"),
             &format!(
                 "{name}: dealiasing (K = {}, up to {:.0} mm/s): {} of {} flow pixels unwrapped (UVD), {} (PC-UVD)",
                 done.intervals,
-                (2 * done.intervals + 1) as f64 * out.nyquist_velocity * 1e3,
+                (2 * done.intervals + 1) as f64 * out.maps.nyquist_velocity * 1e3,
                 done.ls.unwrapped_pixels,
                 done.flow_pixels,
                 done.irls.unwrapped_pixels,
@@ -405,7 +405,7 @@ fn alias_panel(
     let (_, nz, nx) = k.dim();
     let mean = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
         let reached: Vec<f64> = (0..k.dim().0)
-            .filter(|&a| out.coverage[[a, iz, ix]])
+            .filter(|&a| out.maps.coverage[[a, iz, ix]])
             .map(|a| f64::from(k[[a, iz, ix]]))
             .collect();
         reached.iter().sum::<f64>() / reached.len().max(1) as f64

@@ -389,11 +389,11 @@ pub fn write_nifti(
     let fields = acquisition_fields(data, out, data.n_frames());
     let mut written = Vec::new();
     let mut maps: Vec<(&str, Array2<f64>)> = vec![
-        ("power_doppler", out.power_doppler.clone()),
+        ("power_doppler", out.maps.power_doppler.clone()),
         ("signed_power_doppler", out.signed_power_doppler()),
-        ("color_doppler", out.color_doppler.clone()),
+        ("color_doppler", out.maps.color_doppler.clone()),
     ];
-    if let Some(irls) = &out.vector_irls {
+    if let Some(irls) = &out.maps.vector_irls {
         maps.push(("vx", irls.vx.clone()));
         maps.push(("vz", irls.vz.clone()));
         maps.push(("speed", irls.speed()));

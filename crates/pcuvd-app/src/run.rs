@@ -229,7 +229,7 @@ fn run_in_segments(
         (Some(settings), Some(series)) => {
             let maps = pipeline::ri_maps_of(
                 &series,
-                &done.out.power_doppler,
+                &done.out.maps.power_doppler,
                 &done.out.grid,
                 &settings.params,
                 &settings.vessel,

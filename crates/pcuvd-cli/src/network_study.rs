@@ -55,7 +55,7 @@ pub fn network_figures(
         .iter()
         .map(|r| {
             masks::above_noise_image(
-                &r.out.power_doppler,
+                &r.out.maps.power_doppler,
                 &r.noise_power,
                 masks::FLOW_ABOVE_NOISE_DB,
             )
@@ -115,7 +115,7 @@ pub fn network_figures(
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD; one PD range from the data.
     let pd_db: Vec<Array2<f64>> = results
         .iter()
-        .map(|r| masks::db_above_noise(&r.out.power_doppler, &r.noise_power))
+        .map(|r| masks::db_above_noise(&r.out.maps.power_doppler, &r.noise_power))
         .collect();
     let pd_range = shared_db_range(&pd_db.iter().collect::<Vec<_>>());
     let mut panels = Vec::new();
@@ -133,7 +133,7 @@ pub fn network_figures(
         panels.push(Panel::Image(pd));
         let mut cd = map_panel(
             &format!("{name}: colour Doppler"),
-            r.out.color_doppler.mapv(|v| -v * 1e3),
+            r.out.maps.color_doppler.mapv(|v| -v * 1e3),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
@@ -164,7 +164,7 @@ pub fn network_figures(
             .iter()
             .enumerate()
             .map(|(k, r)| {
-                let db = masks::db_above_noise(&r.out.power_doppler, &r.noise_power);
+                let db = masks::db_above_noise(&r.out.maps.power_doppler, &r.noise_power);
                 let (xs, ys) = if horizontal {
                     (x_mm.clone(), db.row(row).to_vec())
                 } else {

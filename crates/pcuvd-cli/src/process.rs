@@ -212,7 +212,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         data.acquisition().sequence.n_angles(),
         data.n_frames(),
         data.acquisition().frame_rate(),
-        processed.out.nyquist_velocity * 1e3,
+        processed.out.maps.nyquist_velocity * 1e3,
         processed.out.grid.z.len(),
         processed.out.grid.x.len()
     );

@@ -115,13 +115,16 @@ impl PyProcessResult {
         dict.set_item("x", PyArray1::from_slice(py, &out.grid.x))?;
         dict.set_item("z", PyArray1::from_slice(py, &out.grid.z))?;
         dict.set_item("bmode_db", out.bmode_db.to_pyarray(py))?;
-        dict.set_item("power_doppler", out.power_doppler.to_pyarray(py))?;
-        dict.set_item("color_doppler", out.color_doppler.to_pyarray(py))?;
+        dict.set_item("power_doppler", out.maps.power_doppler.to_pyarray(py))?;
+        dict.set_item("color_doppler", out.maps.color_doppler.to_pyarray(py))?;
         let signed = out.signed_power_doppler();
         dict.set_item("signed_power_doppler", signed.into_pyarray(py))?;
-        dict.set_item("projections", out.projections.to_pyarray(py))?;
-        dict.set_item("projection_nyquist", out.projection_nyquist.to_pyarray(py))?;
-        if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+        dict.set_item("projections", out.maps.projections.to_pyarray(py))?;
+        dict.set_item(
+            "projection_nyquist",
+            out.maps.projection_nyquist.to_pyarray(py),
+        )?;
+        if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
             dict.set_item("vx", irls.vx.to_pyarray(py))?;
             dict.set_item("vz", irls.vz.to_pyarray(py))?;
             dict.set_item("speed", irls.speed().into_pyarray(py))?;
@@ -129,7 +132,7 @@ impl PyProcessResult {
             dict.set_item("vz_ls", ls.vz.to_pyarray(py))?;
             dict.set_item("speed_ls", ls.speed().into_pyarray(py))?;
         }
-        if let Some(done) = &out.dealias {
+        if let Some(done) = &out.maps.dealias {
             dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
             dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
         }

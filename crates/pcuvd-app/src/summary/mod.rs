@@ -200,12 +200,15 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
     pcuvd_io::write_npy(&dir.join("x.npy"), &Array1::from(out.grid.x.clone()))?;
     pcuvd_io::write_npy(&dir.join("z.npy"), &Array1::from(out.grid.z.clone()))?;
     npy(dir, "bmode_db.npy", &out.bmode_db)?;
-    npy(dir, "power_doppler.npy", &out.power_doppler)?;
-    npy(dir, "color_doppler.npy", &out.color_doppler)?;
+    npy(dir, "power_doppler.npy", &out.maps.power_doppler)?;
+    npy(dir, "color_doppler.npy", &out.maps.color_doppler)?;
     npy(dir, "signed_power_doppler.npy", &out.signed_power_doppler())?;
-    pcuvd_io::write_npy(&dir.join("projections.npy"), &out.projections)?;
-    pcuvd_io::write_npy(&dir.join("projection_nyquist.npy"), &out.projection_nyquist)?;
-    if let (Some(ls), Some(irls)) = (&out.vector_ls, &out.vector_irls) {
+    pcuvd_io::write_npy(&dir.join("projections.npy"), &out.maps.projections)?;
+    pcuvd_io::write_npy(
+        &dir.join("projection_nyquist.npy"),
+        &out.maps.projection_nyquist,
+    )?;
+    if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
         npy(dir, "vx.npy", &irls.vx)?;
         npy(dir, "vz.npy", &irls.vz)?;
         npy(dir, "speed.npy", &irls.speed())?;
@@ -213,7 +216,7 @@ pub fn write_maps(dir: &Path, out: &ProcessOutput) -> Result<()> {
         npy(dir, "vz_ls.npy", &ls.vz)?;
         npy(dir, "speed_ls.npy", &ls.speed())?;
     }
-    if let Some(done) = &out.dealias {
+    if let Some(done) = &out.maps.dealias {
         pcuvd_io::write_npy(&dir.join("alias_counts.npy"), &done.irls.alias_counts)?;
         pcuvd_io::write_npy(&dir.join("alias_counts_ls.npy"), &done.ls.alias_counts)?;
     }

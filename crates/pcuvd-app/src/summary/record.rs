@@ -404,7 +404,8 @@ impl Summary {
                 estimator_description: params.doppler_estimator.describe(),
                 partial_volume: params.partial_volume,
                 partial_volume_cells: params.partial_volume.then(|| {
-                    out.cells
+                    out.maps
+                        .cells
                         .iter()
                         .map(|cell| {
                             cell.map(|c| CellRecord {
@@ -421,7 +422,7 @@ impl Summary {
                 epsilon: params.irls.epsilon,
                 max_iterations: params.irls.max_iterations,
             },
-            nyquist_velocity_m_s: out.nyquist_velocity,
+            nyquist_velocity_m_s: out.maps.nyquist_velocity,
             dealias: DealiasRecord::of(params, out, seq.is_coded()),
             dynamics: DynamicsRecord::of(plan, processed),
             blocks: BlocksRecord {

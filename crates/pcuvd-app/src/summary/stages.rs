@@ -348,9 +348,9 @@ impl DealiasRecord {
         DealiasRecord {
             setting: params.dealias.label(),
             warning: pipeline::dealias_warning(params.dealias, coded, out),
-            done: out.dealias.as_ref().map(|done| DealiasDone {
+            done: out.maps.dealias.as_ref().map(|done| DealiasDone {
                 intervals: done.intervals,
-                max_speed_m_s: (2 * done.intervals + 1) as f64 * out.nyquist_velocity,
+                max_speed_m_s: (2 * done.intervals + 1) as f64 * out.maps.nyquist_velocity,
                 flow_pixels: done.flow_pixels,
                 pcuvd_irls: counts(&done.irls),
                 uvd_ls: counts(&done.ls),

@@ -50,8 +50,8 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
     // Figure 2: PD and PC-PD, in dB above each image's own noise floor, and SNR versus depth.
     let mut panels = Vec::new();
     let pd_db = [
-        masks::db_above_noise(&conv.power_doppler, &noise_power[0]),
-        masks::db_above_noise(&coded.power_doppler, &noise_power[1]),
+        masks::db_above_noise(&conv.maps.power_doppler, &noise_power[0]),
+        masks::db_above_noise(&coded.maps.power_doppler, &noise_power[1]),
     ];
     // One range for both, from the data: neither map clips at its top.
     let pd_range = figures::shared_db_range(&[&pd_db[0], &pd_db[1]]);
@@ -113,8 +113,8 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
                 vz: truth.vz.clone(),
             },
         ),
-        ("UVD", conv.vector_ls.clone().expect("8 angles")),
-        ("PC-UVD", coded.vector_irls.clone().expect("8 angles")),
+        ("UVD", conv.maps.vector_ls.clone().expect("8 angles")),
+        ("PC-UVD", coded.maps.vector_irls.clone().expect("8 angles")),
     ];
     for (name, field) in &rows {
         let speed = field.speed();

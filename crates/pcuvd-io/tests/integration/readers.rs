@@ -154,8 +154,8 @@ fn every_format_of_the_disk_gives_the_maps_of_the_mat() {
         same.acquisition = opened.source.acquisition().clone();
         let want = maps(&same, &grid);
         let got = maps(opened.source.as_ref(), &grid);
-        let power = relative(&got.power_doppler, &want.power_doppler);
-        let color = relative(&got.color_doppler, &want.color_doppler);
+        let power = relative(&got.maps.power_doppler, &want.maps.power_doppler);
+        let color = relative(&got.maps.color_doppler, &want.maps.color_doppler);
         assert!(
             power <= 1e-5 && color <= 1e-5,
             "{name}: power {power:e}, colour {color:e}"
@@ -196,8 +196,8 @@ fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
         same.acquisition.probe.bandwidth = reference.acquisition.probe.bandwidth;
         let want = maps(&same, &grid);
         let got = maps(opened.source.as_ref(), &grid);
-        let power = relative(&got.power_doppler, &want.power_doppler);
-        let color = relative(&got.color_doppler, &want.color_doppler);
+        let power = relative(&got.maps.power_doppler, &want.maps.power_doppler);
+        let color = relative(&got.maps.color_doppler, &want.maps.color_doppler);
         assert!(
             power <= 1e-5 && color <= 1e-5,
             "{name}: power {power:e}, colour {color:e}"
@@ -254,7 +254,7 @@ fn a_zea_track_is_chosen_by_index_or_label() {
         same.acquisition = opened.source.acquisition().clone();
         let want = maps(&same, &grid);
         let got = maps(opened.source.as_ref(), &grid);
-        let power = relative(&got.power_doppler, &want.power_doppler);
+        let power = relative(&got.maps.power_doppler, &want.maps.power_doppler);
         assert!(power <= 1e-5, "{track}: power {power:e}");
     }
     let missing = with("7").unwrap_err().to_string();
@@ -320,19 +320,20 @@ fn steered_recordings_give_back_their_angles_prf_and_t0() {
             // IQ from PyMUST's rf2iq (its own filter, decimated by 4) against pcuvd's own
             // demodulation of the same RF: the same flow where there is signal.
             let (_, rf) = &rf_maps[0];
-            let scale = rf.power_doppler.iter().fold(0.0f64, |m, v| m.max(*v));
+            let scale = rf.maps.power_doppler.iter().fold(0.0f64, |m, v| m.max(*v));
             let mut diffs: Vec<f64> = out
+                .maps
                 .color_doppler
                 .iter()
-                .zip(&rf.color_doppler)
-                .zip(&rf.power_doppler)
+                .zip(&rf.maps.color_doppler)
+                .zip(&rf.maps.power_doppler)
                 .filter(|(_, p)| **p > 0.1 * scale)
                 .map(|((a, b), _)| (a - b).abs())
                 .collect();
             diffs.sort_by(f64::total_cmp);
             let median = diffs[diffs.len() / 2];
             assert!(
-                median < 0.02 * rf.nyquist_velocity,
+                median < 0.02 * rf.maps.nyquist_velocity,
                 "{name}: colour Doppler differs from the RF's by {median} m/s (median)"
             );
         } else {
@@ -346,8 +347,8 @@ fn steered_recordings_give_back_their_angles_prf_and_t0() {
         let mut same = must.clone();
         same.acquisition = open(name).source.acquisition().clone();
         let reference = &maps(&same, &grid);
-        let power = relative(&out.power_doppler, &reference.power_doppler);
-        let color = relative(&out.color_doppler, &reference.color_doppler);
+        let power = relative(&out.maps.power_doppler, &reference.maps.power_doppler);
+        let color = relative(&out.maps.color_doppler, &reference.maps.color_doppler);
         assert!(
             power <= 1e-5 && color <= 1e-5,
             "{name} vs {first}: {power:e} {color:e}"
@@ -357,8 +358,8 @@ fn steered_recordings_give_back_their_angles_prf_and_t0() {
     let out = reference;
     let col = |x: f64| ((x - out.grid.x[0]) / 0.1e-3).round() as usize;
     let row = ((12e-3 - out.grid.z[0]) / 0.1e-3).round() as usize;
-    let left = out.color_doppler[[row, col(-1.5e-3)]];
-    let right = out.color_doppler[[row, col(1.5e-3)]];
+    let left = out.maps.color_doppler[[row, col(-1.5e-3)]];
+    let right = out.maps.color_doppler[[row, col(1.5e-3)]];
     assert!(left * right < 0.0, "no rotation seen: {left} {right}");
 }
 

@@ -140,7 +140,7 @@ projection nearest to the true one (without dealiasing every count is 0)";
 /// Fraction of the true vessel's pixels whose alias counts `counts` (angles, nz, nx) are right
 /// for every angle with a finite projection in `projections` (angles, nz, nx, m/s) at `angles`
 /// (rad), projection Nyquist velocity `nyquist` (angles, nz, nx, m/s: each pixel's own, as
-/// [`crate::pipeline::ProcessOutput::projection_nyquist`] gives it); see
+/// [`crate::pipeline::DopplerMaps::projection_nyquist`] gives it); see
 /// [`ALIAS_PATTERN_DEFINITION`].
 pub fn alias_patterns_right(
     projections: &Array3<f64>,

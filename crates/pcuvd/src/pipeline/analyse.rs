@@ -326,7 +326,7 @@ pub fn dynamics(
     params.validate(out.filtered.frame_rate)?;
     // Windows unwrap as far as the whole recording needed (auto decides once, on the recording).
     let params = &DynamicsParams {
-        dealias: match (params.dealias, &out.dealias) {
+        dealias: match (params.dealias, &out.maps.dealias) {
             (Dealias::Auto, Some(done)) => Dealias::Intervals(done.intervals),
             (setting, _) => setting,
         },
@@ -335,7 +335,7 @@ pub fn dynamics(
     let series = dynamics::sliding_vectors(&out.filtered, params)?;
     let maps = ri_maps_of(
         &series,
-        &out.power_doppler,
+        &out.maps.power_doppler,
         &out.grid,
         params,
         vessel,

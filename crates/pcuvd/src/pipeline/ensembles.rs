@@ -205,11 +205,13 @@ pub fn ensemble_maps_at(
         let out = pipeline::analyse(slice, params, &quiet)?;
         maps.power_doppler
             .index_axis_mut(Axis(0), e)
-            .assign(&out.power_doppler);
+            .assign(&out.maps.power_doppler);
         maps.color_doppler
             .index_axis_mut(Axis(0), e)
-            .assign(&out.color_doppler);
-        if let (Some(vx), Some(vz), Some(field)) = (&mut maps.vx, &mut maps.vz, &out.vector_irls) {
+            .assign(&out.maps.color_doppler);
+        if let (Some(vx), Some(vz), Some(field)) =
+            (&mut maps.vx, &mut maps.vz, &out.maps.vector_irls)
+        {
             vx.index_axis_mut(Axis(0), e).assign(&field.vx);
             vz.index_axis_mut(Axis(0), e).assign(&field.vz);
         }
@@ -296,13 +298,13 @@ mod tests {
         assert_eq!(maps.times_s, vec![7.5 / FRAME_RATE]);
         assert_eq!(
             maps.power_doppler.index_axis(Axis(0), 0),
-            whole.power_doppler
+            whole.maps.power_doppler
         );
         assert_eq!(
             maps.color_doppler.index_axis(Axis(0), 0),
-            whole.color_doppler
+            whole.maps.color_doppler
         );
-        let field = whole.vector_irls.unwrap();
+        let field = whole.maps.vector_irls.unwrap();
         assert_eq!(maps.vx.unwrap().index_axis(Axis(0), 0), field.vx);
         assert_eq!(maps.vz.unwrap().index_axis(Axis(0), 0), field.vz);
     }

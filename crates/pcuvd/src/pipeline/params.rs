@@ -73,38 +73,8 @@ pub struct ProcessOutput {
     pub grid: Grid,
     /// B-mode of the compounded, unfiltered series (dB, 0 at the brightest pixel).
     pub bmode_db: Array2<f64>,
-    /// Power Doppler of the compounded, clutter-filtered series (linear, |IQ|² units).
-    pub power_doppler: Array2<f64>,
-    /// Colour Doppler: axial velocity from the compounded series (m/s, positive = away from the probe).
-    pub color_doppler: Array2<f64>,
-    /// Per-angle power Doppler (angles, nz, nx), each pixel's own (not averaged over the
-    /// Doppler kernel).
-    pub power_per_angle: Array3<f64>,
-    /// Per-angle projection velocities V_θ (angles, nz, nx), m/s; NaN where the angle's plane
-    /// wave does not reach the pixel (see [`angle_coverage`]).
-    pub projections: Array3<f64>,
-    /// Per angle, the pixels its plane wave reaches (angles, nz, nx); see [`angle_coverage`].
-    pub coverage: Array3<bool>,
-    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx):
-    /// sin θ (Kasai) or measured from the images (Loupas); see
-    /// [`doppler::DopplerMaps::lateral_weight`].
-    pub lateral_weights: Array3<f64>,
-    /// Vector field by least squares (UVD); `None` with a single angle.
-    pub vector_ls: Option<VectorField>,
-    /// Vector field by IRLS-WLS (PC-UVD); `None` with a single angle.
-    pub vector_irls: Option<VectorField>,
-    /// What vector dealiasing did; `None` when it is off or with a single angle.
-    pub dealias: Option<DealiasOutcome>,
-    /// Nyquist velocity of each projection at the demodulation frequency (m/s): Kasai's.
-    pub nyquist_velocity: f64,
-    /// Nyquist velocity of each projection at each pixel (angles, nz, nx), m/s: c·f_frame/(4 f̄),
-    /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
-    /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
-    pub projection_nyquist: Array3<f64>,
-    /// Each angle's resolution cell at one pixel, as its speckle measures it (the partial-volume
-    /// correction's; [`crate::estimate::partial_volume`]); `None` where not measurable or not measured
-    /// (the correction off).
-    pub cells: Vec<Option<partial_volume::CellCovariance>>,
+    /// The Doppler and vector maps.
+    pub maps: DopplerMaps,
     /// Clutter-filter cut-offs per angle.
     pub clutter: Vec<ClutterReport>,
     /// Clutter-filtered per-angle IQ series, each (nz, nx, frames), with their metadata; kept
@@ -121,7 +91,7 @@ impl ProcessOutput {
     /// Signed power Doppler (|IQ|² units, the sign of the colour Doppler: positive = away from
     /// the probe); see [`doppler::signed_power`].
     pub fn signed_power_doppler(&self) -> Array2<f64> {
-        doppler::signed_power(&self.power_doppler, &self.color_doppler)
+        doppler::signed_power(&self.maps.power_doppler, &self.maps.color_doppler)
     }
 
     /// Gathers the Doppler maps ([`doppler_maps`]) with the rest of what the chain measured: the
@@ -138,18 +108,7 @@ impl ProcessOutput {
         ProcessOutput {
             grid,
             bmode_db,
-            power_doppler: maps.power_doppler,
-            color_doppler: maps.color_doppler,
-            power_per_angle: maps.power_per_angle,
-            projections: maps.projections,
-            coverage: maps.coverage,
-            lateral_weights: maps.lateral_weights,
-            vector_ls: maps.vector_ls,
-            vector_irls: maps.vector_irls,
-            dealias: maps.dealias,
-            nyquist_velocity: maps.nyquist_velocity,
-            projection_nyquist: maps.projection_nyquist,
-            cells: maps.cells,
+            maps,
             clutter,
             filtered,
             timings,
@@ -189,7 +148,7 @@ pub fn dealias_warning(setting: Dealias, coded: bool, out: &ProcessOutput) -> Op
             setting.label()
         ));
     }
-    (coded && out.dealias.is_some()).then(|| coded_dealias_message(out.nyquist_velocity))
+    (coded && out.maps.dealias.is_some()).then(|| coded_dealias_message(out.maps.nyquist_velocity))
 }
 
 fn coded_dealias_message(nyquist_velocity: f64) -> String {
@@ -202,22 +161,25 @@ fn coded_dealias_message(nyquist_velocity: f64) -> String {
     )
 }
 
-/// The Doppler maps of [`ProcessOutput`], on the grid (nz, nx), SI units.
+/// The Doppler and vector maps of a recording ([`ProcessOutput::maps`]), on the grid (nz, nx),
+/// SI units.
 #[derive(Debug, Clone)]
 pub struct DopplerMaps {
-    /// Power Doppler of the compounded series (|IQ|² units).
+    /// Power Doppler of the compounded, clutter-filtered series (linear, |IQ|² units).
     pub power_doppler: Array2<f64>,
-    /// Axial velocity from the compounded series (m/s, positive = away from the probe).
+    /// Colour Doppler: axial velocity from the compounded series (m/s, positive = away from the probe).
     pub color_doppler: Array2<f64>,
     /// Per-angle power Doppler (angles, nz, nx), each pixel's own (not averaged over the
     /// Doppler kernel).
     pub power_per_angle: Array3<f64>,
-    /// Per-angle projection velocities (angles, nz, nx), m/s; NaN where the angle does not reach.
+    /// Per-angle projection velocities V_θ (angles, nz, nx), m/s; NaN where the angle's plane
+    /// wave does not reach the pixel (see [`angle_coverage`]).
     pub projections: Array3<f64>,
-    /// Per angle, the pixels its plane wave reaches (angles, nz, nx).
+    /// Per angle, the pixels its plane wave reaches (angles, nz, nx); see [`angle_coverage`].
     pub coverage: Array3<bool>,
-    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx): sin θ
-    /// (Kasai) or measured (Loupas); see [`doppler::DopplerMaps::lateral_weight`].
+    /// Per-angle lateral weight of each projection in the vector model (angles, nz, nx):
+    /// sin θ (Kasai) or measured from the images (Loupas); see
+    /// [`doppler::DopplerMaps::lateral_weight`].
     pub lateral_weights: Array3<f64>,
     /// Vector field by least squares (UVD); `None` with a single angle.
     pub vector_ls: Option<VectorField>,
@@ -225,13 +187,14 @@ pub struct DopplerMaps {
     pub vector_irls: Option<VectorField>,
     /// What vector dealiasing did; `None` when it is off or with a single angle.
     pub dealias: Option<DealiasOutcome>,
-    /// Nyquist velocity of each projection at the demodulation frequency (m/s); Loupas unwraps
-    /// each pixel with its own, c·f_frame/(4 f̄).
+    /// Nyquist velocity of each projection at the demodulation frequency (m/s): Kasai's.
     pub nyquist_velocity: f64,
-    /// Each projection's Nyquist velocity at each pixel (angles, nz, nx), m/s; see
-    /// [`ProcessOutput::projection_nyquist`].
+    /// Nyquist velocity of each projection at each pixel (angles, nz, nx), m/s: c·f_frame/(4 f̄),
+    /// f̄ the frequency its phase was scaled by (Loupas: the pixel's measured mean frequency,
+    /// Kasai: the demodulation frequency everywhere). Dealiasing unwraps with these.
     pub projection_nyquist: Array3<f64>,
-    /// Each angle's resolution cell as the partial-volume correction sees it; see
-    /// [`ProcessOutput::cells`].
+    /// Each angle's resolution cell at one pixel, as its speckle measures it (the partial-volume
+    /// correction's; [`crate::estimate::partial_volume`]); `None` where not measurable or not measured
+    /// (the correction off).
     pub cells: Vec<Option<partial_volume::CellCovariance>>,
 }

@@ -211,7 +211,7 @@ impl Method {
         crate::estimate::vector::vector_velocity_measured(
             &out.filtered.angles,
             v_theta,
-            out.lateral_weights.view(),
+            out.maps.lateral_weights.view(),
             &estimator,
         )
     }
@@ -228,15 +228,15 @@ impl Method {
         doppler_kernel: (usize, usize),
     ) -> Result<(VectorField, ndarray::Array3<i8>)> {
         let counts = metrics::true_alias_counts(
-            &out.projections,
+            &out.maps.projections,
             &out.filtered.angles,
-            &out.projection_nyquist,
+            &out.maps.projection_nyquist,
             truth,
         );
         let unwrapped = crate::estimate::dealias::unwrap(
-            out.projections.view(),
+            out.maps.projections.view(),
             counts.view(),
-            out.projection_nyquist.view(),
+            out.maps.projection_nyquist.view(),
         );
         if !partial_volume {
             return Ok((self.fit(out, unwrapped.view())?, counts));
@@ -245,13 +245,13 @@ impl Method {
         let shifts = crate::estimate::partial_volume::refined_shifts(
             unwrapped.view(),
             &crate::estimate::partial_volume::AngleCells {
-                power: out.power_per_angle.view(),
-                cells: &out.cells,
+                power: out.maps.power_per_angle.view(),
+                cells: &out.maps.cells,
                 kernel: doppler_kernel,
             },
             &out.filtered.angles,
             &Method::UvdLs.fit(out, unwrapped.view())?,
-            crate::estimate::dealias::flow_mask(&out.power_doppler, step).view(),
+            crate::estimate::dealias::flow_mask(&out.maps.power_doppler, step).view(),
             step,
             crate::estimate::partial_volume::REFINEMENT_ROUNDS,
             |corrected| Method::UvdLs.fit(out, corrected),
@@ -266,8 +266,8 @@ impl Method {
 
     fn field(self, out: &ProcessOutput) -> &VectorField {
         let field = match self {
-            Method::UvdLs => &out.vector_ls,
-            _ => &out.vector_irls,
+            Method::UvdLs => &out.maps.vector_ls,
+            _ => &out.maps.vector_irls,
         };
         field.as_ref().expect("the study's sequence has 8 angles")
     }
@@ -495,7 +495,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                             let counts = match counts {
                                 Some(c) => c,
                                 None => {
-                                    zeros = ndarray::Array3::zeros(out.projections.dim());
+                                    zeros = ndarray::Array3::zeros(out.maps.projections.dim());
                                     &zeros
                                 }
                             };
@@ -507,10 +507,10 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                                     field, &truth, peak, 0.1,
                                 ),
                                 alias_pattern_right: metrics::alias_patterns_right(
-                                    &out.projections,
+                                    &out.maps.projections,
                                     counts,
                                     &out.filtered.angles,
-                                    &out.projection_nyquist,
+                                    &out.maps.projection_nyquist,
                                     &truth,
                                 ),
                                 rmse_mm_s: metrics::rmse(field, &truth),
@@ -525,7 +525,7 @@ pub fn run(settings: &DealiasSettings, progress: Progress<'_>) -> Result<Dealias
                         )?;
                         scores(&field, off, Some(&counts))
                     };
-                    let done = on.dealias.as_ref();
+                    let done = on.maps.dealias.as_ref();
                     let counts = done.map(|d| match method {
                         Method::UvdLs => &d.ls.alias_counts,
                         _ => &d.irls.alias_counts,
@@ -807,19 +807,19 @@ mod tests {
             formed_tube(profile, multiple, 48, DasParams::DEFAULT_F_NUMBER);
         let analyse = |dealias: Dealias| analysed(&grid, &formed, dealias);
         let (off, on) = (analyse(Dealias::Off), analyse(Dealias::Auto));
-        let done = on.dealias.as_ref().expect("dealiased");
+        let done = on.maps.dealias.as_ref().expect("dealiased");
         let angles = &off.filtered.angles;
-        let zeros = ndarray::Array3::zeros(off.projections.dim());
+        let zeros = ndarray::Array3::zeros(off.maps.projections.dim());
         for (method, counts) in [
             (Method::UvdLs, &done.ls.alias_counts),
             (Method::ConventionalIrls, &done.irls.alias_counts),
         ] {
             let patterns = |counts| {
                 metrics::alias_patterns_right(
-                    &off.projections,
+                    &off.maps.projections,
                     counts,
                     angles,
-                    &off.projection_nyquist,
+                    &off.maps.projection_nyquist,
                     &truth,
                 )
             };

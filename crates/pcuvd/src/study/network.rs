@@ -185,8 +185,8 @@ impl ModeResult {
     /// The mode's vector field: LS for UVD (conventional), IRLS-WLS for PC-UVD (coded).
     pub fn field(&self) -> &VectorField {
         match self.mode {
-            Mode::Conventional => self.out.vector_ls.as_ref(),
-            Mode::Coded => self.out.vector_irls.as_ref(),
+            Mode::Conventional => self.out.maps.vector_ls.as_ref(),
+            Mode::Coded => self.out.maps.vector_irls.as_ref(),
         }
         .expect("the rat sequence has 8 angles")
     }

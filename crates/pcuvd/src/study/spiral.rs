@@ -414,6 +414,7 @@ impl SpiralStudy {
     /// UVD's vector field: conventional recording, least squares.
     pub fn uvd(&self) -> &VectorField {
         self.conventional
+            .maps
             .vector_ls
             .as_ref()
             .expect("the spiral sequence has 8 angles")
@@ -422,6 +423,7 @@ impl SpiralStudy {
     /// PC-UVD's vector field: coded recording, IRLS-WLS.
     pub fn pcuvd(&self) -> &VectorField {
         self.coded
+            .maps
             .vector_irls
             .as_ref()
             .expect("the spiral sequence has 8 angles")
@@ -432,9 +434,9 @@ impl SpiralStudy {
 fn estimator_rmse(conv: &ProcessOutput, coded: &ProcessOutput, truth: &Truth) -> EstimatorRmse {
     let r = |o: &ProcessOutput, irls: bool| {
         let field = if irls {
-            o.vector_irls.as_ref()
+            o.maps.vector_irls.as_ref()
         } else {
-            o.vector_ls.as_ref()
+            o.maps.vector_ls.as_ref()
         };
         metrics::rmse(field.expect("8 angles"), truth)
     };
@@ -468,7 +470,7 @@ fn uvd_vx_at(
     let quiet = |_: pipeline::Stage, _: usize, _: usize| {};
     let gain = gain_of(simulated_db, level_db);
     let out = pipeline::analyse(conventional.at_gain(gain), params, &quiet)?;
-    Ok(metrics::rmse(out.vector_ls.as_ref().expect("8 angles"), truth).vx)
+    Ok(metrics::rmse(out.maps.vector_ls.as_ref().expect("8 angles"), truth).vx)
 }
 
 /// Runs the spiral study: simulation, processing, noise sweep and scores.
@@ -689,7 +691,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         partial_volume: settings.partial_volume,
         f_number: settings.f_number,
         seed: settings.seed,
-        nyquist_velocity_m_s: coded.nyquist_velocity,
+        nyquist_velocity_m_s: coded.maps.nyquist_velocity,
         vessel_pixels: truth.mask.iter().filter(|&&m| m).count(),
         grid: GridExtent::new(&grid, settings.grid_step_m),
         timing_s: timing,
@@ -947,7 +949,7 @@ mod tests {
             let again = form(level);
             let quiet_stage = |_: pipeline::Stage, _: usize, _: usize| {};
             let out = pipeline::analyse(again.at_gain(1.0), &params, &quiet_stage).unwrap();
-            let measured = metrics::rmse(out.vector_ls.as_ref().unwrap(), &truth).vx;
+            let measured = metrics::rmse(out.maps.vector_ls.as_ref().unwrap(), &truth).vx;
             assert!(
                 (measured - target).abs() <= CALIBRATION_TOLERANCE_MM_S,
                 "target {target} mm/s, level {level} dB, recomputed {measured}: {c:?}"
@@ -999,7 +1001,8 @@ mod tests {
                 ..process_params(&grid, &formed.acquisition, kernel, settings.event_alignment)
             };
             let out = pipeline::analyse(formed.at_gain(1.0), &params, &|_, _, _| {}).unwrap();
-            [out.vector_ls.unwrap(), out.vector_irls.unwrap()].map(|f| metrics::rmse(&f, &truth))
+            [out.maps.vector_ls.unwrap(), out.maps.vector_irls.unwrap()]
+                .map(|f| metrics::rmse(&f, &truth))
         };
         let mut pixel_wise_ratio = [f64::NAN; 2];
         for kernel in [(1, 1), (5, 1), (7, 1)] {

@@ -62,7 +62,7 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     let projections = |images: Vec<Array3<Complex32>>| {
         let (template, _) = pipeline::form_images(&data, &params, &quiet).unwrap();
         let out = pipeline::analyse(template.with_series(images), &params, &quiet).unwrap();
-        out.projections
+        out.maps.projections
     };
     let reference = projections(whole.clone());
     // The estimator's own spread: the whole-recording projections against the truth.

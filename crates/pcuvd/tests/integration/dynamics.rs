@@ -1247,7 +1247,7 @@ fn partial_volume_correction_reaches_the_dynamics_windows() {
     };
     let (plain, corrected) = (windows_error(false), windows_error(true));
     let maps =
-        |out: &pipeline::ProcessOutput| metrics::rmse(out.vector_ls.as_ref().unwrap(), &truth);
+        |out: &pipeline::ProcessOutput| metrics::rmse(out.maps.vector_ls.as_ref().unwrap(), &truth);
     let (maps_plain, maps_corrected) = (maps(&out), maps(&processed(true)));
     eprintln!(
         "windows Vx {:.2} -> {:.2}, Vz {:.2} -> {:.2} mm/s; whole-recording maps Vx {:.2} -> {:.2}, \

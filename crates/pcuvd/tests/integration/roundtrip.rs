@@ -406,7 +406,7 @@ impl SimulatedBlock {
             .map(|(k, &theta)| {
                 let (s, c) = pcuvd::estimate::vector::projection_weights(theta);
                 let truth = 0.5 * (velocity[0] * s + velocity[1] * c);
-                (mean(out.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
+                (mean(out.maps.projections.index_axis(ndarray::Axis(0), k)) - truth) / speed
             })
             .collect();
         let k0 = p.sequence.angles.len() / 2;
@@ -420,7 +420,7 @@ impl SimulatedBlock {
         .unwrap();
         let mean_frequency_ratio =
             pcuvd::core::stats::median(maps.mean_frequency.iter().copied().collect()) / fc;
-        let field = out.vector_ls.unwrap();
+        let field = out.maps.vector_ls.unwrap();
         let (vx, vz) = (mean(field.vx.view()), mean(field.vz.view()));
         let turn = (vx.atan2(vz) - direction + std::f64::consts::PI)
             .rem_euclid(std::f64::consts::TAU)
@@ -771,7 +771,8 @@ fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64>
         pcuvd::form::decode::EventAlignment::MidFrame,
     );
     let out = pipeline::process(&data, &params, &|_, _, _| {}).unwrap();
-    out.projections
+    out.maps
+        .projections
         .outer_iter()
         .map(|m| m.iter().sum::<f64>() / m.len() as f64)
         .collect()

@@ -136,25 +136,25 @@ fn one_segment_is_the_whole_path(data: &ChannelData, estimator: DopplerEstimator
         ("B-mode", out.bmode_db.clone(), whole.bmode_db.clone()),
         (
             "power",
-            out.power_doppler.clone(),
-            whole.power_doppler.clone(),
+            out.maps.power_doppler.clone(),
+            whole.maps.power_doppler.clone(),
         ),
         (
             "colour",
-            out.color_doppler.clone(),
-            whole.color_doppler.clone(),
+            out.maps.color_doppler.clone(),
+            whole.maps.color_doppler.clone(),
         ),
     ];
-    for (k, (a, b)) in per_angle(&out.projections)
+    for (k, (a, b)) in per_angle(&out.maps.projections)
         .into_iter()
-        .zip(per_angle(&whole.projections))
+        .zip(per_angle(&whole.maps.projections))
         .enumerate()
     {
         maps.push((if k == 0 { "projection 0" } else { "projection" }, a, b));
     }
     let (irls, reference) = (
-        out.vector_irls.as_ref().unwrap(),
-        whole.vector_irls.as_ref().unwrap(),
+        out.maps.vector_irls.as_ref().unwrap(),
+        whole.maps.vector_irls.as_ref().unwrap(),
     );
     maps.push(("Vx", irls.vx.clone(), reference.vx.clone()));
     maps.push(("Vz", irls.vz.clone(), reference.vz.clone()));
@@ -242,9 +242,9 @@ fn segments_against_the_whole_path(data: &ChannelData, estimator: DopplerEstimat
         }
         (squares.iter().sum::<f64>() / squares.len() as f64).sqrt()
     };
-    let spread = rms_against(&whole.projections, None);
-    let segmented = rms_against(&done.out.projections, None);
-    let apart = rms_against(&done.out.projections, Some(&whole.projections));
+    let spread = rms_against(&whole.maps.projections, None);
+    let segmented = rms_against(&done.out.maps.projections, None);
+    let apart = rms_against(&done.out.maps.projections, Some(&whole.maps.projections));
     eprintln!(
         "{estimator:?} projections in the tube: whole path {:.3} mm/s RMS from the truth, \
          segments {:.3} mm/s; segments against the whole path {:.3} mm/s RMS",
@@ -316,7 +316,11 @@ fn segments_dealias_as_the_whole_path_does() {
         ..windows()
     };
     let whole = pipeline::process(&data, &params, &quiet).unwrap();
-    let dealiased = whole.dealias.clone().expect("the whole path dealiases");
+    let dealiased = whole
+        .maps
+        .dealias
+        .clone()
+        .expect("the whole path dealiases");
     assert!(
         dealiased.irls.unwrapped_pixels > 0,
         "the fast tube aliases: {dealiased:?}"
@@ -351,15 +355,20 @@ fn segments_dealias_as_the_whole_path_does() {
         &quiet,
     )
     .unwrap();
-    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    let out_dealiased = done
+        .out
+        .maps
+        .dealias
+        .as_ref()
+        .expect("the segments dealias");
     assert_eq!(out_dealiased.intervals, dealiased.intervals);
     assert_eq!(
         out_dealiased.irls.unwrapped_pixels,
         dealiased.irls.unwrapped_pixels
     );
     let (irls, reference_irls) = (
-        done.out.vector_irls.as_ref().unwrap(),
-        whole.vector_irls.as_ref().unwrap(),
+        done.out.maps.vector_irls.as_ref().unwrap(),
+        whole.maps.vector_irls.as_ref().unwrap(),
     );
     for (name, a, b) in [
         ("Vx", &irls.vx, &reference_irls.vx),
@@ -388,7 +397,12 @@ fn segments_dealias_as_the_whole_path_does() {
     )
     .unwrap();
     assert!(done.ranges.len() > 1);
-    let out_dealiased = done.out.dealias.as_ref().expect("the segments dealias");
+    let out_dealiased = done
+        .out
+        .maps
+        .dealias
+        .as_ref()
+        .expect("the segments dealias");
     assert!(out_dealiased.irls.unwrapped_pixels > 0, "{out_dealiased:?}");
     assert_eq!(done.series.unwrap().len(), reference.len());
     assert_eq!(done.ensembles.unwrap(), ensembles);
