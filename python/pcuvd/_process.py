@@ -209,13 +209,19 @@ def process(
         )
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
+    given = process_options("process", options)
+    return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
+
+
+def process_options(function: str, options: dict[str, Any]) -> str:
+    """`process`'s keyword options as the JSON the native half reads (`grid_m` in millimetres),
+    an unknown keyword a TypeError naming `function`."""
     options = dict(options)
     if "grid_m" in options:
         grid_m = options.pop("grid_m")
         if "grid_mm" in options or "grid" in options:
-            raise TypeError("process(): give one of grid_m, grid_mm")
+            raise TypeError(f"{function}(): give one of grid_m, grid_mm")
         if grid_m is not None:
             values = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
             options["grid_mm"] = [v * 1e3 for v in values]
-    given = _checks.to_options("process", options, _pcuvd.option_names_of("process"))
-    return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
+    return _checks.to_options(function, options, _pcuvd.option_names_of("process"))

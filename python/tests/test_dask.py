@@ -1,4 +1,5 @@
-"""A batch of recordings on Dask (one recording = one task) equals a serial loop."""
+"""Dask: a batch of recordings (one recording = one task) equals a serial loop, and one recording's
+segments as tasks (`pcuvd.dask.process`) equal `pcuvd.process`."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 import pcuvd
-from conftest import run_cli
+from conftest import assert_same_array, run_cli
 
 dask = pytest.importorskip("dask")
 distributed = pytest.importorskip("distributed")
@@ -58,3 +59,73 @@ def test_dask_batch_equals_a_serial_loop(batch, tmp_path):
     assert parallel == serial
     assert all("summary.json" in r["files"] for r in parallel)
     assert {r["recording"] for r in parallel} == {"PWI_disk.mat", "coded.toml", "conventional.toml"}
+
+
+# One recording across the cluster: its segments as tasks, the parts joined. A 4-angle coded tube
+# (3.6 kHz frames) of 48 frames, 13 ms: a 10 ms cardiac cycle, windows of 2 ms.
+SEGMENTED = {
+    "grid_mm": (-1.5, 1.5, 6.5, 9.5, 0.08),
+    "segment_frames": 20,
+    "heart_rate_hz": 100,
+    "window_ms": 2,
+    "window_step_ms": 1,
+    "ensemble_frames": 8,
+    "ensemble_step": 4,
+}
+
+
+@pytest.fixture(scope="module")
+def long_tube(tmp_path_factory, cli) -> Path:
+    """A coded tube (4 angles) of 48 frames, 6 mm long (its ends outside the grid)."""
+    folder = tmp_path_factory.mktemp("long_tube")
+    done = run_cli(
+        cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "48", "--angles", "4",
+        "--tube-length-mm", "6", "--out", folder,
+    )
+    assert done.returncode == 0, done.stderr
+    return folder / "coded.toml"
+
+
+@pytest.mark.filterwarnings("ignore:.*dealiasing cannot recover")  # a coded recording, dealiased
+def test_one_recording_across_a_cluster_equals_one_process(long_tube):
+    """Two worker processes each read their segments' frames from the file; the joined maps,
+    velocity windows, RI maps and time series are those of `pcuvd.process` (the same sums in the
+    same order: equal, not just close). With dealias="auto" the first segment settles the
+    windows' Nyquist intervals for the others (and runs first); with "off" all run at once."""
+    import pcuvd.dask
+
+    runs = {dealias: {**SEGMENTED, "dealias": dealias} for dealias in ("off", "auto")}
+    serial = {d: pcuvd.process(str(long_tube), quiet=True, **o) for d, o in runs.items()}
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        joined = {d: pcuvd.dask.process(long_tube, client, quiet=True, **o) for d, o in runs.items()}
+    for dealias, one in serial.items():
+        segments = one.summary["segments"]["own_frames"]
+        assert len(segments) >= 3, segments
+        both = joined[dealias]
+        assert sorted(both.arrays) == sorted(one.arrays)
+        for name in ("ri", "speed_series", "ensemble_power_doppler", "vx", "power_doppler"):
+            assert name in one.arrays, name
+        for name, value in one.arrays.items():
+            assert_same_array(both.arrays[name], value, f"{name} (dealias {dealias})")
+        assert both.summary["segments"] == one.summary["segments"]
+        assert both.summary["dynamics"] == one.summary["dynamics"]
+
+
+def test_a_cluster_run_refuses_what_it_cannot_share(long_tube, disk):
+    import pcuvd.dask
+
+    class NoClient:
+        def submit(self, *args, **kwargs):
+            raise AssertionError("nothing should be submitted")
+
+    with pytest.raises(ValueError, match="segment_frames"):
+        pcuvd.dask.process(disk, NoClient(), quiet=True)
+    with pytest.raises(ValueError, match="slot_delay_s"):
+        pcuvd.dask.process(long_tube, NoClient(), overrides={"slot_delay_s": 1e-6}, **SEGMENTED)
+    with pytest.raises(TypeError, match="path of a recording"):
+        pcuvd.dask.process(pcuvd.read_recording(disk), NoClient())
+    with pytest.raises(TypeError, match="unexpected keyword 'segment_frame'"):
+        pcuvd.dask.process(long_tube, NoClient(), segment_frame=10)

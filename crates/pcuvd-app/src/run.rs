@@ -200,6 +200,86 @@ pub fn run(data: &dyn FrameSource, plan: &Plan, progress: &dyn Progress) -> Resu
     })
 }
 
+/// The segmented run `plan` makes of `data`: its settings, with the velocity windows only where
+/// the recording can give them (two or more angles, a window that fits).
+fn segment_run<'a>(
+    data: &dyn FrameSource,
+    plan: &'a Plan,
+    segments: &'a Segments,
+) -> pcuvd::pipeline::segments::SegmentRun<'a> {
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    let windows = plan
+        .dynamics
+        .as_ref()
+        .filter(|d| vectors && d.params.validate(data.acquisition().frame_rate()).is_ok());
+    pcuvd::pipeline::segments::SegmentRun {
+        params: &plan.params,
+        segments,
+        dynamics: windows.map(|d| &d.params),
+        ensembles: plan.ensembles,
+    }
+}
+
+/// The plan's segments of `data`, or an error saying that one holds it whole.
+fn planned_segments<'a>(data: &dyn FrameSource, plan: &'a Plan) -> Result<&'a Segments> {
+    plan.segments.as_ref().with_context(|| {
+        format!(
+            "the recording's {} frames are processed whole: there are no segments to share out \
+             (give a smaller segment_frames to cut it)",
+            data.n_frames()
+        )
+    })
+}
+
+/// How many segments `plan` cuts `data` into, and whether the later ones need the first's
+/// [`pcuvd::pipeline::segments::SegmentPart::window_intervals`]; `None` when it is processed
+/// whole.
+pub fn segment_count(data: &dyn FrameSource, plan: &Plan) -> Option<(usize, bool)> {
+    plan.segments.as_ref().map(|segments| {
+        let run = segment_run(data, plan, segments);
+        (run.count(data), run.first_settles_windows(data))
+    })
+}
+
+/// Segment `index` of a segmented run of `data` as `plan` says, on its own (e.g. in another
+/// process): what [`join_segments`] adds up. `window_intervals`: the first segment's
+/// [`pcuvd::pipeline::segments::SegmentPart::window_intervals`], for every later segment.
+pub fn run_segment(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    index: usize,
+    window_intervals: Option<u32>,
+    progress: &dyn Progress,
+) -> Result<pcuvd::pipeline::segments::SegmentPart> {
+    let segments = planned_segments(data, plan)?;
+    let stages = crate::progress::stages(progress);
+    Ok(segment_run(data, plan, segments).segment(data, index, window_intervals, &stages)?)
+}
+
+/// The run of `data` from the parts of all its segments ([`run_segment`]): the same result as
+/// [`run`] gives in one process.
+pub fn join_segments(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    parts: Vec<pcuvd::pipeline::segments::SegmentPart>,
+    progress: &dyn Progress,
+) -> Result<Processed> {
+    let segments = planned_segments(data, plan)?;
+    let done = segment_run(data, plan, segments).join(data, parts)?;
+    let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
+    finish_segmented(data, plan, done, blocks, progress)
+}
+
+/// A segment's part as bytes, to send to the process that joins the run.
+pub fn part_to_bytes(part: &pcuvd::pipeline::segments::SegmentPart) -> Result<Vec<u8>> {
+    postcard::to_stdvec(part).context("encoding a segment's part")
+}
+
+/// A segment's part from [`part_to_bytes`]'s bytes.
+pub fn part_from_bytes(bytes: &[u8]) -> Result<pcuvd::pipeline::segments::SegmentPart> {
+    postcard::from_bytes(bytes).context("not a segment's part of a pcuvd run")
+}
+
 /// [`run`] for a recording too long to hold whole: segment by segment
 /// ([`pcuvd::pipeline::segments`]), the dynamics stage's windows and the ensembles from the segments, the
 /// RI maps from their series.
@@ -211,19 +291,27 @@ fn run_in_segments(
     progress: &dyn Progress,
 ) -> Result<Processed> {
     let stages = crate::progress::stages(progress);
-    let vectors = data.acquisition().sequence.n_angles() >= 2;
-    let windows = plan
-        .dynamics
-        .as_ref()
-        .filter(|d| vectors && d.params.validate(data.acquisition().frame_rate()).is_ok());
+    let run = segment_run(data, plan, segments);
     let done = pcuvd::pipeline::segments::process_in_segments(
         data,
-        &plan.params,
-        segments,
-        windows.map(|d| &d.params),
-        plan.ensembles,
+        run.params,
+        run.segments,
+        run.dynamics,
+        run.ensembles,
         &stages,
     )?;
+    finish_segmented(data, plan, done, blocks, progress)
+}
+
+/// The dynamics stage's RI maps from a segmented run's series, and what [`run`] returns.
+fn finish_segmented(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    done: pcuvd::pipeline::segments::Segmented,
+    blocks: pcuvd::pipeline::blocks::Blocks,
+    progress: &dyn Progress,
+) -> Result<Processed> {
+    let vectors = data.acquisition().sequence.n_angles() >= 2;
     let clock = std::time::Instant::now();
     let dynamics = dynamics_outcome(plan, progress, || match (&plan.dynamics, done.series) {
         (Some(settings), Some(series)) => {

@@ -8,6 +8,7 @@
 
 mod process;
 mod recording;
+mod segments;
 mod simulation;
 mod stages;
 
@@ -101,6 +102,7 @@ const DYNAMICS_ALIASES: [&str; 1] = ["heart_rate_hz"];
 
 use process::*;
 use recording::*;
+use segments::*;
 use simulation::*;
 use stages::*;
 
@@ -123,6 +125,9 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(recording_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
+    m.add_function(wrap_pyfunction!(segment_count, m)?)?;
+    m.add_function(wrap_pyfunction!(process_segment, m)?)?;
+    m.add_function(wrap_pyfunction!(join_segments, m)?)?;
     m.add_function(wrap_pyfunction!(option_names_of, m)?)?;
     m.add_function(wrap_pyfunction!(study_settings, m)?)?;
     m.add_function(wrap_pyfunction!(decode_hadamard_rf, m)?)?;

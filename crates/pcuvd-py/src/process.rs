@@ -12,7 +12,7 @@ pub(crate) struct ProcessCall {
 }
 
 impl ProcessCall {
-    fn from_json(options: &str) -> PyResult<Self> {
+    pub(crate) fn from_json(options: &str) -> PyResult<Self> {
         let mut map: serde_json::Map<String, Value> = settings(options)?;
         let max_memory_gb = match map.remove("max_memory_gb") {
             None | Some(Value::Null) => None,
@@ -37,7 +37,8 @@ impl ProcessCall {
 pub(crate) struct PyProcessResult {
     /// The processing settings it ran with (a dynamics re-run keeps them).
     pub(crate) options: ProcessingSettings,
-    pub(crate) recording: Arc<ChannelData>,
+    /// The recording: in memory, or (a distributed run's) its file, read a block at a time.
+    pub(crate) recording: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
     pub(crate) input: String,
     pub(crate) info: pcuvd_io::SourceInfo,
     pub(crate) plan: Plan,

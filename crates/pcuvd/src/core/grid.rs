@@ -13,7 +13,7 @@ use crate::core::error::{Result, invalid, require_positive};
 pub const MAX_PIXELS: usize = 50_000_000;
 
 /// A rectangular pixel grid: lateral positions `x` and depths `z` (m), both increasing.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Grid {
     /// Lateral pixel positions (m).
     pub x: Vec<f64>,

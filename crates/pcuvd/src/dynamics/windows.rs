@@ -5,7 +5,7 @@ use crate::estimate::partial_volume::{CellCovariance, CellLags};
 use crate::estimate::projections::Projections;
 
 /// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VelocitySeries {
     /// Window centres (s) from the first frame.
     pub times_s: Vec<f64>,

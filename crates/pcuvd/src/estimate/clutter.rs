@@ -53,7 +53,7 @@ impl Default for ClutterParams {
 }
 
 /// What the filter did.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ClutterReport {
     /// Components removed from the top (tissue).
     pub low: usize,

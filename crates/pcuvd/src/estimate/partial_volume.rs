@@ -32,7 +32,7 @@ use crate::estimate::vector::{Estimator, VectorField, projection_weights, vector
 /// Products of each pixel of an image series with its neighbour one pixel step away, within
 /// frames, summed over the image and averaged over the frames: the spatial autocorrelation of
 /// the echoes, whose fall-off with the step measures the resolution cell ([`CellCovariance`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CellLags {
     /// Σ |S|² over the pixels (|IQ|² units).
     pub zero: f64,

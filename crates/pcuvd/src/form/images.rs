@@ -11,7 +11,7 @@ use crate::core::grid::Grid;
 
 /// Beamformed IQ image series, one per steering angle, each (nz, nx, frames) with frames
 /// contiguous, and the acquisition facts that give them meaning.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct AngleImages {
     /// Pixel grid of every image (m).
     pub grid: Grid,

@@ -53,7 +53,7 @@ impl EnsembleSpec {
 }
 
 /// Maps of every ensemble, shape (ensembles, nz, nx), SI units.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EnsembleMaps {
     /// Centre time of each ensemble (s) from the first frame: (start + (frames − 1)/2) / frame rate.
     pub times_s: Vec<f64>,

@@ -38,7 +38,7 @@ pub struct ProcessParams {
 }
 
 /// Pipeline stages, in order, as reported to a progress callback.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Stage {
     /// Hadamard decoding / angle separation.
     Decode,

@@ -29,6 +29,7 @@ use std::io::{Read, Seek, SeekFrom, Write};
 
 use ndarray::{Array2, Array3, Zip, s};
 use num_complex::Complex32;
+use serde::{Deserialize, Serialize};
 
 use crate::acquisition::source::FrameSource;
 use crate::core::error::{Error, Result, invalid};
@@ -37,6 +38,7 @@ use crate::estimate::clutter::{self, ClutterReport};
 use crate::estimate::dealias::Dealias;
 use crate::estimate::doppler::Moments;
 use crate::form::beamform;
+use crate::form::images::AngleImages;
 use crate::pipeline::ensembles::{self, EnsembleMaps, EnsembleSpec};
 pub use crate::pipeline::memory::{SERIES_BYTES, frames_that_fit};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
@@ -290,60 +292,129 @@ fn ensemble_fields(maps: &mut EnsembleMaps) -> Vec<&mut Array3<f64>> {
     fields
 }
 
-/// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
-/// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
-/// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
-/// series, not the recording's. `progress` sees every stage's work over the whole recording.
-pub fn process_in_segments(
-    source: &dyn FrameSource,
-    params: &ProcessParams,
-    segments: &Segments,
-    dynamics: Option<&DynamicsParams>,
-    ensemble_spec: Option<EnsembleSpec>,
-    progress: &dyn Fn(Stage, usize, usize),
-) -> Result<Segmented> {
-    let total = source.n_frames();
-    let ranges = segments.ranges(total);
-    let count = ranges.len();
-    let shape = params.grid.shape();
-    let n = source.acquisition().sequence.n_angles();
-    pipeline::check_doppler_estimator(source.acquisition(), params)?;
-    if let Some(d) = dynamics {
-        d.validate(source.acquisition().frame_rate())?;
+/// One segment's share of a segmented run: its Doppler moments, B-mode envelope, clutter cut-offs,
+/// velocity windows and ensembles, as [`SegmentRun::segment`] makes them and
+/// [`SegmentRun::join`] adds them up. Serializable, so that the segments of one recording can be
+/// processed in other processes or on other machines and joined where the run started.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SegmentPart {
+    /// The segment's index, 0-based in recording order.
+    pub index: usize,
+    /// The Nyquist intervals K every later segment's velocity windows unwrap by, settled on the
+    /// first segment's maps when the windows' dealiasing is automatic (`None` otherwise, and for
+    /// every later segment).
+    pub window_intervals: Option<u32>,
+    per_angle: Vec<Moments>,
+    compound: Moments,
+    /// The compound envelope summed over the core's frames.
+    envelope: Array2<f64>,
+    clutter: Vec<ClutterReport>,
+    windows: Option<VelocitySeries>,
+    ensembles: Option<EnsembleMaps>,
+    timings: Timings,
+    /// The images' description; their series are dropped with the segment.
+    images: AngleImages,
+}
+
+/// The settings every segment of one segmented run shares.
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentRun<'a> {
+    /// The chain's settings.
+    pub params: &'a ProcessParams,
+    /// How the recording is cut.
+    pub segments: &'a Segments,
+    /// The dynamics stage's velocity windows, when they run.
+    pub dynamics: Option<&'a DynamicsParams>,
+    /// The Doppler time series' ensembles, when asked for.
+    pub ensembles: Option<EnsembleSpec>,
+}
+
+impl SegmentRun<'_> {
+    /// The checks made before any segment is processed.
+    pub fn check(&self, source: &dyn FrameSource) -> Result<()> {
+        pipeline::check_doppler_estimator(source.acquisition(), self.params)?;
+        if let Some(d) = self.dynamics {
+            d.validate(source.acquisition().frame_rate())?;
+        }
+        Ok(())
     }
-    // The windows' dealiasing; an automatic K is settled on the first segment's maps below.
-    let mut dynamics = dynamics.copied();
-    let mut per_angle: Vec<Sums> = (0..n).map(|_| Sums::default()).collect();
-    let mut compound = Sums::default();
-    let mut envelope = Array2::<f64>::zeros(shape);
-    // Each part's times and settings; their maps wait in the scratch files.
-    let mut windows: Vec<VelocitySeries> = Vec::new();
-    let mut windows_aside = SetAside::new();
-    let mut ensemble_parts: Vec<EnsembleMaps> = Vec::new();
-    let mut ensembles_aside = SetAside::new();
-    let mut clutter_reports = Vec::with_capacity(count);
-    let mut meta = None;
-    let mut timings: Timings = vec![
-        (Stage::Decode, 0.0),
-        (Stage::Beamform, 0.0),
-        (Stage::Clutter, 0.0),
-        (Stage::Doppler, 0.0),
-    ];
-    let mut add_time = |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage)
-    {
-        Some(t) => t.1 += seconds,
-        None => timings.push((stage, seconds)),
-    };
-    let blocks = pipeline::blocks_for(source, params.event_alignment);
-    // The previous segment's series, whose memory the next one's are formed in.
-    let mut spare = Vec::new();
-    for (k, (core, imaged)) in ranges.iter().enumerate() {
+
+    /// How many segments `source` is cut into.
+    pub fn count(&self, source: &dyn FrameSource) -> usize {
+        self.segments.ranges(source.n_frames()).len()
+    }
+
+    /// Whether the first segment settles the Nyquist intervals K of every segment's velocity
+    /// windows (their dealiasing automatic), so that the later segments need its
+    /// [`SegmentPart::window_intervals`].
+    pub fn first_settles_windows(&self, source: &dyn FrameSource) -> bool {
+        self.dynamics.is_some_and(|d| {
+            d.dealias == Dealias::Auto
+                && self.params.dealias != Dealias::Off
+                && source.acquisition().sequence.n_angles() >= 2
+        })
+    }
+
+    /// Segment `index` of `source`: imaged, clutter-filtered, its moments, windows and ensembles.
+    /// `window_intervals`: the first segment's [`SegmentPart::window_intervals`], required by
+    /// every later segment when the windows' dealiasing is automatic (the windows of all segments
+    /// unwrap by the K the first settled). `progress` sees this segment's work as its share of
+    /// the recording's.
+    pub fn segment(
+        &self,
+        source: &dyn FrameSource,
+        index: usize,
+        window_intervals: Option<u32>,
+        progress: &dyn Fn(Stage, usize, usize),
+    ) -> Result<SegmentPart> {
+        self.check(source)?;
+        Ok(self
+            .segment_in(source, index, window_intervals, Vec::new(), progress)?
+            .0)
+    }
+
+    /// [`Self::segment`], its series formed in the memory of `spare` (a previous segment's),
+    /// which it gives back for the next.
+    fn segment_in(
+        &self,
+        source: &dyn FrameSource,
+        index: usize,
+        window_intervals: Option<u32>,
+        spare: Vec<Array3<Complex32>>,
+        progress: &dyn Fn(Stage, usize, usize),
+    ) -> Result<(SegmentPart, Vec<Array3<Complex32>>)> {
+        let params = self.params;
+        let ranges = self.segments.ranges(source.n_frames());
+        let count = ranges.len();
+        let Some((core, imaged)) = ranges.get(index).cloned() else {
+            return Err(invalid(
+                "segment",
+                format!("{index} is not a segment of this recording (it has {count})"),
+            ));
+        };
+        let n = source.acquisition().sequence.n_angles();
+        let mut dynamics = self.dynamics.copied();
+        let automatic_windows = self.first_settles_windows(source);
+        if automatic_windows
+            && index > 0
+            && let (Some(k), Some(d)) = (window_intervals, dynamics.as_mut())
+        {
+            d.dealias = Dealias::Intervals(k);
+        }
+        let mut timings: Timings = Vec::new();
+        let mut add_time =
+            |stage: Stage, seconds: f64| match timings.iter_mut().find(|t| t.0 == stage) {
+                Some(t) => t.1 += seconds,
+                None => timings.push((stage, seconds)),
+            };
+        let blocks = pipeline::blocks_for(source, params.event_alignment);
+        let k = index;
         let (mut images, formed) = pipeline::form_images_of(
             source,
             params,
             blocks,
             imaged.clone(),
-            std::mem::take(&mut spare),
+            spare,
             &|stage, d, t| progress(stage, k * t + d, count * t),
         )?;
         for (stage, seconds) in formed {
@@ -351,7 +422,8 @@ pub fn process_in_segments(
         }
         let own = 0..core.len();
         let clock = std::time::Instant::now();
-        if let Some(spec) = ensemble_spec {
+        let mut ensemble_part = None;
+        if let Some(spec) = self.ensembles {
             // Ensembles start every `step` frames from the recording's first; those starting in
             // this core are this segment's.
             let starts: Vec<usize> = (0..own.end)
@@ -362,52 +434,39 @@ pub fn process_in_segments(
                 let mut part =
                     ensembles::ensemble_maps_at(&images, params, spec, &starts, &|_, _, _| {})?;
                 part.shift(core.start, spec, images.frame_rate);
-                ensembles_aside.put(&mut ensemble_fields(&mut part))?;
-                ensemble_parts.push(part);
+                ensemble_part = Some(part);
             }
             progress(Stage::Ensembles, k + 1, count);
             add_time(Stage::Ensembles, clock.elapsed().as_secs_f64());
         }
+        let mut envelope = Array2::<f64>::zeros(params.grid.shape());
         add_envelope(&mut envelope, &images.series, own.clone());
 
         let clock = std::time::Instant::now();
-        let mut reports = Vec::with_capacity(n);
+        let mut clutter = Vec::with_capacity(n);
         for (a, image) in images.series.iter_mut().enumerate() {
             progress(Stage::Clutter, k * n + a, count * n);
-            reports.push(clutter::svd_filter(image, &params.clutter)?);
+            clutter.push(clutter::svd_filter(image, &params.clutter)?);
         }
-        clutter_reports.push(reports);
         add_time(Stage::Clutter, clock.elapsed().as_secs_f64());
 
         let clock = std::time::Instant::now();
         progress(Stage::Doppler, k, count);
-        let (angle_moments, compound_moments) =
-            pipeline::moments(&images, params, Some(own.clone()))?;
-        for (sums, m) in per_angle.iter_mut().zip(angle_moments) {
-            sums.add(m)?;
-        }
-        compound.add(compound_moments)?;
-        if k == 0
+        let (per_angle, compound) = pipeline::moments(&images, params, Some(own.clone()))?;
+        let mut settled = None;
+        if index == 0
+            && automatic_windows
             && let Some(d) = dynamics.as_mut()
-            && d.dealias == Dealias::Auto
-            && params.dealias != Dealias::Off
-            && n >= 2
         {
             // As `pipeline::dynamics` does with the recording's maps: windows unwrap as far as
             // the maps needed, here the first segment's (one segment: the whole path's K).
-            let first = pipeline::doppler_maps(
-                &per_angle
-                    .iter()
-                    .map(|s| s.total().cloned())
-                    .collect::<Result<Vec<_>>>()?,
-                compound.total()?,
-                &images,
-                params,
-            )?;
+            let first = pipeline::doppler_maps(&per_angle, &compound, &images, params)?;
             if let Some(done) = first.dealias {
                 d.dealias = Dealias::Intervals(done.intervals);
+                settled = Some(done.intervals);
             }
         }
+        let mut windows = None;
         if let Some(d) = &dynamics
             && images.n_frames() >= d.window
         {
@@ -422,62 +481,233 @@ pub fn process_in_segments(
             let keep = own.end.div_ceil(d.step.max(1)).min(part.len());
             part.truncate(keep);
             part.shift(core.start as f64 / images.frame_rate);
-            windows_aside.put(&mut [&mut part.vx, &mut part.vz, &mut part.power])?;
-            windows.push(part);
+            windows = Some(part);
         }
         add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
-        spare = std::mem::take(&mut images.series);
-        meta = Some(images);
+        let series = std::mem::take(&mut images.series);
+        Ok((
+            SegmentPart {
+                index,
+                window_intervals: settled,
+                per_angle,
+                compound,
+                envelope,
+                clutter,
+                windows,
+                ensembles: ensemble_part,
+                timings,
+                images,
+            },
+            series,
+        ))
+    }
+
+    /// The run's result from every segment's part of `source`, added up in recording order
+    /// (whatever order `parts` come in): the maps from the summed moments, the windows and
+    /// ensembles joined along time. The same sums in the same order as one process would make.
+    pub fn join(
+        &self,
+        source: &dyn FrameSource,
+        parts: impl IntoIterator<Item = SegmentPart>,
+    ) -> Result<Segmented> {
+        let mut parts: Vec<SegmentPart> = parts.into_iter().collect();
+        parts.sort_by_key(|p| p.index);
+        let count = self.count(source);
+        if parts.len() != count || parts.iter().enumerate().any(|(k, p)| p.index != k) {
+            return Err(invalid(
+                "segments",
+                format!(
+                    "the parts of segments {:?} do not make the recording's {count}",
+                    parts.iter().map(|p| p.index).collect::<Vec<_>>()
+                ),
+            ));
+        }
+        let mut joined = Joined::new(self.params);
+        for part in parts {
+            joined.add(part)?;
+        }
+        joined.finish(self, source)
+    }
+}
+
+/// The sums of the segments so far, their large outputs set aside.
+struct Joined {
+    per_angle: Vec<Sums>,
+    compound: Sums,
+    envelope: Array2<f64>,
+    // Each part's times and settings; their maps wait in the scratch files.
+    windows: Vec<VelocitySeries>,
+    windows_aside: SetAside,
+    ensemble_parts: Vec<EnsembleMaps>,
+    ensembles_aside: SetAside,
+    clutter: Vec<Vec<ClutterReport>>,
+    timings: Timings,
+    images: Option<AngleImages>,
+}
+
+impl Joined {
+    fn new(params: &ProcessParams) -> Self {
+        Joined {
+            per_angle: Vec::new(),
+            compound: Sums::default(),
+            envelope: Array2::zeros(params.grid.shape()),
+            windows: Vec::new(),
+            windows_aside: SetAside::new(),
+            ensemble_parts: Vec::new(),
+            ensembles_aside: SetAside::new(),
+            clutter: Vec::new(),
+            timings: vec![
+                (Stage::Decode, 0.0),
+                (Stage::Beamform, 0.0),
+                (Stage::Clutter, 0.0),
+                (Stage::Doppler, 0.0),
+            ],
+            images: None,
+        }
+    }
+
+    fn add_time(&mut self, stage: Stage, seconds: f64) {
+        match self.timings.iter_mut().find(|t| t.0 == stage) {
+            Some(t) => t.1 += seconds,
+            None => self.timings.push((stage, seconds)),
+        }
+    }
+
+    /// Adds the next segment's part (parts come in recording order).
+    fn add(&mut self, part: SegmentPart) -> Result<()> {
+        if self.per_angle.is_empty() {
+            self.per_angle = (0..part.per_angle.len()).map(|_| Sums::default()).collect();
+        }
+        if self.per_angle.len() != part.per_angle.len()
+            || self.envelope.dim() != part.envelope.dim()
+        {
+            return Err(Error::Shape(
+                "segment parts of different angles or grids".into(),
+            ));
+        }
+        for (sums, m) in self.per_angle.iter_mut().zip(part.per_angle) {
+            sums.add(m)?;
+        }
+        self.compound.add(part.compound)?;
+        self.envelope += &part.envelope;
+        if let Some(mut windows) = part.windows {
+            self.windows_aside
+                .put(&mut [&mut windows.vx, &mut windows.vz, &mut windows.power])?;
+            self.windows.push(windows);
+        }
+        if let Some(mut ensembles) = part.ensembles {
+            self.ensembles_aside
+                .put(&mut ensemble_fields(&mut ensembles))?;
+            self.ensemble_parts.push(ensembles);
+        }
+        self.clutter.push(part.clutter);
+        for (stage, seconds) in part.timings {
+            self.add_time(stage, seconds);
+        }
+        self.images = Some(part.images);
+        Ok(())
+    }
+
+    /// The maps from the totals, the windows and ensembles read back and joined.
+    fn finish(mut self, run: &SegmentRun, source: &dyn FrameSource) -> Result<Segmented> {
+        let params = run.params;
+        let total = source.n_frames();
+        let images = self
+            .images
+            .take()
+            .ok_or_else(|| invalid("frames", "the recording has no frames"))?;
+        let per_angle = self
+            .per_angle
+            .iter()
+            .map(|s| s.total().cloned())
+            .collect::<Result<Vec<_>>>()?;
+        let clock = std::time::Instant::now();
+        let maps = pipeline::doppler_maps(&per_angle, self.compound.total()?, &images, params)?;
+        self.add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
+        let bmode_db = beamform::bmode_db_of_envelope(self.envelope / total as f64);
+        let series = match run.dynamics {
+            Some(_) => {
+                let mut series = VelocitySeries::concatenate(self.windows)?;
+                let [vx, vz, power]: [Array3<f64>; 3] = self
+                    .windows_aside
+                    .take()?
+                    .try_into()
+                    .map_err(|_| Error::Shape("velocity windows set aside".into()))?;
+                (series.vx, series.vz, series.power) = (vx, vz, power);
+                Some(series)
+            }
+            None => None,
+        };
+        let ensembles = match run.ensembles {
+            Some(_) => {
+                let mut maps = EnsembleMaps::concatenate(self.ensemble_parts)?;
+                let mut joined = self.ensembles_aside.take()?.into_iter();
+                for field in ensemble_fields(&mut maps) {
+                    *field = joined
+                        .next()
+                        .ok_or_else(|| Error::Shape("ensemble maps set aside".into()))?;
+                }
+                Some(maps)
+            }
+            None => None,
+        };
+        let first_clutter = self
+            .clutter
+            .first()
+            .cloned()
+            .ok_or_else(|| invalid("frames", "the recording has no frames"))?;
+        Ok(Segmented {
+            out: ProcessOutput::from_maps(
+                maps,
+                params.grid.clone(),
+                bmode_db,
+                first_clutter,
+                images,
+                self.timings,
+            ),
+            series,
+            ensembles,
+            ranges: run.segments.ranges(total),
+            clutter: self.clutter,
+        })
+    }
+}
+
+/// Runs the chain on `source` segment by segment as `segments` cuts it: images, clutter filter,
+/// Doppler sums, and, when given, the dynamics stage's velocity windows and the time series'
+/// ensembles, each from the segment holding it. Peak memory: one segment's images and filtered
+/// series, not the recording's. `progress` sees every stage's work over the whole recording.
+/// [`SegmentRun::segment`] and [`SegmentRun::join`] are the same run, one segment at a time.
+pub fn process_in_segments(
+    source: &dyn FrameSource,
+    params: &ProcessParams,
+    segments: &Segments,
+    dynamics: Option<&DynamicsParams>,
+    ensemble_spec: Option<EnsembleSpec>,
+    progress: &dyn Fn(Stage, usize, usize),
+) -> Result<Segmented> {
+    let run = SegmentRun {
+        params,
+        segments,
+        dynamics,
+        ensembles: ensemble_spec,
+    };
+    run.check(source)?;
+    let count = run.count(source);
+    let mut joined = Joined::new(params);
+    // The previous segment's series, whose memory the next one's are formed in.
+    let mut spare = Vec::new();
+    let mut window_intervals = None;
+    for index in 0..count {
+        let (part, series) = run.segment_in(source, index, window_intervals, spare, progress)?;
+        spare = series;
+        if index == 0 {
+            window_intervals = part.window_intervals;
+        }
+        joined.add(part)?;
     }
     progress(Stage::Doppler, count, count);
     // The windows' maps come back once the last series is gone.
     drop(spare);
-    let images = meta.ok_or_else(|| invalid("frames", "the recording has no frames"))?;
-    let per_angle = per_angle
-        .iter()
-        .map(|s| s.total().cloned())
-        .collect::<Result<Vec<_>>>()?;
-    let clock = std::time::Instant::now();
-    let maps = pipeline::doppler_maps(&per_angle, compound.total()?, &images, params)?;
-    add_time(Stage::Doppler, clock.elapsed().as_secs_f64());
-    let bmode_db = beamform::bmode_db_of_envelope(envelope / total as f64);
-    let series = match dynamics {
-        Some(_) => {
-            let mut series = VelocitySeries::concatenate(windows)?;
-            let [vx, vz, power]: [Array3<f64>; 3] = windows_aside
-                .take()?
-                .try_into()
-                .map_err(|_| Error::Shape("velocity windows set aside".into()))?;
-            (series.vx, series.vz, series.power) = (vx, vz, power);
-            Some(series)
-        }
-        None => None,
-    };
-    let ensembles = match ensemble_spec {
-        Some(_) => {
-            let mut maps = EnsembleMaps::concatenate(ensemble_parts)?;
-            let mut joined = ensembles_aside.take()?.into_iter();
-            for field in ensemble_fields(&mut maps) {
-                *field = joined
-                    .next()
-                    .ok_or_else(|| Error::Shape("ensemble maps set aside".into()))?;
-            }
-            Some(maps)
-        }
-        None => None,
-    };
-    Ok(Segmented {
-        out: ProcessOutput::from_maps(
-            maps,
-            params.grid.clone(),
-            bmode_db,
-            clutter_reports[0].clone(),
-            images,
-            timings,
-        ),
-        series,
-        ensembles,
-        ranges,
-        clutter: clutter_reports,
-    })
+    joined.finish(&run, source)
 }

@@ -437,3 +437,77 @@ fn segments_shorter_than_a_cardiac_cycle_keep_their_windows() {
     let maps = pcuvd::dynamics::ri_maps(&series, &beating).unwrap();
     assert_eq!(maps.ri.dim(), params.grid.shape());
 }
+
+/// The segments of one run processed apart (as other processes would: no memory handed on, the
+/// first segment's Nyquist intervals passed to the others) and joined in any order give the run
+/// of one process bit for bit: maps, B-mode, velocity windows and ensembles. A set of parts that
+/// is not the recording's is refused.
+#[test]
+fn segments_processed_apart_join_into_the_one_process_run() {
+    use pcuvd::pipeline::segments::SegmentRun;
+    // As in `segments_dealias_as_the_whole_path_does`: the tube aliases.
+    let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
+        1540.0,
+        9e3 / 5.0,
+        Probe::l22_14vx().center_frequency,
+    );
+    let data = recording_of(&tube_at(3.5 * nyquist));
+    let params = ProcessParams {
+        dealias: Dealias::Auto,
+        ..params(&data)
+    };
+    let dynamics = DynamicsParams {
+        dealias: Dealias::Auto,
+        ..windows()
+    };
+    let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
+        .unwrap()
+        .unwrap();
+    let one = process_in_segments(
+        &data,
+        &params,
+        &segments,
+        Some(&dynamics),
+        Some(ENSEMBLES),
+        &quiet,
+    )
+    .unwrap();
+    let run = SegmentRun {
+        params: &params,
+        segments: &segments,
+        dynamics: Some(&dynamics),
+        ensembles: Some(ENSEMBLES),
+    };
+    let count = run.count(&data);
+    assert!(count >= 3, "{count} segments");
+    assert!(run.first_settles_windows(&data));
+    let first = run.segment(&data, 0, None, &quiet).unwrap();
+    let intervals = first.window_intervals;
+    assert!(intervals.is_some_and(|k| k > 0), "{intervals:?}");
+    let mut parts: Vec<_> = (1..count)
+        .rev()
+        .map(|index| run.segment(&data, index, intervals, &quiet).unwrap())
+        .collect();
+    parts.push(first);
+    let joined = run.join(&data, parts.clone()).unwrap();
+    assert_eq!(joined.out.bmode_db, one.out.bmode_db);
+    assert_eq!(joined.out.maps.power_doppler, one.out.maps.power_doppler);
+    let (a, b) = (
+        joined.out.maps.vector_irls.as_ref().unwrap(),
+        one.out.maps.vector_irls.as_ref().unwrap(),
+    );
+    // Bit for bit, NaN where the other has NaN.
+    let same_bits = |x: &Array2<f64>, y: &Array2<f64>| {
+        x.dim() == y.dim() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
+    };
+    assert!(same_bits(&a.vx, &b.vx) && same_bits(&a.vz, &b.vz));
+    assert_eq!(joined.out.maps.dealias, one.out.maps.dealias);
+    assert_eq!(joined.series, one.series);
+    assert_eq!(joined.ensembles, one.ensembles);
+    assert_eq!(joined.ranges, one.ranges);
+    assert_eq!(joined.clutter, one.clutter);
+
+    parts.pop();
+    let missing = run.join(&data, parts).unwrap_err().to_string();
+    assert!(missing.contains("do not make"), "{missing}");
+}

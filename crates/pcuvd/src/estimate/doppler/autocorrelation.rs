@@ -201,7 +201,7 @@ pub(super) fn spatial_lag1(
 /// material of [`axial_autocorrelation_lag1`], [`lateral_autocorrelation_lag1`] and of the
 /// phase that scales Loupas's velocity ([`SAME_FRAME_WEIGHT`]). Means over different frames add
 /// as any mean does ([`Moments::merge`]).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SpatialLag {
     /// Mean over frame pairs of S*(p, t)·S(p′, t + 1), p′ the pixel one step along the lag (the
     /// last pixel of a line pairs with the one before it, roles swapped).

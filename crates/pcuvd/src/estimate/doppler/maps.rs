@@ -7,7 +7,7 @@ use super::*;
 /// averaging: means over a series' frames (power) and frame pairs (the rest). Being means, those
 /// of consecutive parts of a recording combine into the whole's ([`Moments::merge`]; the pairs
 /// across a cut are not counted), which is how a long recording is processed in segments.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Moments {
     /// Mean |S|² over the frames (|IQ|² units).
     pub power: Array2<f64>,
