@@ -17,13 +17,13 @@ BEAT = {"heart_rate_hz": 40, **STEADY_WINDOWS}
 
 @pytest.fixture(scope="module")
 def steady_tube(tmp_path_factory, cli) -> Path:
-    """A steady coded tube 6 mm long (its ends outside the grid), 60 frames without noise, written
-    by `pcuvd simulate`: `coded.toml`,
+    """A steady coded tube 6 mm long (its ends outside the grid), 4 angles (3.6 kHz frames), 120
+    frames (33 ms) without noise, written by `pcuvd simulate`: `coded.toml`,
     the same recording with one cardiac cycle's triggers in its manifest (`with_triggers.toml`)
     and those triggers as a text file (`triggers.txt`)."""
     folder = tmp_path_factory.mktemp("steady_tube")
-    done = run_cli(cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "60",
-                   "--noise-db", "off", "--tube-length-mm", "6", "--out", folder)
+    done = run_cli(cli, "simulate", "--preset", "tube", "--mode", "coded", "--frames", "120",
+                   "--angles", "4", "--noise-db", "off", "--tube-length-mm", "6", "--out", folder)
     assert done.returncode == 0, done.stderr
     plain = folder / "coded.toml"
     (folder / "with_triggers.toml").write_text(
