@@ -6,6 +6,8 @@
 //! `simulate` / `paper` gives, with the same defaults and the same messages. Computation runs with the GIL released, on the Rust thread
 //! pool. The Python half (`python/pcuvd/`) checks dtypes and shapes, casts, and documents.
 
+#![warn(missing_docs)]
+
 mod process;
 mod recording;
 mod segments;
