@@ -12,7 +12,8 @@ Quick start::
 Units are SI (m, s, Hz, m/s), each in its keyword's name. Stage functions (`rf_to_iq`,
 `beamform`, `svd_filter`, `power_doppler`, `kasai`, `vector_ls`, `vector_irls`,
 `decode_hadamard`, `dynamics`, `resistivity_index`) run one step of the chain on arrays; `simulate` makes
-recordings with ground truth; `pcuvd.study` runs the paper's studies.
+recordings with ground truth; `pcuvd.study` runs the paper's studies; `pcuvd.dask.process` runs
+one long recording's segments on a Dask cluster (import `pcuvd.dask`, with `distributed` installed).
 """
 
 from . import study
