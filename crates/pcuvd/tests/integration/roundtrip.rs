@@ -306,8 +306,20 @@ struct SimulatedBlock {
 }
 
 impl SimulatedBlock {
-    /// The block of `case` (its f-number aside) with `attenuation` (dB/cm/MHz) and `seed`.
+    /// The block of `case` (its f-number aside) with `attenuation` (dB/cm/MHz) and `seed`: 32
+    /// conventional frames.
     fn new(case: &BlockCase, attenuation: f64, seed: u64) -> Self {
+        Self::recorded(case, Coding::Conventional, 32, attenuation, seed)
+    }
+
+    /// The block of `case` (its f-number aside), `frames` frames transmitted with `coding`.
+    fn recorded(
+        case: &BlockCase,
+        coding: Coding,
+        frames: usize,
+        attenuation: f64,
+        seed: u64,
+    ) -> Self {
         let BlockCase {
             depth,
             speed,
@@ -326,7 +338,7 @@ impl SimulatedBlock {
         let sequence = Sequence {
             angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
             event_prf: 14.4e3,
-            coding: Coding::Conventional,
+            coding,
             pulse_cycles: 2.0,
             pulse: None,
         };
@@ -339,7 +351,6 @@ impl SimulatedBlock {
         )
         .unwrap();
         params.attenuation_db_cm_mhz = attenuation;
-        let frames = 32;
         let travel = speed * frames as f64 / params.sequence.frame_rate();
         let block = BlockPhantom::new(
             BlockSpec {
@@ -733,36 +744,15 @@ fn attenuated_block_reads_within_one_percent_where_the_spectrum_has_moved() {
 /// decoded with mid-frame event alignment.
 fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64> {
     use pcuvd::pipeline;
-    let (depth, speed, direction) = (7e-3, 0.025, 20f64.to_radians());
-    let velocity = [speed * direction.sin(), speed * direction.cos()];
-    let sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(8, 15f64.to_radians()),
-        event_prf: 14.4e3,
-        coding,
-        pulse_cycles: 2.0,
-        pulse: None,
+    let case = BlockCase {
+        depth: 7e-3,
+        speed: 0.025,
+        direction_deg: 20.0,
+        pitch: 0.1e-3,
+        f_number: DasParams::DEFAULT_F_NUMBER,
     };
-    let mut p = SimParams::new(
-        Probe::l22_14vx(),
-        sequence,
-        65e6,
-        1540.0,
-        (depth - 1.5e-3, depth + 1.5e-3),
-    )
-    .unwrap();
-    p.attenuation_db_cm_mhz = 0.0;
-    let travel = speed * frames as f64 / p.sequence.frame_rate();
-    let block = BlockPhantom::new(
-        BlockSpec {
-            x: (-2.5e-3 - travel, 2.5e-3 + travel),
-            z: (depth - 1.2e-3 - travel, depth + 1.2e-3 + travel),
-            velocity,
-            density: 300e6,
-        },
-        seed,
-    )
-    .unwrap();
-    let data = simulate(&block, &p, frames, &|_, _| {}).unwrap();
+    let depth = case.depth;
+    let data = SimulatedBlock::recorded(&case, coding, frames, 0.0, seed).data;
     let grid = Grid::new(-0.8e-3, 0.8e-3, depth - 0.4e-3, depth + 0.4e-3, 25e-6).unwrap();
     let params = pcuvd::study::process_params(
         &grid,

@@ -31,6 +31,11 @@ fn recording() -> ChannelData {
 }
 
 fn recording_of(phantom: &TubePhantom) -> ChannelData {
+    simulate(phantom, &sim_params(), FRAMES, &|_, _| {}).unwrap()
+}
+
+/// The acquisition of [`recording_of`].
+fn sim_params() -> SimParams {
     let probe = Probe {
         n_elements: 48,
         ..Probe::l22_14vx()
@@ -45,7 +50,7 @@ fn recording_of(phantom: &TubePhantom) -> ChannelData {
     let mut params = SimParams::new(probe, sequence, 65e6, 1540.0, (4e-3, 8e-3)).unwrap();
     params.noise = Some(NoiseSpec::new(-20.0));
     params.seed = 5;
-    simulate(phantom, &params, FRAMES, &|_, _| {}).unwrap()
+    params
 }
 
 fn params(data: &ChannelData) -> ProcessParams {
@@ -293,19 +298,20 @@ fn a_segment_too_short_for_the_windows_is_refused_by_name() {
 /// `--dealias auto` in segments: the maps from the totals, every ensemble and every dynamics
 /// window are dealiased, as on the whole-recording path; one segment gives the whole path's
 /// dealiased vectors, windows (at the K the maps chose) and ensembles.
-#[test]
-#[ignore = "slow tier: cargo test -- --include-ignored"]
-fn segments_dealias_as_the_whole_path_does() {
-    let probe = recording().acquisition;
+/// A tube at 3.5 × the Nyquist velocity at f_0, and the settings that dealias it: the maps'
+/// and the windows' dealiasing automatic.
+///
+/// With this 20° tube the largest projection (at +12°) is about 0.44 of the peak speed,
+/// 1.5 v_N. Loupas (the default) scales by the echo's mean frequency, here about 9 % below f_0, so
+/// its own Nyquist velocity is that much higher, and a tube at 2.5 × (1.1 v_N at f_0) would
+/// barely wrap.
+fn aliasing_tube() -> (ChannelData, ProcessParams, DynamicsParams) {
+    let acquisition = sim_params().acquisition();
     let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
-        probe.sound_speed,
-        probe.frame_rate(),
-        probe.probe.center_frequency,
+        acquisition.sound_speed,
+        acquisition.frame_rate(),
+        acquisition.probe.center_frequency,
     );
-    // 3.5 × the Nyquist velocity at f_0: with this 20° tube the largest projection (at +12°) is
-    // about 0.44 of the peak speed, 1.5 v_N. Loupas (the default) scales by the echo's mean
-    // frequency, here about 9 % below f_0, so its own Nyquist velocity is that much higher, and
-    // a tube at 2.5 × (1.1 v_N at f_0) would barely wrap.
     let data = recording_of(&tube_at(3.5 * nyquist));
     let params = ProcessParams {
         dealias: Dealias::Auto,
@@ -315,6 +321,13 @@ fn segments_dealias_as_the_whole_path_does() {
         dealias: Dealias::Auto,
         ..windows()
     };
+    (data, params, dynamics)
+}
+
+#[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
+fn segments_dealias_as_the_whole_path_does() {
+    let (data, params, dynamics) = aliasing_tube();
     let whole = pipeline::process(&data, &params, &quiet).unwrap();
     let dealiased = whole
         .maps
@@ -445,21 +458,7 @@ fn segments_shorter_than_a_cardiac_cycle_keep_their_windows() {
 #[test]
 fn segments_processed_apart_join_into_the_one_process_run() {
     use pcuvd::pipeline::segments::SegmentRun;
-    // As in `segments_dealias_as_the_whole_path_does`: the tube aliases.
-    let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
-        1540.0,
-        9e3 / 5.0,
-        Probe::l22_14vx().center_frequency,
-    );
-    let data = recording_of(&tube_at(3.5 * nyquist));
-    let params = ProcessParams {
-        dealias: Dealias::Auto,
-        ..params(&data)
-    };
-    let dynamics = DynamicsParams {
-        dealias: Dealias::Auto,
-        ..windows()
-    };
+    let (data, params, dynamics) = aliasing_tube();
     let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
         .unwrap()
         .unwrap();
