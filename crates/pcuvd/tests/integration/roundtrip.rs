@@ -773,11 +773,11 @@ fn block_projections_coded(frames: usize, coding: Coding, seed: u64) -> Vec<f64>
 /// frames and continues it beyond the recording's ends by linear prediction (an order-4 model,
 /// fewer on short series: order ⌊(frames − 2)/2⌋), so every angle's projection is within 1 % of
 /// the conventional one from 4 frames on. With 3 frames or fewer no predictor can be fitted, the
-/// series is held at its end values, and the projections read low.
+/// series is held at its end values, and the projections are off by several percent.
 ///
-/// Measured (seed 1, worst angle, decoded / conventional − 1): −8.9 %, −0.47 %, −0.42 %, −0.11 %
-/// and +0.02 % at 3, 4, 6, 12 and 32 frames; the FFT over the mirror-extended series used
-/// before read −3.3 % and −1.5 % at 6 and 12 frames.
+/// Measured (seed 1, worst angle, decoded / conventional − 1): +13.5 %, +0.49 %, −0.44 %,
+/// −0.14 % and −0.01 % at 3, 4, 6, 12 and 32 frames (the test prints them); the FFT over the
+/// mirror-extended series used before read −3.3 % and −1.5 % at 6 and 12 frames.
 #[test]
 #[ignore = "slow tier: cargo test -- --include-ignored"]
 fn decoded_projections_match_conventional_from_twelve_frames() {
