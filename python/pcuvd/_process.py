@@ -123,19 +123,23 @@ class ProcessResult:
         bids_subject: str | None = None,
         bids_session: str | None = None,
         bids_task: str | None = None,
+        zarr: bool = False,
     ) -> list[Path]:
         """Writes exactly what `pcuvd process` writes into `folder`: maps as .npy, figures,
         summary.json last. A folder that holds anything is refused unless `force`, which first
         removes pcuvd's own outputs there (never other files). `nifti=True` (`--nifti`) also
         writes NIfTI images with fUSI-BIDS sidecars; `bids_subject=` and friends name them by
-        BIDS entities (`--bids-subject`...). Returns the figures written."""
+        BIDS entities (`--bids-subject`...). `zarr=True` (`--zarr`) also writes the run as one
+        Zarr store, `pcuvd.zarr` (open it with `xarray.open_zarr`). Returns the figures written."""
         bids = (bids_subject, bids_session, bids_task)
         for label in bids:
             if label is not None and not isinstance(label, str):
                 raise TypeError(f"save(): a BIDS label is a str, got {type(label).__name__}")
         return [
             Path(p)
-            for p in self._native.save(os.fspath(folder), bool(force), bool(nifti), bids)
+            for p in self._native.save(
+                os.fspath(folder), bool(force), bool(nifti), bids, bool(zarr)
+            )
         ]
 
     def to_xarray(self) -> Any:

@@ -29,9 +29,10 @@ pub mod settings;
 pub mod simulation;
 pub mod study;
 pub mod summary;
+pub mod zarr;
 
 pub use progress::{Progress, Silent};
-pub use run::{Plan, Processed, run};
+pub use run::{Plan, Processed, run, run_into};
 pub use settings::{DynamicsSettings, ProcessingSettings};
 
 /// The cause chain on one line (line breaks inside a cause become spaces), without the captured

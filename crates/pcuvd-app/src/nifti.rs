@@ -421,7 +421,12 @@ pub fn write_nifti(
             fields.clone(),
         )?);
     }
-    if let (Some(ensembles), Some(spec)) = (&processed.ensembles, plan.ensembles) {
+    // Ensembles that went to a Zarr store as the run went are there only.
+    if let (Some(ensembles), Some(spec), false) = (
+        &processed.ensembles,
+        plan.ensembles,
+        processed.ensembles_in_store,
+    ) {
         let step_s = spec.step as f64 / frame_rate;
         let timed = header(out, step_s);
         let mut fields = acquisition_fields(data, out, spec.frames);

@@ -78,6 +78,8 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ensemble_vx.json",
     "ensemble_vz.nii.gz",
     "ensemble_vz.json",
+    // --zarr: one store (a folder).
+    crate::zarr::STORE,
 ];
 
 /// The same file, whether or not either path exists yet: canonical when it exists, else the
@@ -97,7 +99,8 @@ fn resolved(path: &Path) -> PathBuf {
 
 /// Makes `dir` ready for a run that writes the files named `own`: refuses when one of them would
 /// land on one of `inputs`; creates the folder; refuses a folder that holds anything unless
-/// `force`, and with `force` removes the files of `own` left there by an earlier run (only those).
+/// `force`, and with `force` removes the files of `own` left there by an earlier run (only those,
+/// and a Zarr store folder among them).
 pub fn prepare(dir: &Path, own: &[&str], inputs: &[PathBuf], force: bool) -> Result<()> {
     let inputs: Vec<PathBuf> = inputs.iter().map(|p| resolved(p)).collect();
     for name in own {
@@ -135,6 +138,9 @@ pub fn prepare(dir: &Path, own: &[&str], inputs: &[PathBuf], force: bool) -> Res
         let path = dir.join(name);
         if path.is_file() {
             std::fs::remove_file(&path)
+                .with_context(|| format!("{}: cannot remove the earlier output", path.display()))?;
+        } else if path.is_dir() && name.ends_with(".zarr") {
+            std::fs::remove_dir_all(&path)
                 .with_context(|| format!("{}: cannot remove the earlier output", path.display()))?;
         }
     }
@@ -204,8 +210,12 @@ mod tests {
         let refused = prepare(&out, PROCESS_OUTPUTS, &[], false).unwrap_err();
         assert!(format!("{refused:#}").contains("--force"), "{refused:#}");
         assert!(out.join("ri.npy").exists());
+        std::fs::create_dir_all(out.join(crate::zarr::STORE).join("vx")).unwrap();
+        std::fs::create_dir_all(out.join("mine.zarr")).unwrap();
         prepare(&out, PROCESS_OUTPUTS, &[], true).unwrap();
         assert!(!out.join("ri.npy").exists());
+        assert!(!out.join(crate::zarr::STORE).exists());
+        assert!(out.join("mine.zarr").is_dir());
         assert_eq!(
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"

@@ -155,8 +155,12 @@ pub struct Processed {
     pub dynamics: DynamicsOutcome,
     /// Wall-clock seconds the dynamics stage took.
     pub dynamics_s: f64,
-    /// The Doppler time series, when asked for.
+    /// The Doppler time series, when asked for. Where the run handed them to a store as it went
+    /// ([`run_into`]), only their times, first frames and clutter cut-offs: the maps are
+    /// (0, nz, nx) and `ensembles_in_store` is true.
     pub ensembles: Option<pcuvd::pipeline::ensembles::EnsembleMaps>,
+    /// True when the ensembles' maps went to a store as the run went, not into `ensembles`.
+    pub ensembles_in_store: bool,
     /// The blocks of frames the images were formed in.
     pub blocks: pcuvd::pipeline::blocks::Blocks,
     /// Each segment's core and imaged frames, and its clutter cut-offs per angle, when the
@@ -178,16 +182,37 @@ pub struct SegmentsDone {
 /// dynamics setting given, a recording that cannot give RI maps (too short, one angle) skips the
 /// stage with a note; otherwise that is an error.
 pub fn run(data: &dyn FrameSource, plan: &Plan, progress: &dyn Progress) -> Result<Processed> {
+    run_into(data, plan, progress, None)
+}
+
+/// [`run`], the Doppler time series handed to `sink` (when given) instead of kept: a segmented
+/// run hands each segment's ensembles as the segment finishes, a whole one all of them at the
+/// end, so that a long recording's series are never in memory whole. The result keeps the
+/// ensembles' times only ([`Processed::ensembles_in_store`]).
+pub fn run_into(
+    data: &dyn FrameSource,
+    plan: &Plan,
+    progress: &dyn Progress,
+    mut sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
+) -> Result<Processed> {
     let stages = crate::progress::stages(progress);
     let stages: &(dyn Fn(pipeline::Stage, usize, usize) + Sync) = &stages;
     // Images are formed a block of frames at a time, so that decoding and IQ need one block's
     // memory; each ensemble of a time series is filtered on its own, from the unfiltered images.
     let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
     if let Some(segments) = &plan.segments {
-        return run_in_segments(data, plan, segments, blocks, progress);
+        return run_in_segments(data, plan, segments, blocks, progress, sink);
     }
-    let (out, ensembles) =
+    let (out, mut ensembles) =
         pipeline::process_source(data, &plan.params, blocks, plan.ensembles, stages)?;
+    let ensembles_in_store = match (&mut sink, &mut ensembles) {
+        (Some(sink), Some(maps)) => {
+            sink.append(maps)?;
+            maps.keep_times_only();
+            true
+        }
+        _ => false,
+    };
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan, progress)?;
     Ok(Processed {
@@ -195,6 +220,7 @@ pub fn run(data: &dyn FrameSource, plan: &Plan, progress: &dyn Progress) -> Resu
         dynamics,
         dynamics_s: clock.elapsed().as_secs_f64(),
         ensembles,
+        ensembles_in_store,
         blocks,
         segments: None,
     })
@@ -267,7 +293,7 @@ pub fn join_segments(
     let segments = planned_segments(data, plan)?;
     let done = segment_run(data, plan, segments).join(data, parts)?;
     let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
-    finish_segmented(data, plan, done, blocks, progress)
+    finish_segmented(data, plan, done, blocks, progress, false)
 }
 
 /// A segment's part as bytes, to send to the process that joins the run.
@@ -289,18 +315,12 @@ fn run_in_segments(
     segments: &Segments,
     blocks: pcuvd::pipeline::blocks::Blocks,
     progress: &dyn Progress,
+    sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
     let stages = crate::progress::stages(progress);
-    let run = segment_run(data, plan, segments);
-    let done = pcuvd::pipeline::segments::process_in_segments(
-        data,
-        run.params,
-        run.segments,
-        run.dynamics,
-        run.ensembles,
-        &stages,
-    )?;
-    finish_segmented(data, plan, done, blocks, progress)
+    let in_store = sink.is_some();
+    let done = segment_run(data, plan, segments).process(data, sink, &stages)?;
+    finish_segmented(data, plan, done, blocks, progress, in_store)
 }
 
 /// The dynamics stage's RI maps from a segmented run's series, and what [`run`] returns.
@@ -310,6 +330,7 @@ fn finish_segmented(
     done: pcuvd::pipeline::segments::Segmented,
     blocks: pcuvd::pipeline::blocks::Blocks,
     progress: &dyn Progress,
+    ensembles_in_store: bool,
 ) -> Result<Processed> {
     let vectors = data.acquisition().sequence.n_angles() >= 2;
     let clock = std::time::Instant::now();
@@ -345,6 +366,7 @@ fn finish_segmented(
         out: std::sync::Arc::new(done.out),
         dynamics,
         dynamics_s: clock.elapsed().as_secs_f64(),
+        ensembles_in_store: ensembles_in_store && done.ensembles.is_some(),
         ensembles: done.ensembles,
         blocks,
         segments: Some(SegmentsDone {

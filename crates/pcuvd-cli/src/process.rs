@@ -40,6 +40,11 @@ pub struct ProcessArgs {
     /// JSON sidecars, named by map (power_doppler.nii.gz…), as nibabel and BIDS tools read them.
     #[arg(long)]
     pub nifti: bool,
+    /// Also write the run as one Zarr v3 store (pcuvd.zarr): the maps (z, x), the time series
+    /// (time, z, x) and the velocity windows, in metres and seconds, as zarr and
+    /// xarray.open_zarr read it. The time series go to the store as the run goes, in it only.
+    #[arg(long)]
+    pub zarr: bool,
     /// BIDS subject label: name the NIfTI images by BIDS entities (sub-<label>[_ses-…][_task-…]
     /// [_desc-…]_pwd.nii.gz for the power maps); implies --nifti.
     #[arg(long)]
@@ -183,8 +188,19 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     if let Some(warning) = band_warning {
         eprintln!("warning: {}: {warning}", args.input.display());
     }
+    let mut zarr = match args.zarr {
+        true => Some(pcuvd_app::zarr::ZarrStore::create(
+            &args.out.join(pcuvd_app::zarr::STORE),
+            data,
+            &plan,
+        )?),
+        false => None,
+    };
     let progress = Bars::new("");
-    let processed = pcuvd_app::run(data, &plan, &progress)
+    let sink = zarr
+        .as_mut()
+        .map(|z| z as &mut dyn pcuvd::pipeline::segments::EnsembleSink);
+    let processed = pcuvd_app::run_into(data, &plan, &progress, sink)
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     let coded = data.acquisition().sequence.is_coded();
     if let Some(warning) =
@@ -204,6 +220,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         name: &name,
         extra_timings: &extra_timings,
         nifti: nifti.as_ref(),
+        zarr,
     };
     let pngs = save(&args.out, data, &plan, &processed, record, &progress)?;
     println!(

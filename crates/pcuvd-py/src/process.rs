@@ -209,6 +209,7 @@ impl PyProcessResult {
                 dynamics,
                 dynamics_s: seconds,
                 ensembles: self.processed.ensembles.clone(),
+                ensembles_in_store: self.processed.ensembles_in_store,
                 blocks: self.processed.blocks,
                 segments: self.processed.segments.clone(),
             },
@@ -225,8 +226,9 @@ impl PyProcessResult {
 
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
     /// a folder that holds anything is refused unless `force`. `nifti`: also the NIfTI images,
-    /// named by map, or by BIDS entities `bids` = (subject, session, task). Returns the figures.
-    #[pyo3(signature = (folder, force, nifti=false, bids=(None, None, None)))]
+    /// named by map, or by BIDS entities `bids` = (subject, session, task). `zarr`: also the
+    /// run as one Zarr store (`pcuvd.zarr`). Returns the figures.
+    #[pyo3(signature = (folder, force, nifti=false, bids=(None, None, None), zarr=false))]
     fn save(
         &self,
         py: Python<'_>,
@@ -234,6 +236,7 @@ impl PyProcessResult {
         force: bool,
         nifti: bool,
         bids: (Option<String>, Option<String>, Option<String>),
+        zarr: bool,
     ) -> PyResult<Vec<PathBuf>> {
         let (subject, session, task) = bids;
         let naming = pcuvd_app::nifti::NiftiNaming::requested(nifti, subject, session, task)
@@ -248,6 +251,14 @@ impl PyProcessResult {
                 &self.info.files,
                 force,
             )?;
+            let zarr = match zarr {
+                true => Some(pcuvd_app::zarr::ZarrStore::create(
+                    &folder.join(pcuvd_app::zarr::STORE),
+                    &*self.recording,
+                    &self.plan,
+                )?),
+                false => None,
+            };
             let name = std::path::Path::new(&self.input)
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
@@ -262,6 +273,7 @@ impl PyProcessResult {
                     name: &name,
                     extra_timings: &[("checksum", checksum_s)],
                     nifti: naming.as_ref(),
+                    zarr,
                 },
                 &Lines::new(true),
             )

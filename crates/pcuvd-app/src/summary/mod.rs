@@ -29,6 +29,8 @@ pub struct Record<'a> {
     pub extra_timings: &'a [(&'a str, f64)],
     /// NIfTI images with BEP040 sidecars besides the `.npy` maps, named so; `None` for none.
     pub nifti: Option<&'a crate::nifti::NiftiNaming>,
+    /// The run's Zarr store, to finish with the maps; `None` for none.
+    pub zarr: Option<crate::zarr::ZarrStore>,
 }
 
 /// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
@@ -47,6 +49,7 @@ pub fn save(
         name,
         extra_timings,
         nifti,
+        zarr,
     } = record;
     let clock = std::time::Instant::now();
     let out = &processed.out;
@@ -54,7 +57,9 @@ pub fn save(
     let mut summary = Summary::of(data, plan, processed, source);
     let mut pngs = figures::process_figures(dir, out, name)?;
     pngs.append(&mut write_dynamics(dir, plan, processed, name, progress)?);
-    if let Some(maps) = &processed.ensembles {
+    if let Some(maps) = &processed.ensembles
+        && !processed.ensembles_in_store
+    {
         write_ensembles(dir, maps)?;
         pngs.push(figures::ensemble_figure(dir, out, maps, name)?);
     }
@@ -65,6 +70,18 @@ pub fn save(
             .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
             .collect();
         summary.nifti = Some(names);
+    }
+    if let Some(store) = zarr {
+        let in_store_only = processed.ensembles_in_store;
+        let path = store.finish(data, plan, processed)?;
+        summary.zarr = Some(ZarrRecord {
+            store: path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            arrays: crate::zarr::arrays(&path)?,
+            time_series_in_store_only: in_store_only,
+        });
     }
     for (key, seconds) in extra_timings {
         summary.timings_s.insert(key.to_string(), *seconds);

@@ -47,8 +47,24 @@ pub struct Summary {
     /// The NIfTI images written beside the `.npy` maps (absent when none were asked for).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub nifti: Option<Vec<String>>,
+    /// The Zarr store written beside the `.npy` maps (absent when none was asked for); it holds
+    /// the time series alone when they went to it as the run went.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zarr: Option<ZarrRecord>,
     /// Wall-clock seconds by stage.
     pub timings_s: BTreeMap<String, f64>,
+}
+
+/// The run's Zarr store.
+#[derive(Debug, Clone, Serialize)]
+pub struct ZarrRecord {
+    /// The store's folder, in the output folder.
+    pub store: String,
+    /// Its arrays: maps (z, x), time series (time, z, x), velocity windows (window_time, z, x).
+    pub arrays: Vec<String>,
+    /// True when the Doppler time series are in the store only (no `ensemble_*.npy`, no
+    /// `ensembles.png`): they went to it as the run went, never all in memory.
+    pub time_series_in_store_only: bool,
 }
 
 /// A section that is either a record or a sentence saying why there is none.
@@ -467,6 +483,7 @@ impl Summary {
                 ),
             },
             nifti: None,
+            zarr: None,
             timings_s: (out.timings.iter())
                 .map(|(stage, seconds)| (stage.label().to_string(), *seconds))
                 .collect(),

@@ -33,6 +33,9 @@ pub enum Error {
     /// are processed could not be written or read back (the message says why, e.g. a full disk).
     #[error("scratch file of the segments' maps (in the temporary folder, TMPDIR): {0}")]
     Scratch(String),
+    /// A run's output could not be written as it went (the message names the file and why).
+    #[error("writing the outputs: {0}")]
+    Write(String),
 }
 
 /// Result of a pcuvd computation.

@@ -78,6 +78,17 @@ impl EnsembleMaps {
         crate::estimate::doppler::signed_power(&self.power_doppler, &self.color_doppler)
     }
 
+    /// Drops the maps (left (0, nz, nx)), keeping the times, first frames and clutter cut-offs:
+    /// what a run keeps of ensembles a store holds.
+    pub fn keep_times_only(&mut self) {
+        let (_, nz, nx) = self.power_doppler.dim();
+        let empty = || Array3::zeros((0, nz, nx));
+        self.power_doppler = empty();
+        self.color_doppler = empty();
+        self.vx = self.vx.as_ref().map(|_| empty());
+        self.vz = self.vz.as_ref().map(|_| empty());
+    }
+
     /// Moves every ensemble of `spec` `frames` frames later (a segment's ensembles, counted from
     /// the recording's first frame), at `frame_rate` (Hz).
     pub fn shift(&mut self, frames: usize, spec: EnsembleSpec, frame_rate: f64) {

@@ -147,7 +147,9 @@ pub struct Segmented {
     pub out: ProcessOutput,
     /// The dynamics stage's velocity series, when `dynamics` was given.
     pub series: Option<VelocitySeries>,
-    /// The Doppler time series, when `ensembles` was given.
+    /// The Doppler time series, when `ensembles` was given. Where an [`EnsembleSink`] took the
+    /// maps, only their times, first frames and clutter cut-offs are here: the maps are
+    /// (0, nz, nx).
     pub ensembles: Option<EnsembleMaps>,
     /// Each segment's core and imaged frames.
     pub ranges: Vec<(Range<usize>, Range<usize>)>,
@@ -290,6 +292,14 @@ fn ensemble_fields(maps: &mut EnsembleMaps) -> Vec<&mut Array3<f64>> {
     fields.extend(maps.vx.as_mut());
     fields.extend(maps.vz.as_mut());
     fields
+}
+
+/// Where a segmented run puts each segment's Doppler time series as the segment joins the run
+/// (e.g. a chunked store on disk), so that a long recording's ensembles are never all in memory.
+pub trait EnsembleSink {
+    /// Takes the next segment's ensembles, in recording order: their centre times (s from the
+    /// first frame), first frames, clutter cut-offs and maps in SI units, (ensembles, nz, nx).
+    fn append(&mut self, part: &EnsembleMaps) -> Result<()>;
 }
 
 /// One segment's share of a segmented run: its Doppler moments, B-mode envelope, clutter cut-offs,
@@ -510,6 +520,17 @@ impl SegmentRun<'_> {
         source: &dyn FrameSource,
         parts: impl IntoIterator<Item = SegmentPart>,
     ) -> Result<Segmented> {
+        self.join_into(source, parts, None)
+    }
+
+    /// [`Self::join`], each part's ensembles handed to `sink` in recording order instead of
+    /// being joined in memory (when a sink is given).
+    pub fn join_into(
+        &self,
+        source: &dyn FrameSource,
+        parts: impl IntoIterator<Item = SegmentPart>,
+        mut sink: Option<&mut dyn EnsembleSink>,
+    ) -> Result<Segmented> {
         let mut parts: Vec<SegmentPart> = parts.into_iter().collect();
         parts.sort_by_key(|p| p.index);
         let count = self.count(source);
@@ -524,8 +545,38 @@ impl SegmentRun<'_> {
         }
         let mut joined = Joined::new(self.params);
         for part in parts {
-            joined.add(part)?;
+            joined.add(part, sink.as_deref_mut())?;
         }
+        joined.finish(self, source)
+    }
+
+    /// Every segment of `source` in turn, joined as they finish: [`process_in_segments`], each
+    /// segment's ensembles handed to `sink` (when given) as the segment joins instead of being
+    /// kept.
+    pub fn process(
+        &self,
+        source: &dyn FrameSource,
+        mut sink: Option<&mut dyn EnsembleSink>,
+        progress: &dyn Fn(Stage, usize, usize),
+    ) -> Result<Segmented> {
+        self.check(source)?;
+        let count = self.count(source);
+        let mut joined = Joined::new(self.params);
+        // The previous segment's series, whose memory the next one's are formed in.
+        let mut spare = Vec::new();
+        let mut window_intervals = None;
+        for index in 0..count {
+            let (part, series) =
+                self.segment_in(source, index, window_intervals, spare, progress)?;
+            spare = series;
+            if index == 0 {
+                window_intervals = part.window_intervals;
+            }
+            joined.add(part, sink.as_deref_mut())?;
+        }
+        progress(Stage::Doppler, count, count);
+        // The windows' maps come back once the last series is gone.
+        drop(spare);
         joined.finish(self, source)
     }
 }
@@ -540,6 +591,8 @@ struct Joined {
     windows_aside: SetAside,
     ensemble_parts: Vec<EnsembleMaps>,
     ensembles_aside: SetAside,
+    /// True once a sink has taken the ensembles' maps: they are not joined.
+    ensembles_sunk: bool,
     clutter: Vec<Vec<ClutterReport>>,
     timings: Timings,
     images: Option<AngleImages>,
@@ -555,6 +608,7 @@ impl Joined {
             windows_aside: SetAside::new(),
             ensemble_parts: Vec::new(),
             ensembles_aside: SetAside::new(),
+            ensembles_sunk: false,
             clutter: Vec::new(),
             timings: vec![
                 (Stage::Decode, 0.0),
@@ -573,8 +627,9 @@ impl Joined {
         }
     }
 
-    /// Adds the next segment's part (parts come in recording order).
-    fn add(&mut self, part: SegmentPart) -> Result<()> {
+    /// Adds the next segment's part (parts come in recording order); its ensembles go to `sink`
+    /// when one is given.
+    fn add(&mut self, part: SegmentPart, sink: Option<&mut (dyn EnsembleSink + '_)>) -> Result<()> {
         if self.per_angle.is_empty() {
             self.per_angle = (0..part.per_angle.len()).map(|_| Sums::default()).collect();
         }
@@ -596,8 +651,16 @@ impl Joined {
             self.windows.push(windows);
         }
         if let Some(mut ensembles) = part.ensembles {
-            self.ensembles_aside
-                .put(&mut ensemble_fields(&mut ensembles))?;
+            match sink {
+                Some(sink) => {
+                    sink.append(&ensembles)?;
+                    self.ensembles_sunk = true;
+                    ensembles.keep_times_only();
+                }
+                None => self
+                    .ensembles_aside
+                    .put(&mut ensemble_fields(&mut ensembles))?,
+            }
             self.ensemble_parts.push(ensembles);
         }
         self.clutter.push(part.clutter);
@@ -639,6 +702,7 @@ impl Joined {
             None => None,
         };
         let ensembles = match run.ensembles {
+            Some(_) if self.ensembles_sunk => Some(EnsembleMaps::concatenate(self.ensemble_parts)?),
             Some(_) => {
                 let mut maps = EnsembleMaps::concatenate(self.ensemble_parts)?;
                 let mut joined = self.ensembles_aside.take()?.into_iter();
@@ -692,22 +756,5 @@ pub fn process_in_segments(
         dynamics,
         ensembles: ensemble_spec,
     };
-    run.check(source)?;
-    let count = run.count(source);
-    let mut joined = Joined::new(params);
-    // The previous segment's series, whose memory the next one's are formed in.
-    let mut spare = Vec::new();
-    let mut window_intervals = None;
-    for index in 0..count {
-        let (part, series) = run.segment_in(source, index, window_intervals, spare, progress)?;
-        spare = series;
-        if index == 0 {
-            window_intervals = part.window_intervals;
-        }
-        joined.add(part)?;
-    }
-    progress(Stage::Doppler, count, count);
-    // The windows' maps come back once the last series is gone.
-    drop(spare);
-    joined.finish(&run, source)
+    run.process(source, None, progress)
 }

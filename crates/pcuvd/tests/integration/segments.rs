@@ -506,6 +506,33 @@ fn segments_processed_apart_join_into_the_one_process_run() {
     assert_eq!(joined.ranges, one.ranges);
     assert_eq!(joined.clutter, one.clutter);
 
+    // Handed to a sink, the ensembles come in recording order, one part per segment, and make
+    // the same series; the run keeps their times alone.
+    struct Collect(Vec<ensembles::EnsembleMaps>);
+    impl pcuvd::pipeline::segments::EnsembleSink for Collect {
+        fn append(&mut self, part: &ensembles::EnsembleMaps) -> pcuvd::Result<()> {
+            self.0.push(part.clone());
+            Ok(())
+        }
+    }
+    let mut sink = Collect(Vec::new());
+    let sunk = run
+        .join_into(&data, parts.clone(), Some(&mut sink))
+        .unwrap();
+    assert_eq!(sink.0.len(), count);
+    let expected = one.ensembles.clone().unwrap();
+    assert_eq!(
+        ensembles::EnsembleMaps::concatenate(sink.0).unwrap(),
+        expected
+    );
+    let kept = sunk.ensembles.unwrap();
+    assert_eq!(
+        (kept.times_s, kept.starts, kept.clutter),
+        (expected.times_s, expected.starts, expected.clutter)
+    );
+    assert_eq!(kept.power_doppler.dim().0, 0);
+    assert_eq!(sunk.out.maps.power_doppler, one.out.maps.power_doppler);
+
     parts.pop();
     let missing = run.join(&data, parts).unwrap_err().to_string();
     assert!(missing.contains("do not make"), "{missing}");

@@ -1,0 +1,521 @@
+//! The run as one Zarr v3 store (`pcuvd.zarr`), the form functional-ultrasound tools (ConfUSIus,
+//! xarray + Dask) keep long series in: chunked arrays with named dimensions, opened lazily by
+//! `zarr` ≥ 3 and `xarray.open_zarr` without pcuvd installed.
+//!
+//! - Maps: `(z, x)`; the Doppler time series: `(time, z, x)`, one step per ensemble, `time` its
+//!   centre; the dynamics stage's velocity windows: `(window_time, z, x)`. Coordinates `z`, `x`
+//!   (m), `time`, `window_time` (s from the first frame) are arrays of the same names, so xarray
+//!   indexes by them.
+//! - Values are float32 (seven significant digits, far finer than any estimate's spread: the
+//!   `.npy` maps keep float64), gzip-compressed; vessel classes are uint8. Every array carries
+//!   `units` and `long_name`; the store's attributes hold the acquisition under ConfUSIus's names
+//!   where they exist (`compound_sampling_frequency`, `transmit_frequency`,
+//!   `beamforming_sound_velocity`) and pcuvd's processing options.
+//! - A segmented run appends each segment's ensembles as the segment finishes ([`EnsembleSink`]),
+//!   so a long recording's series are never in memory whole. The metadata is consolidated into
+//!   the root group last: a store without it is visibly incomplete.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use ndarray::{Array2, Array3, ArrayView3, Axis};
+use pcuvd::acquisition::source::FrameSource;
+use pcuvd::pipeline::ensembles::EnsembleMaps;
+use pcuvd::pipeline::segments::EnsembleSink;
+use serde_json::{Map, Value, json};
+use zarrs::array::ArraySubset;
+use zarrs::array::{Array, ArrayBuilder, DataType, data_type};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::group::GroupBuilder;
+
+use crate::run::{DynamicsOutcome, Plan, Processed};
+
+/// The store's folder name in a run's output folder.
+pub const STORE: &str = "pcuvd.zarr";
+
+/// Bytes of one time-series chunk (about): large enough that a long series is not millions of
+/// files, small enough that reading one ensemble reads little else.
+const CHUNK_BYTES: usize = 4 << 20;
+
+/// A run's Zarr store, open for writing: created before the run, fed the ensembles as they come,
+/// finished with the maps.
+pub struct ZarrStore {
+    path: PathBuf,
+    store: Arc<FilesystemStore>,
+    /// Rows (z) and columns (x) of every map.
+    grid: (usize, usize),
+    /// The time series' arrays (the `time` coordinate first), made by the first ensembles.
+    series: Vec<Array<FilesystemStore>>,
+    /// Ensembles written so far.
+    written: u64,
+    /// True once ensembles came through [`EnsembleSink::append`]: the run kept only their times.
+    streamed: bool,
+}
+
+/// One array's description: its name, unit and meaning.
+struct Described {
+    name: &'static str,
+    units: &'static str,
+    long_name: &'static str,
+}
+
+const fn described(name: &'static str, units: &'static str, long_name: &'static str) -> Described {
+    Described {
+        name,
+        units,
+        long_name,
+    }
+}
+
+/// The time series' arrays after `time`, in the order [`series_values`] gives them.
+const SERIES: [Described; 5] = [
+    described(
+        "ensemble_power_doppler",
+        "|IQ|^2",
+        "power Doppler of each ensemble",
+    ),
+    described(
+        "ensemble_signed_power_doppler",
+        "|IQ|^2",
+        "power Doppler of each ensemble signed by its colour Doppler (> 0 moving away from the probe)",
+    ),
+    described(
+        "ensemble_color_doppler",
+        "m/s",
+        "axial velocity of each ensemble (> 0 moving away from the probe)",
+    ),
+    described(
+        "ensemble_vx",
+        "m/s",
+        "lateral velocity of each ensemble, PC-UVD IRLS-WLS (> 0 toward +x)",
+    ),
+    described(
+        "ensemble_vz",
+        "m/s",
+        "axial vector velocity of each ensemble, PC-UVD IRLS-WLS (> 0 deeper)",
+    ),
+];
+
+/// An ensemble part's series in [`SERIES`] order (Vx, Vz only with two or more angles).
+fn series_values(part: &EnsembleMaps) -> Vec<Array3<f64>> {
+    let mut values = vec![
+        part.power_doppler.clone(),
+        part.signed_power_doppler(),
+        part.color_doppler.clone(),
+    ];
+    values.extend(part.vx.clone());
+    values.extend(part.vz.clone());
+    values
+}
+
+fn as_f32(values: impl IntoIterator<Item = f64>) -> Vec<f32> {
+    values.into_iter().map(|v| v as f32).collect()
+}
+
+/// Row-major float32 values of a (t, z, x) block.
+fn block_f32(values: ArrayView3<f64>) -> Vec<f32> {
+    as_f32(values.as_standard_layout().iter().copied())
+}
+
+impl ZarrStore {
+    /// Creates the store at `path` (a folder that must not exist yet) for a run of `data` as
+    /// `plan` says: the root group with the acquisition's attributes and the `z`, `x`
+    /// coordinates.
+    pub fn create(path: &Path, data: &dyn FrameSource, plan: &Plan) -> Result<ZarrStore> {
+        let context = || format!("{}: cannot create the Zarr store", path.display());
+        if path.exists() {
+            anyhow::bail!(
+                "{}: already exists; the store is written new",
+                path.display()
+            );
+        }
+        std::fs::create_dir_all(path).with_context(context)?;
+        let store = Arc::new(FilesystemStore::new(path).with_context(context)?);
+        let grid = &plan.params.grid;
+        let zarr = ZarrStore {
+            path: path.to_path_buf(),
+            store,
+            grid: (grid.z.len(), grid.x.len()),
+            series: Vec::new(),
+            written: 0,
+            streamed: false,
+        };
+        zarr.write_group(attributes(data, plan), None)?;
+        zarr.write_coordinate(&described("z", "m", "depth below the probe"), &grid.z)?;
+        zarr.write_coordinate(&described("x", "m", "lateral position"), &grid.x)?;
+        Ok(zarr)
+    }
+
+    /// The store's folder.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn write_group(
+        &self,
+        attributes: Map<String, Value>,
+        consolidated: Option<
+            zarrs::metadata_ext::group::consolidated_metadata::ConsolidatedMetadata,
+        >,
+    ) -> Result<()> {
+        let mut group = GroupBuilder::new()
+            .attributes(attributes)
+            .build(self.store.clone(), "/")
+            .context("the store's root group")?;
+        group.set_consolidated_metadata(consolidated);
+        group
+            .store_metadata()
+            .with_context(|| format!("{}: cannot write the store's metadata", self.path.display()))
+    }
+
+    /// A new array `what` of `shape`, chunked by `chunks`, with named `dimensions`.
+    fn new_array(
+        &self,
+        what: &Described,
+        shape: Vec<u64>,
+        chunks: Vec<u64>,
+        dimensions: &[&str],
+        data_type: DataType,
+        fill: impl Into<zarrs::array::builder::ArrayBuilderFillValue>,
+    ) -> Result<Array<FilesystemStore>> {
+        let mut attributes = Map::new();
+        attributes.insert("units".into(), what.units.into());
+        attributes.insert("long_name".into(), what.long_name.into());
+        let gzip = zarrs::array::codec::GzipCodec::new(5).context("gzip level")?;
+        let array = ArrayBuilder::new(shape, chunks, data_type, fill)
+            .dimension_names(Some(dimensions.to_vec()))
+            .bytes_to_bytes_codecs(vec![Arc::new(gzip)])
+            .attributes(attributes)
+            .build(self.store.clone(), &format!("/{}", what.name))
+            .with_context(|| format!("the store's array {}", what.name))?;
+        array
+            .store_metadata()
+            .with_context(|| format!("{}: cannot write {}", self.path.display(), what.name))?;
+        Ok(array)
+    }
+
+    fn store<'a>(
+        &self,
+        array: &Array<FilesystemStore>,
+        ranges: &[std::ops::Range<u64>],
+        values: impl zarrs::array::IntoArrayBytes<'a>,
+    ) -> Result<()> {
+        array
+            .store_array_subset(&ArraySubset::new_with_ranges(ranges), values)
+            .with_context(|| format!("{}: cannot write {}", self.path.display(), array.path()))
+    }
+
+    fn write_coordinate(&self, what: &Described, values: &[f64]) -> Result<()> {
+        let n = values.len() as u64;
+        let array = self.new_array(
+            what,
+            vec![n],
+            vec![n.max(1)],
+            &[what.name],
+            data_type::float64(),
+            0.0f64,
+        )?;
+        self.store(&array, std::slice::from_ref(&(0..n)), values)
+    }
+
+    /// Writes a (z, x) map as float32.
+    fn write_map(&self, what: &Described, values: &Array2<f64>) -> Result<()> {
+        let (nz, nx) = (values.nrows() as u64, values.ncols() as u64);
+        let array = self.new_array(
+            what,
+            vec![nz, nx],
+            vec![nz.max(1), nx.max(1)],
+            &["z", "x"],
+            data_type::float32(),
+            f32::NAN,
+        )?;
+        self.store(&array, &[0..nz, 0..nx], as_f32(values.iter().copied()))
+    }
+
+    /// Ensembles of one chunk: about [`CHUNK_BYTES`] of float32 maps.
+    fn time_chunk(&self) -> u64 {
+        let (nz, nx) = self.grid;
+        (CHUNK_BYTES / (4 * nz * nx).max(1)).max(1) as u64
+    }
+
+    /// A time series of `count` steps along `time` (its coordinate first, then `arrays`), empty.
+    fn new_series(
+        &self,
+        time: &Described,
+        arrays: &[&Described],
+    ) -> Result<Vec<Array<FilesystemStore>>> {
+        let (nz, nx) = (self.grid.0 as u64, self.grid.1 as u64);
+        let chunk = self.time_chunk();
+        let mut made = vec![self.new_array(
+            time,
+            vec![0],
+            vec![4096],
+            &[time.name],
+            data_type::float64(),
+            0.0f64,
+        )?];
+        for what in arrays {
+            made.push(self.new_array(
+                what,
+                vec![0, nz, nx],
+                vec![chunk, nz.max(1), nx.max(1)],
+                &[time.name, "z", "x"],
+                data_type::float32(),
+                f32::NAN,
+            )?);
+        }
+        Ok(made)
+    }
+
+    /// Appends `times` (s) and one (t, z, x) block per array of `series` (its coordinate first).
+    fn append_to(
+        &self,
+        series: &mut [Array<FilesystemStore>],
+        start: u64,
+        times: &[f64],
+        blocks: &[ArrayView3<f64>],
+    ) -> Result<()> {
+        let count = times.len() as u64;
+        let end = start + count;
+        let (nz, nx) = (self.grid.0 as u64, self.grid.1 as u64);
+        let (time, maps) = series
+            .split_first_mut()
+            .context("a series without its time")?;
+        time.set_shape(vec![end]).context("growing the time axis")?;
+        time.store_metadata().context("the time axis' metadata")?;
+        self.store(time, std::slice::from_ref(&(start..end)), times)?;
+        for (array, block) in maps.iter_mut().zip(blocks) {
+            if block.dim() != (times.len(), self.grid.0, self.grid.1) {
+                anyhow::bail!(
+                    "{}: a block of {:?} for {} times",
+                    array.path(),
+                    block.dim(),
+                    times.len()
+                );
+            }
+            array
+                .set_shape(vec![end, nz, nx])
+                .context("growing a series")?;
+            array.store_metadata().context("a series' metadata")?;
+            self.store(array, &[start..end, 0..nz, 0..nx], block_f32(block.view()))?;
+        }
+        Ok(())
+    }
+
+    /// Appends the next ensembles of the run's Doppler time series (recording order).
+    fn append_ensembles(&mut self, part: &EnsembleMaps) -> Result<()> {
+        let values = series_values(part);
+        if self.series.is_empty() {
+            let time = described(
+                "time",
+                "s",
+                "centre time of each ensemble from the first frame",
+            );
+            let arrays: Vec<&Described> = SERIES.iter().take(values.len()).collect();
+            self.series = self.new_series(&time, &arrays)?;
+        }
+        if self.series.len() != values.len() + 1 {
+            anyhow::bail!("ensembles with and without vector maps in one run");
+        }
+        let views: Vec<ArrayView3<f64>> = values.iter().map(|v| v.view()).collect();
+        let mut series = std::mem::take(&mut self.series);
+        let done = self.append_to(&mut series, self.written, &part.times_s, &views);
+        self.series = series;
+        done?;
+        self.written += part.times_s.len() as u64;
+        Ok(())
+    }
+
+    /// Whether the run's ensembles came through the store as it went: the run kept only their
+    /// times, and the store holds their maps.
+    pub fn holds_ensembles(&self) -> bool {
+        self.streamed
+    }
+
+    /// Writes the run's maps (those the stages made), its ensembles when they did not come as
+    /// the run went, and the dynamics stage's velocity windows; then consolidates the metadata.
+    /// Returns the store's folder.
+    pub fn finish(
+        mut self,
+        data: &dyn FrameSource,
+        plan: &Plan,
+        processed: &Processed,
+    ) -> Result<PathBuf> {
+        let out = &processed.out;
+        let maps = &out.maps;
+        self.write_map(
+            &described("bmode_db", "dB", "B-mode, dB re its maximum"),
+            &out.bmode_db,
+        )?;
+        self.write_map(
+            &described(
+                "power_doppler",
+                "|IQ|^2",
+                "power Doppler of the compounded, clutter-filtered series",
+            ),
+            &maps.power_doppler,
+        )?;
+        self.write_map(
+            &described(
+                "signed_power_doppler",
+                "|IQ|^2",
+                "power Doppler signed by the colour Doppler (> 0 moving away from the probe)",
+            ),
+            &out.signed_power_doppler(),
+        )?;
+        self.write_map(
+            &described(
+                "color_doppler",
+                "m/s",
+                "axial velocity (> 0 moving away from the probe)",
+            ),
+            &maps.color_doppler,
+        )?;
+        if let Some(irls) = &maps.vector_irls {
+            self.write_map(
+                &described(
+                    "vx",
+                    "m/s",
+                    "lateral velocity, PC-UVD IRLS-WLS (> 0 toward +x)",
+                ),
+                &irls.vx,
+            )?;
+            self.write_map(
+                &described("vz", "m/s", "axial velocity, PC-UVD IRLS-WLS (> 0 deeper)"),
+                &irls.vz,
+            )?;
+            self.write_map(
+                &described("speed", "m/s", "speed, PC-UVD IRLS-WLS"),
+                &irls.speed(),
+            )?;
+        }
+        if let DynamicsOutcome::Done { series, maps: ri } = &processed.dynamics {
+            self.write_map(
+                &described(
+                    "ri",
+                    "1",
+                    "resistivity index (PSV - EDV)/PSV, NaN outside vessels",
+                ),
+                &ri.ri,
+            )?;
+            self.write_map(&described("psv", "m/s", "peak systolic speed"), &ri.psv)?;
+            self.write_map(&described("edv", "m/s", "end-diastolic speed"), &ri.edv)?;
+            let classes = described(
+                "vessel_class",
+                "1",
+                "0 background, 1 arteriole, 2 venule, 3 undetermined",
+            );
+            let (nz, nx) = (
+                ri.vessel_class.nrows() as u64,
+                ri.vessel_class.ncols() as u64,
+            );
+            let array = self.new_array(
+                &classes,
+                vec![nz, nx],
+                vec![nz.max(1), nx.max(1)],
+                &["z", "x"],
+                data_type::uint8(),
+                0u8,
+            )?;
+            let values: Vec<u8> = ri.vessel_class.iter().copied().collect();
+            self.store(&array, &[0..nz, 0..nx], values)?;
+            let time = described(
+                "window_time",
+                "s",
+                "centre time of each velocity window from the first frame",
+            );
+            let arrays = [
+                described(
+                    "window_vx",
+                    "m/s",
+                    "lateral velocity of each window (> 0 toward +x)",
+                ),
+                described(
+                    "window_vz",
+                    "m/s",
+                    "axial velocity of each window (> 0 deeper)",
+                ),
+                described(
+                    "window_power",
+                    "|IQ|^2",
+                    "power Doppler of each window, mean over angles",
+                ),
+            ];
+            let mut windows = self.new_series(&time, &arrays.iter().collect::<Vec<_>>())?;
+            self.append_to(
+                &mut windows,
+                0,
+                &series.times_s,
+                &[series.vx.view(), series.vz.view(), series.power.view()],
+            )?;
+        }
+        if !self.streamed
+            && let Some(ensembles) = &processed.ensembles
+            && ensembles.power_doppler.len_of(Axis(0)) == ensembles.times_s.len()
+        {
+            self.append_ensembles(ensembles)?;
+        }
+        let node = zarrs::node::Node::open(&self.store, "/").context("reading the store back")?;
+        let consolidated = node.consolidate_metadata().map(|metadata| {
+            zarrs::metadata_ext::group::consolidated_metadata::ConsolidatedMetadata {
+                metadata,
+                ..Default::default()
+            }
+        });
+        self.write_group(attributes(data, plan), consolidated)?;
+        Ok(self.path)
+    }
+}
+
+impl EnsembleSink for ZarrStore {
+    fn append(&mut self, part: &EnsembleMaps) -> pcuvd::core::error::Result<()> {
+        self.streamed = true;
+        self.append_ensembles(part)
+            .map_err(|e| pcuvd::core::error::Error::Write(format!("{e:#}")))
+    }
+}
+
+/// The store's attributes: the acquisition (ConfUSIus's names where they exist, SI units, the
+/// unit of each in `units`) and pcuvd's processing.
+fn attributes(data: &dyn FrameSource, plan: &Plan) -> Map<String, Value> {
+    let acq = data.acquisition();
+    let angles: Vec<f64> = acq.sequence.angles.iter().map(|a| a.to_degrees()).collect();
+    let values = json!({
+        "compound_sampling_frequency": acq.frame_rate(),
+        "transmit_frequency": acq.probe.center_frequency,
+        "beamforming_sound_velocity": acq.sound_speed,
+        "pulse_repetition_frequency": acq.sequence.event_prf,
+        "plane_wave_angles": angles,
+        "probe_number_of_elements": acq.probe.n_elements,
+        "probe_pitch": acq.probe.pitch,
+        "transmit_coding": if acq.sequence.is_coded() { "hadamard" } else { "none" },
+        "frames": data.n_frames(),
+        "units": {
+            "compound_sampling_frequency": "Hz",
+            "transmit_frequency": "Hz",
+            "beamforming_sound_velocity": "m/s",
+            "pulse_repetition_frequency": "Hz",
+            "plane_wave_angles": "degree",
+            "probe_pitch": "m",
+        },
+        "processing_options": plan.options_text,
+        "software": format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
+    });
+    match values {
+        Value::Object(map) => map,
+        _ => unreachable!("a JSON object literal"),
+    }
+}
+
+/// The arrays of the store at `path`, by name, sorted.
+pub fn arrays(path: &Path) -> Result<Vec<String>> {
+    let mut names: Vec<String> = std::fs::read_dir(path)
+        .with_context(|| format!("{}: cannot list the store", path.display()))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().join("zarr.json").is_file())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    Ok(names)
+}
