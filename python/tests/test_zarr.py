@@ -125,6 +125,8 @@ def test_the_store_opens_lazily_in_xarray_with_the_runs_values(runs, tmp_path):
     assert record["store"] == "pcuvd.zarr" and record["time_series_in_store_only"]
     # The series went to the store as the segments finished, and only there.
     assert not list(with_zarr.glob("ensemble_*.npy"))
+    # Its figure is drawn from the store, read back once the run ended.
+    assert (with_zarr / "ensembles.png").stat().st_size > 0
     ds = xr.open_zarr(with_zarr / "pcuvd.zarr")
     assert sorted(record["arrays"]) == sorted(ds.variables)
     series = ds["ensemble_power_doppler"]

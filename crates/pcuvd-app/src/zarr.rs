@@ -519,3 +519,49 @@ pub fn arrays(path: &Path) -> Result<Vec<String>> {
     names.sort();
     Ok(names)
 }
+
+/// Most bytes of time series (as f64) that a run reads back from its store to draw
+/// `ensembles.png`; a longer series is left in the store alone.
+pub const FIGURE_READ_BACK_BYTES: usize = 1 << 30;
+
+/// The Doppler time series the store at `path` holds, read back (f64) with `timeline`'s times,
+/// first frames and clutter cut-offs; `None` when they would take more than
+/// [`FIGURE_READ_BACK_BYTES`].
+pub fn read_ensembles(path: &Path, timeline: &EnsembleMaps) -> Result<Option<EnsembleMaps>> {
+    let (_, nz, nx) = timeline.power_doppler.dim();
+    let count = timeline.times_s.len();
+    let vectors = timeline.vx.is_some();
+    let fields = if vectors { 4 } else { 2 };
+    if count * nz * nx * 8 * fields > FIGURE_READ_BACK_BYTES {
+        return Ok(None);
+    }
+    let store = Arc::new(
+        FilesystemStore::new(path)
+            .with_context(|| format!("{}: cannot open the Zarr store", path.display()))?,
+    );
+    let read = |name: &str| -> Result<Array3<f64>> {
+        let array = Array::open(store.clone(), &format!("/{name}"))
+            .with_context(|| format!("{}: no array {name}", path.display()))?;
+        let shape = array.shape().to_vec();
+        if shape != [count as u64, nz as u64, nx as u64] {
+            anyhow::bail!(
+                "{}: {name} is {shape:?}, not ({count}, {nz}, {nx})",
+                path.display()
+            );
+        }
+        let all = ArraySubset::new_with_ranges(&[0..shape[0], 0..shape[1], 0..shape[2]]);
+        let values: Vec<f32> = array
+            .retrieve_array_subset(&all)
+            .with_context(|| format!("{}: cannot read {name}", path.display()))?;
+        Ok(Array3::from_shape_vec((count, nz, nx), values)?.mapv(f64::from))
+    };
+    Ok(Some(EnsembleMaps {
+        times_s: timeline.times_s.clone(),
+        starts: timeline.starts.clone(),
+        power_doppler: read("ensemble_power_doppler")?,
+        color_doppler: read("ensemble_color_doppler")?,
+        vx: vectors.then(|| read("ensemble_vx")).transpose()?,
+        vz: vectors.then(|| read("ensemble_vz")).transpose()?,
+        clutter: timeline.clutter.clone(),
+    }))
+}

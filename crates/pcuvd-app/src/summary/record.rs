@@ -62,8 +62,8 @@ pub struct ZarrRecord {
     pub store: String,
     /// Its arrays: maps (z, x), time series (time, z, x), velocity windows (window_time, z, x).
     pub arrays: Vec<String>,
-    /// True when the Doppler time series are in the store only (no `ensemble_*.npy`, no
-    /// `ensembles.png`): they went to it as the run went, never all in memory.
+    /// True when the Doppler time series are in the store only (no `ensemble_*.npy` or NIfTI
+    /// series): they went to it as the run went, never all in memory.
     pub time_series_in_store_only: bool,
 }
 
