@@ -1,27 +1,12 @@
 //! Real data: the rotating-disk recording (Verasonics, 32 unsteered plane waves) through
 //! `pcuvd process` with default settings. A rigid rotation makes the axial velocity linear in x.
 
-use std::path::PathBuf;
 use std::process::Command;
 
 use ndarray::{Array1, Array2};
 use ndarray_npy::read_npy;
 
-/// The recording, which lives beside the repository (`shared/data/`), not in it. Missing, the
-/// test fails: a real-data test that passes without its data would hide that it never ran.
-fn disk_file() -> PathBuf {
-    let path = PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/PWI_disk.mat"
-    ));
-    assert!(
-        path.exists(),
-        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
-         (shared/data/ beside the repository; see shared/data/README.md for its source)",
-        path.display()
-    );
-    path
-}
+use pcuvd_testing::disk_recording as disk_file;
 
 #[test]
 fn rotating_disk_colour_doppler_is_linear_in_x() {

@@ -316,17 +316,8 @@ fn write_mat_then_read_mat() {
 
 #[test]
 fn pwi_disk_recording() {
-    let path = Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/PWI_disk.mat"
-    ));
-    // Beside the repository, not in it; missing, the test fails rather than passing unrun.
-    assert!(
-        path.exists(),
-        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
-         (shared/data/ beside the repository)",
-        path.display()
-    );
+    let path = pcuvd_testing::disk_recording();
+    let path = path.as_path();
     let f = read_mat(path).unwrap();
     println!("header: {}", f.header);
     for (name, v) in &f.variables {

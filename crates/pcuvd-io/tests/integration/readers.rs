@@ -26,14 +26,7 @@ fn expected() -> Value {
 }
 
 fn disk_mat() -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/PWI_disk.mat");
-    assert!(
-        path.exists(),
-        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} (shared/data/ \
-         beside the repository)",
-        path.display()
-    );
-    path
+    pcuvd_testing::disk_recording()
 }
 
 fn open(name: &str) -> OpenedRecording {

@@ -2,7 +2,7 @@
 //! conventional recordings and for the paper's (simultaneous) decoding, and for coded recordings
 //! aligned at mid-frame when each block is decoded with the alignment's reach of margin.
 
-use crate::common;
+use pcuvd_testing as common;
 
 use ndarray::Array3;
 use num_complex::Complex32;

@@ -1,7 +1,7 @@
 //! Which angles reach which pixels: the coverage map that leaves unreached angles out of the
 //! vector fit agrees with the images the beamformer actually forms.
 
-use crate::common;
+use pcuvd_testing as common;
 
 use ndarray::s;
 use pcuvd::form::decode::EventAlignment;

@@ -2,7 +2,7 @@
 //! sliding vector Doppler on synthetic pulsatile IQ series, the compounded spectrogram, and every
 //! refusal of bad input.
 
-use crate::common;
+use pcuvd_testing as common;
 
 use std::f64::consts::PI;
 

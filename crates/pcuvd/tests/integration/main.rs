@@ -4,7 +4,6 @@
 //! instead of one per file); each file is a module.
 
 mod blocks;
-mod common;
 mod coverage;
 mod dynamics;
 mod network;

@@ -5,9 +5,6 @@
 //! Loupas (the lag-1 and the spatial lags within frames and at temporal lags ±1, summed per core
 //! alike).
 
-use crate::common;
-
-use common::{tube, tube_at};
 use ndarray::{Array2, Array3};
 use pcuvd::dynamics::DynamicsParams;
 use pcuvd::estimate::dealias::Dealias;
@@ -19,6 +16,7 @@ use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
 use pcuvd::{ChannelData, Coding, Probe, Sequence};
+use pcuvd_testing::{tube, tube_at};
 
 const FRAMES: usize = 64;
 

@@ -204,17 +204,8 @@ fn errors_name_file_field_and_problem() {
 
 #[test]
 fn pwi_disk() {
-    let path = Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/PWI_disk.mat"
-    ));
-    // Beside the repository, not in it; missing, the test fails rather than passing unrun.
-    assert!(
-        path.exists(),
-        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
-         (shared/data/ beside the repository)",
-        path.display()
-    );
+    let path = pcuvd_testing::disk_recording();
+    let path = path.as_path();
     let d = read_must_mat(path).unwrap();
     let a = &d.acquisition;
     println!("{a:#?}\nsamples dim {:?}", d.samples.dim());

@@ -1,6 +1,10 @@
-//! Recordings shared by the integration tests.
-// Each test crate that includes this module uses a part of it.
-#![allow(dead_code)]
+//! The scenarios the workspace's tests share, written once: a small simulated tube recording
+//! and the real rotating-disk recording that lives beside the repository. A dev-dependency only
+//! (a crate of its own rather than a feature of `pcuvd`, so that the library the tests, the
+//! command and the Python wheel link is built once with one set of features).
+#![warn(missing_docs)]
+
+use std::path::PathBuf;
 
 use pcuvd::simulate::phantom::{FlowProfile, TubePhantom, TubeSpec};
 use pcuvd::simulate::{NoiseSpec, SimParams, rat_params, simulate};
@@ -42,4 +46,21 @@ pub fn tube_at(peak_speed: f64) -> TubePhantom {
         3,
     )
     .unwrap()
+}
+
+/// The real rotating-disk recording (`PWI_disk.mat`: Verasonics, 32 unsteered plane waves),
+/// which lives beside the repository (`shared/data/`), not in it. Missing, the calling test
+/// fails: a real-data test that passes without its data would hide that it never ran.
+pub fn disk_recording() -> PathBuf {
+    let path = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/PWI_disk.mat"
+    ));
+    assert!(
+        path.exists(),
+        "the real rotating-disk recording PWI_disk.mat is missing: expected at {} \
+         (shared/data/ beside the repository; see shared/data/README.md for its source)",
+        path.display()
+    );
+    path
 }
