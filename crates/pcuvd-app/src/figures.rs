@@ -627,8 +627,9 @@ pub fn dynamics_figures(
 }
 
 /// The Doppler time series (`ensembles.png`): the mean power Doppler over ensembles, its
-/// variation across ensembles (std / mean) in the flow pixels, and the flow region's mean power
-/// (dB re its time average) and, with vectors, mean speed over time, ± their spread across pixels.
+/// variation across ensembles (std / mean) in the flow pixels, and the flow region's median power
+/// (dB re its time average) and, with vectors, median speed over time, ± their robust spread
+/// across pixels.
 pub fn ensemble_figure(
     dir: &Path,
     out: &ProcessOutput,
@@ -673,8 +674,11 @@ pub fn ensemble_figure(
         "std / mean (%)",
     );
     let t_ms: Vec<f64> = maps.times_s.iter().map(|t| t * 1e3).collect();
-    // Per ensemble, over the flow pixels: mean and spread of the power (dB re the pixel's own
-    // time average, so bright and faint vessels weigh alike) and of the speed.
+    // Per ensemble, over the flow pixels: the median and a robust spread (1.4826 × the median
+    // absolute deviation, the standard deviation for Gaussian values) of the power (dB re the
+    // pixel's own time average, so bright and faint vessels weigh alike) and of the speed. Robust
+    // because a few ill-conditioned pixels (a vector fit at the noise floor) can read speeds
+    // thousands of times the flow's, which a mean and standard deviation would plot instead.
     let over_flow = |values: &dyn Fn(usize, usize, usize) -> f64| -> (Vec<f64>, Vec<f64>) {
         (0..maps.starts.len())
             .map(|e| {
@@ -684,17 +688,19 @@ pub fn ensemble_figure(
                     .map(|((z, x), _)| values(e, z, x))
                     .filter(|v| v.is_finite())
                     .collect();
-                let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
-                let s =
-                    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(1) as f64).sqrt();
-                (m, s)
+                if v.is_empty() {
+                    return (f64::NAN, f64::NAN);
+                }
+                let m = pcuvd::core::stats::median(v.clone());
+                let mad = pcuvd::core::stats::median(v.iter().map(|x| (x - m).abs()).collect());
+                (m, 1.4826 * mad)
             })
             .unzip()
     };
     let (power_db, power_spread) =
         over_flow(&|e, z, x| 10.0 * (maps.power_doppler[[e, z, x]] / mean[[z, x]]).log10());
     let mut series = vec![Series {
-        label: "power Doppler (dB re its mean), mean ± std over flow pixels".into(),
+        label: "power Doppler (dB re its mean), median ± robust spread over flow pixels".into(),
         x: t_ms.clone(),
         y: power_db,
         y_err: Some(power_spread),
@@ -705,7 +711,7 @@ pub fn ensemble_figure(
     if let Some(speed) = maps.speed() {
         let (speed_mm_s, speed_spread) = over_flow(&|e, z, x| speed[[e, z, x]] * 1e3);
         series.push(Series {
-            label: "speed (mm/s), mean ± std over flow pixels".into(),
+            label: "speed (mm/s), median ± robust spread over flow pixels".into(),
             x: t_ms,
             y: speed_mm_s,
             y_err: Some(speed_spread),
