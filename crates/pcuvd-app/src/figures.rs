@@ -626,6 +626,10 @@ pub fn dynamics_figures(
     Ok(written)
 }
 
+/// A run of ensembles of a Doppler time series, as [`ensemble_figure_in_chunks`] reads them:
+/// power Doppler and, with vectors, speed (m/s), each (ensembles, nz, nx).
+pub type EnsembleChunk = (ndarray::Array3<f64>, Option<ndarray::Array3<f64>>);
+
 /// The Doppler time series (`ensembles.png`): the mean power Doppler over ensembles, its
 /// variation across ensembles (std / mean) in the flow pixels, and the flow region's median power
 /// (dB re its time average) and, with vectors, median speed over time, ± their robust spread
@@ -636,14 +640,104 @@ pub fn ensemble_figure(
     maps: &pcuvd::pipeline::ensembles::EnsembleMaps,
     name: &str,
 ) -> Result<PathBuf> {
+    let speed = maps.speed();
+    ensemble_figure_in_chunks(dir, out, &maps.times_s, name, &mut |range| {
+        Ok((
+            maps.power_doppler
+                .slice(ndarray::s![range.clone(), .., ..])
+                .to_owned(),
+            speed
+                .as_ref()
+                .map(|s| s.slice(ndarray::s![range, .., ..]).to_owned()),
+        ))
+    })
+}
+
+/// Ensembles [`ensemble_figure_in_chunks`] reads at a time: about 64 MiB of f64 power and speed
+/// on the grid `(nz, nx)`.
+fn figure_chunk(nz: usize, nx: usize) -> usize {
+    ((64usize << 20) / (16 * nz * nx).max(1)).max(1)
+}
+
+/// [`ensemble_figure`] of the ensembles at `times_s`, read a run at a time by `read(range)`
+/// (twice: the mean first, then each ensemble against it), so that a series held on disk (a Zarr
+/// store) is drawn in bounded memory.
+pub fn ensemble_figure_in_chunks(
+    dir: &Path,
+    out: &ProcessOutput,
+    times_s: &[f64],
+    name: &str,
+    read: &mut dyn FnMut(std::ops::Range<usize>) -> Result<EnsembleChunk>,
+) -> Result<PathBuf> {
     let grid = &out.grid;
-    let count = maps.starts.len() as f64;
-    let mean = maps
-        .power_doppler
-        .mean_axis(ndarray::Axis(0))
-        .expect("≥ 1 ensemble");
-    let std = maps.power_doppler.std_axis(ndarray::Axis(0), 0.0);
+    let n = times_s.len();
+    anyhow::ensure!(n >= 1, "a time series of no ensembles has no figure");
+    let count = n as f64;
+    let (nz, nx) = (grid.z.len(), grid.x.len());
+    let step = figure_chunk(nz, nx);
+    let runs: Vec<std::ops::Range<usize>> =
+        (0..n).step_by(step).map(|a| a..(a + step).min(n)).collect();
+    let mut mean = Array2::<f64>::zeros((nz, nx));
+    for range in &runs {
+        let (power, _) = read(range.clone())?;
+        for e in power.outer_iter() {
+            mean += &e;
+        }
+    }
+    mean /= count;
     let flow = masks::within_db_of_peak(&mean, masks::FLOW_FIGURE_DB);
+    let flow_pixels: Vec<(usize, usize)> = flow
+        .indexed_iter()
+        .filter(|(_, f)| **f)
+        .map(|(p, _)| p)
+        .collect();
+    // Per ensemble, over the flow pixels: the median and a robust spread (1.4826 × the median
+    // absolute deviation, the standard deviation for Gaussian values) of the power (dB re the
+    // pixel's own time average, so bright and faint vessels weigh alike) and of the speed. Robust
+    // because a few ill-conditioned pixels (a vector fit at the noise floor) can read speeds
+    // thousands of times the flow's, which a mean and standard deviation would plot instead.
+    let robust = |v: Vec<f64>| -> (f64, f64) {
+        let v: Vec<f64> = v.into_iter().filter(|v| v.is_finite()).collect();
+        if v.is_empty() {
+            return (f64::NAN, f64::NAN);
+        }
+        let m = pcuvd::core::stats::median(v.clone());
+        let mad = pcuvd::core::stats::median(v.iter().map(|x| (x - m).abs()).collect());
+        (m, 1.4826 * mad)
+    };
+    let mut squares = Array2::<f64>::zeros((nz, nx));
+    let (mut power_db, mut power_spread) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let (mut speed_mm_s, mut speed_spread) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut vectors = false;
+    for range in &runs {
+        let (power, speed) = read(range.clone())?;
+        vectors = speed.is_some();
+        for (k, e) in power.outer_iter().enumerate() {
+            Zip::from(&mut squares)
+                .and(&e)
+                .and(&mean)
+                .for_each(|s, &p, &m| *s += (p - m) * (p - m));
+            let (m, s) = robust(
+                flow_pixels
+                    .iter()
+                    .map(|&(z, x)| 10.0 * (e[[z, x]] / mean[[z, x]]).log10())
+                    .collect(),
+            );
+            power_db.push(m);
+            power_spread.push(s);
+            if let Some(speed) = &speed {
+                let (m, s) = robust(
+                    flow_pixels
+                        .iter()
+                        .map(|&(z, x)| speed[[k, z, x]] * 1e3)
+                        .collect(),
+                );
+                speed_mm_s.push(m);
+                speed_spread.push(s);
+            }
+        }
+    }
+    let std = squares.mapv(|s| (s / count).sqrt());
     let variation = Zip::from(&std)
         .and(&mean)
         .and(&flow)
@@ -673,32 +767,7 @@ pub fn ensemble_figure(
         (0.0, top),
         "std / mean (%)",
     );
-    let t_ms: Vec<f64> = maps.times_s.iter().map(|t| t * 1e3).collect();
-    // Per ensemble, over the flow pixels: the median and a robust spread (1.4826 × the median
-    // absolute deviation, the standard deviation for Gaussian values) of the power (dB re the
-    // pixel's own time average, so bright and faint vessels weigh alike) and of the speed. Robust
-    // because a few ill-conditioned pixels (a vector fit at the noise floor) can read speeds
-    // thousands of times the flow's, which a mean and standard deviation would plot instead.
-    let over_flow = |values: &dyn Fn(usize, usize, usize) -> f64| -> (Vec<f64>, Vec<f64>) {
-        (0..maps.starts.len())
-            .map(|e| {
-                let v: Vec<f64> = flow
-                    .indexed_iter()
-                    .filter(|(_, f)| **f)
-                    .map(|((z, x), _)| values(e, z, x))
-                    .filter(|v| v.is_finite())
-                    .collect();
-                if v.is_empty() {
-                    return (f64::NAN, f64::NAN);
-                }
-                let m = pcuvd::core::stats::median(v.clone());
-                let mad = pcuvd::core::stats::median(v.iter().map(|x| (x - m).abs()).collect());
-                (m, 1.4826 * mad)
-            })
-            .unzip()
-    };
-    let (power_db, power_spread) =
-        over_flow(&|e, z, x| 10.0 * (maps.power_doppler[[e, z, x]] / mean[[z, x]]).log10());
+    let t_ms: Vec<f64> = times_s.iter().map(|t| t * 1e3).collect();
     let mut series = vec![Series {
         label: "power Doppler (dB re its mean), median ± robust spread over flow pixels".into(),
         x: t_ms.clone(),
@@ -708,8 +777,7 @@ pub fn ensemble_figure(
         rgb: Some((214, 39, 40)),
     }];
     let mut y_label = "power (dB re time average)".to_string();
-    if let Some(speed) = maps.speed() {
-        let (speed_mm_s, speed_spread) = over_flow(&|e, z, x| speed[[e, z, x]] * 1e3);
+    if vectors {
         series.push(Series {
             label: "speed (mm/s), median ± robust spread over flow pixels".into(),
             x: t_ms,

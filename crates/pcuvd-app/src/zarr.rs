@@ -520,48 +520,63 @@ pub fn arrays(path: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
-/// Most bytes of time series (as f64) that a run reads back from its store to draw
-/// `ensembles.png`; a longer series is left in the store alone.
-pub const FIGURE_READ_BACK_BYTES: usize = 1 << 30;
-
-/// The Doppler time series the store at `path` holds, read back (f64) with `timeline`'s times,
-/// first frames and clutter cut-offs; `None` when they would take more than
-/// [`FIGURE_READ_BACK_BYTES`].
-pub fn read_ensembles(path: &Path, timeline: &EnsembleMaps) -> Result<Option<EnsembleMaps>> {
+/// Draws `ensembles.png` into `dir` from the Doppler time series the store at `path` holds (at
+/// `timeline`'s times), reading a run of ensembles at a time: a long series is drawn in bounded
+/// memory, as it was written.
+pub fn draw_ensembles(
+    path: &Path,
+    dir: &Path,
+    out: &pcuvd::pipeline::ProcessOutput,
+    timeline: &EnsembleMaps,
+    name: &str,
+) -> Result<PathBuf> {
     let (_, nz, nx) = timeline.power_doppler.dim();
     let count = timeline.times_s.len();
-    let vectors = timeline.vx.is_some();
-    let fields = if vectors { 4 } else { 2 };
-    if count * nz * nx * 8 * fields > FIGURE_READ_BACK_BYTES {
-        return Ok(None);
-    }
     let store = Arc::new(
         FilesystemStore::new(path)
             .with_context(|| format!("{}: cannot open the Zarr store", path.display()))?,
     );
-    let read = |name: &str| -> Result<Array3<f64>> {
+    let open = |name: &str| -> Result<Array<FilesystemStore>> {
         let array = Array::open(store.clone(), &format!("/{name}"))
             .with_context(|| format!("{}: no array {name}", path.display()))?;
-        let shape = array.shape().to_vec();
-        if shape != [count as u64, nz as u64, nx as u64] {
+        if array.shape() != [count as u64, nz as u64, nx as u64] {
             anyhow::bail!(
-                "{}: {name} is {shape:?}, not ({count}, {nz}, {nx})",
-                path.display()
+                "{}: {name} is {:?}, not ({count}, {nz}, {nx})",
+                path.display(),
+                array.shape()
             );
         }
-        let all = ArraySubset::new_with_ranges(&[0..shape[0], 0..shape[1], 0..shape[2]]);
-        let values: Vec<f32> = array
-            .retrieve_array_subset(&all)
-            .with_context(|| format!("{}: cannot read {name}", path.display()))?;
-        Ok(Array3::from_shape_vec((count, nz, nx), values)?.mapv(f64::from))
+        Ok(array)
     };
-    Ok(Some(EnsembleMaps {
-        times_s: timeline.times_s.clone(),
-        starts: timeline.starts.clone(),
-        power_doppler: read("ensemble_power_doppler")?,
-        color_doppler: read("ensemble_color_doppler")?,
-        vx: vectors.then(|| read("ensemble_vx")).transpose()?,
-        vz: vectors.then(|| read("ensemble_vz")).transpose()?,
-        clutter: timeline.clutter.clone(),
-    }))
+    let power = open("ensemble_power_doppler")?;
+    let vectors = match timeline.vx.is_some() {
+        true => Some((open("ensemble_vx")?, open("ensemble_vz")?)),
+        false => None,
+    };
+    let read =
+        |array: &Array<FilesystemStore>, range: &std::ops::Range<usize>| -> Result<Array3<f64>> {
+            let subset = ArraySubset::new_with_ranges(&[
+                range.start as u64..range.end as u64,
+                0..nz as u64,
+                0..nx as u64,
+            ]);
+            let values: Vec<f32> = array
+                .retrieve_array_subset(&subset)
+                .with_context(|| format!("{}: cannot read {}", path.display(), array.path()))?;
+            Ok(Array3::from_shape_vec((range.len(), nz, nx), values)?.mapv(f64::from))
+        };
+    crate::figures::ensemble_figure_in_chunks(dir, out, &timeline.times_s, name, &mut |range| {
+        let speed = match &vectors {
+            Some((vx, vz)) => {
+                let (vx, vz) = (read(vx, &range)?, read(vz, &range)?);
+                Some(
+                    ndarray::Zip::from(&vx)
+                        .and(&vz)
+                        .map_collect(|&x, &z| x.hypot(z)),
+                )
+            }
+            None => None,
+        };
+        Ok((read(&power, &range)?, speed))
+    })
 }

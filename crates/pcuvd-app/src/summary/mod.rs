@@ -74,13 +74,11 @@ pub fn save(
     if let Some(store) = zarr {
         let in_store_only = processed.ensembles_in_store;
         let path = store.finish(data, plan, processed)?;
-        // Series that went to the store as the run went are read back for their figure while
-        // they fit (the store holds them either way).
-        if in_store_only
-            && let Some(timeline) = &processed.ensembles
-            && let Some(maps) = crate::zarr::read_ensembles(&path, timeline)?
-        {
-            pngs.push(figures::ensemble_figure(dir, out, &maps, name)?);
+        // Series that went to the store as the run went are drawn from it, a run at a time.
+        if in_store_only && let Some(timeline) = &processed.ensembles {
+            pngs.push(crate::zarr::draw_ensembles(
+                &path, dir, out, timeline, name,
+            )?);
         }
         summary.zarr = Some(ZarrRecord {
             store: path
