@@ -20,6 +20,7 @@
 
 pub mod figures;
 pub mod input;
+pub mod map_kinds;
 pub mod memory;
 pub mod nifti;
 pub mod outputs;

@@ -15,6 +15,7 @@ use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline::ProcessOutput;
 use serde::Serialize;
 
+use crate::map_kinds::map_kind;
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
 /// How the files are named: pcuvd's map names, or BIDS entities.
@@ -70,7 +71,7 @@ impl NiftiNaming {
     }
 
     /// The file stem of map `map` ([`MAPS`]).
-    fn stem(&self, map: &MapKind) -> String {
+    fn stem(&self, map: &BidsName) -> String {
         let Some(subject) = &self.subject else {
             return map.name.to_string();
         };
@@ -88,128 +89,49 @@ impl NiftiNaming {
     }
 }
 
-/// One kind of map: pcuvd's name, its BIDS `desc` and suffix, unit and description.
-struct MapKind {
+/// A map's BIDS name parts: pcuvd's name, its BIDS `desc` and suffix (its unit and meaning are
+/// [`map_kind`]'s).
+struct BidsName {
     name: &'static str,
     bids_desc: Option<&'static str>,
     bids_suffix: &'static str,
-    units: &'static str,
-    description: &'static str,
 }
 
-const fn map(
+const fn bids(
     name: &'static str,
     bids_desc: Option<&'static str>,
     bids_suffix: &'static str,
-    units: &'static str,
-    description: &'static str,
-) -> MapKind {
-    MapKind {
+) -> BidsName {
+    BidsName {
         name,
         bids_desc,
         bids_suffix,
-        units,
-        description,
     }
 }
 
 /// Every map written, BIDS's `pwd` (power Doppler) suffix for the power maps; pcuvd's own
 /// suffixes (`vel`, `ri`) and BIDS's `dseg` (a discrete segmentation) for the others.
-const MAPS: [MapKind; 13] = [
-    map(
-        "power_doppler",
-        None,
-        "pwd",
-        "|IQ|^2",
-        "power Doppler of the compounded, clutter-filtered series",
-    ),
-    map(
-        "signed_power_doppler",
-        Some("signed"),
-        "pwd",
-        "|IQ|^2",
-        "power Doppler signed by the colour Doppler (> 0 moving away from the probe)",
-    ),
-    map(
-        "color_doppler",
-        Some("axial"),
-        "vel",
-        "m/s",
-        "axial velocity (> 0 moving away from the probe)",
-    ),
-    map(
-        "vx",
-        Some("x"),
-        "vel",
-        "m/s",
-        "lateral velocity, PC-UVD IRLS-WLS (> 0 toward +x)",
-    ),
-    map(
-        "vz",
-        Some("z"),
-        "vel",
-        "m/s",
-        "axial velocity, PC-UVD IRLS-WLS (> 0 deeper)",
-    ),
-    map(
-        "speed",
-        Some("speed"),
-        "vel",
-        "m/s",
-        "speed, PC-UVD IRLS-WLS",
-    ),
-    map(
-        "ri",
-        None,
-        "ri",
-        "1",
-        "resistivity index (PSV - EDV)/PSV, NaN outside vessels",
-    ),
-    map(
-        "vessel_class",
-        Some("vessels"),
-        "dseg",
-        "1",
-        "0 background, 1 arteriole, 2 venule, 3 undetermined",
-    ),
-    map(
-        "ensemble_power_doppler",
-        Some("ensembles"),
-        "pwd",
-        "|IQ|^2",
-        "power Doppler of each ensemble",
-    ),
-    map(
+const MAPS: [BidsName; 13] = [
+    bids("power_doppler", None, "pwd"),
+    bids("signed_power_doppler", Some("signed"), "pwd"),
+    bids("color_doppler", Some("axial"), "vel"),
+    bids("vx", Some("x"), "vel"),
+    bids("vz", Some("z"), "vel"),
+    bids("speed", Some("speed"), "vel"),
+    bids("ri", None, "ri"),
+    bids("vessel_class", Some("vessels"), "dseg"),
+    bids("ensemble_power_doppler", Some("ensembles"), "pwd"),
+    bids(
         "ensemble_signed_power_doppler",
         Some("ensemblesSigned"),
         "pwd",
-        "|IQ|^2",
-        "signed power Doppler of each ensemble (> 0 moving away from the probe)",
     ),
-    map(
-        "ensemble_color_doppler",
-        Some("ensemblesAxial"),
-        "vel",
-        "m/s",
-        "axial velocity of each ensemble",
-    ),
-    map(
-        "ensemble_vx",
-        Some("ensemblesX"),
-        "vel",
-        "m/s",
-        "lateral velocity of each ensemble",
-    ),
-    map(
-        "ensemble_vz",
-        Some("ensemblesZ"),
-        "vel",
-        "m/s",
-        "axial vector velocity of each ensemble",
-    ),
+    bids("ensemble_color_doppler", Some("ensemblesAxial"), "vel"),
+    bids("ensemble_vx", Some("ensemblesX"), "vel"),
+    bids("ensemble_vz", Some("ensemblesZ"), "vel"),
 ];
 
-fn kind(name: &str) -> &'static MapKind {
+fn kind(name: &str) -> &'static BidsName {
     MAPS.iter()
         .find(|m| m.name == name)
         .expect("every written map is listed")
@@ -350,7 +272,7 @@ fn acquisition_fields(
 fn write_one<A, D>(
     dir: &Path,
     naming: &NiftiNaming,
-    map: &MapKind,
+    map: &BidsName,
     image: &ndarray16::Array<A, D>,
     header: &nifti::NiftiHeader,
     mut sidecar: Sidecar,
@@ -365,8 +287,9 @@ where
         .reference_header(header)
         .write_nifti(image)
         .with_context(|| format!("{}: cannot write the NIfTI image", path.display()))?;
-    sidecar.units = map.units;
-    sidecar.description = map.description;
+    let described = map_kind(map.name);
+    sidecar.units = described.units;
+    sidecar.description = described.description;
     sidecar.sources = vec![format!("pcuvd:{}", map.name)];
     pcuvd_io::write_json(&dir.join(format!("{stem}.json")), &sidecar)?;
     Ok(path)

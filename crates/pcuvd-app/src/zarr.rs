@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use ndarray::{Array2, Array3, ArrayView3, Axis};
+use ndarray::{Array2, Array3, ArrayView3};
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline::ensembles::EnsembleMaps;
 use pcuvd::pipeline::segments::EnsembleSink;
@@ -29,6 +29,7 @@ use zarrs::array::{Array, ArrayBuilder, DataType, data_type};
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::GroupBuilder;
 
+use crate::map_kinds::{MapKind, map_kind};
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
 /// The store's folder name in a run's output folder.
@@ -47,66 +48,28 @@ pub struct ZarrStore {
     grid: (usize, usize),
     /// The time series' arrays (the `time` coordinate first), made by the first ensembles.
     series: Vec<Array<FilesystemStore>>,
-    /// Ensembles written so far.
-    written: u64,
-    /// True once ensembles came through [`EnsembleSink::append`]: the run kept only their times.
-    streamed: bool,
 }
 
-/// One array's description: its name, unit and meaning.
-struct Described {
-    name: &'static str,
-    units: &'static str,
-    long_name: &'static str,
-}
-
-const fn described(name: &'static str, units: &'static str, long_name: &'static str) -> Described {
-    Described {
-        name,
-        units,
-        long_name,
-    }
-}
-
-/// The time series' arrays after `time`, in the order [`series_values`] gives them.
-const SERIES: [Described; 5] = [
-    described(
-        "ensemble_power_doppler",
-        "|IQ|^2",
-        "power Doppler of each ensemble",
-    ),
-    described(
-        "ensemble_signed_power_doppler",
-        "|IQ|^2",
-        "power Doppler of each ensemble signed by its colour Doppler (> 0 moving away from the probe)",
-    ),
-    described(
-        "ensemble_color_doppler",
-        "m/s",
-        "axial velocity of each ensemble (> 0 moving away from the probe)",
-    ),
-    described(
-        "ensemble_vx",
-        "m/s",
-        "lateral velocity of each ensemble, PC-UVD IRLS-WLS (> 0 toward +x)",
-    ),
-    described(
-        "ensemble_vz",
-        "m/s",
-        "axial vector velocity of each ensemble, PC-UVD IRLS-WLS (> 0 deeper)",
-    ),
+/// The time series' arrays after `time`, in [`series_views`]' order (Vx, Vz only with two or
+/// more angles).
+const SERIES: [&str; 5] = [
+    "ensemble_power_doppler",
+    "ensemble_signed_power_doppler",
+    "ensemble_color_doppler",
+    "ensemble_vx",
+    "ensemble_vz",
 ];
 
-/// An ensemble part's series in [`SERIES`] order (Vx, Vz only with two or more angles).
-fn series_values(part: &EnsembleMaps) -> Vec<Array3<f64>> {
-    let mut values = vec![
-        part.power_doppler.clone(),
-        part.signed_power_doppler(),
-        part.color_doppler.clone(),
+/// An ensemble part's series in [`SERIES`] order, the signed power (computed) given apart.
+fn series_views<'a>(part: &'a EnsembleMaps, signed: &'a Array3<f64>) -> Vec<ArrayView3<'a, f64>> {
+    let mut views = vec![
+        part.power_doppler.view(),
+        signed.view(),
+        part.color_doppler.view(),
     ];
-    values.extend(part.vx.clone());
-    values.extend(part.vz.clone());
-    values
+    views.extend(part.vx.as_ref().map(|v| v.view()));
+    views.extend(part.vz.as_ref().map(|v| v.view()));
+    views
 }
 
 fn as_f32(values: impl IntoIterator<Item = f64>) -> Vec<f32> {
@@ -138,18 +101,11 @@ impl ZarrStore {
             store,
             grid: (grid.z.len(), grid.x.len()),
             series: Vec::new(),
-            written: 0,
-            streamed: false,
         };
         zarr.write_group(attributes(data, plan), None)?;
-        zarr.write_coordinate(&described("z", "m", "depth below the probe"), &grid.z)?;
-        zarr.write_coordinate(&described("x", "m", "lateral position"), &grid.x)?;
+        zarr.write_coordinate(&MapKind::new("z", "m", "depth below the probe"), &grid.z)?;
+        zarr.write_coordinate(&MapKind::new("x", "m", "lateral position"), &grid.x)?;
         Ok(zarr)
-    }
-
-    /// The store's folder.
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 
     fn write_group(
@@ -172,7 +128,7 @@ impl ZarrStore {
     /// A new array `what` of `shape`, chunked by `chunks`, with named `dimensions`.
     fn new_array(
         &self,
-        what: &Described,
+        what: &MapKind,
         shape: Vec<u64>,
         chunks: Vec<u64>,
         dimensions: &[&str],
@@ -181,7 +137,7 @@ impl ZarrStore {
     ) -> Result<Array<FilesystemStore>> {
         let mut attributes = Map::new();
         attributes.insert("units".into(), what.units.into());
-        attributes.insert("long_name".into(), what.long_name.into());
+        attributes.insert("long_name".into(), what.description.into());
         let gzip = zarrs::array::codec::GzipCodec::new(5).context("gzip level")?;
         let array = ArrayBuilder::new(shape, chunks, data_type, fill)
             .dimension_names(Some(dimensions.to_vec()))
@@ -206,7 +162,7 @@ impl ZarrStore {
             .with_context(|| format!("{}: cannot write {}", self.path.display(), array.path()))
     }
 
-    fn write_coordinate(&self, what: &Described, values: &[f64]) -> Result<()> {
+    fn write_coordinate(&self, what: &MapKind, values: &[f64]) -> Result<()> {
         let n = values.len() as u64;
         let array = self.new_array(
             what,
@@ -220,7 +176,7 @@ impl ZarrStore {
     }
 
     /// Writes a (z, x) map as float32.
-    fn write_map(&self, what: &Described, values: &Array2<f64>) -> Result<()> {
+    fn write_map(&self, what: &MapKind, values: &Array2<f64>) -> Result<()> {
         let (nz, nx) = (values.nrows() as u64, values.ncols() as u64);
         let array = self.new_array(
             what,
@@ -242,8 +198,8 @@ impl ZarrStore {
     /// A time series of `count` steps along `time` (its coordinate first, then `arrays`), empty.
     fn new_series(
         &self,
-        time: &Described,
-        arrays: &[&Described],
+        time: &MapKind,
+        arrays: &[&MapKind],
     ) -> Result<Vec<Array<FilesystemStore>>> {
         let (nz, nx) = (self.grid.0 as u64, self.grid.1 as u64);
         let chunk = self.time_chunk();
@@ -305,32 +261,30 @@ impl ZarrStore {
 
     /// Appends the next ensembles of the run's Doppler time series (recording order).
     fn append_ensembles(&mut self, part: &EnsembleMaps) -> Result<()> {
-        let values = series_values(part);
+        let signed = part.signed_power_doppler();
+        let views = series_views(part, &signed);
         if self.series.is_empty() {
-            let time = described(
+            let time = MapKind::new(
                 "time",
                 "s",
                 "centre time of each ensemble from the first frame",
             );
-            let arrays: Vec<&Described> = SERIES.iter().take(values.len()).collect();
+            let arrays: Vec<&MapKind> = SERIES
+                .iter()
+                .take(views.len())
+                .map(|n| map_kind(n))
+                .collect();
             self.series = self.new_series(&time, &arrays)?;
         }
-        if self.series.len() != values.len() + 1 {
+        if self.series.len() != views.len() + 1 {
             anyhow::bail!("ensembles with and without vector maps in one run");
         }
-        let views: Vec<ArrayView3<f64>> = values.iter().map(|v| v.view()).collect();
+        // Ensembles written so far: the time axis' length.
+        let written = self.series[0].shape()[0];
         let mut series = std::mem::take(&mut self.series);
-        let done = self.append_to(&mut series, self.written, &part.times_s, &views);
+        let done = self.append_to(&mut series, written, &part.times_s, &views);
         self.series = series;
-        done?;
-        self.written += part.times_s.len() as u64;
-        Ok(())
-    }
-
-    /// Whether the run's ensembles came through the store as it went: the run kept only their
-    /// times, and the store holds their maps.
-    pub fn holds_ensembles(&self) -> bool {
-        self.streamed
+        done
     }
 
     /// Writes the run's maps (those the stages made), its ensembles when they did not come as
@@ -344,74 +298,29 @@ impl ZarrStore {
     ) -> Result<PathBuf> {
         let out = &processed.out;
         let maps = &out.maps;
+        self.write_map(map_kind("bmode_db"), &out.bmode_db)?;
+        self.write_map(map_kind("power_doppler"), &maps.power_doppler)?;
         self.write_map(
-            &described("bmode_db", "dB", "B-mode, dB re its maximum"),
-            &out.bmode_db,
-        )?;
-        self.write_map(
-            &described(
-                "power_doppler",
-                "|IQ|^2",
-                "power Doppler of the compounded, clutter-filtered series",
-            ),
-            &maps.power_doppler,
-        )?;
-        self.write_map(
-            &described(
-                "signed_power_doppler",
-                "|IQ|^2",
-                "power Doppler signed by the colour Doppler (> 0 moving away from the probe)",
-            ),
+            map_kind("signed_power_doppler"),
             &out.signed_power_doppler(),
         )?;
-        self.write_map(
-            &described(
-                "color_doppler",
-                "m/s",
-                "axial velocity (> 0 moving away from the probe)",
-            ),
-            &maps.color_doppler,
-        )?;
+        self.write_map(map_kind("color_doppler"), &maps.color_doppler)?;
         if let Some(irls) = &maps.vector_irls {
-            self.write_map(
-                &described(
-                    "vx",
-                    "m/s",
-                    "lateral velocity, PC-UVD IRLS-WLS (> 0 toward +x)",
-                ),
-                &irls.vx,
-            )?;
-            self.write_map(
-                &described("vz", "m/s", "axial velocity, PC-UVD IRLS-WLS (> 0 deeper)"),
-                &irls.vz,
-            )?;
-            self.write_map(
-                &described("speed", "m/s", "speed, PC-UVD IRLS-WLS"),
-                &irls.speed(),
-            )?;
+            self.write_map(map_kind("vx"), &irls.vx)?;
+            self.write_map(map_kind("vz"), &irls.vz)?;
+            self.write_map(map_kind("speed"), &irls.speed())?;
         }
         if let DynamicsOutcome::Done { series, maps: ri } = &processed.dynamics {
-            self.write_map(
-                &described(
-                    "ri",
-                    "1",
-                    "resistivity index (PSV - EDV)/PSV, NaN outside vessels",
-                ),
-                &ri.ri,
-            )?;
-            self.write_map(&described("psv", "m/s", "peak systolic speed"), &ri.psv)?;
-            self.write_map(&described("edv", "m/s", "end-diastolic speed"), &ri.edv)?;
-            let classes = described(
-                "vessel_class",
-                "1",
-                "0 background, 1 arteriole, 2 venule, 3 undetermined",
-            );
+            self.write_map(map_kind("ri"), &ri.ri)?;
+            self.write_map(map_kind("psv"), &ri.psv)?;
+            self.write_map(map_kind("edv"), &ri.edv)?;
+            let classes = map_kind("vessel_class");
             let (nz, nx) = (
                 ri.vessel_class.nrows() as u64,
                 ri.vessel_class.ncols() as u64,
             );
             let array = self.new_array(
-                &classes,
+                classes,
                 vec![nz, nx],
                 vec![nz.max(1), nx.max(1)],
                 &["z", "x"],
@@ -420,29 +329,16 @@ impl ZarrStore {
             )?;
             let values: Vec<u8> = ri.vessel_class.iter().copied().collect();
             self.store(&array, &[0..nz, 0..nx], values)?;
-            let time = described(
+            let time = MapKind::new(
                 "window_time",
                 "s",
                 "centre time of each velocity window from the first frame",
             );
-            let arrays = [
-                described(
-                    "window_vx",
-                    "m/s",
-                    "lateral velocity of each window (> 0 toward +x)",
-                ),
-                described(
-                    "window_vz",
-                    "m/s",
-                    "axial velocity of each window (> 0 deeper)",
-                ),
-                described(
-                    "window_power",
-                    "|IQ|^2",
-                    "power Doppler of each window, mean over angles",
-                ),
-            ];
-            let mut windows = self.new_series(&time, &arrays.iter().collect::<Vec<_>>())?;
+            let arrays: Vec<&MapKind> = ["window_vx", "window_vz", "window_power"]
+                .iter()
+                .map(|n| map_kind(n))
+                .collect();
+            let mut windows = self.new_series(&time, &arrays)?;
             self.append_to(
                 &mut windows,
                 0,
@@ -450,9 +346,8 @@ impl ZarrStore {
                 &[series.vx.view(), series.vz.view(), series.power.view()],
             )?;
         }
-        if !self.streamed
+        if !processed.ensembles_in_store
             && let Some(ensembles) = &processed.ensembles
-            && ensembles.power_doppler.len_of(Axis(0)) == ensembles.times_s.len()
         {
             self.append_ensembles(ensembles)?;
         }
@@ -470,7 +365,6 @@ impl ZarrStore {
 
 impl EnsembleSink for ZarrStore {
     fn append(&mut self, part: &EnsembleMaps) -> pcuvd::core::error::Result<()> {
-        self.streamed = true;
         self.append_ensembles(part)
             .map_err(|e| pcuvd::core::error::Error::Write(format!("{e:#}")))
     }
