@@ -13,9 +13,10 @@
 use ndarray::{ArrayViewMut2, Axis};
 use rayon::prelude::*;
 
-use super::SimParams;
+use super::elevation::ElevationTable;
 use super::noise::NoiseGenerator;
 use super::waveform::{EchoWaveform, FARROW_TERMS};
+use super::{SimParams, Snapshot};
 use crate::core::error::Result;
 
 /// One pulse slot of an event: steering angle (rad), polarity (±1) and start within the event (s).
@@ -80,6 +81,8 @@ pub(crate) struct Simulator {
     r_ref: f64,
     /// Distance below which spreading is clamped (m).
     r_min: f64,
+    /// The two-way elevation factor, in a three-dimensional simulation.
+    elevation: Option<ElevationTable>,
 }
 
 /// Transmit constants of one slot.
@@ -121,6 +124,13 @@ impl Simulator {
         } else {
             (Vec::new(), f64::INFINITY)
         };
+        // Deep enough for every recorded echo (as the attenuation bands).
+        let z_max = 0.5 * c * (params.t0 + params.window_duration()) + c * wf.half_duration();
+        let elevation = params
+            .elevation
+            .as_ref()
+            .map(|aperture| ElevationTable::new(aperture, lambda, probe.center_frequency, z_max))
+            .transpose()?;
         Ok(Simulator {
             wf,
             bands,
@@ -140,6 +150,7 @@ impl Simulator {
             sinc_coeffs: sinc_taylor(std::f64::consts::PI * probe.element_width / lambda),
             r_ref: 1e-3,
             r_min: 0.5 * lambda,
+            elevation,
         })
     }
 
@@ -184,14 +195,25 @@ impl Simulator {
     }
 
     /// Transmit part of one event, once per scatterer and slot; drops scatterers no slot reaches.
+    /// The two-way elevation factor, which does not depend on the element, joins it here.
     fn prepare(
         &self,
-        positions: &[[f64; 2]],
+        scatterers: &Snapshot,
         amplitudes: &[f64],
         slots: &[Slot],
     ) -> EventScatterers {
+        let positions = &scatterers.positions[..];
         let nk = slots.len();
         let n = positions.len();
+        // (amplitude, delay (s)) of each scatterer's elevation factor.
+        let elevation: Option<Vec<(f64, f64)>> = self.elevation.as_ref().map(|table| {
+            let y = |i: usize| scatterers.elevations.get(i).copied().unwrap_or(0.0);
+            positions
+                .par_iter()
+                .enumerate()
+                .map(|(i, &[_, z])| table.two_way(y(i), z))
+                .collect()
+        });
         let geometry: Vec<SlotGeometry> = slots.iter().map(|s| self.slot_geometry(s)).collect();
         let lead = (self.wf.taps() - self.wf.origin_tap()) as f64;
         // Slot-major (k, scatterer), so that the per-channel loops read them contiguously.
@@ -217,13 +239,23 @@ impl Simulator {
                     let base = chunk * CHUNK;
                     let pts = &positions[base..base + pos.len()];
                     let amps = &amplitudes[base..base + pos.len()];
-                    for (((p, a), &[x, z]), &s) in
-                        pos.iter_mut().zip(amp.iter_mut()).zip(pts).zip(amps)
+                    for (i, (((p, a), &[x, z]), &s)) in pos
+                        .iter_mut()
+                        .zip(amp.iter_mut())
+                        .zip(pts)
+                        .zip(amps)
+                        .enumerate()
                     {
-                        let delay = g.offset + self.transmit_delay(g, x, z);
+                        let mut delay = g.offset + self.transmit_delay(g, x, z);
+                        let mut gain = s * g.polarity * self.transmit_amplitude(g, x, z);
+                        if let Some(elevation) = &elevation {
+                            let (amplitude, extra) = elevation[base + i];
+                            delay += extra;
+                            gain *= amplitude;
+                        }
                         // Far beyond any record: clamp so that the integer part fits an i32.
                         *p = (delay * self.fs + lead).clamp(-1e9, 1e9);
-                        *a = (s * g.polarity * self.transmit_amplitude(g, x, z)) as f32;
+                        *a = gain as f32;
                     }
                 });
         }
@@ -260,13 +292,13 @@ impl Simulator {
     /// `amplitudes`, fired by `slots`; `noise` adds (generator, stream of channel 0 of this event).
     pub(crate) fn render_event(
         &self,
-        positions: &[[f64; 2]],
+        scatterers: &Snapshot,
         amplitudes: &[f64],
         slots: &[Slot],
         mut out: ArrayViewMut2<f32>,
         noise: Option<(&NoiseGenerator, u64)>,
     ) {
-        let ev = self.prepare(positions, amplitudes, slots);
+        let ev = self.prepare(scatterers, amplitudes, slots);
         out.axis_iter_mut(Axis(0))
             .into_par_iter()
             .enumerate()
@@ -908,8 +940,12 @@ mod tests {
                 })
                 .collect();
             let mut out = ndarray::Array2::<f32>::zeros((sim.element_x.len(), sim.n_samples));
-            sim.render_event(&positions, &amplitudes, &slots, out.view_mut(), None);
-            let ev = sim.prepare(&positions, &amplitudes, &slots);
+            let scatterers = Snapshot {
+                positions: positions.clone(),
+                elevations: Vec::new(),
+            };
+            sim.render_event(&scatterers, &amplitudes, &slots, out.view_mut(), None);
+            let ev = sim.prepare(&scatterers, &amplitudes, &slots);
             let portable = portable_event(&sim, &ev);
             assert!(out.iter().any(|&v| v != 0.0));
             for (e, trace) in portable.iter().enumerate() {

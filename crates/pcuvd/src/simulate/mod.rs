@@ -14,6 +14,10 @@
 //!   shadow line). Attenuation over the path z / cos θ.
 //! * **Receive amplitude**: element directivity sinc(π w sin φ / λ)·cos φ (soft baffle), 2-D
 //!   cylindrical spreading √(1 mm / r) (r ≥ λ/2), attenuation over r.
+//! * **Elevation** (with [`SimParams::elevation`]): scatterers have an elevation y (the
+//!   phantom's [`Phantom::elevations_at`]) and every echo is scaled and delayed by the two-way
+//!   elevation factor of the elements' height and lens ([`elevation`]). Without it the model is
+//!   two-dimensional: every scatterer in the plane, elements infinitely tall.
 //! * **Attenuation**: α·f (dB/cm/MHz × MHz) over the two-way path L (transmit z / cos θ plus
 //!   receive r). Its value at f_c scales each echo's amplitude; with
 //!   `SimParams::frequency_dependent_attenuation` (the default) it also lowers the echo's
@@ -41,6 +45,7 @@
 //! owned by one task, and the noise of (event, channel) comes from its own ChaCha8 stream: the
 //! same seed gives bit-identical output whatever the number of threads.
 
+pub mod elevation;
 mod kernel;
 mod noise;
 pub mod phantom;
@@ -50,6 +55,7 @@ mod waveform;
 use ndarray::{Array3, Axis};
 use rayon::prelude::*;
 
+pub use self::elevation::ElevationAperture;
 use self::kernel::{Simulator, Slot};
 pub use self::presets::{PAPER_FRAMES, RAT_FRAMES, paper_spiral_params, rat_params};
 pub use self::waveform::EchoWaveform;
@@ -110,6 +116,10 @@ pub struct SimParams {
     pub noise: Option<NoiseSpec>,
     /// Seed of the noise streams.
     pub seed: u64,
+    /// The elements' elevation aperture (height and lens focus), which makes the simulation
+    /// three-dimensional: a scatterer's elevation y sets its echo's amplitude and delay
+    /// ([`elevation`]). `None`: the two-dimensional model, every scatterer in the imaging plane.
+    pub elevation: Option<ElevationAperture>,
 }
 
 impl SimParams {
@@ -139,6 +149,7 @@ impl SimParams {
             n_samples,
             noise: None,
             seed: 0,
+            elevation: None,
         })
     }
 
@@ -181,6 +192,9 @@ impl SimParams {
                     self.attenuation_db_cm_mhz
                 ),
             ));
+        }
+        if let Some(elevation) = &self.elevation {
+            elevation.validate()?;
         }
         if self.n_samples < 2 {
             return Err(invalid(
@@ -359,17 +373,24 @@ pub fn simulate_events(
         ));
     }
     let sim = Simulator::new(params)?;
-    let mut positions = Vec::with_capacity(phantom.n_scatterers());
-    let load = |t: f64, positions: &mut Vec<[f64; 2]>| -> Result<()> {
-        phantom.positions_at(t, positions);
-        if positions.len() != phantom.n_scatterers() {
+    let mut scatterers = Snapshot::default();
+    let load = |t: f64, out: &mut Snapshot| -> Result<()> {
+        out.load(phantom, t)?;
+        let n = phantom.n_scatterers();
+        if out.positions.len() != n || !(out.elevations.is_empty() || out.elevations.len() == n) {
             return Err(Error::Shape(format!(
-                "the phantom gave {} positions for {} scatterers",
-                positions.len(),
-                phantom.n_scatterers()
+                "the phantom gave {} positions and {} elevations for {n} scatterers",
+                out.positions.len(),
+                out.elevations.len(),
             )));
         }
-        if positions.iter().flatten().any(|v| !v.is_finite()) {
+        if out
+            .positions
+            .iter()
+            .flatten()
+            .chain(&out.elevations)
+            .any(|v| !v.is_finite())
+        {
             return Err(Error::NonFinite(format!(
                 "the phantom's scatterer positions at t = {t} s"
             )));
@@ -377,7 +398,7 @@ pub fn simulate_events(
         Ok(())
     };
 
-    let noise = noise_generator(phantom, params, &sim, &mut positions, &load)?;
+    let noise = noise_generator(phantom, params, &sim, &mut scatterers, &load)?;
 
     if events.start > events.end || events.end > n_events {
         return Err(invalid(
@@ -388,7 +409,7 @@ pub fn simulate_events(
     let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
     for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
         let t = event as f64 / params.sequence.event_prf;
-        load(t, &mut positions)?;
+        load(t, &mut scatterers)?;
         let slots: Vec<Slot> = params
             .sequence
             .event_pulses(event)
@@ -402,14 +423,30 @@ pub fn simulate_events(
         let streams = noise
             .as_ref()
             .map(|g| (g, event as u64 * n_channels as u64));
-        sim.render_event(&positions, phantom.amplitudes(), &slots, out, streams);
+        sim.render_event(&scatterers, phantom.amplitudes(), &slots, out, streams);
         progress(event + 1, n_events);
     }
     Ok(rf)
 }
 
-/// Fills the scatterer positions at a time (s), checking them.
-type PositionLoader<'a> = dyn Fn(f64, &mut Vec<[f64; 2]>) -> Result<()> + 'a;
+/// The scatterers of a phantom at one time: in-plane positions (x, z) and, for a phantom in
+/// three dimensions, elevations y (m; empty when every scatterer lies in the plane).
+#[derive(Debug, Default)]
+pub(crate) struct Snapshot {
+    pub(crate) positions: Vec<[f64; 2]>,
+    pub(crate) elevations: Vec<f64>,
+}
+
+impl Snapshot {
+    fn load(&mut self, phantom: &dyn Phantom, t: f64) -> Result<()> {
+        phantom.positions_at(t, &mut self.positions);
+        phantom.elevations_at(t, &mut self.elevations);
+        Ok(())
+    }
+}
+
+/// Fills the scatterers at a time (s), checking them.
+type PositionLoader<'a> = dyn Fn(f64, &mut Snapshot) -> Result<()> + 'a;
 
 /// The noise source of `params` (see [`NOISE_DEFINITION`]): its RMS is set from the noiseless,
 /// uncoded 0° echo of `phantom` at t = 0. `None` when `params.noise` is `None`.
@@ -417,14 +454,14 @@ fn noise_generator(
     phantom: &dyn Phantom,
     params: &SimParams,
     sim: &Simulator,
-    positions: &mut Vec<[f64; 2]>,
+    scatterers: &mut Snapshot,
     load: &PositionLoader,
 ) -> Result<Option<noise::NoiseGenerator>> {
     let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
     Ok(match &params.noise {
         None => None,
         Some(spec) => {
-            load(0.0, positions)?;
+            load(0.0, scatterers)?;
             let mut reference = ndarray::Array2::<f32>::zeros((n_channels, ns));
             let slot = Slot {
                 angle: 0.0,
@@ -432,7 +469,7 @@ fn noise_generator(
                 offset: 0.0,
             };
             sim.render_event(
-                positions,
+                scatterers,
                 phantom.amplitudes(),
                 &[slot],
                 reference.view_mut(),
@@ -508,13 +545,10 @@ pub fn simulate_noise_events(
         ));
     }
     let sim = Simulator::new(params)?;
-    let mut positions = Vec::with_capacity(phantom.n_scatterers());
-    let load = |t: f64, out: &mut Vec<[f64; 2]>| -> Result<()> {
-        phantom.positions_at(t, out);
-        Ok(())
-    };
-    let generator =
-        noise_generator(phantom, params, &sim, &mut positions, &load)?.expect("noise is specified");
+    let mut scatterers = Snapshot::default();
+    let load = |t: f64, out: &mut Snapshot| out.load(phantom, t);
+    let generator = noise_generator(phantom, params, &sim, &mut scatterers, &load)?
+        .expect("noise is specified");
     let first = events.start;
     let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
     rf.axis_iter_mut(Axis(0))

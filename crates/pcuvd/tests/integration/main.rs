@@ -11,3 +11,4 @@ mod roundtrip;
 mod segments;
 mod simulate;
 mod stages;
+mod tissue;

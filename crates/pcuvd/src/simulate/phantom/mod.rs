@@ -6,7 +6,8 @@
 //! Ground truth is sampled on any pixel grid as a [`Truth`] (m/s, shape (nz, nx)).
 //!
 //! One file per phantom family: [`spiral`] (the paper's vessel), [`tube`], [`rigid`] (disk, block,
-//! point targets for tests) and [`network`] (the pulsatile vessel network with RI truth).
+//! point targets for tests), [`network`] (the pulsatile vessel network with RI truth) and
+//! [`tissue`] (moving speckle around the vessels, and the wrappers that move and combine them).
 //!
 //! Coordinates follow the crate convention: x lateral, z depth (positive into the medium), m.
 //! Scatterer densities are per unit area of the 2-D imaging plane (scatterers/m²; 300/mm² = 3e8/m²).
@@ -21,11 +22,13 @@ use crate::core::error::{Result, invalid, require_positive};
 pub mod network;
 pub mod rigid;
 pub mod spiral;
+pub mod tissue;
 pub mod tube;
 
 pub use network::{NetworkPhantom, NetworkSpec, NetworkTruth};
 pub use rigid::{BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, PointPhantom};
 pub use spiral::{SpiralPhantom, SpiralSpec};
+pub use tissue::{Composite, Moved, TissueMotion, TissuePhantom, TissueSpec};
 pub use tube::{FlowProfile, TubePhantom, TubeSpec};
 
 /// Largest number of scatterers a phantom may draw (guards against absurd densities).
@@ -84,6 +87,13 @@ pub trait Phantom: Sync {
     /// Clears `out` and fills it with the (x, z) position (m) of every scatterer at time `t` (s),
     /// in the order of [`Phantom::amplitudes`].
     fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>);
+
+    /// Clears `out` and, for a phantom in three dimensions, fills it with the elevation y (m,
+    /// distance from the imaging plane) of every scatterer at time `t` (s), in the order of
+    /// [`Phantom::amplitudes`]. Left empty (the default): every scatterer lies in the plane.
+    fn elevations_at(&self, _t: f64, out: &mut Vec<f64>) {
+        out.clear();
+    }
 
     /// Ground-truth velocity (m/s) at time `t` (s) on the grid of lateral positions `x` and depths
     /// `z` (m); arrays of shape (z.len(), x.len()).
@@ -149,15 +159,25 @@ pub struct FrameHeld<'a> {
     pub frame_period: f64,
 }
 
+impl FrameHeld<'_> {
+    /// Start (s) of the compound frame that holds time `t` (s).
+    fn frame_start(&self, t: f64) -> f64 {
+        // Event times are i / PRF: the tiny margin keeps frame starts from rounding down a frame.
+        (t / self.frame_period + 1e-9).floor() * self.frame_period
+    }
+}
+
 impl Phantom for FrameHeld<'_> {
     fn amplitudes(&self) -> &[f64] {
         self.inner.amplitudes()
     }
 
     fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>) {
-        // Event times are i / PRF: the tiny margin keeps frame starts from rounding down a frame.
-        let frame = (t / self.frame_period + 1e-9).floor();
-        self.inner.positions_at(frame * self.frame_period, out);
+        self.inner.positions_at(self.frame_start(t), out);
+    }
+
+    fn elevations_at(&self, t: f64, out: &mut Vec<f64>) {
+        self.inner.elevations_at(self.frame_start(t), out);
     }
 
     fn truth(&self, x: &[f64], z: &[f64], t: f64) -> Truth {
