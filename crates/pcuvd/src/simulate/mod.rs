@@ -47,6 +47,7 @@
 
 pub mod elevation;
 mod kernel;
+pub mod keyframes;
 mod noise;
 pub mod phantom;
 mod presets;
@@ -438,7 +439,7 @@ pub(crate) struct Snapshot {
 }
 
 impl Snapshot {
-    fn load(&mut self, phantom: &dyn Phantom, t: f64) -> Result<()> {
+    pub(crate) fn load(&mut self, phantom: &dyn Phantom, t: f64) -> Result<()> {
         phantom.positions_at(t, &mut self.positions);
         phantom.elevations_at(t, &mut self.elevations);
         Ok(())
