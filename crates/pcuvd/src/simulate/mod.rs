@@ -45,6 +45,7 @@ mod kernel;
 mod noise;
 pub mod phantom;
 mod presets;
+pub mod vascular;
 mod waveform;
 
 use ndarray::{Array3, Axis};
