@@ -198,7 +198,7 @@ impl FlowParams {
         require_positive("blood density", self.density)?;
         for class in VesselClass::ALL {
             let c = self.wave_speed[class.index()];
-            if !(c > 0.0) || c.is_nan() {
+            if c.is_nan() || c <= 0.0 {
                 return Err(invalid(
                     &format!("{} pulse-wave speed", class.name()),
                     format!("must be > 0 m/s (infinite for rigid), got {c}"),
@@ -415,8 +415,10 @@ pub fn solve(graph: &VesselGraph, params: &FlowParams) -> Result<VascularFlow> {
 
     let omega = params.pulse.omega();
     let n_harmonics = params.pulse.harmonics().len();
-    let mut pressure = vec![vec![Complex64::new(0.0, 0.0); n_harmonics + 1]; n];
+    // Per harmonic, the pressure at every vertex.
+    let mut columns = Vec::with_capacity(n_harmonics + 1);
     for k in 0..=n_harmonics {
+        let mut column = vec![Complex64::new(0.0, 0.0); n];
         // Boundary value of harmonic k: the mean for k = 0, the pulse swing times the shape's
         // k-th amplitude otherwise.
         let shape = if k == 0 {
@@ -437,7 +439,7 @@ pub fn solve(graph: &VesselGraph, params: &FlowParams) -> Result<VascularFlow> {
         for v in 0..n {
             match boundary[v] {
                 Some(b) if graph.boundaries[b].kind == BoundaryKind::Pressure => {
-                    pressure[v][k] = value(b);
+                    column[v] = value(b);
                 }
                 Some(b) => rhs[unknown[v]] += value(b),
                 None => {}
@@ -455,18 +457,22 @@ pub fn solve(graph: &VesselGraph, params: &FlowParams) -> Result<VascularFlow> {
                 }
                 a[ui * (n_unknown + 1)] += g;
                 match unknown[j] {
-                    usize::MAX => rhs[ui] += g * pressure[j][k],
+                    usize::MAX => rhs[ui] += g * column[j],
                     uj => a[ui * n_unknown + uj] -= g,
                 }
             }
         }
         let x = solve_dense(n_unknown, &a, &rhs)?;
-        for v in 0..n {
-            if unknown[v] != usize::MAX {
-                pressure[v][k] = x[unknown[v]];
+        for (p, &u) in column.iter_mut().zip(&unknown) {
+            if u != usize::MAX {
+                *p = x[u];
             }
         }
+        columns.push(column);
     }
+    let pressure: Vec<Vec<Complex64>> = (0..n)
+        .map(|v| columns.iter().map(|c| c[v]).collect())
+        .collect();
 
     let segments = graph
         .edges

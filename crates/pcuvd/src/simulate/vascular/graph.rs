@@ -186,7 +186,8 @@ impl VesselGraph {
             }
             // A segment needs a direction for its velocity vector, so its ends must differ even
             // when a hydraulic length is given.
-            if !(self.chord(e) > 0.0) {
+            let chord = self.chord(e);
+            if chord.is_nan() || chord <= 0.0 {
                 return Err(invalid(
                     "vessel graph",
                     format!(
@@ -195,13 +196,13 @@ impl VesselGraph {
                     ),
                 ));
             }
-            if let Some(l) = e.length {
-                if !(l.is_finite() && l > 0.0) {
-                    return Err(invalid(
-                        "vessel graph",
-                        format!("edge {i} has length {l:e} m; it must be finite and > 0"),
-                    ));
-                }
+            if let Some(l) = e.length
+                && !(l.is_finite() && l > 0.0)
+            {
+                return Err(invalid(
+                    "vessel graph",
+                    format!("edge {i} has length {l:e} m; it must be finite and > 0"),
+                ));
             }
             degree[e.v1] += 1;
             degree[e.v2] += 1;

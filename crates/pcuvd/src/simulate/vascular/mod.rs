@@ -29,12 +29,26 @@
 //!   behind the inlet pulse's.
 //!
 //! # Default compliance, and why
-//! The rat default ([`FlowParams::rat`]) takes c = 1 m/s in arterioles and capillaries and
-//! 0.25 m/s in venules (veins are far more distensible: the same volume at a 16× larger C per
-//! unit volume). They are tuned, not measured: with the [`generate`] defaults (inlet swing set
-//! for a resistive RI of 0.6) they give inlet arterioles an RI ≈ 0.6–0.8, capillaries less, and
-//! venules below 0.5 — the ranges the paper reports (arterioles 0.55–0.9, venules < 0.5) — with a
-//! pulse delay of a few to tens of ms from arteriole to venule.
+//! In this model pulsatility can only fall downstream where volume is stored, and a compliant
+//! segment also draws a capacitive current through everything upstream of it (its inflow is
+//! *more* pulsatile). The rat default ([`FlowParams::rat`]) therefore puts the compliance where
+//! it filters without making arterioles reverse: c = 20 m/s in arterioles (nearly rigid — the
+//! arterial tree's compliance lies upstream, in the large arteries, and is already in the inlet
+//! waveform), 2.5 m/s in capillaries (the coarse bed holds a small fraction of the real
+//! capillary volume, so each of its segments stands for many and stores accordingly) and
+//! 0.25 m/s in venules (veins are the most distensible vessels). These are tuned, not measured.
+//! With the [`generate`] defaults (10 mm slab, 524 vertices; inlet swing set for a rigid-tree RI
+//! of 0.55) they give RI (10th/50th/90th percentile) 0.62/0.69/0.83 in arterioles,
+//! 0.55/0.57/0.63 in capillaries and 0.00/0.11/0.48 in venules — the paper's ranges (arterioles
+//! 0.55–0.9, venules < 0.5) — with median pulse delays of −13 ms (arterioles lead the inlet
+//! pressure: their flow feeds the downstream compliance), +4 ms (capillaries) and +33 ms
+//! (venules).
+//!
+//! # Known limits of the coarse bed
+//! Each generated capillary edge carries the flow of many real capillaries, so its speed
+//! (median PSV ≈ 14 mm/s) is about ten times a real capillary's while the penetrating vessels'
+//! (a few mm/s) are on the low side; a few arteriole segments near a strongly compliant bed may
+//! reach RI ≈ 1.05 (flow briefly stopping or reversing in diastole).
 //!
 //! # Neglected
 //! Blood inertia (no inductance: the Womersley number is ≪ 1 in vessels below 150 µm at 5.5 Hz,

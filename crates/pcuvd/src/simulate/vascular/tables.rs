@@ -57,13 +57,13 @@ pub fn parse_tables(vertices: &str, edges: &str, boundary: &str) -> Result<Vesse
         let v1 = et.index(row, c1, n)?;
         let v2 = et.index(row, c2, n)?;
         let diameter = et.number(row, cd)? * scale.0;
-        if !(diameter > 0.0) {
+        if diameter <= 0.0 {
             return Err(et.error(row, cd, "a diameter must be > 0"));
         }
         let length = match cl {
             Some(c) if !row.cells[c].is_empty() => {
                 let l = et.number(row, c)? * scale.0;
-                if !(l > 0.0) {
+                if l <= 0.0 {
                     return Err(et.error(row, c, "a length must be > 0 (or empty)"));
                 }
                 Some(l)
