@@ -51,6 +51,7 @@ pub mod keyframes;
 mod noise;
 pub mod phantom;
 mod presets;
+pub mod vascular;
 mod waveform;
 
 use ndarray::{Array3, Axis};
