@@ -9,3 +9,6 @@ pub const ARTERIOLE: u8 = 1;
 pub const VENULE: u8 = 2;
 /// Class code of a vessel pixel whose RI lies between the arteriole and venule thresholds.
 pub const UNDETERMINED: u8 = 3;
+/// Class code of a capillary in a phantom's ground truth: an anatomical class, not one of the
+/// dynamics stage's verdicts (which never gives it).
+pub const CAPILLARY: u8 = 4;

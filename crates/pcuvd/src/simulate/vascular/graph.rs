@@ -2,12 +2,8 @@
 //! a flow solve needs before it can be trusted.
 
 use crate::core::error::{Result, invalid};
+pub use crate::core::vessel::CAPILLARY;
 use crate::core::vessel::{ARTERIOLE, VENULE};
-
-/// Class code of a capillary segment in the ground truth. It is not one of the dynamics stage's
-/// codes: 3 there means "RI between the thresholds" (a classifier's verdict), whereas a capillary
-/// is an anatomical class, so it gets its own code, 4.
-pub const CAPILLARY: u8 = 4;
 
 /// Anatomical class of a segment: it sets the truth class code and the default compliance.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
