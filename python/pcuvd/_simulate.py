@@ -18,6 +18,7 @@ class Truth:
     x (nx), z (nz) in m; vx, vz (nz, nx) in m/s at t = 0 (vx > 0 toward +x, vz > 0 deeper);
     mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
     edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up.
+    With tissue (tissue_db=...) also `tissue`: its velocity vx, vz (nz, nx) in m/s at t = 0.
     """
 
     x: np.ndarray
@@ -26,6 +27,7 @@ class Truth:
     vz: np.ndarray
     mask: np.ndarray
     cycle: dict[str, np.ndarray] = field(default_factory=dict)
+    tissue: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def simulate_option_names() -> list[str]:
@@ -50,7 +52,8 @@ def simulate(
     preset's); noise_db: noise level in dB (None: no noise); seed of scatterers and noise;
     options: the other `simulate` options (angles, slot_delay_us, peak_velocity_mm_s,
     tube_profile="plug" for the tube without a gradient across it, tube_angle_deg,
-    tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm). Returns (recording, truth),
+    tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm; tissue_db=40 for moving tissue
+    around the vessels, tissue_motion="rat" or "still"). Returns (recording, truth),
     or ({"conventional": ..., "coded": ...}, truth) for mode "both".
     """
     given = dict(options)
@@ -71,6 +74,7 @@ def simulate(
         vz=arrays["vz"],
         mask=arrays["mask"],
         cycle={k: arrays[k] for k in cycle_keys if k in arrays},
+        tissue={k.removeprefix("tissue_"): arrays[k] for k in ("tissue_vx", "tissue_vz") if k in arrays},
     )
     made = {name: Recording(native) for name, native in recordings}
     if mode == "both":

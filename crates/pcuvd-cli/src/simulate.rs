@@ -20,6 +20,8 @@ const TRUTH_FILES: [&str; 5] = [
     "truth_vz.npy",
     "truth_mask.npy",
 ];
+/// Ground-truth files of the tissue's motion (with `--tissue-db`): velocity at t = 0 (m/s).
+const TISSUE_TRUTH_FILES: [&str; 2] = ["truth_tissue_vx.npy", "truth_tissue_vz.npy"];
 /// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
 const NETWORK_TRUTH_FILES: [&str; 5] = [
     "truth_ri.npy",
@@ -39,7 +41,12 @@ const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
 /// that a folder reused for another preset or mode holds no stale truth or recording beside the new
 /// ones (a `truth_ri.npy` of an earlier network run beside a tube would be read as the tube's truth).
 /// Files of any other name are left alone.
-fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) -> Result<()> {
+fn remove_stale_outputs(
+    dir: &Path,
+    recordings: &[&str],
+    network_truth: bool,
+    tissue_truth: bool,
+) -> Result<()> {
     let stale_recordings = RECORDING_NAMES
         .iter()
         .filter(|name| !recordings.contains(name))
@@ -47,6 +54,7 @@ fn remove_stale_outputs(dir: &Path, recordings: &[&str], network_truth: bool) ->
     let stale_truth = NETWORK_TRUTH_FILES
         .iter()
         .filter(|_| !network_truth)
+        .chain(TISSUE_TRUTH_FILES.iter().filter(|_| !tissue_truth))
         .map(|name| name.to_string());
     for name in stale_recordings.chain(stale_truth) {
         let path = dir.join(name);
@@ -87,7 +95,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         let progress = bar(&format!("simulate {name}"), events as u64);
         if mode_index == 0 {
             // Once every setting is checked: a refused run deletes nothing.
-            remove_stale_outputs(&args.out, &recordings, simulation.network.is_some())?;
+            remove_stale_outputs(
+                &args.out,
+                &recordings,
+                simulation.network.is_some(),
+                simulation.tissue.is_some(),
+            )?;
         }
         // Simulated and written a block of frames at a time: memory stays bounded whatever the
         // recording's length, and the samples are those of one whole-recording simulation.
@@ -136,6 +149,11 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 pcuvd_io::write_npy(&edv, &cycle.edv)?;
                 pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
                 pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
+            }
+            if let Some(tissue) = &truth.tissue {
+                let [vx, vz] = TISSUE_TRUTH_FILES.map(|name| args.out.join(name));
+                pcuvd_io::write_npy(&vx, &tissue.velocity[0])?;
+                pcuvd_io::write_npy(&vz, &tissue.velocity[2])?;
             }
             println!(
                 "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",

@@ -35,6 +35,10 @@ const PHASE_PER_KEYFRAME: f64 = 0.3;
 /// `wavelength` (m): the echo's phase turns by at most 0.3 rad between them (see the module
 /// docs). Infinite for still tissue.
 pub fn keyframe_interval(max_speed: f64, wavelength: f64) -> f64 {
+    if max_speed <= 0.0 {
+        // Also −0.0, the empty sum of a motion without oscillations.
+        return f64::INFINITY;
+    }
     let k = 2.0 * std::f64::consts::PI / wavelength;
     PHASE_PER_KEYFRAME / (2.0 * k * max_speed)
 }
@@ -159,6 +163,7 @@ mod tests {
         let interval = keyframe_interval(0.4e-3, wavelength);
         let phase = 2.0 * (2.0 * std::f64::consts::PI / wavelength) * 0.4e-3 * interval;
         assert!((phase - 0.3).abs() < 1e-12);
-        assert!(keyframe_interval(0.0, wavelength).is_infinite());
+        assert_eq!(keyframe_interval(0.0, wavelength), f64::INFINITY);
+        assert_eq!(keyframe_interval(-0.0, wavelength), f64::INFINITY);
     }
 }

@@ -115,6 +115,21 @@ impl TissueMotion {
         Ok(())
     }
 
+    /// Fastest speed (m/s) of any point with depth in `depth` = (z_min, z_max) (m): a bound
+    /// (every oscillation at its peak at once).
+    pub fn max_speed(&self, depth: (f64, f64)) -> f64 {
+        let farthest = (depth.0 - self.reference_depth)
+            .abs()
+            .max((depth.1 - self.reference_depth).abs());
+        self.oscillations
+            .iter()
+            .map(|o| {
+                let amplitude = o.amplitude.iter().map(|a| a * a).sum::<f64>().sqrt();
+                o.omega() * amplitude * (1.0 + o.depth_gradient.abs() * farthest)
+            })
+            .sum()
+    }
+
     /// Displacement (m) at time `t` (s) of the point first at `start` = (x, y, z) (m).
     pub fn displacement(&self, start: [f64; 3], t: f64) -> [f64; 3] {
         self.sum(start, |o| {
