@@ -21,7 +21,7 @@
 
 use std::collections::HashMap;
 
-use ndarray::{Array2, Array3, Axis, Zip};
+use ndarray::{Array2, Array3, ArrayViewMut3, Axis, Zip, s};
 
 use super::kernel::{Simulator, Slot};
 use super::phantom::Phantom;
@@ -47,6 +47,7 @@ pub fn keyframe_interval(max_speed: f64, wavelength: f64) -> f64 {
 /// the blood simulated at every event (with the noise of `params`, relative to the blood's own
 /// echo), the tissue rendered at keyframes `interval` (s) apart and interpolated (see the module
 /// docs). Shape (events, channels, samples). `progress(done, total)` counts the blood's events.
+/// A fresh [`TissueKeyframes`]; keep one across calls to reuse its keyframes.
 pub fn simulate_events_with_tissue(
     blood: &dyn Phantom,
     tissue: &dyn Phantom,
@@ -57,79 +58,185 @@ pub fn simulate_events_with_tissue(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Array3<f32>> {
     let mut rf = simulate_events(blood, params, n_frames, events.clone(), progress)?;
-    if events.is_empty() || tissue.n_scatterers() == 0 {
-        return Ok(rf);
-    }
-    // Still tissue (an infinite interval) needs one keyframe, at t = 0.
-    let still = interval == f64::INFINITY;
-    if !still {
-        require_positive("keyframe interval", interval)?;
-    }
-    let prf = params.sequence.event_prf;
-    let time = |event: usize| event as f64 / prf;
-    let position = |event: usize| if still { 0.0 } else { time(event) / interval };
-    // Keyframes j·Δ from one before the first event's to two after the last's.
-    let (first, last) = if still {
-        (0, 0)
-    } else {
-        (
-            position(events.start).floor() as i64 - 1,
-            position(events.end - 1).floor() as i64 + 2,
-        )
-    };
-    if last - first > 1_000_000 {
-        return Err(invalid(
-            "keyframe interval",
-            format!("{interval} s gives more than a million keyframes for these events"),
-        ));
-    }
-    // Each distinct slot (angle index, start within the event) is rendered once per keyframe.
-    let mut slots: Vec<(usize, f64)> = Vec::new();
-    for event in events.clone() {
-        for (k, _, offset) in params.sequence.event_pulses(event) {
-            if !slots.iter().any(|&(k2, o2)| k2 == k && o2 == offset) {
-                slots.push((k, offset));
-            }
-        }
-    }
-    let sim = Simulator::new(params)?;
-    let amplitudes = tissue.amplitudes();
-    let shape = (params.probe.n_elements, params.n_samples);
-    let mut keyframes: HashMap<(i64, usize), Array2<f32>> = HashMap::new();
-    let mut scatterers = Snapshot::default();
-    for j in first..=last {
-        scatterers.load(tissue, if still { 0.0 } else { j as f64 * interval })?;
-        for (s, &(k, offset)) in slots.iter().enumerate() {
-            let slot = Slot {
-                angle: params.sequence.angles[k],
-                polarity: 1.0,
-                offset,
-            };
-            let mut echo = Array2::<f32>::zeros(shape);
-            sim.render_event(&scatterers, amplitudes, &[slot], echo.view_mut(), None);
-            keyframes.insert((j, s), echo);
-        }
-    }
-    for (event, mut out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
-        let u = position(event);
-        let j = u.floor() as i64;
-        let weights = lagrange_cubic(u - j as f64);
-        for (k, polarity, offset) in params.sequence.event_pulses(event) {
-            let s = slots
-                .iter()
-                .position(|&(k2, o2)| k2 == k && o2 == offset)
-                .expect("every slot of these events is listed");
-            // Nodes of weight 0 (all but one at a keyframe, or for still tissue) may not exist.
-            for (node, w) in (-1..=2).zip(weights).filter(|&(_, w)| w != 0.0) {
-                let echo = &keyframes[&(j + node, s)];
-                let scale = w as f32 * polarity;
-                Zip::from(&mut out)
-                    .and(echo)
-                    .for_each(|o, &e| *o += scale * e);
-            }
-        }
-    }
+    TissueKeyframes::new(interval, params.sequence.last_slot_start()).add(
+        tissue,
+        params,
+        events,
+        rf.view_mut(),
+    )?;
     Ok(rf)
+}
+
+/// A slot's keyframe: rendered at slot start 0 and shifted by a whole number of samples when
+/// its start is one (so that every slot of every mode that fires the same angle shares it), or
+/// rendered at its own start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+enum SlotKey {
+    /// Angle index; the slot's start is a whole number of samples.
+    Shifted(usize),
+    /// Angle index and the bits of its start (s).
+    At(usize, u64),
+}
+
+/// The tissue's keyframes, kept between calls: consecutive blocks of a recording, and the
+/// conventional and coded recordings of the same tissue, render each keyframe once.
+///
+/// Keyframes are rendered over the receive window grown `lead` (s) earlier, so that a slot
+/// starting up to `lead` into the event is its angle's echo shifted by whole samples, exactly.
+/// Keyframes before those a call needs are dropped, so memory follows the block, not the
+/// recording: simulate the modes block by block (the same events of each in turn).
+pub struct TissueKeyframes {
+    interval: f64,
+    lead: f64,
+    /// The receive window the keyframes were rendered for: (t0 (s), samples, f_s (Hz)).
+    window: Option<(f64, usize, f64)>,
+    echoes: HashMap<(i64, SlotKey), Array2<f32>>,
+}
+
+impl TissueKeyframes {
+    /// Keyframes `interval` (s) apart (infinite: still tissue, one keyframe) for slots starting
+    /// up to `lead` (s) into their event (the latest slot start of every mode to be simulated).
+    pub fn new(interval: f64, lead: f64) -> Self {
+        TissueKeyframes {
+            interval,
+            lead: lead.max(0.0),
+            window: None,
+            echoes: HashMap::new(),
+        }
+    }
+
+    /// Adds to `rf` (events × channels × samples) the echo of `tissue` for events `events` of
+    /// the recording `params` describes.
+    pub fn add(
+        &mut self,
+        tissue: &dyn Phantom,
+        params: &SimParams,
+        events: std::ops::Range<usize>,
+        mut rf: ArrayViewMut3<f32>,
+    ) -> Result<()> {
+        if rf.dim().0 != events.len() {
+            return Err(invalid(
+                "events",
+                format!("{} events for a block of {}", events.len(), rf.dim().0),
+            ));
+        }
+        if events.is_empty() || tissue.n_scatterers() == 0 {
+            return Ok(());
+        }
+        let interval = self.interval;
+        // Still tissue (an infinite interval) needs one keyframe, at t = 0.
+        let still = interval == f64::INFINITY;
+        if !still {
+            require_positive("keyframe interval", interval)?;
+        }
+        let fs = params.sampling_frequency;
+        let lead_samples = (self.lead * fs).ceil() as usize;
+        let window = (params.t0, params.n_samples, fs);
+        if self.window != Some(window) {
+            self.echoes.clear();
+            self.window = Some(window);
+        }
+        let prf = params.sequence.event_prf;
+        let position = |event: usize| {
+            if still {
+                0.0
+            } else {
+                event as f64 / prf / interval
+            }
+        };
+        // Keyframes j·Δ from one before the first event's to two after the last's.
+        let (first, last) = if still {
+            (0, 0)
+        } else {
+            (
+                position(events.start).floor() as i64 - 1,
+                position(events.end - 1).floor() as i64 + 2,
+            )
+        };
+        if last - first > 1_000_000 {
+            return Err(invalid(
+                "keyframe interval",
+                format!("{interval} s gives more than a million keyframes for these events"),
+            ));
+        }
+        self.echoes.retain(|&(j, _), _| j >= first);
+        // Where each slot's keyframe comes from, and by how many samples it is shifted.
+        let key = |k: usize, offset: f64| -> (SlotKey, usize) {
+            let n = (offset * fs).round();
+            if (offset * fs - n).abs() < 1e-6 && n >= 0.0 && n as usize <= lead_samples {
+                (SlotKey::Shifted(k), n as usize)
+            } else {
+                (SlotKey::At(k, offset.to_bits()), 0)
+            }
+        };
+        let mut slots: Vec<SlotKey> = Vec::new();
+        for event in events.clone() {
+            for (k, _, offset) in params.sequence.event_pulses(event) {
+                let (slot, _) = key(k, offset);
+                if !slots.contains(&slot) {
+                    slots.push(slot);
+                }
+            }
+        }
+        // Rendered over the window grown `lead_samples` earlier; an `At` slot's lead is unused.
+        let mut grown = params.clone();
+        grown.t0 -= lead_samples as f64 / fs;
+        grown.n_samples += lead_samples;
+        let mut sim: Option<Simulator> = None;
+        let amplitudes = tissue.amplitudes();
+        let shape = (params.probe.n_elements, grown.n_samples);
+        let mut scatterers = Snapshot::default();
+        for j in first..=last {
+            let missing: Vec<SlotKey> = slots
+                .iter()
+                .copied()
+                .filter(|&slot| !self.echoes.contains_key(&(j, slot)))
+                .collect();
+            if missing.is_empty() {
+                continue;
+            }
+            let sim = match &mut sim {
+                Some(sim) => sim,
+                None => sim.insert(Simulator::new(&grown)?),
+            };
+            scatterers.load(tissue, if still { 0.0 } else { j as f64 * interval })?;
+            for slot in missing {
+                let (k, offset) = match slot {
+                    SlotKey::Shifted(k) => (k, 0.0),
+                    SlotKey::At(k, bits) => (k, f64::from_bits(bits)),
+                };
+                let pulse = Slot {
+                    angle: params.sequence.angles[k],
+                    polarity: 1.0,
+                    offset,
+                };
+                let mut echo = Array2::<f32>::zeros(shape);
+                sim.render_event(&scatterers, amplitudes, &[pulse], echo.view_mut(), None);
+                self.echoes.insert((j, slot), echo);
+            }
+        }
+        let ns = params.n_samples;
+        for (event, mut out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
+            let u = position(event);
+            let j = u.floor() as i64;
+            let weights = lagrange_cubic(u - j as f64);
+            for (k, polarity, offset) in params.sequence.event_pulses(event) {
+                let (slot, shift) = key(k, offset);
+                // Sample i of the slot's echo is sample i + lead − shift of its keyframe (a
+                // shifted slot), or sample i + lead of one rendered at its own start.
+                let from = lead_samples - shift;
+                // Nodes of weight 0 (all but one at a keyframe, or for still tissue) may not exist.
+                for (node, w) in (-1..=2).zip(weights).filter(|&(_, w)| w != 0.0) {
+                    let echo = &self.echoes[&(j + node, slot)];
+                    let scale = w as f32 * polarity;
+                    Zip::from(&mut out)
+                        .and(echo.slice(s![.., from..from + ns]))
+                        .for_each(|o, &e| *o += scale * e);
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Weights of the four-point Lagrange interpolation at nodes −1, 0, 1, 2 for a point `u` ∈ [0, 1).

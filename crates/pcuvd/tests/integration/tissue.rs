@@ -2,7 +2,7 @@
 //! focus, a rigid displacement against the echo's shift, tissue's brightness against blood's.
 
 use ndarray::{Array2, s};
-use pcuvd::simulate::keyframes::{keyframe_interval, simulate_events_with_tissue};
+use pcuvd::simulate::keyframes::{TissueKeyframes, keyframe_interval, simulate_events_with_tissue};
 use pcuvd::simulate::phantom::tissue::{Oscillation, TissueMotion, TissuePhantom, TissueSpec};
 use pcuvd::simulate::phantom::{Phantom, Truth};
 use pcuvd::simulate::{ElevationAperture, SimParams, simulate};
@@ -249,6 +249,39 @@ fn tissue_at_keyframes_matches_the_direct_simulation() {
     )
     .unwrap();
     assert_eq!(block, keyed.slice(s![50..90, .., ..]));
+    // A conventional recording of the same tissue first, through one shared set of keyframes:
+    // the coded slots reuse its angles' keyframes shifted by their whole-sample starts (65 at
+    // 1 µs and 65 MHz), and give the same events as their own keyframes did.
+    let mut shared = TissueKeyframes::new(interval, p.sequence.last_slot_start());
+    let mut conventional_params = p.clone();
+    conventional_params.sequence.coding = Coding::Conventional;
+    let mut conventional = ndarray::Array3::<f32>::zeros(keyed.dim());
+    shared
+        .add(
+            &moving,
+            &conventional_params,
+            events.clone(),
+            conventional.view_mut(),
+        )
+        .unwrap();
+    let mut coded = ndarray::Array3::<f32>::zeros(keyed.dim());
+    shared
+        .add(&moving, &p, events.clone(), coded.view_mut())
+        .unwrap();
+    let error = energy((&coded - &keyed).view()) / energy(keyed.view());
+    assert!(
+        error.sqrt() < 1e-6,
+        "shared keyframes: relative RMS error {:.2e}",
+        error.sqrt()
+    );
+    let conventional_direct = traces(&moving, &conventional_params, frames);
+    let error =
+        energy((&conventional - &conventional_direct).view()) / energy(conventional_direct.view());
+    assert!(
+        error.sqrt() < 1e-3,
+        "conventional: relative RMS error {:.2e}",
+        error.sqrt()
+    );
     // Still tissue: one keyframe, exact but for the f32 rounding of summing the slots apart.
     let still = tissue(TissueMotion::still(), 40.0, TissueSpec::DEFAULT_DENSITY_2D);
     let exact = traces(&still, &p, 2);
