@@ -18,7 +18,10 @@ class Truth:
     x (nx), z (nz) in m; vx, vz (nz, nx) in m/s at t = 0 (vx > 0 toward +x, vz > 0 deeper);
     mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
     edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up.
-    With tissue (tissue_db=...) also `tissue`: its velocity vx, vz (nz, nx) in m/s at t = 0.
+    With tissue (tissue_db=..., or the rat brain) also `tissue`: its velocity vx, vz (nz, nx) in
+    m/s at t = 0. For the three-dimensional rat brain also vy (nz, nx), the out-of-plane velocity
+    (m/s), and blood_fraction (nz, nx), the blood's share of each pixel's elevation beam; its
+    velocities are the elevation-beam-weighted means over the blood each pixel sees.
     """
 
     x: np.ndarray
@@ -28,6 +31,8 @@ class Truth:
     mask: np.ndarray
     cycle: dict[str, np.ndarray] = field(default_factory=dict)
     tissue: dict[str, np.ndarray] = field(default_factory=dict)
+    vy: np.ndarray | None = None
+    blood_fraction: np.ndarray | None = None
 
 
 def simulate_option_names() -> list[str]:
@@ -47,7 +52,7 @@ def simulate(
 ) -> tuple[Recording | dict[str, Recording], Truth]:
     """Simulates RF recordings as `pcuvd simulate` does.
 
-    preset: "paper-spiral", "tube" or "rat-network" (see `pcuvd simulate --help`); mode:
+    preset: "paper-spiral", "tube", "rat-network" or "rat-brain" (see `pcuvd simulate --help`); mode:
     "coded" (Hadamard), "conventional" or "both"; frames: compound frames (default: the
     preset's); noise_db: noise level in dB (None: no noise); seed of scatterers and noise;
     options: the other `simulate` options (angles, slot_delay_us, peak_velocity_mm_s,
@@ -75,6 +80,8 @@ def simulate(
         mask=arrays["mask"],
         cycle={k: arrays[k] for k in cycle_keys if k in arrays},
         tissue={k.removeprefix("tissue_"): arrays[k] for k in ("tissue_vx", "tissue_vz") if k in arrays},
+        vy=arrays.get("vy"),
+        blood_fraction=arrays.get("blood_fraction"),
     )
     made = {name: Recording(native) for name, native in recordings}
     if mode == "both":

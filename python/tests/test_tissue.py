@@ -31,3 +31,26 @@ def test_tissue_brightens_the_echo_and_its_motion_is_in_the_truth():
     _, still = pcuvd.simulate("tube", "conventional", frames=1, noise_db=None, angles=1)
     added = truth.vz[inside] - still.vz[inside]
     assert np.allclose(added, truth.tissue["vz"][inside])
+
+
+def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri():
+    # One angle, two frames: the brain's set-up (tree, flow, tissue, elevation truth) in full.
+    few = dict(frames=2, noise_db=None, angles=1)
+    brain, truth = pcuvd.simulate("rat-brain", "conventional", **few)
+    blood, _ = pcuvd.simulate("rat-brain", "conventional", tissue_db=-200, **few)
+    # The tissue's echo, 40 dB per unit volume above the blood's over ~2,000 times its volume.
+    assert 10 * np.log10(_power(brain) / _power(blood)) > 30
+    inside = truth.mask
+    assert inside.any()
+    assert truth.vy is not None and truth.blood_fraction is not None
+    assert np.all((truth.blood_fraction >= 0) & (truth.blood_fraction <= 1))
+    assert np.all(truth.blood_fraction[~inside] == 0)
+    # Penetrating vessels cross the plane: some pixels see mostly out-of-plane flow.
+    in_plane = np.hypot(truth.vx, truth.vz)
+    assert np.any(np.abs(truth.vy[inside]) > in_plane[inside] + 1e-3)
+    # Arteries and veins carry their own RI: the paper's ranges (arterioles 0.55-0.9,
+    # venules below 0.5), from the compliant tree, not imposed.
+    cls, ri = truth.cycle["vessel_class"], truth.cycle["ri"]
+    assert 0.55 < np.median(ri[cls == 1]) < 0.9
+    assert np.median(ri[cls == 2]) < 0.5
+    assert set(truth.tissue) == {"vx", "vz"}

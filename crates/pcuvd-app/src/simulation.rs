@@ -3,13 +3,15 @@
 
 use anyhow::{Context, Result, bail};
 use pcuvd::pipeline;
-use pcuvd::simulate::keyframes::{keyframe_interval, simulate_events_with_tissue};
+use pcuvd::simulate::ElevationAperture;
+use pcuvd::simulate::keyframes::{TissueKeyframes, keyframe_interval};
 use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec};
-use pcuvd::simulate::phantom::tissue::{Layer, MotionTruth};
+use pcuvd::simulate::phantom::tissue::{Anechoic, Layer, MotionTruth};
 use pcuvd::simulate::phantom::{
     Moved, Phantom, SpiralPhantom, SpiralSpec, TissueMotion, TissuePhantom, TissueSpec,
-    TubePhantom, TubeSpec,
+    TreePhantom, TreeSpec, TubePhantom, TubeSpec,
 };
+use pcuvd::simulate::vascular::{CortexParams, FlowParams, generate, solve};
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
 use serde::{Deserialize, Serialize};
@@ -27,6 +29,8 @@ pub enum Preset {
     Tube,
     /// The in-vivo-like pulsatile vessel network at 5.5 Hz (4 arterioles RI 0.7, 4 venules RI 0.3, flowing up and down, 1–13 mm deep) with the paper's rat acquisition (Table 1): as paper-spiral but 360 frames (0.2 s), receive window 0–13 mm; writes the RI truth too.
     RatNetwork,
+    /// A first virtual rat brain, in three dimensions: the rat acquisition (Table 1) with the L22-14vX's elevation (1.5 mm elements, lens focus 8 mm); a 10 mm coronal slab of cortex 1–3 mm deep with a generated vascular tree (pial artery and vein, penetrating arterioles and ascending venules branching by Murray's law, a capillary bed; compliant pulsatile flow at 5.5 Hz: arterioles ~16 mm/s RI ~0.7, venules ~7 mm/s RI ~0.1); tissue 40 dB above blood (--tissue-db) in a 1.2 mm slab under a dura-like layer, with the corpus callosum and lateral ventricles below the cortex, moving with the heartbeat and breathing (--tissue-motion) with the vessels; 360 frames. Writes the RI truth and the out-of-plane velocity and blood fraction.
+    RatBrain,
 }
 
 /// Which transmit modes to simulate.
@@ -158,8 +162,12 @@ pub struct Simulation {
     pub tube: Option<TubeSpec>,
     /// Each recording to simulate: its name ("conventional", "coded") and settings.
     pub modes: Vec<(&'static str, SimParams)>,
-    /// The tissue around the vessels and how it moves (with `--tissue-db`).
+    /// The tissue around the vessels and how it moves (with `--tissue-db`, or the rat brain).
     pub tissue: Option<TissuePhantom>,
+    /// The vascular tree (the `rat-brain` preset only).
+    pub tree: Option<TreePhantom>,
+    /// The tissue's keyframes, shared by the blocks and modes simulated in turn.
+    keyframes: std::sync::Mutex<TissueKeyframes>,
 }
 
 /// The ground truth of a simulation on the recording's default processing grid (m, m/s).
@@ -174,6 +182,9 @@ pub struct SimulatedTruth {
     pub cycle: Option<pcuvd::simulate::phantom::network::NetworkTruth>,
     /// The tissue's velocity and displacement at t = 0, when there is tissue.
     pub tissue: Option<MotionTruth>,
+    /// Out-of-plane velocity (m/s) and blood fraction of each pixel's elevation beam, for a
+    /// phantom in three dimensions (the vascular tree).
+    pub elevation: Option<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
 }
 
 impl Simulation {
@@ -182,7 +193,7 @@ impl Simulation {
     pub fn new(options: &SimulationSettings) -> Result<Simulation> {
         let args = options;
         let frames = args.frames.unwrap_or(match args.preset {
-            Preset::RatNetwork => simulate::RAT_FRAMES,
+            Preset::RatNetwork | Preset::RatBrain => simulate::RAT_FRAMES,
             _ => simulate::PAPER_FRAMES,
         });
         if frames == 0 {
@@ -232,8 +243,28 @@ impl Simulation {
             }
             _ => None,
         };
+        let tree = match args.preset {
+            Preset::RatBrain => {
+                if peak.is_some() {
+                    bail!(
+                        "--peak-velocity-mm-s does not apply to --preset rat-brain, whose speeds follow from its tree's pressures"
+                    );
+                }
+                let graph =
+                    generate(&brain_cortex(args.seed)).context("the rat brain's vascular tree")?;
+                let flow =
+                    solve(&graph, &FlowParams::rat()).context("the rat brain's blood flow")?;
+                Some(TreePhantom::new(
+                    flow,
+                    TreeSpec::default_blood(),
+                    args.seed,
+                )?)
+            }
+            _ => None,
+        };
         let phantom: Box<dyn Phantom> = match (args.preset, &network) {
             (_, Some(network)) => Box::new(network.clone()),
+            (Preset::RatBrain, None) => Box::new(tree.clone().context("the rat brain's tree")?),
             (Preset::PaperSpiral, None) => {
                 let paper = SpiralSpec::paper();
                 let spec = SpiralSpec {
@@ -259,11 +290,32 @@ impl Simulation {
                 Ok((name, mode_params(args, coded, noise_db)?))
             })
             .collect::<Result<Vec<_>>>()?;
-        let tissue = match args.tissue_db {
+        let tissue_db = match (args.preset, args.tissue_db) {
+            (Preset::RatBrain, None) => Some(TissueSpec::DEFAULT_ECHOGENICITY_DB),
+            (_, given) => given,
+        };
+        let tissue = match tissue_db {
             None => None,
             Some(db) if !db.is_finite() => bail!("--tissue-db {db}: must be a finite number of dB"),
-            Some(db) => Some(tissue(args, db, phantom.as_ref(), &modes[0].1)?),
+            Some(db) => Some(tissue(
+                args,
+                db,
+                phantom.as_ref(),
+                tree.as_ref(),
+                &modes[0].1,
+            )?),
         };
+        let interval = tissue.as_ref().map_or(f64::INFINITY, |tissue| {
+            let params = &modes[0].1;
+            keyframe_interval(
+                tissue.spec().motion.max_speed(tissue.spec().z_range),
+                params.probe.wavelength(params.sound_speed),
+            )
+        });
+        let lead = modes
+            .iter()
+            .map(|(_, params)| params.sequence.last_slot_start())
+            .fold(0.0, f64::max);
         Ok(Simulation {
             options: options.clone(),
             frames,
@@ -273,11 +325,14 @@ impl Simulation {
             tube,
             modes,
             tissue,
+            tree,
+            keyframes: std::sync::Mutex::new(TissueKeyframes::new(interval, lead)),
         })
     }
 
     /// Events `events` of recording `index`: the phantom alone, or with the tissue (rendered at
-    /// keyframes, the vessels moving with it).
+    /// keyframes, the vessels moving with it). Keyframes are kept for the next call: simulate
+    /// the modes block by block (the same events of each in turn) so that they render once.
     fn simulate_block(
         &self,
         index: usize,
@@ -289,24 +344,24 @@ impl Simulation {
         Ok(match &self.tissue {
             None => simulate::simulate_events(phantom, params, self.frames, events, progress)?,
             Some(tissue) => {
-                let motion = &tissue.spec().motion;
                 let moved = Moved {
                     inner: phantom,
-                    motion,
+                    motion: &tissue.spec().motion,
                 };
-                let interval = keyframe_interval(
-                    motion.max_speed(tissue.spec().z_range),
-                    params.probe.wavelength(params.sound_speed),
-                );
-                simulate_events_with_tissue(
+                let mut rf = simulate::simulate_events(
                     &moved,
-                    tissue,
                     params,
                     self.frames,
-                    events,
-                    interval,
+                    events.clone(),
                     progress,
-                )?
+                )?;
+                self.keyframes
+                    .lock()
+                    .map_err(|_| {
+                        anyhow::anyhow!("the tissue's keyframes: another simulation thread failed")
+                    })?
+                    .add(tissue, params, events, rf.view_mut())?;
+                rf
             }
         })
     }
@@ -343,6 +398,10 @@ impl Simulation {
         provenance.insert("simulator".into(), "pcuvd simulate".into());
         provenance.insert("preset".into(), format!("{:?}", self.options.preset).into());
         provenance.insert("seed".into(), (self.options.seed as i64).into());
+        provenance.insert(
+            "blood_scatterers".into(),
+            (self.phantom.n_scatterers() as i64).into(),
+        );
         provenance.insert(
             "noise_db".into(),
             self.noise_db
@@ -396,65 +455,175 @@ impl Simulation {
     /// traces of `n_samples` samples.
     pub fn truth_for(&self, acq: &pcuvd::Acquisition, n_samples: usize) -> Result<SimulatedTruth> {
         let grid = pipeline::default_grid_for(acq, n_samples)?;
-        let truth = match &self.tissue {
-            None => self.phantom.truth(&grid.x, &grid.z, 0.0),
-            Some(tissue) => Moved {
+        let tree = self.tree.as_ref().map(|tree| {
+            let params = &self.modes[0].1;
+            let lambda = params.probe.wavelength(params.sound_speed);
+            let aperture = params.elevation.as_ref().map(|a| (a, lambda));
+            tree.plane_truth(&grid.x, &grid.z, 0.0, aperture)
+        });
+        let mut truth = match (&tree, &self.tissue) {
+            (Some(tree), _) => tree.truth.clone(),
+            (None, None) => self.phantom.truth(&grid.x, &grid.z, 0.0),
+            (None, Some(tissue)) => Moved {
                 inner: self.phantom.as_ref(),
                 motion: &tissue.spec().motion,
             }
             .truth(&grid.x, &grid.z, 0.0),
         };
+        if let (Some(_), Some(tissue)) = (&tree, &self.tissue) {
+            // The tree moves with the tissue (as `Moved` does for the other phantoms).
+            let motion = tissue.motion_truth(&grid.x, &grid.z, 0.0);
+            ndarray::Zip::from(&mut truth.vx)
+                .and(&mut truth.vz)
+                .and(&truth.mask)
+                .and(&motion.velocity[0])
+                .and(&motion.velocity[2])
+                .for_each(|vx, vz, &inside, &mx, &mz| {
+                    if inside {
+                        *vx += mx;
+                        *vz += mz;
+                    }
+                });
+        }
         Ok(SimulatedTruth {
             truth,
+            elevation: tree
+                .as_ref()
+                .map(|t| (t.vy.clone(), t.blood_fraction.clone())),
             tissue: self
                 .tissue
                 .as_ref()
                 .map(|tissue| tissue.motion_truth(&grid.x, &grid.z, 0.0)),
-            cycle: self
-                .network
-                .as_ref()
-                .map(|network| network.cycle_truth(&grid.x, &grid.z)),
+            cycle: match &tree {
+                Some(tree) => Some(tree.cycle.clone()),
+                None => self
+                    .network
+                    .as_ref()
+                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
+            },
             x: grid.x,
             z: grid.z,
         })
     }
 }
 
-/// The tissue of `--tissue-db` `db` around `phantom`'s vessels, over the image of `params`.
+/// The rat brain's cortex: the generator's slab with a denser capillary bed (eight 10 µm paths of
+/// two segments from each arteriole terminal), which carries the flow that a real bed of many
+/// capillaries does: penetrating arterioles then run at a median PSV of 16 mm/s (90th percentile
+/// 27), capillaries 8, venules 7, with RI medians 0.73, 0.60 and 0.08 (the generator's default
+/// bed, two paths of three 8 µm segments, starves them: 4, 14 and 2 mm/s).
+fn brain_cortex(seed: u64) -> CortexParams {
+    CortexParams {
+        capillaries_per_terminal: 8,
+        capillary_segments: 2,
+        capillary_diameter: 10e-6,
+        seed,
+        ..CortexParams::default()
+    }
+}
+
+/// The tissue of `--tissue-db` `db` around `phantom`'s vessels, over the image of `params`: a
+/// sheet in the imaging plane, or for the rat brain (`tree`) a slab under a dura-like layer.
 fn tissue(
     args: &SimulationSettings,
     db: f64,
     phantom: &dyn Phantom,
+    tree: Option<&TreePhantom>,
     params: &SimParams,
 ) -> Result<TissuePhantom> {
     let (x0, x1) = params.probe.aperture();
-    // The deepest point the receive window holds, beyond which tissue would only cost time.
-    let depth = 0.5 * params.sound_speed * (params.t0 + params.window_duration());
+    // Tissue below the preset's imaging depth would only cost time.
+    let window = 0.5 * params.sound_speed * (params.t0 + params.window_duration());
+    let preset_depth: f64 = match args.preset {
+        Preset::RatNetwork | Preset::RatBrain => 13.5e-3,
+        _ => 14.5e-3,
+    };
+    let depth = preset_depth.min(window);
     let motion = match args.tissue_motion {
         TissueMotionChoice::Rat => TissueMotion::rat(),
         TissueMotionChoice::Still => TissueMotion::still(),
     };
+    // The brain's surface: the dura sits on the cortex, gel (anechoic) above it.
+    let top = match tree {
+        Some(_) => brain_cortex(0).surface_depth - 0.1e-3,
+        None => 0.5e-3,
+    };
+    let (half_thickness, density, blood_power_density) = match tree {
+        // The slab covers the elevation beam: the 1.5 mm strip's near field, 0.4 mm at its focus.
+        Some(_) => (
+            0.6e-3,
+            TissueSpec::DEFAULT_DENSITY_3D,
+            TreeSpec::default_blood().power_density,
+        ),
+        // Every two-dimensional phantom draws unit-variance amplitudes at 300 per mm².
+        None => (0.0, TissueSpec::DEFAULT_DENSITY_2D, 3e8),
+    };
+    let dura = Layer {
+        top,
+        thickness: 0.1e-3,
+        echogenicity_db: db + 10.0,
+    };
+    let (layers, anechoic) = match tree {
+        None => (vec![dura], Vec::new()),
+        // Below the cortex, a coronal section crosses the white matter (the corpus callosum,
+        // brighter) and the lateral ventricles (fluid: no echo).
+        Some(_) => {
+            let below = brain_cortex(0).surface_depth + brain_cortex(0).thickness;
+            let callosum = Layer {
+                top: below + 0.1e-3,
+                thickness: 0.2e-3,
+                echogenicity_db: db + 5.0,
+            };
+            let ventricle = |x: f64| Anechoic {
+                centre: [x, below + 0.6e-3],
+                radii: [0.7e-3, 0.15e-3],
+            };
+            (
+                vec![dura, callosum],
+                vec![ventricle(-1.6e-3), ventricle(1.6e-3)],
+            )
+        }
+    };
     let spec = TissueSpec {
         x_range: (x0 - 1e-3, x1 + 1e-3),
-        z_range: (0.5e-3, depth),
-        half_thickness: 0.0,
-        density: TissueSpec::DEFAULT_DENSITY_2D,
+        z_range: (top, depth),
+        half_thickness,
+        density,
         echogenicity_db: db,
-        // Every built-in phantom draws unit-variance amplitudes at 300 per mm².
-        blood_power_density: 3e8,
-        layers: vec![Layer {
-            top: 0.5e-3,
-            thickness: 0.1e-3,
-            echogenicity_db: db + 10.0,
-        }],
-        anechoic: Vec::new(),
+        blood_power_density,
+        layers,
+        anechoic,
         motion,
     };
-    // No tissue where the vessels are at t = 0 (they move with the tissue from there).
-    let inside = |x: f64, _: f64, z: f64| phantom.truth(&[x], &[z], 0.0).mask[[0, 0]];
     // A stream of its own: drawn from the vessels' seed itself, the tissue's positions would
     // repeat theirs.
-    TissuePhantom::new(spec, args.seed ^ 0x7155_0e5e_ed00_0000, inside).context("--tissue-db")
+    let seed = args.seed ^ 0x7155_0e5e_ed00_0000;
+    let drawn = match tree {
+        // No tissue inside the vessels at t = 0 (they move with the tissue from there).
+        None => TissuePhantom::new(spec, seed, |x, _, z| {
+            phantom.truth(&[x], &[z], 0.0).mask[[0, 0]]
+        }),
+        Some(tree) => {
+            let segments = &tree.flow().segments;
+            let boxes: Vec<([f64; 3], [f64; 3])> = segments
+                .iter()
+                .map(|s| {
+                    let r = 0.5 * s.diameter;
+                    (
+                        std::array::from_fn(|k| s.start[k].min(s.end[k]) - r),
+                        std::array::from_fn(|k| s.start[k].max(s.end[k]) + r),
+                    )
+                })
+                .collect();
+            TissuePhantom::new(spec, seed, |x, y, z| {
+                let p = [x, y, z];
+                boxes.iter().zip(segments).any(|((lo, hi), s)| {
+                    (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]) && s.local(&p).is_some()
+                })
+            })
+        }
+    };
+    drawn.context("--tissue-db")
 }
 
 /// The `tube` preset's vessel with the `--tube-*` options applied, peak speed `peak` (m/s).
@@ -490,9 +659,12 @@ fn tube_spec(args: &SimulationSettings, peak: f64) -> Result<TubeSpec> {
 /// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
 fn mode_params(args: &SimulationSettings, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
     let mut params: SimParams = match args.preset {
-        Preset::RatNetwork => simulate::rat_params(true)?,
+        Preset::RatNetwork | Preset::RatBrain => simulate::rat_params(true)?,
         _ => simulate::paper_spiral_params(true)?,
     };
+    if args.preset == Preset::RatBrain {
+        params.elevation = Some(ElevationAperture::l22_14vx());
+    }
     params.sequence = Sequence {
         angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
         coding: if coded {

@@ -22,6 +22,9 @@ const TRUTH_FILES: [&str; 5] = [
 ];
 /// Ground-truth files of the tissue's motion (with `--tissue-db`): velocity at t = 0 (m/s).
 const TISSUE_TRUTH_FILES: [&str; 2] = ["truth_tissue_vx.npy", "truth_tissue_vz.npy"];
+/// Ground-truth files of a phantom in three dimensions: out-of-plane velocity (m/s) and the
+/// blood's share of each pixel's elevation beam.
+const ELEVATION_TRUTH_FILES: [&str; 2] = ["truth_vy.npy", "truth_blood_fraction.npy"];
 /// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
 const NETWORK_TRUTH_FILES: [&str; 5] = [
     "truth_ri.npy",
@@ -46,6 +49,7 @@ fn remove_stale_outputs(
     recordings: &[&str],
     network_truth: bool,
     tissue_truth: bool,
+    elevation_truth: bool,
 ) -> Result<()> {
     let stale_recordings = RECORDING_NAMES
         .iter()
@@ -55,6 +59,7 @@ fn remove_stale_outputs(
         .iter()
         .filter(|_| !network_truth)
         .chain(TISSUE_TRUTH_FILES.iter().filter(|_| !tissue_truth))
+        .chain(ELEVATION_TRUTH_FILES.iter().filter(|_| !elevation_truth))
         .map(|name| name.to_string());
     for name in stale_recordings.chain(stale_truth) {
         let path = dir.join(name);
@@ -90,44 +95,68 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let simulation = Simulation::new(&args.options)?;
     create_dir(&args.out)?;
     let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
-    for (mode_index, (name, params)) in simulation.modes.iter().enumerate() {
-        let events = simulation.frames * params.sequence.n_angles();
-        let progress = bar(&format!("simulate {name}"), events as u64);
-        if mode_index == 0 {
-            // Once every setting is checked: a refused run deletes nothing.
-            remove_stale_outputs(
+    // Once every setting is checked: a refused run deletes nothing.
+    remove_stale_outputs(
+        &args.out,
+        &recordings,
+        simulation.network.is_some() || simulation.tree.is_some(),
+        simulation.tissue.is_some(),
+        simulation.tree.is_some(),
+    )?;
+    let events_of =
+        |params: &pcuvd::simulate::SimParams| simulation.frames * params.sequence.n_angles();
+    let mut writers = simulation
+        .modes
+        .iter()
+        .enumerate()
+        .map(|(index, (name, params))| {
+            let shape = (events_of(params), params.probe.n_elements, params.n_samples);
+            pcuvd_io::RecordingWriter::create(
                 &args.out,
-                &recordings,
-                simulation.network.is_some(),
-                simulation.tissue.is_some(),
-            )?;
-        }
-        // Simulated and written a block of frames at a time: memory stays bounded whatever the
-        // recording's length, and the samples are those of one whole-recording simulation.
-        let shape = (events, params.probe.n_elements, params.n_samples);
-        let mut writer = pcuvd_io::RecordingWriter::create(
-            &args.out,
-            name,
-            &params.acquisition(),
-            shape,
-            &simulation.provenance(mode_index),
-        )?;
-        let frame_bytes = params.sequence.n_angles() * shape.1 * shape.2 * 4;
-        let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
-        for first in (0..simulation.frames).step_by(block) {
-            let last = (first + block).min(simulation.frames);
+                name,
+                &params.acquisition(),
+                shape,
+                &simulation.provenance(index),
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let total: usize = simulation.modes.iter().map(|(_, p)| events_of(p)).sum();
+    let progress = bar(
+        &format!("simulate {}", recordings.join(" + ")),
+        total as u64,
+    );
+    // Simulated and written a block of frames at a time, the modes in turn: memory stays bounded
+    // whatever the recording's length, the tissue's keyframes serve every mode, and the samples
+    // are those of one whole-recording simulation.
+    let frame_bytes = simulation
+        .modes
+        .iter()
+        .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
+        .max()
+        .unwrap_or(1);
+    let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
+    let mut done = 0;
+    for first in (0..simulation.frames).step_by(block) {
+        let last = (first + block).min(simulation.frames);
+        for (index, ((_, params), writer)) in simulation.modes.iter().zip(&mut writers).enumerate()
+        {
             let n = params.sequence.n_angles();
-            let samples = simulation.events(mode_index, first * n..last * n, &|done, _| {
-                progress.set_position(done as u64)
+            let events = first * n..last * n;
+            let start = events.start;
+            let samples = simulation.events(index, events.clone(), &|event, _| {
+                progress.set_position((done + event - start) as u64)
             })?;
             writer.append(samples.view())?;
+            done += events.len();
         }
+    }
+    progress.finish();
+    for (mode_index, ((_, params), writer)) in simulation.modes.iter().zip(writers).enumerate() {
         let manifest = writer.finish()?;
-        progress.finish();
         println!(
             "wrote {} ({} events of {} channels × {} samples)",
             manifest.display(),
-            events,
+            events_of(params),
             params.probe.n_elements,
             params.n_samples
         );
@@ -149,6 +178,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 pcuvd_io::write_npy(&edv, &cycle.edv)?;
                 pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
                 pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
+            }
+            if let Some((vy, fraction)) = &truth.elevation {
+                let [vy_path, fraction_path] =
+                    ELEVATION_TRUTH_FILES.map(|name| args.out.join(name));
+                pcuvd_io::write_npy(&vy_path, vy)?;
+                pcuvd_io::write_npy(&fraction_path, fraction)?;
             }
             if let Some(tissue) = &truth.tissue {
                 let [vx, vz] = TISSUE_TRUTH_FILES.map(|name| args.out.join(name));

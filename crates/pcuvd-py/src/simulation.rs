@@ -46,6 +46,10 @@ pub(crate) fn simulate<'py>(
         dict.set_item("vessel_class", cycle.vessel_class.to_pyarray(py))?;
         dict.set_item("flow_up", cycle.flow_up.to_pyarray(py))?;
     }
+    if let Some((vy, fraction)) = &truth.elevation {
+        dict.set_item("vy", vy.to_pyarray(py))?;
+        dict.set_item("blood_fraction", fraction.to_pyarray(py))?;
+    }
     if let Some(tissue) = &truth.tissue {
         dict.set_item("tissue_vx", tissue.velocity[0].to_pyarray(py))?;
         dict.set_item("tissue_vz", tissue.velocity[2].to_pyarray(py))?;

@@ -23,12 +23,14 @@ pub mod network;
 pub mod rigid;
 pub mod spiral;
 pub mod tissue;
+pub mod tree;
 pub mod tube;
 
 pub use network::{NetworkPhantom, NetworkSpec, NetworkTruth};
 pub use rigid::{BlockPhantom, BlockSpec, DiskPhantom, DiskSpec, PointPhantom};
 pub use spiral::{SpiralPhantom, SpiralSpec};
 pub use tissue::{Composite, Moved, TissueMotion, TissuePhantom, TissueSpec};
+pub use tree::{TreePhantom, TreeSpec, TreeTruth};
 pub use tube::{FlowProfile, TubePhantom, TubeSpec};
 
 /// Largest number of scatterers a phantom may draw (guards against absurd densities).

@@ -113,6 +113,36 @@ pub struct VesselGraph {
 }
 
 impl VesselGraph {
+    /// One vessel of `diameter` (m) and `class` from `start` to `end` (m), driven by an inlet
+    /// pressure at `start` of mean and peak-to-trough `inlet` = (mean, pulse) (Pa) into a steady
+    /// `outlet` pressure (Pa) at `end`.
+    pub fn single_vessel(
+        start: [f64; 3],
+        end: [f64; 3],
+        diameter: f64,
+        class: VesselClass,
+        inlet: (f64, f64),
+        outlet: f64,
+    ) -> Self {
+        let pressure = |vertex, value, pulse| Boundary {
+            vertex,
+            kind: BoundaryKind::Pressure,
+            value,
+            pulse,
+        };
+        VesselGraph {
+            vertices: vec![start, end],
+            edges: vec![Edge {
+                v1: 0,
+                v2: 1,
+                diameter,
+                length: None,
+                class,
+            }],
+            boundaries: vec![pressure(0, inlet.0, inlet.1), pressure(1, outlet, 0.0)],
+        }
+    }
+
     /// Straight distance between the ends of edge `e` (m); NaN when an end index is dangling.
     pub fn chord(&self, e: &Edge) -> f64 {
         match (self.vertices.get(e.v1), self.vertices.get(e.v2)) {
