@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import pcuvd
 
@@ -54,3 +55,40 @@ def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri()
     assert 0.55 < np.median(ri[cls == 1]) < 0.9
     assert np.median(ri[cls == 2]) < 0.5
     assert set(truth.tissue) == {"vx", "vz"}
+
+
+def _write_tables(folder, boundary: str) -> None:
+    (folder / "vertices.csv").write_text("x_um,y_um,z_um\n0,0,1000\n0,0,2000\n")
+    (folder / "edges.csv").write_text("v1,v2,diameter_um,length_um,class\n0,1,40,,arteriole\n")
+    (folder / "boundary.csv").write_text(boundary)
+
+
+def test_the_rat_brain_takes_its_vessels_from_three_tables(tmp_path):
+    # One 40 µm arteriole straight down from 1 to 2 mm, 267 Pa mean drop: Poiseuille gives a
+    # mean speed of ΔP d² / (32 μ L) = 3.8 mm/s (centreline 7.6 mm/s, pulsing with the inlet).
+    _write_tables(tmp_path, "vertex,type,value,pulse\n0,pressure,1600,300\n1,pressure,1333,0\n")
+    _, truth = pcuvd.simulate(
+        "rat-brain", "conventional", frames=1, noise_db=None, angles=1,
+        vessel_tables=str(tmp_path),
+    )
+    x, z = np.meshgrid(truth.x, truth.z)
+    inside = truth.mask
+    assert inside.any()
+    assert np.all(np.abs(x[inside]) < 0.1e-3)
+    assert np.all((z[inside] > 0.95e-3) & (z[inside] < 2.05e-3))
+    # Flowing deeper (vz > 0), the beam-weighted mean of a laminar profile below its centreline.
+    assert 1e-3 < truth.vz[inside].max() < 12e-3
+    assert np.all(truth.cycle["vessel_class"][inside] == 1)
+
+
+def test_bad_vessel_tables_name_the_file_and_what_is_wrong(tmp_path):
+    _write_tables(tmp_path, "vertex,type,value,pulse\n0,pressure,1600,300\n7,pressure,1333,0\n")
+    with pytest.raises(ValueError, match="vessel-tables"):
+        pcuvd.simulate("rat-brain", "conventional", frames=1, angles=1, vessel_tables=str(tmp_path))
+    # A missing file is an OSError, as Python's own open() raises it.
+    with pytest.raises(OSError, match="vertices.csv"):
+        pcuvd.simulate(
+            "rat-brain", "conventional", frames=1, angles=1, vessel_tables=str(tmp_path / "none")
+        )
+    with pytest.raises(ValueError, match="rat-brain only"):
+        pcuvd.simulate("tube", frames=1, vessel_tables=str(tmp_path))

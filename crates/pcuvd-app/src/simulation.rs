@@ -121,6 +121,15 @@ pub struct SimulationSettings {
     /// How the tissue (and the vessels in it) moves, with --tissue-db.
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().tissue_motion))]
     pub tissue_motion: TissueMotionChoice,
+    /// The rat brain's vessels from a folder of three tables instead of its generated tree:
+    /// vertices.csv (x, y, z; headers x_um,y_um,z_um or x_m,y_m,z_m; y out of the imaging plane,
+    /// z depth), edges.csv (v1,v2,diameter,length,class: arteriole, capillary or venule; an
+    /// empty length is the straight distance) and boundary.csv (vertex,type,value,pulse:
+    /// pressure in Pa or flow in m³/s, mean and peak-to-trough cardiac swing). The flow is
+    /// solved from the boundary conditions (Poiseuille and compliance).
+    #[cfg_attr(feature = "clap", arg(long))]
+    #[serde(deserialize_with = "crate::settings::optional_text")]
+    pub vessel_tables: Option<String>,
 }
 
 impl Default for SimulationSettings {
@@ -141,6 +150,7 @@ impl Default for SimulationSettings {
             tube_radius_mm: None,
             tissue_db: None,
             tissue_motion: TissueMotionChoice::Rat,
+            vessel_tables: None,
         }
     }
 }
@@ -250,8 +260,11 @@ impl Simulation {
                         "--peak-velocity-mm-s does not apply to --preset rat-brain, whose speeds follow from its tree's pressures"
                     );
                 }
-                let graph =
-                    generate(&brain_cortex(args.seed)).context("the rat brain's vascular tree")?;
+                let graph = match &args.vessel_tables {
+                    None => generate(&brain_cortex(args.seed))
+                        .context("the rat brain's vascular tree")?,
+                    Some(folder) => read_vessel_tables(std::path::Path::new(folder))?,
+                };
                 let flow =
                     solve(&graph, &FlowParams::rat()).context("the rat brain's blood flow")?;
                 Some(TreePhantom::new(
@@ -260,7 +273,12 @@ impl Simulation {
                     args.seed,
                 )?)
             }
-            _ => None,
+            _ => {
+                if args.vessel_tables.is_some() {
+                    bail!("--vessel-tables applies to --preset rat-brain only");
+                }
+                None
+            }
         };
         let phantom: Box<dyn Phantom> = match (args.preset, &network) {
             (_, Some(network)) => Box::new(network.clone()),
@@ -412,6 +430,9 @@ impl Simulation {
             "attenuation_db_cm_mhz".into(),
             params.attenuation_db_cm_mhz.into(),
         );
+        if let Some(folder) = &self.options.vessel_tables {
+            provenance.insert("vessel_tables".into(), folder.clone().into());
+        }
         if let Some(tissue) = &self.tissue {
             let spec = tissue.spec();
             let mut table = toml::Table::new();
@@ -505,6 +526,22 @@ impl Simulation {
             z: grid.z,
         })
     }
+}
+
+/// The vessel graph in `folder`'s three tables (see `--vessel-tables`).
+fn read_vessel_tables(folder: &std::path::Path) -> Result<pcuvd::simulate::vascular::VesselGraph> {
+    let read = |name: &str| {
+        let path = folder.join(name);
+        std::fs::read_to_string(&path)
+            .with_context(|| format!("--vessel-tables: cannot read {}", path.display()))
+    };
+    let (vertices, edges, boundary) = (
+        read("vertices.csv")?,
+        read("edges.csv")?,
+        read("boundary.csv")?,
+    );
+    pcuvd::simulate::vascular::parse_tables(&vertices, &edges, &boundary)
+        .with_context(|| format!("--vessel-tables {}", folder.display()))
 }
 
 /// The rat brain's cortex: the generator's slab with a denser capillary bed (eight 10 µm paths of
@@ -700,5 +737,60 @@ mod tests {
     #[test]
     fn settings_read_back_as_they_were_written() {
         testing::reads_back_and_refuses_unknown_keys(&SimulationSettings::default());
+    }
+
+    #[test]
+    fn every_preset_gives_the_samples_it_gave_before_tissue_and_elevation() {
+        // SHA-256 of the little-endian f32 samples of two frames of each preset, conventional
+        // then coded, as pcuvd simulated them before the third dimension, tissue and keyframes
+        // existed (commit ead5e0c): the presets keep their two-dimensional model bit for bit.
+        // (The simulator is bit-identical whatever the thread count; these values assume an
+        // x86-64 CPU with AVX2 and FMA, as every machine that runs the tests has.)
+        use sha2::Digest;
+        let expected = [
+            (
+                Preset::PaperSpiral,
+                "1617f8ca0016cebff6dc6cb8a185f383aed0bd31d4832429fb384a5ed444c9ec",
+                "fbec0abde3eea959763e64a6c7db8139269bf78584db2ad4488107b04567bc0d",
+            ),
+            (
+                Preset::Tube,
+                "2bed9f91a1a88cc328cf0998cc6be424f1dba683aad3f86b98c2db4b71715413",
+                "74a51a45d5f11d89b5bb6d43aaad4a77889fe7905fa60223dc64c088327fdfc4",
+            ),
+            (
+                Preset::RatNetwork,
+                "8d83212b875d232e80f659e2dbfeb8aee00320ec419eb98ceac25a44221cd913",
+                "6b1fce39e40c497aa5a66ec2ca962f1c5ed9dd69303bbc18171dbf22ec17a925",
+            ),
+        ];
+        for (preset, conventional, coded) in expected {
+            let simulation = Simulation::new(&SimulationSettings {
+                preset,
+                frames: Some(2),
+                ..SimulationSettings::default()
+            })
+            .unwrap();
+            for (index, expected) in [conventional, coded].into_iter().enumerate() {
+                let data = simulation.recording(index, &|_, _| {}).unwrap();
+                let pcuvd::Samples::Rf(rf) = &data.samples else {
+                    panic!("the simulator writes RF");
+                };
+                let mut hasher = sha2::Sha256::new();
+                for v in rf.iter() {
+                    hasher.update(v.to_le_bytes());
+                }
+                let digest: String = hasher
+                    .finalize()
+                    .iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect();
+                assert_eq!(
+                    digest, expected,
+                    "{preset:?}, {}",
+                    simulation.modes[index].0
+                );
+            }
+        }
     }
 }
