@@ -131,7 +131,42 @@ pub(crate) struct ElevationTable {
     omega: f64,
 }
 
+/// What an [`ElevationTable`] is computed from: aperture, wavelength (m), f_c (Hz), depth (m).
+type TableKey = (ElevationAperture, f64, f64, f64);
+
+/// The last tables built, newest last: a long recording is simulated a block at a time, each
+/// block with its own simulators (the blood's, and the tissue keyframes' over a window that ends
+/// at the same time but may round to another depth in the last bit), and every block and
+/// transmit mode asks for the same few tables, each seconds of integrals to build.
+static RECENT_TABLES: std::sync::Mutex<Vec<(TableKey, std::sync::Arc<ElevationTable>)>> =
+    std::sync::Mutex::new(Vec::new());
+
+/// How many recent tables are kept (a few MB each).
+const RECENT: usize = 4;
+
 impl ElevationTable {
+    /// The table of [`ElevationTable::new`], built once for the same aperture, wavelength,
+    /// frequency and depth while it is among the few most recently asked for.
+    pub(crate) fn shared(
+        aperture: &ElevationAperture,
+        lambda: f64,
+        fc: f64,
+        z_max: f64,
+    ) -> Result<std::sync::Arc<Self>> {
+        let key = (*aperture, lambda, fc, z_max);
+        // A poisoned lock only means another thread panicked while building: the list is whole.
+        let mut recent = RECENT_TABLES.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, table)) = recent.iter().find(|(built, _)| *built == key) {
+            return Ok(table.clone());
+        }
+        let table = std::sync::Arc::new(Self::new(aperture, lambda, fc, z_max)?);
+        if recent.len() == RECENT {
+            recent.remove(0);
+        }
+        recent.push((key, table.clone()));
+        Ok(table)
+    }
+
     /// G² for depths 0..`z_max` (m) and |y| ≤ [`ElevationAperture::y_reach`], at wavelength
     /// `lambda` (m) and centre frequency `fc` (Hz): steps λ/4 in y, λ/8 in z.
     pub(crate) fn new(

@@ -82,7 +82,7 @@ pub(crate) struct Simulator {
     /// Distance below which spreading is clamped (m).
     r_min: f64,
     /// The two-way elevation factor, in a three-dimensional simulation.
-    elevation: Option<ElevationTable>,
+    elevation: Option<std::sync::Arc<ElevationTable>>,
 }
 
 /// Transmit constants of one slot.
@@ -129,7 +129,7 @@ impl Simulator {
         let elevation = params
             .elevation
             .as_ref()
-            .map(|aperture| ElevationTable::new(aperture, lambda, probe.center_frequency, z_max))
+            .map(|aperture| ElevationTable::shared(aperture, lambda, probe.center_frequency, z_max))
             .transpose()?;
         Ok(Simulator {
             wf,
