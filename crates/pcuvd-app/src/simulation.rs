@@ -476,52 +476,42 @@ impl Simulation {
     /// traces of `n_samples` samples.
     pub fn truth_for(&self, acq: &pcuvd::Acquisition, n_samples: usize) -> Result<SimulatedTruth> {
         let grid = pipeline::default_grid_for(acq, n_samples)?;
-        let tree = self.tree.as_ref().map(|tree| {
-            let params = &self.modes[0].1;
-            let lambda = params.probe.wavelength(params.sound_speed);
-            let aperture = params.elevation.as_ref().map(|a| (a, lambda));
-            tree.plane_truth(&grid.x, &grid.z, 0.0, aperture)
-        });
-        let mut truth = match (&tree, &self.tissue) {
-            (Some(tree), _) => tree.truth.clone(),
-            (None, None) => self.phantom.truth(&grid.x, &grid.z, 0.0),
-            (None, Some(tissue)) => Moved {
-                inner: self.phantom.as_ref(),
-                motion: &tissue.spec().motion,
+        // The tree's truth is the elevation beam's view of it, not the plane's cut.
+        let params = &self.modes[0].1;
+        let lambda = params.probe.wavelength(params.sound_speed);
+        let aperture = params.elevation.as_ref().map(|a| (a, lambda));
+        let (mut truth, elevation, cycle) = match &self.tree {
+            Some(tree) => {
+                let seen = tree.plane_truth(&grid.x, &grid.z, 0.0, aperture);
+                (
+                    seen.truth,
+                    Some((seen.vy, seen.blood_fraction)),
+                    Some(seen.cycle),
+                )
             }
-            .truth(&grid.x, &grid.z, 0.0),
+            None => (
+                self.phantom.truth(&grid.x, &grid.z, 0.0),
+                None,
+                self.network
+                    .as_ref()
+                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
+            ),
         };
-        if let (Some(_), Some(tissue)) = (&tree, &self.tissue) {
-            // The tree moves with the tissue (as `Moved` does for the other phantoms).
-            let motion = tissue.motion_truth(&grid.x, &grid.z, 0.0);
-            ndarray::Zip::from(&mut truth.vx)
-                .and(&mut truth.vz)
-                .and(&truth.mask)
-                .and(&motion.velocity[0])
-                .and(&motion.velocity[2])
-                .for_each(|vx, vz, &inside, &mx, &mz| {
-                    if inside {
-                        *vx += mx;
-                        *vz += mz;
-                    }
-                });
+        // The vessels move with the tissue.
+        if let Some(tissue) = &self.tissue {
+            tissue
+                .spec()
+                .motion
+                .carry(&mut truth, &grid.x, &grid.z, 0.0);
         }
         Ok(SimulatedTruth {
             truth,
-            elevation: tree
-                .as_ref()
-                .map(|t| (t.vy.clone(), t.blood_fraction.clone())),
+            elevation,
             tissue: self
                 .tissue
                 .as_ref()
                 .map(|tissue| tissue.motion_truth(&grid.x, &grid.z, 0.0)),
-            cycle: match &tree {
-                Some(tree) => Some(tree.cycle.clone()),
-                None => self
-                    .network
-                    .as_ref()
-                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
-            },
+            cycle,
             x: grid.x,
             z: grid.z,
         })
@@ -642,16 +632,7 @@ fn tissue(
         }),
         Some(tree) => {
             let segments = &tree.flow().segments;
-            let boxes: Vec<([f64; 3], [f64; 3])> = segments
-                .iter()
-                .map(|s| {
-                    let r = 0.5 * s.diameter;
-                    (
-                        std::array::from_fn(|k| s.start[k].min(s.end[k]) - r),
-                        std::array::from_fn(|k| s.start[k].max(s.end[k]) + r),
-                    )
-                })
-                .collect();
+            let boxes: Vec<([f64; 3], [f64; 3])> = segments.iter().map(|s| s.bounds()).collect();
             TissuePhantom::new(spec, seed, |x, y, z| {
                 let p = [x, y, z];
                 boxes.iter().zip(segments).any(|((lo, hi), s)| {

@@ -88,8 +88,10 @@ enum SlotKey {
 pub struct TissueKeyframes {
     interval: f64,
     lead: f64,
-    /// The receive window the keyframes were rendered for: (t0 (s), samples, f_s (Hz)).
-    window: Option<(f64, usize, f64)>,
+    /// What the keyframes were rendered with: the recording's settings but for its coding (the
+    /// slots' starts are part of each keyframe's key), noise and seed, which a keyframe does not
+    /// depend on.
+    rendered_for: Option<SimParams>,
     echoes: HashMap<(i64, SlotKey), Array2<f32>>,
 }
 
@@ -100,7 +102,7 @@ impl TissueKeyframes {
         TissueKeyframes {
             interval,
             lead: lead.max(0.0),
-            window: None,
+            rendered_for: None,
             echoes: HashMap::new(),
         }
     }
@@ -131,10 +133,13 @@ impl TissueKeyframes {
         }
         let fs = params.sampling_frequency;
         let lead_samples = (self.lead * fs).ceil() as usize;
-        let window = (params.t0, params.n_samples, fs);
-        if self.window != Some(window) {
+        let mut rendering = params.clone();
+        rendering.sequence.coding = crate::acquisition::sequence::Coding::Conventional;
+        rendering.noise = None;
+        rendering.seed = 0;
+        if self.rendered_for.as_ref() != Some(&rendering) {
             self.echoes.clear();
-            self.window = Some(window);
+            self.rendered_for = Some(rendering);
         }
         let prf = params.sequence.event_prf;
         let position = |event: usize| {

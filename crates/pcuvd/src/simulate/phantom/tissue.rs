@@ -142,6 +142,20 @@ impl TissueMotion {
         self.sum(start, |o| o.omega() * (o.omega() * t + o.phase_rad).cos())
     }
 
+    /// Adds to the flow `truth` on the grid `x`, `z` (m), inside its mask, the in-plane velocity
+    /// of this motion at time `t` (s) (at y = 0): the truth of vessels that move with the tissue.
+    pub fn carry(&self, truth: &mut Truth, x: &[f64], z: &[f64], t: f64) {
+        for (iz, &zz) in z.iter().enumerate() {
+            for (ix, &xx) in x.iter().enumerate() {
+                if truth.mask[[iz, ix]] {
+                    let v = self.velocity([xx, 0.0, zz], t);
+                    truth.vx[[iz, ix]] += v[0];
+                    truth.vz[[iz, ix]] += v[2];
+                }
+            }
+        }
+    }
+
     fn sum(&self, start: [f64; 3], weight: impl Fn(&Oscillation) -> f64) -> [f64; 3] {
         let mut total = [0.0; 3];
         for o in &self.oscillations {
@@ -456,15 +470,7 @@ impl Phantom for Moved<'_> {
 
     fn truth(&self, x: &[f64], z: &[f64], t: f64) -> Truth {
         let mut truth = self.inner.truth(x, z, t);
-        for (iz, &zz) in z.iter().enumerate() {
-            for (ix, &xx) in x.iter().enumerate() {
-                if truth.mask[[iz, ix]] {
-                    let v = self.motion.velocity([xx, 0.0, zz], t);
-                    truth.vx[[iz, ix]] += v[0];
-                    truth.vz[[iz, ix]] += v[2];
-                }
-            }
-        }
+        self.motion.carry(&mut truth, x, z, t);
         truth
     }
 }

@@ -96,7 +96,7 @@ impl TreePhantom {
         let mut frames = Vec::with_capacity(flow.segments.len());
         for (index, s) in flow.segments.iter().enumerate() {
             frames.push(axes(s.direction()));
-            let chord = chord(s);
+            let chord = s.chord();
             let volume = s.area() * chord;
             let n = (spec.density * volume)
                 .max(spec.min_per_mm * chord * 1e3)
@@ -152,7 +152,7 @@ impl TreePhantom {
     /// `travelled` (m).
     fn position(&self, seat: &Seat, travelled: f64) -> [f64; 3] {
         let s = &self.flow.segments[seat.segment];
-        let chord = chord(s);
+        let chord = s.chord();
         let rel = seat.radius / (0.5 * s.diameter);
         let along = (seat.along + travelled * (1.0 - rel * rel)).rem_euclid(chord);
         let [u, n1, n2] = self.frames[seat.segment];
@@ -202,8 +202,8 @@ impl TreePhantom {
             .collect();
         let mut acc = Accumulator::new(nz, nx);
         for (id, s) in self.flow.segments.iter().enumerate() {
-            let margin = 0.5 * s.diameter;
-            let (lo, hi) = bounds(s, margin);
+            let radius = 0.5 * s.diameter;
+            let (lo, hi) = s.bounds();
             let columns = x
                 .iter()
                 .enumerate()
@@ -222,7 +222,7 @@ impl TreePhantom {
                         let p = [xx, y, zz];
                         if let Some((_, r)) = s.local(&p) {
                             let w = weight[iz][iy];
-                            let profile = 1.0 - (r / margin).powi(2);
+                            let profile = 1.0 - (r / radius).powi(2);
                             let v = s.velocity_at(&p, t).expect("inside the segment");
                             acc.add(iz, ix, id, w, v, profile);
                         }
@@ -353,20 +353,6 @@ impl Phantom for TreePhantom {
     }
 }
 
-/// Straight length of a segment between its ends (m): where its scatterers live.
-fn chord(s: &SegmentFlow) -> f64 {
-    let d: [f64; 3] = std::array::from_fn(|k| s.end[k] - s.start[k]);
-    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-}
-
-/// Bounding box (min, max corners) of a segment's axis grown by `margin` (m).
-fn bounds(s: &SegmentFlow, margin: f64) -> ([f64; 3], [f64; 3]) {
-    (
-        std::array::from_fn(|k| s.start[k].min(s.end[k]) - margin),
-        std::array::from_fn(|k| s.start[k].max(s.end[k]) + margin),
-    )
-}
-
 /// The unit axis `u` and two unit normals completing a right-handed frame.
 fn axes(u: [f64; 3]) -> [[f64; 3]; 3] {
     // Cross with the coordinate axis least aligned with u: never near-parallel.
@@ -413,7 +399,7 @@ mod tests {
         let flow = vessel([-1e-3, 0.1e-3, 3e-3], [1e-3, -0.1e-3, 4e-3]);
         let tree = TreePhantom::new(flow, TreeSpec::default_blood(), 3).unwrap();
         let s = &tree.flow().segments[0];
-        let volume = s.area() * chord(s);
+        let volume = s.area() * s.chord();
         // 10⁵/mm³ over 6.4·10⁻³ mm³: 636 scatterers, more than the 40 per mm floor (89).
         assert_eq!(tree.n_scatterers(), (1e14 * volume).ceil() as usize);
         let power: f64 = tree.amplitudes().iter().map(|a| a * a).sum::<f64>() / volume;

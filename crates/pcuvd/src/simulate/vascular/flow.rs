@@ -297,13 +297,29 @@ impl SegmentFlow {
         [d[0] / n, d[1] / n, d[2] / n]
     }
 
+    /// Straight distance from `start` to `end` (m): the cylinder's axis, which its blood fills
+    /// (the hydraulic `length` may be longer, for a tortuous vessel).
+    pub fn chord(&self) -> f64 {
+        norm(&sub(&self.end, &self.start))
+    }
+
+    /// Corners (min, max) (m) of a box that holds the segment's whole cylinder: its axis's box
+    /// grown by the radius.
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let r = 0.5 * self.diameter;
+        (
+            std::array::from_fn(|k| self.start[k].min(self.end[k]) - r),
+            std::array::from_fn(|k| self.start[k].max(self.end[k]) + r),
+        )
+    }
+
     /// (axial distance from `start`, distance from the axis) (m) of `point` (m) when it lies
     /// inside the segment's cylinder.
     pub fn local(&self, point: &[f64; 3]) -> Option<(f64, f64)> {
         let u = self.direction();
         let p = sub(point, &self.start);
         let s = dot(&p, &u);
-        let chord = norm(&sub(&self.end, &self.start));
+        let chord = self.chord();
         let r2 = (dot(&p, &p) - s * s).max(0.0);
         let radius = self.diameter / 2.0;
         (s >= 0.0 && s <= chord && r2 <= radius * radius).then(|| (s, r2.sqrt()))
