@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,9 +20,11 @@ class Truth:
     mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
     edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up.
     With tissue (tissue_db=..., or the rat brain) also `tissue`: its velocity vx, vz (nz, nx) in
-    m/s at t = 0. For the three-dimensional rat brain also vy (nz, nx), the out-of-plane velocity
+    m/s at t = 0, and its displacement from t = 0 (frames, nz, 3: x, y, z) in m at each frame. For the three-dimensional rat brain also vy (nz, nx), the out-of-plane velocity
     (m/s), and blood_fraction (nz, nx), the blood's share of each pixel's elevation beam; its
-    velocities are the elevation-beam-weighted means over the blood each pixel sees.
+    velocities are the elevation-beam-weighted means over the blood each pixel sees. scenario:
+    the scenario simulated as TOML, every option applied (`simulate(scenario=path)` of it written
+    to a file simulates the same recordings).
     """
 
     x: np.ndarray
@@ -33,6 +36,7 @@ class Truth:
     tissue: dict[str, np.ndarray] = field(default_factory=dict)
     vy: np.ndarray | None = None
     blood_fraction: np.ndarray | None = None
+    scenario: str = ""
 
 
 def simulate_option_names() -> list[str]:
@@ -41,34 +45,41 @@ def simulate_option_names() -> list[str]:
 
 
 def simulate(
-    preset: str = "paper-spiral",
-    mode: str = "coded",
+    preset: str | None = None,
+    mode: str | None = "coded",
     frames: int | None = None,
-    noise_db: float | None = -10.0,
-    seed: int = 1,
+    noise_db: float | str | None = "scenario",
+    seed: int | None = None,
     *,
+    scenario: str | os.PathLike[str] | None = None,
     quiet: bool = False,
     **options: Any,
 ) -> tuple[Recording | dict[str, Recording], Truth]:
     """Simulates RF recordings as `pcuvd simulate` does.
 
-    preset: "paper-spiral", "tube", "rat-network" or "rat-brain" (see `pcuvd simulate --help`); mode:
-    "coded" (Hadamard), "conventional" or "both"; frames: compound frames (default: the
-    preset's); noise_db: noise level in dB (None: no noise); seed of scatterers and noise;
-    options: the other `simulate` options (angles, slot_delay_us, peak_velocity_mm_s,
-    tube_profile="plug" for the tube without a gradient across it, tube_angle_deg,
-    tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm; tissue_db=40 for moving tissue
-    around the vessels, tissue_motion="rat" or "still"). Returns (recording, truth),
-    or ({"conventional": ..., "coded": ...}, truth) for mode "both".
+    scenario: a scenario file (.toml; see docs/guide/scenarios.md) or the name of a shipped one;
+    preset: a shipped scenario by name, "paper-spiral" (the default), "tube", "rat-network" or
+    "rat-brain". The other arguments override the scenario's values: mode "coded" (Hadamard),
+    "conventional", "both", or None for the scenario's; frames: compound frames; noise_db: noise
+    level in dB, None for no noise, "scenario" for the scenario's; seed of scatterers and noise
+    (None: the scenario's); options: the other `simulate` options (angles, slot_delay_us,
+    peak_velocity_mm_s, tube_profile="plug" for the tube without a gradient across it,
+    tube_angle_deg, tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm; tissue_db=40 for
+    moving tissue around the vessels, tissue_motion="rat" or "still"). Returns (recording,
+    truth), or ({"conventional": ..., "coded": ...}, truth) when both modes are simulated.
     """
     given = dict(options)
-    given.update(
-        preset=preset,
-        mode=mode,
-        frames=frames,
-        noise_db="off" if noise_db is None else noise_db,
-        seed=seed,
-    )
+    given.update(frames=frames)
+    if scenario is not None:
+        given.update(scenario=os.fspath(scenario))
+    if preset is not None:
+        given.update(preset=preset)
+    if mode is not None:
+        given.update(mode=mode)
+    if seed is not None:
+        given.update(seed=seed)
+    if noise_db != "scenario":
+        given.update(noise_db="off" if noise_db is None else noise_db)
     settings = _checks.to_options("simulate", given, _pcuvd.option_names_of("simulate"))
     recordings, arrays = _pcuvd.simulate(settings, bool(quiet))
     cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up")
@@ -79,11 +90,16 @@ def simulate(
         vz=arrays["vz"],
         mask=arrays["mask"],
         cycle={k: arrays[k] for k in cycle_keys if k in arrays},
-        tissue={k.removeprefix("tissue_"): arrays[k] for k in ("tissue_vx", "tissue_vz") if k in arrays},
+        tissue={
+            k.removeprefix("tissue_"): arrays[k]
+            for k in ("tissue_vx", "tissue_vz", "tissue_displacement")
+            if k in arrays
+        },
         vy=arrays.get("vy"),
         blood_fraction=arrays.get("blood_fraction"),
+        scenario=arrays["scenario"],
     )
     made = {name: Recording(native) for name, native in recordings}
-    if mode == "both":
+    if len(made) > 1:
         return made, truth
     return next(iter(made.values())), truth

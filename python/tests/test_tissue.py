@@ -22,8 +22,9 @@ def test_tissue_brightens_the_echo_and_its_motion_is_in_the_truth():
     )
     rise = 10 * np.log10(_power(both) / _power(blood))
     assert 45 < rise < 57, rise
-    assert set(truth.tissue) == {"vx", "vz"}
+    assert set(truth.tissue) == {"vx", "vz", "displacement"}
     assert truth.tissue["vz"].shape == truth.vz.shape
+    assert truth.tissue["displacement"].shape == (1, truth.z.size, 3)
     # At t = 0 the rat's breathing (phase 0.5 rad) and heartbeat move the tissue: the axial
     # speed is 2π·(5.5 Hz·3 µm + 1 Hz·20 µm·cos 0.5·(1 + 10 %/mm below 1 mm)), tens of µm/s.
     assert np.all(truth.tissue["vz"] > 1e-4) and np.all(truth.tissue["vz"] < 1e-3)
@@ -54,7 +55,15 @@ def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri()
     cls, ri = truth.cycle["vessel_class"], truth.cycle["ri"]
     assert 0.55 < np.median(ri[cls == 1]) < 0.9
     assert np.median(ri[cls == 2]) < 0.5
-    assert set(truth.tissue) == {"vx", "vz"}
+    # The displacement over the recording starts at 0, and one frame (1/14.4 kHz with one angle)
+    # later it is the velocity map's times the frame period, to the motion's curvature over so
+    # short a time.
+    moved = truth.tissue["displacement"]
+    assert moved.shape == (2, truth.z.size, 3)
+    assert np.all(moved[0] == 0)
+    column = truth.x.size // 2
+    for axis, velocity in ((0, truth.tissue["vx"]), (2, truth.tissue["vz"])):
+        np.testing.assert_allclose(moved[1, :, axis], velocity[:, column] / brain.frame_rate_hz, rtol=1e-2)
 
 
 def _write_tables(folder, boundary: str) -> None:

@@ -10,6 +10,7 @@
 //! - [`summary`]: `summary.json`, the maps as `.npy`, figures: [`summary::save`];
 //! - [`outputs`]: output folders (what is pcuvd's, what to clear) and input fingerprints;
 //! - [`figures`]: the figures of a run;
+//! - [`scenario`]: simulation scenarios (TOML files) and the shipped ones;
 //! - [`simulation`]: simulated recordings with ground truth;
 //! - [`study`]: the paper's studies' settings;
 //! - [`progress`]: the one [`progress::Progress`] trait.
@@ -26,6 +27,7 @@ pub mod nifti;
 pub mod outputs;
 pub mod progress;
 pub mod run;
+pub mod scenario;
 pub mod settings;
 pub mod simulation;
 pub mod study;

@@ -3,19 +3,21 @@
 
 use anyhow::{Context, Result, bail};
 use pcuvd::pipeline;
-use pcuvd::simulate::ElevationAperture;
 use pcuvd::simulate::keyframes::{TissueKeyframes, keyframe_interval};
 use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec};
 use pcuvd::simulate::phantom::tissue::{Anechoic, Layer, MotionTruth};
 use pcuvd::simulate::phantom::{
-    Moved, Phantom, SpiralPhantom, SpiralSpec, TissueMotion, TissuePhantom, TissueSpec,
-    TreePhantom, TreeSpec, TubePhantom, TubeSpec,
+    Moved, Phantom, SpiralPhantom, SpiralSpec, TissuePhantom, TissueSpec, TreePhantom, TreeSpec,
+    TubePhantom, TubeSpec,
 };
-use pcuvd::simulate::vascular::{CortexParams, FlowParams, generate, solve};
+use pcuvd::simulate::vascular::{FlowParams, generate, solve};
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
 use serde::{Deserialize, Serialize};
 
+use crate::scenario::{
+    LayerSection, MotionSection, NoiseSection, Scenario, TissueSection, TubeSection, Vessels,
+};
 use crate::settings::parse_numbers;
 
 /// Built-in simulation set-ups.
@@ -33,60 +35,46 @@ pub enum Preset {
     RatBrain,
 }
 
-/// Which transmit modes to simulate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "kebab-case")]
-pub enum ModeChoice {
-    /// Hadamard-coded: every event fires all angles.
-    Coded,
-    /// Conventional: one angle per event.
-    Conventional,
-    /// Both, with the same scatterers, motion and noise statistics.
-    Both,
-}
+pub use crate::scenario::{ModeChoice, TissueMotionChoice};
 
-/// How the tissue of `--tissue-db` moves.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "kebab-case")]
-pub enum TissueMotionChoice {
-    /// The anaesthetised rat's brain: heartbeat 5.5 Hz (3 µm axial, 1 µm lateral), breathing 1 Hz (20 µm axial, 5 µm lateral, growing 10 % per mm of depth).
-    Rat,
-    /// No motion.
-    Still,
-}
-
-/// What to simulate: every option of `pcuvd simulate` but the output folder.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// What to simulate: every option of `pcuvd simulate` but the output folder. A scenario (a shipped
+/// one, or a TOML file) describes the whole simulation; the other options override its values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 #[serde(default, deny_unknown_fields)]
 pub struct SimulationSettings {
-    /// The set-up to simulate.
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().preset))]
-    pub preset: Preset,
-    /// Transmit mode(s).
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().mode))]
-    pub mode: ModeChoice,
-    /// Compound frames (default: the preset's: 100, or 360 for rat-network).
+    /// The scenario to simulate: a TOML file (see docs/guide/scenarios.md) or the name of a
+    /// shipped one (paper-spiral, tube, rat-network, rat-brain: the presets). Default: paper-spiral.
+    #[cfg_attr(feature = "clap", arg(long))]
+    #[serde(deserialize_with = "crate::settings::optional_text")]
+    pub scenario: Option<String>,
+    /// A shipped scenario by name (the same as --scenario NAME).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub preset: Option<Preset>,
+    /// Transmit mode(s) (default: the scenario's; every preset: both).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub mode: Option<ModeChoice>,
+    /// Compound frames (default: the scenario's: 100, or 360 for rat-network and rat-brain).
     #[cfg_attr(feature = "clap", arg(long))]
     pub frames: Option<usize>,
-    /// Noise level in dB (see the noise definition in `--help` of the report; default −10); "off" for none.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().noise_db, allow_hyphen_values = true))]
-    #[serde(deserialize_with = "crate::settings::text")]
-    pub noise_db: String,
-    /// Seed of the scatterers and the noise.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().seed))]
-    pub seed: u64,
-    /// Number of steering angles, evenly spaced over [−15°, 15°] (coded: a Hadamard order: 1, 2, 4, 8, 12, 16, ...).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().angles))]
-    pub angles: usize,
-    /// Hadamard slot delay (µs).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = SimulationSettings::default().slot_delay_us))]
-    pub slot_delay_us: f64,
+    /// Noise level in dB (see the noise definition in `--help` of the report; default: the
+    /// scenario's, −10 for every preset); "off" for none.
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    #[serde(deserialize_with = "crate::settings::optional_text")]
+    pub noise_db: Option<String>,
+    /// Seed of the scatterers, the noise and a generated tree (default: the scenario's, 1).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub seed: Option<u64>,
+    /// Number of steering angles, evenly spaced over [−15°, 15°] (coded: a Hadamard order: 1, 2,
+    /// 4, 8, 12, 16, ...; default: the scenario's, 8).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub angles: Option<usize>,
+    /// Hadamard slot delay (µs; default: the scenario's, 1).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub slot_delay_us: Option<f64>,
     /// Peak flow speed (mm/s): the centreline speed of the tube and the spiral, the peak
     /// systolic speed of the network's fastest vessel (the others scaled alike). Default: the
-    /// preset's (25 mm/s; the network's fastest arteriole 30 mm/s). The projection Nyquist
+    /// scenario's (25 mm/s; the network's fastest arteriole 30 mm/s). The projection Nyquist
     /// velocity of the 8-angle presets is about 44 mm/s: faster flow aliases (see `process
     /// --dealias`).
     #[cfg_attr(feature = "clap", arg(long))]
@@ -111,16 +99,18 @@ pub struct SimulationSettings {
     /// Radius of the tube preset (mm; default 0.5).
     #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_radius_mm: Option<f64>,
-    /// Add tissue around the vessels, this many dB brighter than blood per unit area (in vivo
-    /// 30–60; try 40): fully developed speckle in the imaging plane over the image, a bright
-    /// 0.1 mm layer (+10 dB) at 0.5 mm like the dura, no tissue inside the vessels; vessels and
-    /// tissue move together (--tissue-motion). The noise level is then relative to the blood's
-    /// echo alone. Default: no tissue.
+    /// Tissue this many dB brighter than blood per unit area or volume (in vivo 30–60; try 40).
+    /// A scenario with tissue (rat-brain) shifts its tissue and layers by the difference. One
+    /// without gets fully developed speckle in the imaging plane over the image, a bright 0.1 mm
+    /// layer (+10 dB) at 0.5 mm like the dura, no tissue inside the vessels; vessels and tissue
+    /// move together (--tissue-motion). The noise level is then relative to the blood's echo
+    /// alone.
     #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tissue_db: Option<f64>,
-    /// How the tissue (and the vessels in it) moves, with --tissue-db.
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = SimulationSettings::default().tissue_motion))]
-    pub tissue_motion: TissueMotionChoice,
+    /// How the tissue (and the vessels in it) moves (default: the scenario's; with --tissue-db
+    /// on a scenario without tissue, rat).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub tissue_motion: Option<TissueMotionChoice>,
     /// The rat brain's vessels from a folder of three tables instead of its generated tree:
     /// vertices.csv (x, y, z; headers x_um,y_um,z_um or x_m,y_m,z_m; y out of the imaging plane,
     /// z depth), edges.csv (v1,v2,diameter,length,class: arteriole, capillary or venule; an
@@ -132,25 +122,198 @@ pub struct SimulationSettings {
     pub vessel_tables: Option<String>,
 }
 
-impl Default for SimulationSettings {
-    fn default() -> Self {
-        SimulationSettings {
-            preset: Preset::PaperSpiral,
-            mode: ModeChoice::Both,
-            frames: None,
-            noise_db: "-10".into(),
-            seed: 1,
-            angles: 8,
-            slot_delay_us: 1.0,
-            peak_velocity_mm_s: None,
-            tube_profile: None,
-            tube_angle_deg: None,
-            tube_centre_mm: None,
-            tube_length_mm: None,
-            tube_radius_mm: None,
-            tissue_db: None,
-            tissue_motion: TissueMotionChoice::Rat,
-            vessel_tables: None,
+impl SimulationSettings {
+    /// Where the scenario comes from: the `--scenario` file or name, or the preset's name.
+    pub fn scenario_source(&self) -> Result<String> {
+        match (&self.scenario, self.preset) {
+            (Some(_), Some(_)) => bail!("give --scenario or --preset, not both"),
+            (Some(source), None) => Ok(source.clone()),
+            (None, preset) => Ok(preset.unwrap_or(Preset::PaperSpiral).name().to_string()),
+        }
+    }
+
+    /// The scenario to simulate: the one named, with these options' overrides, checked.
+    pub fn scenario(&self) -> Result<Scenario> {
+        let mut scenario = Scenario::load(&self.scenario_source()?)?;
+        self.apply_to(&mut scenario)?;
+        scenario
+            .check()
+            .context("the scenario with the options given")?;
+        Ok(scenario)
+    }
+
+    /// Applies every option given to `scenario`.
+    pub(crate) fn apply_to(&self, scenario: &mut Scenario) -> Result<()> {
+        if let Some(mode) = self.mode {
+            scenario.sequence.transmit = mode;
+        }
+        if let Some(frames) = self.frames {
+            if frames == 0 {
+                bail!("--frames must be at least 1");
+            }
+            scenario.sequence.frames = frames;
+        }
+        if let Some(text) = &self.noise_db {
+            scenario.noise = match text.as_str() {
+                "off" | "none" => None,
+                text => Some(NoiseSection {
+                    level_db: text
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|v| v.is_finite())
+                        .with_context(|| {
+                            format!("--noise-db {text:?}: expected a number of dB or \"off\"")
+                        })?,
+                }),
+            };
+        }
+        if let Some(seed) = self.seed {
+            scenario.seed = seed;
+        }
+        if let Some(angles) = self.angles {
+            scenario.sequence.angles = Some(angles);
+            scenario.sequence.angles_deg = None;
+        }
+        if let Some(us) = self.slot_delay_us {
+            scenario.sequence.slot_delay_s = us * 1e-6;
+        }
+        let peak = match self.peak_velocity_mm_s {
+            Some(v) if !(v.is_finite() && v > 0.0) => {
+                bail!("--peak-velocity-mm-s {v}: must be a finite speed > 0 mm/s")
+            }
+            given => given.map(|v| v * 1e-3),
+        };
+        let tube_flags = [
+            ("--tube-profile", self.tube_profile.is_some()),
+            ("--tube-angle-deg", self.tube_angle_deg.is_some()),
+            ("--tube-centre-mm", self.tube_centre_mm.is_some()),
+            ("--tube-length-mm", self.tube_length_mm.is_some()),
+            ("--tube-radius-mm", self.tube_radius_mm.is_some()),
+        ];
+        if !matches!(scenario.vessels, Vessels::Tube(_))
+            && let Some((flag, _)) = tube_flags.iter().find(|(_, given)| *given)
+        {
+            bail!(
+                "{flag} applies to --preset tube only (or a scenario of [vessels] kind \"tube\")"
+            );
+        }
+        if !matches!(scenario.vessels, Vessels::Tree(_)) && self.vessel_tables.is_some() {
+            bail!(
+                "--vessel-tables applies to --preset rat-brain only (or a scenario of [vessels] kind \"tree\")"
+            );
+        }
+        match &mut scenario.vessels {
+            Vessels::Spiral(spiral) => {
+                if let Some(peak) = peak {
+                    spiral.peak_velocity_m_s = peak;
+                }
+            }
+            Vessels::Tube(tube) => self.apply_to_tube(tube, peak)?,
+            Vessels::RatNetwork(network) => {
+                if peak.is_some() {
+                    network.fastest_psv_m_s = peak;
+                }
+            }
+            Vessels::Tree(tree) => {
+                if peak.is_some() {
+                    bail!(
+                        "--peak-velocity-mm-s does not apply to a vascular tree (--preset rat-brain), whose speeds follow from its pressures"
+                    );
+                }
+                if let Some(folder) = &self.vessel_tables {
+                    tree.tables = Some(folder.clone());
+                }
+            }
+        }
+        match (&mut scenario.tissue, self.tissue_db) {
+            (_, Some(db)) if !db.is_finite() => {
+                bail!("--tissue-db {db}: must be a finite number of dB")
+            }
+            (Some(tissue), Some(db)) => {
+                // The layers keep their contrast to the parenchyma.
+                let shift = db - tissue.echogenicity_db;
+                tissue.echogenicity_db = db;
+                for layer in &mut tissue.layers {
+                    layer.echogenicity_db += shift;
+                }
+            }
+            (None, Some(db)) => {
+                let [_, deepest] = scenario.receive.depth_m;
+                scenario.tissue = Some(TissueSection {
+                    echogenicity_db: db,
+                    x_range_m: None,
+                    depth_m: [0.5e-3, deepest + 0.5e-3],
+                    half_thickness_m: 0.0,
+                    density_per_m3: None,
+                    density_per_m2: None,
+                    layers: vec![LayerSection {
+                        top_m: 0.5e-3,
+                        thickness_m: 0.1e-3,
+                        echogenicity_db: db + 10.0,
+                    }],
+                    anechoic: Vec::new(),
+                    motion: MotionSection {
+                        preset: Some(TissueMotionChoice::Rat),
+                        ..MotionSection::default()
+                    },
+                });
+            }
+            (_, None) => {}
+        }
+        if let Some(choice) = self.tissue_motion {
+            let Some(tissue) = &mut scenario.tissue else {
+                bail!("--tissue-motion moves tissue: add some with --tissue-db");
+            };
+            tissue.motion = MotionSection {
+                preset: Some(choice),
+                ..MotionSection::default()
+            };
+        }
+        Ok(())
+    }
+
+    /// The `--tube-*` options and the peak speed `peak` (m/s) applied to `tube`.
+    fn apply_to_tube(&self, tube: &mut TubeSection, peak: Option<f64>) -> Result<()> {
+        if let Some(text) = &self.tube_centre_mm {
+            tube.centre_m = match parse_numbers(text).as_deref() {
+                Ok(&[x, z]) => [x * 1e-3, z * 1e-3],
+                _ => bail!("--tube-centre-mm {text:?}: expected two finite numbers \"x,z\" in mm"),
+            };
+        }
+        let positive_mm = |flag: &str, value: Option<f64>, slot: &mut f64| match value {
+            None => Ok(()),
+            Some(v) if v.is_finite() && v > 0.0 => {
+                *slot = v * 1e-3;
+                Ok(())
+            }
+            Some(v) => bail!("{flag} {v}: must be a finite length > 0 mm"),
+        };
+        positive_mm("--tube-length-mm", self.tube_length_mm, &mut tube.length_m)?;
+        positive_mm("--tube-radius-mm", self.tube_radius_mm, &mut tube.radius_m)?;
+        if let Some(deg) = self.tube_angle_deg {
+            if !deg.is_finite() {
+                bail!("--tube-angle-deg {deg}: must be a finite number of degrees");
+            }
+            tube.angle_deg = deg;
+        }
+        if let Some(profile) = self.tube_profile {
+            tube.profile = profile;
+        }
+        if let Some(peak) = peak {
+            tube.peak_velocity_m_s = peak;
+        }
+        Ok(())
+    }
+}
+
+impl Preset {
+    /// The shipped scenario's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::PaperSpiral => "paper-spiral",
+            Preset::Tube => "tube",
+            Preset::RatNetwork => "rat-network",
+            Preset::RatBrain => "rat-brain",
         }
     }
 }
@@ -158,8 +321,10 @@ impl Default for SimulationSettings {
 /// A simulation, set up and checked before anything is simulated: the phantom and each transmit
 /// mode's settings.
 pub struct Simulation {
-    /// The options it was set up from.
-    pub options: SimulationSettings,
+    /// The scenario it simulates (the options' overrides applied).
+    pub scenario: Scenario,
+    /// Where the scenario came from: a shipped scenario's name or a file's path.
+    pub source: String,
     /// Compound frames per recording.
     pub frames: usize,
     /// Noise level (dB), `None` for none.
@@ -201,123 +366,83 @@ impl Simulation {
     /// Sets up the simulation `options` describe; every mode's settings are checked, so that a
     /// refused request (`--mode both --angles 6`: no Hadamard order) fails before any work.
     pub fn new(options: &SimulationSettings) -> Result<Simulation> {
-        let args = options;
-        let frames = args.frames.unwrap_or(match args.preset {
-            Preset::RatNetwork | Preset::RatBrain => simulate::RAT_FRAMES,
-            _ => simulate::PAPER_FRAMES,
-        });
-        if frames == 0 {
-            bail!("--frames must be at least 1");
-        }
-        let noise_db = match args.noise_db.as_str() {
-            "off" | "none" => None,
-            text => Some(
-                text.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .with_context(|| {
-                        format!("--noise-db {text:?}: expected a number of dB or \"off\"")
-                    })?,
-            ),
-        };
-        let peak = match args.peak_velocity_mm_s {
-            Some(v) if !(v.is_finite() && v > 0.0) => {
-                bail!("--peak-velocity-mm-s {v}: must be a finite speed > 0 mm/s")
-            }
-            given => given.map(|v| v * 1e-3),
-        };
-        let tube = match args.preset {
-            Preset::Tube => Some(tube_spec(args, peak.unwrap_or(25e-3))?),
-            _ => {
-                let tube_flags = [
-                    ("--tube-profile", args.tube_profile.is_some()),
-                    ("--tube-angle-deg", args.tube_angle_deg.is_some()),
-                    ("--tube-centre-mm", args.tube_centre_mm.is_some()),
-                    ("--tube-length-mm", args.tube_length_mm.is_some()),
-                    ("--tube-radius-mm", args.tube_radius_mm.is_some()),
-                ];
-                if let Some((flag, _)) = tube_flags.iter().find(|(_, given)| *given) {
-                    bail!("{flag} applies to --preset tube only");
-                }
-                None
-            }
-        };
-        let network = match args.preset {
-            Preset::RatNetwork => {
+        let scenario = options.scenario()?;
+        Simulation::of(scenario, options.scenario_source()?)
+    }
+
+    /// Sets up the simulation of `scenario` (checked), which came from `source`.
+    pub fn of(scenario: Scenario, source: String) -> Result<Simulation> {
+        scenario.check()?;
+        let seed = scenario.seed;
+        let (network, tube, tree) = match &scenario.vessels {
+            Vessels::RatNetwork(v) => {
                 let spec = NetworkSpec::rat();
-                let spec = match peak {
+                let spec = match v.fastest_psv_m_s {
                     Some(psv) => spec.with_fastest_psv(psv)?,
                     None => spec,
                 };
-                Some(NetworkPhantom::new(spec, args.seed)?)
+                (Some(NetworkPhantom::new(spec, seed)?), None, None)
             }
-            _ => None,
-        };
-        let tree = match args.preset {
-            Preset::RatBrain => {
-                if peak.is_some() {
-                    bail!(
-                        "--peak-velocity-mm-s does not apply to --preset rat-brain, whose speeds follow from its tree's pressures"
-                    );
-                }
-                let graph = match &args.vessel_tables {
-                    None => generate(&brain_cortex(args.seed))
-                        .context("the rat brain's vascular tree")?,
+            Vessels::Tube(v) => {
+                let tube = TubeSpec {
+                    centre: v.centre_m,
+                    angle: v.angle_deg.to_radians(),
+                    length: v.length_m,
+                    radius: v.radius_m,
+                    peak_speed: v.peak_velocity_m_s,
+                    density: v.density_per_m2,
+                    profile: v.profile.into(),
+                };
+                (None, Some(tube), None)
+            }
+            Vessels::Tree(v) => {
+                let graph = match &v.tables {
+                    None => generate(&v.cortex(seed)).context("the vascular tree")?,
                     Some(folder) => read_vessel_tables(std::path::Path::new(folder))?,
                 };
-                let flow =
-                    solve(&graph, &FlowParams::rat()).context("the rat brain's blood flow")?;
-                Some(TreePhantom::new(
-                    flow,
-                    TreeSpec::default_blood(),
-                    args.seed,
-                )?)
+                let flow = solve(&graph, &FlowParams::rat()).context("the tree's blood flow")?;
+                let tree = TreePhantom::new(flow, TreeSpec::default_blood(), seed)?;
+                (None, None, Some(tree))
             }
-            _ => {
-                if args.vessel_tables.is_some() {
-                    bail!("--vessel-tables applies to --preset rat-brain only");
-                }
-                None
-            }
+            Vessels::Spiral(_) => (None, None, None),
         };
-        let phantom: Box<dyn Phantom> = match (args.preset, &network) {
-            (_, Some(network)) => Box::new(network.clone()),
-            (Preset::RatBrain, None) => Box::new(tree.clone().context("the rat brain's tree")?),
-            (Preset::PaperSpiral, None) => {
-                let paper = SpiralSpec::paper();
-                let spec = SpiralSpec {
-                    peak_speed: peak.unwrap_or(paper.peak_speed),
-                    ..paper
-                };
-                Box::new(SpiralPhantom::new(spec, args.seed)?)
+        let phantom: Box<dyn Phantom> = match &scenario.vessels {
+            Vessels::RatNetwork(_) => Box::new(network.clone().context("the network")?),
+            Vessels::Tree(_) => Box::new(tree.clone().context("the tree")?),
+            Vessels::Tube(_) => {
+                Box::new(TubePhantom::new(tube.clone().context("the tube")?, seed)?)
             }
-            (_, None) => Box::new(TubePhantom::new(
-                tube.clone().context("the tube preset's vessel")?,
-                args.seed,
+            Vessels::Spiral(v) => Box::new(SpiralPhantom::new(
+                SpiralSpec {
+                    a: v.start_radius_m,
+                    b: v.turn_spacing_m_per_rad,
+                    alpha_max: 2.0 * v.turns * std::f64::consts::PI,
+                    radius: v.radius_m,
+                    peak_speed: v.peak_velocity_m_s,
+                    density: v.density_per_m2,
+                    centre: v.centre_m,
+                },
+                seed,
             )?),
         };
-        let coded_modes: Vec<bool> = match args.mode {
+        let coded_modes: Vec<bool> = match scenario.sequence.transmit {
             ModeChoice::Coded => vec![true],
             ModeChoice::Conventional => vec![false],
             ModeChoice::Both => vec![false, true],
         };
+        let noise_db = scenario.noise.as_ref().map(|noise| noise.level_db);
         let modes = coded_modes
             .into_iter()
             .map(|coded| {
                 let name = if coded { "coded" } else { "conventional" };
-                Ok((name, mode_params(args, coded, noise_db)?))
+                Ok((name, mode_params(&scenario, coded)?))
             })
             .collect::<Result<Vec<_>>>()?;
-        let tissue_db = match (args.preset, args.tissue_db) {
-            (Preset::RatBrain, None) => Some(TissueSpec::DEFAULT_ECHOGENICITY_DB),
-            (_, given) => given,
-        };
-        let tissue = match tissue_db {
+        let tissue = match &scenario.tissue {
             None => None,
-            Some(db) if !db.is_finite() => bail!("--tissue-db {db}: must be a finite number of dB"),
-            Some(db) => Some(tissue(
-                args,
-                db,
+            Some(section) => Some(tissue(
+                &scenario,
+                section,
                 phantom.as_ref(),
                 tree.as_ref(),
                 &modes[0].1,
@@ -335,8 +460,9 @@ impl Simulation {
             .map(|(_, params)| params.sequence.last_slot_start())
             .fold(0.0, f64::max);
         Ok(Simulation {
-            options: options.clone(),
-            frames,
+            frames: scenario.sequence.frames,
+            scenario,
+            source,
             noise_db,
             phantom,
             network,
@@ -347,7 +473,6 @@ impl Simulation {
             keyframes: std::sync::Mutex::new(TissueKeyframes::new(interval, lead)),
         })
     }
-
     /// Events `events` of recording `index`: the phantom alone, or with the tissue (rendered at
     /// keyframes, the vessels moving with it). Keyframes are kept for the next call: simulate
     /// the modes block by block (the same events of each in turn) so that they render once.
@@ -409,13 +534,14 @@ impl Simulation {
         self.simulate_block(index, events, progress)
     }
 
-    /// The `[provenance]` a recording of mode `index` carries: simulator, preset, seed, noise.
+    /// The `[provenance]` a recording of mode `index` carries: simulator, scenario (its source
+    /// and, whole, the scenario simulated), seed, noise.
     pub fn provenance(&self, index: usize) -> toml::Table {
         let params = &self.modes[index].1;
         let mut provenance = toml::Table::new();
         provenance.insert("simulator".into(), "pcuvd simulate".into());
-        provenance.insert("preset".into(), format!("{:?}", self.options.preset).into());
-        provenance.insert("seed".into(), (self.options.seed as i64).into());
+        provenance.insert("scenario_source".into(), self.source.clone().into());
+        provenance.insert("seed".into(), (self.scenario.seed as i64).into());
         provenance.insert(
             "blood_scatterers".into(),
             (self.phantom.n_scatterers() as i64).into(),
@@ -430,23 +556,16 @@ impl Simulation {
             "attenuation_db_cm_mhz".into(),
             params.attenuation_db_cm_mhz.into(),
         );
-        if let Some(folder) = &self.options.vessel_tables {
-            provenance.insert("vessel_tables".into(), folder.clone().into());
-        }
         if let Some(tissue) = &self.tissue {
             let spec = tissue.spec();
             let mut table = toml::Table::new();
             table.insert("echogenicity_db".into(), spec.echogenicity_db.into());
             table.insert("scatterers".into(), (tissue.n_scatterers() as i64).into());
-            table.insert(
-                "motion".into(),
-                match self.options.tissue_motion {
-                    TissueMotionChoice::Rat => "rat",
-                    TissueMotionChoice::Still => "still",
-                }
-                .into(),
-            );
             provenance.insert("tissue".into(), table.into());
+        }
+        // The whole scenario, so that the recording says everything it was simulated from.
+        if let Ok(table) = toml::Table::try_from(&self.scenario) {
+            provenance.insert("scenario".into(), table.into());
         }
         if let Some(tube) = &self.tube {
             let mm = |v: f64| toml::Value::from(v * 1e3);
@@ -465,6 +584,21 @@ impl Simulation {
             provenance.insert("tube".into(), vessel.into());
         }
         provenance
+    }
+
+    /// The tissue's displacement from t = 0 (m) at each compound frame's time, for tissue that
+    /// starts at depths `z` (m): shape (frames, depths, 3: x, y, z). The motion is the same at
+    /// every lateral position, so one column describes the whole image. `None` without tissue.
+    pub fn tissue_displacement(&self, z: &[f64]) -> Option<ndarray::Array3<f64>> {
+        let tissue = self.tissue.as_ref()?;
+        let motion = &tissue.spec().motion;
+        let frame_rate = self.modes[0].1.sequence.frame_rate();
+        Some(ndarray::Array3::from_shape_fn(
+            (self.frames, z.len(), 3),
+            |(frame, row, axis)| {
+                motion.displacement([0.0, 0.0, z[row]], frame as f64 / frame_rate)[axis]
+            },
+        ))
     }
 
     /// The ground truth on `data`'s default processing grid (the same for every mode).
@@ -530,101 +664,74 @@ fn read_vessel_tables(folder: &std::path::Path) -> Result<pcuvd::simulate::vascu
         read("edges.csv")?,
         read("boundary.csv")?,
     );
-    pcuvd::simulate::vascular::parse_tables(&vertices, &edges, &boundary)
-        .with_context(|| format!("--vessel-tables {}", folder.display()))
+    pcuvd::simulate::vascular::parse_tables(&vertices, &edges, &boundary).with_context(|| {
+        format!(
+            "vessel tables ([vessels].tables, --vessel-tables) {}",
+            folder.display()
+        )
+    })
 }
 
-/// The rat brain's cortex: the generator's slab with a denser capillary bed (eight 10 µm paths of
-/// two segments from each arteriole terminal), which carries the flow that a real bed of many
-/// capillaries does: penetrating arterioles then run at a median PSV of 16 mm/s (90th percentile
-/// 27), capillaries 8, venules 7, with RI medians 0.73, 0.60 and 0.08 (the generator's default
-/// bed, two paths of three 8 µm segments, starves them: 4, 14 and 2 mm/s).
-fn brain_cortex(seed: u64) -> CortexParams {
-    CortexParams {
-        capillaries_per_terminal: 8,
-        capillary_segments: 2,
-        capillary_diameter: 10e-6,
-        seed,
-        ..CortexParams::default()
-    }
-}
-
-/// The tissue of `--tissue-db` `db` around `phantom`'s vessels, over the image of `params`: a
-/// sheet in the imaging plane, or for the rat brain (`tree`) a slab under a dura-like layer.
+/// The tissue `section` describes around `phantom`'s vessels (none inside them), over the image
+/// of `params`: a sheet in the imaging plane, or a slab in three dimensions.
 fn tissue(
-    args: &SimulationSettings,
-    db: f64,
+    scenario: &Scenario,
+    section: &TissueSection,
     phantom: &dyn Phantom,
     tree: Option<&TreePhantom>,
     params: &SimParams,
 ) -> Result<TissuePhantom> {
     let (x0, x1) = params.probe.aperture();
-    // Tissue below the preset's imaging depth would only cost time.
+    let x_range = section.x_range_m.unwrap_or([x0 - 1e-3, x1 + 1e-3]);
+    // Tissue below the deepest echo the receive window records would only cost time.
     let window = 0.5 * params.sound_speed * (params.t0 + params.window_duration());
-    let preset_depth: f64 = match args.preset {
-        Preset::RatNetwork | Preset::RatBrain => 13.5e-3,
-        _ => 14.5e-3,
+    let [top, bottom] = section.depth_m;
+    let slab = section.half_thickness_m > 0.0;
+    let density = match slab {
+        true => section
+            .density_per_m3
+            .unwrap_or(TissueSpec::DEFAULT_DENSITY_3D),
+        false => section
+            .density_per_m2
+            .unwrap_or(TissueSpec::DEFAULT_DENSITY_2D),
     };
-    let depth = preset_depth.min(window);
-    let motion = match args.tissue_motion {
-        TissueMotionChoice::Rat => TissueMotion::rat(),
-        TissueMotionChoice::Still => TissueMotion::still(),
-    };
-    // The brain's surface: the dura sits on the cortex, gel (anechoic) above it.
-    let top = match tree {
-        Some(_) => brain_cortex(0).surface_depth - 0.1e-3,
-        None => 0.5e-3,
-    };
-    let (half_thickness, density, blood_power_density) = match tree {
-        // The slab covers the elevation beam: the 1.5 mm strip's near field, 0.4 mm at its focus.
-        Some(_) => (
-            0.6e-3,
-            TissueSpec::DEFAULT_DENSITY_3D,
-            TreeSpec::default_blood().power_density,
-        ),
-        // Every two-dimensional phantom draws unit-variance amplitudes at 300 per mm².
-        None => (0.0, TissueSpec::DEFAULT_DENSITY_2D, 3e8),
-    };
-    let dura = Layer {
-        top,
-        thickness: 0.1e-3,
-        echogenicity_db: db + 10.0,
-    };
-    let (layers, anechoic) = match tree {
-        None => (vec![dura], Vec::new()),
-        // Below the cortex, a coronal section crosses the white matter (the corpus callosum,
-        // brighter) and the lateral ventricles (fluid: no echo).
-        Some(_) => {
-            let below = brain_cortex(0).surface_depth + brain_cortex(0).thickness;
-            let callosum = Layer {
-                top: below + 0.1e-3,
-                thickness: 0.2e-3,
-                echogenicity_db: db + 5.0,
-            };
-            let ventricle = |x: f64| Anechoic {
-                centre: [x, below + 0.6e-3],
-                radii: [0.7e-3, 0.15e-3],
-            };
-            (
-                vec![dura, callosum],
-                vec![ventricle(-1.6e-3), ventricle(1.6e-3)],
-            )
-        }
+    // The echogenicity is relative to the blood's echo power per unit area (volume).
+    let blood_power_density = match &scenario.vessels {
+        Vessels::Tree(_) => TreeSpec::default_blood().power_density,
+        // The two-dimensional phantoms draw unit-variance amplitudes at their density.
+        Vessels::Spiral(v) => v.density_per_m2,
+        Vessels::Tube(v) => v.density_per_m2,
+        Vessels::RatNetwork(_) => NetworkSpec::rat().density,
     };
     let spec = TissueSpec {
-        x_range: (x0 - 1e-3, x1 + 1e-3),
-        z_range: (top, depth),
-        half_thickness,
+        x_range: (x_range[0], x_range[1]),
+        z_range: (top, bottom.min(window)),
+        half_thickness: section.half_thickness_m,
         density,
-        echogenicity_db: db,
+        echogenicity_db: section.echogenicity_db,
         blood_power_density,
-        layers,
-        anechoic,
-        motion,
+        layers: section
+            .layers
+            .iter()
+            .map(|l| Layer {
+                top: l.top_m,
+                thickness: l.thickness_m,
+                echogenicity_db: l.echogenicity_db,
+            })
+            .collect(),
+        anechoic: section
+            .anechoic
+            .iter()
+            .map(|a| Anechoic {
+                centre: a.centre_m,
+                radii: a.radii_m,
+            })
+            .collect(),
+        motion: section.motion.motion(),
     };
     // A stream of its own: drawn from the vessels' seed itself, the tissue's positions would
     // repeat theirs.
-    let seed = args.seed ^ 0x7155_0e5e_ed00_0000;
+    let seed = scenario.seed ^ 0x7155_0e5e_ed00_0000;
     let drawn = match tree {
         // No tissue inside the vessels at t = 0 (they move with the tissue from there).
         None => TissuePhantom::new(spec, seed, |x, _, z| {
@@ -641,68 +748,50 @@ fn tissue(
             })
         }
     };
-    drawn.context("--tissue-db")
+    drawn.context("[tissue]")
 }
 
-/// The `tube` preset's vessel with the `--tube-*` options applied, peak speed `peak` (m/s).
-fn tube_spec(args: &SimulationSettings, peak: f64) -> Result<TubeSpec> {
-    let preset = TubeSpec::preset(peak);
-    let centre = match &args.tube_centre_mm {
-        None => preset.centre,
-        Some(text) => match parse_numbers(text).as_deref() {
-            Ok(&[x, z]) => [x * 1e-3, z * 1e-3],
-            _ => bail!("--tube-centre-mm {text:?}: expected two finite numbers \"x,z\" in mm"),
+/// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked. Both
+/// modes record the coded sequence's receive window, so that their noise levels match.
+fn mode_params(scenario: &Scenario, coded: bool) -> Result<SimParams> {
+    let s = &scenario.sequence;
+    let coded_sequence = Sequence {
+        angles: scenario.angles(),
+        event_prf: s.event_prf_hz,
+        coding: Coding::Hadamard {
+            slot_delay: s.slot_delay_s,
         },
+        pulse_cycles: s.pulse_cycles,
+        pulse: None,
     };
-    let positive_mm = |flag: &str, value: Option<f64>, default: f64| match value {
-        None => Ok(default),
-        Some(v) if v.is_finite() && v > 0.0 => Ok(v * 1e-3),
-        Some(v) => bail!("{flag} {v}: must be a finite length > 0 mm"),
-    };
-    let angle = match args.tube_angle_deg {
-        None => preset.angle,
-        Some(deg) if deg.is_finite() => deg.to_radians(),
-        Some(deg) => bail!("--tube-angle-deg {deg}: must be a finite number of degrees"),
-    };
-    Ok(TubeSpec {
-        centre,
-        angle,
-        length: positive_mm("--tube-length-mm", args.tube_length_mm, preset.length)?,
-        radius: positive_mm("--tube-radius-mm", args.tube_radius_mm, preset.radius)?,
-        profile: args.tube_profile.map_or(preset.profile, Into::into),
-        ..preset
-    })
-}
-
-/// The simulation settings of one transmit mode (Hadamard-coded when `coded`), checked.
-fn mode_params(args: &SimulationSettings, coded: bool, noise_db: Option<f64>) -> Result<SimParams> {
-    let mut params: SimParams = match args.preset {
-        Preset::RatNetwork | Preset::RatBrain => simulate::rat_params(true)?,
-        _ => simulate::paper_spiral_params(true)?,
-    };
-    if args.preset == Preset::RatBrain {
-        params.elevation = Some(ElevationAperture::l22_14vx());
-    }
-    params.sequence = Sequence {
-        angles: Sequence::evenly_spaced_angles(args.angles, 15f64.to_radians()),
-        coding: if coded {
-            Coding::Hadamard {
-                slot_delay: args.slot_delay_us * 1e-6,
-            }
-        } else {
-            Coding::Conventional
-        },
-        ..params.sequence
-    };
-    params
-        .sequence
+    coded_sequence
         .validate()
-        .context("--angles / --slot-delay-us")?;
-    params.seed = args.seed;
-    params.noise = noise_db.map(NoiseSpec::new);
-    params.validate().context("--slot-delay-us")?;
+        .context("[sequence] (--angles / --slot-delay-us)")?;
+    let [near, far] = scenario.receive.depth_m;
+    let mut params = SimParams::new(
+        scenario.probe()?,
+        coded_sequence,
+        scenario.receive.sampling_frequency_hz,
+        scenario.medium.sound_speed_m_s,
+        (near, far),
+    )
+    .context("[receive]")?;
+    if !coded {
+        params.sequence.coding = Coding::Conventional;
+    }
+    params.attenuation_db_cm_mhz = scenario.medium.attenuation_db_cm_mhz;
+    params.frequency_dependent_attenuation = scenario.medium.frequency_dependent_attenuation;
+    params.elevation = scenario.elevation();
+    params.seed = scenario.seed;
+    params.noise = scenario
+        .noise
+        .as_ref()
+        .map(|noise| NoiseSpec::new(noise.level_db));
+    params.validate().context("the scenario's acquisition")?;
     Ok(params)
 }
+#[cfg(test)]
+mod scenario_tests;
 
 #[cfg(test)]
 mod tests {
@@ -720,14 +809,42 @@ mod tests {
         testing::reads_back_and_refuses_unknown_keys(&SimulationSettings::default());
     }
 
+    /// SHA-256 of the little-endian f32 samples of the first `frames` frames of `preset`,
+    /// conventional then coded.
+    fn sample_digests(preset: Preset, frames: usize) -> Vec<String> {
+        use sha2::Digest;
+        let simulation = Simulation::new(&SimulationSettings {
+            preset: Some(preset),
+            frames: Some(frames),
+            ..SimulationSettings::default()
+        })
+        .unwrap();
+        (0..simulation.modes.len())
+            .map(|index| {
+                let data = simulation.recording(index, &|_, _| {}).unwrap();
+                let pcuvd::Samples::Rf(rf) = &data.samples else {
+                    panic!("the simulator writes RF");
+                };
+                let mut hasher = sha2::Sha256::new();
+                for v in rf.iter() {
+                    hasher.update(v.to_le_bytes());
+                }
+                hasher
+                    .finalize()
+                    .iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect()
+            })
+            .collect()
+    }
+
     #[test]
     fn every_preset_gives_the_samples_it_gave_before_tissue_and_elevation() {
-        // SHA-256 of the little-endian f32 samples of two frames of each preset, conventional
-        // then coded, as pcuvd simulated them before the third dimension, tissue and keyframes
-        // existed (commit ead5e0c): the presets keep their two-dimensional model bit for bit.
+        // Two frames of each preset, conventional then coded, as pcuvd simulated them before
+        // the third dimension, tissue, keyframes and scenario files existed (commit ead5e0c):
+        // the presets, now shipped scenario files, keep their two-dimensional model bit for bit.
         // (The simulator is bit-identical whatever the thread count; these values assume an
         // x86-64 CPU with AVX2 and FMA, as every machine that runs the tests has.)
-        use sha2::Digest;
         let expected = [
             (
                 Preset::PaperSpiral,
@@ -746,32 +863,25 @@ mod tests {
             ),
         ];
         for (preset, conventional, coded) in expected {
-            let simulation = Simulation::new(&SimulationSettings {
-                preset,
-                frames: Some(2),
-                ..SimulationSettings::default()
-            })
-            .unwrap();
-            for (index, expected) in [conventional, coded].into_iter().enumerate() {
-                let data = simulation.recording(index, &|_, _| {}).unwrap();
-                let pcuvd::Samples::Rf(rf) = &data.samples else {
-                    panic!("the simulator writes RF");
-                };
-                let mut hasher = sha2::Sha256::new();
-                for v in rf.iter() {
-                    hasher.update(v.to_le_bytes());
-                }
-                let digest: String = hasher
-                    .finalize()
-                    .iter()
-                    .map(|b| format!("{b:02x}"))
-                    .collect();
-                assert_eq!(
-                    digest, expected,
-                    "{preset:?}, {}",
-                    simulation.modes[index].0
-                );
-            }
+            assert_eq!(
+                sample_digests(preset, 2),
+                [conventional, coded],
+                "{preset:?}"
+            );
         }
+    }
+
+    #[test]
+    #[ignore = "slow: the rat brain's tree, tissue and elevation table (about 20 s)"]
+    fn the_rat_brain_scenario_gives_the_samples_the_preset_gave() {
+        // Two frames, as `--preset rat-brain` simulated them before it became a scenario file
+        // (commit 2c686dc): the file's every key reproduces the preset's code to the bit.
+        assert_eq!(
+            sample_digests(Preset::RatBrain, 2),
+            [
+                "c02fcfa66e4bff2e9a4c617a8c097d658a2e8d304ece82874874b53ad143b1a4",
+                "06da53504d015893059fbad6a4de5c4de126cdc1a126b2f667b3df51baabbf71",
+            ]
+        );
     }
 }

@@ -20,8 +20,16 @@ const TRUTH_FILES: [&str; 5] = [
     "truth_vz.npy",
     "truth_mask.npy",
 ];
-/// Ground-truth files of the tissue's motion (with `--tissue-db`): velocity at t = 0 (m/s).
-const TISSUE_TRUTH_FILES: [&str; 2] = ["truth_tissue_vx.npy", "truth_tissue_vz.npy"];
+/// Ground-truth files of the tissue's motion (with tissue): velocity at t = 0 (m/s), and the
+/// displacement from t = 0 (m) at each frame, (frames, depths, 3: x, y, z).
+const TISSUE_TRUTH_FILES: [&str; 3] = [
+    "truth_tissue_vx.npy",
+    "truth_tissue_vz.npy",
+    "truth_tissue_displacement.npy",
+];
+/// The scenario simulated, every option applied: `pcuvd simulate --scenario` of this file
+/// simulates the same recordings again.
+const SCENARIO_FILE: &str = "scenario.toml";
 /// Ground-truth files of a phantom in three dimensions: out-of-plane velocity (m/s) and the
 /// blood's share of each pixel's elevation beam.
 const ELEVATION_TRUTH_FILES: [&str; 2] = ["truth_vy.npy", "truth_blood_fraction.npy"];
@@ -103,6 +111,14 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         simulation.tissue.is_some(),
         simulation.tree.is_some(),
     )?;
+    // Written last, so that an interrupted run leaves no scenario beside half-written recordings.
+    let scenario = args.out.join(SCENARIO_FILE);
+    match std::fs::remove_file(&scenario) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("{}: cannot remove it", scenario.display()));
+        }
+        _ => {}
+    }
     let events_of =
         |params: &pcuvd::simulate::SimParams| simulation.frames * params.sequence.n_angles();
     let mut writers = simulation
@@ -186,9 +202,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 pcuvd_io::write_npy(&fraction_path, fraction)?;
             }
             if let Some(tissue) = &truth.tissue {
-                let [vx, vz] = TISSUE_TRUTH_FILES.map(|name| args.out.join(name));
+                let [vx, vz, displacement] = TISSUE_TRUTH_FILES.map(|name| args.out.join(name));
                 pcuvd_io::write_npy(&vx, &tissue.velocity[0])?;
                 pcuvd_io::write_npy(&vz, &tissue.velocity[2])?;
+                if let Some(moved) = simulation.tissue_displacement(&truth.z) {
+                    pcuvd_io::write_npy(&displacement, &moved)?;
+                }
             }
             println!(
                 "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
@@ -196,5 +215,14 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             );
         }
     }
+    let text = format!(
+        "# The scenario `pcuvd simulate` simulated here (from {}, every option applied):\n\
+         # `pcuvd simulate --scenario {SCENARIO_FILE}` simulates the same recordings again.\n\n{}",
+        simulation.source,
+        simulation.scenario.to_toml()?
+    );
+    std::fs::write(&scenario, text)
+        .with_context(|| format!("{}: cannot write the scenario", scenario.display()))?;
+    println!("wrote {} (the scenario simulated)", scenario.display());
     Ok(())
 }

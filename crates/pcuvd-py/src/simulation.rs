@@ -18,8 +18,10 @@ pub(crate) fn simulate<'py>(
     type Made = (
         Vec<(String, ChannelData, toml::Table)>,
         pcuvd_app::simulation::SimulatedTruth,
+        Option<ndarray::Array3<f64>>,
+        String,
     );
-    let (recordings, truth) = py
+    let (recordings, truth, displacement, scenario) = py
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             let mut made = Vec::new();
@@ -30,7 +32,8 @@ pub(crate) fn simulate<'py>(
                 made.push((name.to_string(), data, simulation.provenance(index)));
             }
             let truth = simulation.truth(&made[0].1)?;
-            Ok((made, truth))
+            let displacement = simulation.tissue_displacement(&truth.z);
+            Ok((made, truth, displacement, simulation.scenario.to_toml()?))
         })
         .map_err(to_py)?;
     let dict = PyDict::new(py);
@@ -54,6 +57,10 @@ pub(crate) fn simulate<'py>(
         dict.set_item("tissue_vx", tissue.velocity[0].to_pyarray(py))?;
         dict.set_item("tissue_vz", tissue.velocity[2].to_pyarray(py))?;
     }
+    if let Some(displacement) = &displacement {
+        dict.set_item("tissue_displacement", displacement.to_pyarray(py))?;
+    }
+    dict.set_item("scenario", scenario)?;
     let recordings = recordings
         .into_iter()
         .map(|(name, data, provenance)| {

@@ -1,0 +1,187 @@
+use super::*;
+
+/// The shipped rat brain with `edit` applied to its text.
+fn brain_with(edit: impl Fn(&str) -> String) -> Result<Scenario> {
+    let (_, text) = SHIPPED.iter().find(|(n, _)| *n == "rat-brain").unwrap();
+    Scenario::parse(&edit(text))
+}
+
+/// The error `text` gives, on one line with its causes.
+fn refusal(text: &str) -> String {
+    crate::one_line(&Scenario::parse(text).unwrap_err())
+}
+
+/// A small scenario: a tube, two angles, one frame, conventional, no noise.
+pub(crate) const SMALL: &str = r#"
+[probe]
+preset = "L22-14vX"
+[sequence]
+transmit = "conventional"
+angles = 2
+event_prf_hz = 1e4
+slot_delay_s = 1e-6
+pulse_cycles = 2.0
+frames = 1
+[receive]
+sampling_frequency_hz = 65e6
+depth_m = [5e-3, 11e-3]
+[vessels]
+kind = "tube"
+"#;
+
+#[test]
+fn every_shipped_scenario_reads_back_from_the_toml_it_writes() {
+    for (name, _) in SHIPPED {
+        let scenario = Scenario::shipped(name).unwrap();
+        let text = scenario.to_toml().unwrap();
+        assert_eq!(Scenario::parse(&text).unwrap(), scenario, "{name}:\n{text}");
+    }
+}
+
+#[test]
+fn a_section_left_out_takes_its_documented_defaults() {
+    let scenario = Scenario::parse(SMALL).unwrap();
+    assert_eq!(scenario.seed, 1);
+    assert_eq!(scenario.medium, MediumSection::default());
+    assert_eq!(scenario.vessels, Vessels::Tube(TubeSection::default()));
+    assert!(scenario.noise.is_none() && scenario.tissue.is_none());
+    // The evenly spaced angles span ±15° unless told otherwise.
+    let angles = scenario.angles();
+    assert_eq!(angles.len(), 2);
+    assert!((angles[1] - 15f64.to_radians()).abs() < 1e-15);
+}
+
+#[test]
+fn the_rat_brains_written_motion_is_the_rat_motion() {
+    // The shipped file spells the rat's heartbeat and breathing out key by key; they must be
+    // the motion `TissueMotion::rat()` defines, to the bit.
+    let brain = Scenario::shipped("rat-brain").unwrap();
+    let motion = brain.tissue.unwrap().motion.motion();
+    assert_eq!(motion, pcuvd::simulate::phantom::TissueMotion::rat());
+}
+
+#[test]
+fn unknown_keys_are_refused_by_name_in_every_section() {
+    let cases = [
+        ("seed = 1\n", "seeds = 1\n", "seeds"),
+        (
+            "preset = \"L22-14vX\"\n",
+            "preset = \"L22-14vX\"\ncolour = 1\n",
+            "colour",
+        ),
+        ("frames = 360\n", "frames = 360\nrepeats = 2\n", "repeats"),
+        (
+            "kind = \"tree\"",
+            "kind = \"tree\"\nbranches = 4",
+            "branches",
+        ),
+        (
+            "top_m = 0.9e-3\n",
+            "top_m = 0.9e-3\nbottom_m = 1e-3\n",
+            "bottom_m",
+        ),
+        (
+            "phase_rad = 0.5\n",
+            "phase_rad = 0.5\nphase_deg = 30\n",
+            "phase_deg",
+        ),
+    ];
+    for (from, to, key) in cases {
+        let error = crate::one_line(&brain_with(|t| t.replacen(from, to, 1)).unwrap_err());
+        assert!(error.contains(key), "{key}: {error}");
+    }
+    let error = crate::one_line(&brain_with(|t| t.replace("\"tree\"", "\"forest\"")).unwrap_err());
+    assert!(error.contains("forest"), "{error}");
+}
+
+#[test]
+fn out_of_range_values_are_refused_by_their_key() {
+    let cases = [
+        (
+            "preset = \"L22-14vX\"\n",
+            "preset = \"L22-14vX\"\npitch_m = -1e-4\n",
+            "[probe].pitch_m",
+        ),
+        (
+            "preset = \"L22-14vX\"\n",
+            "preset = \"L99\"\n",
+            "[probe].preset",
+        ),
+        ("frames = 360", "frames = 0", "[sequence].frames"),
+        (
+            "event_prf_hz = 14.4e3",
+            "event_prf_hz = -1.0",
+            "[sequence].event_prf_hz",
+        ),
+        (
+            "depth_m = [0.0, 13e-3]",
+            "depth_m = [13e-3, 1e-3]",
+            "[receive].depth_m",
+        ),
+        ("level_db = -10.0", "level_db = nan", "[noise].level_db"),
+        (
+            "max_angle_deg = 15.0",
+            "max_angle_deg = 95.0",
+            "[sequence].max_angle_deg",
+        ),
+        (
+            "capillary_segments = 2",
+            "capillary_segments = 0",
+            "[vessels].capillary_segments",
+        ),
+        (
+            "thickness_m = 0.1e-3",
+            "thickness_m = 0.0",
+            "[[tissue.layers]].thickness_m",
+        ),
+        ("frequency_hz = 5.5", "frequency_hz = -5.5", "frequency_hz"),
+        (
+            "radii_m = [0.7e-3, 0.15e-3]",
+            "radii_m = [0.7e-3, 0.0]",
+            "[[tissue.anechoic]].radii_m",
+        ),
+        (
+            "sound_speed_m_s = 1540.0",
+            "sound_speed_m_s = 0.0",
+            "[medium].sound_speed_m_s",
+        ),
+    ];
+    for (from, to, key) in cases {
+        let edited = brain_with(|t| {
+            assert!(t.contains(from), "{from}");
+            t.replacen(from, to, 1)
+        });
+        let error = crate::one_line(&edited.unwrap_err());
+        assert!(error.contains(key), "{key}: {error}");
+    }
+}
+
+#[test]
+fn what_goes_together_is_refused_apart() {
+    // A tree or a slab of tissue lies in three dimensions: without the elevation it cannot.
+    let flat = |t: &str| t.replace("element_height_m = 1.5e-3", "");
+    let error = crate::one_line(&brain_with(flat).unwrap_err());
+    assert!(error.contains("elevation_focus_m"), "{error}");
+    let no_elevation = |t: &str| {
+        t.replace("element_height_m = 1.5e-3", "")
+            .replace("elevation_focus_m = 8e-3", "")
+    };
+    let error = crate::one_line(&brain_with(no_elevation).unwrap_err());
+    assert!(error.contains("three dimensions"), "{error}");
+    let both_angles = SMALL.replace("angles = 2", "angles = 2\nangles_deg = [0.0]");
+    assert!(refusal(&both_angles).contains("angles_deg"));
+    let sheet_density = SMALL.to_string()
+        + "[tissue]\nechogenicity_db = 40.0\ndepth_m = [1e-3, 9e-3]\ndensity_per_m3 = 1e12\n";
+    assert!(refusal(&sheet_density).contains("density_per_m3"));
+    let missing = SMALL.replace("preset = \"L22-14vX\"", "n_elements = 16");
+    assert!(refusal(&missing).contains("[probe].pitch_m is missing"));
+}
+
+#[test]
+fn an_unknown_scenario_name_lists_the_shipped_ones() {
+    let error = Scenario::load("rat-heart").unwrap_err().to_string();
+    assert!(
+        error.contains("rat-brain") && error.contains("paper-spiral"),
+        "{error}"
+    );
+}

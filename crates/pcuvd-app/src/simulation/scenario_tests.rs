@@ -1,0 +1,94 @@
+//! The command's options over a scenario, and a scenario file simulated.
+
+use super::*;
+use crate::scenario::tests::SMALL;
+
+#[test]
+fn the_options_override_the_scenario() {
+    let settings = |edit: fn(&mut SimulationSettings)| {
+        let mut s = SimulationSettings {
+            preset: Some(crate::simulation::Preset::RatBrain),
+            ..SimulationSettings::default()
+        };
+        edit(&mut s);
+        s.scenario()
+    };
+    // --tissue-db moves the parenchyma and keeps the layers' contrast to it.
+    let brighter = settings(|s| s.tissue_db = Some(55.0)).unwrap();
+    let tissue = brighter.tissue.unwrap();
+    assert_eq!(tissue.echogenicity_db, 55.0);
+    let layers: Vec<f64> = tissue.layers.iter().map(|l| l.echogenicity_db).collect();
+    assert_eq!(layers, [65.0, 60.0]);
+    let still = settings(|s| s.tissue_motion = Some(TissueMotionChoice::Still)).unwrap();
+    assert!(
+        still
+            .tissue
+            .unwrap()
+            .motion
+            .motion()
+            .oscillations
+            .is_empty()
+    );
+    let error = settings(|s| s.tube_radius_mm = Some(1.0))
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("--tube-radius-mm"), "{error}");
+    let error = settings(|s| s.scenario = Some("tube".into()))
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("not both"), "{error}");
+    // --angles replaces the scenario's angles whichever way they were given.
+    let listed = Scenario::parse(&SMALL.replace("angles = 2", "angles_deg = [-5.0, 5.0]")).unwrap();
+    let mut scenario = listed.clone();
+    SimulationSettings {
+        angles: Some(4),
+        ..SimulationSettings::default()
+    }
+    .apply_to(&mut scenario)
+    .unwrap();
+    assert_eq!(
+        (scenario.sequence.angles, scenario.sequence.angles_deg),
+        (Some(4), None)
+    );
+}
+
+#[test]
+fn a_scenario_file_simulates_what_it_wrote_and_names_its_tables_from_its_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("small.toml");
+    std::fs::write(&path, SMALL).unwrap();
+    let samples = |source: &str| {
+        let simulation = Simulation::new(&SimulationSettings {
+            scenario: Some(source.into()),
+            ..SimulationSettings::default()
+        })
+        .unwrap();
+        let data = simulation.recording(0, &|_, _| {}).unwrap();
+        (simulation.scenario, data.samples)
+    };
+    let (scenario, first) = samples(path.to_str().unwrap());
+    // The scenario a simulation reports, written and read back, simulates the same samples.
+    let again = dir.path().join("again.toml");
+    std::fs::write(&again, scenario.to_toml().unwrap()).unwrap();
+    let (_, second) = samples(again.to_str().unwrap());
+    assert!(
+        first == second,
+        "the written scenario simulates other samples"
+    );
+    let tree = "[vessels]\nkind = \"tree\"\ntables = \"vessels\"\n";
+    let with_tree = SMALL.replace("[vessels]\nkind = \"tube\"\n", tree).replace(
+        "preset = \"L22-14vX\"",
+        "preset = \"L22-14vX\"\nelement_height_m = 1.5e-3\nelevation_focus_m = 8e-3",
+    );
+    let sub = dir.path().join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    std::fs::write(sub.join("tree.toml"), with_tree).unwrap();
+    let read = Scenario::read(&sub.join("tree.toml")).unwrap();
+    let Vessels::Tree(tree) = &read.vessels else {
+        panic!("a tree")
+    };
+    assert_eq!(
+        std::path::Path::new(tree.tables.as_deref().unwrap()),
+        sub.join("vessels")
+    );
+}
