@@ -185,6 +185,11 @@ pub struct ReceiveSection {
     /// Depths (m) whose whole echo every trace holds, for every angle, slot and element of the
     /// coded sequence: both transmit modes record the same window.
     pub depth_m: [f64; 2],
+    /// Level (dB of its peak) below which the echo waveform's tails are left out, in (−120,
+    /// −20]; absent: −70.5 dB. With tissue L dB brighter than blood, a level below −L dB keeps
+    /// the tissue's lost tails under the blood's echo, at the cost of longer convolutions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waveform_truncation_db: Option<f64>,
 }
 
 /// `[noise]`: white receiver noise.
@@ -701,6 +706,15 @@ impl Scenario {
             self.receive.sampling_frequency_hz,
         )?;
         increasing("[receive].depth_m", self.receive.depth_m, true)?;
+        if let Some(db) = self.receive.waveform_truncation_db
+            && !(db.is_finite() && db > -120.0 && db <= -20.0)
+        {
+            return Err(refuse(
+                "[receive].waveform_truncation_db",
+                db,
+                "must lie in (-120, -20] dB",
+            ));
+        }
         if let Some(noise) = &self.noise {
             finite("[noise].level_db", noise.level_db)?;
         }
@@ -903,6 +917,15 @@ impl Scenario {
             })?,
             bandwidth: pick(p.bandwidth, "bandwidth", |probe| probe.bandwidth)?,
         })
+    }
+
+    /// The level (fraction of its peak) at which the echo waveform is truncated.
+    pub fn waveform_truncation(&self) -> f64 {
+        self.receive
+            .waveform_truncation_db
+            .map_or(pcuvd::simulate::EchoWaveform::DEFAULT_TRUNCATION, |db| {
+                10f64.powf(db / 20.0)
+            })
     }
 
     /// The elevation aperture, when the probe has one.

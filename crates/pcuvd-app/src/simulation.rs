@@ -768,12 +768,13 @@ fn mode_params(scenario: &Scenario, coded: bool) -> Result<SimParams> {
         .validate()
         .context("[sequence] (--angles / --slot-delay-us)")?;
     let [near, far] = scenario.receive.depth_m;
-    let mut params = SimParams::new(
+    let mut params = SimParams::new_truncated(
         scenario.probe()?,
         coded_sequence,
         scenario.receive.sampling_frequency_hz,
         scenario.medium.sound_speed_m_s,
         (near, far),
+        scenario.waveform_truncation(),
     )
     .context("[receive]")?;
     if !coded {

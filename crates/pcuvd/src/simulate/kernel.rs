@@ -101,7 +101,12 @@ struct SlotGeometry {
 impl Simulator {
     pub(crate) fn new(params: &SimParams) -> Result<Self> {
         let probe = &params.probe;
-        let wf = EchoWaveform::for_sequence(probe, &params.sequence, params.sampling_frequency)?;
+        let wf = EchoWaveform::for_sequence_truncated(
+            probe,
+            &params.sequence,
+            params.sampling_frequency,
+            params.waveform_truncation,
+        )?;
         let c = params.sound_speed;
         let lambda = probe.wavelength(c);
         let kappa = params.attenuation_db_cm_mhz * (probe.center_frequency / 1e6) * 100.0

@@ -122,6 +122,9 @@ pub struct SimParams {
     /// three-dimensional: a scatterer's elevation y sets its echo's amplitude and delay
     /// ([`elevation`]). `None`: the two-dimensional model, every scatterer in the imaging plane.
     pub elevation: Option<ElevationAperture>,
+    /// Level (fraction of the peak) below which the echo waveform's tails are left out
+    /// ([`EchoWaveform::DEFAULT_TRUNCATION`], −70.5 dB, unless a brighter medium asks for less).
+    pub waveform_truncation: f64,
 }
 
 impl SimParams {
@@ -138,8 +141,33 @@ impl SimParams {
         sound_speed: f64,
         depth: (f64, f64),
     ) -> Result<Self> {
-        let (t0, n_samples) =
-            receive_window(&probe, &sequence, sampling_frequency, sound_speed, depth)?;
+        Self::new_truncated(
+            probe,
+            sequence,
+            sampling_frequency,
+            sound_speed,
+            depth,
+            EchoWaveform::DEFAULT_TRUNCATION,
+        )
+    }
+
+    /// [`SimParams::new`] with the echo waveform truncated at `truncation` of its peak (see
+    /// [`EchoWaveform::for_sequence_truncated`]): the receive window holds the longer echo.
+    pub fn new_truncated(
+        probe: Probe,
+        sequence: Sequence,
+        sampling_frequency: f64,
+        sound_speed: f64,
+        depth: (f64, f64),
+        truncation: f64,
+    ) -> Result<Self> {
+        let (t0, n_samples) = receive_window(
+            &probe,
+            &sequence,
+            (sampling_frequency, truncation),
+            sound_speed,
+            depth,
+        )?;
         Ok(SimParams {
             probe,
             sequence,
@@ -152,6 +180,7 @@ impl SimParams {
             noise: None,
             seed: 0,
             elevation: None,
+            waveform_truncation: truncation,
         })
     }
 
@@ -273,12 +302,13 @@ impl SimParams {
 }
 
 /// Receive window (t0 (s), samples) that holds, for every angle, slot offset and element, the
-/// whole echo of any point with depth in `depth` = (z_min, z_max) (m) and lateral position within
-/// the array's aperture. t0 is on the sample grid and never negative.
+/// whole echo (down to `truncation` of its peak) of any point with depth in `depth` = (z_min,
+/// z_max) (m) and lateral position within the array's aperture, sampled at `sampling_frequency`
+/// (Hz). t0 is on the sample grid and never negative.
 pub fn receive_window(
     probe: &Probe,
     sequence: &Sequence,
-    sampling_frequency: f64,
+    (sampling_frequency, truncation): (f64, f64),
     sound_speed: f64,
     depth: (f64, f64),
 ) -> Result<(f64, usize)> {
@@ -296,7 +326,9 @@ pub fn receive_window(
             ),
         ));
     }
-    let half = EchoWaveform::for_sequence(probe, sequence, sampling_frequency)?.half_duration();
+    let half =
+        EchoWaveform::for_sequence_truncated(probe, sequence, sampling_frequency, truncation)?
+            .half_duration();
     let c = sound_speed;
     let (x0, x1) = probe.aperture();
     let width = x1 - x0;

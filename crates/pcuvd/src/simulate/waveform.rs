@@ -36,26 +36,28 @@ pub struct EchoWaveform {
     fine_origin: usize,
     half_duration: f64,
     peak_offset: f64,
+    truncation: f64,
 }
 
 /// Coefficients per tap of the Farrow (polynomial in the sub-sample delay) form: degree 7.
 pub(crate) const FARROW_TERMS: usize = 8;
 
-/// Relative level (of the peak) below which the waveform's tails are left out of its span:
-/// 3·10⁻⁴, −70.5 dB. Why this level: it lies 60 dB below the presets' receiver noise (−10 dB at
-/// the quietest), and no phantom holds echoes far brighter than its blood (no tissue) that could
-/// lift the lost tails above it. A lower level costs taps (10⁻⁴ takes the paper's L22-14vX
-/// 2-cycle echo from 24 to 32 taps, a third more convolution work) and widens every receive
-/// window.
-const TRUNCATION: f64 = 3e-4;
-
 impl EchoWaveform {
+    /// Default relative level (of the peak) below which the waveform's tails are left out of its
+    /// span: 3·10⁻⁴, −70.5 dB. Why this level: it lies 60 dB below the presets' receiver noise
+    /// (−10 dB at the quietest), and blood alone holds no echoes far brighter than itself that could
+    /// lift the lost tails above it. A lower level costs taps (10⁻⁴ takes the paper's L22-14vX
+    /// 2-cycle echo from 24 to 32 taps, a third more convolution work) and widens every receive
+    /// window; with tissue far brighter than blood a scenario may ask for one
+    /// ([`EchoWaveform::for_sequence_truncated`]).
+    pub const DEFAULT_TRUNCATION: f64 = 3e-4;
+
     /// Sub-sample phases of the polyphase table (per sample period).
     pub const PHASES: usize = 64;
 
     /// The echo waveform of `probe` for a pulse of `pulse_cycles` cycles, sampled at `fs` (Hz).
     pub fn new(probe: &Probe, pulse_cycles: f64, fs: f64) -> Result<Self> {
-        Self::build(probe, pulse_cycles, fs, 0.0, None)
+        Self::build(probe, pulse_cycles, fs, 0.0, None, Self::DEFAULT_TRUNCATION)
     }
 
     /// The same echo after frequency-dependent attenuation over a path whose attenuation is
@@ -73,8 +75,17 @@ impl EchoWaveform {
             ));
         }
         match &sequence.pulse {
-            Some(pulse) => Self::pulse_echo(probe, pulse, self.fs, tilt, Some(self)),
-            None => Self::build(probe, sequence.pulse_cycles, self.fs, tilt, Some(self)),
+            Some(pulse) => {
+                Self::pulse_echo(probe, pulse, self.fs, tilt, Some(self), self.truncation)
+            }
+            None => Self::build(
+                probe,
+                sequence.pulse_cycles,
+                self.fs,
+                tilt,
+                Some(self),
+                self.truncation,
+            ),
         }
     }
 
@@ -84,6 +95,7 @@ impl EchoWaveform {
         fs: f64,
         tilt: f64,
         like: Option<&EchoWaveform>,
+        truncation: f64,
     ) -> Result<Self> {
         probe.validate()?;
         require_positive("pulse cycles", pulse_cycles)?;
@@ -134,15 +146,32 @@ impl EchoWaveform {
             let d = (freq(k).abs() - fc) / sigma_f;
             *v *= (-0.5 * d * d).exp() / n as f64;
         }
-        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like, truncation)
     }
 
     /// The echo waveform of `probe` for the transmit pulse of `sequence` (its sampled
     /// [`TransmitPulse`] when it has one, else a burst of `pulse_cycles` cycles), sampled at `fs`.
     pub fn for_sequence(probe: &Probe, sequence: &Sequence, fs: f64) -> Result<Self> {
+        Self::for_sequence_truncated(probe, sequence, fs, Self::DEFAULT_TRUNCATION)
+    }
+
+    /// [`EchoWaveform::for_sequence`], its span holding every sample above `truncation` of its
+    /// peak (a fraction in (10⁻⁶, 0.1]; [`Self::DEFAULT_TRUNCATION`] is −70.5 dB).
+    pub fn for_sequence_truncated(
+        probe: &Probe,
+        sequence: &Sequence,
+        fs: f64,
+        truncation: f64,
+    ) -> Result<Self> {
+        if !(truncation > 1e-6 && truncation <= 0.1) {
+            return Err(invalid(
+                "waveform truncation",
+                format!("{truncation:e} of the peak: must lie in (10⁻⁶, 0.1] (−120 to −20 dB)"),
+            ));
+        }
         match &sequence.pulse {
-            Some(pulse) => Self::from_pulse(probe, pulse, fs),
-            None => Self::new(probe, sequence.pulse_cycles, fs),
+            Some(pulse) => Self::pulse_echo(probe, pulse, fs, 0.0, None, truncation),
+            None => Self::build(probe, sequence.pulse_cycles, fs, 0.0, None, truncation),
         }
     }
 
@@ -151,7 +180,7 @@ impl EchoWaveform {
     /// with its time origin moved to the envelope peak, so that an echo arriving at τ peaks at τ
     /// as the default pulse's does.
     pub fn from_pulse(probe: &Probe, pulse: &TransmitPulse, fs: f64) -> Result<Self> {
-        Self::pulse_echo(probe, pulse, fs, 0.0, None)
+        Self::pulse_echo(probe, pulse, fs, 0.0, None, Self::DEFAULT_TRUNCATION)
     }
 
     /// [`EchoWaveform::from_pulse`], attenuated by `tilt` and tabulated like `like` as
@@ -162,6 +191,7 @@ impl EchoWaveform {
         fs: f64,
         tilt: f64,
         like: Option<&EchoWaveform>,
+        truncation: f64,
     ) -> Result<Self> {
         probe.validate()?;
         pulse.validate()?;
@@ -243,7 +273,7 @@ impl EchoWaveform {
                 2.0 * std::f64::consts::PI * freq(k) * t_peak,
             );
         }
-        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like)
+        Self::from_spectrum(fs, spec, origin, &mut planner, (fc, tilt), like, truncation)
     }
 
     /// The tables from the echo's spectrum `spec` on the fine grid (PHASES·`fs`, its time origin
@@ -257,6 +287,7 @@ impl EchoWaveform {
         planner: &mut FftPlanner<f64>,
         (fc, tilt): (f64, f64),
         like: Option<&EchoWaveform>,
+        truncation: f64,
     ) -> Result<Self> {
         let p = Self::PHASES;
         let fine_rate = fs * p as f64;
@@ -305,10 +336,10 @@ impl EchoWaveform {
             .max_by(|a, b| a.1.norm().total_cmp(&b.1.norm()))
             .map_or(origin, |(i, _)| i);
         let peak_offset = (env_peak as f64 - origin as f64) / fine_rate;
-        let lo = fine.iter().position(|v| v.abs() > TRUNCATION).unwrap_or(0);
+        let lo = fine.iter().position(|v| v.abs() > truncation).unwrap_or(0);
         let hi = fine
             .iter()
-            .rposition(|v| v.abs() > TRUNCATION)
+            .rposition(|v| v.abs() > truncation)
             .unwrap_or(n - 1);
         let half_fine = like.map_or((origin - lo).max(hi - origin), |w| w.half_fine);
         let half_duration = half_fine as f64 / fine_rate;
@@ -384,6 +415,7 @@ impl EchoWaveform {
             fine_origin: origin,
             half_duration,
             peak_offset,
+            truncation,
         })
     }
 
@@ -500,45 +532,59 @@ mod tests {
         }
     }
 
-    /// The truncation level: `half_duration` is where |w| last exceeds TRUNCATION of its peak, and
-    /// the tabulated rows hold every sample above that level.
+    /// The truncation level: `half_duration` is where |w| last exceeds the level of its peak, and
+    /// the tabulated rows hold every sample above that level; at the default level and at a
+    /// tighter one a scenario may ask for.
     #[test]
-    fn truncated_at_the_documented_level() {
+    fn truncated_at_the_level_asked_for() {
         // 3·10⁻⁴ of the peak is −70.5 dB (what the docs say).
-        assert!((20.0 * TRUNCATION.log10() + 70.46).abs() < 0.01);
-        for (probe, fs, cycles) in [
-            (Probe::l22_14vx(), 65e6, 2.0),
-            (Probe::l11_5v(), 31.25e6, 2.0),
-            (Probe::l22_14vx(), 65e6, 4.0),
-        ] {
-            let wf = EchoWaveform::new(&probe, cycles, fs).unwrap();
-            let fine_rate = fs * EchoWaveform::PHASES as f64;
-            let edge = (wf.half_duration() * fine_rate).round() as usize;
-            let (lo, hi) = (wf.fine_origin - edge, wf.fine_origin + edge);
-            // Beyond ±half_duration the waveform never exceeds the level...
-            let outside = wf.fine[..lo]
-                .iter()
-                .chain(&wf.fine[hi + 1..])
-                .fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(outside <= TRUNCATION, "{}: {outside:e} outside", probe.name);
-            // ... and at one of its ends it does: half_duration is no longer than needed.
-            let at_edge = wf.fine[lo].abs().max(wf.fine[hi].abs());
-            assert!(
-                at_edge > TRUNCATION,
-                "{}: {at_edge:e} at the edge",
-                probe.name
-            );
-            // Every polyphase row spans [−half_duration, half_duration]: the first tap of row 0
-            // is at −origin_tap samples, the last tap of the last row (delay 1 sample) at
-            // taps − 1 − origin_tap − 1 samples.
-            let h = wf.half_duration() * fs;
-            assert!(wf.origin_tap() as f64 >= h, "{}", probe.name);
-            assert!(
-                (wf.taps() - 2 - wf.origin_tap()) as f64 >= h,
-                "{}",
-                probe.name
-            );
+        assert!((20.0 * EchoWaveform::DEFAULT_TRUNCATION.log10() + 70.46).abs() < 0.01);
+        let sequence = |cycles| Sequence {
+            angles: vec![0.0],
+            event_prf: 1e4,
+            coding: crate::acquisition::sequence::Coding::Conventional,
+            pulse_cycles: cycles,
+            pulse: None,
+        };
+        let mut spans = Vec::new();
+        for level in [EchoWaveform::DEFAULT_TRUNCATION, 1e-5] {
+            for (probe, fs, cycles) in [
+                (Probe::l22_14vx(), 65e6, 2.0),
+                (Probe::l11_5v(), 31.25e6, 2.0),
+                (Probe::l22_14vx(), 65e6, 4.0),
+            ] {
+                let wf = EchoWaveform::for_sequence_truncated(&probe, &sequence(cycles), fs, level)
+                    .unwrap();
+                let fine_rate = fs * EchoWaveform::PHASES as f64;
+                let edge = (wf.half_duration() * fine_rate).round() as usize;
+                let (lo, hi) = (wf.fine_origin - edge, wf.fine_origin + edge);
+                // Beyond ±half_duration the waveform never exceeds the level...
+                let outside = wf.fine[..lo]
+                    .iter()
+                    .chain(&wf.fine[hi + 1..])
+                    .fold(0.0f64, |m, v| m.max(v.abs()));
+                assert!(outside <= level, "{}: {outside:e} outside", probe.name);
+                // ... and at one of its ends it does: half_duration is no longer than needed.
+                let at_edge = wf.fine[lo].abs().max(wf.fine[hi].abs());
+                assert!(at_edge > level, "{}: {at_edge:e} at the edge", probe.name);
+                // Every polyphase row spans [−half_duration, half_duration]: the first tap of
+                // row 0 is at −origin_tap samples, the last tap of the last row (delay 1 sample)
+                // at taps − 1 − origin_tap − 1 samples.
+                let h = wf.half_duration() * fs;
+                assert!(wf.origin_tap() as f64 >= h, "{}", probe.name);
+                assert!(
+                    (wf.taps() - 2 - wf.origin_tap()) as f64 >= h,
+                    "{}",
+                    probe.name
+                );
+                spans.push(wf.half_duration());
+            }
         }
+        // The tighter level keeps a longer echo of every pulse.
+        assert!((0..3).all(|i| spans[i + 3] > spans[i]), "{spans:?}");
+        let refused =
+            EchoWaveform::for_sequence_truncated(&Probe::l22_14vx(), &sequence(2.0), 65e6, 0.5);
+        assert!(refused.unwrap_err().to_string().contains("truncation"));
     }
 
     /// A sampled pulse that is the default Hann burst (sampled at 1 GHz) gives the default echo,
