@@ -340,6 +340,19 @@ pub struct TreeSection {
     pub inlet_pulse_pa: f64,
     /// Steady venous outlet pressure (Pa).
     pub outlet_pressure_pa: f64,
+    /// Arteriole–venule pairs rising into the deep brain (thalamus, hippocampus) from a basal
+    /// artery and vein, `spacing_m` apart and centred; 0: the cortex alone.
+    pub deep_pairs: usize,
+    /// Depth of the basal artery and vein (m).
+    pub deep_depth_m: f64,
+    /// How far the deep trunks rise above them (m); each reaches 50–90 % of it.
+    pub deep_reach_m: f64,
+    /// Range of deep-arteriole diameters where they leave the basal artery (m).
+    pub deep_arteriole_diameter_m: [f64; 2],
+    /// Range of deep-venule diameters where they join the basal vein (m).
+    pub deep_venule_diameter_m: [f64; 2],
+    /// Side branches along each deep trunk.
+    pub deep_branchings: usize,
 }
 
 impl Default for TreeSection {
@@ -347,7 +360,9 @@ impl Default for TreeSection {
     /// two segments from each arteriole terminal, which carries the flow a real bed of many
     /// capillaries does (penetrating arterioles at a median PSV of 16 mm/s, RI 0.73; venules
     /// 7 mm/s, RI 0.08). The generator's own default bed, two paths of three 8 µm segments,
-    /// starves them (4 and 2 mm/s).
+    /// starves them (4 and 2 mm/s). Below, four pairs of larger deep vessels (60–90 µm
+    /// arterioles, 70–100 µm venules, eight branchings) rise from 9 mm toward 5 mm: arterioles
+    /// at a median PSV of 16 mm/s and RI 0.78, venules 6 mm/s and RI 0.12.
     fn default() -> Self {
         let base = pcuvd::simulate::vascular::CortexParams::default();
         TreeSection {
@@ -368,6 +383,15 @@ impl Default for TreeSection {
             inlet_pressure_pa: base.inlet_pressure,
             inlet_pulse_pa: base.inlet_pulse,
             outlet_pressure_pa: base.outlet_pressure,
+            deep_pairs: 4,
+            deep_depth_m: base.deep_depth,
+            deep_reach_m: base.deep_reach,
+            deep_arteriole_diameter_m: [
+                base.deep_arteriole_diameter.0,
+                base.deep_arteriole_diameter.1,
+            ],
+            deep_venule_diameter_m: [base.deep_venule_diameter.0, base.deep_venule_diameter.1],
+            deep_branchings: base.deep_branchings,
         }
     }
 }
@@ -392,6 +416,18 @@ impl TreeSection {
             inlet_pressure: self.inlet_pressure_pa,
             inlet_pulse: self.inlet_pulse_pa,
             outlet_pressure: self.outlet_pressure_pa,
+            deep_pairs: self.deep_pairs,
+            deep_depth: self.deep_depth_m,
+            deep_reach: self.deep_reach_m,
+            deep_arteriole_diameter: (
+                self.deep_arteriole_diameter_m[0],
+                self.deep_arteriole_diameter_m[1],
+            ),
+            deep_venule_diameter: (
+                self.deep_venule_diameter_m[0],
+                self.deep_venule_diameter_m[1],
+            ),
+            deep_branchings: self.deep_branchings,
             seed,
         }
     }
@@ -812,6 +848,31 @@ impl Scenario {
                     ] {
                         if value == 0 {
                             bail!("[vessels].{key} = 0: must be at least 1");
+                        }
+                    }
+                    if v.deep_pairs > 0 {
+                        positive("[vessels].deep_depth_m", v.deep_depth_m)?;
+                        positive("[vessels].deep_reach_m", v.deep_reach_m)?;
+                        increasing(
+                            "[vessels].deep_arteriole_diameter_m",
+                            v.deep_arteriole_diameter_m,
+                            true,
+                        )?;
+                        increasing(
+                            "[vessels].deep_venule_diameter_m",
+                            v.deep_venule_diameter_m,
+                            true,
+                        )?;
+                        let cortex_floor = v.surface_depth_m + v.cortex_thickness_m;
+                        if v.deep_depth_m - v.deep_reach_m <= cortex_floor {
+                            return Err(refuse(
+                                "[vessels].deep_reach_m",
+                                v.deep_reach_m,
+                                &format!(
+                                    "the deep trunks would rise from deep_depth_m into the cortex \
+                                     (which ends {cortex_floor} m deep)"
+                                ),
+                            ));
                         }
                     }
                 }

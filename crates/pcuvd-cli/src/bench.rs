@@ -7,6 +7,10 @@
 //! at once); the beamformer's work is counted as other beamformers publish it, points = pixels ×
 //! elements × frames (all elements, every angle's image), with the active aperture (the elements
 //! within the receive f-number's reach of each pixel) beside it.
+//!
+//! `--scenario` times the simulator instead: a scenario's recordings simulated as `pcuvd
+//! simulate` does, block by block, and thrown away; the report counts scatterers and echoes (a
+//! scatterer's echo on every channel, once per slot of an event) and the time per echo.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,7 +29,15 @@ use serde_json::json;
 pub struct BenchArgs {
     /// Recording to time (any format `pcuvd info` reads), processed with the default settings
     /// and no dynamics stage.
-    pub input: PathBuf,
+    #[arg(required_unless_present = "scenario")]
+    pub input: Option<PathBuf>,
+    /// Time the simulation of this scenario (a shipped one's name or a .toml file) instead,
+    /// once, both modes as the scenario says.
+    #[arg(long, conflicts_with = "input")]
+    pub scenario: Option<String>,
+    /// With --scenario: compound frames to simulate (default: the scenario's).
+    #[arg(long, requires = "scenario")]
+    pub frames: Option<usize>,
     /// Runs to time; each stage reports its median.
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
@@ -87,6 +99,89 @@ fn median(mut values: Vec<f64>) -> f64 {
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// Peak resident memory of this process so far (bytes), from /proc/self/status.
+fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Times the simulation of `args.scenario`.
+fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
+    use pcuvd::simulate::phantom::Phantom;
+    use pcuvd_app::simulation::{Simulation, SimulationSettings};
+    let (model, features, threads) = cpu();
+    let settings = SimulationSettings {
+        scenario: Some(source.to_string()),
+        frames: args.frames,
+        ..SimulationSettings::default()
+    };
+    let clock = Instant::now();
+    let simulation = Simulation::new(&settings)?;
+    let setup_s = clock.elapsed().as_secs_f64();
+    let blood = simulation.phantom.n_scatterers();
+    let tissue = simulation.tissue.as_ref().map_or(0, |t| t.n_scatterers());
+    let mut echoes = 0.0;
+    let mut events_total = 0;
+    let clock = Instant::now();
+    // As `pcuvd simulate` does: a block of frames of every mode in turn, so that the tissue's
+    // keyframes serve both, and memory stays bounded.
+    let block = 16;
+    for first in (0..simulation.frames).step_by(block) {
+        let last = (first + block).min(simulation.frames);
+        for (index, (_, params)) in simulation.modes.iter().enumerate() {
+            let n = params.sequence.n_angles();
+            let slots = if params.sequence.is_coded() { n } else { 1 };
+            let events = first * n..last * n;
+            echoes += ((blood + tissue) * slots * events.len()) as f64;
+            events_total += events.len();
+            std::hint::black_box(simulation.events(index, events, &|_, _| {})?);
+        }
+    }
+    let simulate_s = clock.elapsed().as_secs_f64();
+    let channels = simulation.modes[0].1.probe.n_elements;
+    let report = json!({
+        "scenario": source,
+        "machine": { "cpu": model, "features": features, "threads": threads },
+        "frames": simulation.frames,
+        "modes": simulation.modes.iter().map(|(name, _)| *name).collect::<Vec<_>>(),
+        "scatterers": { "blood": blood, "tissue": tissue },
+        "events": events_total,
+        "channels": channels,
+        "echoes": echoes,
+        "echoes_definition": "scatterers (blood and tissue) x events x slots per event (8 when \
+            coded, 1 conventional): the echoes a direct simulation would render, each on every \
+            channel; tissue is rendered at keyframes and interpolated, so it costs less",
+        "setup_s": setup_s,
+        "simulate_s": simulate_s,
+        "ns_per_echo": simulate_s / echoes * 1e9,
+        "peak_memory_bytes": peak_memory(),
+    });
+    println!(
+        "pcuvd bench --scenario {source}: {} frames",
+        simulation.frames
+    );
+    println!(
+        "  machine      {model} ({}; {threads} threads)",
+        features.join(", ")
+    );
+    println!("  scatterers   {blood} blood, {tissue} tissue");
+    println!("  set-up       {setup_s:.1} s (tree, flow, scatterers, tissue)");
+    println!(
+        "  simulate     {simulate_s:.1} s: {events_total} events × {channels} channels, \
+         {echoes:.3e} echoes, {:.2} ns per echo",
+        simulate_s / echoes * 1e9
+    );
+    if let Some(bytes) = peak_memory() {
+        println!("  memory       {:.0} MB at its peak", bytes as f64 / 1e6);
+    }
+    if let Some(path) = &args.json {
+        pcuvd_io::write_json(path, &report)?;
+    }
+    Ok(())
+}
+
 /// Runs `pcuvd bench`.
 pub fn run(args: &BenchArgs) -> Result<()> {
     if args.repeat == 0 {
@@ -97,6 +192,11 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             "note: this pcuvd is a debug build; time a release build (cargo build --release)"
         );
     }
+    let input = match (&args.input, &args.scenario) {
+        (_, Some(source)) => return run_simulation(args, source),
+        (Some(input), None) => input,
+        (None, None) => bail!("give a recording to time, or --scenario"),
+    };
     let (model, features, threads) = cpu();
     let (copy_one, copy_all) = memory_bandwidth();
     let mut stage_times: std::collections::BTreeMap<&'static str, Vec<f64>> = Default::default();
@@ -109,12 +209,12 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let mut shape = None;
     for _ in 0..args.repeat {
         let clock = Instant::now();
-        let opened = open_input(&args.input, &pcuvd_io::Overrides::default())?;
+        let opened = open_input(input, &pcuvd_io::Overrides::default())?;
         read_times.push(clock.elapsed().as_secs_f64());
         let data = opened.source.as_ref();
         let plan = Plan::new(&ProcessingSettings::default(), &dynamics, data, None)?;
         let processed = pcuvd_app::run(data, &plan, &Silent)
-            .with_context(|| format!("{}: processing failed", args.input.display()))?;
+            .with_context(|| format!("{}: processing failed", input.display()))?;
         total_times.push(clock.elapsed().as_secs_f64());
         for (stage, seconds) in &processed.out.timings {
             stage_times.entry(stage.label()).or_default().push(*seconds);
@@ -155,7 +255,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let points = pixels as f64 * elements as f64 * images as f64;
     let decode_s = stage(Stage::Decode);
     let report = json!({
-        "input": args.input.display().to_string(),
+        "input": input.display().to_string(),
         "runs": args.repeat,
         "machine": { "cpu": model, "features": features, "threads": threads },
         "memory_bandwidth_bytes_per_s": { "one_core": copy_one, "all_cores": copy_all },
@@ -177,7 +277,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     });
     println!(
         "pcuvd bench: {} ({} runs, medians)",
-        args.input.display(),
+        input.display(),
         args.repeat
     );
     println!(

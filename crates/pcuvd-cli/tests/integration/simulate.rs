@@ -524,3 +524,36 @@ fn ctrl_c_stops_the_run_and_leaves_nothing_that_looks_complete() {
         "{left:?}"
     );
 }
+
+/// `pcuvd bench --scenario` counts the echoes a direct simulation renders: every scatterer once
+/// per slot of every event (8 slots in a coded event of 8 angles, 1 in a conventional one). Its
+/// times are measured, not checked: timing assertions would be flaky.
+#[test]
+fn bench_counts_a_scenarios_echoes() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let json_arg = json.to_str().unwrap();
+    let (ok, _, stderr) = pcuvd(&[
+        "bench",
+        "--scenario",
+        "tube",
+        "--frames",
+        "2",
+        "--json",
+        json_arg,
+    ]);
+    assert!(ok, "{stderr}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let blood = report["scatterers"]["blood"].as_f64().unwrap();
+    assert!(blood > 0.0);
+    assert_eq!(report["scatterers"]["tissue"], 0);
+    // Two frames of 8 events in each mode: 16 conventional events of one slot, 16 coded of 8.
+    assert_eq!(report["events"], 32);
+    assert_eq!(report["echoes"].as_f64(), Some(blood * (16.0 + 16.0 * 8.0)));
+    let ns = report["ns_per_echo"].as_f64().unwrap();
+    let seconds = report["simulate_s"].as_f64().unwrap();
+    assert!((ns * 1e-9 * blood * 144.0 - seconds).abs() <= 1e-9 * seconds);
+    let (ok, _, stderr) = pcuvd(&["bench", "--scenario", "rat-heart"]);
+    assert!(!ok && stderr.contains("rat-brain"), "{stderr}");
+}

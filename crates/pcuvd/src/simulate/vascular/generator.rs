@@ -1,6 +1,8 @@
 //! A rule-based vascular tree of a coronal slab of rat cortex: a pial artery and a pial vein on
 //! the surface, penetrating arterioles and ascending venules leaving them at near-normal
-//! incidence and branching by Murray's law, joined at depth by a coarse capillary bed.
+//! incidence and branching by Murray's law, joined at depth by a coarse capillary bed; and,
+//! optionally, the deep brain below it: a basal artery and vein whose larger branches rise into
+//! the thalamus and hippocampus and meet in a capillary bed of their own.
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -44,6 +46,19 @@ pub struct CortexParams {
     pub inlet_pulse: f64,
     /// Steady venous outlet pressure (Pa).
     pub outlet_pressure: f64,
+    /// Arteriole–venule pairs rising from the basal vessels into the deep brain, `spacing` apart
+    /// and centred on x = 0; 0: none.
+    pub deep_pairs: usize,
+    /// Depth of the basal artery and vein the deep pairs leave (m).
+    pub deep_depth: f64,
+    /// How far the deep trunks rise above the basal vessels (m); each reaches 50–90 % of it.
+    pub deep_reach: f64,
+    /// Range of deep-arteriole diameters where they leave the basal artery (m).
+    pub deep_arteriole_diameter: (f64, f64),
+    /// Range of deep-venule diameters where they join the basal vein (m).
+    pub deep_venule_diameter: (f64, f64),
+    /// Side branches along each deep trunk: a larger vessel feeds a larger bed.
+    pub deep_branchings: usize,
     /// Seed of the tilts, depths, diameters and jitter.
     pub seed: u64,
 }
@@ -72,6 +87,12 @@ impl Default for CortexParams {
             inlet_pressure: 4666.0,
             inlet_pulse: 2950.0,
             outlet_pressure: 1333.0,
+            deep_pairs: 0,
+            deep_depth: 9e-3,
+            deep_reach: 4e-3,
+            deep_arteriole_diameter: (60e-6, 90e-6),
+            deep_venule_diameter: (70e-6, 100e-6),
+            deep_branchings: 8,
             seed: 0,
         }
     }
@@ -101,19 +122,40 @@ impl CortexParams {
                 "gives more than 1000 arterioles",
             ));
         }
+        if self.deep_pairs > 0 {
+            require_positive("deep reach", self.deep_reach)?;
+            if self.deep_depth - self.deep_reach <= self.surface_depth + self.thickness {
+                return Err(invalid(
+                    "deep depth",
+                    format!(
+                        "deep trunks rising {:.2} mm from {:.2} mm would enter the cortex (down to {:.2} mm)",
+                        self.deep_reach * 1e3,
+                        self.deep_depth * 1e3,
+                        (self.surface_depth + self.thickness) * 1e3
+                    ),
+                ));
+            }
+            if self.deep_pairs > 100 {
+                return Err(invalid("deep pairs", "at most 100"));
+            }
+        }
         for (name, (lo, hi)) in [
             ("arteriole diameter", self.arteriole_diameter),
             ("venule diameter", self.venule_diameter),
+            ("deep arteriole diameter", self.deep_arteriole_diameter),
+            ("deep venule diameter", self.deep_venule_diameter),
         ] {
             require_positive(name, lo)?;
             require_range(name, hi, (lo, 1e-3), "m")?;
         }
         require_positive("capillary diameter", self.capillary_diameter)?;
-        if self.branchings > 10 {
-            return Err(invalid(
-                "branchings",
-                format!("at most 10, got {}", self.branchings),
-            ));
+        for (name, n) in [
+            ("branchings", self.branchings),
+            ("deep branchings", self.deep_branchings),
+        ] {
+            if n > 20 {
+                return Err(invalid(name, format!("at most 20, got {n}")));
+            }
         }
         require_range("side-branch share", self.side_share, (0.01, 0.99), "")?;
         require_range("tilt", self.max_tilt_deg, (0.0, 45.0), "°")?;
@@ -142,7 +184,20 @@ impl CortexParams {
     }
 }
 
-/// A penetrating tree under construction: its vertices from the surface down, and terminals.
+/// Where a group of penetrating trunks starts and how it grows: the cortex's go down from the
+/// surface, the deep brain's rise from the basal vessels.
+struct Trunks {
+    /// Full length of a trunk; each reaches 50–90 % of it.
+    reach: f64,
+    arteriole_diameter: (f64, f64),
+    venule_diameter: (f64, f64),
+    /// Side branches along a trunk.
+    branchings: usize,
+    /// +1: growing deeper; −1: rising.
+    sense: f64,
+}
+
+/// A penetrating tree under construction: its vertices from its root on, and terminals.
 struct Tree {
     top: usize,
     top_diameter: f64,
@@ -179,12 +234,13 @@ impl Builder {
         &mut self,
         rng: &mut ChaCha8Rng,
         p: &CortexParams,
+        trunks: &Trunks,
         top: usize,
         class: VesselClass,
     ) -> Tree {
         let (lo, hi) = match class {
-            VesselClass::Venule => p.venule_diameter,
-            _ => p.arteriole_diameter,
+            VesselClass::Venule => trunks.venule_diameter,
+            _ => trunks.arteriole_diameter,
         };
         let top_diameter = if hi > lo {
             rng.random_range(lo..hi)
@@ -199,12 +255,12 @@ impl Builder {
             ty = rng.random_range(-tilt..tilt);
         }
         let dir = {
-            let v = [tx.tan(), ty.tan(), 1.0];
+            let v = [tx.tan(), ty.tan(), trunks.sense];
             let n = (v[0] * v[0] + v[1] * v[1] + 1.0).sqrt();
             [v[0] / n, v[1] / n, v[2] / n]
         };
-        let depth = p.thickness * rng.random_range(0.5..0.9);
-        let n_seg = p.branchings + 1;
+        let depth = trunks.reach * rng.random_range(0.5..0.9);
+        let n_seg = trunks.branchings + 1;
         let start = self.graph.vertices[top];
         let mut prev = top;
         let mut d = top_diameter;
@@ -235,7 +291,7 @@ impl Builder {
                 let end = self.vertex([
                     here[0] + sx * reach,
                     here[1] + rng.random_range(-0.5..0.5) * reach,
-                    here[2] + rng.random_range(0.2..0.6) * reach,
+                    here[2] + trunks.sense * rng.random_range(0.2..0.6) * reach,
                 ]);
                 link(self, node, end, side);
                 terminals.push(end);
@@ -247,6 +303,92 @@ impl Builder {
             top_diameter,
             terminals,
         }
+    }
+
+    /// A group of `n_pairs` penetrating arteriole–venule pairs `spacing` apart from x = `first`,
+    /// rooted at depth `z` on an artery and a vein that run along +x from x = −width/2, joined
+    /// by capillaries; returns the artery's inlet and the vein's outlet.
+    fn group(
+        &mut self,
+        rng: &mut ChaCha8Rng,
+        p: &CortexParams,
+        trunks: &Trunks,
+        z: f64,
+        n_pairs: usize,
+        (first, spacing): (f64, f64),
+    ) -> (usize, usize) {
+        let x0 = -0.5 * p.width;
+        let (ya, yv) = (-0.2 * p.slab_thickness, 0.2 * p.slab_thickness);
+        let artery_inlet = self.vertex([x0, ya, z]);
+        let vein_outlet = self.vertex([x0, yv, z]);
+        let mut arterioles = vec![];
+        let mut venules = vec![];
+        for i in 0..n_pairs {
+            let xa = first + i as f64 * spacing;
+            let top = self.vertex([xa, ya, z]);
+            arterioles.push(self.penetrating(rng, p, trunks, top, VesselClass::Arteriole));
+            let top = self.vertex([xa + 0.5 * spacing, yv, z]);
+            venules.push(self.penetrating(rng, p, trunks, top, VesselClass::Venule));
+        }
+        // Surface vessels: the segment upstream of (artery) or downstream of (vein) penetrating
+        // vessel i carries all of vessels i.. , so by Murray's law its d³ is their sum.
+        for (trees, class, end) in [
+            (&arterioles, VesselClass::Arteriole, artery_inlet),
+            (&venules, VesselClass::Venule, vein_outlet),
+        ] {
+            let mut sum = 0.0;
+            let mut cubes: Vec<f64> = trees
+                .iter()
+                .rev()
+                .map(|t| {
+                    sum += t.top_diameter.powi(3);
+                    sum
+                })
+                .collect();
+            cubes.reverse();
+            let mut prev = end;
+            for (t, d3) in trees.iter().zip(cubes) {
+                if class == VesselClass::Arteriole {
+                    self.edge(prev, t.top, d3.cbrt(), class);
+                } else {
+                    self.edge(t.top, prev, d3.cbrt(), class);
+                }
+                prev = t.top;
+            }
+        }
+
+        let venule_terminals: Vec<usize> =
+            venules.iter().flat_map(|t| t.terminals.clone()).collect();
+        let arteriole_terminals: Vec<usize> = arterioles
+            .iter()
+            .flat_map(|t| t.terminals.clone())
+            .collect();
+        let mut drained = vec![false; venule_terminals.len()];
+        let nearest = |b: &Builder, from: usize, among: &[usize]| {
+            let p0 = b.graph.vertices[from];
+            let mut order: Vec<usize> = (0..among.len()).collect();
+            order.sort_by(|&i, &j| {
+                let di = distance(&p0, &b.graph.vertices[among[i]]);
+                let dj = distance(&p0, &b.graph.vertices[among[j]]);
+                di.total_cmp(&dj)
+            });
+            order
+        };
+        for &a in &arteriole_terminals {
+            let order = nearest(self, a, &venule_terminals);
+            for &j in order.iter().take(p.capillaries_per_terminal) {
+                self.capillary(rng, p, a, venule_terminals[j]);
+                drained[j] = true;
+            }
+        }
+        // A venule terminal that no arteriole reached would be a stagnant dead end.
+        for (j, &v) in venule_terminals.iter().enumerate() {
+            if !drained[j] {
+                let a = arteriole_terminals[nearest(self, v, &arteriole_terminals)[0]];
+                self.capillary(rng, p, a, v);
+            }
+        }
+        (artery_inlet, vein_outlet)
     }
 
     /// A capillary path of `n` segments from `a` to `b`, its inner vertices jittered.
@@ -272,7 +414,9 @@ impl Builder {
 /// artery enters at x = −width/2 (pulsatile inlet pressure) and runs along +x on the surface,
 /// the pial vein drains toward x = −width/2 (steady outlet pressure); each penetrating vessel is
 /// tilted a few degrees, branches `branchings` times, and each arteriole terminal drains into its
-/// nearest venule terminals through capillary paths. Surface vessels obey Murray's law too.
+/// nearest venule terminals through capillary paths. Surface vessels obey Murray's law too. With
+/// `deep_pairs`, a basal artery and vein at `deep_depth` do the same for the deep brain, their
+/// trunks rising toward the cortex, at the same inlet and outlet pressures.
 pub fn generate(params: &CortexParams) -> Result<VesselGraph> {
     params.validate()?;
     let p = params;
@@ -281,94 +425,59 @@ pub fn generate(params: &CortexParams) -> Result<VesselGraph> {
         graph: VesselGraph::default(),
         half_y: 0.45 * p.slab_thickness,
     };
-    let x0 = -0.5 * p.width;
     let n_pairs = ((p.width - 0.5 * p.spacing) / p.spacing).floor() as usize;
-    let (ya, yv) = (-0.2 * p.slab_thickness, 0.2 * p.slab_thickness);
     let z = p.surface_depth;
 
-    let artery_inlet = b.vertex([x0, ya, z]);
-    let vein_outlet = b.vertex([x0, yv, z]);
-    let mut arterioles = vec![];
-    let mut venules = vec![];
-    for i in 0..n_pairs {
-        let xa = x0 + (i as f64 + 0.5) * p.spacing;
-        let top = b.vertex([xa, ya, z]);
-        arterioles.push(b.penetrating(&mut rng, p, top, VesselClass::Arteriole));
-        let top = b.vertex([xa + 0.5 * p.spacing, yv, z]);
-        venules.push(b.penetrating(&mut rng, p, top, VesselClass::Venule));
-    }
-    // Surface vessels: the segment upstream of (artery) or downstream of (vein) penetrating
-    // vessel i carries all of vessels i.. , so by Murray's law its d³ is their sum.
-    for (trees, class, end) in [
-        (&arterioles, VesselClass::Arteriole, artery_inlet),
-        (&venules, VesselClass::Venule, vein_outlet),
-    ] {
-        let mut sum = 0.0;
-        let mut cubes: Vec<f64> = trees
-            .iter()
-            .rev()
-            .map(|t| {
-                sum += t.top_diameter.powi(3);
-                sum
-            })
-            .collect();
-        cubes.reverse();
-        let mut prev = end;
-        for (t, d3) in trees.iter().zip(cubes) {
-            if class == VesselClass::Arteriole {
-                b.edge(prev, t.top, d3.cbrt(), class);
-            } else {
-                b.edge(t.top, prev, d3.cbrt(), class);
-            }
-            prev = t.top;
-        }
-    }
-
-    let venule_terminals: Vec<usize> = venules.iter().flat_map(|t| t.terminals.clone()).collect();
-    let arteriole_terminals: Vec<usize> = arterioles
-        .iter()
-        .flat_map(|t| t.terminals.clone())
-        .collect();
-    let mut drained = vec![false; venule_terminals.len()];
-    let nearest = |b: &Builder, from: usize, among: &[usize]| {
-        let p0 = b.graph.vertices[from];
-        let mut order: Vec<usize> = (0..among.len()).collect();
-        order.sort_by(|&i, &j| {
-            let di = distance(&p0, &b.graph.vertices[among[i]]);
-            let dj = distance(&p0, &b.graph.vertices[among[j]]);
-            di.total_cmp(&dj)
-        });
-        order
+    let cortex = Trunks {
+        reach: p.thickness,
+        arteriole_diameter: p.arteriole_diameter,
+        venule_diameter: p.venule_diameter,
+        branchings: p.branchings,
+        sense: 1.0,
     };
-    for &a in &arteriole_terminals {
-        let order = nearest(&b, a, &venule_terminals);
-        for &j in order.iter().take(p.capillaries_per_terminal) {
-            b.capillary(&mut rng, p, a, venule_terminals[j]);
-            drained[j] = true;
-        }
+    let first = -0.5 * p.width + 0.5 * p.spacing;
+    let (artery_inlet, vein_outlet) = b.group(&mut rng, p, &cortex, z, n_pairs, (first, p.spacing));
+    let mut boundaries = vec![(artery_inlet, vein_outlet)];
+    if p.deep_pairs > 0 {
+        let deep = Trunks {
+            reach: p.deep_reach,
+            arteriole_diameter: p.deep_arteriole_diameter,
+            venule_diameter: p.deep_venule_diameter,
+            branchings: p.deep_branchings,
+            sense: -1.0,
+        };
+        // As closely spaced as the cortex's, so that their capillaries are as short; centred.
+        let first = -0.5 * p.deep_pairs as f64 * p.spacing;
+        let ends = b.group(
+            &mut rng,
+            p,
+            &deep,
+            p.deep_depth,
+            p.deep_pairs,
+            (first, p.spacing),
+        );
+        boundaries.push(ends);
     }
-    // A venule terminal that no arteriole reached would be a stagnant dead end.
-    for (j, &v) in venule_terminals.iter().enumerate() {
-        if !drained[j] {
-            let a = arteriole_terminals[nearest(&b, v, &arteriole_terminals)[0]];
-            b.capillary(&mut rng, p, a, v);
-        }
-    }
-
-    b.graph.boundaries = vec![
-        Boundary {
-            vertex: artery_inlet,
-            kind: BoundaryKind::Pressure,
-            value: p.inlet_pressure,
-            pulse: p.inlet_pulse,
-        },
-        Boundary {
-            vertex: vein_outlet,
-            kind: BoundaryKind::Pressure,
-            value: p.outlet_pressure,
-            pulse: 0.0,
-        },
-    ];
+    // Every inlet at the same arterial pressure, every outlet at the same venous one.
+    b.graph.boundaries = boundaries
+        .into_iter()
+        .flat_map(|(inlet, outlet)| {
+            [
+                Boundary {
+                    vertex: inlet,
+                    kind: BoundaryKind::Pressure,
+                    value: p.inlet_pressure,
+                    pulse: p.inlet_pulse,
+                },
+                Boundary {
+                    vertex: outlet,
+                    kind: BoundaryKind::Pressure,
+                    value: p.outlet_pressure,
+                    pulse: 0.0,
+                },
+            ]
+        })
+        .collect();
     b.graph.validate()?;
     Ok(b.graph)
 }

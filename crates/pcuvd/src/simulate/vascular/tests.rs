@@ -167,7 +167,11 @@ fn a_single_rc_windkessel_matches_its_transfer_function() {
 #[test]
 fn flow_is_conserved_at_every_junction() {
     let params = FlowParams::rat();
-    for g in [example(), generate(&small_cortex(4)).unwrap()] {
+    for g in [
+        example(),
+        generate(&small_cortex(4)).unwrap(),
+        generate(&small_brain(4)).unwrap(),
+    ] {
         let flow = solve(&g, &params).unwrap();
         let worst = worst_conservation(&g, &flow);
         assert!(worst < 1e-9, "relative imbalance {worst:e}");
@@ -449,7 +453,7 @@ fn bad_table_rows_are_named() {
 
 #[test]
 fn generated_branchings_obey_murrays_law() {
-    let g = generate(&small_cortex(7)).unwrap();
+    let g = generate(&small_brain(7)).unwrap();
     let mut checked = 0;
     for v in 0..g.vertices.len() {
         let incident: Vec<&Edge> = g.edges.iter().filter(|e| e.v1 == v || e.v2 == v).collect();
@@ -552,4 +556,79 @@ fn the_generated_cortex_has_arteriole_and_venule_pulsatility() {
             s.pulsatility.psv
         );
     }
+}
+
+/// The small cortex with three deep pairs rising from basal vessels 6 mm deep.
+fn small_brain(seed: u64) -> CortexParams {
+    CortexParams {
+        deep_pairs: 3,
+        deep_depth: 6e-3,
+        deep_reach: 2.5e-3,
+        ..small_cortex(seed)
+    }
+}
+
+#[test]
+fn the_deep_brain_rises_from_its_basal_vessels_and_leaves_the_cortex_as_it_was() {
+    let cortex = generate(&small_cortex(5)).unwrap();
+    let brain = generate(&small_brain(5)).unwrap();
+    // The cortex is drawn first, from the same random stream: the deep brain only adds to it.
+    assert_eq!(brain.vertices[..cortex.vertices.len()], cortex.vertices[..]);
+    assert_eq!(brain.edges[..cortex.edges.len()], cortex.edges[..]);
+    assert_eq!(brain.boundaries.len(), 4);
+    let deep = &brain.edges[cortex.edges.len()..];
+    let mut rising = 0;
+    for e in deep {
+        let (p1, p2) = (brain.vertices[e.v1], brain.vertices[e.v2]);
+        for p in [p1, p2] {
+            // Between the basal vessels and their reach (side branches poke a little further).
+            assert!(
+                p[2] > 6e-3 - 2.5e-3 - 0.1e-3 && p[2] <= 6e-3 + 1e-12,
+                "{p:?}"
+            );
+        }
+        // Arteriole trunks carry blood up from the basal artery, venule trunks down to the vein.
+        let dz = p2[2] - p1[2];
+        if dz.abs() > 0.9 * brain.chord(e) {
+            match e.class {
+                VesselClass::Arteriole => assert!(dz < 0.0, "{e:?}"),
+                VesselClass::Venule => assert!(dz > 0.0, "{e:?}"),
+                VesselClass::Capillary => {}
+            }
+            rising += 1;
+        }
+    }
+    assert!(rising >= 12, "{rising}");
+    let flow = solve(&brain, &FlowParams::rat()).unwrap();
+    let worst = worst_conservation(&brain, &flow);
+    assert!(worst < 1e-9, "relative imbalance {worst:e}");
+    // Its own pulsatility, falling from arterioles to venules, and its speeds under Nyquist.
+    let deep_ri = |class: VesselClass| {
+        let mut ri: Vec<f64> = flow.segments[cortex.edges.len()..]
+            .iter()
+            .filter(|s| s.class == class)
+            .map(|s| s.pulsatility.ri)
+            .collect();
+        ri.sort_by(f64::total_cmp);
+        ri[ri.len() / 2]
+    };
+    let (a, v) = (
+        deep_ri(VesselClass::Arteriole),
+        deep_ri(VesselClass::Venule),
+    );
+    assert!((0.55..0.9).contains(&a) && v < 0.5, "{a} {v}");
+    for s in &flow.segments[cortex.edges.len()..] {
+        assert!(s.mean_flow.abs() > 0.0, "segment {}", s.id);
+        assert!(
+            s.pulsatility.psv < 0.044,
+            "segment {}: {} m/s",
+            s.id,
+            s.pulsatility.psv
+        );
+    }
+    let entering = generate(&CortexParams {
+        deep_depth: 4e-3,
+        ..small_brain(5)
+    });
+    assert!(entering.unwrap_err().to_string().contains("cortex"));
 }
