@@ -31,7 +31,7 @@ pub enum Preset {
     Tube,
     /// The in-vivo-like pulsatile vessel network at 5.5 Hz (4 arterioles RI 0.7, 4 venules RI 0.3, flowing up and down, 1–13 mm deep) with the paper's rat acquisition (Table 1): as paper-spiral but 360 frames (0.2 s), receive window 0–13 mm; writes the RI truth too.
     RatNetwork,
-    /// A first virtual rat brain, in three dimensions: the rat acquisition (Table 1) with the L22-14vX's elevation (1.5 mm elements, lens focus 8 mm); a 10 mm coronal slab of cortex 1–3 mm deep with a generated vascular tree (pial artery and vein, penetrating arterioles and ascending venules branching by Murray's law, a capillary bed; compliant pulsatile flow at 5.5 Hz: arterioles ~16 mm/s RI ~0.7, venules ~7 mm/s RI ~0.1); tissue 40 dB above blood (--tissue-db) in a 1.2 mm slab under a dura-like layer, with the corpus callosum and lateral ventricles below the cortex, moving with the heartbeat and breathing (--tissue-motion) with the vessels; 360 frames. Writes the RI truth and the out-of-plane velocity and blood fraction.
+    /// A first virtual rat brain, in three dimensions: the rat acquisition (Table 1) with the L22-14vX's elevation (1.5 mm elements, lens focus 8 mm); a 10 mm coronal slab of cortex 1–3 mm deep with a generated vascular tree (pial artery and vein, penetrating arterioles and ascending venules branching by Murray's law, a capillary bed; compliant pulsatile flow at 5.5 Hz: arterioles ~16 mm/s RI ~0.7, venules ~7 mm/s RI ~0.1) and four pairs of larger deep vessels rising from 9 mm toward 5 mm; tissue 40 dB above blood (--tissue-db) in a 1.2 mm slab under a dura-like layer, with the corpus callosum and lateral ventricles below the cortex, moving with the heartbeat and breathing (--tissue-motion) with the vessels; noise 0 dB re the blood's echo; 360 frames. Writes the RI truth and the out-of-plane velocity and blood fraction.
     RatBrain,
 }
 
@@ -58,7 +58,7 @@ pub struct SimulationSettings {
     #[cfg_attr(feature = "clap", arg(long))]
     pub frames: Option<usize>,
     /// Noise level in dB (see the noise definition in `--help` of the report; default: the
-    /// scenario's, −10 for every preset); "off" for none.
+    /// scenario's: −10 for every preset but rat-brain, 0); "off" for none.
     #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     #[serde(deserialize_with = "crate::settings::optional_text")]
     pub noise_db: Option<String>,
@@ -345,6 +345,15 @@ pub struct Simulation {
     keyframes: std::sync::Mutex<TissueKeyframes>,
 }
 
+/// How a simulation's echoes compare (see [`Simulation::echo_levels`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EchoLevels {
+    /// The tissue's uncoded 0° echo RMS over the blood's (dB).
+    pub tissue_over_blood_db: f64,
+    /// The noise level relative to the whole echo, blood and tissue (dB); `None` without noise.
+    pub noise_db_re_whole_echo: Option<f64>,
+}
+
 /// The ground truth of a simulation on the recording's default processing grid (m, m/s).
 pub struct SimulatedTruth {
     /// Pixel columns (m).
@@ -535,8 +544,9 @@ impl Simulation {
     }
 
     /// The `[provenance]` a recording of mode `index` carries: simulator, scenario (its source
-    /// and, whole, the scenario simulated), seed, noise.
-    pub fn provenance(&self, index: usize) -> toml::Table {
+    /// and, whole, the scenario simulated), seed, noise (relative to the blood's echo and, with
+    /// tissue, to the whole echo: `levels`, from [`Simulation::echo_levels`]).
+    pub fn provenance(&self, index: usize, levels: Option<EchoLevels>) -> toml::Table {
         let params = &self.modes[index].1;
         let mut provenance = toml::Table::new();
         provenance.insert("simulator".into(), "pcuvd simulate".into());
@@ -561,6 +571,15 @@ impl Simulation {
             let mut table = toml::Table::new();
             table.insert("echogenicity_db".into(), spec.echogenicity_db.into());
             table.insert("scatterers".into(), (tissue.n_scatterers() as i64).into());
+            if let Some(levels) = levels {
+                table.insert(
+                    "echo_over_blood_db".into(),
+                    levels.tissue_over_blood_db.into(),
+                );
+                if let Some(level) = levels.noise_db_re_whole_echo {
+                    provenance.insert("noise_db_re_whole_echo".into(), level.into());
+                }
+            }
             provenance.insert("tissue".into(), table.into());
         }
         // The whole scenario, so that the recording says everything it was simulated from.
@@ -584,6 +603,28 @@ impl Simulation {
             provenance.insert("tube".into(), vessel.into());
         }
         provenance
+    }
+
+    /// How the echoes compare (dB), for a simulation with tissue: the tissue's 0° echo over the
+    /// blood's, and the noise level relative to the whole echo (blood and tissue) beside the
+    /// scenario's, which is relative to the blood's alone ([`NOISE_DEFINITION`]'s reference
+    /// echo, of the blood, of the tissue, and of both together). `None` without tissue.
+    pub fn echo_levels(&self) -> Result<Option<EchoLevels>> {
+        let Some(tissue) = &self.tissue else {
+            return Ok(None);
+        };
+        let params = &self.modes[0].1;
+        let blood = simulate::reference_echo_rms(self.phantom.as_ref(), params)?;
+        let alone = simulate::reference_echo_rms(tissue, params)?;
+        let both = simulate::reference_echo_rms(
+            &pcuvd::simulate::phantom::tissue::Composite::new(vec![self.phantom.as_ref(), tissue]),
+            params,
+        )?;
+        let db = |ratio: f64| 20.0 * ratio.log10();
+        Ok(Some(EchoLevels {
+            tissue_over_blood_db: db(alone / blood),
+            noise_db_re_whole_echo: self.noise_db.map(|level| level - db(both / blood)),
+        }))
     }
 
     /// The tissue's displacement from t = 0 (m) at each compound frame's time, for tissue that
@@ -878,7 +919,7 @@ mod tests {
     #[ignore = "slow: the rat brain's tree, tissue and elevation table (about 20 s)"]
     fn the_rat_brain_scenario_gives_the_samples_the_preset_gave() {
         // Two frames, as `--preset rat-brain` simulated them before it became a scenario file
-        // (commit 2c686dc), when its tree was the cortex alone: without its deep vessels, the
+        // (commit 2c686dc), when its tree was the cortex alone and its noise −10 dB: so set, the
         // file's every key reproduces the preset's code to the bit.
         let mut scenario = Scenario::shipped("rat-brain").unwrap();
         scenario.sequence.frames = 2;
@@ -886,6 +927,7 @@ mod tests {
             panic!("the rat brain's vessels are a tree")
         };
         tree.deep_pairs = 0;
+        scenario.noise = Some(NoiseSection { level_db: -10.0 });
         assert_eq!(
             scenario_digests(scenario),
             [

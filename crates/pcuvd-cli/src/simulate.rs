@@ -121,6 +121,18 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     }
     let events_of =
         |params: &pcuvd::simulate::SimParams| simulation.frames * params.sequence.n_angles();
+    let levels = simulation.echo_levels()?;
+    if let Some(levels) = levels {
+        println!(
+            "tissue echo {:.1} dB above the blood's (0° plane wave){}",
+            levels.tissue_over_blood_db,
+            levels
+                .noise_db_re_whole_echo
+                .map_or_else(String::new, |level| format!(
+                    "; noise {level:.1} dB re the whole echo"
+                ))
+        );
+    }
     let mut writers = simulation
         .modes
         .iter()
@@ -132,7 +144,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 name,
                 &params.acquisition(),
                 shape,
-                &simulation.provenance(index),
+                &simulation.provenance(index, levels),
             )
         })
         .collect::<Result<Vec<_>, _>>()?;

@@ -25,11 +25,12 @@ pub(crate) fn simulate<'py>(
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             let mut made = Vec::new();
+            let levels = simulation.echo_levels()?;
             for (index, (name, _)) in simulation.modes.iter().enumerate() {
                 let task = format!("simulate {name}");
                 let data = simulation
                     .recording(index, &|done, total| progress.update(&task, done, total))?;
-                made.push((name.to_string(), data, simulation.provenance(index)));
+                made.push((name.to_string(), data, simulation.provenance(index, levels)));
             }
             let truth = simulation.truth(&made[0].1)?;
             let displacement = simulation.tissue_displacement(&truth.z);

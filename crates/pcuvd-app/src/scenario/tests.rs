@@ -118,7 +118,7 @@ fn out_of_range_values_are_refused_by_their_key() {
             "depth_m = [13e-3, 1e-3]",
             "[receive].depth_m",
         ),
-        ("level_db = -10.0", "level_db = nan", "[noise].level_db"),
+        ("level_db = 0.0", "level_db = nan", "[noise].level_db"),
         (
             "max_angle_deg = 15.0",
             "max_angle_deg = 95.0",

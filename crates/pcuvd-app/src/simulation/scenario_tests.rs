@@ -126,3 +126,42 @@ fn a_tighter_waveform_truncation_adds_only_the_tails_below_the_default_level() {
     let relative = (difference / signal).sqrt();
     assert!(relative > 0.0 && relative < 3e-4, "{relative:e}");
 }
+
+#[test]
+fn the_tissues_echo_and_the_noise_re_the_whole_echo_are_measured() {
+    // A tube in a sheet of tissue 35 dB brighter per unit area. Within the receive window's 5-11
+    // mm the sheet spans 14.8 × 6 mm, the tube (1 mm wide at 30° to x) 12 mm of its length: the
+    // tissue has some 7.4 times the blood's area, so its echo stands about 35 + 8.7 dB above
+    // the blood's (attenuation and the window's edges weigh depths apart).
+    let mut scenario = Scenario::parse(SMALL).unwrap();
+    scenario.noise = Some(NoiseSection { level_db: -10.0 });
+    SimulationSettings {
+        tissue_db: Some(35.0),
+        tissue_motion: Some(TissueMotionChoice::Still),
+        ..SimulationSettings::default()
+    }
+    .apply_to(&mut scenario)
+    .unwrap();
+    let simulation = Simulation::of(scenario, "small".into()).unwrap();
+    let levels = simulation.echo_levels().unwrap().unwrap();
+    let ratio = levels.tissue_over_blood_db;
+    assert!((41.5..46.0).contains(&ratio), "{ratio}");
+    // Speckle and blood are independent: their powers add, so the whole echo is the blood's
+    // times 1 + 10^(ratio/10), and the noise stands that much lower against it.
+    let expected = -10.0 - 10.0 * (1.0 + 10f64.powf(ratio / 10.0)).log10();
+    let whole = levels.noise_db_re_whole_echo.unwrap();
+    assert!((whole - expected).abs() < 0.5, "{whole} against {expected}");
+    let provenance = simulation.provenance(0, Some(levels));
+    assert_eq!(
+        provenance["tissue"]["echo_over_blood_db"].as_float(),
+        Some(ratio)
+    );
+    assert_eq!(provenance["noise_db_re_whole_echo"].as_float(), Some(whole));
+    assert_eq!(
+        Simulation::of(Scenario::parse(SMALL).unwrap(), "small".into())
+            .unwrap()
+            .echo_levels()
+            .unwrap(),
+        None
+    );
+}

@@ -482,6 +482,40 @@ impl Snapshot {
 /// Fills the scatterers at a time (s), checking them.
 type PositionLoader<'a> = dyn Fn(f64, &mut Snapshot) -> Result<()> + 'a;
 
+/// The RMS of the noiseless, uncoded 0° echo of `phantom` at t = 0 over all channels and the
+/// receive window of `params`: the reference of the noise level ([`NOISE_DEFINITION`]). For
+/// another phantom (tissue beside blood, say), it says how their echoes compare.
+pub fn reference_echo_rms(phantom: &dyn Phantom, params: &SimParams) -> Result<f64> {
+    let sim = Simulator::new(params)?;
+    let mut scatterers = Snapshot::default();
+    scatterers.load(phantom, 0.0)?;
+    Ok(zero_degree_rms(phantom, params, &sim, &scatterers))
+}
+
+/// The RMS of the 0° echo of `scatterers` (with `phantom`'s amplitudes) through `sim`.
+fn zero_degree_rms(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    sim: &Simulator,
+    scatterers: &Snapshot,
+) -> f64 {
+    let mut reference = ndarray::Array2::<f32>::zeros((params.probe.n_elements, params.n_samples));
+    let slot = Slot {
+        angle: 0.0,
+        polarity: 1.0,
+        offset: 0.0,
+    };
+    sim.render_event(
+        scatterers,
+        phantom.amplitudes(),
+        &[slot],
+        reference.view_mut(),
+        None,
+    );
+    let power = reference.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / reference.len() as f64;
+    power.sqrt()
+}
+
 /// The noise source of `params` (see [`NOISE_DEFINITION`]): its RMS is set from the noiseless,
 /// uncoded 0° echo of `phantom` at t = 0. `None` when `params.noise` is `None`.
 fn noise_generator(
@@ -491,27 +525,12 @@ fn noise_generator(
     scatterers: &mut Snapshot,
     load: &PositionLoader,
 ) -> Result<Option<noise::NoiseGenerator>> {
-    let (n_channels, ns) = (params.probe.n_elements, params.n_samples);
+    let ns = params.n_samples;
     Ok(match &params.noise {
         None => None,
         Some(spec) => {
             load(0.0, scatterers)?;
-            let mut reference = ndarray::Array2::<f32>::zeros((n_channels, ns));
-            let slot = Slot {
-                angle: 0.0,
-                polarity: 1.0,
-                offset: 0.0,
-            };
-            sim.render_event(
-                scatterers,
-                phantom.amplitudes(),
-                &[slot],
-                reference.view_mut(),
-                None,
-            );
-            let power =
-                reference.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / reference.len() as f64;
-            let rms = power.sqrt();
+            let rms = zero_degree_rms(phantom, params, sim, scatterers);
             if !(rms > 0.0 && rms.is_finite()) {
                 return Err(invalid(
                     "noise level",
