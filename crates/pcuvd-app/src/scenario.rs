@@ -140,10 +140,27 @@ pub struct SequenceSection {
     pub event_prf_hz: f64,
     /// Delay between the Hadamard slots of a coded event (s).
     pub slot_delay_s: f64,
-    /// Transmit pulse length (cycles of the centre frequency, a Hann-windowed burst).
-    pub pulse_cycles: f64,
+    /// Transmit pulse length (cycles of the centre frequency, a Hann-windowed burst). With
+    /// `[sequence.pulse]`, the recording's statement of that pulse's length; absent, its
+    /// duration in cycles of the centre frequency.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulse_cycles: Option<f64>,
+    /// `[sequence.pulse]`: the transmit pulse as the scanner drives it, sampled, instead of a
+    /// Hann burst; the simulator sends it through the probe's two-way response.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulse: Option<PulseSection>,
     /// Compound frames per recording.
     pub frames: usize,
+}
+
+/// `[sequence.pulse]`: a sampled transmit pulse (as the recording manifest's `[acquisition.pulse]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PulseSection {
+    /// Sampling rate of `samples` (Hz).
+    pub sampling_frequency_hz: f64,
+    /// The pulse, one value per sample (any unit: only its shape matters).
+    pub samples: Vec<f64>,
 }
 
 fn both() -> ModeChoice {
@@ -724,7 +741,20 @@ impl Scenario {
         }
         positive("[sequence].event_prf_hz", s.event_prf_hz)?;
         positive("[sequence].slot_delay_s", s.slot_delay_s)?;
-        positive("[sequence].pulse_cycles", s.pulse_cycles)?;
+        match (s.pulse_cycles, &s.pulse) {
+            (None, None) => bail!("[sequence].pulse_cycles (or a [sequence.pulse]) is missing"),
+            (Some(cycles), _) => positive("[sequence].pulse_cycles", cycles)?,
+            (None, Some(_)) => {}
+        }
+        if let Some(pulse) = &s.pulse {
+            positive(
+                "[sequence.pulse].sampling_frequency_hz",
+                pulse.sampling_frequency_hz,
+            )?;
+            if let Some(pulse) = self.transmit_pulse() {
+                pulse.validate().context("[sequence.pulse].samples")?;
+            }
+        }
         if s.frames == 0 {
             bail!("[sequence].frames = 0: must be at least 1");
         }
@@ -987,6 +1017,28 @@ impl Scenario {
             .map_or(pcuvd::simulate::EchoWaveform::DEFAULT_TRUNCATION, |db| {
                 10f64.powf(db / 20.0)
             })
+    }
+
+    /// The sampled transmit pulse of `[sequence.pulse]`, if any.
+    pub fn transmit_pulse(&self) -> Option<pcuvd::TransmitPulse> {
+        self.sequence.pulse.as_ref().map(|p| pcuvd::TransmitPulse {
+            samples: p.samples.clone(),
+            sampling_frequency: p.sampling_frequency_hz,
+        })
+    }
+
+    /// The transmit pulse's length in cycles of the centre frequency: `pulse_cycles`, else the
+    /// sampled pulse's duration.
+    pub fn pulse_cycles(&self) -> Result<f64> {
+        let s = &self.sequence;
+        match (s.pulse_cycles, &s.pulse) {
+            (Some(cycles), _) => Ok(cycles),
+            (None, Some(p)) => {
+                Ok(p.samples.len() as f64 / p.sampling_frequency_hz
+                    * self.probe()?.center_frequency)
+            }
+            (None, None) => bail!("[sequence].pulse_cycles is missing"),
+        }
     }
 
     /// The elevation aperture, when the probe has one.

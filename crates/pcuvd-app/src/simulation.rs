@@ -802,8 +802,8 @@ fn mode_params(scenario: &Scenario, coded: bool) -> Result<SimParams> {
         coding: Coding::Hadamard {
             slot_delay: s.slot_delay_s,
         },
-        pulse_cycles: s.pulse_cycles,
-        pulse: None,
+        pulse_cycles: scenario.pulse_cycles()?,
+        pulse: scenario.transmit_pulse(),
     };
     coded_sequence
         .validate()

@@ -165,3 +165,48 @@ fn the_tissues_echo_and_the_noise_re_the_whole_echo_are_measured() {
         None
     );
 }
+
+#[test]
+fn a_sampled_transmit_pulse_is_simulated_and_recorded() {
+    // The 2-cycle Hann burst at 15.625 MHz, sampled at 250 MHz: the same echo as `pulse_cycles =
+    // 2` (the waveform's own tests compare the two), now from the scenario's samples.
+    let (fc, fs) = (15.625e6, 250e6);
+    let n = (2.0 / fc * fs) as usize;
+    let samples: Vec<String> = (0..n)
+        .map(|i| {
+            let t = (i as f64 + 0.5) / fs - 1.0 / fc;
+            let hann = 0.5 * (1.0 + (std::f64::consts::PI * t * fc).cos());
+            format!("{:.6}", hann * (2.0 * std::f64::consts::PI * fc * t).cos())
+        })
+        .collect();
+    let text = SMALL.replace(
+        "pulse_cycles = 2.0\n",
+        &format!(
+            "[sequence.pulse]\nsampling_frequency_hz = {fs:e}\nsamples = [{}]\n",
+            samples.join(", ")
+        ),
+    );
+    // The pulse's table follows the rest of [sequence]: move the keys after it back above it.
+    let text = text
+        .replace("frames = 1\n", "")
+        .replace("[sequence.pulse]", "frames = 1\n[sequence.pulse]");
+    let scenario = Scenario::parse(&text).unwrap();
+    assert!((scenario.pulse_cycles().unwrap() - n as f64 / fs * fc).abs() < 1e-12);
+    let simulation = Simulation::of(scenario.clone(), "small".into()).unwrap();
+    let data = simulation.recording(0, &|_, _| {}).unwrap();
+    assert_eq!(
+        data.acquisition.sequence.pulse,
+        scenario.transmit_pulse(),
+        "the recording says which pulse it was simulated with"
+    );
+    let pcuvd::Samples::Rf(rf) = &data.samples else {
+        panic!("the simulator writes RF")
+    };
+    assert!(rf.iter().any(|&v| v != 0.0));
+    let empty = text.replace(
+        &format!("samples = [{}]", samples.join(", ")),
+        "samples = []",
+    );
+    let error = crate::one_line(&Scenario::parse(&empty).unwrap_err());
+    assert!(error.contains("[sequence.pulse].samples"), "{error}");
+}
