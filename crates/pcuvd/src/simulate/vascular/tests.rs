@@ -546,8 +546,12 @@ fn the_generated_cortex_has_arteriole_and_venule_pulsatility() {
         "{a} {c} {v}"
     );
     assert!(median(VesselClass::Venule, &delay) > median(VesselClass::Arteriole, &delay));
-    // Every segment carries blood, and none faster than the rat sequence's Nyquist speed.
-    for s in &flow.segments {
+    assert_flowing_under_nyquist(&flow.segments);
+}
+
+/// Every segment carries blood, and none faster than the rat sequence's Nyquist speed.
+fn assert_flowing_under_nyquist(segments: &[crate::simulate::vascular::SegmentFlow]) {
+    for s in segments {
         assert!(s.mean_flow.abs() > 0.0, "segment {}", s.id);
         assert!(
             s.pulsatility.psv < 0.044,
@@ -617,15 +621,7 @@ fn the_deep_brain_rises_from_its_basal_vessels_and_leaves_the_cortex_as_it_was()
         deep_ri(VesselClass::Venule),
     );
     assert!((0.55..0.9).contains(&a) && v < 0.5, "{a} {v}");
-    for s in &flow.segments[cortex.edges.len()..] {
-        assert!(s.mean_flow.abs() > 0.0, "segment {}", s.id);
-        assert!(
-            s.pulsatility.psv < 0.044,
-            "segment {}: {} m/s",
-            s.id,
-            s.pulsatility.psv
-        );
-    }
+    assert_flowing_under_nyquist(&flow.segments[cortex.edges.len()..]);
     let entering = generate(&CortexParams {
         deep_depth: 4e-3,
         ..small_brain(5)
