@@ -605,6 +605,24 @@ impl Simulation {
         provenance
     }
 
+    /// The heartbeats of a pulsatile phantom (the vessel network, a tree) within the recording:
+    /// the start of each cardiac cycle (phase 0 of its waveform at the inlet; s from the first
+    /// frame), as an ECG recorded beside the scanner would give them. `None` for steady flow,
+    /// or when the recording holds fewer than two.
+    pub fn cardiac_triggers(&self) -> Option<Vec<f64>> {
+        let heart_rate = match (&self.network, &self.tree) {
+            (Some(network), _) => network.spec().heart_rate_hz,
+            (None, Some(tree)) => tree.flow().omega / (2.0 * std::f64::consts::PI),
+            (None, None) => return None,
+        };
+        let duration = self.frames as f64 / self.modes[0].1.sequence.frame_rate();
+        let times: Vec<f64> = (0..)
+            .map(|beat| beat as f64 / heart_rate)
+            .take_while(|&t| t < duration)
+            .collect();
+        (times.len() >= 2).then_some(times)
+    }
+
     /// How the echoes compare (dB), for a simulation with tissue: the tissue's 0° echo over the
     /// blood's, and the noise level relative to the whole echo (blood and tissue) beside the
     /// scenario's, which is relative to the blood's alone ([`NOISE_DEFINITION`]'s reference

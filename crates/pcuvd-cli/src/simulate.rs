@@ -139,13 +139,17 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         .enumerate()
         .map(|(index, (name, params))| {
             let shape = (events_of(params), params.probe.n_elements, params.n_samples);
-            pcuvd_io::RecordingWriter::create(
+            let writer = pcuvd_io::RecordingWriter::create(
                 &args.out,
                 name,
                 &params.acquisition(),
                 shape,
                 &simulation.provenance(index, levels),
-            )
+            )?;
+            Ok::<_, pcuvd_io::IoError>(match simulation.cardiac_triggers() {
+                Some(times) => writer.with_cardiac_triggers(times),
+                None => writer,
+            })
         })
         .collect::<Result<Vec<_>, _>>()?;
     let total: usize = simulation.modes.iter().map(|(_, p)| events_of(p)).sum();

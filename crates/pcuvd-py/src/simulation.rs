@@ -20,8 +20,9 @@ pub(crate) fn simulate<'py>(
         pcuvd_app::simulation::SimulatedTruth,
         Option<ndarray::Array3<f64>>,
         String,
+        Option<Vec<f64>>,
     );
-    let (recordings, truth, displacement, scenario) = py
+    let (recordings, truth, displacement, scenario, triggers) = py
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             let mut made = Vec::new();
@@ -34,7 +35,13 @@ pub(crate) fn simulate<'py>(
             }
             let truth = simulation.truth(&made[0].1)?;
             let displacement = simulation.tissue_displacement(&truth.z);
-            Ok((made, truth, displacement, simulation.scenario.to_toml()?))
+            Ok((
+                made,
+                truth,
+                displacement,
+                simulation.scenario.to_toml()?,
+                simulation.cardiac_triggers(),
+            ))
         })
         .map_err(to_py)?;
     let dict = PyDict::new(py);
@@ -66,10 +73,12 @@ pub(crate) fn simulate<'py>(
         .into_iter()
         .map(|(name, data, provenance)| {
             let label = format!("pcuvd simulate ({name}): {provenance}");
-            (
-                name,
-                PyRecording::new(data, vec![], label, ("simulation", "pcuvd.simulate")),
-            )
+            let mut recording =
+                PyRecording::new(data, vec![], label, ("simulation", "pcuvd.simulate"));
+            // The heartbeats, as an ECG beside the scanner would record them: the RI maps use
+            // them as they use a manifest's [cardiac] triggers.
+            recording.info.cardiac_triggers_s = triggers.clone();
+            (name, recording)
         })
         .collect();
     Ok((recordings, dict))

@@ -210,3 +210,32 @@ fn a_sampled_transmit_pulse_is_simulated_and_recorded() {
     let error = crate::one_line(&Scenario::parse(&empty).unwrap_err());
     assert!(error.contains("[sequence.pulse].samples"), "{error}");
 }
+
+#[test]
+fn pulsatile_phantoms_give_their_heartbeats_as_an_ecg_would() {
+    // The rat network beats at 5.5 Hz: 360 frames at 1.8 kHz (0.2 s) hold two beats, the first
+    // at the first frame. Set up only: nothing is simulated.
+    let network = Simulation::of(
+        Scenario::shipped("rat-network").unwrap(),
+        "rat-network".into(),
+    )
+    .unwrap();
+    assert_eq!(network.cardiac_triggers(), Some(vec![0.0, 1.0 / 5.5]));
+    // The tree beats at its flow's heart rate, the rat's; steady flow has no beats, and a
+    // recording shorter than one cycle too few to say one.
+    let mut brain = Scenario::shipped("rat-brain").unwrap();
+    brain.tissue = None;
+    let tree = Simulation::of(brain.clone(), "rat-brain".into()).unwrap();
+    let beats = tree.cardiac_triggers().unwrap();
+    assert_eq!(beats.len(), 2);
+    assert!((beats[1] - 1.0 / 5.5).abs() < 1e-12, "{beats:?}");
+    brain.sequence.frames = 100;
+    assert_eq!(
+        Simulation::of(brain, "rat-brain".into())
+            .unwrap()
+            .cardiac_triggers(),
+        None
+    );
+    let tube = Simulation::of(Scenario::parse(SMALL).unwrap(), "small".into()).unwrap();
+    assert_eq!(tube.cardiac_triggers(), None);
+}

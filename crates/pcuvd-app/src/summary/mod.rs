@@ -182,6 +182,7 @@ fn write_dynamics(
         match maps.cycle_source {
             dynamics::CycleSource::GivenRate => "given",
             dynamics::CycleSource::Triggers => "from the cardiac triggers",
+            dynamics::CycleSource::TriggerPeriod => "from the cardiac triggers' period",
             dynamics::CycleSource::Upstrokes => "measured: systolic upstrokes",
             dynamics::CycleSource::Autocorrelation => "measured: autocorrelation",
         },

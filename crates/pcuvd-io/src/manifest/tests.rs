@@ -381,6 +381,18 @@ fn streamed_recording_equals_the_one_written_at_once() {
     );
     drop(writer);
     assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
+
+    // The heartbeats recorded beside the samples go into [cardiac] and read back as they were.
+    let beats = vec![0.0, 1.0 / 5.5, 2.0 / 5.5];
+    let mut writer =
+        RecordingWriter::create(&dir.path().join("d"), "rec", &acq, samples.dim(), &prov)
+            .unwrap()
+            .with_cardiac_triggers(beats.clone());
+    writer.append(samples.view()).unwrap();
+    let with_beats = writer.finish().unwrap();
+    let parsed = super::read::parse_manifest(&with_beats).unwrap();
+    assert_eq!(parsed.cardiac_triggers_s, Some(beats));
+    assert_eq!(read_recording(&with_beats).unwrap().data, data);
 }
 
 /// A manifest's samples read a block of frames at a time are the recording read whole, for each

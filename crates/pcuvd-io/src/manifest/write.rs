@@ -68,7 +68,14 @@ pub fn write_recording(
             )
         }
     };
-    write_manifest(&manifest_path, acq, &npy_name, &kind_lines, provenance)?;
+    write_manifest(
+        &manifest_path,
+        acq,
+        &npy_name,
+        &kind_lines,
+        None,
+        provenance,
+    )?;
     Ok(manifest_path)
 }
 
@@ -122,6 +129,7 @@ pub(super) fn write_manifest(
     acq: &Acquisition,
     npy_name: &str,
     kind_lines: &str,
+    cardiac_triggers_s: Option<&[f64]>,
     provenance: &toml::Table,
 ) -> Result<(), IoError> {
     let p = &acq.probe;
@@ -225,6 +233,10 @@ pub(super) fn write_manifest(
                 .collect()
         )
     ));
+    if let Some(times) = cardiac_triggers_s {
+        t.push_str("\n[cardiac]\n");
+        t.push_str(&format!("triggers_s = [{}]\n", list(times)));
+    }
     if !provenance.is_empty() {
         #[derive(serde::Serialize)]
         struct Prov<'a> {

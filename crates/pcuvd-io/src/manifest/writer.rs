@@ -19,6 +19,8 @@ pub struct RecordingWriter {
     file: std::io::BufWriter<std::fs::File>,
     acquisition: Acquisition,
     provenance: toml::Table,
+    /// Cardiac cycle start times (s from the first frame) for the manifest's `[cardiac]`.
+    cardiac_triggers_s: Option<Vec<f64>>,
     /// (events, channels, samples) the recording will hold.
     shape: (usize, usize, usize),
     written: usize,
@@ -76,9 +78,18 @@ impl RecordingWriter {
             file,
             acquisition: acquisition.clone(),
             provenance: provenance.clone(),
+            cardiac_triggers_s: None,
             shape,
             written: 0,
         })
+    }
+
+    /// The recording with the cardiac cycle start times `times` (s from the first frame) that
+    /// were recorded beside it (an ECG's R-waves; a simulation's heartbeats), written as the
+    /// manifest's `[cardiac].triggers_s`, which `pcuvd process` reads for its RI maps.
+    pub fn with_cardiac_triggers(mut self, times: Vec<f64>) -> Self {
+        self.cardiac_triggers_s = Some(times);
+        self
     }
 
     /// Appends the next events, shape (events, channels, samples); refuses a wrong shape, more
@@ -142,6 +153,7 @@ impl RecordingWriter {
             &self.acquisition,
             &self.npy_name,
             RF_KIND,
+            self.cardiac_triggers_s.as_deref(),
             &self.provenance,
         )?;
         Ok(self.manifest_path.clone())

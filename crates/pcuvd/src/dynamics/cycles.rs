@@ -170,6 +170,10 @@ pub enum CycleSource {
     /// From cycle start times given beside the recording (ECG R-waves or scanner triggers): one
     /// cycle from each to the next.
     Triggers,
+    /// From the period of the triggers given beside the recording, when the waveform is too short
+    /// to hold a cycle from one trigger to the next (a recording of about one beat): cycles one
+    /// period long, aligned with the systolic peaks, as with a given heart rate.
+    TriggerPeriod,
     /// Measured from the data: the systolic upstrokes (steepest rises) of the vessels' mean speed,
     /// one cycle from each to the next. Needs two upstrokes: about one cycle or more.
     Upstrokes,
@@ -187,6 +191,9 @@ impl CycleSource {
             }
             CycleSource::Triggers => {
                 "cardiac triggers given with the recording (ECG R-waves or trigger times); one cycle from each trigger to the next"
+            }
+            CycleSource::TriggerPeriod => {
+                "heart rate from the period of the cardiac triggers given with the recording (the waveform holds no cycle from one trigger to the next); cycles one period long, aligned with the systolic peaks"
             }
             CycleSource::Upstrokes => {
                 "measured from the data: systolic upstrokes (steepest rises) of the vessels' mean speed; one cycle from each upstroke to the next"
@@ -216,7 +223,8 @@ pub const BEAT_TO_BEAT_MIN_CYCLES: usize = 4;
 
 /// Complete cardiac cycles of a waveform `signal` (the vessels' mean speed) sampled at uniform
 /// `times` (s). In order of preference: cycle start times `triggers` (s, same clock as `times`:
-/// ECG R-waves or scanner triggers); a given `heart_rate_hz` (Hz); measured from the data — beat
+/// ECG R-waves or scanner triggers), or their period when the waveform, which they overlap,
+/// holds no cycle from one to the next; a given `heart_rate_hz` (Hz); measured from the data — beat
 /// to beat between systolic upstrokes ([`systolic_upstrokes`]) when they delimit at least
 /// [`BEAT_TO_BEAT_MIN_CYCLES`] cycles, else one period from the autocorrelation
 /// ([`estimate_heart_rate`], ≳ 1.5 cycles), else between two upstrokes (about one cycle and a
@@ -228,10 +236,26 @@ pub fn cardiac_cycles(
     triggers: Option<&[f64]>,
 ) -> Result<CardiacCycles> {
     let dt = check_times(signal, times)?;
+    let mut from_triggers = None;
     if let Some(triggers) = triggers {
-        return trigger_cycles(times, dt, triggers);
+        match trigger_cycles(times, dt, triggers) {
+            Ok(cycles) => return Ok(cycles),
+            // A waveform shorter than one trigger-to-trigger cycle still knows the period, when
+            // the triggers are of its time (they overlap it; elsewhere their clock is suspect).
+            Err(_)
+                if triggers.len() >= 2
+                    && triggers.windows(2).all(|w| w[1] > w[0])
+                    && triggers[0] <= times[times.len() - 1]
+                    && triggers[triggers.len() - 1] >= times[0] =>
+            {
+                let mut periods: Vec<f64> = triggers.windows(2).map(|w| w[1] - w[0]).collect();
+                periods.sort_by(f64::total_cmp);
+                from_triggers = Some(1.0 / periods[periods.len() / 2]);
+            }
+            Err(e) => return Err(e),
+        }
     }
-    let (hr, source) = match heart_rate_hz {
+    let (hr, source) = match from_triggers.or(heart_rate_hz) {
         Some(hr) => {
             require_positive("heart rate", hr)?;
             if hr * dt > 0.5 {
@@ -244,7 +268,11 @@ pub fn cardiac_cycles(
                     ),
                 ));
             }
-            (hr, CycleSource::GivenRate)
+            let source = match from_triggers {
+                Some(_) => CycleSource::TriggerPeriod,
+                None => CycleSource::GivenRate,
+            };
+            (hr, source)
         }
         None => {
             let upstrokes = systolic_upstrokes(signal, times)?;

@@ -1271,3 +1271,40 @@ fn partial_volume_correction_reaches_the_dynamics_windows() {
     );
     assert!(maps_corrected.vz < 0.9 * maps_plain.vz);
 }
+
+/// A recording of about one beat holds no cycle from one trigger to the next (its windows start
+/// after the first trigger): the triggers' period then sets the cycle, as a given heart rate
+/// would, and the cycle found is that period long.
+#[test]
+fn triggers_too_far_apart_for_the_waveform_give_their_period() {
+    let hr = 5.5;
+    let dt = 0.002;
+    // The windows of a 0.2 s recording: 9.7 to 189.7 ms.
+    let times: Vec<f64> = (0..91).map(|i| 0.0097 + i as f64 * dt).collect();
+    let signal: Vec<f64> = times
+        .iter()
+        .map(|t| 1.0 + 0.7 * (2.0 * PI * hr * (t - 0.05)).cos())
+        .collect();
+    let beats = [0.0, 1.0 / hr];
+    let found = pcuvd::dynamics::cardiac_cycles(&signal, &times, None, Some(&beats)).unwrap();
+    assert_eq!(found.source, CycleSource::TriggerPeriod);
+    assert!((found.heart_rate_hz - hr).abs() < 1e-12);
+    assert_eq!(found.ranges.len(), 1);
+    let (start, end) = found.ranges[0];
+    assert!(
+        ((end - start) as f64 * dt - 1.0 / hr).abs() <= dt,
+        "{:?}",
+        found.ranges
+    );
+    // Triggers of another clock (none near the waveform) or one trigger say no period: still an
+    // error that says why.
+    let elsewhere = [5.0, 5.0 + 1.0 / hr];
+    let far = pcuvd::dynamics::cardiac_cycles(&signal, &times, None, Some(&elsewhere));
+    assert!(
+        far.unwrap_err()
+            .to_string()
+            .contains("at least two are needed")
+    );
+    let one = pcuvd::dynamics::cardiac_cycles(&signal, &times, None, Some(&beats[..1]));
+    assert!(one.unwrap_err().to_string().contains("trigger"));
+}
