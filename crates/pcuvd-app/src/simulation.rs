@@ -345,6 +345,10 @@ pub struct Simulation {
     keyframes: std::sync::Mutex<TissueKeyframes>,
 }
 
+/// Samples a simulation holds in memory at once per mode (bytes): [`Simulation::in_blocks`]
+/// simulates blocks of frames this large.
+pub const BLOCK_BYTES: usize = 256 << 20;
+
 /// How a simulation's echoes compare (see [`Simulation::echo_levels`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EchoLevels {
@@ -541,6 +545,45 @@ impl Simulation {
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<ndarray::Array3<f32>> {
         self.simulate_block(index, events, progress)
+    }
+
+    /// Every recording, simulated a block of frames at a time (at most [`BLOCK_BYTES`] of
+    /// samples per mode), the modes in turn: memory stays bounded whatever the recording's
+    /// length, the tissue's keyframes serve every mode, and the samples are those of one
+    /// whole-recording simulation. `sink(mode index, events, samples)` takes each block in
+    /// order; `progress(events done, events in all)`.
+    pub fn in_blocks(
+        &self,
+        mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()>,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<()> {
+        let frame_bytes = self
+            .modes
+            .iter()
+            .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
+            .max()
+            .unwrap_or(1);
+        let block = (BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        let total: usize = self
+            .modes
+            .iter()
+            .map(|(_, p)| self.frames * p.sequence.n_angles())
+            .sum();
+        let mut done = 0;
+        for first in (0..self.frames).step_by(block) {
+            let last = (first + block).min(self.frames);
+            for (index, (_, params)) in self.modes.iter().enumerate() {
+                let n = params.sequence.n_angles();
+                let events = first * n..last * n;
+                let start = events.start;
+                let samples = self.events(index, events.clone(), &|event, _| {
+                    progress(done + event - start, total)
+                })?;
+                done += events.len();
+                sink(index, events, samples)?;
+            }
+        }
+        Ok(())
     }
 
     /// The `[provenance]` a recording of mode `index` carries: simulator, scenario (its source

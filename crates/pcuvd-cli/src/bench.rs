@@ -125,20 +125,22 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     let mut echoes = 0.0;
     let mut events_total = 0;
     let clock = Instant::now();
-    // As `pcuvd simulate` does: a block of frames of every mode in turn, so that the tissue's
-    // keyframes serve both, and memory stays bounded.
-    let block = 16;
-    for first in (0..simulation.frames).step_by(block) {
-        let last = (first + block).min(simulation.frames);
-        for (index, (_, params)) in simulation.modes.iter().enumerate() {
-            let n = params.sequence.n_angles();
-            let slots = if params.sequence.is_coded() { n } else { 1 };
-            let events = first * n..last * n;
+    // In the blocks `pcuvd simulate` writes, thrown away.
+    simulation.in_blocks(
+        |index, events, samples| {
+            let sequence = &simulation.modes[index].1.sequence;
+            let slots = if sequence.is_coded() {
+                sequence.n_angles()
+            } else {
+                1
+            };
             echoes += ((blood + tissue) * slots * events.len()) as f64;
             events_total += events.len();
-            std::hint::black_box(simulation.events(index, events, &|_, _| {})?);
-        }
-    }
+            std::hint::black_box(samples);
+            Ok(())
+        },
+        &|_, _| {},
+    )?;
     let simulate_s = clock.elapsed().as_secs_f64();
     let channels = simulation.modes[0].1.probe.n_elements;
     let report = json!({

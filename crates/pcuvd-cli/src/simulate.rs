@@ -41,9 +41,6 @@ const NETWORK_TRUTH_FILES: [&str; 5] = [
     "truth_vessel_class.npy",
     "truth_flow_up.npy",
 ];
-/// Samples `pcuvd simulate` holds in memory at once (bytes): it simulates and writes blocks of
-/// frames this large.
-const SIMULATE_BLOCK_BYTES: usize = 256 << 20;
 
 /// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
 const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
@@ -157,31 +154,11 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         &format!("simulate {}", recordings.join(" + ")),
         total as u64,
     );
-    // Simulated and written a block of frames at a time, the modes in turn: memory stays bounded
-    // whatever the recording's length, the tissue's keyframes serve every mode, and the samples
-    // are those of one whole-recording simulation.
-    let frame_bytes = simulation
-        .modes
-        .iter()
-        .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
-        .max()
-        .unwrap_or(1);
-    let block = (SIMULATE_BLOCK_BYTES / frame_bytes.max(1)).max(1);
-    let mut done = 0;
-    for first in (0..simulation.frames).step_by(block) {
-        let last = (first + block).min(simulation.frames);
-        for (index, ((_, params), writer)) in simulation.modes.iter().zip(&mut writers).enumerate()
-        {
-            let n = params.sequence.n_angles();
-            let events = first * n..last * n;
-            let start = events.start;
-            let samples = simulation.events(index, events.clone(), &|event, _| {
-                progress.set_position((done + event - start) as u64)
-            })?;
-            writer.append(samples.view())?;
-            done += events.len();
-        }
-    }
+    // Written a block of frames at a time, as they are simulated: memory stays bounded.
+    simulation.in_blocks(
+        |index, _, samples| Ok(writers[index].append(samples.view())?),
+        &|done, _| progress.set_position(done as u64),
+    )?;
     progress.finish();
     for (mode_index, ((_, params), writer)) in simulation.modes.iter().zip(writers).enumerate() {
         let manifest = writer.finish()?;
