@@ -35,11 +35,13 @@ pub struct ProcessingSettings {
     /// Receive f-number (depth / active aperture width).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().f_number))]
     pub f_number: f64,
-    /// SVD clutter filter: tissue components removed: "auto", "off" or a number.
+    /// SVD clutter filter: tissue components removed: "auto" (strong and slow), "similarity"
+    /// (spatial similarity of the singular vectors), "off" or a number.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().svd_low))]
     #[serde(deserialize_with = "text")]
     pub svd_low: String,
-    /// SVD clutter filter: first noise component removed: "off", "auto" or a number.
+    /// SVD clutter filter: first noise component removed: "off", "auto" (Marchenko–Pastur edge),
+    /// "similarity" or a number.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().svd_high))]
     #[serde(deserialize_with = "text")]
     pub svd_high: String,
@@ -292,13 +294,7 @@ impl From<Alignment> for pcuvd::form::decode::EventAlignment {
 }
 
 fn rank_cut(text: &str, option: &str) -> Result<RankCut> {
-    match text {
-        "auto" => Ok(RankCut::Auto),
-        "off" | "none" => Ok(RankCut::Off),
-        n => n.parse::<usize>().map(RankCut::Fixed).with_context(|| {
-            format!("--{option} must be \"auto\", \"off\" or a whole number, got {n:?}")
-        }),
-    }
+    text.parse().map_err(|e| anyhow::anyhow!("--{option} {e}"))
 }
 
 /// Parses "XMIN,XMAX,ZMIN,ZMAX,STEP" in mm into a grid in m.

@@ -204,15 +204,8 @@ pub(crate) fn beamform_iq<'py>(
 }
 
 pub(crate) fn rank_cut(text: &str, name: &str) -> PyResult<RankCut> {
-    match text {
-        "off" => Ok(RankCut::Off),
-        "auto" => Ok(RankCut::Auto),
-        n => n.parse().map(RankCut::Fixed).map_err(|_| {
-            PyValueError::new_err(format!(
-                "{name} {n:?}: expected \"auto\", \"off\" or a number of components"
-            ))
-        }),
-    }
+    text.parse()
+        .map_err(|e| PyValueError::new_err(format!("{name} {e}")))
 }
 
 /// A filtered series, the low and high cut-offs used, and the singular values.

@@ -11,6 +11,18 @@
 //! tissue (a simulation of blood alone, a rotating disk) therefore keeps every component.
 //! Automatic high cut-off: components whose energy falls below the Marchenko–Pastur edge of white
 //! noise, the noise variance estimated from the median eigenvalue, are removed.
+//!
+//! Similarity cut-offs (Baranger et al., IEEE TMI 2018): tissue moves as a whole, so the spatial
+//! singular vectors of its components have the same magnitude map (the tissue's echogenicity),
+//! and so do those of noise (the noise floor's map); blood components each light their own
+//! vessels. The spatial-similarity matrix, the correlation over pixels of |u_n| with |u_m|,
+//! therefore shows two bright squares: tissue at the top-left, noise at the bottom-right. The
+//! cut-offs split the components into tissue, blood and noise so that a constant per pair of
+//! subspaces (the two squares among six blocks) fits its off-diagonal entries best (least
+//! squares; the diagonal is 1 by definition and carries nothing). The fit scores every pair of
+//! cut-offs in O(1) from a summed-area table, O(N²) in all, as the follow-up (Baranger et al.,
+//! IEEE TUFFC 2023) made it fast. A square needs two components: a still tissue of a single
+//! component forms no square, and `Auto` is the cut-off that sees it.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
@@ -27,8 +39,28 @@ pub enum RankCut {
     Off,
     /// A fixed number of components.
     Fixed(usize),
-    /// Chosen from the data (see the module documentation).
+    /// Chosen from the data by energy and Doppler frequency (see the module documentation).
     Auto,
+    /// Chosen from the spatial similarity of the singular vectors (see the module documentation).
+    Similarity,
+}
+
+impl std::str::FromStr for RankCut {
+    type Err = String;
+
+    /// Parses "off" (or "none"), "auto", "similarity" or a number of components.
+    fn from_str(text: &str) -> std::result::Result<Self, String> {
+        match text {
+            "off" | "none" => Ok(RankCut::Off),
+            "auto" => Ok(RankCut::Auto),
+            "similarity" => Ok(RankCut::Similarity),
+            n => n.parse::<usize>().map(RankCut::Fixed).map_err(|_| {
+                format!(
+                    "{n:?}: expected \"auto\", \"similarity\", \"off\" or a number of components"
+                )
+            }),
+        }
+    }
 }
 
 /// SVD clutter-filter settings.
@@ -126,6 +158,14 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
     let eigenvalues: Vec<f64> = order.iter().map(|&k| eig.S()[k].re.max(0.0)).collect();
     let vectors = eig.U();
 
+    let similar =
+        (params.low == RankCut::Similarity || params.high == RankCut::Similarity).then(|| {
+            let descending = Mat::<c32>::from_fn(frames, frames, |i, k| {
+                let v = vectors[(i, order[k])];
+                c32::new(v.re as f32, v.im as f32)
+            });
+            fit_two_squares(&spatial_similarity(data, frames, descending.as_ref()))
+        });
     let low = match params.low {
         RankCut::Off => 0,
         RankCut::Fixed(k) => k,
@@ -134,11 +174,13 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
             |k| vectors.col(order[k]),
             params.tissue_frequency,
         ),
+        RankCut::Similarity => similar.map_or(0, |(low, _)| low),
     };
     let high = match params.high {
         RankCut::Off => frames,
         RankCut::Fixed(k) => k,
         RankCut::Auto => auto_high(&eigenvalues, pixels),
+        RankCut::Similarity => similar.map_or(frames, |(_, high)| high),
     };
     if low >= high || high > frames {
         return Err(invalid(
@@ -230,6 +272,108 @@ fn auto_low<'a>(
         low += 1;
     }
     low
+}
+
+/// The spatial-similarity matrix of the components in `vectors`' columns (temporal singular
+/// vectors, strongest first): C(n, m) = the correlation coefficient over pixels of |S·v_n| and
+/// |S·v_m| (the spatial singular vectors' magnitudes, up to their singular values, which a
+/// correlation ignores). Accumulated over pixel chunks in f64; |S·V| is never held whole.
+pub fn spatial_similarity(data: &[Complex32], frames: usize, vectors: MatRef<'_, c32>) -> Mat<f64> {
+    let n = vectors.ncols();
+    let as_faer = |d: &[Complex32]| -> &[c32] {
+        // SAFETY: num_complex::Complex32 and faer's c32 are the same type.
+        unsafe { std::slice::from_raw_parts(d.as_ptr() as *const c32, d.len()) }
+    };
+    let (products, sums) = data
+        .par_chunks(CHUNK * frames)
+        .map(|chunk| {
+            let rows = chunk.len() / frames;
+            let mut spatial = Mat::<c32>::zeros(rows, n);
+            faer::linalg::matmul::matmul(
+                spatial.as_mut(),
+                faer::Accum::Replace,
+                MatRef::from_row_major_slice(as_faer(chunk), rows, frames),
+                vectors,
+                c32::new(1.0, 0.0),
+                faer::Par::Seq,
+            );
+            let magnitude = Mat::<f64>::from_fn(rows, n, |p, k| spatial[(p, k)].norm() as f64);
+            let sums: Vec<f64> = (0..n).map(|k| magnitude.col(k).sum()).collect();
+            (magnitude.transpose() * &magnitude, sums)
+        })
+        .reduce(
+            || (Mat::<f64>::zeros(n, n), vec![0.0; n]),
+            |(pa, sa), (pb, sb)| (pa + pb, sa.iter().zip(&sb).map(|(a, b)| a + b).collect()),
+        );
+    let pixels = (data.len() / frames) as f64;
+    let mean: Vec<f64> = sums.iter().map(|s| s / pixels).collect();
+    let covariance = |i: usize, j: usize| products[(i, j)] / pixels - mean[i] * mean[j];
+    let spread: Vec<f64> = (0..n).map(|k| covariance(k, k).max(0.0).sqrt()).collect();
+    Mat::from_fn(n, n, |i, j| {
+        let scale = spread[i] * spread[j];
+        if scale > 0.0 {
+            covariance(i, j) / scale
+        } else {
+            0.0
+        }
+    })
+}
+
+/// The cut-offs (low, high) that split the components into tissue [0, low), blood [low, high) and
+/// noise [high, N) such that a constant per pair of subspaces fits `similarity`'s off-diagonal
+/// entries best (least squares). The tissue and noise squares are two of the six blocks; the
+/// others let the tissue and the noise maps anti-correlate (echoes fade with depth while the
+/// noise floor grows) without bending the squares. Candidates: low ≤ N/2 (at most half the
+/// components are tissue, as for `Auto`), low < high ≤ N; among equal fits the smallest cuts.
+pub fn fit_two_squares(similarity: &Mat<f64>) -> (usize, usize) {
+    let n = similarity.nrows();
+    // table[(i, j)] = Σ of the off-diagonal entries of rows < i and columns < j.
+    let mut table = Mat::<f64>::zeros(n + 1, n + 1);
+    for i in 0..n {
+        for j in 0..n {
+            let entry = if i == j { 0.0 } else { similarity[(i, j)] };
+            table[(i + 1, j + 1)] = entry + table[(i, j + 1)] + table[(i + 1, j)] - table[(i, j)];
+        }
+    }
+    let block_sum = |rows: (usize, usize), columns: (usize, usize)| {
+        table[(rows.1, columns.1)] - table[(rows.0, columns.1)] - table[(rows.1, columns.0)]
+            + table[(rows.0, columns.0)]
+    };
+    let block_entries = |rows: (usize, usize), columns: (usize, usize)| {
+        let (r, c) = (rows.1 - rows.0, columns.1 - columns.0);
+        if rows == columns {
+            r * r.saturating_sub(1)
+        } else {
+            r * c
+        }
+    };
+    // Minimising the squared error of a constant per block maximises Σ (block sum)² / entries.
+    let explained = |rows: (usize, usize), columns: (usize, usize)| {
+        let count = block_entries(rows, columns);
+        match count {
+            0 => 0.0,
+            _ => block_sum(rows, columns).powi(2) / count as f64,
+        }
+    };
+    let mut best = (0, n);
+    let mut best_score = f64::NEG_INFINITY;
+    for low in 0..=n / 2 {
+        for high in (low + 1..=n).rev() {
+            let parts = [(0, low), (low, high), (high, n)];
+            let mut score = 0.0;
+            for (i, &rows) in parts.iter().enumerate() {
+                score += explained(rows, rows);
+                for &columns in &parts[i + 1..] {
+                    // The block and its transpose hold the same entries.
+                    score += 2.0 * explained(rows, columns);
+                }
+            }
+            if score > best_score + 1e-12 * score.abs() {
+                (best, best_score) = ((low, high), score);
+            }
+        }
+    }
+    best
 }
 
 fn auto_high(eigenvalues: &[f64], pixels: usize) -> usize {
@@ -413,6 +557,178 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    /// The similarity cut-offs on a case built to hold three subspaces, as the method assumes:
+    /// tissue of rank 3 whose components share one magnitude map (its echogenicity, varying
+    /// across the image), white noise whose level grows with depth (as a beamformed noise floor
+    /// does), and six vessels each lit by one Doppler tone of its own strength (equal ones would
+    /// mix in the singular vectors), placed where both maps are at their means, so that no vessel
+    /// map resembles the tissue's or the noise's (a weak vessel deep in the noise does, and the
+    /// fit then counts it as noise, as it should: nothing tells them apart). The fit finds the tissue's rank and the tissue-plus-blood
+    /// rank exactly; the energy-and-frequency rule sees only the still component.
+    #[test]
+    fn similarity_cut_offs_find_the_tissue_and_noise_subspaces() {
+        let (nz, nx, nf) = (48, 32, 48);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let mut gaussian = || Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng));
+        let tau = 2.0 * std::f32::consts::PI;
+        // Tissue: still, then one and two cycles of slow motion, weaker and weaker.
+        let tissue_time = |k: usize, f: usize| -> Complex32 {
+            let t = tau * f as f32 / nf as f32;
+            match k {
+                0 => Complex32::new(1.0, 0.0),
+                1 => Complex32::from_polar(0.3, t),
+                _ => Complex32::from_polar(0.1, 2.0 * t),
+            }
+        };
+        let mut series = Array3::<Complex32>::zeros((nz, nx, nf));
+        for z in 0..nz {
+            for x in 0..nx {
+                let echogenicity = 30.0 * (1.0 + 0.5 * (tau * x as f32 / nx as f32).cos());
+                let phases: Vec<Complex32> = (0..3)
+                    .map(|_| Complex32::from_polar(1.0, gaussian().arg()))
+                    .collect();
+                // Vessel j: 3 rows × 8 columns where both profiles are at their means, its tone
+                // at 5 + j cycles.
+                let vessel = (0..6).find(|j| {
+                    let (top, left) = (16 + 6 * (j / 2), 4 + 16 * (j % 2));
+                    (top..top + 3).contains(&z) && (left..left + 8).contains(&x)
+                });
+                let blood = vessel.map(|j| (j, Complex32::from_polar(1.0, gaussian().arg())));
+                let noise_level = 0.05 + 0.15 * z as f32 / nz as f32;
+                for f in 0..nf {
+                    let mut v: Complex32 = (0..3)
+                        .map(|k| echogenicity * phases[k] * tissue_time(k, f))
+                        .sum();
+                    if let Some((j, phase)) = blood {
+                        let cycles = (5 + j) as f32;
+                        // Distinct strengths, so that each component is one vessel.
+                        let strength = 0.8f32.powi(j as i32);
+                        v += phase
+                            * Complex32::from_polar(strength, tau * cycles * f as f32 / nf as f32);
+                    }
+                    series[[z, x, f]] = v + noise_level * gaussian();
+                }
+            }
+        }
+        let similarity = ClutterParams {
+            low: RankCut::Similarity,
+            high: RankCut::Similarity,
+            tissue_frequency: 0.02,
+        };
+        let report = svd_filter(&mut series.clone(), &similarity).unwrap();
+        assert_eq!((report.low, report.high), (3, 9));
+        let auto = svd_filter(&mut series, &ClutterParams::default()).unwrap();
+        assert_eq!(
+            auto.low, 1,
+            "the moving tissue is faster than the auto rule's limit"
+        );
+    }
+
+    /// The summed-area fit equals the least-squares fit computed directly, block by block, on a
+    /// symmetric matrix with two noisy squares and anti-correlated corners.
+    #[test]
+    fn two_square_fit_equals_the_direct_least_squares_fit() {
+        let n = 24;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+        let normal = Normal::new(0.0, 0.2).unwrap();
+        let mut m = Mat::<f64>::zeros(n, n);
+        for i in 0..n {
+            for j in 0..=i {
+                let level = match (j < 5, i >= 17) {
+                    (true, true) => -0.5,
+                    (true, false) if i < 5 => 0.9,
+                    (false, true) if j >= 17 => 0.5,
+                    _ => 0.05,
+                };
+                let v = if i == j {
+                    1.0
+                } else {
+                    level + normal.sample(&mut rng)
+                };
+                m[(i, j)] = v;
+                m[(j, i)] = v;
+            }
+        }
+        let direct_error = |low: usize, high: usize| {
+            let part = |i: usize| (i >= low) as usize + (i >= high) as usize;
+            let region = |i: usize, j: usize| 3 * part(i).min(part(j)) + part(i).max(part(j));
+            let mut sums = [0.0; 9];
+            let mut counts = [0.0f64; 9];
+            for i in 0..n {
+                for j in 0..n {
+                    if i != j {
+                        sums[region(i, j)] += m[(i, j)];
+                        counts[region(i, j)] += 1.0;
+                    }
+                }
+            }
+            let mut error = 0.0;
+            for i in 0..n {
+                for j in 0..n {
+                    if i != j {
+                        let r = region(i, j);
+                        error += (m[(i, j)] - sums[r] / counts[r].max(1.0)).powi(2);
+                    }
+                }
+            }
+            error
+        };
+        let fitted = fit_two_squares(&m);
+        let fitted_error = direct_error(fitted.0, fitted.1);
+        for low in 0..=n / 2 {
+            for high in low + 1..=n {
+                assert!(
+                    fitted_error <= direct_error(low, high) + 1e-9,
+                    "({low}, {high}) fits better than {fitted:?}"
+                );
+            }
+        }
+        assert_eq!(fitted, (5, 17));
+    }
+
+    /// The similarity matrix equals the correlation of |U|'s columns from an independent thin SVD
+    /// of S in f64.
+    #[test]
+    fn spatial_similarity_equals_the_correlation_of_an_independent_svd() {
+        let (pixels, nf) = (300, 10);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let data: Vec<Complex32> = (0..pixels * nf)
+            .map(|i| {
+                let level = 1.0 + (i / nf) as f32 / 50.0 + 3.0 * ((i % nf) as f32 / nf as f32);
+                level * Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng))
+            })
+            .collect();
+        let s = Mat::<c64>::from_fn(pixels, nf, |p, f| {
+            let v = data[p * nf + f];
+            c64::new(v.re as f64, v.im as f64)
+        });
+        let svd = s.thin_svd().unwrap();
+        let v = Mat::<c32>::from_fn(nf, nf, |i, k| {
+            let x = svd.V()[(i, k)];
+            c32::new(x.re as f32, x.im as f32)
+        });
+        let got = spatial_similarity(&data, nf, v.as_ref());
+        let magnitude =
+            |k: usize| -> Vec<f64> { (0..pixels).map(|p| svd.U()[(p, k)].norm()).collect() };
+        for a in 0..nf {
+            for b in 0..nf {
+                let (ua, ub) = (magnitude(a), magnitude(b));
+                let mean = |u: &[f64]| u.iter().sum::<f64>() / pixels as f64;
+                let (ma, mb) = (mean(&ua), mean(&ub));
+                let cov: f64 = ua.iter().zip(&ub).map(|(x, y)| (x - ma) * (y - mb)).sum();
+                let var = |u: &[f64], m: f64| u.iter().map(|x| (x - m).powi(2)).sum::<f64>();
+                let expected = cov / (var(&ua, ma) * var(&ub, mb)).sqrt();
+                assert!(
+                    (got[(a, b)] - expected).abs() < 1e-4,
+                    "C({a}, {b}) = {} vs {expected}",
+                    got[(a, b)]
+                );
+            }
+        }
     }
 
     /// The automatic high cut-off on an analytic case. S (P pixels × N frames) is complex white
