@@ -19,6 +19,7 @@
 
 #![warn(missing_docs)]
 
+pub mod brain;
 pub mod figures;
 pub mod input;
 pub mod map_kinds;

@@ -297,6 +297,11 @@ fn rank_cut(text: &str, option: &str) -> Result<RankCut> {
     text.parse().map_err(|e| anyhow::anyhow!("--{option} {e}"))
 }
 
+/// Checks a clutter cut-off's text as `--OPTION` would read it.
+pub fn check_rank_cut(text: &str, option: &str) -> Result<()> {
+    rank_cut(text, option).map(|_| ())
+}
+
 /// Parses "XMIN,XMAX,ZMIN,ZMAX,STEP" in mm into a grid in m.
 pub fn parse_grid(text: &str) -> Result<Grid> {
     let values = parse_numbers(text).with_context(|| {

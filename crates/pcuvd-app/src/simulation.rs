@@ -37,6 +37,8 @@ pub enum Preset {
 
 pub use crate::scenario::{ModeChoice, TissueMotionChoice};
 
+pub mod folder;
+
 /// What to simulate: every option of `pcuvd simulate` but the output folder. A scenario (a shipped
 /// one, or a TOML file) describes the whole simulation; the other options override its values.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -893,6 +895,7 @@ fn mode_params(scenario: &Scenario, coded: bool) -> Result<SimParams> {
     params.validate().context("the scenario's acquisition")?;
     Ok(params)
 }
+
 #[cfg(test)]
 mod scenario_tests;
 

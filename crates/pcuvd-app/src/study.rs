@@ -9,7 +9,11 @@ use pcuvd::study::network::NetworkSettings;
 use pcuvd::study::spiral::SpiralSettings;
 use serde::{Deserialize, Serialize};
 
-use crate::settings::{Alignment, DopplerEstimatorOption, Switch, TubeProfile, kernel_text};
+use crate::brain::BrainSettings;
+use crate::settings::{
+    Alignment, DopplerEstimatorOption, DynamicsSettings, ProcessingSettings, Switch, TubeProfile,
+    kernel_text,
+};
 
 /// The studies' settings as options; every default is the library's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -106,6 +110,24 @@ pub struct StudySettings {
     /// wall, where dealiasing must settle its level by the vessel's residual.
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().dealias_tube_profile))]
     pub dealias_tube_profile: TubeProfile,
+    /// Brain study: the scenario simulated (a shipped scenario's name or a TOML file with a
+    /// vascular tree and both transmit modes).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_scenario))]
+    pub brain_scenario: String,
+    /// Brain study: compound frames, overriding the scenario's (RI needs a whole cardiac cycle:
+    /// 360 frames at 1.8 kHz hold one at 5.5 Hz).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub brain_frames: Option<usize>,
+    /// Brain study: folder of cached simulations, one per scenario [default: OUT/cache; from
+    /// Python, pcuvd-cache in the working folder].
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub brain_cache: Option<std::path::PathBuf>,
+    /// Brain study: SVD clutter filter's tissue cut-off (as `process --svd-low`).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_svd_low))]
+    pub brain_svd_low: String,
+    /// Brain study: SVD clutter filter's noise cut-off (as `process --svd-high`).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_svd_high))]
+    pub brain_svd_high: String,
 }
 
 impl Default for StudySettings {
@@ -135,6 +157,11 @@ impl Default for StudySettings {
             dealias: DealiasSettings::default().dealias.label(),
             dealias_tube_angle_deg: DealiasSettings::default().tube_angle_deg,
             dealias_tube_profile: DealiasSettings::default().tube_profile.into(),
+            brain_scenario: crate::brain::DEFAULT_SCENARIO.into(),
+            brain_frames: None,
+            brain_cache: None,
+            brain_svd_low: ProcessingSettings::default().svd_low,
+            brain_svd_high: ProcessingSettings::default().svd_high,
         }
     }
 }
@@ -306,6 +333,42 @@ impl StudySettings {
                 self.network_frames, self.heart_rate
             )
         })?;
+        Ok(settings)
+    }
+}
+
+impl StudySettings {
+    /// The brain study's settings; its cache under `out` (or `pcuvd-cache` in the working folder
+    /// without one) unless `--brain-cache` says where. The
+    /// recordings are processed as `pcuvd process` processes them, with the studies' receive
+    /// f-number, Doppler kernel and estimator, partial-volume correction and decoding.
+    pub fn brain_settings(&self, out: Option<&std::path::Path>) -> Result<BrainSettings> {
+        let processing = ProcessingSettings {
+            f_number: self.f_number,
+            doppler_kernel: self.doppler_kernel.clone(),
+            doppler_estimator: self.doppler_estimator,
+            partial_volume: self.partial_volume,
+            event_alignment: self.event_alignment,
+            svd_low: self.brain_svd_low.clone(),
+            svd_high: self.brain_svd_high.clone(),
+            ..ProcessingSettings::default()
+        };
+        let settings = BrainSettings {
+            scenario: self.brain_scenario.clone(),
+            frames: self.brain_frames,
+            cache: match &self.brain_cache {
+                Some(folder) => folder.clone(),
+                None => crate::brain::default_cache(out),
+            },
+            processing,
+            dynamics: DynamicsSettings::default(),
+        };
+        // Checked now, not after a quarter of an hour of simulation.
+        settings
+            .scenario()
+            .with_context(|| format!("--brain-scenario {}", self.brain_scenario))?;
+        crate::settings::check_rank_cut(&settings.processing.svd_low, "brain-svd-low")?;
+        crate::settings::check_rank_cut(&settings.processing.svd_high, "brain-svd-high")?;
         Ok(settings)
     }
 }

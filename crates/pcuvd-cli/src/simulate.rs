@@ -2,87 +2,13 @@
 //! truth, written as recording manifests. The settings and the simulation are the application
 //! layer's ([`pcuvd_app::simulation`]).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
-use ndarray::Array1;
-use pcuvd_app::input::create_dir;
 use pcuvd_app::simulation::{Simulation, SimulationSettings};
 
 use crate::progress::bar;
-
-/// Ground-truth files every preset writes (on the default processing grid).
-const TRUTH_FILES: [&str; 5] = [
-    "truth_x.npy",
-    "truth_z.npy",
-    "truth_vx.npy",
-    "truth_vz.npy",
-    "truth_mask.npy",
-];
-/// Ground-truth files of the tissue's motion (with tissue): velocity at t = 0 (m/s), and the
-/// displacement from t = 0 (m) at each frame, (frames, depths, 3: x, y, z).
-const TISSUE_TRUTH_FILES: [&str; 3] = [
-    "truth_tissue_vx.npy",
-    "truth_tissue_vz.npy",
-    "truth_tissue_displacement.npy",
-];
-/// The scenario simulated, every option applied: `pcuvd simulate --scenario` of this file
-/// simulates the same recordings again.
-const SCENARIO_FILE: &str = "scenario.toml";
-/// Ground-truth files of a phantom in three dimensions: out-of-plane velocity (m/s) and the
-/// blood's share of each pixel's elevation beam.
-const ELEVATION_TRUTH_FILES: [&str; 2] = ["truth_vy.npy", "truth_blood_fraction.npy"];
-/// Ground-truth files only the vessel network writes (its cardiac-cycle truth).
-const NETWORK_TRUTH_FILES: [&str; 5] = [
-    "truth_ri.npy",
-    "truth_psv.npy",
-    "truth_edv.npy",
-    "truth_vessel_class.npy",
-    "truth_flow_up.npy",
-];
-
-/// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
-const RECORDING_NAMES: [&str; 2] = ["coded", "conventional"];
-
-/// Removes the files of `pcuvd simulate`'s own naming in `dir` that this run will not rewrite, so
-/// that a folder reused for another preset or mode holds no stale truth or recording beside the new
-/// ones (a `truth_ri.npy` of an earlier network run beside a tube would be read as the tube's truth).
-/// Files of any other name are left alone.
-fn remove_stale_outputs(
-    dir: &Path,
-    recordings: &[&str],
-    network_truth: bool,
-    tissue_truth: bool,
-    elevation_truth: bool,
-) -> Result<()> {
-    let stale_recordings = RECORDING_NAMES
-        .iter()
-        .filter(|name| !recordings.contains(name))
-        .flat_map(|name| [format!("{name}.toml"), format!("{name}.npy")]);
-    let stale_truth = NETWORK_TRUTH_FILES
-        .iter()
-        .filter(|_| !network_truth)
-        .chain(TISSUE_TRUTH_FILES.iter().filter(|_| !tissue_truth))
-        .chain(ELEVATION_TRUTH_FILES.iter().filter(|_| !elevation_truth))
-        .map(|name| name.to_string());
-    for name in stale_recordings.chain(stale_truth) {
-        let path = dir.join(name);
-        match std::fs::remove_file(&path) {
-            Ok(()) => println!(
-                "removed {} (stale: this run does not write it)",
-                path.display()
-            ),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => {
-                return Err(e).with_context(|| {
-                    format!("{}: cannot remove this stale output", path.display())
-                });
-            }
-        }
-    }
-    Ok(())
-}
 
 /// Arguments of `pcuvd simulate`.
 #[derive(Args, Debug)]
@@ -98,124 +24,19 @@ pub struct SimulateArgs {
 /// Runs `pcuvd simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let simulation = Simulation::new(&args.options)?;
-    create_dir(&args.out)?;
-    let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
-    // Once every setting is checked: a refused run deletes nothing.
-    remove_stale_outputs(
-        &args.out,
-        &recordings,
-        simulation.network.is_some() || simulation.tree.is_some(),
-        simulation.tissue.is_some(),
-        simulation.tree.is_some(),
-    )?;
-    // Written last, so that an interrupted run leaves no scenario beside half-written recordings.
-    let scenario = args.out.join(SCENARIO_FILE);
-    match std::fs::remove_file(&scenario) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(e).with_context(|| format!("{}: cannot remove it", scenario.display()));
-        }
-        _ => {}
-    }
-    let events_of =
-        |params: &pcuvd::simulate::SimParams| simulation.frames * params.sequence.n_angles();
-    let levels = simulation.echo_levels()?;
-    if let Some(levels) = levels {
-        println!(
-            "tissue echo {:.1} dB above the blood's (0° plane wave){}",
-            levels.tissue_over_blood_db,
-            levels
-                .noise_db_re_whole_echo
-                .map_or_else(String::new, |level| format!(
-                    "; noise {level:.1} dB re the whole echo"
-                ))
-        );
-    }
-    let mut writers = simulation
+    let total: usize = simulation
         .modes
         .iter()
-        .enumerate()
-        .map(|(index, (name, params))| {
-            let shape = (events_of(params), params.probe.n_elements, params.n_samples);
-            let writer = pcuvd_io::RecordingWriter::create(
-                &args.out,
-                name,
-                &params.acquisition(),
-                shape,
-                &simulation.provenance(index, levels),
-            )?;
-            Ok::<_, pcuvd_io::IoError>(match simulation.cardiac_triggers() {
-                Some(times) => writer.with_cardiac_triggers(times),
-                None => writer,
-            })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let total: usize = simulation.modes.iter().map(|(_, p)| events_of(p)).sum();
-    let progress = bar(
-        &format!("simulate {}", recordings.join(" + ")),
-        total as u64,
-    );
-    // Written a block of frames at a time, as they are simulated: memory stays bounded.
-    simulation.in_blocks(
-        |index, _, samples| Ok(writers[index].append(samples.view())?),
+        .map(|(_, p)| simulation.frames * p.sequence.n_angles())
+        .sum();
+    let names: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
+    let progress = bar(&format!("simulate {}", names.join(" + ")), total as u64);
+    pcuvd_app::simulation::folder::write(
+        &simulation,
+        &args.out,
         &|done, _| progress.set_position(done as u64),
+        &|line| println!("{line}"),
     )?;
     progress.finish();
-    for (mode_index, ((_, params), writer)) in simulation.modes.iter().zip(writers).enumerate() {
-        let manifest = writer.finish()?;
-        println!(
-            "wrote {} ({} events of {} channels × {} samples)",
-            manifest.display(),
-            events_of(params),
-            params.probe.n_elements,
-            params.n_samples
-        );
-        // The truth is the same for every mode (same phantom, same default grid): write it once,
-        // whatever an earlier run left in the folder.
-        if mode_index == 0 {
-            let truth = simulation.truth_for(&params.acquisition(), params.n_samples)?;
-            let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| args.out.join(name));
-            pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
-            pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
-            pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
-            pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
-            pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
-            if let Some(cycle) = &truth.cycle {
-                let [ri, psv, edv, vessel_class, flow_up] =
-                    NETWORK_TRUTH_FILES.map(|name| args.out.join(name));
-                pcuvd_io::write_npy(&ri, &cycle.ri)?;
-                pcuvd_io::write_npy(&psv, &cycle.psv)?;
-                pcuvd_io::write_npy(&edv, &cycle.edv)?;
-                pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
-                pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
-            }
-            if let Some((vy, fraction)) = &truth.elevation {
-                let [vy_path, fraction_path] =
-                    ELEVATION_TRUTH_FILES.map(|name| args.out.join(name));
-                pcuvd_io::write_npy(&vy_path, vy)?;
-                pcuvd_io::write_npy(&fraction_path, fraction)?;
-            }
-            if let Some(tissue) = &truth.tissue {
-                let [vx, vz, displacement] = TISSUE_TRUTH_FILES.map(|name| args.out.join(name));
-                pcuvd_io::write_npy(&vx, &tissue.velocity[0])?;
-                pcuvd_io::write_npy(&vz, &tissue.velocity[2])?;
-                if let Some(moved) = simulation.tissue_displacement(&truth.z) {
-                    pcuvd_io::write_npy(&displacement, &moved)?;
-                }
-            }
-            println!(
-                "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
-                args.out.display()
-            );
-        }
-    }
-    let text = format!(
-        "# The scenario `pcuvd simulate` simulated here (from {}, every option applied):\n\
-         # `pcuvd simulate --scenario {SCENARIO_FILE}` simulates the same recordings again.\n\n{}",
-        simulation.source,
-        simulation.scenario.to_toml()?
-    );
-    std::fs::write(&scenario, text)
-        .with_context(|| format!("{}: cannot write the scenario", scenario.display()))?;
-    println!("wrote {} (the scenario simulated)", scenario.display());
     Ok(())
 }

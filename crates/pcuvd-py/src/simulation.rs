@@ -84,7 +84,7 @@ pub(crate) fn simulate<'py>(
     Ok((recordings, dict))
 }
 
-/// Runs one of the paper's studies ("spiral" or "network") with `pcuvd paper`'s options (JSON);
+/// Runs one of the paper's studies ("spiral", "network" or "brain") with `pcuvd paper`'s options (JSON);
 /// returns its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
 #[pyfunction]
 pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> PyResult<String> {
@@ -102,7 +102,13 @@ pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> 
                 let settings = options.network_settings()?;
                 serde_json::to_value(pcuvd::study::network::run(&settings, &report)?.metrics)?
             }
-            other => anyhow::bail!("study {other:?}: expected \"spiral\" or \"network\""),
+            "brain" => {
+                let settings = options.brain_settings(None)?;
+                serde_json::to_value(pcuvd_app::brain::run(&settings, &progress)?.metrics)?
+            }
+            other => {
+                anyhow::bail!("study {other:?}: expected \"spiral\", \"network\" or \"brain\"")
+            }
         };
         Ok(value.to_string())
     })
@@ -111,7 +117,7 @@ pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> 
 
 /// The settings each of the paper's studies would run with for the keyword options in `options`
 /// (JSON), every default filled in and every check made, as `pcuvd paper --print-settings`
-/// prints them: {"spiral": ..., "network": ..., "dealias": ...}.
+/// prints them: {"spiral": ..., "network": ..., "dealias": ..., "brain": ...}.
 #[pyfunction]
 pub(crate) fn study_settings(options: &str) -> PyResult<String> {
     let options: StudySettings = settings(options)?;
@@ -120,6 +126,7 @@ pub(crate) fn study_settings(options: &str) -> PyResult<String> {
             "spiral": options.spiral_settings()?,
             "network": options.network_settings()?,
             "dealias": options.dealias_settings()?,
+            "brain": options.brain_settings(None)?,
         }))
     };
     Ok(resolved().map_err(to_py)?.to_string())

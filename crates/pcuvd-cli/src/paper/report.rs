@@ -9,6 +9,7 @@ pub(super) fn write_report(
     spiral: Option<(&SpiralMetrics, &SpiralSettings, &[Rendered])>,
     network: Option<(&NetworkMetrics, &NetworkSettings, &[Rendered])>,
     dealias: Option<(&DealiasMetrics, &[Rendered])>,
+    brain: Option<(&pcuvd_app::brain::BrainMetrics, &[Rendered])>,
 ) -> Result<()> {
     let mut report =
         Report::new("pcuvd: pulse-coded ultrafast vector Doppler, the paper's studies");
@@ -20,6 +21,9 @@ pub(super) fn write_report(
     }
     if let Some((metrics, figs)) = dealias {
         crate::dealias_study::report_section(&mut report, metrics, figs);
+    }
+    if let Some((metrics, figs)) = brain {
+        super::brain::report_section(&mut report, metrics, figs);
     }
     report.heading("Every number and parameter (metrics.json)");
     report.preformatted(&serde_json::to_string_pretty(metrics).unwrap_or_default());

@@ -1,0 +1,721 @@
+//! The paper's in vivo experiment (§4, Fig. 6–8) on the virtual rat brain, where every pixel's
+//! true velocity, vessel class and RI are known: the brain simulated conventional and coded (once:
+//! the recordings are cached, keyed by the scenario), each recording processed as `pcuvd process`
+//! processes it (clutter filter on, dynamics stage on the recording's heartbeats), and the maps
+//! scored against the truth.
+//!
+//! Which pixels are scored. The truth of a pixel is the elevation beam's view of the tree: its
+//! velocity is the beam-weighted mean over the blood the beam holds, and `blood_fraction` is the
+//! share of the beam's weight that is blood. Near the probe the beam is as tall as the element
+//! (1.5 mm), so a 40 µm penetrating arteriole fills about 3 % of it (the cortex's median share on
+//! the default brain is under 2 %), and only the deep trunks near the lens focus fill a quarter:
+//! a threshold on the share would score no cortex at all. The scores count the **lumen pixels**:
+//! those whose beam holds a vessel at least [`LUMEN_MIN_DIAMETER_M`] wide (the vessel it holds
+//! most of), that is every arteriole, venule and trunk, but not the capillary bed, whose echo
+//! (under 1 % of the beam) no Doppler estimator can be asked to read.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use ndarray::{Array2, Zip};
+use pcuvd::dynamics::{BACKGROUND, RiMaps};
+use pcuvd::estimate::masks::VesselTests;
+use pcuvd::estimate::vector::VectorField;
+use pcuvd::pipeline::ProcessOutput;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use crate::progress::Progress;
+use crate::run::{DynamicsOutcome, Plan, Processed};
+use crate::scenario::{Scenario, Vessels};
+use crate::settings::{DynamicsSettings, ProcessingSettings};
+use crate::simulation::{SimulatedTruth, Simulation};
+
+/// The scenario the study simulates unless told otherwise (a shipped scenario's name).
+pub const DEFAULT_SCENARIO: &str = "rat-brain";
+
+/// Narrowest vessel whose pixels count as lumen (m): wider than the capillaries (see the module
+/// documentation).
+pub const LUMEN_MIN_DIAMETER_M: f64 = 20e-6;
+
+/// Vessel diameter classes of the scores (m): [lower, upper) and a label.
+pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
+    (LUMEN_MIN_DIAMETER_M, 50e-6, "20–50 µm"),
+    (50e-6, 80e-6, "50–80 µm"),
+    (80e-6, f64::INFINITY, "≥ 80 µm"),
+];
+
+/// What the vector scores count.
+pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's elevation beam \
+    holds a vessel at least `lumen_min_diameter_m` wide) of the band or class: `detected` is the \
+    fraction the method's vessel mask (noise-floor margin and local peak, as `pcuvd process`) \
+    holds; over the detected ones, RMSE of vx, of vz and of the in-plane vector error (mm/s) \
+    against the truth (the elevation-beam-weighted mean blood velocity at t = 0, the start of \
+    the recording), and the median angle between the estimated and the true in-plane velocity \
+    (degrees)";
+
+/// What the RI scores count.
+pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least one wavelength \
+    wide (the resolution cell's size): median |RI_estimated − RI_true| (a pixel without an RI \
+    counts 1), and the fraction classed as the right kind (arteriole or venule) by the dynamics \
+    stage; `all_lumen` counts every lumen pixel whatever its vessel's width";
+
+/// What the vessel-to-background ratio counts.
+pub const CONTRAST_DEFINITION: &str = "per depth band: 10·log10 of the mean power Doppler over \
+    the band's lumen pixels over the median power Doppler of its pixels with no blood in the \
+    beam; `gain_db` is the coded recording's ratio minus the conventional one's (the SNR gain of \
+    coding, as the paper's profiles read it: vessel against its surroundings)";
+
+/// Settings of the brain study.
+#[derive(Debug, Clone, Serialize)]
+pub struct BrainSettings {
+    /// The scenario: a shipped scenario's name or a TOML file; its vessels must be a tree and it
+    /// must simulate both transmit modes.
+    pub scenario: String,
+    /// Compound frames, overriding the scenario's (a shorter, quicker run).
+    pub frames: Option<usize>,
+    /// Folder of cached simulations, one sub-folder per scenario.
+    pub cache: PathBuf,
+    /// How each recording is processed (as `pcuvd process`).
+    pub processing: ProcessingSettings,
+    /// The dynamics stage's settings (as `pcuvd process`).
+    pub dynamics: DynamicsSettings,
+}
+
+impl BrainSettings {
+    /// The scenario simulated, with the frame override applied, checked.
+    pub fn scenario(&self) -> Result<Scenario> {
+        let mut scenario = Scenario::load(&self.scenario)?;
+        if let Some(frames) = self.frames {
+            scenario.sequence.frames = frames;
+        }
+        scenario.check()?;
+        if !matches!(scenario.vessels, Vessels::Tree(_)) {
+            bail!(
+                "brain study: the scenario {} has no vascular tree ([vessels] kind = \"tree\")",
+                self.scenario
+            );
+        }
+        Ok(scenario)
+    }
+
+    /// The folder the simulation of `scenario` is cached in: named by a hash of the scenario and
+    /// of pcuvd's version (a new simulator may simulate the same scenario otherwise).
+    pub fn cache_folder(&self, scenario: &Scenario) -> Result<PathBuf> {
+        let mut hash = Sha256::new();
+        hash.update(env!("CARGO_PKG_VERSION"));
+        hash.update(scenario.to_toml()?);
+        let key: String = hash.finalize()[..8]
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        Ok(self.cache.join(format!("brain-{key}")))
+    }
+}
+
+/// One transmit mode, processed.
+pub struct BrainMode {
+    /// "UVD" (conventional, least squares) or "PC-UVD" (coded, IRLS).
+    pub method: &'static str,
+    /// The maps (the filtered series dropped once processed, to bound memory).
+    pub out: Arc<ProcessOutput>,
+    /// The RI maps, when the dynamics stage ran.
+    pub ri: Option<RiMaps>,
+    /// Why the dynamics stage did not run, when it did not.
+    pub ri_skipped: Option<String>,
+    /// The method's vessel mask (noise-floor margin and local peak).
+    pub detected: Array2<bool>,
+}
+
+impl BrainMode {
+    /// The method's vector field: least squares for UVD, IRLS for PC-UVD.
+    pub fn field(&self) -> Result<&VectorField> {
+        let maps = &self.out.maps;
+        match self.method {
+            "UVD" => maps.vector_ls.as_ref(),
+            _ => maps.vector_irls.as_ref(),
+        }
+        .context("the recording gives no vector velocity (one steering angle)")
+    }
+}
+
+/// Vector scores over one group of lumen pixels; see [`VECTOR_SCORE_DEFINITION`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct VectorScore {
+    /// Lumen pixels in the group.
+    pub pixels: usize,
+    /// Fraction of them in the method's vessel mask.
+    pub detected: f64,
+    /// RMSE of vx (mm/s).
+    pub rmse_vx_mm_s: f64,
+    /// RMSE of vz (mm/s).
+    pub rmse_vz_mm_s: f64,
+    /// RMSE of the in-plane vector (mm/s).
+    pub rmse_mm_s: f64,
+    /// Median angle between estimated and true in-plane velocity (degrees).
+    pub median_direction_error_deg: f64,
+}
+
+/// Scores of one group (a depth band or a diameter class), both methods.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GroupScores {
+    /// The band's depths (mm) or the class's label.
+    pub group: String,
+    /// Conventional, least squares.
+    pub uvd: VectorScore,
+    /// Coded, IRLS.
+    pub pcuvd: VectorScore,
+    /// PC-UVD's vector RMSE below UVD's (%).
+    pub improvement_pct: f64,
+}
+
+/// RI scores of one method over a group of lumen pixels; see [`BRAIN_RI_DEFINITION`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RiGroupScore {
+    /// Pixels scored.
+    pub pixels: usize,
+    /// Median |RI_estimated − RI_true|.
+    pub median_abs_error: f64,
+    /// Fraction classed right.
+    pub class_accuracy: f64,
+}
+
+/// RI scores of both methods over one group.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RiGroupScores {
+    /// The group.
+    pub group: String,
+    /// UVD's, `None` when its dynamics stage did not run.
+    pub uvd: Option<RiGroupScore>,
+    /// PC-UVD's.
+    pub pcuvd: Option<RiGroupScore>,
+}
+
+/// Vessel-to-background ratio of one depth band; see [`CONTRAST_DEFINITION`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BandContrast {
+    /// The band's depths (mm).
+    pub depth_mm: [f64; 2],
+    /// Lumen pixels in the band.
+    pub lumen_pixels: usize,
+    /// Conventional (dB).
+    pub conventional_db: f64,
+    /// Coded (dB).
+    pub coded_db: f64,
+    /// Coded minus conventional (dB).
+    pub gain_db: f64,
+}
+
+/// The brain study's numbers, as `metrics.json` holds them (key `brain`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BrainMetrics {
+    /// Where the scenario came from.
+    pub scenario: String,
+    /// Compound frames per recording.
+    pub frames: usize,
+    /// The noise level of the scenario (dB re the blood's echo), fixed before any score.
+    pub noise_db: Option<f64>,
+    /// Narrowest vessel whose pixels are scored (m).
+    pub lumen_min_diameter_m: f64,
+    /// Lumen pixels scored.
+    pub lumen_pixels: usize,
+    /// Clutter cut-offs (low, high) per angle: conventional, coded.
+    pub clutter_cut_offs: [Vec<(usize, usize)>; 2],
+    /// Vector scores by depth band (thirds of the image).
+    pub vector_by_depth: Vec<GroupScores>,
+    /// Vector scores by vessel diameter class.
+    pub vector_by_diameter: Vec<GroupScores>,
+    /// Vector scores over every lumen pixel.
+    pub vector_all: GroupScores,
+    /// What the vector scores count.
+    pub vector_definition: &'static str,
+    /// RI scores: vessels at least a wavelength wide, every lumen pixel, and by diameter class.
+    pub ri: Vec<RiGroupScores>,
+    /// Why a method has no RI scores, when it has none.
+    pub ri_skipped: Vec<String>,
+    /// What the RI scores count.
+    pub ri_definition: &'static str,
+    /// Vessel-to-background ratio by depth band (1 mm bands), both modes.
+    pub contrast_by_depth: Vec<BandContrast>,
+    /// What the ratio counts.
+    pub contrast_definition: &'static str,
+    /// Wall-clock seconds: simulation (0 when cached), processing of each mode, scoring.
+    pub timing_s: Vec<(String, f64)>,
+}
+
+/// Everything the brain study produced.
+pub struct BrainStudy {
+    /// Its settings.
+    pub settings: BrainSettings,
+    /// The scenario simulated.
+    pub scenario: Scenario,
+    /// Where the simulation is (cached).
+    pub folder: PathBuf,
+    /// The truth on the processing grid.
+    pub truth: SimulatedTruth,
+    /// Diameter (m) of the vessel each pixel sees most of; NaN without blood.
+    pub diameter_m: Array2<f64>,
+    /// The scored pixels.
+    pub lumen: Array2<bool>,
+    /// Conventional (UVD), then coded (PC-UVD).
+    pub modes: [BrainMode; 2],
+    /// The numbers.
+    pub metrics: BrainMetrics,
+}
+
+/// The simulation of `scenario`, from the cache or simulated into it now. Returns its folder.
+pub fn cached_simulation(
+    settings: &BrainSettings,
+    scenario: &Scenario,
+    simulation: &Simulation,
+    progress: &dyn Progress,
+) -> Result<(PathBuf, bool)> {
+    let folder = settings.cache_folder(scenario)?;
+    let written = folder.join(crate::simulation::folder::SCENARIO_FILE);
+    // The scenario file is written last: its presence says the simulation finished.
+    if written.is_file() {
+        let cached = Scenario::read(&written)?;
+        if cached.to_toml()? == scenario.to_toml()? {
+            progress.report(&format!(
+                "brain: simulation cached in {} (delete it to simulate again)",
+                folder.display()
+            ));
+            return Ok((folder, true));
+        }
+    }
+    let task = "simulate the brain";
+    crate::simulation::folder::write(
+        simulation,
+        &folder,
+        &|done, total| progress.update(task, done, total),
+        &|line| progress.report(line),
+    )?;
+    Ok((folder, false))
+}
+
+/// Runs the brain study: simulation (or the cache), processing, scores.
+pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStudy> {
+    let scenario = settings.scenario()?;
+    let started = std::time::Instant::now();
+    let simulation = Simulation::of(scenario.clone(), settings.scenario.clone())?;
+    if simulation.modes.len() != 2 {
+        bail!(
+            "brain study: the scenario must simulate both transmit modes ([sequence] transmit = \"both\")"
+        );
+    }
+    let (folder, cached) = cached_simulation(settings, &scenario, &simulation, progress)?;
+    let mut timing = vec![(
+        "simulation_s".to_string(),
+        if cached {
+            0.0
+        } else {
+            started.elapsed().as_secs_f64()
+        },
+    )];
+    let mut modes = Vec::new();
+    let mut truth = None;
+    for (name, method) in [("conventional", "UVD"), ("coded", "PC-UVD")] {
+        let clock = std::time::Instant::now();
+        let path = folder.join(format!("{name}.toml"));
+        let opened = crate::input::open_input(&path, &pcuvd_io::Overrides::default())?;
+        let source = opened.source.as_ref();
+        let plan = Plan::new(
+            &settings.processing,
+            &settings.dynamics,
+            source,
+            opened.info.cardiac_triggers_s.as_deref(),
+        )?;
+        let Processed { out, dynamics, .. } = crate::run::run(source, &plan, progress)
+            .with_context(|| format!("brain study: processing {}", path.display()))?;
+        let mut out = Arc::try_unwrap(out).unwrap_or_else(|shared| (*shared).clone());
+        // The filtered series (the largest thing a mode holds) has given all it will.
+        out.filtered.series = Vec::new();
+        if truth.is_none() {
+            let acq = source.acquisition();
+            let n_samples = source.trace_shape().1;
+            truth = Some(simulation.truth_for(acq, n_samples)?);
+        }
+        let (ri, ri_skipped) = match dynamics {
+            DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),
+            DynamicsOutcome::Skipped(reason) => (None, Some(format!("{method}: {reason}"))),
+        };
+        let detected = VesselTests::default().flow_mask(&out.maps.power_doppler, out.grid.step());
+        timing.push((
+            format!("{name}_processing_s"),
+            clock.elapsed().as_secs_f64(),
+        ));
+        modes.push(BrainMode {
+            method,
+            out: Arc::new(out),
+            ri,
+            ri_skipped,
+            detected,
+        });
+    }
+    let truth = truth.expect("two modes processed");
+    let modes: [BrainMode; 2] = modes.try_into().map_err(|_| anyhow::anyhow!("two modes"))?;
+    let clock = std::time::Instant::now();
+    let tree = simulation.tree.as_ref().expect("a tree scenario");
+    let segments = &tree.flow().segments;
+    let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
+    let diameter_m = cycle
+        .vessel_index
+        .mapv(|i| segments.get(i).map_or(f64::NAN, |s| s.diameter));
+    let lumen = Zip::from(&truth.truth.mask)
+        .and(&diameter_m)
+        .map_collect(|&blood, &d| blood && d >= LUMEN_MIN_DIAMETER_M);
+    let grid = &modes[0].out.grid;
+    if grid.shape() != lumen.dim() {
+        bail!("brain study: the processing grid differs from the truth's (give no --grid)");
+    }
+    let params = &simulation.modes[0].1;
+    let wavelength = params.probe.wavelength(params.sound_speed);
+    let metrics = score(
+        &modes,
+        &truth,
+        &diameter_m,
+        &lumen,
+        wavelength,
+        ScoreContext {
+            scenario: &settings.scenario,
+            frames: scenario.sequence.frames,
+            noise_db: simulation.noise_db,
+        },
+        timing,
+        clock,
+    )?;
+    Ok(BrainStudy {
+        settings: settings.clone(),
+        scenario,
+        folder,
+        truth,
+        diameter_m,
+        lumen,
+        modes,
+        metrics,
+    })
+}
+
+struct ScoreContext<'a> {
+    scenario: &'a str,
+    frames: usize,
+    noise_db: Option<f64>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn score(
+    modes: &[BrainMode; 2],
+    truth: &SimulatedTruth,
+    diameter_m: &Array2<f64>,
+    lumen: &Array2<bool>,
+    wavelength: f64,
+    context: ScoreContext<'_>,
+    mut timing: Vec<(String, f64)>,
+    clock: std::time::Instant,
+) -> Result<BrainMetrics> {
+    let (nz, nx) = lumen.dim();
+    let z = &truth.z;
+    let fields = [modes[0].field()?, modes[1].field()?];
+    let group = |label: String, select: &dyn Fn(usize, usize) -> bool| {
+        let scores = [0, 1].map(|m| {
+            vector_score(fields[m], &modes[m].detected, truth, lumen, |iz, ix| {
+                select(iz, ix)
+            })
+        });
+        GroupScores {
+            group: label,
+            improvement_pct: 100.0 * (1.0 - scores[1].rmse_mm_s / scores[0].rmse_mm_s),
+            uvd: scores[0],
+            pcuvd: scores[1],
+        }
+    };
+    let (top, bottom) = (z[0], z[nz - 1]);
+    let third = (bottom - top) / 3.0;
+    let vector_by_depth = (0..3)
+        .map(|k| {
+            let (from, to) = (top + k as f64 * third, top + (k + 1) as f64 * third);
+            group(
+                format!("{:.1}–{:.1} mm", from * 1e3, to * 1e3),
+                &|iz, _| z[iz] >= from && (z[iz] < to || k == 2),
+            )
+        })
+        .collect();
+    let vector_by_diameter = DIAMETER_CLASSES
+        .iter()
+        .map(|&(from, to, label)| {
+            group(label.to_string(), &|iz, ix| {
+                let d = diameter_m[[iz, ix]];
+                d >= from && d < to
+            })
+        })
+        .collect();
+    let vector_all = group("all lumen pixels".into(), &|_, _| true);
+
+    let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
+    let ri_group = |label: &str, select: &dyn Fn(usize, usize) -> bool| RiGroupScores {
+        group: label.to_string(),
+        uvd: modes[0]
+            .ri
+            .as_ref()
+            .map(|ri| ri_score(ri, cycle, lumen, select)),
+        pcuvd: modes[1]
+            .ri
+            .as_ref()
+            .map(|ri| ri_score(ri, cycle, lumen, select)),
+    };
+    let mut ri = vec![
+        ri_group(
+            &format!("vessels ≥ {:.0} µm (a wavelength)", wavelength * 1e6),
+            &|iz, ix| diameter_m[[iz, ix]] >= wavelength,
+        ),
+        ri_group("all lumen pixels", &|_, _| true),
+    ];
+    for &(from, to, label) in &DIAMETER_CLASSES {
+        ri.push(ri_group(label, &|iz, ix| {
+            let d = diameter_m[[iz, ix]];
+            d >= from && d < to
+        }));
+    }
+
+    // 1 mm bands over the image's depth.
+    let band_m = 1e-3;
+    let bands = ((bottom - top) / band_m).ceil() as usize;
+    let contrast_by_depth = (0..bands)
+        .filter_map(|b| {
+            let (from, to) = (top + b as f64 * band_m, top + (b + 1) as f64 * band_m);
+            let rows: Vec<usize> = (0..nz).filter(|&iz| z[iz] >= from && z[iz] < to).collect();
+            let lumen_pixels = rows
+                .iter()
+                .flat_map(|&iz| (0..nx).map(move |ix| (iz, ix)))
+                .filter(|&p| lumen[p])
+                .count();
+            if lumen_pixels == 0 {
+                return None;
+            }
+            let ratio = |m: usize| {
+                let power = &modes[m].out.maps.power_doppler;
+                let (mut vessel, mut background) = (Vec::new(), Vec::new());
+                for &iz in &rows {
+                    for ix in 0..nx {
+                        if lumen[[iz, ix]] {
+                            vessel.push(power[[iz, ix]]);
+                        } else if !truth.truth.mask[[iz, ix]] {
+                            background.push(power[[iz, ix]]);
+                        }
+                    }
+                }
+                let mean = vessel.iter().sum::<f64>() / vessel.len() as f64;
+                10.0 * (mean / pcuvd::core::stats::median(background)).log10()
+            };
+            let (conventional_db, coded_db) = (ratio(0), ratio(1));
+            Some(BandContrast {
+                depth_mm: [from * 1e3, to * 1e3],
+                lumen_pixels,
+                conventional_db,
+                coded_db,
+                gain_db: coded_db - conventional_db,
+            })
+        })
+        .collect();
+    timing.push(("scoring_s".into(), clock.elapsed().as_secs_f64()));
+    Ok(BrainMetrics {
+        scenario: context.scenario.to_string(),
+        frames: context.frames,
+        noise_db: context.noise_db,
+        lumen_min_diameter_m: LUMEN_MIN_DIAMETER_M,
+        lumen_pixels: lumen.iter().filter(|&&l| l).count(),
+        clutter_cut_offs: [0, 1].map(|m| {
+            modes[m]
+                .out
+                .clutter
+                .iter()
+                .map(|r| (r.low, r.high))
+                .collect()
+        }),
+        vector_by_depth,
+        vector_by_diameter,
+        vector_all,
+        vector_definition: VECTOR_SCORE_DEFINITION,
+        ri,
+        ri_skipped: modes.iter().filter_map(|m| m.ri_skipped.clone()).collect(),
+        ri_definition: BRAIN_RI_DEFINITION,
+        contrast_by_depth,
+        contrast_definition: CONTRAST_DEFINITION,
+        timing_s: timing,
+    })
+}
+
+/// See [`VECTOR_SCORE_DEFINITION`].
+fn vector_score(
+    field: &VectorField,
+    detected: &Array2<bool>,
+    truth: &SimulatedTruth,
+    lumen: &Array2<bool>,
+    select: impl Fn(usize, usize) -> bool,
+) -> VectorScore {
+    let (mut pixels, mut found) = (0usize, 0usize);
+    let (mut sx, mut sz) = (0.0, 0.0);
+    let mut angles = Vec::new();
+    for ((iz, ix), &is_lumen) in lumen.indexed_iter() {
+        if !is_lumen || !select(iz, ix) {
+            continue;
+        }
+        pixels += 1;
+        let (vx, vz) = (field.vx[[iz, ix]], field.vz[[iz, ix]]);
+        if !detected[[iz, ix]] || !vx.is_finite() || !vz.is_finite() {
+            continue;
+        }
+        found += 1;
+        let (tx, tz) = (truth.truth.vx[[iz, ix]], truth.truth.vz[[iz, ix]]);
+        sx += (vx - tx).powi(2);
+        sz += (vz - tz).powi(2);
+        let angle = (vz.atan2(vx) - tz.atan2(tx)).rem_euclid(std::f64::consts::TAU);
+        angles.push(angle.min(std::f64::consts::TAU - angle).to_degrees());
+    }
+    let n = found.max(1) as f64;
+    VectorScore {
+        pixels,
+        detected: found as f64 / pixels.max(1) as f64,
+        rmse_vx_mm_s: 1e3 * (sx / n).sqrt(),
+        rmse_vz_mm_s: 1e3 * (sz / n).sqrt(),
+        rmse_mm_s: 1e3 * ((sx + sz) / n).sqrt(),
+        median_direction_error_deg: pcuvd::core::stats::median(angles),
+    }
+}
+
+/// See [`BRAIN_RI_DEFINITION`].
+fn ri_score(
+    est: &RiMaps,
+    truth: &pcuvd::simulate::phantom::network::NetworkTruth,
+    lumen: &Array2<bool>,
+    select: &dyn Fn(usize, usize) -> bool,
+) -> RiGroupScore {
+    let (mut errors, mut right) = (Vec::new(), 0usize);
+    for ((iz, ix), &is_lumen) in lumen.indexed_iter() {
+        let true_class = truth.vessel_class[[iz, ix]];
+        if !is_lumen || true_class == BACKGROUND || !select(iz, ix) {
+            continue;
+        }
+        let ri = est.ri[[iz, ix]];
+        errors.push(if ri.is_finite() {
+            (ri - truth.ri[[iz, ix]]).abs()
+        } else {
+            1.0
+        });
+        right += usize::from(est.vessel_class[[iz, ix]] == true_class);
+    }
+    let pixels = errors.len();
+    RiGroupScore {
+        pixels,
+        median_abs_error: pcuvd::core::stats::median(errors),
+        class_accuracy: right as f64 / pixels.max(1) as f64,
+    }
+}
+
+/// The study's folder of cached simulations: `out`'s `cache`, or `pcuvd-cache` in the working
+/// folder when there is no output folder (a study run from Python).
+pub fn default_cache(out: Option<&Path>) -> PathBuf {
+    match out {
+        Some(out) => out.join("cache"),
+        None => PathBuf::from("pcuvd-cache"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pcuvd::dynamics::{ARTERIOLE, VENULE};
+    use pcuvd::simulate::phantom::Truth;
+    use pcuvd::simulate::phantom::network::NetworkTruth;
+
+    fn truth_with(vx: f64, vz: f64, (nz, nx): (usize, usize)) -> SimulatedTruth {
+        let mut truth = Truth::empty(nz, nx);
+        truth.vx.fill(vx);
+        truth.vz.fill(vz);
+        truth.mask.fill(true);
+        SimulatedTruth {
+            x: (0..nx).map(|i| i as f64 * 1e-4).collect(),
+            z: (0..nz).map(|i| i as f64 * 1e-4).collect(),
+            truth,
+            cycle: None,
+            tissue: None,
+            elevation: None,
+        }
+    }
+
+    /// A field off the truth by a known vector: the RMSEs are its components and its length, the
+    /// direction error the angle between the two vectors; undetected pixels count only in
+    /// `detected`, pixels outside the lumen or the selection not at all.
+    #[test]
+    fn vector_scores_are_the_known_error() {
+        let shape = (4, 5);
+        let truth = truth_with(0.010, 0.0, shape);
+        let field = VectorField {
+            vx: Array2::from_elem(shape, 0.013),
+            vz: Array2::from_elem(shape, 0.004),
+        };
+        let mut lumen = Array2::from_elem(shape, true);
+        lumen[[0, 0]] = false;
+        let mut detected = Array2::from_elem(shape, true);
+        detected[[3, 4]] = false;
+        detected[[3, 3]] = false;
+        let score = vector_score(&field, &detected, &truth, &lumen, |iz, _| iz >= 1);
+        assert_eq!(score.pixels, 15);
+        assert!((score.detected - 13.0 / 15.0).abs() < 1e-12);
+        assert!((score.rmse_vx_mm_s - 3.0).abs() < 1e-9);
+        assert!((score.rmse_vz_mm_s - 4.0).abs() < 1e-9);
+        assert!((score.rmse_mm_s - 5.0).abs() < 1e-9);
+        let expected = 0.004f64.atan2(0.013).to_degrees();
+        assert!((score.median_direction_error_deg - expected).abs() < 1e-9);
+        // A reversed flow is 180° off, whichever way round.
+        let reversed = VectorField {
+            vx: Array2::from_elem(shape, -0.010),
+            vz: Array2::from_elem(shape, 1e-12),
+        };
+        let score = vector_score(&reversed, &detected, &truth, &lumen, |_, _| true);
+        assert!((score.median_direction_error_deg - 180.0).abs() < 1e-6);
+    }
+
+    /// RI scores count the lumen pixels of the selection: a pixel without an RI counts an error
+    /// of 1, and the class is right or wrong per pixel.
+    #[test]
+    fn ri_scores_count_misses_as_full_errors() {
+        let shape = (1, 4);
+        let cycle = NetworkTruth {
+            psv: Array2::from_elem(shape, 0.02),
+            edv: Array2::from_elem(shape, 0.006),
+            ri: Array2::from_shape_vec(shape, vec![0.7, 0.7, 0.3, 0.3]).unwrap(),
+            vessel_class: Array2::from_shape_vec(shape, vec![ARTERIOLE, ARTERIOLE, VENULE, VENULE])
+                .unwrap(),
+            flow_up: Array2::from_elem(shape, true),
+            vessel_index: Array2::from_elem(shape, 0),
+        };
+        let est = RiMaps {
+            ri: Array2::from_shape_vec(shape, vec![0.72, f64::NAN, 0.2, 0.6]).unwrap(),
+            vessel_class: Array2::from_shape_vec(
+                shape,
+                vec![ARTERIOLE, BACKGROUND, VENULE, ARTERIOLE],
+            )
+            .unwrap(),
+            psv: Array2::from_elem(shape, 0.02),
+            edv: Array2::from_elem(shape, 0.01),
+            flow_up: Array2::from_elem(shape, true),
+            heart_rate_hz: 5.5,
+            cycles: vec![],
+            cycle_source: pcuvd::dynamics::CycleSource::GivenRate,
+            psv_spread: Array2::from_elem(shape, f64::NAN),
+            edv_spread: Array2::from_elem(shape, f64::NAN),
+            ri_spread: Array2::from_elem(shape, f64::NAN),
+        };
+        let lumen = Array2::from_elem(shape, true);
+        let score = ri_score(&est, &cycle, &lumen, &|_, _| true);
+        assert_eq!(score.pixels, 4);
+        // Errors 0.02, 1 (no RI), 0.1, 0.3: the median is 0.2.
+        assert!((score.median_abs_error - 0.2).abs() < 1e-12);
+        assert!((score.class_accuracy - 0.5).abs() < 1e-12);
+        let venules = ri_score(&est, &cycle, &lumen, &|_, ix| ix >= 2);
+        assert_eq!(venules.pixels, 2);
+        assert!((venules.median_abs_error - 0.2).abs() < 1e-12);
+    }
+}
