@@ -345,7 +345,8 @@ impl StudySettings {
     pub fn brain_settings(&self, out: Option<&std::path::Path>) -> Result<BrainSettings> {
         let processing = ProcessingSettings {
             f_number: self.f_number,
-            doppler_kernel: self.doppler_kernel.clone(),
+            // As the option reads it: "3x1" from the command line and (3, 1) from Python alike.
+            doppler_kernel: kernel_text(crate::settings::parse_kernel(&self.doppler_kernel)?),
             doppler_estimator: self.doppler_estimator,
             partial_volume: self.partial_volume,
             event_alignment: self.event_alignment,
