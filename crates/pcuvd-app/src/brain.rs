@@ -39,6 +39,11 @@ pub const DEFAULT_SCENARIO: &str = "rat-brain";
 /// documentation).
 pub const LUMEN_MIN_DIAMETER_M: f64 = 20e-6;
 
+/// Times over the recording at which the truth's velocity is averaged: a whole-recording map
+/// estimates the recording's mean velocity, and the pulsatile flow changes several-fold within a
+/// cardiac cycle (RI up to 0.8), so the velocity at one time is not its truth.
+pub const TRUTH_TIMES: usize = 24;
+
 /// Vessel diameter classes of the scores (m): [lower, upper) and a label.
 pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
     (LUMEN_MIN_DIAMETER_M, 50e-6, "20–50 µm"),
@@ -48,12 +53,13 @@ pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
 
 /// What the vector scores count.
 pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's elevation beam \
-    holds a vessel at least `lumen_min_diameter_m` wide) of the band or class: `detected` is the \
+    holds a vessel at least `lumen_min_diameter_m` wide) of the band (thirds of the depth range \
+    the lumen pixels span) or diameter class: `detected` is the \
     fraction the method's vessel mask (noise-floor margin and local peak, as `pcuvd process`) \
     holds; over the detected ones, RMSE of vx, of vz and of the in-plane vector error (mm/s) \
-    against the truth (the elevation-beam-weighted mean blood velocity at t = 0, the start of \
-    the recording), and the median angle between the estimated and the true in-plane velocity \
-    (degrees)";
+    against the truth (the elevation-beam-weighted mean blood velocity, averaged over the \
+    recording at `TRUTH_TIMES` evenly spaced times), and the median angle between the \
+    estimated and the true in-plane velocity (degrees)";
 
 /// What the RI scores count.
 pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least one wavelength \
@@ -222,7 +228,7 @@ pub struct BrainMetrics {
     pub lumen_pixels: usize,
     /// Clutter cut-offs (low, high) per angle: conventional, coded.
     pub clutter_cut_offs: [Vec<(usize, usize)>; 2],
-    /// Vector scores by depth band (thirds of the image).
+    /// Vector scores by depth band (thirds of the depth range the lumen pixels span).
     pub vector_by_depth: Vec<GroupScores>,
     /// Vector scores by vessel diameter class.
     pub vector_by_diameter: Vec<GroupScores>,
@@ -252,7 +258,8 @@ pub struct BrainStudy {
     pub scenario: Scenario,
     /// Where the simulation is (cached).
     pub folder: PathBuf,
-    /// The truth on the processing grid.
+    /// The truth on the processing grid, its velocity averaged over the recording (see
+    /// [`TRUTH_TIMES`]); the mask, the cycle's truth and the elevation's at the start.
     pub truth: SimulatedTruth,
     /// Diameter (m) of the vessel each pixel sees most of; NaN without blood.
     pub diameter_m: Array2<f64>,
@@ -334,7 +341,14 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         if truth.is_none() {
             let acq = source.acquisition();
             let n_samples = source.trace_shape().1;
-            truth = Some(simulation.truth_for(acq, n_samples)?);
+            let mut at_start = simulation.truth_for(acq, n_samples)?;
+            let duration = source.n_frames() as f64 / acq.frame_rate();
+            let times: Vec<f64> = (0..TRUTH_TIMES)
+                .map(|k| duration * (k as f64 + 0.5) / TRUTH_TIMES as f64)
+                .collect();
+            let (vx, vz) = simulation.mean_velocity(acq, n_samples, &times)?;
+            (at_start.truth.vx, at_start.truth.vz) = (vx, vz);
+            truth = Some(at_start);
         }
         let (ri, ri_skipped) = match dynamics {
             DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),
@@ -430,7 +444,18 @@ fn score(
             pcuvd: scores[1],
         }
     };
-    let (top, bottom) = (z[0], z[nz - 1]);
+    // The depth range the lumen spans: the default grid reaches as deep as the traces do (for
+    // the brain, 22 mm under a 13 mm receive window), far below any vessel.
+    let lumen_depths = lumen
+        .indexed_iter()
+        .filter(|(_, l)| **l)
+        .map(|((iz, _), _)| z[iz]);
+    let (top, bottom) = lumen_depths.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), d| {
+        (a.min(d), b.max(d))
+    });
+    if !top.is_finite() {
+        bail!("brain study: the truth holds no lumen pixel on the processing grid");
+    }
     let third = (bottom - top) / 3.0;
     let vector_by_depth = (0..3)
         .map(|k| {
@@ -478,12 +503,13 @@ fn score(
         }));
     }
 
-    // 1 mm bands over the image's depth.
+    // Whole-millimetre bands over the lumen's depth.
     let band_m = 1e-3;
-    let bands = ((bottom - top) / band_m).ceil() as usize;
-    let contrast_by_depth = (0..bands)
+    let first = (top / band_m).floor() as usize;
+    let last = (bottom / band_m).floor() as usize;
+    let contrast_by_depth = (first..=last)
         .filter_map(|b| {
-            let (from, to) = (top + b as f64 * band_m, top + (b + 1) as f64 * band_m);
+            let (from, to) = (b as f64 * band_m, (b + 1) as f64 * band_m);
             let rows: Vec<usize> = (0..nz).filter(|&iz| z[iz] >= from && z[iz] < to).collect();
             let lumen_pixels = rows
                 .iter()

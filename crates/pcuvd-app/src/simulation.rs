@@ -714,34 +714,7 @@ impl Simulation {
     /// traces of `n_samples` samples.
     pub fn truth_for(&self, acq: &pcuvd::Acquisition, n_samples: usize) -> Result<SimulatedTruth> {
         let grid = pipeline::default_grid_for(acq, n_samples)?;
-        // The tree's truth is the elevation beam's view of it, not the plane's cut.
-        let params = &self.modes[0].1;
-        let lambda = params.probe.wavelength(params.sound_speed);
-        let aperture = params.elevation.as_ref().map(|a| (a, lambda));
-        let (mut truth, elevation, cycle) = match &self.tree {
-            Some(tree) => {
-                let seen = tree.plane_truth(&grid.x, &grid.z, 0.0, aperture);
-                (
-                    seen.truth,
-                    Some((seen.vy, seen.blood_fraction)),
-                    Some(seen.cycle),
-                )
-            }
-            None => (
-                self.phantom.truth(&grid.x, &grid.z, 0.0),
-                None,
-                self.network
-                    .as_ref()
-                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
-            ),
-        };
-        // The vessels move with the tissue.
-        if let Some(tissue) = &self.tissue {
-            tissue
-                .spec()
-                .motion
-                .carry(&mut truth, &grid.x, &grid.z, 0.0);
-        }
+        let (truth, elevation, cycle) = self.flow_truth_at(&grid, 0.0);
         Ok(SimulatedTruth {
             truth,
             elevation,
@@ -753,6 +726,83 @@ impl Simulation {
             x: grid.x,
             z: grid.z,
         })
+    }
+
+    /// The in-plane blood velocity (vx, vz) (m/s) on the default processing grid, averaged over
+    /// `times` (s) at each pixel over the times it holds blood (0 where it never does): the truth
+    /// a whole-recording vector map estimates, whose Doppler phase averages the pulsatile flow
+    /// over the recording, as the vessels move with the tissue.
+    pub fn mean_velocity(
+        &self,
+        acq: &pcuvd::Acquisition,
+        n_samples: usize,
+        times: &[f64],
+    ) -> Result<(ndarray::Array2<f64>, ndarray::Array2<f64>)> {
+        use rayon::prelude::*;
+        let grid = pipeline::default_grid_for(acq, n_samples)?;
+        let shape = grid.shape();
+        let zeros = || ndarray::Array2::<f64>::zeros(shape);
+        let (sx, sz, count) = times
+            .par_iter()
+            .map(|&t| {
+                let (truth, _, _) = self.flow_truth_at(&grid, t);
+                let holds = truth.mask.mapv(|m| f64::from(u8::from(m)));
+                (&truth.vx * &holds, &truth.vz * &holds, holds)
+            })
+            .reduce(
+                || (zeros(), zeros(), zeros()),
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2),
+            );
+        let mean = |sum: ndarray::Array2<f64>| {
+            ndarray::Zip::from(&sum)
+                .and(&count)
+                .map_collect(|&s, &n| if n > 0.0 { s / n } else { 0.0 })
+        };
+        Ok((mean(sx), mean(sz)))
+    }
+
+    /// The flow's truth on `grid` at time `t` (s), carried by the tissue's motion: velocity and
+    /// mask, the elevation's out-of-plane velocity and blood fraction (a tree), and the cardiac
+    /// cycle's truth (the network or a tree).
+    #[allow(clippy::type_complexity)]
+    fn flow_truth_at(
+        &self,
+        grid: &pcuvd::core::grid::Grid,
+        t: f64,
+    ) -> (
+        pcuvd::simulate::phantom::Truth,
+        Option<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
+        Option<pcuvd::simulate::phantom::network::NetworkTruth>,
+    ) {
+        // The tree's truth is the elevation beam's view of it, not the plane's cut.
+        let params = &self.modes[0].1;
+        let lambda = params.probe.wavelength(params.sound_speed);
+        let aperture = params.elevation.as_ref().map(|a| (a, lambda));
+        let (mut truth, elevation, cycle) = match &self.tree {
+            Some(tree) => {
+                let seen = tree.plane_truth(&grid.x, &grid.z, t, aperture);
+                (
+                    seen.truth,
+                    Some((seen.vy, seen.blood_fraction)),
+                    Some(seen.cycle),
+                )
+            }
+            None => (
+                self.phantom.truth(&grid.x, &grid.z, t),
+                None,
+                self.network
+                    .as_ref()
+                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
+            ),
+        };
+        // The vessels move with the tissue.
+        if let Some(tissue) = &self.tissue {
+            tissue
+                .spec()
+                .motion
+                .carry(&mut truth, &grid.x, &grid.z, t);
+        }
+        (truth, elevation, cycle)
     }
 }
 

@@ -49,9 +49,8 @@ const REGION_SIDE_M: f64 = 2.4e-3;
 /// Three square regions at increasing depth: the lumen pixels' depth range in thirds, each region
 /// centred on the median position of its third's lumen pixels, kept inside the image. (x range,
 /// z range) in m.
-fn regions(study: &BrainStudy, grid: &Grid) -> Vec<((f64, f64), (f64, f64))> {
-    let lumen: Vec<(f64, f64)> = study
-        .lumen
+fn regions(lumen: &Array2<bool>, grid: &Grid) -> Vec<((f64, f64), (f64, f64))> {
+    let lumen: Vec<(f64, f64)> = lumen
         .indexed_iter()
         .filter(|(_, l)| **l)
         .map(|((iz, ix), _)| (grid.x[ix], grid.z[iz]))
@@ -94,23 +93,43 @@ pub fn brain_figures(
 ) -> Result<Vec<Rendered>> {
     let task = "brain figures";
     progress.update(task, 0, 4);
-    let grid = &study.modes[0].out.grid;
+    let full = &study.modes[0].out.grid;
+    // The maps end 1.5 mm below the deepest lumen pixel: the default grid reaches as deep as the
+    // traces do, far below any vessel.
+    let deepest = study
+        .lumen
+        .indexed_iter()
+        .filter(|(_, l)| **l)
+        .map(|((iz, _), _)| full.z[iz])
+        .fold(full.z[0], f64::max);
+    let view = Roi::new(
+        full,
+        (full.x[0], full.x[full.x.len() - 1]),
+        (full.z[0], (deepest + 1.5e-3).min(full.z[full.z.len() - 1])),
+    )?;
+    let grid = &view.grid;
     let truth = &study.truth;
-    let blood = &truth.truth.mask;
-    let lumen = &study.lumen;
+    let blood = &view.cut(&truth.truth.mask);
+    let lumen = &view.cut(&study.lumen);
     let black = Array2::<f64>::zeros(grid.shape());
     let truth_field = VectorField {
-        vx: truth.truth.vx.clone(),
-        vz: truth.truth.vz.clone(),
+        vx: view.cut(&truth.truth.vx),
+        vz: view.cut(&truth.truth.vz),
     };
-    let fields: Vec<&VectorField> = study
+    let fields: Vec<VectorField> = study
         .modes
         .iter()
-        .map(|m| m.field())
+        .map(|m| {
+            m.field().map(|f| VectorField {
+                vx: view.cut(&f.vx),
+                vz: view.cut(&f.vz),
+            })
+        })
         .collect::<Result<_>>()?;
+    let detected: Vec<Array2<bool>> = study.modes.iter().map(|m| view.cut(&m.detected)).collect();
     let speed_max = speed_scale(&[
-        (fields[0], &study.modes[0].detected),
-        (fields[1], &study.modes[1].detected),
+        (&fields[0], &detected[0]),
+        (&fields[1], &detected[1]),
         (&truth_field, lumen),
     ]);
     let mut figs = Vec::new();
@@ -119,7 +138,7 @@ pub fn brain_figures(
     let pd_db: Vec<Array2<f64>> = study
         .modes
         .iter()
-        .map(|m| db_over_background(&m.out.maps.power_doppler, blood))
+        .map(|m| db_over_background(&view.cut(&m.out.maps.power_doppler), blood))
         .collect();
     let pd_range = shared_db_range(&pd_db.iter().collect::<Vec<_>>());
     let x_ends = (grid.x[0] * 1e3, grid.x[grid.x.len() - 1] * 1e3);
@@ -127,7 +146,7 @@ pub fn brain_figures(
         .iter()
         .map(|&z| grid.nearest_pixel(0.0, z).0)
         .collect();
-    let rois = regions(study, grid);
+    let rois = regions(lumen, grid);
     let mut guides: Vec<Polyline> = rows
         .iter()
         .map(|&row| Polyline {
@@ -150,7 +169,7 @@ pub fn brain_figures(
     }
     let vmax = 20.0;
     let mut panels = Vec::new();
-    for ((mode, db), field) in study.modes.iter().zip(&pd_db).zip(&fields) {
+    for (((mode, db), field), detected) in study.modes.iter().zip(&pd_db).zip(&fields).zip(&detected) {
         let mut pd = map_panel(
             &format!("{}: power Doppler", mode.method),
             db.clone(),
@@ -163,20 +182,20 @@ pub fn brain_figures(
         panels.push(Panel::Image(pd));
         let mut cd = map_panel(
             &format!("{}: colour Doppler", mode.method),
-            mode.out.maps.color_doppler.mapv(|v| -v * 1e3),
+            view.cut(&mode.out.maps.color_doppler).mapv(|v| -v * 1e3),
             grid,
             Colormap::RedBlue,
             (-vmax, vmax),
             TOWARD_PROBE_LABEL,
         );
-        cd.mask = Some(mode.detected.clone());
+        cd.mask = Some(detected.clone());
         cd.background = Some(black.clone());
         panels.push(Panel::Image(cd));
         panels.push(vector_panel(
             &format!("{}: vector Doppler", mode.method),
             field,
             grid,
-            &mode.detected,
+            detected,
             &black,
             speed_max,
         ));
@@ -186,7 +205,7 @@ pub fn brain_figures(
         truth
             .elevation
             .as_ref()
-            .map_or_else(|| black.clone(), |(_, f)| f.clone()),
+            .map_or_else(|| black.clone(), |(_, f)| view.cut(f)),
         grid,
         Colormap::Hot,
         (0.0, 0.1),
@@ -197,7 +216,7 @@ pub fn brain_figures(
     panels.push(Panel::Image(fraction));
     let mut axial = map_panel(
         "Truth: axial velocity (lumen)",
-        truth.truth.vz.mapv(|v| -v * 1e3),
+        truth_field.vz.mapv(|v| -v * 1e3),
         grid,
         Colormap::RedBlue,
         (-vmax, vmax),
@@ -325,8 +344,8 @@ pub fn brain_figures(
     // Figure 7: vector velocity in three regions, UVD, PC-UVD, truth.
     let mut panels = Vec::new();
     let rows_of_fig7: [(&str, &VectorField, &Array2<bool>); 3] = [
-        (study.modes[0].method, fields[0], &study.modes[0].detected),
-        (study.modes[1].method, fields[1], &study.modes[1].detected),
+        (study.modes[0].method, &fields[0], &detected[0]),
+        (study.modes[1].method, &fields[1], &detected[1]),
         ("Truth", &truth_field, lumen),
     ];
     for (name, field, mask) in rows_of_fig7 {
@@ -363,14 +382,15 @@ pub fn brain_figures(
     let cycle = truth.cycle.as_ref();
     let mut panels = Vec::new();
     let ri_maps: Vec<(String, Array2<f64>, Array2<bool>)> = cycle
-        .map(|c| ("Truth".to_string(), c.ri.clone(), lumen.clone()))
+        .map(|c| ("Truth".to_string(), view.cut(&c.ri), lumen.clone()))
         .into_iter()
-        .chain(study.modes.iter().filter_map(|m| {
+        .chain(study.modes.iter().zip(&detected).filter_map(|(m, detected)| {
             m.ri.as_ref().map(|ri| {
-                let shown = Zip::from(&ri.ri)
-                    .and(&m.detected)
+                let ri = view.cut(&ri.ri);
+                let shown = Zip::from(&ri)
+                    .and(detected)
                     .map_collect(|v, &d| d && v.is_finite());
-                (m.method.to_string(), ri.ri.clone(), shown)
+                (m.method.to_string(), ri, shown)
             })
         }))
         .collect();
@@ -392,16 +412,16 @@ pub fn brain_figures(
         if let Some(c) = cycle {
             maps.push((
                 "Truth".into(),
-                class_map(&c.psv, &c.vessel_class, &c.flow_up, which),
+                view.cut(&class_map(&c.psv, &c.vessel_class, &c.flow_up, which)),
                 lumen.clone(),
             ));
         }
-        for m in &study.modes {
+        for (m, detected) in study.modes.iter().zip(&detected) {
             if let Some(ri) = &m.ri {
                 maps.push((
                     m.method.to_string(),
-                    class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which),
-                    m.detected.clone(),
+                    view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
+                    detected.clone(),
                 ));
             }
         }
