@@ -16,8 +16,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::settings::TubeProfile;
 
-/// The scenarios pcuvd ships, by name: the presets of `pcuvd simulate --preset`.
-pub const SHIPPED: [(&str, &str); 4] = [
+/// The scenarios pcuvd ships, by name: the presets of `pcuvd simulate --preset`, and a small rat
+/// brain for quick runs (`pcuvd paper --quick`).
+pub const SHIPPED: [(&str, &str); 5] = [
     (
         "paper-spiral",
         include_str!("../scenarios/paper-spiral.toml"),
@@ -25,6 +26,10 @@ pub const SHIPPED: [(&str, &str); 4] = [
     ("tube", include_str!("../scenarios/tube.toml")),
     ("rat-network", include_str!("../scenarios/rat-network.toml")),
     ("rat-brain", include_str!("../scenarios/rat-brain.toml")),
+    (
+        "rat-brain-small",
+        include_str!("../scenarios/rat-brain-small.toml"),
+    ),
 ];
 
 /// Which transmit modes to simulate.

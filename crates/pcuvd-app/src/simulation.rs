@@ -797,10 +797,7 @@ impl Simulation {
         };
         // The vessels move with the tissue.
         if let Some(tissue) = &self.tissue {
-            tissue
-                .spec()
-                .motion
-                .carry(&mut truth, &grid.x, &grid.z, t);
+            tissue.spec().motion.carry(&mut truth, &grid.x, &grid.z, t);
         }
         (truth, elevation, cycle)
     }

@@ -128,7 +128,19 @@ pub struct StudySettings {
     /// Brain study: SVD clutter filter's noise cut-off (as `process --svd-high`).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_svd_high))]
     pub brain_svd_high: String,
+    /// A first look at every study in a few minutes: fewer frames, one noise level, no
+    /// averaging kernels or calibration, a 90 µm grid, a fast heart for the network, one seed
+    /// and two speeds for dealiasing, the small brain (`rat-brain-small`). An option given with
+    /// a value other than its default keeps that value.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub quick: bool,
 }
+
+/// Compound frames of the spiral and dealiasing studies with `--quick`.
+pub const QUICK_FRAMES: usize = 20;
+/// Pixel size (mm) with `--quick`: as coarse as the Loupas estimator's axial lag allows at the
+/// rat probe's 15.6 MHz (at most 98.7 µm).
+pub const QUICK_GRID_STEP_MM: f64 = 0.09;
 
 impl Default for StudySettings {
     fn default() -> Self {
@@ -162,6 +174,7 @@ impl Default for StudySettings {
             brain_cache: None,
             brain_svd_low: ProcessingSettings::default().svd_low,
             brain_svd_high: ProcessingSettings::default().svd_high,
+            quick: false,
         }
     }
 }
@@ -338,6 +351,61 @@ impl StudySettings {
 }
 
 impl StudySettings {
+    /// These settings as `--quick` makes them (see [`StudySettings::quick`]): each setting still
+    /// at its default takes its quick value; without `quick`, the settings unchanged.
+    pub fn quickened(&self) -> StudySettings {
+        if !self.quick {
+            return self.clone();
+        }
+        let default = StudySettings::default();
+        let mut quick = self.clone();
+        let set = |field: &mut String, default: &str, value: &str| {
+            if field == default {
+                *field = value.to_string();
+            }
+        };
+        set(&mut quick.sweep, &default.sweep, "-10");
+        set(
+            &mut quick.averaging_kernels,
+            &default.averaging_kernels,
+            "off",
+        );
+        set(
+            &mut quick.calibrate_uvd_vx,
+            &default.calibrate_uvd_vx,
+            "off",
+        );
+        set(
+            &mut quick.dealias_noise_db,
+            &default.dealias_noise_db,
+            "off",
+        );
+        set(
+            &mut quick.dealias_multiples,
+            &default.dealias_multiples,
+            "1,3",
+        );
+        set(&mut quick.dealias_seeds, &default.dealias_seeds, "1");
+        set(
+            &mut quick.brain_scenario,
+            &default.brain_scenario,
+            "rat-brain-small",
+        );
+        if quick.frames == default.frames {
+            quick.frames = QUICK_FRAMES;
+        }
+        if quick.grid_step == default.grid_step {
+            quick.grid_step = QUICK_GRID_STEP_MM;
+        }
+        // One cardiac cycle at 25 Hz is 72 frames at 1.8 kHz: 100 frames hold one of windows.
+        if quick.network_frames == default.network_frames && quick.heart_rate == default.heart_rate
+        {
+            quick.network_frames = 100;
+            quick.heart_rate = 25.0;
+        }
+        quick
+    }
+
     /// The brain study's settings; its cache under `out` (or `pcuvd-cache` in the working folder
     /// without one) unless `--brain-cache` says where. The
     /// recordings are processed as `pcuvd process` processes them, with the studies' receive
@@ -397,5 +465,36 @@ mod tests {
     #[test]
     fn settings_read_back_as_they_were_written() {
         testing::reads_back_and_refuses_unknown_keys(&StudySettings::default());
+    }
+
+    /// `--quick` changes only what is still at its default, and every study it reduces still
+    /// passes its checks (a network recording that holds a cardiac cycle, a grid fine enough
+    /// for Loupas).
+    #[test]
+    fn quick_keeps_what_was_given_and_gives_valid_settings() {
+        let plain = StudySettings::default();
+        assert_eq!(plain.quickened(), plain);
+        let quick = StudySettings {
+            quick: true,
+            seed: 4,
+            dealias_seeds: "2,3".into(),
+            ..StudySettings::default()
+        }
+        .quickened();
+        assert_eq!((quick.seed, quick.dealias_seeds.as_str()), (4, "2,3"));
+        assert_eq!(quick.frames, QUICK_FRAMES);
+        assert_eq!(quick.brain_scenario, "rat-brain-small");
+        assert!(quick.spiral_settings().is_ok());
+        assert!(quick.network_settings().is_ok());
+        assert!(quick.dealias_settings().is_ok());
+        let brain = quick.brain_settings(None).unwrap();
+        assert_eq!(brain.scenario().unwrap().sequence.frames, 48);
+        // A frame count given stays, even with --quick.
+        let given = StudySettings {
+            quick: true,
+            frames: 30,
+            ..StudySettings::default()
+        };
+        assert_eq!(given.quickened().frames, 30);
     }
 }

@@ -88,7 +88,7 @@ pub(crate) fn simulate<'py>(
 /// returns its metrics (the numbers `pcuvd paper` writes to metrics.json) as JSON.
 #[pyfunction]
 pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> PyResult<String> {
-    let options: StudySettings = settings(options)?;
+    let options: StudySettings = settings::<StudySettings>(options)?.quickened();
     let which = which.to_string();
     py.detach(|| -> anyhow::Result<String> {
         let progress = Lines::new(quiet);
@@ -120,7 +120,7 @@ pub(crate) fn study(py: Python<'_>, which: &str, options: &str, quiet: bool) -> 
 /// prints them: {"spiral": ..., "network": ..., "dealias": ..., "brain": ...}.
 #[pyfunction]
 pub(crate) fn study_settings(options: &str) -> PyResult<String> {
-    let options: StudySettings = settings(options)?;
+    let options: StudySettings = settings::<StudySettings>(options)?.quickened();
     let resolved = || -> anyhow::Result<Value> {
         Ok(json!({
             "spiral": options.spiral_settings()?,

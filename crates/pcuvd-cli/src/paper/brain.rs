@@ -169,7 +169,9 @@ pub fn brain_figures(
     }
     let vmax = 20.0;
     let mut panels = Vec::new();
-    for (((mode, db), field), detected) in study.modes.iter().zip(&pd_db).zip(&fields).zip(&detected) {
+    for (((mode, db), field), detected) in
+        study.modes.iter().zip(&pd_db).zip(&fields).zip(&detected)
+    {
         let mut pd = map_panel(
             &format!("{}: power Doppler", mode.method),
             db.clone(),
@@ -384,15 +386,21 @@ pub fn brain_figures(
     let ri_maps: Vec<(String, Array2<f64>, Array2<bool>)> = cycle
         .map(|c| ("Truth".to_string(), view.cut(&c.ri), lumen.clone()))
         .into_iter()
-        .chain(study.modes.iter().zip(&detected).filter_map(|(m, detected)| {
-            m.ri.as_ref().map(|ri| {
-                let ri = view.cut(&ri.ri);
-                let shown = Zip::from(&ri)
-                    .and(detected)
-                    .map_collect(|v, &d| d && v.is_finite());
-                (m.method.to_string(), ri, shown)
-            })
-        }))
+        .chain(
+            study
+                .modes
+                .iter()
+                .zip(&detected)
+                .filter_map(|(m, detected)| {
+                    m.ri.as_ref().map(|ri| {
+                        let ri = view.cut(&ri.ri);
+                        let shown = Zip::from(&ri)
+                            .and(detected)
+                            .map_collect(|v, &d| d && v.is_finite());
+                        (m.method.to_string(), ri, shown)
+                    })
+                }),
+        )
         .collect();
     for (name, ri, shown) in &ri_maps {
         let mut p = map_panel(

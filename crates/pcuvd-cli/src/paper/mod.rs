@@ -79,6 +79,8 @@ struct PaperMetrics<'a> {
     dealias: Option<&'a DealiasMetrics>,
     #[serde(skip_serializing_if = "Option::is_none")]
     brain: Option<&'a pcuvd_app::brain::BrainMetrics>,
+    /// True for a `--quick` run: reduced settings, for a first look.
+    quick: bool,
     total_s: f64,
 }
 
@@ -86,17 +88,18 @@ struct PaperMetrics<'a> {
 pub fn run(args: &PaperArgs) -> Result<()> {
     // Every setting is checked before the first study starts.
     let runs = |part: Part| args.part == Part::All || args.part == part;
+    let study = args.study.quickened();
     let spiral_settings = runs(Part::Spiral)
-        .then(|| args.study.spiral_settings())
+        .then(|| study.spiral_settings())
         .transpose()?;
     let network_settings = runs(Part::Network)
-        .then(|| args.study.network_settings())
+        .then(|| study.network_settings())
         .transpose()?;
     let dealias_settings = runs(Part::Dealias)
-        .then(|| args.study.dealias_settings())
+        .then(|| study.dealias_settings())
         .transpose()?;
     let brain_settings = runs(Part::Brain)
-        .then(|| args.study.brain_settings(args.out.as_deref()))
+        .then(|| study.brain_settings(args.out.as_deref()))
         .transpose()?;
     if args.print_settings {
         let settings = serde_json::json!({
@@ -224,6 +227,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         network: network.as_ref().map(|n| &n.0),
         dealias: dealias.as_ref(),
         brain: brain.as_ref(),
+        quick: args.study.quick,
         total_s: started.elapsed().as_secs_f64(),
     };
     // Through a JSON value, whose keys are sorted: the file reads the same whatever the struct order.
@@ -232,6 +236,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
     write_report(
         out,
         &value,
+        args.study.quick,
         spiral_done
             .as_ref()
             .map(|(m, s)| (m, s, spiral_figs.as_slice())),

@@ -6,6 +6,7 @@ use super::*;
 pub(super) fn write_report(
     dir: &Path,
     metrics: &serde_json::Value,
+    quick: bool,
     spiral: Option<(&SpiralMetrics, &SpiralSettings, &[Rendered])>,
     network: Option<(&NetworkMetrics, &NetworkSettings, &[Rendered])>,
     dealias: Option<(&DealiasMetrics, &[Rendered])>,
@@ -13,6 +14,13 @@ pub(super) fn write_report(
 ) -> Result<()> {
     let mut report =
         Report::new("pcuvd: pulse-coded ultrafast vector Doppler, the paper's studies");
+    if quick {
+        report.paragraph(
+            "A quick run (--quick): fewer frames, one noise level, a coarser grid, a fast heart, \
+             the small brain. For a first look at what each study draws; its numbers are not \
+             the studies' (run without --quick for those).",
+        );
+    }
     if let Some((metrics, settings, figs)) = spiral {
         spiral_report(&mut report, metrics, settings, figs);
     }
