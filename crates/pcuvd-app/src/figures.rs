@@ -119,6 +119,40 @@ pub fn map_panel(
     }
 }
 
+/// The dashed outline of the region x ∈ `x`, z ∈ `z` (m), drawn where a figure enlarges it.
+pub fn region_outline(x: (f64, f64), z: (f64, f64), label: &str) -> Polyline {
+    let (x0, x1, z0, z1) = (x.0 * 1e3, x.1 * 1e3, z.0 * 1e3, z.1 * 1e3);
+    Polyline {
+        x_mm: vec![x0, x1, x1, x0, x0],
+        z_mm: vec![z0, z0, z1, z1, z0],
+        dashed: true,
+        rgb: ROI_BOX_RGB,
+        label: label.to_string(),
+    }
+}
+
+/// Axial velocity `vz_m_s` (m/s, + = deeper) drawn red toward the probe on a ±`vmax_mm_s` scale
+/// over `mask`, black elsewhere: colour Doppler, or the truth's axial velocity beside it.
+pub fn axial_velocity_panel(
+    title: &str,
+    vz_m_s: &Array2<f64>,
+    grid: &Grid,
+    vmax_mm_s: f64,
+    mask: &Array2<bool>,
+) -> Panel {
+    let mut panel = map_panel(
+        title,
+        vz_m_s.mapv(|v| -v * 1e3),
+        grid,
+        Colormap::RedBlue,
+        (-vmax_mm_s, vmax_mm_s),
+        TOWARD_PROBE_LABEL,
+    );
+    panel.mask = Some(mask.clone());
+    panel.background = Some(Array2::zeros(mask.dim()));
+    Panel::Image(panel)
+}
+
 /// Triangles along the flow, one per `stride` × `stride` block of pixels that holds `mask` pixels,
 /// coloured by speed (mm/s). Each sits at the centroid of its block's flow pixels and carries
 /// their component-wise median velocity: vessels narrower than a block would be missed by a

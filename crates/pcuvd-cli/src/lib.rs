@@ -8,6 +8,7 @@ pub mod bench;
 pub mod dealias_study;
 pub mod info;
 pub mod network_study;
+mod numbers;
 pub mod paper;
 pub mod process;
 pub mod progress;

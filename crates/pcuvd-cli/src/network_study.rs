@@ -19,8 +19,8 @@ use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Repo
 
 use pcuvd_app::Progress;
 use pcuvd_app::figures::{
-    PROFILE_LINE_RGB, PSV_UP_LABEL, ROI_BOX_RGB, Rendered, TOWARD_PROBE_LABEL, TRUTH_RGB, UVD_RGB,
-    class_map, line, map_panel, render, shared_db_range, vector_panel,
+    PROFILE_LINE_RGB, PSV_UP_LABEL, Rendered, TRUTH_RGB, UVD_RGB, axial_velocity_panel, class_map,
+    line, map_panel, region_outline, render, shared_db_range, vector_panel,
 };
 
 /// The figures the network part writes into the output folder.
@@ -101,16 +101,10 @@ pub fn network_figures(
             label: "profiles of Fig. 6 g, h".into(),
         },
     ];
-    for &((x0, x1), (z0, z1)) in &rois {
-        let (x0, x1, z0, z1) = (x0 * 1e3, x1 * 1e3, z0 * 1e3, z1 * 1e3);
-        guides.push(Polyline {
-            x_mm: vec![x0, x1, x1, x0, x0],
-            z_mm: vec![z0, z0, z1, z1, z0],
-            dashed: true,
-            rgb: ROI_BOX_RGB,
-            label: "regions of Fig. 7".into(),
-        });
-    }
+    guides.extend(
+        rois.iter()
+            .map(|&(x, z)| region_outline(x, z, "regions of Fig. 7")),
+    );
 
     // Figure 6: PD, colour Doppler and vector maps, UVD above PC-UVD; one PD range from the data.
     let pd_db: Vec<Array2<f64>> = results
@@ -131,17 +125,13 @@ pub fn network_figures(
         );
         pd.lines = guides.clone();
         panels.push(Panel::Image(pd));
-        let mut cd = map_panel(
+        panels.push(axial_velocity_panel(
             &format!("{name}: colour Doppler"),
-            r.out.maps.color_doppler.mapv(|v| -v * 1e3),
+            &r.out.maps.color_doppler,
             grid,
-            Colormap::RedBlue,
-            (-vmax, vmax),
-            TOWARD_PROBE_LABEL,
-        );
-        cd.mask = Some(flow.clone());
-        cd.background = Some(black.clone());
-        panels.push(Panel::Image(cd));
+            vmax,
+            flow,
+        ));
         panels.push(vector_panel(
             &format!("{name}: vector Doppler"),
             r.field(),
@@ -456,20 +446,8 @@ pub fn report_section(
 ) {
     let rat = pcuvd::dynamics::DynamicsParams::rat();
     let dynamics = &m.network.dynamics;
-    let get = |x: f64| {
-        if x.is_finite() {
-            format!("{x:.3}")
-        } else {
-            "–".into()
-        }
-    };
-    let pct = |x: f64| {
-        if x.is_finite() {
-            format!("{:.1} %", 100.0 * x)
-        } else {
-            "–".into()
-        }
-    };
+    let get = |x: f64| crate::numbers::finite(x, 3);
+    let pct = crate::numbers::percent;
     let pooling_text = match settings
         .dynamics_params(pcuvd::study::Mode::Coded)
         .map(|p| p.pooling)
@@ -537,13 +515,7 @@ pub fn report_section(
         ],
     ];
     report.table(&["quantity", "UVD", "PC-UVD", "target"], &rows);
-    let f = |x: f64| {
-        if x.is_finite() {
-            format!("{x:.2}")
-        } else {
-            "–".into()
-        }
-    };
+    let f = |x: f64| crate::numbers::finite(x, 2);
     let p = |x: f64| {
         if x.is_finite() {
             format!("{:.0} %", 100.0 * x)

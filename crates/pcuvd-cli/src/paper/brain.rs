@@ -11,9 +11,8 @@ use pcuvd::estimate::vector::VectorField;
 use pcuvd_app::Progress;
 use pcuvd_app::brain::{BrainMetrics, BrainStudy, GroupScores, VectorScore};
 use pcuvd_app::figures::{
-    PCUVD_RGB, PROFILE_LINE_RGB, PSV_UP_LABEL, ROI_BOX_RGB, Rendered, TOWARD_PROBE_LABEL,
-    TRUTH_RGB, UVD_RGB, class_map, line, map_panel, render, shared_db_range, speed_scale,
-    vector_panel,
+    PCUVD_RGB, PROFILE_LINE_RGB, PSV_UP_LABEL, Rendered, TRUTH_RGB, UVD_RGB, axial_velocity_panel,
+    class_map, line, map_panel, region_outline, render, shared_db_range, speed_scale, vector_panel,
 };
 use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
@@ -157,16 +156,10 @@ pub fn brain_figures(
             label: "profiles of Fig. 6 g, h".into(),
         })
         .collect();
-    for &((x0, x1), (z0, z1)) in &rois {
-        let (x0, x1, z0, z1) = (x0 * 1e3, x1 * 1e3, z0 * 1e3, z1 * 1e3);
-        guides.push(Polyline {
-            x_mm: vec![x0, x1, x1, x0, x0],
-            z_mm: vec![z0, z0, z1, z1, z0],
-            dashed: true,
-            rgb: ROI_BOX_RGB,
-            label: "regions of Fig. 7".into(),
-        });
-    }
+    guides.extend(
+        rois.iter()
+            .map(|&(x, z)| region_outline(x, z, "regions of Fig. 7")),
+    );
     let vmax = 20.0;
     let mut panels = Vec::new();
     for (((mode, db), field), detected) in
@@ -182,17 +175,13 @@ pub fn brain_figures(
         );
         pd.lines = guides.clone();
         panels.push(Panel::Image(pd));
-        let mut cd = map_panel(
+        panels.push(axial_velocity_panel(
             &format!("{}: colour Doppler", mode.method),
-            view.cut(&mode.out.maps.color_doppler).mapv(|v| -v * 1e3),
+            &view.cut(&mode.out.maps.color_doppler),
             grid,
-            Colormap::RedBlue,
-            (-vmax, vmax),
-            TOWARD_PROBE_LABEL,
-        );
-        cd.mask = Some(detected.clone());
-        cd.background = Some(black.clone());
-        panels.push(Panel::Image(cd));
+            vmax,
+            detected,
+        ));
         panels.push(vector_panel(
             &format!("{}: vector Doppler", mode.method),
             field,
@@ -216,17 +205,13 @@ pub fn brain_figures(
     fraction.mask = Some(blood.clone());
     fraction.background = Some(black.clone());
     panels.push(Panel::Image(fraction));
-    let mut axial = map_panel(
+    panels.push(axial_velocity_panel(
         "Truth: axial velocity (lumen)",
-        truth_field.vz.mapv(|v| -v * 1e3),
+        &truth_field.vz,
         grid,
-        Colormap::RedBlue,
-        (-vmax, vmax),
-        TOWARD_PROBE_LABEL,
-    );
-    axial.mask = Some(lumen.clone());
-    axial.background = Some(black.clone());
-    panels.push(Panel::Image(axial));
+        vmax,
+        lumen,
+    ));
     panels.push(vector_panel(
         "Truth: vector velocity (lumen)",
         &truth_field,
@@ -494,20 +479,8 @@ pub fn summary_line(m: &BrainMetrics) -> String {
 
 /// The brain part of report.html.
 pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) {
-    let f = |x: f64| {
-        if x.is_finite() {
-            format!("{x:.2}")
-        } else {
-            "–".into()
-        }
-    };
-    let pct = |x: f64| {
-        if x.is_finite() {
-            format!("{:.1} %", 100.0 * x)
-        } else {
-            "–".into()
-        }
-    };
+    let f = |x: f64| crate::numbers::finite(x, 2);
+    let pct = crate::numbers::percent;
     report.heading("Virtual rat brain (paper §4, Fig. 6–8, with truth)");
     report.paragraph(&format!(
         "The scenario {} simulated conventional and Hadamard-coded ({} frames, noise {} dB re the blood's echo, fixed in the scenario before any score), each recording processed as `pcuvd process` processes it: SVD clutter filter on (cut-offs per angle, conventional: {:?}; coded: {:?}), the dynamics stage on the recording's heartbeats. UVD is the conventional recording with least squares, PC-UVD the coded one with IRLS.",

@@ -44,13 +44,7 @@ pub(super) fn spiral_report(
     settings: &SpiralSettings,
     figs: &[Rendered],
 ) {
-    let f = |x: f64| {
-        if x.is_finite() {
-            format!("{x:.2}")
-        } else {
-            "–".into()
-        }
-    };
+    let f = |x: f64| crate::numbers::finite(x, 2);
     let pair = |r: pcuvd::evaluate::metrics::Rmse| format!("{} / {}", f(r.vx), f(r.vz));
     report.heading("Spiral-flow simulation (paper §2.3, §3, Fig. 2–5)");
     report.paragraph(&format!(
