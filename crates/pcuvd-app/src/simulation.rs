@@ -742,17 +742,28 @@ impl Simulation {
         let grid = pipeline::default_grid_for(acq, n_samples)?;
         let shape = grid.shape();
         let zeros = || ndarray::Array2::<f64>::zeros(shape);
-        let (sx, sz, count) = times
-            .par_iter()
-            .map(|&t| {
-                let (truth, _, _) = self.flow_truth_at(&grid, t);
+        let over_time: Vec<pcuvd::simulate::phantom::Truth> = match &self.tree {
+            // The tree's elevation weights, most of its truth's cost, computed once.
+            Some(tree) => tree
+                .plane_truths(&grid.x, &grid.z, times, self.elevation_aperture())
+                .into_iter()
+                .zip(times)
+                .map(|(seen, &t)| self.carried(seen.truth, &grid, t))
+                .collect(),
+            None => times
+                .par_iter()
+                .map(|&t| self.flow_truth_at(&grid, t).0)
+                .collect(),
+        };
+        let (sx, sz, count) = over_time
+            .iter()
+            .map(|truth| {
                 let holds = truth.mask.mapv(|m| f64::from(u8::from(m)));
                 (&truth.vx * &holds, &truth.vz * &holds, holds)
             })
-            .reduce(
-                || (zeros(), zeros(), zeros()),
-                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2),
-            );
+            .fold((zeros(), zeros(), zeros()), |a, b| {
+                (a.0 + b.0, a.1 + b.1, a.2 + b.2)
+            });
         let mean = |sum: ndarray::Array2<f64>| {
             ndarray::Zip::from(&sum)
                 .and(&count)
@@ -775,12 +786,9 @@ impl Simulation {
         Option<pcuvd::simulate::phantom::network::NetworkTruth>,
     ) {
         // The tree's truth is the elevation beam's view of it, not the plane's cut.
-        let params = &self.modes[0].1;
-        let lambda = params.probe.wavelength(params.sound_speed);
-        let aperture = params.elevation.as_ref().map(|a| (a, lambda));
-        let (mut truth, elevation, cycle) = match &self.tree {
+        let (truth, elevation, cycle) = match &self.tree {
             Some(tree) => {
-                let seen = tree.plane_truth(&grid.x, &grid.z, t, aperture);
+                let seen = tree.plane_truth(&grid.x, &grid.z, t, self.elevation_aperture());
                 (
                     seen.truth,
                     Some((seen.vy, seen.blood_fraction)),
@@ -795,11 +803,27 @@ impl Simulation {
                     .map(|network| network.cycle_truth(&grid.x, &grid.z)),
             ),
         };
-        // The vessels move with the tissue.
+        (self.carried(truth, grid, t), elevation, cycle)
+    }
+
+    /// The elevation aperture of the simulation and its wavelength (m), in three dimensions.
+    fn elevation_aperture(&self) -> Option<(&pcuvd::simulate::elevation::ElevationAperture, f64)> {
+        let params = &self.modes[0].1;
+        let lambda = params.probe.wavelength(params.sound_speed);
+        params.elevation.as_ref().map(|a| (a, lambda))
+    }
+
+    /// `truth` at time `t` (s) moved with the tissue, as the vessels are.
+    fn carried(
+        &self,
+        mut truth: pcuvd::simulate::phantom::Truth,
+        grid: &pcuvd::core::grid::Grid,
+        t: f64,
+    ) -> pcuvd::simulate::phantom::Truth {
         if let Some(tissue) = &self.tissue {
             tissue.spec().motion.carry(&mut truth, &grid.x, &grid.z, t);
         }
-        (truth, elevation, cycle)
+        truth
     }
 }
 

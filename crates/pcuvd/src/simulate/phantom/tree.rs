@@ -172,7 +172,20 @@ impl TreePhantom {
         t: f64,
         aperture: Option<(&ElevationAperture, f64)>,
     ) -> TreeTruth {
-        let (nz, nx) = (z.len(), x.len());
+        self.plane_truths(x, z, &[t], aperture)
+            .pop()
+            .expect("one time, one truth")
+    }
+
+    /// [`TreePhantom::plane_truth`] at each of `times` (s): the elevation beam's weights, which
+    /// do not change with time and cost most of the work, are computed once.
+    pub fn plane_truths(
+        &self,
+        x: &[f64],
+        z: &[f64],
+        times: &[f64],
+        aperture: Option<(&ElevationAperture, f64)>,
+    ) -> Vec<TreeTruth> {
         // Elevations sampled every 10 µm over the tree and the whole beam (one sample, y = 0, in
         // two dimensions): the beam's weight outside the tree counts toward the pixel's total.
         let ys: Vec<f64> = match aperture {
@@ -200,6 +213,25 @@ impl TreePhantom {
                     .collect(),
             })
             .collect();
+        let totals: Vec<f64> = weight.iter().map(|w| w.iter().sum()).collect();
+        times
+            .par_iter()
+            .map(|&t| self.accumulate(x, z, t, &ys, &weight, &totals))
+            .collect()
+    }
+
+    /// The plane's truth at time `t` (s) from the elevations `ys` (m, ascending) and each
+    /// row's beam `weight` over them (and its sum, `totals`).
+    fn accumulate(
+        &self,
+        x: &[f64],
+        z: &[f64],
+        t: f64,
+        ys: &[f64],
+        weight: &[Vec<f64>],
+        totals: &[f64],
+    ) -> TreeTruth {
+        let (nz, nx) = (z.len(), x.len());
         let mut acc = Accumulator::new(nz, nx);
         for (id, s) in self.flow.segments.iter().enumerate() {
             let radius = 0.5 * s.diameter;
@@ -209,16 +241,18 @@ impl TreePhantom {
                 .enumerate()
                 .filter(|&(_, &v)| v >= lo[0] && v <= hi[0]);
             let columns: Vec<(usize, f64)> = columns.map(|(i, &v)| (i, v)).collect();
+            // The elevations within the segment's reach (`ys` ascends): a capillary spans a few
+            // of the hundreds the beam needs.
+            let elevations =
+                ys.partition_point(|&y| y < lo[1])..ys.partition_point(|&y| y <= hi[1]);
             for (iz, &zz) in z
                 .iter()
                 .enumerate()
                 .filter(|&(_, &v)| v >= lo[2] && v <= hi[2])
             {
                 for &(ix, xx) in &columns {
-                    for (iy, &y) in ys.iter().enumerate() {
-                        if y < lo[1] || y > hi[1] {
-                            continue;
-                        }
+                    for iy in elevations.clone() {
+                        let y = ys[iy];
                         let p = [xx, y, zz];
                         if let Some((_, r)) = s.local(&p) {
                             let w = weight[iz][iy];
@@ -230,8 +264,7 @@ impl TreePhantom {
                 }
             }
         }
-        let totals: Vec<f64> = weight.iter().map(|w| w.iter().sum()).collect();
-        acc.finish(&self.flow.segments, &totals)
+        acc.finish(&self.flow.segments, totals)
     }
 }
 
