@@ -291,6 +291,12 @@ pub fn cached_simulation(
             return Ok((folder, true));
         }
     }
+    progress.report(&format!(
+        "brain: simulating {} ({} frames, both modes) into {}, once: later runs reuse it",
+        settings.scenario,
+        scenario.sequence.frames,
+        folder.display()
+    ));
     let task = "simulate the brain";
     crate::simulation::folder::write(
         simulation,
