@@ -31,6 +31,7 @@ use crate::run::{DynamicsOutcome, Plan, Processed};
 use crate::scenario::{Scenario, Vessels};
 use crate::settings::{DynamicsSettings, ProcessingSettings};
 use crate::simulation::{SimulatedTruth, Simulation};
+use pcuvd::study::Mode;
 
 /// The scenario the study simulates unless told otherwise (a shipped scenario's name).
 pub const DEFAULT_SCENARIO: &str = "rat-brain";
@@ -122,10 +123,10 @@ impl BrainSettings {
 
 /// One transmit mode, processed.
 pub struct BrainMode {
-    /// "UVD" (conventional, least squares) or "PC-UVD" (coded, IRLS).
-    pub method: &'static str,
+    /// Conventional (UVD, least squares) or coded (PC-UVD, IRLS).
+    pub mode: Mode,
     /// The maps (the filtered series dropped once processed, to bound memory).
-    pub out: Arc<ProcessOutput>,
+    pub out: ProcessOutput,
     /// The RI maps, when the dynamics stage ran.
     pub ri: Option<RiMaps>,
     /// Why the dynamics stage did not run, when it did not.
@@ -135,12 +136,17 @@ pub struct BrainMode {
 }
 
 impl BrainMode {
+    /// "UVD" or "PC-UVD".
+    pub fn method(&self) -> &'static str {
+        self.mode.method()
+    }
+
     /// The method's vector field: least squares for UVD, IRLS for PC-UVD.
     pub fn field(&self) -> Result<&VectorField> {
         let maps = &self.out.maps;
-        match self.method {
-            "UVD" => maps.vector_ls.as_ref(),
-            _ => maps.vector_irls.as_ref(),
+        match self.mode {
+            Mode::Conventional => maps.vector_ls.as_ref(),
+            Mode::Coded => maps.vector_irls.as_ref(),
         }
         .context("the recording gives no vector velocity (one steering angle)")
     }
@@ -328,7 +334,8 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
     )];
     let mut modes = Vec::new();
     let mut truth = None;
-    for (name, method) in [("conventional", "UVD"), ("coded", "PC-UVD")] {
+    for mode in Mode::BOTH {
+        let (name, method) = (mode.label(), mode.method());
         let clock = std::time::Instant::now();
         let path = folder.join(format!("{name}.toml"));
         let opened = crate::input::open_input(&path, &pcuvd_io::Overrides::default())?;
@@ -341,20 +348,18 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         )?;
         let Processed { out, dynamics, .. } = crate::run::run(source, &plan, progress)
             .with_context(|| format!("brain study: processing {}", path.display()))?;
-        let mut out = Arc::try_unwrap(out).unwrap_or_else(|shared| (*shared).clone());
+        // The run hands its maps over whole (shared only with a later re-run of its dynamics).
+        let mut out = Arc::into_inner(out).context("the run's maps are shared")?;
         // The filtered series (the largest thing a mode holds) has given all it will.
         out.filtered.series = Vec::new();
         if truth.is_none() {
             let acq = source.acquisition();
             let n_samples = source.trace_shape().1;
-            let mut at_start = simulation.truth_for(acq, n_samples)?;
             let duration = source.n_frames() as f64 / acq.frame_rate();
             let times: Vec<f64> = (0..TRUTH_TIMES)
                 .map(|k| duration * (k as f64 + 0.5) / TRUTH_TIMES as f64)
                 .collect();
-            let (vx, vz) = simulation.mean_velocity(acq, n_samples, &times)?;
-            (at_start.truth.vx, at_start.truth.vz) = (vx, vz);
-            truth = Some(at_start);
+            truth = Some(simulation.truth_averaged(acq, n_samples, &times)?);
         }
         let (ri, ri_skipped) = match dynamics {
             DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),
@@ -366,8 +371,8 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             clock.elapsed().as_secs_f64(),
         ));
         modes.push(BrainMode {
-            method,
-            out: Arc::new(out),
+            mode,
+            out,
             ri,
             ri_skipped,
             detected,
@@ -438,11 +443,8 @@ fn score(
     let z = &truth.z;
     let fields = [modes[0].field()?, modes[1].field()?];
     let group = |label: String, select: &dyn Fn(usize, usize) -> bool| {
-        let scores = [0, 1].map(|m| {
-            vector_score(fields[m], &modes[m].detected, truth, lumen, |iz, ix| {
-                select(iz, ix)
-            })
-        });
+        let scores =
+            [0, 1].map(|m| vector_score(fields[m], &modes[m].detected, truth, lumen, select));
         GroupScores {
             group: label,
             improvement_pct: 100.0 * (1.0 - scores[1].rmse_mm_s / scores[0].rmse_mm_s),

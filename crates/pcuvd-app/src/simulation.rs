@@ -711,99 +711,74 @@ impl Simulation {
     }
 
     /// The ground truth on the default processing grid of a recording acquired as `acq` with
-    /// traces of `n_samples` samples.
+    /// traces of `n_samples` samples, at t = 0.
     pub fn truth_for(&self, acq: &pcuvd::Acquisition, n_samples: usize) -> Result<SimulatedTruth> {
+        self.truth_averaged(acq, n_samples, &[])
+    }
+
+    /// [`Simulation::truth_for`], its in-plane blood velocity (vx, vz) averaged over `times` (s)
+    /// when any are given, at each pixel over the times it holds blood (0 where it never does):
+    /// the truth a whole-recording vector map estimates, whose Doppler phase averages the
+    /// pulsatile flow over the recording, as the vessels move with the tissue. The mask, the
+    /// elevation's and the cardiac cycle's truth stay those at t = 0.
+    pub fn truth_averaged(
+        &self,
+        acq: &pcuvd::Acquisition,
+        n_samples: usize,
+        times: &[f64],
+    ) -> Result<SimulatedTruth> {
+        use rayon::prelude::*;
         let grid = pipeline::default_grid_for(acq, n_samples)?;
-        let (truth, elevation, cycle) = self.flow_truth_at(&grid, 0.0);
+        let (x, z) = (&grid.x, &grid.z);
+        let all: Vec<f64> = std::iter::once(0.0).chain(times.iter().copied()).collect();
+        // The tree's truth is the elevation beam's view of it, not the plane's cut; its
+        // elevation weights, most of its cost, are computed once for every time.
+        let (flows, elevation, cycle): (Vec<_>, _, _) = match &self.tree {
+            Some(tree) => {
+                let mut seen = tree
+                    .plane_truths(x, z, &all, self.elevation_aperture())
+                    .into_iter();
+                let start = seen.next().expect("t = 0 comes first");
+                let flows = std::iter::once(start.truth)
+                    .chain(seen.map(|later| later.truth))
+                    .collect();
+                (
+                    flows,
+                    Some((start.vy, start.blood_fraction)),
+                    Some(start.cycle),
+                )
+            }
+            None => (
+                all.par_iter()
+                    .map(|&t| self.phantom.truth(x, z, t))
+                    .collect(),
+                None,
+                self.network
+                    .as_ref()
+                    .map(|network| network.cycle_truth(x, z)),
+            ),
+        };
+        // The vessels move with the tissue.
+        let mut flows: Vec<pcuvd::simulate::phantom::Truth> = flows
+            .into_iter()
+            .zip(&all)
+            .map(|(flow, &t)| self.carried(flow, &grid, t))
+            .collect();
+        let mut truth = flows.remove(0);
+        if !times.is_empty() {
+            (truth.vx, truth.vz) = mean_where_blood(&flows);
+        }
         Ok(SimulatedTruth {
             truth,
             elevation,
             tissue: self
                 .tissue
                 .as_ref()
-                .map(|tissue| tissue.motion_truth(&grid.x, &grid.z, 0.0)),
+                .map(|tissue| tissue.motion_truth(x, z, 0.0)),
             cycle,
-            x: grid.x,
-            z: grid.z,
+            x: grid.x.clone(),
+            z: grid.z.clone(),
         })
-    }
-
-    /// The in-plane blood velocity (vx, vz) (m/s) on the default processing grid, averaged over
-    /// `times` (s) at each pixel over the times it holds blood (0 where it never does): the truth
-    /// a whole-recording vector map estimates, whose Doppler phase averages the pulsatile flow
-    /// over the recording, as the vessels move with the tissue.
-    pub fn mean_velocity(
-        &self,
-        acq: &pcuvd::Acquisition,
-        n_samples: usize,
-        times: &[f64],
-    ) -> Result<(ndarray::Array2<f64>, ndarray::Array2<f64>)> {
-        use rayon::prelude::*;
-        let grid = pipeline::default_grid_for(acq, n_samples)?;
-        let shape = grid.shape();
-        let zeros = || ndarray::Array2::<f64>::zeros(shape);
-        let over_time: Vec<pcuvd::simulate::phantom::Truth> = match &self.tree {
-            // The tree's elevation weights, most of its truth's cost, computed once.
-            Some(tree) => tree
-                .plane_truths(&grid.x, &grid.z, times, self.elevation_aperture())
-                .into_iter()
-                .zip(times)
-                .map(|(seen, &t)| self.carried(seen.truth, &grid, t))
-                .collect(),
-            None => times
-                .par_iter()
-                .map(|&t| self.flow_truth_at(&grid, t).0)
-                .collect(),
-        };
-        let (sx, sz, count) = over_time
-            .iter()
-            .map(|truth| {
-                let holds = truth.mask.mapv(|m| f64::from(u8::from(m)));
-                (&truth.vx * &holds, &truth.vz * &holds, holds)
-            })
-            .fold((zeros(), zeros(), zeros()), |a, b| {
-                (a.0 + b.0, a.1 + b.1, a.2 + b.2)
-            });
-        let mean = |sum: ndarray::Array2<f64>| {
-            ndarray::Zip::from(&sum)
-                .and(&count)
-                .map_collect(|&s, &n| if n > 0.0 { s / n } else { 0.0 })
-        };
-        Ok((mean(sx), mean(sz)))
-    }
-
-    /// The flow's truth on `grid` at time `t` (s), carried by the tissue's motion: velocity and
-    /// mask, the elevation's out-of-plane velocity and blood fraction (a tree), and the cardiac
-    /// cycle's truth (the network or a tree).
-    #[allow(clippy::type_complexity)]
-    fn flow_truth_at(
-        &self,
-        grid: &pcuvd::core::grid::Grid,
-        t: f64,
-    ) -> (
-        pcuvd::simulate::phantom::Truth,
-        Option<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
-        Option<pcuvd::simulate::phantom::network::NetworkTruth>,
-    ) {
-        // The tree's truth is the elevation beam's view of it, not the plane's cut.
-        let (truth, elevation, cycle) = match &self.tree {
-            Some(tree) => {
-                let seen = tree.plane_truth(&grid.x, &grid.z, t, self.elevation_aperture());
-                (
-                    seen.truth,
-                    Some((seen.vy, seen.blood_fraction)),
-                    Some(seen.cycle),
-                )
-            }
-            None => (
-                self.phantom.truth(&grid.x, &grid.z, t),
-                None,
-                self.network
-                    .as_ref()
-                    .map(|network| network.cycle_truth(&grid.x, &grid.z)),
-            ),
-        };
-        (self.carried(truth, grid, t), elevation, cycle)
     }
 
     /// The elevation aperture of the simulation and its wavelength (m), in three dimensions.
@@ -825,6 +800,31 @@ impl Simulation {
         }
         truth
     }
+}
+
+/// Each pixel's velocity (vx, vz) averaged over the truths in which it holds blood; 0 where it
+/// never does.
+fn mean_where_blood(
+    truths: &[pcuvd::simulate::phantom::Truth],
+) -> (ndarray::Array2<f64>, ndarray::Array2<f64>) {
+    let shape = truths[0].mask.dim();
+    let mut sums = [
+        ndarray::Array2::<f64>::zeros(shape),
+        ndarray::Array2::<f64>::zeros(shape),
+    ];
+    let mut count = ndarray::Array2::<f64>::zeros(shape);
+    for truth in truths {
+        let holds = truth.mask.mapv(|m| f64::from(u8::from(m)));
+        sums[0] += &(&truth.vx * &holds);
+        sums[1] += &(&truth.vz * &holds);
+        count += &holds;
+    }
+    let [vx, vz] = sums.map(|sum| {
+        ndarray::Zip::from(&sum)
+            .and(&count)
+            .map_collect(|&s, &n| if n > 0.0 { s / n } else { 0.0 })
+    });
+    (vx, vz)
 }
 
 /// The vessel graph in `folder`'s three tables (see `--vessel-tables`).

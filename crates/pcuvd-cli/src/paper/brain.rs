@@ -166,7 +166,7 @@ pub fn brain_figures(
         study.modes.iter().zip(&pd_db).zip(&fields).zip(&detected)
     {
         let mut pd = map_panel(
-            &format!("{}: power Doppler", mode.method),
+            &format!("{}: power Doppler", mode.method()),
             db.clone(),
             grid,
             Colormap::Hot,
@@ -176,14 +176,14 @@ pub fn brain_figures(
         pd.lines = guides.clone();
         panels.push(Panel::Image(pd));
         panels.push(axial_velocity_panel(
-            &format!("{}: colour Doppler", mode.method),
+            &format!("{}: colour Doppler", mode.method()),
             &view.cut(&mode.out.maps.color_doppler),
             grid,
             vmax,
             detected,
         ));
         panels.push(vector_panel(
-            &format!("{}: vector Doppler", mode.method),
+            &format!("{}: vector Doppler", mode.method()),
             field,
             grid,
             detected,
@@ -248,7 +248,7 @@ pub fn brain_figures(
                 .zip([UVD_RGB, PCUVD_RGB])
                 .map(|((mode, db), rgb)| {
                     line(
-                        &format!("{} power Doppler", mode.method),
+                        &format!("{} power Doppler", mode.method()),
                         x_mm.clone(),
                         db.row(row).to_vec(),
                         SeriesStyle::Line,
@@ -331,8 +331,8 @@ pub fn brain_figures(
     // Figure 7: vector velocity in three regions, UVD, PC-UVD, truth.
     let mut panels = Vec::new();
     let rows_of_fig7: [(&str, &VectorField, &Array2<bool>); 3] = [
-        (study.modes[0].method, &fields[0], &detected[0]),
-        (study.modes[1].method, &fields[1], &detected[1]),
+        (study.modes[0].method(), &fields[0], &detected[0]),
+        (study.modes[1].method(), &fields[1], &detected[1]),
         ("Truth", &truth_field, lumen),
     ];
     for (name, field, mask) in rows_of_fig7 {
@@ -382,7 +382,7 @@ pub fn brain_figures(
                         let shown = Zip::from(&ri)
                             .and(detected)
                             .map_collect(|v, &d| d && v.is_finite());
-                        (m.method.to_string(), ri, shown)
+                        (m.method().to_string(), ri, shown)
                     })
                 }),
         )
@@ -412,7 +412,7 @@ pub fn brain_figures(
         for (m, detected) in study.modes.iter().zip(&detected) {
             if let Some(ri) = &m.ri {
                 maps.push((
-                    m.method.to_string(),
+                    m.method().to_string(),
                     view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
                     detected.clone(),
                 ));

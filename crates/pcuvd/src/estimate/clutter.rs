@@ -97,6 +97,12 @@ pub struct ClutterReport {
 
 const CHUNK: usize = 4096;
 
+/// `samples` as faer's complex type, which is the same type.
+fn as_faer(samples: &[Complex32]) -> &[c32] {
+    // SAFETY: num_complex::Complex32 and faer's c32 are the same type.
+    unsafe { std::slice::from_raw_parts(samples.as_ptr() as *const c32, samples.len()) }
+}
+
 /// Filters `series` (nz, nx, frames) in place and reports the cut-offs used.
 pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
@@ -117,10 +123,6 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
     let data = series
         .as_slice_mut()
         .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
-    let as_faer = |d: &[Complex32]| -> &[c32] {
-        // SAFETY: num_complex::Complex32 and faer's c32 are the same type.
-        unsafe { std::slice::from_raw_parts(d.as_ptr() as *const c32, d.len()) }
-    };
 
     // G = Sᴴ S, accumulated in f64 over pixel chunks. G is Hermitian and the eigensolver reads
     // its lower half only: computing that half alone halves the largest product of the filter.
@@ -280,10 +282,6 @@ fn auto_low<'a>(
 /// correlation ignores). Accumulated over pixel chunks in f64; |S·V| is never held whole.
 pub fn spatial_similarity(data: &[Complex32], frames: usize, vectors: MatRef<'_, c32>) -> Mat<f64> {
     let n = vectors.ncols();
-    let as_faer = |d: &[Complex32]| -> &[c32] {
-        // SAFETY: num_complex::Complex32 and faer's c32 are the same type.
-        unsafe { std::slice::from_raw_parts(d.as_ptr() as *const c32, d.len()) }
-    };
     let (products, sums) = data
         .par_chunks(CHUNK * frames)
         .map(|chunk| {
