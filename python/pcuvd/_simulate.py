@@ -58,15 +58,15 @@ def simulate(
     """Simulates RF recordings as `pcuvd simulate` does.
 
     scenario: a scenario file (.toml; see docs/guide/scenarios.md) or the name of a shipped one;
-    preset: a shipped scenario by name, "paper-spiral" (the default), "tube", "rat-network" or
-    "rat-brain". The other arguments override the scenario's values: mode "coded" (Hadamard),
-    "conventional", "both", or None for the scenario's; frames: compound frames; noise_db: noise
-    level in dB, None for no noise, "scenario" for the scenario's; seed of scatterers and noise
-    (None: the scenario's); options: the other `simulate` options (angles, slot_delay_us,
-    peak_velocity_mm_s, tube_profile="plug" for the tube without a gradient across it,
-    tube_angle_deg, tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm; tissue_db=40 for
-    moving tissue around the vessels, tissue_motion="rat" or "still"). Returns (recording,
-    truth), or ({"conventional": ..., "coded": ...}, truth) when both modes are simulated.
+    preset: a shipped scenario by name, "paper-spiral" (the default), "tube", "rat-network",
+    "rat-brain" or "rat-brain-small". The other arguments override the scenario's values: mode
+    "coded" (Hadamard), "conventional", "both", or None for the scenario's; frames: compound
+    frames; noise_db: noise level in dB, None for no noise, "scenario" for the scenario's; seed of
+    scatterers and noise (None: the scenario's); options: the other `simulate` options (angles,
+    slot_delay_us, peak_velocity_mm_s, tube_profile="plug" for the tube without a gradient across
+    it, tube_angle_deg, tube_centre_mm=(x, z), tube_length_mm, tube_radius_mm; tissue_db=40 for
+    moving tissue around the vessels, tissue_motion="rat" or "still"). Returns (recording, truth),
+    or ({"conventional": ..., "coded": ...}, truth) when both modes are simulated.
     """
     given = dict(options)
     given.update(frames=frames)

@@ -36,10 +36,11 @@ def test_tissue_brightens_the_echo_and_its_motion_is_in_the_truth():
 
 
 def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri():
-    # One angle, two frames: the brain's set-up (tree, flow, tissue, elevation truth) in full.
+    # One angle, two frames of the small brain: the set-up (tree, flow, tissue, elevation truth)
+    # of the full one, on a 3 mm slab of cortex.
     few = dict(frames=2, noise_db=None, angles=1)
-    brain, truth = pcuvd.simulate("rat-brain", "conventional", **few)
-    blood, _ = pcuvd.simulate("rat-brain", "conventional", tissue_db=-200, **few)
+    brain, truth = pcuvd.simulate("rat-brain-small", "conventional", **few)
+    blood, _ = pcuvd.simulate("rat-brain-small", "conventional", tissue_db=-200, **few)
     # The tissue's echo, 40 dB per unit volume above the blood's over ~2,000 times its volume.
     assert 10 * np.log10(_power(brain) / _power(blood)) > 30
     inside = truth.mask
@@ -77,7 +78,7 @@ def test_the_rat_brain_takes_its_vessels_from_three_tables(tmp_path):
     # mean speed of ΔP d² / (32 μ L) = 3.8 mm/s (centreline 7.6 mm/s, pulsing with the inlet).
     _write_tables(tmp_path, "vertex,type,value,pulse\n0,pressure,1600,300\n1,pressure,1333,0\n")
     _, truth = pcuvd.simulate(
-        "rat-brain", "conventional", frames=1, noise_db=None, angles=1,
+        "rat-brain-small", "conventional", frames=1, noise_db=None, angles=1,
         vessel_tables=str(tmp_path),
     )
     x, z = np.meshgrid(truth.x, truth.z)

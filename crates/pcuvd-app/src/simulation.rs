@@ -33,6 +33,8 @@ pub enum Preset {
     RatNetwork,
     /// A first virtual rat brain, in three dimensions: the rat acquisition (Table 1) with the L22-14vX's elevation (1.5 mm elements, lens focus 8 mm); a 10 mm coronal slab of cortex 1–3 mm deep with a generated vascular tree (pial artery and vein, penetrating arterioles and ascending venules branching by Murray's law, a capillary bed; compliant pulsatile flow at 5.5 Hz: arterioles ~16 mm/s RI ~0.7, venules ~7 mm/s RI ~0.1) and four pairs of larger deep vessels rising from 9 mm toward 5 mm; tissue 40 dB above blood (--tissue-db) in a 1.2 mm slab under a dura-like layer, with the corpus callosum and lateral ventricles below the cortex, moving with the heartbeat and breathing (--tissue-motion) with the vessels; noise 0 dB re the blood's echo; 360 frames. Writes the RI truth and the out-of-plane velocity and blood fraction.
     RatBrain,
+    /// The rat brain cut down for a first look in about a minute: the central 48 elements, a 3 mm slab of cortex with one deep pair rising from 6 mm, an 8 mm receive window, 48 frames (no whole cardiac cycle, so no RI maps); tissue, layers, motion and noise as the rat brain's.
+    RatBrainSmall,
 }
 
 pub use crate::scenario::{ModeChoice, TissueMotionChoice};
@@ -46,7 +48,7 @@ pub mod folder;
 #[serde(default, deny_unknown_fields)]
 pub struct SimulationSettings {
     /// The scenario to simulate: a TOML file (see docs/guide/scenarios.md) or the name of a
-    /// shipped one (paper-spiral, tube, rat-network, rat-brain: the presets). Default: paper-spiral.
+    /// shipped one (paper-spiral, tube, rat-network, rat-brain, rat-brain-small: the presets). Default: paper-spiral.
     #[cfg_attr(feature = "clap", arg(long))]
     #[serde(deserialize_with = "crate::settings::optional_text")]
     pub scenario: Option<String>,
@@ -316,6 +318,7 @@ impl Preset {
             Preset::Tube => "tube",
             Preset::RatNetwork => "rat-network",
             Preset::RatBrain => "rat-brain",
+            Preset::RatBrainSmall => "rat-brain-small",
         }
     }
 }
