@@ -1,8 +1,8 @@
-//! The manifest's TOML tables as serde reads them: every key optional, unknown keys refused, so
-//! that the checks in [`super::read`] and [`super::acquisition`] can name what is missing or
-//! wrong.
+//! The manifest's TOML tables as serde reads and writes them: every key optional, unknown keys
+//! refused, so that the checks in [`super::read`] and [`super::acquisition`] can name what is
+//! missing or wrong; [`super::write`] fills the same tables (an absent key is not written).
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// A manifest as its TOML reads, every key optional (the checks name what is missing).
 #[derive(Debug, Deserialize)]
@@ -21,7 +21,7 @@ pub(super) struct ManifestFile {
 }
 
 /// `[cardiac]`: the cardiac cycles recorded beside the ultrasound, for the dynamics stage.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct CardiacSection {
     /// Cycle start times (s from the first frame): ECG R-waves or scanner triggers.
@@ -31,7 +31,7 @@ pub(super) struct CardiacSection {
 }
 
 /// `[probe]`: a preset, or the probe's own keys (which override the preset's).
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct ProbeSection {
     pub(super) preset: Option<String>,
@@ -44,7 +44,7 @@ pub(super) struct ProbeSection {
 }
 
 /// `[acquisition]`: the transmit sequence and the sampling.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct AcquisitionSection {
     pub(super) sampling_frequency_hz: Option<f64>,
@@ -64,7 +64,7 @@ pub(super) struct AcquisitionSection {
 }
 
 /// `[acquisition.pulse]` (version 2): the transmit pulse as samples.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct PulseSection {
     pub(super) sampling_frequency_hz: Option<f64>,
@@ -72,7 +72,7 @@ pub(super) struct PulseSection {
 }
 
 /// `[data]`: the samples file, their kind and the order of their axes.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct DataSection {
     pub(super) file: Option<String>,

@@ -605,8 +605,9 @@ fn v2_recordings_round_trip() {
     );
 }
 
-/// The manifest version 1 writes is, byte for byte, what pcuvd wrote before version 2 existed
-/// (recordings written then and now are the same files).
+/// The manifest version 1 writes holds the keys and values (every float to the bit) that pcuvd
+/// wrote before version 2 existed, so readers of then read recordings written now as they read
+/// those written then. (Its text was laid out by hand then, by the toml crate now.)
 #[test]
 fn version_1_manifests_are_written_as_before() {
     let dir = tempfile::tempdir().unwrap();
@@ -643,7 +644,8 @@ file = \"old.npy\"
 kind = \"rf\"
 axes = [\"frames\", \"angles\", \"channels\", \"samples\"]
 ";
-    assert_eq!(std::fs::read_to_string(&path).unwrap(), expected);
+    let written: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(written, toml::from_str::<toml::Table>(expected).unwrap());
 }
 
 /// Per-element delays of exact plane waves give the recording that their angles give (the

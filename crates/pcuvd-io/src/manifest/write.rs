@@ -7,25 +7,13 @@ use std::path::{Path, PathBuf};
 use ndarray::Array4;
 use pcuvd::{Acquisition, ChannelData, Coding, Probe, Samples};
 
+use serde::Serialize;
+
 use super::FORMAT;
 use super::axes::canonical_axes;
+use super::schema::{AcquisitionSection, CardiacSection, DataSection, ProbeSection, PulseSection};
 use crate::error::IoError;
 use crate::npy::write_npy;
-
-/// A float as TOML text that reads back to the same bits (finite values; TOML spellings otherwise).
-fn toml_f64(v: f64) -> String {
-    if v.is_nan() {
-        "nan".into()
-    } else if v.is_infinite() {
-        if v > 0.0 { "inf".into() } else { "-inf".into() }
-    } else {
-        format!("{v:?}")
-    }
-}
-
-fn toml_str(s: &str) -> String {
-    toml::Value::String(s.to_string()).to_string()
-}
 
 /// Writes `{stem}.npy` (float32 RF or complex64 IQ, axes frames × angles × channels × samples, or
 /// frames × events × ... in a version 2 manifest) and `{stem}.toml` in `dir` (created if needed),
@@ -48,12 +36,12 @@ pub fn write_recording(
     let n_angles = acq.sequence.n_angles();
     let (events, channels, samples) = data.samples.dim();
     let shape4 = (events / n_angles, n_angles, channels, samples);
-    let kind_lines = match &data.samples {
+    let demod_frequency = match &data.samples {
         Samples::Rf(a) => {
             let a4 = Array4::from_shape_vec(shape4, a.iter().copied().collect())
                 .map_err(|e| IoError::invalid(&npy_path, "the samples", e.to_string()))?;
             write_npy(&npy_path, &a4)?;
-            RF_KIND.to_string()
+            None
         }
         Samples::Iq {
             data: a,
@@ -62,25 +50,19 @@ pub fn write_recording(
             let a4 = Array4::from_shape_vec(shape4, a.iter().copied().collect())
                 .map_err(|e| IoError::invalid(&npy_path, "the samples", e.to_string()))?;
             write_npy(&npy_path, &a4)?;
-            format!(
-                "kind = \"iq\"\ndemod_frequency_hz = {}\n",
-                toml_f64(*demod_frequency)
-            )
+            Some(*demod_frequency)
         }
     };
     write_manifest(
         &manifest_path,
         acq,
         &npy_name,
-        &kind_lines,
+        demod_frequency,
         None,
         provenance,
     )?;
     Ok(manifest_path)
 }
-
-/// The `[data]` kind lines of an RF recording.
-pub(super) const RF_KIND: &str = "kind = \"rf\"\n";
 
 /// The manifest, samples file name and samples path of recording `stem` in `dir`, or an error
 /// when `stem` is not a plain file name.
@@ -122,137 +104,127 @@ fn version_needed(acq: &Acquisition) -> i64 {
     }
 }
 
-/// Writes the manifest of a recording acquired as `acq` whose samples are `npy_name`
-/// (frames, angles, channels, samples) of `kind_lines`, atomically.
+/// A whole manifest as it is written: the tables [`super::schema`] reads, in that order.
+#[derive(Serialize)]
+struct ManifestOut<'a> {
+    format: &'static str,
+    version: i64,
+    probe: ProbeSection,
+    acquisition: AcquisitionSection,
+    data: DataSection,
+    cardiac: Option<CardiacSection>,
+    #[serde(skip_serializing_if = "toml::Table::is_empty")]
+    provenance: &'a toml::Table,
+}
+
+/// Writes the manifest of a recording acquired as `acq` whose samples are `npy_name` (frames,
+/// angles, channels, samples): RF, or IQ demodulated at `demod_frequency` (Hz); atomically.
 pub(super) fn write_manifest(
     manifest_path: &Path,
     acq: &Acquisition,
     npy_name: &str,
-    kind_lines: &str,
+    demod_frequency: Option<f64>,
     cardiac_triggers_s: Option<&[f64]>,
     provenance: &toml::Table,
 ) -> Result<(), IoError> {
     let p = &acq.probe;
     let version = version_needed(acq);
-    let mut t = String::new();
-    t.push_str("# pcuvd recording manifest (SI units; the unit is in each key's name).\n");
-    t.push_str(&format!(
-        "format = {}\nversion = {version}\n\n",
-        toml_str(FORMAT)
-    ));
-    t.push_str("[probe]\n");
-    if Probe::preset(&p.name).is_ok_and(|q| q.name == p.name) {
-        t.push_str(&format!("preset = {}\n", toml_str(&p.name)));
-    }
-    t.push_str(&format!("name = {}\n", toml_str(&p.name)));
-    t.push_str(&format!("n_elements = {}\n", p.n_elements));
-    t.push_str(&format!("pitch_m = {}\n", toml_f64(p.pitch)));
-    t.push_str(&format!(
-        "element_width_m = {}\n",
-        toml_f64(p.element_width)
-    ));
-    t.push_str(&format!(
-        "center_frequency_hz = {}\n",
-        toml_f64(p.center_frequency)
-    ));
-    t.push_str(&format!(
-        "bandwidth = {}  # two-way -6 dB fractional bandwidth\n\n",
-        toml_f64(p.bandwidth)
-    ));
-    t.push_str("[acquisition]\n");
-    t.push_str(&format!(
-        "sampling_frequency_hz = {}\n",
-        toml_f64(acq.sampling_frequency)
-    ));
-    t.push_str(&format!(
-        "sound_speed_m_s = {}\n",
-        toml_f64(acq.sound_speed)
-    ));
-    t.push_str(&format!("t0_s = {}\n", toml_f64(acq.t0)));
-    t.push_str(&format!(
-        "event_prf_hz = {}\n",
-        toml_f64(acq.sequence.event_prf)
-    ));
-    let deg: Vec<String> = acq
-        .sequence
+    let sequence = &acq.sequence;
+    let (coding, slot_delay_s, code_matrix, slot_delays_s) = match &sequence.coding {
+        Coding::Conventional => ("none", None, None, None),
+        Coding::Hadamard { slot_delay } => ("hadamard", Some(*slot_delay), None, None),
+        Coding::Matrix(code) => (
+            "matrix",
+            None,
+            Some(
+                code.weights
+                    .chunks(code.order().max(1))
+                    .map(<[f64]>::to_vec)
+                    .collect(),
+            ),
+            Some(code.slot_starts.clone()),
+        ),
+    };
+    let manifest = ManifestOut {
+        format: FORMAT,
+        version,
+        probe: ProbeSection {
+            preset: Probe::preset(&p.name)
+                .is_ok_and(|q| q.name == p.name)
+                .then(|| p.name.clone()),
+            name: Some(p.name.clone()),
+            n_elements: Some(p.n_elements),
+            pitch_m: Some(p.pitch),
+            element_width_m: Some(p.element_width),
+            center_frequency_hz: Some(p.center_frequency),
+            bandwidth: Some(p.bandwidth),
+        },
+        acquisition: AcquisitionSection {
+            sampling_frequency_hz: Some(acq.sampling_frequency),
+            sound_speed_m_s: Some(acq.sound_speed),
+            t0_s: Some(acq.t0),
+            event_prf_hz: Some(sequence.event_prf),
+            angles_rad: Some(sequence.angles.clone()),
+            pulse_cycles: Some(sequence.pulse_cycles),
+            coding: Some(coding.to_string()),
+            slot_delay_s,
+            slot_delays_s,
+            code_matrix,
+            pulse: sequence.pulse.as_ref().map(|pulse| PulseSection {
+                sampling_frequency_hz: Some(pulse.sampling_frequency),
+                samples: Some(pulse.samples.clone()),
+            }),
+            ..AcquisitionSection::default()
+        },
+        data: DataSection {
+            file: Some(npy_name.to_string()),
+            kind: Some(
+                if demod_frequency.is_some() {
+                    "iq"
+                } else {
+                    "rf"
+                }
+                .to_string(),
+            ),
+            axes: Some(
+                canonical_axes(4, version)
+                    .iter()
+                    .map(|axis| axis.to_string())
+                    .collect(),
+            ),
+            demod_frequency_hz: demod_frequency,
+        },
+        cardiac: cardiac_triggers_s.map(|times| CardiacSection {
+            triggers_s: Some(times.to_vec()),
+            triggers_file: None,
+        }),
+        provenance,
+    };
+    let tables = toml::to_string(&manifest).map_err(|e| {
+        IoError::invalid(
+            manifest_path,
+            "the manifest",
+            format!("cannot be written ({e})"),
+        )
+    })?;
+    let degrees: Vec<String> = sequence
         .angles
         .iter()
         .map(|a| format!("{:.4}", a.to_degrees()))
         .collect();
-    let rad: Vec<String> = acq.sequence.angles.iter().map(|&a| toml_f64(a)).collect();
-    t.push_str(&format!(
-        "# angles in degrees: [{}]\nangles_rad = [{}]\n",
-        deg.join(", "),
-        rad.join(", ")
-    ));
-    t.push_str(&format!(
-        "pulse_cycles = {}\n",
-        toml_f64(acq.sequence.pulse_cycles)
-    ));
-    let list = |values: &[f64]| {
-        values
-            .iter()
-            .map(|&v| toml_f64(v))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    match &acq.sequence.coding {
-        Coding::Conventional => t.push_str("coding = \"none\"\n"),
-        Coding::Hadamard { slot_delay } => t.push_str(&format!(
-            "coding = \"hadamard\"\nslot_delay_s = {}\n",
-            toml_f64(*slot_delay)
-        )),
-        Coding::Matrix(code) => {
-            t.push_str("coding = \"matrix\"\n");
-            t.push_str("# row i: the weight of each slot (angle) in event i of a compound frame\n");
-            t.push_str("code_matrix = [\n");
-            for row in code.weights.chunks(code.order().max(1)) {
-                t.push_str(&format!("    [{}],\n", list(row)));
-            }
-            t.push_str("]\n");
-            t.push_str(&format!("slot_delays_s = [{}]\n", list(&code.slot_starts)));
-        }
+    let mut text = format!(
+        "# pcuvd recording manifest (SI units; the unit is in each key's name).\n\
+         # bandwidth: the two-way -6 dB fractional bandwidth.\n\
+         # angles_rad in degrees: [{}]\n",
+        degrees.join(", ")
+    );
+    if matches!(sequence.coding, Coding::Matrix(_)) {
+        text.push_str(
+            "# code_matrix row i: the weight of each slot (angle) in event i of a compound frame.\n",
+        );
     }
-    if let Some(pulse) = &acq.sequence.pulse {
-        t.push_str("\n[acquisition.pulse]\n");
-        t.push_str(&format!(
-            "sampling_frequency_hz = {}\n",
-            toml_f64(pulse.sampling_frequency)
-        ));
-        t.push_str(&format!("samples = [{}]\n", list(&pulse.samples)));
-    }
-    t.push_str("\n[data]\n");
-    t.push_str(&format!("file = {}\n", toml_str(npy_name)));
-    t.push_str(kind_lines);
-    t.push_str(&format!(
-        "axes = {}\n",
-        toml::Value::Array(
-            canonical_axes(4, version)
-                .iter()
-                .map(|a| toml::Value::String(a.to_string()))
-                .collect()
-        )
-    ));
-    if let Some(times) = cardiac_triggers_s {
-        t.push_str("\n[cardiac]\n");
-        t.push_str(&format!("triggers_s = [{}]\n", list(times)));
-    }
-    if !provenance.is_empty() {
-        #[derive(serde::Serialize)]
-        struct Prov<'a> {
-            provenance: &'a toml::Table,
-        }
-        let prov = toml::to_string(&Prov { provenance }).map_err(|e| {
-            IoError::invalid(
-                manifest_path,
-                "[provenance]",
-                format!("cannot be written ({e})"),
-            )
-        })?;
-        t.push('\n');
-        t.push_str(&prov);
-    }
+    text.push_str(&tables);
     crate::npy::write_atomically(manifest_path, |partial| {
-        std::fs::write(partial, t).map_err(|e| IoError::io(manifest_path, "write", e))
+        std::fs::write(partial, text).map_err(|e| IoError::io(manifest_path, "write", e))
     })
 }

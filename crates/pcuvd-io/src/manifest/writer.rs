@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use pcuvd::Acquisition;
 
-use super::write::{RF_KIND, prepare_recording, recording_paths, write_manifest};
+use super::write::{prepare_recording, recording_paths, write_manifest};
 use crate::error::IoError;
 
 /// A recording written a block of events at a time (RF, float32), so that a long simulation
@@ -152,7 +152,7 @@ impl RecordingWriter {
             &self.manifest_path,
             &self.acquisition,
             &self.npy_name,
-            RF_KIND,
+            None,
             self.cardiac_triggers_s.as_deref(),
             &self.provenance,
         )?;
