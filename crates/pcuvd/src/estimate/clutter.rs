@@ -6,9 +6,14 @@
 //! and high..frames (the weakest: noise) are removed: S_f = S·V_keep·V_keepᴴ.
 //!
 //! Automatic low cut-off: the leading components are tissue while their temporal singular vector is
-//! both slow (mean Doppler frequency below `tissue_frequency` × frame rate) and strong (energy at
-//! least 10 dB above the median component); at most half the components are removed. Data with no
-//! tissue (a simulation of blood alone, a rotating disk) therefore keeps every component.
+//! slow (mean Doppler frequency below `tissue_frequency` × frame rate), strong (energy at least
+//! 10 dB above the median component) and steep (at least 3 dB above the next component); at most
+//! half the components are removed. Data with no tissue (a simulation of blood alone, a rotating
+//! disk) therefore keeps every component. Steep, because tissue's components fall off fast (each
+//! order of its motion far weaker than the last) while blood's, many vessels of similar strength,
+//! form a plateau: without that test, the better the blood's SNR, the more of its slow components
+//! were strong enough to pass for tissue (on the virtual rat brain, 10–12 components of coded
+//! recordings against 5 of conventional ones, which doubled the coded vectors' RMSE).
 //! Automatic high cut-off: components whose energy falls below the Marchenko–Pastur edge of white
 //! noise, the noise variance estimated from the median eigenvalue, are removed.
 //!
@@ -250,6 +255,9 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
     })
 }
 
+/// The least ratio (2, 3 dB) of a tissue component's energy to the next component's.
+const TISSUE_STEP: f64 = 2.0;
+
 fn auto_low<'a>(
     eigenvalues: &[f64],
     vector: impl Fn(usize) -> faer::ColRef<'a, c64>,
@@ -268,7 +276,8 @@ fn auto_low<'a>(
         }
         let freq = r1.arg().abs() / (2.0 * std::f64::consts::PI);
         let strong = eigenvalues[low] >= 10.0 * median;
-        if !(strong && freq < tissue_frequency) {
+        let steep = eigenvalues[low] >= TISSUE_STEP * eigenvalues[low + 1];
+        if !(strong && steep && freq < tissue_frequency) {
             break;
         }
         low += 1;
@@ -513,6 +522,40 @@ mod tests {
                 "cut-offs {low}..{high}: worst error {worst} of {scale}"
             );
         }
+    }
+
+    /// Still tissue (one component, 40 dB above the blood) over slow blood of six vessels of
+    /// near-equal strength, each below the tissue frequency limit and far above the noise: the
+    /// blood forms a plateau of components, not tissue's steep fall, and only the tissue is cut.
+    #[test]
+    fn auto_low_keeps_a_plateau_of_strong_slow_blood() {
+        let (nz, nx, nf) = (24, 24, 512);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let echogenicity: Vec<f32> = (0..nz * nx).map(|_| normal.sample(&mut rng)).collect();
+        let noise: Vec<Complex32> = (0..nz * nx * nf)
+            .map(|_| Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng)))
+            .collect();
+        let tau = 2.0 * std::f32::consts::PI;
+        let series = Array3::from_shape_fn((nz, nx, nf), |(z, x, f)| {
+            let tissue = 1000.0 * echogenicity[z * nx + x];
+            // Vessel j: the column band x in [4j, 4j + 4), j + 1 cycles over the recording
+            // (0.002–0.012 cycles per frame: whole cycles, so each its own component).
+            let j = x / 4;
+            let strength = 10.0 * 0.95f32.powi(j as i32);
+            let cycles = (j + 1) as f32 / nf as f32;
+            let blood = Complex32::from_polar(strength, tau * cycles * f as f32);
+            tissue + blood + 0.1 * noise[(z * nx + x) * nf + f]
+        });
+        let report = svd_filter(&mut series.clone(), &ClutterParams::default()).unwrap();
+        assert_eq!(report.low, 1, "{:?}", &report.singular_values[..8]);
+        // Without the steepness test the slow blood passes for tissue: each of its six
+        // components is slow and 10 dB above the median.
+        let energies: Vec<f64> = report.singular_values.iter().map(|s| s * s).collect();
+        let mut sorted = energies.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[nf / 2];
+        assert!(energies[1..7].iter().all(|&e| e > 10.0 * median));
     }
 
     #[test]
