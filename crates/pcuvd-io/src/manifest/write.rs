@@ -1,6 +1,6 @@
 //! Writing a recording: its samples as `.npy` and its manifest, in version 1 whenever version 1
-//! can say the acquisition (so such files stay as they were), else version 2; floats written so
-//! that they read back bit for bit.
+//! can say the acquisition (so readers of version 1 read such files as before), else version 2;
+//! floats written so that they read back bit for bit.
 
 use std::path::{Path, PathBuf};
 

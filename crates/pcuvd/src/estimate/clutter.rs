@@ -537,7 +537,7 @@ mod tests {
             .map(|_| Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng)))
             .collect();
         let tau = 2.0 * std::f32::consts::PI;
-        let series = Array3::from_shape_fn((nz, nx, nf), |(z, x, f)| {
+        let mut series = Array3::from_shape_fn((nz, nx, nf), |(z, x, f)| {
             let tissue = 1000.0 * echogenicity[z * nx + x];
             // Vessel j: the column band x in [4j, 4j + 4), j + 1 cycles over the recording
             // (0.002–0.012 cycles per frame: whole cycles, so each its own component).
@@ -547,7 +547,7 @@ mod tests {
             let blood = Complex32::from_polar(strength, tau * cycles * f as f32);
             tissue + blood + 0.1 * noise[(z * nx + x) * nf + f]
         });
-        let report = svd_filter(&mut series.clone(), &ClutterParams::default()).unwrap();
+        let report = svd_filter(&mut series, &ClutterParams::default()).unwrap();
         assert_eq!(report.low, 1, "{:?}", &report.singular_values[..8]);
         // Without the steepness test the slow blood passes for tissue: each of its six
         // components is slow and 10 dB above the median.
