@@ -71,8 +71,10 @@ class Recording:
 
     @property
     def coding(self) -> str:
-        """"none" (one angle per event), "hadamard" (every event fires every angle) or "matrix"
-        (an explicit code from a version 2 manifest: see `code_matrix` and `slot_starts_s`)."""
+        """"none" (one angle per event), "hadamard" (every event fires every angle), "matrix"
+        (an explicit code from a version 2 manifest: see `code_matrix` and `slot_starts_s`) or
+        "decoded" (coded when fired, stored decoded: one record per angle, its stored polarity
+        the diagonal of `code_matrix`, nothing decoded again)."""
         return self._acquisition["coding"]
 
     @property
@@ -83,7 +85,8 @@ class Recording:
     @property
     def code_matrix(self) -> np.ndarray:
         """The transmit code, shape (events per frame, angles): entry (i, k) is the weight (±1,
-        or 0 when silent) of angle k in event i of a compound frame; the identity when not coded."""
+        or 0 when silent) of angle k in event i of a compound frame; the identity when not coded,
+        the stored polarities on the diagonal when decoded in the file."""
         return np.array(self._acquisition["code_matrix"], dtype=float)
 
     @property

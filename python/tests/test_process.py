@@ -185,6 +185,24 @@ def test_a_zea_track_is_a_keyword():
         pcuvd.read_recording(fixtures / "disk.uff", track=1)
 
 
+def test_a_decoded_hadamard_zea_track_processes_as_the_coded_recording():
+    # The coded events (a pcuvd manifest) and the same events decoded with NumPy, stored by zea
+    # with the code's polarity: processing both (events aligned as eq. 2 takes them) gives one
+    # set of maps.
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    decoded = pcuvd.read_recording(fixtures / "decoded_hadamard_zea.hdf5", track="hadamard-decoded")
+    assert decoded.coding == "decoded"
+    np.testing.assert_array_equal(np.diag(decoded.code_matrix), [1, -1, 1, -1])
+    coded = pcuvd.read_recording(fixtures / "coded_hadamard.toml")
+    assert decoded.frame_rate_hz == pytest.approx(coded.frame_rate_hz, rel=1e-6)
+    grid = dict(grid_mm=(-4, 4, 9, 15, 0.2), dynamics="off", quiet=True)
+    ours = pcuvd.process(coded, event_alignment="simultaneous", **grid)
+    theirs = pcuvd.process(decoded, **grid)
+    scale = np.abs(ours.power_doppler).max()
+    assert np.abs(theirs.power_doppler - ours.power_doppler).max() <= 1e-5 * scale
+    np.testing.assert_allclose(theirs.vx, ours.vx, rtol=0, atol=1e-5 * np.nanmax(np.abs(ours.vx)))
+
+
 def test_from_arrays_equals_the_file(disk):
     recording = pcuvd.read_recording(disk)
     samples = np.transpose(recording.samples, (2, 0, 1))  # (samples, events, channels)

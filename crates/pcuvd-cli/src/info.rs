@@ -185,6 +185,14 @@ pub fn run(args: &InfoArgs) -> Result<()> {
                     .collect::<Vec<_>>()
                     .join(", ")
             ),
+            Coding::Decoded { polarity } => format!(
+                "coded when fired, decoded in the file ({n_angles} angles per frame, all at the \
+                 frame's decoding time; not decoded again), stored polarity {}",
+                polarity
+                    .iter()
+                    .map(|&p| if p < 0.0 { "−" } else { "+" })
+                    .collect::<String>()
+            ),
         }
     );
     println!(

@@ -4,6 +4,10 @@
 //!
 //! `cargo run -p pcuvd-io --example steered_fixture -- OUT_DIR` writes `OUT_DIR/steered.toml` and
 //! `OUT_DIR/steered.npy` (frames, angles, channels, samples), float32.
+//!
+//! Beside it, for the decoded-Hadamard zea fixtures, the same disk seen twice more:
+//! `coded.{toml,npy}`, four plane waves (−9°, −3°, 3°, 9°) Hadamard-coded with 1 µs slots at an
+//! 8 kHz event PRF, 12 frames; and `bmode.{toml,npy}`, one conventional 0° plane wave, 4 frames.
 
 use std::path::PathBuf;
 
@@ -34,7 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         pulse_cycles: 2.0,
         pulse: None,
     };
-    let mut params = SimParams::new(probe, sequence, 20e6, 1540.0, (8e-3, 16e-3))?;
+    let mut params = SimParams::new(probe.clone(), sequence, 20e6, 1540.0, (8e-3, 16e-3))?;
     params.seed = 7;
     let disk = DiskPhantom::new(
         DiskSpec {
@@ -53,5 +57,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let path = pcuvd_io::write_recording(&out, "steered", &data, &provenance)?;
     println!("wrote {}", path.display());
+
+    for (name, angles_deg, coding, event_prf, frames) in [
+        (
+            "coded",
+            &[-9.0f64, -3.0, 3.0, 9.0][..],
+            Coding::Hadamard { slot_delay: 1e-6 },
+            8000.0,
+            12,
+        ),
+        ("bmode", &[0.0][..], Coding::Conventional, 2000.0, 4),
+    ] {
+        let sequence = Sequence {
+            angles: angles_deg.iter().map(|a| a.to_radians()).collect(),
+            event_prf,
+            coding,
+            pulse_cycles: 2.0,
+            pulse: None,
+        };
+        let mut params = SimParams::new(probe.clone(), sequence, 20e6, 1540.0, (8e-3, 16e-3))?;
+        params.seed = 7;
+        let data = simulate(&disk, &params, frames, &|_, _| {})?;
+        let path = pcuvd_io::write_recording(&out, name, &data, &provenance)?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }

@@ -186,6 +186,8 @@ pub struct PlaneWaveAcquisition {
     pub angles: Vec<f64>,
     /// Transmit-event repetition frequency (Hz).
     pub event_prf: f64,
+    /// How the angles were fired and are stored: one per event, or decoded in the file.
+    pub coding: Coding,
     /// Transmit pulse length (cycles of the centre frequency).
     pub pulse_cycles: f64,
     /// Sampling frequency of the samples (Hz).
@@ -206,7 +208,7 @@ impl PlaneWaveAcquisition {
                 sequence: Sequence {
                     angles: self.angles,
                     event_prf: self.event_prf,
-                    coding: Coding::Conventional,
+                    coding: self.coding,
                     pulse_cycles: self.pulse_cycles,
                     pulse: None,
                 },

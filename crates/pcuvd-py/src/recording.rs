@@ -62,6 +62,7 @@ impl PyRecording {
             Coding::Conventional => ("none", Value::Null),
             Coding::Hadamard { slot_delay } => ("hadamard", json!(slot_delay)),
             Coding::Matrix(_) => ("matrix", Value::Null),
+            Coding::Decoded { .. } => ("decoded", Value::Null),
         };
         let code = seq.transmit_code().ok();
         let demod = match &self.data.samples {

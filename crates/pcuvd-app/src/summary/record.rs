@@ -268,6 +268,13 @@ pub enum CodeRecord {
         /// The code's condition number.
         condition_number: f64,
     },
+    /// Coded when fired, stored decoded: one record per angle, nothing decoded again.
+    Decoded {
+        /// Angles per frame.
+        order: usize,
+        /// The polarity (±1) each angle's record was stored with, turned back by pcuvd.
+        polarity: Vec<f64>,
+    },
 }
 
 impl CodingRecord {
@@ -290,6 +297,10 @@ impl CodingRecord {
                 events_fire_several_slots: code.is_coded(),
                 decoding_gain: code.decoding_gain(),
                 condition_number: code.condition_number(),
+            },
+            pcuvd::Coding::Decoded { polarity } => CodeRecord::Decoded {
+                order: seq.n_angles(),
+                polarity: polarity.clone(),
             },
         };
         CodingRecord {
@@ -367,7 +378,7 @@ impl Summary {
         let acq = data.acquisition();
         let seq = &acq.sequence;
         let mut coding = CodingRecord::of(seq);
-        if seq.is_coded() {
+        if seq.decodes_events() {
             coding.event_alignment = Some(params.event_alignment.label());
         }
         let (x, z) = (&out.grid.x, &out.grid.z);

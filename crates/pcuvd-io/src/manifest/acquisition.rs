@@ -94,9 +94,10 @@ fn acquisition_error(path: &Path, source: pcuvd::Error, acq: &AcquisitionSection
 }
 
 /// The keys only version 2 knows, and whether `acq` uses each.
-fn version_two_keys(acq: &AcquisitionSection) -> [(&'static str, bool); 5] {
+fn version_two_keys(acq: &AcquisitionSection) -> [(&'static str, bool); 6] {
     [
         ("[acquisition].slot_delays_s", acq.slot_delays_s.is_some()),
+        ("[acquisition].polarity", acq.polarity.is_some()),
         ("[acquisition].code_matrix", acq.code_matrix.is_some()),
         (
             "[acquisition].transmit_delays_s",
@@ -105,7 +106,7 @@ fn version_two_keys(acq: &AcquisitionSection) -> [(&'static str, bool); 5] {
         ("[acquisition.pulse]", acq.pulse.is_some()),
         (
             "[acquisition].coding",
-            acq.coding.as_deref() == Some("matrix"),
+            matches!(acq.coding.as_deref(), Some("matrix" | "decoded")),
         ),
     ]
 }
@@ -125,7 +126,7 @@ pub(super) fn acquisition_of(
         && let Some((name, _)) = version_two_keys(acq).into_iter().find(|(_, used)| *used)
     {
         let what = if name == "[acquisition].coding" {
-            "= \"matrix\" is".to_string()
+            format!("= {:?} is", acq.coding.as_deref().unwrap_or_default())
         } else {
             "is".to_string()
         };
@@ -288,8 +289,42 @@ pub(super) fn acquisition_of(
             format!("is only meaningful with coding = \"{coding}\""),
         )
     };
+    if acq.polarity.is_some() && acq.coding.as_deref() != Some("decoded") {
+        return Err(only_with("polarity", "decoded"));
+    }
     let coding = match acq.coding.as_deref() {
         None => return Err(miss("coding")),
+        Some("decoded") => {
+            if let Some(k) = [
+                ("slot_delay_s", acq.slot_delay_s.is_some()),
+                ("slot_delays_s", acq.slot_delays_s.is_some()),
+                ("code_matrix", acq.code_matrix.is_some()),
+            ]
+            .into_iter()
+            .find_map(|(k, used)| used.then_some(k))
+            {
+                return Err(IoError::invalid(
+                    path,
+                    key(k),
+                    "means nothing with coding = \"decoded\": the records are already decoded, \
+                     one per angle",
+                ));
+            }
+            if listed
+                .as_ref()
+                .is_some_and(|starts| starts.iter().any(|&t| t != 0.0))
+            {
+                return Err(IoError::invalid(
+                    path,
+                    key("transmit_delays_s"),
+                    "start their slots at different times, which decoded records (each \
+                     advanced to its own slot's firing) cannot have",
+                ));
+            }
+            Coding::Decoded {
+                polarity: acq.polarity.clone().unwrap_or_else(|| vec![1.0; n]),
+            }
+        }
         Some("none") => {
             if acq.slot_delay_s.is_some() {
                 return Err(only_with("slot_delay_s", "hadamard"));
@@ -356,7 +391,7 @@ pub(super) fn acquisition_of(
             let expected = if version < 2 {
                 "\"none\" or \"hadamard\""
             } else {
-                "\"none\", \"hadamard\" or \"matrix\""
+                "\"none\", \"hadamard\", \"matrix\" or \"decoded\""
             };
             return Err(IoError::invalid(
                 path,

@@ -60,6 +60,7 @@ pub(super) struct AcquisitionSection {
     pub(super) slot_delays_s: Option<Vec<f64>>,
     pub(super) code_matrix: Option<Vec<Vec<f64>>>,
     pub(super) transmit_delays_s: Option<Vec<Vec<f64>>>,
+    pub(super) polarity: Option<Vec<f64>>,
     pub(super) pulse: Option<PulseSection>,
 }
 

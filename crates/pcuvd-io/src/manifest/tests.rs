@@ -561,6 +561,10 @@ fn v2_recordings_round_trip() {
     cases.push((acq.clone(), true));
     let late = TransmitCode::one_per_event(vec![0.0, 0.5e-6, 1e-6]);
     cases.push((acquisition(3, Coding::Matrix(late), small_probe()), false));
+    let decoded = Coding::Decoded {
+        polarity: vec![1.0, -1.0, 1.0, -1.0],
+    };
+    cases.push((acquisition(4, decoded, small_probe()), true));
     let mut pulsed = acquisition(2, Coding::Conventional, small_probe());
     pulsed.sequence.pulse = Some(pulse);
     cases.push((pulsed, false));
@@ -762,6 +766,66 @@ fn v2_errors_name_the_key() {
     check(
         &rep("    [1, 1, 1, 1],", "    [1, -1, 1, -0.999999],"),
         &["[acquisition].code_matrix", "ill-conditioned"],
+    );
+    // Decoded records: no code, no slot starts, a polarity of ±1 per angle.
+    let decoded = |t: &str| {
+        let start = t.find("transmit_delays_s = [").unwrap();
+        let end = start + t[start..].find("],\n]\n").unwrap() + 5;
+        let cut = format!(
+            "{}angles_deg = [-10, -3.33, 3.33, 10]\n{}",
+            &t[..start],
+            &t[end..]
+        );
+        let start = cut.find("code_matrix = [").unwrap();
+        let end = start + cut[start..].find("],\n]\n").unwrap() + 5;
+        format!("{}{}", &cut[..start], &cut[end..]).replacen(
+            "coding = \"matrix\"",
+            "coding = \"decoded\"",
+            1,
+        )
+    };
+    let with =
+        |extra: &'static str| move |t: &str| decoded(t).replacen("coding = \"decoded\"", extra, 1);
+    check(
+        &with("coding = \"decoded\"\nslot_delay_s = 1e-6"),
+        &["[acquisition].slot_delay_s", "already decoded"],
+    );
+    check(
+        &with("coding = \"decoded\"\npolarity = [1, -1, 1]"),
+        &["polarity", "3 values", "4 angles"],
+    );
+    check(
+        &with("coding = \"decoded\"\npolarity = [1, -1, 0.5, 1]"),
+        &["polarity", "angle 2", "+1 or −1"],
+    );
+    check(
+        &with("coding = \"hadamard\"\nslot_delay_s = 1e-6\npolarity = [1, 1, 1, 1]"),
+        &["[acquisition].polarity", "coding = \"decoded\""],
+    );
+    check(
+        &|t: &str| {
+            let t = decoded(t).replacen("version = 2", "version = 1", 1);
+            let (start, end) = (
+                t.find("[acquisition.pulse]").unwrap(),
+                t.find("[data]").unwrap(),
+            );
+            format!("{}{}", &t[..start], &t[end..])
+        },
+        &[
+            "[acquisition].coding",
+            "= \"decoded\" is only known to version 2",
+        ],
+    );
+    std::fs::write(
+        &path,
+        with("coding = \"decoded\"\npolarity = [1, -1, 1, -1]")(&text),
+    )
+    .unwrap();
+    assert_eq!(
+        read_manifest(&path).unwrap().acquisition.sequence.coding,
+        Coding::Decoded {
+            polarity: vec![1.0, -1.0, 1.0, -1.0]
+        }
     );
     check(
         &rep("coding = \"matrix\"", "coding = \"zigzag\""),

@@ -99,7 +99,7 @@ pub(super) fn prepare_recording(dir: &Path, manifest_path: &Path) -> Result<(), 
 /// explicit code or a sampled pulse (so recordings version 1 can say are written as before).
 fn version_needed(acq: &Acquisition) -> i64 {
     match (&acq.sequence.coding, &acq.sequence.pulse) {
-        (Coding::Matrix(_), _) | (_, Some(_)) => 2,
+        (Coding::Matrix(_) | Coding::Decoded { .. }, _) | (_, Some(_)) => 2,
         _ => 1,
     }
 }
@@ -144,6 +144,11 @@ pub(super) fn write_manifest(
             ),
             Some(code.slot_starts.clone()),
         ),
+        Coding::Decoded { .. } => ("decoded", None, None, None),
+    };
+    let polarity = match &sequence.coding {
+        Coding::Decoded { polarity } => Some(polarity.clone()),
+        _ => None,
     };
     let manifest = ManifestOut {
         format: FORMAT,
@@ -170,6 +175,7 @@ pub(super) fn write_manifest(
             slot_delay_s,
             slot_delays_s,
             code_matrix,
+            polarity,
             pulse: sequence.pulse.as_ref().map(|pulse| PulseSection {
                 sampling_frequency_hz: Some(pulse.sampling_frequency),
                 samples: Some(pulse.samples.clone()),

@@ -562,6 +562,7 @@ fn build(
         probe,
         angles,
         event_prf: prf,
+        coding: pcuvd::Coding::Conventional,
         pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,

@@ -277,6 +277,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         },
         angles,
         event_prf: prf,
+        coding: pcuvd::Coding::Conventional,
         pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,

@@ -11,11 +11,19 @@
 //! pcuvd's event PRF is n_tx / that frame period (each angle's slow-time rate is then right even
 //! when frames are separated by a pause). Summing it gives the frame rate, not the PRF.
 //!
+//! A coded acquisition (Hadamard) is stored decoded: one transmit per angle, the angles of a
+//! frame at one time (its decoding time: `time_to_next_transmit` 0 within a frame, the frame
+//! period after its last transmit), the code's polarity kept in `tx_apodizations` (negative =
+//! opposite polarity). pcuvd reads such a track as [`Coding::Decoded`]: the polarity turned
+//! back, the frame rate the coded sequence's, nothing decoded again. Either sign says it; a
+//! track with neither is conventional, one transmit per event.
+//!
 //! zea's colour Doppler is positive toward the transducer; pcuvd's `color_doppler.npy` is
 //! positive away from it.
 
 use std::path::Path;
 
+use pcuvd::Coding;
 use serde_json::json;
 
 use crate::array::{ArrayFrames, Axis};
@@ -28,21 +36,32 @@ use crate::recording::{
     StoredSamples, plane_wave_angle, resolve_bandwidth,
 };
 
-/// The event PRF (Hz) and a warning, from zea's `time_to_next_transmit` intervals (s) of a
-/// recording of `n_tx` transmits per frame: n_tx over the median frame period.
-pub fn event_prf_from_intervals(
-    intervals: &[f64],
-    n_tx: usize,
-) -> Result<(f64, Option<String>), String> {
+/// A zea track's frame timing, from its `time_to_next_transmit` intervals.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameTiming {
+    /// pcuvd's event PRF (Hz): n_tx over the median frame period, so that each angle's slow-time
+    /// rate (the frame rate) is right whatever the spacing within a frame.
+    pub event_prf: f64,
+    /// True when the transmits of a frame are 0 s apart: one time per frame, as a coded
+    /// acquisition's angles have once decoded (the frame's decoding time).
+    pub simultaneous: bool,
+    /// Said when frames are separated by a pause that the spacing within a frame does not give.
+    pub warning: Option<String>,
+}
+
+/// The frame timing of `intervals` (s; zea's `time_to_next_transmit`, frame by frame) of a
+/// recording of `n_tx` transmits per frame. Intervals within a frame may be 0 (angles stored
+/// decoded, at their frame's time) but not some 0 and some not; a frame must last > 0.
+pub fn frame_timing(intervals: &[f64], n_tx: usize) -> Result<FrameTiming, String> {
     if n_tx == 0 || intervals.len() < n_tx.max(1) {
         return Err(format!(
             "holds {} intervals: fewer than one frame of {n_tx} transmits",
             intervals.len()
         ));
     }
-    if let Some(v) = intervals.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+    if let Some(v) = intervals.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
         return Err(format!(
-            "holds an interval of {v} s (must be finite and > 0)"
+            "holds an interval of {v} s (must be finite and ≥ 0)"
         ));
     }
     // Frame k starts at the sum of the intervals before transmit k·n_tx.
@@ -50,30 +69,79 @@ pub fn event_prf_from_intervals(
         .chunks_exact(n_tx)
         .map(|frame| frame.iter().sum())
         .collect();
+    if let Some(k) = periods.iter().position(|&p| p <= 0.0) {
+        return Err(format!(
+            "gives frame {} a duration of 0 s: its transmits and the next frame's are at one time",
+            k + 1
+        ));
+    }
     periods.sort_by(f64::total_cmp);
     let period = periods[periods.len() / 2];
-    let prf = n_tx as f64 / period;
+    let event_prf = n_tx as f64 / period;
     let mut within: Vec<f64> = intervals
         .iter()
         .enumerate()
         .filter(|(i, _)| i % n_tx != n_tx - 1)
         .map(|(_, &v)| v)
         .collect();
+    let zeros = within.iter().filter(|&&v| v == 0.0).count();
+    if zeros > 0 && zeros < within.len() {
+        return Err(format!(
+            "puts {zeros} of the {} transmit pairs within frames at one time and the others \
+             apart: a frame's transmits are either all at its time (stored decoded) or fired one \
+             after another",
+            within.len()
+        ));
+    }
+    let simultaneous = !within.is_empty() && zeros == within.len();
     within.sort_by(f64::total_cmp);
-    let warning = within.get(within.len() / 2).and_then(|&spacing| {
-        ((spacing * n_tx as f64 - period).abs() > 0.01 * period).then(|| {
-            format!(
-                "the transmits of a frame are {:.1} µs apart but frames start every {:.1} µs: \
-                 pcuvd takes the frame rate (each angle's Doppler sampling rate) from the frame \
-                 period, i.e. an event PRF of {:.1} Hz, not 1/{:.1} µs",
-                spacing * 1e6,
-                period * 1e6,
-                prf,
-                spacing * 1e6
-            )
+    let warning = within
+        .get(within.len() / 2)
+        .filter(|_| !simultaneous)
+        .and_then(|&spacing| {
+            ((spacing * n_tx as f64 - period).abs() > 0.01 * period).then(|| {
+                format!(
+                    "the transmits of a frame are {:.1} µs apart but frames start every {:.1} µs: \
+                     pcuvd takes the frame rate (each angle's Doppler sampling rate) from the \
+                     frame period, i.e. an event PRF of {:.1} Hz, not 1/{:.1} µs",
+                    spacing * 1e6,
+                    period * 1e6,
+                    event_prf,
+                    spacing * 1e6
+                )
+            })
+        });
+    Ok(FrameTiming {
+        event_prf,
+        simultaneous,
+        warning,
+    })
+}
+
+/// The polarity (±1) of each transmit from zea's `tx_apodizations` (n_tx rows of `n_el`, in
+/// [−1, 1], negative = fired with opposite polarity): the sign shared by the elements that fire.
+/// A row whose elements fire with both polarities (an element-coded transmit) is not a plane
+/// wave pcuvd can beamform, and a row of zeros fires nothing: both are refused.
+pub fn transmit_polarity(apodizations: &[f64], n_el: usize) -> Result<Vec<f64>, String> {
+    apodizations
+        .chunks_exact(n_el.max(1))
+        .enumerate()
+        .map(|(k, row)| {
+            let positive = row.iter().any(|&a| a > 0.0);
+            let negative = row.iter().any(|&a| a < 0.0);
+            match (positive, negative) {
+                (true, false) => Ok(1.0),
+                (false, true) => Ok(-1.0),
+                (true, true) => Err(format!(
+                    "row {} fires some elements with one polarity and some with the other (an \
+                     element-coded transmit): pcuvd reads plane waves, each fired with one \
+                     polarity",
+                    k + 1
+                )),
+                (false, false) => Err(format!("row {} fires no element (all zero)", k + 1)),
+            }
         })
-    });
-    Ok((prf, warning))
+        .collect()
 }
 
 /// The track a reader reads and why: its group name (`track_N`), the parameter source that says
@@ -375,30 +443,64 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     };
     let angles = r.angles(angles);
     let ttnt = scan("time_to_next_transmit");
-    let prf_found = if h5.is_dataset(&ttnt) {
+    let timing = if h5.is_dataset(&ttnt) {
         let (_, intervals) = h5.read_f64(&ttnt)?;
-        let (prf, warning) = event_prf_from_intervals(&intervals, n_tx)
-            .map_err(|e| IoError::invalid(path, &ttnt, e))?;
-        warnings.extend(warning);
-        Some((
-            prf,
+        let timing =
+            frame_timing(&intervals, n_tx).map_err(|e| IoError::invalid(path, &ttnt, e))?;
+        warnings.extend(timing.warning.clone());
+        Some(timing)
+    } else {
+        None
+    };
+    let prf_found = timing.as_ref().map(|t| {
+        (
+            t.event_prf,
             derived(format!(
                 "{ttnt}: n_tx / the frame period (the time to the next transmit is per transmit; \
                  its sum over a frame is the frame period)"
             )),
-        ))
-    } else {
-        None
-    };
+        )
+    });
     let prf = r.number("event_prf_hz", prf_found, None, || missing_prf(path, &ttnt))?;
     let prf = positive(path, &ttnt, prf)?;
-    r.record(
-        "coding",
-        json!("none"),
-        ParamSource::Default {
-            note: "zea describes one transmit per event".into(),
-        },
-    );
+    let apodizations = scan("tx_apodizations");
+    let polarity = match per_transmit_rows(h5, &apodizations, n_tx, n)? {
+        Some(rows) => Some(
+            transmit_polarity(&rows, n).map_err(|e| IoError::invalid(path, &apodizations, e))?,
+        ),
+        None => None,
+    };
+    let simultaneous = timing.as_ref().is_some_and(|t| t.simultaneous);
+    let inverted = polarity.as_ref().is_some_and(|p| p.contains(&-1.0));
+    let coding = if simultaneous || inverted {
+        let polarity = polarity.unwrap_or_else(|| vec![1.0; n_tx]);
+        let timing_says = format!("{ttnt} (a frame's transmits at one time)");
+        let polarity_says = format!("{apodizations} (some transmits of opposite polarity)");
+        let why = match (simultaneous, inverted) {
+            (true, true) => format!("{timing_says} and {polarity_says}"),
+            (true, false) => timing_says,
+            _ => polarity_says,
+        };
+        r.record(
+            "coding",
+            json!("decoded"),
+            derived(format!(
+                "{why}: each transmit is an angle already decoded from a coded acquisition, at \
+                 its frame's decoding time; pcuvd turns its polarity back and decodes nothing"
+            )),
+        );
+        r.record("polarity", json!(polarity), field(apodizations.clone()));
+        Coding::Decoded { polarity }
+    } else {
+        r.record(
+            "coding",
+            json!("none"),
+            ParamSource::Default {
+                note: "zea describes one transmit per event, each fired in turn".into(),
+            },
+        );
+        Coding::Conventional
+    };
     let pulse_cycles = r.number(
         "pulse_cycles",
         None,
@@ -438,6 +540,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         },
         angles,
         event_prf: prf,
+        coding,
         pulse_cycles,
         sampling_frequency: fs,
         sound_speed: c,
@@ -494,17 +597,62 @@ mod tests {
     fn prf_is_per_transmit_not_per_frame() {
         // 3 transmits 100 µs apart, frames every 300 µs: 10 kHz events, 3.33 kHz frames.
         let even = vec![100e-6; 12];
-        let (prf, w) = event_prf_from_intervals(&even, 3).unwrap();
-        assert!((prf - 10_000.0).abs() < 1e-6 && w.is_none());
+        let t = frame_timing(&even, 3).unwrap();
+        assert!((t.event_prf - 10_000.0).abs() < 1e-6 && t.warning.is_none() && !t.simultaneous);
         // The same transmits with a 700 µs pause after each frame: frames every 900 µs, so each
         // angle is sampled at 1.11 kHz, i.e. pcuvd's event PRF 3/900 µs, with a warning.
         let paused: Vec<f64> = (0..12)
             .map(|i| if i % 3 == 2 { 700e-6 } else { 100e-6 })
             .collect();
-        let (prf, w) = event_prf_from_intervals(&paused, 3).unwrap();
-        assert!((prf - 3.0 / 900e-6).abs() < 1e-6, "{prf}");
-        assert!(w.unwrap().contains("100.0 µs apart"));
-        assert!(event_prf_from_intervals(&[1e-4, -1.0, 1e-4], 3).is_err());
-        assert!(event_prf_from_intervals(&[1e-4], 3).is_err());
+        let t = frame_timing(&paused, 3).unwrap();
+        assert!((t.event_prf - 3.0 / 900e-6).abs() < 1e-6, "{}", t.event_prf);
+        assert!(t.warning.unwrap().contains("100.0 µs apart"));
+        assert!(frame_timing(&[1e-4, -1.0, 1e-4], 3).is_err());
+        assert!(frame_timing(&[1e-4], 3).is_err());
+    }
+
+    #[test]
+    fn decoded_angles_share_their_frame_time() {
+        // 4 decoded angles per frame, at one time, frames 500 µs apart (4 coded events at
+        // 8 kHz): the frame rate is 2 kHz, pcuvd's event PRF 4 × 2 kHz, and no pause warning.
+        let decoded: Vec<f64> = (0..12)
+            .map(|i| if i % 4 == 3 { 500e-6 } else { 0.0 })
+            .collect();
+        let t = frame_timing(&decoded, 4).unwrap();
+        assert!(t.simultaneous && t.warning.is_none());
+        assert!((t.event_prf - 8_000.0).abs() < 1e-6, "{}", t.event_prf);
+        // Some transmits of a frame at one time and others apart: neither reading holds.
+        let mixed: Vec<f64> = (0..8)
+            .map(|i| match i % 4 {
+                0 => 0.0,
+                3 => 300e-6,
+                _ => 100e-6,
+            })
+            .collect();
+        assert!(frame_timing(&mixed, 4).unwrap_err().contains("2 of the 6"));
+        // A frame of zero duration.
+        assert!(frame_timing(&[0.0; 8], 4).unwrap_err().contains("frame 1"));
+    }
+
+    #[test]
+    fn polarity_is_the_sign_the_firing_elements_share() {
+        // A Hann-apodised row, a negated one, and a row with its edge elements off.
+        let rows = [
+            0.5, 1.0, 0.5, //
+            -0.5, -1.0, -0.5, //
+            0.0, -1.0, 0.0,
+        ];
+        assert_eq!(transmit_polarity(&rows, 3).unwrap(), vec![1.0, -1.0, -1.0]);
+        let element_coded = [1.0, -1.0, 1.0];
+        assert!(
+            transmit_polarity(&element_coded, 3)
+                .unwrap_err()
+                .contains("row 1")
+        );
+        assert!(
+            transmit_polarity(&[0.0; 3], 3)
+                .unwrap_err()
+                .contains("no element")
+        );
     }
 }

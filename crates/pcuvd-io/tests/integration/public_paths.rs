@@ -37,7 +37,7 @@ use pcuvd_io::params::{
 use pcuvd_io::paths::{check_regular_file, what_is};
 use pcuvd_io::uff::DEFAULT_BANDWIDTH;
 use pcuvd_io::verasonics::VerasonicsFrames;
-use pcuvd_io::zea::event_prf_from_intervals;
+use pcuvd_io::zea::{frame_timing, transmit_polarity};
 
 /// The crate root's re-exports.
 mod root {

@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::core::grid::Grid;
-use pcuvd::form::decode::EventAlignment;
+use pcuvd::form::decode::{Decoder, EventAlignment};
 use pcuvd::pipeline::blocks::Blocks;
 use pcuvd::pipeline::{self, ProcessOutput};
-use pcuvd::{ChannelData, Samples};
+use pcuvd::{AngleSamples, ChannelData, Coding, Samples};
 use pcuvd_io::{OpenedRecording, Overrides, ParamSource, open_recording};
 use serde_json::Value;
 
@@ -42,8 +42,11 @@ fn disk_reference(events: usize) -> ChannelData {
 fn quiet(_: pipeline::Stage, _: usize, _: usize) {}
 
 fn maps(source: &dyn FrameSource, grid: &Grid) -> ProcessOutput {
-    let params =
-        pcuvd::study::process_params(grid, source.acquisition(), (1, 1), EventAlignment::MidFrame);
+    maps_aligned(source, grid, EventAlignment::MidFrame)
+}
+
+fn maps_aligned(source: &dyn FrameSource, grid: &Grid, alignment: EventAlignment) -> ProcessOutput {
+    let params = pcuvd::study::process_params(grid, source.acquisition(), (1, 1), alignment);
     let blocks = Blocks::whole(source.n_frames());
     let (images, _) = pipeline::form_images_in_blocks(source, &params, blocks, &quiet).unwrap();
     pipeline::analyse(images, &params, &quiet).unwrap()
@@ -266,6 +269,112 @@ fn a_zea_track_is_chosen_by_index_or_label() {
             "{single}: {refused}"
         );
     }
+}
+
+/// A Hadamard-coded recording stored decoded by zea (decoded with NumPy, the code's polarity kept
+/// in `tx_apodizations`, a frame's angles at one time) reads as what it is: coded when fired,
+/// not decoded again, the coded sequence's frame rate; its records, polarity turned back, are
+/// pcuvd's own decoding of the coded events (the paper's eq. 2, events taken as simultaneous), to
+/// the bit, and so are its maps.
+#[test]
+fn a_decoded_hadamard_zea_track_is_the_coded_recording_decoded() {
+    let want = &expected()["decoded_hadamard"];
+    let frames = want["frames"].as_u64().unwrap() as usize;
+    let polarity: Vec<f64> = serde_json::from_value(want["polarity"].clone()).unwrap();
+    let name = "decoded_hadamard_zea.hdf5";
+    let overrides = Overrides {
+        track: Some("hadamard-decoded".into()),
+        ..Overrides::default()
+    };
+    let decoded = open_recording(&fixture(name), &overrides).unwrap();
+    let coded = open("coded_hadamard.toml");
+    let (got, fired) = (decoded.source.acquisition(), coded.source.acquisition());
+    assert_eq!(
+        got.sequence.coding,
+        Coding::Decoded {
+            polarity: polarity.clone()
+        }
+    );
+    assert!(got.sequence.is_coded() && !got.sequence.decodes_events());
+    assert!(polarity.contains(&-1.0), "the fixture must invert an angle");
+    assert_eq!(decoded.source.n_frames(), frames);
+    // zea stores its scan in float32: the rates to its rounding.
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs();
+    assert!(
+        close(got.frame_rate(), fired.frame_rate()),
+        "{} Hz",
+        got.frame_rate()
+    );
+    assert!(close(got.nyquist_velocity(), fired.nyquist_velocity()));
+    for (a, b) in got.sequence.angles.iter().zip(&fired.sequence.angles) {
+        assert!((a - b).abs() < 1e-6, "{a} against {b}");
+    }
+    assert_eq!(decoded.info.parameter("coding").unwrap().value, "decoded");
+
+    // The samples: the file's records, polarity turned back, against pcuvd decoding the events.
+    let stored = decoded.source.read_frames(0..frames).unwrap();
+    let events = coded.source.read_frames(0..frames).unwrap();
+    let records = |data: &ChannelData, alignment| match Decoder::new(data, alignment)
+        .unwrap()
+        .decode(&data.samples)
+        .unwrap()
+    {
+        AngleSamples::Rf(a) => a,
+        AngleSamples::Iq { .. } => panic!("RF expected"),
+    };
+    let ours = records(&events, EventAlignment::Simultaneous);
+    let theirs = records(&stored, EventAlignment::MidFrame);
+    assert_eq!(ours.dim(), theirs.dim());
+    assert!(ours.iter().any(|&v| v != 0.0));
+    assert_eq!(
+        ours, theirs,
+        "the decoded records differ from pcuvd's decoding"
+    );
+    // The polarity was there to turn back: angle 1 is stored negated.
+    let Samples::Rf(raw) = &stored.samples else {
+        panic!("RF expected")
+    };
+    let first = ours.slice(ndarray::s![1, 0, .., ..]);
+    assert_eq!(raw.slice(ndarray::s![1, .., ..]), first.mapv(|v| -v));
+
+    // The maps: those of the coded recording decoded by pcuvd.
+    let grid = Grid::new(-4e-3, 4e-3, 9e-3, 15e-3, 0.2e-3).unwrap();
+    let reference = maps_aligned(coded.source.as_ref(), &grid, EventAlignment::Simultaneous);
+    let read = maps(decoded.source.as_ref(), &grid);
+    let (vectors, want_vectors) = (
+        read.maps.vector_irls.as_ref().unwrap(),
+        reference.maps.vector_irls.as_ref().unwrap(),
+    );
+    for (what, a, b) in [
+        (
+            "power",
+            &read.maps.power_doppler,
+            &reference.maps.power_doppler,
+        ),
+        (
+            "colour",
+            &read.maps.color_doppler,
+            &reference.maps.color_doppler,
+        ),
+        ("vx", &vectors.vx, &want_vectors.vx),
+        ("vz", &vectors.vz, &want_vectors.vz),
+    ] {
+        let error = relative(a, b);
+        assert!(error <= 1e-5, "{what}: {error:e}");
+    }
+
+    // Without --track the B-mode track is read, conventional, and the file's tracks are named.
+    let default = open(name);
+    assert_eq!(
+        default.source.acquisition().sequence.coding,
+        Coding::Conventional
+    );
+    let listed = "track_0 \"bmode\" (4 frames), track_1 \"hadamard-decoded\" (12 frames)";
+    assert!(
+        default.info.warnings.iter().any(|w| w.contains(listed)),
+        "{:?}",
+        default.info.warnings
+    );
 }
 
 #[test]

@@ -19,6 +19,16 @@ pub enum Coding {
     /// in the scanner's order (a permuted or sign-flipped Hadamard matrix, say) and any slot starts
     /// (uneven slot delays). A recording manifest of version 2 says it.
     Matrix(TransmitCode),
+    /// Coded when fired, stored decoded: the file holds one record per angle, already decoded
+    /// from a coded sequence (a Hadamard-coded acquisition decoded by the scanner or a converter),
+    /// so pcuvd decodes nothing. The angles of a compound frame share one time, the frame's
+    /// decoding time, and the frame rate is the coded sequence's (event PRF / n, the event PRF
+    /// being n × the frame rate). `polarity[k]` (±1) is the polarity angle k's record was stored
+    /// with; pcuvd multiplies it back so that every angle compounds in phase.
+    Decoded {
+        /// The polarity (+1 or −1) of each angle's stored record, in angle order.
+        polarity: Vec<f64>,
+    },
 }
 
 /// An explicit transmit code: in event i of every compound frame, slot k (steering angle k) fires
@@ -304,24 +314,42 @@ impl Sequence {
             Coding::Conventional => Ok(TransmitCode::one_per_event(starts)),
             Coding::Hadamard { .. } => Ok(TransmitCode::hadamard(&Hadamard::new(n)?, starts)),
             Coding::Matrix(code) => Ok(code.clone()),
+            Coding::Decoded { polarity } => Ok(TransmitCode {
+                weights: (0..n * n)
+                    .map(|j| if j / n == j % n { polarity[j % n] } else { 0.0 })
+                    .collect(),
+                slot_starts: starts,
+            }),
         }
     }
 
-    /// True when events fire several slots at once (Hadamard or an explicit code that mixes
-    /// slots), so that decoding combines events.
+    /// True when the angles were fired coded, several slots per event (Hadamard, an explicit
+    /// code that mixes slots, or a coded acquisition the file holds decoded): then flow faster
+    /// than the Nyquist velocity decodes wrongly whatever follows.
     pub fn is_coded(&self) -> bool {
         match &self.coding {
             Coding::Conventional => false,
-            Coding::Hadamard { .. } => true,
+            Coding::Hadamard { .. } | Coding::Decoded { .. } => true,
             Coding::Matrix(code) => code.is_coded(),
         }
     }
 
+    /// True when pcuvd's decoding combines events (Hadamard, or an explicit code that mixes
+    /// slots), so that events are aligned in slow time first; false for angles a file holds
+    /// already decoded.
+    pub fn decodes_events(&self) -> bool {
+        match &self.coding {
+            Coding::Decoded { .. } => false,
+            _ => self.is_coded(),
+        }
+    }
+
     /// Start of pulse slot `k` within an event (s): k·Δτ when Hadamard-coded, the code's own
-    /// start when explicit, 0 when conventional.
+    /// start when explicit, 0 when conventional or decoded in the file (whose records start at
+    /// their own slot's firing).
     pub fn slot_offset(&self, k: usize) -> f64 {
         match &self.coding {
-            Coding::Conventional => 0.0,
+            Coding::Conventional | Coding::Decoded { .. } => 0.0,
             Coding::Hadamard { slot_delay } => k as f64 * slot_delay,
             Coding::Matrix(code) => code.slot_starts.get(k).copied().unwrap_or(0.0),
         }
@@ -341,6 +369,8 @@ impl Sequence {
         let row = event % n;
         match &self.coding {
             Coding::Conventional => vec![(row, 1.0, 0.0)],
+            // What the file holds: event k of a frame is angle k's record, with its polarity.
+            Coding::Decoded { polarity } => vec![(row, polarity[row] as f32, 0.0)],
             Coding::Hadamard { .. } => {
                 let h = Hadamard::new(n).expect("validated sequence");
                 (0..n)
@@ -423,6 +453,27 @@ impl Sequence {
                     ));
                 }
                 code.validate()?;
+            }
+            Coding::Decoded { polarity } => {
+                if polarity.len() != self.n_angles() {
+                    return Err(invalid(
+                        "polarity",
+                        format!(
+                            "has {} values but the sequence has {} angles (one per angle)",
+                            polarity.len(),
+                            self.n_angles()
+                        ),
+                    ));
+                }
+                if let Some(k) = polarity.iter().position(|&p| p != 1.0 && p != -1.0) {
+                    return Err(invalid(
+                        "polarity",
+                        format!(
+                            "angle {k} has polarity {}; a decoded angle's polarity is +1 or −1",
+                            polarity[k]
+                        ),
+                    ));
+                }
             }
         }
         let last = self.last_slot_start();

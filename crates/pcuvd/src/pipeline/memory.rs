@@ -45,7 +45,7 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
     if block_bytes(source, frames, 0) <= BLOCK_BYTES {
         return Blocks::whole(frames);
     }
-    let coded = source.acquisition().sequence.is_coded();
+    let coded = source.acquisition().sequence.decodes_events();
     let margin = if coded && alignment == decode::EventAlignment::MidFrame {
         Blocks::ALIGNMENT_MARGIN
     } else {

@@ -137,6 +137,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
             pcuvd::Coding::Conventional => "none",
             pcuvd::Coding::Hadamard { .. } => "hadamard",
             pcuvd::Coding::Matrix(_) => "matrix",
+            pcuvd::Coding::Decoded { .. } => "decoded",
         }),
         field("[acquisition].coding"),
     );
@@ -160,6 +161,16 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
                 field("[acquisition].code_matrix"),
             );
         }
+    }
+    if let pcuvd::Coding::Decoded { polarity } = &acq.sequence.coding {
+        let source = if has("acquisition", "polarity") {
+            field("[acquisition].polarity")
+        } else {
+            ParamSource::Default {
+                note: "[acquisition].polarity is absent: every angle +1".into(),
+            }
+        };
+        r.record("polarity", json!(polarity), source);
     }
     if let pcuvd::Coding::Hadamard { slot_delay } = acq.sequence.coding {
         r.record(

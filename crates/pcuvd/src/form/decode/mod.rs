@@ -97,6 +97,11 @@ impl Decoder {
                 Decoder::hadamard(n, Some(slot_delay * fs), fs, alignment)
             }
             Coding::Matrix(code) => Decoder::code(code, fs, alignment),
+            // Already decoded: only the stored polarity is turned back, event by event.
+            Coding::Decoded { polarity } if polarity.iter().all(|&p| p == 1.0) => {
+                Decoder::hadamard(n, None, fs, alignment)
+            }
+            Coding::Decoded { .. } => Decoder::code(&acq.sequence.transmit_code()?, fs, alignment),
         }
     }
 
