@@ -74,6 +74,13 @@ pub const CONTRAST_DEFINITION: &str = "per depth band: 10·log10 of the mean pow
     beam; `gain_db` is the coded recording's ratio minus the conventional one's (the SNR gain of \
     coding, as the paper's profiles read it: vessel against its surroundings)";
 
+/// What the false-detection scores count.
+pub const FALSE_DETECTION_DEFINITION: &str = "per depth band (the vector scores' thirds of the \
+    lumen's depth range, then all of it): over the pixels with no blood in the elevation beam \
+    (`blood_free_pixels`), the fraction the method's vessel mask holds (`in_vessel_mask`, as the \
+    vector scores' mask) and the fraction given an RI (`with_ri`, the RI maps' vessels; absent \
+    when the dynamics stage did not run): flow shown where there is none";
+
 /// Settings of the brain study.
 #[derive(Debug, Clone, Serialize)]
 pub struct BrainSettings {
@@ -204,6 +211,29 @@ pub struct RiGroupScores {
     pub pcuvd: Option<RiGroupScore>,
 }
 
+/// One method's false detections in a group of blood-free pixels; see
+/// [`FALSE_DETECTION_DEFINITION`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FalseDetectionScore {
+    /// Fraction of the blood-free pixels in the vessel mask.
+    pub in_vessel_mask: f64,
+    /// Fraction of them given an RI; `None` when the dynamics stage did not run.
+    pub with_ri: Option<f64>,
+}
+
+/// False detections of both methods in one depth band; see [`FALSE_DETECTION_DEFINITION`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FalseDetections {
+    /// The band's depths (mm), or "all".
+    pub group: String,
+    /// Pixels of the band with no blood in the elevation beam.
+    pub blood_free_pixels: usize,
+    /// Conventional.
+    pub uvd: FalseDetectionScore,
+    /// Coded.
+    pub pcuvd: FalseDetectionScore,
+}
+
 /// Vessel-to-background ratio of one depth band; see [`CONTRAST_DEFINITION`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BandContrast {
@@ -252,6 +282,10 @@ pub struct BrainMetrics {
     pub contrast_by_depth: Vec<BandContrast>,
     /// What the ratio counts.
     pub contrast_definition: &'static str,
+    /// False detections by depth band (the vector scores' thirds, then the whole range).
+    pub false_detections: Vec<FalseDetections>,
+    /// What they count.
+    pub false_detection_definition: &'static str,
     /// Wall-clock seconds: simulation (0 when cached), processing of each mode, scoring.
     pub timing_s: Vec<(String, f64)>,
 }
@@ -465,13 +499,26 @@ fn score(
         bail!("brain study: the truth holds no lumen pixel on the processing grid");
     }
     let third = (bottom - top) / 3.0;
-    let vector_by_depth = (0..3)
+    let bands: Vec<(String, f64, f64)> = (0..3)
         .map(|k| {
             let (from, to) = (top + k as f64 * third, top + (k + 1) as f64 * third);
-            group(
-                format!("{:.1}–{:.1} mm", from * 1e3, to * 1e3),
-                &|iz, _| z[iz] >= from && (z[iz] < to || k == 2),
-            )
+            let label = format!("{:.1}–{:.1} mm", from * 1e3, to * 1e3);
+            // The last band holds its lower edge and the bottom lumen row.
+            (label, from, if k == 2 { f64::INFINITY } else { to })
+        })
+        .collect();
+    let vector_by_depth = bands
+        .iter()
+        .map(|(label, from, to)| group(label.clone(), &|iz, _| z[iz] >= *from && z[iz] < *to))
+        .collect();
+    let whole = ("all".to_string(), top, bottom + f64::EPSILON);
+    let false_detections = bands
+        .iter()
+        .chain([&whole])
+        .map(|(label, from, to)| {
+            // The last band stops at the lumen's bottom row, as the whole range does.
+            let in_band = |iz: usize| z[iz] >= *from && z[iz] < *to && z[iz] <= bottom;
+            false_detections(label, modes, &truth.truth.mask, &in_band)
         })
         .collect();
     let vector_by_diameter = DIAMETER_CLASSES
@@ -576,6 +623,8 @@ fn score(
         ri_definition: BRAIN_RI_DEFINITION,
         contrast_by_depth,
         contrast_definition: CONTRAST_DEFINITION,
+        false_detections,
+        false_detection_definition: FALSE_DETECTION_DEFINITION,
         timing_s: timing,
     })
 }
@@ -616,6 +665,48 @@ fn vector_score(
         rmse_mm_s: 1e3 * ((sx + sz) / n).sqrt(),
         median_direction_error_deg: pcuvd::core::stats::median(angles),
     }
+}
+
+/// See [`FALSE_DETECTION_DEFINITION`]: both modes over the rows `in_band` selects.
+fn false_detections(
+    group: &str,
+    modes: &[BrainMode; 2],
+    blood: &Array2<bool>,
+    in_band: &dyn Fn(usize) -> bool,
+) -> FalseDetections {
+    let [uvd, pcuvd] = [0, 1].map(|m| {
+        let ri = modes[m].ri.as_ref().map(|maps| &maps.ri);
+        false_detection_score(&modes[m].detected, ri, blood, in_band)
+    });
+    FalseDetections {
+        group: group.to_string(),
+        blood_free_pixels: uvd.0,
+        uvd: uvd.1,
+        pcuvd: pcuvd.1,
+    }
+}
+
+/// The pixels of the rows `in_band` selects with no blood in the beam (`blood` false), and the
+/// fractions of them in the vessel mask `detected` and with a finite RI in `ri`.
+fn false_detection_score(
+    detected: &Array2<bool>,
+    ri: Option<&Array2<f64>>,
+    blood: &Array2<bool>,
+    in_band: &dyn Fn(usize) -> bool,
+) -> (usize, FalseDetectionScore) {
+    let free: Vec<(usize, usize)> = blood
+        .indexed_iter()
+        .filter(|&((iz, _), &b)| !b && in_band(iz))
+        .map(|(p, _)| p)
+        .collect();
+    let share = |hit: &dyn Fn((usize, usize)) -> bool| {
+        free.iter().filter(|&&p| hit(p)).count() as f64 / free.len().max(1) as f64
+    };
+    let score = FalseDetectionScore {
+        in_vessel_mask: share(&|p| detected[p]),
+        with_ri: ri.map(|ri| share(&|p| ri[p].is_finite())),
+    };
+    (free.len(), score)
 }
 
 /// See [`BRAIN_RI_DEFINITION`].
@@ -713,6 +804,30 @@ mod tests {
 
     /// RI scores count the lumen pixels of the selection: a pixel without an RI counts an error
     /// of 1, and the class is right or wrong per pixel.
+    /// Blood-free pixels of the band only: a detection on blood, or outside the band, is not
+    /// false; an RI map counts its finite pixels.
+    #[test]
+    fn false_detections_count_flow_where_there_is_no_blood() {
+        let shape = (4, 5);
+        let mut blood = Array2::from_elem(shape, false);
+        blood[[1, 1]] = true;
+        blood[[1, 2]] = true;
+        let mut detected = Array2::from_elem(shape, false);
+        detected[[1, 1]] = true; // on blood: not false
+        detected[[2, 0]] = true; // false
+        detected[[2, 4]] = true; // false
+        detected[[3, 3]] = true; // outside the band
+        let mut ri = Array2::from_elem(shape, f64::NAN);
+        ri[[1, 0]] = 0.6;
+        let (free, score) = false_detection_score(&detected, Some(&ri), &blood, &|iz| iz <= 2);
+        assert_eq!(free, 13);
+        assert!((score.in_vessel_mask - 2.0 / 13.0).abs() < 1e-12);
+        assert!((score.with_ri.unwrap() - 1.0 / 13.0).abs() < 1e-12);
+        let (_, without) = false_detection_score(&detected, None, &blood, &|_| true);
+        assert!(without.with_ri.is_none());
+        assert!((without.in_vessel_mask - 3.0 / 18.0).abs() < 1e-12);
+    }
+
     #[test]
     fn ri_scores_count_misses_as_full_errors() {
         let shape = (1, 4);
