@@ -19,10 +19,11 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use ndarray::{Array2, Zip};
-use pcuvd::dynamics::{BACKGROUND, RiMaps};
+use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, RiMaps, Spectrogram, SpectrogramParams, VENULE};
 use pcuvd::estimate::masks::VesselTests;
 use pcuvd::estimate::vector::VectorField;
 use pcuvd::pipeline::ProcessOutput;
+use pcuvd::simulate::phantom::network::NetworkTruth;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 
@@ -140,6 +141,9 @@ pub struct BrainMode {
     pub ri_skipped: Option<String>,
     /// The method's vessel mask (noise-floor margin and local peak).
     pub detected: Array2<bool>,
+    /// Compounded Doppler spectrograms at the study's [`BrainSite`]s, in their order; `None`
+    /// where the pixel's filtered series is zero (no Doppler signal to show).
+    pub spectrograms: Vec<Option<Spectrogram>>,
 }
 
 impl BrainMode {
@@ -305,10 +309,70 @@ pub struct BrainStudy {
     pub diameter_m: Array2<f64>,
     /// The scored pixels.
     pub lumen: Array2<bool>,
+    /// The pixels of the spectrograms (Fig. 8b), with their vessels' truth.
+    pub sites: Vec<BrainSite>,
     /// Conventional (UVD), then coded (PC-UVD).
     pub modes: [BrainMode; 2],
     /// The numbers.
     pub metrics: BrainMetrics,
+}
+
+/// A pixel where the brain's spectrograms are computed (Fig. 8b), with its vessel's truth.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BrainSite {
+    /// The vessel's kind, direction, width and depth, for figures.
+    pub label: String,
+    /// (row, col) of the pixel.
+    pub pixel: (usize, usize),
+    /// The pixel's true peak systolic speed (m/s).
+    pub true_psv_m_s: f64,
+    /// Its true end-diastolic speed (m/s).
+    pub true_edv_m_s: f64,
+    /// Its true resistivity index.
+    pub true_ri: f64,
+    /// True when its flow goes toward the probe.
+    pub flows_up: bool,
+}
+
+/// One lumen pixel for each kind (arteriole, venule) and direction (up, down) the brain holds:
+/// in the widest such vessel, the pixel of highest peak speed (its axis). Kinds and directions
+/// the lumen lacks are left out.
+pub fn spectrogram_sites(
+    cycle: &NetworkTruth,
+    lumen: &Array2<bool>,
+    diameter_m: &Array2<f64>,
+    z: &[f64],
+) -> Vec<BrainSite> {
+    let mut sites = Vec::new();
+    for (class, kind) in [(ARTERIOLE, "arteriole"), (VENULE, "venule")] {
+        for up in [false, true] {
+            let best = lumen
+                .indexed_iter()
+                .filter(|&(p, &l)| l && cycle.vessel_class[p] == class && cycle.flow_up[p] == up)
+                .map(|(p, _)| p)
+                .max_by(|&a, &b| {
+                    diameter_m[a]
+                        .total_cmp(&diameter_m[b])
+                        .then(cycle.psv[a].total_cmp(&cycle.psv[b]))
+                });
+            if let Some(pixel) = best {
+                sites.push(BrainSite {
+                    label: format!(
+                        "{kind} flowing {}, {:.0} µm, {:.1} mm deep",
+                        if up { "up" } else { "down" },
+                        diameter_m[pixel] * 1e6,
+                        z[pixel.0] * 1e3
+                    ),
+                    pixel,
+                    true_psv_m_s: cycle.psv[pixel],
+                    true_edv_m_s: cycle.edv[pixel],
+                    true_ri: cycle.ri[pixel],
+                    flows_up: up,
+                });
+            }
+        }
+    }
+    sites
 }
 
 /// The simulation of `scenario`, from the cache or simulated into it now. Returns its folder.
@@ -368,24 +432,19 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
     )];
     let mut modes = Vec::new();
     let mut truth = None;
+    let mut sites = Vec::new();
     for mode in Mode::BOTH {
         let (name, method) = (mode.label(), mode.method());
         let clock = std::time::Instant::now();
         let path = folder.join(format!("{name}.toml"));
         let opened = crate::input::open_input(&path, &pcuvd_io::Overrides::default())?;
         let source = opened.source.as_ref();
-        let plan = Plan::new(
+        let mut plan = Plan::new(
             &settings.processing,
             &settings.dynamics,
             source,
             opened.info.cardiac_triggers_s.as_deref(),
         )?;
-        let Processed { out, dynamics, .. } = crate::run::run(source, &plan, progress)
-            .with_context(|| format!("brain study: processing {}", path.display()))?;
-        // The run hands its maps over whole (shared only with a later re-run of its dynamics).
-        let mut out = Arc::into_inner(out).context("the run's maps are shared")?;
-        // The filtered series (the largest thing a mode holds) has given all it will.
-        out.filtered.series = Vec::new();
         if truth.is_none() {
             let acq = source.acquisition();
             let n_samples = source.trace_shape().1;
@@ -393,8 +452,44 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             let times: Vec<f64> = (0..TRUTH_TIMES)
                 .map(|k| duration * (k as f64 + 0.5) / TRUTH_TIMES as f64)
                 .collect();
-            truth = Some(simulation.truth_averaged(acq, n_samples, &times)?);
+            let averaged = simulation.truth_averaged(acq, n_samples, &times)?;
+            if averaged.truth.mask.dim() != plan.params.grid.shape() {
+                bail!("brain study: the processing grid differs from the truth's (give no --grid)");
+            }
+            let (diameter, lumen) = lumen_of(&simulation, &averaged)?;
+            let cycle = averaged.cycle.as_ref().context("the tree's cycle truth")?;
+            sites = spectrogram_sites(cycle, &lumen, &diameter, &averaged.z);
+            truth = Some(averaged);
         }
+        plan.kept_pixels = sites.iter().map(|s| s.pixel).collect();
+        let Processed {
+            out,
+            dynamics,
+            kept,
+            ..
+        } = crate::run::run(source, &plan, progress)
+            .with_context(|| format!("brain study: processing {}", path.display()))?;
+        // The run hands its maps over whole (shared only with a later re-run of its dynamics).
+        let mut out = Arc::into_inner(out).context("the run's maps are shared")?;
+        // The filtered series (the largest thing a mode holds) has given all it will.
+        out.filtered.series = Vec::new();
+        let spectrograms = match &kept {
+            Some(kept) => (0..sites.len())
+                .map(|k| {
+                    let f = &out.filtered;
+                    let rates = (f.frame_rate, f.sound_speed, f.demodulation_frequency);
+                    let zero = kept.compound(k)?.iter().all(|v| v.norm_sqr() == 0.0);
+                    if zero {
+                        return Ok(None);
+                    }
+                    let params = SpectrogramParams::rat();
+                    pcuvd::dynamics::spectrogram_of_kept(kept, k, &f.angles, rates, &params)
+                        .map(Some)
+                })
+                .collect::<pcuvd::Result<Vec<_>>>()
+                .context("brain study: spectrograms")?,
+            None => Vec::new(),
+        };
         let (ri, ri_skipped) = match dynamics {
             DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),
             DynamicsOutcome::Skipped(reason) => (None, Some(format!("{method}: {reason}"))),
@@ -410,20 +505,13 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             ri,
             ri_skipped,
             detected,
+            spectrograms,
         });
     }
     let truth = truth.expect("two modes processed");
     let modes: [BrainMode; 2] = modes.try_into().map_err(|_| anyhow::anyhow!("two modes"))?;
     let clock = std::time::Instant::now();
-    let tree = simulation.tree.as_ref().expect("a tree scenario");
-    let segments = &tree.flow().segments;
-    let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
-    let diameter_m = cycle
-        .vessel_index
-        .mapv(|i| segments.get(i).map_or(f64::NAN, |s| s.diameter));
-    let lumen = Zip::from(&truth.truth.mask)
-        .and(&diameter_m)
-        .map_collect(|&blood, &d| blood && d >= LUMEN_MIN_DIAMETER_M);
+    let (diameter_m, lumen) = lumen_of(&simulation, &truth)?;
     let grid = &modes[0].out.grid;
     if grid.shape() != lumen.dim() {
         bail!("brain study: the processing grid differs from the truth's (give no --grid)");
@@ -451,9 +539,28 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         truth,
         diameter_m,
         lumen,
+        sites,
         modes,
         metrics,
     })
+}
+
+/// The diameter (m) of the vessel each pixel sees most of (NaN without blood), and the scored
+/// pixels: blood in the beam from a vessel at least [`LUMEN_MIN_DIAMETER_M`] wide.
+fn lumen_of(
+    simulation: &Simulation,
+    truth: &SimulatedTruth,
+) -> Result<(Array2<f64>, Array2<bool>)> {
+    let tree = simulation.tree.as_ref().context("a tree scenario")?;
+    let segments = &tree.flow().segments;
+    let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
+    let diameter_m = cycle
+        .vessel_index
+        .mapv(|i| segments.get(i).map_or(f64::NAN, |s| s.diameter));
+    let lumen = Zip::from(&truth.truth.mask)
+        .and(&diameter_m)
+        .map_collect(|&blood, &d| blood && d >= LUMEN_MIN_DIAMETER_M);
+    Ok((diameter_m, lumen))
 }
 
 struct ScoreContext<'a> {

@@ -27,6 +27,9 @@ pub struct Plan {
     pub ensembles: Option<pcuvd::pipeline::ensembles::EnsembleSpec>,
     /// How a recording too long to hold whole is cut; `None`: processed whole.
     pub segments: Option<Segments>,
+    /// Pixels (row, col) whose clutter-filtered series the run keeps over the whole recording
+    /// ([`Processed::kept`], for spectrograms); empty by default.
+    pub kept_pixels: Vec<(usize, usize)>,
 }
 
 impl Plan {
@@ -127,6 +130,7 @@ impl Plan {
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
             options_text: settings_text(options, dynamics),
+            kept_pixels: Vec::new(),
         })
     }
 }
@@ -166,6 +170,8 @@ pub struct Processed {
     /// Each segment's core and imaged frames, and its clutter cut-offs per angle, when the
     /// recording was processed in segments.
     pub segments: Option<SegmentsDone>,
+    /// The series of the plan's kept pixels, when it names any.
+    pub kept: Option<pcuvd::form::images::PixelSeries>,
 }
 
 /// What processing in segments did, for summary.json.
@@ -215,6 +221,7 @@ pub fn run_into(
     };
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan, progress)?;
+    let kept = kept_of(&out.filtered, &plan.kept_pixels)?;
     Ok(Processed {
         out: std::sync::Arc::new(out),
         dynamics,
@@ -223,6 +230,7 @@ pub fn run_into(
         ensembles_in_store,
         blocks,
         segments: None,
+        kept,
     })
 }
 
@@ -243,7 +251,23 @@ fn segment_run<'a>(
         segments,
         dynamics: windows.map(|d| &d.params),
         ensembles: plan.ensembles,
+        kept_pixels: &plan.kept_pixels,
     }
+}
+
+/// The series of `pixels` in a whole run's filtered images; `None` when there are none to keep.
+fn kept_of(
+    filtered: &pcuvd::form::images::AngleImages,
+    pixels: &[(usize, usize)],
+) -> Result<Option<pcuvd::form::images::PixelSeries>> {
+    if pixels.is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(pcuvd::form::images::PixelSeries::of(
+        filtered,
+        pixels,
+        0..filtered.n_frames(),
+    )?))
 }
 
 /// The plan's segments of `data`, or an error saying that one holds it whole.
@@ -369,6 +393,7 @@ fn finish_segmented(
         ensembles_in_store: ensembles_in_store && done.ensembles.is_some(),
         ensembles: done.ensembles,
         blocks,
+        kept: done.kept,
         segments: Some(SegmentsDone {
             ranges: done.ranges,
             clutter: done

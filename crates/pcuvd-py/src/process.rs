@@ -212,6 +212,7 @@ impl PyProcessResult {
                 ensembles_in_store: self.processed.ensembles_in_store,
                 blocks: self.processed.blocks,
                 segments: self.processed.segments.clone(),
+                kept: self.processed.kept.clone(),
             },
         })
     }

@@ -14,14 +14,17 @@ use pcuvd_app::figures::{
     PCUVD_RGB, PROFILE_LINE_RGB, PSV_UP_LABEL, Rendered, TRUTH_RGB, UVD_RGB, axial_velocity_panel,
     class_map, line, map_panel, region_outline, render, shared_db_range, speed_scale, vector_panel,
 };
-use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, SeriesStyle};
+use pcuvd_render::{
+    Colormap, Figure, ImageAxes, ImagePanel, Panel, PlotPanel, Polyline, Report, SeriesStyle,
+};
 
 /// The figures the brain part writes into the output folder.
-pub const BRAIN_FIGURES: [&str; 4] = [
+pub const BRAIN_FIGURES: [&str; 5] = [
     "fig6_brain_doppler.png",
     "fig6gh_brain_profiles.png",
     "fig7_brain_rois.png",
     "fig8_brain_ri.png",
+    "fig8b_brain_spectrograms.png",
 ];
 
 /// Depths (m) of the two horizontal profile lines of Fig. 6 g, h: the cortex and the deep vessels.
@@ -91,7 +94,7 @@ pub fn brain_figures(
     progress: &dyn Progress,
 ) -> Result<Vec<Rendered>> {
     let task = "brain figures";
-    progress.update(task, 0, 4);
+    progress.update(task, 0, 5);
     let full = &study.modes[0].out.grid;
     // The maps end 1.5 mm below the deepest lumen pixel: the default grid reaches as deep as the
     // traces do, far below any vessel.
@@ -234,7 +237,7 @@ pub fn brain_figures(
             panel_size_px: (520, 500),
         },
     )?);
-    progress.update(task, 1, 4);
+    progress.update(task, 1, 5);
 
     // Figure 6 (g, h): power Doppler along the two lines; vessel-to-background ratio by depth.
     let x_mm: Vec<f64> = grid.x.iter().map(|x| x * 1e3).collect();
@@ -326,7 +329,7 @@ pub fn brain_figures(
             panel_size_px: (520, 420),
         },
     )?);
-    progress.update(task, 2, 4);
+    progress.update(task, 2, 5);
 
     // Figure 7: vector velocity in three regions, UVD, PC-UVD, truth.
     let mut panels = Vec::new();
@@ -363,7 +366,7 @@ pub fn brain_figures(
             panel_size_px: (460, 440),
         },
     )?);
-    progress.update(task, 3, 4);
+    progress.update(task, 3, 5);
 
     // Figure 8: RI, arterioles and venules: truth, UVD, PC-UVD.
     let cycle = truth.cycle.as_ref();
@@ -446,8 +449,95 @@ pub fn brain_figures(
             panel_size_px: (480, 470),
         },
     )?);
-    progress.update(task, 4, 4);
+    progress.update(task, 4, 5);
+    if !study.sites.is_empty() {
+        figs.push(spectrogram_figure(dir, study)?);
+    }
+    progress.update(task, 5, 5);
     Ok(figs)
+}
+
+/// Fig. 8b analogue: each site's compounded Doppler spectrogram, UVD beside PC-UVD, with the
+/// mean Doppler velocity and the vessel's true peak and end-diastolic speeds.
+fn spectrogram_figure(dir: &Path, study: &BrainStudy) -> Result<Rendered> {
+    let mut panels = Vec::new();
+    for (k, site) in study.sites.iter().enumerate() {
+        for mode in &study.modes {
+            let Some(Some(spec)) = mode.spectrograms.get(k) else {
+                continue;
+            };
+            let t_ms: Vec<f64> = spec.times_s.iter().map(|t| t * 1e3).collect();
+            let span = (t_ms[0], t_ms[t_ms.len() - 1]);
+            // pcuvd's axial velocity is positive moving deeper: upward flow reads negative.
+            let sign = if site.flows_up { -1.0 } else { 1.0 };
+            let level = |v: f64, dashed: bool, label: &str| Polyline {
+                x_mm: vec![span.0, span.1],
+                z_mm: vec![sign * v * 1e3; 2],
+                dashed,
+                rgb: TRUTH_RGB,
+                label: label.into(),
+            };
+            let mut lines = vec![
+                Polyline {
+                    x_mm: t_ms.clone(),
+                    z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
+                    dashed: true,
+                    rgb: (255, 255, 255),
+                    label: "mean Doppler velocity (colour Doppler)".into(),
+                },
+                level(
+                    site.true_psv_m_s,
+                    false,
+                    "true PSV (speed, sign of the flow)",
+                ),
+                level(site.true_edv_m_s, true, "true EDV"),
+            ];
+            // One legend for the figure (the first panel's).
+            if !panels.is_empty() {
+                lines.iter_mut().for_each(|l| l.label.clear());
+            }
+            let ri = mode
+                .ri
+                .as_ref()
+                .map(|r| r.ri[site.pixel])
+                .filter(|v| v.is_finite())
+                .map_or_else(|| "no RI".to_string(), |v| format!("RI {v:.2}"));
+            let velocities = &spec.velocities_m_s;
+            panels.push(Panel::Image(ImagePanel {
+                title: format!(
+                    "{}: {} — {ri} (true {:.2})",
+                    mode.method(),
+                    site.label,
+                    site.true_ri
+                ),
+                data: spec.power_db.t().to_owned(),
+                x_mm: span,
+                z_mm: (velocities[0] * 1e3, velocities[velocities.len() - 1] * 1e3),
+                colormap: Colormap::Gray,
+                range: (-40.0, 0.0),
+                colorbar_label: "dB".into(),
+                lines,
+                axes: Some(ImageAxes {
+                    x_label: "time (ms)".into(),
+                    y_label: "Vz (mm/s, + = deeper)".into(),
+                    y_up: true,
+                    fill: true,
+                }),
+                ..Default::default()
+            }));
+        }
+    }
+    render(
+        dir,
+        BRAIN_FIGURES[4],
+        "Figure 8 (b) analogue: compounded Doppler spectrograms (axial velocity, + = deeper) at one pixel on the axis of the widest arteriole and venule of each direction, UVD beside PC-UVD. Dashed white: the mean Doppler velocity (colour Doppler); blue: the vessel's true peak systolic (solid) and end-diastolic (dashed) speed, signed as its flow, which the axial velocity reaches only where the vessel runs along the beam. A long recording is processed in segments, each clutter-filtered on its own: a bright column where one segment meets the next is that seam, not flow.",
+        Figure {
+            title: "Virtual rat brain: spectrograms over the cardiac cycle".into(),
+            panels,
+            ncols: 2,
+            panel_size_px: (620, 420),
+        },
+    )
 }
 
 /// One line of the brain's scores for the terminal.

@@ -67,25 +67,12 @@ pub fn spectrogram(
         images.sound_speed,
         images.demodulation_frequency,
     );
-    require_positive("frame rate", frame_rate)?;
-    require_positive("speed of sound", sound_speed)?;
-    require_positive("centre frequency", center_frequency)?;
     let (nz, nx, frames) = check_series(filtered, angles)?;
     let (iz, ix) = pixel;
     if iz >= nz || ix >= nx {
         return Err(invalid(
             "pixel",
             format!("({iz}, {ix}) is outside the {nz} × {nx} image"),
-        ));
-    }
-    let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
-    if params.nfft < params.window {
-        return Err(invalid(
-            "FFT length",
-            format!(
-                "{} is shorter than the window of {} frames",
-                params.nfft, params.window
-            ),
         ));
     }
     let compound: Vec<Complex64> = (0..frames)
@@ -100,6 +87,62 @@ pub fn spectrogram(
         return Err(invalid(
             "pixel",
             format!("({iz}, {ix}) has no Doppler signal (its compounded series is zero)"),
+        ));
+    }
+    spectrogram_of_compound(
+        &compound,
+        angles,
+        (frame_rate, sound_speed, center_frequency),
+        params,
+    )
+}
+
+/// The spectrogram of pixel `k` of `kept` (the clutter-filtered series of a few pixels, as a
+/// segmented run keeps them), whose images had the `angles` (rad) and `(frame rate (Hz), sound
+/// speed (m/s), demodulation frequency (Hz))`: as [`spectrogram`] of that pixel.
+pub fn spectrogram_of_kept(
+    kept: &crate::form::images::PixelSeries,
+    k: usize,
+    angles: &[f64],
+    rates: (f64, f64, f64),
+    params: &SpectrogramParams,
+) -> Result<Spectrogram> {
+    let compound = kept.compound(k)?;
+    if compound.iter().all(|v| v.norm_sqr() == 0.0) {
+        return Err(invalid(
+            "pixel",
+            format!(
+                "{:?} has no Doppler signal (its compounded series is zero)",
+                kept.pixels[k]
+            ),
+        ));
+    }
+    spectrogram_of_compound(&compound, angles, rates, params)
+}
+
+/// The spectrogram of a compounded slow-time series (the angles' series summed) of images with
+/// the `angles` (rad), `(frame rate (Hz), sound speed (m/s), demodulation frequency (Hz))`.
+fn spectrogram_of_compound(
+    compound: &[Complex64],
+    angles: &[f64],
+    (frame_rate, sound_speed, center_frequency): (f64, f64, f64),
+    params: &SpectrogramParams,
+) -> Result<Spectrogram> {
+    require_positive("frame rate", frame_rate)?;
+    require_positive("speed of sound", sound_speed)?;
+    require_positive("centre frequency", center_frequency)?;
+    if angles.is_empty() {
+        return Err(invalid("angles", "a spectrogram needs at least one angle"));
+    }
+    let frames = compound.len();
+    let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
+    if params.nfft < params.window {
+        return Err(invalid(
+            "FFT length",
+            format!(
+                "{} is shorter than the window of {} frames",
+                params.nfft, params.window
+            ),
         ));
     }
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / angles.len() as f64;

@@ -91,3 +91,129 @@ impl AngleImages {
         Ok(())
     }
 }
+
+/// The series of a few pixels of a run's clutter-filtered images over the recording, per angle:
+/// what a spectrogram needs where a long recording's whole series is never held (a segmented
+/// run keeps these from each segment's own frames).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PixelSeries {
+    /// The pixels, (row, col) on the images' grid.
+    pub pixels: Vec<(usize, usize)>,
+    /// Per angle, (pixels, frames).
+    pub series: Vec<ndarray::Array2<Complex32>>,
+}
+
+impl PixelSeries {
+    /// `pixels` of `images` over its frames `frames`.
+    pub fn of(
+        images: &AngleImages,
+        pixels: &[(usize, usize)],
+        frames: std::ops::Range<usize>,
+    ) -> Result<Self> {
+        let (nz, nx) = images.grid.shape();
+        if let Some(p) = pixels.iter().find(|&&(iz, ix)| iz >= nz || ix >= nx) {
+            return Err(invalid(
+                "kept pixels",
+                format!("{p:?} is outside the {nz} × {nx} image"),
+            ));
+        }
+        if frames.end > images.n_frames() || frames.start > frames.end {
+            return Err(invalid(
+                "kept frames",
+                format!("{frames:?} is not within the {} frames", images.n_frames()),
+            ));
+        }
+        let series = images
+            .series
+            .iter()
+            .map(|s| {
+                ndarray::Array2::from_shape_fn((pixels.len(), frames.len()), |(k, t)| {
+                    let (iz, ix) = pixels[k];
+                    s[[iz, ix, frames.start + t]]
+                })
+            })
+            .collect();
+        Ok(PixelSeries {
+            pixels: pixels.to_vec(),
+            series,
+        })
+    }
+
+    /// Appends `later`'s frames (the same pixels and angles) after these.
+    pub fn append(&mut self, later: PixelSeries) -> Result<()> {
+        if later.pixels != self.pixels || later.series.len() != self.series.len() {
+            return Err(Error::Shape(
+                "kept pixel series of other pixels or angles cannot be joined".into(),
+            ));
+        }
+        for (mine, theirs) in self.series.iter_mut().zip(later.series) {
+            *mine = ndarray::concatenate(ndarray::Axis(1), &[mine.view(), theirs.view()])
+                .map_err(|e| Error::Shape(format!("joining kept pixel series: {e}")))?;
+        }
+        Ok(())
+    }
+
+    /// Pixel `k`'s compounded series (the angles' summed), frame by frame.
+    pub fn compound(&self, k: usize) -> Result<Vec<num_complex::Complex64>> {
+        if k >= self.pixels.len() {
+            return Err(invalid(
+                "kept pixel",
+                format!("{k} is not one of the {} kept", self.pixels.len()),
+            ));
+        }
+        let frames = self.series.first().map_or(0, |s| s.ncols());
+        Ok((0..frames)
+            .map(|t| {
+                self.series
+                    .iter()
+                    .fold(num_complex::Complex64::new(0.0, 0.0), |acc, s| {
+                        let v = s[[k, t]];
+                        acc + num_complex::Complex64::new(v.re as f64, v.im as f64)
+                    })
+            })
+            .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two angles on a 2 × 3 grid, 5 frames: sample (iz, ix, t) of angle a is a + 10·iz + ix + i·t.
+    fn images() -> AngleImages {
+        let series = (0..2)
+            .map(|a| {
+                Array3::from_shape_fn((2, 3, 5), |(iz, ix, t)| {
+                    Complex32::new((a + 10 * iz + ix) as f32, t as f32)
+                })
+            })
+            .collect();
+        AngleImages {
+            grid: Grid::new(0.0, 2e-4, 0.0, 1e-4, 1e-4).unwrap(),
+            angles: vec![-0.1, 0.1],
+            frame_rate: 1000.0,
+            sound_speed: 1540.0,
+            demodulation_frequency: 5e6,
+            coverage: None,
+            series,
+        }
+    }
+
+    #[test]
+    fn kept_pixels_join_in_frame_order_and_compound_over_angles() {
+        let images = images();
+        let pixels = [(1, 2), (0, 1)];
+        let mut kept = PixelSeries::of(&images, &pixels, 0..2).unwrap();
+        kept.append(PixelSeries::of(&images, &pixels, 2..5).unwrap())
+            .unwrap();
+        assert_eq!(kept.series[1][[0, 4]], Complex32::new(13.0, 4.0));
+        // Pixel (0, 1): angles 0 and 1 give 1 + i·t and 2 + i·t.
+        let compound = kept.compound(1).unwrap();
+        assert_eq!(compound[3], num_complex::Complex64::new(3.0, 6.0));
+        assert!(PixelSeries::of(&images, &[(2, 0)], 0..5).is_err());
+        assert!(PixelSeries::of(&images, &pixels, 0..6).is_err());
+        let other = PixelSeries::of(&images, &[(0, 0)], 0..1).unwrap();
+        assert!(kept.append(other).is_err());
+        assert!(kept.compound(2).is_err());
+    }
+}

@@ -38,7 +38,7 @@ use crate::estimate::clutter::{self, ClutterReport};
 use crate::estimate::dealias::Dealias;
 use crate::estimate::doppler::Moments;
 use crate::form::beamform;
-use crate::form::images::AngleImages;
+use crate::form::images::{AngleImages, PixelSeries};
 use crate::pipeline::ensembles::{self, EnsembleMaps, EnsembleSpec};
 pub use crate::pipeline::memory::{SERIES_BYTES, frames_that_fit};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
@@ -155,6 +155,8 @@ pub struct Segmented {
     pub ranges: Vec<(Range<usize>, Range<usize>)>,
     /// Each segment's clutter cut-offs, per angle.
     pub clutter: Vec<Vec<ClutterReport>>,
+    /// The kept pixels' filtered series over the whole recording, when the run kept any.
+    pub kept: Option<PixelSeries>,
 }
 
 /// Finished parts' maps set aside in a scratch file while later segments are processed, so that
@@ -321,6 +323,7 @@ pub struct SegmentPart {
     clutter: Vec<ClutterReport>,
     windows: Option<VelocitySeries>,
     ensembles: Option<EnsembleMaps>,
+    kept: Option<PixelSeries>,
     timings: Timings,
     /// The images' description; their series are dropped with the segment.
     images: AngleImages,
@@ -337,6 +340,9 @@ pub struct SegmentRun<'a> {
     pub dynamics: Option<&'a DynamicsParams>,
     /// The Doppler time series' ensembles, when asked for.
     pub ensembles: Option<EnsembleSpec>,
+    /// Pixels (row, col) whose clutter-filtered series each segment keeps over its own frames,
+    /// joined into [`Segmented::kept`] (for spectrograms); empty: none.
+    pub kept_pixels: &'a [(usize, usize)],
 }
 
 impl SegmentRun<'_> {
@@ -459,6 +465,11 @@ impl SegmentRun<'_> {
             clutter.push(clutter::svd_filter(image, &params.clutter)?);
         }
         add_time(Stage::Clutter, clock.elapsed().as_secs_f64());
+        let kept = if self.kept_pixels.is_empty() {
+            None
+        } else {
+            Some(PixelSeries::of(&images, self.kept_pixels, own.clone())?)
+        };
 
         let clock = std::time::Instant::now();
         progress(Stage::Doppler, k, count);
@@ -505,6 +516,7 @@ impl SegmentRun<'_> {
                 clutter,
                 windows,
                 ensembles: ensemble_part,
+                kept,
                 timings,
                 images,
             },
@@ -594,6 +606,7 @@ struct Joined {
     /// True once a sink has taken the ensembles' maps: they are not joined.
     ensembles_sunk: bool,
     clutter: Vec<Vec<ClutterReport>>,
+    kept: Option<PixelSeries>,
     timings: Timings,
     images: Option<AngleImages>,
 }
@@ -610,6 +623,7 @@ impl Joined {
             ensembles_aside: SetAside::new(),
             ensembles_sunk: false,
             clutter: Vec::new(),
+            kept: None,
             timings: vec![
                 (Stage::Decode, 0.0),
                 (Stage::Beamform, 0.0),
@@ -664,6 +678,11 @@ impl Joined {
             self.ensemble_parts.push(ensembles);
         }
         self.clutter.push(part.clutter);
+        match (&mut self.kept, part.kept) {
+            (Some(kept), Some(later)) => kept.append(later)?,
+            (kept @ None, Some(first)) => *kept = Some(first),
+            _ => {}
+        }
         for (stage, seconds) in part.timings {
             self.add_time(stage, seconds);
         }
@@ -733,6 +752,7 @@ impl Joined {
             ensembles,
             ranges: run.segments.ranges(total),
             clutter: self.clutter,
+            kept: self.kept,
         })
     }
 }
@@ -755,6 +775,7 @@ pub fn process_in_segments(
         segments,
         dynamics,
         ensembles: ensemble_spec,
+        kept_pixels: &[],
     };
     run.process(source, None, progress)
 }

@@ -11,7 +11,7 @@ use pcuvd::estimate::dealias::Dealias;
 use pcuvd::estimate::doppler::DopplerEstimator;
 use pcuvd::form::decode::EventAlignment;
 use pcuvd::pipeline::ensembles::{self, EnsembleSpec};
-use pcuvd::pipeline::segments::{Segments, process_in_segments};
+use pcuvd::pipeline::segments::{SegmentRun, Segments, process_in_segments};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
@@ -455,7 +455,6 @@ fn segments_shorter_than_a_cardiac_cycle_keep_their_windows() {
 /// is not the recording's is refused.
 #[test]
 fn segments_processed_apart_join_into_the_one_process_run() {
-    use pcuvd::pipeline::segments::SegmentRun;
     let (data, params, dynamics) = aliasing_tube();
     let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
         .unwrap()
@@ -474,6 +473,7 @@ fn segments_processed_apart_join_into_the_one_process_run() {
         segments: &segments,
         dynamics: Some(&dynamics),
         ensembles: Some(ENSEMBLES),
+        kept_pixels: &[],
     };
     let count = run.count(&data);
     assert!(count >= 3, "{count} segments");
@@ -534,4 +534,49 @@ fn segments_processed_apart_join_into_the_one_process_run() {
     parts.pop();
     let missing = run.join(&data, parts).unwrap_err().to_string();
     assert!(missing.contains("do not make"), "{missing}");
+}
+
+/// The pixels a segmented run keeps are the whole path's filtered series at those pixels, over
+/// every frame, each segment giving its own (no clutter filter here, and every frame's images
+/// stand alone, so exactly); their spectrogram is the whole path's.
+#[test]
+fn kept_pixels_are_the_whole_series_at_those_pixels() {
+    let data = recording();
+    let params = params(&data);
+    let whole = pipeline::process(&data, &params, &quiet).unwrap();
+    let pixels = [(10, 30), (20, 31), (0, 0)];
+    let segments = Segments {
+        core: 24,
+        overlap: 4,
+    };
+    let run = SegmentRun {
+        params: &params,
+        segments: &segments,
+        dynamics: None,
+        ensembles: None,
+        kept_pixels: &pixels,
+    };
+    let done = run.process(&data, None, &quiet).unwrap();
+    assert!(done.ranges.len() >= 3, "{:?}", done.ranges);
+    let kept = done.kept.expect("kept pixels");
+    assert_eq!(kept.pixels, pixels);
+    for (angle, series) in whole.filtered.series.iter().enumerate() {
+        for (k, &(iz, ix)) in pixels.iter().enumerate() {
+            let want: Vec<_> = (0..FRAMES).map(|t| series[[iz, ix, t]]).collect();
+            let got: Vec<_> = kept.series[angle].row(k).to_vec();
+            assert_eq!(got, want, "angle {angle}, pixel {:?}", (iz, ix));
+        }
+    }
+    let f = &whole.filtered;
+    let spectrogram = pcuvd::dynamics::SpectrogramParams {
+        window: 16,
+        step: 8,
+        nfft: 32,
+    };
+    let rates = (f.frame_rate, f.sound_speed, f.demodulation_frequency);
+    let from_kept =
+        pcuvd::dynamics::spectrogram_of_kept(&kept, 1, &f.angles, rates, &spectrogram).unwrap();
+    let from_images = pcuvd::dynamics::spectrogram(f, pixels[1], &spectrogram).unwrap();
+    assert_eq!(from_kept.power_db, from_images.power_db);
+    assert_eq!(from_kept.mean_velocity_m_s, from_images.mean_velocity_m_s);
 }
