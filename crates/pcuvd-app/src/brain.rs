@@ -473,8 +473,10 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         let mut out = Arc::into_inner(out).context("the run's maps are shared")?;
         // The filtered series (the largest thing a mode holds) has given all it will.
         out.filtered.series = Vec::new();
+        // A recording shorter than one spectrogram window has no spectrogram to show.
+        let long_enough = source.n_frames() >= SpectrogramParams::rat().window;
         let spectrograms = match &kept {
-            Some(kept) => (0..sites.len())
+            Some(kept) if long_enough => (0..sites.len())
                 .map(|k| {
                     let f = &out.filtered;
                     let rates = (f.frame_rate, f.sound_speed, f.demodulation_frequency);
@@ -488,7 +490,7 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
                 })
                 .collect::<pcuvd::Result<Vec<_>>>()
                 .context("brain study: spectrograms")?,
-            None => Vec::new(),
+            _ => Vec::new(),
         };
         let (ri, ri_skipped) = match dynamics {
             DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),

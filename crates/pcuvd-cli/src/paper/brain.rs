@@ -450,7 +450,11 @@ pub fn brain_figures(
         },
     )?);
     progress.update(task, 4, 5);
-    if !study.sites.is_empty() {
+    if study
+        .modes
+        .iter()
+        .any(|m| m.spectrograms.iter().any(Option::is_some))
+    {
         figs.push(spectrogram_figure(dir, study)?);
     }
     progress.update(task, 5, 5);

@@ -361,6 +361,8 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     ] {
         assert!(out.join(name).exists(), "{name} missing");
     }
+    // 32 frames are shorter than one spectrogram window (36): no spectrogram figure.
+    assert!(!out.join("fig8b_brain_spectrograms.png").exists());
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("Virtual rat brain"));
 
