@@ -837,3 +837,41 @@ pub fn ensemble_figure_in_chunks(
         size,
     )
 }
+
+/// A compounded Doppler spectrogram as an image panel: time (ms) across, axial velocity (mm/s,
+/// + = deeper) upward, power over the top 40 dB in grey, with `lines` drawn over it.
+pub fn spectrogram_panel(
+    title: String,
+    spec: &pcuvd::dynamics::Spectrogram,
+    lines: Vec<Polyline>,
+) -> pcuvd_render::ImagePanel {
+    let (t, v) = (&spec.times_s, &spec.velocities_m_s);
+    pcuvd_render::ImagePanel {
+        title,
+        data: spec.power_db.t().to_owned(),
+        x_mm: (t[0] * 1e3, t[t.len() - 1] * 1e3),
+        z_mm: (v[0] * 1e3, v[v.len() - 1] * 1e3),
+        colormap: Colormap::Gray,
+        range: (-40.0, 0.0),
+        colorbar_label: "dB".into(),
+        lines,
+        axes: Some(pcuvd_render::ImageAxes {
+            x_label: "time (ms)".into(),
+            y_label: "Vz (mm/s, + = deeper)".into(),
+            y_up: true,
+            fill: true,
+        }),
+        ..Default::default()
+    }
+}
+
+/// The spectrogram's mean Doppler velocity over time (the colour-Doppler estimate), dashed white.
+pub fn mean_doppler_line(spec: &pcuvd::dynamics::Spectrogram) -> Polyline {
+    Polyline {
+        x_mm: spec.times_s.iter().map(|t| t * 1e3).collect(),
+        z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
+        dashed: true,
+        rgb: (255, 255, 255),
+        label: "mean Doppler velocity (colour Doppler)".into(),
+    }
+}

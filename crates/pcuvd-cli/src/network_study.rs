@@ -15,7 +15,7 @@ use pcuvd::study::describe_alignment;
 use pcuvd::study::network::{
     DYNAMICS_KERNEL, ModeResult, NetworkMetrics, NetworkSettings, NetworkStudy, Site,
 };
-use pcuvd_render::{Colormap, Figure, ImageAxes, Panel, PlotPanel, Polyline, Report, SeriesStyle};
+use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
 use pcuvd_app::Progress;
 use pcuvd_app::figures::{
@@ -344,7 +344,6 @@ fn spectrogram_panel(
     truth: &NetworkTruth,
 ) -> pcuvd_render::ImagePanel {
     let (iz, ix) = site.pixel;
-    let t_ms: Vec<f64> = spec.times_s.iter().map(|t| t * 1e3).collect();
     let v_first = spec.velocities_m_s[0] * 1e3;
     let v_last = spec.velocities_m_s[spec.velocities_m_s.len() - 1] * 1e3;
     let series = &result.series;
@@ -368,13 +367,7 @@ fn spectrogram_panel(
         .map(|&t| sign * truth.psv[[iz, ix]] * waveform.value(t) * 1e3)
         .collect();
     let mut lines = vec![
-        Polyline {
-            x_mm: t_ms.clone(),
-            z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
-            dashed: true,
-            rgb: (255, 255, 255),
-            label: "mean Doppler velocity (colour Doppler)".into(),
-        },
+        pcuvd_app::figures::mean_doppler_line(spec),
         Polyline {
             x_mm: series.times_s.iter().map(|t| t * 1e3).collect(),
             z_mm: true_speed,
@@ -413,28 +406,13 @@ fn spectrogram_panel(
         }
     }
     let ri = result.ri.ri[[iz, ix]];
-    pcuvd_render::ImagePanel {
-        title: format!(
-            "{} — RI {:.2} (true {:.2})",
-            site.label,
-            ri,
-            truth.ri[[iz, ix]]
-        ),
-        data: spec.power_db.t().to_owned(),
-        x_mm: (t_ms[0], t_ms[t_ms.len() - 1]),
-        z_mm: (v_first, v_last),
-        colormap: Colormap::Gray,
-        range: (-40.0, 0.0),
-        colorbar_label: "dB".into(),
-        lines,
-        axes: Some(ImageAxes {
-            x_label: "time (ms)".into(),
-            y_label: "Vz (mm/s, + = deeper)".into(),
-            y_up: true,
-            fill: true,
-        }),
-        ..Default::default()
-    }
+    let title = format!(
+        "{} — RI {:.2} (true {:.2})",
+        site.label,
+        ri,
+        truth.ri[[iz, ix]]
+    );
+    pcuvd_app::figures::spectrogram_panel(title, spec, lines)
 }
 
 /// The network part of report.html.

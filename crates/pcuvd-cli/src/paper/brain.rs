@@ -12,11 +12,10 @@ use pcuvd_app::Progress;
 use pcuvd_app::brain::{BrainMetrics, BrainStudy, GroupScores, VectorScore};
 use pcuvd_app::figures::{
     PCUVD_RGB, PROFILE_LINE_RGB, PSV_UP_LABEL, Rendered, TRUTH_RGB, UVD_RGB, axial_velocity_panel,
-    class_map, line, map_panel, region_outline, render, shared_db_range, speed_scale, vector_panel,
+    class_map, line, map_panel, mean_doppler_line, region_outline, render, shared_db_range,
+    spectrogram_panel, speed_scale, vector_panel,
 };
-use pcuvd_render::{
-    Colormap, Figure, ImageAxes, ImagePanel, Panel, PlotPanel, Polyline, Report, SeriesStyle,
-};
+use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, SeriesStyle};
 
 /// The figures the brain part writes into the output folder.
 pub const BRAIN_FIGURES: [&str; 5] = [
@@ -482,13 +481,7 @@ fn spectrogram_figure(dir: &Path, study: &BrainStudy) -> Result<Rendered> {
                 label: label.into(),
             };
             let mut lines = vec![
-                Polyline {
-                    x_mm: t_ms.clone(),
-                    z_mm: spec.mean_velocity_m_s.iter().map(|v| v * 1e3).collect(),
-                    dashed: true,
-                    rgb: (255, 255, 255),
-                    label: "mean Doppler velocity (colour Doppler)".into(),
-                },
+                mean_doppler_line(spec),
                 level(
                     site.true_psv_m_s,
                     false,
@@ -506,29 +499,13 @@ fn spectrogram_figure(dir: &Path, study: &BrainStudy) -> Result<Rendered> {
                 .map(|r| r.ri[site.pixel])
                 .filter(|v| v.is_finite())
                 .map_or_else(|| "no RI".to_string(), |v| format!("RI {v:.2}"));
-            let velocities = &spec.velocities_m_s;
-            panels.push(Panel::Image(ImagePanel {
-                title: format!(
-                    "{}: {} — {ri} (true {:.2})",
-                    mode.method(),
-                    site.label,
-                    site.true_ri
-                ),
-                data: spec.power_db.t().to_owned(),
-                x_mm: span,
-                z_mm: (velocities[0] * 1e3, velocities[velocities.len() - 1] * 1e3),
-                colormap: Colormap::Gray,
-                range: (-40.0, 0.0),
-                colorbar_label: "dB".into(),
-                lines,
-                axes: Some(ImageAxes {
-                    x_label: "time (ms)".into(),
-                    y_label: "Vz (mm/s, + = deeper)".into(),
-                    y_up: true,
-                    fill: true,
-                }),
-                ..Default::default()
-            }));
+            let title = format!(
+                "{}: {} — {ri} (true {:.2})",
+                mode.method(),
+                site.label,
+                site.true_ri
+            );
+            panels.push(Panel::Image(spectrogram_panel(title, spec, lines)));
         }
     }
     render(
