@@ -433,6 +433,7 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
     let mut modes = Vec::new();
     let mut truth = None;
     let mut sites = Vec::new();
+    let mut scored = None;
     for mode in Mode::BOTH {
         let (name, method) = (mode.label(), mode.method());
         let clock = std::time::Instant::now();
@@ -460,6 +461,7 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             let cycle = averaged.cycle.as_ref().context("the tree's cycle truth")?;
             sites = spectrogram_sites(cycle, &lumen, &diameter, &averaged.z);
             truth = Some(averaged);
+            scored = Some((diameter, lumen));
         }
         plan.kept_pixels = sites.iter().map(|s| s.pixel).collect();
         let Processed {
@@ -478,15 +480,8 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         let spectrograms = match &kept {
             Some(kept) if long_enough => (0..sites.len())
                 .map(|k| {
-                    let f = &out.filtered;
-                    let rates = (f.frame_rate, f.sound_speed, f.demodulation_frequency);
-                    let zero = kept.compound(k)?.iter().all(|v| v.norm_sqr() == 0.0);
-                    if zero {
-                        return Ok(None);
-                    }
                     let params = SpectrogramParams::rat();
-                    pcuvd::dynamics::spectrogram_of_kept(kept, k, &f.angles, rates, &params)
-                        .map(Some)
+                    pcuvd::dynamics::spectrogram_of_kept(kept, k, &out.filtered, &params)
                 })
                 .collect::<pcuvd::Result<Vec<_>>>()
                 .context("brain study: spectrograms")?,
@@ -511,13 +506,10 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         });
     }
     let truth = truth.expect("two modes processed");
+    // The truth's grid was checked against the processing grid before the first run.
+    let (diameter_m, lumen) = scored.expect("two modes processed");
     let modes: [BrainMode; 2] = modes.try_into().map_err(|_| anyhow::anyhow!("two modes"))?;
     let clock = std::time::Instant::now();
-    let (diameter_m, lumen) = lumen_of(&simulation, &truth)?;
-    let grid = &modes[0].out.grid;
-    if grid.shape() != lumen.dim() {
-        bail!("brain study: the processing grid differs from the truth's (give no --grid)");
-    }
     let params = &simulation.modes[0].1;
     let wavelength = params.probe.wavelength(params.sound_speed);
     let metrics = score(
@@ -620,7 +612,7 @@ fn score(
         .iter()
         .map(|(label, from, to)| group(label.clone(), &|iz, _| z[iz] >= *from && z[iz] < *to))
         .collect();
-    let whole = ("all".to_string(), top, bottom + f64::EPSILON);
+    let whole = ("all".to_string(), top, f64::INFINITY);
     let false_detections = bands
         .iter()
         .chain([&whole])
@@ -911,8 +903,6 @@ mod tests {
         assert!((score.median_direction_error_deg - 180.0).abs() < 1e-6);
     }
 
-    /// RI scores count the lumen pixels of the selection: a pixel without an RI counts an error
-    /// of 1, and the class is right or wrong per pixel.
     /// Blood-free pixels of the band only: a detection on blood, or outside the band, is not
     /// false; an RI map counts its finite pixels.
     #[test]
@@ -937,6 +927,8 @@ mod tests {
         assert!((without.in_vessel_mask - 3.0 / 18.0).abs() < 1e-12);
     }
 
+    /// RI scores count the lumen pixels of the selection: a pixel without an RI counts an error
+    /// of 1, and the class is right or wrong per pixel.
     #[test]
     fn ri_scores_count_misses_as_full_errors() {
         let shape = (1, 4);

@@ -469,8 +469,8 @@ fn spectrogram_figure(dir: &Path, study: &BrainStudy) -> Result<Rendered> {
             let Some(Some(spec)) = mode.spectrograms.get(k) else {
                 continue;
             };
-            let t_ms: Vec<f64> = spec.times_s.iter().map(|t| t * 1e3).collect();
-            let span = (t_ms[0], t_ms[t_ms.len() - 1]);
+            let t = &spec.times_s;
+            let span = (t[0] * 1e3, t[t.len() - 1] * 1e3);
             // pcuvd's axial velocity is positive moving deeper: upward flow reads negative.
             let sign = if site.flows_up { -1.0 } else { 1.0 };
             let level = |v: f64, dashed: bool, label: &str| Polyline {

@@ -61,13 +61,8 @@ pub fn spectrogram(
     pixel: (usize, usize),
     params: &SpectrogramParams,
 ) -> Result<Spectrogram> {
-    let (filtered, angles) = (&images.series[..], &images.angles[..]);
-    let (frame_rate, sound_speed, center_frequency) = (
-        images.frame_rate,
-        images.sound_speed,
-        images.demodulation_frequency,
-    );
-    let (nz, nx, frames) = check_series(filtered, angles)?;
+    check_rates(images)?;
+    let (nz, nx, frames) = check_series(&images.series, &images.angles)?;
     let (iz, ix) = pixel;
     if iz >= nz || ix >= nx {
         return Err(invalid(
@@ -75,65 +70,39 @@ pub fn spectrogram(
             format!("({iz}, {ix}) is outside the {nz} × {nx} image"),
         ));
     }
-    let compound: Vec<Complex64> = (0..frames)
-        .map(|t| {
-            filtered.iter().fold(Complex64::new(0.0, 0.0), |acc, s| {
-                let v = s[[iz, ix, t]];
-                acc + Complex64::new(v.re as f64, v.im as f64)
-            })
-        })
-        .collect();
-    if compound.iter().all(|v| v.norm_sqr() == 0.0) {
-        return Err(invalid(
+    let kept = crate::form::images::PixelSeries::of(images, &[pixel], 0..frames)?;
+    spectrogram_of_kept(&kept, 0, images, params)?.ok_or_else(|| {
+        invalid(
             "pixel",
             format!("({iz}, {ix}) has no Doppler signal (its compounded series is zero)"),
-        ));
-    }
-    spectrogram_of_compound(
-        &compound,
-        angles,
-        (frame_rate, sound_speed, center_frequency),
-        params,
-    )
+        )
+    })
 }
 
-/// The spectrogram of pixel `k` of `kept` (the clutter-filtered series of a few pixels, as a
-/// segmented run keeps them), whose images had the `angles` (rad) and `(frame rate (Hz), sound
-/// speed (m/s), demodulation frequency (Hz))`: as [`spectrogram`] of that pixel.
+/// The images' frame rate, sound speed and demodulation frequency, each positive.
+fn check_rates(images: &AngleImages) -> Result<()> {
+    require_positive("frame rate", images.frame_rate)?;
+    require_positive("speed of sound", images.sound_speed)?;
+    require_positive("centre frequency", images.demodulation_frequency)
+}
+
+/// [`spectrogram`] of pixel `k` of `kept` (the clutter-filtered series of a few pixels, as a
+/// segmented run keeps them) of images described by `images` (their angles, frame rate, sound
+/// speed and demodulation frequency; their own series may be gone); `None` when the pixel's
+/// compounded series is zero (no Doppler signal to show).
 pub fn spectrogram_of_kept(
     kept: &crate::form::images::PixelSeries,
     k: usize,
-    angles: &[f64],
-    rates: (f64, f64, f64),
+    images: &AngleImages,
     params: &SpectrogramParams,
-) -> Result<Spectrogram> {
-    let compound = kept.compound(k)?;
-    if compound.iter().all(|v| v.norm_sqr() == 0.0) {
-        return Err(invalid(
-            "pixel",
-            format!(
-                "{:?} has no Doppler signal (its compounded series is zero)",
-                kept.pixels[k]
-            ),
-        ));
-    }
-    spectrogram_of_compound(&compound, angles, rates, params)
-}
-
-/// The spectrogram of a compounded slow-time series (the angles' series summed) of images with
-/// the `angles` (rad), `(frame rate (Hz), sound speed (m/s), demodulation frequency (Hz))`.
-fn spectrogram_of_compound(
-    compound: &[Complex64],
-    angles: &[f64],
-    (frame_rate, sound_speed, center_frequency): (f64, f64, f64),
-    params: &SpectrogramParams,
-) -> Result<Spectrogram> {
-    require_positive("frame rate", frame_rate)?;
-    require_positive("speed of sound", sound_speed)?;
-    require_positive("centre frequency", center_frequency)?;
+) -> Result<Option<Spectrogram>> {
+    check_rates(images)?;
+    let angles = &images.angles;
     if angles.is_empty() {
         return Err(invalid("angles", "a spectrogram needs at least one angle"));
     }
+    let (frame_rate, sound_speed) = (images.frame_rate, images.sound_speed);
+    let compound = kept.compound(k)?;
     let frames = compound.len();
     let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
     if params.nfft < params.window {
@@ -145,6 +114,10 @@ fn spectrogram_of_compound(
             ),
         ));
     }
+    if compound.iter().all(|v| v.norm_sqr() == 0.0) {
+        return Ok(None);
+    }
+    let center_frequency = images.demodulation_frequency;
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / angles.len() as f64;
     // Axial velocity per Hz of Doppler frequency.
     let per_hz = -sound_speed / (center_frequency * (1.0 + mean_cos));
@@ -191,7 +164,7 @@ fn spectrogram_of_compound(
     let peak = power.iter().copied().fold(0.0, f64::max);
     let power_db = power.mapv(|p| power_to_db((p / peak).max(1e-20)));
     let half = (params.window - 1) as f64 / 2.0;
-    Ok(Spectrogram {
+    Ok(Some(Spectrogram {
         times_s: (0..n_windows)
             .map(|k| ((k * params.step) as f64 + half) / frame_rate)
             .collect(),
@@ -199,5 +172,5 @@ fn spectrogram_of_compound(
         power_db,
         mean_velocity_m_s: mean_velocity,
         nyquist_m_s: 0.5 * frame_rate * per_hz.abs(),
-    })
+    }))
 }

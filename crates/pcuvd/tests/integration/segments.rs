@@ -573,9 +573,9 @@ fn kept_pixels_are_the_whole_series_at_those_pixels() {
         step: 8,
         nfft: 32,
     };
-    let rates = (f.frame_rate, f.sound_speed, f.demodulation_frequency);
-    let from_kept =
-        pcuvd::dynamics::spectrogram_of_kept(&kept, 1, &f.angles, rates, &spectrogram).unwrap();
+    let from_kept = pcuvd::dynamics::spectrogram_of_kept(&kept, 1, f, &spectrogram)
+        .unwrap()
+        .expect("a pixel with signal");
     let from_images = pcuvd::dynamics::spectrogram(f, pixels[1], &spectrogram).unwrap();
     assert_eq!(from_kept.power_db, from_images.power_db);
     assert_eq!(from_kept.mean_velocity_m_s, from_images.mean_velocity_m_s);
