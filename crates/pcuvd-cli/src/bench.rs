@@ -32,12 +32,15 @@ pub struct BenchArgs {
     #[arg(required_unless_present = "scenario")]
     pub input: Option<PathBuf>,
     /// Time the simulation of this scenario (a shipped one's name or a .toml file) instead,
-    /// once, both modes as the scenario says.
+    /// once, the modes the scenario says (or --mode).
     #[arg(long, conflicts_with = "input")]
     pub scenario: Option<String>,
     /// With --scenario: compound frames to simulate (default: the scenario's).
     #[arg(long, requires = "scenario")]
     pub frames: Option<usize>,
+    /// With --scenario: the transmit mode(s) to simulate (default: the scenario's).
+    #[arg(long, value_enum, requires = "scenario")]
+    pub mode: Option<pcuvd_app::scenario::ModeChoice>,
     /// Runs to time; each stage reports its median.
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
@@ -115,6 +118,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     let settings = SimulationSettings {
         scenario: Some(source.to_string()),
         frames: args.frames,
+        mode: args.mode,
         ..SimulationSettings::default()
     };
     let clock = Instant::now();

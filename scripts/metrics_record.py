@@ -1,0 +1,58 @@
+"""What the results scripts share: where a run was measured, its kept record, and the write-or-check
+of the data files they generate (scripts/paper-results, scripts/brain-results,
+scripts/speed-results import it from beside them).
+
+Python 3, standard library only.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def commit_of(built_from: str = "HEAD") -> str:
+    """The short commit `built_from` names in this repository."""
+    return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", built_from],
+                          capture_output=True, text=True, check=True).stdout.strip()
+
+
+def this_cpu() -> str:
+    """This machine's CPU model and core count, as the pages name it."""
+    model = next((line.split(":", 1)[1].strip() for line in
+                  Path("/proc/cpuinfo").read_text().splitlines()
+                  if line.startswith("model name")), "unknown")
+    return f"{model} ({os.cpu_count()} cores)"
+
+
+def json_text(value) -> str:
+    """A data or metrics file's text: indented, UTF-8 as written, one final newline."""
+    return json.dumps(value, indent=1, ensure_ascii=False) + "\n"
+
+
+def keep(folder: Path, name: str, record: dict) -> None:
+    """Writes `record` as folder/NAME.json."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{name}.json").write_text(json_text(record))
+
+
+def write_or_check(files: dict[Path, str], check: bool, script: str) -> int:
+    """Writes each file's text, or with `check` writes nothing and returns 1 when one differs."""
+    stale = []
+    for path, text in files.items():
+        if path.exists() and path.read_text() == text:
+            continue
+        if check:
+            stale.append(str(path.relative_to(ROOT)))
+        else:
+            path.write_text(text)
+            print(f"wrote {path.relative_to(ROOT)}")
+    if stale:
+        print(f"stale (run {script}):", ", ".join(stale), file=sys.stderr)
+        return 1
+    return 0
