@@ -67,7 +67,17 @@ pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's el
 pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least one wavelength \
     wide (the resolution cell's size): median |RI_estimated − RI_true| (a pixel without an RI \
     counts 1), and the fraction classed as the right kind (arteriole or venule) by the dynamics \
-    stage; `all_lumen` counts every lumen pixel whatever its vessel's width";
+    stage; `all_lumen` counts every lumen pixel whatever its vessel's width; the groups marked \
+    \"one class in the beam\" keep the pixels where at least 90 % of the blood in the elevation \
+    beam is of the class the truth names (the truth's RI is its main vessel's, while an estimate \
+    reads the blood-weighted mix of every vessel in the beam); `arterioles` and `venules` split \
+    the lumen pixels by the truth's class";
+
+/// Least share of a pixel's blood (elevation-weighted) of the truth's class for the RI groups
+/// scored on one class in the beam: where an artery and a vein share the beam (the pial and basal
+/// pairs run one above the other in elevation), the truth names the vessel with more blood but an
+/// estimate reads their mix.
+pub const SINGLE_CLASS_SHARE: f64 = 0.9;
 
 /// What the vessel-to-background ratio counts.
 pub const CONTRAST_DEFINITION: &str = "per depth band: 10·log10 of the mean power Doppler over \
@@ -658,6 +668,24 @@ fn score(
             d >= from && d < to
         }));
     }
+    let one_class = |iz: usize, ix: usize| cycle.class_share[[iz, ix]] >= SINGLE_CLASS_SHARE;
+    ri.push(ri_group(
+        &format!(
+            "vessels ≥ {:.0} µm, one class in the beam",
+            wavelength * 1e6
+        ),
+        &|iz, ix| diameter_m[[iz, ix]] >= wavelength && one_class(iz, ix),
+    ));
+    ri.push(ri_group(
+        "all lumen pixels, one class in the beam",
+        &one_class,
+    ));
+    // Veins are steady and slow, arteries pulsatile: the two kinds fail differently.
+    for (class, label) in [(ARTERIOLE, "arterioles"), (VENULE, "venules")] {
+        ri.push(ri_group(label, &|iz, ix| {
+            cycle.vessel_class[[iz, ix]] == class
+        }));
+    }
 
     // Whole-millimetre bands over the lumen's depth.
     let band_m = 1e-3;
@@ -940,6 +968,7 @@ mod tests {
                 .unwrap(),
             flow_up: Array2::from_elem(shape, true),
             vessel_index: Array2::from_elem(shape, 0),
+            class_share: Array2::from_elem(shape, 1.0),
         };
         let est = RiMaps {
             ri: Array2::from_shape_vec(shape, vec![0.72, f64::NAN, 0.2, 0.6]).unwrap(),

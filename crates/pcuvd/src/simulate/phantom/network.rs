@@ -306,6 +306,11 @@ pub struct NetworkTruth {
     pub flow_up: Array2<bool>,
     /// Index of the vessel at each pixel (`usize::MAX` outside).
     pub vessel_index: Array2<usize>,
+    /// Share (0–1) of the blood in the pixel's elevation beam that is of class `vessel_class`:
+    /// below 1 where vessels of other classes share the beam, whose flow any estimate mixes
+    /// in (1 in every vessel pixel of this network, whose truth is the plane's own cut; 0
+    /// outside vessels).
+    pub class_share: Array2<f64>,
 }
 
 impl NetworkTruth {
@@ -383,6 +388,7 @@ impl NetworkPhantom {
             vessel_class: Array2::from_elem(shape, BACKGROUND),
             flow_up: Array2::from_elem(shape, false),
             vessel_index: Array2::from_elem(shape, usize::MAX),
+            class_share: Array2::zeros(shape),
         };
         for (iz, &zz) in z.iter().enumerate() {
             for (ix, &xx) in x.iter().enumerate() {
@@ -396,6 +402,7 @@ impl NetworkPhantom {
                 t.vessel_class[[iz, ix]] = v.kind.class_code();
                 t.flow_up[[iz, ix]] = v.flows_up();
                 t.vessel_index[[iz, ix]] = i;
+                t.class_share[[iz, ix]] = 1.0;
             }
         }
         t

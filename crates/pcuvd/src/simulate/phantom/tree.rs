@@ -32,7 +32,7 @@ use super::{MAX_SCATTERERS, Phantom, Truth, rng};
 use crate::core::error::{Result, invalid, require_positive};
 use crate::core::vessel::BACKGROUND;
 use crate::simulate::elevation::ElevationAperture;
-use crate::simulate::vascular::{SegmentFlow, VascularFlow};
+use crate::simulate::vascular::{SegmentFlow, VascularFlow, VesselClass};
 
 /// How blood fills a tree.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -258,7 +258,7 @@ impl TreePhantom {
                             let w = weight[iz][iy];
                             let profile = 1.0 - (r / radius).powi(2);
                             let v = s.velocity_at(&p, t).expect("inside the segment");
-                            acc.add(iz, ix, id, w, v, profile);
+                            acc.add(iz, ix, id, s.class, w, v, profile);
                         }
                     }
                 }
@@ -286,6 +286,8 @@ struct Accumulator {
     blood: Array2<f64>,
     velocity: [Array2<f64>; 3],
     profile: Array2<f64>,
+    /// Blood weight per class ([`VesselClass::index`]).
+    class_blood: [Array2<f64>; 3],
     /// Per pixel, the segment holding most weight and that weight, as segments are visited.
     best: Array2<(usize, f64)>,
     /// Per pixel, the weight of the segment being visited (segments are visited one at a time).
@@ -299,13 +301,25 @@ impl Accumulator {
             blood: zeros(),
             velocity: [zeros(), zeros(), zeros()],
             profile: zeros(),
+            class_blood: [zeros(), zeros(), zeros()],
             best: Array2::from_elem((nz, nx), (usize::MAX, 0.0)),
             current: Array2::from_elem((nz, nx), (usize::MAX, 0.0)),
         }
     }
 
-    fn add(&mut self, iz: usize, ix: usize, id: usize, w: f64, v: [f64; 3], profile: f64) {
+    #[allow(clippy::too_many_arguments)]
+    fn add(
+        &mut self,
+        iz: usize,
+        ix: usize,
+        id: usize,
+        class: VesselClass,
+        w: f64,
+        v: [f64; 3],
+        profile: f64,
+    ) {
         self.blood[[iz, ix]] += w;
+        self.class_blood[class.index()][[iz, ix]] += w;
         for (acc, v) in self.velocity.iter_mut().zip(v) {
             acc[[iz, ix]] += w * v;
         }
@@ -333,6 +347,7 @@ impl Accumulator {
             vessel_class: Array2::from_elem((nz, nx), BACKGROUND),
             flow_up: Array2::from_elem((nz, nx), false),
             vessel_index: Array2::from_elem((nz, nx), usize::MAX),
+            class_share: Array2::zeros((nz, nx)),
         };
         for ((iz, ix), &blood) in self.blood.indexed_iter() {
             if blood <= 0.0 {
@@ -354,6 +369,7 @@ impl Accumulator {
             let dz = s.end[2] - s.start[2];
             cycle.flow_up[[iz, ix]] = s.mean_flow * dz < 0.0;
             cycle.vessel_index[[iz, ix]] = id;
+            cycle.class_share[[iz, ix]] = self.class_blood[s.class.index()][[iz, ix]] / blood;
         }
         TreeTruth {
             truth,
@@ -412,7 +428,9 @@ fn axes(u: [f64; 3]) -> [[f64; 3]; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::vascular::{FlowParams, VesselClass, VesselGraph, solve};
+    use crate::simulate::vascular::{
+        Boundary, BoundaryKind, Edge, FlowParams, VesselClass, VesselGraph, solve,
+    };
 
     /// One 60 µm arteriole from `a` to `b` (m), driven by a pulsatile pressure drop.
     fn vessel(a: [f64; 3], b: [f64; 3]) -> VascularFlow {
@@ -494,6 +512,72 @@ mod tests {
         let flat = tree.plane_truth(&x, &z, t, None);
         assert!(flat.truth.mask[[0, 0]]);
         assert_eq!(flat.blood_fraction[[0, 0]], 1.0);
+    }
+
+    #[test]
+    fn an_artery_and_a_vein_in_one_beam_share_its_blood_by_the_beams_weight_on_each() {
+        // A 60 µm artery and an 80 µm vein along x at one depth, 0.105 mm either side of the
+        // plane in elevation, as the pial and basal pairs run: every pixel on their axis holds
+        // both, and each holds the beam's two-way power over its lumen's chord in y (no
+        // elevation sample falls on a wall).
+        let (z, y) = (4e-3, 0.105e-3);
+        let pressure = |vertex, value, pulse| Boundary {
+            vertex,
+            kind: BoundaryKind::Pressure,
+            value,
+            pulse,
+        };
+        let edge = |v1, v2, diameter, class| Edge {
+            v1,
+            v2,
+            diameter,
+            length: None,
+            class,
+        };
+        let graph = VesselGraph {
+            vertices: vec![[-1e-3, -y, z], [1e-3, -y, z], [-1e-3, y, z], [1e-3, y, z]],
+            edges: vec![
+                edge(0, 1, 60e-6, VesselClass::Arteriole),
+                edge(3, 2, 80e-6, VesselClass::Venule),
+            ],
+            boundaries: vec![
+                pressure(0, 1500.0, 800.0),
+                pressure(1, 1400.0, 0.0),
+                pressure(3, 1450.0, 0.0),
+                pressure(2, 1400.0, 0.0),
+            ],
+        };
+        let flow = solve(&graph, &FlowParams::rat()).unwrap();
+        let tree = TreePhantom::new(flow, TreeSpec::default_blood(), 1).unwrap();
+        let aperture = ElevationAperture::l22_14vx();
+        let seen = tree.plane_truth(&[0.0], &[z], 0.0, Some((&aperture, 1540.0 / 15.625e6)));
+        assert_eq!(seen.cycle.vessel_class[[0, 0]], crate::core::vessel::VENULE);
+        // The beam's weight on the 10 µm elevation samples within each lumen.
+        let lambda = 1540.0 / 15.625e6;
+        let within = |centre: f64, radius: f64| -> f64 {
+            (-40..=40)
+                .map(|i| i as f64 * 10e-6)
+                .filter(|yy| (yy - centre).abs() <= radius)
+                .map(|yy| aperture.one_way(lambda, yy, z).norm_sqr().powi(2))
+                .sum()
+        };
+        let (vein, artery) = (within(y, 40e-6), within(-y, 30e-6));
+        let share = seen.cycle.class_share[[0, 0]];
+        let expected = vein / (vein + artery);
+        assert!(
+            (share - expected).abs() < 1e-9,
+            "vein's share {share}, not {expected}"
+        );
+        // The truth names the vessel holding most of the blood: the share is a majority.
+        assert!(share > 0.5 && share < 1.0, "{share}");
+        // Off both vessels: no blood, no share.
+        let away = tree.plane_truth(
+            &[0.0],
+            &[z + 1e-3],
+            0.0,
+            Some((&aperture, 1540.0 / 15.625e6)),
+        );
+        assert_eq!(away.cycle.class_share[[0, 0]], 0.0);
     }
 
     #[test]
