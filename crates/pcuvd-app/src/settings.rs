@@ -480,6 +480,11 @@ pub struct DynamicsSettings {
     /// cell's centroid reliably.
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = DynamicsSettings::default().dynamics_partial_volume))]
     pub dynamics_partial_volume: Switch,
+    /// Debias each pixel's fitted cardiac waveform for the windows' estimation noise before its
+    /// PSV and EDV are read (each harmonic's power less the noise's share): a steady, slow vein's
+    /// window-to-window jitter otherwise reads as a pulse and its RI as an arteriole's.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = DynamicsSettings::default().ri_debias))]
+    pub ri_debias: Switch,
     /// Vessel pooling for the RI maps, half-length (mm) along the flow: each pixel's waveform
     /// shape is averaged over same-direction neighbours in an ellipse aligned with its flow (RI
     /// does not change with the lumen's velocity profile nor along a vessel, only the jitter
@@ -513,6 +518,11 @@ impl Default for DynamicsSettings {
             vessel_local_radius_mm: dynamics::VESSEL_LOCAL_RADIUS_M * 1e3,
             dynamics_kernel: kernel_text(dynamics::RI_KERNEL),
             dynamics_partial_volume: Switch::Off,
+            ri_debias: if rat.debias_harmonics {
+                Switch::On
+            } else {
+                Switch::Off
+            },
             pool_along_mm: VesselPooling::DEFAULT_ALONG_M * 1e3,
             pool_across_mm: VesselPooling::DEFAULT_ACROSS_M * 1e3,
             pool_max_angle_deg: VesselPooling::DEFAULT_MAX_ANGLE_DEG,
@@ -633,6 +643,7 @@ impl DynamicsSettings {
             vein_ri_max: self.vein_ri_max,
             min_power_db: self.vessel_threshold_db,
             pooling,
+            debias_harmonics: self.ri_debias == Switch::On,
             ..DynamicsParams::rat()
         };
         params

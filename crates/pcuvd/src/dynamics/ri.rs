@@ -136,10 +136,18 @@ pub fn ri_maps_triggered(
             .harmonics
             .unwrap_or_else(|| auto_harmonics(rate, series.window_s))
     };
+    let overlap = series.window_s / series.step_s;
+    let fit_of = |fit: &HarmonicFit, lane: &[f64]| {
+        if params.debias_harmonics {
+            fit.debiased(lane)
+        } else {
+            fit.smooth(lane)
+        }
+    };
     // Beat-to-beat cycles (triggers, upstrokes) have durations of their own: no one period fits.
     let per_cycle_means = matches!(found.source, CycleSource::Triggers | CycleSource::Upstrokes);
     let global_fit = (!per_cycle_means)
-        .then(|| HarmonicFit::new(&series.times_s, hr, harmonics_at(hr)))
+        .then(|| HarmonicFit::new(&series.times_s, hr, harmonics_at(hr), overlap))
         .flatten();
     // Each cycle fitted on its own, at its own period: for the spread across cycles, and for the
     // means when the cycles differ in duration.
@@ -147,7 +155,12 @@ pub fn ri_maps_triggered(
         .iter()
         .map(|&(start, end)| {
             let rate = 1.0 / ((end - start) as f64 * series.step_s);
-            HarmonicFit::new(&series.times_s[start..end], rate, harmonics_at(rate))
+            HarmonicFit::new(
+                &series.times_s[start..end],
+                rate,
+                harmonics_at(rate),
+                overlap,
+            )
         })
         .collect();
     let pixels: Vec<PixelCycles> = (0..nz * nx)
@@ -163,14 +176,14 @@ pub fn ri_maps_triggered(
                 .zip(&cycle_fits)
                 .map(|(&(start, end), fit)| {
                     let lane = &raw[start..end];
-                    let smooth = fit.as_ref().and_then(|f| f.smooth(lane));
+                    let smooth = fit.as_ref().and_then(|f| fit_of(f, lane));
                     psv_edv_unchecked(smooth.as_deref().unwrap_or(lane), &[(0, end - start)])
                 })
                 .collect();
             let (psv, edv) = if per_cycle_means {
                 mean_finite_pairs(&per_cycle)
             } else {
-                let smooth = global_fit.as_ref().and_then(|f| f.smooth(&raw));
+                let smooth = global_fit.as_ref().and_then(|f| fit_of(f, &raw));
                 psv_edv_unchecked(smooth.as_deref().unwrap_or(&raw), &cycles)
             };
             let ri = resistivity_index(psv, edv);
