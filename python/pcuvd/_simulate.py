@@ -18,7 +18,9 @@ class Truth:
 
     x (nx), z (nz) in m; vx, vz (nz, nx) in m/s at t = 0 (vx > 0 toward +x, vz > 0 deeper);
     mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
-    edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up.
+    edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up, and
+    class_share: the share of each pixel's blood of the class named (below 1 where an artery and
+    a vein share the elevation beam of the rat brain).
     With tissue (tissue_db=..., or the rat brain) also `tissue`: its velocity vx, vz (nz, nx) in
     m/s at t = 0, and its displacement from t = 0 (frames, nz, 3: x, y, z) in m at each frame. For the three-dimensional rat brain also vy (nz, nx), the out-of-plane velocity
     (m/s), and blood_fraction (nz, nx), the blood's share of each pixel's elevation beam; its
@@ -82,7 +84,7 @@ def simulate(
         given.update(noise_db="off" if noise_db is None else noise_db)
     settings = _checks.to_options("simulate", given, _pcuvd.option_names_of("simulate"))
     recordings, arrays = _pcuvd.simulate(settings, bool(quiet))
-    cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up")
+    cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up", "class_share")
     truth = Truth(
         x=arrays["x"],
         z=arrays["z"],

@@ -56,6 +56,11 @@ def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri()
     cls, ri = truth.cycle["vessel_class"], truth.cycle["ri"]
     assert 0.55 < np.median(ri[cls == 1]) < 0.9
     assert np.median(ri[cls == 2]) < 0.5
+    # The pial artery and vein run side by side in elevation: the pixels on them hold both, and
+    # the class named holds only a share of their blood; elsewhere a vessel's class holds all.
+    share = truth.cycle["class_share"]
+    assert np.all((share[inside] > 0) & (share[inside] <= 1)) and np.all(share[~inside] == 0)
+    assert np.any(share[inside] < 0.9) and np.median(share[inside]) == 1.0
     # The displacement over the recording starts at 0, and one frame (1/14.4 kHz with one angle)
     # later it is the velocity map's times the frame period, to the motion's curvature over so
     # short a time.

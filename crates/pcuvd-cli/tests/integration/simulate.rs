@@ -391,6 +391,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
     for f in [
         "truth_ri.npy",
         "truth_vessel_class.npy",
+        "truth_class_share.npy",
         "conventional.toml",
         "coded.npy",
     ] {
@@ -435,6 +436,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
         "truth_edv.npy",
         "truth_vessel_class.npy",
         "truth_flow_up.npy",
+        "truth_class_share.npy",
         "conventional.toml",
         "conventional.npy",
     ] {
