@@ -41,6 +41,14 @@ def keep(folder: Path, name: str, record: dict) -> None:
     (folder / f"{name}.json").write_text(json_text(record))
 
 
+def replace_table(page: dict, table: dict, file_name: str) -> None:
+    """Puts `table` in place of the one table of its id in `page`'s content."""
+    blocks = [b for b in page["content"] if b.get("table", {}).get("id") == table["id"]]
+    if len(blocks) != 1:
+        raise SystemExit(f"{file_name}: expected one table `{table['id']}`, found {len(blocks)}")
+    blocks[0]["table"] = table
+
+
 def write_or_check(files: dict[Path, str], check: bool, script: str) -> int:
     """Writes each file's text, or with `check` writes nothing and returns 1 when one differs."""
     stale = []

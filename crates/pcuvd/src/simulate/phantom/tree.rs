@@ -32,7 +32,7 @@ use super::{MAX_SCATTERERS, Phantom, Truth, rng};
 use crate::core::error::{Result, invalid, require_positive};
 use crate::core::vessel::BACKGROUND;
 use crate::simulate::elevation::ElevationAperture;
-use crate::simulate::vascular::{SegmentFlow, VascularFlow, VesselClass};
+use crate::simulate::vascular::{SegmentFlow, VascularFlow};
 
 /// How blood fills a tree.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -232,7 +232,7 @@ impl TreePhantom {
         totals: &[f64],
     ) -> TreeTruth {
         let (nz, nx) = (z.len(), x.len());
-        let mut acc = Accumulator::new(nz, nx);
+        let mut acc = Accumulator::new(nz, nx, &self.flow.segments);
         for (id, s) in self.flow.segments.iter().enumerate() {
             let radius = 0.5 * s.diameter;
             let (lo, hi) = s.bounds();
@@ -258,7 +258,7 @@ impl TreePhantom {
                             let w = weight[iz][iy];
                             let profile = 1.0 - (r / radius).powi(2);
                             let v = s.velocity_at(&p, t).expect("inside the segment");
-                            acc.add(iz, ix, id, s.class, w, v, profile);
+                            acc.add(iz, ix, id, w, v, profile);
                         }
                     }
                 }
@@ -286,8 +286,10 @@ struct Accumulator {
     blood: Array2<f64>,
     velocity: [Array2<f64>; 3],
     profile: Array2<f64>,
-    /// Blood weight per class ([`VesselClass::index`]).
+    /// Blood weight per class ([`crate::simulate::vascular::VesselClass::index`]).
     class_blood: [Array2<f64>; 3],
+    /// Each segment's class index.
+    classes: Vec<usize>,
     /// Per pixel, the segment holding most weight and that weight, as segments are visited.
     best: Array2<(usize, f64)>,
     /// Per pixel, the weight of the segment being visited (segments are visited one at a time).
@@ -295,31 +297,22 @@ struct Accumulator {
 }
 
 impl Accumulator {
-    fn new(nz: usize, nx: usize) -> Self {
+    fn new(nz: usize, nx: usize, segments: &[SegmentFlow]) -> Self {
         let zeros = || Array2::<f64>::zeros((nz, nx));
         Accumulator {
             blood: zeros(),
             velocity: [zeros(), zeros(), zeros()],
             profile: zeros(),
             class_blood: [zeros(), zeros(), zeros()],
+            classes: segments.iter().map(|s| s.class.index()).collect(),
             best: Array2::from_elem((nz, nx), (usize::MAX, 0.0)),
             current: Array2::from_elem((nz, nx), (usize::MAX, 0.0)),
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn add(
-        &mut self,
-        iz: usize,
-        ix: usize,
-        id: usize,
-        class: VesselClass,
-        w: f64,
-        v: [f64; 3],
-        profile: f64,
-    ) {
+    fn add(&mut self, iz: usize, ix: usize, id: usize, w: f64, v: [f64; 3], profile: f64) {
         self.blood[[iz, ix]] += w;
-        self.class_blood[class.index()][[iz, ix]] += w;
+        self.class_blood[self.classes[id]][[iz, ix]] += w;
         for (acc, v) in self.velocity.iter_mut().zip(v) {
             acc[[iz, ix]] += w * v;
         }
@@ -369,7 +362,7 @@ impl Accumulator {
             let dz = s.end[2] - s.start[2];
             cycle.flow_up[[iz, ix]] = s.mean_flow * dz < 0.0;
             cycle.vessel_index[[iz, ix]] = id;
-            cycle.class_share[[iz, ix]] = self.class_blood[s.class.index()][[iz, ix]] / blood;
+            cycle.class_share[[iz, ix]] = self.class_blood[self.classes[id]][[iz, ix]] / blood;
         }
         TreeTruth {
             truth,
