@@ -18,10 +18,12 @@ def _outputs(folder: Path) -> dict[str, np.ndarray]:
 
 
 def _without_run_details(summary: dict) -> dict:
-    """The summary less what differs between two runs of the same work: timings, command line,
-    and the reader (the command reads a manifest's samples a block at a time, Python whole)."""
+    """The summary less what differs between two runs of the same work: timings, peak memory,
+    command line, and the reader (the command reads a manifest's samples a block at a time,
+    Python whole)."""
     summary = json.loads(json.dumps(summary))
     summary.pop("timings_s")
+    summary.pop("peak_resident_bytes")
     summary["source"].pop("command_line")
     summary["source"].pop("reader")
     return summary

@@ -102,14 +102,6 @@ fn median(mut values: Vec<f64>) -> f64 {
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
-/// Peak resident memory of this process so far (bytes), from /proc/self/status.
-fn peak_memory() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
-}
-
 /// Times the simulation of `args.scenario`.
 fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     use pcuvd::simulate::phantom::Phantom;
@@ -162,7 +154,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         "setup_s": setup_s,
         "simulate_s": simulate_s,
         "ns_per_echo": simulate_s / echoes * 1e9,
-        "peak_memory_bytes": peak_memory(),
+        "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
     println!(
         "pcuvd bench --scenario {source}: {} frames",
@@ -179,7 +171,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
          {echoes:.3e} echoes, {:.2} ns per echo",
         simulate_s / echoes * 1e9
     );
-    if let Some(bytes) = peak_memory() {
+    if let Some(bytes) = pcuvd_app::memory::peak_resident_memory() {
         println!("  memory       {:.0} MB at its peak", bytes as f64 / 1e6);
     }
     if let Some(path) = &args.json {
@@ -280,6 +272,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             "beamform_active_points_per_s": points * mean_active / elements as f64 / beamform_s,
             "mean_active_aperture_elements": mean_active,
         },
+        "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
     println!(
         "pcuvd bench: {} ({} runs, medians)",

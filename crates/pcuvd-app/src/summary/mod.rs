@@ -96,6 +96,7 @@ pub fn save(
         "maps_figures_and_dynamics".into(),
         processed.dynamics_s + clock.elapsed().as_secs_f64(),
     );
+    summary.peak_resident_bytes = crate::memory::peak_resident_memory();
     // Written last: a folder without summary.json is visibly incomplete.
     pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
     Ok(pngs)

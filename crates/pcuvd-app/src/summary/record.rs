@@ -53,6 +53,9 @@ pub struct Summary {
     pub zarr: Option<ZarrRecord>,
     /// Wall-clock seconds by stage.
     pub timings_s: BTreeMap<String, f64>,
+    /// The process's peak resident memory (bytes) when the summary was written, all outputs but
+    /// the summary written; `null` where the system does not say.
+    pub peak_resident_bytes: Option<u64>,
 }
 
 /// The run's Zarr store.
@@ -498,6 +501,7 @@ impl Summary {
             timings_s: (out.timings.iter())
                 .map(|(stage, seconds)| (stage.label().to_string(), *seconds))
                 .collect(),
+            peak_resident_bytes: None,
         }
     }
 }

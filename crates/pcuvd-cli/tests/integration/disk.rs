@@ -87,6 +87,13 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
     assert_eq!(source["pcuvd_version"], env!("CARGO_PKG_VERSION"));
     assert!(source["command_line"][1] == "process", "{source}");
     assert!(summary["timings_s"]["read"].as_f64().unwrap() >= 0.0);
+    // The process held the whole recording at once, so its peak is at least the file's size.
+    let recording_bytes = std::fs::metadata(&input).unwrap().len();
+    assert!(
+        summary["peak_resident_bytes"].as_u64().unwrap() > recording_bytes,
+        "{}",
+        summary["peak_resident_bytes"]
+    );
     let x: Array1<f64> = read_npy(out.path().join("x.npy")).unwrap();
     let z: Array1<f64> = read_npy(out.path().join("z.npy")).unwrap();
     let v: Array2<f64> = read_npy(out.path().join("color_doppler.npy")).unwrap();
