@@ -1,6 +1,7 @@
 //! The command's options over a scenario, and a scenario file simulated.
 
 use super::*;
+use crate::scenario::NoiseSection;
 use crate::scenario::tests::SMALL;
 
 #[test]
