@@ -159,21 +159,15 @@ pub enum Checksum {
     Sha256,
 }
 
-/// Size (bytes) and checksum (hex) of a file, in bounded memory whatever its length: BLAKE3 over
-/// the file mapped into memory, SHA-256 read in 8 MiB blocks.
+/// Size (bytes) and checksum (hex) of a file, read in 8 MiB blocks: neither the memory nor the
+/// process's resident size grows with the file (a file mapped into memory would count whole in
+/// the resident size that `summary.json` and batch schedulers report).
 pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
     use sha2::Digest;
     use std::io::Read;
-    if checksum == Checksum::Blake3 {
-        // Mapped, the bytes are hashed where the page cache holds them: no copy into a buffer.
-        let mut hasher = blake3::Hasher::new();
-        hasher
-            .update_mmap(path)
-            .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
-        return Ok((hasher.count(), hasher.finalize().to_hex().to_string()));
-    }
     let mut file = std::fs::File::open(path)
         .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
+    let mut blake3 = blake3::Hasher::new();
     let mut sha256 = sha2::Sha256::new();
     let mut buffer = vec![0u8; 8 << 20];
     let mut size = 0u64;
@@ -185,13 +179,21 @@ pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
             break;
         }
         size += n as u64;
-        sha256.update(&buffer[..n]);
+        match checksum {
+            Checksum::Blake3 => {
+                blake3.update(&buffer[..n]);
+            }
+            Checksum::Sha256 => sha256.update(&buffer[..n]),
+        }
     }
-    let hex = sha256
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect::<String>();
+    let hex = match checksum {
+        Checksum::Blake3 => blake3.finalize().to_hex().to_string(),
+        Checksum::Sha256 => sha256
+            .finalize()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect::<String>(),
+    };
     Ok((size, hex))
 }
 
@@ -255,6 +257,31 @@ mod tests {
                 (len as u64, hash.to_string())
             );
         }
+    }
+
+    /// A file of several read blocks hashes as its bytes do in one piece.
+    #[test]
+    fn fingerprints_join_the_read_blocks() {
+        use sha2::Digest;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("long");
+        let len = 2 * (8 << 20) + 12_345;
+        let bytes: Vec<u8> = (0..len)
+            .map(|i: usize| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+            .collect();
+        std::fs::write(&path, &bytes).unwrap();
+        assert_eq!(
+            fingerprint(&path, Checksum::Blake3).unwrap(),
+            (len as u64, blake3::hash(&bytes).to_hex().to_string())
+        );
+        let sha: String = sha2::Sha256::digest(&bytes)
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        assert_eq!(
+            fingerprint(&path, Checksum::Sha256).unwrap(),
+            (len as u64, sha)
+        );
     }
 
     #[test]
