@@ -36,9 +36,10 @@ def json_text(value) -> str:
 
 
 def keep(folder: Path, name: str, record: dict) -> None:
-    """Writes `record` as folder/NAME.json."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"{name}.json").write_text(json_text(record))
+    """Writes `record` as folder/NAME.json (NAME may name a subfolder)."""
+    path = folder / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json_text(record))
 
 
 def replace_table(page: dict, table: dict, file_name: str) -> None:
