@@ -328,6 +328,16 @@ def dealias_run(profile: str, noise_levels: int, all_runs: list[dict]) -> dict |
                default=None)
 
 
+def longer_study(all_runs: list[dict]) -> dict | None:
+    """The dealiasing study over several seeds with 400 frames, F# 0.75 and the partial-volume
+    correction: the settings that meet the 3× target on the parabolic tube."""
+    def longer(r: dict) -> bool:
+        s = r["metrics"]["dealias"]["settings"]
+        return ((s["frames"], s["f_number"], s["partial_volume"]) == (400, 0.75, True)
+                and len(s["seeds"]) > 1)
+    return next((r for r in all_runs if longer(r)), None)
+
+
 def tube_at_apertures(all_runs: list[dict], multiple: float = 3.0) -> dict | None:
     """Conventional UVD (LS), dealiased, without noise, on the parabolic tube at `multiple` ×
     v_N: the lumen within 10 % of the peak for each frame count and correction (rows) and
@@ -433,10 +443,7 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
     study = dealias_run("parabolic", 3, dealiasing)
     if not plain or not corrected or plug is None or study is None:
         return None
-    longer = [r for r in dealiasing
-              if (lambda s: (s["frames"], s["f_number"], s["partial_volume"]) == (400, 0.75, True)
-                  and len(s["seeds"]) > 1)(r["metrics"]["dealias"]["settings"])]
-    longer_run = longer[0] if longer else None
+    longer_run = longer_study(dealiasing)
 
     def calibrated(series: list[dict], kernel: list[int], axis: str) -> list[float]:
         return [averaged(r, kernel)["calibrated"]["rmse_mm_s"]["pcuvd_irls"][axis]
