@@ -1,6 +1,8 @@
-//! Array memory reused from one block of frames to the next.
+//! Array memory reused from one block of frames to the next, and complex samples seen as their
+//! floats.
 
 use ndarray::{Array, Dimension, IntoDimension};
+use num_complex::Complex32;
 use num_traits::Zero;
 
 /// An array of `shape` in `old`'s memory where that has room for it, else a new one: blocks of
@@ -25,6 +27,18 @@ pub fn array_reusing<T: Clone + Zero, D: Dimension>(
         None => vec![T::zero(); len],
     };
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
+/// Complex samples as their floats, (re, im) after each other.
+pub fn complex_floats(samples: &[Complex32]) -> &[f32] {
+    // SAFETY: `Complex<f32>` is `#[repr(C)]` { re, im }: two f32 each, no padding.
+    unsafe { std::slice::from_raw_parts(samples.as_ptr().cast(), 2 * samples.len()) }
+}
+
+/// [`complex_floats`], writable.
+pub fn complex_floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
+    // SAFETY: as in `complex_floats`; the borrow is unique.
+    unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
 }
 
 #[cfg(test)]

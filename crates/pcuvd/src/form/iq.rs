@@ -11,6 +11,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 
 use crate::acquisition::channel::{AngleSamples, AngleSamplesView};
+use crate::core::buffers::{complex_floats, complex_floats_mut};
 use crate::core::error::{Error, Result, invalid, require_positive};
 
 /// Baseband channel data of one angle, laid out (channels, samples, frames) so that the beamformer
@@ -207,18 +208,6 @@ fn fir_same_rows(x: &[Complex32], width: usize, taps: &[f32], y: &mut [Complex32
         }
     }
     fir_same_rows_floats(x, 2 * width, taps, y)
-}
-
-/// Complex samples as their floats, (re, im) after each other.
-pub(crate) fn complex_floats(samples: &[Complex32]) -> &[f32] {
-    // SAFETY: `Complex<f32>` is `#[repr(C)]` { re, im }: two f32 each, no padding.
-    unsafe { std::slice::from_raw_parts(samples.as_ptr().cast(), 2 * samples.len()) }
-}
-
-/// [`complex_floats`], writable.
-pub(crate) fn complex_floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
-    // SAFETY: as in `complex_floats`; the borrow is unique.
-    unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
 }
 
 /// [`fir_same_rows`] compiled for AVX-512 (the same sums: no fused multiply-adds).

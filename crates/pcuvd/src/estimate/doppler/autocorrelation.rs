@@ -33,17 +33,8 @@ pub fn autocorrelation(
         .and(series.lanes(Axis(2)))
         .par_for_each(|p, r, s| {
             let s = contiguous(&s);
-            let mut acc_p = 0.0f64;
-            let mut acc_r = Complex64::new(0.0, 0.0);
-            for (t, x) in s.iter().enumerate() {
-                acc_p += x.norm_sqr() as f64;
-                if let Some(next) = s.get(t + 1) {
-                    let v = x.conj() * next;
-                    acc_r += Complex64::new(v.re as f64, v.im as f64);
-                }
-            }
-            *p = acc_p / nf as f64;
-            *r = acc_r / (nf - 1) as f64;
+            *p = conj_dot(&s, &s).re / nf as f64;
+            *r = conj_dot(&s[..nf - 1], &s[1..]) / (nf - 1) as f64;
         });
     if kernel != (1, 1) {
         power = box_average(&power, kernel);
@@ -287,18 +278,9 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
                 // A pixel's frames are contiguous in a formed series: summed as slices, without
                 // an index computation per term.
                 let (a, b) = (contiguous(&a), contiguous(&b));
-                let (mut p, mut m) = (Complex64::new(0.0, 0.0), Complex64::new(0.0, 0.0));
-                for ((a0, a1), (b0, b1)) in a.iter().zip(&a[1..]).zip(b.iter().zip(&b[1..])) {
-                    let up = a0.conj() * b1;
-                    let down = a1.conj() * b0;
-                    p += Complex64::new(up.re as f64, up.im as f64);
-                    m += Complex64::new(down.re as f64, down.im as f64);
-                }
-                let mut q = Complex64::new(0.0, 0.0);
-                for (a0, b0) in a.iter().zip(b.iter()) {
-                    let same = a0.conj() * b0;
-                    q += Complex64::new(same.re as f64, same.im as f64);
-                }
+                let p = conj_dot(&a[..nf - 1], &b[1..]);
+                let m = conj_dot(&a[1..], &b[..nf - 1]);
+                let q = conj_dot(&a, &b);
                 let pairs = (nf - 1) as f64;
                 p_row[ix] = p / pairs;
                 m_row[ix] = m / pairs;
@@ -306,4 +288,111 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
             }
         });
     Ok(SpatialLag { plus, minus, same })
+}
+
+/// Σ_t conj(a_t)·b_t over two series of equal length, each product in f32 (the series'
+/// precision) and the sum in f64, so that long ensembles lose nothing to the sum.
+pub(super) fn conj_dot(a: &[Complex32], b: &[Complex32]) -> Complex64 {
+    assert_eq!(a.len(), b.len(), "series of equal length");
+    let (a, b) = (
+        crate::core::buffers::complex_floats(a),
+        crate::core::buffers::complex_floats(b),
+    );
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f") {
+            // SAFETY: AVX-512F was detected.
+            return unsafe { conj_dot_avx512(a, b) };
+        }
+        if is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 was detected.
+            return unsafe { conj_dot_avx2(a, b) };
+        }
+    }
+    conj_dot_floats(a, b)
+}
+
+/// [`conj_dot`] compiled for AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn conj_dot_avx512(a: &[f32], b: &[f32]) -> Complex64 {
+    conj_dot_floats(a, b)
+}
+
+/// [`conj_dot`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn conj_dot_avx2(a: &[f32], b: &[f32]) -> Complex64 {
+    conj_dot_floats(a, b)
+}
+
+/// [`conj_dot`] on the series' floats, (re, im) after each other. Re(conj(a)·b) = a_re·b_re +
+/// a_im·b_im is the sum of the floats' products in place; Im = a_re·b_im − a_im·b_re, of the
+/// products with each pair swapped, even floats added and odd ones subtracted. Kept in
+/// independent lanes, the sums vectorise where one running complex sum would wait on itself.
+#[inline(always)]
+fn conj_dot_floats(a: &[f32], b: &[f32]) -> Complex64 {
+    const LANES: usize = 16;
+    let mut same = [0.0f64; LANES];
+    let mut swapped = [0.0f64; LANES];
+    let (a_chunks, b_chunks) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let (a_rest, b_rest) = (a_chunks.remainder(), b_chunks.remainder());
+    for (x, y) in a_chunks.zip(b_chunks) {
+        for k in 0..LANES {
+            same[k] += (x[k] * y[k]) as f64;
+            swapped[k] += (x[k] * y[k ^ 1]) as f64;
+        }
+    }
+    // Whole complex samples remain, so each float's partner is among them.
+    for k in 0..a_rest.len() {
+        same[k] += (a_rest[k] * b_rest[k]) as f64;
+        swapped[k] += (a_rest[k] * b_rest[k ^ 1]) as f64;
+    }
+    let re = same.iter().sum();
+    let im = swapped.chunks_exact(2).map(|pair| pair[0] - pair[1]).sum();
+    Complex64::new(re, im)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The lag sums against the sum written out in f64, for series shorter and longer than a
+    /// vector's lanes and of odd lengths.
+    #[test]
+    fn conj_dot_is_the_sum_of_conjugate_products() {
+        for len in [0usize, 1, 2, 7, 8, 9, 17, 100, 361] {
+            let a: Vec<Complex32> = (0..len)
+                .map(|t| Complex32::new((0.37 * t as f32).sin(), (1.3 + 0.11 * t as f32).cos()))
+                .collect();
+            let b: Vec<Complex32> = (0..len)
+                .map(|t| Complex32::new(0.5 - (0.05 * t as f32).cos(), (0.21 * t as f32).sin()))
+                .collect();
+            let expected = a
+                .iter()
+                .zip(&b)
+                .fold(Complex64::new(0.0, 0.0), |acc, (x, y)| {
+                    let (x, y) = (
+                        Complex64::new(x.re as f64, x.im as f64),
+                        Complex64::new(y.re as f64, y.im as f64),
+                    );
+                    acc + x.conj() * y
+                });
+            let got = conj_dot(&a, &b);
+            // Each product is rounded in f32: a relative error of 2⁻²⁴ per term at most.
+            let bound = 1e-7
+                * a.iter()
+                    .zip(&b)
+                    .map(|(x, y)| (x.norm() * y.norm()) as f64)
+                    .sum::<f64>();
+            assert!(
+                (got - expected).norm() <= bound,
+                "len {len}: {got} vs {expected}"
+            );
+        }
+        let x = [Complex32::new(3.0, -4.0), Complex32::new(0.0, 2.0)];
+        let y = [Complex32::new(1.0, 2.0), Complex32::new(5.0, 0.0)];
+        // conj(3 − 4i)(1 + 2i) = −5 + 10i; conj(2i)·5 = −10i.
+        assert_eq!(conj_dot(&x, &y), Complex64::new(-5.0, 0.0));
+    }
 }

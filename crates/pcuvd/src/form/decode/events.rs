@@ -62,10 +62,10 @@ impl SlowTimeSample for Complex32 {
         samples[0] = lane;
     }
     fn floats(samples: &[Complex32]) -> &[f32] {
-        crate::form::iq::complex_floats(samples)
+        crate::core::buffers::complex_floats(samples)
     }
     fn floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
-        crate::form::iq::complex_floats_mut(samples)
+        crate::core::buffers::complex_floats_mut(samples)
     }
 }
 
