@@ -198,9 +198,26 @@ unsafe fn weighted_rows_avx2(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
 
 #[inline(always)]
 pub(super) fn weighted_rows_portable(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    dest.fill(0.0);
+    // A block of outputs at a time, summed over every source in registers: one pass over the
+    // sources, where a pass per source read and wrote the whole row each time.
+    const BLOCK: usize = 64;
+    let whole = dest.len() / BLOCK * BLOCK;
+    let (blocks, rest) = dest.split_at_mut(whole);
+    for (b, out) in blocks.chunks_exact_mut(BLOCK).enumerate() {
+        let mut sum = [0.0f32; BLOCK];
+        for (source, &wk) in sources.iter().zip(w) {
+            let source: &[f32; BLOCK] = source[b * BLOCK..(b + 1) * BLOCK]
+                .try_into()
+                .expect("a block of the row");
+            for (a, &x) in sum.iter_mut().zip(source) {
+                *a += x * wk;
+            }
+        }
+        out.copy_from_slice(&sum);
+    }
+    rest.fill(0.0);
     for (source, &wk) in sources.iter().zip(w) {
-        for (a, &x) in dest.iter_mut().zip(source.iter()) {
+        for (a, &x) in rest.iter_mut().zip(&source[whole..]) {
             *a += x * wk;
         }
     }

@@ -241,17 +241,14 @@ where
         let trace = &mut self.trace;
         for kept_f in 0..kept {
             for k in 0..n {
-                trace.fill(T::zero());
-                for i in 0..n {
-                    let weight = plan.matrix[k * n + i];
-                    if weight == 0.0 {
-                        continue;
-                    }
-                    let event = &self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
-                    for (a, &m) in trace.iter_mut().zip(event) {
-                        *a += m * weight;
-                    }
-                }
+                let (events, weights): (Vec<&[f32]>, Vec<f32>) = (0..n)
+                    .filter(|&i| plan.matrix[k * n + i] != 0.0)
+                    .map(|i| {
+                        let event = &self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
+                        (T::floats(event), plan.matrix[k * n + i])
+                    })
+                    .unzip();
+                weighted_rows(T::floats_mut(trace), &events, &weights);
                 shift(shifter, trace, plan.shifts[k]);
                 write(k, kept_f, trace);
             }
