@@ -3,16 +3,18 @@
 
 use ndarray::{Array, Dimension, IntoDimension};
 use num_complex::Complex32;
-use num_traits::Zero;
+use bytemuck::Zeroable;
+use rayon::prelude::*;
 
 /// An array of `shape` in `old`'s memory where that has room for it, else a new one: blocks of
 /// frames come one after another in sizes that differ a little (a recording's first and last),
 /// and fresh pages cost more to fault in and zero than the work done on them. The elements'
 /// values are unspecified (the old array's or zeros): callers write every one.
-pub fn array_reusing<T: Clone + Zero, D: Dimension>(
-    old: Option<Array<T, D>>,
-    shape: impl IntoDimension<Dim = D>,
-) -> Array<T, D> {
+pub fn array_reusing<T, D>(old: Option<Array<T, D>>, shape: impl IntoDimension<Dim = D>) -> Array<T, D>
+where
+    T: Clone + Zeroable + Send,
+    D: Dimension,
+{
     let shape = shape.into_dimension();
     let len = shape.size();
     let memory = old
@@ -21,12 +23,35 @@ pub fn array_reusing<T: Clone + Zero, D: Dimension>(
     // (Memory too small is dropped by now, before the new array is allocated.)
     let memory = match memory {
         Some(mut memory) => {
-            memory.resize(len, T::zero());
+            resize_zeroed(&mut memory, len);
             memory
         }
-        None => vec![T::zero(); len],
+        // Zeroed by the allocator: pages the system maps in zeroed on first touch, by the
+        // threads that first write them, rather than filled here on one.
+        None => bytemuck::zeroed_vec(len),
     };
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
+/// `memory` cut or lengthened to `len` elements, the new ones zero, written on every core: the
+/// first block of a recording reserves room for the largest, and the pages of that room are
+/// faulted in here.
+fn resize_zeroed<T: Zeroable + Send>(memory: &mut Vec<T>, len: usize) {
+    let old = memory.len();
+    if len <= old {
+        memory.truncate(len);
+        return;
+    }
+    memory.spare_capacity_mut()[..len - old]
+        .par_chunks_mut(1 << 16)
+        .for_each(|chunk| {
+            for v in chunk {
+                v.write(T::zeroed());
+            }
+        });
+    // SAFETY: the slice above reached `len` within the capacity (it panics short of it), and
+    // every element from `old` to `len` was written.
+    unsafe { memory.set_len(len) }
 }
 
 /// Complex samples as their floats, (re, im) after each other.

@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use ndarray::Array3;
 use ndarray_npy::npy::header::{Header, Layout};
 use num_complex::Complex32;
-use num_traits::Zero;
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::core::buffers::array_reusing;
 use pcuvd::{Acquisition, ChannelData, Samples};
@@ -204,7 +203,7 @@ impl ManifestFrames {
 
     /// The stored values of `events` converted by `f` into an array of `shape`, in `reuse`'s
     /// memory where it has room.
-    fn read_converted<T: bytemuck::Pod + Sync, U: Clone + Zero + Send>(
+    fn read_converted<T: bytemuck::Pod + Sync, U: Clone + bytemuck::Zeroable + Send>(
         &self,
         events: Range<usize>,
         shape: (usize, usize, usize),

@@ -15,7 +15,7 @@ pub(super) fn split<T: Copy + Send + Sync + Zero>(events: ArrayView3<T>, n: usiz
 }
 
 /// A sample type the [`SlowTimeAligner`] resamples, carried in complex lanes.
-pub(super) trait SlowTimeSample: Copy {
+pub(super) trait SlowTimeSample: Copy + bytemuck::Zeroable {
     /// Samples per complex lane: two real ones travel as the real and imaginary parts of one
     /// (the interpolator's weights and a real series' predictor are real, so they do not mix), a
     /// complex one alone.
