@@ -1,16 +1,19 @@
 //! Array memory reused from one block of frames to the next, and complex samples seen as their
 //! floats.
 
+use bytemuck::Zeroable;
 use ndarray::{Array, Dimension, IntoDimension};
 use num_complex::Complex32;
-use bytemuck::Zeroable;
 use rayon::prelude::*;
 
 /// An array of `shape` in `old`'s memory where that has room for it, else a new one: blocks of
 /// frames come one after another in sizes that differ a little (a recording's first and last),
 /// and fresh pages cost more to fault in and zero than the work done on them. The elements'
 /// values are unspecified (the old array's or zeros): callers write every one.
-pub fn array_reusing<T, D>(old: Option<Array<T, D>>, shape: impl IntoDimension<Dim = D>) -> Array<T, D>
+pub fn array_reusing<T, D>(
+    old: Option<Array<T, D>>,
+    shape: impl IntoDimension<Dim = D>,
+) -> Array<T, D>
 where
     T: Clone + Zeroable + Send,
     D: Dimension,

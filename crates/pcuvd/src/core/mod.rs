@@ -1,10 +1,11 @@
-//! Vocabulary every stage shares: the error type, order statistics, the time-of-flight
+//! Vocabulary every stage shares: the error type, order statistics, weighted sums of rows, the time-of-flight
 //! convention, the pixel grid and the vessel class codes. Nothing here imports a stage.
 
 pub mod buffers;
 pub mod error;
 pub mod geometry;
 pub mod grid;
+pub mod rows;
 pub mod stats;
 pub mod units;
 pub mod vessel;

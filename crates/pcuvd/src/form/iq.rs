@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use crate::acquisition::channel::{AngleSamples, AngleSamplesView};
 use crate::core::buffers::{complex_floats, complex_floats_mut};
 use crate::core::error::{Error, Result, invalid, require_positive};
+use crate::core::rows::weighted_rows;
 
 /// Baseband channel data of one angle, laid out (channels, samples, frames) so that the beamformer
 /// applies each delay to a whole batch of frames at once.
@@ -168,15 +169,27 @@ pub fn demodulate_into(
                     // output is laid out: each tap then multiplies a whole row of frames, which
                     // vectorises, where one trace at a time did not.
                     mixed.resize(n_samples * frames, Complex32::new(0.0, 0.0));
+                    // Each frame's trace as a slice, found once: a view sliced per band and
+                    // frame cost more than the samples it moved.
+                    let traces: Vec<std::borrow::Cow<[f32]>> = (0..frames)
+                        .map(|f| {
+                            let trace = rf.slice(s![f, ch, ..]);
+                            match trace.to_slice() {
+                                Some(trace) => std::borrow::Cow::Borrowed(trace),
+                                None => std::borrow::Cow::Owned(trace.to_vec()),
+                            }
+                        })
+                        .collect();
                     // A band of samples at a time, so that the rows it writes (every frame of
                     // each sample) stay in L1 while the traces are transposed into them.
                     const BAND: usize = 32;
                     for n0 in (0..n_samples).step_by(BAND) {
                         let n1 = (n0 + BAND).min(n_samples);
-                        for f in 0..frames {
-                            let trace = rf.slice(s![f, ch, n0..n1]);
-                            for (n, (&x, &w)) in trace.iter().zip(&mixer[n0..n1]).enumerate() {
-                                mixed[(n0 + n) * frames + f] = w * x;
+                        let band = &mut mixed[n0 * frames..n1 * frames];
+                        for (f, trace) in traces.iter().enumerate() {
+                            let rows = band.chunks_exact_mut(frames);
+                            for ((row, &x), &w) in rows.zip(&trace[n0..n1]).zip(&mixer[n0..n1]) {
+                                row[f] = w * x;
                             }
                         }
                     }
@@ -196,49 +209,14 @@ pub fn demodulate_into(
 fn fir_same_rows(x: &[Complex32], width: usize, taps: &[f32], y: &mut [Complex32]) {
     // A real tap scales the real and imaginary parts alike.
     let (x, y) = (complex_floats(x), complex_floats_mut(y));
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected.
-            return unsafe { fir_same_rows_avx512(x, 2 * width, taps, y) };
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 was detected.
-            return unsafe { fir_same_rows_avx2(x, 2 * width, taps, y) };
-        }
-    }
-    fir_same_rows_floats(x, 2 * width, taps, y)
-}
-
-/// [`fir_same_rows`] compiled for AVX-512 (the same sums: no fused multiply-adds).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn fir_same_rows_avx512(x: &[f32], width: usize, taps: &[f32], y: &mut [f32]) {
-    fir_same_rows_floats(x, width, taps, y)
-}
-
-/// [`fir_same_rows`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn fir_same_rows_avx2(x: &[f32], width: usize, taps: &[f32], y: &mut [f32]) {
-    fir_same_rows_floats(x, width, taps, y)
-}
-
-/// [`fir_same_rows`] on rows of `width` floats.
-#[inline(always)]
-fn fir_same_rows_floats(x: &[f32], width: usize, taps: &[f32], y: &mut [f32]) {
+    let width = 2 * width;
+    let rows: Vec<&[f32]> = x.chunks_exact(width).collect();
     let half = taps.len() / 2;
-    let n = x.len() / width.max(1);
+    let n = rows.len();
     for (i, out) in y.chunks_exact_mut(width).enumerate() {
         let lo = i.saturating_sub(half);
         let hi = (i + half + 1).min(n);
-        out.fill(0.0);
-        for j in lo..hi {
-            let tap = taps[j + half - i];
-            for (o, &v) in out.iter_mut().zip(&x[j * width..(j + 1) * width]) {
-                *o += v * tap;
-            }
-        }
+        weighted_rows(out, &rows[lo..hi], &taps[lo + half - i..hi + half - i]);
     }
 }
 

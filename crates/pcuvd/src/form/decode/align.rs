@@ -165,64 +165,6 @@ impl SlowTimeAligner {
     }
 }
 
-/// `dest` = Σ_k w[k]·sources[k], element by element, summed from zero in the order of k, with
-/// the widest vectors the CPU has (the same sums in any width: no fused multiply-adds).
-pub(super) fn weighted_rows(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected.
-            return unsafe { weighted_rows_avx512(dest, sources, w) };
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 was detected.
-            return unsafe { weighted_rows_avx2(dest, sources, w) };
-        }
-    }
-    weighted_rows_portable(dest, sources, w)
-}
-
-/// [`weighted_rows`] compiled for AVX-512.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn weighted_rows_avx512(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    weighted_rows_portable(dest, sources, w)
-}
-
-/// [`weighted_rows`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn weighted_rows_avx2(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    weighted_rows_portable(dest, sources, w)
-}
-
-#[inline(always)]
-pub(super) fn weighted_rows_portable(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    // A block of outputs at a time, summed over every source in registers: one pass over the
-    // sources, where a pass per source read and wrote the whole row each time.
-    const BLOCK: usize = 64;
-    let whole = dest.len() / BLOCK * BLOCK;
-    let (blocks, rest) = dest.split_at_mut(whole);
-    for (b, out) in blocks.chunks_exact_mut(BLOCK).enumerate() {
-        let mut sum = [0.0f32; BLOCK];
-        for (source, &wk) in sources.iter().zip(w) {
-            let source: &[f32; BLOCK] = source[b * BLOCK..(b + 1) * BLOCK]
-                .try_into()
-                .expect("a block of the row");
-            for (a, &x) in sum.iter_mut().zip(source) {
-                *a += x * wk;
-            }
-        }
-        out.copy_from_slice(&sum);
-    }
-    rest.fill(0.0);
-    for (source, &wk) in sources.iter().zip(w) {
-        for (a, &x) in rest.iter_mut().zip(&source[whole..]) {
-            *a += x * wk;
-        }
-    }
-}
-
 /// Working arrays of [`SlowTimeAligner::align_kept`] for one channel, kept by a worker from one
 /// channel to the next.
 pub(super) struct AlignScratch<T> {
