@@ -74,6 +74,28 @@ pub(super) fn predictor<'a>(
         return hold();
     }
     let p = order.min(ALIGN_ORDER);
+    let (mut gram, rhs) = if real {
+        real_normal_equations(series, p)
+    } else {
+        complex_normal_equations(series, p)
+    };
+    // A light ridge keeps the solve stable on series that are nearly constant or zero.
+    let scale = (0..p).map(|j| gram[j][j].re).fold(0.0, f64::max);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return hold();
+    }
+    for (j, row) in gram.iter_mut().enumerate() {
+        row[j] += 1e-6 * scale;
+    }
+    solve_small(gram, rhs).unwrap_or_else(hold)
+}
+
+/// The forward–backward normal equations (Gram matrix, right-hand side) of the order-`p`
+/// predictor of complex `series`.
+fn complex_normal_equations<'a>(
+    series: impl Iterator<Item = &'a [Complex32]>,
+    p: usize,
+) -> (Vec<Vec<Complex64>>, Vec<Complex64>) {
     const ZERO: Complex64 = Complex64::new(0.0, 0.0);
     // On the stack, and only the upper triangle: the Gram matrix is Hermitian, and the lower
     // triangle, conjugated from the upper, comes out bit for bit as summed term by term.
@@ -107,7 +129,7 @@ pub(super) fn predictor<'a>(
             add(&future, x[t - p].conj());
         }
     }
-    let mut gram: Vec<Vec<Complex64>> = (0..p)
+    let gram = (0..p)
         .map(|j| {
             (0..p)
                 .map(|k| {
@@ -120,25 +142,54 @@ pub(super) fn predictor<'a>(
                 .collect()
         })
         .collect();
-    if real {
-        for row in gram.iter_mut() {
-            for v in row.iter_mut() {
-                *v = Complex64::new(v.re, 0.0);
+    (gram, rhs)
+}
+
+/// [`complex_normal_equations`] of lanes that each carry two real series (real and imaginary
+/// parts), whose predictor is real: the real parts of that Gram matrix and right-hand side,
+/// Re(conj(u)·v) = u_re·v_re + u_im·v_im, summed alone — bit for bit the real parts of the
+/// complex sums (a conjugate only negates, exactly), at half their products.
+fn real_normal_equations<'a>(
+    series: impl Iterator<Item = &'a [Complex32]>,
+    p: usize,
+) -> (Vec<Vec<Complex64>>, Vec<Complex64>) {
+    let mut upper = [[0.0f64; ALIGN_ORDER]; ALIGN_ORDER];
+    let mut rhs = [0.0f64; ALIGN_ORDER];
+    let dot = |u: [f64; 2], v: [f64; 2]| u[0] * v[0] + u[1] * v[1];
+    let mut widened = [[0.0f64; 2]; ALIGN_FIT_FRAMES];
+    for narrow in series {
+        let x = &mut widened[..narrow.len()];
+        for (wide, v) in x.iter_mut().zip(narrow) {
+            *wide = [v.re as f64, v.im as f64];
+        }
+        for t in p..x.len() {
+            // Forward: x[t] from x[t − 1], …, x[t − p]; backward: x[t − p] from
+            // x[t − p + 1], …, x[t].
+            for j in 0..p {
+                for k in j..p {
+                    upper[j][k] += dot(x[t - 1 - j], x[t - 1 - k]);
+                }
+                rhs[j] += dot(x[t - 1 - j], x[t]);
+            }
+            for j in 0..p {
+                for k in j..p {
+                    upper[j][k] += dot(x[t - p + 1 + j], x[t - p + 1 + k]);
+                }
+                rhs[j] += dot(x[t - p + 1 + j], x[t - p]);
             }
         }
-        for v in rhs.iter_mut() {
-            *v = Complex64::new(v.re, 0.0);
-        }
     }
-    // A light ridge keeps the solve stable on series that are nearly constant or zero.
-    let scale = (0..p).map(|j| gram[j][j].re).fold(0.0, f64::max);
-    if !(scale > 0.0 && scale.is_finite()) {
-        return hold();
-    }
-    for (j, row) in gram.iter_mut().enumerate() {
-        row[j] += 1e-6 * scale;
-    }
-    solve_small(gram, rhs).unwrap_or_else(hold)
+    let gram = (0..p)
+        .map(|j| {
+            (0..p)
+                .map(|k| Complex64::new(if k >= j { upper[j][k] } else { upper[k][j] }, 0.0))
+                .collect()
+        })
+        .collect();
+    (
+        gram,
+        rhs[..p].iter().map(|&v| Complex64::new(v, 0.0)).collect(),
+    )
 }
 
 /// Solves a small complex linear system by Gaussian elimination with partial pivoting.
