@@ -1,8 +1,8 @@
-//! Array memory reused from one block of frames to the next, and complex samples seen as their
-//! floats.
+//! Array memory reused from one block of frames to the next, complex samples seen as their
+//! floats, and a 1-D view seen as a slice.
 
 use bytemuck::Zeroable;
-use ndarray::{Array, Dimension, IntoDimension};
+use ndarray::{Array, ArrayView1, Dimension, IntoDimension};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
@@ -67,6 +67,15 @@ pub fn complex_floats(samples: &[Complex32]) -> &[f32] {
 pub fn complex_floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
     // SAFETY: as in `complex_floats`; the borrow is unique.
     unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
+}
+
+/// A 1-D view's elements as a slice: borrowed where they lie contiguous (a pixel's frames in a
+/// formed series, a trace of a recording), else copied.
+pub fn contiguous<T: Clone>(view: ArrayView1<'_, T>) -> std::borrow::Cow<'_, [T]> {
+    match view.to_slice() {
+        Some(slice) => std::borrow::Cow::Borrowed(slice),
+        None => std::borrow::Cow::Owned(view.to_vec()),
+    }
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 
 use crate::acquisition::channel::{AngleSamples, AngleSamplesView};
-use crate::core::buffers::{complex_floats, complex_floats_mut};
+use crate::core::buffers::{complex_floats, complex_floats_mut, contiguous};
 use crate::core::error::{Error, Result, invalid, require_positive};
 use crate::core::rows::weighted_rows;
 
@@ -176,13 +176,7 @@ pub fn demodulate_into(
                     // Each frame's trace as a slice, found once: a view sliced per band and
                     // frame cost more than the samples it moved.
                     let traces: Vec<std::borrow::Cow<[f32]>> = (0..frames)
-                        .map(|f| {
-                            let trace = rf.slice(s![f, ch, ..]);
-                            match trace.to_slice() {
-                                Some(trace) => std::borrow::Cow::Borrowed(trace),
-                                None => std::borrow::Cow::Owned(trace.to_vec()),
-                            }
-                        })
+                        .map(|f| contiguous(rf.slice(s![f, ch, ..])))
                         .collect();
                     // A band of samples at a time, so that the rows it writes (every frame of
                     // each sample) stay in L2 while the traces are transposed into them, and

@@ -2,6 +2,7 @@
 //! over a kernel, and the spatial lags (axial, lateral) that give each echo's mean frequency.
 
 use super::*;
+use crate::core::buffers::contiguous;
 
 /// Power and lag-1 autocorrelation per pixel, shape (nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -32,7 +33,7 @@ pub fn autocorrelation(
         .and(&mut r1)
         .and(series.lanes(Axis(2)))
         .par_for_each(|p, r, s| {
-            let s = contiguous(&s);
+            let s = contiguous(s);
             *p = conj_dot(&s, &s).re / nf as f64;
             *r = conj_dot(&s[..nf - 1], &s[1..]) / (nf - 1) as f64;
         });
@@ -41,17 +42,6 @@ pub fn autocorrelation(
         r1 = box_average(&r1, kernel);
     }
     Ok(Autocorrelation { power, r1 })
-}
-
-/// A pixel's frames as a slice: borrowed where they lie contiguous (a formed series), else
-/// copied.
-pub(super) fn contiguous<'a>(
-    frames: &'a ndarray::ArrayView1<'_, Complex32>,
-) -> std::borrow::Cow<'a, [Complex32]> {
-    match frames.as_slice() {
-        Some(slice) => std::borrow::Cow::Borrowed(slice),
-        None => std::borrow::Cow::Owned(frames.to_vec()),
-    }
 }
 
 /// Refuses an averaging box with an even size (it would have no centre pixel).
@@ -277,7 +267,7 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
                 let (a, b) = (at(first), at(second));
                 // A pixel's frames are contiguous in a formed series: summed as slices, without
                 // an index computation per term.
-                let (a, b) = (contiguous(&a), contiguous(&b));
+                let (a, b) = (contiguous(a), contiguous(b));
                 let p = conj_dot(&a[..nf - 1], &b[1..]);
                 let m = conj_dot(&a[1..], &b[..nf - 1]);
                 let q = conj_dot(&a, &b);

@@ -239,16 +239,24 @@ where
         let n = plan.shifts.len();
         self.trace.resize(ns, T::zero());
         let trace = &mut self.trace;
-        for kept_f in 0..kept {
-            for k in 0..n {
-                let (events, weights): (Vec<&[f32]>, Vec<f32>) = (0..n)
+        // The events each slot gathers (a zero weight skips its event) and their weights, the
+        // same in every frame.
+        let gathered: Vec<(Vec<usize>, Vec<f32>)> = (0..n)
+            .map(|k| {
+                (0..n)
                     .filter(|&i| plan.matrix[k * n + i] != 0.0)
-                    .map(|i| {
-                        let event = &self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns];
-                        (T::floats(event), plan.matrix[k * n + i])
-                    })
-                    .unzip();
-                weighted_rows(T::floats_mut(trace), &events, &weights);
+                    .map(|i| (i, plan.matrix[k * n + i]))
+                    .unzip()
+            })
+            .collect();
+        let mut sources: Vec<&[f32]> = Vec::with_capacity(n);
+        for kept_f in 0..kept {
+            for (k, (events, weights)) in gathered.iter().enumerate() {
+                sources.clear();
+                sources.extend(events.iter().map(|&i| {
+                    T::floats(&self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns])
+                }));
+                weighted_rows(T::floats_mut(trace), &sources, weights);
                 shift(shifter, trace, plan.shifts[k]);
                 write(k, kept_f, trace);
             }
