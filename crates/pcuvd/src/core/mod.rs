@@ -1,5 +1,6 @@
-//! Vocabulary every stage shares: the error type, order statistics, weighted sums of rows, the time-of-flight
-//! convention, the pixel grid and the vessel class codes. Nothing here imports a stage.
+//! Vocabulary every stage shares: the error type, order statistics, weighted sums of rows, the
+//! time-of-flight convention, the pixel grid and the vessel class codes. Nothing here imports a
+//! stage.
 
 pub mod buffers;
 pub mod error;
