@@ -303,6 +303,9 @@ pub struct BrainMetrics {
     pub false_detections: Vec<FalseDetections>,
     /// What they count.
     pub false_detection_definition: &'static str,
+    /// The processing settings both recordings were processed with (f-number, Doppler kernel,
+    /// partial-volume correction, clutter cut-offs...), as `pcuvd process` takes them.
+    pub processing: ProcessingSettings,
     /// Wall-clock seconds: simulation (0 when cached), processing of each mode, scoring.
     pub timing_s: Vec<(String, f64)>,
 }
@@ -535,6 +538,7 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             scenario: &settings.scenario,
             frames: scenario.sequence.frames,
             noise_db: simulation.noise_db,
+            processing: &settings.processing,
         },
         timing,
         clock,

@@ -337,6 +337,7 @@ impl StudySettings {
             event_alignment: self.event_alignment.into(),
             grid_step_m: self.grid_step * 1e-3,
             doppler_estimator: self.doppler_estimator.into(),
+            doppler_kernel: crate::settings::parse_kernel(&self.doppler_kernel)?,
             partial_volume: self.partial_volume == Switch::On,
             f_number: self.f_number,
         };
@@ -465,6 +466,59 @@ mod tests {
     #[test]
     fn settings_read_back_as_they_were_written() {
         testing::reads_back_and_refuses_unknown_keys(&StudySettings::default());
+    }
+
+    /// The options the studies share reach every study that processes a recording, so that a
+    /// candidate default is scored everywhere with the same settings; an even kernel is refused
+    /// by each.
+    #[test]
+    fn every_study_gets_the_shared_processing_options() {
+        let given = StudySettings {
+            doppler_kernel: "5x1".into(),
+            partial_volume: Switch::On,
+            f_number: 1.0,
+            ..StudySettings::default()
+        };
+        let spiral = given.spiral_settings().unwrap();
+        let network = given.network_settings().unwrap();
+        let dealias = given.dealias_settings().unwrap();
+        let brain = given.brain_settings(None).unwrap().processing;
+        assert_eq!(
+            [
+                spiral.doppler_kernel,
+                network.doppler_kernel,
+                dealias.doppler_kernel
+            ],
+            [(5, 1); 3]
+        );
+        assert_eq!(
+            [
+                spiral.partial_volume,
+                network.partial_volume,
+                dealias.partial_volume
+            ],
+            [true; 3]
+        );
+        assert_eq!(
+            [
+                spiral.f_number,
+                network.f_number,
+                dealias.f_number,
+                brain.f_number
+            ],
+            [1.0; 4]
+        );
+        assert_eq!(
+            (brain.doppler_kernel.as_str(), brain.partial_volume),
+            ("5x1", Switch::On)
+        );
+        let even = StudySettings {
+            doppler_kernel: "4x1".into(),
+            ..StudySettings::default()
+        };
+        assert!(even.spiral_settings().is_err());
+        assert!(even.network_settings().is_err());
+        assert!(even.dealias_settings().is_err());
     }
 
     /// `--quick` changes only what is still at its default, and every study it reduces still

@@ -25,6 +25,7 @@ pub(super) struct ScoreContext<'a> {
     pub(super) scenario: &'a str,
     pub(super) frames: usize,
     pub(super) noise_db: Option<f64>,
+    pub(super) processing: &'a crate::settings::ProcessingSettings,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -188,6 +189,7 @@ pub(super) fn score(
         frames: context.frames,
         noise_db: context.noise_db,
         lumen_min_diameter_m: LUMEN_MIN_DIAMETER_M,
+        processing: context.processing.clone(),
         lumen_pixels: lumen.iter().filter(|&&l| l).count(),
         clutter_cut_offs: [0, 1].map(|m| {
             modes[m]

@@ -136,13 +136,7 @@ impl DealiasSettings {
                 "the study compares dealiasing with none: give \"auto\" or K",
             ));
         }
-        let (r, c) = self.doppler_kernel;
-        if r % 2 == 0 || c % 2 == 0 {
-            return Err(invalid(
-                "Doppler kernel",
-                format!("{r} × {c}: both sizes must be odd"),
-            ));
-        }
+        super::check_doppler_kernel(self.doppler_kernel)?;
         self.grid().map(|_| ())
     }
 

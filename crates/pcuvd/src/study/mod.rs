@@ -181,6 +181,18 @@ pub fn process_params(
     }
 }
 
+/// Refuses a Doppler averaging kernel (rows × columns of pixels) that is not odd in both sizes:
+/// the autocorrelation is averaged around each pixel, centred on it.
+pub fn check_doppler_kernel((rows, cols): (usize, usize)) -> Result<()> {
+    if rows % 2 == 0 || cols % 2 == 0 {
+        return Err(crate::core::error::invalid(
+            "Doppler kernel",
+            format!("{rows} × {cols}: both sizes must be odd"),
+        ));
+    }
+    Ok(())
+}
+
 /// Refuses, before anything is simulated, a Doppler `estimator` that a study's `grid` cannot
 /// serve for the acquisition `params` ([`crate::pipeline::check_doppler_estimator`]: Loupas on
 /// an axial step too coarse for it).

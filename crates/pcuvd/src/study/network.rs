@@ -60,6 +60,10 @@ pub struct NetworkSettings {
     pub grid_step_m: f64,
     /// Which frequency scales the Doppler phase (whole-recording maps and windows alike).
     pub doppler_estimator: DopplerEstimator,
+    /// Spatial averaging of the autocorrelation of the whole-recording maps (rows × columns of
+    /// pixels, odd; `pcuvd process --doppler-kernel`). The dynamics windows keep their own
+    /// [`DYNAMICS_KERNEL`].
+    pub doppler_kernel: (usize, usize),
     /// The partial-volume correction ([`crate::estimate::partial_volume`]) of the maps and of every
     /// dynamics window.
     pub partial_volume: bool,
@@ -80,6 +84,7 @@ impl Default for NetworkSettings {
             event_alignment: EventAlignment::MidFrame,
             grid_step_m: 0.05e-3,
             doppler_estimator: DopplerEstimator::default(),
+            doppler_kernel: (1, 1),
             partial_volume: false,
             f_number: DasParams::DEFAULT_F_NUMBER,
         }
@@ -128,6 +133,7 @@ impl NetworkSettings {
             return Err(invalid("noise level", "must be a finite number of dB"));
         }
         crate::core::error::require_positive("f-number", self.f_number)?;
+        super::check_doppler_kernel(self.doppler_kernel)?;
         if !(self.heart_rate_hz.is_finite() && self.heart_rate_hz > 0.0) {
             return Err(invalid(
                 "heart rate",
@@ -285,6 +291,10 @@ pub struct NetworkInfo {
     pub event_alignment: &'static str,
     /// Receive f-number of the beamformer.
     pub f_number: f64,
+    /// Spatial averaging of the whole-recording maps' autocorrelation (rows × columns of pixels).
+    pub doppler_kernel: (usize, usize),
+    /// Whether the partial-volume correction ran (maps and dynamics windows).
+    pub partial_volume: bool,
     /// Seed.
     pub seed: u64,
     /// Scatterers in the phantom.
@@ -421,7 +431,12 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         let process = ProcessParams {
             doppler_estimator: settings.doppler_estimator,
             partial_volume: settings.partial_volume,
-            ..process_params(&grid, &acquisition, (1, 1), settings.event_alignment)
+            ..process_params(
+                &grid,
+                &acquisition,
+                settings.doppler_kernel,
+                settings.event_alignment,
+            )
         };
         let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
@@ -482,6 +497,8 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             motion: settings.motion,
             event_alignment: settings.event_alignment.label(),
             f_number: settings.f_number,
+            doppler_kernel: settings.doppler_kernel,
+            partial_volume: settings.partial_volume,
             seed: settings.seed,
             scatterers: phantom.n_scatterers(),
             vessel_pixels: truth.mask().iter().filter(|&&m| m).count(),

@@ -127,13 +127,8 @@ impl SpiralSettings {
             return Err(invalid("noise level", "every level must be a finite dB"));
         }
         crate::core::error::require_positive("f-number", self.f_number)?;
-        for &(r, c) in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
-            if r % 2 == 0 || c % 2 == 0 || r == 0 || c == 0 {
-                return Err(invalid(
-                    "Doppler kernel",
-                    format!("{r} × {c}: both sizes must be odd"),
-                ));
-            }
+        for &kernel in std::iter::once(&self.doppler_kernel).chain(&self.averaging_kernels) {
+            super::check_doppler_kernel(kernel)?;
         }
         self.grid().map(|_| ())
     }
