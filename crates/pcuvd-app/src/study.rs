@@ -55,9 +55,13 @@ pub struct StudySettings {
     pub doppler_estimator: DopplerEstimatorOption,
     /// Every study with the partial-volume correction (`process --partial-volume`): each
     /// angle's projection moved from its resolution cell's power centroid to its pixel, in the
-    /// vector maps and in the vessel network's dynamics windows.
+    /// vector maps.
     #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().partial_volume))]
     pub partial_volume: Switch,
+    /// The partial-volume correction in the dynamics windows too (`process
+    /// --dynamics-partial-volume`), whose RI maps the network and the brain score.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = StudySettings::default().dynamics_partial_volume))]
+    pub dynamics_partial_volume: Switch,
     /// Receive f-number of the beamformer in every study (as `process --f-number`): the
     /// lateral size of each angle's resolution cell, which averages the velocity gradient
     /// inside it.
@@ -157,6 +161,7 @@ impl Default for StudySettings {
                 SpiralSettings::default().doppler_estimator,
             ),
             partial_volume: Switch::Off,
+            dynamics_partial_volume: DynamicsSettings::default().dynamics_partial_volume,
             f_number: SpiralSettings::default().f_number,
             calibrate_uvd_vx: "5.7".into(),
             averaging_kernels: default_averaging(),
@@ -339,6 +344,7 @@ impl StudySettings {
             doppler_estimator: self.doppler_estimator.into(),
             doppler_kernel: crate::settings::parse_kernel(&self.doppler_kernel)?,
             partial_volume: self.partial_volume == Switch::On,
+            dynamics_partial_volume: self.dynamics_partial_volume == Switch::On,
             f_number: self.f_number,
         };
         settings.validate().with_context(|| {
@@ -431,7 +437,10 @@ impl StudySettings {
                 None => crate::brain::default_cache(out),
             },
             processing,
-            dynamics: DynamicsSettings::default(),
+            dynamics: DynamicsSettings {
+                dynamics_partial_volume: self.dynamics_partial_volume,
+                ..DynamicsSettings::default()
+            },
         };
         // Checked now, not after a quarter of an hour of simulation.
         settings
@@ -512,6 +521,16 @@ mod tests {
             (brain.doppler_kernel.as_str(), brain.partial_volume),
             ("5x1", Switch::On)
         );
+        // The maps' correction leaves the RI windows as `process` leaves them; their own option
+        // reaches both studies that score RI.
+        assert!(!network.dynamics_partial_volume);
+        let windows = StudySettings {
+            dynamics_partial_volume: Switch::On,
+            ..StudySettings::default()
+        };
+        assert!(windows.network_settings().unwrap().dynamics_partial_volume);
+        let brain_windows = windows.brain_settings(None).unwrap().dynamics;
+        assert_eq!(brain_windows.dynamics_partial_volume, Switch::On);
         let even = StudySettings {
             doppler_kernel: "4x1".into(),
             ..StudySettings::default()

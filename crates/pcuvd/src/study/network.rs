@@ -64,9 +64,12 @@ pub struct NetworkSettings {
     /// pixels, odd; `pcuvd process --doppler-kernel`). The dynamics windows keep their own
     /// [`DYNAMICS_KERNEL`].
     pub doppler_kernel: (usize, usize),
-    /// The partial-volume correction ([`crate::estimate::partial_volume`]) of the maps and of every
-    /// dynamics window.
+    /// The partial-volume correction ([`crate::estimate::partial_volume`]) of the whole-recording
+    /// maps (`pcuvd process --partial-volume`).
     pub partial_volume: bool,
+    /// The same correction in every dynamics window, whose RI is scored (`pcuvd process
+    /// --dynamics-partial-volume`).
+    pub dynamics_partial_volume: bool,
     /// Receive f-number of the beamformer (depth / aperture width; `pcuvd process --f-number`):
     /// the lateral size of each angle's resolution cell, over which a velocity gradient is
     /// averaged.
@@ -86,6 +89,7 @@ impl Default for NetworkSettings {
             doppler_estimator: DopplerEstimator::default(),
             doppler_kernel: (1, 1),
             partial_volume: false,
+            dynamics_partial_volume: false,
             f_number: DasParams::DEFAULT_F_NUMBER,
         }
     }
@@ -122,7 +126,7 @@ impl NetworkSettings {
             },
             pooling,
             doppler: self.doppler_estimator,
-            partial_volume: self.partial_volume,
+            partial_volume: self.dynamics_partial_volume,
             ..DynamicsParams::rat()
         })
     }
@@ -293,8 +297,10 @@ pub struct NetworkInfo {
     pub f_number: f64,
     /// Spatial averaging of the whole-recording maps' autocorrelation (rows × columns of pixels).
     pub doppler_kernel: (usize, usize),
-    /// Whether the partial-volume correction ran (maps and dynamics windows).
+    /// Whether the partial-volume correction ran on the whole-recording maps.
     pub partial_volume: bool,
+    /// Whether it ran in the dynamics windows (the RI maps).
+    pub dynamics_partial_volume: bool,
     /// Seed.
     pub seed: u64,
     /// Scatterers in the phantom.
@@ -499,6 +505,7 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
             f_number: settings.f_number,
             doppler_kernel: settings.doppler_kernel,
             partial_volume: settings.partial_volume,
+            dynamics_partial_volume: settings.dynamics_partial_volume,
             seed: settings.seed,
             scatterers: phantom.n_scatterers(),
             vessel_pixels: truth.mask().iter().filter(|&&m| m).count(),
