@@ -96,11 +96,6 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     let data = recording(true);
     let params = params(&data, EventAlignment::MidFrame);
     let whole = series(&data, &params, Blocks::whole(FRAMES));
-    let peak = whole
-        .iter()
-        .flat_map(|s| s.iter())
-        .map(|v| v.norm())
-        .fold(0.0f32, f32::max);
     let projections = |images: Vec<Array3<Complex32>>| {
         let (template, _) = pipeline::form_images(&data, &params, &quiet).unwrap();
         let out = pipeline::analyse(template.with_series(images), &params, &quiet).unwrap();
@@ -142,12 +137,7 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
         (7, Blocks::ALIGNMENT_MARGIN),
     ] {
         let blocked = series(&data, &params, Blocks { frames, margin });
-        let image_error = blocked
-            .iter()
-            .zip(&whole)
-            .flat_map(|(a, b)| a.iter().zip(b.iter()).map(|(x, y)| (x - y).norm()))
-            .fold(0.0f32, f32::max)
-            / peak;
+        let image_error = largest_difference(&blocked, &whole);
         let v = projections(blocked);
         // Inside the tube (noise-only pixels have no velocity to compare).
         let flow: Vec<(f64, f64)> = v
