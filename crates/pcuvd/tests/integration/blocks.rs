@@ -24,26 +24,6 @@ fn params(data: &ChannelData, alignment: EventAlignment) -> ProcessParams {
     pcuvd::study::process_params(&grid, &data.acquisition, (1, 1), alignment)
 }
 
-/// Whether the beamformer sums every frame with the same arithmetic however the frames are
-/// blocked. Its AVX-512 kernel does (masked loads cover a run's last frames); the AVX2 kernel
-/// sums whole 4-frame vectors with fused multiply-adds and leaves the frames over to the
-/// portable loop, so a frame's last bits depend on where a block puts it. There, blocked images
-/// are held to the rounding of the sums instead of to the bit.
-fn frames_summed_alike() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
-        let avx512 = is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx512dq");
-        avx512 || !avx2
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    true
-}
-
-/// Float rounding of a pixel's sum over its receive taps, relative to the images' peak: the
-/// bound on AVX2 where frames are not summed alike (measured 4.5e-7).
-const ROUNDING: f32 = 2e-6;
-
 /// Largest difference between two image series, relative to the peak of `b`.
 fn largest_difference(a: &[Array3<Complex32>], b: &[Array3<Complex32>]) -> f32 {
     let peak = b
@@ -77,15 +57,7 @@ fn blocks_are_exact_where_every_frame_stands_alone() {
         assert_eq!(whole, reference.series);
         for frames in [1, 7, 16] {
             let blocked = series(&data, &params, Blocks { frames, margin: 0 });
-            if frames_summed_alike() {
-                assert_eq!(blocked, whole, "coded {coded}, blocks of {frames}");
-            } else {
-                let difference = largest_difference(&blocked, &whole);
-                assert!(
-                    difference <= ROUNDING,
-                    "coded {coded}, blocks of {frames}: {difference:e} of the peak"
-                );
-            }
+            assert_eq!(blocked, whole, "coded {coded}, blocks of {frames}");
         }
     }
 }
@@ -161,20 +133,16 @@ fn coded_mid_frame_blocks_stay_within_the_estimators_spread() {
     // alignment's reach, gives the whole-recording images exactly, as does a longer one.
     assert!(errors[1].0 < 0.1 * errors[0].0, "{errors:?}");
     assert!(errors[1].1 < 0.01 * spread, "{errors:?} against {spread}");
-    // Exact where the beamformer sums every frame alike; otherwise within its rounding, and the
-    // projections within a millionth of the estimator's own error.
-    let exact = |k: usize, what: &str| {
-        if frames_summed_alike() {
-            assert_eq!(errors[k], (0.0, 0.0), "{what}: {errors:?}");
-        } else {
-            assert!(
-                errors[k].0 <= ROUNDING && errors[k].1 <= 1e-6 * spread,
-                "{what}: {errors:?}"
-            );
-        }
-    };
-    exact(2, "default margin");
-    exact(3, "a longer margin");
-    exact(4, "a margin that reaches the ends is the whole path");
-    exact(5, "short blocks at the recording's ends");
+    assert_eq!(errors[2], (0.0, 0.0), "default margin: {errors:?}");
+    assert_eq!(errors[3], (0.0, 0.0), "a longer margin: {errors:?}");
+    assert_eq!(
+        errors[4],
+        (0.0, 0.0),
+        "a margin that reaches the ends is the whole path"
+    );
+    assert_eq!(
+        errors[5],
+        (0.0, 0.0),
+        "short blocks at the recording's ends: {errors:?}"
+    );
 }

@@ -17,7 +17,8 @@ pub(super) enum Kernel {
     /// vector of a run masked.
     #[cfg(target_arch = "x86_64")]
     Avx512,
-    /// Explicit AVX2 + FMA on interleaved complex frames.
+    /// Explicit AVX2 + FMA on interleaved complex frames, four frames per vector, the last
+    /// vector of a run masked.
     #[cfg(target_arch = "x86_64")]
     Avx2,
     /// Plain Rust, any target.
@@ -83,13 +84,12 @@ impl Kernel {
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if self == Kernel::Avx2 && out.len().is_multiple_of(4) && out.len() <= 4 * avx2::MAX_VECTORS
-        {
+        if self == Kernel::Avx2 && !out.is_empty() && out.len() <= 4 * avx2::MAX_VECTORS {
             // SAFETY: AVX2 and FMA were detected. Reads stay within `data`: each row index is
             // that of an element below the channel count and a sample i0 with
             // i0 + 1 < n_samples (the `Taps` invariant), frames below f0 + out.len() ≤ frames
-            // (asserted above); the tap arrays hold `end` entries and `rows` PF more (asserted
-            // above).
+            // (asserted above; the masked last vector reads and writes no frame beyond); the tap
+            // arrays hold `end` entries and `rows` PF more (asserted above).
             unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len) };
             return;
         }
@@ -98,35 +98,25 @@ impl Kernel {
 }
 
 /// Runs of frames that the kernel keeps in registers, of near-equal whole numbers of vectors and
-/// at most its register budget each; then, for a kernel without masked loads, the frames left
-/// over from whole vectors (summed by the portable loop). With masks, the last run ends in a
-/// partial vector instead.
+/// at most its register budget each, the last run ending in a partial (masked) vector.
 pub(super) fn frame_chunks(frames: usize, kernel: Kernel) -> Vec<std::ops::Range<usize>> {
     let simd = match kernel {
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx512 => Some((8, avx512::MAX_VECTORS, true)),
+        Kernel::Avx512 => Some((8, avx512::MAX_VECTORS)),
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 => Some((4, avx2::MAX_VECTORS, false)),
+        Kernel::Avx2 => Some((4, avx2::MAX_VECTORS)),
         Kernel::Portable => None,
     };
-    let Some((width, max, masked)) = simd else {
+    let Some((width, max)) = simd else {
         // One run of all the frames (not a list of its frame indices).
         #[allow(clippy::single_range_in_vec_init)]
         return vec![0..frames];
     };
-    let vectors = if masked {
-        frames.div_ceil(width)
-    } else {
-        frames / width
-    };
+    let vectors = frames.div_ceil(width);
     let n = vectors.div_ceil(max);
-    let mut chunks: Vec<_> = (0..n)
+    (0..n)
         .map(|i| width * (i * vectors / n)..(width * ((i + 1) * vectors / n)).min(frames))
-        .collect();
-    if width * vectors < frames {
-        chunks.push(width * vectors..frames);
-    }
-    chunks
+        .collect()
 }
 
 #[cfg(test)]

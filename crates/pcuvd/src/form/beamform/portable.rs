@@ -1,5 +1,5 @@
-//! The portable accumulation kernel: plain Rust, for any CPU, and for the frames left over from
-//! whole vectors by the AVX2 kernel.
+//! The portable accumulation kernel: plain Rust, for any CPU without AVX2 and FMA, and the
+//! reference that the SIMD kernels are tested against.
 
 use num_complex::Complex32;
 
