@@ -56,7 +56,7 @@ pub struct PaperArgs {
 /// Which of the paper's studies `pcuvd paper` runs.
 #[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
 pub enum Part {
-    /// Both studies.
+    /// Every study: the spiral, the network, the dealiasing tube and the brain.
     All,
     /// The spiral-flow simulation (Fig. 2–5, noise sweep).
     Spiral,
