@@ -35,6 +35,16 @@ def json_text(value) -> str:
     return json.dumps(value, indent=1, ensure_ascii=False) + "\n"
 
 
+def without_timings(numbers: dict) -> dict:
+    """A run's metrics.json without its timings (top level and each section's): they are the
+    machine's, not the run's result, and speed.md measures them on purpose."""
+    for part in [numbers, *numbers.values()]:
+        if isinstance(part, dict):
+            part.pop("timing_s", None)
+            part.pop("total_s", None)
+    return numbers
+
+
 def keep(folder: Path, name: str, record: dict) -> None:
     """Writes `record` as folder/NAME.json (NAME may name a subfolder)."""
     path = folder / f"{name}.json"
