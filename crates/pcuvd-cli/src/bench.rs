@@ -27,8 +27,8 @@ use serde_json::json;
 /// Arguments of `pcuvd bench`.
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// Recording to time (any format `pcuvd info` reads), processed with the default settings
-    /// and no dynamics stage.
+    /// Recording to time (any format `pcuvd info` reads), processed with the processing options
+    /// given (as `pcuvd process` takes them; its defaults otherwise) and no dynamics stage.
     #[arg(required_unless_present = "scenario")]
     pub input: Option<PathBuf>,
     /// Time the simulation of this scenario (a shipped one's name or a .toml file) instead,
@@ -47,6 +47,9 @@ pub struct BenchArgs {
     /// Also write the report as JSON (machine, commit-independent numbers) to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Processing options, for a recording: what a candidate setting costs.
+    #[command(flatten)]
+    pub options: ProcessingSettings,
 }
 
 /// The CPU's model name and the instruction sets that matter here, from /proc/cpuinfo.
@@ -106,6 +109,11 @@ fn median(mut values: Vec<f64>) -> f64 {
 fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     use pcuvd::simulate::phantom::Phantom;
     use pcuvd_app::simulation::{Simulation, SimulationSettings};
+    if args.options != ProcessingSettings::default() {
+        bail!(
+            "processing options time the processing of a recording; --scenario times a simulation"
+        );
+    }
     let (model, features, threads) = cpu();
     let settings = SimulationSettings {
         scenario: Some(source.to_string()),
@@ -210,7 +218,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         let opened = open_input(input, &pcuvd_io::Overrides::default())?;
         read_times.push(clock.elapsed().as_secs_f64());
         let data = opened.source.as_ref();
-        let plan = Plan::new(&ProcessingSettings::default(), &dynamics, data, None)?;
+        let plan = Plan::new(&args.options, &dynamics, data, None)?;
         let processed = pcuvd_app::run(data, &plan, &Silent)
             .with_context(|| format!("{}: processing failed", input.display()))?;
         total_times.push(clock.elapsed().as_secs_f64());
@@ -255,6 +263,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let report = json!({
         "input": input.display().to_string(),
         "runs": args.repeat,
+        "processing": &args.options,
         "machine": { "cpu": model, "features": features, "threads": threads },
         "memory_bandwidth_bytes_per_s": { "one_core": copy_one, "all_cores": copy_all },
         "recording": {

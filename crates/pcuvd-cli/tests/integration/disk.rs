@@ -479,7 +479,8 @@ fn info_reports_the_acquisition_without_processing() {
 
 /// `pcuvd bench` counts the beamformer's work as other beamformers publish it (points = pixels ×
 /// elements × images) on the grid `process` uses, and reports it against the stage's own median
-/// time. Its speeds are measured, not checked here: timing assertions would be flaky.
+/// time, with the processing options given. Its speeds are measured, not checked here: timing
+/// assertions would be flaky.
 #[test]
 fn bench_counts_the_beamformers_points_on_the_process_grid() {
     let input = disk_file();
@@ -528,4 +529,37 @@ fn bench_counts_the_beamformers_points_on_the_process_grid() {
             .as_str()
             .is_some_and(|c| !c.is_empty())
     );
+    assert_eq!(report["processing"]["f_number"], 1.5);
+    // A processing option reaches the runs: at F# 0.75 each pixel's receive half-aperture
+    // z / (2 F#) doubles, so its element count grows, at most twice plus one element (fewer
+    // where the array's edge cuts it).
+    let narrow = dir.path().join("bench-f075.json");
+    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["bench", "--repeat", "1", "--f-number", "0.75", "--json"])
+        .arg(&narrow)
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    let narrow: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&narrow).unwrap()).unwrap();
+    assert_eq!(narrow["processing"]["f_number"], 0.75);
+    let wider = narrow["throughput"]["mean_active_aperture_elements"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        wider > active && wider <= 2.0 * active + 1.0,
+        "{wider} against {active}"
+    );
+    // They time processing; a simulation takes none.
+    let refused = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["bench", "--scenario", "paper-spiral", "--f-number", "0.75"])
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--scenario times a simulation"));
 }
