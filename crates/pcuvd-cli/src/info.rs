@@ -10,6 +10,11 @@ use serde_json::json;
 use crate::process::AcquisitionOverrides;
 use pcuvd_app::input::open_input;
 
+/// What `directivity_f_number` in `pcuvd info --json` is.
+const DIRECTIVITY_F_NUMBER_RULE: &str = "1 / (2 tan θ) where the element's directivity \
+    sinc(π w sin θ / λ)·cos θ (soft baffle, centre frequency) falls to −3 dB: the receive \
+    f-number whose aperture edge hears echoes at half power";
+
 /// Arguments of `pcuvd info`.
 #[derive(Args, Debug)]
 pub struct InfoArgs {
@@ -73,6 +78,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
     let coding = pcuvd_app::summary::CodingRecord::of(seq);
+    let directivity_f_number = probe.directivity_f_number(-3.0, acq.sound_speed);
     let report = json!({
         "input": args.input.display().to_string(),
         "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
@@ -105,6 +111,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         },
         "processing": {
             "default_grid_nz_nx": [nz, nx],
+            "directivity_f_number": directivity_f_number,
+            "directivity_f_number_rule": DIRECTIVITY_F_NUMBER_RULE,
             "memory_estimate_bytes": memory_bytes,
             "memory_estimate_rule": pcuvd::pipeline::MEMORY_ESTIMATE_RULE,
         },
@@ -207,7 +215,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         depth * 1e3
     );
     println!(
-        "  processing   default grid {nz} × {nx} pixels; about {} of memory",
+        "  processing   default grid {nz} × {nx} pixels; about {} of memory; the element's −3 dB \
+         directivity edge is at F# {directivity_f_number:.2} (--f-number)",
         size(memory_bytes)
     );
     if let Some(times) = &info.cardiac_triggers_s {

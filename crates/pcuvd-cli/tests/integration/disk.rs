@@ -467,6 +467,24 @@ fn info_reports_the_acquisition_without_processing() {
         (acq["nyquist_velocity_m_s"].as_f64().unwrap() - 0.74).abs() < 1e-9,
         "{acq}"
     );
+    // The receive f-number at the element's −3 dB directivity edge: the element's soft-baffle
+    // directivity sinc(π w sin θ / λ)·cos θ, computed here from the probe info reports, is at
+    // −3 dB at the angle 1/(2 F#) subtends.
+    let probe = &info["probe"];
+    let f_number = info["processing"]["directivity_f_number"].as_f64().unwrap();
+    let lambda =
+        acq["sound_speed_m_s"].as_f64().unwrap() / probe["center_frequency_hz"].as_f64().unwrap();
+    let edge = (0.5 / f_number).atan();
+    let x = std::f64::consts::PI * probe["element_width_m"].as_f64().unwrap() * edge.sin() / lambda;
+    let directivity = x.sin() / x * edge.cos();
+    assert!(
+        (20.0 * directivity.log10() + 3.0).abs() < 1e-6,
+        "{f_number}: {directivity}"
+    );
+    assert!(
+        text.contains(&format!("directivity edge is at F# {f_number:.2}")),
+        "{text}"
+    );
     // Recorded depth: c·(t0 + (n − 1)/f_s)/2.
     let (c, t0, fs) = (
         acq["sound_speed_m_s"].as_f64().unwrap(),

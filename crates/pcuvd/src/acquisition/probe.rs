@@ -145,6 +145,36 @@ impl Probe {
     pub fn wavelength(&self, c: f64) -> f64 {
         c / self.center_frequency
     }
+
+    /// Element's receive amplitude at angle `theta` (rad) from its normal, relative to on-axis,
+    /// at the centre frequency and sound speed `c` (m/s): a strip element in a soft baffle,
+    /// sinc(π w sin θ / λ)·cos θ, the model the simulator uses.
+    pub fn element_directivity(&self, theta: f64, c: f64) -> f64 {
+        let x = std::f64::consts::PI * self.element_width * theta.sin() / self.wavelength(c);
+        let sinc = if x == 0.0 { 1.0 } else { x.sin() / x };
+        sinc * theta.cos()
+    }
+
+    /// Receive f-number whose aperture edge sees each element at `level_db` (dB, negative) of
+    /// its on-axis sensitivity: 1 / (2 tan θ) where the directivity falls to that level. A
+    /// smaller f-number would sum echoes from elements that barely hear them (more noise than
+    /// signal); a larger one discards elements that do.
+    pub fn directivity_f_number(&self, level_db: f64, c: f64) -> f64 {
+        let level = 10f64.powf(level_db / 20.0);
+        // The directivity falls monotonically from 1 at θ = 0 to its first null (or to 0 at
+        // 90° for elements narrower than λ): bisect on that interval.
+        let null = (self.wavelength(c) / self.element_width).min(1.0).asin();
+        let (mut inside, mut outside) = (0.0, null);
+        for _ in 0..64 {
+            let mid = 0.5 * (inside + outside);
+            if self.element_directivity(mid, c) > level {
+                inside = mid;
+            } else {
+                outside = mid;
+            }
+        }
+        0.5 / (0.5 * (inside + outside)).tan()
+    }
 }
 
 #[cfg(test)]
@@ -159,6 +189,39 @@ mod tests {
         assert!((x[0] + x[127]).abs() < 1e-15);
         assert!((x[1] - x[0] - 0.1e-3).abs() < 1e-15);
         assert_eq!(p.aperture(), (x[0], x[127]));
+    }
+
+    /// Without width the element hears as cos θ, which is −3 dB (1/√2) at 45°: F# 1/(2 tan 45°)
+    /// = 0.5 exactly; at −6 dB (1/2) it is 60°, F# 1/(2√3).
+    #[test]
+    fn a_point_element_hears_as_the_cosine() {
+        let mut p = Probe::l22_14vx();
+        p.element_width = 1e-12;
+        let half_power = -10.0 * 2f64.log10();
+        assert!((p.directivity_f_number(half_power, 1540.0) - 0.5).abs() < 1e-9);
+        let half_amplitude = -20.0 * 2f64.log10();
+        let expected = 0.5 / 3f64.sqrt();
+        assert!((p.directivity_f_number(half_amplitude, 1540.0) - expected).abs() < 1e-9);
+    }
+
+    /// The L22-14vX (0.08 mm elements, λ = 0.0986 mm): the f-number found puts the aperture's
+    /// edge where the directivity is the level asked, and a dense scan of the angles finds the
+    /// same crossing; a wider element (L11-5v: w/λ = 1.33 against 0.81) needs a larger f-number.
+    #[test]
+    fn the_f_number_puts_the_edge_at_the_level() {
+        let p = Probe::l22_14vx();
+        let c = 1540.0;
+        let f_number = p.directivity_f_number(-3.0, c);
+        let edge = (0.5 / f_number).atan();
+        let level = 10f64.powf(-3.0 / 20.0);
+        assert!((p.element_directivity(edge, c) - level).abs() < 1e-12);
+        let scanned = (0..90_000)
+            .map(|i| i as f64 * 1e-5)
+            .find(|&theta| p.element_directivity(theta, c) <= level)
+            .unwrap();
+        assert!((scanned - edge).abs() < 2e-5, "{scanned} against {edge}");
+        assert!((0.95..1.0).contains(&f_number), "{f_number}");
+        assert!(Probe::l11_5v().directivity_f_number(-3.0, c) > 1.4);
     }
 
     #[test]
