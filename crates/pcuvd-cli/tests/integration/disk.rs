@@ -503,20 +503,25 @@ fn info_reports_the_acquisition_without_processing() {
 fn bench_counts_the_beamformers_points_on_the_process_grid() {
     let input = disk_file();
     let dir = tempfile::tempdir().unwrap();
-    let json = dir.path().join("bench.json");
-    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .args(["bench", "--repeat", "1", "--json"])
-        .arg(&json)
-        .arg(&input)
-        .output()
-        .unwrap();
-    assert!(
-        done.status.success(),
-        "{}",
-        String::from_utf8_lossy(&done.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // One timed run with `options`, its JSON report.
+    let bench = |options: &[&str]| -> serde_json::Value {
+        let json = dir.path().join("bench.json");
+        let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["bench", "--repeat", "1"])
+            .args(options)
+            .arg("--json")
+            .arg(&json)
+            .arg(&input)
+            .output()
+            .unwrap();
+        assert!(
+            done.status.success(),
+            "{}",
+            String::from_utf8_lossy(&done.stderr)
+        );
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap()
+    };
+    let report = bench(&[]);
     let info = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
         .args(["info", "--json"])
         .arg(&input)
@@ -551,20 +556,7 @@ fn bench_counts_the_beamformers_points_on_the_process_grid() {
     // A processing option reaches the runs: at F# 0.75 each pixel's receive half-aperture
     // z / (2 F#) doubles, so its element count grows, at most twice plus one element (fewer
     // where the array's edge cuts it).
-    let narrow = dir.path().join("bench-f075.json");
-    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .args(["bench", "--repeat", "1", "--f-number", "0.75", "--json"])
-        .arg(&narrow)
-        .arg(&input)
-        .output()
-        .unwrap();
-    assert!(
-        done.status.success(),
-        "{}",
-        String::from_utf8_lossy(&done.stderr)
-    );
-    let narrow: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&narrow).unwrap()).unwrap();
+    let narrow = bench(&["--f-number", "0.75"]);
     assert_eq!(narrow["processing"]["f_number"], 0.75);
     let wider = narrow["throughput"]["mean_active_aperture_elements"]
         .as_f64()
