@@ -23,11 +23,16 @@ def commit_of(built_from: str = "HEAD") -> str:
 
 
 def this_cpu() -> str:
-    """This machine's CPU model and core count, as the pages name it."""
-    model = next((line.split(":", 1)[1].strip() for line in
-                  Path("/proc/cpuinfo").read_text().splitlines()
+    """This machine's CPU model, core count and widest vector instructions, as the pages name it:
+    instances of one model name differ (an AMD EPYC with or without AVX-512), and the
+    beamformer's speed follows the vector width."""
+    lines = Path("/proc/cpuinfo").read_text().splitlines()
+    model = next((line.split(":", 1)[1].strip() for line in lines
                   if line.startswith("model name")), "unknown")
-    return f"{model} ({os.cpu_count()} cores)"
+    flags = next((line.split(":", 1)[1].split() for line in lines
+                  if line.startswith("flags")), [])
+    vectors = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else None
+    return f"{model} ({os.cpu_count()} cores{', ' + vectors if vectors else ''})"
 
 
 def json_text(value) -> str:
