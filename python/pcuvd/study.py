@@ -25,7 +25,7 @@ def spiral(*, quiet: bool = False, **options: Any) -> dict:
     """The spiral-flow study (Fig. 2–5): simulate conventional and coded recordings, process,
     compare with the truth. options: `pcuvd paper`'s, e.g. frames=100, seed=1, noise_db=-10,
     sweep=(-30, -20, ...), grid_step=0.05 (mm), motion="per-event",
-    event_alignment="mid-frame", doppler_kernel=(1, 1). Returns its metrics (SNR gain, RMSE
+    event_alignment="mid-frame", doppler_kernel=(5, 1), partial_volume="on", f_number=1.0. Returns its metrics (SNR gain, RMSE
     per estimator in mm/s, improvements, noise sweep, definitions, timings) as a dict."""
     given = _checks.to_options("spiral", options, _pcuvd.option_names_of("study"))
     return json.loads(_pcuvd.study("spiral", given, bool(quiet)))

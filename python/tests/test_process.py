@@ -364,7 +364,9 @@ def test_partial_volume_is_the_cli_option(tube, cli, tmp_path):
     """`partial_volume="on"` is `--partial-volume on`: the same vectors from both, recorded in
     summary.json. It moves the vectors (each projection from its cell's power centroid to its
     pixel before the fit) and leaves the projections written as they were measured."""
-    off = pcuvd.process(tube, grid_mm=TUBE_GRID_MM, dynamics="off", quiet=True)
+    off = pcuvd.process(
+        tube, grid_mm=TUBE_GRID_MM, dynamics="off", partial_volume="off", quiet=True
+    )
     by_cli = tmp_path / "cli"
     on, _ = tube_by_python_and_cli(tube, cli, by_cli, partial_volume="on")
     assert off.summary["doppler"]["partial_volume"] is False

@@ -26,12 +26,12 @@ def _without_timings(value):
 CLI_ARGS = [
     "--frames", "8", "--grid-step", "0.2", "--sweep=-10,5", "--doppler-estimator", "kasai",
     "--network-frames", "104", "--heart-rate", "25", "--doppler-kernel", "3x1",
-    "--dealias-seeds", "2,3", "--partial-volume", "on",
+    "--dealias-seeds", "2,3", "--partial-volume", "off",
 ]
 KEYWORDS = {
     "frames": 8, "grid_step": 0.2, "sweep": (-10, 5), "doppler_estimator": "kasai",
     "network_frames": 104, "heart_rate": 25, "doppler_kernel": (3, 1),
-    "dealias_seeds": (2, 3), "partial_volume": "on",
+    "dealias_seeds": (2, 3), "partial_volume": "off",
 }
 
 

@@ -116,14 +116,14 @@ impl Default for ProcessingSettings {
             f_number: DasParams::DEFAULT_F_NUMBER,
             svd_low: "auto".into(),
             svd_high: "off".into(),
-            doppler_kernel: "1x1".into(),
+            doppler_kernel: kernel_text(pcuvd::pipeline::params::DEFAULT_DOPPLER_KERNEL),
             doppler_estimator: pcuvd::estimate::doppler::DopplerEstimator::default().into(),
             irls_lambda: IrlsParams::default().lambda_mm_s,
             irls_epsilon: IrlsParams::default().epsilon,
             irls_max_iterations: IrlsParams::default().max_iterations,
             event_alignment: pcuvd::form::decode::EventAlignment::default().into(),
             dealias: "off".into(),
-            partial_volume: Switch::Off,
+            partial_volume: Switch::from(pcuvd::pipeline::params::DEFAULT_PARTIAL_VOLUME),
             ensemble_frames: None,
             ensemble_step: None,
             segment_frames: None,
@@ -405,6 +405,12 @@ pub enum Switch {
     On,
 }
 
+impl From<bool> for Switch {
+    fn from(on: bool) -> Self {
+        if on { Switch::On } else { Switch::Off }
+    }
+}
+
 /// Whether `pcuvd process` runs the dynamics stage (cardiac cycle, PSV/EDV/RI maps).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -518,11 +524,7 @@ impl Default for DynamicsSettings {
             vessel_local_radius_mm: dynamics::VESSEL_LOCAL_RADIUS_M * 1e3,
             dynamics_kernel: kernel_text(dynamics::RI_KERNEL),
             dynamics_partial_volume: Switch::Off,
-            ri_debias: if rat.debias_harmonics {
-                Switch::On
-            } else {
-                Switch::Off
-            },
+            ri_debias: Switch::from(rat.debias_harmonics),
             pool_along_mm: VesselPooling::DEFAULT_ALONG_M * 1e3,
             pool_across_mm: VesselPooling::DEFAULT_ACROSS_M * 1e3,
             pool_max_angle_deg: VesselPooling::DEFAULT_MAX_ANGLE_DEG,

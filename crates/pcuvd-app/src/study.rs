@@ -160,7 +160,7 @@ impl Default for StudySettings {
             doppler_estimator: DopplerEstimatorOption::from(
                 SpiralSettings::default().doppler_estimator,
             ),
-            partial_volume: Switch::Off,
+            partial_volume: Switch::from(SpiralSettings::default().partial_volume),
             dynamics_partial_volume: DynamicsSettings::default().dynamics_partial_volume,
             f_number: SpiralSettings::default().f_number,
             calibrate_uvd_vx: "5.7".into(),
@@ -483,11 +483,16 @@ mod tests {
     #[test]
     fn every_study_gets_the_shared_processing_options() {
         let given = StudySettings {
-            doppler_kernel: "5x1".into(),
-            partial_volume: Switch::On,
-            f_number: 1.0,
+            doppler_kernel: "3x1".into(),
+            partial_volume: Switch::Off,
+            f_number: 0.75,
             ..StudySettings::default()
         };
+        // Values other than the defaults, so that the test sees them travel.
+        let default = StudySettings::default();
+        assert_ne!(default.doppler_kernel, "3x1");
+        assert_ne!(default.partial_volume, Switch::Off);
+        assert_ne!(default.f_number, 0.75);
         let spiral = given.spiral_settings().unwrap();
         let network = given.network_settings().unwrap();
         let dealias = given.dealias_settings().unwrap();
@@ -498,7 +503,7 @@ mod tests {
                 network.doppler_kernel,
                 dealias.doppler_kernel
             ],
-            [(5, 1); 3]
+            [(3, 1); 3]
         );
         assert_eq!(
             [
@@ -506,7 +511,7 @@ mod tests {
                 network.partial_volume,
                 dealias.partial_volume
             ],
-            [true; 3]
+            [false; 3]
         );
         assert_eq!(
             [
@@ -515,11 +520,11 @@ mod tests {
                 dealias.f_number,
                 brain.f_number
             ],
-            [1.0; 4]
+            [0.75; 4]
         );
         assert_eq!(
             (brain.doppler_kernel.as_str(), brain.partial_volume),
-            ("5x1", Switch::On)
+            ("3x1", Switch::Off)
         );
         // The maps' correction leaves the RI windows as `process` leaves them; their own option
         // reaches both studies that score RI.

@@ -11,6 +11,19 @@ use crate::estimate::vector::{IrlsParams, VectorField};
 use crate::form::beamform::DasParams;
 use crate::form::decode;
 use crate::form::images::AngleImages;
+/// Default spatial averaging of the autocorrelation (rows × columns of pixels): 5 rows, 2.5
+/// wavelengths in depth at the default half-wavelength step, about one pulse length, so the
+/// average spans the speckle of one resolution cell axially and keeps the lateral resolution
+/// the vector fit needs at a vessel's wall. Chosen with [`DEFAULT_PARTIAL_VOLUME`] and
+/// [`DasParams::DEFAULT_F_NUMBER`] on held-out seeds of every study (docs/results/accuracy.md).
+pub const DEFAULT_DOPPLER_KERNEL: (usize, usize) = (5, 1);
+
+/// Whether the partial-volume correction ([`crate::estimate::partial_volume`]) is on by
+/// default: it is, since the wall of a vessel and the speckle inside it otherwise pull each
+/// angle's projection toward where the echoes are brighter (the spiral's PC-UVD Vx falls from
+/// 3.8 to 2.3 mm/s with it and the 5x1 kernel).
+pub const DEFAULT_PARTIAL_VOLUME: bool = true;
+
 /// Settings of every stage of [`process`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProcessParams {
@@ -33,7 +46,7 @@ pub struct ProcessParams {
     /// Vector dealiasing of both estimators ([`crate::estimate::dealias`]); off by default.
     pub dealias: Dealias,
     /// Move each projection from its resolution cell's power centroid back to its pixel before
-    /// the vector fit ([`crate::estimate::partial_volume`]); off by default.
+    /// the vector fit ([`crate::estimate::partial_volume`]); default [`DEFAULT_PARTIAL_VOLUME`].
     pub partial_volume: bool,
 }
 

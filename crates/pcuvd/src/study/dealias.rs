@@ -89,9 +89,9 @@ impl Default for DealiasSettings {
             dealias: Dealias::Auto,
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
-            doppler_kernel: (1, 1),
+            doppler_kernel: crate::pipeline::params::DEFAULT_DOPPLER_KERNEL,
             grid_step_m: 0.05e-3,
-            partial_volume: false,
+            partial_volume: crate::pipeline::params::DEFAULT_PARTIAL_VOLUME,
             f_number: DasParams::DEFAULT_F_NUMBER,
         }
     }

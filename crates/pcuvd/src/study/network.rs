@@ -87,8 +87,8 @@ impl Default for NetworkSettings {
             event_alignment: EventAlignment::MidFrame,
             grid_step_m: 0.05e-3,
             doppler_estimator: DopplerEstimator::default(),
-            doppler_kernel: (1, 1),
-            partial_volume: false,
+            doppler_kernel: crate::pipeline::params::DEFAULT_DOPPLER_KERNEL,
+            partial_volume: crate::pipeline::params::DEFAULT_PARTIAL_VOLUME,
             dynamics_partial_volume: false,
             f_number: DasParams::DEFAULT_F_NUMBER,
         }

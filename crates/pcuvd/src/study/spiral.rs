@@ -95,12 +95,12 @@ impl Default for SpiralSettings {
             sweep_db: vec![-30.0, -20.0, -10.0, 0.0, 5.0, 10.0, 15.0, 20.0],
             motion: Motion::PerEvent,
             event_alignment: EventAlignment::MidFrame,
-            doppler_kernel: (1, 1),
+            doppler_kernel: crate::pipeline::params::DEFAULT_DOPPLER_KERNEL,
             doppler_estimator: DopplerEstimator::default(),
             grid_step_m: 0.05e-3,
             calibrate_uvd_vx_m_s: Some(paper::UVD_RMSE_MM_S.0 * 1e-3),
             averaging_kernels: vec![(1, 1), (3, 1), (5, 1), (7, 1), (3, 3)],
-            partial_volume: false,
+            partial_volume: crate::pipeline::params::DEFAULT_PARTIAL_VOLUME,
             f_number: DasParams::DEFAULT_F_NUMBER,
         }
     }

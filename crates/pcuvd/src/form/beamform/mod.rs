@@ -62,8 +62,13 @@ pub struct DasParams {
 }
 
 impl DasParams {
-    /// Default receive f-number (depth / active aperture width).
-    pub const DEFAULT_F_NUMBER: f64 = 1.5;
+    /// Default receive f-number (depth / active aperture width): 1.0, where the rat probe's
+    /// (L22-14vX) elements hear −3 dB of their broadside sensitivity at the aperture's edge
+    /// ([`crate::core::probe::Probe::directivity_f_number`]: 0.99). Wider apertures add
+    /// elements that hear little; narrower ones (F# 1.5) average the velocity gradient of a
+    /// vessel over a wider cell. Chosen with the partial-volume correction and the 5x1 kernel
+    /// on held-out seeds of every study (docs/results/accuracy.md).
+    pub const DEFAULT_F_NUMBER: f64 = 1.0;
 
     /// F# [`Self::DEFAULT_F_NUMBER`] with Hann apodisation at sound speed `c` (m/s).
     pub fn new(sound_speed: f64) -> Self {
