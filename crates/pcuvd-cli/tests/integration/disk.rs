@@ -542,7 +542,8 @@ fn bench_counts_the_beamformers_points_on_the_process_grid() {
         .unwrap();
     let expected = pixels * 128.0 * 32.0 / beamform_s;
     assert!((points_per_s - expected).abs() <= 1e-9 * expected);
-    // The active aperture: some, not all, of the 128 elements reach each pixel at F# 1.5.
+    // The active aperture: some, not all, of the 128 elements reach each pixel at the default
+    // f-number.
     let active = report["throughput"]["mean_active_aperture_elements"]
         .as_f64()
         .unwrap();
@@ -552,12 +553,14 @@ fn bench_counts_the_beamformers_points_on_the_process_grid() {
             .as_str()
             .is_some_and(|c| !c.is_empty())
     );
-    assert_eq!(report["processing"]["f_number"], 1.5);
-    // A processing option reaches the runs: at F# 0.75 each pixel's receive half-aperture
-    // z / (2 F#) doubles, so its element count grows, at most twice plus one element (fewer
-    // where the array's edge cuts it).
-    let narrow = bench(&["--f-number", "0.75"]);
-    assert_eq!(narrow["processing"]["f_number"], 0.75);
+    let default_f_number = pcuvd::form::beamform::DasParams::DEFAULT_F_NUMBER;
+    assert_eq!(report["processing"]["f_number"], default_f_number);
+    // A processing option reaches the runs: at half the default f-number each pixel's receive
+    // half-aperture z / (2 F#) doubles, so its element count grows, at most twice plus one
+    // element (fewer where the array's edge cuts it).
+    let half = default_f_number / 2.0;
+    let narrow = bench(&["--f-number", &half.to_string()]);
+    assert_eq!(narrow["processing"]["f_number"], half);
     let wider = narrow["throughput"]["mean_active_aperture_elements"]
         .as_f64()
         .unwrap();
