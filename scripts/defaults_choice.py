@@ -18,11 +18,12 @@ from __future__ import annotations
 import json
 from statistics import mean
 
-from paper_series import METRICS, f2, f_number_text, kernel_name, seeds_text
+from paper_series import (DEFAULTS, FORMER_DEFAULTS, METRICS, f2, f_number_text, kernel_name,
+                          seeds_text)
 
 CHOICE = METRICS / "choice"
 
-# (f-number, partial-volume correction, Doppler kernel): today's defaults first.
+# (f-number, partial-volume correction, Doppler kernel): the former defaults first.
 CANDIDATES = [
     (1.5, False, (1, 1)),
     (1.5, False, (5, 1)),
@@ -44,7 +45,10 @@ def label(candidate: tuple) -> str:
     f_number, corrected, kernel = candidate
     text = (f"F# {f_number_text(f_number)}, partial volume {'on' if corrected else 'off'}, "
             f"{kernel_name(list(kernel))}")
-    return text + (" (today's defaults)" if candidate == CANDIDATES[0] else "")
+    options = {"f_number": f_number, "partial_volume": corrected, "doppler_kernel": list(kernel)}
+    if options == DEFAULTS:
+        return f"**{text} (the defaults)**"
+    return text + (" (the former defaults)" if options == FORMER_DEFAULTS else "")
 
 
 def mean_range(values: list[float]) -> str:

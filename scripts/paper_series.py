@@ -26,6 +26,25 @@ PAPER_UVD = (5.70, 2.28)
 PAPER_PCUVD = (3.22, 1.59)
 PAPER_IMPROVEMENT = (43.5, 30.3)
 
+# The processing options of a run that the defaults set: receive f-number, partial-volume
+# correction, Doppler kernel. The defaults (chosen on seeds 6–10, the accuracy page's choice
+# table) and the ones they replaced, whose kept runs stay as the comparison.
+DEFAULTS = {"f_number": 1.0, "partial_volume": True, "doppler_kernel": [5, 1]}
+FORMER_DEFAULTS = {"f_number": 1.5, "partial_volume": False, "doppler_kernel": [1, 1]}
+
+
+def options_text(options: dict) -> str:
+    """Processing options as `pcuvd paper` takes them."""
+    return (f"`--f-number {f_number_text(options['f_number'])} --partial-volume "
+            f"{'on' if options['partial_volume'] else 'off'} --doppler-kernel "
+            f"{kernel_name(options['doppler_kernel'])}`")
+
+
+def options_of(settings: dict) -> dict:
+    """The processing options a run's settings state (a record older than the network's
+    statement of its kernel and correction ran at the former defaults)."""
+    return {key: settings.get(key, FORMER_DEFAULTS[key]) for key in DEFAULTS}
+
 
 def minus(text: str) -> str:
     """Negative numbers with the minus sign the pages use (−), not a hyphen."""
@@ -65,18 +84,18 @@ def runs() -> list[dict]:
     return [r for r in kept if "calibrated" in r["metrics"]]
 
 
-def spiral_series(all_runs: list[dict], estimator: str = "loupas", partial_volume: bool = False,
-                  f_number: float = 1.5) -> list[dict]:
-    """The spiral runs at the paper's acquisition and the defaults but for the named options,
-    one per seed (the first kept when a seed was run twice), by seed."""
+def spiral_series(all_runs: list[dict], estimator: str = "loupas",
+                  options: dict | None = None) -> list[dict]:
+    """The spiral runs at the paper's acquisition with these processing options (default: the
+    defaults) and the defaults otherwise, one per seed (the first kept when a seed was run
+    twice), by seed."""
+    options = DEFAULTS if options is None else options
     by_seed: dict[int, dict] = {}
     for r in all_runs:
         m = r["metrics"]
-        if (m["doppler_estimator"], m["partial_volume"], m["f_number"]) != (
-                estimator, partial_volume, f_number):
+        if m["doppler_estimator"] != estimator or options_of(m) != options:
             continue
-        if (m["motion"], m["event_alignment"], m["doppler_kernel"], m["frames"]) != (
-                "PerEvent", "mid-frame", [1, 1], 100):
+        if (m["motion"], m["event_alignment"], m["frames"]) != ("PerEvent", "mid-frame", 100):
             continue
         by_seed.setdefault(m["seed"], r)
     return [by_seed[s] for s in sorted(by_seed)]
@@ -111,9 +130,12 @@ def runs_text(runs_: list[dict]) -> str:
     by_options: dict[str, list[int]] = {}
     for r in runs_:
         m = r["metrics"]
+        o = options_of(m)
         options = [f"{m['doppler_estimator']}" if m["doppler_estimator"] != "loupas" else "",
-                   "partial volume" if m.get("partial_volume") else "",
-                   f"F# {f_number_text(m['f_number'])}" if m.get("f_number", 1.5) != 1.5 else ""]
+                   "" if o == DEFAULTS else
+                   "former defaults" if o == FORMER_DEFAULTS else
+                   f"F# {f_number_text(o['f_number'])}, partial volume "
+                   f"{'on' if o['partial_volume'] else 'off'}, {kernel_name(o['doppler_kernel'])}"]
         name = ", ".join(o for o in options if o)
         by_options.setdefault(name, []).append(m["seed"])
     return "; ".join(f"{name + ' ' if name else ''}{seeds_text(seeds)}"
@@ -136,18 +158,25 @@ def averaged(run: dict, kernel: list[int]) -> dict:
 
 
 def calibrated_baseline(all_runs: list[dict]) -> dict:
-    """Each seed at the paper's calibrated baseline, Loupas and Kasai, with their means."""
-    rows = []
-    for estimator in ("loupas", "kasai"):
-        series = spiral_series(all_runs, estimator)
+    """Each seed at the paper's calibrated baseline: Loupas at the defaults, then Loupas and
+    Kasai at the former defaults, each with its mean."""
+    rows, measured = [], []
+    for estimator, options, name in (("loupas", DEFAULTS, "the defaults"),
+                                     ("loupas", FORMER_DEFAULTS, "former defaults"),
+                                     ("kasai", FORMER_DEFAULTS, "former defaults")):
+        series = spiral_series(all_runs, estimator, options)
+        if not series:
+            continue
+        measured += series
+        setting = f"{estimator}, {name}"
         for r in series:
             c = r["metrics"]["calibrated"]
-            rows.append([str(r["metrics"]["seed"]), estimator, db(c["noise_db"]),
+            rows.append([str(r["metrics"]["seed"]), setting, db(c["noise_db"]),
                          vector([c["rmse_mm_s"]["uvd_ls"]]),
                          vector([c["rmse_mm_s"]["pcuvd_irls"]]),
                          improvement([c["improvement_pct"]])])
         cs = [r["metrics"]["calibrated"] for r in series]
-        rows.append([f"**mean, {seeds_text(seeds_of(series))}**", f"**{estimator}**",
+        rows.append([f"**mean, {seeds_text(seeds_of(series))}**", f"**{setting}**",
                      db(mean(c["noise_db"] for c in cs)),
                      vector([c["rmse_mm_s"]["uvd_ls"] for c in cs]),
                      f"**{vector([c['rmse_mm_s']['pcuvd_irls'] for c in cs], True)}**",
@@ -155,16 +184,17 @@ def calibrated_baseline(all_runs: list[dict]) -> dict:
     rows.append(["paper", "–", "–", f"{f2(PAPER_UVD[0])} / {f2(PAPER_UVD[1])}",
                  f"{f2(PAPER_PCUVD[0])} / {f2(PAPER_PCUVD[1])}",
                  f"{PAPER_IMPROVEMENT[0]} / {PAPER_IMPROVEMENT[1]} %"])
-    both = spiral_series(all_runs) + spiral_series(all_runs, "kasai")
     return {
         "id": "calibrated-baseline",
         "title": "The paper's headline at its own baseline (`--calibrate-uvd-vx 5.7`)",
-        **where_many(both, "`pcuvd paper --part spiral --seed N [--doppler-estimator kasai]`"),
+        **where_many(measured, "`pcuvd paper --part spiral --seed N`; the former defaults: "
+                               f"with {options_text(FORMER_DEFAULTS)} [`--doppler-estimator "
+                               "kasai`]"),
         "units": "calibrated noise level in dB; RMSE in mm/s (UVD = conventional + LS, PC-UVD = "
                  "coded + IRLS; the mean's PC-UVD Vx with its range over the seeds); "
                  "improvement in %",
-        "columns": ["seed", "estimator", "calibrated level", "UVD Vx / Vz", "PC-UVD Vx / Vz",
-                    "improvement Vx / Vz"],
+        "columns": ["seed", "estimator, settings", "calibrated level", "UVD Vx / Vz",
+                    "PC-UVD Vx / Vz", "improvement Vx / Vz"],
         "rows": rows,
     }
 
@@ -197,19 +227,31 @@ def kernel_rows(series: list[dict]) -> list[list[str]]:
 
 
 def averaging_kernels(all_runs: list[dict]) -> dict:
-    series = spiral_series(all_runs)
+    """Every averaging kernel at the defaults' aperture and correction, then at the former
+    defaults' (F# 1.5, uncorrected)."""
+    rows, measured = [], []
+    for options, name in ((DEFAULTS, "F# 1.0, corrected (the defaults' kernel: 5x1)"),
+                          (FORMER_DEFAULTS, "F# 1.5, uncorrected (the former defaults)")):
+        series = spiral_series(all_runs, options=options)
+        if not series:
+            continue
+        measured += series
+        rows += [[f"{name}, {seeds_text(seeds_of(series))}", *row]
+                 for row in kernel_rows(series)]
     return {
         "id": "averaging-kernels",
-        "title": f"Spatial averaging of the autocorrelation, {seeds_text(seeds_of(series))}",
-        **where_many(series, "`pcuvd paper --part spiral --seed N` (`--averaging-kernels`, "
-                             "default 1x1,3x1,5x1,7x1,3x3)"),
+        "title": "Spatial averaging of the autocorrelation",
+        **where_many(measured, "`pcuvd paper --part spiral --seed N` (`--averaging-kernels`, "
+                               "default 1x1,3x1,5x1,7x1,3x3); the former defaults: with "
+                               f"{options_text(FORMER_DEFAULTS)}"),
         "units": "RMSE and resolution cost in mm/s (mean over the seeds, PC-UVD's Vx range in "
-                 "brackets; the lowest PC-UVD Vx in bold); level in dB; improvement in %",
-        "columns": ["kernel (depth × lateral)", "extent", "no noise, PC-UVD Vx / Vz",
-                    "calibrated level", "UVD Vz there", "PC-UVD Vx / Vz there",
-                    "improvement Vx / Vz", "resolution cost Vx / Vz"],
-        "rows": kernel_rows(series) + [
-            ["paper", "–", "–", "–", f2(PAPER_UVD[1]), f"{f2(PAPER_PCUVD[0])} / "
+                 "brackets; the lowest PC-UVD Vx of each setting in bold); level in dB; "
+                 "improvement in %",
+        "columns": ["aperture, correction, seeds", "kernel (depth × lateral)", "extent",
+                    "no noise, PC-UVD Vx / Vz", "calibrated level", "UVD Vz there",
+                    "PC-UVD Vx / Vz there", "improvement Vx / Vz", "resolution cost Vx / Vz"],
+        "rows": rows + [
+            ["paper", "–", "–", "–", "–", f2(PAPER_UVD[1]), f"{f2(PAPER_PCUVD[0])} / "
              f"{f2(PAPER_PCUVD[1])}", f"{PAPER_IMPROVEMENT[0]} / {PAPER_IMPROVEMENT[1]} %", "–"]],
     }
 
@@ -234,20 +276,24 @@ CORRECTION_COLUMNS = ["calibrated level", "UVD Vx / Vz", "PC-UVD Vx / Vz", "impr
 
 
 def partial_volume(all_runs: list[dict]) -> dict | None:
-    series = spiral_series(all_runs, partial_volume=True)
+    """The correction alone: F# 1.5 and pixel-wise, with and without it."""
+    corrected = {**FORMER_DEFAULTS, "partial_volume": True}
+    series = spiral_series(all_runs, options=corrected)
     if not series:
         return None
     rows = [correction_row(str(r["metrics"]["seed"]), [r]) for r in series]
     rows.append(correction_row(f"**mean, {seeds_text(seeds_of(series))}**", series))
-    plain = spiral_series(all_runs)
+    plain = spiral_series(all_runs, options=FORMER_DEFAULTS)
     rows.append(correction_row(f"without the correction (mean, {seeds_text(seeds_of(plain))})", plain))
     rows.append(["paper", "–", f"{f2(PAPER_UVD[0])} / {f2(PAPER_UVD[1])}",
                  f"{f2(PAPER_PCUVD[0])} / {f2(PAPER_PCUVD[1])}",
                  f"{PAPER_IMPROVEMENT[0]} / {PAPER_IMPROVEMENT[1]} %", "–", "–"])
     return {
         "id": "partial-volume",
-        "title": f"The partial-volume correction, {seeds_text(seeds_of(series))}",
-        **where_many(series, "`pcuvd paper --part spiral --partial-volume on --seed N`"),
+        "title": f"The partial-volume correction alone (F# 1.5, pixel-wise), "
+                 f"{seeds_text(seeds_of(series))}",
+        **where_many(series, "`pcuvd paper --part spiral --partial-volume on|off --f-number 1.5 "
+                             "--doppler-kernel 1x1 --seed N`"),
         "units": "calibrated level in dB; RMSE in mm/s (means give PC-UVD's Vx range over the "
                  "seeds); improvement in %",
         "columns": ["seed", *CORRECTION_COLUMNS],
@@ -256,30 +302,41 @@ def partial_volume(all_runs: list[dict]) -> dict | None:
 
 
 def spiral_f_number(all_runs: list[dict]) -> dict | None:
-    """The spiral at each receive f-number kept, with and without the correction."""
+    """The spiral at each receive f-number kept, pixel-wise with and without the correction,
+    then the defaults."""
     cases = sorted({(r["metrics"]["f_number"], r["metrics"]["partial_volume"]) for r in all_runs
                     if r["metrics"]["doppler_estimator"] == "loupas"},
                    key=lambda c: (-c[0], c[1]))
     rows, measured = [], []
     for f_number, correction in cases:
-        series = spiral_series(all_runs, partial_volume=correction, f_number=f_number)
+        options = {"f_number": f_number, "partial_volume": correction, "doppler_kernel": [1, 1]}
+        series = spiral_series(all_runs, options=options)
         if not series:
             continue
         measured += series
-        label = (f_number_text(f_number) + (" (default)" if f_number == 1.5 else "")
+        label = (f_number_text(f_number)
+                 + (" (the former default)" if options == FORMER_DEFAULTS else "")
                  + (", `--partial-volume on`" if correction else "")
                  + f" ({seeds_text(seeds_of(series))})")
         rows.append(correction_row(label, series))
+    defaults = spiral_series(all_runs)
+    if defaults:
+        measured += defaults
+        rows.append(correction_row(
+            f"**{f_number_text(DEFAULTS['f_number'])}, `--partial-volume on`, "
+            f"{kernel_name(DEFAULTS['doppler_kernel'])}: the defaults** "
+            f"({seeds_text(seeds_of(defaults))})", defaults))
     if len(rows) < 2:  # nothing to compare the default aperture with
         return None
     return {
         "id": "spiral-f-number",
         "title": "The spiral at other receive apertures",
-        **where_many(measured, "`pcuvd paper --part spiral --f-number F [--partial-volume on] "
-                               "--seed N`"),
-        "units": "calibrated level in dB (calibrated again at each aperture); RMSE in mm/s "
-                 "(PC-UVD = coded + IRLS; means over the seeds, PC-UVD's Vx range in "
-                 "brackets); improvement in %",
+        **where_many(measured, "`pcuvd paper --part spiral --f-number F --partial-volume on|off "
+                               "--doppler-kernel 1x1 --seed N`; the defaults: `pcuvd paper "
+                               "--part spiral --seed N`"),
+        "units": "calibrated level in dB (calibrated again at each aperture and with the "
+                 "defaults' kernel); RMSE in mm/s (PC-UVD = coded + IRLS; means over the seeds, "
+                 "PC-UVD's Vx range in brackets); improvement in %",
         "columns": ["F#", *CORRECTION_COLUMNS],
         "rows": rows,
     }
@@ -288,8 +345,9 @@ def spiral_f_number(all_runs: list[dict]) -> dict | None:
 def kernel_correction(all_runs: list[dict]) -> dict | None:
     """Conventional UVD (LS) without noise through each kernel, at F# 1.0, with and without
     the correction: the averaging scores' floors of one seed."""
-    plain = spiral_series(all_runs, f_number=1.0)
-    corrected = spiral_series(all_runs, partial_volume=True, f_number=1.0)
+    pixel_wise = {"f_number": 1.0, "doppler_kernel": [1, 1]}
+    plain = spiral_series(all_runs, options={**pixel_wise, "partial_volume": False})
+    corrected = spiral_series(all_runs, options={**pixel_wise, "partial_volume": True})
     if not plain or not corrected:
         return None
     a, b = plain[0], corrected[0]
@@ -315,14 +373,17 @@ def dealias_runs() -> list[dict]:
     return [r for r in kept if "dealias" in r["metrics"]]
 
 
-def dealias_run(profile: str, noise_levels: int, all_runs: list[dict]) -> dict | None:
-    """The dealiasing run of the defaults over several seeds for a tube profile: the one with the
-    most seeds among those with at least `noise_levels` noise levels."""
+def dealias_run(profile: str, noise_levels: int, all_runs: list[dict],
+                options: dict | None = None, frames: int = 100) -> dict | None:
+    """The dealiasing run with these processing options (default: the defaults) over several
+    seeds for a tube profile: the one with the most seeds among those with at least
+    `noise_levels` noise levels."""
+    options = DEFAULTS if options is None else options
+
     def plain(r: dict) -> bool:
         s = r["metrics"]["dealias"]["settings"]
-        return (s["tube_profile"] == profile and s["frames"] == 100 and s["f_number"] == 1.5
-                and not s["partial_volume"] and s["doppler_kernel"] == [1, 1]
-                and len(s["noise_db"]) >= noise_levels)
+        return (s["tube_profile"] == profile and s["frames"] == frames
+                and options_of(s) == options and len(s["noise_db"]) >= noise_levels)
     found = [r for r in all_runs if plain(r)]
     return max(found, key=lambda r: len(r["metrics"]["dealias"]["settings"]["seeds"]),
                default=None)
@@ -370,8 +431,13 @@ def tube_at_apertures(all_runs: list[dict], multiple: float = 3.0) -> dict | Non
             return f"{values[0]:.1f} %"
         return f"{mean(values):.1f} % ({min(values):.1f}–{max(values):.1f}, {len(values)} seeds)"
 
-    rows = [[f"{frames} frames" + (", `--partial-volume on`" if pv else "")
-             + ("" if kernel == "1x1" else f", `--doppler-kernel {kernel}`"),
+    def label(frames: int, pv: bool, kernel: str) -> str:
+        default = (pv, kernel) == (DEFAULTS["partial_volume"],
+                                   kernel_name(DEFAULTS["doppler_kernel"]))
+        return (f"{frames} frames, correction {'on' if pv else 'off'}, {kernel}"
+                + (" (the defaults' at F# 1.0)" if default else ""))
+
+    rows = [[label(frames, pv, kernel),
              *[cell(cells[(frames, pv, kernel)].get(f)) for f in apertures]]
             for frames, pv, kernel in sorted(cells)]
     commits = sorted({r["commit"] for r in measured})
@@ -379,8 +445,8 @@ def tube_at_apertures(all_runs: list[dict], multiple: float = 3.0) -> dict | Non
         "id": "parabolic-tube-3x",
         "title": f"Parabolic tube at {multiple:g}× v_N without noise, conventional UVD (LS) "
                  f"dealiased: lumen within 10 % of the peak",
-        "command": "`pcuvd paper --part dealias --dealias-noise-db off --f-number F [--frames N] "
-                   "[--partial-volume on] [--doppler-kernel K] --dealias-seeds S` (the cell "
+        "command": "`pcuvd paper --part dealias --dealias-noise-db off --f-number F --frames N "
+                   "--partial-volume on|off --doppler-kernel K --dealias-seeds S` (the cell "
                    "names the seeds when more than one)",
         "commit": ", ".join(commits),
         "cpu": "; ".join(sorted({r["cpu"] for r in measured})),
@@ -435,67 +501,79 @@ TESTED_TARGETS = [
 
 
 def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
-    """The accuracy targets, each scored from the kept runs (or named with the test that
-    asserts it)."""
-    plain = spiral_series(all_runs)
-    corrected = spiral_series(all_runs, partial_volume=True)
+    """The accuracy targets, each scored from the kept runs at the defaults, beside the former
+    defaults' and other settings' (or named with the test that asserts it)."""
+    defaults = spiral_series(all_runs)
+    former = spiral_series(all_runs, options=FORMER_DEFAULTS)
     plug = dealias_run("plug", 1, dealiasing)
     study = dealias_run("parabolic", 3, dealiasing)
-    if not plain or not corrected or plug is None or study is None:
+    if not defaults or plug is None or study is None:
         return None
-    longer_run = longer_study(dealiasing)
+    longer_run = dealias_run("parabolic", 1, dealiasing, frames=400)
+    former_study = dealias_run("parabolic", 3, dealiasing, options=FORMER_DEFAULTS)
+    former_plug = dealias_run("plug", 1, dealiasing, options=FORMER_DEFAULTS)
+    finer_run = longer_study(dealiasing)
 
-    def calibrated(series: list[dict], kernel: list[int], axis: str) -> list[float]:
-        return [averaged(r, kernel)["calibrated"]["rmse_mm_s"]["pcuvd_irls"][axis]
-                for r in series]
+    def calibrated(series: list[dict], axis: str) -> list[float]:
+        return [r["metrics"]["calibrated"]["rmse_mm_s"]["pcuvd_irls"][axis] for r in series]
 
-    vz, vx = calibrated(plain, [1, 1], "vz"), calibrated(plain, [1, 1], "vx")
-    vx5 = calibrated(plain, [5, 1], "vx")
-    vx_pv, vx_pv5 = calibrated(corrected, [1, 1], "vx"), calibrated(corrected, [5, 1], "vx")
-    seeds = seeds_text(seeds_of(plain))
+    vz, vx = calibrated(defaults, "vz"), calibrated(defaults, "vx")
+    seeds = seeds_text(seeds_of(defaults))
     plug3, parabolic3 = shares(plug, 3.0, None), shares(study, 3.0, None)
     noisy = [(n, shares(study, 3.0, n)) for n in sorted(
         {x["noise_db"] for x in study["metrics"]["dealias"]["rows"] if x["noise_db"] is not None})]
     slow = [x for x in study["metrics"]["dealias"]["rows"] if x["multiple"] == 1.0]
     untouched = all(x["unwrapped_lumen_pixels"] == 0 for x in slow)
+
     def verdict(values: list[float]) -> str:
         return f"{holds(bool(values) and min(values) >= 0.95)}: {share_text(values)}"
 
-    longer_text = "not measured" if longer_run is None else (
-        "parabolic, `--frames 400 --f-number 0.75 --partial-volume on`, "
-        + verdict(shares(longer_run, 3.0, None)))
-    longer_noisy = "–" if longer_run is None else "parabolic, the same settings: " + "; ".join(
-        f"{g_db(n)} {verdict(shares(longer_run, 3.0, n))}"
-        for n in sorted({x["noise_db"] for x in longer_run["metrics"]["dealias"]["rows"]
-                         if x["noise_db"] is not None}))
+    def former_text(values: list[float]) -> str:
+        return f"the former defaults ({options_text(FORMER_DEFAULTS)}): {value_range(values)}"
+
+    tube_other = []
+    if longer_run is not None:
+        tube_other.append("parabolic, `--frames 400`, " + verdict(shares(longer_run, 3.0, None)))
+    if former_study is not None and former_plug is not None:
+        tube_other.append("the former defaults: plug flow "
+                          + share_text(shares(former_plug, 3.0, None)) + ", parabolic "
+                          + share_text(shares(former_study, 3.0, None)))
+    noisy_other = "–" if finer_run is None else (
+        "parabolic, `--frames 400 --f-number 0.75 --partial-volume on --doppler-kernel 1x1`: "
+        + "; ".join(f"{g_db(n)} {verdict(shares(finer_run, 3.0, n))}"
+                    for n in sorted({x["noise_db"] for x in finer_run["metrics"]["dealias"]["rows"]
+                                     if x["noise_db"] is not None})))
     rows = TESTED_TARGETS + [
         ["PC-UVD at the paper's baseline: Vz ≤ 1.59 mm/s",
-         f"{holds(max(vz) <= 1.59)}: {value_range(vz)} ({seeds})", "–"],
+         f"{holds(max(vz) <= 1.59)}: {value_range(vz)} ({seeds})",
+         former_text(calibrated(former, "vz")) if former else "–"],
         ["PC-UVD at the paper's baseline: Vx ≤ 3.22 mm/s",
          f"{holds(max(vx) <= 3.22)}: {value_range(vx)}",
-         f"`--doppler-kernel 5x1`: {value_range(vx5)}; `--partial-volume on`: "
-         f"{value_range(vx_pv)}"],
+         former_text(calibrated(former, "vx")) if former else "–"],
         ["PC-UVD at the paper's baseline: Vx ≤ 2.5 mm/s (the aim)",
-         f"{holds(max(vx) <= 2.5)}",
-         f"`--partial-volume on --doppler-kernel 5x1`: {value_range(vx_pv5)}"],
+         f"{holds(max(vx) <= 2.5)}", "–"],
         ["dealiased tube at 3× v_N: ≥ 95 % of the lumen within 10 % of the peak, no noise",
-         f"plug flow {verdict(plug3)}; parabolic {verdict(parabolic3)}", longer_text],
+         f"plug flow {verdict(plug3)}; parabolic {verdict(parabolic3)}",
+         "; ".join(tube_other) or "–"],
         ["the same with noise: ≥ 95 %",
          "parabolic: " + "; ".join(f"{g_db(n)} {verdict(v)}" for n, v in noisy),
-         longer_noisy],
+         noisy_other],
         ["dealiasing leaves slow flow (1× v_N) as it was",
          "holds (nothing unwrapped)" if untouched else "not met (pixels unwrapped at 1×)", "–"],
     ]
     brain = brain_runs()
     rows += brain_rows(brain)
-    measured = plain + corrected + [plug, study] + list(brain.values())
+    measured = (defaults + former + [plug, study]
+                + [r for r in (longer_run, former_study, former_plug, finer_run) if r is not None]
+                + list(brain.values()))
     return {
         "id": "at-a-glance",
         "title": "The accuracy targets at a glance",
         "command": "per row: the named test (slow tier, every CI run); `pcuvd paper --part "
-                   "spiral --seed N [--partial-volume on]`; `pcuvd paper --part dealias "
-                   "--dealias-seeds ...` with the options in the row; `pcuvd paper --part brain "
-                   "[--brain-svd-low similarity]` (the [virtual rat brain](brain.md)'s runs)",
+                   "spiral --seed N`; `pcuvd paper --part dealias --dealias-seeds ...` with the "
+                   "options in the row; `pcuvd paper --part brain [--brain-svd-low similarity]` "
+                   "(the [virtual rat brain](brain.md)'s runs); the former defaults: with "
+                   f"{options_text(FORMER_DEFAULTS)}",
         "commit": ", ".join(sorted({r["commit"] for r in measured})),
         "cpu": "; ".join(sorted({r["cpu"] for r in measured})),
         "units": "RMSE in mm/s (ranges over the seeds); fractions of the lumen in %",
