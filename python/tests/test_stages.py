@@ -14,7 +14,12 @@ def test_chain_of_stages_equals_process_on_the_disk(disk):
     with the Kasai estimator (the default, Loupas, divides the same phase by each pixel's mean
     frequency instead of f_0)."""
     recording = pcuvd.read_recording(disk)
-    result = pcuvd.process(recording, doppler_estimator="kasai", quiet=True)
+    # The stages are the paper's pixel-wise steps: process with its pixel-wise, uncorrected
+    # estimate (the defaults average 5x1 and apply the partial-volume correction).
+    result = pcuvd.process(
+        recording, doppler_estimator="kasai", doppler_kernel=(1, 1), partial_volume="off",
+        quiet=True,
+    )
     summary = result.summary
     fc = recording.probe["center_freq_hz"]
     iq = pcuvd.rf_to_iq(
@@ -54,7 +59,12 @@ def test_chain_of_stages_equals_process_on_the_disk(disk):
 
 def test_vector_fits_equal_process_on_a_coded_tube(tmp_path):
     recording, truth = pcuvd.simulate("tube", "coded", frames=10, noise_db=None, quiet=True)
-    result = pcuvd.process(recording, grid_mm=(-3, 3, 4, 10, 0.08), dynamics="off", quiet=True)
+    # Pixel-wise and uncorrected, as the stages fit (the defaults average 5x1 and apply the
+    # partial-volume correction, which no stage does).
+    result = pcuvd.process(
+        recording, grid_mm=(-3, 3, 4, 10, 0.08), dynamics="off", doppler_kernel=(1, 1),
+        partial_volume="off", quiet=True,
+    )
     vx, vz = pcuvd.vector_ls(result.projections, recording.angles_rad)
     assert_same_array(vx, result.vx_ls, "vx_ls")
     assert_same_array(vz, result.vz_ls, "vz_ls")
