@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from statistics import mean
 
-from paper_series import (DEFAULTS, FORMER_DEFAULTS, METRICS, f2, f_number_text, kernel_name,
+from paper_series import (DEFAULTS, FORMER_DEFAULTS, METRICS, f2, kernel_name, options_label,
                           seeds_text)
 
 CHOICE = METRICS / "choice"
@@ -43,9 +43,8 @@ def choice_runs() -> list[dict]:
 
 def label(candidate: tuple) -> str:
     f_number, corrected, kernel = candidate
-    text = (f"F# {f_number_text(f_number)}, partial volume {'on' if corrected else 'off'}, "
-            f"{kernel_name(list(kernel))}")
     options = {"f_number": f_number, "partial_volume": corrected, "doppler_kernel": list(kernel)}
+    text = options_label(options)
     if options == DEFAULTS:
         return f"**{text} (the defaults)**"
     return text + (" (the former defaults)" if options == FORMER_DEFAULTS else "")

@@ -40,6 +40,13 @@ def options_text(options: dict) -> str:
             f"{kernel_name(options['doppler_kernel'])}`")
 
 
+def options_label(options: dict) -> str:
+    """Processing options as the tables name them: `F# 1.0, partial volume on, 5x1`."""
+    return (f"F# {f_number_text(options['f_number'])}, partial volume "
+            f"{'on' if options['partial_volume'] else 'off'}, "
+            f"{kernel_name(options['doppler_kernel'])}")
+
+
 def options_of(settings: dict) -> dict:
     """The processing options a run's settings state (a record older than the network's
     statement of its kernel and correction ran at the former defaults)."""
@@ -133,9 +140,7 @@ def runs_text(runs_: list[dict]) -> str:
         o = options_of(m)
         options = [f"{m['doppler_estimator']}" if m["doppler_estimator"] != "loupas" else "",
                    "" if o == DEFAULTS else
-                   "former defaults" if o == FORMER_DEFAULTS else
-                   f"F# {f_number_text(o['f_number'])}, partial volume "
-                   f"{'on' if o['partial_volume'] else 'off'}, {kernel_name(o['doppler_kernel'])}"]
+                   "former defaults" if o == FORMER_DEFAULTS else options_label(o)]
         name = ", ".join(o for o in options if o)
         by_options.setdefault(name, []).append(m["seed"])
     return "; ".join(f"{name + ' ' if name else ''}{seeds_text(seeds)}"
