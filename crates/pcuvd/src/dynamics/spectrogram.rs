@@ -89,7 +89,9 @@ fn check_rates(images: &AngleImages) -> Result<()> {
 /// [`spectrogram`] of pixel `k` of `kept` (the clutter-filtered series of a few pixels, as a
 /// segmented run keeps them) of images described by `images` (their angles, frame rate, sound
 /// speed and demodulation frequency; their own series may be gone); `None` when the pixel's
-/// compounded series is zero (no Doppler signal to show).
+/// compounded series is zero (no Doppler signal to show). Each window reads the frames of the
+/// segment whose core holds its start, across the seams of `kept` (see
+/// [`crate::form::images::Seam`]), so that it sees one clutter filter.
 pub fn spectrogram_of_kept(
     kept: &crate::form::images::PixelSeries,
     k: usize,
@@ -133,8 +135,9 @@ pub fn spectrogram_of_kept(
     let mut power = Array2::<f64>::zeros((n_windows, nfft));
     let mut mean_velocity = Vec::with_capacity(n_windows);
     let mut buffer = vec![Complex64::new(0.0, 0.0); nfft];
-    for k in 0..n_windows {
-        let frames_k = &compound[k * params.step..k * params.step + params.window];
+    for w in 0..n_windows {
+        let start = w * params.step;
+        let frames_k = &kept.compound_window(k, start..start + params.window)?;
         buffer.fill(Complex64::new(0.0, 0.0));
         for ((b, &x), &w) in buffer.iter_mut().zip(frames_k).zip(&hann) {
             *b = x * w;
@@ -144,7 +147,7 @@ pub fn spectrogram_of_kept(
         // falls as frequency rises, so column c = nfft − 1 − j ascends in velocity.
         for j in 0..nfft {
             let bin = (j + nfft.div_ceil(2)) % nfft;
-            power[[k, nfft - 1 - j]] = buffer[bin].norm_sqr();
+            power[[w, nfft - 1 - j]] = buffer[bin].norm_sqr();
         }
         let r1: Complex64 = frames_k.windows(2).map(|p| p[0].conj() * p[1]).sum();
         let v_proj = if r1.norm() > 0.0 {

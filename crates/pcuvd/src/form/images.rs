@@ -101,6 +101,22 @@ pub struct PixelSeries {
     pub pixels: Vec<(usize, usize)>,
     /// Per angle, (pixels, frames).
     pub series: Vec<ndarray::Array2<Complex32>>,
+    /// Where the series joins frames that were clutter-filtered apart (a segmented run's cores),
+    /// in frame order; empty for a series filtered as one.
+    #[serde(default)]
+    pub seams: Vec<Seam>,
+}
+
+/// A join in a [`PixelSeries`] between two separately filtered runs of frames, with the frames the
+/// earlier run's filter gave after it. Each run has its own clutter subspace, so its tissue residue
+/// steps at the join; a window that starts before the join reads these instead of the later run's,
+/// and so sees one filter throughout, as the dynamics windows of a segmented run do.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Seam {
+    /// First frame of the later run, in the series' frames.
+    pub frame: usize,
+    /// Per angle, (pixels, frames): the earlier run's filtered frames from `frame` on.
+    pub tail: Vec<ndarray::Array2<Complex32>>,
 }
 
 impl PixelSeries {
@@ -136,7 +152,32 @@ impl PixelSeries {
         Ok(PixelSeries {
             pixels: pixels.to_vec(),
             series,
+            seams: Vec::new(),
         })
+    }
+
+    /// `pixels` of `images` over its frames `core`, followed by a [`Seam`] holding the frames
+    /// imaged after the core (a segment's overlap), when there are any: what a segment of a
+    /// segmented run keeps, to be [`append`](Self::append)ed in order.
+    pub fn of_core(
+        images: &AngleImages,
+        pixels: &[(usize, usize)],
+        core: std::ops::Range<usize>,
+    ) -> Result<Self> {
+        let mut kept = Self::of(images, pixels, core.clone())?;
+        if core.end < images.n_frames() {
+            let after = Self::of(images, pixels, core.end..images.n_frames())?;
+            kept.seams.push(Seam {
+                frame: core.len(),
+                tail: after.series,
+            });
+        }
+        Ok(kept)
+    }
+
+    /// Frames in the series.
+    pub fn n_frames(&self) -> usize {
+        self.series.first().map_or(0, |s| s.ncols())
     }
 
     /// Appends `later`'s frames (the same pixels and angles) after these.
@@ -146,10 +187,15 @@ impl PixelSeries {
                 "kept pixel series of other pixels or angles cannot be joined".into(),
             ));
         }
+        let offset = self.n_frames();
         for (mine, theirs) in self.series.iter_mut().zip(later.series) {
             *mine = ndarray::concatenate(ndarray::Axis(1), &[mine.view(), theirs.view()])
                 .map_err(|e| Error::Shape(format!("joining kept pixel series: {e}")))?;
         }
+        self.seams.extend(later.seams.into_iter().map(|seam| Seam {
+            frame: seam.frame + offset,
+            ..seam
+        }));
         Ok(())
     }
 
@@ -161,18 +207,56 @@ impl PixelSeries {
                 format!("{k} is not one of the {} kept", self.pixels.len()),
             ));
         }
-        let frames = self.series.first().map_or(0, |s| s.ncols());
-        Ok((0..frames)
-            .map(|t| {
-                self.series
-                    .iter()
-                    .fold(num_complex::Complex64::new(0.0, 0.0), |acc, s| {
-                        let v = s[[k, t]];
-                        acc + num_complex::Complex64::new(v.re as f64, v.im as f64)
-                    })
+        Ok((0..self.n_frames())
+            .map(|t| compounded(&self.series, k, t))
+            .collect())
+    }
+
+    /// Pixel `k`'s compounded frames `frames` as the filter of the run holding its first frame
+    /// gave them: across the next [`Seam`], from its tail (as far as the tail reaches: past it,
+    /// the later run's frames).
+    pub fn compound_window(
+        &self,
+        k: usize,
+        frames: std::ops::Range<usize>,
+    ) -> Result<Vec<num_complex::Complex64>> {
+        if k >= self.pixels.len() || frames.end > self.n_frames() || frames.start > frames.end {
+            return Err(invalid(
+                "kept window",
+                format!(
+                    "pixel {k} of {}, frames {frames:?} of {}",
+                    self.pixels.len(),
+                    self.n_frames()
+                ),
+            ));
+        }
+        let next_seam = self.seams.iter().find(|seam| seam.frame > frames.start);
+        Ok(frames
+            .map(|t| match next_seam {
+                Some(seam) if t >= seam.frame && t - seam.frame < seam.tail_frames() => {
+                    compounded(&seam.tail, k, t - seam.frame)
+                }
+                _ => compounded(&self.series, k, t),
             })
             .collect())
     }
+}
+
+impl Seam {
+    /// Frames in the tail.
+    fn tail_frames(&self) -> usize {
+        self.tail.first().map_or(0, |s| s.ncols())
+    }
+}
+
+/// Frame `t` of pixel `k` of per-angle (pixels, frames) series, the angles summed.
+fn compounded(series: &[ndarray::Array2<Complex32>], k: usize, t: usize) -> num_complex::Complex64 {
+    series
+        .iter()
+        .fold(num_complex::Complex64::new(0.0, 0.0), |acc, s| {
+            let v = s[[k, t]];
+            acc + num_complex::Complex64::new(v.re as f64, v.im as f64)
+        })
 }
 
 #[cfg(test)]
@@ -215,5 +299,47 @@ mod tests {
         let other = PixelSeries::of(&images, &[(0, 0)], 0..1).unwrap();
         assert!(kept.append(other).is_err());
         assert!(kept.compound(2).is_err());
+    }
+
+    /// Two segments filtered apart, cores 0..3 and 3..5 with 2 frames imaged after the first:
+    /// a window starting in the first core reads the first segment's frames across the seam,
+    /// as far as they reach, and a window starting at the seam reads the second's.
+    #[test]
+    fn windows_read_the_segment_holding_their_start() {
+        let first = images();
+        let mut second = images();
+        for s in &mut second.series {
+            s.mapv_inplace(|v| v * 10.0);
+        }
+        let pixels = [(1, 2), (0, 1)];
+        let mut kept = PixelSeries::of_core(&first, &pixels, 0..3).unwrap();
+        assert_eq!(kept.seams.len(), 1);
+        // The second segment holds frames 3..5 of the recording as its own frames 3..5.
+        kept.append(PixelSeries::of(&second, &pixels, 3..5).unwrap())
+            .unwrap();
+        assert_eq!(kept.n_frames(), 5);
+        assert_eq!(kept.seams[0].frame, 3);
+        // Pixel (0, 1) compounds to 3 + 2i·t in the first segment, ten times that in the second.
+        let first_value = |t: usize| num_complex::Complex64::new(3.0, 2.0 * t as f64);
+        let across = kept.compound_window(1, 1..5).unwrap();
+        assert_eq!(across, (1..5).map(first_value).collect::<Vec<_>>());
+        let after = kept.compound_window(1, 3..5).unwrap();
+        assert_eq!(after, kept.compound(1).unwrap()[3..5].to_vec());
+        assert_eq!(after[0], first_value(3) * 10.0);
+        // Past the tail (here the first segment's frames 3 and 4 only), the later frames.
+        let mut short = PixelSeries::of_core(&first, &pixels, 0..4).unwrap();
+        short.seams[0]
+            .tail
+            .iter_mut()
+            .for_each(|t| *t = t.slice(ndarray::s![.., ..0]).to_owned());
+        short
+            .append(PixelSeries::of(&second, &pixels, 4..5).unwrap())
+            .unwrap();
+        assert_eq!(
+            short.compound_window(1, 2..5).unwrap()[2],
+            first_value(4) * 10.0
+        );
+        assert!(kept.compound_window(1, 3..6).is_err());
+        assert!(kept.compound_window(2, 0..1).is_err());
     }
 }

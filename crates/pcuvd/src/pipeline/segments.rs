@@ -468,7 +468,11 @@ impl SegmentRun<'_> {
         let kept = if self.kept_pixels.is_empty() {
             None
         } else {
-            Some(PixelSeries::of(&images, self.kept_pixels, own.clone())?)
+            Some(PixelSeries::of_core(
+                &images,
+                self.kept_pixels,
+                own.clone(),
+            )?)
         };
 
         let clock = std::time::Instant::now();

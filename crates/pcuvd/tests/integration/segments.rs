@@ -7,6 +7,7 @@
 
 use ndarray::{Array2, Array3};
 use pcuvd::dynamics::DynamicsParams;
+use pcuvd::estimate::clutter::{ClutterParams, RankCut};
 use pcuvd::estimate::dealias::Dealias;
 use pcuvd::estimate::doppler::DopplerEstimator;
 use pcuvd::form::decode::EventAlignment;
@@ -15,7 +16,7 @@ use pcuvd::pipeline::segments::{SegmentRun, Segments, process_in_segments};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
-use pcuvd::{ChannelData, Coding, Probe, Sequence};
+use pcuvd::{ChannelData, Coding, Probe, Samples, Sequence};
 use pcuvd_testing::{tube, tube_at};
 
 const FRAMES: usize = 64;
@@ -579,4 +580,83 @@ fn kept_pixels_are_the_whole_series_at_those_pixels() {
     let from_images = pcuvd::dynamics::spectrogram(f, pixels[1], &spectrogram).unwrap();
     assert_eq!(from_kept.power_db, from_images.power_db);
     assert_eq!(from_kept.mean_velocity_m_s, from_images.mean_velocity_m_s);
+}
+
+/// With the clutter filter on, each segment filters in its own subspace, so the kept series
+/// steps where two cores meet. A spectrogram window that starts in a core reads that segment's
+/// frames throughout, across the seam: every window is the one of its segment's imaged frames
+/// processed alone, where the joined series would have mixed two filters.
+#[test]
+fn spectrogram_windows_read_one_clutter_filter_across_a_seam() {
+    let data = recording();
+    let params = ProcessParams {
+        clutter: ClutterParams {
+            low: RankCut::Fixed(1),
+            ..ClutterParams::default()
+        },
+        ..params(&data)
+    };
+    let segments = Segments {
+        core: 32,
+        overlap: 16,
+    };
+    let pixel = (20, 31);
+    let run = SegmentRun {
+        params: &params,
+        segments: &segments,
+        dynamics: None,
+        ensembles: None,
+        kept_pixels: &[pixel],
+    };
+    let kept = run.process(&data, None, &quiet).unwrap().kept.unwrap();
+    assert_eq!(kept.seams.len(), 1);
+    let window = pcuvd::dynamics::SpectrogramParams {
+        window: 16,
+        step: 8,
+        nfft: 32,
+    };
+    // Each segment's imaged frames as a recording of their own.
+    let alone = |frames: std::ops::Range<usize>| {
+        let n = data.acquisition.sequence.n_angles();
+        let Samples::Rf(rf) = &data.samples else {
+            panic!("the simulation gives RF")
+        };
+        let part = ChannelData {
+            acquisition: data.acquisition.clone(),
+            samples: Samples::Rf(
+                rf.slice(ndarray::s![frames.start * n..frames.end * n, .., ..])
+                    .to_owned(),
+            ),
+        };
+        let out = pipeline::process(&part, &params, &quiet).unwrap();
+        pcuvd::dynamics::spectrogram(&out.filtered, pixel, &window).unwrap()
+    };
+    let (first, second) = (alone(0..48), alone(32..FRAMES));
+    let whole = pipeline::process(&data, &params, &quiet).unwrap();
+    let from_kept = pcuvd::dynamics::spectrogram_of_kept(&kept, 0, &whole.filtered, &window)
+        .unwrap()
+        .unwrap();
+    // Windows start every 8 frames: 0–24 in the first core, 32–48 in the second.
+    assert_eq!(from_kept.mean_velocity_m_s.len(), 7);
+    assert_eq!(
+        from_kept.mean_velocity_m_s[..4],
+        first.mean_velocity_m_s[..4]
+    );
+    assert_eq!(
+        from_kept.mean_velocity_m_s[4..],
+        second.mean_velocity_m_s[..3]
+    );
+    // The window at frame 24 crosses the seam at 32: joined as one series, it reads otherwise.
+    let joined = pcuvd::form::images::PixelSeries {
+        seams: Vec::new(),
+        ..kept.clone()
+    };
+    let mixed = pcuvd::dynamics::spectrogram_of_kept(&joined, 0, &whole.filtered, &window)
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        mixed.mean_velocity_m_s[..3],
+        from_kept.mean_velocity_m_s[..3]
+    );
+    assert_ne!(mixed.mean_velocity_m_s[3], from_kept.mean_velocity_m_s[3]);
 }
