@@ -351,14 +351,20 @@ pub struct BrainSite {
 }
 
 /// One lumen pixel for each kind (arteriole, venule) and direction (up, down) the brain holds:
-/// in the widest such vessel, the pixel of highest peak speed (its axis). Kinds and directions
-/// the lumen lacks are left out.
+/// in the widest such vessel whose mean in-plane flow `velocity` ((vx, vz), m/s) runs within 45°
+/// of the beam, the pixel of highest peak speed (its axis). A spectrogram is the axial Doppler
+/// spectrum, so it shows the speed only where the flow runs along the beam (a lateral trunk's
+/// reads about 0 whatever its speed); where a kind and direction has no such pixel, its widest
+/// vessel at any angle. Kinds and directions the lumen lacks are left out.
 pub fn spectrogram_sites(
     cycle: &NetworkTruth,
     lumen: &Array2<bool>,
     diameter_m: &Array2<f64>,
+    velocity: (&Array2<f64>, &Array2<f64>),
     z: &[f64],
 ) -> Vec<BrainSite> {
+    let (vx, vz) = velocity;
+    let along_the_beam = |p: (usize, usize)| vz[p].abs() >= vx[p].abs();
     let mut sites = Vec::new();
     for (class, kind) in [(ARTERIOLE, "arteriole"), (VENULE, "venule")] {
         for up in [false, true] {
@@ -367,8 +373,9 @@ pub fn spectrogram_sites(
                 .filter(|&(p, &l)| l && cycle.vessel_class[p] == class && cycle.flow_up[p] == up)
                 .map(|(p, _)| p)
                 .max_by(|&a, &b| {
-                    diameter_m[a]
-                        .total_cmp(&diameter_m[b])
+                    along_the_beam(a)
+                        .cmp(&along_the_beam(b))
+                        .then(diameter_m[a].total_cmp(&diameter_m[b]))
                         .then(cycle.psv[a].total_cmp(&cycle.psv[b]))
                 });
             if let Some(pixel) = best {
@@ -475,7 +482,8 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             }
             let (diameter, lumen) = lumen_of(&simulation, &averaged)?;
             let cycle = averaged.cycle.as_ref().context("the tree's cycle truth")?;
-            sites = spectrogram_sites(cycle, &lumen, &diameter, &averaged.z);
+            let velocity = (&averaged.truth.vx, &averaged.truth.vz);
+            sites = spectrogram_sites(cycle, &lumen, &diameter, velocity, &averaged.z);
             truth = Some(averaged);
             scored = Some((diameter, lumen));
         }
@@ -643,6 +651,37 @@ mod tests {
         let (_, without) = false_detection_score(&detected, None, &blood, &|_| true);
         assert!(without.with_ri.is_none());
         assert!((without.in_vessel_mask - 3.0 / 18.0).abs() < 1e-12);
+    }
+
+    /// A spectrogram site is on the widest vessel whose flow runs within 45° of the beam, not on
+    /// a wider lateral trunk whose axial spectrum would read about 0; a kind with only lateral
+    /// vessels still gets its widest one.
+    #[test]
+    fn spectrogram_sites_prefer_flow_along_the_beam() {
+        let shape = (1, 4);
+        let cycle = NetworkTruth {
+            psv: Array2::from_shape_vec(shape, vec![0.006, 0.004, 0.03, 0.02]).unwrap(),
+            edv: Array2::from_elem(shape, 0.002),
+            ri: Array2::from_elem(shape, 0.5),
+            vessel_class: Array2::from_shape_vec(shape, vec![VENULE, VENULE, ARTERIOLE, ARTERIOLE])
+                .unwrap(),
+            flow_up: Array2::from_elem(shape, false),
+            vessel_index: Array2::from_shape_vec(shape, vec![0, 1, 2, 3]).unwrap(),
+            class_share: Array2::from_elem(shape, 1.0),
+        };
+        // The venules: a 140 µm lateral trunk and a 60 µm descending venule; the arterioles
+        // both lateral, 100 and 50 µm.
+        let diameter = Array2::from_shape_vec(shape, vec![140e-6, 60e-6, 100e-6, 50e-6]).unwrap();
+        let vx = Array2::from_shape_vec(shape, vec![0.004, 0.001, 0.01, 0.01]).unwrap();
+        let vz = Array2::from_shape_vec(shape, vec![0.0003, 0.003, 0.001, 0.002]).unwrap();
+        let lumen = Array2::from_elem(shape, true);
+        let sites = spectrogram_sites(&cycle, &lumen, &diameter, (&vx, &vz), &[1e-3]);
+        let pixels: Vec<_> = sites.iter().map(|s| s.pixel).collect();
+        assert_eq!(pixels, [(0, 2), (0, 1)], "{sites:?}");
+        assert!(
+            sites[1].label.starts_with("venule flowing down, 60 µm"),
+            "{sites:?}"
+        );
     }
 
     /// RI scores count the lumen pixels of the selection: a pixel without an RI counts an error
