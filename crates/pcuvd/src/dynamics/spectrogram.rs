@@ -135,8 +135,8 @@ pub fn spectrogram_of_kept(
     let mut power = Array2::<f64>::zeros((n_windows, nfft));
     let mut mean_velocity = Vec::with_capacity(n_windows);
     let mut buffer = vec![Complex64::new(0.0, 0.0); nfft];
-    for w in 0..n_windows {
-        let start = w * params.step;
+    for column in 0..n_windows {
+        let start = column * params.step;
         let frames_k = &kept.compound_window(k, start..start + params.window)?;
         buffer.fill(Complex64::new(0.0, 0.0));
         for ((b, &x), &w) in buffer.iter_mut().zip(frames_k).zip(&hann) {
@@ -147,7 +147,7 @@ pub fn spectrogram_of_kept(
         // falls as frequency rises, so column c = nfft − 1 − j ascends in velocity.
         for j in 0..nfft {
             let bin = (j + nfft.div_ceil(2)) % nfft;
-            power[[w, nfft - 1 - j]] = buffer[bin].norm_sqr();
+            power[[column, nfft - 1 - j]] = buffer[bin].norm_sqr();
         }
         let r1: Complex64 = frames_k.windows(2).map(|p| p[0].conj() * p[1]).sum();
         let v_proj = if r1.norm() > 0.0 {
