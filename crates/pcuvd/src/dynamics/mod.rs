@@ -28,8 +28,8 @@ use faer::Mat;
 use faer::linalg::solvers::SolveLstsq;
 use ndarray::{Array2, Array3, Axis, s};
 use num_complex::{Complex32, Complex64};
+use pcuvd_fft::FftPlanner64;
 use rayon::prelude::*;
-use rustfft::FftPlanner;
 
 use crate::core::error::{Error, Result, invalid, require_positive};
 use crate::core::units::power_to_db;

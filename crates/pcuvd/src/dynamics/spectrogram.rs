@@ -130,7 +130,7 @@ pub fn spectrogram_of_kept(
             0.5 - 0.5 * (2.0 * std::f64::consts::PI * t as f64 / (params.window - 1) as f64).cos()
         })
         .collect();
-    let fft = FftPlanner::<f64>::new().plan_fft_forward(nfft);
+    let fft = FftPlanner64::new().plan_fft_forward(nfft);
 
     let mut power = Array2::<f64>::zeros((n_windows, nfft));
     let mut mean_velocity = Vec::with_capacity(n_windows);

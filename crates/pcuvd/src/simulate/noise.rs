@@ -3,10 +3,10 @@
 use std::sync::Arc;
 
 use num_complex::Complex32;
+use pcuvd_fft::{Fft, FftPlanner32};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use rustfft::{Fft, FftPlanner};
 
 use crate::core::error::{Result, invalid};
 
@@ -66,7 +66,7 @@ impl NoiseGenerator {
         // Re(IFFT) of unit complex Gaussians on m bins has per-sample variance m.
         let m = bins.clone().count() as f64;
         Ok(NoiseGenerator {
-            fft: FftPlanner::new().plan_fft_inverse(n_fft),
+            fft: FftPlanner32::new().plan_fft_inverse(n_fft),
             n_fft,
             bins,
             scale: (rms / m.sqrt()) as f32,

@@ -1,7 +1,7 @@
 //! The one echo waveform of a point scatterer, finely tabulated for fast sub-sample placement.
 
 use num_complex::Complex64;
-use rustfft::FftPlanner;
+use pcuvd_fft::FftPlanner64;
 
 use crate::acquisition::probe::Probe;
 use crate::acquisition::sequence::{Sequence, TransmitPulse};
@@ -132,7 +132,7 @@ impl EchoWaveform {
                 Complex64::new(v, 0.0)
             })
             .collect();
-        let mut planner = FftPlanner::<f64>::new();
+        let mut planner = FftPlanner64::new();
         planner.plan_fft_forward(n).process(&mut spec);
         let freq = |k: usize| {
             let k = if k <= n / 2 {
@@ -250,7 +250,7 @@ impl EchoWaveform {
             })
             .collect();
         // Where the echo's envelope peaks: the origin moves there.
-        let mut planner = FftPlanner::<f64>::new();
+        let mut planner = FftPlanner64::new();
         let mut analytic: Vec<Complex64> = (0..n)
             .map(|k| {
                 if k < n / 2 {
@@ -284,7 +284,7 @@ impl EchoWaveform {
         fs: f64,
         mut spec: Vec<Complex64>,
         origin: usize,
-        planner: &mut FftPlanner<f64>,
+        planner: &mut FftPlanner64,
         (fc, tilt): (f64, f64),
         like: Option<&EchoWaveform>,
         truncation: f64,

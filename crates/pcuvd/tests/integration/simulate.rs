@@ -12,7 +12,7 @@ use pcuvd::simulate::{
     EchoWaveform, NOISE_DEFINITION, NoiseSpec, SimParams, echo_time, paper_spiral_params, simulate,
 };
 use pcuvd::{ChannelData, Coding, Probe, Samples, Sequence};
-use rustfft::FftPlanner;
+use pcuvd_fft::FftPlanner64;
 
 const FS: f64 = 65e6;
 const C: f64 = 1540.0;
@@ -55,7 +55,7 @@ fn per_angle(data: &ChannelData) -> Array4<f32> {
 /// Envelope (|analytic signal|) of a real trace.
 fn envelope(trace: &[f32]) -> Vec<f64> {
     let n = trace.len();
-    let mut planner = FftPlanner::<f64>::new();
+    let mut planner = FftPlanner64::new();
     let mut buf: Vec<Complex64> = trace
         .iter()
         .map(|&v| Complex64::new(v as f64, 0.0))

@@ -26,8 +26,8 @@ use std::sync::Arc;
 use ndarray::{Array3, Array4, ArrayView3, ArrayViewMut3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use num_traits::Zero;
+use pcuvd_fft::{Fft, FftPlanner32};
 use rayon::prelude::*;
-use rustfft::{Fft, FftPlanner};
 
 use crate::acquisition::channel::{AngleSamples, ChannelData, Samples};
 use crate::acquisition::hadamard::Hadamard;

@@ -21,7 +21,7 @@ impl TraceShifter {
         if fft_len.is_multiple_of(2) {
             fft_len += 1;
         }
-        let mut planner = FftPlanner::new();
+        let mut planner = FftPlanner32::new();
         TraceShifter {
             len,
             fft_len,
