@@ -3,8 +3,9 @@
 //! rustfft's planner is generic over the float type, so every crate that calls
 //! `FftPlanner::<T>::new()` compiles every FFT algorithm rustfft builds (butterflies, radix,
 //! Bluestein, each in scalar and AVX; the workspace leaves rustfft's SSE plans out) for that type:
-//! 42 % of the pcuvd crate's LLVM IR, compiled again for its unit tests. The planners here are concrete types, compiled once in this crate; their plans
-//! are trait objects, so a caller only calls through a vtable and compiles none of the algorithms.
+//! 42 % of the pcuvd crate's LLVM IR, compiled again for its unit tests. The planners here are
+//! concrete types, compiled once in this crate; their plans are trait objects, so a caller only
+//! calls through a vtable and compiles none of the algorithms.
 
 use std::sync::Arc;
 
@@ -16,7 +17,8 @@ macro_rules! planner {
         pub struct $name(rustfft::FftPlanner<$float>);
 
         impl $name {
-            /// A planner that uses AVX (x86-64) or NEON (ARM) plans where the CPU has them, scalar ones otherwise.
+            /// A planner that uses AVX (x86-64) or NEON (ARM) plans where the CPU has them, scalar
+            /// ones otherwise.
             pub fn new() -> Self {
                 Self(rustfft::FftPlanner::new())
             }
