@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use pcuvd::pipeline;
-use pcuvd::simulate::keyframes::{TissueKeyframes, keyframe_interval};
+use pcuvd::simulate::keyframes::{KeyframedBlood, TissueKeyframes, keyframe_interval};
 use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec};
 use pcuvd::simulate::phantom::tissue::{Anechoic, Layer, MotionTruth};
 use pcuvd::simulate::phantom::{
@@ -47,6 +47,8 @@ pub struct Simulation {
     pub tree: Option<TreePhantom>,
     /// The tissue's keyframes, shared by the blocks and modes simulated in turn.
     keyframes: std::sync::Mutex<TissueKeyframes>,
+    /// The tree's blood by speed class, at keyframes (`blood_keyframes`), shared alike.
+    blood_keyframes: Option<std::sync::Mutex<KeyframedBlood>>,
 }
 
 /// Samples a simulation holds in memory at once per mode (bytes): [`Simulation::in_blocks`]
@@ -176,6 +178,32 @@ impl Simulation {
             .iter()
             .map(|(_, params)| params.sequence.last_slot_start())
             .fold(0.0, f64::max);
+        let blood_keyframes = match (&scenario.vessels, &tree) {
+            (Vessels::Tree(section), Some(tree)) if section.blood_keyframes => {
+                // The vessels move with the tissue: its fastest speed over the tree's depths
+                // adds to the blood's own.
+                let motion = tissue.as_ref().map_or(0.0, |tissue| {
+                    let (top, bottom) = tree.flow().segments.iter().fold(
+                        (f64::INFINITY, f64::NEG_INFINITY),
+                        |(top, bottom), s| {
+                            (
+                                top.min(s.start[2].min(s.end[2])),
+                                bottom.max(s.start[2].max(s.end[2])),
+                            )
+                        },
+                    );
+                    tissue.spec().motion.max_speed((top, bottom))
+                });
+                let bounds: Vec<f64> = tree.speed_bounds().iter().map(|v| v + motion).collect();
+                let params: Vec<&SimParams> = modes.iter().map(|(_, p)| p).collect();
+                Some(std::sync::Mutex::new(KeyframedBlood::new(
+                    &bounds,
+                    &params,
+                    scenario.sequence.frames,
+                )?))
+            }
+            _ => None,
+        };
         Ok(Simulation {
             frames: scenario.sequence.frames,
             scenario,
@@ -188,11 +216,14 @@ impl Simulation {
             tissue,
             tree,
             keyframes: std::sync::Mutex::new(TissueKeyframes::new(interval, lead)),
+            blood_keyframes,
         })
     }
     /// Events `events` of recording `index`: the phantom alone, or with the tissue (rendered at
-    /// keyframes, the vessels moving with it). Keyframes are kept for the next call: simulate
-    /// the modes block by block (the same events of each in turn) so that they render once.
+    /// keyframes, the vessels moving with it); the tree's blood at every event or, with
+    /// `blood_keyframes`, by speed class at keyframes. Keyframes are kept for the next call:
+    /// simulate the modes block by block (the same events of each in turn) so that they render
+    /// once.
     fn simulate_block(
         &self,
         index: usize,
@@ -201,29 +232,47 @@ impl Simulation {
     ) -> Result<ndarray::Array3<f32>> {
         let params = &self.modes[index].1;
         let phantom = self.phantom.as_ref();
-        Ok(match &self.tissue {
-            None => simulate::simulate_events(phantom, params, self.frames, events, progress)?,
-            Some(tissue) => {
-                let moved = Moved {
-                    inner: phantom,
-                    motion: &tissue.spec().motion,
+        let moved = self.tissue.as_ref().map(|tissue| Moved {
+            inner: phantom,
+            motion: &tissue.spec().motion,
+        });
+        let blood: &dyn Phantom = match &moved {
+            Some(moved) => moved,
+            None => phantom,
+        };
+        let poisoned = |what: &str| anyhow::anyhow!("{what}: another simulation thread failed");
+        let mut rf = match &self.blood_keyframes {
+            None => {
+                simulate::simulate_events(blood, params, self.frames, events.clone(), progress)?
+            }
+            Some(keyframed) => {
+                // The receiver noise, at its level relative to the whole blood's echo, then the
+                // blood's echoes: the sum simulate_events makes at every event.
+                let mut rf = match params.noise {
+                    Some(_) => {
+                        simulate::simulate_noise_events(blood, params, self.frames, events.clone())?
+                    }
+                    None => ndarray::Array3::zeros((
+                        events.len(),
+                        params.probe.n_elements,
+                        params.n_samples,
+                    )),
                 };
-                let mut rf = simulate::simulate_events(
-                    &moved,
-                    params,
-                    self.frames,
-                    events.clone(),
-                    progress,
-                )?;
-                self.keyframes
+                keyframed
                     .lock()
-                    .map_err(|_| {
-                        anyhow::anyhow!("the tissue's keyframes: another simulation thread failed")
-                    })?
-                    .add(tissue, params, events, rf.view_mut())?;
+                    .map_err(|_| poisoned("the blood's keyframes"))?
+                    .add(blood, params, self.frames, events.clone(), rf.view_mut())?;
+                progress(events.end, self.frames * params.sequence.n_angles());
                 rf
             }
-        })
+        };
+        if let Some(tissue) = &self.tissue {
+            self.keyframes
+                .lock()
+                .map_err(|_| poisoned("the tissue's keyframes"))?
+                .add(tissue, params, events, rf.view_mut())?;
+        }
+        Ok(rf)
     }
 
     /// Simulates recording `index` of [`Self::modes`]; `progress(events done, events)`.
@@ -267,7 +316,26 @@ impl Simulation {
             .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
             .max()
             .unwrap_or(1);
-        let block = (BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        let mut block = (BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        // Blood at keyframes holds its keyframes beside each block's samples.
+        if let Some(keyframed) = &self.blood_keyframes {
+            let keyframed = keyframed.lock().map_err(|_| {
+                anyhow::anyhow!("the blood's keyframes: a simulation thread failed")
+            })?;
+            let bytes = |frames: usize| {
+                self.modes
+                    .iter()
+                    .map(|(_, p)| {
+                        let events = frames * p.sequence.n_angles();
+                        frames * frame_bytes + keyframed.keyframe_bytes(p, events)
+                    })
+                    .max()
+                    .unwrap_or(0)
+            };
+            while block > 1 && bytes(block) > BLOCK_BYTES {
+                block = (block * 3 / 4).max(1);
+            }
+        }
         let total: usize = self
             .modes
             .iter()
@@ -348,6 +416,27 @@ impl Simulation {
             vessel.insert("peak_velocity_mm_s".into(), mm(tube.peak_speed));
             vessel.insert("profile".into(), tube.profile.label().into());
             provenance.insert("tube".into(), vessel.into());
+        }
+        if let Some(keyframed) = &self.blood_keyframes
+            && let Ok(keyframed) = keyframed.lock()
+        {
+            // Fastest first: the speed bound (mm/s), the keyframes' interval (µs; 0: every
+            // event) and the scatterers of each class.
+            let classes = keyframed
+                .classes()
+                .iter()
+                .map(|c| {
+                    let mut class = toml::Table::new();
+                    class.insert("max_speed_mm_s".into(), (c.max_speed_m_s * 1e3).into());
+                    class.insert(
+                        "keyframe_interval_us".into(),
+                        c.keyframe_interval_s.map_or(0.0, |s| s * 1e6).into(),
+                    );
+                    class.insert("scatterers".into(), (c.scatterers as i64).into());
+                    toml::Value::Table(class)
+                })
+                .collect();
+            provenance.insert("blood_keyframes".into(), toml::Value::Array(classes));
         }
         provenance
     }
@@ -765,6 +854,8 @@ mod tests {
             panic!("the rat brain's vessels are a tree")
         };
         tree.deep_pairs = 0;
+        // The preset rendered its blood at every event.
+        tree.blood_keyframes = false;
         scenario.noise = Some(NoiseSection { level_db: -10.0 });
         assert_eq!(
             scenario_digests(scenario),

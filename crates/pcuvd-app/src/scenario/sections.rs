@@ -348,6 +348,10 @@ pub struct TreeSection {
     pub deep_venule_diameter_m: [f64; 2],
     /// Side branches along each deep trunk.
     pub deep_branchings: usize,
+    /// Blood rendered at keyframes by speed class and interpolated between them, instead of at
+    /// every event (`pcuvd::simulate::keyframes::KeyframedBlood`): the same echoes within about
+    /// 2·10⁻⁴ (−74 dB), in a fraction of the time.
+    pub blood_keyframes: bool,
 }
 
 impl Default for TreeSection {
@@ -387,6 +391,7 @@ impl Default for TreeSection {
             ],
             deep_venule_diameter_m: [base.deep_venule_diameter.0, base.deep_venule_diameter.1],
             deep_branchings: base.deep_branchings,
+            blood_keyframes: true,
         }
     }
 }

@@ -135,6 +135,25 @@ impl TreePhantom {
         &self.flow
     }
 
+    /// A bound on each scatterer's speed at any time (m/s), in the order of its amplitudes: its
+    /// segment's centreline bound ([`SegmentFlow::max_centreline_speed`]) scaled by the laminar
+    /// profile at its radius.
+    pub fn speed_bounds(&self) -> Vec<f64> {
+        let segment: Vec<f64> = self
+            .flow
+            .segments
+            .iter()
+            .map(SegmentFlow::max_centreline_speed)
+            .collect();
+        self.seats
+            .iter()
+            .map(|seat| {
+                let rel = seat.radius / (0.5 * self.flow.segments[seat.segment].diameter);
+                segment[seat.segment] * (1.0 - rel * rel)
+            })
+            .collect()
+    }
+
     /// Every scatterer's position (x, y, z) (m) at time `t` (s).
     fn positions(&self, t: f64) -> impl Iterator<Item = [f64; 3]> + '_ {
         let travelled: Vec<f64> = self

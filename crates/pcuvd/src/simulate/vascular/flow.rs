@@ -278,6 +278,13 @@ impl SegmentFlow {
         2.0 * self.mean_speed(t)
     }
 
+    /// A bound on the centreline's speed at any time (m/s): every harmonic at its peak at once,
+    /// 2 (|Q₀| + Σ |Qₖ|) / A.
+    pub fn max_centreline_speed(&self) -> f64 {
+        let peak = self.mean_flow.abs() + self.harmonics.iter().map(|q| q.norm()).sum::<f64>();
+        2.0 * peak / self.area()
+    }
+
     /// Distance travelled along the centreline from time 0 to `t` (m), from `v1` toward `v2`:
     /// exact (closed form per harmonic), so it does not depend on earlier calls.
     pub fn centreline_displacement(&self, t: f64) -> f64 {
