@@ -51,6 +51,11 @@ pub struct Simulation {
     blood_keyframes: Option<std::sync::Mutex<KeyframedBlood>>,
 }
 
+/// The error of a lock on `what` that a failed simulation thread left poisoned.
+fn poisoned(what: &str) -> anyhow::Error {
+    anyhow::anyhow!("{what}: another simulation thread failed")
+}
+
 /// Samples a simulation holds in memory at once per mode (bytes): [`Simulation::in_blocks`]
 /// simulates blocks of frames this large.
 pub const BLOCK_BYTES: usize = 256 << 20;
@@ -240,7 +245,6 @@ impl Simulation {
             Some(moved) => moved,
             None => phantom,
         };
-        let poisoned = |what: &str| anyhow::anyhow!("{what}: another simulation thread failed");
         let mut rf = match &self.blood_keyframes {
             None => {
                 simulate::simulate_events(blood, params, self.frames, events.clone(), progress)?
@@ -319,9 +323,9 @@ impl Simulation {
         let mut block = (BLOCK_BYTES / frame_bytes.max(1)).max(1);
         // Blood at keyframes holds its keyframes beside each block's samples.
         if let Some(keyframed) = &self.blood_keyframes {
-            let keyframed = keyframed.lock().map_err(|_| {
-                anyhow::anyhow!("the blood's keyframes: a simulation thread failed")
-            })?;
+            let keyframed = keyframed
+                .lock()
+                .map_err(|_| poisoned("the blood's keyframes"))?;
             let bytes = |frames: usize| {
                 self.modes
                     .iter()

@@ -372,7 +372,6 @@ impl KeyframedBlood {
         let mut choice = [None; MAX_SPEED_CLASSES + 1];
         for j in 1..=MAX_SPEED_CLASSES {
             cost[j] = cost[j - 1] + counts[j - 1] as f64 * per_scatterer_direct;
-            choice[j] = None;
             for i in 0..j {
                 let n: usize = counts[i..j].iter().sum();
                 if n == 0 {
