@@ -349,8 +349,10 @@ pub struct TreeSection {
     /// Side branches along each deep trunk.
     pub deep_branchings: usize,
     /// Blood rendered at keyframes by speed class and interpolated between them, instead of at
-    /// every event (`pcuvd::simulate::keyframes::KeyframedBlood`): the same echoes within about
-    /// 2·10⁻⁴ (−74 dB), in a fraction of the time.
+    /// every event (`pcuvd::simulate::keyframes::KeyframedBlood`), in a fraction of the time:
+    /// moving blood's echoes agree within about 2·10⁻⁴ (−74 dB); blood re-entering a segment at
+    /// its other end fades in over a few keyframes instead of jumping (2.6 % RMS of the small rat
+    /// brain's blood echo).
     pub blood_keyframes: bool,
 }
 

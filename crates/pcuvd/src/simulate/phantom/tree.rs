@@ -147,11 +147,14 @@ impl TreePhantom {
             .collect();
         self.seats
             .iter()
-            .map(|seat| {
-                let rel = seat.radius / (0.5 * self.flow.segments[seat.segment].diameter);
-                segment[seat.segment] * (1.0 - rel * rel)
-            })
+            .map(|seat| segment[seat.segment] * self.profile(seat))
             .collect()
+    }
+
+    /// The laminar profile's share of the centreline speed at `seat`'s radius: 1 − (r/R)².
+    fn profile(&self, seat: &Seat) -> f64 {
+        let rel = seat.radius / (0.5 * self.flow.segments[seat.segment].diameter);
+        1.0 - rel * rel
     }
 
     /// Every scatterer's position (x, y, z) (m) at time `t` (s).
@@ -172,8 +175,7 @@ impl TreePhantom {
     fn position(&self, seat: &Seat, travelled: f64) -> [f64; 3] {
         let s = &self.flow.segments[seat.segment];
         let chord = s.chord();
-        let rel = seat.radius / (0.5 * s.diameter);
-        let along = (seat.along + travelled * (1.0 - rel * rel)).rem_euclid(chord);
+        let along = (seat.along + travelled * self.profile(seat)).rem_euclid(chord);
         let [u, n1, n2] = self.frames[seat.segment];
         let (sin, cos) = seat.angle.sin_cos();
         std::array::from_fn(|k| {
