@@ -79,9 +79,9 @@ pub(super) fn beamform_into_with(
         image.assign(&contiguous);
         return Ok(());
     }
-    image.fill(Complex32::new(0.0, 0.0));
     // Interpolation needs two samples; with fewer, no pixel gets a contribution.
     if n_samples < 2 || frames == 0 || nz == 0 || nx == 0 || channels == 0 {
+        image.fill(Complex32::new(0.0, 0.0));
         return Ok(());
     }
     let setup = Setup::new(iq, probe, angle, params);
@@ -104,6 +104,13 @@ pub(super) fn beamform_into_with(
         tiles
             .into_par_iter()
             .for_each_init(Taps::default, |taps, mut pixels| {
+                // The sums start from zero, set by the thread that sums them: a fresh series is
+                // then faulted in on every core (zeroed whole by the calling thread, it kept the
+                // first block of a 360-frame coded recording at 1.25 of 2 cores), and each pixel
+                // is in cache when summed.
+                for (_, _, pixel) in pixels.iter_mut() {
+                    pixel.fill(Complex32::new(0.0, 0.0));
+                }
                 // Within a tile, one group of elements and one run of frames at a time (a
                 // pass): the samples they need (a few hundred KB) are reused from L2 by all
                 // the pixels. (Prefetching the next pass's samples into L2 while one ran cost
