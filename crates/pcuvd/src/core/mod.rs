@@ -1,11 +1,12 @@
-//! Vocabulary every stage shares: the error type, order statistics, weighted sums of rows, the
-//! time-of-flight convention, the pixel grid and the vessel class codes. Nothing here imports a
-//! stage.
+//! Vocabulary every stage shares: the error type, order statistics, weighted sums of rows, lag
+//! products of series, the time-of-flight convention, the pixel grid and the vessel class codes.
+//! Nothing here imports a stage.
 
 pub mod buffers;
 pub mod error;
 pub mod geometry;
 pub mod grid;
+pub mod lags;
 pub mod rows;
 pub mod stats;
 pub mod units;

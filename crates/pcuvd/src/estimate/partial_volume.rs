@@ -24,7 +24,9 @@ use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip, s};
 use num_complex::{Complex32, Complex64};
 use rayon::prelude::*;
 
+use crate::core::buffers::contiguous;
 use crate::core::error::{Error, Result};
+use crate::core::lags::conj_dot;
 use crate::estimate::dealias::DealiasedField;
 use crate::estimate::projections::Projections;
 use crate::estimate::vector::{Estimator, VectorField, projection_weights, vector_velocity_with};
@@ -50,32 +52,25 @@ impl CellLags {
     /// The lags of `series` (nz, nx, frames), each pixel's frames contiguous or not.
     pub fn of(series: ArrayView3<Complex32>) -> CellLags {
         let (nz, nx, nf) = series.dim();
-        let dot = |a: ndarray::ArrayView1<Complex32>, b: ndarray::ArrayView1<Complex32>| {
-            let mut sum = Complex64::new(0.0, 0.0);
-            for (a, b) in a.iter().zip(b.iter()) {
-                let p = a.conj() * b;
-                sum += Complex64::new(p.re as f64, p.im as f64);
-            }
-            sum
-        };
         let rows: Vec<[Complex64; 5]> = (0..nz)
             .into_par_iter()
             .map(|iz| {
+                let pixel = |iz: usize, ix: usize| contiguous(series.slice(s![iz, ix, ..]));
                 let mut acc = [Complex64::new(0.0, 0.0); 5];
                 for ix in 0..nx {
-                    let here = series.slice(s![iz, ix, ..]);
-                    acc[0] += dot(here, here);
+                    let here = pixel(iz, ix);
+                    acc[0] += conj_dot(&here, &here);
                     if iz + 1 < nz {
-                        acc[1] += dot(here, series.slice(s![iz + 1, ix, ..]));
+                        acc[1] += conj_dot(&here, &pixel(iz + 1, ix));
                         if ix + 1 < nx {
-                            acc[3] += dot(here, series.slice(s![iz + 1, ix + 1, ..]));
+                            acc[3] += conj_dot(&here, &pixel(iz + 1, ix + 1));
                         }
                         if ix > 0 {
-                            acc[4] += dot(here, series.slice(s![iz + 1, ix - 1, ..]));
+                            acc[4] += conj_dot(&here, &pixel(iz + 1, ix - 1));
                         }
                     }
                     if ix + 1 < nx {
-                        acc[2] += dot(here, series.slice(s![iz, ix + 1, ..]));
+                        acc[2] += conj_dot(&here, &pixel(iz, ix + 1));
                     }
                 }
                 acc
@@ -184,7 +179,8 @@ fn correlate(a: &Array2<f64>, taps_z: &[f64], taps_x: &[f64]) -> Array2<f64> {
     let pass = |a: &Array2<f64>, taps: &[f64], axis: Axis| -> Array2<f64> {
         let n = a.len_of(axis) as isize;
         let radius = (taps.len() / 2) as isize;
-        Array2::from_shape_fn((nz, nx), |(iz, ix)| {
+        let mut out = Array2::zeros((nz, nx));
+        Zip::indexed(&mut out).par_for_each(|(iz, ix), out| {
             let centre = if axis == Axis(0) { iz } else { ix } as isize;
             let mut sum = 0.0;
             for (k, &w) in taps.iter().enumerate() {
@@ -198,8 +194,9 @@ fn correlate(a: &Array2<f64>, taps_z: &[f64], taps_x: &[f64]) -> Array2<f64> {
                     };
                 }
             }
-            sum
-        })
+            *out = sum;
+        });
+        out
     };
     pass(&pass(a, taps_z, Axis(0)), taps_x, Axis(1))
 }

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::core::buffers::contiguous;
+use crate::core::lags::conj_dot;
 
 /// Power and lag-1 autocorrelation per pixel, shape (nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -278,111 +279,4 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
             }
         });
     Ok(SpatialLag { plus, minus, same })
-}
-
-/// Σ_t conj(a_t)·b_t over two series of equal length, each product in f32 (the series'
-/// precision) and the sum in f64, so that long ensembles lose nothing to the sum.
-pub(super) fn conj_dot(a: &[Complex32], b: &[Complex32]) -> Complex64 {
-    assert_eq!(a.len(), b.len(), "series of equal length");
-    let (a, b) = (
-        crate::core::buffers::complex_floats(a),
-        crate::core::buffers::complex_floats(b),
-    );
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected.
-            return unsafe { conj_dot_avx512(a, b) };
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 was detected.
-            return unsafe { conj_dot_avx2(a, b) };
-        }
-    }
-    conj_dot_floats(a, b)
-}
-
-/// [`conj_dot`] compiled for AVX-512.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn conj_dot_avx512(a: &[f32], b: &[f32]) -> Complex64 {
-    conj_dot_floats(a, b)
-}
-
-/// [`conj_dot`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn conj_dot_avx2(a: &[f32], b: &[f32]) -> Complex64 {
-    conj_dot_floats(a, b)
-}
-
-/// [`conj_dot`] on the series' floats, (re, im) after each other. Re(conj(a)·b) = a_re·b_re +
-/// a_im·b_im is the sum of the floats' products in place; Im = a_re·b_im − a_im·b_re, of the
-/// products with each pair swapped, even floats added and odd ones subtracted. Kept in
-/// independent lanes, the sums vectorise where one running complex sum would wait on itself.
-#[inline(always)]
-fn conj_dot_floats(a: &[f32], b: &[f32]) -> Complex64 {
-    const LANES: usize = 16;
-    let mut same = [0.0f64; LANES];
-    let mut swapped = [0.0f64; LANES];
-    let (a_chunks, b_chunks) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let (a_rest, b_rest) = (a_chunks.remainder(), b_chunks.remainder());
-    for (x, y) in a_chunks.zip(b_chunks) {
-        for k in 0..LANES {
-            same[k] += (x[k] * y[k]) as f64;
-            swapped[k] += (x[k] * y[k ^ 1]) as f64;
-        }
-    }
-    // Whole complex samples remain, so each float's partner is among them.
-    for k in 0..a_rest.len() {
-        same[k] += (a_rest[k] * b_rest[k]) as f64;
-        swapped[k] += (a_rest[k] * b_rest[k ^ 1]) as f64;
-    }
-    let re = same.iter().sum();
-    let im = swapped.chunks_exact(2).map(|pair| pair[0] - pair[1]).sum();
-    Complex64::new(re, im)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The lag sums against the sum written out in f64, for series shorter and longer than a
-    /// vector's lanes and of odd lengths.
-    #[test]
-    fn conj_dot_is_the_sum_of_conjugate_products() {
-        for len in [0usize, 1, 2, 7, 8, 9, 17, 100, 361] {
-            let a: Vec<Complex32> = (0..len)
-                .map(|t| Complex32::new((0.37 * t as f32).sin(), (1.3 + 0.11 * t as f32).cos()))
-                .collect();
-            let b: Vec<Complex32> = (0..len)
-                .map(|t| Complex32::new(0.5 - (0.05 * t as f32).cos(), (0.21 * t as f32).sin()))
-                .collect();
-            let expected = a
-                .iter()
-                .zip(&b)
-                .fold(Complex64::new(0.0, 0.0), |acc, (x, y)| {
-                    let (x, y) = (
-                        Complex64::new(x.re as f64, x.im as f64),
-                        Complex64::new(y.re as f64, y.im as f64),
-                    );
-                    acc + x.conj() * y
-                });
-            let got = conj_dot(&a, &b);
-            // Each product is rounded in f32: a relative error of 2⁻²⁴ per term at most.
-            let bound = 1e-7
-                * a.iter()
-                    .zip(&b)
-                    .map(|(x, y)| (x.norm() * y.norm()) as f64)
-                    .sum::<f64>();
-            assert!(
-                (got - expected).norm() <= bound,
-                "len {len}: {got} vs {expected}"
-            );
-        }
-        let x = [Complex32::new(3.0, -4.0), Complex32::new(0.0, 2.0)];
-        let y = [Complex32::new(1.0, 2.0), Complex32::new(5.0, 0.0)];
-        // conj(3 − 4i)(1 + 2i) = −5 + 10i; conj(2i)·5 = −10i.
-        assert_eq!(conj_dot(&x, &y), Complex64::new(-5.0, 0.0));
-    }
 }
