@@ -147,36 +147,48 @@ fn complex_normal_equations<'a>(
 
 /// [`complex_normal_equations`] of lanes that each carry two real series (real and imaginary
 /// parts), whose predictor is real: the real parts of that Gram matrix and right-hand side,
-/// Re(conj(u)·v) = u_re·v_re + u_im·v_im, summed alone — bit for bit the real parts of the
-/// complex sums (a conjugate only negates, exactly), at half their products.
+/// Re(conj(u)·v) = u_re·v_re + u_im·v_im, summed alone. Every entry is a sum of one lag's
+/// products c_d[u] = x[u + d]·x[u] over a window of the series (the forward equations' and the
+/// backward ones' windows offset from each other), so each lag's products are formed once and
+/// summed cumulatively, and each entry is a difference of two cumulative sums: p + 1 products per
+/// frame where the equations written term by term take p(p + 3), and the same sums to rounding.
 fn real_normal_equations<'a>(
     series: impl Iterator<Item = &'a [Complex32]>,
     p: usize,
 ) -> (Vec<Vec<Complex64>>, Vec<Complex64>) {
     let mut upper = [[0.0f64; ALIGN_ORDER]; ALIGN_ORDER];
     let mut rhs = [0.0f64; ALIGN_ORDER];
-    let dot = |u: [f64; 2], v: [f64; 2]| u[0] * v[0] + u[1] * v[1];
     let mut widened = [[0.0f64; 2]; ALIGN_FIT_FRAMES];
+    // cumulative[d][i] = Σ_{u < i} x[u + d]·x[u].
+    let mut cumulative = [[0.0f64; ALIGN_FIT_FRAMES + 1]; ALIGN_ORDER + 1];
     for narrow in series {
-        let x = &mut widened[..narrow.len()];
+        let n = narrow.len();
+        // The equations run over frames p..n: a series no longer than the order adds none.
+        if n <= p {
+            continue;
+        }
+        let x = &mut widened[..n];
         for (wide, v) in x.iter_mut().zip(narrow) {
             *wide = [v.re as f64, v.im as f64];
         }
-        for t in p..x.len() {
-            // Forward: x[t] from x[t − 1], …, x[t − p]; backward: x[t − p] from
-            // x[t − p + 1], …, x[t].
-            for j in 0..p {
-                for k in j..p {
-                    upper[j][k] += dot(x[t - 1 - j], x[t - 1 - k]);
-                }
-                rhs[j] += dot(x[t - 1 - j], x[t]);
+        for (d, sums) in cumulative.iter_mut().enumerate().take(p + 1) {
+            let mut sum = 0.0;
+            for u in 0..n - d {
+                sum += x[u + d][0] * x[u][0] + x[u + d][1] * x[u][1];
+                sums[u + 1] = sum;
             }
-            for j in 0..p {
-                for k in j..p {
-                    upper[j][k] += dot(x[t - p + 1 + j], x[t - p + 1 + k]);
-                }
-                rhs[j] += dot(x[t - p + 1 + j], x[t - p]);
+        }
+        // Σ_{u = first}^{last} x[u + d]·x[u].
+        let window =
+            |d: usize, first: usize, last: usize| cumulative[d][last + 1] - cumulative[d][first];
+        for (j, (row, b)) in upper.iter_mut().zip(&mut rhs).enumerate().take(p) {
+            for (k, entry) in row.iter_mut().enumerate().take(p).skip(j) {
+                // Forward: x[t − 1 − j]·x[t − 1 − k] for t in p..n; backward:
+                // x[t − p + 1 + j]·x[t − p + 1 + k].
+                *entry += window(k - j, p - 1 - k, n - 2 - k) + window(k - j, 1 + j, n - p + j);
             }
+            // Forward: x[t − 1 − j]·x[t]; backward: x[t − p + 1 + j]·x[t − p].
+            *b += window(j + 1, p - 1 - j, n - 2 - j) + window(j + 1, 0, n - 1 - p);
         }
     }
     let gram = (0..p)
@@ -225,4 +237,49 @@ pub(super) fn solve_small(
         x[row] = v / a[row][row];
     }
     x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The windowed lag sums give the forward–backward equations written term by term (the
+    /// real parts of the complex equations), for every order and for series shorter than the
+    /// fit, pooled over several lanes.
+    #[test]
+    fn real_equations_are_the_terms_summed() {
+        let lanes: Vec<Vec<Complex32>> = (0..3)
+            .map(|l| {
+                (0..ALIGN_FIT_FRAMES - 2 * l)
+                    .map(|t| {
+                        let t = t as f32;
+                        Complex32::new(
+                            (0.7 * t + l as f32).sin() + 0.1 * (2.3 * t).cos(),
+                            (1.9 * t - 0.4 * l as f32).cos(),
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
+        for p in 1..=ALIGN_ORDER {
+            let (gram, rhs) = real_normal_equations(lanes.iter().map(|l| l.as_slice()), p);
+            let (want_gram, want_rhs) =
+                complex_normal_equations(lanes.iter().map(|l| l.as_slice()), p);
+            let scale = want_gram[0][0].re;
+            for j in 0..p {
+                for k in 0..p {
+                    let (got, want) = (gram[j][k].re, want_gram[j][k].re);
+                    assert!(
+                        (got - want).abs() <= 1e-12 * scale,
+                        "order {p}, G[{j}][{k}]: {got} against {want}"
+                    );
+                }
+                let (got, want) = (rhs[j].re, want_rhs[j].re);
+                assert!(
+                    (got - want).abs() <= 1e-12 * scale,
+                    "order {p}, b[{j}]: {got} against {want}"
+                );
+            }
+        }
+    }
 }
