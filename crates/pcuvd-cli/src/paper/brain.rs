@@ -290,6 +290,7 @@ pub fn brain_figures(
         (Some(&first), Some(&last)) if last > first => vec![first, last],
         _ => depth.clone(),
     };
+    let theory_points = theory_x.len();
     panels.push(Panel::Plot(PlotPanel {
         title: "vessel over background, by depth".into(),
         x_label: "depth (mm)".into(),
@@ -321,8 +322,8 @@ pub fn brain_figures(
             // side lobes) keeps the measured gain below it.
             line(
                 &format!("theory for 8 angles ({theory_db:.2} dB)"),
-                theory_x.clone(),
-                vec![theory_db; theory_x.len()],
+                theory_x,
+                vec![theory_db; theory_points],
                 SeriesStyle::DashedLine,
                 TRUTH_RGB,
             ),
