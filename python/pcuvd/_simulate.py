@@ -20,7 +20,8 @@ class Truth:
     mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
     edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up, and
     class_share: the share of each pixel's blood of the class named (below 1 where an artery and
-    a vein share the elevation beam of the rat brain).
+    a vein share the elevation beam of the rat brain), and axis_profile: where in its vessel the
+    pixel's blood lies, the mean of 1 - (r/R)^2 over it (1 on the axis, 0 at the wall).
     With tissue (tissue_db=..., or the rat brain) also `tissue`: its velocity vx, vz (nz, nx) in
     m/s at t = 0, and its displacement from t = 0 (frames, nz, 3: x, y, z) in m at each frame. For the three-dimensional rat brain also vy (nz, nx), the out-of-plane velocity
     (m/s), and blood_fraction (nz, nx), the blood's share of each pixel's elevation beam; its
@@ -84,7 +85,7 @@ def simulate(
         given.update(noise_db="off" if noise_db is None else noise_db)
     settings = _checks.to_options("simulate", given, _pcuvd.option_names_of("simulate"))
     recordings, arrays = _pcuvd.simulate(settings, bool(quiet))
-    cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up", "class_share")
+    cycle_keys = ("ri", "psv", "edv", "vessel_class", "flow_up", "class_share", "axis_profile")
     truth = Truth(
         x=arrays["x"],
         z=arrays["z"],

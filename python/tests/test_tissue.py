@@ -61,6 +61,11 @@ def test_the_virtual_rat_brain_has_tissue_a_tree_crossing_the_plane_and_its_ri()
     share = truth.cycle["class_share"]
     assert np.all((share[inside] > 0) & (share[inside] <= 1)) and np.all(share[~inside] == 0)
     assert np.any(share[inside] < 0.9) and np.median(share[inside]) == 1.0
+    # Where in its vessel each pixel's blood lies: the mean of 1 - (r/R)^2, from the wall (0) to
+    # the axis (1); the lumen's pixels span both.
+    profile = truth.cycle["axis_profile"]
+    assert np.all((profile[inside] >= 0) & (profile[inside] <= 1)) and np.all(profile[~inside] == 0)
+    assert np.any(profile[inside] < 1 / 3) and np.any(profile[inside] > 1 / 3)
     # The displacement over the recording starts at 0, and one frame (1/14.4 kHz with one angle)
     # later it is the velocity map's times the frame period, to the motion's curvature over so
     # short a time.

@@ -66,6 +66,19 @@ pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's el
     recording at `TRUTH_TIMES` evenly spaced times), and the median angle between the \
     estimated and the true in-plane velocity (degrees)";
 
+/// Mean of 1 − (r/R)² over a pixel's blood below which the pixel counts as near its vessel's
+/// wall in the vector scores: the blood lies beyond about 0.8 R, where the laminar profile is
+/// steepest and a resolution cell averages the most gradient. (Seen through an elevation beam
+/// wider than the vessel, a chord through the axis averages 2/3.)
+pub const WALL_PROFILE: f64 = 1.0 / 3.0;
+
+/// What the wall groups of the vector scores count.
+pub const WALL_DEFINITION: &str = "the vector scores (as `vector_definition`) of the lumen \
+    pixels near their vessel's wall (the truth's `axis_profile`, the mean of 1 − (r/R)² over the \
+    pixel's blood, below `WALL_PROFILE` = 1/3: the blood lies beyond about 0.8 of the radius) \
+    and toward its axis (the rest), over every lumen pixel and over the vessels at least one \
+    wavelength wide";
+
 /// What the RI scores count.
 pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least one wavelength \
     wide (the resolution cell's size): median |RI_estimated − RI_true| (a pixel without an RI \
@@ -289,6 +302,10 @@ pub struct BrainMetrics {
     pub vector_all: GroupScores,
     /// What the vector scores count.
     pub vector_definition: &'static str,
+    /// Vector scores near the vessels' walls and toward their axes ([`WALL_DEFINITION`]).
+    pub vector_by_wall: Vec<GroupScores>,
+    /// What the wall groups count.
+    pub wall_definition: &'static str,
     /// RI scores: vessels at least a wavelength wide, every lumen pixel, and by diameter class.
     pub ri: Vec<RiGroupScores>,
     /// Why a method has no RI scores, when it has none.
@@ -668,6 +685,7 @@ mod tests {
             flow_up: Array2::from_elem(shape, false),
             vessel_index: Array2::from_shape_vec(shape, vec![0, 1, 2, 3]).unwrap(),
             class_share: Array2::from_elem(shape, 1.0),
+            axis_profile: Array2::from_elem(shape, 1.0),
         };
         // The venules: a 140 µm lateral trunk and a 60 µm descending venule; the arterioles
         // both lateral, 100 and 50 µm.
@@ -698,6 +716,7 @@ mod tests {
             flow_up: Array2::from_elem(shape, true),
             vessel_index: Array2::from_elem(shape, 0),
             class_share: Array2::from_elem(shape, 1.0),
+            axis_profile: Array2::from_elem(shape, 1.0),
         };
         let est = RiMaps {
             ri: Array2::from_shape_vec(shape, vec![0.72, f64::NAN, 0.2, 0.6]).unwrap(),

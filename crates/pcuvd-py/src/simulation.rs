@@ -57,6 +57,7 @@ pub(crate) fn simulate<'py>(
         dict.set_item("vessel_class", cycle.vessel_class.to_pyarray(py))?;
         dict.set_item("flow_up", cycle.flow_up.to_pyarray(py))?;
         dict.set_item("class_share", cycle.class_share.to_pyarray(py))?;
+        dict.set_item("axis_profile", cycle.axis_profile.to_pyarray(py))?;
     }
     if let Some((vy, fraction)) = &truth.elevation {
         dict.set_item("vy", vy.to_pyarray(py))?;

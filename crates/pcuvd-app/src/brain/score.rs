@@ -1,5 +1,5 @@
-//! The brain's maps scored against its truth: the lumen, vector errors by depth and diameter,
-//! flow shown where there is no blood, and RI by class.
+//! The brain's maps scored against its truth: the lumen, vector errors by depth, diameter and
+//! nearness to the wall, flow shown where there is no blood, and RI by class.
 
 use super::*;
 
@@ -99,6 +99,19 @@ pub(super) fn score(
     let vector_all = group("all lumen pixels".into(), &|_, _| true);
 
     let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
+    let near_wall = |iz: usize, ix: usize| cycle.axis_profile[[iz, ix]] < WALL_PROFILE;
+    let wide = |iz: usize, ix: usize| diameter_m[[iz, ix]] >= wavelength;
+    let wide_label = format!("vessels ≥ {:.0} µm", wavelength * 1e6);
+    let vector_by_wall = vec![
+        group("near the wall".into(), &near_wall),
+        group("toward the axis".into(), &|iz, ix| !near_wall(iz, ix)),
+        group(format!("{wide_label}, near the wall"), &|iz, ix| {
+            wide(iz, ix) && near_wall(iz, ix)
+        }),
+        group(format!("{wide_label}, toward the axis"), &|iz, ix| {
+            wide(iz, ix) && !near_wall(iz, ix)
+        }),
+    ];
     let ri_group = |label: &str, select: &dyn Fn(usize, usize) -> bool| RiGroupScores {
         group: label.to_string(),
         uvd: modes[0]
@@ -203,6 +216,8 @@ pub(super) fn score(
         vector_by_diameter,
         vector_all,
         vector_definition: VECTOR_SCORE_DEFINITION,
+        vector_by_wall,
+        wall_definition: WALL_DEFINITION,
         ri,
         ri_skipped: modes.iter().filter_map(|m| m.ri_skipped.clone()).collect(),
         ri_definition: BRAIN_RI_DEFINITION,

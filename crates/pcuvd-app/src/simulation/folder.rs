@@ -32,14 +32,16 @@ pub const SCENARIO_FILE: &str = "scenario.toml";
 const ELEVATION_TRUTH_FILES: [&str; 2] = ["truth_vy.npy", "truth_blood_fraction.npy"];
 /// Ground-truth files only the vessel networks write (their cardiac-cycle truth; the class share
 /// says how much of each pixel's blood is of the class named, below 1 where an artery and a vein
-/// share a pixel's elevation beam).
-const NETWORK_TRUTH_FILES: [&str; 6] = [
+/// share a pixel's elevation beam; the axis profile says where in its vessel each pixel's blood
+/// lies, 1 on the axis, 0 at the wall).
+const NETWORK_TRUTH_FILES: [&str; 7] = [
     "truth_ri.npy",
     "truth_psv.npy",
     "truth_edv.npy",
     "truth_vessel_class.npy",
     "truth_flow_up.npy",
     "truth_class_share.npy",
+    "truth_axis_profile.npy",
 ];
 
 /// The recording of each transmit mode: `NAME.toml` (manifest) and `NAME.npy` (samples).
@@ -172,14 +174,22 @@ pub fn write(
             pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
             pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
             if let Some(cycle) = &truth.cycle {
-                let [ri, psv, edv, vessel_class, flow_up, class_share] =
-                    NETWORK_TRUTH_FILES.map(|name| out.join(name));
+                let [
+                    ri,
+                    psv,
+                    edv,
+                    vessel_class,
+                    flow_up,
+                    class_share,
+                    axis_profile,
+                ] = NETWORK_TRUTH_FILES.map(|name| out.join(name));
                 pcuvd_io::write_npy(&ri, &cycle.ri)?;
                 pcuvd_io::write_npy(&psv, &cycle.psv)?;
                 pcuvd_io::write_npy(&edv, &cycle.edv)?;
                 pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
                 pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
                 pcuvd_io::write_npy(&class_share, &cycle.class_share)?;
+                pcuvd_io::write_npy(&axis_profile, &cycle.axis_profile)?;
             }
             if let Some((vy, fraction)) = &truth.elevation {
                 let [vy_path, fraction_path] = ELEVATION_TRUTH_FILES.map(|name| out.join(name));

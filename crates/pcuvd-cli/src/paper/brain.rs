@@ -606,9 +606,11 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
         .iter()
         .chain(&m.vector_by_diameter)
         .chain(std::iter::once(&m.vector_all))
+        .chain(&m.vector_by_wall)
         .map(row)
         .collect();
     report.table(&header, &rows);
+    report.paragraph(&format!("Near the wall: {}.", m.wall_definition));
     report.paragraph(&format!("RI scores: {}.", m.ri_definition));
     let ri_cell = |s: Option<pcuvd_app::brain::RiGroupScore>| {
         s.map_or("–".into(), |s| {

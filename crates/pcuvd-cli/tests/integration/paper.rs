@@ -330,6 +330,13 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     let all = &brain["vector_all"];
     let pixels = all["uvd"]["pixels"].as_u64().unwrap();
     assert!(pixels > 20, "{pixels} lumen pixels");
+    // The wall groups split the lumen in two: the truth's axis profile puts every lumen pixel
+    // either near its vessel's wall or toward its axis, and both hold some.
+    let wall = brain["vector_by_wall"].as_array().unwrap();
+    let wall_pixels = |k: usize| wall[k]["uvd"]["pixels"].as_u64().unwrap();
+    assert_eq!(wall_pixels(0) + wall_pixels(1), pixels, "{wall:?}");
+    assert!(wall_pixels(0) > 0 && wall_pixels(1) > 0, "{wall:?}");
+    assert!(wall_pixels(2) + wall_pixels(3) <= pixels, "{wall:?}");
     // Coding gains SNR where noise limits (0 dB re the blood's echo): PC-UVD's vectors are the
     // closer to the truth, and below the cortex (1-3 mm) each band's vessels stand higher over
     // their background by most of the 9.03 dB of eight coded angles, never more (plus a decibel

@@ -392,6 +392,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
         "truth_ri.npy",
         "truth_vessel_class.npy",
         "truth_class_share.npy",
+        "truth_axis_profile.npy",
         "conventional.toml",
         "coded.npy",
     ] {
@@ -437,6 +438,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
         "truth_vessel_class.npy",
         "truth_flow_up.npy",
         "truth_class_share.npy",
+        "truth_axis_profile.npy",
         "conventional.toml",
         "conventional.npy",
     ] {

@@ -403,6 +403,7 @@ mod tests {
             flow_up: array![[true, true, false, false, false]],
             vessel_index: array![[0, 0, 1, 1, usize::MAX]],
             class_share: array![[1.0, 1.0, 1.0, 1.0, 0.0]],
+            axis_profile: array![[1.0, 1.0, 1.0, 1.0, 0.0]],
         };
         let est = RiMaps {
             ri: array![[0.8, 0.5, 0.3, f64::NAN, 0.9]],

@@ -362,6 +362,7 @@ impl Accumulator {
             flow_up: Array2::from_elem((nz, nx), false),
             vessel_index: Array2::from_elem((nz, nx), usize::MAX),
             class_share: Array2::zeros((nz, nx)),
+            axis_profile: Array2::zeros((nz, nx)),
         };
         for ((iz, ix), &blood) in self.blood.indexed_iter() {
             if blood <= 0.0 {
@@ -384,6 +385,7 @@ impl Accumulator {
             cycle.flow_up[[iz, ix]] = s.mean_flow * dz < 0.0;
             cycle.vessel_index[[iz, ix]] = id;
             cycle.class_share[[iz, ix]] = self.class_blood[self.classes[id]][[iz, ix]] / blood;
+            cycle.axis_profile[[iz, ix]] = profile;
         }
         TreeTruth {
             truth,
@@ -603,6 +605,15 @@ mod tests {
         let truth = tree.plane_truth(&[0.0], &[4.5e-3], t, None);
         let speed = s.centreline_speed(t);
         let u = s.direction();
+        // On the axis, and half a radius across it in the plane: 1 − (r/R)².
+        assert!((truth.cycle.axis_profile[[0, 0]] - 1.0).abs() < 1e-12);
+        let across = 0.25 * s.diameter;
+        let off = tree.plane_truth(&[-across * u[2]], &[4.5e-3 + across * u[0]], t, None);
+        assert!(
+            (off.cycle.axis_profile[[0, 0]] - 0.75).abs() < 1e-9,
+            "{}",
+            off.cycle.axis_profile[[0, 0]]
+        );
         assert!((truth.truth.vx[[0, 0]] - speed * u[0]).abs() < 1e-9 * speed.abs());
         assert!((truth.truth.vz[[0, 0]] - speed * u[2]).abs() < 1e-9 * speed.abs());
         assert_eq!(truth.vy[[0, 0]], 0.0);
