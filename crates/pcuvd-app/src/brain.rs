@@ -59,7 +59,8 @@ pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
 /// What the vector scores count.
 pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's elevation beam \
     holds a vessel at least `lumen_min_diameter_m` wide) of the band (thirds of the depth range \
-    the lumen pixels span) or diameter class: `detected` is the \
+    the lumen pixels span), diameter class, or both (`vector_deep_by_diameter`: the deepest \
+    third by diameter class): `detected` is the \
     fraction the method's vessel mask (noise-floor margin and local peak, as `pcuvd process`) \
     holds; over the detected ones, RMSE of vx, of vz and of the in-plane vector error (mm/s) \
     against the truth (the elevation-beam-weighted mean blood velocity, averaged over the \
@@ -302,6 +303,8 @@ pub struct BrainMetrics {
     pub vector_all: GroupScores,
     /// What the vector scores count.
     pub vector_definition: &'static str,
+    /// Vector scores of the deepest third by vessel diameter class (the deep small vessels).
+    pub vector_deep_by_diameter: Vec<GroupScores>,
     /// Vector scores near the vessels' walls and toward their axes ([`WALL_DEFINITION`]).
     pub vector_by_wall: Vec<GroupScores>,
     /// What the wall groups count.

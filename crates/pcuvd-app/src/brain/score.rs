@@ -97,6 +97,17 @@ pub(super) fn score(
         })
         .collect();
     let vector_all = group("all lumen pixels".into(), &|_, _| true);
+    // The paper's "deep small vessels": the deepest third by diameter class.
+    let (deep_label, deep_from, _) = &bands[2];
+    let vector_deep_by_diameter = DIAMETER_CLASSES
+        .iter()
+        .map(|&(from, to, label)| {
+            group(format!("{deep_label}, {label}"), &|iz, ix| {
+                let d = diameter_m[[iz, ix]];
+                z[iz] >= *deep_from && d >= from && d < to
+            })
+        })
+        .collect();
 
     let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
     let near_wall = |iz: usize, ix: usize| cycle.axis_profile[[iz, ix]] < WALL_PROFILE;
@@ -216,6 +227,7 @@ pub(super) fn score(
         vector_by_diameter,
         vector_all,
         vector_definition: VECTOR_SCORE_DEFINITION,
+        vector_deep_by_diameter,
         vector_by_wall,
         wall_definition: WALL_DEFINITION,
         ri,

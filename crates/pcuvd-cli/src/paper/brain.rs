@@ -606,6 +606,7 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
         .iter()
         .chain(&m.vector_by_diameter)
         .chain(std::iter::once(&m.vector_all))
+        .chain(&m.vector_deep_by_diameter)
         .chain(&m.vector_by_wall)
         .map(row)
         .collect();

@@ -337,6 +337,17 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     assert_eq!(wall_pixels(0) + wall_pixels(1), pixels, "{wall:?}");
     assert!(wall_pixels(0) > 0 && wall_pixels(1) > 0, "{wall:?}");
     assert!(wall_pixels(2) + wall_pixels(3) <= pixels, "{wall:?}");
+    // The deepest third by diameter class: every deep lumen pixel in one class.
+    let deep: u64 = brain["vector_deep_by_diameter"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g["uvd"]["pixels"].as_u64().unwrap())
+        .sum();
+    let deepest = brain["vector_by_depth"][2]["uvd"]["pixels"]
+        .as_u64()
+        .unwrap();
+    assert_eq!(deep, deepest, "{brain}");
     // Coding gains SNR where noise limits (0 dB re the blood's echo): PC-UVD's vectors are the
     // closer to the truth, and below the cortex (1-3 mm) each band's vessels stand higher over
     // their background by most of the 9.03 dB of eight coded angles, never more (plus a decibel
