@@ -181,10 +181,16 @@ impl BrainMode {
 
     /// The method's vector field: least squares for UVD, IRLS for PC-UVD.
     pub fn field(&self) -> Result<&VectorField> {
+        self.field_of(self.mode == Mode::Coded)
+    }
+
+    /// The recording's vector field by IRLS (`irls`) or least squares, whichever its method uses.
+    pub fn field_of(&self, irls: bool) -> Result<&VectorField> {
         let maps = &self.out.maps;
-        match self.mode {
-            Mode::Conventional => maps.vector_ls.as_ref(),
-            Mode::Coded => maps.vector_irls.as_ref(),
+        if irls {
+            maps.vector_irls.as_ref()
+        } else {
+            maps.vector_ls.as_ref()
         }
         .context("the recording gives no vector velocity (one steering angle)")
     }
@@ -218,6 +224,23 @@ pub struct GroupScores {
     pub pcuvd: VectorScore,
     /// PC-UVD's vector RMSE below UVD's (%).
     pub improvement_pct: f64,
+}
+
+/// Vector scores of one group with each recording read by each vector estimator, over the lumen
+/// pixels both recordings' vessel masks hold: what coding and IRLS, the two halves of PC-UVD,
+/// each do against UVD on the same pixels.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EstimatorScores {
+    /// The group's label.
+    pub group: String,
+    /// Conventional, least squares (UVD).
+    pub conventional_ls: VectorScore,
+    /// Conventional, IRLS (IRLS without coding).
+    pub conventional_irls: VectorScore,
+    /// Coded, least squares (coding without IRLS).
+    pub coded_ls: VectorScore,
+    /// Coded, IRLS (PC-UVD).
+    pub coded_irls: VectorScore,
 }
 
 /// RI scores of one method over a group of lumen pixels; see [`BRAIN_RI_DEFINITION`].
@@ -305,6 +328,9 @@ pub struct BrainMetrics {
     pub vector_definition: &'static str,
     /// Vector scores of the deepest third by vessel diameter class (the deep small vessels).
     pub vector_deep_by_diameter: Vec<GroupScores>,
+    /// Vector scores of every lumen pixel and of the deepest third, each recording read by both
+    /// vector estimators (coding and IRLS apart).
+    pub vector_by_estimator: Vec<EstimatorScores>,
     /// Vector scores near the vessels' walls and toward their axes ([`WALL_DEFINITION`]).
     pub vector_by_wall: Vec<GroupScores>,
     /// What the wall groups count.

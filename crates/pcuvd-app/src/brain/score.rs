@@ -97,6 +97,26 @@ pub(super) fn score(
         })
         .collect();
     let vector_all = group("all lumen pixels".into(), &|_, _| true);
+    // Coding and IRLS apart: each recording read by each estimator, over the pixels both
+    // recordings' vessel masks hold (each method's own mask would score different pixels).
+    let detected_by_both = &modes[0].detected & &modes[1].detected;
+    let by_estimator = |label: String, select: &dyn Fn(usize, usize) -> bool| {
+        let read = |m: usize, irls: bool| -> Result<VectorScore> {
+            let field = modes[m].field_of(irls)?;
+            Ok(vector_score(field, &detected_by_both, truth, lumen, select))
+        };
+        Ok::<_, anyhow::Error>(EstimatorScores {
+            group: label,
+            conventional_ls: read(0, false)?,
+            conventional_irls: read(0, true)?,
+            coded_ls: read(1, false)?,
+            coded_irls: read(1, true)?,
+        })
+    };
+    let vector_by_estimator = vec![
+        by_estimator("all lumen pixels".into(), &|_, _| true)?,
+        by_estimator(bands[2].0.clone(), &|iz, _| z[iz] >= bands[2].1)?,
+    ];
     // The paper's "deep small vessels": the deepest third by diameter class.
     let (deep_label, deep_from, _) = &bands[2];
     let vector_deep_by_diameter = DIAMETER_CLASSES
@@ -228,6 +248,7 @@ pub(super) fn score(
         vector_all,
         vector_definition: VECTOR_SCORE_DEFINITION,
         vector_deep_by_diameter,
+        vector_by_estimator,
         vector_by_wall,
         wall_definition: WALL_DEFINITION,
         ri,

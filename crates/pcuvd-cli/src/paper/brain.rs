@@ -612,6 +612,42 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
         .collect();
     report.table(&header, &rows);
     report.paragraph(&format!("Near the wall: {}.", m.wall_definition));
+    report.paragraph(
+        "Coding and IRLS apart: each recording read by each vector estimator, over the lumen pixels both recordings' vessel masks hold (vector RMSE, Vx / Vz, mm/s).",
+    );
+    let rmse = |s: &VectorScore| {
+        format!(
+            "{} ({} / {})",
+            f(s.rmse_mm_s),
+            f(s.rmse_vx_mm_s),
+            f(s.rmse_vz_mm_s)
+        )
+    };
+    let rows: Vec<Vec<String>> = m
+        .vector_by_estimator
+        .iter()
+        .map(|g| {
+            vec![
+                g.group.clone(),
+                g.conventional_ls.pixels.to_string(),
+                rmse(&g.conventional_ls),
+                rmse(&g.conventional_irls),
+                rmse(&g.coded_ls),
+                rmse(&g.coded_irls),
+            ]
+        })
+        .collect();
+    report.table(
+        &[
+            "lumen pixels",
+            "n",
+            "conventional + LS (UVD)",
+            "conventional + IRLS",
+            "coded + LS",
+            "coded + IRLS (PC-UVD)",
+        ],
+        &rows,
+    );
     report.paragraph(&format!("RI scores: {}.", m.ri_definition));
     let ri_cell = |s: Option<pcuvd_app::brain::RiGroupScore>| {
         s.map_or("–".into(), |s| {

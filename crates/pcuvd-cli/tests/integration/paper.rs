@@ -337,6 +337,29 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     assert_eq!(wall_pixels(0) + wall_pixels(1), pixels, "{wall:?}");
     assert!(wall_pixels(0) > 0 && wall_pixels(1) > 0, "{wall:?}");
     assert!(wall_pixels(2) + wall_pixels(3) <= pixels, "{wall:?}");
+    // Coding and IRLS apart, on the pixels both vessel masks hold: as many lumen pixels as
+    // the whole lumen, detected no more often than by either method alone, and each recording's
+    // two estimators read differently.
+    let estimators = &brain["vector_by_estimator"][0];
+    let score = |key: &str, field: &str| estimators[key][field].as_f64().unwrap();
+    let detected = |method: &str| all[method]["detected"].as_f64().unwrap();
+    assert_eq!(estimators["coded_irls"]["pixels"], all["pcuvd"]["pixels"]);
+    for key in [
+        "conventional_ls",
+        "conventional_irls",
+        "coded_ls",
+        "coded_irls",
+    ] {
+        assert!(score(key, "detected") <= detected("uvd").min(detected("pcuvd")) + 1e-12);
+    }
+    assert_ne!(
+        score("coded_ls", "rmse_mm_s"),
+        score("coded_irls", "rmse_mm_s")
+    );
+    assert_ne!(
+        score("conventional_ls", "rmse_mm_s"),
+        score("conventional_irls", "rmse_mm_s")
+    );
     // The deepest third by diameter class: every deep lumen pixel in one class.
     let deep: u64 = brain["vector_deep_by_diameter"]
         .as_array()
