@@ -88,7 +88,8 @@ pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least
     \"one class in the beam\" keep the pixels where at least 90 % of the blood in the elevation \
     beam is of the class the truth names (the truth's RI is its main vessel's, while an estimate \
     reads the blood-weighted mix of every vessel in the beam); `arterioles` and `venules` split \
-    the lumen pixels by the truth's class";
+    the lumen pixels by the truth's class; the depth bands (the vector scores' thirds) hold every \
+    lumen pixel of the band, then those of vessels at least a wavelength wide";
 
 /// Least share of a pixel's blood (elevation-weighted) of the truth's class for the RI groups
 /// scored on one class in the beam: where an artery and a vein share the beam (the pial and basal

@@ -185,6 +185,22 @@ pub(super) fn score(
             cycle.vessel_class[[iz, ix]] == class
         }));
     }
+    // Where in depth it fails: the vector scores' thirds, every lumen pixel and the wide ones
+    // (a band without wide vessels has no such group).
+    for (label, from, to) in &bands {
+        let in_band = |iz: usize| z[iz] >= *from && z[iz] < *to;
+        let wide_in_band = |iz: usize, ix: usize| in_band(iz) && diameter_m[[iz, ix]] >= wavelength;
+        ri.push(ri_group(label, &|iz, _| in_band(iz)));
+        if lumen
+            .indexed_iter()
+            .any(|((iz, ix), &l)| l && wide_in_band(iz, ix))
+        {
+            ri.push(ri_group(
+                &format!("{label}, vessels ≥ {:.0} µm", wavelength * 1e6),
+                &wide_in_band,
+            ));
+        }
+    }
 
     // Whole-millimetre bands over the lumen's depth.
     let band_m = 1e-3;
