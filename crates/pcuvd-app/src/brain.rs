@@ -185,7 +185,7 @@ impl BrainMode {
         self.field_of(self.mode == Mode::Coded)
     }
 
-    /// The recording's vector field by IRLS (`irls`) or least squares, whichever its method uses.
+    /// The recording's vector field by IRLS (`irls` true) or by least squares.
     pub fn field_of(&self, irls: bool) -> Result<&VectorField> {
         let maps = &self.out.maps;
         if irls {
@@ -336,7 +336,8 @@ pub struct BrainMetrics {
     pub vector_by_wall: Vec<GroupScores>,
     /// What the wall groups count.
     pub wall_definition: &'static str,
-    /// RI scores: vessels at least a wavelength wide, every lumen pixel, and by diameter class.
+    /// RI scores: vessels at least a wavelength wide, every lumen pixel, by diameter class, by
+    /// class, and by depth third.
     pub ri: Vec<RiGroupScores>,
     /// Why a method has no RI scores, when it has none.
     pub ri_skipped: Vec<String>,

@@ -1,5 +1,6 @@
-//! The brain's maps scored against its truth: the lumen, vector errors by depth, diameter and
-//! nearness to the wall, flow shown where there is no blood, and RI by class.
+//! The brain's maps scored against its truth: the lumen, vector errors by depth, diameter,
+//! nearness to the wall and estimator, flow shown where there is no blood, and RI by class and
+//! depth.
 
 use super::*;
 
