@@ -249,9 +249,9 @@ pub struct EstimatorScores {
 pub struct RiGroupScore {
     /// Pixels scored.
     pub pixels: usize,
-    /// Median |RI_estimated − RI_true|.
+    /// Median |RI_estimated − RI_true|; NaN (null in metrics.json) when the group is empty.
     pub median_abs_error: f64,
-    /// Fraction classed right.
+    /// Fraction classed right; NaN (null in metrics.json) when the group is empty.
     pub class_accuracy: f64,
 }
 
@@ -775,5 +775,9 @@ mod tests {
         let venules = ri_score(&est, &cycle, &lumen, &|_, ix| ix >= 2);
         assert_eq!(venules.pixels, 2);
         assert!((venules.median_abs_error - 0.2).abs() < 1e-12);
+        // A group without pixels has no score, not a perfect or a null one.
+        let none = ri_score(&est, &cycle, &lumen, &|_, _| false);
+        assert_eq!(none.pixels, 0);
+        assert!(none.median_abs_error.is_nan() && none.class_accuracy.is_nan());
     }
 }

@@ -384,6 +384,11 @@ pub(super) fn ri_score(
     RiGroupScore {
         pixels,
         median_abs_error: pcuvd::core::stats::median(errors),
-        class_accuracy: right as f64 / pixels.max(1) as f64,
+        // A group without pixels has no accuracy (NaN, null in metrics.json), not 0.
+        class_accuracy: if pixels == 0 {
+            f64::NAN
+        } else {
+            right as f64 / pixels as f64
+        },
     }
 }

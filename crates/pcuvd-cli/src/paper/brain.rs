@@ -651,7 +651,11 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
     report.paragraph(&format!("RI scores: {}.", m.ri_definition));
     let ri_cell = |s: Option<pcuvd_app::brain::RiGroupScore>| {
         s.map_or("–".into(), |s| {
-            format!("{:.3}, {}", s.median_abs_error, pct(s.class_accuracy))
+            format!(
+                "{}, {}",
+                crate::numbers::finite(s.median_abs_error, 3),
+                pct(s.class_accuracy)
+            )
         })
     };
     let rows: Vec<Vec<String>> =
