@@ -74,9 +74,17 @@ pub(super) fn score(
             (label, from, if k == 2 { f64::INFINITY } else { to })
         })
         .collect();
+    // The groups' tests, shared by the vector and the RI scores.
+    let in_band = |band: &(String, f64, f64), iz: usize| z[iz] >= band.1 && z[iz] < band.2;
+    let in_class = |from: f64, to: f64, iz: usize, ix: usize| {
+        let d = diameter_m[[iz, ix]];
+        d >= from && d < to
+    };
+    let wide = |iz: usize, ix: usize| diameter_m[[iz, ix]] >= wavelength;
+    let wide_label = format!("vessels ≥ {:.0} µm", wavelength * 1e6);
     let vector_by_depth = bands
         .iter()
-        .map(|(label, from, to)| group(label.clone(), &|iz, _| z[iz] >= *from && z[iz] < *to))
+        .map(|band| group(band.0.clone(), &|iz, _| in_band(band, iz)))
         .collect();
     let whole = ("all".to_string(), top, f64::INFINITY);
     let false_detections = bands
@@ -90,12 +98,7 @@ pub(super) fn score(
         .collect();
     let vector_by_diameter = DIAMETER_CLASSES
         .iter()
-        .map(|&(from, to, label)| {
-            group(label.to_string(), &|iz, ix| {
-                let d = diameter_m[[iz, ix]];
-                d >= from && d < to
-            })
-        })
+        .map(|&(from, to, label)| group(label.to_string(), &|iz, ix| in_class(from, to, iz, ix)))
         .collect();
     let vector_all = group("all lumen pixels".into(), &|_, _| true);
     // Coding and IRLS apart: each recording read by each estimator, over the pixels both
@@ -116,24 +119,21 @@ pub(super) fn score(
     };
     let vector_by_estimator = vec![
         by_estimator("all lumen pixels".into(), &|_, _| true)?,
-        by_estimator(bands[2].0.clone(), &|iz, _| z[iz] >= bands[2].1)?,
+        by_estimator(bands[2].0.clone(), &|iz, _| in_band(&bands[2], iz))?,
     ];
     // The paper's "deep small vessels": the deepest third by diameter class.
-    let (deep_label, deep_from, _) = &bands[2];
+    let deep = &bands[2];
     let vector_deep_by_diameter = DIAMETER_CLASSES
         .iter()
         .map(|&(from, to, label)| {
-            group(format!("{deep_label}, {label}"), &|iz, ix| {
-                let d = diameter_m[[iz, ix]];
-                z[iz] >= *deep_from && d >= from && d < to
+            group(format!("{}, {label}", deep.0), &|iz, ix| {
+                in_band(deep, iz) && in_class(from, to, iz, ix)
             })
         })
         .collect();
 
     let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
     let near_wall = |iz: usize, ix: usize| cycle.axis_profile[[iz, ix]] < WALL_PROFILE;
-    let wide = |iz: usize, ix: usize| diameter_m[[iz, ix]] >= wavelength;
-    let wide_label = format!("vessels ≥ {:.0} µm", wavelength * 1e6);
     let vector_by_wall = vec![
         group("near the wall".into(), &near_wall),
         group("toward the axis".into(), &|iz, ix| !near_wall(iz, ix)),
@@ -156,25 +156,16 @@ pub(super) fn score(
             .map(|ri| ri_score(ri, cycle, lumen, select)),
     };
     let mut ri = vec![
-        ri_group(
-            &format!("vessels ≥ {:.0} µm (a wavelength)", wavelength * 1e6),
-            &|iz, ix| diameter_m[[iz, ix]] >= wavelength,
-        ),
+        ri_group(&format!("{wide_label} (a wavelength)"), &wide),
         ri_group("all lumen pixels", &|_, _| true),
     ];
     for &(from, to, label) in &DIAMETER_CLASSES {
-        ri.push(ri_group(label, &|iz, ix| {
-            let d = diameter_m[[iz, ix]];
-            d >= from && d < to
-        }));
+        ri.push(ri_group(label, &|iz, ix| in_class(from, to, iz, ix)));
     }
     let one_class = |iz: usize, ix: usize| cycle.class_share[[iz, ix]] >= SINGLE_CLASS_SHARE;
     ri.push(ri_group(
-        &format!(
-            "vessels ≥ {:.0} µm, one class in the beam",
-            wavelength * 1e6
-        ),
-        &|iz, ix| diameter_m[[iz, ix]] >= wavelength && one_class(iz, ix),
+        &format!("{wide_label}, one class in the beam"),
+        &|iz, ix| wide(iz, ix) && one_class(iz, ix),
     ));
     ri.push(ri_group(
         "all lumen pixels, one class in the beam",
@@ -188,16 +179,15 @@ pub(super) fn score(
     }
     // Where in depth it fails: the vector scores' thirds, every lumen pixel and the wide ones
     // (a band without wide vessels has no such group).
-    for (label, from, to) in &bands {
-        let in_band = |iz: usize| z[iz] >= *from && z[iz] < *to;
-        let wide_in_band = |iz: usize, ix: usize| in_band(iz) && diameter_m[[iz, ix]] >= wavelength;
-        ri.push(ri_group(label, &|iz, _| in_band(iz)));
+    for band in &bands {
+        let wide_in_band = |iz: usize, ix: usize| in_band(band, iz) && wide(iz, ix);
+        ri.push(ri_group(&band.0, &|iz, _| in_band(band, iz)));
         if lumen
             .indexed_iter()
             .any(|((iz, ix), &l)| l && wide_in_band(iz, ix))
         {
             ri.push(ri_group(
-                &format!("{label}, vessels ≥ {:.0} µm", wavelength * 1e6),
+                &format!("{}, {wide_label}", band.0),
                 &wide_in_band,
             ));
         }
