@@ -132,19 +132,38 @@ def svd_filter(
     low: int | str = "auto",
     high: int | str = "off",
     tissue_frequency: float = _pcuvd.DEFAULT_TISSUE_FREQUENCY,
+    blocks: Sequence[int] | None = None,
 ) -> tuple[np.ndarray, dict]:
     """SVD clutter filter of an image series (nz, nx, frames).
 
     low: leading (tissue) components removed: a number, "auto" (from the tissue frequency
-    limit `tissue_frequency` × frame rate) or "off"; high: first trailing (noise) component
-    removed, a number, "auto" (Marchenko–Pastur edge) or "off".
-    Returns the filtered series (complex64) and {"low", "high", "singular_values"}.
+    limit `tissue_frequency` × frame rate), "similarity" or "off"; high: first trailing (noise)
+    component removed, a number, "auto" (Marchenko–Pastur edge), "similarity" or "off".
+    blocks: (rows, cols) pixels: filter overlapping blocks of that size each with its own
+    cut-offs, blended back (block-wise SVD); None filters the whole image at once.
+    Returns the filtered series (complex64) and {"low", "high", "singular_values",
+    "block_cut_offs"} (a block-wise filter: the medians of its blocks' cut-offs, no singular
+    values, and each block's (low, high)).
     """
     data = _checks.complex64("series", series, SERIES_AXES)
-    filtered, low_used, high_used, values = _pcuvd.svd_filter(
-        data, str(low), str(high), _checks.finite_number("tissue_frequency", tissue_frequency)
+    if blocks is not None:
+        rows, cols = (int(b) for b in blocks)
+        if rows < 1 or cols < 1:
+            raise ValueError(f"blocks: expected positive sizes (rows, cols), got {tuple(blocks)!r}")
+        blocks = (rows, cols)
+    filtered, low_used, high_used, values, block_cut_offs = _pcuvd.svd_filter(
+        data,
+        str(low),
+        str(high),
+        _checks.finite_number("tissue_frequency", tissue_frequency),
+        blocks,
     )
-    return filtered, {"low": low_used, "high": high_used, "singular_values": np.array(values)}
+    return filtered, {
+        "low": low_used,
+        "high": high_used,
+        "singular_values": np.array(values),
+        "block_cut_offs": [tuple(c) for c in block_cut_offs],
+    }
 
 
 def _kernel(kernel: Sequence[int]) -> tuple[int, int]:

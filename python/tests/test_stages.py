@@ -153,6 +153,44 @@ def test_svd_filter_removes_the_tissue_rank_as_numpy_does():
     np.testing.assert_allclose(cut["singular_values"][:3], s[:3], rtol=1e-4)
 
 
+def test_block_wise_svd_filter_blends_numpy_block_projections():
+    """Blocks of 8 × 6 pixels at half-block steps, each with its leading component removed,
+    blended with tent weights: the same computed independently with numpy's SVD."""
+    rng = np.random.default_rng(3)
+    nz, nx, frames, rows, cols = 16, 12, 10, 8, 6
+    t = np.arange(frames)
+    # Tissue moving differently across the image, so the blocks' leading vectors differ.
+    drift = 0.02 * (1 + np.arange(nx) / nx)[None, :, None]
+    tissue = 40 * rng.normal(size=(nz, nx, 1)) * np.exp(2j * np.pi * drift * t)
+    noise = rng.normal(size=(nz, nx, frames)) + 1j * rng.normal(size=(nz, nx, frames))
+    series = (tissue + noise).astype(np.complex64)
+    filtered, cut = pcuvd.svd_filter(series, low=1, blocks=(rows, cols))
+
+    def starts(n, size):
+        return sorted(set(range(0, n - size, size // 2)) | {n - size})
+
+    def tent(size):
+        return np.minimum(np.arange(size) + 1, size - np.arange(size))
+
+    blended = np.zeros(series.shape, np.complex128)
+    weights = np.zeros((nz, nx))
+    for z0 in starts(nz, rows):
+        for x0 in starts(nx, cols):
+            block = series[z0 : z0 + rows, x0 : x0 + cols].reshape(-1, frames)
+            block = block.astype(np.complex128)
+            _, _, vh = np.linalg.svd(block, full_matrices=False)
+            v1 = vh[0].conj()[:, None]
+            kept = (block - (block @ v1) @ v1.conj().T).reshape(rows, cols, frames)
+            w = np.outer(tent(rows), tent(cols))
+            blended[z0 : z0 + rows, x0 : x0 + cols] += w[:, :, None] * kept
+            weights[z0 : z0 + rows, x0 : x0 + cols] += w
+    expected = blended / weights[:, :, None]
+    np.testing.assert_allclose(filtered, expected, atol=1e-3 * np.abs(expected).max())
+    assert cut["block_cut_offs"] == [(1, frames)] * (len(starts(nz, rows)) * len(starts(nx, cols)))
+    with pytest.raises(ValueError, match="fewer pixels than the 10 frames"):
+        pcuvd.svd_filter(series, low=1, blocks=(3, 3))
+
+
 def test_decode_hadamard_inverts_a_numpy_encoding():
     """Encode per-angle RF with the Sylvester Hadamard matrix and whole-sample slot delays in
     numpy, then decode (events taken as simultaneous): n × the original records come back

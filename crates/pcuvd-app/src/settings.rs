@@ -45,6 +45,12 @@ pub struct ProcessingSettings {
     #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().svd_high))]
     #[serde(deserialize_with = "text")]
     pub svd_high: String,
+    /// SVD clutter filter block-wise: overlapping square blocks this wide (mm), each filtered
+    /// with its own cut-offs by the rules above and blended back (Song et al. 2017); a block
+    /// must hold at least as many pixels as the ensemble has frames. Default: the whole image
+    /// at once.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "MM"))]
+    pub svd_block_mm: Option<f64>,
     /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd), e.g. 3x3.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().doppler_kernel))]
     #[serde(deserialize_with = "text")]
@@ -116,6 +122,7 @@ impl Default for ProcessingSettings {
             f_number: DasParams::DEFAULT_F_NUMBER,
             svd_low: "auto".into(),
             svd_high: "off".into(),
+            svd_block_mm: None,
             doppler_kernel: kernel_text(pcuvd::pipeline::params::DEFAULT_DOPPLER_KERNEL),
             doppler_estimator: pcuvd::estimate::doppler::DopplerEstimator::default().into(),
             irls_lambda: IrlsParams::default().lambda_mm_s,
@@ -656,6 +663,24 @@ impl DynamicsSettings {
 }
 
 impl ProcessingSettings {
+    /// The clutter filter's blocks (rows, columns of pixels) on `grid`, from `--svd-block-mm`.
+    fn svd_blocks(&self, grid: &Grid) -> Result<Option<(usize, usize)>> {
+        let Some(mm) = self.svd_block_mm else {
+            return Ok(None);
+        };
+        if !(mm.is_finite() && mm > 0.0) {
+            bail!(
+                "--svd-block-mm {}: must be a positive width (mm)",
+                shown("--svd-block-mm", mm)
+            );
+        }
+        let pixels = |step: f64| ((mm * 1e-3 / step).round() as usize).max(1);
+        let (nz, nx) = grid.shape();
+        let rows = if nz > 1 { pixels(grid.axial_step()) } else { 1 };
+        let cols = if nx > 1 { pixels(grid.step()) } else { 1 };
+        Ok(Some((rows.min(nz), cols.min(nx))))
+    }
+
     /// Stage settings for `data`.
     pub fn params(
         &self,
@@ -693,6 +718,7 @@ impl ProcessingSettings {
         };
         irls.validate()
             .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
+        let blocks = self.svd_blocks(&grid)?;
         let params = ProcessParams {
             grid,
             das: DasParams {
@@ -703,6 +729,7 @@ impl ProcessingSettings {
             clutter: ClutterParams {
                 low: rank_cut(&self.svd_low, "svd-low")?,
                 high: rank_cut(&self.svd_high, "svd-high")?,
+                blocks,
                 ..ClutterParams::default()
             },
             doppler_kernel: (rows, cols),

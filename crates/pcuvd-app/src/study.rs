@@ -132,6 +132,10 @@ pub struct StudySettings {
     /// Brain study: SVD clutter filter's noise cut-off (as `process --svd-high`).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_svd_high))]
     pub brain_svd_high: String,
+    /// Brain study: SVD clutter filter block-wise, blocks this wide (mm) (as `process
+    /// --svd-block-mm`); default the whole image at once.
+    #[cfg_attr(feature = "clap", arg(long, value_name = "MM"))]
+    pub brain_svd_block_mm: Option<f64>,
     /// A first look at every study in a few minutes: fewer frames, one noise level, no
     /// averaging kernels or calibration, a 90 µm grid, a fast heart for the network, one seed
     /// and two speeds for dealiasing, the small brain (`rat-brain-small`). An option given with
@@ -179,6 +183,7 @@ impl Default for StudySettings {
             brain_cache: None,
             brain_svd_low: ProcessingSettings::default().svd_low,
             brain_svd_high: ProcessingSettings::default().svd_high,
+            brain_svd_block_mm: None,
             quick: false,
         }
     }
@@ -427,6 +432,7 @@ impl StudySettings {
             event_alignment: self.event_alignment,
             svd_low: self.brain_svd_low.clone(),
             svd_high: self.brain_svd_high.clone(),
+            svd_block_mm: self.brain_svd_block_mm,
             ..ProcessingSettings::default()
         };
         let settings = BrainSettings {

@@ -208,23 +208,34 @@ pub(crate) fn rank_cut(text: &str, name: &str) -> PyResult<RankCut> {
         .map_err(|e| PyValueError::new_err(format!("{name} {e}")))
 }
 
-/// A filtered series, the low and high cut-offs used, and the singular values.
-pub(crate) type Filtered<'py> = (Bound<'py, PyArray3<Complex32>>, usize, usize, Vec<f64>);
+/// A filtered series, the low and high cut-offs used, the singular values and each block's
+/// cut-offs (block-wise filtering).
+pub(crate) type Filtered<'py> = (
+    Bound<'py, PyArray3<Complex32>>,
+    usize,
+    usize,
+    Vec<f64>,
+    Vec<(usize, usize)>,
+);
 
 /// SVD clutter filter of a series (nz, nx, frames): returns the filtered series and the low and
-/// high cut-offs used and the singular values.
+/// high cut-offs used and the singular values; `blocks` (rows, columns of pixels) filters
+/// overlapping blocks of that size each on its own.
 #[pyfunction]
+#[pyo3(signature = (series, low, high, tissue_frequency, blocks=None))]
 pub(crate) fn svd_filter<'py>(
     py: Python<'py>,
     series: PyReadonlyArray3<'py, Complex32>,
     low: &str,
     high: &str,
     tissue_frequency: f64,
+    blocks: Option<(usize, usize)>,
 ) -> PyResult<Filtered<'py>> {
     let params = ClutterParams {
         low: rank_cut(low, "low")?,
         high: rank_cut(high, "high")?,
         tissue_frequency,
+        blocks,
     };
     let mut data = series.as_array().as_standard_layout().into_owned();
     let report = py
@@ -235,6 +246,7 @@ pub(crate) fn svd_filter<'py>(
         report.low,
         report.high,
         report.singular_values,
+        report.block_cut_offs,
     ))
 }
 

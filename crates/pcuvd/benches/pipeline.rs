@@ -76,6 +76,7 @@ fn clutter(c: &mut Criterion) {
         low: RankCut::Fixed(5),
         high: RankCut::Off,
         tissue_frequency: 0.02,
+        blocks: None,
     };
     let mut group = c.benchmark_group("clutter");
     group.sample_size(10);
