@@ -244,11 +244,19 @@ fn acquisition_fields(
         plane_wave_angles: acq.sequence.angles.iter().map(|a| a.to_degrees()).collect(),
         compound_sampling_frequency: frame_rate,
         clutter_filter_window_duration: window_ms,
+        // A block-wise filter's thresholds differ from block to block: summary.json lists them.
         clutter_filters: (out.clutter.first().iter())
-            .map(|c| ClutterFilter {
-                filter_type: "Index-based SVD",
-                low_threshold: Some(c.low),
-                high_threshold: Some(c.high),
+            .map(|c| match c.block_cut_offs.is_empty() {
+                true => ClutterFilter {
+                    filter_type: "Index-based SVD",
+                    low_threshold: Some(c.low),
+                    high_threshold: Some(c.high),
+                },
+                false => ClutterFilter {
+                    filter_type: "Index-based SVD, block-wise",
+                    low_threshold: None,
+                    high_threshold: None,
+                },
             })
             .collect(),
         power_doppler_integration_duration: window_ms,

@@ -419,14 +419,8 @@ impl Summary {
                 low: format!("{:?}", params.clutter.low),
                 high: format!("{:?}", params.clutter.high),
                 tissue_frequency_fraction: params.clutter.tissue_frequency,
-                cut_offs_per_angle: out
-                    .clutter
-                    .iter()
-                    .map(|r| CutOffs {
-                        low: r.low,
-                        high: r.high,
-                    })
-                    .collect(),
+                block_pixels: params.clutter.blocks.map(|(rows, cols)| [rows, cols]),
+                cut_offs_per_angle: out.clutter.iter().map(CutOffs::of).collect(),
             },
             doppler: DopplerRecord {
                 kernel: [params.doppler_kernel.0, params.doppler_kernel.1],

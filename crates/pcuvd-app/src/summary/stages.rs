@@ -2,6 +2,7 @@
 //! vector fit, dealiasing, the dynamics, and how the frames were split (blocks, segments,
 //! ensembles), with the rules they follow in words.
 
+use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::dynamics::{self, PoolingSummary};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
@@ -15,6 +16,13 @@ pub struct CutOffs {
     pub low: usize,
     /// First component removed from the bottom (noise).
     pub high: usize,
+    /// A block-wise filter: the least and the most components its blocks removed from the top
+    /// (`low` and `high` are then the blocks' medians).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_low_range: Option<[usize; 2]>,
+    /// A block-wise filter: the least and the most of its blocks' `high`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_high_range: Option<[usize; 2]>,
 }
 
 impl CutOffs {
@@ -22,8 +30,27 @@ impl CutOffs {
     pub(super) fn per_angle(pairs: &[(usize, usize)]) -> Vec<CutOffs> {
         pairs
             .iter()
-            .map(|&(low, high)| CutOffs { low, high })
+            .map(|&(low, high)| CutOffs {
+                low,
+                high,
+                block_low_range: None,
+                block_high_range: None,
+            })
             .collect()
+    }
+
+    /// What one filter reported, with its blocks' ranges when it worked block-wise.
+    pub(super) fn of(report: &ClutterReport) -> CutOffs {
+        let range = |pick: fn(&(usize, usize)) -> usize| {
+            let values = report.block_cut_offs.iter().map(pick);
+            Some([values.clone().min()?, values.max()?])
+        };
+        CutOffs {
+            low: report.low,
+            high: report.high,
+            block_low_range: range(|c| c.0),
+            block_high_range: range(|c| c.1),
+        }
     }
 }
 
@@ -36,6 +63,10 @@ pub struct ClutterRecord {
     pub high: String,
     /// Tissue's largest Doppler frequency, as a fraction of the PRF.
     pub tissue_frequency_fraction: f64,
+    /// Block-wise filtering: the blocks' size (rows, columns of pixels); absent for one filter
+    /// over the whole image.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_pixels: Option<[usize; 2]>,
     /// The cut-offs each angle's filter used.
     pub cut_offs_per_angle: Vec<CutOffs>,
 }
