@@ -73,6 +73,26 @@ def test_maps_and_time_series_open_in_nibabel_where_the_npy_maps_are(coded_tube,
     assert sorted(summary["nifti"]) == sorted(p.name for p in out.glob("*.nii.gz"))
 
 
+def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_path):
+    """`--svd-block-mm`: summary.json gives the blocks' size in pixels and each angle's range of
+    block cut-offs; the sidecar names the filter block-wise and gives no single threshold."""
+    out = tmp_path / "blocks"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", out, GRID, "--nifti", "--dynamics=off",
+        "--svd-block-mm", "1.2",
+    )
+    assert done.returncode == 0, done.stderr
+    clutter = json.loads((out / "summary.json").read_text())["clutter_filter"]
+    # 1.2 mm on the 0.08 mm grid.
+    assert clutter["block_pixels"] == [15, 15]
+    assert len(clutter["cut_offs_per_angle"]) == 4
+    for cut in clutter["cut_offs_per_angle"]:
+        low_range = cut["block_low_range"]
+        assert low_range[0] <= cut["low"] <= low_range[1]
+    filters = json.loads((out / "power_doppler.json").read_text())["ClutterFilters"]
+    assert filters == [{"FilterType": "Index-based SVD, block-wise"}]
+
+
 def test_bids_names_and_refused_labels(coded_tube, cli, tmp_path):
     out = tmp_path / "bids"
     done = run_cli(
