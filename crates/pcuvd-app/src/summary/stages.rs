@@ -2,8 +2,8 @@
 //! vector fit, dealiasing, the dynamics, and how the frames were split (blocks, segments,
 //! ensembles), with the rules they follow in words.
 
-use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::dynamics::{self, PoolingSummary};
+use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
 

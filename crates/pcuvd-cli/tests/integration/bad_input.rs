@@ -169,7 +169,11 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
     );
     expect_error(&ok, &["--grid", "1,2,3"], &["--grid", "five numbers"]);
     expect_error(&ok, &["--svd-low", "many"], &["--svd-low"]);
-    expect_error(&ok, &["--svd-block-mm", "0"], &["--svd-block-mm", "positive"]);
+    expect_error(
+        &ok,
+        &["--svd-block-mm", "0"],
+        &["--svd-block-mm", "positive"],
+    );
     // A block of one pixel cannot hold a noise floor over the recording's frames.
     expect_error(
         &ok,

@@ -36,7 +36,10 @@
 //! under the probe, motion that grows with depth), so one global set of temporal vectors needs
 //! more components to hold it than each block's local, nearly rigid, tissue does; a block's
 //! filter can therefore cut fewer components, and less slow flow with them, where its tissue is
-//! simple. Its SVD needs at least as many pixels as frames to see a noise floor.
+//! simple. Its SVD needs at least as many pixels as frames to see a noise floor. A block cuts at
+//! most the components the whole image's rule cuts (the tissue seen on some pixels has at most
+//! the whole tissue's rank): within a small block a wide, slow vessel is strong and steep enough
+//! to pass for tissue.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
@@ -129,8 +132,17 @@ fn as_faer(samples: &[Complex32]) -> &[c32] {
 pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Result<ClutterReport> {
     match params.blocks {
         Some(size) => filter_blocks(series, params, size),
-        None => filter_whole(series, params),
+        None => filter_whole(series, params, Pass::Filter { low_cap: None }),
     }
+}
+
+/// What [`filter_whole`] does with the cut-offs it chooses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Pass {
+    /// Filter the series, removing at most `low_cap` leading components when given.
+    Filter { low_cap: Option<usize> },
+    /// Choose the cut-offs only, leaving the series as it is.
+    CutOffsOnly,
 }
 
 /// Starts of the blocks of `size` that cover `n` pixels at half-block steps, the last one flush
@@ -170,6 +182,16 @@ fn filter_blocks(
         blocks: None,
         ..*params
     };
+    // A block's tissue is the whole image's seen on some of its pixels: its rank is at most the
+    // whole's, so a block cuts at most the components the whole image's rule cuts. Without that
+    // cap a block holding a wide, slow vessel cuts its blood as tissue (strong, slow and steep
+    // within the block).
+    let low_cap = match params.low {
+        RankCut::Auto | RankCut::Similarity => {
+            Some(filter_whole(series, &whole, Pass::CutOffsOnly)?.low)
+        }
+        RankCut::Off | RankCut::Fixed(_) => None,
+    };
     let (z_starts, x_starts) = (block_starts(nz, rows), block_starts(nx, cols));
     let mut blended = Array3::<Complex32>::zeros((nz, nx, frames));
     let mut weights = ndarray::Array2::<f32>::zeros((nz, nx));
@@ -183,7 +205,8 @@ fn filter_blocks(
                 let mut block = series
                     .slice(ndarray::s![z0..z0 + rows, x0..x0 + cols, ..])
                     .to_owned();
-                filter_whole(&mut block, &whole).map(|report| (x0, block, report))
+                filter_whole(&mut block, &whole, Pass::Filter { low_cap })
+                    .map(|report| (x0, block, report))
             })
             .collect::<Result<Vec<_>>>()?;
         for (x0, block, report) in filtered {
@@ -221,7 +244,11 @@ fn filter_blocks(
 }
 
 /// The whole image's filter: one SVD of its Casorati matrix.
-fn filter_whole(series: &mut Array3<Complex32>, params: &ClutterParams) -> Result<ClutterReport> {
+fn filter_whole(
+    series: &mut Array3<Complex32>,
+    params: &ClutterParams,
+    pass: Pass,
+) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
     let pixels = nz * nx;
     if frames < 2 || pixels == 0 {
@@ -296,6 +323,12 @@ fn filter_whole(series: &mut Array3<Complex32>, params: &ClutterParams) -> Resul
         ),
         RankCut::Similarity => similar.map_or(0, |(low, _)| low),
     };
+    let low = match pass {
+        Pass::Filter {
+            low_cap: Some(cap), ..
+        } => low.min(cap),
+        _ => low,
+    };
     let high = match params.high {
         RankCut::Off => frames,
         RankCut::Fixed(k) => k,
@@ -309,7 +342,7 @@ fn filter_whole(series: &mut Array3<Complex32>, params: &ClutterParams) -> Resul
         ));
     }
     let singular_values = eigenvalues.iter().map(|v| v.sqrt()).collect();
-    if low == 0 && high == frames {
+    if (low == 0 && high == frames) || pass == Pass::CutOffsOnly {
         return Ok(ClutterReport {
             low,
             high,
@@ -1073,6 +1106,47 @@ mod tests {
             "{}",
             residual / tissue_energy
         );
+    }
+
+    /// A strong, slow vessel on a few pixels: within a block it stands above the block's noise as
+    /// tissue does (strong, slow and steep), over the whole image it does not. The blocks cut at
+    /// most what the whole image's rule cuts, so its blood is kept.
+    #[test]
+    fn blocks_cut_no_more_than_the_whole_image() {
+        let (nz, nx, nf) = (40, 40, 64);
+        let vessel = |z: usize, x: usize| (14..18).contains(&z) && (14..18).contains(&x);
+        let tissue = toned((nz, nx, nf), 9, |_, _| vec![(100.0, 0.0)]);
+        let blood = toned((nz, nx, nf), 10, |z, x| match vessel(z, x) {
+            true => vec![(3.0, 1.0)],
+            false => vec![],
+        });
+        let noise = toned((nz, nx, nf), 11, |_, _| {
+            (0..nf).map(|k| (1.0 / (nf as f32).sqrt(), k as f32)).collect()
+        });
+        let series = &(&tissue + &blood) + &noise;
+        // The premise: alone, the block around the vessel cuts it with the tissue.
+        let mut alone = series.slice(ndarray::s![10..30, 10..30, ..]).to_owned();
+        assert_eq!(svd_filter(&mut alone, &ClutterParams::default()).unwrap().low, 2);
+        let whole = svd_filter(&mut series.clone(), &ClutterParams::default()).unwrap();
+        assert_eq!(whole.low, 1);
+        let mut blocked = series.clone();
+        let params = ClutterParams {
+            blocks: Some((20, 20)),
+            ..ClutterParams::default()
+        };
+        let report = svd_filter(&mut blocked, &params).unwrap();
+        assert!(report.block_cut_offs.iter().all(|c| c.0 == 1), "{:?}", report.block_cut_offs);
+        // The vessel's blood is kept: its pixels still correlate with it.
+        let (mut dot, mut kept, mut energy) = (Complex32::new(0.0, 0.0), 0.0f32, 0.0f32);
+        for ((z, x, f), b) in blood.indexed_iter() {
+            if vessel(z, x) {
+                dot += blocked[[z, x, f]] * b.conj();
+                kept += blocked[[z, x, f]].norm_sqr();
+                energy += b.norm_sqr();
+            }
+        }
+        let correlation = dot.norm() / (kept * energy).sqrt();
+        assert!(correlation > 0.9, "{correlation}");
     }
 
     #[test]
