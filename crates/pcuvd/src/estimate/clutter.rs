@@ -577,13 +577,8 @@ mod tests {
         let report = svd_filter(&mut series, &ClutterParams::default()).unwrap();
         assert_eq!(report.low, 1, "one still component");
         // Tissue suppressed by more than 60 dB; blood kept (normalised correlation > 0.999).
-        let residual: f32 = (&series - &blood).iter().map(|v| v.norm_sqr()).sum();
-        let tissue_energy: f32 = tissue.iter().map(|v| v.norm_sqr()).sum();
-        assert!(
-            residual / tissue_energy < 1e-6,
-            "tissue rejection {}",
-            residual / tissue_energy
-        );
+        let rejection = residue_over_tissue(&series, &blood, &tissue);
+        assert!(rejection < 1e-6, "tissue rejection {rejection}");
         let dot: Complex32 = series
             .iter()
             .zip(blood.iter())
@@ -995,6 +990,16 @@ mod tests {
         assert!(largest < 1.05 * bulk_edge, "{largest} vs edge {bulk_edge}");
     }
 
+    /// The energy of what a filter left beside the blood, over the tissue's energy.
+    fn residue_over_tissue(
+        filtered: &Array3<Complex32>,
+        blood: &Array3<Complex32>,
+        tissue: &Array3<Complex32>,
+    ) -> f32 {
+        let residual: f32 = (filtered - blood).iter().map(|v| v.norm_sqr()).sum();
+        residual / tissue.iter().map(|v| v.norm_sqr()).sum::<f32>()
+    }
+
     /// A series of random speckle per pixel times a temporal tone per region: `tone(z, x)` gives
     /// each pixel's (amplitude, cycles over the frames) terms.
     fn toned(
@@ -1099,13 +1104,8 @@ mod tests {
         assert_eq!(lows, vec![1, 1, 2, 1, 1]);
         // What is left beside the blood is the tissue's residue at single precision (as the
         // whole-image filter's: 60 dB down).
-        let residual: f32 = (&blocked - &blood).iter().map(|v| v.norm_sqr()).sum();
-        let tissue_energy: f32 = tissue.iter().map(|v| v.norm_sqr()).sum();
-        assert!(
-            residual / tissue_energy < 1e-6,
-            "{}",
-            residual / tissue_energy
-        );
+        let rejection = residue_over_tissue(&blocked, &blood, &tissue);
+        assert!(rejection < 1e-6, "tissue rejection {rejection}");
     }
 
     /// A strong, slow vessel on a few pixels: within a block it stands above the block's noise as
@@ -1121,12 +1121,19 @@ mod tests {
             false => vec![],
         });
         let noise = toned((nz, nx, nf), 11, |_, _| {
-            (0..nf).map(|k| (1.0 / (nf as f32).sqrt(), k as f32)).collect()
+            (0..nf)
+                .map(|k| (1.0 / (nf as f32).sqrt(), k as f32))
+                .collect()
         });
         let series = &(&tissue + &blood) + &noise;
         // The premise: alone, the block around the vessel cuts it with the tissue.
         let mut alone = series.slice(ndarray::s![10..30, 10..30, ..]).to_owned();
-        assert_eq!(svd_filter(&mut alone, &ClutterParams::default()).unwrap().low, 2);
+        assert_eq!(
+            svd_filter(&mut alone, &ClutterParams::default())
+                .unwrap()
+                .low,
+            2
+        );
         let whole = svd_filter(&mut series.clone(), &ClutterParams::default()).unwrap();
         assert_eq!(whole.low, 1);
         let mut blocked = series.clone();
@@ -1135,7 +1142,11 @@ mod tests {
             ..ClutterParams::default()
         };
         let report = svd_filter(&mut blocked, &params).unwrap();
-        assert!(report.block_cut_offs.iter().all(|c| c.0 == 1), "{:?}", report.block_cut_offs);
+        assert!(
+            report.block_cut_offs.iter().all(|c| c.0 == 1),
+            "{:?}",
+            report.block_cut_offs
+        );
         // The vessel's blood is kept: its pixels still correlate with it.
         let (mut dot, mut kept, mut energy) = (Complex32::new(0.0, 0.0), 0.0f32, 0.0f32);
         for ((z, x, f), b) in blood.indexed_iter() {
