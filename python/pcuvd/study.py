@@ -45,8 +45,9 @@ def brain(*, quiet: bool = False, **options: Any) -> dict:
     conventional and coded (once: the recordings are cached by scenario, in `brain_cache`,
     default `pcuvd-cache` in the working folder), processed with the clutter filter on, and
     scored against the truth. options: `pcuvd paper`'s, e.g. brain_scenario="rat-brain" (or a
-    TOML file), brain_frames=360, brain_svd_low="auto" (or "similarity"), quick=True (the small
-    brain, `rat-brain-small`, for a first look). Returns its metrics:
+    TOML file), brain_frames=360, brain_svd_low="auto" (or "similarity"), brain_svd_block_mm=2
+    (the clutter filter block-wise), quick=True (the small brain, `rat-brain-small`, for a first
+    look). Returns its metrics:
     vector RMSE and direction error by depth band and vessel diameter, RI scores, the
     vessel-to-background ratio by depth, each with its definition."""
     given = _checks.to_options("brain", options, _pcuvd.option_names_of("study"))
