@@ -167,7 +167,12 @@ fn filter_blocks(
     (rows, cols): (usize, usize),
 ) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
-    let (rows, cols) = (rows.clamp(1, nz.max(1)), cols.clamp(1, nx.max(1)));
+    let removes_nothing = params.low == RankCut::Off && params.high == RankCut::Off;
+    if nz == 0 || nx == 0 || frames < 2 || removes_nothing {
+        // The whole image's filter refuses what it cannot filter, and returns what needs none.
+        return filter_whole(series, params, Pass::Filter { low_cap: None });
+    }
+    let (rows, cols) = (rows.clamp(1, nz), cols.clamp(1, nx));
     if rows * cols < frames {
         return Err(invalid(
             "clutter filter",
@@ -324,9 +329,7 @@ fn filter_whole(
         RankCut::Similarity => similar.map_or(0, |(low, _)| low),
     };
     let low = match pass {
-        Pass::Filter {
-            low_cap: Some(cap), ..
-        } => low.min(cap),
+        Pass::Filter { low_cap: Some(cap) } => low.min(cap),
         _ => low,
     };
     let high = match params.high {
@@ -1158,6 +1161,22 @@ mod tests {
         }
         let correlation = dot.norm() / (kept * energy).sqrt();
         assert!(correlation > 0.9, "{correlation}");
+    }
+
+    #[test]
+    fn blocks_of_an_empty_image_are_refused_as_the_whole_filter_refuses_it() {
+        let params = ClutterParams {
+            blocks: Some((4, 4)),
+            ..ClutterParams::default()
+        };
+        for shape in [(0, 5, 8), (5, 0, 8), (5, 5, 1)] {
+            let mut series = Array3::<Complex32>::zeros(shape);
+            let error = svd_filter(&mut series, &params).unwrap_err().to_string();
+            assert!(
+                error.contains("needs ≥ 2 frames and pixels"),
+                "{shape:?}: {error}"
+            );
+        }
     }
 
     #[test]
