@@ -91,6 +91,18 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
         assert low_range[0] <= cut["low"] <= low_range[1]
     filters = json.loads((out / "power_doppler.json").read_text())["ClutterFilters"]
     assert filters == [{"FilterType": "Index-based SVD, block-wise"}]
+    # Processed in segments, each segment's cut-offs keep their blocks' ranges too.
+    segmented = tmp_path / "segmented"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", segmented, GRID, "--dynamics=off",
+        "--svd-block-mm", "1.2", "--segment-frames", "4",
+    )
+    assert done.returncode == 0, done.stderr
+    segments = json.loads((segmented / "summary.json").read_text())["segments"]
+    assert segments["count"] == 2
+    for per_angle in segments["clutter_cut_offs_per_angle"]:
+        assert len(per_angle) == 4
+        assert all("block_low_range" in cut for cut in per_angle)
 
 
 def test_bids_names_and_refused_labels(coded_tube, cli, tmp_path):

@@ -179,8 +179,8 @@ pub struct Processed {
 pub struct SegmentsDone {
     /// Each segment's own frames and the frames imaged for it.
     pub ranges: Vec<(std::ops::Range<usize>, std::ops::Range<usize>)>,
-    /// Each segment's clutter cut-offs (low, high), per angle.
-    pub clutter: Vec<Vec<(usize, usize)>>,
+    /// Each segment's clutter filter reports, per angle.
+    pub clutter: Vec<Vec<pcuvd::estimate::clutter::ClutterReport>>,
 }
 
 /// Runs the chain, the time series and the dynamics stage on `data` as `plan` says, reporting
@@ -396,11 +396,7 @@ fn finish_segmented(
         kept: done.kept,
         segments: Some(SegmentsDone {
             ranges: done.ranges,
-            clutter: done
-                .clutter
-                .iter()
-                .map(|per_angle| per_angle.iter().map(|r| (r.low, r.high)).collect())
-                .collect(),
+            clutter: done.clutter,
         }),
     })
 }

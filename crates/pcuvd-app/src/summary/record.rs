@@ -467,7 +467,7 @@ impl Summary {
                         .map(|(_, imaged)| [imaged.start, imaged.end])
                         .collect(),
                     clutter_cut_offs_per_angle: (done.clutter.iter())
-                        .map(|per_angle| CutOffs::per_angle(per_angle))
+                        .map(|per_angle| per_angle.iter().map(CutOffs::of).collect())
                         .collect(),
                     rule: segments_rule(),
                 }),
