@@ -575,13 +575,20 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
         m.clutter_cut_offs[1],
     ));
     report.paragraph(&format!("Vector scores: {}.", m.vector_definition));
+    // RMSE (of Vx / Vz): every vector table's first number.
+    let rmse = |s: &VectorScore| {
+        format!(
+            "{} ({} / {})",
+            f(s.rmse_mm_s),
+            f(s.rmse_vx_mm_s),
+            f(s.rmse_vz_mm_s)
+        )
+    };
     let row = |g: &GroupScores| {
         let cell = |s: &VectorScore| {
             format!(
-                "{} ({} / {}), {}°, {}",
-                f(s.rmse_mm_s),
-                f(s.rmse_vx_mm_s),
-                f(s.rmse_vz_mm_s),
+                "{}, {}°, {}",
+                rmse(s),
                 f(s.median_direction_error_deg),
                 pct(s.detected)
             )
@@ -615,14 +622,6 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
     report.paragraph(
         "Coding and IRLS apart: each recording read by each vector estimator, over the lumen pixels both recordings' vessel masks hold (vector RMSE, Vx / Vz, mm/s).",
     );
-    let rmse = |s: &VectorScore| {
-        format!(
-            "{} ({} / {})",
-            f(s.rmse_mm_s),
-            f(s.rmse_vx_mm_s),
-            f(s.rmse_vz_mm_s)
-        )
-    };
     let rows: Vec<Vec<String>> = m
         .vector_by_estimator
         .iter()
