@@ -103,6 +103,27 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
     for per_angle in segments["clutter_cut_offs_per_angle"]:
         assert len(per_angle) == 4
         assert all("block_low_range" in cut for cut in per_angle)
+    # A time series: each ensemble's cut-offs keep their blocks' ranges, and its sidecar names
+    # the filter block-wise, giving the blocks' medians per ensemble.
+    series = tmp_path / "series"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", series, GRID, "--nifti", "--dynamics=off",
+        "--svd-block-mm", "1.2", "--ensemble-frames=4", "--ensemble-step=2",
+    )
+    assert done.returncode == 0, done.stderr
+    ensembles = json.loads((series / "summary.json").read_text())["ensembles"]
+    assert ensembles["count"] == 3 and len(ensembles["clutter_cut_offs_per_angle"]) == 3
+    for per_angle in ensembles["clutter_cut_offs_per_angle"]:
+        assert len(per_angle) == 4
+        for cut in per_angle:
+            assert cut["block_low_range"][0] <= cut["low"] <= cut["block_low_range"][1]
+            assert cut["block_high_range"][0] <= cut["high"] <= cut["block_high_range"][1]
+    timing = json.loads((series / "ensemble_power_doppler.json").read_text())
+    assert timing["ClutterFilters"] == [{"FilterType": "Index-based SVD, block-wise, per ensemble"}]
+    assert timing["ClutterCutoffsPerEnsemble"] == [
+        [[cut["low"], cut["high"]] for cut in per_angle]
+        for per_angle in ensembles["clutter_cut_offs_per_angle"]
+    ]
 
 
 def test_bids_names_and_refused_labels(coded_tube, cli, tmp_path):

@@ -364,13 +364,23 @@ pub fn write_nifti(
         // Ensembles are evenly spaced: RepetitionTime says when each starts after the first,
         // DelayAfterTrigger when the first one's centre lies after the recording's first frame.
         fields.repetition_time = Some(step_s);
-        // Each ensemble has its own SVD cut-offs (one pair per angle).
+        // Each ensemble has its own SVD cut-offs (one pair per angle; a block-wise filter's are
+        // its blocks' medians).
+        let block_wise = (ensembles.clutter.iter().flatten()).any(|c| c.block_low_range.is_some());
         fields.clutter_filters = vec![ClutterFilter {
-            filter_type: "Index-based SVD, per ensemble",
+            filter_type: if block_wise {
+                "Index-based SVD, block-wise, per ensemble"
+            } else {
+                "Index-based SVD, per ensemble"
+            },
             low_threshold: None,
             high_threshold: None,
         }];
-        fields.clutter_cutoffs_per_ensemble = Some(ensembles.clutter.clone());
+        fields.clutter_cutoffs_per_ensemble = Some(
+            (ensembles.clutter.iter())
+                .map(|per_angle| per_angle.iter().map(|c| (c.low, c.high)).collect())
+                .collect(),
+        );
         fields.delay_after_trigger = Some(ensembles.times_s.first().copied().unwrap_or(0.0));
         let mut series_maps: Vec<(&str, Array3<f64>)> = vec![
             ("ensemble_power_doppler", ensembles.power_doppler.clone()),

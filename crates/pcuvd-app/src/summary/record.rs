@@ -481,7 +481,7 @@ impl Summary {
                     times_s: maps.times_s.clone(),
                     start_frames: maps.starts.clone(),
                     clutter_cut_offs_per_angle: (maps.clutter.iter())
-                        .map(|per_angle| CutOffs::per_angle(per_angle))
+                        .map(|per_angle| per_angle.iter().map(|&c| CutOffs::from(c)).collect())
                         .collect(),
                     estimator: "IRLS-WLS (PC-UVD)",
                 }),

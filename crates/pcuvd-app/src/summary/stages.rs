@@ -3,13 +3,15 @@
 //! ensembles), with the rules they follow in words.
 
 use pcuvd::dynamics::{self, PoolingSummary};
-use pcuvd::estimate::clutter::ClutterReport;
+use pcuvd::estimate::clutter::{self, ClutterReport};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
 
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
-/// A clutter filter's cut-offs: singular components kept are `low..high`.
+/// A clutter filter's cut-offs as `summary.json` writes them: singular components kept are
+/// `low..high`; the blocks' ranges are left out for a whole-image filter (which the pipeline's own
+/// [`clutter::CutOffs`], sent between processes in a format without field names, cannot do).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct CutOffs {
     /// Components removed from the top (tissue).
@@ -25,32 +27,21 @@ pub struct CutOffs {
     pub block_high_range: Option<[usize; 2]>,
 }
 
-impl CutOffs {
-    /// Each angle's cut-offs from (low, high) pairs.
-    pub(super) fn per_angle(pairs: &[(usize, usize)]) -> Vec<CutOffs> {
-        pairs
-            .iter()
-            .map(|&(low, high)| CutOffs {
-                low,
-                high,
-                block_low_range: None,
-                block_high_range: None,
-            })
-            .collect()
+impl From<clutter::CutOffs> for CutOffs {
+    fn from(c: clutter::CutOffs) -> CutOffs {
+        CutOffs {
+            low: c.low,
+            high: c.high,
+            block_low_range: c.block_low_range,
+            block_high_range: c.block_high_range,
+        }
     }
+}
 
+impl CutOffs {
     /// What one filter reported, with its blocks' ranges when it worked block-wise.
     pub(super) fn of(report: &ClutterReport) -> CutOffs {
-        let range = |pick: fn(&(usize, usize)) -> usize| {
-            let values = report.block_cut_offs.iter().map(pick);
-            Some([values.clone().min()?, values.max()?])
-        };
-        CutOffs {
-            low: report.low,
-            high: report.high,
-            block_low_range: range(|c| c.0),
-            block_high_range: range(|c| c.1),
-        }
+        report.cut_offs().into()
     }
 }
 

@@ -120,6 +120,36 @@ pub struct ClutterReport {
     pub block_cut_offs: Vec<(usize, usize)>,
 }
 
+impl ClutterReport {
+    /// The cut-offs as a run records them, with the blocks' ranges when it worked block-wise.
+    pub fn cut_offs(&self) -> CutOffs {
+        let range = |pick: fn(&(usize, usize)) -> usize| {
+            let values = self.block_cut_offs.iter().map(pick);
+            Some([values.clone().min()?, values.max()?])
+        };
+        CutOffs {
+            low: self.low,
+            high: self.high,
+            block_low_range: range(|c| c.0),
+            block_high_range: range(|c| c.1),
+        }
+    }
+}
+
+/// A filter's cut-offs in brief: components `low..high` kept and, block-wise, the least and the
+/// most its blocks chose; what a time series keeps of each ensemble's [`ClutterReport`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct CutOffs {
+    /// Components removed from the top (tissue); block-wise, the blocks' median.
+    pub low: usize,
+    /// First component removed from the bottom (noise); block-wise, the blocks' median.
+    pub high: usize,
+    /// Block-wise: the least and the most components a block removed from the top.
+    pub block_low_range: Option<[usize; 2]>,
+    /// Block-wise: the least and the most of the blocks' `high`.
+    pub block_high_range: Option<[usize; 2]>,
+}
+
 const CHUNK: usize = 4096;
 
 /// `samples` as faer's complex type, which is the same type.
@@ -1091,12 +1121,8 @@ mod tests {
         let blood = toned((nz, nx, nf), 8, |_, _| vec![(1.0, 8.0)]);
         let mut whole = &tissue + &blood;
         let mut blocked = whole.clone();
-        assert_eq!(
-            svd_filter(&mut whole, &ClutterParams::default())
-                .unwrap()
-                .low,
-            2
-        );
+        let whole_report = svd_filter(&mut whole, &ClutterParams::default()).unwrap();
+        assert_eq!(whole_report.low, 2);
         let params = ClutterParams {
             blocks: Some((24, 16)),
             ..ClutterParams::default()
@@ -1105,6 +1131,17 @@ mod tests {
         // Columns start at 0, 8, 16, 24, 32: the block at 16 straddles the two halves.
         let lows: Vec<usize> = report.block_cut_offs.iter().map(|c| c.0).collect();
         assert_eq!(lows, vec![1, 1, 2, 1, 1]);
+        // In brief: the blocks' medians, with the least and the most they chose.
+        assert_eq!(
+            report.cut_offs(),
+            CutOffs {
+                low: 1,
+                high: nf,
+                block_low_range: Some([1, 2]),
+                block_high_range: Some([nf, nf]),
+            }
+        );
+        assert_eq!(whole_report.cut_offs().block_low_range, None);
         // What is left beside the blood is the tissue's residue at single precision (as the
         // whole-image filter's: 60 dB down).
         let rejection = residue_over_tissue(&blocked, &blood, &tissue);

@@ -9,6 +9,7 @@
 use ndarray::{Array3, Axis, s};
 
 use crate::core::error::{Result, invalid};
+use crate::estimate::clutter::{ClutterReport, CutOffs};
 use crate::form::images::AngleImages;
 use crate::pipeline::{self, ProcessParams, Stage};
 
@@ -67,8 +68,8 @@ pub struct EnsembleMaps {
     pub vx: Option<Array3<f64>>,
     /// Axial component of the vector velocity (m/s, positive deeper); `None` with one angle.
     pub vz: Option<Array3<f64>>,
-    /// Clutter cut-offs (low, high) of each ensemble, per angle.
-    pub clutter: Vec<Vec<(usize, usize)>>,
+    /// Clutter cut-offs of each ensemble, per angle.
+    pub clutter: Vec<Vec<CutOffs>>,
 }
 
 impl EnsembleMaps {
@@ -227,7 +228,7 @@ pub fn ensemble_maps_at(
             vz.index_axis_mut(Axis(0), e).assign(&field.vz);
         }
         maps.clutter
-            .push(out.clutter.iter().map(|r| (r.low, r.high)).collect());
+            .push(out.clutter.iter().map(ClutterReport::cut_offs).collect());
     }
     progress(Stage::Ensembles, count, count);
     Ok(maps)
