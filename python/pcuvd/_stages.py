@@ -142,8 +142,9 @@ def svd_filter(
     blocks: (rows, cols) pixels: filter overlapping blocks of that size each with its own
     cut-offs, blended back (block-wise SVD); None filters the whole image at once.
     Returns the filtered series (complex64) and {"low", "high", "singular_values",
-    "block_cut_offs"} (a block-wise filter: the medians of its blocks' cut-offs, no singular
-    values, and each block's (low, high)).
+    "block_cut_offs", "block_starts"} (a block-wise filter: the medians of its blocks' cut-offs,
+    no singular values, each block's (low, high), block rows first, and the blocks' first rows
+    and columns (z_starts, x_starts); a whole-image filter: no blocks, "block_starts" None).
     """
     data = _checks.complex64("series", series, SERIES_AXES)
     if blocks is not None:
@@ -151,7 +152,7 @@ def svd_filter(
         if rows < 1 or cols < 1:
             raise ValueError(f"blocks: expected positive sizes (rows, cols), got {tuple(blocks)!r}")
         blocks = (rows, cols)
-    filtered, low_used, high_used, values, block_cut_offs = _pcuvd.svd_filter(
+    filtered, low_used, high_used, values, block_cut_offs, block_starts = _pcuvd.svd_filter(
         data,
         str(low),
         str(high),
@@ -163,6 +164,7 @@ def svd_filter(
         "high": high_used,
         "singular_values": np.array(values),
         "block_cut_offs": [tuple(c) for c in block_cut_offs],
+        "block_starts": None if block_starts is None else tuple(list(s) for s in block_starts),
     }
 
 

@@ -71,6 +71,10 @@ def test_maps_and_time_series_open_in_nibabel_where_the_npy_maps_are(coded_tube,
     assert timing["PowerDopplerIntegrationDuration"] == pytest.approx(step_s * 2 * 1e3)
     assert len(timing["ClutterCutoffsPerEnsemble"]) == 3
     assert sorted(summary["nifti"]) == sorted(p.name for p in out.glob("*.nii.gz"))
+    # A whole-image filter has no blocks to record.
+    assert "block_starts_px" not in summary["clutter_filter"]
+    assert not (out / "clutter_block_cut_offs.npy").exists()
+    assert not (out / "clutter_blocks.png").exists()
 
 
 def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_path):
@@ -98,11 +102,25 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
         "--svd-block-mm", "1.2", "--segment-frames", "4",
     )
     assert done.returncode == 0, done.stderr
-    segments = json.loads((segmented / "summary.json").read_text())["segments"]
+    summary = json.loads((segmented / "summary.json").read_text())
+    segments = summary["segments"]
     assert segments["count"] == 2
     for per_angle in segments["clutter_cut_offs_per_angle"]:
         assert len(per_angle) == 4
         assert all("block_low_range" in cut for cut in per_angle)
+    # Every block's cut-offs, (segments, angles, block rows, block columns, low / high), the
+    # blocks where summary.json says they start (15-pixel blocks at 7-pixel steps, the last
+    # flush with the 51-pixel grid's edge), and their ranges those summary.json gives.
+    blocks = np.load(segmented / "clutter_block_cut_offs.npy")
+    starts = summary["clutter_filter"]["block_starts_px"]
+    assert starts["z"] == starts["x"] == [0, 7, 14, 21, 28, 35, 36]
+    assert blocks.shape == (2, 4, 7, 7, 2)
+    for segment, per_angle in zip(blocks, segments["clutter_cut_offs_per_angle"]):
+        for block_cuts, cut in zip(segment, per_angle):
+            assert [block_cuts[..., 0].min(), block_cuts[..., 0].max()] == cut["block_low_range"]
+            assert [block_cuts[..., 1].min(), block_cuts[..., 1].max()] == cut["block_high_range"]
+            assert int(np.median(block_cuts[..., 0])) == cut["low"]
+    assert (segmented / "clutter_blocks.png").is_file()
     # A time series: each ensemble's cut-offs keep their blocks' ranges, and its sidecar names
     # the filter block-wise, giving the blocks' medians per ensemble.
     series = tmp_path / "series"

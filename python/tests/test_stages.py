@@ -187,6 +187,8 @@ def test_block_wise_svd_filter_blends_numpy_block_projections():
     expected = blended / weights[:, :, None]
     np.testing.assert_allclose(filtered, expected, atol=1e-3 * np.abs(expected).max())
     assert cut["block_cut_offs"] == [(1, frames)] * (len(starts(nz, rows)) * len(starts(nx, cols)))
+    assert cut["block_starts"] == (starts(nz, rows), starts(nx, cols))
+    assert pcuvd.svd_filter(series, low=1)[1]["block_starts"] is None
     with pytest.raises(ValueError, match="fewer pixels than the 10 frames"):
         pcuvd.svd_filter(series, low=1, blocks=(3, 3))
 

@@ -2,10 +2,11 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use ndarray::{Array2, Zip};
 use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::{ARTERIOLE, BACKGROUND, DynamicsParams, RiMaps, VENULE, VelocitySeries};
+use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::estimate::masks;
 use pcuvd::estimate::vector::VectorField;
 use pcuvd::pipeline::ProcessOutput;
@@ -385,6 +386,63 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         )?);
     }
     Ok(written)
+}
+
+/// `clutter_blocks.png`, the block-wise clutter filter's cut-offs where they applied: the B-mode
+/// beside the tissue components cut at each pixel (the blocks' cut-offs blended as their series
+/// were, averaged over the angles and the segments; `clutter_block_cut_offs.npy` holds every
+/// block's both cut-offs). `reports`: each segment's filter reports, per angle. `None` for a
+/// whole-image filter.
+pub fn clutter_blocks_figure(
+    dir: &Path,
+    out: &ProcessOutput,
+    reports: &[Vec<ClutterReport>],
+    name: &str,
+) -> Result<Option<PathBuf>> {
+    let reports: Vec<&ClutterReport> = reports.iter().flatten().collect();
+    let Some(layout) = reports.first().and_then(|c| c.block_layout.as_ref()) else {
+        return Ok(None);
+    };
+    let grid = &out.grid;
+    if layout.shape() != grid.shape() {
+        bail!("the clutter filter's blocks cover another image than the maps' grid");
+    }
+    let mut cut = Array2::<f64>::zeros(grid.shape());
+    for report in &reports {
+        let lows: Vec<f64> = report.block_cut_offs.iter().map(|c| c.0 as f64).collect();
+        cut += &layout.blend(&lows)?;
+    }
+    cut /= reports.len() as f64;
+    let most = (reports.iter().flat_map(|c| &c.block_cut_offs))
+        .map(|c| c.0)
+        .max();
+    let bmode = map_panel(
+        "B-mode",
+        out.bmode_db.clone(),
+        grid,
+        Colormap::Gray,
+        (-60.0, 0.0),
+        "dB",
+    );
+    let size = pcuvd_render::fitted_panel_size(&bmode, PROCESS_PANEL_WIDTH_PX)
+        .context("cannot lay out the figures")?;
+    let cut = map_panel(
+        "Tissue components cut",
+        cut,
+        grid,
+        Colormap::Viridis,
+        (0.0, most.unwrap_or(0).max(1) as f64),
+        "components (mean over angles)",
+    );
+    let (rows, cols) = layout.size;
+    let caption = format!(
+        "{name}: block-wise clutter filter, blocks of {rows} × {cols} pixels \
+         ({:.2} × {:.2} mm) at half-block steps",
+        rows as f64 * grid.axial_step() * 1e3,
+        cols as f64 * grid.step() * 1e3,
+    );
+    let panels = vec![Panel::Image(bmode), Panel::Image(cut)];
+    save(&dir.join("clutter_blocks.png"), &caption, panels, 2, size).map(Some)
 }
 
 /// The top of a speed colour scale (mm/s) shared by several vector maps: the 95th percentile of

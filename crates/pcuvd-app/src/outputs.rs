@@ -42,6 +42,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ensemble_vz.npy",
     "ensemble_speed.npy",
     "ensemble_times.npy",
+    "clutter_block_cut_offs.npy",
     "bmode.png",
     "power_doppler.png",
     "signed_power_doppler.png",
@@ -51,6 +52,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ri.png",
     "waveform.png",
     "ensembles.png",
+    "clutter_blocks.png",
     // --nifti, named by map: the image and its sidecar.
     "power_doppler.nii.gz",
     "power_doppler.json",

@@ -216,6 +216,7 @@ pub(crate) type Filtered<'py> = (
     usize,
     Vec<f64>,
     Vec<(usize, usize)>,
+    Option<(Vec<usize>, Vec<usize>)>,
 );
 
 /// SVD clutter filter of a series (nz, nx, frames): returns the filtered series and the low and
@@ -247,6 +248,7 @@ pub(crate) fn svd_filter<'py>(
         report.high,
         report.singular_values,
         report.block_cut_offs,
+        (report.block_layout).map(|layout| (layout.z_starts, layout.x_starts)),
     ))
 }
 

@@ -7,6 +7,7 @@ use anyhow::Result;
 use ndarray::Array1;
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::dynamics;
+use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::pipeline::ProcessOutput;
 
 use crate::figures;
@@ -56,6 +57,14 @@ pub fn save(
     write_maps(dir, out)?;
     let mut summary = Summary::of(data, plan, processed, source);
     let mut pngs = figures::process_figures(dir, out, name)?;
+    // Each segment's clutter filters, or the whole recording's.
+    let clutter = match &processed.segments {
+        Some(done) => done.clutter.clone(),
+        None => vec![out.clutter.clone()],
+    };
+    if write_block_cut_offs(dir, &clutter)? {
+        pngs.extend(figures::clutter_blocks_figure(dir, out, &clutter, name)?);
+    }
     pngs.append(&mut write_dynamics(dir, plan, processed, name, progress)?);
     if let Some(maps) = &processed.ensembles
         && !processed.ensembles_in_store
@@ -213,6 +222,32 @@ fn write_ensembles(dir: &Path, maps: &pcuvd::pipeline::ensembles::EnsembleMaps) 
         &Array1::from(maps.times_s.clone()),
     )?;
     Ok(())
+}
+
+/// Writes `clutter_block_cut_offs.npy` when the clutter filter worked block-wise: every block's
+/// (low, high) cut-offs, shape (segments, angles, block rows, block columns, 2), one segment when
+/// the recording was processed whole; `clutter`: each segment's reports, per angle. Returns
+/// whether it wrote it.
+fn write_block_cut_offs(dir: &Path, clutter: &[Vec<ClutterReport>]) -> Result<bool> {
+    let Some(layout) = (clutter.iter().flatten()).find_map(|c| c.block_layout.as_ref()) else {
+        return Ok(false);
+    };
+    let (rows, cols) = (layout.z_starts.len(), layout.x_starts.len());
+    let angles = clutter.first().map_or(0, Vec::len);
+    let mut cut_offs = ndarray::Array5::<i64>::zeros((clutter.len(), angles, rows, cols, 2));
+    for (s, per_angle) in clutter.iter().enumerate() {
+        for (a, report) in per_angle.iter().enumerate() {
+            if report.block_layout.as_ref() != Some(layout) || per_angle.len() != angles {
+                anyhow::bail!("the segments' clutter filters used different blocks");
+            }
+            for (b, &(low, high)) in report.block_cut_offs.iter().enumerate() {
+                cut_offs[[s, a, b / cols, b % cols, 0]] = low as i64;
+                cut_offs[[s, a, b / cols, b % cols, 1]] = high as i64;
+            }
+        }
+    }
+    pcuvd_io::write_npy(&dir.join("clutter_block_cut_offs.npy"), &cut_offs)?;
+    Ok(true)
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {

@@ -420,6 +420,7 @@ impl Summary {
                 high: format!("{:?}", params.clutter.high),
                 tissue_frequency_fraction: params.clutter.tissue_frequency,
                 block_pixels: params.clutter.blocks.map(|(rows, cols)| [rows, cols]),
+                block_starts_px: BlockStarts::of(&out.clutter),
                 cut_offs_per_angle: out.clutter.iter().map(CutOffs::of).collect(),
             },
             doppler: DopplerRecord {

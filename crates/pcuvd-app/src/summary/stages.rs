@@ -58,8 +58,32 @@ pub struct ClutterRecord {
     /// over the whole image.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub block_pixels: Option<[usize; 2]>,
+    /// Block-wise filtering: each row of blocks' first row and each column of blocks' first
+    /// column (pixels), the blocks of `clutter_block_cut_offs.npy`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_starts_px: Option<BlockStarts>,
     /// The cut-offs each angle's filter used.
     pub cut_offs_per_angle: Vec<CutOffs>,
+}
+
+/// Where a block-wise filter's blocks start (pixels).
+#[derive(Debug, Clone, Serialize)]
+pub struct BlockStarts {
+    /// Each row of blocks' first row.
+    pub z: Vec<usize>,
+    /// Each column of blocks' first column.
+    pub x: Vec<usize>,
+}
+
+impl BlockStarts {
+    /// Where the blocks of the first of `reports` start; `None` for a whole-image filter.
+    pub(super) fn of(reports: &[ClutterReport]) -> Option<BlockStarts> {
+        let layout = reports.first()?.block_layout.as_ref()?;
+        Some(BlockStarts {
+            z: layout.z_starts.clone(),
+            x: layout.x_starts.clone(),
+        })
+    }
 }
 
 /// Doppler estimation settings.

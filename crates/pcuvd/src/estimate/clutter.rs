@@ -43,7 +43,7 @@
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
-use ndarray::Array3;
+use ndarray::{Array2, Array3};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
@@ -118,6 +118,9 @@ pub struct ClutterReport {
     /// `high` above are then their medians); empty for a whole-image filter.
     #[serde(default)]
     pub block_cut_offs: Vec<(usize, usize)>,
+    /// Block-wise filtering: where the blocks lie; `None` for a whole-image filter.
+    #[serde(default)]
+    pub block_layout: Option<BlockLayout>,
 }
 
 impl ClutterReport {
@@ -191,6 +194,72 @@ fn tent(i: usize, size: usize) -> f32 {
     (i + 1).min(size - i) as f32
 }
 
+/// Where a block-wise filter's blocks lie on an image: their size and their first rows and
+/// columns (pixels), at half-block steps, the last ones flush with the image's edges.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct BlockLayout {
+    /// A block's rows and columns of pixels.
+    pub size: (usize, usize),
+    /// Each row of blocks' first row (pixel).
+    pub z_starts: Vec<usize>,
+    /// Each column of blocks' first column (pixel).
+    pub x_starts: Vec<usize>,
+}
+
+impl BlockLayout {
+    /// The blocks of `size` (rows, columns; clamped to the image) over an image of `shape`
+    /// (nz, nx) pixels.
+    pub fn new((nz, nx): (usize, usize), (rows, cols): (usize, usize)) -> BlockLayout {
+        let size = (rows.clamp(1, nz.max(1)), cols.clamp(1, nx.max(1)));
+        BlockLayout {
+            size,
+            z_starts: block_starts(nz, size.0),
+            x_starts: block_starts(nx, size.1),
+        }
+    }
+
+    /// The image's shape (nz, nx): the last blocks end flush with its edges.
+    pub fn shape(&self) -> (usize, usize) {
+        let end = |starts: &[usize], size| starts.last().map_or(0, |&s| s + size);
+        (
+            end(&self.z_starts, self.size.0),
+            end(&self.x_starts, self.size.1),
+        )
+    }
+
+    /// Each block's (row, column) of pixels where it starts, block rows first: the order of a
+    /// report's `block_cut_offs`.
+    pub fn origins(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (self.z_starts.iter()).flat_map(|&z| self.x_starts.iter().map(move |&x| (z, x)))
+    }
+
+    /// Per-block `values` (block rows first) blended onto the image's pixels as the filter blends
+    /// the blocks' series: each pixel gets the tent-weighted mean over the blocks that hold it
+    /// (for the blocks' cut-offs, how many components were cut there, in effect).
+    pub fn blend(&self, values: &[f64]) -> Result<Array2<f64>> {
+        let blocks = self.z_starts.len() * self.x_starts.len();
+        if values.len() != blocks {
+            return Err(Error::Shape(format!(
+                "{} values for {blocks} blocks",
+                values.len()
+            )));
+        }
+        let (rows, cols) = self.size;
+        let mut sums = Array2::<f64>::zeros(self.shape());
+        let mut weights = Array2::<f64>::zeros(self.shape());
+        for ((z0, x0), &value) in self.origins().zip(values) {
+            for i in 0..rows {
+                for j in 0..cols {
+                    let w = f64::from(tent(i, rows) * tent(j, cols));
+                    sums[[z0 + i, x0 + j]] += w * value;
+                    weights[[z0 + i, x0 + j]] += w;
+                }
+            }
+        }
+        Ok(sums / weights)
+    }
+}
+
 fn filter_blocks(
     series: &mut Array3<Complex32>,
     params: &ClutterParams,
@@ -202,7 +271,8 @@ fn filter_blocks(
         // The whole image's filter refuses what it cannot filter, and returns what needs none.
         return filter_whole(series, params, Pass::Filter { low_cap: None });
     }
-    let (rows, cols) = (rows.clamp(1, nz), cols.clamp(1, nx));
+    let layout = BlockLayout::new((nz, nx), (rows, cols));
+    let (rows, cols) = layout.size;
     if rows * cols < frames {
         return Err(invalid(
             "clutter filter",
@@ -227,13 +297,13 @@ fn filter_blocks(
         }
         RankCut::Off | RankCut::Fixed(_) => None,
     };
-    let (z_starts, x_starts) = (block_starts(nz, rows), block_starts(nx, cols));
+    let (z_starts, x_starts) = (&layout.z_starts, &layout.x_starts);
     let mut blended = Array3::<Complex32>::zeros((nz, nx, frames));
     let mut weights = ndarray::Array2::<f32>::zeros((nz, nx));
     let mut block_cut_offs = Vec::with_capacity(z_starts.len() * x_starts.len());
     // One row of blocks at a time: its blocks are filtered in parallel (each block's own filter
     // is one chunk of pixels, sequential), then blended in.
-    for &z0 in &z_starts {
+    for &z0 in z_starts {
         let filtered = x_starts
             .par_iter()
             .map(|&x0| {
@@ -275,6 +345,7 @@ fn filter_blocks(
         high: median(|c| c.1),
         singular_values: Vec::new(),
         block_cut_offs,
+        block_layout: Some(layout),
     })
 }
 
@@ -298,6 +369,7 @@ fn filter_whole(
             high: frames,
             singular_values: vec![],
             block_cut_offs: Vec::new(),
+            block_layout: None,
         });
     }
     let data = series
@@ -381,6 +453,7 @@ fn filter_whole(
             high,
             singular_values,
             block_cut_offs: Vec::new(),
+            block_layout: None,
         });
     }
 
@@ -433,6 +506,7 @@ fn filter_whole(
         high,
         singular_values,
         block_cut_offs: Vec::new(),
+        block_layout: None,
     })
 }
 
@@ -1106,6 +1180,26 @@ mod tests {
     /// block-wise filter cuts one where its blocks see one tissue and two where they straddle
     /// both, and keeps the blood everywhere.
     #[test]
+    fn blended_block_values_are_the_tent_weighted_means_by_hand() {
+        // Rows: blocks of 4 at 0 and 2 (tents 1, 2, 2, 1); one column of blocks of 3.
+        let layout = BlockLayout::new((6, 3), (4, 3));
+        assert_eq!(layout.shape(), (6, 3));
+        assert_eq!(layout.origins().collect::<Vec<_>>(), vec![(0, 0), (2, 0)]);
+        let blended = layout.blend(&[1.0, 4.0]).unwrap();
+        // Row 2: tent 2 in the first block, 1 in the second; row 3 the other way round.
+        let by_row = [1.0, 1.0, (2.0 + 4.0) / 3.0, (1.0 + 8.0) / 3.0, 4.0, 4.0];
+        for (z, expected) in by_row.into_iter().enumerate() {
+            for x in 0..3 {
+                assert!((blended[[z, x]] - expected).abs() < 1e-12, "({z}, {x})");
+            }
+        }
+        assert!(layout.blend(&[1.0]).is_err());
+        // Blocks larger than the image are clamped to it, as the filter clamps them.
+        let one = BlockLayout::new((5, 7), (50, 50));
+        assert_eq!((one.size, one.shape()), ((5, 7), (5, 7)));
+    }
+
+    #[test]
     fn blocks_cut_the_tissue_each_block_holds() {
         let (nz, nx, nf) = (24, 48, 64);
         // Still and brighter on the left, so that the whole image's tissue components fall off
@@ -1142,6 +1236,16 @@ mod tests {
             }
         );
         assert_eq!(whole_report.cut_offs().block_low_range, None);
+        // Where the blocks lie, one per cut-off; blended, the cuts are 1 where one tissue fills
+        // the blocks and up to 2 where they straddle both.
+        assert_eq!(whole_report.block_layout, None);
+        let layout = report.block_layout.as_ref().unwrap();
+        assert_eq!(layout.x_starts, vec![0, 8, 16, 24, 32]);
+        let lows: Vec<f64> = lows.iter().map(|&l| l as f64).collect();
+        let blended = layout.blend(&lows).unwrap();
+        assert_eq!((blended[[0, 0]], blended[[0, nx - 1]]), (1.0, 1.0));
+        let peak = blended.iter().copied().fold(0.0, f64::max);
+        assert!(peak > 1.0 && peak < 2.0, "{peak}");
         // What is left beside the blood is the tissue's residue at single precision (as the
         // whole-image filter's: 60 dB down).
         let rejection = residue_over_tissue(&blocked, &blood, &tissue);
