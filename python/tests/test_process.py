@@ -41,7 +41,7 @@ def tube(tmp_path_factory, cli) -> Path:
 
 
 @pytest.mark.filterwarnings("ignore:.*dealiasing cannot recover")  # the coded tube; tested below
-@pytest.mark.parametrize("which", ["disk", "tube", "tube in segments"])
+@pytest.mark.parametrize("which", ["disk", "tube", "tube in segments", "tube in blocks"])
 def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     source = disk if which == "disk" else tube
     tube_options = [
@@ -60,6 +60,9 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
             "--segment-frames=8",
             "--dealias=auto",
         ]
+    if which == "tube in blocks":
+        # The block-wise clutter filter (15 × 15-pixel blocks) in two segments.
+        options = tube_options[:2] + ["--svd-block-mm=1.2", "--segment-frames=5", "--dealias=auto"]
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
     assert done.returncode == 0, done.stderr
@@ -74,6 +77,9 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     kwargs = tube_kwargs if which == "tube" else {}
     if which == "tube in segments":
         kwargs = {**tube_kwargs, "ensemble_step": 2, "segment_frames": 8}
+    if which == "tube in blocks":
+        kwargs = {"grid_mm": (-3, 3, 4, 10, 0.08), "dynamics": "off", "svd_block_mm": 1.2,
+                  "segment_frames": 5, "dealias": "auto"}
     result = pcuvd.process(source, quiet=True, **kwargs)
     by_python = tmp_path / "python"
     figures = result.save(by_python)
@@ -94,6 +100,9 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         assert cli_arrays["ensemble_vx"].shape == (4, *cli_arrays["vx"].shape)
         segments = json.loads((by_cli / "summary.json").read_text())["segments"]
         assert segments["own_frames"] == [[0, 6], [6, 10]]
+    if which == "tube in blocks":
+        # Each segment's and angle's blocks: 10 rows and 10 columns of them on the 76-pixel grid.
+        assert cli_arrays["clutter_block_cut_offs"].shape == (2, 8, 10, 10, 2)
     for name in cli_arrays:
         assert_same_array(py_arrays[name], cli_arrays[name], name)
         # The in-memory maps are the saved ones.

@@ -137,6 +137,10 @@ impl PyProcessResult {
             dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
             dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
         }
+        let clutter = pcuvd_app::summary::clutter_by_segment(&self.processed);
+        if let Some(cut_offs) = pcuvd_app::summary::block_cut_offs(&clutter).map_err(to_py)? {
+            dict.set_item("clutter_block_cut_offs", cut_offs.into_pyarray(py))?;
+        }
         if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
             dict.set_item("ri", maps.ri.to_pyarray(py))?;
             dict.set_item("psv", maps.psv.to_pyarray(py))?;

@@ -57,12 +57,9 @@ pub fn save(
     write_maps(dir, out)?;
     let mut summary = Summary::of(data, plan, processed, source);
     let mut pngs = figures::process_figures(dir, out, name)?;
-    // Each segment's clutter filters, or the whole recording's.
-    let clutter = match &processed.segments {
-        Some(done) => done.clutter.clone(),
-        None => vec![out.clutter.clone()],
-    };
-    if write_block_cut_offs(dir, &clutter)? {
+    let clutter = clutter_by_segment(processed);
+    if let Some(cut_offs) = block_cut_offs(&clutter)? {
+        pcuvd_io::write_npy(&dir.join("clutter_block_cut_offs.npy"), &cut_offs)?;
         pngs.extend(figures::clutter_blocks_figure(dir, out, &clutter, name)?);
     }
     pngs.append(&mut write_dynamics(dir, plan, processed, name, progress)?);
@@ -224,13 +221,21 @@ fn write_ensembles(dir: &Path, maps: &pcuvd::pipeline::ensembles::EnsembleMaps) 
     Ok(())
 }
 
-/// Writes `clutter_block_cut_offs.npy` when the clutter filter worked block-wise: every block's
-/// (low, high) cut-offs, shape (segments, angles, block rows, block columns, 2), one segment when
-/// the recording was processed whole; `clutter`: each segment's reports, per angle. Returns
-/// whether it wrote it.
-fn write_block_cut_offs(dir: &Path, clutter: &[Vec<ClutterReport>]) -> Result<bool> {
+/// Each segment's clutter filter reports, per angle: one segment when the recording was processed
+/// whole.
+pub fn clutter_by_segment(processed: &Processed) -> Vec<Vec<ClutterReport>> {
+    match &processed.segments {
+        Some(done) => done.clutter.clone(),
+        None => vec![processed.out.clutter.clone()],
+    }
+}
+
+/// Every block's (low, high) clutter cut-offs when the filter worked block-wise, shape (segments,
+/// angles, block rows, block columns, 2): `clutter_block_cut_offs.npy`. `clutter`: each segment's
+/// reports, per angle ([`clutter_by_segment`]). `None` for a whole-image filter.
+pub fn block_cut_offs(clutter: &[Vec<ClutterReport>]) -> Result<Option<ndarray::Array5<i64>>> {
     let Some(layout) = (clutter.iter().flatten()).find_map(|c| c.block_layout.as_ref()) else {
-        return Ok(false);
+        return Ok(None);
     };
     let (rows, cols) = (layout.z_starts.len(), layout.x_starts.len());
     let angles = clutter.first().map_or(0, Vec::len);
@@ -246,8 +251,7 @@ fn write_block_cut_offs(dir: &Path, clutter: &[Vec<ClutterReport>]) -> Result<bo
             }
         }
     }
-    pcuvd_io::write_npy(&dir.join("clutter_block_cut_offs.npy"), &cut_offs)?;
-    Ok(true)
+    Ok(Some(cut_offs))
 }
 
 fn npy(dir: &Path, name: &str, arr: &ndarray::Array2<f64>) -> Result<()> {
