@@ -91,10 +91,12 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
     """Two worker processes each read their segments' frames from the file; the joined maps,
     velocity windows, RI maps and time series are those of `pcuvd.process` (the same sums in the
     same order: equal, not just close). With dealias="auto" the first segment settles the
-    windows' Nyquist intervals for the others (and runs first); with "off" all run at once."""
+    windows' Nyquist intervals for the others (and runs first); with "off" all run at once, here
+    with the block-wise clutter filter, whose every block's cut-offs cross between the processes."""
     import pcuvd.dask
 
     runs = {dealias: {**SEGMENTED, "dealias": dealias} for dealias in ("off", "auto")}
+    runs["off"]["svd_block_mm"] = 1.0
     serial = {d: pcuvd.process(str(long_tube), quiet=True, **o) for d, o in runs.items()}
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
@@ -108,9 +110,11 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
         assert sorted(both.arrays) == sorted(one.arrays)
         for name in ("ri", "speed_series", "ensemble_power_doppler", "vx", "power_doppler"):
             assert name in one.arrays, name
+        assert ("clutter_block_cut_offs" in one.arrays) == (dealias == "off")
         for name, value in one.arrays.items():
             assert_same_array(both.arrays[name], value, f"{name} (dealias {dealias})")
         assert both.summary["segments"] == one.summary["segments"]
+        assert both.summary["ensembles"] == one.summary["ensembles"]
         assert both.summary["dynamics"] == one.summary["dynamics"]
 
 
