@@ -577,7 +577,7 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
         "title": "The accuracy targets at a glance",
         "command": "per row: the named test (slow tier, every CI run); `pcuvd paper --part "
                    "spiral --seed N`; `pcuvd paper --part dealias --dealias-seeds ...` with the "
-                   "options in the row; `pcuvd paper --part brain [--brain-svd-low similarity]` "
+                   "options in the row; `pcuvd paper --part brain [--brain-svd-block-mm 2]` "
                    "(the [virtual rat brain](brain.md)'s runs); the former defaults: with "
                    f"{options_text(FORMER_DEFAULTS)}",
         "commit": ", ".join(sorted({r["commit"] for r in measured})),
@@ -592,17 +592,18 @@ BRAIN = ROOT / "docs" / "results" / "metrics" / "brain"
 
 
 def brain_runs() -> dict[str, dict]:
-    """The brain's kept default run (`auto`) and its similarity cut-off run, where kept."""
+    """The brain's kept default run (`auto`) and its block-wise clutter filter's run (2 mm
+    blocks), where kept."""
     return {name: json.loads((BRAIN / f"{name}.json").read_text())
-            for name in ("auto", "similarity") if (BRAIN / f"{name}.json").exists()}
+            for name in ("auto", "blocks-2mm") if (BRAIN / f"{name}.json").exists()}
 
 
 def brain_rows(runs_: dict[str, dict]) -> list[list[str]]:
-    """The virtual rat brain's targets, from its default run and its similarity cut-off run."""
+    """The virtual rat brain's targets, from its default run and its 2 mm block-wise run."""
     if "auto" not in runs_:
         return []
     default = runs_["auto"]["brain"]
-    similarity = runs_["similarity"]["brain"] if "similarity" in runs_ else None
+    blocks = runs_["blocks-2mm"]["brain"] if "blocks-2mm" in runs_ else None
 
     def deepest(b: dict) -> str:
         g = b["vector_by_depth"][-1]
@@ -633,9 +634,9 @@ def brain_rows(runs_: dict[str, dict]) -> list[list[str]]:
     return [
         ["virtual rat brain (`paper --part brain`): PC-UVD's vector RMSE ≥ 30 % below UVD's in "
          "the deepest third", deepest(default),
-         "–" if similarity is None else "`--brain-svd-low similarity`: " + deepest(similarity)],
+         "–" if blocks is None else "`--brain-svd-block-mm 2`: " + deepest(blocks)],
         ["virtual rat brain: median |ΔRI| ≤ 0.05, ≥ 95 % classed right", ri(default),
-         "–" if similarity is None else "`--brain-svd-low similarity`: " + ri(similarity)],
+         "–" if blocks is None else "`--brain-svd-block-mm 2`: " + ri(blocks)],
     ]
 
 
