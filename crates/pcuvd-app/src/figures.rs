@@ -247,21 +247,27 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
-/// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
-pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
-    let grid = &out.grid;
-    let mut written = Vec::new();
+/// The B-mode panel of a result and the size (px) of every map panel of its figures: each map has
+/// the grid's extent, so one cell size fitted to its aspect ratio serves them all.
+fn bmode_panel(out: &ProcessOutput) -> Result<(ImagePanel, (u32, u32))> {
     let bmode = map_panel(
         "B-mode",
         out.bmode_db.clone(),
-        grid,
+        &out.grid,
         Colormap::Gray,
         (-60.0, 0.0),
         "dB",
     );
-    // Every map of the result has the grid's extent: one cell size, fitted to its aspect ratio.
     let size = pcuvd_render::fitted_panel_size(&bmode, PROCESS_PANEL_WIDTH_PX)
         .context("cannot lay out the figures")?;
+    Ok((bmode, size))
+}
+
+/// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
+pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
+    let grid = &out.grid;
+    let mut written = Vec::new();
+    let (bmode, size) = bmode_panel(out)?;
     written.push(save(
         &dir.join("bmode.png"),
         &format!("{name}: B-mode"),
@@ -416,16 +422,7 @@ pub fn clutter_blocks_figure(
     let most = (reports.iter().flat_map(|c| &c.block_cut_offs))
         .map(|c| c.0)
         .max();
-    let bmode = map_panel(
-        "B-mode",
-        out.bmode_db.clone(),
-        grid,
-        Colormap::Gray,
-        (-60.0, 0.0),
-        "dB",
-    );
-    let size = pcuvd_render::fitted_panel_size(&bmode, PROCESS_PANEL_WIDTH_PX)
-        .context("cannot lay out the figures")?;
+    let (bmode, size) = bmode_panel(out)?;
     let cut = map_panel(
         "Tissue components cut",
         cut,
