@@ -2,8 +2,9 @@
 //!
 //! The series (nz, nx, frames) is the Casorati matrix S (pixels × frames). Its temporal singular
 //! vectors come from the small Gram matrix G = Sᴴ·S (frames × frames), summed in double
-//! precision, by a Hermitian eigendecomposition — never a full SVD of S. Components 0..low (the strongest, slow ones: tissue)
-//! and high..frames (the weakest: noise) are removed: S_f = S·V_keep·V_keepᴴ.
+//! precision, by a Hermitian eigendecomposition — never a full SVD of S. Components 0..low (the
+//! strongest, slow ones: tissue) and high..frames (the weakest: noise) are removed:
+//! S_f = S·V_keep·V_keepᴴ.
 //!
 //! Automatic low cut-off: the leading components are tissue while their temporal singular vector is
 //! slow (mean Doppler frequency below `tissue_frequency` × frame rate), strong (energy at least
