@@ -402,10 +402,10 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
 pub fn clutter_blocks_figure(
     dir: &Path,
     out: &ProcessOutput,
-    reports: &[Vec<ClutterReport>],
+    reports: &[&[ClutterReport]],
     name: &str,
 ) -> Result<Option<PathBuf>> {
-    let reports: Vec<&ClutterReport> = reports.iter().flatten().collect();
+    let reports: Vec<&ClutterReport> = reports.iter().copied().flatten().collect();
     let Some(layout) = reports.first().and_then(|c| c.block_layout.as_ref()) else {
         return Ok(None);
     };

@@ -223,22 +223,23 @@ fn write_ensembles(dir: &Path, maps: &pcuvd::pipeline::ensembles::EnsembleMaps) 
 
 /// Each segment's clutter filter reports, per angle: one segment when the recording was processed
 /// whole.
-pub fn clutter_by_segment(processed: &Processed) -> Vec<Vec<ClutterReport>> {
+pub fn clutter_by_segment(processed: &Processed) -> Vec<&[ClutterReport]> {
     match &processed.segments {
-        Some(done) => done.clutter.clone(),
-        None => vec![processed.out.clutter.clone()],
+        Some(done) => done.clutter.iter().map(Vec::as_slice).collect(),
+        None => vec![processed.out.clutter.as_slice()],
     }
 }
 
 /// Every block's (low, high) clutter cut-offs when the filter worked block-wise, shape (segments,
 /// angles, block rows, block columns, 2): `clutter_block_cut_offs.npy`. `clutter`: each segment's
 /// reports, per angle ([`clutter_by_segment`]). `None` for a whole-image filter.
-pub fn block_cut_offs(clutter: &[Vec<ClutterReport>]) -> Result<Option<ndarray::Array5<i64>>> {
-    let Some(layout) = (clutter.iter().flatten()).find_map(|c| c.block_layout.as_ref()) else {
+pub fn block_cut_offs(clutter: &[&[ClutterReport]]) -> Result<Option<ndarray::Array5<i64>>> {
+    let Some(layout) = (clutter.iter().copied().flatten()).find_map(|c| c.block_layout.as_ref())
+    else {
         return Ok(None);
     };
     let (rows, cols) = (layout.z_starts.len(), layout.x_starts.len());
-    let angles = clutter.first().map_or(0, Vec::len);
+    let angles = clutter.first().map_or(0, |per_angle| per_angle.len());
     let mut cut_offs = ndarray::Array5::<i64>::zeros((clutter.len(), angles, rows, cols, 2));
     for (s, per_angle) in clutter.iter().enumerate() {
         for (a, report) in per_angle.iter().enumerate() {
