@@ -95,6 +95,16 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
         assert low_range[0] <= cut["low"] <= low_range[1]
     filters = json.loads((out / "power_doppler.json").read_text())["ClutterFilters"]
     assert filters == [{"FilterType": "Index-based SVD, block-wise"}]
+    # A block of one pixel grows, the shorter side first, until it holds the frames.
+    tiny = tmp_path / "tiny"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", tiny, GRID, "--dynamics=off", "--svd-block-mm", "0.08",
+    )
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tiny / "summary.json").read_text())
+    rows, cols = summary["clutter_filter"]["block_pixels"]
+    frames = summary["acquisition"]["frames"]
+    assert rows * cols >= frames > (rows - 1) * cols and cols <= rows <= cols + 1
     # Processed in segments, each segment's cut-offs keep their blocks' ranges too.
     segmented = tmp_path / "segmented"
     done = run_cli(

@@ -419,7 +419,11 @@ impl Summary {
                 low: format!("{:?}", params.clutter.low),
                 high: format!("{:?}", params.clutter.high),
                 tissue_frequency_fraction: params.clutter.tissue_frequency,
-                block_pixels: params.clutter.blocks.map(|(rows, cols)| [rows, cols]),
+                block_pixels: out
+                    .clutter
+                    .first()
+                    .and_then(|report| report.block_layout.as_ref())
+                    .map(|layout| [layout.size.0, layout.size.1]),
                 block_starts_px: BlockStarts::of(&out.clutter),
                 cut_offs_per_angle: out.clutter.iter().map(CutOffs::of).collect(),
             },

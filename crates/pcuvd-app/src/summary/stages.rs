@@ -54,7 +54,8 @@ pub struct ClutterRecord {
     pub high: String,
     /// Tissue's largest Doppler frequency, as a fraction of the PRF.
     pub tissue_frequency_fraction: f64,
-    /// Block-wise filtering: the blocks' size (rows, columns of pixels); absent for one filter
+    /// Block-wise filtering: the blocks' size (rows, columns of pixels) as filtered, grown from
+    /// `--svd-block-mm` where a block would hold fewer pixels than frames; absent for one filter
     /// over the whole image.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub block_pixels: Option<[usize; 2]>,

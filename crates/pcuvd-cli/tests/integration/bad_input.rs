@@ -174,12 +174,6 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
         &["--svd-block-mm", "0"],
         &["--svd-block-mm", "positive"],
     );
-    // A block of one pixel cannot hold a noise floor over the recording's frames.
-    expect_error(
-        &ok,
-        &["--svd-block-mm", "0.01"],
-        &["clutter filter", "fewer pixels than the"],
-    );
     // Absurd sizes are refused before any allocation (a 1e-300 m step used to overflow the pixel
     // count and panic), and absurd estimator settings before any processing.
     expect_error(&ok, &["--grid=-1,1,5,6,1e-300"], &["--grid", "too many"]);

@@ -269,7 +269,7 @@ impl BlockLayout {
 fn filter_blocks(
     series: &mut Array3<Complex32>,
     params: &ClutterParams,
-    (rows, cols): (usize, usize),
+    size: (usize, usize),
 ) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
     let removes_nothing = params.low == RankCut::Off && params.high == RankCut::Off;
@@ -277,18 +277,8 @@ fn filter_blocks(
         // The whole image's filter refuses what it cannot filter, and returns what needs none.
         return filter_whole(series, params, Pass::Filter { low_cap: None });
     }
-    let layout = BlockLayout::new((nz, nx), (rows, cols));
+    let layout = BlockLayout::new((nz, nx), holding_frames((nz, nx), size, frames));
     let (rows, cols) = layout.size;
-    if rows * cols < frames {
-        return Err(invalid(
-            "clutter filter",
-            format!(
-                "blocks of {rows} × {cols} pixels hold fewer pixels than the {frames} frames: \
-                 a block's SVD needs at least as many pixels as frames (larger blocks, or fewer \
-                 frames per ensemble)"
-            ),
-        ));
-    }
     let whole = ClutterParams {
         blocks: None,
         ..*params
@@ -301,22 +291,70 @@ fn filter_blocks(
         RankCut::Auto | RankCut::Similarity => {
             Some(filter_whole(series, &whole, Pass::CutOffsOnly)?.low)
         }
-        RankCut::Off | RankCut::Fixed(_) => None,
+        RankCut::Off => Some(0),
+        RankCut::Fixed(_) => None,
     };
-    let (z_starts, x_starts) = (&layout.z_starts, &layout.x_starts);
+    let blocks = layout.z_starts.len() * layout.x_starts.len();
+    if low_cap == Some(0) && params.high == RankCut::Off {
+        // Every block would keep all its components: the series stays as it is (bit for bit;
+        // blending unchanged blocks would round it).
+        return Ok(ClutterReport {
+            low: 0,
+            high: frames,
+            singular_values: Vec::new(),
+            block_cut_offs: vec![(0, frames); blocks],
+            block_layout: Some(layout),
+        });
+    }
+    // Blocks overlap by half: a block's Gram matrix is the sum of those of the cells the blocks'
+    // edges cut the image into, each cell's summed once and shared by the (up to four) blocks
+    // that hold it, rather than every pixel's four times.
+    let z_cuts = cell_edges(&layout.z_starts, rows);
+    let x_cuts = cell_edges(&layout.x_starts, cols);
+    let cell_gram = |za: usize, xa: usize| {
+        let (z0, x0, width) = (z_cuts[za], x_cuts[xa], x_cuts[xa + 1] - x_cuts[xa]);
+        let cell_rows = (z_cuts[za + 1] - z0) * width;
+        lower_gram(cell_rows, frames, |i, j| {
+            series[[z0 + i / width, x0 + i % width, j]]
+        })
+    };
+    // Cell rows' Gram matrices, kept while a row of blocks still needs them.
+    let mut cell_rows: std::collections::BTreeMap<usize, Vec<Mat<c64>>> = Default::default();
     let mut blended = Array3::<Complex32>::zeros((nz, nx, frames));
     let mut weights = ndarray::Array2::<f32>::zeros((nz, nx));
-    let mut block_cut_offs = Vec::with_capacity(z_starts.len() * x_starts.len());
+    let mut block_cut_offs = Vec::with_capacity(blocks);
     // One row of blocks at a time: its blocks are filtered in parallel (each block's own filter
     // is one chunk of pixels, sequential), then blended in.
-    for &z0 in z_starts {
-        let filtered = x_starts
+    for &z0 in &layout.z_starts {
+        cell_rows.retain(|&za, _| z_cuts[za] >= z0);
+        let missing: Vec<(usize, usize)> = cells_within(&z_cuts, z0, rows)
+            .filter(|za| !cell_rows.contains_key(za))
+            .flat_map(|za| (0..x_cuts.len() - 1).map(move |xa| (za, xa)))
+            .collect();
+        let grams: Vec<Mat<c64>> = missing
+            .par_iter()
+            .map(|&(za, xa)| cell_gram(za, xa))
+            .collect();
+        for ((za, _), gram) in missing.into_iter().zip(grams) {
+            cell_rows.entry(za).or_default().push(gram);
+        }
+        let filtered = layout
+            .x_starts
             .par_iter()
             .map(|&x0| {
+                let mut gram = Mat::<c64>::zeros(frames, frames);
+                for za in cells_within(&z_cuts, z0, rows) {
+                    for xa in cells_within(&x_cuts, x0, cols) {
+                        gram += &cell_rows[&za][xa];
+                    }
+                }
                 let mut block = series
                     .slice(ndarray::s![z0..z0 + rows, x0..x0 + cols, ..])
                     .to_owned();
-                filter_whole(&mut block, &whole, Pass::Filter { low_cap })
+                let data = block
+                    .as_slice_mut()
+                    .ok_or_else(|| Error::Shape("a block's copy must be contiguous".into()))?;
+                filter_with_gram(data, frames, gram, &whole, Pass::Filter { low_cap })
                     .map(|report| (x0, block, report))
             })
             .collect::<Result<Vec<_>>>()?;
@@ -355,6 +393,39 @@ fn filter_blocks(
     })
 }
 
+/// The block size (rows, columns) on an image of `shape`: `size` clamped to the image, grown a
+/// row or a column at a time (the shorter side first) until a block holds at least `frames`
+/// pixels, as a block's SVD needs to see a noise floor; the whole image where it holds fewer.
+fn holding_frames(
+    (nz, nx): (usize, usize),
+    (rows, cols): (usize, usize),
+    frames: usize,
+) -> (usize, usize) {
+    let (mut rows, mut cols) = (rows.clamp(1, nz), cols.clamp(1, nx));
+    while rows * cols < frames && (rows < nz || cols < nx) {
+        if cols == nx || (rows <= cols && rows < nz) {
+            rows += 1;
+        } else {
+            cols += 1;
+        }
+    }
+    (rows, cols)
+}
+
+/// The cells along one axis (indices into `edges`) that lie within `len` pixels from `start`.
+fn cells_within(edges: &[usize], start: usize, len: usize) -> impl Iterator<Item = usize> + '_ {
+    (0..edges.len() - 1).filter(move |&c| edges[c] >= start && edges[c + 1] <= start + len)
+}
+
+/// The edges along one axis of the cells that blocks of `size` starting at `starts` cut it into:
+/// every block's first and one-past-last pixel, in order.
+fn cell_edges(starts: &[usize], size: usize) -> Vec<usize> {
+    let mut edges: Vec<usize> = starts.iter().flat_map(|&s| [s, s + size]).collect();
+    edges.sort_unstable();
+    edges.dedup();
+    edges
+}
+
 /// The whole image's filter: one SVD of its Casorati matrix.
 fn filter_whole(
     series: &mut Array3<Complex32>,
@@ -382,35 +453,19 @@ fn filter_whole(
         .as_slice_mut()
         .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
 
-    // G = Sᴴ S in double precision: G squares the series' dynamic range (tissue components
-    // 80 dB apart in energy, as a brain's are within a few millimetres, are 10⁻⁸ apart in G), and a
-    // single-precision product resolves only about 10⁻⁷ of its largest entry, so the weaker tissue
-    // components' vectors would come out as rounding noise and their tissue stay in the filtered
-    // series. G is Hermitian and the eigensolver reads its lower half only: computing that half
-    // alone halves the largest product of the filter.
-    let gram = data
-        .par_chunks(GRAM_CHUNK * frames)
-        .map(|chunk| {
-            let rows = chunk.len() / frames;
-            let s = Mat::<c64>::from_fn(rows, frames, |i, j| {
-                let v = chunk[i * frames + j];
-                c64::new(v.re as f64, v.im as f64)
-            });
-            let mut g = Mat::<c64>::zeros(frames, frames);
-            triangular::matmul(
-                g.as_mut(),
-                BlockStructure::TriangularLower,
-                faer::Accum::Replace,
-                s.adjoint(),
-                BlockStructure::Rectangular,
-                s.as_ref(),
-                BlockStructure::Rectangular,
-                c64::new(1.0, 0.0),
-                faer::Par::Seq,
-            );
-            g
-        })
-        .reduce(|| Mat::<c64>::zeros(frames, frames), |a, b| a + b);
+    let gram = gram_of(data, frames);
+    filter_with_gram(data, frames, gram, params, pass)
+}
+
+/// The filter of `data` (pixels × frames, row-major) given its Gram matrix `gram` (lower half).
+fn filter_with_gram(
+    data: &mut [Complex32],
+    frames: usize,
+    gram: Mat<c64>,
+    params: &ClutterParams,
+    pass: Pass,
+) -> Result<ClutterReport> {
+    let pixels = data.len() / frames;
     let eig = gram.self_adjoint_eigen(Side::Lower).map_err(|e| {
         invalid(
             "clutter filter",
@@ -518,6 +573,45 @@ fn filter_whole(
         block_cut_offs: Vec::new(),
         block_layout: None,
     })
+}
+
+/// The lower half of the Gram matrix G = Sᴴ S of `data` (pixels × frames, row-major), summed in
+/// double precision.
+///
+/// G squares the series' dynamic range (tissue components 80 dB apart in energy, as a brain's
+/// are within a few millimetres, are 10⁻⁸ apart in G), and a single-precision product resolves
+/// only about 10⁻⁷ of its largest entry, so the weaker tissue components' vectors would come out
+/// as rounding noise and their tissue stay in the filtered series. G is Hermitian and the
+/// eigensolver reads its lower half only: computing that half alone halves the largest product
+/// of the filter.
+fn gram_of(data: &[Complex32], frames: usize) -> Mat<c64> {
+    data.par_chunks(GRAM_CHUNK * frames)
+        .map(|chunk| {
+            let rows = chunk.len() / frames;
+            lower_gram(rows, frames, |i, j| chunk[i * frames + j])
+        })
+        .reduce(|| Mat::<c64>::zeros(frames, frames), |a, b| a + b)
+}
+
+/// The lower half of the Gram matrix of the `rows` × `frames` matrix whose entries `entry` gives.
+fn lower_gram(rows: usize, frames: usize, entry: impl Fn(usize, usize) -> Complex32) -> Mat<c64> {
+    let s = Mat::<c64>::from_fn(rows, frames, |i, j| {
+        let v = entry(i, j);
+        c64::new(v.re as f64, v.im as f64)
+    });
+    let mut g = Mat::<c64>::zeros(frames, frames);
+    triangular::matmul(
+        g.as_mut(),
+        BlockStructure::TriangularLower,
+        faer::Accum::Replace,
+        s.adjoint(),
+        BlockStructure::Rectangular,
+        s.as_ref(),
+        BlockStructure::Rectangular,
+        c64::new(1.0, 0.0),
+        faer::Par::Seq,
+    );
+    g
 }
 
 /// The least ratio (2, 3 dB) of a tissue component's energy to the next component's.
@@ -1424,14 +1518,99 @@ mod tests {
         }
     }
 
+    /// Blocks smaller than the frames grow, the shorter side first, until they hold as many
+    /// pixels as frames; on an image smaller than that, the one block is the image.
     #[test]
-    fn blocks_smaller_than_the_frames_are_refused() {
-        let mut series = Array3::<Complex32>::zeros((10, 10, 32));
+    fn blocks_smaller_than_the_frames_grow_to_hold_them() {
+        let series = toned((10, 12, 32), 3, |_, _| vec![(10.0, 0.0), (1.0, 5.0)]);
         let params = ClutterParams {
-            blocks: Some((4, 4)),
+            blocks: Some((4, 3)),
             ..ClutterParams::default()
         };
-        let error = svd_filter(&mut series, &params).unwrap_err().to_string();
-        assert!(error.contains("fewer pixels than the 32 frames"), "{error}");
+        let report = svd_filter(&mut series.clone(), &params).unwrap();
+        assert_eq!(report.block_layout.unwrap().size, (6, 6));
+        assert_eq!(holding_frames((10, 12), (8, 2), 32), (8, 4));
+        assert_eq!(holding_frames((3, 40), (2, 2), 32), (3, 11));
+
+        let small = series.slice(ndarray::s![..5, ..5, ..]).to_owned();
+        let mut blocked = small.clone();
+        let report = svd_filter(&mut blocked, &params).unwrap();
+        assert_eq!(report.block_layout.unwrap().size, (5, 5));
+        let mut whole = small;
+        svd_filter(&mut whole, &ClutterParams::default()).unwrap();
+        for (a, b) in blocked.iter().zip(whole.iter()) {
+            assert!((a - b).norm() <= 1e-5 * b.norm().max(1.0), "{a} vs {b}");
+        }
+    }
+
+    /// The block-wise filter equals each block filtered on its own (its own Gram matrix, summed
+    /// over its own pixels) and tent-blended by hand: the cells' shared Gram matrices add up to
+    /// each block's, the last blocks (flush with the edges, off the half-block steps) included.
+    #[test]
+    fn block_filter_is_each_blocks_own_filter_blended() {
+        let (nz, nx, nf) = (23, 19, 24);
+        let series = toned((nz, nx, nf), 12, |z, x| {
+            vec![
+                (40.0, 0.0),
+                (4.0 + z as f32 / 4.0, 0.5),
+                (1.0, 3.0 + (x % 5) as f32),
+            ]
+        });
+        let params = ClutterParams {
+            low: RankCut::Fixed(2),
+            blocks: Some((7, 6)),
+            ..ClutterParams::default()
+        };
+        let mut blocked = series.clone();
+        let report = svd_filter(&mut blocked, &params).unwrap();
+        let layout = report.block_layout.unwrap();
+        assert_eq!(layout.z_starts, vec![0, 3, 6, 9, 12, 15, 16]);
+        assert_eq!(layout.x_starts, vec![0, 3, 6, 9, 12, 13]);
+        let own = ClutterParams {
+            blocks: None,
+            ..params
+        };
+        let mut sums = Array3::<Complex32>::zeros((nz, nx, nf));
+        let mut weights = Array2::<f32>::zeros((nz, nx));
+        for (z0, x0) in layout.origins() {
+            let mut block = series
+                .slice(ndarray::s![z0..z0 + 7, x0..x0 + 6, ..])
+                .to_owned();
+            svd_filter(&mut block, &own).unwrap();
+            for ((i, j, f), v) in block.indexed_iter() {
+                let w = tent(i, 7) * tent(j, 6);
+                sums[[z0 + i, x0 + j, f]] += v * w;
+                if f == 0 {
+                    weights[[z0 + i, x0 + j]] += w;
+                }
+            }
+        }
+        let largest = series.iter().map(|v| v.norm()).fold(0.0, f32::max);
+        for ((z, x, f), v) in blocked.indexed_iter() {
+            let expected = sums[[z, x, f]] / weights[[z, x]];
+            assert!(
+                (v - expected).norm() <= 1e-5 * largest,
+                "({z}, {x}, {f}): {v} vs {expected}"
+            );
+        }
+    }
+
+    /// Blocks over a series with no tissue (the whole image's rule cuts nothing) leave it bit for
+    /// bit, each block reported as keeping every component.
+    #[test]
+    fn blocks_over_blood_alone_leave_the_series_bit_for_bit() {
+        let series = toned((16, 14, 20), 4, |z, _| vec![(1.0, 3.0 + (z % 3) as f32)]);
+        let mut blocked = series.clone();
+        let params = ClutterParams {
+            blocks: Some((6, 6)),
+            ..ClutterParams::default()
+        };
+        let report = svd_filter(&mut blocked, &params).unwrap();
+        assert_eq!(blocked, series);
+        let layout = report.block_layout.unwrap();
+        assert_eq!(
+            report.block_cut_offs,
+            vec![(0, 20); layout.z_starts.len() * layout.x_starts.len()]
+        );
     }
 }
