@@ -140,7 +140,8 @@ def svd_filter(
     limit `tissue_frequency` × frame rate), "similarity" or "off"; high: first trailing (noise)
     component removed, a number, "auto" (Marchenko–Pastur edge), "similarity" or "off".
     blocks: (rows, cols) pixels: filter overlapping blocks of that size each with its own
-    cut-offs, blended back (block-wise SVD); None filters the whole image at once.
+    cut-offs, blended back (block-wise SVD; a block smaller than the frames grows, the shorter
+    side first, until it holds as many pixels); None filters the whole image at once.
     Returns the filtered series (complex64) and {"low", "high", "singular_values",
     "block_cut_offs", "block_starts"} (a block-wise filter: the medians of its blocks' cut-offs,
     no singular values, each block's (low, high), block rows first, and the blocks' first rows

@@ -40,10 +40,11 @@
 //! under the probe, motion that grows with depth), so one global set of temporal vectors needs
 //! more components to hold it than each block's local, nearly rigid, tissue does; a block's
 //! filter can therefore cut fewer components, and less slow flow with them, where its tissue is
-//! simple. Its SVD needs at least as many pixels as frames to see a noise floor. A block cuts at
-//! most the components the whole image's rule cuts (the tissue seen on some pixels has at most
-//! the whole tissue's rank): within a small block a wide, slow vessel is strong and steep enough
-//! to pass for tissue.
+//! simple. Its SVD needs at least as many pixels as frames to see a noise floor: a smaller block
+//! grows until it holds them. A block cuts at most the components the whole image's rule cuts
+//! (the tissue seen on some pixels has at most the whole tissue's rank): within a small block a
+//! wide, slow vessel is strong and steep enough to pass for tissue. A block's Gram matrix is the
+//! sum of those of the cells the blocks' edges cut the image into, each summed once.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
@@ -93,8 +94,9 @@ pub struct ClutterParams {
     pub high: RankCut,
     /// Tissue frequency limit as a fraction of the frame rate (used by `low: Auto`).
     pub tissue_frequency: f64,
-    /// Block-wise filtering: the blocks' size (rows, columns of pixels); `None` filters the
-    /// whole image at once.
+    /// Block-wise filtering: the blocks' size (rows, columns of pixels; grown, the shorter side
+    /// first, until a block holds as many pixels as frames); `None` filters the whole image at
+    /// once.
     pub blocks: Option<(usize, usize)>,
 }
 
