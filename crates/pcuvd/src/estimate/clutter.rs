@@ -52,6 +52,7 @@ use ndarray::{Array2, Array3};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
+use super::leading_eigen;
 use crate::core::error::{Error, Result, invalid};
 
 /// How a rank cut-off is chosen.
@@ -494,21 +495,17 @@ fn filter_with_gram(
     pass: Pass,
 ) -> Result<ClutterReport> {
     let pixels = data.len() / frames;
-    let eig = gram.self_adjoint_eigen(Side::Lower).map_err(|e| {
-        invalid(
-            "clutter filter",
-            format!("eigendecomposition failed: {e:?}"),
-        )
-    })?;
-    // Descending order.
-    let order: Vec<usize> = (0..frames).rev().collect();
-    let eigenvalues: Vec<f64> = order.iter().map(|&k| eig.S()[k].re.max(0.0)).collect();
-    let vectors = eig.U();
+    let low_cap = match pass {
+        Pass::Filter { low_cap } => low_cap,
+        Pass::CutOffsOnly => None,
+    };
+    let spectrum = Spectrum::of(&gram, params, low_cap)?;
+    let (eigenvalues, vectors) = (&spectrum.eigenvalues, &spectrum.vectors);
 
     let similar =
         (params.low == RankCut::Similarity || params.high == RankCut::Similarity).then(|| {
             let descending = Mat::<c32>::from_fn(frames, frames, |i, k| {
-                let v = vectors[(i, order[k])];
+                let v = vectors[(i, k)];
                 c32::new(v.re as f32, v.im as f32)
             });
             fit_two_squares(&spatial_similarity(data, frames, descending.as_ref()))
@@ -517,20 +514,18 @@ fn filter_with_gram(
         RankCut::Off => 0,
         RankCut::Fixed(k) => k,
         RankCut::Auto => auto_low(
-            &eigenvalues,
-            |k| vectors.col(order[k]),
+            eigenvalues,
+            |k| vectors.col(k),
             params.tissue_frequency,
+            low_cap.unwrap_or(frames),
         ),
         RankCut::Similarity => similar.map_or(0, |(low, _)| low),
     };
-    let low = match pass {
-        Pass::Filter { low_cap: Some(cap) } => low.min(cap),
-        _ => low,
-    };
+    let low = low.min(low_cap.unwrap_or(low));
     let high = match params.high {
         RankCut::Off => frames,
         RankCut::Fixed(k) => k,
-        RankCut::Auto => auto_high(&eigenvalues, pixels),
+        RankCut::Auto => auto_high(eigenvalues, pixels),
         RankCut::Similarity => similar.map_or(frames, |(_, high)| high),
     };
     if low >= high || high > frames {
@@ -555,9 +550,13 @@ fn filter_with_gram(
     // orthonormal): applied through whichever subspace is smaller, two thin products of
     // pixels × frames × rank instead of one of pixels × frames² (tissue and noise cut-offs
     // remove a few components of hundreds).
-    let keep: Vec<usize> = order[low..high].to_vec();
-    let cut: Vec<usize> = order[..low].iter().chain(&order[high..]).copied().collect();
+    let keep: Vec<usize> = (low..high).collect();
+    let cut: Vec<usize> = (0..low).chain(high..frames).collect();
     let through_cut = cut.len() < keep.len();
+    debug_assert!(
+        vectors.ncols() == frames || (through_cut && high == frames && low <= vectors.ncols()),
+        "the spectrum holds the vectors the projection reads"
+    );
     let basis_of = |columns: &[usize]| {
         Mat::<c32>::from_fn(frames, columns.len(), |i, k| {
             let v = vectors[(i, columns[k])];
@@ -645,31 +644,94 @@ fn lower_gram(rows: usize, frames: usize, entry: impl Fn(usize, usize) -> Comple
 /// The least ratio (2, 3 dB) of a tissue component's energy to the next component's.
 const TISSUE_STEP: f64 = 2.0;
 
+/// The tissue rule's low cut-off (see the module documentation), at most `limit`: the leading
+/// components that are strong, steep and slow.
 fn auto_low<'a>(
     eigenvalues: &[f64],
     vector: impl Fn(usize) -> faer::ColRef<'a, c64>,
     tissue_frequency: f64,
+    limit: usize,
 ) -> usize {
+    let candidates = strong_and_steep(eigenvalues).min(limit);
+    (0..candidates)
+        .find(|&k| doppler_frequency(vector(k)) >= tissue_frequency)
+        .unwrap_or(candidates)
+}
+
+/// How many leading components pass the tissue rule's energy tests, at most half of them: each
+/// at least 10 dB above the median component (strong) and [`TISSUE_STEP`] above the next
+/// (steep).
+fn strong_and_steep(eigenvalues: &[f64]) -> usize {
     let n = eigenvalues.len();
     let mut sorted = eigenvalues.to_vec();
     sorted.sort_by(|a, b| a.total_cmp(b));
     let median = sorted[n / 2].max(f64::MIN_POSITIVE);
-    let mut low = 0;
-    while low < n / 2 {
-        let v = vector(low);
-        let mut r1 = c64::new(0.0, 0.0);
-        for t in 0..n - 1 {
-            r1 += v[t].conj() * v[t + 1];
-        }
-        let freq = r1.arg().abs() / (2.0 * std::f64::consts::PI);
-        let strong = eigenvalues[low] >= 10.0 * median;
-        let steep = eigenvalues[low] >= TISSUE_STEP * eigenvalues[low + 1];
-        if !(strong && steep && freq < tissue_frequency) {
-            break;
-        }
-        low += 1;
+    (0..n / 2)
+        .take_while(|&k| {
+            eigenvalues[k] >= 10.0 * median && eigenvalues[k] >= TISSUE_STEP * eigenvalues[k + 1]
+        })
+        .count()
+}
+
+/// A temporal singular vector's mean Doppler frequency, as a fraction of the frame rate (0 to
+/// ½): the phase of its lag-one autocorrelation over 2π.
+fn doppler_frequency(v: faer::ColRef<'_, c64>) -> f64 {
+    let mut r1 = c64::new(0.0, 0.0);
+    for t in 0..v.nrows().saturating_sub(1) {
+        r1 += v[t].conj() * v[t + 1];
     }
-    low
+    r1.arg().abs() / (2.0 * std::f64::consts::PI)
+}
+
+/// A Gram matrix's eigenvalues (all, largest first, none below zero) and the eigenvectors
+/// (columns, in the same order) of as many leading components as the cut-offs can read.
+struct Spectrum {
+    eigenvalues: Vec<f64>,
+    vectors: Mat<c64>,
+}
+
+impl Spectrum {
+    /// The spectrum of `gram` (lower half) that `params` needs. The tissue cut-offs read few
+    /// vectors (`Auto`: the components passing its energy tests, at most `low_cap`; `Fixed(k)`:
+    /// k), so with no noise cut-off only those are computed ([`leading_eigen`]); the similarity
+    /// rule and a noise cut-off read them all.
+    fn of(gram: &Mat<c64>, params: &ClutterParams, low_cap: Option<usize>) -> Result<Spectrum> {
+        let frames = gram.nrows();
+        let failed = |e: faer::linalg::evd::EvdError| {
+            invalid(
+                "clutter filter",
+                format!("eigendecomposition failed: {e:?}"),
+            )
+        };
+        let few = match params.low {
+            _ if params.high != RankCut::Off => None,
+            RankCut::Off => Some(0),
+            RankCut::Fixed(k) if k <= frames / 2 => Some(k),
+            RankCut::Auto => Some(frames),
+            RankCut::Fixed(_) | RankCut::Similarity => None,
+        };
+        let Some(few) = few else {
+            let eig = gram.self_adjoint_eigen(Side::Lower).map_err(failed)?;
+            // faer's are in nondecreasing order.
+            return Ok(Spectrum {
+                eigenvalues: (0..frames)
+                    .map(|k| eig.S()[frames - 1 - k].re.max(0.0))
+                    .collect(),
+                vectors: Mat::from_fn(frames, frames, |i, k| eig.U()[(i, frames - 1 - k)]),
+            });
+        };
+        let reduced = leading_eigen::Tridiagonal::new(gram.as_ref());
+        let exact = reduced.eigenvalues().map_err(failed)?;
+        let eigenvalues: Vec<f64> = exact.iter().map(|v| v.max(0.0)).collect();
+        let count = match params.low {
+            RankCut::Auto => strong_and_steep(&eigenvalues).min(low_cap.unwrap_or(frames)),
+            _ => few,
+        };
+        Ok(Spectrum {
+            vectors: reduced.leading_vectors(&exact, count),
+            eigenvalues,
+        })
+    }
 }
 
 /// The spatial-similarity matrix of the components in `vectors`' columns (temporal singular

@@ -5,6 +5,7 @@
 pub mod clutter;
 pub mod dealias;
 pub mod doppler;
+mod leading_eigen;
 pub mod masks;
 pub mod partial_volume;
 pub mod projections;
