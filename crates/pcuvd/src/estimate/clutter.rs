@@ -508,7 +508,10 @@ fn filter_with_gram(
                 let v = vectors[(i, k)];
                 c32::new(v.re as f32, v.im as f32)
             });
-            fit_two_squares(&spatial_similarity(data, frames, descending.as_ref()))
+            fit_two_squares(
+                &spatial_similarity(data, frames, descending.as_ref()),
+                low_cap,
+            )
         });
     let low = match params.low {
         RankCut::Off => 0,
@@ -788,12 +791,30 @@ pub fn spatial_similarity(data: &[Complex32], frames: usize, vectors: MatRef<'_,
 /// light the same vessels forms a square of its own after the tissue's; the best fit overall may
 /// then take tissue and blood together as "tissue" (on the virtual rat brain, 28–33 components
 /// where the tissue holds 4–5) and the filter would remove the blood.
-pub fn fit_two_squares(similarity: &Mat<f64>) -> (usize, usize) {
+///
+/// With `max_low` (a block of a block-wise filter, the whole image's cut-off): the best fit with
+/// `low` at most `max_low`. A block's few pixels make the fit's steps noisy, and its first best
+/// can be a wiggle: on the brain's 1 mm blocks the leading square stopped at 1–2 components in
+/// blocks whose best fit below the whole image's 5 cut 4–5, and left their tissue in.
+pub fn fit_two_squares(similarity: &Mat<f64>, max_low: Option<usize>) -> (usize, usize) {
     let fits = two_square_fits(similarity);
-    let mut low = 0;
-    while low + 1 < fits.len() && fits[low + 1].0 > fits[low].0 + 1e-12 * fits[low].0.abs() {
-        low += 1;
-    }
+    let low = match max_low {
+        Some(max_low) => (0..fits.len().min(max_low + 1)).fold(0, |best, low| {
+            if fits[low].0 > fits[best].0 + 1e-12 * fits[best].0.abs() {
+                low
+            } else {
+                best
+            }
+        }),
+        None => {
+            let mut low = 0;
+            while low + 1 < fits.len() && fits[low + 1].0 > fits[low].0 + 1e-12 * fits[low].0.abs()
+            {
+                low += 1;
+            }
+            low
+        }
+    };
     (low, fits[low].1)
 }
 
@@ -1230,12 +1251,38 @@ mod tests {
                 best_by_low[low]
             );
         }
-        let fitted = fit_two_squares(&m);
+        let fitted = fit_two_squares(&m, None);
         let first_local_best = (0..n / 2)
             .find(|&low| best_by_low[low + 1].0 >= best_by_low[low].0 - 1e-9)
             .unwrap_or(n / 2);
         assert_eq!(fitted.0, first_local_best);
         assert_eq!(fitted, (5, 17));
+    }
+
+    /// A block's noisy fit: its steps wiggle (here component 1 resembles the blood's maps, not
+    /// the tissue's), so the leading square stops at 2; below a block's cap (the whole image's
+    /// cut-off) the best fit is taken instead.
+    #[test]
+    fn below_a_cap_the_best_fit_is_taken_not_the_first() {
+        let n = 40;
+        let mut m = Mat::<f64>::zeros(n, n);
+        for i in 0..n {
+            for j in 0..n {
+                let (a, b) = (i.min(j), i.max(j));
+                m[(i, j)] = match (a, b) {
+                    _ if a == b => 1.0,
+                    (1, 5..20) => 0.5,
+                    (1, _) => 0.0,
+                    (_, 0..5) => 0.8,
+                    (5..20, 5..20) => 0.1,
+                    (30.., _) => 0.4,
+                    _ => 0.0,
+                };
+            }
+        }
+        assert_eq!(fit_two_squares(&m, None).0, 2, "the case wiggles");
+        assert_eq!(fit_two_squares(&m, Some(5)), (5, 30));
+        assert_eq!(fit_two_squares(&m, Some(4)).0, 4);
     }
 
     /// A tissue square followed by a blood square (a vascular tree whose blood components light
@@ -1270,7 +1317,10 @@ mod tests {
             .max_by(|&a, &b| fits[a].0.total_cmp(&fits[b].0))
             .unwrap();
         assert_eq!(best_overall, 30, "the case holds the two-squares trap");
-        assert_eq!(fit_two_squares(&m), (4, 30));
+        assert_eq!(fit_two_squares(&m, None), (4, 30));
+        // Below a cap, the best fit there.
+        assert_eq!(fit_two_squares(&m, Some(31)).0, 30);
+        assert_eq!(fit_two_squares(&m, Some(12)), (4, 30));
     }
 
     /// The similarity matrix equals the correlation of |U|'s columns from an independent thin SVD
