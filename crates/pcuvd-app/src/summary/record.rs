@@ -385,6 +385,7 @@ impl Summary {
             coding.event_alignment = Some(params.event_alignment.label());
         }
         let (x, z) = (&out.grid.x, &out.grid.z);
+        let block_layout = (out.clutter.first()).and_then(|report| report.block_layout.as_ref());
         Summary {
             units: "SI (m, s, Hz, m/s); colour Doppler and Vz positive = moving away from the \
                     probe (deeper)",
@@ -419,12 +420,8 @@ impl Summary {
                 low: format!("{:?}", params.clutter.low),
                 high: format!("{:?}", params.clutter.high),
                 tissue_frequency_fraction: params.clutter.tissue_frequency,
-                block_pixels: out
-                    .clutter
-                    .first()
-                    .and_then(|report| report.block_layout.as_ref())
-                    .map(|layout| [layout.size.0, layout.size.1]),
-                block_starts_px: BlockStarts::of(&out.clutter),
+                block_pixels: block_layout.map(|layout| [layout.size.0, layout.size.1]),
+                block_starts_px: block_layout.map(BlockStarts::of),
                 cut_offs_per_angle: out.clutter.iter().map(CutOffs::of).collect(),
             },
             doppler: DopplerRecord {

@@ -3,7 +3,7 @@
 //! ensembles), with the rules they follow in words.
 
 use pcuvd::dynamics::{self, PoolingSummary};
-use pcuvd::estimate::clutter::{self, ClutterReport};
+use pcuvd::estimate::clutter::{self, BlockLayout, ClutterReport};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
 
@@ -77,13 +77,12 @@ pub struct BlockStarts {
 }
 
 impl BlockStarts {
-    /// Where the blocks of the first of `reports` start; `None` for a whole-image filter.
-    pub(super) fn of(reports: &[ClutterReport]) -> Option<BlockStarts> {
-        let layout = reports.first()?.block_layout.as_ref()?;
-        Some(BlockStarts {
+    /// Where the blocks of `layout` start.
+    pub(super) fn of(layout: &BlockLayout) -> BlockStarts {
+        BlockStarts {
             z: layout.z_starts.clone(),
             x: layout.x_starts.clone(),
-        })
+        }
     }
 }
 

@@ -706,14 +706,13 @@ impl Spectrum {
                 format!("eigendecomposition failed: {e:?}"),
             )
         };
-        let few = match params.low {
-            _ if params.high != RankCut::Off => None,
-            RankCut::Off => Some(0),
-            RankCut::Fixed(k) if k <= frames / 2 => Some(k),
-            RankCut::Auto => Some(frames),
-            RankCut::Fixed(_) | RankCut::Similarity => None,
-        };
-        let Some(few) = few else {
+        let few_vectors = params.high == RankCut::Off
+            && match params.low {
+                RankCut::Off | RankCut::Auto => true,
+                RankCut::Fixed(k) => k <= frames / 2,
+                RankCut::Similarity => false,
+            };
+        if !few_vectors {
             let eig = gram.self_adjoint_eigen(Side::Lower).map_err(failed)?;
             // faer's are in nondecreasing order.
             return Ok(Spectrum {
@@ -722,13 +721,14 @@ impl Spectrum {
                     .collect(),
                 vectors: Mat::from_fn(frames, frames, |i, k| eig.U()[(i, frames - 1 - k)]),
             });
-        };
+        }
         let reduced = leading_eigen::Tridiagonal::new(gram.as_ref());
         let exact = reduced.eigenvalues().map_err(failed)?;
         let eigenvalues: Vec<f64> = exact.iter().map(|v| v.max(0.0)).collect();
         let count = match params.low {
             RankCut::Auto => strong_and_steep(&eigenvalues).min(low_cap.unwrap_or(frames)),
-            _ => few,
+            RankCut::Fixed(k) => k,
+            RankCut::Off | RankCut::Similarity => 0,
         };
         Ok(Spectrum {
             vectors: reduced.leading_vectors(&exact, count),

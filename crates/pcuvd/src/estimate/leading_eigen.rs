@@ -10,7 +10,7 @@
 //! (O(n) per solve, LAPACK's `stein` in spirit), orthogonalised against those before it, then
 //! carried back through the reflections: O(n²) per vector instead of O(n³) for all.
 
-use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::evd::{self, ComputeEigenvectors, tridiag};
 use faer::linalg::householder;
 use faer::{Col, ColRef, Conj, Mat, MatRef, Par, c64};
@@ -136,13 +136,13 @@ impl Tridiagonal {
         let mut vectors = Mat::<c64>::from_fn(n, count, |i, k| phases[i] * real[(i, k)]);
         if n > 1 && count > 0 {
             let block = self.householder.nrows();
-            let mut buffer = MemBuffer::new(StackReq::any_of(&[
+            let mut buffer = MemBuffer::new(
                 householder::apply_block_householder_sequence_on_the_left_in_place_scratch::<c64>(
                     n - 1,
                     block,
                     count,
                 ),
-            ]));
+            );
             householder::apply_block_householder_sequence_on_the_left_in_place_with_conj(
                 self.packed.as_ref().submatrix(1, 0, n - 1, n - 1),
                 self.householder.as_ref(),
