@@ -381,6 +381,72 @@ pub struct BrainStudy {
     pub metrics: BrainMetrics,
 }
 
+/// The folder, under the study's output folder, of the maps the scores are computed from.
+pub const BRAIN_MAPS_DIR: &str = "brain_maps";
+
+impl BrainStudy {
+    /// Writes the maps the scores are computed from into `dir`, as `.npy` on the processing grid
+    /// (nz, nx), so that other methods can be scored on the same pixels: `x.npy`, `z.npy` (m);
+    /// the truth (`truth_vx`, `truth_vz` (m/s, averaged over the recording), `truth_ri`,
+    /// `truth_psv`, `truth_edv` (m/s), `truth_vessel_class`, `truth_class_share`, `blood`,
+    /// `diameter_m`, `lumen`); and per method (`uvd_…`, `pcuvd_…`) `vx`, `vz` (m/s),
+    /// `power_doppler`, `detected` and, when the dynamics stage ran, `ri`, `psv`, `edv` (m/s),
+    /// `vessel_class`.
+    pub fn write_maps(&self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let npy = |name: &str, values: &Array2<f64>| {
+            pcuvd_io::write_npy(&dir.join(format!("{name}.npy")), values)
+        };
+        let flags = |name: &str, values: &Array2<bool>| {
+            pcuvd_io::write_npy(&dir.join(format!("{name}.npy")), &values.mapv(u8::from))
+        };
+        pcuvd_io::write_npy(
+            &dir.join("x.npy"),
+            &ndarray::Array1::from(self.truth.x.clone()),
+        )?;
+        pcuvd_io::write_npy(
+            &dir.join("z.npy"),
+            &ndarray::Array1::from(self.truth.z.clone()),
+        )?;
+        npy("truth_vx", &self.truth.truth.vx)?;
+        npy("truth_vz", &self.truth.truth.vz)?;
+        flags("blood", &self.truth.truth.mask)?;
+        npy("diameter_m", &self.diameter_m)?;
+        flags("lumen", &self.lumen)?;
+        if let Some(cycle) = &self.truth.cycle {
+            npy("truth_ri", &cycle.ri)?;
+            npy("truth_psv", &cycle.psv)?;
+            npy("truth_edv", &cycle.edv)?;
+            npy("truth_class_share", &cycle.class_share)?;
+            pcuvd_io::write_npy(&dir.join("truth_vessel_class.npy"), &cycle.vessel_class)?;
+        }
+        for mode in &self.modes {
+            let prefix = match mode.mode {
+                Mode::Conventional => "uvd",
+                Mode::Coded => "pcuvd",
+            };
+            let field = mode.field()?;
+            npy(&format!("{prefix}_vx"), &field.vx)?;
+            npy(&format!("{prefix}_vz"), &field.vz)?;
+            npy(
+                &format!("{prefix}_power_doppler"),
+                &mode.out.maps.power_doppler,
+            )?;
+            flags(&format!("{prefix}_detected"), &mode.detected)?;
+            if let Some(ri) = &mode.ri {
+                npy(&format!("{prefix}_ri"), &ri.ri)?;
+                npy(&format!("{prefix}_psv"), &ri.psv)?;
+                npy(&format!("{prefix}_edv"), &ri.edv)?;
+                pcuvd_io::write_npy(
+                    &dir.join(format!("{prefix}_vessel_class.npy")),
+                    &ri.vessel_class,
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A pixel where the brain's spectrograms are computed (Fig. 8b), with its vessel's truth.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BrainSite {

@@ -220,6 +220,7 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         let study = pcuvd_app::brain::run(settings, &progress)?;
         println!("{}", brain::summary_line(&study.metrics));
         brain_figs = brain::brain_figures(out, &study, &progress)?;
+        study.write_maps(&out.join(pcuvd_app::brain::BRAIN_MAPS_DIR))?;
         brain = Some(study.metrics);
     }
     let metrics = PaperMetrics {

@@ -3,6 +3,9 @@
 
 use std::process::Command;
 
+use ndarray::Array2;
+use ndarray_npy::read_npy;
+
 fn get<'a>(m: &'a serde_json::Value, path: &[&str]) -> &'a serde_json::Value {
     path.iter().fold(m, |v, k| &v[*k])
 }
@@ -413,6 +416,35 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     }
     // 32 frames are shorter than one spectrogram window (36): no spectrogram figure.
     assert!(!out.join("fig8b_brain_spectrograms.png").exists());
+    // The maps the scores come from: the lumen as many pixels as scored, and PC-UVD's in-plane
+    // RMSE over its detected lumen pixels recomputed from them as metrics.json has it.
+    let maps = out.join("brain_maps");
+    let flags = |name: &str| -> Array2<u8> { read_npy(maps.join(format!("{name}.npy"))).unwrap() };
+    let field = |name: &str| -> Array2<f64> { read_npy(maps.join(format!("{name}.npy"))).unwrap() };
+    let lumen = flags("lumen");
+    let lumen_pixels = lumen.iter().filter(|&&l| l == 1).count() as u64;
+    assert_eq!(lumen_pixels, brain["lumen_pixels"].as_u64().unwrap());
+    let (vx, vz, detected) = (
+        field("pcuvd_vx"),
+        field("pcuvd_vz"),
+        flags("pcuvd_detected"),
+    );
+    let (true_vx, true_vz) = (field("truth_vx"), field("truth_vz"));
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (i, &l) in lumen.indexed_iter() {
+        if l == 1 && detected[i] == 1 {
+            sum += (vx[i] - true_vx[i]).powi(2) + (vz[i] - true_vz[i]).powi(2);
+            n += 1;
+        }
+    }
+    let recomputed_mm_s = 1e3 * (sum / n as f64).sqrt();
+    assert!(
+        (recomputed_mm_s - rmse("pcuvd")).abs() < 1e-9,
+        "{recomputed_mm_s} {all}"
+    );
+    assert_eq!(field("diameter_m").dim(), lumen.dim());
+    // Without RI maps, no RI files.
+    assert!(!maps.join("pcuvd_ri.npy").exists() && !maps.join("uvd_ri.npy").exists());
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("Virtual rat brain"));
 
