@@ -89,7 +89,11 @@ pub const BRAIN_RI_DEFINITION: &str = "over the lumen pixels of vessels at least
     beam is of the class the truth names (the truth's RI is its main vessel's, while an estimate \
     reads the blood-weighted mix of every vessel in the beam); `arterioles` and `venules` split \
     the lumen pixels by the truth's class; the depth bands (the vector scores' thirds) hold every \
-    lumen pixel of the band, then those of vessels at least a wavelength wide";
+    lumen pixel of the band, then those of vessels at least a wavelength wide; the groups marked \
+    \"against the beam's own RI\" score against the RI of the speed of the in-plane velocity the \
+    pixel's beam holds over the recording (the truth's (max − min)/max over its averaged times; \
+    classes by the dynamics stage's thresholds): what an estimate of the beam's mean velocity \
+    without error would read, where an artery and a vein share it";
 
 /// Least share of a pixel's blood (elevation-weighted) of the truth's class for the RI groups
 /// scored on one class in the beam: where an artery and a vein share the beam (the pial and basal
@@ -388,7 +392,8 @@ impl BrainStudy {
     /// Writes the maps the scores are computed from into `dir`, as `.npy` on the processing grid
     /// (nz, nx), so that other methods can be scored on the same pixels: `x.npy`, `z.npy` (m);
     /// the truth (`truth_vx`, `truth_vz` (m/s, averaged over the recording), `truth_ri`,
-    /// `truth_psv`, `truth_edv` (m/s), `truth_vessel_class`, `truth_class_share`, `blood`,
+    /// `truth_psv`, `truth_edv` (m/s), `truth_vessel_class`, `truth_class_share`,
+    /// `truth_beam_ri` (see [`SimulatedTruth::beam_ri`]), `blood`,
     /// `diameter_m`, `lumen`); and per method (`uvd_…`, `pcuvd_…`) `vx`, `vz` (m/s),
     /// `power_doppler`, `detected` and, when the dynamics stage ran, `ri`, `psv`, `edv` (m/s),
     /// `vessel_class`.
@@ -418,6 +423,9 @@ impl BrainStudy {
             npy("truth_psv", &cycle.psv)?;
             npy("truth_edv", &cycle.edv)?;
             npy("truth_class_share", &cycle.class_share)?;
+            if let Some(beam_ri) = &self.truth.beam_ri {
+                npy("truth_beam_ri", beam_ri)?;
+            }
             pcuvd_io::write_npy(&dir.join("truth_vessel_class.npy"), &cycle.vessel_class)?;
         }
         for mode in &self.modes {
@@ -661,6 +669,10 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             frames: scenario.sequence.frames,
             noise_db: simulation.noise_db,
             processing: &settings.processing,
+            class_thresholds: (
+                settings.dynamics.artery_ri_min,
+                settings.dynamics.vein_ri_max,
+            ),
         },
         timing,
         clock,
@@ -707,6 +719,7 @@ mod tests {
             cycle: None,
             tissue: None,
             elevation: None,
+            beam_ri: None,
         }
     }
 
@@ -833,16 +846,20 @@ mod tests {
             ri_spread: Array2::from_elem(shape, f64::NAN),
         };
         let lumen = Array2::from_elem(shape, true);
-        let score = ri_score(&est, &cycle, &lumen, &|_, _| true);
+        let score = ri_score(&est, (&cycle.ri, &cycle.vessel_class), &lumen, &|_, _| true);
         assert_eq!(score.pixels, 4);
         // Errors 0.02, 1 (no RI), 0.1, 0.3: the median is 0.2.
         assert!((score.median_abs_error - 0.2).abs() < 1e-12);
         assert!((score.class_accuracy - 0.5).abs() < 1e-12);
-        let venules = ri_score(&est, &cycle, &lumen, &|_, ix| ix >= 2);
+        let venules = ri_score(&est, (&cycle.ri, &cycle.vessel_class), &lumen, &|_, ix| {
+            ix >= 2
+        });
         assert_eq!(venules.pixels, 2);
         assert!((venules.median_abs_error - 0.2).abs() < 1e-12);
         // A group without pixels has no score, not a perfect or a null one.
-        let none = ri_score(&est, &cycle, &lumen, &|_, _| false);
+        let none = ri_score(&est, (&cycle.ri, &cycle.vessel_class), &lumen, &|_, _| {
+            false
+        });
         assert_eq!(none.pixels, 0);
         assert!(none.median_abs_error.is_nan() && none.class_accuracy.is_nan());
     }

@@ -84,6 +84,11 @@ pub struct SimulatedTruth {
     /// Out-of-plane velocity (m/s) and blood fraction of each pixel's elevation beam, for a
     /// phantom in three dimensions (the vascular tree).
     pub elevation: Option<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
+    /// RI of the speed of the in-plane velocity the pixel sees over the averaged times:
+    /// (max − min)/max of |(vx, vz)| over the times it holds blood (NaN where it never does or
+    /// the speed stays 0); what an in-plane estimate that read the beam's mean velocity without
+    /// error would give, where the cycle's truth names the main vessel's. `None` without times.
+    pub beam_ri: Option<ndarray::Array2<f64>>,
 }
 
 impl Simulation {
@@ -560,12 +565,15 @@ impl Simulation {
             .map(|(flow, &t)| self.carried(flow, &grid, t))
             .collect();
         let mut truth = flows.remove(0);
+        let mut beam_ri = None;
         if !times.is_empty() {
             (truth.vx, truth.vz) = mean_where_blood(&flows);
+            beam_ri = Some(speed_ri_where_blood(&flows));
         }
         Ok(SimulatedTruth {
             truth,
             elevation,
+            beam_ri,
             tissue: self
                 .tissue
                 .as_ref()
@@ -620,6 +628,31 @@ fn mean_where_blood(
             .map_collect(|&s, &n| if n > 0.0 { s / n } else { 0.0 })
     });
     (vx, vz)
+}
+
+/// Per pixel, (max − min)/max of the in-plane speed over the truths that hold blood there; NaN
+/// where none does or the largest speed is 0.
+fn speed_ri_where_blood(truths: &[pcuvd::simulate::phantom::Truth]) -> ndarray::Array2<f64> {
+    let shape = truths[0].mask.dim();
+    let mut fastest = ndarray::Array2::from_elem(shape, f64::NEG_INFINITY);
+    let mut slowest = ndarray::Array2::from_elem(shape, f64::INFINITY);
+    for truth in truths {
+        ndarray::Zip::from(&mut fastest)
+            .and(&mut slowest)
+            .and(&truth.vx)
+            .and(&truth.vz)
+            .and(&truth.mask)
+            .for_each(|hi, lo, &vx, &vz, &blood| {
+                if blood {
+                    let speed = vx.hypot(vz);
+                    *hi = hi.max(speed);
+                    *lo = lo.min(speed);
+                }
+            });
+    }
+    ndarray::Zip::from(&fastest)
+        .and(&slowest)
+        .map_collect(|&hi, &lo| pcuvd::dynamics::resistivity_index(hi, lo))
 }
 
 /// The vessel graph in `folder`'s three tables (see `--vessel-tables`).
@@ -770,6 +803,32 @@ mod tests {
     use super::*;
     use crate::scenario::NoiseSection;
     use crate::settings::testing;
+
+    /// RI of the in-plane speed over the times a pixel holds blood: 2 then 1 mm/s reads 0.5;
+    /// a reversal at one speed reads 0 (speed, not velocity); blood at one time only reads 0;
+    /// never blood, NaN.
+    #[test]
+    fn beam_ri_is_the_speeds_range_over_its_peak() {
+        use pcuvd::simulate::phantom::Truth;
+        let at = |vx: [f64; 3], vz: [f64; 3], blood: [bool; 3]| {
+            let mut truth = Truth::empty(1, 3);
+            for k in 0..3 {
+                truth.vx[[0, k]] = vx[k];
+                truth.vz[[0, k]] = vz[k];
+                truth.mask[[0, k]] = blood[k];
+            }
+            truth
+        };
+        let ri = speed_ri_where_blood(&[
+            at([1.2e-3, 2e-3, 5e-3], [1.6e-3, 0.0, 0.0], [true, true, true]),
+            at([1e-3, -2e-3, 1e-3], [0.0, 0.0, 0.0], [true, true, false]),
+        ]);
+        assert!((ri[[0, 0]] - 0.5).abs() < 1e-12, "{ri}");
+        assert!(ri[[0, 1]].abs() < 1e-12, "{ri}");
+        assert!(ri[[0, 2]].abs() < 1e-12, "{ri}");
+        let never = speed_ri_where_blood(&[at([1e-3; 3], [0.0; 3], [false; 3])]);
+        assert!(never.iter().all(|r| r.is_nan()), "{never}");
+    }
 
     #[cfg(feature = "clap")]
     #[test]

@@ -27,6 +27,8 @@ pub(super) struct ScoreContext<'a> {
     pub(super) frames: usize,
     pub(super) noise_db: Option<f64>,
     pub(super) processing: &'a crate::settings::ProcessingSettings,
+    /// The dynamics stage's least arteriole RI and largest venule RI.
+    pub(super) class_thresholds: (f64, f64),
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -144,16 +146,22 @@ pub(super) fn score(
             wide(iz, ix) && !near_wall(iz, ix)
         }),
     ];
-    let ri_group = |label: &str, select: &dyn Fn(usize, usize) -> bool| RiGroupScores {
-        group: label.to_string(),
-        uvd: modes[0]
-            .ri
-            .as_ref()
-            .map(|ri| ri_score(ri, cycle, lumen, select)),
-        pcuvd: modes[1]
-            .ri
-            .as_ref()
-            .map(|ri| ri_score(ri, cycle, lumen, select)),
+    let scored_against =
+        |label: &str, truth: (&Array2<f64>, &Array2<u8>), select: &dyn Fn(usize, usize) -> bool| {
+            RiGroupScores {
+                group: label.to_string(),
+                uvd: modes[0]
+                    .ri
+                    .as_ref()
+                    .map(|ri| ri_score(ri, truth, lumen, select)),
+                pcuvd: modes[1]
+                    .ri
+                    .as_ref()
+                    .map(|ri| ri_score(ri, truth, lumen, select)),
+            }
+        };
+    let ri_group = |label: &str, select: &dyn Fn(usize, usize) -> bool| {
+        scored_against(label, (&cycle.ri, &cycle.vessel_class), select)
     };
     let mut ri = vec![
         ri_group(&format!("{wide_label} (a wavelength)"), &wide),
@@ -171,6 +179,30 @@ pub(super) fn score(
         "all lumen pixels, one class in the beam",
         &one_class,
     ));
+    // What the beam's own mean velocity would give read without error: where an artery and a
+    // vein share a beam (or a resolution cell), any first-moment estimate reads their mix.
+    if let Some(beam_ri) = &truth.beam_ri {
+        let (artery_ri_min, vein_ri_max) = context.class_thresholds;
+        let beam_class = Zip::from(beam_ri)
+            .and(&cycle.vessel_class)
+            .map_collect(|&ri, &class| match () {
+                _ if class == BACKGROUND || !ri.is_finite() => BACKGROUND,
+                _ if ri >= artery_ri_min => ARTERIOLE,
+                _ if ri <= vein_ri_max => VENULE,
+                _ => pcuvd::dynamics::UNDETERMINED,
+            });
+        let beam = (beam_ri, &beam_class);
+        ri.push(scored_against(
+            &format!("{wide_label}, against the beam's own RI"),
+            beam,
+            &wide,
+        ));
+        ri.push(scored_against(
+            "all lumen pixels, against the beam's own RI",
+            beam,
+            &|_, _| true,
+        ));
+    }
     // Veins are steady and slow, arteries pulsatile: the two kinds fail differently.
     for (class, label) in [(ARTERIOLE, "arterioles"), (VENULE, "venules")] {
         ri.push(ri_group(label, &|iz, ix| {
@@ -349,22 +381,23 @@ pub(super) fn false_detection_score(
     (free.len(), score)
 }
 
-/// See [`BRAIN_RI_DEFINITION`].
+/// See [`BRAIN_RI_DEFINITION`]: against `truth_ri` and `truth_class` (nz, nx), lumen pixels of a
+/// class other than background.
 pub(super) fn ri_score(
     est: &RiMaps,
-    truth: &pcuvd::simulate::phantom::network::NetworkTruth,
+    (truth_ri, truth_class): (&Array2<f64>, &Array2<u8>),
     lumen: &Array2<bool>,
     select: &dyn Fn(usize, usize) -> bool,
 ) -> RiGroupScore {
     let (mut errors, mut right) = (Vec::new(), 0usize);
     for ((iz, ix), &is_lumen) in lumen.indexed_iter() {
-        let true_class = truth.vessel_class[[iz, ix]];
+        let true_class = truth_class[[iz, ix]];
         if !is_lumen || true_class == BACKGROUND || !select(iz, ix) {
             continue;
         }
         let ri = est.ri[[iz, ix]];
         errors.push(if ri.is_finite() {
-            (ri - truth.ri[[iz, ix]]).abs()
+            (ri - truth_ri[[iz, ix]]).abs()
         } else {
             1.0
         });
