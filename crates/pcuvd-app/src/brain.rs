@@ -423,10 +423,10 @@ impl BrainStudy {
             npy("truth_psv", &cycle.psv)?;
             npy("truth_edv", &cycle.edv)?;
             npy("truth_class_share", &cycle.class_share)?;
-            if let Some(beam_ri) = &self.truth.beam_ri {
-                npy("truth_beam_ri", beam_ri)?;
-            }
             pcuvd_io::write_npy(&dir.join("truth_vessel_class.npy"), &cycle.vessel_class)?;
+        }
+        if let Some(beam_ri) = &self.truth.beam_ri {
+            npy("truth_beam_ri", beam_ri)?;
         }
         for mode in &self.modes {
             let prefix = match mode.mode {

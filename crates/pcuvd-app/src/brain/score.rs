@@ -185,11 +185,12 @@ pub(super) fn score(
         let (artery_ri_min, vein_ri_max) = context.class_thresholds;
         let beam_class = Zip::from(beam_ri)
             .and(&cycle.vessel_class)
-            .map_collect(|&ri, &class| match () {
-                _ if class == BACKGROUND || !ri.is_finite() => BACKGROUND,
-                _ if ri >= artery_ri_min => ARTERIOLE,
-                _ if ri <= vein_ri_max => VENULE,
-                _ => pcuvd::dynamics::UNDETERMINED,
+            .map_collect(|&ri, &class| {
+                if class == BACKGROUND || !ri.is_finite() {
+                    BACKGROUND
+                } else {
+                    pcuvd::dynamics::vessel_class_of(ri, artery_ri_min, vein_ri_max)
+                }
             });
         let beam = (beam_ri, &beam_class);
         ri.push(scored_against(

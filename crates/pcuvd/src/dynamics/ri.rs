@@ -11,6 +11,18 @@ pub fn resistivity_index(psv: f64, edv: f64) -> f64 {
     }
 }
 
+/// A vessel pixel's class from its RI: [`ARTERIOLE`] at or above `artery_ri_min`, [`VENULE`] at
+/// or below `vein_ri_max`, [`UNDETERMINED`] between them or without an RI (NaN).
+pub fn vessel_class_of(ri: f64, artery_ri_min: f64, vein_ri_max: f64) -> u8 {
+    if ri >= artery_ri_min {
+        ARTERIOLE
+    } else if ri <= vein_ri_max {
+        VENULE
+    } else {
+        UNDETERMINED
+    }
+}
+
 /// Per-pixel cardiac-cycle maps, shape (nz, nx); background pixels hold NaN velocities and RI.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RiMaps {
@@ -187,13 +199,7 @@ pub fn ri_maps_triggered(
                 psv_edv_unchecked(smooth.as_deref().unwrap_or(&raw), &cycles)
             };
             let ri = resistivity_index(psv, edv);
-            let class = if ri >= params.artery_ri_min {
-                ARTERIOLE
-            } else if ri <= params.vein_ri_max {
-                VENULE
-            } else {
-                UNDETERMINED
-            };
+            let class = vessel_class_of(ri, params.artery_ri_min, params.vein_ri_max);
             let (mut sum, mut count) = (0.0, 0usize);
             for &v in series.vz.slice(s![.., iz, ix]) {
                 if v.is_finite() {
