@@ -45,6 +45,13 @@ enum Command {
 
 /// Runs the `pcuvd` command on the process's own arguments; the exit code to return.
 pub fn main() -> ExitCode {
+    // A reader that closes the pipe early (`pcuvd info … | head`) ends the process quietly, as
+    // it does any Unix tool; Rust ignores SIGPIPE, and the next line printed would panic.
+    #[cfg(unix)]
+    // SAFETY: restoring a signal's default disposition at start-up, before any thread runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     progress::set_quiet(cli.quiet);
     // Ctrl-C stops at once. Every output is written under a temporary name and renamed when

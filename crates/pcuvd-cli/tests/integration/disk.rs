@@ -434,6 +434,31 @@ fn used_output_folders_are_refused_unless_forced_and_inputs_are_never_overwritte
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
 
+/// Output read by a reader that closes early (`pcuvd info … | head`): the command ends quietly,
+/// as a Unix tool does on a closed pipe, never with a panic.
+#[cfg(unix)]
+#[test]
+fn a_closed_pipe_ends_the_command_without_a_panic() {
+    use std::os::unix::process::ExitStatusExt;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .arg("info")
+        .arg(disk_file())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Closed before the file is read: the first line printed meets a closed pipe.
+    drop(child.stdout.take());
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        result.status.success() || result.status.signal() == Some(libc::SIGPIPE),
+        "{:?}: {stderr}",
+        result.status
+    );
+}
+
 /// `pcuvd info` reports what the reader understood, in text and as JSON, without processing.
 #[test]
 fn info_reports_the_acquisition_without_processing() {
