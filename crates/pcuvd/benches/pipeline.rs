@@ -10,7 +10,8 @@
 //! the tubes and a 0.1 mm rim; K = 2, each estimator alone and both at once (as `process` runs
 //! them), against the plain fit of the whole map.
 //! Clutter: a 256 × 256 × 100 series with 5 components cut over the whole image; a 256 × 128 ×
-//! 180 series of slowly moving tissue cut by the auto rule block by block (37-pixel blocks).
+//! 180 series of slowly moving tissue cut by the auto rule block by block (37-pixel blocks, made
+//! 38 so that half-block steps tile the image).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};

@@ -44,7 +44,11 @@
 //! grows until it holds them. A block cuts at most the components the whole image's rule cuts
 //! (the tissue seen on some pixels has at most the whole tissue's rank): within a small block a
 //! wide, slow vessel is strong and steep enough to pass for tissue. A block's Gram matrix is the
-//! sum of those of the cells the blocks' edges cut the image into, each summed once.
+//! sum of those of the cells the blocks' edges cut the image into, each summed once; a block's
+//! sides are made even, so that the half-block steps cut the image into cells of half a block,
+//! four to a block. Only the eigenvalues a block's rule reads (the leading ones and the median)
+//! are found, by bisection, and the blend is summed over a band of a block's rows, each row going
+//! back into the series once no block reads it again, rather than over a second whole series.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatRef, Side, c32, c64};
@@ -314,21 +318,30 @@ fn filter_blocks(
     // that hold it, rather than every pixel's four times.
     let z_cuts = cell_edges(&layout.z_starts, rows);
     let x_cuts = cell_edges(&layout.x_starts, cols);
-    let cell_gram = |za: usize, xa: usize| {
-        let (z0, x0, width) = (z_cuts[za], x_cuts[xa], x_cuts[xa + 1] - x_cuts[xa]);
-        let cell_rows = (z_cuts[za + 1] - z0) * width;
-        lower_gram(cell_rows, frames, |i, j| {
-            series[[z0 + i / width, x0 + i % width, j]]
-        })
+    let cell_gram = |series: &Array3<Complex32>, za: usize, xa: usize| {
+        let (x0, x1) = (x_cuts[xa], x_cuts[xa + 1]);
+        let runs = (z_cuts[za]..z_cuts[za + 1]).map(|z| series.slice(ndarray::s![z, x0..x1, ..]));
+        let mut pixels = Mat::<c64>::zeros(frames, (z_cuts[za + 1] - z_cuts[za]) * (x1 - x0));
+        for (k, value) in runs.flat_map(|run| run.into_iter()).enumerate() {
+            pixels[(k % frames, k / frames)] = c64::new(value.re as f64, value.im as f64);
+        }
+        lower_gram_of_columns(pixels.as_ref())
     };
     // Cell rows' Gram matrices, kept while a row of blocks still needs them.
     let mut cell_rows: std::collections::BTreeMap<usize, Vec<Mat<c64>>> = Default::default();
-    let mut blended = Array3::<Complex32>::zeros((nz, nx, frames));
-    let mut weights = ndarray::Array2::<f32>::zeros((nz, nx));
+    // The blocks' tent-weighted sums over the rows that a row of blocks still to come may add
+    // to, `blended.start..blended.start + rows`: the rows above a row of blocks are final, and go
+    // back into the series before it is filtered, as no block reads them again.
+    let mut blended = Blended {
+        sums: vec![Complex32::new(0.0, 0.0); rows * nx * frames],
+        weights: Array2::<f32>::zeros((nz, nx)),
+        start: 0,
+    };
     let mut block_cut_offs = Vec::with_capacity(blocks);
     // One row of blocks at a time: its blocks are filtered in parallel (each block's own filter
     // is one chunk of pixels, sequential), then blended in.
     for &z0 in &layout.z_starts {
+        blended.settle(series, z0)?;
         cell_rows.retain(|&za, _| z_cuts[za] >= z0);
         let missing: Vec<(usize, usize)> = cells_within(&z_cuts, z0, rows)
             .filter(|za| !cell_rows.contains_key(za))
@@ -336,52 +349,48 @@ fn filter_blocks(
             .collect();
         let grams: Vec<Mat<c64>> = missing
             .par_iter()
-            .map(|&(za, xa)| cell_gram(za, xa))
+            .map(|&(za, xa)| cell_gram(series, za, xa))
             .collect();
         for ((za, _), gram) in missing.into_iter().zip(grams) {
             cell_rows.entry(za).or_default().push(gram);
         }
-        let filtered = layout
-            .x_starts
-            .par_iter()
-            .map(|&x0| {
-                let mut gram = Mat::<c64>::zeros(frames, frames);
-                for za in cells_within(&z_cuts, z0, rows) {
-                    for xa in cells_within(&x_cuts, x0, cols) {
-                        add_lower(&mut gram, &cell_rows[&za][xa]);
+        let filtered =
+            layout
+                .x_starts
+                .par_iter()
+                .map(|&x0| {
+                    let mut gram = Mat::<c64>::zeros(frames, frames);
+                    for za in cells_within(&z_cuts, z0, rows) {
+                        for xa in cells_within(&x_cuts, x0, cols) {
+                            add_lower(&mut gram, &cell_rows[&za][xa]);
+                        }
                     }
-                }
-                let mut block = series
-                    .slice(ndarray::s![z0..z0 + rows, x0..x0 + cols, ..])
-                    .to_owned();
-                let data = block
-                    .as_slice_mut()
-                    .ok_or_else(|| Error::Shape("a block's copy must be contiguous".into()))?;
-                filter_with_gram(data, frames, gram, &whole, Pass::Filter { low_cap })
+                    // The block's pixels (rows × cols × frames), a pixel row's run at a time.
+                    let mut block = Vec::with_capacity(rows * cols * frames);
+                    for z in z0..z0 + rows {
+                        let run = series.slice(ndarray::s![z, x0..x0 + cols, ..]);
+                        block.extend_from_slice(run.as_slice().ok_or_else(|| {
+                            Error::Shape("image series must be contiguous".into())
+                        })?);
+                    }
+                    // A block's singular values are not reported: only those its rule reads.
+                    filter_with_gram(
+                        &mut block,
+                        frames,
+                        gram,
+                        &whole,
+                        Pass::Filter { low_cap },
+                        false,
+                    )
                     .map(|report| (x0, block, report))
-            })
-            .collect::<Result<Vec<_>>>()?;
+                })
+                .collect::<Result<Vec<_>>>()?;
         for (x0, block, report) in filtered {
             block_cut_offs.push((report.low, report.high));
-            for ((i, j), weight) in weights
-                .slice_mut(ndarray::s![z0..z0 + rows, x0..x0 + cols])
-                .indexed_iter_mut()
-            {
-                let w = tent(i, rows) * tent(j, cols);
-                *weight += w;
-                let target = blended.slice_mut(ndarray::s![z0 + i, x0 + j, ..]);
-                ndarray::Zip::from(target)
-                    .and(block.slice(ndarray::s![i, j, ..]))
-                    .for_each(|t, &v| *t += v * w);
-            }
+            blended.add(&block, (z0, x0), (rows, cols), frames);
         }
     }
-    ndarray::Zip::from(series.lanes_mut(ndarray::Axis(2)))
-        .and(blended.lanes(ndarray::Axis(2)))
-        .and(&weights)
-        .for_each(|mut out, sum, &w| {
-            out.zip_mut_with(&sum, |o, &s| *o = s / w);
-        });
+    blended.settle(series, nz)?;
     let median = |pick: fn(&(usize, usize)) -> usize| {
         let mut values: Vec<usize> = block_cut_offs.iter().map(pick).collect();
         values.sort_unstable();
@@ -396,9 +405,84 @@ fn filter_blocks(
     })
 }
 
+/// The tent-weighted sums of filtered blocks over a band of image rows, and every pixel's sum of
+/// weights.
+struct Blended {
+    /// The sums over rows `start..start + rows` (row-major: rows × nx × frames).
+    sums: Vec<Complex32>,
+    /// Each pixel's sum of the weights of the blocks added over it.
+    weights: Array2<f32>,
+    /// The image row the band starts at.
+    start: usize,
+}
+
+impl Blended {
+    /// Adds the filtered `block` (rows × cols × frames, row-major) whose first pixel is at
+    /// `origin`, which must lie within the band, each pixel weighted by its tents.
+    fn add(
+        &mut self,
+        block: &[Complex32],
+        (z0, x0): (usize, usize),
+        (rows, cols): (usize, usize),
+        frames: usize,
+    ) {
+        let row_len = self.weights.ncols() * frames;
+        for i in 0..rows {
+            let band_row = (z0 + i - self.start) * row_len;
+            for j in 0..cols {
+                let w = tent(i, rows) * tent(j, cols);
+                self.weights[[z0 + i, x0 + j]] += w;
+                let at = band_row + (x0 + j) * frames;
+                let from = (i * cols + j) * frames;
+                for (sum, &v) in self.sums[at..at + frames]
+                    .iter_mut()
+                    .zip(&block[from..from + frames])
+                {
+                    *sum += v * w;
+                }
+            }
+        }
+    }
+
+    /// Writes the band's rows above `until` into `series` (each pixel its sum over its weight:
+    /// the blend) and moves the band down to start there.
+    fn settle(&mut self, series: &mut Array3<Complex32>, until: usize) -> Result<()> {
+        let (_, nx, frames) = series.dim();
+        let row_len = nx * frames;
+        let done = until - self.start;
+        for r in 0..done {
+            let z = self.start + r;
+            let mut row = series.slice_mut(ndarray::s![z, .., ..]);
+            let out = row
+                .as_slice_mut()
+                .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
+            let sums = &self.sums[r * row_len..(r + 1) * row_len];
+            for ((out, sums), &w) in out
+                .chunks_mut(frames)
+                .zip(sums.chunks(frames))
+                .zip(self.weights.row(z))
+            {
+                for (o, &s) in out.iter_mut().zip(sums) {
+                    *o = s / w;
+                }
+            }
+        }
+        let moved = (done * row_len).min(self.sums.len());
+        self.sums.copy_within(moved.., 0);
+        let kept = self.sums.len() - moved;
+        self.sums[kept..].fill(Complex32::new(0.0, 0.0));
+        self.start = until;
+        Ok(())
+    }
+}
+
 /// The block size (rows, columns) on an image of `shape`: `size` clamped to the image, grown a
 /// row or a column at a time (the shorter side first) until a block holds at least `frames`
-/// pixels, as a block's SVD needs to see a noise floor; the whole image where it holds fewer.
+/// pixels, as a block's SVD needs to see a noise floor (the whole image where it holds fewer),
+/// then each side shorter than the image made even (a pixel more where it is odd). Blocks of
+/// an even side at half-block steps cut the image into cells of half a block, four to a block;
+/// an odd side's half-steps leave a one-pixel cell beside every other, up to 25 to a block,
+/// whose Gram matrices a block sums six times as long.
 fn holding_frames(
     (nz, nx): (usize, usize),
     (rows, cols): (usize, usize),
@@ -412,7 +496,8 @@ fn holding_frames(
             cols += 1;
         }
     }
-    (rows, cols)
+    let even = |side: usize, image: usize| (side + side % 2).min(image);
+    (even(rows, nz), even(cols, nx))
 }
 
 /// Adds the lower half (the diagonal included) of the square `term` to `sum`'s: all that the
@@ -483,23 +568,25 @@ fn filter_whole(
         .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
 
     let gram = gram_of(data, frames);
-    filter_with_gram(data, frames, gram, params, pass)
+    filter_with_gram(data, frames, gram, params, pass, true)
 }
 
-/// The filter of `data` (pixels × frames, row-major) given its Gram matrix `gram` (lower half).
+/// The filter of `data` (pixels × frames, row-major) given its Gram matrix `gram` (lower half);
+/// the report's singular values are all of them with `every_value`, else those the rule read.
 fn filter_with_gram(
     data: &mut [Complex32],
     frames: usize,
     gram: Mat<c64>,
     params: &ClutterParams,
     pass: Pass,
+    every_value: bool,
 ) -> Result<ClutterReport> {
     let pixels = data.len() / frames;
     let low_cap = match pass {
         Pass::Filter { low_cap } => low_cap,
         Pass::CutOffsOnly => None,
     };
-    let spectrum = Spectrum::of(&gram, params, low_cap)?;
+    let spectrum = Spectrum::of(&gram, params, low_cap, every_value)?;
     let (eigenvalues, vectors) = (&spectrum.eigenvalues, &spectrum.vectors);
 
     let similar =
@@ -517,8 +604,8 @@ fn filter_with_gram(
         RankCut::Off => 0,
         RankCut::Fixed(k) => k,
         RankCut::Auto => auto_low(
-            eigenvalues,
-            |k| vectors.col(k),
+            &spectrum,
+            frames,
             params.tissue_frequency,
             low_cap.unwrap_or(frames),
         ),
@@ -644,36 +731,56 @@ fn lower_gram(rows: usize, frames: usize, entry: impl Fn(usize, usize) -> Comple
     g
 }
 
+/// The lower half of the Gram matrix G = SᴴS of the pixels × frames matrix S whose transpose
+/// `pixels` holds (frames × pixels: each pixel's time series one column, contiguous):
+/// G = conj(Sᵀ)·(Sᵀ)ᵀ.
+fn lower_gram_of_columns(pixels: MatRef<'_, c64>) -> Mat<c64> {
+    let frames = pixels.nrows();
+    let mut g = Mat::<c64>::zeros(frames, frames);
+    triangular::matmul(
+        g.as_mut(),
+        BlockStructure::TriangularLower,
+        faer::Accum::Replace,
+        pixels.conjugate(),
+        BlockStructure::Rectangular,
+        pixels.transpose(),
+        BlockStructure::Rectangular,
+        c64::new(1.0, 0.0),
+        faer::Par::Seq,
+    );
+    g
+}
+
 /// The least ratio (2, 3 dB) of a tissue component's energy to the next component's.
 const TISSUE_STEP: f64 = 2.0;
 
-/// The tissue rule's low cut-off (see the module documentation), at most `limit`: the leading
-/// components that are strong, steep and slow.
-fn auto_low<'a>(
-    eigenvalues: &[f64],
-    vector: impl Fn(usize) -> faer::ColRef<'a, c64>,
-    tissue_frequency: f64,
-    limit: usize,
-) -> usize {
-    let candidates = strong_and_steep(eigenvalues).min(limit);
+/// The tissue rule's low cut-off among a spectrum's `components` (see the module
+/// documentation), at most `limit`: the leading components that are strong, steep and slow.
+fn auto_low(spectrum: &Spectrum, components: usize, tissue_frequency: f64, limit: usize) -> usize {
+    let vector = |k| spectrum.vectors.col(k);
+    let candidates =
+        strong_and_steep(&spectrum.eigenvalues, spectrum.median, components).min(limit);
     (0..candidates)
         .find(|&k| doppler_frequency(vector(k)) >= tissue_frequency)
         .unwrap_or(candidates)
 }
 
-/// How many leading components pass the tissue rule's energy tests, at most half of them: each
-/// at least 10 dB above the median component (strong) and [`TISSUE_STEP`] above the next
+/// How many leading components pass the tissue rule's energy tests, at most half of the
+/// `components` and one fewer than the `leading` eigenvalues given (largest first): each at
+/// least 10 dB above the `median` component (strong) and [`TISSUE_STEP`] above the next
 /// (steep).
-fn strong_and_steep(eigenvalues: &[f64]) -> usize {
-    let n = eigenvalues.len();
-    let mut sorted = eigenvalues.to_vec();
-    sorted.sort_by(|a, b| a.total_cmp(b));
-    let median = sorted[n / 2].max(f64::MIN_POSITIVE);
-    (0..n / 2)
-        .take_while(|&k| {
-            eigenvalues[k] >= 10.0 * median && eigenvalues[k] >= TISSUE_STEP * eigenvalues[k + 1]
-        })
+fn strong_and_steep(leading: &[f64], median: f64, components: usize) -> usize {
+    let median = median.max(f64::MIN_POSITIVE);
+    (0..(components / 2).min(leading.len().saturating_sub(1)))
+        .take_while(|&k| leading[k] >= 10.0 * median && leading[k] >= TISSUE_STEP * leading[k + 1])
         .count()
+}
+
+/// The median of `values` as the tissue rule reads it: the (n/2)-th smallest.
+fn median_of(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    sorted[values.len() / 2]
 }
 
 /// A temporal singular vector's mean Doppler frequency, as a fraction of the frame rate (0 to
@@ -686,10 +793,12 @@ fn doppler_frequency(v: faer::ColRef<'_, c64>) -> f64 {
     r1.arg().abs() / (2.0 * std::f64::consts::PI)
 }
 
-/// A Gram matrix's eigenvalues (all, largest first, none below zero) and the eigenvectors
-/// (columns, in the same order) of as many leading components as the cut-offs can read.
+/// A Gram matrix's eigenvalues (largest first, none below zero: all of them, or the leading
+/// ones the tissue rule reads), their median, and the eigenvectors (columns, in the same order)
+/// of as many leading components as the cut-offs can read.
 struct Spectrum {
     eigenvalues: Vec<f64>,
+    median: f64,
     vectors: Mat<c64>,
 }
 
@@ -697,8 +806,15 @@ impl Spectrum {
     /// The spectrum of `gram` (lower half) that `params` needs. The tissue cut-offs read few
     /// vectors (`Auto`: the components passing its energy tests, at most `low_cap`; `Fixed(k)`:
     /// k), so with no noise cut-off only those are computed ([`leading_eigen`]); the similarity
-    /// rule and a noise cut-off read them all.
-    fn of(gram: &Mat<c64>, params: &ClutterParams, low_cap: Option<usize>) -> Result<Spectrum> {
+    /// rule and a noise cut-off read them all. Without `every_value` (a block's filter, whose
+    /// singular values nobody reports) only the eigenvalues the tissue rule reads are found: the
+    /// leading ones and the median.
+    fn of(
+        gram: &Mat<c64>,
+        params: &ClutterParams,
+        low_cap: Option<usize>,
+        every_value: bool,
+    ) -> Result<Spectrum> {
         let frames = gram.nrows();
         let failed = |e: faer::linalg::evd::EvdError| {
             invalid(
@@ -715,24 +831,45 @@ impl Spectrum {
         if !few_vectors {
             let eig = gram.self_adjoint_eigen(Side::Lower).map_err(failed)?;
             // faer's are in nondecreasing order.
+            let eigenvalues: Vec<f64> = (0..frames)
+                .map(|k| eig.S()[frames - 1 - k].re.max(0.0))
+                .collect();
             return Ok(Spectrum {
-                eigenvalues: (0..frames)
-                    .map(|k| eig.S()[frames - 1 - k].re.max(0.0))
-                    .collect(),
+                median: median_of(&eigenvalues),
+                eigenvalues,
                 vectors: Mat::from_fn(frames, frames, |i, k| eig.U()[(i, frames - 1 - k)]),
             });
         }
         let reduced = leading_eigen::Tridiagonal::new(gram.as_ref());
-        let exact = reduced.eigenvalues().map_err(failed)?;
+        let (exact, median) = if every_value || params.low != RankCut::Auto {
+            let exact = reduced.eigenvalues().map_err(failed)?;
+            let median = median_of(&exact).max(0.0);
+            (exact, median)
+        } else {
+            // strong_and_steep reads the leading min(frames / 2, cap) + 1 and the median.
+            let leading = (frames / 2).min(low_cap.unwrap_or(frames)) + 1;
+            let value = |rank| {
+                reduced.eigenvalue(rank).ok_or_else(|| {
+                    invalid("clutter filter", format!("no eigenvalue of rank {rank}"))
+                })
+            };
+            let exact = (0..leading.min(frames))
+                .map(value)
+                .collect::<Result<Vec<_>>>()?;
+            (exact, value(frames - 1 - frames / 2)?.max(0.0))
+        };
         let eigenvalues: Vec<f64> = exact.iter().map(|v| v.max(0.0)).collect();
         let count = match params.low {
-            RankCut::Auto => strong_and_steep(&eigenvalues).min(low_cap.unwrap_or(frames)),
+            RankCut::Auto => {
+                strong_and_steep(&eigenvalues, median, frames).min(low_cap.unwrap_or(frames))
+            }
             RankCut::Fixed(k) => k,
             RankCut::Off | RankCut::Similarity => 0,
         };
         Ok(Spectrum {
             vectors: reduced.leading_vectors(&exact, count),
             eigenvalues,
+            median,
         })
     }
 }
@@ -1471,7 +1608,7 @@ mod tests {
     }
 
     /// Blocks that remove nothing give the series back: the tent weights blend to one over every
-    /// pixel, the image's edges and a size that the half-block steps do not divide included.
+    /// pixel, the image's edges and an image that the half-block steps do not divide included.
     #[test]
     fn blocks_that_remove_nothing_blend_back_to_the_series() {
         let original = toned((23, 17, 8), 5, |_, _| vec![(1.0, 1.0), (0.5, 3.0)]);
@@ -1483,8 +1620,8 @@ mod tests {
             ..ClutterParams::default()
         };
         let report = svd_filter(&mut series, &params).unwrap();
-        // Rows start at 0, 3, …, 15, 17; columns at 0, 2, …, 10, 12.
-        assert_eq!(report.block_cut_offs.len(), 7 * 7);
+        // Rows start at 0, 3, …, 15, 17; columns (5 made 6) at 0, 3, 6, 9, 11.
+        assert_eq!(report.block_cut_offs.len(), 7 * 5);
         for (a, b) in series.iter().zip(original.iter()) {
             assert!((a - b).norm() <= 1e-5 * b.norm().max(1.0), "{a} vs {b}");
         }
@@ -1670,7 +1807,11 @@ mod tests {
         let report = svd_filter(&mut series.clone(), &params).unwrap();
         assert_eq!(report.block_layout.unwrap().size, (6, 6));
         assert_eq!(holding_frames((10, 12), (8, 2), 32), (8, 4));
-        assert_eq!(holding_frames((3, 40), (2, 2), 32), (3, 11));
+        // Grown to (3, 11), then the side shorter than the image made even.
+        assert_eq!(holding_frames((3, 40), (2, 2), 32), (3, 12));
+        // Even sides, so that half-block steps tile the image; the image's own side stays.
+        assert_eq!(holding_frames((401, 236), (37, 37), 180), (38, 38));
+        assert_eq!(holding_frames((401, 37), (37, 37), 180), (38, 37));
 
         let small = series.slice(ndarray::s![..5, ..5, ..]).to_owned();
         let mut blocked = small.clone();
@@ -1704,7 +1845,9 @@ mod tests {
         let mut blocked = series.clone();
         let report = svd_filter(&mut blocked, &params).unwrap();
         let layout = report.block_layout.unwrap();
-        assert_eq!(layout.z_starts, vec![0, 3, 6, 9, 12, 15, 16]);
+        // Seven rows made eight, so that the half-block steps tile the rows.
+        assert_eq!(layout.size, (8, 6));
+        assert_eq!(layout.z_starts, vec![0, 4, 8, 12, 15]);
         assert_eq!(layout.x_starts, vec![0, 3, 6, 9, 12, 13]);
         let own = ClutterParams {
             blocks: None,
@@ -1714,11 +1857,11 @@ mod tests {
         let mut weights = Array2::<f32>::zeros((nz, nx));
         for (z0, x0) in layout.origins() {
             let mut block = series
-                .slice(ndarray::s![z0..z0 + 7, x0..x0 + 6, ..])
+                .slice(ndarray::s![z0..z0 + 8, x0..x0 + 6, ..])
                 .to_owned();
             svd_filter(&mut block, &own).unwrap();
             for ((i, j, f), v) in block.indexed_iter() {
-                let w = tent(i, 7) * tent(j, 6);
+                let w = tent(i, 8) * tent(j, 6);
                 sums[[z0 + i, x0 + j, f]] += v * w;
                 if f == 0 {
                     weights[[z0 + i, x0 + j]] += w;
