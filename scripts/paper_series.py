@@ -516,6 +516,7 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
     if not defaults or plug is None or study is None:
         return None
     longer_run = dealias_run("parabolic", 1, dealiasing, frames=400)
+    longer_plug = dealias_run("plug", 1, dealiasing, frames=400)
     former_study = dealias_run("parabolic", 3, dealiasing, options=FORMER_DEFAULTS)
     former_plug = dealias_run("plug", 1, dealiasing, options=FORMER_DEFAULTS)
     finer_run = longer_study(dealiasing)
@@ -540,6 +541,8 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
     tube_other = []
     if longer_run is not None:
         tube_other.append("parabolic, `--frames 400`, " + verdict(shares(longer_run, 3.0, None)))
+    if longer_plug is not None:
+        tube_other.append("plug flow, `--frames 400`, " + verdict(shares(longer_plug, 3.0, None)))
     if former_study is not None and former_plug is not None:
         tube_other.append("the former defaults: plug flow "
                           + share_text(shares(former_plug, 3.0, None)) + ", parabolic "
@@ -570,7 +573,8 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
     brain = brain_runs()
     rows += brain_rows(brain)
     measured = (defaults + former + [plug, study]
-                + [r for r in (longer_run, former_study, former_plug, finer_run) if r is not None]
+                + [r for r in (longer_run, longer_plug, former_study, former_plug, finer_run)
+                   if r is not None]
                 + list(brain.values()))
     return {
         "id": "at-a-glance",
