@@ -87,15 +87,16 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
     )
     assert done.returncode == 0, done.stderr
     clutter = json.loads((out / "summary.json").read_text())["clutter_filter"]
-    # 1.2 mm on the 0.08 mm grid.
-    assert clutter["block_pixels"] == [15, 15]
+    # 1.2 mm on the 0.08 mm grid: 15 pixels, made 16 so that half-block steps tile the grid.
+    assert clutter["block_pixels"] == [16, 16]
     assert len(clutter["cut_offs_per_angle"]) == 4
     for cut in clutter["cut_offs_per_angle"]:
         low_range = cut["block_low_range"]
         assert low_range[0] <= cut["low"] <= low_range[1]
     filters = json.loads((out / "power_doppler.json").read_text())["ClutterFilters"]
     assert filters == [{"FilterType": "Index-based SVD, block-wise"}]
-    # A block of one pixel grows, the shorter side first, until it holds the frames.
+    # A block of one pixel grows, the shorter side first, until it holds the frames; its sides
+    # are then made even: no smaller even block holds them.
     tiny = tmp_path / "tiny"
     done = run_cli(
         cli, "process", coded_tube, "--out", tiny, GRID, "--dynamics=off", "--svd-block-mm", "0.08",
@@ -104,7 +105,8 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
     summary = json.loads((tiny / "summary.json").read_text())
     rows, cols = summary["clutter_filter"]["block_pixels"]
     frames = summary["acquisition"]["frames"]
-    assert rows * cols >= frames > (rows - 1) * cols and cols <= rows <= cols + 1
+    assert rows % 2 == cols % 2 == 0 and cols <= rows <= cols + 2
+    assert rows * cols >= frames > (rows - 2) * (cols - 2)
     # Processed in segments, each segment's cut-offs keep their blocks' ranges too.
     segmented = tmp_path / "segmented"
     done = run_cli(
@@ -119,12 +121,12 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
         assert len(per_angle) == 4
         assert all("block_low_range" in cut for cut in per_angle)
     # Every block's cut-offs, (segments, angles, block rows, block columns, low / high), the
-    # blocks where summary.json says they start (15-pixel blocks at 7-pixel steps, the last
+    # blocks where summary.json says they start (16-pixel blocks at 8-pixel steps, the last
     # flush with the 51-pixel grid's edge), and their ranges those summary.json gives.
     blocks = np.load(segmented / "clutter_block_cut_offs.npy")
     starts = summary["clutter_filter"]["block_starts_px"]
-    assert starts["z"] == starts["x"] == [0, 7, 14, 21, 28, 35, 36]
-    assert blocks.shape == (2, 4, 7, 7, 2)
+    assert starts["z"] == starts["x"] == [0, 8, 16, 24, 32, 35]
+    assert blocks.shape == (2, 4, 6, 6, 2)
     for segment, per_angle in zip(blocks, segments["clutter_cut_offs_per_angle"]):
         for block_cuts, cut in zip(segment, per_angle):
             assert [block_cuts[..., 0].min(), block_cuts[..., 0].max()] == cut["block_low_range"]

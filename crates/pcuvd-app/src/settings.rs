@@ -47,8 +47,8 @@ pub struct ProcessingSettings {
     pub svd_high: String,
     /// SVD clutter filter block-wise: overlapping square blocks this wide (mm), each filtered
     /// with its own cut-offs by the rules above and blended back (Song et al. 2017); a block
-    /// smaller than the ensemble's frames grows until it holds as many pixels. Default: the
-    /// whole image at once.
+    /// smaller than the ensemble's frames grows until it holds as many pixels, and an odd side
+    /// gains a pixel (summary.json gives the size filtered). Default: the whole image at once.
     #[cfg_attr(feature = "clap", arg(long, value_name = "MM"))]
     pub svd_block_mm: Option<f64>,
     /// Spatial averaging of the autocorrelation, ROWSxCOLS pixels (odd), e.g. 3x3.
