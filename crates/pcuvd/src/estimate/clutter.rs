@@ -716,35 +716,29 @@ fn lower_gram(rows: usize, frames: usize, entry: impl Fn(usize, usize) -> Comple
         let v = entry(i, j);
         c64::new(v.re as f64, v.im as f64)
     });
-    let mut g = Mat::<c64>::zeros(frames, frames);
-    triangular::matmul(
-        g.as_mut(),
-        BlockStructure::TriangularLower,
-        faer::Accum::Replace,
-        s.adjoint(),
-        BlockStructure::Rectangular,
-        s.as_ref(),
-        BlockStructure::Rectangular,
-        c64::new(1.0, 0.0),
-        faer::Par::Seq,
-    );
-    g
+    lower_conj_product(s.transpose(), s.as_ref())
 }
 
 /// The lower half of the Gram matrix G = SᴴS of the pixels × frames matrix S whose transpose
 /// `pixels` holds (frames × pixels: each pixel's time series one column, contiguous):
 /// G = conj(Sᵀ)·(Sᵀ)ᵀ.
 fn lower_gram_of_columns(pixels: MatRef<'_, c64>) -> Mat<c64> {
-    let frames = pixels.nrows();
-    let mut g = Mat::<c64>::zeros(frames, frames);
-    triangular::matmul(
+    lower_conj_product(pixels, pixels.transpose())
+}
+
+/// The lower half (the diagonal included) of the square product conj(`left`)·`right`.
+fn lower_conj_product(left: MatRef<'_, c64>, right: MatRef<'_, c64>) -> Mat<c64> {
+    let mut g = Mat::<c64>::zeros(left.nrows(), right.ncols());
+    triangular::matmul_with_conj(
         g.as_mut(),
         BlockStructure::TriangularLower,
         faer::Accum::Replace,
-        pixels.conjugate(),
+        left,
         BlockStructure::Rectangular,
-        pixels.transpose(),
+        faer::Conj::Yes,
+        right,
         BlockStructure::Rectangular,
+        faer::Conj::No,
         c64::new(1.0, 0.0),
         faer::Par::Seq,
     );
