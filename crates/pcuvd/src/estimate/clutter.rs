@@ -418,7 +418,7 @@ struct Blended {
 
 impl Blended {
     /// Adds the filtered `block` (rows × cols × frames, row-major) whose first pixel is at
-    /// `origin`, which must lie within the band, each pixel weighted by its tents.
+    /// (z0, x0), a row within the band, each pixel weighted by its tents.
     fn add(
         &mut self,
         block: &[Complex32],
@@ -481,8 +481,8 @@ impl Blended {
 /// pixels, as a block's SVD needs to see a noise floor (the whole image where it holds fewer),
 /// then each side shorter than the image made even (a pixel more where it is odd). Blocks of
 /// an even side at half-block steps cut the image into cells of half a block, four to a block;
-/// an odd side's half-steps leave a one-pixel cell beside every other, up to 25 to a block,
-/// whose Gram matrices a block sums six times as long.
+/// an odd side's half-steps leave one-pixel cells between the others, up to five a side, and a
+/// block sums up to 25 cells' Gram matrices instead of four.
 fn holding_frames(
     (nz, nx): (usize, usize),
     (rows, cols): (usize, usize),
