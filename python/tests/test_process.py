@@ -61,7 +61,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
             "--dealias=auto",
         ]
     if which == "tube in blocks":
-        # The block-wise clutter filter (15 × 15-pixel blocks) in two segments.
+        # The block-wise clutter filter (1.2 mm: 15 pixels, made 16) in two segments.
         options = tube_options[:2] + ["--svd-block-mm=1.2", "--segment-frames=5", "--dealias=auto"]
     by_cli = tmp_path / "cli"
     done = run_cli(cli, "process", source, "--out", by_cli, *options)
@@ -101,8 +101,9 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         segments = json.loads((by_cli / "summary.json").read_text())["segments"]
         assert segments["own_frames"] == [[0, 6], [6, 10]]
     if which == "tube in blocks":
-        # Each segment's and angle's blocks: 10 rows and 10 columns of them on the 76-pixel grid.
-        assert cli_arrays["clutter_block_cut_offs"].shape == (2, 8, 10, 10, 2)
+        # Each segment's and angle's blocks: 9 rows and 9 columns of them on the 76-pixel grid
+        # (16-pixel blocks at 8-pixel steps, the last flush with the edge at 60).
+        assert cli_arrays["clutter_block_cut_offs"].shape == (2, 8, 9, 9, 2)
     for name in cli_arrays:
         assert_same_array(py_arrays[name], cli_arrays[name], name)
         # The in-memory maps are the saved ones.
