@@ -615,7 +615,7 @@ fn filter_with_gram(
     let high = match params.high {
         RankCut::Off => frames,
         RankCut::Fixed(k) => k,
-        RankCut::Auto => auto_high(eigenvalues, pixels),
+        RankCut::Auto => auto_high(eigenvalues, spectrum.median, pixels),
         RankCut::Similarity => similar.map_or(frames, |(_, high)| high),
     };
     if low >= high || high > frames {
@@ -1004,13 +1004,13 @@ fn two_square_fits(similarity: &Mat<f64>) -> Vec<(f64, usize)> {
         .collect()
 }
 
-fn auto_high(eigenvalues: &[f64], pixels: usize) -> usize {
+/// The noise cut-off: the components above the Marchenko–Pastur edge of white noise whose
+/// variance the `median` of the (all) `eigenvalues` gives, at least one.
+fn auto_high(eigenvalues: &[f64], median: f64, pixels: usize) -> usize {
     let n = eigenvalues.len();
-    let mut sorted = eigenvalues.to_vec();
-    sorted.sort_by(|a, b| a.total_cmp(b));
     // For white noise of variance σ², eigenvalues of SᴴS spread over P σ² (1 ± √(N/P))².
     let ratio = (n as f64 / pixels as f64).sqrt();
-    let sigma2_p = sorted[n / 2] / (1.0 + ratio * ratio).max(1.0);
+    let sigma2_p = median / (1.0 + ratio * ratio).max(1.0);
     let edge = sigma2_p * (1.0 + ratio).powi(2) * 1.05;
     let signal = eigenvalues.iter().take_while(|&&v| v > edge).count();
     signal.max(1)
