@@ -37,7 +37,7 @@ pub fn analyse(
     let angles = images.angles.clone();
     let n = angles.len();
     let mut timings = Vec::new();
-    let bmode_db = beamform::bmode_db(beamform::compound(&images.series)?.view());
+    let bmode_db = beamform::bmode_db(beamform::compounded(&images.series)?.view());
     let clock = Instant::now();
     let mut reports = Vec::with_capacity(n);
     for (k, image) in images.series.iter_mut().enumerate() {
@@ -155,12 +155,19 @@ pub fn moments(
             Ok(m)
         })
         .collect::<Result<Vec<_>>>()?;
-    let compound = beamform::compound(&images.series)?;
-    let compound = doppler::moments(
-        compound.slice(ndarray::s![.., .., range]),
-        params.doppler_estimator,
-        &doppler_geometry(images, &params.grid, None),
-    )?;
+    let compound = match per_angle.as_slice() {
+        // One angle is its own compound: the sum of one series, measured with the same echo
+        // path's weights.
+        [only] => Moments {
+            cell: None,
+            ..only.clone()
+        },
+        _ => doppler::moments(
+            beamform::compounded(&images.series)?.slice(ndarray::s![.., .., range]),
+            params.doppler_estimator,
+            &doppler_geometry(images, &params.grid, None),
+        )?,
+    };
     Ok((per_angle, compound))
 }
 

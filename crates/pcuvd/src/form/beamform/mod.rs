@@ -32,6 +32,8 @@ mod portable;
 mod taps;
 mod tiling;
 
+use std::borrow::Cow;
+
 use ndarray::{Array3, ArrayView3, ArrayViewMut3, Axis};
 use num_complex::Complex32;
 
@@ -125,6 +127,14 @@ pub fn compound(images: &[Array3<Complex32>]) -> Result<Array3<Complex32>> {
             .par_for_each(|s, &v| *s += v);
     }
     Ok(sum)
+}
+
+/// [`compound`], borrowing the one image of a single angle instead of copying it.
+pub fn compounded(images: &[Array3<Complex32>]) -> Result<Cow<'_, Array3<Complex32>>> {
+    match images {
+        [only] => Ok(Cow::Borrowed(only)),
+        _ => compound(images).map(Cow::Owned),
+    }
 }
 
 /// B-mode image in dB (0 dB at the brightest pixel) of the mean envelope over frames of `image` (nz, nx, frames).
