@@ -14,6 +14,7 @@ use pcuvd_render::{
     Colormap, Figure, ImagePanel, Marker, Panel, PlotPanel, Polyline, Series, SeriesStyle,
     VectorOverlay, render_png_bytes,
 };
+use rayon::prelude::*;
 
 mod series;
 pub use series::*;
@@ -266,15 +267,15 @@ fn bmode_panel(out: &ProcessOutput) -> Result<(ImagePanel, (u32, u32))> {
 /// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
 pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
     let grid = &out.grid;
-    let mut written = Vec::new();
+    // Each figure is drawn and compressed on its own core: (file name, title, panels, columns).
+    let mut figures: Vec<(&str, String, Vec<Panel>, usize)> = Vec::new();
     let (bmode, size) = bmode_panel(out)?;
-    written.push(save(
-        &dir.join("bmode.png"),
-        &format!("{name}: B-mode"),
+    figures.push((
+        "bmode.png",
+        format!("{name}: B-mode"),
         vec![Panel::Image(bmode)],
         1,
-        size,
-    )?);
+    ));
 
     let pd = map_panel(
         "Power Doppler",
@@ -284,13 +285,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         (-40.0, 0.0),
         "dB",
     );
-    written.push(save(
-        &dir.join("power_doppler.png"),
-        &format!("{name}: power Doppler"),
+    figures.push((
+        "power_doppler.png",
+        format!("{name}: power Doppler"),
         vec![Panel::Image(pd)],
         1,
-        size,
-    )?);
+    ));
 
     // Signed power Doppler: the power's level above −40 dB re peak, signed by the flow's axial
     // direction (red toward the probe, as the colour Doppler), so that brightness is power and
@@ -316,13 +316,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         (-floor_db, floor_db),
         "dB above -40 dB re peak; red: toward the probe",
     );
-    written.push(save(
-        &dir.join("signed_power_doppler.png"),
-        &format!("{name}: signed power Doppler"),
+    figures.push((
+        "signed_power_doppler.png",
+        format!("{name}: signed power Doppler"),
         vec![Panel::Image(spd)],
         1,
-        size,
-    )?);
+    ));
 
     let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::FLOW_FIGURE_DB);
     let background = bmode_background(&out.bmode_db);
@@ -339,13 +338,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     );
     cd.mask = Some(mask.clone());
     cd.background = Some(background.clone());
-    written.push(save(
-        &dir.join("color_doppler.png"),
-        &format!("{name}: colour Doppler"),
+    figures.push((
+        "color_doppler.png",
+        format!("{name}: colour Doppler"),
         vec![Panel::Image(cd)],
         1,
-        size,
-    )?);
+    ));
 
     if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
         let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::VECTOR_FIGURE_DB);
@@ -358,26 +356,17 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         .into_iter()
         .map(|(title, field)| vector_panel(title, field, grid, &mask, &background, vmax))
         .collect();
-        written.push(save(
-            &dir.join("vector.png"),
-            &format!("{name}: vector Doppler"),
-            panels,
-            2,
-            size,
-        )?);
+        figures.push(("vector.png", format!("{name}: vector Doppler"), panels, 2));
     }
     if let Some(done) = &out.maps.dealias {
-        written.push(save(
-            &dir.join("dealias.png"),
-            &format!(
+        figures.push(("dealias.png", format!(
                 "{name}: dealiasing (K = {}, up to {:.0} mm/s): {} of {} flow pixels unwrapped (UVD), {} (PC-UVD)",
                 done.intervals,
                 (2 * done.intervals + 1) as f64 * out.maps.nyquist_velocity * 1e3,
                 done.ls.unwrapped_pixels,
                 done.flow_pixels,
                 done.irls.unwrapped_pixels,
-            ),
-            vec![
+            ), vec![
                 alias_panel("UVD (least squares)", &done.ls, done.intervals, out, &background),
                 alias_panel(
                     "PC-UVD estimator (IRLS-WLS)",
@@ -386,12 +375,12 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
                     out,
                     &background,
                 ),
-            ],
-            2,
-            size,
-        )?);
+            ], 2));
     }
-    Ok(written)
+    figures
+        .into_par_iter()
+        .map(|(file, title, panels, ncols)| save(&dir.join(file), &title, panels, ncols, size))
+        .collect()
 }
 
 /// `clutter_blocks.png`, the block-wise clutter filter's cut-offs where they applied: the B-mode
