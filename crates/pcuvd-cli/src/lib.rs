@@ -46,11 +46,15 @@ enum Command {
 /// Runs the `pcuvd` command on the process's own arguments; the exit code to return.
 pub fn main() -> ExitCode {
     // A reader that closes the pipe early (`pcuvd info … | head`) ends the process quietly, as
-    // it does any Unix tool; Rust ignores SIGPIPE, and the next line printed would panic.
+    // it does any Unix tool (Rust ignores SIGPIPE, and the next line printed would panic), and,
+    // as Ctrl-C does, without leaving the temporary files of writes in progress.
     #[cfg(unix)]
-    // SAFETY: restoring a signal's default disposition at start-up, before any thread runs.
+    // SAFETY: installing a handler at start-up, before any thread runs.
     unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        libc::signal(
+            libc::SIGPIPE,
+            on_closed_pipe as extern "C" fn(libc::c_int) as libc::sighandler_t,
+        );
     }
     let cli = Cli::parse();
     progress::set_quiet(cli.quiet);
@@ -78,6 +82,21 @@ pub fn main() -> ExitCode {
             eprintln!("error: {}", one_line(&error));
             ExitCode::from(ERROR_EXIT_CODE)
         }
+    }
+}
+
+/// Removes the temporary files of writes in progress, then ends the process by SIGPIPE, as the
+/// signal's default would have. SIGPIPE is raised in the thread whose write met the closed pipe,
+/// inside that write (a line printed), never inside the allocator or the list of those files,
+/// so the removal runs as it would anywhere else in that thread.
+#[cfg(unix)]
+extern "C" fn on_closed_pipe(_: libc::c_int) {
+    pcuvd_io::remove_partial_files();
+    // SAFETY: restoring the default disposition and raising the signal again, which is blocked
+    // until this handler returns and then ends the process.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        libc::raise(libc::SIGPIPE);
     }
 }
 

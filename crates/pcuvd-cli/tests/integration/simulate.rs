@@ -561,3 +561,47 @@ fn bench_counts_a_scenarios_echoes() {
     let (ok, _, stderr) = pcuvd(&["bench", "--scenario", "rat-heart"]);
     assert!(!ok && stderr.contains("rat-brain"), "{stderr}");
 }
+
+/// A `simulate` whose reader closes the pipe ends at its next line printed, as a Unix tool does,
+/// and leaves no temporary file of the recordings it was writing (both modes' writers are open
+/// when the first one's "wrote" line meets the closed pipe).
+#[cfg(unix)]
+#[test]
+fn a_closed_pipe_leaves_no_partial_files() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sim");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args([
+            "simulate",
+            "--preset",
+            "paper-spiral",
+            "--mode",
+            "both",
+            "--frames",
+            "2",
+        ])
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(result.status.signal(), Some(libc::SIGPIPE), "{stderr}");
+    let left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        left.iter().all(|name| !name.ends_with(".part")),
+        "temporary files left: {left:?}"
+    );
+    // The first recording was complete when its line met the closed pipe; the second was not.
+    assert!(left.contains(&"conventional.npy".to_string()), "{left:?}");
+    assert!(!left.contains(&"coded.npy".to_string()), "{left:?}");
+}
