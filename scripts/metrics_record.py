@@ -27,8 +27,13 @@ def this_cpu() -> str:
     instances of one model name differ (an AMD EPYC with or without AVX-512), and the
     beamformer's speed follows the vector width."""
     lines = Path("/proc/cpuinfo").read_text().splitlines()
-    model = next((line.split(":", 1)[1].strip() for line in lines
-                  if line.startswith("model name")), "unknown")
+    def field(name: str) -> str | None:
+        return next((line.split(":", 1)[1].strip() for line in lines
+                     if line.split(":", 1)[0].strip() == name), None)
+    model = field("model name") or "unknown"
+    # Virtual machines often report a generic name: the family and model tell generations apart.
+    if field("cpu family") and field("model"):
+        model += f", family {field('cpu family')} model {field('model')}"
     flags = next((line.split(":", 1)[1].split() for line in lines
                   if line.startswith("flags")), [])
     vectors = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else None

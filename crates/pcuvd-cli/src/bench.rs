@@ -55,11 +55,21 @@ pub struct BenchArgs {
 /// The CPU's model name and the instruction sets that matter here, from /proc/cpuinfo.
 fn cpu() -> (String, Vec<&'static str>, usize) {
     let text = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
-    let model = text
-        .lines()
-        .find(|l| l.starts_with("model name"))
-        .and_then(|l| l.split(':').nth(1))
-        .map_or_else(|| "unknown".to_string(), |m| m.trim().to_string());
+    let field = |name: &str| {
+        text.lines()
+            .find(|l| l.split(':').next().map(str::trim) == Some(name))
+            .and_then(|l| l.split(':').nth(1))
+            .map(|v| v.trim().to_string())
+    };
+    // Virtual machines often report a generic name ("Intel(R) Xeon(R) Processor"): the family
+    // and model numbers tell one generation from another.
+    let model = match (field("model name"), field("cpu family"), field("model")) {
+        (Some(name), Some(family), Some(model)) => {
+            format!("{name}, family {family} model {model}")
+        }
+        (Some(name), _, _) => name,
+        _ => "unknown".to_string(),
+    };
     let flags: Vec<&str> = text
         .lines()
         .find(|l| l.starts_with("flags"))
