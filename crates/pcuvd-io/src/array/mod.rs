@@ -317,12 +317,30 @@ impl StoredArray {
             Backing::Values { real, imag } => {
                 let mut re = Vec::with_capacity(n);
                 let mut im = Vec::with_capacity(if complex { n } else { 0 });
-                for_each_index(&self.shape, self.fortran, ranges, order, |i| {
-                    re.push(real.get(i).copied().unwrap_or(0.0) as f32);
-                    if let Some(imag) = imag {
-                        im.push(imag.get(i).copied().unwrap_or(0.0) as f32);
-                    }
-                });
+                // A row contiguous in storage (MATLAB's samples, the fastest axis) converts as a
+                // slice, which vectorises; other rows element by element.
+                let row_into = |out: &mut Vec<f32>, values: &[f64], first, stride, count| match (
+                    stride,
+                    values.get(first..first + count),
+                ) {
+                    (1, Some(row)) => out.extend(row.iter().map(|&v| v as f32)),
+                    _ => out
+                        .extend((0..count).map(|i| {
+                            values.get(first + i * stride).copied().unwrap_or(0.0) as f32
+                        })),
+                };
+                for_each_row(
+                    &self.shape,
+                    self.fortran,
+                    ranges,
+                    order,
+                    |first, stride, count| {
+                        row_into(&mut re, real, first, stride, count);
+                        if let Some(imag) = imag {
+                            row_into(&mut im, imag, first, stride, count);
+                        }
+                    },
+                );
                 finish(&counts, re, complex.then_some(im))
             }
             Backing::Bytes { bytes, little } => {
@@ -424,6 +442,23 @@ fn for_each_index(
     order: &[usize],
     mut f: impl FnMut(usize),
 ) {
+    for_each_row(shape, fortran, ranges, order, |first, stride, count| {
+        for i in 0..count {
+            f(first + i * stride);
+        }
+    });
+}
+
+/// [`for_each_index`] a row of the selection's innermost axis at a time: `f(first, stride,
+/// count)` for the storage indices first, first + stride, … (`count` of them), so that a row
+/// lying contiguous in storage can be converted as one slice.
+fn for_each_row(
+    shape: &[usize],
+    fortran: bool,
+    ranges: &[Range<usize>],
+    order: &[usize],
+    mut f: impl FnMut(usize, usize, usize),
+) {
     let nd = shape.len();
     // Stride of each axis in storage.
     let mut strides = vec![1usize; nd];
@@ -446,14 +481,17 @@ fn for_each_index(
         let base: usize = idx.iter().zip(&strides).map(|(i, s)| i * s).sum();
         // Innermost axis in a tight loop.
         if nd == 0 {
-            f(base);
+            f(base, 1, 1);
             return;
         }
         let last = nd - 1;
         let row = base - idx[last] * strides[last];
-        for i in ranges[last].clone() {
-            f(row + i * strides[last]);
-        }
+        let inner = &ranges[last];
+        f(
+            row + inner.start * strides[last],
+            strides[last],
+            inner.len(),
+        );
         // Advance the outer axes.
         let mut k = last;
         loop {

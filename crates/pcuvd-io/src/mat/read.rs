@@ -164,7 +164,7 @@ pub(super) fn parse_mat(bytes: &[u8]) -> Result<MatFile, String> {
                 file.variables.insert(name, value);
             }
             MI_COMPRESSED => {
-                let inflated = inflate(el.data)
+                let inflated = inflate(el.data, big)
                     .map_err(|e| format!("compressed variable at byte {}: {e}", el.offset))?;
                 let mut inner = Reader::new(&inflated, big);
                 while let Some(iel) = inner
@@ -185,13 +185,26 @@ pub(super) fn parse_mat(bytes: &[u8]) -> Result<MatFile, String> {
     Ok(file)
 }
 
-pub(super) fn inflate(data: &[u8]) -> Result<Vec<u8>, String> {
-    let mut out = Vec::new();
+pub(super) fn inflate(data: &[u8], big: bool) -> Result<Vec<u8>, String> {
+    let corrupt = |e: std::io::Error| format!("corrupt zlib data ({e})");
     // A MAT element cannot exceed 4 GiB + its tag: cap what a hostile stream can make us allocate.
-    flate2::read::ZlibDecoder::new(data)
-        .take(u64::from(u32::MAX) + 16)
-        .read_to_end(&mut out)
-        .map_err(|e| format!("corrupt zlib data ({e})"))?;
+    let mut stream = flate2::read::ZlibDecoder::new(data).take(u64::from(u32::MAX) + 16);
+    // The inflated element starts with its tag, which says its size: the output is allocated
+    // once, not grown by doubling (each doubling copies it and faults in new pages). The size
+    // is trusted only as far as deflate can expand the input (at most 1032:1).
+    let mut tag = [0u8; 8];
+    let mut filled = 0;
+    while filled < tag.len() {
+        match stream.read(&mut tag[filled..]).map_err(corrupt)? {
+            0 => break,
+            n => filled += n,
+        }
+    }
+    let declared = u32_from(&tag[4..], big) as usize;
+    let capacity = (declared + 8).min(data.len().saturating_mul(1032) + 64);
+    let mut out = Vec::with_capacity(capacity.max(filled));
+    out.extend_from_slice(&tag[..filled]);
+    stream.read_to_end(&mut out).map_err(corrupt)?;
     Ok(out)
 }
 
