@@ -133,17 +133,36 @@ mod tests {
                     );
                     acc + x.conj() * y
                 });
-            let got = conj_dot(&a, &b);
             // Each product is rounded in f32: a relative error of 2⁻²⁴ per term at most.
             let bound = 1e-7
                 * a.iter()
                     .zip(&b)
                     .map(|(x, y)| (x.norm() * y.norm()) as f64)
                     .sum::<f64>();
-            assert!(
-                (got - expected).norm() <= bound,
-                "len {len}: {got} vs {expected}"
+            // The dispatched path, and each one this CPU can run besides it.
+            let (fa, fb) = (
+                crate::core::buffers::complex_floats(&a),
+                crate::core::buffers::complex_floats(&b),
             );
+            let mut paths = vec![("dispatched", conj_dot(&a, &b))];
+            paths.push(("portable", conj_dot_floats(fa, fb)));
+            #[cfg(target_arch = "x86_64")]
+            {
+                if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx512dq") {
+                    // SAFETY: AVX-512F and DQ were detected.
+                    paths.push(("avx512", unsafe { conj_dot_avx512(fa, fb) }));
+                }
+                if is_x86_feature_detected!("avx2") {
+                    // SAFETY: AVX2 was detected.
+                    paths.push(("avx2", unsafe { conj_dot_avx2(fa, fb) }));
+                }
+            }
+            for (path, got) in paths {
+                assert!(
+                    (got - expected).norm() <= bound,
+                    "{path}, len {len}: {got} vs {expected}"
+                );
+            }
         }
         let x = [Complex32::new(3.0, -4.0), Complex32::new(0.0, 2.0)];
         let y = [Complex32::new(1.0, 2.0), Complex32::new(5.0, 0.0)];
