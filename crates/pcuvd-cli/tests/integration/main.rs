@@ -8,3 +8,19 @@ mod disk;
 mod dynamics;
 mod paper;
 mod simulate;
+
+/// Runs `command` with its standard output a pipe closed before anything is read, as
+/// `pcuvd … | head -0` would; its stderr is kept, and checked for panics.
+#[cfg(unix)]
+fn run_with_stdout_closed(command: &mut std::process::Command) -> std::process::Output {
+    let mut child = command
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    result
+}

@@ -355,13 +355,21 @@ impl Simulator {
             unsafe { self.render_channel_avx2(xe, ev, scratch, trace) };
             return;
         }
-        self.accumulate(
-            xe,
-            ev,
-            &mut scratch.impulses,
-            Insert::Portable,
-            &mut scratch.written,
-        );
+        self.render_with(Insert::Portable, xe, ev, scratch, trace);
+    }
+
+    /// The echoes of `ev` on the element at `xe` (m) into `trace`, inserted by `insert`: the body
+    /// that each compiled variant of [`Self::render_channel`] inlines.
+    #[inline(always)]
+    fn render_with(
+        &self,
+        insert: Insert,
+        xe: f64,
+        ev: &EventScatterers,
+        scratch: &mut Scratch,
+        trace: &mut [f32],
+    ) {
+        self.accumulate(xe, ev, &mut scratch.impulses, insert, &mut scratch.written);
         self.convolve_bands(scratch, trace);
     }
 
@@ -409,14 +417,7 @@ impl Simulator {
         scratch: &mut Scratch,
         trace: &mut [f32],
     ) {
-        self.accumulate(
-            xe,
-            ev,
-            &mut scratch.impulses,
-            Insert::Avx2,
-            &mut scratch.written,
-        );
-        self.convolve_bands(scratch, trace);
+        self.render_with(Insert::Avx2, xe, ev, scratch, trace);
     }
 
     /// [`Self::render_channel_avx2`] compiled for AVX-512 as well, so that the stages over a
@@ -431,14 +432,7 @@ impl Simulator {
         scratch: &mut Scratch,
         trace: &mut [f32],
     ) {
-        self.accumulate(
-            xe,
-            ev,
-            &mut scratch.impulses,
-            Insert::Avx2,
-            &mut scratch.written,
-        );
-        self.convolve_bands(scratch, trace);
+        self.render_with(Insert::Avx2, xe, ev, scratch, trace);
     }
 
     /// Adds every echo of `ev` on the element at `xe` (m) to the Farrow accumulator: an echo whose
