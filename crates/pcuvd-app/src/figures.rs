@@ -359,23 +359,31 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         figures.push(("vector.png", format!("{name}: vector Doppler"), panels, 2));
     }
     if let Some(done) = &out.maps.dealias {
-        figures.push(("dealias.png", format!(
-                "{name}: dealiasing (K = {}, up to {:.0} mm/s): {} of {} flow pixels unwrapped (UVD), {} (PC-UVD)",
+        let title = format!(
+            "{name}: dealiasing (K = {}, up to {:.0} mm/s): {} of {} flow pixels unwrapped (UVD), {} (PC-UVD)",
+            done.intervals,
+            (2 * done.intervals + 1) as f64 * out.maps.nyquist_velocity * 1e3,
+            done.ls.unwrapped_pixels,
+            done.flow_pixels,
+            done.irls.unwrapped_pixels,
+        );
+        let panels = vec![
+            alias_panel(
+                "UVD (least squares)",
+                &done.ls,
                 done.intervals,
-                (2 * done.intervals + 1) as f64 * out.maps.nyquist_velocity * 1e3,
-                done.ls.unwrapped_pixels,
-                done.flow_pixels,
-                done.irls.unwrapped_pixels,
-            ), vec![
-                alias_panel("UVD (least squares)", &done.ls, done.intervals, out, &background),
-                alias_panel(
-                    "PC-UVD estimator (IRLS-WLS)",
-                    &done.irls,
-                    done.intervals,
-                    out,
-                    &background,
-                ),
-            ], 2));
+                out,
+                &background,
+            ),
+            alias_panel(
+                "PC-UVD estimator (IRLS-WLS)",
+                &done.irls,
+                done.intervals,
+                out,
+                &background,
+            ),
+        ];
+        figures.push(("dealias.png", title, panels, 2));
     }
     figures
         .into_par_iter()

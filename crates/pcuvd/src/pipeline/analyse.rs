@@ -163,7 +163,7 @@ pub fn moments(
             ..only.clone()
         },
         _ => doppler::moments(
-            beamform::compounded(&images.series)?.slice(ndarray::s![.., .., range]),
+            beamform::compound(&images.series)?.slice(ndarray::s![.., .., range]),
             params.doppler_estimator,
             &doppler_geometry(images, &params.grid, None),
         )?,
