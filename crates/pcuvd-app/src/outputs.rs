@@ -161,16 +161,84 @@ pub enum Checksum {
     Sha256,
 }
 
+/// A checksum being computed, fed a file's bytes in order (by [`fingerprint`], or by a reader in
+/// its own pass over the file: [`pcuvd_io::ReadPass`]).
+pub struct Digest {
+    hasher: Hasher,
+    /// Whether large pieces are hashed on every core (BLAKE3 hashes a file's parts apart and
+    /// joins them): for a reader's pass, which the processing waits for; not on a thread beside
+    /// the processing, which should take only what the processing leaves idle.
+    on_every_core: bool,
+}
+
+enum Hasher {
+    Blake3(Box<blake3::Hasher>),
+    Sha256(sha2::Sha256),
+}
+
+/// Pieces from this size (bytes) are worth hashing on every core.
+const PARALLEL_HASH_BYTES: usize = 1 << 20;
+
+impl Digest {
+    /// A new checksum of the kind `checksum`, computed on the calling thread.
+    pub fn new(checksum: Checksum) -> Digest {
+        use sha2::Digest as _;
+        let hasher = match checksum {
+            Checksum::Blake3 => Hasher::Blake3(Box::default()),
+            Checksum::Sha256 => Hasher::Sha256(sha2::Sha256::new()),
+        };
+        Digest {
+            hasher,
+            on_every_core: false,
+        }
+    }
+
+    /// A new checksum of the kind `checksum` that hashes large pieces on every core (BLAKE3;
+    /// SHA-256 is sequential by construction).
+    pub fn on_every_core(checksum: Checksum) -> Digest {
+        Digest {
+            on_every_core: true,
+            ..Digest::new(checksum)
+        }
+    }
+}
+
+impl pcuvd_io::ChecksumSink for Digest {
+    fn update(&mut self, bytes: &[u8]) {
+        use sha2::Digest as _;
+        match &mut self.hasher {
+            Hasher::Blake3(hasher) if self.on_every_core && bytes.len() >= PARALLEL_HASH_BYTES => {
+                hasher.update_rayon(bytes);
+            }
+            Hasher::Blake3(hasher) => {
+                hasher.update(bytes);
+            }
+            Hasher::Sha256(hasher) => hasher.update(bytes),
+        }
+    }
+
+    fn hex(self: Box<Self>) -> String {
+        use sha2::Digest as _;
+        match self.hasher {
+            Hasher::Blake3(hasher) => hasher.finalize().to_hex().to_string(),
+            Hasher::Sha256(hasher) => hasher
+                .finalize()
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<String>(),
+        }
+    }
+}
+
 /// Size (bytes) and checksum (hex) of a file, read in 8 MiB blocks: neither the memory nor the
 /// process's resident size grows with the file (a file mapped into memory would count whole in
 /// the resident size that `summary.json` and batch schedulers report).
 pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
-    use sha2::Digest;
+    use pcuvd_io::ChecksumSink;
     use std::io::Read;
     let mut file = std::fs::File::open(path)
         .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
-    let mut blake3 = blake3::Hasher::new();
-    let mut sha256 = sha2::Sha256::new();
+    let mut digest = Box::new(Digest::new(checksum));
     let mut buffer = vec![0u8; 8 << 20];
     let mut size = 0u64;
     loop {
@@ -181,22 +249,9 @@ pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
             break;
         }
         size += n as u64;
-        match checksum {
-            Checksum::Blake3 => {
-                blake3.update(&buffer[..n]);
-            }
-            Checksum::Sha256 => sha256.update(&buffer[..n]),
-        }
+        digest.update(&buffer[..n]);
     }
-    let hex = match checksum {
-        Checksum::Blake3 => blake3.finalize().to_hex().to_string(),
-        Checksum::Sha256 => sha256
-            .finalize()
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect::<String>(),
-    };
-    Ok((size, hex))
+    Ok((size, digest.hex()))
 }
 
 #[cfg(test)]

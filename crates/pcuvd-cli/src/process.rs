@@ -145,19 +145,34 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let provenance_of_run = {
         let (input, info) = (args.input.display().to_string(), opened.info.clone());
         let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
-        move || {
+        move |hashed: Vec<(std::path::PathBuf, pcuvd_io::Checksummed)>| {
             let clock = std::time::Instant::now();
             let command_line = std::env::args().collect();
-            let source = provenance(&input, &info, &options_text, command_line, checksum);
-            source.map(|source| (source, clock.elapsed().as_secs_f64()))
+            let source = provenance(
+                &input,
+                &info,
+                &options_text,
+                command_line,
+                checksum,
+                &hashed,
+            );
+            let hashing_s: f64 = hashed.iter().map(|(_, done)| done.seconds).sum();
+            source.map(|source| (source, hashing_s + clock.elapsed().as_secs_f64()))
         }
     };
-    // The checksums read the whole input on one core (BLAKE3 with SIMD: about a second for 2.8 GB;
-    // SHA-256 without SHA instructions: 10 s): they are needed before any work only to skip a
-    // folder processed before; otherwise they are computed beside the processing, on a thread of
-    // their own that takes only the time the processing leaves idle.
+    // The checksums read the whole input (BLAKE3 with SIMD: about a second of a core for 2.8 GB
+    // through the page cache, half of it the copy; SHA-256 without SHA instructions: 10 s). They
+    // are needed before any work only to skip a folder processed before. Otherwise a reader that
+    // reads its samples file block by block hashes each block with BLAKE3 as it reads it, on
+    // every core, so that the file is not read twice. Other inputs, and SHA-256 (sequential: in
+    // the reader's pass it would hold the other core idle), are hashed beside the processing, on
+    // a thread of their own that takes only the time the processing leaves idle.
+    let in_pass = opened
+        .read_pass
+        .clone()
+        .filter(|_| args.checksum == outputs::Checksum::Blake3);
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
-        let (source, seconds) = provenance_of_run()?;
+        let (source, seconds) = provenance_of_run(vec![])?;
         if already_done(&args.out, &source) {
             println!(
                 "{}: already processed from the same input (checksums) with the same options and \
@@ -167,10 +182,13 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             return Ok(());
         }
         Checksums::Done(Box::new(source), seconds)
+    } else if let Some(pass) = in_pass {
+        pass.attach(Box::new(outputs::Digest::on_every_core(args.checksum)));
+        Checksums::InPass(pass, Box::new(provenance_of_run))
     } else {
         Checksums::Running(std::thread::spawn(move || {
             lower_this_threads_priority();
-            provenance_of_run()
+            provenance_of_run(vec![])
         }))
     };
     outputs::prepare(
@@ -210,6 +228,11 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     }
     let (source, checksum_s) = match checksums {
         Checksums::Done(source, seconds) => (*source, seconds),
+        Checksums::InPass(pass, provenance_of_run) => {
+            let cannot = || format!("{}: cannot read for its checksum", pass.path().display());
+            let done = pass.finish().with_context(cannot)?.with_context(cannot)?;
+            provenance_of_run(vec![(pass.path().to_path_buf(), done)])?
+        }
         Checksums::Running(thread) => thread
             .join()
             .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
@@ -241,10 +264,16 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     Ok(())
 }
 
-/// The input's provenance with its checksums, and the seconds they took: computed, or being
+/// What makes the input's provenance from the checksums the reader computed in its pass.
+type ProvenanceOfRun =
+    dyn FnOnce(Vec<(std::path::PathBuf, pcuvd_io::Checksummed)>) -> Result<(Provenance, f64)>;
+
+/// The input's provenance with its checksums, and the seconds they took: computed, being computed
+/// by the reader as it reads the samples file (the other files hashed at the end), or being
 /// computed beside the processing.
 enum Checksums {
     Done(Box<Provenance>, f64),
+    InPass(pcuvd_io::ReadPass, Box<ProvenanceOfRun>),
     Running(std::thread::JoinHandle<Result<(Provenance, f64)>>),
 }
 

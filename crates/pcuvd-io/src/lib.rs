@@ -14,7 +14,8 @@
 //!   read and write), [`datafile`] (a manifest's samples file), [`container`] (what a file's first
 //!   bytes say it is), [`mat`] (a MATLAB v5 MAT-file reader and a small writer), [`mat73`],
 //!   [`hdf5`], [`npz`], [`array`](mod@array), [`layout`];
-//! - beside them: [`cardiac`] (cardiac cycle start times recorded beside a recording), [`npy`]
+//! - beside them: [`read_pass`] (a samples file fed to a checksum as its blocks are read),
+//!   [`cardiac`] (cardiac cycle start times recorded beside a recording), [`npy`]
 //!   (thin `.npy`/JSON writers for results), [`paths`] (what a path names, said before it is
 //!   opened).
 //!
@@ -37,6 +38,7 @@ pub mod npz;
 pub mod open;
 pub mod params;
 pub mod paths;
+pub mod read_pass;
 pub mod readers;
 pub mod recording;
 
@@ -59,4 +61,5 @@ pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
 pub use open::{open_recording, read_must_mat};
 pub use params::{Overrides, ParamSource, Parameter};
 pub use paths::check_regular_file;
+pub use read_pass::{ChecksumSink, Checksummed, ReadPass};
 pub use recording::{OpenedRecording, SourceInfo, StoredSamples};

@@ -140,6 +140,9 @@ pub struct OpenedRecording {
     pub source: Box<dyn FrameSource + Send>,
     /// Files, format, reader, parameters and their sources, warnings.
     pub info: SourceInfo,
+    /// The hook through which the reader feeds one of `info.files` to a checksum as it reads its
+    /// blocks, when it reads that file in order block by block; `None` otherwise.
+    pub read_pass: Option<crate::ReadPass>,
 }
 
 impl std::fmt::Debug for OpenedRecording {

@@ -103,6 +103,7 @@ impl PyProcessResult {
             &self.plan.options_text,
             vec![format!("python: pcuvd.process({:?})", self.input)],
             pcuvd_app::outputs::Checksum::default(),
+            &[],
         )
     }
 }

@@ -110,19 +110,24 @@ pub fn save(
 
 /// Where the results came from: pcuvd's version, the command line, every input file with its
 /// size and `checksum`, the format and the reader that read it (as the reader reports them), every
-/// acquisition parameter with its source, the reader's warnings, and the options.
+/// acquisition parameter with its source, the reader's warnings, and the options. Files in
+/// `hashed` (by the reader, in its pass over them) keep that checksum; the others are read for it.
 pub fn provenance(
     input: &str,
     info: &pcuvd_io::SourceInfo,
     options_text: &str,
     command_line: Vec<String>,
     checksum: outputs::Checksum,
+    hashed: &[(std::path::PathBuf, pcuvd_io::Checksummed)],
 ) -> Result<Provenance> {
     let files = info
         .files
         .iter()
         .map(|path| {
-            let (size, hex) = outputs::fingerprint(path, checksum)?;
+            let (size, hex) = match hashed.iter().find(|(file, _)| file == path) {
+                Some((_, done)) => (done.size_bytes, done.hex.clone()),
+                None => outputs::fingerprint(path, checksum)?,
+            };
             Ok(FileRecord::new(
                 path.display().to_string(),
                 size,

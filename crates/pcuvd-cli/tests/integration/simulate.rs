@@ -600,3 +600,88 @@ fn a_closed_pipe_leaves_no_partial_files() {
     assert!(left.contains(&"conventional.npy".to_string()), "{left:?}");
     assert!(!left.contains(&"coded.npy".to_string()), "{left:?}");
 }
+
+/// A recording read a block of frames at a time is identified in the reader's own pass over its
+/// samples file (BLAKE3; SHA-256 on a thread beside): whatever the blocks (overlapping ensembles,
+/// frames no ensemble reads), the checksums in `summary.json` are those of the whole file, as
+/// b3sum's and sha256sum's.
+#[test]
+fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("sim");
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "simulate",
+        "--preset",
+        "tube",
+        "--mode",
+        "coded",
+        "--frames",
+        "14",
+        "--angles",
+        "4",
+        "--out",
+        sim.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let samples = std::fs::read(sim.join("coded.npy")).unwrap();
+    let blake3 = blake3::hash(&samples).to_hex().to_string();
+    let coreutils = Command::new("sha256sum")
+        .arg(sim.join("coded.npy"))
+        .output()
+        .unwrap();
+    let sha256 = String::from_utf8_lossy(&coreutils.stdout)
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string();
+    let blocks: [&[&str]; 3] = [
+        &[],
+        // Four segments, one block each.
+        &["--segment-frames", "4", "--ensemble-frames", "4"],
+        // Ensembles of 5 frames every 4: blocks overlap, and the last frame is never read.
+        &["--ensemble-frames", "5", "--ensemble-step", "4"],
+    ];
+    for (run, options) in blocks.iter().enumerate() {
+        for (checksum, expected) in [("blake3", &blake3), ("sha256", &sha256)] {
+            let out = dir.path().join(format!("out-{run}-{checksum}"));
+            let manifest = sim.join("coded.toml");
+            let fixed = [
+                "--quiet",
+                "process",
+                manifest.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--grid=-2,2,6,10,0.08",
+                "--svd-low",
+                "off",
+                "--dynamics",
+                "off",
+                "--checksum",
+                checksum,
+            ];
+            let (ok, _, stderr) = pcuvd(&[&fixed[..], options].concat());
+            assert!(ok, "{stderr}");
+            let summary: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                    .unwrap();
+            let source = &summary["source"];
+            assert!(
+                source["reader"]
+                    .as_str()
+                    .unwrap()
+                    .starts_with("pcuvd_io::ManifestFrames"),
+                "{source}"
+            );
+            let file = &source["files"][1];
+            assert!(file["path"].as_str().unwrap().ends_with("coded.npy"));
+            assert_eq!(file["size_bytes"].as_u64(), Some(samples.len() as u64));
+            assert_eq!(
+                file[checksum].as_str(),
+                Some(expected.as_str()),
+                "{options:?}"
+            );
+            assert!(summary["timings_s"]["checksum"].as_f64().unwrap() > 0.0);
+        }
+    }
+}

@@ -588,6 +588,7 @@ fn build(
     }
     let opened = OpenedRecording {
         source: Box::new(frames),
+        read_pass: None,
         info: SourceInfo {
             files: vec![path.to_path_buf()],
             format: format.into(),

@@ -288,6 +288,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let frames = ArrayFrames::new(path, acquisition, array, axes, demod)?;
     Ok(OpenedRecording {
         source: Box::new(frames),
+        read_pass: None,
         info: SourceInfo {
             files: vec![path.to_path_buf()],
             format: "USTB UFF channel data (HDF5)".into(),

@@ -516,6 +516,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     };
     Ok(OpenedRecording {
         source: Box::new(frames),
+        read_pass: None,
         info: SourceInfo {
             files: vec![path.to_path_buf()],
             format: "Verasonics workspace (MATLAB v7.3)".into(),

@@ -57,6 +57,8 @@ pub struct ManifestFrames {
     demod: Option<f64>,
     /// (events, channels, samples).
     shape: (usize, usize, usize),
+    /// Where the bytes read are offered to a checksum of the samples file.
+    pass: crate::ReadPass,
 }
 
 impl ManifestFrames {
@@ -141,17 +143,24 @@ impl ManifestFrames {
         }
         Ok(Some(ManifestFrames {
             acquisition: parsed.acquisition,
-            data_path,
+            data_path: data_path.clone(),
             data_offset,
             stored,
             demod: parsed.demod,
             shape,
+            pass: crate::ReadPass::new(&data_path),
         }))
     }
 
     /// The samples file.
     pub fn data_path(&self) -> &Path {
         &self.data_path
+    }
+
+    /// The hook that feeds the samples file to a checksum as its blocks are read: the file is
+    /// hashed in the reader's own pass over its bytes, not read a second time.
+    pub fn read_pass(&self) -> &crate::ReadPass {
+        &self.pass
     }
 
     /// The stored values of `events`, in the file's type: read straight into their array (no
@@ -192,6 +201,7 @@ impl ManifestFrames {
             file.seek(SeekFrom::Start(start))?;
             file.read_exact(bytes)?;
         }
+        self.pass.offer(start, bytes);
         if cfg!(target_endian = "big") {
             // The file is little-endian.
             values

@@ -219,6 +219,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
     {
         info.reader = "pcuvd_io::ManifestFrames (a block of frames at a time)".into();
         return Ok(OpenedRecording {
+            read_pass: Some(frames.read_pass().clone()),
             source: Box::new(frames),
             info,
         });
@@ -252,6 +253,7 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
     .into();
     Ok(OpenedRecording {
         source: Box::new(frames),
+        read_pass: None,
         info,
     })
 }
