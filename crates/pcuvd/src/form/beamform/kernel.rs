@@ -142,6 +142,7 @@ mod tests {
             let data = iq.data.as_slice().unwrap();
             let setup = Setup {
                 element_x: vec![0.0; channels],
+                padded_x: vec![0.0; channels],
                 sorted: true,
                 angle: 0.0,
                 aperture: (0.0, 0.0),
@@ -159,7 +160,7 @@ mod tests {
             // second reads the last sample pair of its element.
             let mut taps = Taps::default();
             for (n, offset) in [(4, 3), (3, 38)] {
-                let start = taps.push(n, 1);
+                let start = taps.push(n, 0, 1);
                 for k in 0..n {
                     let i0 = (k * 9 + offset).min(samples - 2);
                     taps.rows[start + k] = ((1 + k) * samples + i0) as u32;

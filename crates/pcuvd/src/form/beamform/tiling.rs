@@ -8,7 +8,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 
 use super::kernel::{Kernel, frame_chunks};
-use super::taps::{Setup, Taps};
+use super::taps::{Setup, TAP_LANES, Taps};
 use super::{Apodization, DasParams};
 use crate::acquisition::probe::Probe;
 use crate::core::error::{Error, Result, require_positive};
@@ -177,9 +177,16 @@ impl Setup {
     fn new(iq: &IqChannels, probe: &Probe, angle: f64, params: &DasParams) -> Setup {
         let element_x = probe.element_x();
         let sorted = element_x.windows(2).all(|w| w[0] <= w[1]);
+        let last = element_x.last().copied().unwrap_or(0.0);
+        let padded_x = element_x
+            .iter()
+            .copied()
+            .chain(std::iter::repeat_n(last, TAP_LANES - 1))
+            .collect();
         let (_, n_samples, frames) = iq.data.dim();
         Setup {
             element_x,
+            padded_x,
             sorted,
             angle,
             aperture: probe.aperture(),
@@ -218,9 +225,10 @@ impl Setup {
             (elements.start, elements.end)
         };
         let len = end - first;
-        let start = taps.push(len, first);
-        let span = start..start + len;
-        let element_x = &self.element_x[first..end];
+        let padded = len.next_multiple_of(TAP_LANES);
+        let start = taps.push(len, padded - len, first);
+        let span = start..start + padded;
+        let element_x = &self.padded_x[first..first + padded];
         let out = TapsMut {
             rows: &mut taps.rows[span.clone()],
             c0_re: &mut taps.c0_re[span.clone()],
@@ -240,6 +248,7 @@ impl Setup {
             Kernel::Avx2 => unsafe { self.taps_avx2(x, z, half_aperture, first, element_x, out) },
             Kernel::Portable => self.taps_portable(x, z, half_aperture, first, element_x, out),
         }
+        taps.drop_scratch();
     }
 
     /// The same code as [`Setup::taps_portable`], compiled for AVX2 so that the element loop is
@@ -304,10 +313,13 @@ impl Setup {
             let pos = (tau - self.t0) * self.fs;
             let valid = dx <= half_aperture && pos >= 0.0 && pos < last;
             let pos = if valid { pos } else { 0.0 };
-            let i = pos as i32;
+            // SAFETY: 0 ≤ pos < last < 2³¹ here, and NaN fails `valid`: the conversion is
+            // exact truncation. (`as` saturates, which no x86 instruction does for packed
+            // lanes: the loop took each lane out of its vector to convert it.)
+            let i: i32 = unsafe { pos.to_int_unchecked() };
             let w = pos - i as f64;
-            // A no-op, as 0 ≤ pos < last here (and NaN fails `valid`), which makes the
-            // invariant of `Taps` hold by construction whatever the inputs.
+            // A no-op, as 0 ≤ pos < last here, which makes the invariant of `Taps` hold by
+            // construction whatever the inputs.
             let i = i.clamp(0, n_samples as i32 - 2) as u32;
             // Hann: ½(1 + cos(π dx / h)), i.e. the cosine of dx / 2h cycles.
             let apod = if hann {
@@ -319,7 +331,8 @@ impl Setup {
             let (cos, sin) = cis_cycles(self.demod_frequency * tau);
             let (re, im) = (apod * cos, apod * sin);
             let (w0, w1) = ((1.0 - w) as f32, w as f32);
-            rows[k] = first_row + k as u32 * n_samples + i;
+            // Wrapping: the scratch taps after a pixel's last may lie past the last row.
+            rows[k] = first_row.wrapping_add((k as u32).wrapping_mul(n_samples).wrapping_add(i));
             c0_re[k] = re * w0;
             c0_im[k] = im * w0;
             c1_re[k] = re * w1;
