@@ -57,7 +57,7 @@ fn poisoned(what: &str) -> anyhow::Error {
 }
 
 /// Samples a simulation holds in memory at once per mode (bytes): [`Simulation::in_blocks`]
-/// simulates blocks of frames this large.
+/// simulates blocks of frames half this large, one being written while the next is simulated.
 pub const BLOCK_BYTES: usize = 256 << 20;
 
 /// How a simulation's echoes compare (see [`Simulation::echo_levels`]).
@@ -309,23 +309,30 @@ impl Simulation {
         self.simulate_block(index, events, progress)
     }
 
-    /// Every recording, simulated a block of frames at a time (at most [`BLOCK_BYTES`] of
+    /// Every recording, simulated a block of frames at a time (at most half [`BLOCK_BYTES`] of
     /// samples per mode), the modes in turn: memory stays bounded whatever the recording's
     /// length, the tissue's keyframes serve every mode, and the samples are those of one
     /// whole-recording simulation. `sink(mode index, events, samples)` takes each block in
-    /// order; `progress(events done, events in all)`.
+    /// order, on a thread of its own while the next block is simulated (a block being written and
+    /// one being simulated: at most [`BLOCK_BYTES`] in all); `progress(events done, events in
+    /// all)`.
     pub fn in_blocks(
         &self,
-        mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()>,
+        mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()> + Send,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<()> {
+        let budget = BLOCK_BYTES / 2;
         let frame_bytes = self
             .modes
             .iter()
             .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
             .max()
             .unwrap_or(1);
-        let mut block = (BLOCK_BYTES / frame_bytes.max(1)).max(1);
+        // A short recording in a few blocks too, so that writing one overlaps simulating the
+        // next and only the last block's write is left at the end.
+        let mut block = (budget / frame_bytes.max(1))
+            .min(self.frames.div_ceil(4))
+            .max(1);
         // Blood at keyframes holds its keyframes beside each block's samples.
         if let Some(keyframed) = &self.blood_keyframes {
             let keyframed = keyframed
@@ -341,7 +348,7 @@ impl Simulation {
                     .max()
                     .unwrap_or(0)
             };
-            while block > 1 && bytes(block) > BLOCK_BYTES {
+            while block > 1 && bytes(block) > budget {
                 block = (block * 3 / 4).max(1);
             }
         }
@@ -350,21 +357,41 @@ impl Simulation {
             .iter()
             .map(|(_, p)| self.frames * p.sequence.n_angles())
             .sum();
-        let mut done = 0;
-        for first in (0..self.frames).step_by(block) {
-            let last = (first + block).min(self.frames);
-            for (index, (_, params)) in self.modes.iter().enumerate() {
-                let n = params.sequence.n_angles();
-                let events = first * n..last * n;
-                let start = events.start;
-                let samples = self.events(index, events.clone(), &|event, _| {
-                    progress(done + event - start, total)
-                })?;
-                done += events.len();
-                sink(index, events, samples)?;
-            }
-        }
-        Ok(())
+        std::thread::scope(|scope| {
+            // A rendezvous: a block is handed over only when the writer is done with the last.
+            let (blocks, to_write) = std::sync::mpsc::sync_channel(0);
+            let writer = scope.spawn(move || -> Result<()> {
+                for (index, events, samples) in to_write {
+                    sink(index, events, samples)?;
+                }
+                Ok(())
+            });
+            let simulated = (|| -> Result<()> {
+                let mut done = 0;
+                for first in (0..self.frames).step_by(block) {
+                    let last = (first + block).min(self.frames);
+                    for (index, (_, params)) in self.modes.iter().enumerate() {
+                        let n = params.sequence.n_angles();
+                        let events = first * n..last * n;
+                        let start = events.start;
+                        let samples = self.events(index, events.clone(), &|event, _| {
+                            progress(done + event - start, total)
+                        })?;
+                        done += events.len();
+                        if blocks.send((index, events, samples)).is_err() {
+                            // The writer stopped on an error, which it reports.
+                            return Ok(());
+                        }
+                    }
+                }
+                Ok(())
+            })();
+            drop(blocks);
+            let written = writer
+                .join()
+                .map_err(|_| anyhow::anyhow!("the thread writing the recordings failed"))?;
+            simulated.and(written)
+        })
     }
 
     /// The `[provenance]` a recording of mode `index` carries: simulator, scenario (its source

@@ -240,3 +240,55 @@ fn pulsatile_phantoms_give_their_heartbeats_as_an_ecg_would() {
     let tube = Simulation::of(Scenario::parse(SMALL).unwrap(), "small".into()).unwrap();
     assert_eq!(tube.cardiac_triggers(), None);
 }
+
+/// Blocks handed to the writer thread one after another, in order, make the recording simulated
+/// whole; a writer's error ends the simulation and is the one reported.
+#[test]
+fn blocks_written_beside_the_simulation_make_the_whole_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nine.toml");
+    std::fs::write(&path, SMALL.replace("frames = 1", "frames = 9")).unwrap();
+    let simulation = Simulation::new(&SimulationSettings {
+        scenario: Some(path.to_str().unwrap().into()),
+        ..SimulationSettings::default()
+    })
+    .unwrap();
+    let whole = simulation.recording(0, &|_, _| {}).unwrap();
+    let pcuvd::Samples::Rf(whole) = whole.samples else {
+        panic!("RF samples")
+    };
+    let mut blocks = Vec::new();
+    simulation
+        .in_blocks(
+            |index, events, samples| {
+                blocks.push((index, events, samples));
+                Ok(())
+            },
+            &|_, _| {},
+        )
+        .unwrap();
+    // Nine frames in blocks of three (a quarter, rounded up), each in order.
+    let ranges: Vec<_> = blocks.iter().map(|(_, events, _)| events.clone()).collect();
+    assert_eq!(ranges, [0..6, 6..12, 12..18]);
+    let views: Vec<_> = blocks
+        .iter()
+        .map(|(_, _, samples)| samples.view())
+        .collect();
+    assert!(ndarray::concatenate(ndarray::Axis(0), &views).unwrap() == whole);
+
+    let mut written = 0;
+    let error = simulation
+        .in_blocks(
+            |_, _, _| {
+                written += 1;
+                if written == 2 {
+                    anyhow::bail!("disk full")
+                }
+                Ok(())
+            },
+            &|_, _| {},
+        )
+        .unwrap_err();
+    assert_eq!(error.to_string(), "disk full");
+    assert_eq!(written, 2);
+}

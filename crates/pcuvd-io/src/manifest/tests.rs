@@ -352,6 +352,16 @@ fn streamed_recording_equals_the_one_written_at_once() {
         );
     }
     assert_eq!(read_recording(&streamed).unwrap().data, data);
+    // A block not contiguous in memory (column-major) is written value by value, the same bytes.
+    let mut column_major = ndarray::Array3::<f32>::zeros(ndarray::ShapeBuilder::f(samples.dim()));
+    column_major.assign(&samples);
+    let mut writer =
+        RecordingWriter::create(&dir.path().join("e"), "rec", &acq, samples.dim(), &prov).unwrap();
+    writer.append(column_major.view()).unwrap();
+    assert_eq!(
+        std::fs::read(at_once.with_file_name("rec.npy")).unwrap(),
+        std::fs::read(writer.finish().unwrap().with_file_name("rec.npy")).unwrap()
+    );
 
     let folder = dir.path().join("c");
     let mut short = RecordingWriter::create(&folder, "rec", &acq, samples.dim(), &prov).unwrap();

@@ -111,18 +111,29 @@ impl RecordingWriter {
                 ),
             ));
         }
-        if events.iter().any(|v| !v.is_finite()) {
+        // A contiguous block (what the simulator hands over) is checked and written as one slice:
+        // value by value, the writes took the main thread a tenth of a second per 80 MB while the
+        // other cores waited for the next block.
+        let contiguous = events.as_slice().filter(|_| cfg!(target_endian = "little"));
+        let finite = match contiguous {
+            Some(values) => values.iter().all(|v| v.is_finite()),
+            None => events.iter().all(|v| v.is_finite()),
+        };
+        if !finite {
             return Err(IoError::invalid(
                 &self.npy_path,
                 "the samples",
                 "hold NaN or Inf",
             ));
         }
-        for v in events.iter() {
-            self.file
-                .write_all(&v.to_le_bytes())
-                .map_err(|e| IoError::io(&self.partial, "write", e))?;
-        }
+        let written = match contiguous {
+            // Little-endian f32 in memory is the file's '<f4'.
+            Some(values) => self.file.write_all(bytemuck::cast_slice(values)),
+            None => events
+                .iter()
+                .try_for_each(|v| self.file.write_all(&v.to_le_bytes())),
+        };
+        written.map_err(|e| IoError::io(&self.partial, "write", e))?;
         self.written += count;
         Ok(())
     }
