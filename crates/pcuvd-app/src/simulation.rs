@@ -56,8 +56,8 @@ fn poisoned(what: &str) -> anyhow::Error {
     anyhow::anyhow!("{what}: another simulation thread failed")
 }
 
-/// Samples a simulation holds in memory at once per mode (bytes): [`Simulation::in_blocks`]
-/// simulates blocks of frames half this large, one being written while the next is simulated.
+/// Samples of one block of frames of a simulation (bytes): [`Simulation::in_blocks`] holds two
+/// at most, one being written while the next is simulated.
 pub const BLOCK_BYTES: usize = 256 << 20;
 
 /// How a simulation's echoes compare (see [`Simulation::echo_levels`]).
@@ -309,19 +309,18 @@ impl Simulation {
         self.simulate_block(index, events, progress)
     }
 
-    /// Every recording, simulated a block of frames at a time (at most half [`BLOCK_BYTES`] of
+    /// Every recording, simulated a block of frames at a time (at most [`BLOCK_BYTES`] of
     /// samples per mode), the modes in turn: memory stays bounded whatever the recording's
     /// length, the tissue's keyframes serve every mode, and the samples are those of one
     /// whole-recording simulation. `sink(mode index, events, samples)` takes each block in
-    /// order, on a thread of its own while the next block is simulated (a block being written and
-    /// one being simulated: at most [`BLOCK_BYTES`] in all); `progress(events done, events in
-    /// all)`.
+    /// order, on a thread of its own while the next block is simulated (two blocks in memory at
+    /// most); `progress(events done, events in all)`.
     pub fn in_blocks(
         &self,
         mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()> + Send,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<()> {
-        let budget = BLOCK_BYTES / 2;
+        let budget = BLOCK_BYTES;
         let frame_bytes = self
             .modes
             .iter()
