@@ -320,7 +320,6 @@ impl Simulation {
         mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()> + Send,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<()> {
-        let budget = BLOCK_BYTES;
         let frame_bytes = self
             .modes
             .iter()
@@ -329,7 +328,7 @@ impl Simulation {
             .unwrap_or(1);
         // A short recording in a few blocks too, so that writing one overlaps simulating the
         // next and only the last block's write is left at the end.
-        let mut block = (budget / frame_bytes.max(1))
+        let mut block = (BLOCK_BYTES / frame_bytes.max(1))
             .min(self.frames.div_ceil(4))
             .max(1);
         // Blood at keyframes holds its keyframes beside each block's samples.
@@ -347,7 +346,7 @@ impl Simulation {
                     .max()
                     .unwrap_or(0)
             };
-            while block > 1 && bytes(block) > budget {
+            while block > 1 && bytes(block) > BLOCK_BYTES {
                 block = (block * 3 / 4).max(1);
             }
         }
