@@ -230,28 +230,16 @@ impl pcuvd_io::ChecksumSink for Digest {
     }
 }
 
-/// Size (bytes) and checksum (hex) of a file, read in 8 MiB blocks: neither the memory nor the
-/// process's resident size grows with the file (a file mapped into memory would count whole in
-/// the resident size that `summary.json` and batch schedulers report).
+/// Size (bytes) and checksum (hex) of a file, read in 8 MiB blocks (a [`pcuvd_io::ReadPass`]
+/// that no reader fed, finished): neither the memory nor the process's resident size grows with
+/// the file (a file mapped into memory would count whole in the resident size that
+/// `summary.json` and batch schedulers report).
 pub fn fingerprint(path: &Path, checksum: Checksum) -> Result<(u64, String)> {
-    use pcuvd_io::ChecksumSink;
-    use std::io::Read;
-    let mut file = std::fs::File::open(path)
-        .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
-    let mut digest = Box::new(Digest::new(checksum));
-    let mut buffer = vec![0u8; 8 << 20];
-    let mut size = 0u64;
-    loop {
-        let n = file
-            .read(&mut buffer)
-            .with_context(|| format!("{}: cannot read for its checksum", path.display()))?;
-        if n == 0 {
-            break;
-        }
-        size += n as u64;
-        digest.update(&buffer[..n]);
-    }
-    Ok((size, digest.hex()))
+    let pass = pcuvd_io::ReadPass::new(path);
+    pass.attach(Box::new(Digest::new(checksum)));
+    let cannot = || format!("{}: cannot read for its checksum", path.display());
+    let done = pass.finish().with_context(cannot)?.with_context(cannot)?;
+    Ok((done.size_bytes, done.hex))
 }
 
 #[cfg(test)]

@@ -29,7 +29,7 @@ pub struct Checksummed {
     pub seconds: f64,
 }
 
-/// Bytes read at a time when a gap is filled from the file.
+/// Bytes read at a time when a gap (or, with no block offered, the whole file) is read.
 const GAP_PIECE: usize = 8 << 20;
 
 /// A sink being fed and how far into the file it has been fed (bytes).
