@@ -5,7 +5,6 @@
 //! folder; its format is recognised from its content.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use crate::array::{Backing, Block, Dtype, StoredArray};
 use crate::container::{Container, read_head, sniff};
@@ -127,19 +126,16 @@ pub fn open_data_array(spec: &DataSpec) -> Result<StoredArray, IoError> {
                 )
             })?;
             let file = crate::mat::read_mat(path)?;
-            match file.get(m) {
+            let mut file = file;
+            match file.variables.remove(m) {
                 Some(crate::mat::MatValue::Numeric {
                     dims, real, imag, ..
-                }) => Ok(StoredArray {
-                    shape: dims.clone(),
-                    dtype: Dtype::F64,
-                    fortran: true,
-                    backing: Backing::Values {
-                        real: Arc::new(real.clone()),
-                        imag: imag.clone().map(Arc::new),
-                    },
-                    label: format!("{}:{m}", path.display()),
-                }),
+                }) => Ok(crate::mat::stored_array(
+                    dims,
+                    real,
+                    imag,
+                    format!("{}:{m}", path.display()),
+                )),
                 Some(other) => Err(IoError::invalid(
                     path,
                     format!("variable '{m}'"),

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 
 use crate::error::IoError;
 use crate::hdf5::{H5Kind, Hdf5};
-use crate::mat::{MatValue, NumericClass};
+use crate::mat::{MatValue, Numbers, NumericClass};
 
 /// How deep structs and cells may nest before the file is taken as malformed.
 const MAX_DEPTH: usize = 16;
@@ -158,8 +158,8 @@ fn read_at(h5: &Hdf5, path: &str, depth: usize) -> Result<MatValue, IoError> {
             Ok(MatValue::Numeric {
                 class,
                 dims,
-                real: values.iter().map(|c| c.re).collect(),
-                imag: Some(values.iter().map(|c| c.im).collect()),
+                real: Numbers::F64(values.iter().map(|c| c.re).collect()),
+                imag: Some(Numbers::F64(values.iter().map(|c| c.im).collect())),
             })
         }
         (c, H5Kind::Int { .. } | H5Kind::Float { .. }) => {
@@ -167,7 +167,7 @@ fn read_at(h5: &Hdf5, path: &str, depth: usize) -> Result<MatValue, IoError> {
             Ok(MatValue::Numeric {
                 class: c.and_then(numeric_class).unwrap_or(NumericClass::Double),
                 dims,
-                real,
+                real: Numbers::F64(real),
                 imag: None,
             })
         }

@@ -137,7 +137,7 @@ fn non_finite_samples() {
         let MatValue::Numeric { real, .. } = rf else {
             unreachable!()
         };
-        real[10] = f64::NAN;
+        real.as_f64_mut()[10] = f64::NAN;
     });
     let (ok, stderr) = process(&nan, &[]);
     assert!(
@@ -552,7 +552,7 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
             let MatValue::Numeric { real, .. } = rf else {
                 unreachable!()
             };
-            real[10] = value;
+            real.as_f64_mut()[10] = value;
         });
         cases.process(
             &format!("mat_{label}_sample"),
@@ -565,7 +565,7 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
         let MatValue::Numeric { real, .. } = rf else {
             unreachable!()
         };
-        real.fill(0.0);
+        real.as_f64_mut().fill(0.0);
     });
     cases.process(
         "mat_all_zero",

@@ -14,8 +14,11 @@ use ndarray::{ArrayD, IxDyn};
 
 use crate::error::IoError;
 
+mod numbers;
 mod read;
 mod write;
+
+pub use numbers::{Numbers, stored_array};
 
 use read::*;
 use write::*;
@@ -172,10 +175,10 @@ pub enum MatValue {
         class: NumericClass,
         /// MATLAB dimensions (at least 2 as MATLAB writes them).
         dims: Vec<usize>,
-        /// Real parts, column-major, converted to f64.
-        real: Vec<f64>,
+        /// Real parts, column-major, in the type the file stores them.
+        real: Numbers,
         /// Imaginary parts when the array is complex.
-        imag: Option<Vec<f64>>,
+        imag: Option<Numbers>,
     },
     /// A logical array, column-major.
     Logical {
@@ -212,7 +215,7 @@ impl MatValue {
         MatValue::Numeric {
             class: NumericClass::Double,
             dims: vec![0, 0],
-            real: vec![],
+            real: Numbers::F64(vec![]),
             imag: None,
         }
     }
@@ -222,7 +225,7 @@ impl MatValue {
         (checked_numel(&dims) == Some(real.len())).then_some(MatValue::Numeric {
             class: NumericClass::Double,
             dims,
-            real,
+            real: real.into(),
             imag: None,
         })
     }
@@ -232,7 +235,7 @@ impl MatValue {
         MatValue::Numeric {
             class: NumericClass::Double,
             dims: vec![1, 1],
-            real: vec![value],
+            real: Numbers::F64(vec![value]),
             imag: None,
         }
     }
@@ -241,8 +244,8 @@ impl MatValue {
     pub fn as_scalar(&self) -> Option<f64> {
         match self {
             MatValue::Numeric { real, imag, .. } if real.len() == 1 => match imag {
-                Some(im) if im.first().is_some_and(|v| *v != 0.0) => None,
-                _ => Some(real[0]),
+                Some(im) if im.get(0).is_some_and(|v| v != 0.0) => None,
+                _ => real.get(0),
             },
             MatValue::Logical { data, .. } if data.len() == 1 => {
                 Some(if data[0] { 1.0 } else { 0.0 })
@@ -314,7 +317,7 @@ impl MatValue {
     /// (c, b, a) with the same memory order; `None` for other values.
     pub fn to_array_c_order(&self) -> Option<ArrayD<f64>> {
         let (dims, values): (&[usize], Vec<f64>) = match self {
-            MatValue::Numeric { dims, real, .. } => (dims, real.clone()),
+            MatValue::Numeric { dims, real, .. } => (dims, real.to_f64().into_owned()),
             MatValue::Logical { dims, data } => {
                 (dims, data.iter().map(|&b| f64::from(u8::from(b))).collect())
             }

@@ -250,6 +250,34 @@ pub(super) fn numbers(el: &Element, big: bool) -> Result<Vec<f64>, String> {
     })
 }
 
+/// The values of a numeric array's data element, kept in the type the file stores them when
+/// that type is exact in f64 and narrower (MATLAB's int16 samples stay two bytes each).
+pub(super) fn stored_numbers(el: &Element, big: bool) -> Result<Numbers, String> {
+    use crate::array::Dtype;
+    let dtype = match el.ty {
+        MI_INT8 => Dtype::I8,
+        MI_UINT8 => Dtype::U8,
+        MI_INT16 => Dtype::I16,
+        MI_UINT16 => Dtype::U16,
+        MI_INT32 => Dtype::I32,
+        MI_SINGLE => Dtype::F32,
+        _ => return numbers(el, big).map(Numbers::F64),
+    };
+    if !el.data.len().is_multiple_of(dtype.size()) {
+        return Err(format!(
+            "{} bytes of data type {} is not a whole number of {}-byte values",
+            el.data.len(),
+            el.ty,
+            dtype.size()
+        ));
+    }
+    Ok(Numbers::Stored {
+        dtype,
+        little: !big,
+        bytes: el.data.to_vec(),
+    })
+}
+
 /// Integers of any storage type (dims, field-name length), refusing negatives and fractions.
 pub(super) fn sizes(el: &Element, big: bool, what: &str) -> Result<Vec<usize>, String> {
     numbers(el, big)?
@@ -426,8 +454,8 @@ pub(super) fn parse_matrix(
             None => MatValue::Unsupported(format!("MATLAB array class {c}")),
             Some(class) => {
                 let real = match r.next().map_err(ctx)? {
-                    Some(el) => numbers(&el, big).map_err(ctx)?,
-                    None => vec![],
+                    Some(el) => stored_numbers(&el, big).map_err(ctx)?,
+                    None => Numbers::F64(vec![]),
                 };
                 if real.len() != numel {
                     return Err(ctx(format!(
@@ -437,8 +465,8 @@ pub(super) fn parse_matrix(
                 }
                 let imag = if flags & FLAG_COMPLEX != 0 {
                     let im = match r.next().map_err(ctx)? {
-                        Some(el) => numbers(&el, big).map_err(ctx)?,
-                        None => vec![],
+                        Some(el) => stored_numbers(&el, big).map_err(ctx)?,
+                        None => Numbers::F64(vec![]),
                     };
                     if im.len() != numel {
                         return Err(ctx(format!(
@@ -453,7 +481,7 @@ pub(super) fn parse_matrix(
                 if flags & FLAG_LOGICAL != 0 {
                     MatValue::Logical {
                         dims,
-                        data: real.iter().map(|&v| v != 0.0).collect(),
+                        data: real.to_f64().iter().map(|&v| v != 0.0).collect(),
                     }
                 } else {
                     MatValue::Numeric {

@@ -123,9 +123,15 @@ pub(super) fn matrix_body(name: &str, value: &MatValue, big: bool) -> Result<Vec
             }
             let complex = if imag.is_some() { FLAG_COMPLEX } else { 0 };
             header(&mut w, u32::from(class.code()) | complex, dims)?;
-            w.element(class.storage(), &number_bytes(real, class.storage(), big))?;
+            w.element(
+                class.storage(),
+                &number_bytes(&real.to_f64(), class.storage(), big),
+            )?;
             if let Some(im) = imag {
-                w.element(class.storage(), &number_bytes(im, class.storage(), big))?;
+                w.element(
+                    class.storage(),
+                    &number_bytes(&im.to_f64(), class.storage(), big),
+                )?;
             }
         }
         MatValue::Logical { dims, data } => {

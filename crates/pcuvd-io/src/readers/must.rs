@@ -14,7 +14,6 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::Arc;
 
 use pcuvd::{ChannelData, Probe};
 use serde_json::json;
@@ -97,7 +96,7 @@ impl MustParams {
                     imag: None,
                     ..
                 } => {
-                    let values = column_to_row_major(&dims, &real);
+                    let values = column_to_row_major(&dims, &real.to_f64());
                     fields.insert(name, ParamArray { dims, values });
                 }
                 MatValue::Numeric { dims, .. } => {
@@ -153,24 +152,26 @@ struct MustSamples {
 /// Builds channel data from an already-read MUST-style v5 MAT-file (`path` only names it in
 /// errors).
 pub fn from_mat(path: &Path, file: &MatFile) -> Result<ChannelData, IoError> {
-    from_mat_file(path, file, &Overrides::default())?.read_all()
+    from_mat_file(path, file.clone(), &Overrides::default())?.read_all()
 }
 
 /// Opens a MATLAB v5 MUST-style file.
 pub fn open_v5(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
     let file = read_mat(path)?;
-    from_mat_file(path, &file, overrides)
+    from_mat_file(path, file, overrides)
 }
 
+/// The recording of a MUST-style file; the samples' variable is moved out of `file`, not copied
+/// (a recording's samples are most of the file).
 fn from_mat_file(
     path: &Path,
-    file: &MatFile,
+    mut file: MatFile,
     overrides: &Overrides,
 ) -> Result<OpenedRecording, IoError> {
-    let (variable, value) = match (file.get("RF"), file.get("IQ")) {
-        (Some(v), _) => ("RF", v),
-        (None, Some(v)) => ("IQ", v),
-        (None, None) => {
+    let variable = if file.get("RF").is_some() { "RF" } else { "IQ" };
+    let (variable, value) = match file.variables.remove(variable) {
+        Some(v) => (variable, v),
+        None => {
             return Err(IoError::missing(
                 path,
                 "the file",
@@ -182,10 +183,11 @@ fn from_mat_file(
         .get("param")
         .ok_or_else(|| IoError::missing(path, "the file", "variable 'param'"))?;
     let params = MustParams::from_struct(path, param)?;
+    let described = value.describe();
     let (mut dims, real, imag) = match value {
         MatValue::Numeric {
             dims, real, imag, ..
-        } => (dims.clone(), real.clone(), imag.clone()),
+        } => (dims, real, imag),
         other => {
             return Err(IoError::invalid(
                 path,
@@ -211,7 +213,6 @@ fn from_mat_file(
     if dims.len() == 2 {
         dims.push(1);
     }
-    let described = value.describe();
     if dims.len() < 3 || dims.iter().skip(3).any(|&d| d != 1) {
         return Err(IoError::invalid(
             path,
@@ -224,16 +225,7 @@ fn from_mat_file(
     dims.truncate(3);
     let label = format!("{} variable '{variable}'", path.display());
     let samples = MustSamples {
-        array: StoredArray {
-            shape: dims,
-            dtype: Dtype::F64,
-            fortran: true,
-            backing: Backing::Values {
-                real: Arc::new(real),
-                imag: imag.map(Arc::new),
-            },
-            label,
-        },
+        array: crate::mat::stored_array(dims, real, imag, label),
         axes: vec![Axis::Samples, Axis::Channels, Axis::Events],
         variable,
     };

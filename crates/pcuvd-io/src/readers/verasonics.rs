@@ -75,7 +75,7 @@ fn number(map: &std::collections::BTreeMap<String, MatValue>, name: &str) -> Opt
 
 fn numbers(v: Option<&MatValue>) -> Vec<f64> {
     match v {
-        Some(MatValue::Numeric { real, .. }) => real.clone(),
+        Some(MatValue::Numeric { real, .. }) => real.to_f64().into_owned(),
         _ => vec![],
     }
 }
@@ -150,7 +150,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     };
     // ElementPos: MATLAB N × (4 or 5), column-major: column k is values[k·N .. (k+1)·N].
     let (pos_dims, pos) = match trans.field("ElementPos") {
-        Some(MatValue::Numeric { dims, real, .. }) => (dims.clone(), real.clone()),
+        Some(MatValue::Numeric { dims, real, .. }) => (dims.clone(), real.to_f64()),
         _ => return Err(IoError::missing(path, "Trans", "field 'ElementPos'")),
     };
     let n_pos = pos_dims.first().copied().unwrap_or(0);

@@ -5,6 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use pcuvd::{Coding, Samples};
+use pcuvd_io::array::Dtype;
+use pcuvd_io::mat::Numbers;
 use pcuvd_io::{MatValue, NumericClass, read_mat, read_must_mat};
 use serde_json::Value;
 
@@ -32,14 +34,19 @@ fn dims(v: &Value) -> Vec<usize> {
 }
 
 /// The numeric array `value`: (class, dims, real, imag), or a panic naming what it is instead.
-fn numeric(value: &MatValue) -> (NumericClass, &[usize], &[f64], Option<&[f64]>) {
+fn numeric(value: &MatValue) -> (NumericClass, &[usize], Vec<f64>, Option<Vec<f64>>) {
     match value {
         MatValue::Numeric {
             class,
             dims,
             real,
             imag,
-        } => (*class, dims, real, imag.as_deref()),
+        } => (
+            *class,
+            dims,
+            real.to_f64().into_owned(),
+            imag.as_ref().map(|i| i.to_f64().into_owned()),
+        ),
         other => panic!("expected a numeric array, found a {}", other.describe()),
     }
 }
@@ -55,6 +62,19 @@ fn must_style_int16_rf_and_param_struct() {
         assert_eq!(rf_dims, dims(&e["rf_dims"]), "{name}");
         assert_eq!(real, numbers(&e["rf"]), "{name}");
         assert!(imag.is_none(), "{name}");
+        // The samples stay two bytes each in memory, as the file stores them.
+        let Some(MatValue::Numeric {
+            real: Numbers::Stored { dtype, bytes, .. },
+            ..
+        }) = file.get("RF")
+        else {
+            panic!("{name}: RF not kept as stored")
+        };
+        assert_eq!(
+            (*dtype, bytes.len()),
+            (Dtype::I16, 2 * real.len()),
+            "{name}"
+        );
         let param = file.get("param").unwrap();
         for key in ["fs", "fc", "c", "pitch", "width", "t0", "PRF", "Nelements"] {
             assert_eq!(
@@ -68,7 +88,7 @@ fn must_style_int16_rf_and_param_struct() {
             e["bandwidth_percent"].as_f64()
         );
         let (_, tx_dims, tx, _) = numeric(param.field("TXdelay").unwrap());
-        assert_eq!((tx_dims, tx), (&[1, 4][..], &[0.0; 4][..]), "{name}");
+        assert_eq!((tx_dims, tx), (&[1, 4][..], vec![0.0; 4]), "{name}");
     }
     let bytes = |n| std::fs::metadata(fixture(n)).unwrap().len();
     assert!(

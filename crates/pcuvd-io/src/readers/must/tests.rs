@@ -190,7 +190,7 @@ fn errors_name_file_field_and_problem() {
     let mut bad = rf(vec![10, 4, 3]);
     if let MatValue::Numeric { class, real, .. } = &mut bad {
         *class = NumericClass::Double;
-        real[5] = f64::NAN;
+        real.as_f64_mut()[5] = f64::NAN;
     }
     check(&bad, &param(4), "non-finite");
     check(&rf(vec![1, 4, 3]), &param(4), "at least 2 samples");
