@@ -150,8 +150,8 @@ impl Dtype {
         }
     }
 
-    /// Decodes element `i` of little- or big-endian bytes as (re, im) (im = 0 for real types).
-    fn decode(self, bytes: &[u8], little: bool) -> (f32, f32) {
+    /// Decodes one element of a real type exactly, as f64 (the real part of a complex one).
+    pub(crate) fn decode_f64(self, bytes: &[u8], little: bool) -> f64 {
         macro_rules! num {
             ($t:ty, $b:expr) => {{
                 let arr: [u8; std::mem::size_of::<$t>()] =
@@ -164,18 +164,24 @@ impl Dtype {
             }};
         }
         match self {
-            Dtype::I8 => (f32::from(bytes[0] as i8), 0.0),
-            Dtype::U8 => (f32::from(bytes[0]), 0.0),
-            Dtype::I16 => (f32::from(num!(i16, &bytes[..2])), 0.0),
-            Dtype::U16 => (f32::from(num!(u16, &bytes[..2])), 0.0),
-            Dtype::I32 => (num!(i32, &bytes[..4]) as f32, 0.0),
-            Dtype::F32 => (num!(f32, &bytes[..4]), 0.0),
-            Dtype::F64 => (num!(f64, &bytes[..8]) as f32, 0.0),
-            Dtype::C64 => (num!(f32, &bytes[..4]), num!(f32, &bytes[4..8])),
-            Dtype::C128 => (
-                num!(f64, &bytes[..8]) as f32,
-                num!(f64, &bytes[8..16]) as f32,
-            ),
+            Dtype::I8 => f64::from(bytes[0] as i8),
+            Dtype::U8 => f64::from(bytes[0]),
+            Dtype::I16 => f64::from(num!(i16, &bytes[..2])),
+            Dtype::U16 => f64::from(num!(u16, &bytes[..2])),
+            Dtype::I32 => f64::from(num!(i32, &bytes[..4])),
+            Dtype::F32 | Dtype::C64 => f64::from(num!(f32, &bytes[..4])),
+            Dtype::F64 | Dtype::C128 => num!(f64, &bytes[..8]),
+        }
+    }
+
+    /// Decodes element `i` of little- or big-endian bytes as (re, im) (im = 0 for real types).
+    fn decode(self, bytes: &[u8], little: bool) -> (f32, f32) {
+        // f64 holds every real type exactly, so one rounding to f32 follows.
+        let re = self.decode_f64(bytes, little) as f32;
+        match self {
+            Dtype::C64 => (re, Dtype::F32.decode_f64(&bytes[4..8], little) as f32),
+            Dtype::C128 => (re, Dtype::F64.decode_f64(&bytes[8..16], little) as f32),
+            _ => (re, 0.0),
         }
     }
 }

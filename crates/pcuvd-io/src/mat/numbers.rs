@@ -50,7 +50,7 @@ impl Numbers {
                 let size = dtype.size();
                 bytes
                     .get(i * size..(i + 1) * size)
-                    .map(|b| stored_value(*dtype, b, *little))
+                    .map(|b| dtype.decode_f64(b, *little))
             }
         }
     }
@@ -101,32 +101,6 @@ impl FromIterator<f64> for Numbers {
 impl PartialEq for Numbers {
     fn eq(&self, other: &Self) -> bool {
         self.len() == other.len() && self.to_f64() == other.to_f64()
-    }
-}
-
-/// Decodes one stored element of a real type to f64.
-fn stored_value(dtype: Dtype, b: &[u8], little: bool) -> f64 {
-    macro_rules! num {
-        ($t:ty) => {{
-            let arr: [u8; std::mem::size_of::<$t>()] =
-                b.try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
-            if little {
-                <$t>::from_le_bytes(arr)
-            } else {
-                <$t>::from_be_bytes(arr)
-            }
-        }};
-    }
-    match dtype {
-        Dtype::I8 => f64::from(b[0] as i8),
-        Dtype::U8 => f64::from(b[0]),
-        Dtype::I16 => f64::from(num!(i16)),
-        Dtype::U16 => f64::from(num!(u16)),
-        Dtype::I32 => f64::from(num!(i32)),
-        Dtype::F32 => f64::from(num!(f32)),
-        Dtype::F64 => num!(f64),
-        // Never stored: complex parts are separate real arrays in a MAT-file.
-        Dtype::C64 | Dtype::C128 => f64::NAN,
     }
 }
 
