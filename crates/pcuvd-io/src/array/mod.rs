@@ -383,41 +383,8 @@ impl StoredArray {
                 finish(&counts, re, complex.then_some(im))
             }
             Backing::Bytes { bytes, little } => {
-                let size = self.dtype.size();
-                let mut re = Vec::with_capacity(n);
-                let mut im = Vec::with_capacity(if complex { n } else { 0 });
-                let mut short = false;
-                for_each_row(
-                    &self.shape,
-                    self.fortran,
-                    ranges,
-                    order,
-                    |first, stride, count| {
-                        // A real row contiguous in storage (MATLAB's samples, the fastest axis)
-                        // converts as a slice; other rows element by element.
-                        let row = bytes.get(first * size..(first + count) * size);
-                        if let (1, false, Some(row)) = (stride, complex, row) {
-                            self.dtype.decode_real_row(row, *little, &mut re);
-                            return;
-                        }
-                        for i in (0..count).map(|k| first + k * stride) {
-                            let b = bytes.get(i * size..(i + 1) * size);
-                            short |= b.is_none();
-                            let (r, m) = b.map_or((0.0, 0.0), |b| self.dtype.decode(b, *little));
-                            re.push(r);
-                            if complex {
-                                im.push(m);
-                            }
-                        }
-                    },
-                );
-                if short {
-                    return Err(IoError::malformed(
-                        Path::new(&self.label),
-                        "holds fewer bytes than its header announces",
-                    ));
-                }
-                finish(&counts, re, complex.then_some(im))
+                let (re, im) = self.decode_selection(bytes, 0, *little, ranges, order, n)?;
+                finish(&counts, re, im)
             }
             Backing::File {
                 path,
@@ -433,19 +400,60 @@ impl StoredArray {
                     return finish(&counts, vec![], complex.then_some(vec![]));
                 }
                 let span = read_span(path, *offset, lo * size, (hi + 1 - lo) * size)?;
-                let mut re = Vec::with_capacity(n);
-                let mut im = Vec::with_capacity(if complex { n } else { 0 });
-                for_each_index(&self.shape, self.fortran, ranges, order, |i| {
-                    let at = (i - lo) * size;
-                    let (r, m) = self.dtype.decode(&span[at..at + size], *little);
+                let (re, im) = self.decode_selection(&span, lo, *little, ranges, order, n)?;
+                finish(&counts, re, im)
+            }
+        }
+    }
+
+    /// The selection decoded from `bytes`, which hold the stored elements from index `first_index`
+    /// on: real parts, and imaginary parts for complex elements.
+    fn decode_selection(
+        &self,
+        bytes: &[u8],
+        first_index: usize,
+        little: bool,
+        ranges: &[Range<usize>],
+        order: &[usize],
+        n: usize,
+    ) -> Result<(Vec<f32>, Option<Vec<f32>>), IoError> {
+        let size = self.dtype.size();
+        let complex = self.dtype.is_complex();
+        let mut re = Vec::with_capacity(n);
+        let mut im = Vec::with_capacity(if complex { n } else { 0 });
+        let mut short = false;
+        for_each_row(
+            &self.shape,
+            self.fortran,
+            ranges,
+            order,
+            |first, stride, count| {
+                let first = first - first_index;
+                // A real row contiguous in storage (MATLAB's samples, the fastest axis) converts
+                // as a slice; other rows element by element.
+                let row = bytes.get(first * size..(first + count) * size);
+                if let (1, false, Some(row)) = (stride, complex, row) {
+                    self.dtype.decode_real_row(row, little, &mut re);
+                    return;
+                }
+                for i in (0..count).map(|k| first + k * stride) {
+                    let b = bytes.get(i * size..(i + 1) * size);
+                    short |= b.is_none();
+                    let (r, m) = b.map_or((0.0, 0.0), |b| self.dtype.decode(b, little));
                     re.push(r);
                     if complex {
                         im.push(m);
                     }
-                });
-                finish(&counts, re, complex.then_some(im))
-            }
+                }
+            },
+        );
+        if short {
+            return Err(IoError::malformed(
+                Path::new(&self.label),
+                "holds fewer bytes than its header announces",
+            ));
         }
+        Ok((re, complex.then_some(im)))
     }
 }
 
@@ -757,16 +765,35 @@ mod tests {
                     },
                     ..decoded.clone()
                 };
+                // The same bytes after a 7-byte header in a file, read a span at a time.
+                let dir = tempfile::tempdir().unwrap();
+                let path = dir.path().join("samples.bin");
+                let Backing::Bytes { bytes, .. } = &stored.backing else {
+                    unreachable!()
+                };
+                std::fs::write(&path, [&[9u8; 7][..], bytes].concat()).unwrap();
+                let in_file = StoredArray {
+                    backing: Backing::File {
+                        path,
+                        offset: 7,
+                        little,
+                    },
+                    ..stored.clone()
+                };
                 for (ranges, order) in [
                     ([0..5, 0..3, 0..4], [0, 1, 2]),
                     ([1..4, 1..3, 2..4], [2, 1, 0]),
                     ([0..5, 2..3, 0..4], [1, 2, 0]),
+                    ([2..5, 1..2, 1..3], [0, 1, 2]),
                 ] {
-                    assert_eq!(
-                        stored.read_ordered(&ranges, &order).unwrap(),
-                        decoded.read_ordered(&ranges, &order).unwrap(),
-                        "fortran {fortran}, little {little}, {ranges:?} in {order:?}"
-                    );
+                    let expected = decoded.read_ordered(&ranges, &order).unwrap();
+                    for array in [&stored, &in_file] {
+                        assert_eq!(
+                            array.read_ordered(&ranges, &order).unwrap(),
+                            expected,
+                            "fortran {fortran}, little {little}, {ranges:?} in {order:?}"
+                        );
+                    }
                 }
             }
         }
