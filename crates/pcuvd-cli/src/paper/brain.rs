@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::Result;
 use ndarray::{Array2, Zip};
 use pcuvd::core::grid::{Grid, Roi};
-use pcuvd::dynamics::{ARTERIOLE, VENULE};
+use pcuvd::dynamics::{ARTERIOLE, RiMaps, VENULE};
 use pcuvd::estimate::vector::VectorField;
 use pcuvd_app::Progress;
 use pcuvd_app::brain::{BrainMetrics, BrainStudy, GroupScores, VectorScore};
@@ -380,38 +380,54 @@ pub fn brain_figures(
     )?);
     progress.update(task, 3, 5);
 
-    // Figure 8: RI, arterioles and venules: truth, UVD, PC-UVD.
+    // Figure 8: RI, arterioles and venules: truth, UVD, PC-UVD. A method without RI maps (a
+    // recording too short to find the heartbeat in) keeps its column, empty, its titles saying
+    // why, so that the figure never shows the truth alone as if it were the whole comparison.
     let cycle = truth.cycle.as_ref();
     let mut panels = Vec::new();
-    let ri_maps: Vec<(String, Array2<f64>, Array2<bool>)> = cycle
-        .map(|c| ("Truth".to_string(), view.cut(&c.ri), lumen.clone()))
-        .into_iter()
-        .chain(
-            study
-                .modes
-                .iter()
-                .zip(&detected)
-                .filter_map(|(m, detected)| {
-                    m.ri.as_ref().map(|ri| {
-                        let ri = view.cut(&ri.ri);
-                        let shown = Zip::from(&ri)
-                            .and(detected)
-                            .map_collect(|v, &d| d && v.is_finite());
-                        (m.method().to_string(), ri, shown)
-                    })
-                }),
-        )
+    let shown_where = |data: &Array2<f64>, shown: &Array2<bool>| {
+        Zip::from(data)
+            .and(shown)
+            .map_collect(|v, &s| s && v.is_finite())
+    };
+    // (title's name, maps: None where the method has none, and why).
+    let (empty, none) = (black.clone(), Array2::from_elem(grid.shape(), false));
+    let columns: Vec<(String, Result<&RiMaps, String>, Array2<bool>)> = study
+        .modes
+        .iter()
+        .zip(&detected)
+        .map(|(m, detected)| {
+            let maps =
+                m.ri.as_ref()
+                    .ok_or_else(|| no_ri_reason(m.ri_skipped.as_deref().unwrap_or("not computed")));
+            (m.method().to_string(), maps, detected.clone())
+        })
         .collect();
-    for (name, ri, shown) in &ri_maps {
+    let ncols = usize::from(cycle.is_some()) + columns.len();
+    let mut ri_row: Vec<(String, Array2<f64>, Array2<bool>)> = Vec::new();
+    if let Some(c) = cycle {
+        ri_row.push(("Truth: RI".to_string(), view.cut(&c.ri), lumen.clone()));
+    }
+    for (name, maps, detected) in &columns {
+        ri_row.push(match maps {
+            Ok(ri) => (format!("{name}: RI"), view.cut(&ri.ri), detected.clone()),
+            Err(why) => (
+                format!("{name}: no RI ({why})"),
+                empty.clone(),
+                none.clone(),
+            ),
+        });
+    }
+    for (title, ri, shown) in ri_row {
         let mut p = map_panel(
-            &format!("{name}: RI"),
+            &title,
             ri.clone(),
             grid,
             Colormap::Viridis,
             (0.0, 1.0),
             "RI",
         );
-        p.mask = Some(shown.clone());
+        p.mask = Some(shown_where(&ri, &shown));
         p.background = Some(black.clone());
         panels.push(Panel::Image(p));
     }
@@ -419,26 +435,29 @@ pub fn brain_figures(
         let mut maps: Vec<(String, Array2<f64>, Array2<bool>)> = Vec::new();
         if let Some(c) = cycle {
             maps.push((
-                "Truth".into(),
+                format!("Truth: {kind}"),
                 view.cut(&class_map(&c.psv, &c.vessel_class, &c.flow_up, which)),
                 lumen.clone(),
             ));
         }
-        for (m, detected) in study.modes.iter().zip(&detected) {
-            if let Some(ri) = &m.ri {
-                maps.push((
-                    m.method().to_string(),
+        for (name, ri, detected) in &columns {
+            maps.push(match ri {
+                Ok(ri) => (
+                    format!("{name}: {kind}"),
                     view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
                     detected.clone(),
-                ));
-            }
+                ),
+                Err(_) => (
+                    format!("{name}: no {kind} (no RI)"),
+                    empty.clone(),
+                    none.clone(),
+                ),
+            });
         }
-        for (name, data, shown) in maps {
-            let mask = Zip::from(&data)
-                .and(&shown)
-                .map_collect(|v, &s| s && v.is_finite());
+        for (title, data, shown) in maps {
+            let mask = shown_where(&data, &shown);
             let mut p = map_panel(
-                &format!("{name}: {kind}"),
+                &title,
                 data,
                 grid,
                 Colormap::RedBlue,
@@ -453,11 +472,11 @@ pub fn brain_figures(
     figs.push(render(
         dir,
         BRAIN_FIGURES[3],
-        "Figure 8 (a, c, d) analogue: resistivity index, arterioles and venules (PSV, red = flowing up, blue = down): truth over the lumen pixels, then UVD and PC-UVD over their vessel masks. The scores count the lumen pixels.",
+        "Figure 8 (a, c, d) analogue: resistivity index, arterioles and venules (PSV, red = flowing up, blue = down): truth over the lumen pixels, then UVD and PC-UVD over their vessel masks (empty, the title saying why, where a method has no RI maps). The scores count the lumen pixels.",
         Figure {
             title: "Virtual rat brain: resistivity index over the cardiac cycle".into(),
             panels,
-            ncols: ri_maps.len().max(1),
+            ncols: ncols.max(1),
             panel_size_px: (480, 470),
         },
     )?);
@@ -709,5 +728,37 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
     );
     for fig in figs {
         report.image_png(&format!("{} ({})", fig.caption, fig.file), &fig.png);
+    }
+}
+
+/// Why a method has no RI maps, short enough for a panel's title: the reason's first clause
+/// (what the dynamics stage refused), without the error's kind.
+fn no_ri_reason(skipped: &str) -> String {
+    const MOST: usize = 44;
+    let reason = skipped
+        .rsplit("invalid recording: ")
+        .next()
+        .unwrap_or(skipped);
+    let clause = reason.split([';', '(']).next().unwrap_or(reason).trim();
+    if clause.chars().count() <= MOST {
+        clause.to_string()
+    } else {
+        let cut: String = clause.chars().take(MOST - 1).collect();
+        format!("{}…", cut.trim_end())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::no_ri_reason;
+
+    #[test]
+    fn a_refusal_becomes_a_short_title() {
+        let skipped = "invalid recording: 10.0 ms of waveform is too short to measure a heart \
+                       rate between 3 and 15 Hz from the data (about 1.5 cycles are needed)";
+        let short = no_ri_reason(skipped);
+        assert_eq!(short, "10.0 ms of waveform is too short to measure…");
+        assert!(short.chars().count() <= 44);
+        assert_eq!(no_ri_reason("no heart rate given"), "no heart rate given");
     }
 }
