@@ -1,0 +1,358 @@
+//! The block-wise filter: overlapping blocks of the image, each with its own Casorati matrix and
+//! cut-offs, their Gram matrices summed from the cells the blocks' edges cut the image into, and
+//! blended back with tent weights.
+
+use super::*;
+
+/// Starts of the blocks of `size` that cover `n` pixels at half-block steps, the last one flush
+/// with the end.
+pub(super) fn block_starts(n: usize, size: usize) -> Vec<usize> {
+    let step = (size / 2).max(1);
+    let mut starts: Vec<usize> = (0..n.saturating_sub(size)).step_by(step).collect();
+    starts.push(n.saturating_sub(size));
+    starts.dedup();
+    starts
+}
+
+/// Tent weight of a block's pixel `i` of `size`: highest in the middle, never zero, so that the
+/// image's edges (covered by one block) keep their own filtered values.
+pub(super) fn tent(i: usize, size: usize) -> f32 {
+    (i + 1).min(size - i) as f32
+}
+
+/// Where a block-wise filter's blocks lie on an image: their size and their first rows and
+/// columns (pixels), at half-block steps, the last ones flush with the image's edges.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct BlockLayout {
+    /// A block's rows and columns of pixels.
+    pub size: (usize, usize),
+    /// Each row of blocks' first row (pixel).
+    pub z_starts: Vec<usize>,
+    /// Each column of blocks' first column (pixel).
+    pub x_starts: Vec<usize>,
+}
+
+impl BlockLayout {
+    /// The blocks of `size` (rows, columns; clamped to the image) over an image of `shape`
+    /// (nz, nx) pixels.
+    pub fn new((nz, nx): (usize, usize), (rows, cols): (usize, usize)) -> BlockLayout {
+        let size = (rows.clamp(1, nz.max(1)), cols.clamp(1, nx.max(1)));
+        BlockLayout {
+            size,
+            z_starts: block_starts(nz, size.0),
+            x_starts: block_starts(nx, size.1),
+        }
+    }
+
+    /// The image's shape (nz, nx): the last blocks end flush with its edges.
+    pub fn shape(&self) -> (usize, usize) {
+        let end = |starts: &[usize], size| starts.last().map_or(0, |&s| s + size);
+        (
+            end(&self.z_starts, self.size.0),
+            end(&self.x_starts, self.size.1),
+        )
+    }
+
+    /// Each block's (row, column) of pixels where it starts, block rows first: the order of a
+    /// report's `block_cut_offs`.
+    pub fn origins(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (self.z_starts.iter()).flat_map(|&z| self.x_starts.iter().map(move |&x| (z, x)))
+    }
+
+    /// Per-block `values` (block rows first) blended onto the image's pixels as the filter blends
+    /// the blocks' series: each pixel gets the tent-weighted mean over the blocks that hold it
+    /// (for the blocks' cut-offs, how many components were cut there, in effect).
+    pub fn blend(&self, values: &[f64]) -> Result<Array2<f64>> {
+        let blocks = self.z_starts.len() * self.x_starts.len();
+        if values.len() != blocks {
+            return Err(Error::Shape(format!(
+                "{} values for {blocks} blocks",
+                values.len()
+            )));
+        }
+        let (rows, cols) = self.size;
+        let mut sums = Array2::<f64>::zeros(self.shape());
+        let mut weights = Array2::<f64>::zeros(self.shape());
+        for ((z0, x0), &value) in self.origins().zip(values) {
+            for i in 0..rows {
+                for j in 0..cols {
+                    let w = f64::from(tent(i, rows) * tent(j, cols));
+                    sums[[z0 + i, x0 + j]] += w * value;
+                    weights[[z0 + i, x0 + j]] += w;
+                }
+            }
+        }
+        Ok(sums / weights)
+    }
+}
+
+pub(super) fn filter_blocks(
+    series: &mut Array3<Complex32>,
+    params: &ClutterParams,
+    size: (usize, usize),
+) -> Result<ClutterReport> {
+    let (nz, nx, frames) = series.dim();
+    let removes_nothing = params.low == RankCut::Off && params.high == RankCut::Off;
+    if nz == 0 || nx == 0 || frames < 2 || removes_nothing {
+        // The whole image's filter refuses what it cannot filter, and returns what needs none.
+        return filter_whole(series, params, Pass::Filter { low_cap: None });
+    }
+    let layout = BlockLayout::new((nz, nx), holding_frames((nz, nx), size, frames));
+    let (rows, cols) = layout.size;
+    let whole = ClutterParams {
+        blocks: None,
+        ..*params
+    };
+    // A block's tissue is the whole image's seen on some of its pixels: its rank is at most the
+    // whole's, so a block cuts at most the components the whole image's rule cuts. Without that
+    // cap a block holding a wide, slow vessel cuts its blood as tissue (strong, slow and steep
+    // within the block).
+    let low_cap = match params.low {
+        RankCut::Auto | RankCut::Similarity => {
+            Some(filter_whole(series, &whole, Pass::CutOffsOnly)?.low)
+        }
+        RankCut::Off => Some(0),
+        RankCut::Fixed(_) => None,
+    };
+    let blocks = layout.z_starts.len() * layout.x_starts.len();
+    if low_cap == Some(0) && params.high == RankCut::Off {
+        // Every block would keep all its components: the series stays as it is (bit for bit;
+        // blending unchanged blocks would round it).
+        return Ok(ClutterReport {
+            low: 0,
+            high: frames,
+            singular_values: Vec::new(),
+            block_cut_offs: vec![(0, frames); blocks],
+            block_layout: Some(layout),
+        });
+    }
+    // Blocks overlap by half: a block's Gram matrix is the sum of those of the cells the blocks'
+    // edges cut the image into, each cell's summed once and shared by the (up to four) blocks
+    // that hold it, rather than every pixel's four times.
+    let z_cuts = cell_edges(&layout.z_starts, rows);
+    let x_cuts = cell_edges(&layout.x_starts, cols);
+    let cell_gram = |series: &Array3<Complex32>, za: usize, xa: usize| {
+        let (x0, x1) = (x_cuts[xa], x_cuts[xa + 1]);
+        let runs = (z_cuts[za]..z_cuts[za + 1]).map(|z| series.slice(ndarray::s![z, x0..x1, ..]));
+        let mut pixels = Mat::<c64>::zeros(frames, (z_cuts[za + 1] - z_cuts[za]) * (x1 - x0));
+        for (k, value) in runs.flat_map(|run| run.into_iter()).enumerate() {
+            pixels[(k % frames, k / frames)] = c64::new(value.re as f64, value.im as f64);
+        }
+        lower_gram_of_columns(pixels.as_ref())
+    };
+    // Cell rows' Gram matrices, kept while a row of blocks still needs them.
+    let mut cell_rows: std::collections::BTreeMap<usize, Vec<Mat<c64>>> = Default::default();
+    // The blocks' tent-weighted sums over the rows that a row of blocks still to come may add
+    // to, `blended.start..blended.start + rows`: the rows above a row of blocks are final, and go
+    // back into the series before it is filtered, as no block reads them again.
+    let mut blended = Blended {
+        sums: vec![Complex32::new(0.0, 0.0); rows * nx * frames],
+        weights: Array2::<f32>::zeros((nz, nx)),
+        start: 0,
+    };
+    let mut block_cut_offs = Vec::with_capacity(blocks);
+    // One row of blocks at a time: its blocks are filtered in parallel (each block's own filter
+    // is one chunk of pixels, sequential), then blended in.
+    for &z0 in &layout.z_starts {
+        blended.settle(series, z0)?;
+        cell_rows.retain(|&za, _| z_cuts[za] >= z0);
+        let missing: Vec<(usize, usize)> = cells_within(&z_cuts, z0, rows)
+            .filter(|za| !cell_rows.contains_key(za))
+            .flat_map(|za| (0..x_cuts.len() - 1).map(move |xa| (za, xa)))
+            .collect();
+        let grams: Vec<Mat<c64>> = missing
+            .par_iter()
+            .map(|&(za, xa)| cell_gram(series, za, xa))
+            .collect();
+        for ((za, _), gram) in missing.into_iter().zip(grams) {
+            cell_rows.entry(za).or_default().push(gram);
+        }
+        let filtered =
+            layout
+                .x_starts
+                .par_iter()
+                .map(|&x0| {
+                    let mut gram = Mat::<c64>::zeros(frames, frames);
+                    for za in cells_within(&z_cuts, z0, rows) {
+                        for xa in cells_within(&x_cuts, x0, cols) {
+                            add_lower(&mut gram, &cell_rows[&za][xa]);
+                        }
+                    }
+                    // The block's pixels (rows × cols × frames), a pixel row's run at a time.
+                    let mut block = Vec::with_capacity(rows * cols * frames);
+                    for z in z0..z0 + rows {
+                        let run = series.slice(ndarray::s![z, x0..x0 + cols, ..]);
+                        block.extend_from_slice(run.as_slice().ok_or_else(|| {
+                            Error::Shape("image series must be contiguous".into())
+                        })?);
+                    }
+                    // A block's singular values are not reported: only those its rule reads.
+                    filter_with_gram(
+                        &mut block,
+                        frames,
+                        gram,
+                        &whole,
+                        Pass::Filter { low_cap },
+                        false,
+                    )
+                    .map(|report| (x0, block, report))
+                })
+                .collect::<Result<Vec<_>>>()?;
+        for (x0, block, report) in filtered {
+            block_cut_offs.push((report.low, report.high));
+            blended.add(&block, (z0, x0), (rows, cols), frames);
+        }
+    }
+    blended.settle(series, nz)?;
+    let median = |pick: fn(&(usize, usize)) -> usize| {
+        let mut values: Vec<usize> = block_cut_offs.iter().map(pick).collect();
+        values.sort_unstable();
+        values[values.len() / 2]
+    };
+    Ok(ClutterReport {
+        low: median(|c| c.0),
+        high: median(|c| c.1),
+        singular_values: Vec::new(),
+        block_cut_offs,
+        block_layout: Some(layout),
+    })
+}
+
+/// The tent-weighted sums of filtered blocks over a band of image rows, and every pixel's sum of
+/// weights.
+pub(super) struct Blended {
+    /// The sums over rows `start..start + rows` (row-major: rows × nx × frames).
+    sums: Vec<Complex32>,
+    /// Each pixel's sum of the weights of the blocks added over it.
+    weights: Array2<f32>,
+    /// The image row the band starts at.
+    start: usize,
+}
+
+impl Blended {
+    /// Adds the filtered `block` (rows × cols × frames, row-major) whose first pixel is at
+    /// (z0, x0), a row within the band, each pixel weighted by its tents.
+    fn add(
+        &mut self,
+        block: &[Complex32],
+        (z0, x0): (usize, usize),
+        (rows, cols): (usize, usize),
+        frames: usize,
+    ) {
+        let row_len = self.weights.ncols() * frames;
+        for i in 0..rows {
+            let band_row = (z0 + i - self.start) * row_len;
+            for j in 0..cols {
+                let w = tent(i, rows) * tent(j, cols);
+                self.weights[[z0 + i, x0 + j]] += w;
+                let at = band_row + (x0 + j) * frames;
+                let from = (i * cols + j) * frames;
+                for (sum, &v) in self.sums[at..at + frames]
+                    .iter_mut()
+                    .zip(&block[from..from + frames])
+                {
+                    *sum += v * w;
+                }
+            }
+        }
+    }
+
+    /// Writes the band's rows above `until` into `series` (each pixel its sum over its weight:
+    /// the blend) and moves the band down to start there.
+    fn settle(&mut self, series: &mut Array3<Complex32>, until: usize) -> Result<()> {
+        let (_, nx, frames) = series.dim();
+        let row_len = nx * frames;
+        let done = until - self.start;
+        for r in 0..done {
+            let z = self.start + r;
+            let mut row = series.slice_mut(ndarray::s![z, .., ..]);
+            let out = row
+                .as_slice_mut()
+                .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
+            let sums = &self.sums[r * row_len..(r + 1) * row_len];
+            for ((out, sums), &w) in out
+                .chunks_mut(frames)
+                .zip(sums.chunks(frames))
+                .zip(self.weights.row(z))
+            {
+                for (o, &s) in out.iter_mut().zip(sums) {
+                    *o = s / w;
+                }
+            }
+        }
+        let moved = (done * row_len).min(self.sums.len());
+        self.sums.copy_within(moved.., 0);
+        let kept = self.sums.len() - moved;
+        self.sums[kept..].fill(Complex32::new(0.0, 0.0));
+        self.start = until;
+        Ok(())
+    }
+}
+
+/// The block size (rows, columns) on an image of `shape`: `size` clamped to the image, grown a
+/// row or a column at a time (the shorter side first) until a block holds at least `frames`
+/// pixels, as a block's SVD needs to see a noise floor (the whole image where it holds fewer),
+/// then each side shorter than the image made even (a pixel more where it is odd). Blocks of
+/// an even side at half-block steps cut the image into cells of half a block, four to a block;
+/// an odd side's half-steps leave one-pixel cells between the others, up to five a side, and a
+/// block sums up to 25 cells' Gram matrices instead of four.
+pub(super) fn holding_frames(
+    (nz, nx): (usize, usize),
+    (rows, cols): (usize, usize),
+    frames: usize,
+) -> (usize, usize) {
+    let (mut rows, mut cols) = (rows.clamp(1, nz), cols.clamp(1, nx));
+    while rows * cols < frames && (rows < nz || cols < nx) {
+        if cols == nx || (rows <= cols && rows < nz) {
+            rows += 1;
+        } else {
+            cols += 1;
+        }
+    }
+    let even = |side: usize, image: usize| (side + side % 2).min(image);
+    (even(rows, nz), even(cols, nx))
+}
+
+/// Adds the lower half (the diagonal included) of the square `term` to `sum`'s: all that the
+/// eigensolver reads, at half the work of adding whole matrices.
+pub(super) fn add_lower(sum: &mut Mat<c64>, term: &Mat<c64>) {
+    let n = sum.nrows();
+    for j in 0..n {
+        let to = sum.col_mut(j).subrows_mut(j, n - j);
+        let from = term.col(j).subrows(j, n - j);
+        let (to, from) = (
+            to.try_as_col_major_mut()
+                .expect("an owned matrix's columns are contiguous"),
+            from.try_as_col_major()
+                .expect("an owned matrix's columns are contiguous"),
+        );
+        // SAFETY: c64 is two f64 (re, im), laid out as such; the slices cover the same entries.
+        let (to, from) = unsafe {
+            (
+                std::slice::from_raw_parts_mut(to.as_ptr_mut() as *mut f64, 2 * to.nrows()),
+                std::slice::from_raw_parts(from.as_ptr() as *const f64, 2 * from.nrows()),
+            )
+        };
+        for (t, f) in to.iter_mut().zip(from) {
+            *t += f;
+        }
+    }
+}
+
+/// The cells along one axis (indices into `edges`) that lie within `len` pixels from `start`.
+pub(super) fn cells_within(
+    edges: &[usize],
+    start: usize,
+    len: usize,
+) -> impl Iterator<Item = usize> + '_ {
+    (0..edges.len() - 1).filter(move |&c| edges[c] >= start && edges[c + 1] <= start + len)
+}
+
+/// The edges along one axis of the cells that blocks of `size` starting at `starts` cut it into:
+/// every block's first and one-past-last pixel, in order.
+pub(super) fn cell_edges(starts: &[usize], size: usize) -> Vec<usize> {
+    let mut edges: Vec<usize> = starts.iter().flat_map(|&s| [s, s + size]).collect();
+    edges.sort_unstable();
+    edges.dedup();
+    edges
+}
