@@ -85,7 +85,9 @@ impl Lut {
             return [NAN_RGB.0, NAN_RGB.1, NAN_RGB.2];
         }
         let t = ((v - self.lo) * self.inv_span).clamp(0.0, 1.0);
-        self.table[(t * (Self::N - 1) as f64).round() as usize]
+        // Rounded by adding ½ and truncating: the index is not negative, and `round` is a call
+        // into libm on every pixel where the CPU baseline has no rounding instruction.
+        self.table[(t * (Self::N - 1) as f64 + 0.5) as usize]
     }
 }
 

@@ -341,7 +341,8 @@ pub(crate) fn fill(ip: &ImagePanel, l: &ImageLayout, buf: &mut [u8], buf_w: usiz
                         0.0
                     }
                 });
-                let g = (g * 255.0).round() as u8;
+                // As in the colour map: ½ added and truncated, not a libm call per pixel.
+                let g = (g * 255.0 + 0.5) as u8;
                 [g, g, g]
             };
             row_rgb[px * 3..px * 3 + 3].copy_from_slice(&rgb);
