@@ -6,7 +6,9 @@
 //! bandwidth measured here (one core copying a buffer far larger than the caches, and all cores
 //! at once); the beamformer's work is counted as other beamformers publish it, points = pixels ×
 //! elements × frames (all elements, every angle's image), with the active aperture (the elements
-//! within the receive f-number's reach of each pixel) beside it.
+//! within the receive f-number's reach of each pixel) beside it, and its arithmetic bound: the
+//! fused multiply-adds per second measured here on every core, over those the accumulation
+//! kernel issues per active point.
 //!
 //! `--scenario` times the simulator instead: a scenario's recordings simulated as `pcuvd
 //! simulate` does, block by block, and thrown away; the report counts scatterers and echoes (a
@@ -108,6 +110,74 @@ fn memory_bandwidth() -> (f64, f64) {
             .fold(0.0, f64::max)
     };
     (best(false), best(true))
+}
+
+/// Fused multiply-add instructions per second on every core at once, `bits` wide (512: AVX-512,
+/// 256: AVX2 + FMA), the best of three: twelve independent chains per thread, enough to keep
+/// two FMA units busy through their latency. The beamformer's arithmetic bound is this rate
+/// over its FMAs per point. `None` where the CPU lacks the width (or off x86-64).
+fn fma_rate(bits: usize) -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        const CHAINS: usize = 12;
+        const ROUNDS: usize = 2_000_000;
+
+        #[target_feature(enable = "avx512f")]
+        unsafe fn chains_512() -> f32 {
+            let (x, y) = (_mm512_set1_ps(0.999_999), _mm512_set1_ps(1e-7));
+            let mut acc = [_mm512_set1_ps(1.0); CHAINS];
+            for _ in 0..ROUNDS {
+                for a in acc.iter_mut() {
+                    *a = _mm512_fmadd_ps(*a, x, y);
+                }
+            }
+            acc.iter().map(|&a| _mm512_reduce_add_ps(a)).sum()
+        }
+
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn chains_256() -> f32 {
+            let (x, y) = (_mm256_set1_ps(0.999_999), _mm256_set1_ps(1e-7));
+            let mut acc = [_mm256_set1_ps(1.0); CHAINS];
+            for _ in 0..ROUNDS {
+                for a in acc.iter_mut() {
+                    *a = _mm256_fmadd_ps(*a, x, y);
+                }
+            }
+            let mut lanes = [0.0f32; 8];
+            acc.iter()
+                .map(|&a| {
+                    // SAFETY: `lanes` holds the 8 floats stored.
+                    unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), a) };
+                    lanes.iter().sum::<f32>()
+                })
+                .sum()
+        }
+
+        let chains: unsafe fn() -> f32 = match bits {
+            512 if is_x86_feature_detected!("avx512f") => chains_512,
+            256 if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") => {
+                chains_256
+            }
+            _ => return None,
+        };
+        let best = (0..3)
+            .map(|_| {
+                let clock = Instant::now();
+                // SAFETY: the instructions' features were detected above.
+                let sums = rayon::broadcast(|_| unsafe { chains() });
+                std::hint::black_box(sums);
+                let fmas = (CHAINS * ROUNDS * rayon::current_num_threads()) as f64;
+                fmas / clock.elapsed().as_secs_f64()
+            })
+            .fold(0.0, f64::max);
+        Some(best)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = bits;
+        None
+    }
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -215,6 +285,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     };
     let (model, features, threads) = cpu();
     let (copy_one, copy_all) = memory_bandwidth();
+    let kernel = pcuvd::form::beamform::accumulation_kernel();
+    let fma_per_s = kernel.vector_bits.and_then(fma_rate);
     let mut stage_times: std::collections::BTreeMap<&'static str, Vec<f64>> = Default::default();
     let mut read_times = Vec::new();
     let mut total_times = Vec::new();
@@ -270,6 +342,9 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let beamform_s = stage(Stage::Beamform);
     let points = pixels as f64 * elements as f64 * images as f64;
     let decode_s = stage(Stage::Decode);
+    let active_points_per_s = points * mean_active / elements as f64 / beamform_s;
+    // Only active taps are summed: the bound is on active points.
+    let arithmetic_bound = fma_per_s.zip(kernel.fma_per_point).map(|(r, k)| r / k);
     let report = json!({
         "input": input.display().to_string(),
         "runs": args.repeat,
@@ -288,8 +363,12 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         "throughput": {
             "decode_bytes_per_s": input_bytes as f64 / decode_s,
             "beamform_points_per_s": points / beamform_s,
-            "beamform_active_points_per_s": points * mean_active / elements as f64 / beamform_s,
+            "beamform_active_points_per_s": active_points_per_s,
             "mean_active_aperture_elements": mean_active,
+            "beamform_kernel": kernel.name,
+            "beamform_fma_per_point": kernel.fma_per_point,
+            "fma_per_s_all_cores": fma_per_s,
+            "beamform_arithmetic_bound_active_points_per_s": arithmetic_bound,
         },
         "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
@@ -322,9 +401,23 @@ pub fn run(args: &BenchArgs) -> Result<()> {
          {images} images), {:.2}e9 active points/s ({:.1} elements in each pixel's aperture)",
         beamform_s,
         points / beamform_s * 1e-9,
-        points * mean_active / elements as f64 / beamform_s * 1e-9,
+        active_points_per_s * 1e-9,
         mean_active
     );
+    match (arithmetic_bound, fma_per_s, kernel.fma_per_point) {
+        (Some(bound), Some(rate), Some(per_point)) => println!(
+            "               arithmetic bound {:.1}e9 active points/s ({} kernel: {per_point} FMA \
+             per point; {:.1}e9 FMA/s measured on all cores): at {:.0} % of it",
+            bound * 1e-9,
+            kernel.name,
+            rate * 1e-9,
+            100.0 * active_points_per_s / bound
+        ),
+        _ => println!(
+            "               arithmetic bound not known ({} kernel)",
+            kernel.name
+        ),
+    }
     for (label, times) in &stage_times {
         if *label != Stage::Decode.label() && *label != Stage::Beamform.label() {
             println!("  {label:<12} {:.3} s", median(times.clone()));
@@ -338,4 +431,23 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         pcuvd_io::write_json(path, &report)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fma_rate;
+
+    #[test]
+    fn the_fma_rate_is_measured_for_the_widths_this_cpu_has() {
+        assert_eq!(fma_rate(128), None, "no kernel is 128 bits wide");
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+            assert_eq!(fma_rate(256).is_some(), avx2);
+            assert_eq!(fma_rate(512).is_some(), is_x86_feature_detected!("avx512f"));
+            for rate in [fma_rate(256), fma_rate(512)].into_iter().flatten() {
+                assert!(rate.is_finite() && rate > 0.0, "{rate}");
+            }
+        }
+    }
 }

@@ -11,6 +11,10 @@ use std::arch::x86_64::*;
 /// two sums per vector (see [`run`]) and four weights leave no register to spare at 6.
 pub(super) const MAX_VECTORS: usize = 5;
 
+/// Fused multiply-adds per point (pixel × active element × frame): per tap, each 4-frame vector
+/// takes four (two sums, each of two samples by a broadcast weight).
+pub(super) const FMA_PER_POINT: f64 = 1.0;
+
 /// Dispatches a run of 1..=4·MAX_VECTORS frames to its register-resident instance.
 ///
 /// # Safety

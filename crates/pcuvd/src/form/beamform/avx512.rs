@@ -13,6 +13,10 @@ use std::arch::x86_64::*;
 /// is one run and each tap's rows are read once per pass.
 pub(super) const MAX_VECTORS: usize = 13;
 
+/// Fused multiply-adds per point (pixel × active element × frame): per tap, each 8-frame vector
+/// takes four (two sums, each of two samples by a broadcast weight).
+pub(super) const FMA_PER_POINT: f64 = 0.5;
+
 /// Dispatches a run of 1..=8·MAX_VECTORS frames to its register-resident instance.
 ///
 /// # Safety

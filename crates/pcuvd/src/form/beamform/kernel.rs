@@ -55,6 +55,22 @@ impl Kernel {
         Kernel::supported()[0]
     }
 
+    /// What the kernel is, for a speed report (see [`super::AccumulationKernel`]).
+    pub(super) fn describe(self) -> super::AccumulationKernel {
+        let (name, vector_bits, fma_per_point) = match self {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512 => ("AVX-512", Some(512), Some(avx512::FMA_PER_POINT)),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => ("AVX2", Some(256), Some(avx2::FMA_PER_POINT)),
+            Kernel::Portable => ("portable", None, None),
+        };
+        super::AccumulationKernel {
+            name,
+            vector_bits,
+            fma_per_point,
+        }
+    }
+
     /// Adds to `out`, frames `f0..f0 + out.len()` of pixel `p`, Σ over its taps of c0·a + c1·b,
     /// a and b being the tap element's frames at samples i0 and i0 + 1. `next` (the next
     /// pixel's sums) is only prefetched.
@@ -214,6 +230,26 @@ mod tests {
         for (a, b) in fast.iter().zip(slow.iter()) {
             assert!((a - b).norm() <= 1e-5 * scale, "{kernel:?}: {a} vs {b}");
         }
+    }
+
+    #[test]
+    fn each_kernel_counts_its_fmas_per_point_from_its_frames_per_vector() {
+        // Four FMAs per tap and vector (two sums, each of two samples): a 512-bit vector holds
+        // 8 complex frames, a 256-bit one 4.
+        for &kernel in Kernel::supported() {
+            let d = kernel.describe();
+            match (d.vector_bits, d.fma_per_point) {
+                (Some(bits), Some(per_point)) => {
+                    assert_eq!(per_point, 4.0 / (bits / 64) as f64, "{}", d.name)
+                }
+                (None, None) => assert_eq!(kernel, Kernel::Portable),
+                other => panic!("{}: {other:?}", d.name),
+            }
+        }
+        assert_eq!(
+            super::super::accumulation_kernel(),
+            Kernel::detect().describe()
+        );
     }
 
     #[test]

@@ -107,6 +107,24 @@ pub fn beamform_into(
     tiling::beamform_into_with(Kernel::detect(), iq, probe, angle, grid, params, image)
 }
 
+/// The delay-and-sum accumulation kernel this CPU runs, for a speed report's arithmetic bound.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AccumulationKernel {
+    /// "AVX-512", "AVX2" or "portable".
+    pub name: &'static str,
+    /// Width of its vectors (bits); `None` for the portable loop, vectorised as the compiler
+    /// chooses.
+    pub vector_bits: Option<usize>,
+    /// Fused multiply-add instructions of that width per point (pixel × active element ×
+    /// frame); `None` for the portable loop.
+    pub fma_per_point: Option<f64>,
+}
+
+/// The accumulation kernel [`beamform`] runs on this CPU (the widest it supports).
+pub fn accumulation_kernel() -> AccumulationKernel {
+    Kernel::detect().describe()
+}
+
 /// Coherent compounding: the sum of per-angle images (nz, nx, frames).
 pub fn compound(images: &[Array3<Complex32>]) -> Result<Array3<Complex32>> {
     let first = images
