@@ -728,6 +728,56 @@ mod tests {
     }
 
     #[test]
+    fn every_real_type_converts_a_row_as_its_elements_one_by_one() {
+        // Values each type holds exactly (negative ones where signed), in either byte order:
+        // the row conversion (one match per row) and the element decoder (one per element)
+        // give the same floats, and those are the values.
+        for dtype in Dtype::ALL.into_iter().filter(|d| !d.is_complex()) {
+            // Each type's extremes: an unsigned value read as signed, or a byte order swapped,
+            // reads otherwise.
+            let vals: [f64; 5] = match dtype {
+                Dtype::I8 => [-128.0, -3.0, 0.0, 5.0, 127.0],
+                Dtype::U8 => [0.0, 1.0, 128.0, 200.0, 255.0],
+                Dtype::I16 => [-32768.0, -3.0, 0.0, 300.0, 32767.0],
+                Dtype::U16 => [0.0, 1.0, 255.0, 40000.0, 65535.0],
+                Dtype::I32 => [-2147483648.0, -3.0, 0.0, 70000.0, 2147483647.0],
+                _ => [-1.5, 0.0, 3.25, 1e30, -7.0],
+            };
+            for little in [true, false] {
+                let bytes: Vec<u8> = vals
+                    .iter()
+                    .flat_map(|&v| {
+                        let b: Vec<u8> = match dtype {
+                            Dtype::I8 => vec![v as i8 as u8],
+                            Dtype::U8 => vec![v as u8],
+                            Dtype::I16 => (v as i16).to_le_bytes().to_vec(),
+                            Dtype::U16 => (v as u16).to_le_bytes().to_vec(),
+                            Dtype::I32 => (v as i32).to_le_bytes().to_vec(),
+                            Dtype::F32 => (v as f32).to_le_bytes().to_vec(),
+                            Dtype::F64 => v.to_le_bytes().to_vec(),
+                            Dtype::C64 | Dtype::C128 => unreachable!("real types only"),
+                        };
+                        if little {
+                            b
+                        } else {
+                            b.into_iter().rev().collect()
+                        }
+                    })
+                    .collect();
+                let mut row = Vec::new();
+                dtype.decode_real_row(&bytes, little, &mut row);
+                let one_by_one: Vec<f32> = bytes
+                    .chunks_exact(dtype.size())
+                    .map(|b| dtype.decode(b, little).0)
+                    .collect();
+                let expected: Vec<f32> = vals.iter().map(|&v| v as f32).collect();
+                assert_eq!(row, expected, "{dtype:?}, little {little}");
+                assert_eq!(one_by_one, expected, "{dtype:?}, little {little}");
+            }
+        }
+    }
+
+    #[test]
     fn stored_bytes_read_as_their_values_in_every_order() {
         // int16 values (negative ones too) as bytes of either byte order and memory order read
         // as the same values held decoded, whatever rows the selection makes contiguous.
