@@ -125,8 +125,7 @@ pub fn open_data_array(spec: &DataSpec) -> Result<StoredArray, IoError> {
                     format!("is missing: write \"{}:VARIABLE\"", file_name(path)),
                 )
             })?;
-            let file = crate::mat::read_mat(path)?;
-            let mut file = file;
+            let mut file = crate::mat::read_mat(path)?;
             match file.variables.remove(m) {
                 Some(crate::mat::MatValue::Numeric {
                     dims, real, imag, ..

@@ -223,8 +223,9 @@ pub(super) fn element_size(ty: u32) -> Option<usize> {
     })
 }
 
-/// Numbers of any storage type, as f64.
-pub(super) fn numbers(el: &Element, big: bool) -> Result<Vec<f64>, String> {
+/// The size of a numeric data element's values (bytes), refusing a type that is not numeric and
+/// data that is not a whole number of values.
+fn value_size(el: &Element) -> Result<usize, String> {
     let size = element_size(el.ty).ok_or_else(|| format!("data type {} is not numeric", el.ty))?;
     if !el.data.len().is_multiple_of(size) {
         return Err(format!(
@@ -233,6 +234,12 @@ pub(super) fn numbers(el: &Element, big: bool) -> Result<Vec<f64>, String> {
             el.ty
         ));
     }
+    Ok(size)
+}
+
+/// Numbers of any storage type, as f64.
+pub(super) fn numbers(el: &Element, big: bool) -> Result<Vec<f64>, String> {
+    let size = value_size(el)?;
     let chunks = el.data.chunks_exact(size);
     Ok(match el.ty {
         MI_INT8 => el.data.iter().map(|&b| f64::from(b as i8)).collect(),
@@ -263,14 +270,7 @@ pub(super) fn stored_numbers(el: &Element, big: bool) -> Result<Numbers, String>
         MI_SINGLE => Dtype::F32,
         _ => return numbers(el, big).map(Numbers::F64),
     };
-    if !el.data.len().is_multiple_of(dtype.size()) {
-        return Err(format!(
-            "{} bytes of data type {} is not a whole number of {}-byte values",
-            el.data.len(),
-            el.ty,
-            dtype.size()
-        ));
-    }
+    value_size(el)?;
     Ok(Numbers::Stored {
         dtype,
         little: !big,
