@@ -390,9 +390,10 @@ pub fn brain_figures(
             .and(shown)
             .map_collect(|v, &s| s && v.is_finite())
     };
-    // (title's name, maps: None where the method has none, and why).
-    let (empty, none) = (black.clone(), Array2::from_elem(grid.shape(), false));
-    let columns: Vec<(String, Result<&RiMaps, String>, Array2<bool>)> = study
+    // (the method, its RI maps or why it has none, its vessel mask); a placeholder panel shows
+    // nothing on black.
+    let none = Array2::from_elem(grid.shape(), false);
+    let columns: Vec<(&str, Result<&RiMaps, String>, &Array2<bool>)> = study
         .modes
         .iter()
         .zip(&detected)
@@ -400,7 +401,7 @@ pub fn brain_figures(
             let maps =
                 m.ri.as_ref()
                     .ok_or_else(|| no_ri_reason(m.ri_skipped.as_deref().unwrap_or("not computed")));
-            (m.method().to_string(), maps, detected.clone())
+            (m.method(), maps, detected)
         })
         .collect();
     let ncols = usize::from(cycle.is_some()) + columns.len();
@@ -410,24 +411,18 @@ pub fn brain_figures(
     }
     for (name, maps, detected) in &columns {
         ri_row.push(match maps {
-            Ok(ri) => (format!("{name}: RI"), view.cut(&ri.ri), detected.clone()),
+            Ok(ri) => (format!("{name}: RI"), view.cut(&ri.ri), (*detected).clone()),
             Err(why) => (
                 format!("{name}: no RI ({why})"),
-                empty.clone(),
+                black.clone(),
                 none.clone(),
             ),
         });
     }
     for (title, ri, shown) in ri_row {
-        let mut p = map_panel(
-            &title,
-            ri.clone(),
-            grid,
-            Colormap::Viridis,
-            (0.0, 1.0),
-            "RI",
-        );
-        p.mask = Some(shown_where(&ri, &shown));
+        let mask = shown_where(&ri, &shown);
+        let mut p = map_panel(&title, ri, grid, Colormap::Viridis, (0.0, 1.0), "RI");
+        p.mask = Some(mask);
         p.background = Some(black.clone());
         panels.push(Panel::Image(p));
     }
@@ -445,11 +440,11 @@ pub fn brain_figures(
                 Ok(ri) => (
                     format!("{name}: {kind}"),
                     view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
-                    detected.clone(),
+                    (*detected).clone(),
                 ),
                 Err(_) => (
                     format!("{name}: no {kind} (no RI)"),
-                    empty.clone(),
+                    black.clone(),
                     none.clone(),
                 ),
             });
