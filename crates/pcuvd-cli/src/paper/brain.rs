@@ -405,64 +405,41 @@ pub fn brain_figures(
         })
         .collect();
     let ncols = usize::from(cycle.is_some()) + columns.len();
-    let mut ri_row: Vec<(String, Array2<f64>, Array2<bool>)> = Vec::new();
-    if let Some(c) = cycle {
-        ri_row.push(("Truth: RI".to_string(), view.cut(&c.ri), lumen.clone()));
-    }
-    for (name, maps, detected) in &columns {
-        ri_row.push(match maps {
-            Ok(ri) => (format!("{name}: RI"), view.cut(&ri.ri), (*detected).clone()),
-            Err(why) => (
-                format!("{name}: no RI ({why})"),
-                black.clone(),
-                none.clone(),
-            ),
+    // One row of the figure: the truth's map over the lumen, then each method's over its vessel
+    // mask, or an empty panel whose title (`missing(why)`) says why it has none.
+    let mut row = |what: &str,
+                   truth_map: Option<Array2<f64>>,
+                   method_map: &dyn Fn(&RiMaps) -> Array2<f64>,
+                   missing: &dyn Fn(&str) -> String,
+                   (colormap, range, label): (Colormap, (f64, f64), &str)| {
+        let truth_entry = truth_map.map(|t| (format!("Truth: {what}"), t, lumen));
+        let method_entries = columns.iter().map(|(name, maps, detected)| match maps {
+            Ok(ri) => (format!("{name}: {what}"), method_map(ri), *detected),
+            Err(why) => (format!("{name}: {}", missing(why)), black.clone(), &none),
         });
-    }
-    for (title, ri, shown) in ri_row {
-        let mask = shown_where(&ri, &shown);
-        let mut p = map_panel(&title, ri, grid, Colormap::Viridis, (0.0, 1.0), "RI");
-        p.mask = Some(mask);
-        p.background = Some(black.clone());
-        panels.push(Panel::Image(p));
-    }
-    for (which, kind) in [(ARTERIOLE, "arterioles"), (VENULE, "venules")] {
-        let mut maps: Vec<(String, Array2<f64>, Array2<bool>)> = Vec::new();
-        if let Some(c) = cycle {
-            maps.push((
-                format!("Truth: {kind}"),
-                view.cut(&class_map(&c.psv, &c.vessel_class, &c.flow_up, which)),
-                lumen.clone(),
-            ));
-        }
-        for (name, ri, detected) in &columns {
-            maps.push(match ri {
-                Ok(ri) => (
-                    format!("{name}: {kind}"),
-                    view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
-                    (*detected).clone(),
-                ),
-                Err(_) => (
-                    format!("{name}: no {kind} (no RI)"),
-                    black.clone(),
-                    none.clone(),
-                ),
-            });
-        }
-        for (title, data, shown) in maps {
-            let mask = shown_where(&data, &shown);
-            let mut p = map_panel(
-                &title,
-                data,
-                grid,
-                Colormap::RedBlue,
-                (-vmax, vmax),
-                PSV_UP_LABEL,
-            );
+        for (title, data, shown) in truth_entry.into_iter().chain(method_entries) {
+            let mask = shown_where(&data, shown);
+            let mut p = map_panel(&title, data, grid, colormap, range, label);
             p.mask = Some(mask);
             p.background = Some(black.clone());
             panels.push(Panel::Image(p));
         }
+    };
+    row(
+        "RI",
+        cycle.map(|c| view.cut(&c.ri)),
+        &|ri| view.cut(&ri.ri),
+        &|why| format!("no RI ({why})"),
+        (Colormap::Viridis, (0.0, 1.0), "RI"),
+    );
+    for (which, kind) in [(ARTERIOLE, "arterioles"), (VENULE, "venules")] {
+        row(
+            kind,
+            cycle.map(|c| view.cut(&class_map(&c.psv, &c.vessel_class, &c.flow_up, which))),
+            &|ri| view.cut(&class_map(&ri.psv, &ri.vessel_class, &ri.flow_up, which)),
+            &|_| format!("no {kind} (no RI)"),
+            (Colormap::RedBlue, (-vmax, vmax), PSV_UP_LABEL),
+        );
     }
     figs.push(render(
         dir,
