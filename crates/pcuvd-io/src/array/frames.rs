@@ -276,11 +276,7 @@ impl FrameSource for ArrayFrames {
             acquisition: self.acquisition.clone(),
             samples,
         };
-        let finite = match &data.samples {
-            Samples::Rf(a) => a.iter().all(|v| v.is_finite()),
-            Samples::Iq { data, .. } => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
-        };
-        if !finite {
+        if !data.samples.all_finite() {
             return Err(pcuvd::Error::NonFinite(format!(
                 "the samples of {} (NaN or Inf in frames {frames:?})",
                 self.array.label

@@ -2,10 +2,10 @@
 
 use ndarray::{Array3, Array4, ArrayView4};
 use num_complex::Complex32;
-use rayon::prelude::*;
 
 use crate::acquisition::probe::Probe;
 use crate::acquisition::sequence::Sequence;
+use crate::core::buffers::{complex_floats, floats_finite};
 use crate::core::error::{Error, Result, invalid, require_positive};
 
 /// Everything needed to interpret a recording's samples.
@@ -216,8 +216,14 @@ impl Samples {
     /// Whether every sample is finite (no NaN or Inf), checked on every core.
     pub fn all_finite(&self) -> bool {
         match self {
-            Samples::Rf(a) => all_of(a, |v| v.is_finite()),
-            Samples::Iq { data, .. } => all_of(data, |v| v.re.is_finite() && v.im.is_finite()),
+            Samples::Rf(a) => match a.as_slice_memory_order() {
+                Some(values) => floats_finite(values),
+                None => a.iter().all(|v| v.is_finite()),
+            },
+            Samples::Iq { data, .. } => match data.as_slice_memory_order() {
+                Some(values) => floats_finite(complex_floats(values)),
+                None => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
+            },
         }
     }
 
@@ -227,14 +233,6 @@ impl Samples {
             Samples::Rf(a) => a.dim(),
             Samples::Iq { data, .. } => data.dim(),
         }
-    }
-}
-
-/// Whether `test` holds for every value of `array`: over contiguous memory on every core.
-fn all_of<T: Sync>(array: &Array3<T>, test: impl Fn(&T) -> bool + Sync) -> bool {
-    match array.as_slice_memory_order() {
-        Some(values) => values.par_chunks(1 << 16).all(|c| c.iter().all(&test)),
-        None => array.iter().all(test),
     }
 }
 

@@ -1,5 +1,5 @@
 //! Array memory reused from one block of frames to the next, complex samples seen as their
-//! floats, and a 1-D view seen as a slice.
+//! floats, a test that a block's floats are all finite, and a 1-D view seen as a slice.
 
 use bytemuck::Zeroable;
 use ndarray::{Array, ArrayView1, Dimension, IntoDimension};
@@ -69,6 +69,21 @@ pub fn complex_floats_mut(samples: &mut [Complex32]) -> &mut [f32] {
     unsafe { std::slice::from_raw_parts_mut(samples.as_mut_ptr().cast(), 2 * samples.len()) }
 }
 
+/// Whether every value is finite (no NaN or ±Inf), tested on every core. A float is not finite
+/// when its exponent bits are all set; counting such values has no early exit, so the loop
+/// vectorises, where `iter().all(is_finite)` tests one value at a time (a 2.8 GB recording took
+/// about 1.5 s of CPU to scan that way).
+pub fn floats_finite(values: &[f32]) -> bool {
+    const EXPONENT: u32 = 0x7f80_0000;
+    values.par_chunks(1 << 16).all(|chunk| {
+        chunk
+            .iter()
+            .map(|v| u32::from(v.to_bits() & EXPONENT == EXPONENT))
+            .sum::<u32>()
+            == 0
+    })
+}
+
 /// A 1-D view's elements as a slice: borrowed where they lie contiguous (a pixel's frames in a
 /// formed series, a trace of a recording), else copied.
 pub fn contiguous<T: Clone>(view: ArrayView1<'_, T>) -> std::borrow::Cow<'_, [T]> {
@@ -100,5 +115,42 @@ mod tests {
         assert!(longer.is_standard_layout());
         let fresh = array_reusing::<f32, _>(None, (1, 2, 3));
         assert!(fresh.iter().all(|&v| v == 0.0));
+    }
+
+    /// Finite extremes (largest, smallest normal, subnormal, signed zeros) pass; a NaN (quiet
+    /// or signalling, either sign) or an infinity anywhere fails, in the first, a middle or
+    /// the last of several parallel chunks, as `f32::is_finite` says of each.
+    #[test]
+    fn floats_are_finite_unless_one_is_nan_or_infinite() {
+        let n = 3 * (1 << 16) + 17;
+        let mut values: Vec<f32> = (0..n).map(|i| (i as f32 - 9e4) * 1e33).collect();
+        let extremes = [
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            1e-45,
+            -1e-45,
+            0.0,
+            -0.0,
+        ];
+        values[..extremes.len()].copy_from_slice(&extremes);
+        assert!(values.iter().all(|v| v.is_finite()));
+        assert!(floats_finite(&values));
+        assert!(floats_finite(&[]));
+        let bad = [
+            f32::NAN,
+            -f32::NAN,
+            f32::from_bits(0x7f80_0001),
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        for (k, &v) in bad.iter().enumerate() {
+            for at in [0, 1 << 16, n / 2 + k, n - 1] {
+                let old = std::mem::replace(&mut values[at], v);
+                assert!(!floats_finite(&values), "{v} at {at}");
+                values[at] = old;
+            }
+        }
+        assert!(floats_finite(&values));
     }
 }
