@@ -405,6 +405,69 @@ fn streamed_recording_equals_the_one_written_at_once() {
     assert_eq!(read_recording(&with_beats).unwrap().data, data);
 }
 
+/// A block read from a samples file is refused when it holds a NaN or an infinity, wherever it
+/// lies in the block (its first value, the first of a later run tested after reading, its last),
+/// and only in the blocks that hold it; doubles beyond f32's range are infinite as f32 and
+/// refused too; integer samples are read without a test (every one is finite).
+#[test]
+fn blocks_with_non_finite_samples_are_refused_where_they_lie() {
+    use pcuvd::acquisition::source::FrameSource;
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
+    // 6 channels × 4,000 samples: a frame of 4 events is 384 kB of f32, so a block of two
+    // frames spans three runs of 256 kB tested apart.
+    let samples = rf(3 * 4, 6, 4000);
+    let data = ChannelData {
+        acquisition: acq.clone(),
+        samples: Samples::Rf(samples.clone()),
+    };
+    let manifest = write_recording(dir.path(), "rec", &data, &toml::Table::new()).unwrap();
+    let npy = manifest.with_file_name("rec.npy");
+    let four = samples.into_shape_with_order((3, 4, 6, 4000)).unwrap();
+    let per_frame = 4 * 6 * 4000;
+    let at = |i: usize| {
+        let (f, rest) = (i / per_frame, i % per_frame);
+        [f, rest / 24000, rest / 4000 % 6, rest % 4000]
+    };
+    let refused = |range: std::ops::Range<usize>| {
+        let frames = crate::ManifestFrames::open(&manifest).unwrap().unwrap();
+        match frames.read_frames(range) {
+            Ok(_) => None,
+            Err(e) => Some(e.to_string()),
+        }
+    };
+    // Read in runs, the block is the recording.
+    let clean = crate::ManifestFrames::open(&manifest).unwrap().unwrap();
+    assert_eq!(
+        clean.read_frames(0..3).unwrap(),
+        data.read_frames(0..3).unwrap()
+    );
+    // Values 0, 65,536 (the second run's first, in a block from frame 0), the last of frame 1.
+    for (i, bad) in [
+        (0, f32::NAN),
+        (65_536, f32::INFINITY),
+        (2 * per_frame - 1, f32::NEG_INFINITY),
+    ] {
+        let mut f4 = four.clone();
+        f4[at(i)] = bad;
+        ndarray_npy::write_npy(&npy, &f4).unwrap();
+        let err = refused(0..2).unwrap_or_else(|| panic!("{bad} at {i} passed"));
+        assert!(err.contains("NaN or Inf") && err.contains("0..2"), "{err}");
+        assert_eq!(
+            refused(2..3),
+            None,
+            "{bad} at {i} refused a block without it"
+        );
+        let mut f8 = four.mapv(f64::from);
+        f8[at(i)] = if bad.is_nan() { f64::NAN } else { 1e300 };
+        ndarray_npy::write_npy(&npy, &f8).unwrap();
+        assert!(refused(0..2).is_some(), "{bad} at {i} as a double passed");
+        assert_eq!(refused(2..3), None);
+    }
+    ndarray_npy::write_npy(&npy, &four.mapv(|v| (v * 100.0).round() as i16)).unwrap();
+    assert_eq!(refused(0..3), None);
+}
+
 /// A manifest's samples read a block of frames at a time are the recording read whole, for each
 /// stored dtype; samples in another axis order are left to the whole reader.
 #[test]

@@ -5,7 +5,7 @@ use num_complex::Complex32;
 
 use crate::acquisition::probe::Probe;
 use crate::acquisition::sequence::Sequence;
-use crate::core::buffers::{complex_floats, floats_finite};
+use crate::core::buffers::{complex_floats, floats_finite_on_every_core};
 use crate::core::error::{Error, Result, invalid, require_positive};
 
 /// Everything needed to interpret a recording's samples.
@@ -217,11 +217,11 @@ impl Samples {
     pub fn all_finite(&self) -> bool {
         match self {
             Samples::Rf(a) => match a.as_slice_memory_order() {
-                Some(values) => floats_finite(values),
+                Some(values) => floats_finite_on_every_core(values),
                 None => a.iter().all(|v| v.is_finite()),
             },
             Samples::Iq { data, .. } => match data.as_slice_memory_order() {
-                Some(values) => floats_finite(complex_floats(values)),
+                Some(values) => floats_finite_on_every_core(complex_floats(values)),
                 None => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
             },
         }

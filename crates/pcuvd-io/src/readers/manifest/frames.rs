@@ -9,12 +9,15 @@ use ndarray::Array3;
 use ndarray_npy::npy::header::{Header, Layout};
 use num_complex::Complex32;
 use pcuvd::acquisition::source::FrameSource;
-use pcuvd::core::buffers::array_reusing;
+use pcuvd::core::buffers::{array_reusing, floats_finite};
 use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
 
 /// Bytes each core reads at a time from a samples file.
 const READ_PIECE: usize = 32 << 20;
+/// Bytes of a piece read and then tested at once: they are tested while still in L2, where a
+/// test of the whole block after reading it read a gigabyte from memory again.
+const TEST_PIECE: usize = 256 << 10;
 
 use crate::error::IoError;
 use crate::manifest::{event_shape, kind_error, parse_manifest};
@@ -165,50 +168,67 @@ impl ManifestFrames {
 
     /// The stored values of `events`, in the file's type: read straight into their array (no
     /// byte buffer to convert from), which for float32 recordings is the array processing uses.
-    fn read_stored<T: bytemuck::Pod>(&self, events: Range<usize>) -> std::io::Result<Vec<T>> {
+    fn read_stored<T: bytemuck::Pod + Sync>(
+        &self,
+        events: Range<usize>,
+    ) -> std::io::Result<Vec<T>> {
         let per_event = self.shape.1 * self.shape.2 * self.stored.bytes() / size_of::<T>();
         let mut values = vec![T::zeroed(); events.len() * per_event];
-        self.read_stored_into(events, &mut values)?;
+        self.read_stored_into(events, &mut values, |_| true)?;
         Ok(values)
     }
 
-    /// [`Self::read_stored`] into `values`, which holds exactly their number.
-    fn read_stored_into<T: bytemuck::Pod>(
+    /// [`Self::read_stored`] into `values`, which holds exactly their number; whether `test`
+    /// held for every run of values it was given (each a run just read).
+    fn read_stored_into<T: bytemuck::Pod + Sync>(
         &self,
         events: Range<usize>,
         values: &mut [T],
-    ) -> std::io::Result<()> {
+        test: impl Fn(&[T]) -> bool + Sync,
+    ) -> std::io::Result<bool> {
         let event_bytes = self.shape.1 * self.shape.2 * self.stored.bytes();
         #[cfg_attr(unix, allow(unused_mut))]
         let mut file = std::fs::File::open(&self.data_path)?;
         let start = self.data_offset + (events.start * event_bytes) as u64;
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(values);
+        // The file is little-endian: values read on a big-endian machine are tested once
+        // their bytes are turned, below.
+        let little = cfg!(target_endian = "little");
         #[cfg(unix)]
-        {
+        let passed = {
             use std::os::unix::fs::FileExt;
             // In pieces on every core: one core copying a block (about a gigabyte) out of the
-            // page cache held the other idle for a second per block.
+            // page cache held the other idle for a second per block. (Pieces are whole values:
+            // both piece sizes are multiples of every stored size.)
             bytes
                 .par_chunks_mut(READ_PIECE)
                 .enumerate()
-                .try_for_each(|(i, piece)| {
-                    file.read_exact_at(piece, start + (i * READ_PIECE) as u64)
-                })?;
-        }
+                .map(|(i, piece)| {
+                    let mut passed = true;
+                    for (j, run) in piece.chunks_mut(TEST_PIECE).enumerate() {
+                        let at = start + (i * READ_PIECE + j * TEST_PIECE) as u64;
+                        file.read_exact_at(run, at)?;
+                        passed &= !little || test(bytemuck::cast_slice(run));
+                    }
+                    Ok::<bool, std::io::Error>(passed)
+                })
+                .try_reduce(|| true, |a, b| Ok(a && b))?
+        };
         #[cfg(not(unix))]
-        {
+        let passed = {
             use std::io::{Read, SeekFrom};
             file.seek(SeekFrom::Start(start))?;
             file.read_exact(bytes)?;
-        }
+            !little || test(bytemuck::cast_slice(bytes))
+        };
         self.pass.offer(start, bytes);
-        if cfg!(target_endian = "big") {
-            // The file is little-endian.
+        if !little {
             values
                 .iter_mut()
                 .for_each(|v| bytemuck::bytes_of_mut(v).reverse());
+            return Ok(test(values));
         }
-        Ok(())
+        Ok(passed)
     }
 
     /// The stored values of `events` converted by `f` into an array of `shape`, in `reuse`'s
@@ -268,18 +288,25 @@ impl ManifestFrames {
             Stored::F4 => {
                 let mut array = array_reusing(reuse_rf, shape);
                 let values = array.as_slice_mut().expect("a new array is contiguous");
-                self.read_stored_into(events, values)
+                let finite = self
+                    .read_stored_into(events, values, floats_finite)
                     .map_err(|e| self.read_error(e))?;
-                Samples::Rf(array)
+                if !finite {
+                    return Err(self.non_finite_error(&frames));
+                }
+                return Ok(self.block(Samples::Rf(array)));
+            }
+            // Integers are finite as f32.
+            Stored::I2 => {
+                let samples = self.read_converted(events, shape, reuse_rf, |v: i16| f32::from(v));
+                return Ok(self.block(Samples::Rf(samples?)));
+            }
+            Stored::I4 => {
+                let samples = self.read_converted(events, shape, reuse_rf, |v: i32| v as f32);
+                return Ok(self.block(Samples::Rf(samples?)));
             }
             Stored::F8 => {
                 Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: f64| v as f32)?)
-            }
-            Stored::I2 => {
-                Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: i16| f32::from(v))?)
-            }
-            Stored::I4 => {
-                Samples::Rf(self.read_converted(events, shape, reuse_rf, |v: i32| v as f32)?)
             }
             Stored::C8 => Samples::Iq {
                 data: self.read_converted(events, shape, reuse_iq, |[re, im]: [f32; 2]| {
@@ -294,20 +321,30 @@ impl ManifestFrames {
                 demod_frequency: self.demod.unwrap_or(0.0),
             },
         };
+        // Doubles past f32's range become infinite here.
         if !samples.all_finite() {
-            return Err(pcuvd::Error::Read(format!(
-                "{}: the samples hold NaN or Inf values in frames {frames:?} (every sample must be \
-                 finite)",
-                self.data_path.display()
-            )));
+            return Err(self.non_finite_error(&frames));
         }
-        Ok(ChannelData {
+        Ok(self.block(samples))
+    }
+
+    /// A block of this recording holding `samples`.
+    fn block(&self, samples: Samples) -> ChannelData {
+        ChannelData {
             acquisition: self.acquisition.clone(),
             samples,
-        })
+        }
+    }
+
+    /// The error of samples that are not all finite in the block of `frames`.
+    fn non_finite_error(&self, frames: &Range<usize>) -> pcuvd::Error {
+        pcuvd::Error::Read(format!(
+            "{}: the samples hold NaN or Inf values in frames {frames:?} (every sample must be \
+             finite)",
+            self.data_path.display()
+        ))
     }
 }
-
 impl FrameSource for ManifestFrames {
     fn acquisition(&self) -> &Acquisition {
         &self.acquisition
