@@ -1,5 +1,6 @@
 //! Weighted sums of rows of samples, the inner loop of decoding, slow-time alignment and IQ
-//! filtering, vectorised to the widest registers the CPU has.
+//! filtering, vectorised to the widest registers the CPU has: one sum at a time, or several
+//! outputs of a sliding window at once.
 
 /// `dest` = Σ_k w[k]·sources[k], element by element, summed from zero in the order of k, with
 /// the widest vectors the CPU has (the same sums in any width: no fused multiply-adds). Every
@@ -75,6 +76,100 @@ fn weighted_blocks<const BLOCK: usize>(
     end
 }
 
+/// Outputs a sliding window apart: `dests[j]` = Σ_k w[k]·`sources[j + k]` for j < M, each summed
+/// as [`weighted_rows`] sums it (the same sums to the bit). Consecutive outputs of a window
+/// (the frames of a slow-time interpolator, the samples of an FIR) share all but one of their
+/// rows; here each of the w.len() + M − 1 rows is read once for all M outputs, where
+/// [`weighted_rows`] reads it once per output, from L2 when the window does not fit in L1.
+/// Every source is at least as long as the destinations, which are all of one length.
+pub fn sliding_weighted_rows<const M: usize>(
+    dests: &mut [&mut [f32]; M],
+    sources: &[&[f32]],
+    w: &[f32],
+) {
+    assert_eq!(sources.len() + 1, w.len() + M, "rows of M outputs' windows");
+    let len = dests.first().map_or(0, |d| d.len());
+    assert!(dests.iter().all(|d| d.len() == len) && sources.iter().all(|s| s.len() >= len));
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f") {
+            // SAFETY: AVX-512F was detected.
+            return unsafe { sliding_avx512(dests, sources, w) };
+        }
+        if is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 was detected.
+            return unsafe { sliding_avx2(dests, sources, w) };
+        }
+    }
+    sliding_portable::<M, 16>(dests, sources, w)
+}
+
+/// [`sliding_weighted_rows`] compiled for AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn sliding_avx512<const M: usize>(
+    dests: &mut [&mut [f32]; M],
+    sources: &[&[f32]],
+    w: &[f32],
+) {
+    // Four outputs' sums of 64 floats take 16 of the 32 registers.
+    sliding_portable::<M, 64>(dests, sources, w)
+}
+
+/// [`sliding_weighted_rows`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn sliding_avx2<const M: usize>(dests: &mut [&mut [f32]; M], sources: &[&[f32]], w: &[f32]) {
+    // Four outputs' sums of 16 floats take 8 of the 16 registers.
+    sliding_portable::<M, 16>(dests, sources, w)
+}
+
+/// Blocks of `BLOCK` floats, then of 16 (where `BLOCK` is more), then single floats: all M sums
+/// of a block stay in registers, which bounds `BLOCK` by the register file (M·BLOCK floats).
+#[inline(always)]
+fn sliding_portable<const M: usize, const BLOCK: usize>(
+    dests: &mut [&mut [f32]; M],
+    sources: &[&[f32]],
+    w: &[f32],
+) {
+    let done = sliding_blocks::<BLOCK, M>(dests, sources, w, 0);
+    let done = sliding_blocks::<16, M>(dests, sources, w, done);
+    sliding_blocks::<1, M>(dests, sources, w, done);
+}
+
+/// The whole blocks of `BLOCK` floats of the destinations from `start` on, as
+/// [`sliding_weighted_rows`] sums them; returns where they end.
+#[inline(always)]
+fn sliding_blocks<const BLOCK: usize, const M: usize>(
+    dests: &mut [&mut [f32]; M],
+    sources: &[&[f32]],
+    w: &[f32],
+    start: usize,
+) -> usize {
+    let len = dests.first().map_or(0, |d| d.len());
+    let end = start + (len - start) / BLOCK * BLOCK;
+    for at in (start..end).step_by(BLOCK) {
+        let mut sums = [[0.0f32; BLOCK]; M];
+        for (s, source) in sources.iter().enumerate() {
+            let source: &[f32; BLOCK] = source[at..at + BLOCK]
+                .try_into()
+                .expect("a block of the row");
+            // Row s is tap s − j of output j: each output's terms come in the order of k.
+            for (j, sum) in sums.iter_mut().enumerate() {
+                if let Some(&wk) = s.checked_sub(j).and_then(|k| w.get(k)) {
+                    for (a, &x) in sum.iter_mut().zip(source) {
+                        *a += x * wk;
+                    }
+                }
+            }
+        }
+        for (dest, sum) in dests.iter_mut().zip(&sums) {
+            dest[at..at + BLOCK].copy_from_slice(sum);
+        }
+    }
+    end
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -103,5 +198,67 @@ mod tests {
                 assert_eq!(d.to_bits(), expected.to_bits(), "len {len}, element {i}");
             }
         }
+    }
+
+    /// Each output of a sliding window is [`weighted_rows`]' sum of its own rows, to the bit, for
+    /// every length across the block widths and for 1, 2 and 4 outputs at once, by the
+    /// dispatched, the portable and every vector variant this CPU runs.
+    #[test]
+    fn sliding_outputs_are_each_windows_weighted_rows() {
+        type Variant<const M: usize> = fn(&mut [&mut [f32]; M], &[&[f32]], &[f32]);
+        fn check<const M: usize>(rows: &[Vec<f32>], w: &[f32]) {
+            let mut variants: Vec<(&str, Variant<M>)> = vec![
+                ("dispatched", sliding_weighted_rows::<M>),
+                ("portable", sliding_portable::<M, 16>),
+            ];
+            #[cfg(target_arch = "x86_64")]
+            {
+                if is_x86_feature_detected!("avx512f") {
+                    // SAFETY: AVX-512F was detected.
+                    variants.push(("AVX-512", |d, s, w| unsafe { sliding_avx512(d, s, w) }));
+                }
+                if is_x86_feature_detected!("avx2") {
+                    // SAFETY: AVX2 was detected.
+                    variants.push(("AVX2", |d, s, w| unsafe { sliding_avx2(d, s, w) }));
+                }
+            }
+            for len in [0usize, 1, 15, 16, 17, 63, 64, 65, 80, 81, 150] {
+                let sources: Vec<&[f32]> = rows[..w.len() + M - 1].iter().map(|r| &r[..]).collect();
+                for &(name, variant) in &variants {
+                    let mut out = vec![vec![f32::NAN; len]; M];
+                    let mut dests: [&mut [f32]; M] = {
+                        let mut it = out.iter_mut();
+                        std::array::from_fn(|_| it.next().unwrap().as_mut_slice())
+                    };
+                    variant(&mut dests, &sources, w);
+                    for (j, got) in out.iter().enumerate() {
+                        let mut expected = vec![0.0f32; len];
+                        weighted_rows(&mut expected, &sources[j..j + w.len()], w);
+                        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(
+                            bits(got),
+                            bits(&expected),
+                            "{name}: {M} outputs, length {len}, output {j}"
+                        );
+                    }
+                }
+            }
+        }
+        let rows: Vec<Vec<f32>> = (0..30)
+            .map(|k| {
+                (0..150)
+                    .map(|i| {
+                        ((i * 7 + k * 13) as f32 * 0.37).sin() * 1e3f32.powf((k % 3) as f32 - 1.0)
+                    })
+                    .collect()
+            })
+            .collect();
+        let w: Vec<f32> = (0..25)
+            .map(|k| ((k as f32 - 12.0) * 0.3).cos() - 0.4)
+            .collect();
+        check::<1>(&rows, &w);
+        check::<2>(&rows, &w);
+        check::<4>(&rows, &w);
+        check::<4>(&rows, &w[..3]);
     }
 }

@@ -226,6 +226,40 @@ mod tests {
     use super::*;
     use ndarray::Array4;
 
+    /// The filter of rows of frames is, to the bit, each column's "same" convolution summed term
+    /// by term in the order of the window (from its first row in the trace), at the ends where
+    /// the window is cut and in between, for row counts around the window's length.
+    #[test]
+    fn rows_are_filtered_as_each_column_term_by_term() {
+        let taps = lowpass_taps(15.625e6, 65e6);
+        let half = taps.len() / 2;
+        let (stride, width) = (24, 21);
+        for n in [1, half, taps.len(), taps.len() + 3, 40] {
+            let x: Vec<Complex32> = (0..n * stride)
+                .map(|i| Complex32::new((i as f32 * 0.71).sin(), (i as f32 * 0.37).cos() * 3.0))
+                .collect();
+            let mut y = vec![Complex32::new(f32::NAN, f32::NAN); n * width];
+            fir_same_rows(&x, stride, &taps, &mut y, width);
+            for i in 0..n {
+                for c in 0..width {
+                    let mut expected = Complex32::new(0.0, 0.0);
+                    for j in i.saturating_sub(half)..(i + half + 1).min(n) {
+                        let t = taps[j + half - i];
+                        let v = x[j * stride + c];
+                        expected.re += v.re * t;
+                        expected.im += v.im * t;
+                    }
+                    let got = y[i * width + c];
+                    assert_eq!(
+                        (got.re.to_bits(), got.im.to_bits()),
+                        (expected.re.to_bits(), expected.im.to_bits()),
+                        "{n} rows, row {i}, column {c}"
+                    );
+                }
+            }
+        }
+    }
+
     /// Absurd frequencies (which would ask for a filter of 10³⁰⁰ taps) are an error, not a crash.
     #[test]
     fn absurd_frequencies_are_refused_not_allocated() {

@@ -29,6 +29,9 @@ pub(super) struct SlowTimeAligner {
 /// Frames on either side of an output frame that the mid-frame interpolator reads.
 pub const ALIGN_HALF: usize = 12;
 
+/// Kept frames the interpolator sums at once ([`sliding_weighted_rows`]).
+const ALIGN_AT_ONCE: usize = 4;
+
 /// Order of the linear predictor that continues a series beyond its ends.
 pub const ALIGN_ORDER: usize = 4;
 
@@ -93,6 +96,11 @@ impl SlowTimeAligner {
                 row(g as usize * n + e)
             }
         };
+        // Row k of the window of `frame` (its frame − ALIGN_HALF + k), samples s0..s1.
+        let window_row = |frame: usize, k: usize, e: usize, samples: Range<usize>| {
+            let g = frame as isize + k as isize - h as isize;
+            T::floats(&frame_row(g, e)[samples])
+        };
         // In runs of samples whose rows stay in L2 while every kept frame sums them; the
         // sum runs along each row, which vectorises.
         const RUN: usize = 512;
@@ -100,12 +108,25 @@ impl SlowTimeAligner {
             let s1 = (s0 + RUN).min(ns);
             for e in 0..n {
                 let w = &self.weights[e];
-                for (kf, frame) in kept.clone().enumerate() {
-                    let dest = &mut out[(kf * n + e) * ns + s0..(kf * n + e) * ns + s1];
-                    let sources: [&[f32]; 2 * ALIGN_HALF + 1] = std::array::from_fn(|k| {
-                        let g = frame as isize + k as isize - h as isize;
-                        T::floats(&frame_row(g, e)[s0..s1])
+                let mut kf = 0;
+                // ALIGN_AT_ONCE kept frames at a time, from the rows their windows share.
+                while kf + ALIGN_AT_ONCE <= kept.len() {
+                    let frame = kept.start + kf;
+                    let sources: [&[f32]; 2 * ALIGN_HALF + ALIGN_AT_ONCE] =
+                        std::array::from_fn(|k| window_row(frame, k, e, s0..s1));
+                    // Event e of frames kf, kf + 1, …: rows n apart.
+                    let mut frames = out[(kf * n + e) * ns..].chunks_mut(n * ns);
+                    let mut dests: [&mut [f32]; ALIGN_AT_ONCE] = std::array::from_fn(|_| {
+                        let rows = frames.next().expect("kept frames of the output");
+                        T::floats_mut(&mut rows[s0..s1])
                     });
+                    sliding_weighted_rows(&mut dests, &sources, w);
+                    kf += ALIGN_AT_ONCE;
+                }
+                for (kf, frame) in kept.clone().enumerate().skip(kf) {
+                    let dest = &mut out[(kf * n + e) * ns + s0..(kf * n + e) * ns + s1];
+                    let sources: [&[f32]; 2 * ALIGN_HALF + 1] =
+                        std::array::from_fn(|k| window_row(frame, k, e, s0..s1));
                     weighted_rows(T::floats_mut(dest), &sources, w);
                 }
             }
