@@ -237,8 +237,7 @@ where
         mut write: impl FnMut(usize, usize, &[T]),
     ) {
         let n = plan.shifts.len();
-        self.trace.resize(ns, T::zero());
-        let trace = &mut self.trace;
+        self.trace.resize(SLOTS_AT_ONCE * ns, T::zero());
         // The events each slot gathers (a zero weight skips its event) and their weights, the
         // same in every frame.
         let gathered: Vec<(Vec<usize>, Vec<f32>)> = (0..n)
@@ -249,13 +248,32 @@ where
                     .unzip()
             })
             .collect();
+        let mut frame: Vec<&[f32]> = Vec::with_capacity(n);
         let mut sources: Vec<&[f32]> = Vec::with_capacity(n);
         for kept_f in 0..kept {
-            for (k, (events, weights)) in gathered.iter().enumerate() {
+            let event = |i: usize| T::floats(&self.events[(kept_f * n + i) * ns..][..ns]);
+            // SLOTS_AT_ONCE slots at a time from one pass over the frame's events, then any
+            // slots left one at a time.
+            frame.clear();
+            frame.extend((0..n).map(event));
+            let mut k = 0;
+            while k + SLOTS_AT_ONCE <= n {
+                let mut traces = self.trace.chunks_exact_mut(ns);
+                let mut dests: [&mut [f32]; SLOTS_AT_ONCE] = std::array::from_fn(|_| {
+                    T::floats_mut(traces.next().expect("a trace per slot"))
+                });
+                let matrix = &plan.matrix[k * n..(k + SLOTS_AT_ONCE) * n];
+                matrix_weighted_rows(&mut dests, &frame, matrix);
+                for (j, trace) in self.trace.chunks_exact_mut(ns).enumerate() {
+                    shift(shifter, trace, plan.shifts[k + j]);
+                    write(k + j, kept_f, trace);
+                }
+                k += SLOTS_AT_ONCE;
+            }
+            let trace = &mut self.trace[..ns];
+            for (k, (events, weights)) in gathered.iter().enumerate().skip(k) {
                 sources.clear();
-                sources.extend(events.iter().map(|&i| {
-                    T::floats(&self.events[(kept_f * n + i) * ns..(kept_f * n + i + 1) * ns])
-                }));
+                sources.extend(events.iter().map(|&i| event(i)));
                 weighted_rows(T::floats_mut(trace), &sources, weights);
                 shift(shifter, trace, plan.shifts[k]);
                 write(k, kept_f, trace);
@@ -263,3 +281,6 @@ where
         }
     }
 }
+
+/// Slots a coded frame's events are combined into at once ([`matrix_weighted_rows`]).
+const SLOTS_AT_ONCE: usize = 4;

@@ -33,7 +33,7 @@ use crate::acquisition::channel::{AngleSamples, ChannelData, Samples};
 use crate::acquisition::hadamard::Hadamard;
 use crate::acquisition::sequence::{Coding, TransmitCode};
 use crate::core::error::{Error, Result};
-use crate::core::rows::{sliding_weighted_rows, weighted_rows};
+use crate::core::rows::{matrix_weighted_rows, sliding_weighted_rows, weighted_rows};
 
 mod align;
 mod encode;
