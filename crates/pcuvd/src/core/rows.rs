@@ -1,79 +1,12 @@
 //! Weighted sums of rows of samples, the inner loop of decoding, slow-time alignment and IQ
 //! filtering, vectorised to the widest registers the CPU has: one sum at a time, or several
-//! outputs of a sliding window at once.
+//! outputs (of a sliding window, of a matrix product) from one pass over their rows.
 
 /// `dest` = Σ_k w[k]·sources[k], element by element, summed from zero in the order of k, with
 /// the widest vectors the CPU has (the same sums in any width: no fused multiply-adds). Every
 /// source is at least as long as `dest`.
 pub fn weighted_rows(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f") {
-            // SAFETY: AVX-512F was detected.
-            return unsafe { weighted_rows_avx512(dest, sources, w) };
-        }
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 was detected.
-            return unsafe { weighted_rows_avx2(dest, sources, w) };
-        }
-    }
-    weighted_rows_portable(dest, sources, w)
-}
-
-/// [`weighted_rows`] compiled for AVX-512.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn weighted_rows_avx512(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    weighted_rows_portable(dest, sources, w)
-}
-
-/// [`weighted_rows`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn weighted_rows_avx2(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    weighted_rows_portable(dest, sources, w)
-}
-
-#[inline(always)]
-fn weighted_rows_portable(dest: &mut [f32], sources: &[&[f32]], w: &[f32]) {
-    // A block of outputs at a time, summed over every source in registers: one pass over the
-    // sources, where a pass per source reads and writes the whole row each time. Rows a few
-    // blocks long (IQ filtering's rows of frames) end in a narrower block, then single floats.
-    let done = weighted_blocks::<64>(dest, sources, w, 0);
-    let done = weighted_blocks::<16>(dest, sources, w, done);
-    let rest = &mut dest[done..];
-    rest.fill(0.0);
-    for (source, &wk) in sources.iter().zip(w) {
-        for (a, &x) in rest.iter_mut().zip(&source[done..]) {
-            *a += x * wk;
-        }
-    }
-}
-
-/// The whole blocks of `BLOCK` floats of `dest` from `start` on, as [`weighted_rows`] sums them;
-/// returns where they end.
-#[inline(always)]
-fn weighted_blocks<const BLOCK: usize>(
-    dest: &mut [f32],
-    sources: &[&[f32]],
-    w: &[f32],
-    start: usize,
-) -> usize {
-    let end = start + (dest.len() - start) / BLOCK * BLOCK;
-    for (b, out) in dest[start..end].chunks_exact_mut(BLOCK).enumerate() {
-        let at = start + b * BLOCK;
-        let mut sum = [0.0f32; BLOCK];
-        for (source, &wk) in sources.iter().zip(w) {
-            let source: &[f32; BLOCK] = source[at..at + BLOCK]
-                .try_into()
-                .expect("a block of the row");
-            for (a, &x) in sum.iter_mut().zip(source) {
-                *a += x * wk;
-            }
-        }
-        out.copy_from_slice(&sum);
-    }
-    end
+    combined_rows(&mut [dest], sources, |_, k| w.get(k).copied())
 }
 
 /// Outputs a sliding window apart: `dests[j]` = Σ_k w[k]·`sources[j + k]` for j < M, each summed
@@ -131,7 +64,7 @@ fn combined_rows<const M: usize>(
             return unsafe { combined_avx2(dests, sources, weight) };
         }
     }
-    combined_portable::<M, 16>(dests, sources, weight)
+    combined_narrow(dests, sources, weight)
 }
 
 /// [`combined_rows`] compiled for AVX-512.
@@ -142,7 +75,7 @@ unsafe fn combined_avx512<const M: usize>(
     sources: &[&[f32]],
     weight: impl Fn(usize, usize) -> Option<f32> + Copy,
 ) {
-    // Four outputs' sums of 64 floats take 16 of the 32 registers.
+    // One output's sums of 64 floats take 4 of the 32 registers, four outputs' 16.
     combined_portable::<M, 64>(dests, sources, weight)
 }
 
@@ -154,8 +87,22 @@ unsafe fn combined_avx2<const M: usize>(
     sources: &[&[f32]],
     weight: impl Fn(usize, usize) -> Option<f32> + Copy,
 ) {
-    // Four outputs' sums of 16 floats take 8 of the 16 registers.
-    combined_portable::<M, 16>(dests, sources, weight)
+    combined_narrow(dests, sources, weight)
+}
+
+/// [`combined_portable`] in blocks that 16 registers of 8 floats hold: one output's sums of 64
+/// floats take 8 of them, four outputs' sums of 16 floats 8 too.
+#[inline(always)]
+fn combined_narrow<const M: usize>(
+    dests: &mut [&mut [f32]; M],
+    sources: &[&[f32]],
+    weight: impl Fn(usize, usize) -> Option<f32> + Copy,
+) {
+    if M == 1 {
+        combined_portable::<M, 64>(dests, sources, weight)
+    } else {
+        combined_portable::<M, 16>(dests, sources, weight)
+    }
 }
 
 /// Blocks of `BLOCK` floats, then of 16 (where `BLOCK` is more), then single floats: all M sums

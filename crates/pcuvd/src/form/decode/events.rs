@@ -238,24 +238,12 @@ where
     ) {
         let n = plan.shifts.len();
         self.trace.resize(SLOTS_AT_ONCE * ns, T::zero());
-        // The events each slot gathers (a zero weight skips its event) and their weights, the
-        // same in every frame.
-        let gathered: Vec<(Vec<usize>, Vec<f32>)> = (0..n)
-            .map(|k| {
-                (0..n)
-                    .filter(|&i| plan.matrix[k * n + i] != 0.0)
-                    .map(|i| (i, plan.matrix[k * n + i]))
-                    .unzip()
-            })
-            .collect();
         let mut frame: Vec<&[f32]> = Vec::with_capacity(n);
-        let mut sources: Vec<&[f32]> = Vec::with_capacity(n);
         for kept_f in 0..kept {
-            let event = |i: usize| T::floats(&self.events[(kept_f * n + i) * ns..][..ns]);
             // SLOTS_AT_ONCE slots at a time from one pass over the frame's events, then any
-            // slots left one at a time.
+            // slots left one at a time; a zero weight skips its event.
             frame.clear();
-            frame.extend((0..n).map(event));
+            frame.extend((0..n).map(|i| T::floats(&self.events[(kept_f * n + i) * ns..][..ns])));
             let mut k = 0;
             while k + SLOTS_AT_ONCE <= n {
                 let mut traces = self.trace.chunks_exact_mut(ns);
@@ -271,10 +259,9 @@ where
                 k += SLOTS_AT_ONCE;
             }
             let trace = &mut self.trace[..ns];
-            for (k, (events, weights)) in gathered.iter().enumerate().skip(k) {
-                sources.clear();
-                sources.extend(events.iter().map(|&i| event(i)));
-                weighted_rows(T::floats_mut(trace), &sources, weights);
+            for k in k..n {
+                let matrix = &plan.matrix[k * n..(k + 1) * n];
+                matrix_weighted_rows(&mut [T::floats_mut(trace)], &frame, matrix);
                 shift(shifter, trace, plan.shifts[k]);
                 write(k, kept_f, trace);
             }
