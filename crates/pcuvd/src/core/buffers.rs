@@ -1,8 +1,9 @@
-//! Array memory reused from one block of frames to the next, complex samples seen as their
-//! floats, a test that a block's floats are all finite, and a 1-D view seen as a slice.
+//! Array memory reused from one block of frames to the next (rows padded to whole cache lines
+//! where a kernel reads them as vectors), complex samples seen as their floats, a test that a
+//! block's floats are all finite, and a 1-D view seen as a slice.
 
 use bytemuck::Zeroable;
-use ndarray::{Array, ArrayView1, Dimension, IntoDimension};
+use ndarray::{Array, Array1, Array3, ArrayView1, Dimension, IntoDimension, s};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
@@ -34,6 +35,58 @@ where
         None => bytemuck::zeroed_vec(len),
     };
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
+/// Bytes of a cache line, to which [`padded_rows_reusing`] aligns every row.
+pub const CACHE_LINE: usize = 64;
+
+/// A (planes, rows, columns) array whose rows each start on a cache line: the memory holds rows
+/// of `columns` padded to a whole number of cache lines, and the first element is aligned to one,
+/// so that a kernel loading a row as 64-byte vectors never has a load split across two lines
+/// (one split in every such load of a 90-frame row of complex samples, 720 bytes, otherwise).
+/// Returned whole, padding included, (planes, rows, padded columns) in standard layout, for the
+/// caller to write; `.slice_move(s![.., .., ..columns])` then gives the array of `columns`.
+/// Made in `old`'s memory where that has room, as [`array_reusing`]; the values, padding
+/// included, are unspecified.
+pub fn padded_rows_reusing<T>(
+    old: Option<Array3<T>>,
+    (planes, rows, columns): (usize, usize, usize),
+) -> Array3<T>
+where
+    T: Clone + Zeroable + Send,
+{
+    let size = std::mem::size_of::<T>().max(1);
+    // Element types that do not tile a cache line are padded to nothing and not aligned.
+    let per_line = if CACHE_LINE.is_multiple_of(size) {
+        CACHE_LINE / size
+    } else {
+        1
+    };
+    let padded = columns.next_multiple_of(per_line);
+    let len = planes * rows * padded;
+    // Room to move the start forward to a line.
+    let room = len + per_line - 1;
+    let memory = old
+        .map(|array| array.into_raw_vec_and_offset().0)
+        .filter(|memory| memory.capacity() >= room);
+    let memory = match memory {
+        Some(mut memory) => {
+            resize_zeroed(&mut memory, room);
+            memory
+        }
+        None => bytemuck::zeroed_vec(room),
+    };
+    let misaligned = (memory.as_ptr() as usize % CACHE_LINE) / size;
+    let offset =
+        if per_line > 1 && misaligned > 0 && (memory.as_ptr() as usize).is_multiple_of(size) {
+            per_line - misaligned
+        } else {
+            0
+        };
+    Array1::from_vec(memory)
+        .slice_move(s![offset..offset + len])
+        .into_shape_with_order((planes, rows, padded))
+        .expect("a contiguous run of the shape's number of elements")
 }
 
 /// `memory` cut or lengthened to `len` elements, the new ones zero, written on every core: the
@@ -118,6 +171,39 @@ mod tests {
         assert!(longer.is_standard_layout());
         let fresh = array_reusing::<f32, _>(None, (1, 2, 3));
         assert!(fresh.iter().all(|&v| v == 0.0));
+    }
+
+    /// Rows of complex samples are padded to whole cache lines and start on one, fresh or in
+    /// reused memory (shorter, then longer than the memory holds); the logical array cut from
+    /// it keeps the asked-for shape with the padded row stride.
+    #[test]
+    fn padded_rows_start_on_cache_lines() {
+        let mut old = None;
+        for (shape, padded) in [
+            ((2, 3, 90), 96),
+            ((1, 5, 8), 8),
+            ((3, 2, 1), 8),
+            ((4, 7, 97), 104),
+        ] {
+            let whole = padded_rows_reusing::<Complex32>(old.take(), shape);
+            assert_eq!(whole.dim(), (shape.0, shape.1, padded), "{shape:?}");
+            assert!(whole.is_standard_layout());
+            let rows = whole.slice_move(s![.., .., ..shape.2]);
+            assert_eq!(rows.dim(), shape);
+            let first = rows.as_ptr() as usize;
+            for plane in 0..shape.0 {
+                for row in 0..shape.1 {
+                    let at = &rows[[plane, row, 0]] as *const Complex32 as usize;
+                    assert_eq!(at % CACHE_LINE, 0, "{shape:?}, row {plane}, {row}");
+                    let rows_before = plane * shape.1 + row;
+                    assert_eq!(at - first, rows_before * padded * 8, "{shape:?}");
+                }
+            }
+            old = Some(rows);
+        }
+        // Elements that do not tile a line are left unpadded.
+        let odd = padded_rows_reusing::<[u8; 3]>(None, (2, 2, 5));
+        assert_eq!(odd.dim(), (2, 2, 5));
     }
 
     /// Finite extremes (largest, smallest normal, subnormal, signed zeros) pass; a NaN (quiet

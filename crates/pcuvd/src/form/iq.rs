@@ -11,7 +11,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 
 use crate::acquisition::channel::{AngleSamples, AngleSamplesView};
-use crate::core::buffers::{complex_floats, complex_floats_mut, contiguous};
+use crate::core::buffers::{complex_floats, complex_floats_mut, contiguous, padded_rows_reusing};
 use crate::core::error::{Error, Result, invalid, require_positive};
 use crate::core::rows::weighted_rows;
 
@@ -19,7 +19,9 @@ use crate::core::rows::weighted_rows;
 /// applies each delay to a whole batch of frames at once.
 #[derive(Debug, Clone, PartialEq)]
 pub struct IqChannels {
-    /// Complex baseband samples, shape (channels, samples, frames).
+    /// Complex baseband samples, shape (channels, samples, frames). Demodulation lays each row
+    /// of frames on whole cache lines, padded, for the beamformer's vector loads: its output is
+    /// in standard layout only where the frames fill whole lines (multiples of 8).
     pub data: Array3<Complex32>,
     /// Sampling frequency (Hz).
     pub sampling_frequency: f64,
@@ -113,106 +115,110 @@ pub fn demodulate_into(
     iq.sampling_frequency = sampling_frequency;
     iq.t0 = t0;
     iq.demod_frequency = demod_frequency;
-    // Every element is written below.
-    let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
-    iq.data = crate::core::buffers::array_reusing(Some(old), (channels, n_samples, frames));
-    let out = &mut iq.data;
-    match samples {
+    let rf = match samples {
         AngleSamplesView::Iq {
             data,
             demod_frequency: fd,
         } => {
-            out.assign(&data.slice(s![angle, .., .., ..]).permuted_axes([1, 2, 0]));
             iq.demod_frequency = fd;
+            let mut whole = padded_channels(iq, (channels, n_samples, frames));
+            let mut out = whole.slice_mut(s![.., .., ..frames]);
+            out.assign(&data.slice(s![angle, .., .., ..]).permuted_axes([1, 2, 0]));
+            iq.data = whole.slice_move(s![.., .., ..frames]);
             return Ok(());
         }
-        AngleSamplesView::Rf(rf) => {
-            let cutoff =
-                cutoff.unwrap_or_else(|| default_cutoff(demod_frequency, sampling_frequency));
-            // The filter is about 3·f_s/cutoff taps long: a cut-off below 10⁻⁴·f_s (a
-            // demodulation frequency of 10⁻³⁰⁰ Hz, an f_s of 10³⁰⁰ Hz) would ask for more taps
-            // than memory holds, and never happens in an ultrasound recording.
-            if cutoff.is_finite() && cutoff > 0.0 && cutoff < MIN_CUTOFF_RATIO * sampling_frequency
-            {
-                return Err(invalid(
-                    "IQ low-pass cut-off",
-                    format!(
-                        "{cutoff:.3e} Hz is below {MIN_CUTOFF_RATIO:e} × f_s ({sampling_frequency:.3e} Hz): \
-                         check the sampling and demodulation (centre) frequencies"
-                    ),
-                ));
-            }
-            if !(cutoff > 0.0 && cutoff < sampling_frequency / 2.0) {
-                return Err(invalid(
-                    "IQ low-pass cut-off",
-                    format!(
-                        "{:.3} MHz is not within (0, f_s/2 = {:.3} MHz)",
-                        cutoff * 1e-6,
-                        sampling_frequency * 5e-7
-                    ),
-                ));
-            }
-            let taps = lowpass_taps(cutoff, sampling_frequency);
-            let mixer: Vec<Complex32> = (0..n_samples)
-                .map(|n| {
-                    let t = t0 + n as f64 / sampling_frequency;
-                    let ph = -2.0 * std::f64::consts::PI * demod_frequency * t;
-                    Complex32::new(ph.cos() as f32, ph.sin() as f32)
-                })
-                .collect();
-            let rf = rf.slice(s![angle, .., .., ..]);
-            out.axis_iter_mut(Axis(0))
-                .into_par_iter()
-                .enumerate()
-                .for_each_init(Vec::new, |mixed, (ch, mut dest)| {
-                    // Mixed and filtered with the frames side by side, (samples, frames) as the
-                    // output is laid out: each tap then multiplies a whole row of frames, which
-                    // vectorises, where one trace at a time did not.
-                    // Rows padded to whole vectors (the padding stays zero): the filter's sums
-                    // then run in whole blocks, where a row's few last floats cost as much as
-                    // the rest.
-                    let stride = frames.next_multiple_of(8);
-                    let half = taps.len() / 2;
-                    mixed.resize((BAND + 2 * half) * stride, Complex32::new(0.0, 0.0));
-                    // Each frame's trace as a slice, found once: a view sliced per band and
-                    // frame cost more than the samples it moved.
-                    let traces: Vec<std::borrow::Cow<[f32]>> = (0..frames)
-                        .map(|f| contiguous(rf.slice(s![f, ch, ..])))
-                        .collect();
-                    let dest = dest
-                        .as_slice_mut()
-                        .expect("an owned (channels, samples, frames) array is contiguous");
-                    // A band of output samples at a time, mixed with the filter's reach on
-                    // either side and filtered at once: the mixed rows stay in L2 between the
-                    // two, where a channel's whole mixed record (megabytes) went to memory and
-                    // back. The traces are read a band at a time, long enough for the
-                    // prefetcher to follow each.
-                    for n0 in (0..n_samples).step_by(BAND) {
-                        let n1 = (n0 + BAND).min(n_samples);
-                        let rows = n0.saturating_sub(half)..(n1 + half).min(n_samples);
-                        let band = &mut mixed[..rows.len() * stride];
-                        for (f, trace) in traces.iter().enumerate() {
-                            let mixed_rows = band.chunks_exact_mut(stride);
-                            let samples = trace[rows.clone()].iter().zip(&mixer[rows.clone()]);
-                            for (row, (&x, &w)) in mixed_rows.zip(samples) {
-                                row[f] = w * x;
-                            }
-                        }
-                        fir_same_rows(
-                            band,
-                            stride,
-                            rows.start,
-                            n_samples,
-                            &taps,
-                            &mut dest[n0 * frames..n1 * frames],
-                            n0,
-                            frames,
-                        );
-                    }
-                });
-        }
+        AngleSamplesView::Rf(rf) => rf.slice_move(s![angle, .., .., ..]),
+    };
+    let cutoff = cutoff.unwrap_or_else(|| default_cutoff(demod_frequency, sampling_frequency));
+    // The filter is about 3·f_s/cutoff taps long: a cut-off below 10⁻⁴·f_s (a demodulation
+    // frequency of 10⁻³⁰⁰ Hz, an f_s of 10³⁰⁰ Hz) would ask for more taps than memory holds, and
+    // never happens in an ultrasound recording.
+    if cutoff.is_finite() && cutoff > 0.0 && cutoff < MIN_CUTOFF_RATIO * sampling_frequency {
+        return Err(invalid(
+            "IQ low-pass cut-off",
+            format!(
+                "{cutoff:.3e} Hz is below {MIN_CUTOFF_RATIO:e} × f_s ({sampling_frequency:.3e} Hz): \
+                 check the sampling and demodulation (centre) frequencies"
+            ),
+        ));
     }
+    if !(cutoff > 0.0 && cutoff < sampling_frequency / 2.0) {
+        return Err(invalid(
+            "IQ low-pass cut-off",
+            format!(
+                "{:.3} MHz is not within (0, f_s/2 = {:.3} MHz)",
+                cutoff * 1e-6,
+                sampling_frequency * 5e-7
+            ),
+        ));
+    }
+    let taps = lowpass_taps(cutoff, sampling_frequency);
+    let mixer: Vec<Complex32> = (0..n_samples)
+        .map(|n| {
+            let t = t0 + n as f64 / sampling_frequency;
+            let ph = -2.0 * std::f64::consts::PI * demod_frequency * t;
+            Complex32::new(ph.cos() as f32, ph.sin() as f32)
+        })
+        .collect();
+    // Every element, padding included, is written below.
+    let mut whole = padded_channels(iq, (channels, n_samples, frames));
+    // Mixed and filtered with the frames side by side, (samples, frames) as the output is laid
+    // out: each tap then multiplies a whole row of frames, which vectorises, where one trace at
+    // a time did not. Rows are padded to whole vectors (the output's cache lines); the mixed
+    // rows' padding stays zero, and so does the output's: the filter's sums then run in whole
+    // blocks, where a row's few last floats cost as much as the rest.
+    let stride = whole.dim().2;
+    whole
+        .axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each_init(Vec::new, |mixed, (ch, mut dest)| {
+            let half = taps.len() / 2;
+            mixed.resize((BAND + 2 * half) * stride, Complex32::new(0.0, 0.0));
+            // Each frame's trace as a slice, found once: a view sliced per band and frame cost
+            // more than the samples it moved.
+            let traces: Vec<std::borrow::Cow<[f32]>> = (0..frames)
+                .map(|f| contiguous(rf.slice(s![f, ch, ..])))
+                .collect();
+            let dest = dest
+                .as_slice_mut()
+                .expect("a standard-layout (channels, samples, padded frames) array");
+            // A band of output samples at a time, mixed with the filter's reach on either side
+            // and filtered at once: the mixed rows stay in L2 between the two, where a channel's
+            // whole mixed record (megabytes) went to memory and back. The traces are read a band
+            // at a time, long enough for the prefetcher to follow each.
+            for n0 in (0..n_samples).step_by(BAND) {
+                let n1 = (n0 + BAND).min(n_samples);
+                let rows = n0.saturating_sub(half)..(n1 + half).min(n_samples);
+                let band = &mut mixed[..rows.len() * stride];
+                for (f, trace) in traces.iter().enumerate() {
+                    let mixed_rows = band.chunks_exact_mut(stride);
+                    let samples = trace[rows.clone()].iter().zip(&mixer[rows.clone()]);
+                    for (row, (&x, &w)) in mixed_rows.zip(samples) {
+                        row[f] = w * x;
+                    }
+                }
+                fir_same_rows(
+                    band,
+                    stride,
+                    rows.start,
+                    n_samples,
+                    &taps,
+                    &mut dest[n0 * stride..n1 * stride],
+                    n0,
+                );
+            }
+        });
+    iq.data = whole.slice_move(s![.., .., ..frames]);
     Ok(())
+}
+
+/// `iq`'s array taken for a (channels, samples, frames) output in its memory, each row of
+/// frames padded to and starting on a cache line ([`padded_rows_reusing`]): the beamformer
+/// reads every row as whole vectors.
+fn padded_channels(iq: &mut IqChannels, shape: (usize, usize, usize)) -> Array3<Complex32> {
+    let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
+    padded_rows_reusing(Some(old), shape)
 }
 
 /// Output samples per band of the IQ filter, which mixes and filters a band at once: its mixed
@@ -222,10 +228,9 @@ const BAND: usize = 128;
 
 /// Centred ("same"-length) convolution along the rows of a trace of `n` rows (samples) of
 /// `stride` columns, row-major, with an odd, symmetric FIR; zero beyond the trace ends. `x` holds
-/// rows `first..` of the trace, `y` the first `width` columns of output rows `out_first..`,
-/// (rows, `width`); `x` reaches every row their windows need. Every column is filtered alike,
-/// with the terms summed in the same order as one trace at a time.
-#[allow(clippy::too_many_arguments)]
+/// rows `first..` of the trace, `y` output rows `out_first..`; `x` reaches every row their windows
+/// need. Every column is filtered alike, with the terms summed in the same order as one trace at
+/// a time.
 fn fir_same_rows(
     x: &[Complex32],
     stride: usize,
@@ -234,23 +239,20 @@ fn fir_same_rows(
     taps: &[f32],
     y: &mut [Complex32],
     out_first: usize,
-    width: usize,
 ) {
     // A real tap scales the real and imaginary parts alike.
     let (x, y) = (complex_floats(x), complex_floats_mut(y));
     let rows: Vec<&[f32]> = x.chunks_exact(2 * stride).collect();
-    let mut row = vec![0.0f32; 2 * stride];
     let half = taps.len() / 2;
-    for (o, out) in y.chunks_exact_mut(2 * width).enumerate() {
+    for (o, out) in y.chunks_exact_mut(2 * stride).enumerate() {
         let i = out_first + o;
         let lo = i.saturating_sub(half);
         let hi = (i + half + 1).min(n);
         weighted_rows(
-            &mut row,
+            out,
             &rows[lo - first..hi - first],
             &taps[lo + half - i..hi + half - i],
         );
-        out.copy_from_slice(&row[..2 * width]);
     }
 }
 
@@ -267,16 +269,16 @@ mod tests {
     fn rows_are_filtered_as_each_column_term_by_term() {
         let taps = lowpass_taps(15.625e6, 65e6);
         let half = taps.len() / 2;
-        let (stride, width) = (24, 21);
+        let stride = 24;
         for n in [1, half, taps.len(), taps.len() + 3, 40] {
             let x: Vec<Complex32> = (0..n * stride)
                 .map(|i| Complex32::new((i as f32 * 0.71).sin(), (i as f32 * 0.37).cos() * 3.0))
                 .collect();
             // Whole, and in bands of 1, 5 and 7 output rows, each given the rows it reaches.
-            let mut y = vec![Complex32::new(f32::NAN, f32::NAN); n * width];
-            fir_same_rows(&x, stride, 0, n, &taps, &mut y, 0, width);
+            let mut y = vec![Complex32::new(f32::NAN, f32::NAN); n * stride];
+            fir_same_rows(&x, stride, 0, n, &taps, &mut y, 0);
             for band in [1, 5, 7] {
-                let mut banded = vec![Complex32::new(f32::NAN, f32::NAN); n * width];
+                let mut banded = vec![Complex32::new(f32::NAN, f32::NAN); n * stride];
                 for n0 in (0..n).step_by(band) {
                     let n1 = (n0 + band).min(n);
                     let rows = n0.saturating_sub(half)..(n1 + half).min(n);
@@ -286,9 +288,8 @@ mod tests {
                         rows.start,
                         n,
                         &taps,
-                        &mut banded[n0 * width..n1 * width],
+                        &mut banded[n0 * stride..n1 * stride],
                         n0,
-                        width,
                     );
                 }
                 let bits = |v: &[Complex32]| {
@@ -299,7 +300,7 @@ mod tests {
                 assert_eq!(bits(&banded), bits(&y), "{n} rows in bands of {band}");
             }
             for i in 0..n {
-                for c in 0..width {
+                for c in 0..stride {
                     let mut expected = Complex32::new(0.0, 0.0);
                     for j in i.saturating_sub(half)..(i + half + 1).min(n) {
                         let t = taps[j + half - i];
@@ -307,7 +308,7 @@ mod tests {
                         expected.re += v.re * t;
                         expected.im += v.im * t;
                     }
-                    let got = y[i * width + c];
+                    let got = y[i * stride + c];
                     assert_eq!(
                         (got.re.to_bits(), got.im.to_bits()),
                         (expected.re.to_bits(), expected.im.to_bits()),
@@ -325,6 +326,46 @@ mod tests {
         for (fs, fd) in [(1e7, 1e-300), (1e300, 5e6)] {
             let err = demodulate(&rf, 0, 0.0, fs, fd, None).unwrap_err();
             assert!(err.to_string().contains("cut-off"), "{err}");
+        }
+    }
+
+    /// Each frame is demodulated as if alone (to the bit), whatever the number of frames beside
+    /// it and whether the output's memory is fresh or reused from a larger block; every row of
+    /// frames starts on a cache line.
+    #[test]
+    fn frames_demodulate_alone_into_rows_on_cache_lines() {
+        let (fs, fc, n) = (65e6, 15.625e6, 700);
+        let record = |frames: usize| {
+            Array4::<f32>::from_shape_fn((1, frames, 3, n), |(_, f, ch, i)| {
+                ((i as f32 * 0.9 + f as f32 * 1.3 + ch as f32).sin() * (1.0 + f as f32)).sin()
+            })
+        };
+        let mut reused = demodulate(&AngleSamples::Rf(record(20)), 0, 1e-6, fs, fc, None).unwrap();
+        for frames in [1, 3, 9, 13] {
+            let rf = AngleSamples::Rf(record(frames));
+            let fresh = demodulate(&rf, 0, 1e-6, fs, fc, None).unwrap();
+            demodulate_into(rf.view(), 0, 1e-6, fs, fc, None, &mut reused).unwrap();
+            for iq in [&fresh, &reused] {
+                assert_eq!(iq.data.dim(), (3, n, frames));
+                for lane in iq.data.lanes(Axis(2)) {
+                    assert_eq!(&lane[0] as *const Complex32 as usize % 64, 0);
+                }
+                for f in 0..frames {
+                    let alone =
+                        AngleSamples::Rf(record(f + 1).slice_move(s![.., f..f + 1, .., ..]));
+                    let alone = demodulate(&alone, 0, 1e-6, fs, fc, None).unwrap();
+                    let bits = |v: ndarray::ArrayView2<Complex32>| {
+                        v.iter()
+                            .map(|c| (c.re.to_bits(), c.im.to_bits()))
+                            .collect::<Vec<_>>()
+                    };
+                    assert_eq!(
+                        bits(iq.data.slice(s![.., .., f])),
+                        bits(alone.data.slice(s![.., .., 0])),
+                        "frame {f} of {frames}"
+                    );
+                }
+            }
         }
     }
 

@@ -85,11 +85,14 @@ impl Kernel {
         p: usize,
         next: *const Complex32,
     ) {
-        let (frames, n_samples) = (setup.frames, setup.n_samples);
-        let row = frames;
+        let (frames, n_samples, row) = (setup.frames, setup.n_samples, setup.row);
         let Span { start, len } = taps.spans[p];
         let end = start + len;
-        assert!(f0 + out.len() <= frames && data.len() >= setup.element_x.len() * n_samples * row);
+        // Rows of `row` samples, the last one's `frames` read: every frame of every row is in.
+        let rows = setup.element_x.len() * n_samples;
+        assert!(
+            f0 + out.len() <= frames && frames <= row && data.len() >= (rows - 1) * row + frames
+        );
         assert!(taps.rows.len() >= end + PF && taps.c1_im.len() >= end);
         #[cfg(target_arch = "x86_64")]
         if self == Kernel::Avx512 && !out.is_empty() && out.len() <= 8 * avx512::MAX_VECTORS {
@@ -141,7 +144,7 @@ mod tests {
     use crate::acquisition::probe::Probe;
     use crate::core::grid::Grid;
     use crate::form::beamform::tests::{noise, random_iq};
-    use crate::form::beamform::tiling::beamform_with;
+    use crate::form::beamform::tiling::{beamform_with, rows_of_frames};
     use crate::form::beamform::{Apodization, DasParams};
 
     /// Runs `kernel`'s accumulation against the portable loop's on random taps and data, over
@@ -170,6 +173,7 @@ mod tests {
                 apodization: Apodization::Boxcar,
                 n_samples: samples,
                 frames,
+                row: frames,
             };
             let mut r = noise(11);
             // Two pixels, with four and three taps, on elements 1..5; the first tap of the
@@ -229,6 +233,51 @@ mod tests {
         assert!(scale > 1.0);
         for (a, b) in fast.iter().zip(slow.iter()) {
             assert!((a - b).norm() <= 1e-5 * scale, "{kernel:?}: {a} vs {b}");
+        }
+    }
+
+    /// Samples whose rows of frames are padded to cache lines (as demodulation writes them),
+    /// or lie at any other strides (a transposed array, copied), beamform to the bit as the
+    /// same samples in standard layout, with every kernel this CPU runs, for frame counts that
+    /// fill their vectors and that do not.
+    #[test]
+    fn padded_and_strided_samples_beamform_as_standard_ones() {
+        let probe = Probe::l22_14vx();
+        let grid = Grid::new(-1e-3, 1e-3, 3e-3, 3.6e-3, 0.1e-3).unwrap();
+        let params = DasParams::new(1540.0);
+        for frames in [1, 5, 8, 90, 105] {
+            let iq = random_iq(probe.n_elements, 300, frames, frames as u64);
+            let shape = iq.data.dim();
+            let mut padded = iq.clone();
+            let whole = crate::core::buffers::padded_rows_reusing(None, shape);
+            padded.data = whole.slice_move(ndarray::s![.., .., ..frames]);
+            padded.data.assign(&iq.data);
+            assert!(frames % 8 == 0 || !padded.data.is_standard_layout());
+            // Read where they lie, not copied.
+            let (span, row) = rows_of_frames(&padded.data);
+            assert!(
+                matches!(span, std::borrow::Cow::Borrowed(_)),
+                "{frames} frames"
+            );
+            assert_eq!(row, frames.next_multiple_of(8));
+            let mut strided = iq.clone();
+            let mut transposed = ndarray::Array3::zeros((frames, shape.1, shape.0));
+            transposed.assign(&iq.data.view().permuted_axes([2, 1, 0]));
+            strided.data = transposed.permuted_axes([2, 1, 0]);
+            let bits = |image: &ndarray::Array3<Complex32>| {
+                image
+                    .iter()
+                    .map(|v| (v.re.to_bits(), v.im.to_bits()))
+                    .collect::<Vec<_>>()
+            };
+            for &kernel in Kernel::supported() {
+                let standard = beamform_with(kernel, &iq, &probe, 0.1, &grid, &params).unwrap();
+                assert!(standard.iter().any(|v| v.norm() > 0.0));
+                for other in [&padded, &strided] {
+                    let image = beamform_with(kernel, other, &probe, 0.1, &grid, &params).unwrap();
+                    assert_eq!(bits(&image), bits(&standard), "{kernel:?}, {frames} frames");
+                }
+            }
         }
     }
 

@@ -34,6 +34,9 @@ pub(super) struct Setup {
     pub(super) apodization: Apodization,
     pub(super) n_samples: usize,
     pub(super) frames: usize,
+    /// Complex samples from one row of frames to the next in the samples read: the frames, or
+    /// more where rows are padded to cache lines.
+    pub(super) row: usize,
 }
 
 /// Delays and weights of the pixels of a tile for one group of elements, in flat arrays so that

@@ -84,9 +84,9 @@ pub(super) fn beamform_into_with(
         image.fill(Complex32::new(0.0, 0.0));
         return Ok(());
     }
-    let setup = Setup::new(iq, probe, angle, params);
-    let data = iq.data.as_standard_layout();
-    let data = data.as_slice().expect("standard layout");
+    let (data, row) = rows_of_frames(&iq.data);
+    let data: &[Complex32] = &data;
+    let setup = Setup::new(iq, row, probe, angle, params);
     let chunks = frame_chunks(frames, kernel);
     // z bands outermost, x tiles of a band in parallel: both threads then sweep the same band of
     // depths, so the channel samples it needs stay in L3 while they are in use.
@@ -158,6 +158,37 @@ pub(super) fn beamform_into_with(
     Ok(())
 }
 
+/// The samples as one slice of rows of frames, and the stride from one row to the next
+/// (complex samples): the array's own memory where its rows lie at one stride (standard layout,
+/// or rows padded to cache lines as demodulation writes them), else a copy in standard layout.
+pub(super) fn rows_of_frames(
+    data: &Array3<Complex32>,
+) -> (std::borrow::Cow<'_, [Complex32]>, usize) {
+    let (channels, n_samples, frames) = data.dim();
+    let rows = channels * n_samples;
+    // (The stride of an axis of length 1 is never stepped, and may be anything.)
+    let [plane, row, column] = [0, 1, 2].map(|axis| data.stride_of(Axis(axis)));
+    let row = match (n_samples, channels) {
+        (2.., _) => row,
+        (_, 2..) => plane,
+        _ => frames as isize,
+    };
+    let one_stride = rows > 0
+        && (frames == 1 || column == 1)
+        && row >= frames as isize
+        && (channels == 1 || plane == row * n_samples as isize);
+    if !one_stride {
+        let copy = data.as_standard_layout().into_owned();
+        return (copy.into_raw_vec_and_offset().0.into(), frames);
+    }
+    let row = row as usize;
+    // SAFETY: an owned array's elements lie in one vector of initialized values, and so does
+    // everything between its first element and its last, row·(rows − 1) + frames − 1 elements
+    // further on (the strides checked above).
+    let span = unsafe { std::slice::from_raw_parts(data.as_ptr(), row * (rows - 1) + frames) };
+    (span.into(), row)
+}
+
 /// Depths per band and lateral positions per tile of the blocked pixel loop.
 const TILE_Z: usize = 8;
 const TILE_X: usize = 32;
@@ -174,7 +205,7 @@ struct TapsMut<'a> {
 }
 
 impl Setup {
-    fn new(iq: &IqChannels, probe: &Probe, angle: f64, params: &DasParams) -> Setup {
+    fn new(iq: &IqChannels, row: usize, probe: &Probe, angle: f64, params: &DasParams) -> Setup {
         let element_x = probe.element_x();
         let sorted = element_x.windows(2).all(|w| w[0] <= w[1]);
         let last = element_x.last().copied().unwrap_or(0.0);
@@ -198,6 +229,7 @@ impl Setup {
             apodization: params.apodization,
             n_samples,
             frames,
+            row,
         }
     }
 
