@@ -178,8 +178,8 @@ pub(super) fn rows_of_frames(
         && row >= frames as isize
         && (channels == 1 || plane == row * n_samples as isize);
     if !one_stride {
-        let copy = data.as_standard_layout().into_owned();
-        return (copy.into_raw_vec_and_offset().0.into(), frames);
+        let copy: Vec<Complex32> = data.iter().copied().collect();
+        return (copy.into(), frames);
     }
     let row = row as usize;
     // SAFETY: an owned array's elements lie in one vector of initialized values, and so does
