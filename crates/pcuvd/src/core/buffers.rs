@@ -20,12 +20,18 @@ where
     D: Dimension,
 {
     let shape = shape.into_dimension();
-    let len = shape.size();
-    let memory = old
-        .map(|array| array.into_raw_vec_and_offset().0)
-        .filter(|memory| memory.capacity() >= len);
-    // (Memory too small is dropped by now, before the new array is allocated.)
-    let memory = match memory {
+    let memory = memory_reusing(
+        old.map(|array| array.into_raw_vec_and_offset().0),
+        shape.size(),
+    );
+    Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
+/// `len` elements in `old` where it has room for them, else in new zeroed memory; the values
+/// are unspecified.
+fn memory_reusing<T: Zeroable + Send>(old: Option<Vec<T>>, len: usize) -> Vec<T> {
+    // (Memory too small is dropped by now, before the new memory is allocated.)
+    match old.filter(|memory| memory.capacity() >= len) {
         Some(mut memory) => {
             resize_zeroed(&mut memory, len);
             memory
@@ -33,8 +39,7 @@ where
         // Zeroed by the allocator: pages the system maps in zeroed on first touch, by the
         // threads that first write them, rather than filled here on one.
         None => bytemuck::zeroed_vec(len),
-    };
-    Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+    }
 }
 
 /// Bytes of a cache line, to which [`padded_rows_reusing`] aligns every row.
@@ -66,16 +71,7 @@ where
     let len = planes * rows * padded;
     // Room to move the start forward to a line.
     let room = len + per_line - 1;
-    let memory = old
-        .map(|array| array.into_raw_vec_and_offset().0)
-        .filter(|memory| memory.capacity() >= room);
-    let memory = match memory {
-        Some(mut memory) => {
-            resize_zeroed(&mut memory, room);
-            memory
-        }
-        None => bytemuck::zeroed_vec(room),
-    };
+    let memory = memory_reusing(old.map(|array| array.into_raw_vec_and_offset().0), room);
     let misaligned = (memory.as_ptr() as usize % CACHE_LINE) / size;
     let offset =
         if per_line > 1 && misaligned > 0 && (memory.as_ptr() as usize).is_multiple_of(size) {
