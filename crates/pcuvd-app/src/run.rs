@@ -440,7 +440,8 @@ fn dynamics_outcome(
             Err(e) if !plan.dynamics_required || matches!(e, pcuvd::Error::NoFlow(_)) => {
                 let reason = format!("{e:#}");
                 progress.note(&format!(
-                    "no RI maps: {reason} (use --dynamics off to silence this)"
+                    "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, \
+                     silences this)"
                 ));
                 DynamicsOutcome::Skipped(reason)
             }

@@ -359,6 +359,11 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     let (ok, _, stderr) = pcuvd(&base);
     assert!(ok, "{stderr}");
     assert!(stderr.contains("note: no RI maps"), "{stderr}");
+    // How to silence it, in either front end's words (Python shares the note).
+    assert!(
+        stderr.contains("(--dynamics off, or dynamics=\"off\" in Python, silences this)"),
+        "{stderr}"
+    );
 }
 
 /// A small valid coded recording without flow (16 elements, 4 angles, 64 frames at 1 kHz, echoes
