@@ -405,6 +405,22 @@ fn streamed_recording_equals_the_one_written_at_once() {
     assert_eq!(read_recording(&with_beats).unwrap().data, data);
 }
 
+/// A Hadamard-coded recording of 3 frames × 4 events on 6 channels of `n_samples`, written as a
+/// manifest in `dir`: the recording, its manifest, its samples file and the samples as stored,
+/// (frames, events, channels, samples).
+fn coded_recording(dir: &Path, n_samples: usize) -> (ChannelData, PathBuf, PathBuf, Array4<f32>) {
+    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
+    let samples = rf(3 * 4, 6, n_samples);
+    let data = ChannelData {
+        acquisition: acq,
+        samples: Samples::Rf(samples.clone()),
+    };
+    let manifest = write_recording(dir, "rec", &data, &toml::Table::new()).unwrap();
+    let npy = manifest.with_file_name("rec.npy");
+    let four = samples.into_shape_with_order((3, 4, 6, n_samples)).unwrap();
+    (data, manifest, npy, four)
+}
+
 /// A block read from a samples file is refused when it holds a NaN or an infinity, wherever it
 /// lies in the block (its first value, the first of a later run tested after reading, its last),
 /// and only in the blocks that hold it; doubles beyond f32's range are infinite as f32 and
@@ -413,17 +429,9 @@ fn streamed_recording_equals_the_one_written_at_once() {
 fn blocks_with_non_finite_samples_are_refused_where_they_lie() {
     use pcuvd::acquisition::source::FrameSource;
     let dir = tempfile::tempdir().unwrap();
-    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
     // 6 channels × 4,000 samples: a frame of 4 events is 384 kB of f32, so a block of two
     // frames spans three runs of 256 kB tested apart.
-    let samples = rf(3 * 4, 6, 4000);
-    let data = ChannelData {
-        acquisition: acq.clone(),
-        samples: Samples::Rf(samples.clone()),
-    };
-    let manifest = write_recording(dir.path(), "rec", &data, &toml::Table::new()).unwrap();
-    let npy = manifest.with_file_name("rec.npy");
-    let four = samples.into_shape_with_order((3, 4, 6, 4000)).unwrap();
+    let (data, manifest, npy, four) = coded_recording(dir.path(), 4000);
     let per_frame = 4 * 6 * 4000;
     let at = |i: usize| {
         let (f, rest) = (i / per_frame, i % per_frame);
@@ -474,18 +482,7 @@ fn blocks_with_non_finite_samples_are_refused_where_they_lie() {
 fn frames_read_in_blocks_are_the_recording() {
     use pcuvd::acquisition::source::FrameSource;
     let dir = tempfile::tempdir().unwrap();
-    let acq = acquisition(4, Coding::Hadamard { slot_delay: 1e-6 }, small_probe());
-    let samples = rf(3 * 4, 6, 11);
-    let data = ChannelData {
-        acquisition: acq.clone(),
-        samples: Samples::Rf(samples.clone()),
-    };
-    let manifest = write_recording(dir.path(), "rec", &data, &toml::Table::new()).unwrap();
-    let npy = manifest.with_file_name("rec.npy");
-    let four = samples
-        .clone()
-        .into_shape_with_order((3, 4, 6, 11))
-        .unwrap();
+    let (_, manifest, npy, four) = coded_recording(dir.path(), 11);
     // float32 as written, then float64 and int16 (integer values survive every dtype).
     for rewrite in 0..3 {
         match rewrite {
