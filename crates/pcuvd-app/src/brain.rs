@@ -393,7 +393,9 @@ impl BrainStudy {
     /// (nz, nx), so that other methods can be scored on the same pixels: `x.npy`, `z.npy` (m);
     /// the truth (`truth_vx`, `truth_vz` (m/s, averaged over the recording), `truth_ri`,
     /// `truth_psv`, `truth_edv` (m/s), `truth_vessel_class`, `truth_class_share`,
-    /// `truth_beam_ri` (see [`SimulatedTruth::beam_ri`]), `blood`,
+    /// `truth_axis_profile` (the wall scores' nearness to the axis, 1 on it, 0 at the wall),
+    /// `truth_blood_fraction` (the share of the pixel's elevation beam, by its echo weight, that
+    /// blood fills), `truth_beam_ri` (see [`SimulatedTruth::beam_ri`]), `blood`,
     /// `diameter_m`, `lumen`); and per method (`uvd_…`, `pcuvd_…`) `vx`, `vz` (m/s),
     /// `power_doppler`, `detected` and, when the dynamics stage ran, `ri`, `psv`, `edv` (m/s),
     /// `vessel_class`.
@@ -423,7 +425,11 @@ impl BrainStudy {
             npy("truth_psv", &cycle.psv)?;
             npy("truth_edv", &cycle.edv)?;
             npy("truth_class_share", &cycle.class_share)?;
+            npy("truth_axis_profile", &cycle.axis_profile)?;
             pcuvd_io::write_npy(&dir.join("truth_vessel_class.npy"), &cycle.vessel_class)?;
+        }
+        if let Some((_, blood_fraction)) = &self.truth.elevation {
+            npy("truth_blood_fraction", blood_fraction)?;
         }
         if let Some(beam_ri) = &self.truth.beam_ri {
             npy("truth_beam_ri", beam_ri)?;

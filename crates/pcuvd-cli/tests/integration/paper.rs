@@ -443,6 +443,27 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
         "{recomputed_mm_s} {all}"
     );
     assert_eq!(field("diameter_m").dim(), lumen.dim());
+    // The wall scores' pixels, recounted from the axis profile the maps carry (near the wall:
+    // below 1/3, the blood beyond about 0.8 of the radius); the blood fraction is a share of
+    // the beam, blood only where the truth has blood.
+    let profile = field("truth_axis_profile");
+    let near_wall = lumen
+        .indexed_iter()
+        .filter(|&(i, &l)| l == 1 && profile[i] < 1.0 / 3.0)
+        .count() as u64;
+    let walls = &brain["vector_by_wall"];
+    assert_eq!(walls[0]["group"], "near the wall");
+    assert_eq!(walls[0]["uvd"]["pixels"].as_u64().unwrap(), near_wall);
+    assert_eq!(
+        walls[1]["uvd"]["pixels"].as_u64().unwrap(),
+        lumen_pixels - near_wall
+    );
+    assert!(near_wall > 0 && near_wall < lumen_pixels, "{walls}");
+    let (fraction, blood) = (field("truth_blood_fraction"), flags("blood"));
+    for (i, &f) in fraction.indexed_iter() {
+        assert!((0.0..=1.0).contains(&f), "{f}");
+        assert_eq!(f > 0.0, blood[i] == 1, "{i:?}");
+    }
     // Without RI maps, no RI files.
     assert!(!maps.join("pcuvd_ri.npy").exists() && !maps.join("uvd_ri.npy").exists());
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
