@@ -32,6 +32,7 @@ use crate::run::{DynamicsOutcome, Plan, Processed};
 use crate::scenario::{Scenario, Vessels};
 use crate::settings::{DynamicsSettings, ProcessingSettings};
 use crate::simulation::{SimulatedTruth, Simulation};
+use crate::summary::CellRecord;
 use pcuvd::study::Mode;
 
 mod score;
@@ -355,6 +356,10 @@ pub struct BrainMetrics {
     pub false_detections: Vec<FalseDetections>,
     /// What they count.
     pub false_detection_definition: &'static str,
+    /// Each angle's resolution cell as its speckle measured it (the partial-volume correction's;
+    /// `None` where not measured, as with the correction off): conventional, coded. What the
+    /// truth is blurred by before an estimate can read it (`scripts/brain-vectors`).
+    pub resolution_cells: [Vec<Option<CellRecord>>; 2],
     /// The processing settings both recordings were processed with (f-number, Doppler kernel,
     /// partial-volume correction, clutter cut-offs...), as `pcuvd process` takes them.
     pub processing: ProcessingSettings,

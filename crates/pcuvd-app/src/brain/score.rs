@@ -283,6 +283,7 @@ pub(super) fn score(
                 .map(|r| (r.low, r.high))
                 .collect()
         }),
+        resolution_cells: [0, 1].map(|m| CellRecord::of_angles(&modes[m].out.maps.cells)),
         vector_by_depth,
         vector_by_diameter,
         vector_all,

@@ -429,19 +429,9 @@ impl Summary {
                 estimator: params.doppler_estimator.label(),
                 estimator_description: params.doppler_estimator.describe(),
                 partial_volume: params.partial_volume,
-                partial_volume_cells: params.partial_volume.then(|| {
-                    out.maps
-                        .cells
-                        .iter()
-                        .map(|cell| {
-                            cell.map(|c| CellRecord {
-                                sigma_x_mm: c.xx.sqrt() * 1e3,
-                                sigma_z_mm: c.zz.sqrt() * 1e3,
-                                covariance_xz_mm2: c.xz * 1e6,
-                            })
-                        })
-                        .collect()
-                }),
+                partial_volume_cells: params
+                    .partial_volume
+                    .then(|| CellRecord::of_angles(&out.maps.cells)),
             },
             irls: IrlsRecord {
                 lambda_mm_s: params.irls.lambda_mm_s,

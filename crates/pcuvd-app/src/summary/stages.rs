@@ -4,6 +4,7 @@
 
 use pcuvd::dynamics::{self, PoolingSummary};
 use pcuvd::estimate::clutter::{self, BlockLayout, ClutterReport};
+use pcuvd::estimate::partial_volume::CellCovariance;
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
 
@@ -103,7 +104,7 @@ pub struct DopplerRecord {
 }
 
 /// A resolution cell's intensity covariance (mm, mm²).
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct CellRecord {
     /// Lateral standard deviation (mm).
     pub sigma_x_mm: f64,
@@ -111,6 +112,23 @@ pub struct CellRecord {
     pub sigma_z_mm: f64,
     /// Lateral-axial covariance (mm²).
     pub covariance_xz_mm2: f64,
+}
+
+impl CellRecord {
+    /// Each angle's cell (m², as the partial-volume correction measures it) in mm and mm²; `None`
+    /// where it could not be measured.
+    pub fn of_angles(cells: &[Option<CellCovariance>]) -> Vec<Option<CellRecord>> {
+        cells
+            .iter()
+            .map(|cell| {
+                cell.map(|c| CellRecord {
+                    sigma_x_mm: c.xx.sqrt() * 1e3,
+                    sigma_z_mm: c.zz.sqrt() * 1e3,
+                    covariance_xz_mm2: c.xz * 1e6,
+                })
+            })
+            .collect()
+    }
 }
 
 /// The IRLS vector fit's settings.

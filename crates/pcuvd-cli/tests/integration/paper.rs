@@ -459,6 +459,22 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
         lumen_pixels - near_wall
     );
     assert!(near_wall > 0 && near_wall < lumen_pixels, "{walls}");
+    // Each mode's resolution cells, one per angle, as the partial-volume correction (on by
+    // default) measured them from the speckle: a 2-cycle pulse at 15.6 MHz received at F# 1 makes
+    // a cell longer laterally than axially, each under a wavelength (0.1 mm) in σ.
+    let cells = brain["resolution_cells"].as_array().unwrap();
+    assert_eq!(cells.len(), 2, "{cells:?}");
+    for mode in cells {
+        let angles = mode.as_array().unwrap();
+        assert_eq!(angles.len(), 8, "{mode}");
+        for cell in angles {
+            let (sx, sz) = (
+                cell["sigma_x_mm"].as_f64().unwrap(),
+                cell["sigma_z_mm"].as_f64().unwrap(),
+            );
+            assert!(sz > 0.0 && sz < sx && sx < 0.1, "{cell}");
+        }
+    }
     let (fraction, blood) = (field("truth_blood_fraction"), flags("blood"));
     for (i, &f) in fraction.indexed_iter() {
         assert!((0.0..=1.0).contains(&f), "{f}");
