@@ -429,8 +429,7 @@ impl Summary {
                 estimator: params.doppler_estimator.label(),
                 estimator_description: params.doppler_estimator.describe(),
                 partial_volume: params.partial_volume,
-                partial_volume_cells: params
-                    .partial_volume
+                partial_volume_cells: (params.partial_volume && out.maps.cells.len() >= 2)
                     .then(|| CellRecord::of_angles(&out.maps.cells)),
             },
             irls: IrlsRecord {

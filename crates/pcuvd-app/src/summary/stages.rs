@@ -99,7 +99,8 @@ pub struct DopplerRecord {
     /// Whether the partial-volume correction was on.
     pub partial_volume: bool,
     /// Each angle's intensity cell at one pixel (its speckle's) as the correction saw it; `None`
-    /// where it could not be measured; absent (`null`) with the correction off.
+    /// where it could not be measured; absent (`null`) with the correction off or one angle (no
+    /// vector fit for it to correct).
     pub partial_volume_cells: Option<Vec<Option<CellRecord>>>,
 }
 

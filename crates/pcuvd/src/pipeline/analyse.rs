@@ -149,7 +149,8 @@ pub fn moments(
                 params.doppler_estimator,
                 &doppler_geometry(images, &params.grid, Some(k)),
             )?;
-            if params.partial_volume {
+            // One angle gives no vector fit for the correction to correct.
+            if params.partial_volume && images.series.len() >= 2 {
                 m.cell = Some(partial_volume::CellLags::of(series));
             }
             Ok(m)
@@ -197,6 +198,7 @@ pub fn doppler_maps(
     let mut lateral_weights = Array3::<f64>::zeros((n, nz, nx));
     // Each pixel's projection Nyquist velocity, c·f_frame/(4 f̄): its own mean frequency's.
     let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
+    let mut only_angle = None;
     for (k, m) in per_angle.iter().enumerate() {
         let maps = doppler::maps_of_moments(
             m,
@@ -216,18 +218,26 @@ pub fn doppler_maps(
                 .mapv(|f| doppler::nyquist_velocity(c, frame_rate, f)),
         );
         power_per_angle.index_axis_mut(Axis(0), k).assign(&m.power);
+        if n == 1 {
+            only_angle = Some(maps);
+        }
     }
     // The compounded echo path changes by Vz·(1 + mean cos θ) (+ Vx·mean sin θ, zero for symmetric
     // angle sets): rescale its velocity to the axial velocity.
     let mean_cos = angles.iter().map(|a| a.cos()).sum::<f64>() / n as f64;
+    // One angle is its own compound: the same moments ([`moments`]) read with the same geometry
+    // (the mean of one angle's weights is its weights, to the bit), so its maps are the angle's.
     let doppler::DopplerMaps {
         power, velocity, ..
-    } = doppler::maps_of_moments(
-        compound,
-        params.doppler_kernel,
-        params.doppler_estimator,
-        &doppler_geometry(images, &params.grid, None),
-    )?;
+    } = match only_angle {
+        Some(maps) => maps,
+        None => doppler::maps_of_moments(
+            compound,
+            params.doppler_kernel,
+            params.doppler_estimator,
+            &doppler_geometry(images, &params.grid, None),
+        )?,
+    };
     let axial = velocity.mapv(|v| 2.0 * v / (1.0 + mean_cos));
     let coverage = images
         .coverage
@@ -364,4 +374,78 @@ pub fn ri_maps_of(
 ) -> Result<RiMaps> {
     let flow = vessel.flow_mask(power_doppler, grid.step());
     dynamics::ri_maps_triggered(series, params, Some(&flow), triggers)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimate::vector::IrlsParams;
+    use crate::form::beamform::{Apodization, DasParams};
+    use crate::form::decode::EventAlignment;
+    use num_complex::Complex32;
+
+    /// One angle is its own compound: its maps stand for the compound's, to the bit, as reading
+    /// the compound's moments would give them, and no cell is measured (there is no vector fit
+    /// for the correction to correct).
+    #[test]
+    fn one_angle_is_read_as_its_own_compound() {
+        let (nz, nx, frames) = (24, 7, 16);
+        let grid = Grid {
+            x: (0..nx).map(|i| i as f64 * 5e-5).collect(),
+            z: (0..nz).map(|i| 5e-3 + i as f64 * 2.5e-5).collect(),
+        };
+        // A speckle whose phase turns 0.4 rad a frame and a half-wavelength a row (Loupas reads
+        // its mean frequency from the rows): every map is non-trivial.
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        let speckle = Array2::from_shape_simple_fn((nz, nx), || Complex32::new(next(), next()));
+        let series = Array3::from_shape_fn((nz, nx, frames), |(iz, ix, t)| {
+            speckle[[iz, ix]] * Complex32::from_polar(1.0, 0.4 * t as f32 + 1.3 * iz as f32)
+        });
+        let images = AngleImages {
+            grid: grid.clone(),
+            angles: vec![0.1],
+            frame_rate: 1000.0,
+            sound_speed: 1540.0,
+            demodulation_frequency: 15.625e6,
+            coverage: None,
+            series: vec![series],
+        };
+        let params = ProcessParams {
+            grid: grid.clone(),
+            das: DasParams {
+                f_number: 1.0,
+                apodization: Apodization::Hann,
+                sound_speed: 1540.0,
+            },
+            clutter: clutter::ClutterParams::default(),
+            doppler_kernel: (5, 1),
+            doppler_estimator: DopplerEstimator::Loupas,
+            irls: IrlsParams::default(),
+            iq_cutoff: None,
+            event_alignment: EventAlignment::MidFrame,
+            dealias: Dealias::Off,
+            partial_volume: true,
+        };
+        let (per_angle, compound) = moments(&images, &params, None).unwrap();
+        assert!(per_angle[0].cell.is_none());
+        let maps = doppler_maps(&per_angle, &compound, &images, &params).unwrap();
+        let own = doppler::maps_of_moments(
+            &compound,
+            params.doppler_kernel,
+            params.doppler_estimator,
+            &doppler_geometry(&images, &grid, None),
+        )
+        .unwrap();
+        assert_eq!(maps.power_doppler, own.power);
+        let axial = own.velocity.mapv(|v| 2.0 * v / (1.0 + 0.1f64.cos()));
+        assert_eq!(maps.color_doppler, axial);
+        assert!(axial.iter().all(|v| v.abs() > 0.0 && v.is_finite()));
+        assert!(maps.cells.iter().all(Option::is_none));
+    }
 }

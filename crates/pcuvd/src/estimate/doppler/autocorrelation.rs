@@ -74,21 +74,28 @@ impl Autocorrelation {
 
 pub(super) fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
 where
-    T: Copy + Default + std::ops::AddAssign + std::ops::Div<f64, Output = T>,
+    T: Copy + Default + Send + Sync + std::ops::AddAssign + std::ops::Div<f64, Output = T>,
 {
     let (nz, nx) = map.dim();
     let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
-    Array2::from_shape_fn((nz, nx), |(z, x)| {
-        let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
-        let (x0, x1) = (x.saturating_sub(hx), (x + hx + 1).min(nx));
-        let mut acc = T::default();
-        for zz in z0..z1 {
-            for xx in x0..x1 {
-                acc += map[[zz, xx]];
+    let mut out = Array2::<T>::default((nz, nx));
+    out.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(z, mut row)| {
+            let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
+            for (x, out) in row.iter_mut().enumerate() {
+                let (x0, x1) = (x.saturating_sub(hx), (x + hx + 1).min(nx));
+                let mut acc = T::default();
+                for zz in z0..z1 {
+                    for xx in x0..x1 {
+                        acc += map[[zz, xx]];
+                    }
+                }
+                *out = acc / ((z1 - z0) * (x1 - x0)) as f64;
             }
-        }
-        acc / ((z1 - z0) * (x1 - x0)) as f64
-    })
+        });
+    out
 }
 
 /// Axial-lag autocorrelation R(1, 0) per pixel, shape (nz, nx): the mean over frames of
