@@ -281,7 +281,7 @@ fn add_envelope(envelope: &mut Array2<f64>, series: &[Array3<Complex32>], own: R
                 for lane in &lanes[1..] {
                     sum += lane[base + f];
                 }
-                sum.norm() as f64
+                beamform::envelope(sum)
             })
             .sum::<f64>();
     });
