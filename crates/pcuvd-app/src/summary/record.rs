@@ -429,7 +429,8 @@ impl Summary {
                 estimator: params.doppler_estimator.label(),
                 estimator_description: params.doppler_estimator.describe(),
                 partial_volume: params.partial_volume,
-                partial_volume_cells: (params.partial_volume && out.maps.cells.len() >= 2)
+                partial_volume_cells: params
+                    .measures_cells(out.maps.cells.len())
                     .then(|| CellRecord::of_angles(&out.maps.cells)),
             },
             irls: IrlsRecord {

@@ -149,8 +149,7 @@ pub fn moments(
                 params.doppler_estimator,
                 &doppler_geometry(images, &params.grid, Some(k)),
             )?;
-            // One angle gives no vector fit for the correction to correct.
-            if params.partial_volume && images.series.len() >= 2 {
+            if params.measures_cells(images.series.len()) {
                 m.cell = Some(partial_volume::CellLags::of(series));
             }
             Ok(m)

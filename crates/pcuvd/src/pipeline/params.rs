@@ -50,6 +50,15 @@ pub struct ProcessParams {
     pub partial_volume: bool,
 }
 
+impl ProcessParams {
+    /// Whether a recording of `angles` steering angles has its resolution cells measured for the
+    /// partial-volume correction: with the correction on and two angles or more (one angle gives
+    /// no vector fit for the correction to correct).
+    pub fn measures_cells(&self, angles: usize) -> bool {
+        self.partial_volume && angles >= 2
+    }
+}
+
 /// Pipeline stages, in order, as reported to a progress callback.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Stage {

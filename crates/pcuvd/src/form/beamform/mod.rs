@@ -165,7 +165,8 @@ pub fn bmode_db(image: ArrayView3<Complex32>) -> ndarray::Array2<f64> {
     bmode_db_of_envelope(env)
 }
 
-/// The mean |S| of a pixel's frames ([`envelope`] of each).
+/// The mean |S| of a pixel's frames ([`envelope`] of each); frames in one run are summed as a
+/// slice, which vectorises, and strided ones element by element.
 fn mean_envelope(frames: ndarray::ArrayView1<Complex32>) -> f64 {
     let sum: f64 = match frames.as_slice() {
         Some(run) => run.iter().copied().map(envelope).sum(),
