@@ -4,16 +4,17 @@
 //! processes it (clutter filter on, dynamics stage on the recording's heartbeats), and the maps
 //! scored against the truth.
 //!
-//! Which pixels are scored. The truth of a pixel is the elevation beam's view of the tree: its
-//! velocity is the beam-weighted mean over the blood the beam holds, and `blood_fraction` is the
-//! share of the beam's weight that is blood. Near the probe the beam is as tall as the element
-//! (1.5 mm), so a 40 µm penetrating arteriole fills about 3 % of it (the cortex's median share on
-//! the default brain is under 2 %), and only the deep trunks near the lens focus fill a quarter:
-//! a threshold on the share would score no cortex at all. The scores count the **lumen pixels**:
-//! those whose beam holds a vessel at least [`LUMEN_MIN_DIAMETER_M`] wide (the vessel it holds
-//! most of), that is every arteriole, venule and trunk, but not the capillary bed, whose echo
-//! (under 1 % of the beam) no Doppler estimator can be asked to read.
-
+//! Which pixels are scored. The truth of a pixel is its voxel's view of the tree: its cell of
+//! the plane (halfway to the neighbouring pixels), spread along the elevation by the beam's
+//! two-way echo power; its velocity is the weighted mean over the blood the voxel holds, and
+//! `blood_fraction` is the share of the voxel's weight that is blood. Near the probe the beam is
+//! as tall as the element (1.5 mm), so a 40 µm penetrating arteriole fills a few % of its voxel,
+//! and only the deep trunks near the lens focus fill a quarter: a threshold on the share would
+//! score no cortex at all. The scores count the **lumen pixels**: those whose voxel holds blood,
+//! most of it in a vessel at least [`LUMEN_MIN_DIAMETER_M`] wide, that is every arteriole, venule
+//! and trunk, but not the capillary bed, whose echo (under 1 % of the voxel) no Doppler estimator
+//! can be asked to read. A voxel counts however little of a vessel it holds: the wall's thin
+//! slices of the wide vessels are lumen pixels too.
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -58,20 +59,21 @@ pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
 ];
 
 /// What the vector scores count.
-pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's elevation beam \
-    holds a vessel at least `lumen_min_diameter_m` wide) of the band (thirds of the depth range \
+pub const VECTOR_SCORE_DEFINITION: &str = "over the lumen pixels (the pixel's voxel holds \
+    blood, most of it in a vessel at least `lumen_min_diameter_m` wide) of the band (thirds of the depth range \
     the lumen pixels span), diameter class, or both (`vector_deep_by_diameter`: the deepest \
     third by diameter class): `detected` is the \
     fraction the method's vessel mask (noise-floor margin and local peak, as `pcuvd process`) \
     holds; over the detected ones, RMSE of vx, of vz and of the in-plane vector error (mm/s) \
-    against the truth (the elevation-beam-weighted mean blood velocity, averaged over the \
+    against the truth (the mean velocity of the blood in the pixel's voxel: its cell of the \
+    plane, weighted along the elevation by the beam's two-way echo power; averaged over the \
     recording at `TRUTH_TIMES` evenly spaced times), and the median angle between the \
     estimated and the true in-plane velocity (degrees)";
 
 /// Mean of 1 − (r/R)² over a pixel's blood below which the pixel counts as near its vessel's
 /// wall in the vector scores: the blood lies beyond about 0.8 R, where the laminar profile is
-/// steepest and a resolution cell averages the most gradient. (Seen through an elevation beam
-/// wider than the vessel, a chord through the axis averages 2/3.)
+/// steepest and a resolution cell averages the most gradient. (A voxel that holds a vessel's
+/// whole cross-section averages 1/2.)
 pub const WALL_PROFILE: f64 = 1.0 / 3.0;
 
 /// What the wall groups of the vector scores count.

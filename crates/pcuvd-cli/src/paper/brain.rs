@@ -194,7 +194,7 @@ pub fn brain_figures(
         ));
     }
     let mut fraction = map_panel(
-        "Truth: blood's share of the elevation beam",
+        "Truth: blood's share of each pixel's voxel",
         truth
             .elevation
             .as_ref()
@@ -202,7 +202,7 @@ pub fn brain_figures(
         grid,
         Colormap::Hot,
         (0.0, 0.1),
-        "blood's share of the beam (saturates at 10 %)",
+        "blood's share of the voxel (saturates at 10 %)",
     );
     fraction.mask = Some(blood.clone());
     fraction.background = Some(black.clone());
