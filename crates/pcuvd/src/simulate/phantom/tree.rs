@@ -291,7 +291,7 @@ impl Beam {
         };
         let row = &rows[iz];
         let at = y / Self::STEP + *centre as f64;
-        if !(at >= 0.0) || at >= (row.len() - 1) as f64 {
+        if at.is_nan() || at < 0.0 || at >= (row.len() - 1) as f64 {
             return 0.0;
         }
         let i = at as usize;
@@ -515,7 +515,7 @@ impl Chords {
         } else if !(0.0..=self.chord).contains(&s0) {
             return (0.0, 0.0);
         }
-        if !(y1 > y0) {
+        if y0.is_nan() || y1.is_nan() || y1 <= y0 {
             return (0.0, 0.0);
         }
         let pieces = ((y1 - y0) / CHORD_PIECE).ceil().max(1.0) as usize;
