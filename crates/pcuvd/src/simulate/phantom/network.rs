@@ -264,7 +264,8 @@ impl NetworkSpec {
     }
 }
 
-fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+/// Distance (m) from `p` to the segment from `a` to `b`, in the plane (x, z).
+pub(super) fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (abx, abz) = (b[0] - a[0], b[1] - a[1]);
     let len2 = abx * abx + abz * abz;
     let t = if len2 > 0.0 {

@@ -20,7 +20,7 @@
 //! (what a mean-frequency Doppler estimate of the voxel's echoes reads); the blood fraction (the
 //! blood's share of the voxel's weight, a partial volume); and the segment holding most of the
 //! voxel's blood weight, which gives its id, class and RI. PSV and EDV are that segment's, scaled
-//! by the mean laminar profile factor the voxel sees. The integral runs on a lattice a third of
+//! by the mean laminar profile factor the voxel sees. The integral runs on a lattice a quarter of
 //! each vessel's radius fine, so a vessel narrower than a pixel counts with its whole cross-section
 //! (its mean speed, half the centreline's), not with the line through the pixel's centre.
 //! Without an elevation aperture (a two-dimensional simulation) the weight is 1 at y = 0 and 0
@@ -32,7 +32,7 @@ use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
-use super::network::NetworkTruth;
+use super::network::{NetworkTruth, point_segment_distance};
 use super::{MAX_SCATTERERS, Phantom, Truth, rng};
 use crate::core::error::{Result, invalid, require_positive};
 use crate::core::vessel::BACKGROUND;
@@ -214,17 +214,17 @@ impl TreePhantom {
         aperture: Option<(&ElevationAperture, f64)>,
     ) -> Vec<TreeTruth> {
         let beam = Beam::new(&self.flow.segments, z, aperture);
-        let voxels = Voxels::new(x, z);
+        let (xs, zs) = (Cells { centres: x }, Cells { centres: z });
         let shares: Vec<Vec<Share>> = self
             .flow
             .segments
             .par_iter()
             .enumerate()
-            .map(|(id, s)| voxel_shares(id, s, &voxels, &beam))
+            .map(|(id, s)| voxel_shares(id, s, (&xs, &zs), &beam))
             .collect();
         // The whole weight of each pixel's voxel: the blood fraction's denominator.
         let totals = Array2::from_shape_fn((z.len(), x.len()), |(iz, ix)| {
-            voxels.x_width(ix) * voxels.z_width(iz) * beam.total(iz)
+            xs.width(ix) * zs.width(iz) * beam.total(iz)
         });
         times
             .par_iter()
@@ -322,20 +322,18 @@ fn cells(lo: f64, hi: f64, step: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Each pixel's voxel in the plane: the cell of the positions nearer to its centre than to its
-/// neighbours' (an axis of one position has no width there: the voxel is its line).
-struct Voxels<'a> {
-    x: &'a [f64],
-    z: &'a [f64],
+/// The cells of one axis of the pixel grid: each position's the stretch nearer to it than to its
+/// neighbours (an axis of one position has no width there: its cell is the position itself).
+/// A pixel's voxel in the plane is its x cell by its z cell.
+struct Cells<'a> {
+    /// Pixel positions (m), ascending.
+    centres: &'a [f64],
 }
 
-impl<'a> Voxels<'a> {
-    fn new(x: &'a [f64], z: &'a [f64]) -> Self {
-        Voxels { x, z }
-    }
-
-    /// (lower edge, upper edge) of cell `i` of positions `v` (ascending).
-    fn edges(v: &[f64], i: usize) -> (f64, f64) {
+impl Cells<'_> {
+    /// (lower edge, upper edge) (m) of cell `i`.
+    fn edges(&self, i: usize) -> (f64, f64) {
+        let v = self.centres;
         if v.len() < 2 {
             return (v[i], v[i]);
         }
@@ -352,33 +350,39 @@ impl<'a> Voxels<'a> {
         (lo, hi)
     }
 
-    /// Length (m) of cell `i` of `v`: 0 on an axis of one position.
-    fn extent(v: &[f64], i: usize) -> f64 {
-        let (lo, hi) = Self::edges(v, i);
+    /// Length (m) of cell `i`: 0 on an axis of one position.
+    fn extent(&self, i: usize) -> f64 {
+        let (lo, hi) = self.edges(i);
         hi - lo
     }
 
-    /// Width of a cell in the measure the truth integrates with: its length, or 1 on an axis
+    /// Width of cell `i` in the measure the truth integrates with: its length, or 1 on an axis
     /// of one position (a line, sampled once).
-    fn width(v: &[f64], i: usize) -> f64 {
-        if v.len() < 2 { 1.0 } else { Self::extent(v, i) }
-    }
-
-    fn x_width(&self, ix: usize) -> f64 {
-        Self::width(self.x, ix)
-    }
-
-    fn z_width(&self, iz: usize) -> f64 {
-        Self::width(self.z, iz)
-    }
-
-    /// Sample positions `(v, dv)` across cell `i` of `v`, no further apart than `step`.
-    fn samples(v: &[f64], i: usize, step: f64) -> Vec<(f64, f64)> {
-        if v.len() < 2 {
-            return vec![(v[i], 1.0)];
+    fn width(&self, i: usize) -> f64 {
+        if self.centres.len() < 2 {
+            1.0
+        } else {
+            self.extent(i)
         }
-        let (lo, hi) = Self::edges(v, i);
+    }
+
+    /// Sample positions `(v, dv)` across cell `i`, no further apart than `step` (m).
+    fn samples(&self, i: usize, step: f64) -> Vec<(f64, f64)> {
+        if self.centres.len() < 2 {
+            return vec![(self.centres[i], 1.0)];
+        }
+        let (lo, hi) = self.edges(i);
         cells(lo, hi, step)
+    }
+
+    /// The cells that reach into `lo..=hi` (m).
+    fn meeting(&self, lo: f64, hi: f64) -> Vec<usize> {
+        (0..self.centres.len())
+            .filter(|&i| {
+                let (a, b) = self.edges(i);
+                b >= lo && a <= hi
+            })
+            .collect()
     }
 }
 
@@ -399,7 +403,12 @@ struct Share {
 /// over the chord each lattice line cuts through the cylinder, where the laminar profile is a
 /// quadratic in y, by Gauss–Legendre rules on pieces short beside the beam's variation. The
 /// chord shrinks to nothing at the wall, so the sum has no step there.
-fn voxel_shares(segment: usize, s: &SegmentFlow, voxels: &Voxels, beam: &Beam) -> Vec<Share> {
+fn voxel_shares(
+    segment: usize,
+    s: &SegmentFlow,
+    (xs, zs): (&Cells, &Cells),
+    beam: &Beam,
+) -> Vec<Share> {
     let radius = 0.5 * s.diameter;
     let step = (radius / 4.0).clamp(0.5e-6, 10e-6);
     let (lo, hi) = s.bounds();
@@ -407,31 +416,25 @@ fn voxel_shares(segment: usize, s: &SegmentFlow, voxels: &Voxels, beam: &Beam) -
     // half-diagonal of the axis's projection on the plane (the cylinder's projection lies
     // within the radius of it).
     let (a, b) = ([s.start[0], s.start[2]], [s.end[0], s.end[2]]);
-    let near = |x: f64, z: f64, reach: f64| distance_to_segment([x, z], a, b) <= radius + reach;
-    let within = |v: &[f64], lo: f64, hi: f64| -> Vec<usize> {
-        (0..v.len())
-            .filter(|&i| {
-                let (a, b) = Voxels::edges(v, i);
-                b >= lo && a <= hi
-            })
-            .collect()
-    };
+    let near = |x: f64, z: f64, reach: f64| point_segment_distance([x, z], a, b) <= radius + reach;
     let chords = Chords::of(s);
-    let columns = within(voxels.x, lo[0], hi[0]);
-    let rows = within(voxels.z, lo[2], hi[2]);
+    let columns: Vec<(usize, Vec<(f64, f64)>)> = xs
+        .meeting(lo[0], hi[0])
+        .into_iter()
+        .map(|ix| (ix, xs.samples(ix, step)))
+        .collect();
     let mut shares = Vec::new();
-    for &iz in &rows {
-        let sub_z = Voxels::samples(voxels.z, iz, step);
-        for &ix in &columns {
-            let half_diagonal =
-                0.5 * Voxels::extent(voxels.x, ix).hypot(Voxels::extent(voxels.z, iz));
-            if !near(voxels.x[ix], voxels.z[iz], half_diagonal) {
+    for iz in zs.meeting(lo[2], hi[2]) {
+        let sub_z = zs.samples(iz, step);
+        for (ix, sub_x) in &columns {
+            let ix = *ix;
+            let half_diagonal = 0.5 * xs.extent(ix).hypot(zs.extent(iz));
+            if !near(xs.centres[ix], zs.centres[iz], half_diagonal) {
                 continue;
             }
-            let sub_x = Voxels::samples(voxels.x, ix, step);
             let (mut blood, mut profiled) = (0.0, 0.0);
             for &(zz, dz) in &sub_z {
-                for &(xx, dx) in &sub_x {
+                for &(xx, dx) in sub_x {
                     let (w, p) = chords.along_y(xx, zz, |y| beam.weight(iz, y), beam.is_flat());
                     blood += w * dx * dz;
                     profiled += p * dx * dz;
@@ -541,18 +544,6 @@ const GAUSS_LEGENDRE_4: [(f64, f64); 4] = [
     (0.339_981_043_584_856_3, 0.652_145_154_862_546_1),
     (0.861_136_311_594_052_6, 0.347_854_845_137_453_9),
 ];
-
-/// Distance (m) from `p` to the segment from `a` to `b` in the plane (x, z).
-fn distance_to_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
-    let d = [b[0] - a[0], b[1] - a[1]];
-    let len2 = d[0] * d[0] + d[1] * d[1];
-    let t = if len2 > 0.0 {
-        (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p[0] - a[0] - t * d[0]).hypot(p[1] - a[1] - t * d[1])
-}
 
 /// The truth of a tree on a pixel grid, each array of shape (nz, nx).
 #[derive(Debug, Clone, PartialEq)]
