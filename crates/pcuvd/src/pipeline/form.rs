@@ -223,7 +223,8 @@ impl BlockBuffers {
     /// next (it has no frames before it), and would otherwise leave an array too small for them.
     /// The room is reserved, not touched: pages are faulted in as samples are read into them.
     fn with_room(acquisition: &Acquisition, events: usize, trace: (usize, usize)) -> Self {
-        let room = Vec::with_capacity(events * trace.0 * trace.1);
+        let mut room = Vec::with_capacity(events * trace.0 * trace.1);
+        crate::core::buffers::advise_huge_pages(room.spare_capacity_mut());
         let empty =
             Array3::from_shape_vec((0, trace.0, trace.1), room).expect("no events, no samples");
         BlockBuffers {
