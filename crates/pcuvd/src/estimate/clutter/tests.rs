@@ -869,3 +869,43 @@ fn blocks_over_blood_alone_leave_the_series_bit_for_bit() {
         vec![(0, 20); layout.z_starts.len() * layout.x_starts.len()]
     );
 }
+
+/// The Gram matrix is the same bit for bit on one core and on several, and equals the product
+/// summed in double precision by hand: the chunks' sums are added in an order the data fix.
+#[test]
+fn gram_matrix_is_the_same_on_any_number_of_cores() {
+    let (pixels, frames) = (GRAM_CHUNK * 37 + 123, 7);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let normal = Normal::new(0.0f32, 1.0).unwrap();
+    let data: Vec<Complex32> = (0..pixels * frames)
+        .map(|_| Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng)) * 1e3)
+        .collect();
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| gram_of(&data, frames))
+    };
+    let one = on(1);
+    for threads in [2, 3, 5] {
+        for _ in 0..3 {
+            assert!(on(threads) == one, "{threads} threads");
+        }
+    }
+    for i in 0..frames {
+        for j in 0..=i {
+            let by_hand: c64 = (0..pixels)
+                .map(|p| {
+                    let (a, b) = (data[p * frames + i], data[p * frames + j]);
+                    c64::new(a.re as f64, -a.im as f64) * c64::new(b.re as f64, b.im as f64)
+                })
+                .sum();
+            let got = one[(i, j)];
+            assert!(
+                (got - by_hand).norm() <= 1e-9 * by_hand.norm().max(1.0),
+                "{i} {j}"
+            );
+        }
+    }
+}
