@@ -27,6 +27,20 @@ where
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
 }
 
+/// An array of zeros of `shape` in new memory, asked for in huge pages
+/// ([`advise_huge_pages`]) where it is large: for arrays the caller then fills, e.g. a block of
+/// simulated traces.
+pub fn zeros_in_huge_pages<T, D>(shape: impl IntoDimension<Dim = D>) -> Array<T, D>
+where
+    T: Zeroable,
+    D: Dimension,
+{
+    let shape = shape.into_dimension();
+    let memory = bytemuck::zeroed_vec(shape.size());
+    advise_huge_pages(&memory);
+    Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
 /// `len` elements in `old` where it has room for them, else in new zeroed memory; the values
 /// are unspecified.
 fn memory_reusing<T: Zeroable + Send>(old: Option<Vec<T>>, len: usize) -> Vec<T> {
@@ -38,11 +52,7 @@ fn memory_reusing<T: Zeroable + Send>(old: Option<Vec<T>>, len: usize) -> Vec<T>
         }
         // Zeroed by the allocator: pages the system maps in zeroed on first touch, by the
         // threads that first write them, rather than filled here on one.
-        None => {
-            let memory = bytemuck::zeroed_vec(len);
-            advise_huge_pages(&memory);
-            memory
-        }
+        None => zeros_in_huge_pages(len).into_raw_vec_and_offset().0,
     }
 }
 

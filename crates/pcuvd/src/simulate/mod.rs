@@ -440,7 +440,8 @@ pub fn simulate_events(
             format!("{events:?} is not within the recording's {n_events} events"),
         ));
     }
-    let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
+    let mut rf: Array3<f32> =
+        crate::core::buffers::zeros_in_huge_pages((events.len(), n_channels, ns));
     for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
         let t = event as f64 / params.sequence.event_prf;
         load(t, &mut scatterers)?;
@@ -603,7 +604,8 @@ pub fn simulate_noise_events(
     let generator = noise_generator(phantom, params, &sim, &mut scatterers, &load)?
         .expect("noise is specified");
     let first = events.start;
-    let mut rf = Array3::<f32>::zeros((events.len(), n_channels, ns));
+    let mut rf: Array3<f32> =
+        crate::core::buffers::zeros_in_huge_pages((events.len(), n_channels, ns));
     rf.axis_iter_mut(Axis(0))
         .into_par_iter()
         .enumerate()
