@@ -134,12 +134,15 @@ impl Spectrum {
 /// The spatial-similarity matrix of the components in `vectors`' columns (temporal singular
 /// vectors, strongest first): C(n, m) = the correlation coefficient over pixels of |S·v_n| and
 /// |S·v_m| (the spatial singular vectors' magnitudes, up to their singular values, which a
-/// correlation ignores). Accumulated over pixel chunks in f64; |S·V| is never held whole.
+/// correlation ignores). Accumulated over pixel chunks in f64, added in an order the data fix;
+/// |S·V| is never held whole.
 pub fn spatial_similarity(data: &[Complex32], frames: usize, vectors: MatRef<'_, c32>) -> Mat<f64> {
     let n = vectors.ncols();
-    let (products, sums) = data
-        .par_chunks(CHUNK * frames)
-        .map(|chunk| {
+    let (products, sums) = crate::core::parallel::sum_of_chunks(
+        data,
+        CHUNK * frames,
+        || (Mat::<f64>::zeros(n, n), vec![0.0; n]),
+        |chunk| {
             let rows = chunk.len() / frames;
             let mut spatial = Mat::<c32>::zeros(rows, n);
             faer::linalg::matmul::matmul(
@@ -153,11 +156,14 @@ pub fn spatial_similarity(data: &[Complex32], frames: usize, vectors: MatRef<'_,
             let magnitude = Mat::<f64>::from_fn(rows, n, |p, k| spatial[(p, k)].norm() as f64);
             let sums: Vec<f64> = (0..n).map(|k| magnitude.col(k).sum()).collect();
             (magnitude.transpose() * &magnitude, sums)
-        })
-        .reduce(
-            || (Mat::<f64>::zeros(n, n), vec![0.0; n]),
-            |(pa, sa), (pb, sb)| (pa + pb, sa.iter().zip(&sb).map(|(a, b)| a + b).collect()),
-        );
+        },
+        |(products, sums), (chunk_products, chunk_sums)| {
+            *products += chunk_products;
+            for (sum, part) in sums.iter_mut().zip(chunk_sums) {
+                *sum += part;
+            }
+        },
+    );
     let pixels = (data.len() / frames) as f64;
     let mean: Vec<f64> = sums.iter().map(|s| s / pixels).collect();
     let covariance = |i: usize, j: usize| products[(i, j)] / pixels - mean[i] * mean[j];

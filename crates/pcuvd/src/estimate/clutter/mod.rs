@@ -175,9 +175,6 @@ pub struct CutOffs {
 const CHUNK: usize = 4096;
 /// Pixels per double-precision copy the Gram matrix is summed from (a few MB per thread).
 const GRAM_CHUNK: usize = 1024;
-/// Runs of chunks whose Gram matrices are summed apart, in parallel ([`gram_of`]): a number fixed
-/// whatever the cores, so that the order of the additions, and the sum, are too.
-const GRAM_GROUPS: usize = 16;
 
 /// `samples` as faer's complex type, which is the same type.
 fn as_faer(samples: &[Complex32]) -> &[c32] {
@@ -364,26 +361,17 @@ fn filter_with_gram(
 /// eigensolver reads its lower half only: computing that half alone halves the largest product
 /// of the filter.
 ///
-/// The chunks' products are added in an order fixed by the data alone: [`GRAM_GROUPS`] runs of
-/// consecutive chunks, each summed in order on one thread, then the runs' sums in order, so that a
-/// series gives the same matrix bit for bit on any number of cores, run after run (a parallel
-/// `reduce` would add partial sums in a tree that work stealing builds anew each time).
+/// The chunks' products are added in an order the data fix
+/// ([`sum_of_chunks`](crate::core::parallel::sum_of_chunks)): the same matrix on any number of
+/// cores.
 fn gram_of(data: &[Complex32], frames: usize) -> Mat<c64> {
-    let chunks: Vec<&[Complex32]> = data.chunks(GRAM_CHUNK * frames).collect();
-    let per_run = chunks.len().div_ceil(GRAM_GROUPS).max(1);
-    let runs: Vec<Mat<c64>> = chunks
-        .par_chunks(per_run)
-        .map(|run| {
-            let mut sum = Mat::<c64>::zeros(frames, frames);
-            for chunk in run {
-                let rows = chunk.len() / frames;
-                sum += lower_gram(rows, frames, |i, j| chunk[i * frames + j]);
-            }
-            sum
-        })
-        .collect();
-    runs.into_iter()
-        .fold(Mat::<c64>::zeros(frames, frames), |sum, run| sum + run)
+    crate::core::parallel::sum_of_chunks(
+        data,
+        GRAM_CHUNK * frames,
+        || Mat::<c64>::zeros(frames, frames),
+        |chunk| lower_gram(chunk.len() / frames, frames, |i, j| chunk[i * frames + j]),
+        |sum, part| *sum += part,
+    )
 }
 
 /// The lower half of the Gram matrix of the `rows` × `frames` matrix whose entries `entry` gives.
