@@ -42,6 +42,17 @@ where
     total
 }
 
+/// `work`'s result computed on a pool of `threads` threads, for tests that a result does not
+/// depend on them.
+#[cfg(test)]
+pub(crate) fn on_threads<R: Send>(threads: usize, work: impl FnOnce() -> R + Send) -> R {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+        .install(work)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -57,19 +68,15 @@ mod tests {
             })
             .collect();
         let on = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| {
-                    sum_of_chunks(
-                        &data,
-                        100,
-                        || 0.0,
-                        |chunk| chunk.iter().sum::<f64>(),
-                        |sum, part| *sum += part,
-                    )
-                })
+            on_threads(threads, || {
+                sum_of_chunks(
+                    &data,
+                    100,
+                    || 0.0,
+                    |chunk| chunk.iter().sum::<f64>(),
+                    |sum, part| *sum += part,
+                )
+            })
         };
         let one = on(1);
         for threads in 2..=7 {

@@ -880,13 +880,7 @@ fn gram_matrix_is_the_same_on_any_number_of_cores() {
     let data: Vec<Complex32> = (0..pixels * frames)
         .map(|_| Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng)) * 1e3)
         .collect();
-    let on = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| gram_of(&data, frames))
-    };
+    let on = |threads: usize| crate::core::parallel::on_threads(threads, || gram_of(&data, frames));
     let one = on(1);
     for threads in [2, 3, 5] {
         for _ in 0..3 {
