@@ -34,7 +34,14 @@ pub fn insonified(x: f64, z: f64, angle: f64, aperture: (f64, f64)) -> bool {
 /// Time (s) for an echo to travel from (x, z) back to the element at `element_x` (m).
 #[inline]
 pub fn receive_delay(x: f64, z: f64, element_x: f64, c: f64) -> f64 {
-    ((x - element_x).powi(2) + z * z).sqrt() / c
+    receive_path(x, z, element_x) / c
+}
+
+/// Distance (m) from (x, z) back to the element at `element_x` (m): [`receive_delay`] times
+/// the speed of sound, for loops that multiply by a slowness computed once.
+#[inline]
+pub fn receive_path(x: f64, z: f64, element_x: f64) -> f64 {
+    ((x - element_x).powi(2) + z * z).sqrt()
 }
 
 /// Round-trip time (s): transmit by a plane wave steered by `angle`, receive on the element at `element_x`.
