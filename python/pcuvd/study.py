@@ -46,7 +46,8 @@ def brain(*, quiet: bool = False, **options: Any) -> dict:
     default `pcuvd-cache` in the working folder), processed with the clutter filter on, and
     scored against the truth. options: `pcuvd paper`'s, e.g. brain_scenario="rat-brain" (or a
     TOML file), brain_frames=360, brain_svd_low="auto" (or "similarity"), brain_svd_block_mm=2
-    (the clutter filter block-wise), quick=True (the small brain, `rat-brain-small`, for a first
+    (the clutter filter's blocks, mm; the default, or "whole" for one filter of the whole
+    image), quick=True (the small brain, `rat-brain-small`, for a first
     look). Returns its metrics:
     vector RMSE and direction error by depth band and vessel diameter, RI scores, the
     vessel-to-background ratio by depth, each with its definition."""

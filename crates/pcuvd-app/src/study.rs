@@ -132,10 +132,11 @@ pub struct StudySettings {
     /// Brain study: SVD clutter filter's noise cut-off (as `process --svd-high`).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = StudySettings::default().brain_svd_high))]
     pub brain_svd_high: String,
-    /// Brain study: SVD clutter filter block-wise, blocks this wide (mm) (as `process
-    /// --svd-block-mm`); default the whole image at once.
-    #[cfg_attr(feature = "clap", arg(long, value_name = "MM"))]
-    pub brain_svd_block_mm: Option<f64>,
+    /// Brain study: SVD clutter filter block-wise, blocks this wide (mm), or "whole" (as
+    /// `process --svd-block-mm`).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "MM|whole", default_value_t = StudySettings::default().brain_svd_block_mm))]
+    #[serde(deserialize_with = "crate::settings::text")]
+    pub brain_svd_block_mm: String,
     /// A first look at every study in a few minutes: fewer frames, one noise level, no
     /// averaging kernels or calibration, a 90 µm grid, a fast heart for the network, one seed
     /// and two speeds for dealiasing, the small brain (`rat-brain-small`). An option given with
@@ -183,7 +184,7 @@ impl Default for StudySettings {
             brain_cache: None,
             brain_svd_low: ProcessingSettings::default().svd_low,
             brain_svd_high: ProcessingSettings::default().svd_high,
-            brain_svd_block_mm: None,
+            brain_svd_block_mm: ProcessingSettings::default().svd_block_mm,
             quick: false,
         }
     }
@@ -432,7 +433,7 @@ impl StudySettings {
             event_alignment: self.event_alignment,
             svd_low: self.brain_svd_low.clone(),
             svd_high: self.brain_svd_high.clone(),
-            svd_block_mm: self.brain_svd_block_mm,
+            svd_block_mm: self.brain_svd_block_mm.clone(),
             ..ProcessingSettings::default()
         };
         let settings = BrainSettings {
@@ -454,6 +455,7 @@ impl StudySettings {
             .with_context(|| format!("--brain-scenario {}", self.brain_scenario))?;
         crate::settings::check_rank_cut(&settings.processing.svd_low, "brain-svd-low")?;
         crate::settings::check_rank_cut(&settings.processing.svd_high, "brain-svd-high")?;
+        crate::settings::check_block_width(&settings.processing.svd_block_mm, "brain-svd-block-mm")?;
         Ok(settings)
     }
 }
