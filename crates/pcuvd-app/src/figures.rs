@@ -395,7 +395,8 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
 /// beside the tissue components cut at each pixel (the blocks' cut-offs blended as their series
 /// were, averaged over the angles and the segments; `clutter_block_cut_offs.npy` holds every
 /// block's both cut-offs). `reports`: each segment's filter reports, per angle. `None` for a
-/// whole-image filter.
+/// whole-image filter, and where no block cut a tissue component (the whole image's rule cut
+/// none: an empty map would say only what summary.json does).
 pub fn clutter_blocks_figure(
     dir: &Path,
     out: &ProcessOutput,
@@ -406,6 +407,13 @@ pub fn clutter_blocks_figure(
     let Some(layout) = reports.first().and_then(|c| c.block_layout.as_ref()) else {
         return Ok(None);
     };
+    let most = (reports.iter().flat_map(|c| &c.block_cut_offs))
+        .map(|c| c.0)
+        .max()
+        .unwrap_or(0);
+    if most == 0 {
+        return Ok(None);
+    }
     let grid = &out.grid;
     if layout.shape() != grid.shape() {
         bail!("the clutter filter's blocks cover another image than the maps' grid");
@@ -416,16 +424,13 @@ pub fn clutter_blocks_figure(
         cut += &layout.blend(&lows)?;
     }
     cut /= reports.len() as f64;
-    let most = (reports.iter().flat_map(|c| &c.block_cut_offs))
-        .map(|c| c.0)
-        .max();
     let (bmode, size) = bmode_panel(out)?;
     let cut = map_panel(
         "Tissue components cut",
         cut,
         grid,
         Colormap::Viridis,
-        (0.0, most.unwrap_or(0).max(1) as f64),
+        (0.0, most as f64),
         "components (mean over angles)",
     );
     let (rows, cols) = layout.size;

@@ -874,7 +874,10 @@ mod tests {
                 ..default.clone()
             };
             let error = format!("{:#}", settings.svd_blocks(&grid).unwrap_err());
-            assert!(error.contains("--svd-block-mm") && error.contains("whole"), "{error}");
+            assert!(
+                error.contains("--svd-block-mm") && error.contains("whole"),
+                "{error}"
+            );
         }
     }
 

@@ -455,7 +455,10 @@ impl StudySettings {
             .with_context(|| format!("--brain-scenario {}", self.brain_scenario))?;
         crate::settings::check_rank_cut(&settings.processing.svd_low, "brain-svd-low")?;
         crate::settings::check_rank_cut(&settings.processing.svd_high, "brain-svd-high")?;
-        crate::settings::check_block_width(&settings.processing.svd_block_mm, "brain-svd-block-mm")?;
+        crate::settings::check_block_width(
+            &settings.processing.svd_block_mm,
+            "brain-svd-block-mm",
+        )?;
         Ok(settings)
     }
 }
