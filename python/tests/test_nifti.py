@@ -30,7 +30,7 @@ def test_maps_and_time_series_open_in_nibabel_where_the_npy_maps_are(coded_tube,
     out = tmp_path / "out"
     done = run_cli(
         cli, "process", coded_tube, "--out", out, GRID, "--nifti", "--dynamics=off",
-        "--ensemble-frames=4", "--ensemble-step=2",
+        "--ensemble-frames=4", "--ensemble-step=2", "--svd-block-mm=whole",
     )
     assert done.returncode == 0, done.stderr
     x, z = np.load(out / "x.npy"), np.load(out / "z.npy")
@@ -71,7 +71,7 @@ def test_maps_and_time_series_open_in_nibabel_where_the_npy_maps_are(coded_tube,
     assert timing["PowerDopplerIntegrationDuration"] == pytest.approx(step_s * 2 * 1e3)
     assert len(timing["ClutterCutoffsPerEnsemble"]) == 3
     assert sorted(summary["nifti"]) == sorted(p.name for p in out.glob("*.nii.gz"))
-    # A whole-image filter has no blocks to record.
+    # The whole image's filter (`--svd-block-mm whole`) has no blocks to record.
     assert "block_starts_px" not in summary["clutter_filter"]
     assert not (out / "clutter_block_cut_offs.npy").exists()
     assert not (out / "clutter_blocks.png").exists()

@@ -41,8 +41,14 @@ def test_chain_of_stages_equals_process_on_the_disk(disk):
         sound_speed_m_s=recording.sound_speed_m_s,
     )
     assert series.shape == (len(z), len(x), recording.n_frames)
-    filtered, cut = pcuvd.svd_filter(series)
+    # The default clutter filter works in blocks, of the size summary.json gives in pixels.
+    blocks = summary["clutter_filter"]["block_pixels"]
+    filtered, cut = pcuvd.svd_filter(series, blocks=blocks)
     assert cut["low"] == summary["clutter_filter"]["cut_offs_per_angle"][0]["low"]
+    assert cut["block_starts"] == (
+        summary["clutter_filter"]["block_starts_px"]["z"],
+        summary["clutter_filter"]["block_starts_px"]["x"],
+    )
     assert_same_array(pcuvd.power_doppler(filtered), result.power_doppler, "power")
     velocity = pcuvd.kasai(
         filtered,
