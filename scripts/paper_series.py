@@ -581,7 +581,7 @@ def at_a_glance(all_runs: list[dict], dealiasing: list[dict]) -> dict | None:
         "title": "The accuracy targets at a glance",
         "command": "per row: the named test (slow tier, every CI run); `pcuvd paper --part "
                    "spiral --seed N`; `pcuvd paper --part dealias --dealias-seeds ...` with the "
-                   "options in the row; `pcuvd paper --part brain [--brain-svd-block-mm 2]` "
+                   "options in the row; `pcuvd paper --part brain [--brain-svd-block-mm whole]` "
                    "(the [virtual rat brain](brain.md)'s runs); the former defaults: with "
                    f"{options_text(FORMER_DEFAULTS)}",
         "commit": ", ".join(sorted({r["commit"] for r in measured})),
@@ -596,18 +596,18 @@ BRAIN = ROOT / "docs" / "results" / "metrics" / "brain"
 
 
 def brain_runs() -> dict[str, dict]:
-    """The brain's kept default run (`auto`) and its block-wise clutter filter's run (2 mm
-    blocks), where kept."""
+    """The brain's kept default run (`auto`: 2 mm clutter blocks) and its run with one clutter
+    filter for the whole image, where kept."""
     return {name: json.loads((BRAIN / f"{name}.json").read_text())
-            for name in ("auto", "blocks-2mm") if (BRAIN / f"{name}.json").exists()}
+            for name in ("auto", "blocks-whole") if (BRAIN / f"{name}.json").exists()}
 
 
 def brain_rows(runs_: dict[str, dict]) -> list[list[str]]:
-    """The virtual rat brain's targets, from its default run and its 2 mm block-wise run."""
+    """The virtual rat brain's targets, from its default run and its whole-image filter's run."""
     if "auto" not in runs_:
         return []
     default = runs_["auto"]["brain"]
-    blocks = runs_["blocks-2mm"]["brain"] if "blocks-2mm" in runs_ else None
+    whole = runs_["blocks-whole"]["brain"] if "blocks-whole" in runs_ else None
 
     def deepest(b: dict) -> str:
         g = b["vector_by_depth"][-1]
@@ -638,9 +638,9 @@ def brain_rows(runs_: dict[str, dict]) -> list[list[str]]:
     return [
         ["virtual rat brain (`paper --part brain`): PC-UVD's vector RMSE ≥ 30 % below UVD's in "
          "the deepest third", deepest(default),
-         "–" if blocks is None else "`--brain-svd-block-mm 2`: " + deepest(blocks)],
+         "–" if whole is None else "`--brain-svd-block-mm whole`: " + deepest(whole)],
         ["virtual rat brain: median |ΔRI| ≤ 0.05, ≥ 95 % classed right", ri(default),
-         "–" if blocks is None else "`--brain-svd-block-mm 2`: " + ri(blocks)],
+         "–" if whole is None else "`--brain-svd-block-mm whole`: " + ri(whole)],
     ]
 
 
