@@ -56,6 +56,11 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "ensemble_vz": (("ensemble", "z", "x"), "axial vector velocity of each ensemble (m/s)"),
     "ensemble_speed": (("ensemble", "z", "x"), "speed of each ensemble (m/s)"),
     "ensemble_times": (("ensemble",), "ensemble centre times (s)"),
+    "clutter_block_cut_offs": (
+        ("segment", "angle", "block_row", "block_column", "cut"),
+        "the block-wise clutter filter's cut-offs of every block: first tissue component kept"
+        " (low) and first noise component removed (high), per segment and angle",
+    ),
 }
 
 
@@ -78,7 +83,8 @@ class ProcessResult:
     dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`,
     `ensemble_signed_power_doppler`, `ensemble_vx`,
     `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
-    `ensemble_frames=N`; `x` (nx) and `z` (nz) in m.
+    `ensemble_frames=N`; `clutter_block_cut_offs` (segments, angles, block rows, block
+    columns, 2) with the block-wise clutter filter (the default); `x` (nx) and `z` (nz) in m.
     """
 
     def __init__(self, native: Any):

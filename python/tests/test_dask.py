@@ -92,11 +92,13 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
     velocity windows, RI maps and time series are those of `pcuvd.process` (the same sums in the
     same order: equal, not just close). With dealias="auto" the first segment settles the
     windows' Nyquist intervals for the others (and runs first); with "off" all run at once, here
-    with the block-wise clutter filter, whose every block's cut-offs cross between the processes."""
+    with 1 mm clutter blocks, whose every block's cut-offs cross between the processes (with
+    "auto", the whole image's filter)."""
     import pcuvd.dask
 
     runs = {dealias: {**SEGMENTED, "dealias": dealias} for dealias in ("off", "auto")}
     runs["off"]["svd_block_mm"] = 1.0
+    runs["auto"]["svd_block_mm"] = "whole"
     serial = {d: pcuvd.process(str(long_tube), quiet=True, **o) for d, o in runs.items()}
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None

@@ -132,7 +132,19 @@ def test_a_block_wise_clutter_filter_is_recorded_as_such(coded_tube, cli, tmp_pa
             assert [block_cuts[..., 0].min(), block_cuts[..., 0].max()] == cut["block_low_range"]
             assert [block_cuts[..., 1].min(), block_cuts[..., 1].max()] == cut["block_high_range"]
             assert int(np.median(block_cuts[..., 0])) == cut["low"]
-    assert (segmented / "clutter_blocks.png").is_file()
+    # The figure shows where blocks cut tissue components; here the whole image's `auto` cuts
+    # none, so no block does, and there is nothing to show.
+    assert blocks[..., 0].max() == 0
+    assert not (segmented / "clutter_blocks.png").exists()
+    # A fixed tissue cut (every block cuts one) is shown.
+    fixed = tmp_path / "fixed"
+    done = run_cli(
+        cli, "process", coded_tube, "--out", fixed, GRID, "--dynamics=off",
+        "--svd-block-mm", "1.2", "--svd-low", "1",
+    )
+    assert done.returncode == 0, done.stderr
+    assert np.load(fixed / "clutter_block_cut_offs.npy")[..., 0].min() == 1
+    assert (fixed / "clutter_blocks.png").is_file()
     # A time series: each ensemble's cut-offs keep their blocks' ranges, and its sidecar names
     # the filter block-wise, giving the blocks' medians per ensemble.
     series = tmp_path / "series"

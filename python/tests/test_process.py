@@ -259,6 +259,10 @@ def test_to_xarray_has_coordinates_in_metres(disk):
     np.testing.assert_array_equal(dataset["z"].values, result.z)
     assert dataset["color_doppler"].dims == ("z", "x")
     assert dataset["projections"].dims == ("angle", "z", "x")
+    # The default clutter filter works in blocks: their cut-offs come along.
+    assert dataset["clutter_block_cut_offs"].dims == (
+        "segment", "angle", "block_row", "block_column", "cut"
+    )
     # Depths of the disk recording are centimetres, i.e. a few hundredths of a metre.
     assert 0 < float(dataset["z"].max()) < 0.1
 
