@@ -307,10 +307,10 @@ fn the_brain_part_scores_both_methods_and_reuses_its_simulation() {
     let scenario = dir.path().join("small-brain.toml");
     std::fs::write(&scenario, small_brain()).unwrap();
     let out = dir.path().join("out");
-    // One clutter filter for the whole image: on these 32 frames 2 mm blocks (the default) leave
-    // the coded recording a tissue component at 4-6 mm, where the deep pair's blood is strong
-    // and the blocks there cut 2 where the whole image cuts 3 (coded vessels 21.4-21.6 dB over
-    // their background against 25.2-26.4), which is no measure of what coding gains.
+    // One clutter filter for the whole image: on this brain 2 mm blocks (the default) leave the
+    // coded recording a tissue component at 4-6 mm, where the deep pair's blood is strong and
+    // the blocks there cut 2 where the whole image cuts 3 (coded vessels 21.4-21.6 dB over their
+    // background against 25.2-26.4), which is no measure of what coding gains.
     let run = || {
         let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
             .args(["paper", "--part", "brain", "--brain-svd-block-mm", "whole"])
