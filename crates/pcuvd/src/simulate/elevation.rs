@@ -131,13 +131,42 @@ pub(crate) struct ElevationTable {
     omega: f64,
 }
 
-/// What an [`ElevationTable`] is computed from: aperture, wavelength (m), f_c (Hz), depth (m).
-type TableKey = (ElevationAperture, f64, f64, f64);
+/// The points an [`ElevationTable`] samples: |y| ≤ `y_max` in steps of `y_step` (`ny` of
+/// them), depths 0, `z_step`, ... (`nz` of them), all in m.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct TableGrid {
+    y_max: f64,
+    y_step: f64,
+    z_step: f64,
+    ny: usize,
+    nz: usize,
+}
+
+impl TableGrid {
+    /// Steps λ/4 in y and λ/8 in z over depths 0..`z_max` (m) and |y| ≤
+    /// [`ElevationAperture::y_reach`] at wavelength `lambda` (m).
+    fn new(aperture: &ElevationAperture, lambda: f64, z_max: f64) -> TableGrid {
+        let y_max = aperture.y_reach(lambda, z_max);
+        let (y_step, z_step) = (lambda / 4.0, lambda / 8.0);
+        TableGrid {
+            y_max,
+            y_step,
+            z_step,
+            ny: (2.0 * y_max / y_step).ceil() as usize + 1,
+            nz: (z_max / z_step).ceil() as usize + 2,
+        }
+    }
+}
+
+/// What an [`ElevationTable`]'s every entry follows from: aperture, wavelength (m), f_c (Hz)
+/// and the grid. Not the depth asked for: the blood's simulators and the tissue keyframes' ask
+/// for receive windows that end at the same time but may round to depths a bit apart, whose
+/// grids are the same.
+type TableKey = (ElevationAperture, f64, f64, TableGrid);
 
 /// The last tables built, newest last: a long recording is simulated a block at a time, each
-/// block with its own simulators (the blood's, and the tissue keyframes' over a window that ends
-/// at the same time but may round to another depth in the last bit), and every block and
-/// transmit mode asks for the same few tables, each seconds of integrals to build.
+/// block with its own simulators, and every block and transmit mode asks for the same few
+/// tables, each seconds of integrals to build.
 static RECENT_TABLES: std::sync::Mutex<Vec<(TableKey, std::sync::Arc<ElevationTable>)>> =
     std::sync::Mutex::new(Vec::new());
 
@@ -146,20 +175,28 @@ const RECENT: usize = 4;
 
 impl ElevationTable {
     /// The table of [`ElevationTable::new`], built once for the same aperture, wavelength,
-    /// frequency and depth while it is among the few most recently asked for.
+    /// frequency and grid (depths a rounding apart share one) while it is among the few most
+    /// recently asked for.
     pub(crate) fn shared(
         aperture: &ElevationAperture,
         lambda: f64,
         fc: f64,
         z_max: f64,
     ) -> Result<std::sync::Arc<Self>> {
-        let key = (*aperture, lambda, fc, z_max);
+        aperture.validate()?;
+        require_positive("depth of the receive window", z_max)?;
+        let key = (
+            *aperture,
+            lambda,
+            fc,
+            TableGrid::new(aperture, lambda, z_max),
+        );
         // A poisoned lock only means another thread panicked while building: the list is whole.
         let mut recent = RECENT_TABLES.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, table)) = recent.iter().find(|(built, _)| *built == key) {
             return Ok(table.clone());
         }
-        let table = std::sync::Arc::new(Self::new(aperture, lambda, fc, z_max)?);
+        let table = std::sync::Arc::new(Self::on(aperture, lambda, fc, key.3)?);
         if recent.len() == RECENT {
             recent.remove(0);
         }
@@ -169,6 +206,7 @@ impl ElevationTable {
 
     /// G² for depths 0..`z_max` (m) and |y| ≤ [`ElevationAperture::y_reach`], at wavelength
     /// `lambda` (m) and centre frequency `fc` (Hz): steps λ/4 in y, λ/8 in z.
+    #[cfg(test)]
     pub(crate) fn new(
         aperture: &ElevationAperture,
         lambda: f64,
@@ -177,10 +215,23 @@ impl ElevationTable {
     ) -> Result<Self> {
         aperture.validate()?;
         require_positive("depth of the receive window", z_max)?;
-        let y_max = aperture.y_reach(lambda, z_max);
-        let (y_step, z_step) = (lambda / 4.0, lambda / 8.0);
-        let ny = (2.0 * y_max / y_step).ceil() as usize + 1;
-        let nz = (z_max / z_step).ceil() as usize + 2;
+        Self::on(
+            aperture,
+            lambda,
+            fc,
+            TableGrid::new(aperture, lambda, z_max),
+        )
+    }
+
+    /// G² on `grid` (see [`ElevationTable::new`]).
+    fn on(aperture: &ElevationAperture, lambda: f64, fc: f64, grid: TableGrid) -> Result<Self> {
+        let TableGrid {
+            y_max,
+            y_step,
+            z_step,
+            ny,
+            nz,
+        } = grid;
         if ny.saturating_mul(nz) > 50_000_000 {
             return Err(invalid(
                 "element height",
@@ -188,7 +239,7 @@ impl ElevationTable {
                     "a {:.2} mm aperture over {:.1} mm of depth needs a {ny} × {nz} elevation table; \
                      the simulator holds at most 5·10⁷ entries",
                     aperture.height * 1e3,
-                    z_max * 1e3
+                    (nz - 2) as f64 * z_step * 1e3
                 ),
             ));
         }
@@ -404,6 +455,40 @@ mod tests {
         }
         assert_eq!(table.two_way(5e-3, 8e-3), (0.0, 0.0));
         assert_eq!(table.two_way(0.0, 20e-3), (0.0, 0.0));
+    }
+
+    #[test]
+    fn depths_on_the_same_grid_share_one_table() {
+        // A wavelength no other test asks for, so that no other table is shared by mistake.
+        // Elements tall against the main lobe's growth over the depths, as the L22-14vX's are:
+        // then y_max, as the depth, often rounds to the same value.
+        let a = ElevationAperture {
+            height: 1.5e-3,
+            focus: 2e-3,
+        };
+        let lambda = 1540.0 / 14.5e6;
+        let z_max = 1.7e-3;
+        let grid = TableGrid::new(&a, lambda, z_max);
+        // The next depth up whose grid is the same (one or a few ulps deeper: y_max rounds too).
+        let rounded_depth = std::iter::successors(Some(z_max.next_up()), |z| Some(z.next_up()))
+            .take(64)
+            .find(|&z| TableGrid::new(&a, lambda, z) == grid)
+            .unwrap();
+        let table = ElevationTable::shared(&a, lambda, 14.5e6, z_max).unwrap();
+        let rounded = ElevationTable::shared(&a, lambda, 14.5e6, rounded_depth).unwrap();
+        assert!(std::sync::Arc::ptr_eq(&table, &rounded));
+        // What sharing hands out is what the depth asked for would have built.
+        let own = ElevationTable::new(&a, lambda, 14.5e6, rounded_depth).unwrap();
+        assert_eq!(own.signed, rounded.signed);
+        assert_eq!(own.axis_phase, rounded.axis_phase);
+        assert_eq!(
+            (own.ny, own.nz, own.y_max),
+            (rounded.ny, rounded.nz, rounded.y_max)
+        );
+        // A step deeper is another grid.
+        let deeper = ElevationTable::shared(&a, lambda, 14.5e6, z_max + lambda / 8.0).unwrap();
+        assert!(!std::sync::Arc::ptr_eq(&table, &deeper));
+        assert_eq!(deeper.nz, table.nz + 1);
     }
 
     #[test]
