@@ -10,7 +10,7 @@ use pcuvd::simulate::phantom::{
     Moved, Phantom, SpiralPhantom, SpiralSpec, TissuePhantom, TissueSpec, TreePhantom, TreeSpec,
     TubePhantom, TubeSpec,
 };
-use pcuvd::simulate::vascular::{FlowParams, generate, solve};
+use pcuvd::simulate::vascular::{FlowParams, LumenLookup, generate, solve};
 use pcuvd::simulate::{self, NOISE_DEFINITION, NoiseSpec, SimParams};
 use pcuvd::{Coding, Sequence};
 
@@ -766,14 +766,8 @@ fn tissue(
             phantom.truth(&[x], &[z], 0.0).mask[[0, 0]]
         }),
         Some(tree) => {
-            let segments = &tree.flow().segments;
-            let boxes: Vec<([f64; 3], [f64; 3])> = segments.iter().map(|s| s.bounds()).collect();
-            TissuePhantom::new(spec, seed, |x, y, z| {
-                let p = [x, y, z];
-                boxes.iter().zip(segments).any(|((lo, hi), s)| {
-                    (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]) && s.local(&p).is_some()
-                })
-            })
+            let lumen = LumenLookup::new(&tree.flow().segments);
+            TissuePhantom::new(spec, seed, |x, y, z| lumen.holds(&[x, y, z]))
         }
     };
     drawn.context("[tissue]")

@@ -60,6 +60,7 @@
 mod flow;
 mod generator;
 mod graph;
+mod lookup;
 mod tables;
 
 pub use self::flow::{
@@ -68,6 +69,7 @@ pub use self::flow::{
 };
 pub use self::generator::{CortexParams, generate};
 pub use self::graph::{Boundary, BoundaryKind, CAPILLARY, Edge, VesselClass, VesselGraph};
+pub use self::lookup::LumenLookup;
 pub use self::tables::{Tables, parse_tables, write_tables};
 
 /// The shipped example's three tables (an arteriole splitting in two, a capillary mesh, a venule;

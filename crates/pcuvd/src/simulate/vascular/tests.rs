@@ -628,3 +628,55 @@ fn the_deep_brain_rises_from_its_basal_vessels_and_leaves_the_cortex_as_it_was()
     });
     assert!(entering.unwrap_err().to_string().contains("cortex"));
 }
+
+#[test]
+fn the_lumen_lookup_answers_as_testing_every_segment() {
+    let flow = solve(&generate(&small_cortex(3)).unwrap(), &FlowParams::rat()).unwrap();
+    let lookup = LumenLookup::new(&flow.segments);
+    let every = |p: &[f64; 3]| {
+        flow.segments.iter().any(|s| {
+            let (lo, hi) = s.bounds();
+            (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]) && s.local(p).is_some()
+        })
+    };
+    // Points over the tree's extent and past it, and points on the segments' axes and box
+    // corners (where rounding decides), every kind held and not held.
+    let (lo, hi) = flow.segments.iter().map(|s| s.bounds()).fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), (a, b)| {
+            (
+                std::array::from_fn(|k| lo[k].min(a[k])),
+                std::array::from_fn(|k| hi[k].max(b[k])),
+            )
+        },
+    );
+    let mut points: Vec<[f64; 3]> = Vec::new();
+    let n = 40;
+    for i in 0..=n {
+        for j in 0..=n / 4 {
+            for l in 0..=n {
+                let at = |k: usize, t: usize, m: usize| {
+                    let span = hi[k] - lo[k];
+                    lo[k] - 0.1 * span + 1.2 * span * t as f64 / m as f64
+                };
+                points.push([at(0, i, n), at(1, j, n / 4), at(2, l, n)]);
+            }
+        }
+    }
+    for s in &flow.segments {
+        let (a, b) = s.bounds();
+        let middle: [f64; 3] = std::array::from_fn(|k| 0.5 * (s.start[k] + s.end[k]));
+        points.extend([s.start, s.end, middle, a, b]);
+    }
+    points.push([f64::NAN, 0.0, 1e-3]);
+    let held = points.iter().filter(|p| every(p)).count();
+    assert!(
+        held > 100 && held < points.len() - 100,
+        "{held} of {}",
+        points.len()
+    );
+    for p in &points {
+        assert_eq!(lookup.holds(p), every(p), "{p:?}");
+    }
+    assert!(!LumenLookup::new(&[]).holds(&[0.0; 3]));
+}
