@@ -66,26 +66,62 @@ impl ElevationAperture {
     /// One-way elevation factor G(y, z) at wavelength `lambda` (m) for a point at elevation `y`
     /// and depth `z` (m): see the module docs. Computed by direct integration.
     pub fn one_way(&self, lambda: f64, y: f64, z: f64) -> Complex64 {
-        let k = 2.0 * std::f64::consts::PI / lambda;
+        self.strip(lambda).one_way(y, z)
+    }
+
+    /// The strip's integration points at wavelength `lambda` (m), for evaluating G at many
+    /// points.
+    pub(crate) fn strip(&self, lambda: f64) -> Strip {
         // λ/16 per sample holds the integrand's phase step below 0.4 rad wherever k r ≫ 1.
         let n = ((self.height / (lambda / 16.0)).ceil() as usize).max(16);
         let step = self.height / n as f64;
         let f = self.focus;
-        let sum: Complex64 = (0..n)
-            .map(|i| {
-                let eta = -0.5 * self.height + (i as f64 + 0.5) * step;
-                let r = (y - eta).hypot(z);
-                let lens = eta.hypot(f) - f;
-                Complex64::from_polar(z / r / r.sqrt(), k * (r - lens - z))
-            })
-            .sum();
-        sum * step * Complex64::from_polar(1.0 / lambda.sqrt(), -std::f64::consts::FRAC_PI_4)
+        let eta: Vec<f64> = (0..n)
+            .map(|i| -0.5 * self.height + (i as f64 + 0.5) * step)
+            .collect();
+        Strip {
+            lens: eta.iter().map(|e| e.hypot(f) - f).collect(),
+            eta,
+            step,
+            k: 2.0 * std::f64::consts::PI / lambda,
+            scale: Complex64::from_polar(1.0 / lambda.sqrt(), -std::f64::consts::FRAC_PI_4),
+        }
     }
 
     /// Half-width (m) of the elevations the simulator tabulates for depths up to `z_max` (m):
     /// the aperture plus twice its far-field main lobe (λ z / h) there.
     pub fn y_reach(&self, lambda: f64, z_max: f64) -> f64 {
         self.height + 2.0 * lambda * z_max / self.height
+    }
+}
+
+/// The points at which [`ElevationAperture::one_way`] samples the strip: their elevations η (m)
+/// and the lens's focusing path √(η² + F²) − F (m) at each, which depend on the aperture and the
+/// wavelength alone, so that a table of G computes them once.
+pub(crate) struct Strip {
+    eta: Vec<f64>,
+    lens: Vec<f64>,
+    /// Spacing of the points (m).
+    step: f64,
+    /// Wavenumber (rad/m).
+    k: f64,
+    /// e^{−iπ/4} / √λ.
+    scale: Complex64,
+}
+
+impl Strip {
+    /// G(y, z) at elevation `y` and depth `z` (m).
+    pub(crate) fn one_way(&self, y: f64, z: f64) -> Complex64 {
+        let sum: Complex64 = self
+            .eta
+            .iter()
+            .zip(&self.lens)
+            .map(|(&eta, &lens)| {
+                let r = (y - eta).hypot(z);
+                Complex64::from_polar(z / r / r.sqrt(), self.k * (r - lens - z))
+            })
+            .sum();
+        sum * self.step * self.scale
     }
 }
 
@@ -246,18 +282,20 @@ impl ElevationTable {
         // The integral is singular at z = 0; the first row is never reached by a scatterer
         // (positions ≤ 0 receive no transmit field) but keeps interpolation defined next to it.
         let depth = |iz: usize| (iz as f64 * z_step).max(z_step);
+        let strip = aperture.strip(lambda);
+        let strip = &strip;
         let values: Vec<Complex64> = (0..nz)
             .into_par_iter()
             .flat_map_iter(|iz| {
                 (0..ny).map(move |iy| {
                     let y = -y_max + iy as f64 * y_step;
-                    let g = aperture.one_way(lambda, y, depth(iz));
+                    let g = strip.one_way(y, depth(iz));
                     g * g
                 })
             })
             .collect();
         let mut axis_phase: Vec<f64> = (0..nz)
-            .map(|iz| aperture.one_way(lambda, 0.0, depth(iz)).powi(2).arg())
+            .map(|iz| strip.one_way(0.0, depth(iz)).powi(2).arg())
             .collect();
         for iz in 1..nz {
             let previous = axis_phase[iz - 1];

@@ -268,13 +268,14 @@ impl Beam {
             .flat_map(|s| [s.start[1].abs(), s.end[1].abs()].map(|y| y + 0.5 * s.diameter))
             .fold(a.y_reach(lambda, deepest), f64::max);
         let n = (reach / Self::STEP).ceil() as usize + 1;
+        let strip = a.strip(lambda);
         let rows = z
             .par_iter()
             .map(|&zz| {
                 (0..=2 * n)
                     .map(|i| {
                         let y = (i as f64 - n as f64) * Self::STEP;
-                        a.one_way(lambda, y, zz).norm_sqr().powi(2)
+                        strip.one_way(y, zz).norm_sqr().powi(2)
                     })
                     .collect()
             })
