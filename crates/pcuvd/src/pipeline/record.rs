@@ -19,7 +19,11 @@ use crate::core::grid::Grid;
 ///   so the deepest rows of a grid that reaches [`recorded_depth_of`] lie beyond the record for
 ///   the steep angles: their images there are exactly zero, and read as a projection of 0 m/s
 ///   (on the default grid of the `rat-network` preset, 3,903 pixels of the deepest 1.2 mm had
-///   such angles in their vector fit).
+///   such angles in their vector fit). Decoding advances slot k's record by the slot's start
+///   ([`slot_offset`](crate::acquisition::sequence::Sequence::slot_offset)) and fills its tail
+///   with zeros, so angle k's record ends that much earlier: on a coded recording the later
+///   slots lose the deepest rows (on the coded `rat-brain-small`, slots 4–7 read exactly 0 at
+///   12 mm).
 pub fn angle_coverage(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Array3<bool> {
     let xs = acq.probe.element_x();
     let aperture = (
@@ -35,7 +39,8 @@ pub fn angle_coverage(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Array
         let nearest = x.clamp(aperture.0, aperture.1);
         let earliest =
             crate::core::geometry::round_trip_delay(x, z, angles[k], nearest, aperture, c);
-        crate::core::geometry::insonified(x, z, angles[k], aperture) && earliest <= record_end
+        crate::core::geometry::insonified(x, z, angles[k], aperture)
+            && earliest <= record_end - acq.sequence.slot_offset(k)
     })
 }
 
