@@ -185,6 +185,18 @@ fn median(mut values: Vec<f64>) -> f64 {
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// This process's CPU time so far (s): (user, system), from getrusage.
+fn cpu_times() -> (f64, f64) {
+    // SAFETY: getrusage writes one rusage into the zeroed struct it is given, nothing else.
+    let usage = unsafe {
+        let mut usage: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_SELF, &mut usage);
+        usage
+    };
+    let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    (seconds(usage.ru_utime), seconds(usage.ru_stime))
+}
+
 /// Times the simulation of `args.scenario`.
 fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     use pcuvd::simulate::phantom::Phantom;
@@ -290,6 +302,9 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let mut stage_times: std::collections::BTreeMap<&'static str, Vec<f64>> = Default::default();
     let mut read_times = Vec::new();
     let mut total_times = Vec::new();
+    // Per run, CPU seconds (user, system): the system's share is mostly pages faulted in, which
+    // the first run pays for all the memory it touches and later runs partly reuse.
+    let mut cpu_per_run = Vec::new();
     let dynamics = DynamicsSettings {
         dynamics: DynamicsChoice::Off,
         ..DynamicsSettings::default()
@@ -297,6 +312,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let mut shape = None;
     for _ in 0..args.repeat {
         let clock = Instant::now();
+        let cpu_before = cpu_times();
         let opened = open_input(input, &pcuvd_io::Overrides::default())?;
         read_times.push(clock.elapsed().as_secs_f64());
         let data = opened.source.as_ref();
@@ -304,6 +320,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         let processed = pcuvd_app::run(data, &plan, &Silent)
             .with_context(|| format!("{}: processing failed", input.display()))?;
         total_times.push(clock.elapsed().as_secs_f64());
+        let cpu_after = cpu_times();
+        cpu_per_run.push((cpu_after.0 - cpu_before.0, cpu_after.1 - cpu_before.1));
         for (stage, seconds) in &processed.out.timings {
             stage_times.entry(stage.label()).or_default().push(*seconds);
         }
@@ -370,6 +388,15 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             "fma_per_s_all_cores": fma_per_s,
             "beamform_arithmetic_bound_active_points_per_s": arithmetic_bound,
         },
+        "cpu_s": {
+            "user_median": median(cpu_per_run.iter().map(|c| c.0).collect()),
+            "system_median": median(cpu_per_run.iter().map(|c| c.1).collect()),
+        },
+        "first_run_s": {
+            "total": total_times[0],
+            "user": cpu_per_run[0].0,
+            "system": cpu_per_run[0].1,
+        },
         "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
     println!(
@@ -424,9 +451,19 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         }
     }
     println!(
-        "  total        {:.3} s (read to vector maps, no figures)",
-        median(total_times)
+        "  total        {:.3} s (read to vector maps, no figures); CPU {:.1} s user + {:.1} s \
+         system",
+        median(total_times.clone()),
+        median(cpu_per_run.iter().map(|c| c.0).collect()),
+        median(cpu_per_run.iter().map(|c| c.1).collect()),
     );
+    if args.repeat > 1 {
+        println!(
+            "  first run    {:.3} s; CPU {:.1} s user + {:.1} s system (its memory faulted in \
+             fresh, as one `pcuvd process` does)",
+            total_times[0], cpu_per_run[0].0, cpu_per_run[0].1
+        );
+    }
     if let Some(path) = &args.json {
         pcuvd_io::write_json(path, &report)?;
     }
