@@ -46,6 +46,7 @@ pub fn form_images_in_blocks(
         blocks,
         0..source.n_frames(),
         Vec::new(),
+        &mut BlockBuffers::default(),
         progress,
     )
 }
@@ -53,13 +54,15 @@ pub fn form_images_in_blocks(
 /// As [`form_images_in_blocks`], for the compound frames `frames` of `source` only (a segment of
 /// a long recording): their images are those of the whole recording's path, the decoding
 /// margins reaching into the frames around them. The series are formed in `spare`'s memory
-/// where it has room (the previous segment's series, done with).
+/// where it has room (the previous segment's series, done with), and the events are read into
+/// `buffers`' (the previous segment's, kept for the next).
 pub fn form_images_of(
     source: &dyn FrameSource,
     params: &ProcessParams,
     blocks: Blocks,
     frames: std::ops::Range<usize>,
     mut spare: Vec<Array3<Complex32>>,
+    buffers: &mut BlockBuffers,
     progress: &dyn Fn(Stage, usize, usize),
 ) -> Result<(AngleImages, Timings)> {
     let acq = source.acquisition();
@@ -88,7 +91,7 @@ pub fn form_images_of(
     let (mut decode_s, mut beamform_s) = (0.0, 0.0);
     let mut recorded = false;
     let largest = ranges.iter().map(|(_, decoded)| decoded.len()).max();
-    let mut buffers = BlockBuffers::with_room(acq, largest.unwrap_or(0) * n, source.trace_shape());
+    buffers.make_room(acq, largest.unwrap_or(0) * n, source.trace_shape());
     for (b, (block, decoded)) in ranges.iter().enumerate() {
         let frames_of_block = ndarray::s![.., .., block.start - first..block.end - first];
         let formed = form_block_into(
@@ -100,7 +103,7 @@ pub fn form_images_of(
                 .iter_mut()
                 .map(|image| image.slice_mut(frames_of_block))
                 .collect(),
-            &mut buffers,
+            buffers,
             &|stage, k| {
                 let (done, total) = match stage {
                     Stage::Decode => (b, ranges.len()),
@@ -113,6 +116,9 @@ pub fn form_images_of(
         beamform_s += formed.beamform_s;
         recorded = recorded || formed.recorded;
     }
+    // One angle's IQ is let go here: kept through the segment's analysis, it would raise the
+    // run's peak above what [`memory_estimate`](super::memory_estimate) counts.
+    buffers.iq.data = Array3::zeros((0, 0, 0));
     if !recorded {
         // Zeros beamform to zeros, and every map of them would be NaN or empty: a recording of
         // nothing (a scanner that did not record, a wrong variable) is refused.
@@ -196,7 +202,7 @@ pub fn form_block(
 }
 
 /// The working arrays of [`form_block_into`], kept from one block to the next: the events read
-/// (and decoded in place) and one angle's IQ. Fresh arrays of that size (about 1 GB) cost more to
+/// (and decoded in place; kept from one segment to the next too) and one angle's IQ. Fresh arrays of that size (about 1 GB) cost more to
 /// fault in and zero than decoding them takes.
 pub struct BlockBuffers {
     read: Option<ChannelData>,
@@ -218,22 +224,39 @@ impl Default for BlockBuffers {
 }
 
 impl BlockBuffers {
-    /// Buffers whose array of events read has room for `events` events of `trace` (channels,
-    /// samples) real samples from the start: a recording's first block is shorter than the
-    /// next (it has no frames before it), and would otherwise leave an array too small for them.
-    /// The room is reserved, not touched: pages are faulted in as samples are read into them.
-    fn with_room(acquisition: &Acquisition, events: usize, trace: (usize, usize)) -> Self {
-        let mut room = Vec::with_capacity(events * trace.0 * trace.1);
-        crate::core::buffers::advise_huge_pages(room.spare_capacity_mut());
+    /// Makes the array of events read hold room for `events` events of `trace` (channels,
+    /// samples) real samples from the start, in the memory it has where that is enough: a
+    /// recording's first block is shorter than the next (it has no frames before it), and would
+    /// otherwise leave an array too small for them; and a segment's blocks are read into the
+    /// previous segment's memory, whose pages are already faulted in (on a virtual machine that
+    /// hands freed memory back to its host, a fresh gigabyte can cost seconds of system time).
+    /// New room is reserved, not touched: pages are faulted in as samples are read into them.
+    fn make_room(&mut self, acquisition: &Acquisition, events: usize, trace: (usize, usize)) {
+        let room = events * trace.0 * trace.1;
+        // Memory too small is dropped before new memory is reserved.
+        let kept = match self.read.take().map(|block| block.samples) {
+            Some(crate::acquisition::channel::Samples::Rf(array)) => {
+                Some(array.into_raw_vec_and_offset().0).filter(|memory| memory.capacity() >= room)
+            }
+            _ => None,
+        };
+        let memory = match kept {
+            Some(mut memory) => {
+                memory.clear();
+                memory
+            }
+            None => {
+                let mut memory = Vec::with_capacity(room);
+                crate::core::buffers::advise_huge_pages(memory.spare_capacity_mut());
+                memory
+            }
+        };
         let empty =
-            Array3::from_shape_vec((0, trace.0, trace.1), room).expect("no events, no samples");
-        BlockBuffers {
-            read: Some(ChannelData {
-                acquisition: acquisition.clone(),
-                samples: crate::acquisition::channel::Samples::Rf(empty),
-            }),
-            ..BlockBuffers::default()
-        }
+            Array3::from_shape_vec((0, trace.0, trace.1), memory).expect("no events, no samples");
+        self.read = Some(ChannelData {
+            acquisition: acquisition.clone(),
+            samples: crate::acquisition::channel::Samples::Rf(empty),
+        });
     }
 }
 
@@ -302,4 +325,42 @@ pub fn form_block_into(
         beamform_s: clock.elapsed().as_secs_f64(),
         recorded,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read_memory(buffers: &BlockBuffers) -> (*const f32, usize) {
+        match &buffers.read.as_ref().expect("room made").samples {
+            crate::acquisition::channel::Samples::Rf(array) => {
+                let room = array.len_of(ndarray::Axis(0));
+                (array.as_ptr(), room)
+            }
+            _ => panic!("the room is for real samples"),
+        }
+    }
+
+    #[test]
+    fn a_segment_reads_into_the_memory_the_one_before_left_when_it_is_large_enough() {
+        let acq = crate::simulate::rat_params(true).unwrap().acquisition();
+        let mut buffers = BlockBuffers::default();
+        buffers.make_room(&acq, 64, (4, 16));
+        let (first, events) = read_memory(&buffers);
+        assert_eq!(events, 0, "room is reserved, not filled");
+        buffers.make_room(&acq, 48, (4, 16));
+        assert_eq!(read_memory(&buffers).0, first);
+        buffers.make_room(&acq, 64, (4, 16));
+        assert_eq!(read_memory(&buffers).0, first);
+        // More than it has: new room, enough for the events asked for.
+        buffers.make_room(&acq, 4096, (4, 16));
+        let Some(ChannelData {
+            samples: crate::acquisition::channel::Samples::Rf(array),
+            ..
+        }) = buffers.read.take()
+        else {
+            panic!("room made")
+        };
+        assert!(array.into_raw_vec_and_offset().0.capacity() >= 4096 * 4 * 16);
+    }
 }

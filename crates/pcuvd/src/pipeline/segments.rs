@@ -385,18 +385,27 @@ impl SegmentRun<'_> {
     ) -> Result<SegmentPart> {
         self.check(source)?;
         Ok(self
-            .segment_in(source, index, window_intervals, Vec::new(), progress)?
+            .segment_in(
+                source,
+                index,
+                window_intervals,
+                Vec::new(),
+                &mut pipeline::BlockBuffers::default(),
+                progress,
+            )?
             .0)
     }
 
     /// [`Self::segment`], its series formed in the memory of `spare` (a previous segment's),
-    /// which it gives back for the next.
+    /// which it gives back for the next, its events read into `buffers` (kept for the next
+    /// likewise).
     fn segment_in(
         &self,
         source: &dyn FrameSource,
         index: usize,
         window_intervals: Option<u32>,
         spare: Vec<Array3<Complex32>>,
+        buffers: &mut pipeline::BlockBuffers,
         progress: &dyn Fn(Stage, usize, usize),
     ) -> Result<(SegmentPart, Vec<Array3<Complex32>>)> {
         let params = self.params;
@@ -431,6 +440,7 @@ impl SegmentRun<'_> {
             blocks,
             imaged.clone(),
             spare,
+            buffers,
             &|stage, d, t| progress(stage, k * t + d, count * t),
         )?;
         for (stage, seconds) in formed {
@@ -578,12 +588,19 @@ impl SegmentRun<'_> {
         self.check(source)?;
         let count = self.count(source);
         let mut joined = Joined::new(self.params);
-        // The previous segment's series, whose memory the next one's are formed in.
+        // The previous segment's series and events read, whose memory the next one's use.
         let mut spare = Vec::new();
+        let mut buffers = pipeline::BlockBuffers::default();
         let mut window_intervals = None;
         for index in 0..count {
-            let (part, series) =
-                self.segment_in(source, index, window_intervals, spare, progress)?;
+            let (part, series) = self.segment_in(
+                source,
+                index,
+                window_intervals,
+                spare,
+                &mut buffers,
+                progress,
+            )?;
             spare = series;
             if index == 0 {
                 window_intervals = part.window_intervals;
@@ -593,6 +610,7 @@ impl SegmentRun<'_> {
         progress(Stage::Doppler, count, count);
         // The windows' maps come back once the last series is gone.
         drop(spare);
+        drop(buffers);
         joined.finish(self, source)
     }
 }
