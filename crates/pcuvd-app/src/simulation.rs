@@ -234,11 +234,13 @@ impl Simulation {
     /// `blood_keyframes`, by speed class at keyframes. Keyframes are kept for the next call:
     /// simulate the modes block by block (the same events of each in turn) so that they render
     /// once.
+    /// The block is made in `memory`'s memory where it has room (a block already written).
     fn simulate_block(
         &self,
         index: usize,
         events: std::ops::Range<usize>,
         progress: &(dyn Fn(usize, usize) + Sync),
+        memory: Option<ndarray::Array3<f32>>,
     ) -> Result<ndarray::Array3<f32>> {
         let params = &self.modes[index].1;
         let phantom = self.phantom.as_ref();
@@ -251,21 +253,29 @@ impl Simulation {
             None => phantom,
         };
         let mut rf = match &self.blood_keyframes {
-            None => {
-                simulate::simulate_events(blood, params, self.frames, events.clone(), progress)?
-            }
+            None => simulate::simulate_events_reusing(
+                blood,
+                params,
+                self.frames,
+                events.clone(),
+                progress,
+                memory,
+            )?,
             Some(keyframed) => {
                 // The receiver noise, at its level relative to the whole blood's echo, then the
                 // blood's echoes: the sum simulate_events makes at every event.
                 let mut rf = match params.noise {
-                    Some(_) => {
-                        simulate::simulate_noise_events(blood, params, self.frames, events.clone())?
-                    }
-                    None => ndarray::Array3::zeros((
-                        events.len(),
-                        params.probe.n_elements,
-                        params.n_samples,
-                    )),
+                    Some(_) => simulate::simulate_noise_events_reusing(
+                        blood,
+                        params,
+                        self.frames,
+                        events.clone(),
+                        memory,
+                    )?,
+                    None => pcuvd::core::buffers::zeros_reusing(
+                        memory,
+                        (events.len(), params.probe.n_elements, params.n_samples),
+                    ),
                 };
                 keyframed
                     .lock()
@@ -294,7 +304,7 @@ impl Simulation {
         let events = self.frames * params.sequence.n_angles();
         Ok(pcuvd::ChannelData {
             acquisition: params.acquisition(),
-            samples: pcuvd::Samples::Rf(self.simulate_block(index, 0..events, progress)?),
+            samples: pcuvd::Samples::Rf(self.simulate_block(index, 0..events, progress, None)?),
         })
     }
 
@@ -306,7 +316,7 @@ impl Simulation {
         events: std::ops::Range<usize>,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<ndarray::Array3<f32>> {
-        self.simulate_block(index, events, progress)
+        self.simulate_block(index, events, progress, None)
     }
 
     /// Every recording, simulated a block of frames at a time (at most [`BLOCK_BYTES`] of
@@ -314,10 +324,12 @@ impl Simulation {
     /// length, the tissue's keyframes serve every mode, and the samples are those of one
     /// whole-recording simulation. `sink(mode index, events, samples)` takes each block in
     /// order, on a thread of its own while the next block is simulated (two blocks in memory at
-    /// most); `progress(events done, events in all)`.
+    /// most, each block after the first two made in the memory of one written);
+    /// `progress(events done, events in all)`.
     pub fn in_blocks(
         &self,
-        mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::Array3<f32>) -> Result<()> + Send,
+        mut sink: impl FnMut(usize, std::ops::Range<usize>, ndarray::ArrayView3<f32>) -> Result<()>
+        + Send,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<()> {
         let frame_bytes = self
@@ -357,10 +369,20 @@ impl Simulation {
             .sum();
         std::thread::scope(|scope| {
             // A rendezvous: a block is handed over only when the writer is done with the last.
-            let (blocks, to_write) = std::sync::mpsc::sync_channel(0);
+            let (blocks, to_write) = std::sync::mpsc::sync_channel::<(
+                usize,
+                std::ops::Range<usize>,
+                ndarray::Array3<f32>,
+            )>(0);
+            // Blocks written come back for the next to be made in: fresh memory, faulted in
+            // anew for every block, was a tenth of a simulation's CPU time on a virtual machine
+            // that hands freed memory back to its host.
+            let (written_back, written) = std::sync::mpsc::channel::<ndarray::Array3<f32>>();
             let writer = scope.spawn(move || -> Result<()> {
                 for (index, events, samples) in to_write {
-                    sink(index, events, samples)?;
+                    sink(index, events, samples.view())?;
+                    // The simulator may have stopped: the block is then dropped here.
+                    let _ = written_back.send(samples);
                 }
                 Ok(())
             });
@@ -372,9 +394,12 @@ impl Simulation {
                         let n = params.sequence.n_angles();
                         let events = first * n..last * n;
                         let start = events.start;
-                        let samples = self.events(index, events.clone(), &|event, _| {
-                            progress(done + event - start, total)
-                        })?;
+                        let samples = self.simulate_block(
+                            index,
+                            events.clone(),
+                            &|event, _| progress(done + event - start, total),
+                            written.try_recv().ok(),
+                        )?;
                         done += events.len();
                         if blocks.send((index, events, samples)).is_err() {
                             // The writer stopped on an error, which it reports.

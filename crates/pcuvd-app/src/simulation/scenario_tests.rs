@@ -261,7 +261,7 @@ fn blocks_written_beside_the_simulation_make_the_whole_recording() {
     simulation
         .in_blocks(
             |index, events, samples| {
-                blocks.push((index, events, samples));
+                blocks.push((index, events, samples.to_owned()));
                 Ok(())
             },
             &|_, _| {},

@@ -41,6 +41,31 @@ where
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
 }
 
+/// An array of zeros of `shape`, in `old`'s memory where that has room for it (zeroed here, on
+/// every core), else in new memory ([`zeros_in_huge_pages`]): blocks of simulated traces, one
+/// after another, are made in the memory of a block already written, whose pages are faulted in.
+pub fn zeros_reusing<T, D>(
+    old: Option<Array<T, D>>,
+    shape: impl IntoDimension<Dim = D>,
+) -> Array<T, D>
+where
+    T: Zeroable + Send,
+    D: Dimension,
+{
+    let shape = shape.into_dimension();
+    let len = shape.size();
+    // (Memory too small is dropped before the new memory is allocated.)
+    let Some(mut memory) = old
+        .map(|array| array.into_raw_vec_and_offset().0)
+        .filter(|memory| memory.capacity() >= len)
+    else {
+        return zeros_in_huge_pages(shape);
+    };
+    memory.clear();
+    resize_zeroed(&mut memory, len);
+    Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
+}
+
 /// `len` elements in `old` where it has room for them, else in new zeroed memory; the values
 /// are unspecified.
 fn memory_reusing<T: Zeroable + Send>(old: Option<Vec<T>>, len: usize) -> Vec<T> {
@@ -210,6 +235,24 @@ mod tests {
         assert!(longer.is_standard_layout());
         let fresh = array_reusing::<f32, _>(None, (1, 2, 3));
         assert!(fresh.iter().all(|&v| v == 0.0));
+    }
+
+    /// Zeros in the old array's memory where it has room, whatever it held, and in new memory
+    /// where it has not.
+    #[test]
+    fn zeros_reuse_memory_with_room_and_hold_nothing_of_it() {
+        let old = ndarray::Array3::<f32>::from_elem((4, 3, 5), 1.5);
+        let memory = old.as_ptr();
+        let shorter = zeros_reusing(Some(old), (2, 3, 5));
+        assert_eq!(shorter.as_ptr(), memory);
+        assert!(shorter.iter().all(|&v| v == 0.0));
+        let mut again = zeros_reusing(Some(shorter), (4, 3, 5));
+        assert_eq!(again.as_ptr(), memory);
+        assert!(again.iter().all(|&v| v == 0.0));
+        again.fill(2.5);
+        let longer = zeros_reusing(Some(again), (5, 3, 5));
+        assert_eq!(longer.dim(), (5, 3, 5));
+        assert!(longer.iter().all(|&v| v == 0.0));
     }
 
     /// Rows of complex samples are padded to whole cache lines and start on one, fresh or in

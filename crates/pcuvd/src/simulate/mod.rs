@@ -385,6 +385,18 @@ pub fn simulate_events(
     events: std::ops::Range<usize>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Array3<f32>> {
+    simulate_events_reusing(phantom, params, n_frames, events, progress, None)
+}
+
+/// [`simulate_events`], made in `memory`'s memory where it has room (a block already written).
+pub fn simulate_events_reusing(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+    events: std::ops::Range<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    memory: Option<Array3<f32>>,
+) -> Result<Array3<f32>> {
     params.validate()?;
     if n_frames == 0 {
         return Err(invalid("number of frames", "must be at least 1"));
@@ -441,7 +453,7 @@ pub fn simulate_events(
         ));
     }
     let mut rf: Array3<f32> =
-        crate::core::buffers::zeros_in_huge_pages((events.len(), n_channels, ns));
+        crate::core::buffers::zeros_reusing(memory, (events.len(), n_channels, ns));
     for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
         let t = event as f64 / params.sequence.event_prf;
         load(t, &mut scatterers)?;
@@ -580,6 +592,17 @@ pub fn simulate_noise_events(
     n_frames: usize,
     events: std::ops::Range<usize>,
 ) -> Result<Array3<f32>> {
+    simulate_noise_events_reusing(phantom, params, n_frames, events, None)
+}
+
+/// [`simulate_noise_events`], made in `memory`'s memory where it has room.
+pub fn simulate_noise_events_reusing(
+    phantom: &dyn Phantom,
+    params: &SimParams,
+    n_frames: usize,
+    events: std::ops::Range<usize>,
+    memory: Option<Array3<f32>>,
+) -> Result<Array3<f32>> {
     params.validate()?;
     if n_frames == 0 {
         return Err(invalid("number of frames", "must be at least 1"));
@@ -605,7 +628,7 @@ pub fn simulate_noise_events(
         .expect("noise is specified");
     let first = events.start;
     let mut rf: Array3<f32> =
-        crate::core::buffers::zeros_in_huge_pages((events.len(), n_channels, ns));
+        crate::core::buffers::zeros_reusing(memory, (events.len(), n_channels, ns));
     rf.axis_iter_mut(Axis(0))
         .into_par_iter()
         .enumerate()
