@@ -308,17 +308,6 @@ impl Simulation {
         })
     }
 
-    /// Events `events` of recording `index` of [`Self::modes`] (see
-    /// [`simulate::simulate_events`]), shape (events, channels, samples).
-    pub fn events(
-        &self,
-        index: usize,
-        events: std::ops::Range<usize>,
-        progress: &(dyn Fn(usize, usize) + Sync),
-    ) -> Result<ndarray::Array3<f32>> {
-        self.simulate_block(index, events, progress, None)
-    }
-
     /// Every recording, simulated a block of frames at a time (at most [`BLOCK_BYTES`] of
     /// samples per mode), the modes in turn: memory stays bounded whatever the recording's
     /// length, the tissue's keyframes serve every mode, and the samples are those of one

@@ -363,6 +363,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     let active_points_per_s = points * mean_active / elements as f64 / beamform_s;
     // Only active taps are summed: the bound is on active points.
     let arithmetic_bound = fma_per_s.zip(kernel.fma_per_point).map(|(r, k)| r / k);
+    let cpu_median = (
+        median(cpu_per_run.iter().map(|c| c.0).collect()),
+        median(cpu_per_run.iter().map(|c| c.1).collect()),
+    );
     let report = json!({
         "input": input.display().to_string(),
         "runs": args.repeat,
@@ -389,8 +393,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             "beamform_arithmetic_bound_active_points_per_s": arithmetic_bound,
         },
         "cpu_s": {
-            "user_median": median(cpu_per_run.iter().map(|c| c.0).collect()),
-            "system_median": median(cpu_per_run.iter().map(|c| c.1).collect()),
+            "user_median": cpu_median.0,
+            "system_median": cpu_median.1,
         },
         "first_run_s": {
             "total": total_times[0],
@@ -454,8 +458,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         "  total        {:.3} s (read to vector maps, no figures); CPU {:.1} s user + {:.1} s \
          system",
         median(total_times.clone()),
-        median(cpu_per_run.iter().map(|c| c.0).collect()),
-        median(cpu_per_run.iter().map(|c| c.1).collect()),
+        cpu_median.0,
+        cpu_median.1,
     );
     if args.repeat > 1 {
         println!(
