@@ -40,10 +40,17 @@ pub fn analyse(
     let bmode_db = beamform::bmode_db(beamform::compounded(&images.series)?.view());
     let clock = Instant::now();
     let mut reports = Vec::with_capacity(n);
+    let mut scratch = clutter::ClutterScratch::default();
     for (k, image) in images.series.iter_mut().enumerate() {
         progress(Stage::Clutter, k, n);
-        reports.push(clutter::svd_filter(image, &params.clutter)?);
+        reports.push(clutter::svd_filter_reusing(
+            image,
+            &params.clutter,
+            &mut scratch,
+        )?);
     }
+    // Up to one angle's series of matrices, free before the Doppler stage's compound.
+    drop(scratch);
     progress(Stage::Clutter, n, n);
     timings.push((Stage::Clutter, clock.elapsed().as_secs_f64()));
 

@@ -10,7 +10,8 @@ pub const MEMORY_ESTIMATE_RULE: &str = "the input's samples held in memory (none
 read from the file a block at a time) + one \
 block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ when it is \
 smaller) + (1 + 1/angles) × pixels × frames × angles × 8 bytes (the image series, complex64, \
-filtered in place, and a compound of it; frames: the recording's, or one segment's when it is \
+filtered in place, and a compound of it, formed after the clutter filter, whose block-wise \
+filter keeps its cells' Gram matrices in that room first); frames: the recording's, or one segment's when it is \
 processed in segments: as few segments of even length as fit in segments::SERIES_BYTES, before \
 the frames that dynamics windows and ensembles reach past a segment). FFT and filter lengths are \
 bounded by the data: a slot shift by less than a record \

@@ -90,12 +90,30 @@ pub(super) fn filter_blocks(
     series: &mut Array3<Complex32>,
     params: &ClutterParams,
     size: (usize, usize),
+    scratch: &mut ClutterScratch,
+) -> Result<ClutterReport> {
+    // The room the memory estimate keeps for the series' compound, which is formed only after
+    // the filter: one angle's series.
+    let room = series.len() * std::mem::size_of::<Complex32>();
+    filter_blocks_keeping(series, params, size, room, scratch)
+}
+
+/// [`filter_blocks`], keeping at most `kept_bytes` of the cells' Gram matrices from the whole
+/// image's cut-off (summed from them) to the blocks' filters; the cells not kept are summed
+/// again when a row of blocks needs them. The cells' buffers come from `scratch` and go back to
+/// it.
+pub(super) fn filter_blocks_keeping(
+    series: &mut Array3<Complex32>,
+    params: &ClutterParams,
+    size: (usize, usize),
+    kept_bytes: usize,
+    scratch: &mut ClutterScratch,
 ) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
     let removes_nothing = params.low == RankCut::Off && params.high == RankCut::Off;
     if nz == 0 || nx == 0 || frames < 2 || removes_nothing {
         // The whole image's filter refuses what it cannot filter, and returns what needs none.
-        return filter_whole(series, params, Pass::Filter { low_cap: None });
+        return filter_whole(series, params);
     }
     let layout = BlockLayout::new((nz, nx), holding_frames((nz, nx), size, frames));
     let (rows, cols) = layout.size;
@@ -103,13 +121,24 @@ pub(super) fn filter_blocks(
         blocks: None,
         ..*params
     };
+    // Blocks overlap by half: a block's Gram matrix is the sum of those of the cells the blocks'
+    // edges cut the image into, each cell's summed once and shared by the (up to four) blocks
+    // that hold it, rather than every pixel's four times.
+    let z_cuts = cell_edges(&layout.z_starts, rows);
+    let x_cuts = cell_edges(&layout.x_starts, cols);
+    // Cell rows' Gram matrices, kept while a row of blocks still needs them.
+    let mut cell_rows: std::collections::BTreeMap<usize, Vec<LowerHalf>> = Default::default();
     // A block's tissue is the whole image's seen on some of its pixels: its rank is at most the
     // whole's, so a block cuts at most the components the whole image's rule cuts. Without that
     // cap a block holding a wide, slow vessel cuts its blood as tissue (strong, slow and steep
-    // within the block).
+    // within the block). The cells tile the image, so the whole image's Gram matrix is their
+    // sum: summed from them, it costs no second pass over the pixels, and the cells that fit in
+    // `kept_bytes` wait for the blocks.
     let low_cap = match params.low {
         RankCut::Auto | RankCut::Similarity => {
-            Some(filter_whole(series, &whole, Pass::CutOffsOnly)?.low)
+            let (gram, kept) = whole_gram_of_cells(series, &z_cuts, &x_cuts, kept_bytes, scratch);
+            cell_rows = kept;
+            Some(cut_offs_with_gram(series, &whole, gram)?.low)
         }
         RankCut::Off => Some(0),
         RankCut::Fixed(_) => None,
@@ -118,6 +147,7 @@ pub(super) fn filter_blocks(
     if low_cap == Some(0) && params.high == RankCut::Off {
         // Every block would keep all its components: the series stays as it is (bit for bit;
         // blending unchanged blocks would round it).
+        cell_rows.into_values().for_each(|row| scratch.recycle(row));
         return Ok(ClutterReport {
             low: 0,
             high: frames,
@@ -126,22 +156,6 @@ pub(super) fn filter_blocks(
             block_layout: Some(layout),
         });
     }
-    // Blocks overlap by half: a block's Gram matrix is the sum of those of the cells the blocks'
-    // edges cut the image into, each cell's summed once and shared by the (up to four) blocks
-    // that hold it, rather than every pixel's four times.
-    let z_cuts = cell_edges(&layout.z_starts, rows);
-    let x_cuts = cell_edges(&layout.x_starts, cols);
-    let cell_gram = |series: &Array3<Complex32>, za: usize, xa: usize| {
-        let (x0, x1) = (x_cuts[xa], x_cuts[xa + 1]);
-        let runs = (z_cuts[za]..z_cuts[za + 1]).map(|z| series.slice(ndarray::s![z, x0..x1, ..]));
-        let mut pixels = Mat::<c64>::zeros(frames, (z_cuts[za + 1] - z_cuts[za]) * (x1 - x0));
-        for (k, value) in runs.flat_map(|run| run.into_iter()).enumerate() {
-            pixels[(k % frames, k / frames)] = c64::new(value.re as f64, value.im as f64);
-        }
-        lower_gram_of_columns(pixels.as_ref())
-    };
-    // Cell rows' Gram matrices, kept while a row of blocks still needs them.
-    let mut cell_rows: std::collections::BTreeMap<usize, Vec<Mat<c64>>> = Default::default();
     // The blocks' tent-weighted sums over the rows that a row of blocks still to come may add
     // to, `blended.start..blended.start + rows`: the rows above a row of blocks are final, and go
     // back into the series before it is filtered, as no block reads them again.
@@ -155,14 +169,19 @@ pub(super) fn filter_blocks(
     // is one chunk of pixels, sequential), then blended in.
     for &z0 in &layout.z_starts {
         blended.settle(series, z0)?;
-        cell_rows.retain(|&za, _| z_cuts[za] >= z0);
+        let passed: Vec<usize> = (cell_rows.keys().copied())
+            .filter(|&za| z_cuts[za] < z0)
+            .collect();
+        for za in passed {
+            scratch.recycle(cell_rows.remove(&za).unwrap_or_default());
+        }
         let missing: Vec<(usize, usize)> = cells_within(&z_cuts, z0, rows)
             .filter(|za| !cell_rows.contains_key(za))
             .flat_map(|za| (0..x_cuts.len() - 1).map(move |xa| (za, xa)))
             .collect();
-        let grams: Vec<Mat<c64>> = missing
-            .par_iter()
-            .map(|&(za, xa)| cell_gram(series, za, xa))
+        let grams: Vec<LowerHalf> = (missing.par_iter())
+            .zip(scratch.buffers(missing.len()))
+            .map(|(&cell, buffer)| cell_gram(series, &z_cuts, &x_cuts, cell, buffer))
             .collect();
         for ((za, _), gram) in missing.into_iter().zip(grams) {
             cell_rows.entry(za).or_default().push(gram);
@@ -175,7 +194,7 @@ pub(super) fn filter_blocks(
                     let mut gram = Mat::<c64>::zeros(frames, frames);
                     for za in cells_within(&z_cuts, z0, rows) {
                         for xa in cells_within(&x_cuts, x0, cols) {
-                            add_lower(&mut gram, &cell_rows[&za][xa]);
+                            cell_rows[&za][xa].add_to(&mut gram);
                         }
                     }
                     // The block's pixels (rows × cols × frames), a pixel row's run at a time.
@@ -204,6 +223,7 @@ pub(super) fn filter_blocks(
         }
     }
     blended.settle(series, nz)?;
+    cell_rows.into_values().for_each(|row| scratch.recycle(row));
     let median = |pick: fn(&(usize, usize)) -> usize| {
         let mut values: Vec<usize> = block_cut_offs.iter().map(pick).collect();
         values.sort_unstable();
@@ -313,31 +333,129 @@ pub(super) fn holding_frames(
     (even(rows, nz), even(cols, nx))
 }
 
-/// Adds the lower half (the diagonal included) of the square `term` to `sum`'s: all that the
-/// eigensolver reads, at half the work of adding whole matrices.
-pub(super) fn add_lower(sum: &mut Mat<c64>, term: &Mat<c64>) {
-    let n = sum.nrows();
-    for j in 0..n {
-        let to = sum.col_mut(j).subrows_mut(j, n - j);
-        let from = term.col(j).subrows(j, n - j);
-        let (to, from) = (
-            to.try_as_col_major_mut()
-                .expect("an owned matrix's columns are contiguous"),
-            from.try_as_col_major()
-                .expect("an owned matrix's columns are contiguous"),
-        );
-        // SAFETY: c64 is two f64 (re, im), laid out as such; the slices cover the same entries.
-        let (to, from) = unsafe {
-            (
-                std::slice::from_raw_parts_mut(to.as_ptr_mut() as *mut f64, 2 * to.nrows()),
-                std::slice::from_raw_parts(from.as_ptr() as *const f64, 2 * from.nrows()),
-            )
-        };
-        for (t, f) in to.iter_mut().zip(from) {
-            *t += f;
+/// The lower half (the diagonal included) of a square matrix, column by column: all that the
+/// eigensolver reads of a Hermitian one, in half the memory of the square.
+pub(super) struct LowerHalf {
+    order: usize,
+    entries: Vec<c64>,
+}
+
+impl LowerHalf {
+    /// Bytes the lower half of a square matrix of `order` takes.
+    pub(super) fn bytes(order: usize) -> usize {
+        order * (order + 1) / 2 * std::mem::size_of::<c64>()
+    }
+
+    /// The lower half of the square `matrix`, in `buffer`'s memory.
+    pub(super) fn of(matrix: &Mat<c64>, buffer: Vec<c64>) -> LowerHalf {
+        let order = matrix.nrows();
+        let mut entries = buffer;
+        entries.clear();
+        entries.reserve(order * (order + 1) / 2);
+        for j in 0..order {
+            entries.extend((j..order).map(|i| matrix[(i, j)]));
+        }
+        LowerHalf { order, entries }
+    }
+
+    /// Its memory, for another matrix.
+    pub(super) fn into_buffer(self) -> Vec<c64> {
+        self.entries
+    }
+
+    /// Adds this lower half to `sum`'s, entry by entry (the upper half left as it is).
+    pub(super) fn add_to(&self, sum: &mut Mat<c64>) {
+        let n = self.order;
+        assert!(sum.nrows() == n && sum.ncols() == n);
+        let mut from = self.entries.as_slice();
+        for j in 0..n {
+            let (column, rest) = from.split_at(n - j);
+            from = rest;
+            let to = sum.col_mut(j).subrows_mut(j, n - j);
+            let to = to
+                .try_as_col_major_mut()
+                .expect("an owned matrix's columns are contiguous");
+            // SAFETY: c64 is two f64 (re, im), laid out as such; both slices cover n − j entries.
+            let (to, column) = unsafe {
+                (
+                    std::slice::from_raw_parts_mut(to.as_ptr_mut() as *mut f64, 2 * (n - j)),
+                    std::slice::from_raw_parts(column.as_ptr() as *const f64, 2 * (n - j)),
+                )
+            };
+            for (t, f) in to.iter_mut().zip(column) {
+                *t += f;
+            }
         }
     }
 }
+
+/// The Gram matrix (lower half) of the cell (`za`, `xa`) that the edges `z_cuts` and `x_cuts`
+/// cut `series` into, in `buffer`'s memory.
+pub(super) fn cell_gram(
+    series: &Array3<Complex32>,
+    z_cuts: &[usize],
+    x_cuts: &[usize],
+    (za, xa): (usize, usize),
+    buffer: Vec<c64>,
+) -> LowerHalf {
+    let frames = series.dim().2;
+    let (z0, z1, x0, x1) = (z_cuts[za], z_cuts[za + 1], x_cuts[xa], x_cuts[xa + 1]);
+    // Each pixel's series one column.
+    let mut pixels = Mat::<c64>::zeros(frames, (z1 - z0) * (x1 - x0));
+    let cell = series.slice(ndarray::s![z0..z1, x0..x1, ..]);
+    for (p, pixel) in cell.lanes(ndarray::Axis(2)).into_iter().enumerate() {
+        for (f, value) in pixel.iter().enumerate() {
+            pixels[(f, p)] = c64::new(value.re as f64, value.im as f64);
+        }
+    }
+    LowerHalf::of(&lower_gram_of_columns(pixels.as_ref()), buffer)
+}
+
+/// The whole image's Gram matrix (lower half), summed from the Gram matrices of the cells that
+/// `z_cuts` and `x_cuts` tile it with (rows of cells in order), and the first rows of cells'
+/// matrices, as many as fit in `kept_bytes`; the others' buffers go back to `scratch`.
+pub(super) fn whole_gram_of_cells(
+    series: &Array3<Complex32>,
+    z_cuts: &[usize],
+    x_cuts: &[usize],
+    kept_bytes: usize,
+    scratch: &mut ClutterScratch,
+) -> (Mat<c64>, std::collections::BTreeMap<usize, Vec<LowerHalf>>) {
+    let frames = series.dim().2;
+    let per_row = x_cuts.len() - 1;
+    let mut whole = Mat::<c64>::zeros(frames, frames);
+    let mut kept = std::collections::BTreeMap::new();
+    let mut room = Some(kept_bytes);
+    // Rows of cells in groups of at least GROUP_CELLS cells, computed in parallel: a row alone
+    // may hold fewer cells than twice the cores.
+    let rows: Vec<usize> = (0..z_cuts.len() - 1).collect();
+    for group in rows.chunks(GROUP_CELLS.div_ceil(per_row)) {
+        let cells: Vec<(usize, usize)> = (group.iter())
+            .flat_map(|&za| (0..per_row).map(move |xa| (za, xa)))
+            .collect();
+        let mut grams: Vec<LowerHalf> = (cells.par_iter())
+            .zip(scratch.buffers(cells.len()))
+            .map(|(&cell, buffer)| cell_gram(series, z_cuts, x_cuts, cell, buffer))
+            .collect();
+        for gram in &grams {
+            gram.add_to(&mut whole);
+        }
+        for &za in group {
+            let row: Vec<LowerHalf> = grams.drain(..per_row).collect();
+            // Rows from the top only: the blocks take them first and drop them as they pass.
+            room = room.and_then(|room| room.checked_sub(per_row * LowerHalf::bytes(frames)));
+            if room.is_some() {
+                kept.insert(za, row);
+            } else {
+                scratch.recycle(row);
+            }
+        }
+    }
+    (whole, kept)
+}
+
+/// The least number of cells whose Gram matrices [`whole_gram_of_cells`] computes at once.
+const GROUP_CELLS: usize = 64;
 
 /// The cells along one axis (indices into `edges`) that lie within `len` pixels from `start`.
 pub(super) fn cells_within(
@@ -355,4 +473,35 @@ pub(super) fn cell_edges(starts: &[usize], size: usize) -> Vec<usize> {
     edges.sort_unstable();
     edges.dedup();
     edges
+}
+
+/// Memory the block-wise filter reuses from one series to the next (the cells' Gram matrices'
+/// buffers), so that filtering a recording's angles one after another asks the system for it
+/// once: on a virtual machine, memory freed and asked for again can cost as much as summing
+/// the matrices.
+#[derive(Debug, Default)]
+pub struct ClutterScratch {
+    /// Buffers no cell holds now.
+    spare: Vec<Vec<c64>>,
+}
+
+impl ClutterScratch {
+    /// `count` buffers, spare ones first.
+    fn buffers(&mut self, count: usize) -> Vec<Vec<c64>> {
+        (0..count)
+            .map(|_| self.spare.pop().unwrap_or_default())
+            .collect()
+    }
+
+    /// Takes back the buffers of `cells`.
+    fn recycle(&mut self, cells: Vec<LowerHalf>) {
+        self.spare
+            .extend(cells.into_iter().map(LowerHalf::into_buffer));
+    }
+
+    /// Buffers held for the next series.
+    #[cfg(test)]
+    pub(super) fn spare_buffers(&self) -> usize {
+        self.spare.len()
+    }
 }

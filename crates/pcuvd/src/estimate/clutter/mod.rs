@@ -46,7 +46,9 @@
 //! wide, slow vessel is strong and steep enough to pass for tissue. A block's Gram matrix is the
 //! sum of those of the cells the blocks' edges cut the image into, each summed once; a block's
 //! sides are made even, so that the half-block steps cut the image into cells of half a block,
-//! four to a block. Only the eigenvalues a block's rule reads (the leading ones and the median)
+//! four to a block; the whole image's Gram matrix, which caps the blocks' cut-offs, is the sum
+//! of the cells' too, and the cells that fit in the room the series' compound will take later
+//! are kept for the blocks rather than summed again. Only the eigenvalues a block's rule reads (the leading ones and the median)
 //! are found, by bisection, and the blend is summed over a band of a block's rows, each row going
 //! back into the series once no block reads it again, rather than over a second whole series.
 
@@ -62,8 +64,8 @@ use crate::core::error::{Error, Result, invalid};
 mod blocks;
 mod cut_offs;
 
-pub use blocks::BlockLayout;
 use blocks::*;
+pub use blocks::{BlockLayout, ClutterScratch};
 use cut_offs::*;
 pub use cut_offs::{fit_two_squares, spatial_similarity};
 
@@ -184,13 +186,23 @@ fn as_faer(samples: &[Complex32]) -> &[c32] {
 
 /// Filters `series` (nz, nx, frames) in place and reports the cut-offs used.
 pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Result<ClutterReport> {
+    svd_filter_reusing(series, params, &mut ClutterScratch::default())
+}
+
+/// [`svd_filter`], with memory kept in `scratch` from the series filtered before (the angles of
+/// one recording, filtered in turn): the same series and report.
+pub fn svd_filter_reusing(
+    series: &mut Array3<Complex32>,
+    params: &ClutterParams,
+    scratch: &mut ClutterScratch,
+) -> Result<ClutterReport> {
     match params.blocks {
-        Some(size) => filter_blocks(series, params, size),
-        None => filter_whole(series, params, Pass::Filter { low_cap: None }),
+        Some(size) => filter_blocks(series, params, size, scratch),
+        None => filter_whole(series, params),
     }
 }
 
-/// What [`filter_whole`] does with the cut-offs it chooses.
+/// What [`filter_with_gram`] does with the cut-offs it chooses.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Pass {
     /// Filter the series, removing at most `low_cap` leading components when given.
@@ -200,11 +212,7 @@ enum Pass {
 }
 
 /// The whole image's filter: one SVD of its Casorati matrix.
-fn filter_whole(
-    series: &mut Array3<Complex32>,
-    params: &ClutterParams,
-    pass: Pass,
-) -> Result<ClutterReport> {
+fn filter_whole(series: &mut Array3<Complex32>, params: &ClutterParams) -> Result<ClutterReport> {
     let (nz, nx, frames) = series.dim();
     let pixels = nz * nx;
     if frames < 2 || pixels == 0 {
@@ -227,7 +235,28 @@ fn filter_whole(
         .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
 
     let gram = gram_of(data, frames);
-    filter_with_gram(data, frames, gram, params, pass, true)
+    filter_with_gram(
+        data,
+        frames,
+        gram,
+        params,
+        Pass::Filter { low_cap: None },
+        true,
+    )
+}
+
+/// The whole image's cut-offs, given its Gram matrix `gram` (lower half), the series left as it
+/// is.
+fn cut_offs_with_gram(
+    series: &mut Array3<Complex32>,
+    params: &ClutterParams,
+    gram: Mat<c64>,
+) -> Result<ClutterReport> {
+    let frames = series.dim().2;
+    let data = series
+        .as_slice_mut()
+        .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
+    filter_with_gram(data, frames, gram, params, Pass::CutOffsOnly, true)
 }
 
 /// The filter of `data` (pixels × frames, row-major) given its Gram matrix `gram` (lower half);

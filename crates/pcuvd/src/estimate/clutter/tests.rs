@@ -903,3 +903,93 @@ fn gram_matrix_is_the_same_on_any_number_of_cores() {
         }
     }
 }
+
+/// The whole image's Gram matrix summed from the blocks' cells equals the one summed over its
+/// pixels (within rounding), and the blocks' filter gives the same series bit for bit whether
+/// it keeps every cell's Gram matrix from the whole image's cut-off to the blocks, some of them,
+/// or none (summing each again for the blocks).
+#[test]
+fn cells_sum_to_the_whole_gram_and_kept_cells_filter_as_recomputed_ones() {
+    let (nz, nx, nf) = (23, 19, 24);
+    let series = toned((nz, nx, nf), 12, |z, x| {
+        vec![
+            (40.0, 0.0),
+            (4.0 + z as f32 / 4.0, 0.5),
+            (1.0, 3.0 + (x % 5) as f32),
+        ]
+    });
+    let layout = BlockLayout::new((nz, nx), holding_frames((nz, nx), (7, 6), nf));
+    let z_cuts = cell_edges(&layout.z_starts, layout.size.0);
+    let x_cuts = cell_edges(&layout.x_starts, layout.size.1);
+    let scratch = &mut ClutterScratch::default();
+    let (of_cells, kept) = whole_gram_of_cells(&series, &z_cuts, &x_cuts, usize::MAX, scratch);
+    assert_eq!(kept.len(), z_cuts.len() - 1, "every row of cells kept");
+    let of_pixels = gram_of(series.as_slice().unwrap(), nf);
+    let largest = of_pixels[(0, 0)].norm();
+    for j in 0..nf {
+        for i in j..nf {
+            assert!(
+                (of_cells[(i, j)] - of_pixels[(i, j)]).norm() <= 1e-12 * largest,
+                "({i}, {j}): {} vs {}",
+                of_cells[(i, j)],
+                of_pixels[(i, j)]
+            );
+        }
+    }
+    let row_bytes = (x_cuts.len() - 1) * LowerHalf::bytes(nf);
+    let (_, two_rows) = whole_gram_of_cells(&series, &z_cuts, &x_cuts, 2 * row_bytes + 1, scratch);
+    assert_eq!(two_rows.keys().copied().collect::<Vec<_>>(), vec![0, 1]);
+
+    let params = ClutterParams {
+        blocks: Some((7, 6)),
+        ..ClutterParams::default()
+    };
+    let filtered = |kept_bytes: usize, scratch: &mut ClutterScratch| {
+        let mut blocked = series.clone();
+        let report =
+            filter_blocks_keeping(&mut blocked, &params, (7, 6), kept_bytes, scratch).unwrap();
+        (blocked, report)
+    };
+    let (none, none_report) = filtered(0, &mut ClutterScratch::default());
+    assert!(none_report.low > 0, "the tissue is cut");
+    let cells = (z_cuts.len() - 1) * (x_cuts.len() - 1);
+    // One scratch through every run, its buffers holding the runs before's matrices.
+    let scratch = &mut ClutterScratch::default();
+    for kept_bytes in [2 * row_bytes + 1, usize::MAX, 0, usize::MAX] {
+        let (some, report) = filtered(kept_bytes, scratch);
+        assert_eq!(report, none_report, "{kept_bytes} bytes kept");
+        assert!(some == none, "{kept_bytes} bytes kept: the series differ");
+        // Every buffer went back, and no more were made than the cells ask for at once.
+        assert!(scratch.spare_buffers() > 0 && scratch.spare_buffers() <= cells);
+    }
+}
+
+/// The clutter filter gives the same series and report with memory reused from a series
+/// filtered before (another image, more frames) as with fresh memory, block-wise and whole.
+#[test]
+fn reused_scratch_filters_as_fresh_memory() {
+    let before = toned((20, 15, 30), 3, |z, _| {
+        vec![(50.0, 0.2), (1.0, 2.0 + z as f32)]
+    });
+    let series = toned((23, 19, 24), 12, |z, x| {
+        vec![
+            (40.0, 0.0),
+            (4.0 + z as f32 / 4.0, 0.5),
+            (1.0, 3.0 + (x % 5) as f32),
+        ]
+    });
+    for blocks in [None, Some((7, 6))] {
+        let params = ClutterParams {
+            blocks,
+            ..ClutterParams::default()
+        };
+        let mut fresh = series.clone();
+        let fresh_report = svd_filter(&mut fresh, &params).unwrap();
+        let scratch = &mut ClutterScratch::default();
+        svd_filter_reusing(&mut before.clone(), &params, scratch).unwrap();
+        let mut reused = series.clone();
+        let report = svd_filter_reusing(&mut reused, &params, scratch).unwrap();
+        assert_eq!(report, fresh_report, "{blocks:?}");
+        assert!(reused == fresh, "{blocks:?}: the series differ");
+    }
+}
