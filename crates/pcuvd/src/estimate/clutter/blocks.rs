@@ -180,7 +180,7 @@ pub(super) fn filter_blocks_keeping(
             .flat_map(|za| (0..x_cuts.len() - 1).map(move |xa| (za, xa)))
             .collect();
         let grams: Vec<LowerHalf> = (missing.par_iter())
-            .zip(scratch.buffers(missing.len()))
+            .zip(scratch.buffers(missing.len(), frames))
             .map(|(&cell, buffer)| cell_gram(series, &z_cuts, &x_cuts, cell, buffer))
             .collect();
         for ((za, _), gram) in missing.into_iter().zip(grams) {
@@ -434,7 +434,7 @@ pub(super) fn whole_gram_of_cells(
             .flat_map(|&za| (0..per_row).map(move |xa| (za, xa)))
             .collect();
         let mut grams: Vec<LowerHalf> = (cells.par_iter())
-            .zip(scratch.buffers(cells.len()))
+            .zip(scratch.buffers(cells.len(), frames))
             .map(|(&cell, buffer)| cell_gram(series, z_cuts, x_cuts, cell, buffer))
             .collect();
         for gram in &grams {
@@ -486,10 +486,14 @@ pub struct ClutterScratch {
 }
 
 impl ClutterScratch {
-    /// `count` buffers, spare ones first.
-    fn buffers(&mut self, count: usize) -> Vec<Vec<c64>> {
+    /// `count` buffers for the lower halves of matrices of `order`, spare ones first. New ones
+    /// are allocated here, on the calling thread, rather than by the pool's threads that fill
+    /// them: memory a pool thread allocates stays in its own arena once freed, and the process
+    /// would hold it through the stages after the filter.
+    fn buffers(&mut self, count: usize, order: usize) -> Vec<Vec<c64>> {
+        let entries = order * (order + 1) / 2;
         (0..count)
-            .map(|_| self.spare.pop().unwrap_or_default())
+            .map(|_| (self.spare.pop()).unwrap_or_else(|| Vec::with_capacity(entries)))
             .collect()
     }
 
