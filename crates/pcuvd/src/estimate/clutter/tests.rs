@@ -580,6 +580,18 @@ fn toned(
     series
 }
 
+/// Still tissue over the whole image, a slow echo that grows with depth and blood whose tone
+/// changes across the columns: series whose blocks see different tissue and blood.
+fn still_tissue_slow_layers_and_blood(shape: (usize, usize, usize)) -> Array3<Complex32> {
+    toned(shape, 12, |z, x| {
+        vec![
+            (40.0, 0.0),
+            (4.0 + z as f32 / 4.0, 0.5),
+            (1.0, 3.0 + (x % 5) as f32),
+        ]
+    })
+}
+
 /// Blocks that remove nothing give the series back: the tent weights blend to one over every
 /// pixel, the image's edges and an image that the half-block steps do not divide included.
 #[test]
@@ -803,13 +815,7 @@ fn blocks_smaller_than_the_frames_grow_to_hold_them() {
 #[test]
 fn block_filter_is_each_blocks_own_filter_blended() {
     let (nz, nx, nf) = (23, 19, 24);
-    let series = toned((nz, nx, nf), 12, |z, x| {
-        vec![
-            (40.0, 0.0),
-            (4.0 + z as f32 / 4.0, 0.5),
-            (1.0, 3.0 + (x % 5) as f32),
-        ]
-    });
+    let series = still_tissue_slow_layers_and_blood((nz, nx, nf));
     let params = ClutterParams {
         low: RankCut::Fixed(2),
         blocks: Some((7, 6)),
@@ -911,13 +917,7 @@ fn gram_matrix_is_the_same_on_any_number_of_cores() {
 #[test]
 fn cells_sum_to_the_whole_gram_and_kept_cells_filter_as_recomputed_ones() {
     let (nz, nx, nf) = (23, 19, 24);
-    let series = toned((nz, nx, nf), 12, |z, x| {
-        vec![
-            (40.0, 0.0),
-            (4.0 + z as f32 / 4.0, 0.5),
-            (1.0, 3.0 + (x % 5) as f32),
-        ]
-    });
+    let series = still_tissue_slow_layers_and_blood((nz, nx, nf));
     let layout = BlockLayout::new((nz, nx), holding_frames((nz, nx), (7, 6), nf));
     let z_cuts = cell_edges(&layout.z_starts, layout.size.0);
     let x_cuts = cell_edges(&layout.x_starts, layout.size.1);
@@ -971,13 +971,7 @@ fn reused_scratch_filters_as_fresh_memory() {
     let before = toned((20, 15, 30), 3, |z, _| {
         vec![(50.0, 0.2), (1.0, 2.0 + z as f32)]
     });
-    let series = toned((23, 19, 24), 12, |z, x| {
-        vec![
-            (40.0, 0.0),
-            (4.0 + z as f32 / 4.0, 0.5),
-            (1.0, 3.0 + (x % 5) as f32),
-        ]
-    });
+    let series = still_tissue_slow_layers_and_blood((23, 19, 24));
     for blocks in [None, Some((7, 6))] {
         let params = ClutterParams {
             blocks,
