@@ -91,55 +91,69 @@ impl Tridiagonal {
     /// number of eigenvalues below a shift, the negative pivots of T − shift·I): O(n) a step and
     /// about a hundred steps to the rounding unit, so that a few eigenvalues cost far less than
     /// all of them do by the QR iteration. `None` when `rank` is not below the order.
+    ///
+    /// Each count is a serial recurrence (a division per row, on the pivot before it), so one
+    /// count leaves the CPU waiting on its divider. One pass over T counts at every middle the
+    /// next [`LEVELS`] steps may take, whichever halves they keep, and the steps then walk that
+    /// tree: the same middles, counts and result as one step a pass, in a third of the passes.
     pub(crate) fn eigenvalue(&self, rank: usize) -> Option<f64> {
         let n = self.diagonal.len();
         let below_count = n.checked_sub(rank + 1)?;
         let squares: Vec<f64> = self.subdiagonal.iter().map(|e| e * e).collect();
-        // The least pivot a count allows (LAPACK's pivmin): a pivot closer to zero is taken as
-        // that much below it, so that every count is of a matrix within rounding of T's.
-        let pivot_floor = f64::MIN_POSITIVE * squares.iter().copied().fold(1.0, f64::max);
-        let below = |shift: f64| {
-            let mut count = 0;
-            let mut pivot = 1.0;
-            for (i, &d) in self.diagonal.iter().enumerate() {
-                let coupling = if i == 0 { 0.0 } else { squares[i - 1] / pivot };
-                pivot = d - shift - coupling;
-                if pivot.abs() < pivot_floor {
-                    pivot = -pivot_floor;
+        let pivot_floor = pivot_floor(&squares);
+        let (mut low, mut high, norm_rounding) = self.bracket(pivot_floor);
+        // Invariant: at most `below_count` eigenvalues lie below `low`, more below `high`.
+        loop {
+            // The tree of middles under (low, high): node k's interval splits at its middle
+            // into nodes 2k + 1 (below) and 2k + 2 (above).
+            let mut intervals = [(low, high); TREE];
+            let mut shifts = [0.0; TREE];
+            for k in 0..TREE {
+                let (a, b) = intervals[k];
+                shifts[k] = 0.5 * (a + b);
+                if 2 * k + 2 < TREE {
+                    intervals[2 * k + 1] = (a, shifts[k]);
+                    intervals[2 * k + 2] = (shifts[k], b);
                 }
-                count += usize::from(pivot < 0.0);
             }
-            count
-        };
-        // Gershgorin's discs hold every eigenvalue.
+            let counts = counts_below(&self.diagonal, &squares, pivot_floor, &shifts);
+            let mut node = 0;
+            for _ in 0..LEVELS {
+                let middle = shifts[node];
+                let width = (2.0 * f64::EPSILON * low.abs().max(high.abs())).max(norm_rounding);
+                if high - low <= width || middle <= low || middle >= high {
+                    return Some(middle);
+                }
+                if counts[node] > below_count {
+                    high = middle;
+                    node = 2 * node + 1;
+                } else {
+                    low = middle;
+                    node = 2 * node + 2;
+                }
+            }
+        }
+    }
+
+    /// An interval holding every eigenvalue (Gershgorin's discs), widened by the rounding the
+    /// reduction to T left in them, and that rounding: (low, high, rounding).
+    fn bracket(&self, pivot_floor: f64) -> (f64, f64, f64) {
+        let n = self.diagonal.len();
         let radius = |i: usize| {
             let left = if i == 0 { 0.0 } else { self.subdiagonal[i - 1] };
             let right = self.subdiagonal.get(i).copied().unwrap_or(0.0);
             left + right
         };
-        let mut low = (0..n)
+        let low = (0..n)
             .map(|i| self.diagonal[i] - radius(i))
             .fold(f64::MAX, f64::min);
-        let mut high = (0..n)
+        let high = (0..n)
             .map(|i| self.diagonal[i] + radius(i))
             .fold(f64::MIN, f64::max);
         // The reduction to T already moved every eigenvalue by up to about the rounding unit
         // times the matrix's norm: no point bisecting below that.
         let norm_rounding = f64::EPSILON * low.abs().max(high.abs()) + pivot_floor;
-        (low, high) = (low - norm_rounding, high + norm_rounding);
-        // Invariant: at most `below_count` eigenvalues lie below `low`, more below `high`.
-        loop {
-            let middle = 0.5 * (low + high);
-            let width = (2.0 * f64::EPSILON * low.abs().max(high.abs())).max(norm_rounding);
-            if high - low <= width || middle <= low || middle >= high {
-                return Some(middle);
-            }
-            if below(middle) > below_count {
-                high = middle;
-            } else {
-                low = middle;
-            }
-        }
+        (low - norm_rounding, high + norm_rounding, norm_rounding)
     }
 
     /// The unit eigenvectors (columns) of the matrix for `eigenvalues[..count]`, which must be
@@ -209,6 +223,43 @@ impl Tridiagonal {
         }
         vectors
     }
+}
+
+/// Bisection steps [`Tridiagonal::eigenvalue`] takes from one pass over T.
+const LEVELS: usize = 3;
+
+/// Middles one pass counts at: a full binary tree of [`LEVELS`] levels.
+const TREE: usize = (1 << LEVELS) - 1;
+
+/// The least pivot a Sturm count allows (LAPACK's pivmin), given T's squared subdiagonal: a
+/// pivot closer to zero is taken as that much below it, so that every count is of a matrix
+/// within rounding of T's.
+fn pivot_floor(squares: &[f64]) -> f64 {
+    f64::MIN_POSITIVE * squares.iter().copied().fold(1.0, f64::max)
+}
+
+/// The number of eigenvalues of T (its `diagonal` and squared subdiagonal `squares`) below
+/// each of `shifts`: the negative pivots of T − shift·I, the shifts' recurrences side by side.
+fn counts_below(
+    diagonal: &[f64],
+    squares: &[f64],
+    pivot_floor: f64,
+    shifts: &[f64; TREE],
+) -> [usize; TREE] {
+    let mut counts = [0; TREE];
+    let mut pivots = [1.0; TREE];
+    for (i, &d) in diagonal.iter().enumerate() {
+        let square = if i == 0 { 0.0 } else { squares[i - 1] };
+        for ((pivot, count), &shift) in pivots.iter_mut().zip(&mut counts).zip(shifts) {
+            let coupling = if i == 0 { 0.0 } else { square / *pivot };
+            *pivot = d - shift - coupling;
+            if pivot.abs() < pivot_floor {
+                *pivot = -pivot_floor;
+            }
+            *count += usize::from(*pivot < 0.0);
+        }
+    }
+    counts
 }
 
 /// Solves (T − shift·I) x = b in place for the symmetric tridiagonal T (`diagonal`,
@@ -375,6 +426,69 @@ mod tests {
                 (bisected - exact).abs() < 1e-14,
                 "rank {rank}: {bisected} vs {exact}"
             );
+        }
+    }
+
+    /// One bisection step a pass, as the steps were taken before a pass counted at the next
+    /// levels' middles too.
+    fn eigenvalue_a_step_a_pass(t: &Tridiagonal, rank: usize) -> Option<f64> {
+        let n = t.diagonal.len();
+        let below_count = n.checked_sub(rank + 1)?;
+        let squares: Vec<f64> = t.subdiagonal.iter().map(|e| e * e).collect();
+        let floor = pivot_floor(&squares);
+        let below = |shift: f64| {
+            let mut count = 0;
+            let mut pivot = 1.0;
+            for (i, &d) in t.diagonal.iter().enumerate() {
+                let coupling = if i == 0 { 0.0 } else { squares[i - 1] / pivot };
+                pivot = d - shift - coupling;
+                if pivot.abs() < floor {
+                    pivot = -floor;
+                }
+                count += usize::from(pivot < 0.0);
+            }
+            count
+        };
+        let (mut low, mut high, norm_rounding) = t.bracket(floor);
+        loop {
+            let middle = 0.5 * (low + high);
+            let width = (2.0 * f64::EPSILON * low.abs().max(high.abs())).max(norm_rounding);
+            if high - low <= width || middle <= low || middle >= high {
+                return Some(middle);
+            }
+            if below(middle) > below_count {
+                high = middle;
+            } else {
+                low = middle;
+            }
+        }
+    }
+
+    /// Counting at the next levels' middles in one pass finds every eigenvalue bit for bit as
+    /// one step a pass does: Gram matrices spanning eight decades, a repeated eigenvalue, and a
+    /// tridiagonal of zeros (every count at the floor).
+    #[test]
+    fn a_pass_over_three_levels_bisects_as_one_step_a_pass() {
+        let mut cases: Vec<Tridiagonal> = [(48, 5), (97, 6), (180, 7)]
+            .into_iter()
+            .map(|(frames, seed)| {
+                Tridiagonal::new(gram(frames, 400, &[8.0, 6.5, 5.0, 3.0], seed).as_ref())
+            })
+            .collect();
+        let rank_two = Mat::<c64>::from_fn(12, 12, |i, j| {
+            c64::new(((i % 3) * (j % 3)) as f64 + ((i % 2) * (j % 2)) as f64, 0.0)
+        });
+        cases.push(Tridiagonal::new(rank_two.as_ref()));
+        cases.push(Tridiagonal::new(Mat::<c64>::zeros(5, 5).as_ref()));
+        for (c, t) in cases.iter().enumerate() {
+            for rank in 0..=t.diagonal.len() {
+                let (new, old) = (t.eigenvalue(rank), eigenvalue_a_step_a_pass(t, rank));
+                assert_eq!(
+                    new.map(f64::to_bits),
+                    old.map(f64::to_bits),
+                    "case {c}, rank {rank}: {new:?} vs {old:?}"
+                );
+            }
         }
     }
 
