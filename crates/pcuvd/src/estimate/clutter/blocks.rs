@@ -217,10 +217,12 @@ pub(super) fn filter_blocks_keeping(
                     .map(|report| (x0, block, report))
                 })
                 .collect::<Result<Vec<_>>>()?;
+        let mut row_of_blocks = Vec::with_capacity(filtered.len());
         for (x0, block, report) in filtered {
             block_cut_offs.push((report.low, report.high));
-            blended.add(&block, (z0, x0), (rows, cols), frames);
+            row_of_blocks.push((x0, block));
         }
+        blended.add_row(&row_of_blocks, z0, (rows, cols), frames);
     }
     blended.settle(series, nz)?;
     cell_rows.into_values().for_each(|row| scratch.recycle(row));
@@ -250,31 +252,45 @@ pub(super) struct Blended {
 }
 
 impl Blended {
-    /// Adds the filtered `block` (rows × cols × frames, row-major) whose first pixel is at
-    /// (z0, x0), a row within the band, each pixel weighted by its tents.
-    fn add(
+    /// Adds a row of filtered blocks, each (x0, its rows × cols × frames, row-major) with its
+    /// first pixel at (z0, x0), z0 a row within the band, each pixel weighted by its tents. The
+    /// image's rows are summed in parallel, each pixel's blocks in their order in the row: the
+    /// same sums as adding the blocks one after another.
+    fn add_row(
         &mut self,
-        block: &[Complex32],
-        (z0, x0): (usize, usize),
+        blocks: &[(usize, Vec<Complex32>)],
+        z0: usize,
         (rows, cols): (usize, usize),
         frames: usize,
     ) {
-        let row_len = self.weights.ncols() * frames;
-        for i in 0..rows {
-            let band_row = (z0 + i - self.start) * row_len;
-            for j in 0..cols {
-                let w = tent(i, rows) * tent(j, cols);
-                self.weights[[z0 + i, x0 + j]] += w;
-                let at = band_row + (x0 + j) * frames;
-                let from = (i * cols + j) * frames;
-                for (sum, &v) in self.sums[at..at + frames]
-                    .iter_mut()
-                    .zip(&block[from..from + frames])
-                {
-                    *sum += v * w;
+        let nx = self.weights.ncols();
+        let row_len = nx * frames;
+        let first = (z0 - self.start) * row_len;
+        let sums = &mut self.sums[first..first + rows * row_len];
+        let weights = self
+            .weights
+            .as_slice_mut()
+            .expect("an owned array is contiguous");
+        let weights = &mut weights[z0 * nx..(z0 + rows) * nx];
+        (sums.par_chunks_mut(row_len))
+            .zip(weights.par_chunks_mut(nx))
+            .enumerate()
+            .for_each(|(i, (sums, weights))| {
+                for (x0, block) in blocks {
+                    for j in 0..cols {
+                        let w = tent(i, rows) * tent(j, cols);
+                        weights[x0 + j] += w;
+                        let at = (x0 + j) * frames;
+                        let from = (i * cols + j) * frames;
+                        for (sum, &v) in sums[at..at + frames]
+                            .iter_mut()
+                            .zip(&block[from..from + frames])
+                        {
+                            *sum += v * w;
+                        }
+                    }
                 }
-            }
-        }
+            });
     }
 
     /// Writes the band's rows above `until` into `series` (each pixel its sum over its weight:
@@ -283,23 +299,26 @@ impl Blended {
         let (_, nx, frames) = series.dim();
         let row_len = nx * frames;
         let done = until - self.start;
-        for r in 0..done {
-            let z = self.start + r;
-            let mut row = series.slice_mut(ndarray::s![z, .., ..]);
-            let out = row
-                .as_slice_mut()
-                .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
-            let sums = &self.sums[r * row_len..(r + 1) * row_len];
-            for ((out, sums), &w) in out
-                .chunks_mut(frames)
-                .zip(sums.chunks(frames))
-                .zip(self.weights.row(z))
-            {
-                for (o, &s) in out.iter_mut().zip(sums) {
-                    *o = s / w;
+        let mut rows = series.slice_mut(ndarray::s![self.start..until, .., ..]);
+        let out = rows
+            .as_slice_mut()
+            .ok_or_else(|| Error::Shape("image series must be contiguous".into()))?;
+        let weights = self
+            .weights
+            .as_slice()
+            .expect("an owned array is contiguous");
+        (out.par_chunks_mut(row_len))
+            .zip(self.sums[..done * row_len].par_chunks(row_len))
+            .zip(weights[self.start * nx..until * nx].par_chunks(nx))
+            .for_each(|((out, sums), weights)| {
+                for ((out, sums), &w) in
+                    out.chunks_mut(frames).zip(sums.chunks(frames)).zip(weights)
+                {
+                    for (o, &s) in out.iter_mut().zip(sums) {
+                        *o = s / w;
+                    }
                 }
-            }
-        }
+            });
         let moved = (done * row_len).min(self.sums.len());
         self.sums.copy_within(moved.., 0);
         let kept = self.sums.len() - moved;
