@@ -53,16 +53,13 @@ where
     D: Dimension,
 {
     let shape = shape.into_dimension();
-    let len = shape.size();
-    // (Memory too small is dropped before the new memory is allocated.)
-    let Some(mut memory) = old
-        .map(|array| array.into_raw_vec_and_offset().0)
-        .filter(|memory| memory.capacity() >= len)
-    else {
-        return zeros_in_huge_pages(shape);
-    };
-    memory.clear();
-    resize_zeroed(&mut memory, len);
+    // Emptied, the old memory keeps its room and is zeroed whole where it is reused.
+    let emptied = old.map(|array| {
+        let mut memory = array.into_raw_vec_and_offset().0;
+        memory.clear();
+        memory
+    });
+    let memory = memory_reusing(emptied, shape.size());
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
 }
 
