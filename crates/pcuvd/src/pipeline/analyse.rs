@@ -39,18 +39,9 @@ pub fn analyse(
     let mut timings = Vec::new();
     let bmode_db = beamform::bmode_db(beamform::compounded(&images.series)?.view());
     let clock = Instant::now();
-    let mut reports = Vec::with_capacity(n);
-    let mut scratch = clutter::ClutterScratch::default();
-    for (k, image) in images.series.iter_mut().enumerate() {
-        progress(Stage::Clutter, k, n);
-        reports.push(clutter::svd_filter_reusing(
-            image,
-            &params.clutter,
-            &mut scratch,
-        )?);
-    }
-    // Up to one angle's series of matrices, free before the Doppler stage's compound.
-    drop(scratch);
+    let reports = clutter::svd_filter_each(&mut images.series, &params.clutter, |k| {
+        progress(Stage::Clutter, k, n)
+    })?;
     progress(Stage::Clutter, n, n);
     timings.push((Stage::Clutter, clock.elapsed().as_secs_f64()));
 

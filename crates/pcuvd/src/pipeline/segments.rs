@@ -469,18 +469,9 @@ impl SegmentRun<'_> {
         add_envelope(&mut envelope, &images.series, own.clone());
 
         let clock = std::time::Instant::now();
-        let mut clutter = Vec::with_capacity(n);
-        let mut scratch = clutter::ClutterScratch::default();
-        for (a, image) in images.series.iter_mut().enumerate() {
-            progress(Stage::Clutter, k * n + a, count * n);
-            clutter.push(clutter::svd_filter_reusing(
-                image,
-                &params.clutter,
-                &mut scratch,
-            )?);
-        }
-        // Up to one angle's series of matrices, free before the Doppler stage's compound.
-        drop(scratch);
+        let clutter = clutter::svd_filter_each(&mut images.series, &params.clutter, |a| {
+            progress(Stage::Clutter, k * n + a, count * n)
+        })?;
         add_time(Stage::Clutter, clock.elapsed().as_secs_f64());
         let kept = if self.kept_pixels.is_empty() {
             None

@@ -179,10 +179,7 @@ pub(super) fn filter_blocks_keeping(
             .filter(|za| !cell_rows.contains_key(za))
             .flat_map(|za| (0..x_cuts.len() - 1).map(move |xa| (za, xa)))
             .collect();
-        let grams: Vec<LowerHalf> = (missing.par_iter())
-            .zip(scratch.buffers(missing.len(), frames))
-            .map(|(&cell, buffer)| cell_gram(series, &z_cuts, &x_cuts, cell, buffer))
-            .collect();
+        let grams = cell_grams(series, &z_cuts, &x_cuts, &missing, scratch);
         for ((za, _), gram) in missing.into_iter().zip(grams) {
             cell_rows.entry(za).or_default().push(gram);
         }
@@ -430,6 +427,20 @@ pub(super) fn cell_gram(
     LowerHalf::of(&lower_gram_of_columns(pixels.as_ref()), buffer)
 }
 
+/// The Gram matrices of `cells`, in parallel, in buffers from `scratch`.
+fn cell_grams(
+    series: &Array3<Complex32>,
+    z_cuts: &[usize],
+    x_cuts: &[usize],
+    cells: &[(usize, usize)],
+    scratch: &mut ClutterScratch,
+) -> Vec<LowerHalf> {
+    (cells.par_iter())
+        .zip(scratch.buffers(cells.len(), series.dim().2))
+        .map(|(&cell, buffer)| cell_gram(series, z_cuts, x_cuts, cell, buffer))
+        .collect()
+}
+
 /// The whole image's Gram matrix (lower half), summed from the Gram matrices of the cells that
 /// `z_cuts` and `x_cuts` tile it with (rows of cells in order), and the first rows of cells'
 /// matrices, as many as fit in `kept_bytes`; the others' buffers go back to `scratch`.
@@ -452,10 +463,7 @@ pub(super) fn whole_gram_of_cells(
         let cells: Vec<(usize, usize)> = (group.iter())
             .flat_map(|&za| (0..per_row).map(move |xa| (za, xa)))
             .collect();
-        let mut grams: Vec<LowerHalf> = (cells.par_iter())
-            .zip(scratch.buffers(cells.len(), frames))
-            .map(|(&cell, buffer)| cell_gram(series, z_cuts, x_cuts, cell, buffer))
-            .collect();
+        let mut grams = cell_grams(series, z_cuts, x_cuts, &cells, scratch);
         for gram in &grams {
             gram.add_to(&mut whole);
         }
@@ -499,7 +507,7 @@ pub(super) fn cell_edges(starts: &[usize], size: usize) -> Vec<usize> {
 /// once: on a virtual machine, memory freed and asked for again can cost as much as summing
 /// the matrices.
 #[derive(Debug, Default)]
-pub struct ClutterScratch {
+pub(super) struct ClutterScratch {
     /// Buffers no cell holds now.
     spare: Vec<Vec<c64>>,
 }

@@ -64,8 +64,9 @@ use crate::core::error::{Error, Result, invalid};
 mod blocks;
 mod cut_offs;
 
+pub use blocks::BlockLayout;
+use blocks::ClutterScratch;
 use blocks::*;
-pub use blocks::{BlockLayout, ClutterScratch};
 use cut_offs::*;
 pub use cut_offs::{fit_two_squares, spatial_similarity};
 
@@ -189,9 +190,26 @@ pub fn svd_filter(series: &mut Array3<Complex32>, params: &ClutterParams) -> Res
     svd_filter_reusing(series, params, &mut ClutterScratch::default())
 }
 
-/// [`svd_filter`], with memory kept in `scratch` from the series filtered before (the angles of
-/// one recording, filtered in turn): the same series and report.
-pub fn svd_filter_reusing(
+/// Filters each of `series` (a recording's angles) in turn, as [`svd_filter`] does, calling
+/// `before(k)` before series k: memory one filter asked for serves the next, and is given back
+/// before this returns.
+pub fn svd_filter_each(
+    series: &mut [Array3<Complex32>],
+    params: &ClutterParams,
+    mut before: impl FnMut(usize),
+) -> Result<Vec<ClutterReport>> {
+    let mut scratch = ClutterScratch::default();
+    (series.iter_mut().enumerate())
+        .map(|(k, series)| {
+            before(k);
+            svd_filter_reusing(series, params, &mut scratch)
+        })
+        .collect()
+}
+
+/// [`svd_filter`], with memory kept in `scratch` from the series filtered before: the same
+/// series and report.
+fn svd_filter_reusing(
     series: &mut Array3<Complex32>,
     params: &ClutterParams,
     scratch: &mut ClutterScratch,
