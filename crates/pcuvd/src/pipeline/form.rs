@@ -245,11 +245,7 @@ impl BlockBuffers {
                 memory.clear();
                 memory
             }
-            None => {
-                let mut memory = Vec::with_capacity(room);
-                crate::core::buffers::advise_huge_pages(memory.spare_capacity_mut());
-                memory
-            }
+            None => Vec::with_capacity(room),
         };
         let empty =
             Array3::from_shape_vec((0, trace.0, trace.1), memory).expect("no events, no samples");
