@@ -9,6 +9,8 @@
 //! angles within ±15°, wrapped projections with 1 mm/s of deterministic scatter; flow pixels are
 //! the tubes and a 0.1 mm rim; K = 2, each estimator alone and both at once (as `process` runs
 //! them), against the plain fit of the whole map.
+//! Demodulation: one angle of 90 RF frames, 128 channels, 1903 samples at 65 MHz (the rat
+//! network's records), mixed to baseband and low-pass filtered into rows of frames.
 //! Clutter: a 256 × 256 × 100 series with 5 components cut over the whole image; a 256 × 128 ×
 //! 180 series of slowly moving tissue cut by the auto rule block by block (37-pixel blocks, made
 //! 38 so that half-block steps tile the image).
@@ -16,6 +18,7 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
 use num_complex::Complex32;
+use pcuvd::acquisition::channel::AngleSamples;
 use pcuvd::acquisition::channel::{Acquisition, ChannelData, Samples};
 use pcuvd::core::grid::Grid;
 use pcuvd::estimate::clutter::{ClutterParams, RankCut, svd_filter};
@@ -26,7 +29,7 @@ use pcuvd::estimate::projections::Projections;
 use pcuvd::estimate::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
 use pcuvd::form::beamform::{Apodization, DasParams, beamform};
 use pcuvd::form::decode::{Decoder, EventAlignment};
-use pcuvd::form::iq::IqChannels;
+use pcuvd::form::iq::{IqChannels, demodulate_into};
 use pcuvd::{Coding, Probe, Sequence};
 
 fn das_input(probe: &Probe, frames: usize) -> IqChannels {
@@ -67,6 +70,27 @@ fn das(c: &mut Criterion) {
     group.throughput(Throughput::Elements(points));
     group.bench_function("256x256px_128ch_100fr", |b| {
         b.iter(|| beamform(&iq, &probe, 0.1, &grid, &params).unwrap())
+    });
+    group.finish();
+}
+
+fn demodulate(c: &mut Criterion) {
+    let (frames, channels, samples) = (90, 128, 1903);
+    let rf = AngleSamples::Rf(ndarray::Array4::from_shape_fn(
+        (1, frames, channels, samples),
+        |(_, f, ch, n)| (n as f32 * 1.51 + ch as f32 * 0.3 + f as f32 * 0.07).sin(),
+    ));
+    let mut out = IqChannels {
+        data: Array3::zeros((0, 0, 0)),
+        sampling_frequency: 65e6,
+        t0: 0.0,
+        demod_frequency: 15.625e6,
+    };
+    let mut group = c.benchmark_group("demodulate");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements((frames * channels * samples) as u64));
+    group.bench_function("90fr_128ch_1903s", |b| {
+        b.iter(|| demodulate_into(rf.view(), 0, 0.0, 65e6, 15.625e6, None, &mut out).unwrap())
     });
     group.finish();
 }
@@ -257,5 +281,5 @@ fn dealias(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, das, clutter, decode, dealias);
+criterion_group!(benches, das, demodulate, clutter, decode, dealias);
 criterion_main!(benches);

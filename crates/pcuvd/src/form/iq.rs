@@ -191,12 +191,10 @@ pub fn demodulate_into(
                 let n1 = (n0 + BAND).min(n_samples);
                 let rows = n0.saturating_sub(half)..(n1 + half).min(n_samples);
                 let band = &mut mixed[..rows.len() * stride];
-                for (f, trace) in traces.iter().enumerate() {
-                    let mixed_rows = band.chunks_exact_mut(stride);
-                    let samples = trace[rows.clone()].iter().zip(&mixer[rows.clone()]);
-                    for (row, (&x, &w)) in mixed_rows.zip(samples) {
-                        row[f] = w * x;
-                    }
+                let weights = &mixer[rows.clone()];
+                for (f0, tile) in traces.chunks(MIX_FRAMES).enumerate() {
+                    let tile: Vec<&[f32]> = tile.iter().map(|t| &t[rows.clone()]).collect();
+                    mix_into_rows(band, stride, f0 * MIX_FRAMES, &tile, weights);
                 }
                 fir_same_rows(
                     band,
@@ -219,6 +217,106 @@ pub fn demodulate_into(
 fn padded_channels(iq: &mut IqChannels, shape: (usize, usize, usize)) -> Array3<Complex32> {
     let old = std::mem::replace(&mut iq.data, Array3::zeros((0, 0, 0)));
     padded_rows_reusing(Some(old), shape)
+}
+
+/// Frames mixed side by side into a band's rows at a time ([`mix_into_rows`]).
+const MIX_FRAMES: usize = 8;
+
+/// Row i of `band` (rows of `stride` samples), frames `f0..f0 + tile.len()`, set to
+/// `weights[i]·tile[f][i]`: a tile of frames' traces mixed and laid side by side, a row's run
+/// of frames written whole. One frame at a time wrote a float pair to every row's cache line;
+/// eight frames of eight rows are turned in registers where AVX2 is there (each product the
+/// same single rounding).
+fn mix_into_rows(
+    band: &mut [Complex32],
+    stride: usize,
+    f0: usize,
+    tile: &[&[f32]],
+    weights: &[Complex32],
+) {
+    let rows = weights.len();
+    assert!(band.len() >= rows * stride && f0 + tile.len() <= stride);
+    assert!(tile.iter().all(|trace| trace.len() >= rows));
+    let mut done = 0;
+    #[cfg(target_arch = "x86_64")]
+    if tile.len() == 8 && is_x86_feature_detected!("avx2") {
+        done = rows / 8 * 8;
+        // SAFETY: AVX2 was detected; the asserts above bound every row and trace read or written.
+        unsafe { mix_eight_avx2(band, stride, f0, tile, &weights[..done]) };
+    }
+    for i in done..rows {
+        let row = &mut band[i * stride + f0..i * stride + f0 + tile.len()];
+        for (out, trace) in row.iter_mut().zip(tile) {
+            *out = weights[i] * trace[i];
+        }
+    }
+}
+
+/// [`mix_into_rows`] of 8 frames on a multiple of 8 rows: each 8 × 8 block of samples (frames
+/// × rows) is transposed in registers, and each row's 8 samples are duplicated into (x, x)
+/// pairs and multiplied by the row's weight's (re, im), two 32-byte stores per row.
+///
+/// # Safety
+/// AVX2 must be available; `tile` holds 8 traces of `weights.len()` samples or more, a multiple
+/// of 8, and `band` that many rows of `stride` with frames `f0..f0 + 8` within each.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn mix_eight_avx2(
+    band: &mut [Complex32],
+    stride: usize,
+    f0: usize,
+    tile: &[&[f32]],
+    weights: &[Complex32],
+) {
+    use std::arch::x86_64::*;
+    let out = band.as_mut_ptr().cast::<f32>();
+    let low = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
+    let high = _mm256_setr_epi32(4, 4, 5, 5, 6, 6, 7, 7);
+    for i0 in (0..weights.len()).step_by(8) {
+        // SAFETY: rows i0..i0 + 8 lie within every trace (the caller's bound).
+        let r: [__m256; 8] =
+            std::array::from_fn(|f| unsafe { _mm256_loadu_ps(tile[f].as_ptr().add(i0)) });
+        // The 8 × 8 transpose: r[f][i] → t[i][f].
+        let a0 = _mm256_unpacklo_ps(r[0], r[1]);
+        let a1 = _mm256_unpackhi_ps(r[0], r[1]);
+        let a2 = _mm256_unpacklo_ps(r[2], r[3]);
+        let a3 = _mm256_unpackhi_ps(r[2], r[3]);
+        let a4 = _mm256_unpacklo_ps(r[4], r[5]);
+        let a5 = _mm256_unpackhi_ps(r[4], r[5]);
+        let a6 = _mm256_unpacklo_ps(r[6], r[7]);
+        let a7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let b0 = _mm256_shuffle_ps::<0b01_00_01_00>(a0, a2);
+        let b1 = _mm256_shuffle_ps::<0b11_10_11_10>(a0, a2);
+        let b2 = _mm256_shuffle_ps::<0b01_00_01_00>(a1, a3);
+        let b3 = _mm256_shuffle_ps::<0b11_10_11_10>(a1, a3);
+        let b4 = _mm256_shuffle_ps::<0b01_00_01_00>(a4, a6);
+        let b5 = _mm256_shuffle_ps::<0b11_10_11_10>(a4, a6);
+        let b6 = _mm256_shuffle_ps::<0b01_00_01_00>(a5, a7);
+        let b7 = _mm256_shuffle_ps::<0b11_10_11_10>(a5, a7);
+        let t = [
+            _mm256_permute2f128_ps::<0x20>(b0, b4),
+            _mm256_permute2f128_ps::<0x20>(b1, b5),
+            _mm256_permute2f128_ps::<0x20>(b2, b6),
+            _mm256_permute2f128_ps::<0x20>(b3, b7),
+            _mm256_permute2f128_ps::<0x31>(b0, b4),
+            _mm256_permute2f128_ps::<0x31>(b1, b5),
+            _mm256_permute2f128_ps::<0x31>(b2, b6),
+            _mm256_permute2f128_ps::<0x31>(b3, b7),
+        ];
+        for (k, &x) in t.iter().enumerate() {
+            let w = weights[i0 + k];
+            let pair = _mm256_setr_ps(w.re, w.im, w.re, w.im, w.re, w.im, w.re, w.im);
+            // SAFETY: row i0 + k's frames f0..f0 + 8, 16 floats, lie within `band`.
+            unsafe {
+                let dest = out.add(2 * ((i0 + k) * stride + f0));
+                _mm256_storeu_ps(dest, _mm256_mul_ps(_mm256_permutevar8x32_ps(x, low), pair));
+                _mm256_storeu_ps(
+                    dest.add(8),
+                    _mm256_mul_ps(_mm256_permutevar8x32_ps(x, high), pair),
+                );
+            }
+        }
+    }
 }
 
 /// Output samples per band of the IQ filter, which mixes and filters a band at once: its mixed
@@ -260,6 +358,51 @@ fn fir_same_rows(
 mod tests {
     use super::*;
     use ndarray::Array4;
+
+    /// Mixed rows are, to the bit, each weight times each trace's sample, on row counts around
+    /// the 8-row blocks and tiles of 1 to 8 frames, with the frames of other tiles untouched.
+    #[test]
+    fn mixed_rows_are_each_weight_times_each_sample() {
+        let stride = 24;
+        for rows in [0usize, 1, 7, 8, 9, 16, 21] {
+            for frames in 1..=8 {
+                let traces: Vec<Vec<f32>> = (0..frames)
+                    .map(|f| {
+                        (0..rows + 3)
+                            .map(|i| ((i * 7 + f * 3) as f32 * 0.37).sin() * 1e3)
+                            .collect()
+                    })
+                    .collect();
+                let tile: Vec<&[f32]> = traces.iter().map(|t| &t[..]).collect();
+                let weights: Vec<Complex32> = (0..rows)
+                    .map(|i| Complex32::from_polar(1.0, i as f32 * 0.61))
+                    .collect();
+                let f0 = 5;
+                let sentinel = Complex32::new(f32::NAN, -1.0);
+                let mut band = vec![sentinel; rows * stride];
+                mix_into_rows(&mut band, stride, f0, &tile, &weights);
+                for i in 0..rows {
+                    for c in 0..stride {
+                        let got = band[i * stride + c];
+                        if (f0..f0 + frames).contains(&c) {
+                            let want = weights[i] * traces[c - f0][i];
+                            assert_eq!(
+                                (got.re.to_bits(), got.im.to_bits()),
+                                (want.re.to_bits(), want.im.to_bits()),
+                                "{rows} rows, {frames} frames: row {i}, frame {}",
+                                c - f0
+                            );
+                        } else {
+                            assert!(
+                                got.re.is_nan() && got.im == -1.0,
+                                "column {c} of row {i} written"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     /// The filter of rows of frames is, to the bit, each column's "same" convolution summed term
     /// by term in the order of the window (from its first row in the trace), at the ends where
