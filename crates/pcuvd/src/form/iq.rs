@@ -276,33 +276,8 @@ unsafe fn mix_eight_avx2(
         // SAFETY: rows i0..i0 + 8 lie within every trace (the caller's bound).
         let r: [__m256; 8] =
             std::array::from_fn(|f| unsafe { _mm256_loadu_ps(tile[f].as_ptr().add(i0)) });
-        // The 8 × 8 transpose: r[f][i] → t[i][f].
-        let a0 = _mm256_unpacklo_ps(r[0], r[1]);
-        let a1 = _mm256_unpackhi_ps(r[0], r[1]);
-        let a2 = _mm256_unpacklo_ps(r[2], r[3]);
-        let a3 = _mm256_unpackhi_ps(r[2], r[3]);
-        let a4 = _mm256_unpacklo_ps(r[4], r[5]);
-        let a5 = _mm256_unpackhi_ps(r[4], r[5]);
-        let a6 = _mm256_unpacklo_ps(r[6], r[7]);
-        let a7 = _mm256_unpackhi_ps(r[6], r[7]);
-        let b0 = _mm256_shuffle_ps::<0b01_00_01_00>(a0, a2);
-        let b1 = _mm256_shuffle_ps::<0b11_10_11_10>(a0, a2);
-        let b2 = _mm256_shuffle_ps::<0b01_00_01_00>(a1, a3);
-        let b3 = _mm256_shuffle_ps::<0b11_10_11_10>(a1, a3);
-        let b4 = _mm256_shuffle_ps::<0b01_00_01_00>(a4, a6);
-        let b5 = _mm256_shuffle_ps::<0b11_10_11_10>(a4, a6);
-        let b6 = _mm256_shuffle_ps::<0b01_00_01_00>(a5, a7);
-        let b7 = _mm256_shuffle_ps::<0b11_10_11_10>(a5, a7);
-        let t = [
-            _mm256_permute2f128_ps::<0x20>(b0, b4),
-            _mm256_permute2f128_ps::<0x20>(b1, b5),
-            _mm256_permute2f128_ps::<0x20>(b2, b6),
-            _mm256_permute2f128_ps::<0x20>(b3, b7),
-            _mm256_permute2f128_ps::<0x31>(b0, b4),
-            _mm256_permute2f128_ps::<0x31>(b1, b5),
-            _mm256_permute2f128_ps::<0x31>(b2, b6),
-            _mm256_permute2f128_ps::<0x31>(b3, b7),
-        ];
+        // r[f][i] → t[i][f].
+        let t = crate::core::simd::transpose_8x8(r);
         for (k, &x) in t.iter().enumerate() {
             let w = weights[i0 + k];
             let pair = _mm256_setr_ps(w.re, w.im, w.re, w.im, w.re, w.im, w.re, w.im);

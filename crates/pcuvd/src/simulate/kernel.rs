@@ -717,32 +717,7 @@ unsafe fn insert_avx2(
         let r5 = _mm256_mul_ps(r4, x);
         let r6 = _mm256_mul_ps(r5, x);
         let r7 = _mm256_mul_ps(r6, x);
-        let t0 = _mm256_unpacklo_ps(a, r1);
-        let t1 = _mm256_unpackhi_ps(a, r1);
-        let t2 = _mm256_unpacklo_ps(r2, r3);
-        let t3 = _mm256_unpackhi_ps(r2, r3);
-        let t4 = _mm256_unpacklo_ps(r4, r5);
-        let t5 = _mm256_unpackhi_ps(r4, r5);
-        let t6 = _mm256_unpacklo_ps(r6, r7);
-        let t7 = _mm256_unpackhi_ps(r6, r7);
-        let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
-        let u1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
-        let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
-        let u3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
-        let u4 = _mm256_shuffle_ps::<0x44>(t4, t6);
-        let u5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
-        let u6 = _mm256_shuffle_ps::<0x44>(t5, t7);
-        let u7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
-        let rows = [
-            _mm256_permute2f128_ps::<0x20>(u0, u4),
-            _mm256_permute2f128_ps::<0x20>(u1, u5),
-            _mm256_permute2f128_ps::<0x20>(u2, u6),
-            _mm256_permute2f128_ps::<0x20>(u3, u7),
-            _mm256_permute2f128_ps::<0x31>(u0, u4),
-            _mm256_permute2f128_ps::<0x31>(u1, u5),
-            _mm256_permute2f128_ps::<0x31>(u2, u6),
-            _mm256_permute2f128_ps::<0x31>(u3, u7),
-        ];
+        let rows = crate::core::simd::transpose_8x8([a, r1, r2, r3, r4, r5, r6, r7]);
         for (o, row) in rows.into_iter().enumerate() {
             let s = start[i + o] as usize;
             assert!(s < len, "row start inside the accumulator");
