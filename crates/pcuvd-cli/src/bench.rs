@@ -112,6 +112,27 @@ fn memory_bandwidth() -> (f64, f64) {
     (best(false), best(true))
 }
 
+/// Bytes per second at which fresh memory is faulted in and cleared, on every core: 256 MiB
+/// asked for anew and written once, less the time of writing it again. Measured before any
+/// other buffer of the bench, as a run first touches its arrays. The copy bandwidth does not
+/// show it, and it differs between machines more: on a virtual machine whose host takes freed
+/// memory back, each page is backed again as it is touched.
+fn fresh_memory_rate() -> f64 {
+    use rayon::prelude::*;
+    let len = 256 << 20;
+    let chunk = len / rayon::current_num_threads().max(1);
+    // Zeroed by the allocator: new pages, mapped as they are first written.
+    let mut memory = vec![0u8; len];
+    let mut fill = |value: u8| {
+        let clock = Instant::now();
+        memory.par_chunks_mut(chunk).for_each(|c| c.fill(value));
+        std::hint::black_box(&memory);
+        clock.elapsed().as_secs_f64()
+    };
+    let (first, again) = (fill(1), fill(2));
+    len as f64 / (first - again).max(1e-9)
+}
+
 /// Fused multiply-add instructions per second on every core at once, `bits` wide (512: AVX-512,
 /// 256: AVX2 + FMA), the best of three: twelve independent chains per thread, enough to keep
 /// two FMA units busy through their latency. The beamformer's arithmetic bound is this rate
@@ -296,6 +317,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         (None, None) => bail!("give a recording to time, or --scenario"),
     };
     let (model, features, threads) = cpu();
+    let fresh = fresh_memory_rate();
     let (copy_one, copy_all) = memory_bandwidth();
     let kernel = pcuvd::form::beamform::accumulation_kernel();
     let fma_per_s = kernel.vector_bits.and_then(fma_rate);
@@ -373,6 +395,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         "processing": &args.options,
         "machine": { "cpu": model, "features": features, "threads": threads },
         "memory_bandwidth_bytes_per_s": { "one_core": copy_one, "all_cores": copy_all },
+        "fresh_memory_bytes_per_s": fresh,
         "recording": {
             "pixels": pixels, "elements": elements, "images": images,
             "samples_bytes_as_f32": input_bytes,
@@ -413,9 +436,11 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         features.join(", ")
     );
     println!(
-        "  memory       copy {:.1} GB/s on one core, {:.1} GB/s on all (read + write)",
+        "  memory       copy {:.1} GB/s on one core, {:.1} GB/s on all (read + write); fresh \
+         pages {:.1} GB/s on all (faulted in and cleared)",
         copy_one * 1e-9,
-        copy_all * 1e-9
+        copy_all * 1e-9,
+        fresh * 1e-9
     );
     println!(
         "  read         {:.3} s (open and parse the file)",
