@@ -3,6 +3,9 @@
 /// The 8 × 8 transpose of eight AVX vectors of 8 floats: out[i][j] = rows[j][i]. Kernels that
 /// compute across one axis and store along the other (the simulator's powers per scatterer, the
 /// demodulator's frames per row) turn their vectors with it; the values move unchanged.
+///
+/// # Safety
+/// AVX2 must be available: callable without `unsafe` only from functions compiled for it.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
