@@ -18,8 +18,7 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
 use num_complex::Complex32;
-use pcuvd::acquisition::channel::AngleSamples;
-use pcuvd::acquisition::channel::{Acquisition, ChannelData, Samples};
+use pcuvd::acquisition::channel::{Acquisition, AngleSamples, ChannelData, Samples};
 use pcuvd::core::grid::Grid;
 use pcuvd::estimate::clutter::{ClutterParams, RankCut, svd_filter};
 use pcuvd::estimate::dealias::{

@@ -357,9 +357,14 @@ pub(super) struct LowerHalf {
 }
 
 impl LowerHalf {
+    /// Entries in the lower half of a square matrix of `order`.
+    fn entries(order: usize) -> usize {
+        order * (order + 1) / 2
+    }
+
     /// Bytes the lower half of a square matrix of `order` takes.
     pub(super) fn bytes(order: usize) -> usize {
-        order * (order + 1) / 2 * std::mem::size_of::<c64>()
+        Self::entries(order) * std::mem::size_of::<c64>()
     }
 
     /// The lower half of the square `matrix`, in `buffer`'s memory.
@@ -367,7 +372,7 @@ impl LowerHalf {
         let order = matrix.nrows();
         let mut entries = buffer;
         entries.clear();
-        entries.reserve(order * (order + 1) / 2);
+        entries.reserve(Self::entries(order));
         for j in 0..order {
             entries.extend((j..order).map(|i| matrix[(i, j)]));
         }
@@ -518,7 +523,7 @@ impl ClutterScratch {
     /// them: memory a pool thread allocates stays in its own arena once freed, and the process
     /// would hold it through the stages after the filter.
     fn buffers(&mut self, count: usize, order: usize) -> Vec<Vec<c64>> {
-        let entries = order * (order + 1) / 2;
+        let entries = LowerHalf::entries(order);
         (0..count)
             .map(|_| (self.spare.pop()).unwrap_or_else(|| Vec::with_capacity(entries)))
             .collect()

@@ -65,7 +65,6 @@ mod blocks;
 mod cut_offs;
 
 pub use blocks::BlockLayout;
-use blocks::ClutterScratch;
 use blocks::*;
 use cut_offs::*;
 pub use cut_offs::{fit_two_squares, spatial_similarity};
