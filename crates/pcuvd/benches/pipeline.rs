@@ -1,7 +1,10 @@
 //! Throughput of the pipeline's heavy stages, in release builds on the machine at hand.
 //!
 //! DAS: 256 × 256 pixels, 128 channels, 100 frames, full receive aperture (every channel
-//! contributes to every pixel, so every counted pixel·channel·frame point is real work).
+//! contributes to every pixel, so every counted pixel·channel·frame point is real work); once
+//! into a new image, as `beamform` returns it, and once into one image reused, as the pipeline's
+//! blocks are: the difference is faulting in the new image's 52 MB, which on a virtual machine
+//! whose balloon hands freed pages back to the host costs a tenth of the time.
 //! Decoding: a coded RF recording of 8 angles × 100 frames, 128 channels, 1000 samples (65 MHz,
 //! 1 µs slots: whole-sample slot shifts, as in the rat setting), with the
 //! events taken as simultaneous and aligned to mid-frame (the extra slow-time resampling).
@@ -26,7 +29,7 @@ use pcuvd::estimate::dealias::{
 };
 use pcuvd::estimate::projections::Projections;
 use pcuvd::estimate::vector::{Estimator, IrlsParams, projection_weights, vector_velocity};
-use pcuvd::form::beamform::{Apodization, DasParams, beamform};
+use pcuvd::form::beamform::{Apodization, DasParams, beamform, beamform_into};
 use pcuvd::form::decode::{Decoder, EventAlignment};
 use pcuvd::form::iq::{IqChannels, demodulate_into};
 use pcuvd::{Coding, Probe, Sequence};
@@ -69,6 +72,10 @@ fn das(c: &mut Criterion) {
     group.throughput(Throughput::Elements(points));
     group.bench_function("256x256px_128ch_100fr", |b| {
         b.iter(|| beamform(&iq, &probe, 0.1, &grid, &params).unwrap())
+    });
+    let mut image = Array3::<Complex32>::zeros((256, 256, frames));
+    group.bench_function("into_256x256px_128ch_100fr", |b| {
+        b.iter(|| beamform_into(&iq, &probe, 0.1, &grid, &params, image.view_mut()).unwrap())
     });
     group.finish();
 }
