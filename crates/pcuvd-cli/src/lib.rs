@@ -38,6 +38,8 @@ enum Command {
     /// Show what pcuvd understood of a recording (format, shapes, acquisition, derived rates, memory), without processing it.
     Info(info::InfoArgs),
     /// Time each stage on a recording and report its throughput beside its bound (memory bandwidth; the beamformer's points/s beside its arithmetic bound), naming the CPU: a speed report to run by hand in a release build.
+    ///
+    /// With PCUVD_BEAMFORM_KERNEL=avx2 (or portable) in its environment, the beamformer runs that kernel where the CPU has a faster one: what a CPU without AVX-512 would spend there.
     Bench(bench::BenchArgs),
     /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),

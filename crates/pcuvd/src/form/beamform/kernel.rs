@@ -10,6 +10,10 @@ use super::avx512;
 use super::portable;
 use super::taps::{PF, Setup, Span, Taps};
 
+/// The environment variable that picks a slower beamformer kernel than this CPU's fastest
+/// ([`Kernel::detect`]); `pcuvd bench` names the kernel that ran.
+pub const KERNEL_VARIABLE: &str = "PCUVD_BEAMFORM_KERNEL";
+
 /// The accumulation kernel in use: chosen once per call from the running CPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Kernel {
@@ -50,9 +54,34 @@ impl Kernel {
         })
     }
 
-    /// The fastest kernel this CPU runs.
+    /// The fastest kernel this CPU runs, or the one that the environment variable
+    /// [`KERNEL_VARIABLE`] names (`avx2`, `portable`) where this CPU runs it: a speed report of
+    /// what a CPU without AVX-512 would spend in the beamformer, taken on one that has it.
     pub(super) fn detect() -> Kernel {
-        Kernel::supported()[0]
+        use std::sync::OnceLock;
+        static CHOSEN: OnceLock<Kernel> = OnceLock::new();
+        *CHOSEN.get_or_init(|| {
+            let named = std::env::var(KERNEL_VARIABLE).ok();
+            Kernel::named(named.as_deref(), Kernel::supported())
+        })
+    }
+
+    /// The kernel of `name` (`avx512`, `avx2`, `portable`; any case) among `supported`, else
+    /// the first of them: a name this CPU cannot run, or no name, leaves the fastest.
+    fn named(name: Option<&str>, supported: &[Kernel]) -> Kernel {
+        let wanted = name.and_then(|name| {
+            supported.iter().copied().find(|kernel| {
+                let label = match kernel {
+                    #[cfg(target_arch = "x86_64")]
+                    Kernel::Avx512 => "avx512",
+                    #[cfg(target_arch = "x86_64")]
+                    Kernel::Avx2 => "avx2",
+                    Kernel::Portable => "portable",
+                };
+                name.trim().eq_ignore_ascii_case(label)
+            })
+        });
+        wanted.unwrap_or(supported[0])
     }
 
     /// What the kernel is, for a speed report (see [`super::AccumulationKernel`]).
@@ -320,9 +349,37 @@ mod tests {
     }
 
     #[test]
-    fn detect_picks_the_first_supported_kernel() {
+    fn detect_picks_the_first_supported_kernel_unless_one_is_named() {
         let supported = Kernel::supported();
-        assert_eq!(Kernel::detect(), supported[0]);
+        let named = std::env::var(KERNEL_VARIABLE).ok();
+        assert_eq!(Kernel::detect(), Kernel::named(named.as_deref(), supported));
+        assert_eq!(Kernel::named(None, supported), supported[0]);
         assert_eq!(supported.last(), Some(&Kernel::Portable));
+    }
+
+    #[test]
+    fn a_named_kernel_is_taken_only_where_the_cpu_runs_it() {
+        let portable_only = [Kernel::Portable];
+        assert_eq!(
+            Kernel::named(Some("portable"), &portable_only),
+            Kernel::Portable
+        );
+        #[cfg(target_arch = "x86_64")]
+        {
+            let all = [Kernel::Avx512, Kernel::Avx2, Kernel::Portable];
+            assert_eq!(Kernel::named(Some("avx2"), &all), Kernel::Avx2);
+            assert_eq!(Kernel::named(Some(" AVX2 "), &all), Kernel::Avx2);
+            assert_eq!(Kernel::named(Some("portable"), &all), Kernel::Portable);
+            assert_eq!(Kernel::named(Some("avx512"), &all), Kernel::Avx512);
+            // Unknown, empty or unsupported names leave the fastest.
+            assert_eq!(Kernel::named(Some("sse"), &all), Kernel::Avx512);
+            assert_eq!(Kernel::named(Some(""), &all), Kernel::Avx512);
+            let no_avx512 = [Kernel::Avx2, Kernel::Portable];
+            assert_eq!(Kernel::named(Some("avx512"), &no_avx512), Kernel::Avx2);
+            assert_eq!(
+                Kernel::named(Some("avx2"), &portable_only),
+                Kernel::Portable
+            );
+        }
     }
 }

@@ -28,6 +28,7 @@ mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 mod kernel;
+pub use kernel::KERNEL_VARIABLE;
 mod portable;
 mod taps;
 mod tiling;
@@ -120,7 +121,8 @@ pub struct AccumulationKernel {
     pub fma_per_point: Option<f64>,
 }
 
-/// The accumulation kernel [`beamform`] runs on this CPU (the widest it supports).
+/// The accumulation kernel [`beamform`] runs on this CPU: the widest it supports, or the one
+/// [`KERNEL_VARIABLE`] names.
 pub fn accumulation_kernel() -> AccumulationKernel {
     Kernel::detect().describe()
 }
