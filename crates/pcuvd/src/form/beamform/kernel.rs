@@ -14,7 +14,7 @@ use super::taps::{PF, Setup, Span, Taps};
 /// ([`Kernel::detect`]); `pcuvd bench` names the kernel that ran.
 pub const KERNEL_VARIABLE: &str = "PCUVD_BEAMFORM_KERNEL";
 
-/// The accumulation kernel in use: chosen once per call from the running CPU.
+/// The accumulation kernel in use: chosen once per process from the running CPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Kernel {
     /// Explicit AVX-512 (F, DQ) on interleaved complex frames, eight frames per vector, the last
@@ -66,19 +66,14 @@ impl Kernel {
         })
     }
 
-    /// The kernel of `name` (`avx512`, `avx2`, `portable`; any case) among `supported`, else
-    /// the first of them: a name this CPU cannot run, or no name, leaves the fastest.
+    /// The kernel of `name` among `supported`, else the first of them: a name this CPU cannot
+    /// run, or no name, leaves the fastest. The name is the speed report's (`describe`) without
+    /// its hyphen, in any case: `avx512`, `avx2`, `portable`.
     fn named(name: Option<&str>, supported: &[Kernel]) -> Kernel {
         let wanted = name.and_then(|name| {
             supported.iter().copied().find(|kernel| {
-                let label = match kernel {
-                    #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx512 => "avx512",
-                    #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx2 => "avx2",
-                    Kernel::Portable => "portable",
-                };
-                name.trim().eq_ignore_ascii_case(label)
+                let label = kernel.describe().name.replace('-', "");
+                name.trim().eq_ignore_ascii_case(&label)
             })
         });
         wanted.unwrap_or(supported[0])
