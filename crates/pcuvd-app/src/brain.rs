@@ -569,6 +569,54 @@ pub fn cached_simulation(
     Ok((folder, false))
 }
 
+/// A run's notes held back until it ends: the study says why a method has no RI maps in its
+/// summary line, figures and report, so the run's own note of it (written for `pcuvd process`,
+/// naming options the study does not take) is dropped; every other note is passed on, naming
+/// the recording.
+struct HeldNotes<'a> {
+    progress: &'a dyn Progress,
+    notes: std::sync::Mutex<Vec<String>>,
+}
+
+impl<'a> HeldNotes<'a> {
+    fn new(progress: &'a dyn Progress) -> Self {
+        HeldNotes {
+            progress,
+            notes: std::sync::Mutex::new(Vec::new()),
+        }
+    }
+
+    /// Passes on the notes of the `recording`'s run, but that of its RI maps `skipped` (the
+    /// dynamics stage's reason), if any.
+    fn pass_on(self, recording: &str, skipped: Option<&str>) {
+        let notes = self.notes.into_inner().unwrap_or_else(|e| e.into_inner());
+        for note in notes {
+            if skipped.is_some_and(|reason| note.contains(reason)) {
+                continue;
+            }
+            self.progress
+                .note(&format!("brain, {recording} recording: {note}"));
+        }
+    }
+}
+
+impl Progress for HeldNotes<'_> {
+    fn update(&self, task: &str, done: usize, total: usize) {
+        self.progress.update(task, done, total);
+    }
+
+    fn note(&self, text: &str) {
+        self.notes
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(text.to_string());
+    }
+
+    fn report(&self, text: &str) {
+        self.progress.report(text);
+    }
+}
+
 /// Runs the brain study: simulation (or the cache), processing, scores.
 pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStudy> {
     let scenario = settings.scenario()?;
@@ -623,13 +671,19 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             scored = Some((diameter, lumen));
         }
         plan.kept_pixels = sites.iter().map(|s| s.pixel).collect();
+        let held = HeldNotes::new(progress);
         let Processed {
             out,
             dynamics,
             kept,
             ..
-        } = crate::run::run(source, &plan, progress)
+        } = crate::run::run(source, &plan, &held)
             .with_context(|| format!("brain study: processing {}", path.display()))?;
+        let skipped = match &dynamics {
+            DynamicsOutcome::Skipped(reason) => Some(reason.as_str()),
+            DynamicsOutcome::Done { .. } => None,
+        };
+        held.pass_on(name, skipped);
         // The run hands its maps over whole (shared only with a later re-run of its dynamics).
         let mut out = Arc::into_inner(out).context("the run's maps are shared")?;
         // The filtered series (the largest thing a mode holds) has given all it will.
@@ -719,6 +773,44 @@ mod tests {
     use pcuvd::dynamics::{ARTERIOLE, VENULE};
     use pcuvd::simulate::phantom::Truth;
     use pcuvd::simulate::phantom::network::NetworkTruth;
+
+    /// Notes kept by a progress that records them.
+    #[derive(Default)]
+    struct Recorded(std::sync::Mutex<Vec<String>>);
+
+    impl Progress for Recorded {
+        fn update(&self, _task: &str, _done: usize, _total: usize) {}
+        fn note(&self, text: &str) {
+            self.0.lock().unwrap().push(text.to_string());
+        }
+        fn report(&self, _text: &str) {}
+    }
+
+    #[test]
+    fn a_run_note_of_skipped_ri_maps_is_dropped_and_every_other_passed_on() {
+        let reason = "invalid recording: 10.0 ms of waveform is too short";
+        let recorded = Recorded::default();
+        let held = HeldNotes::new(&recorded);
+        held.note("the grid was clipped to the recorded depth");
+        held.note(&format!(
+            "no RI maps: {reason} (--dynamics off silences this)"
+        ));
+        assert!(
+            recorded.0.lock().unwrap().is_empty(),
+            "held until the run ends"
+        );
+        held.pass_on("coded", Some(reason));
+        assert_eq!(
+            *recorded.0.lock().unwrap(),
+            ["brain, coded recording: the grid was clipped to the recorded depth"]
+        );
+        // Without a skipped stage nothing is dropped.
+        let recorded = Recorded::default();
+        let held = HeldNotes::new(&recorded);
+        held.note("no RI maps: something else");
+        held.pass_on("conventional", None);
+        assert_eq!(recorded.0.lock().unwrap().len(), 1);
+    }
 
     fn truth_with(vx: f64, vz: f64, (nz, nx): (usize, usize)) -> SimulatedTruth {
         let mut truth = Truth::empty(nz, nx);

@@ -538,12 +538,17 @@ pub fn summary_line(m: &BrainMetrics) -> String {
             "; deepest third {:.2} vs {:.2} ({:.0} %)",
             d.uvd.rmse_mm_s, d.pcuvd.rmse_mm_s, d.improvement_pct
         )),
-        ri.and_then(|r| r.pcuvd).map_or(String::new(), |r| format!(
-            "; PC-UVD RI median |error| {:.3}, class right {:.1} % ({} px)",
-            r.median_abs_error,
-            100.0 * r.class_accuracy,
-            r.pixels
-        )),
+        ri.and_then(|r| r.pcuvd).map_or_else(
+            || m.ri_skipped.first().map_or(String::new(), |skipped| {
+                format!("; no RI maps: {}", refusal(skipped))
+            }),
+            |r| format!(
+                "; PC-UVD RI median |error| {:.3}, class right {:.1} % ({} px)",
+                r.median_abs_error,
+                100.0 * r.class_accuracy,
+                r.pixels
+            )
+        ),
         m.contrast_by_depth
             .iter()
             .map(|b| format!("{:.1}", b.gain_db))
@@ -703,15 +708,21 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
     }
 }
 
-/// Why a method has no RI maps, short enough for a panel's title: the reason's first clause
-/// (what the dynamics stage refused), without the error's kind.
-fn no_ri_reason(skipped: &str) -> String {
-    const MOST: usize = 44;
+/// The first clause of why a method has no RI maps (what the dynamics stage refused), without
+/// the error's kind.
+fn refusal(skipped: &str) -> &str {
     let reason = skipped
         .rsplit("invalid recording: ")
         .next()
         .unwrap_or(skipped);
-    let clause = reason.split([';', '(']).next().unwrap_or(reason).trim();
+    reason.split([';', '(']).next().unwrap_or(reason).trim()
+}
+
+/// Why a method has no RI maps, short enough for a panel's title: the reason's first clause
+/// (what the dynamics stage refused), without the error's kind.
+fn no_ri_reason(skipped: &str) -> String {
+    const MOST: usize = 44;
+    let clause = refusal(skipped);
     if clause.chars().count() <= MOST {
         clause.to_string()
     } else {
