@@ -29,94 +29,13 @@ use serde_json::json;
 use crate::array::{ArrayFrames, Axis};
 use crate::error::IoError;
 use crate::hdf5::Hdf5;
+pub use crate::layout::{FrameTiming, frame_timing};
 use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
 use crate::recording::{
     DEFAULT_BANDWIDTH, DEFAULT_PULSE_CYCLES, OpenedRecording, PlaneWaveAcquisition, SourceInfo,
     StoredSamples, plane_wave_angle, resolve_bandwidth,
 };
-
-/// A zea track's frame timing, from its `time_to_next_transmit` intervals.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameTiming {
-    /// pcuvd's event PRF (Hz): n_tx over the median frame period, so that each angle's slow-time
-    /// rate (the frame rate) is right whatever the spacing within a frame.
-    pub event_prf: f64,
-    /// True when the transmits of a frame are 0 s apart: one time per frame, as a coded
-    /// acquisition's angles have once decoded (the frame's decoding time).
-    pub simultaneous: bool,
-    /// Said when frames are separated by a pause that the spacing within a frame does not give.
-    pub warning: Option<String>,
-}
-
-/// The frame timing of `intervals` (s; zea's `time_to_next_transmit`, frame by frame) of a
-/// recording of `n_tx` transmits per frame. Intervals within a frame may be 0 (angles stored
-/// decoded, at their frame's time) but not some 0 and some not; a frame must last > 0.
-pub fn frame_timing(intervals: &[f64], n_tx: usize) -> Result<FrameTiming, String> {
-    if n_tx == 0 || intervals.len() < n_tx.max(1) {
-        return Err(format!(
-            "holds {} intervals: fewer than one frame of {n_tx} transmits",
-            intervals.len()
-        ));
-    }
-    if let Some(v) = intervals.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
-        return Err(format!(
-            "holds an interval of {v} s (must be finite and ≥ 0)"
-        ));
-    }
-    // Frame k starts at the sum of the intervals before transmit k·n_tx.
-    let mut periods: Vec<f64> = intervals
-        .chunks_exact(n_tx)
-        .map(|frame| frame.iter().sum())
-        .collect();
-    if let Some(k) = periods.iter().position(|&p| p <= 0.0) {
-        return Err(format!(
-            "gives frame {} a duration of 0 s: its transmits and the next frame's are at one time",
-            k + 1
-        ));
-    }
-    periods.sort_by(f64::total_cmp);
-    let period = periods[periods.len() / 2];
-    let event_prf = n_tx as f64 / period;
-    let mut within: Vec<f64> = intervals
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| i % n_tx != n_tx - 1)
-        .map(|(_, &v)| v)
-        .collect();
-    let zeros = within.iter().filter(|&&v| v == 0.0).count();
-    if zeros > 0 && zeros < within.len() {
-        return Err(format!(
-            "puts {zeros} of the {} transmit pairs within frames at one time and the others \
-             apart: a frame's transmits are either all at its time (stored decoded) or fired one \
-             after another",
-            within.len()
-        ));
-    }
-    let simultaneous = !within.is_empty() && zeros == within.len();
-    within.sort_by(f64::total_cmp);
-    let warning = within
-        .get(within.len() / 2)
-        .filter(|_| !simultaneous)
-        .and_then(|&spacing| {
-            ((spacing * n_tx as f64 - period).abs() > 0.01 * period).then(|| {
-                format!(
-                    "the transmits of a frame are {:.1} µs apart but frames start every {:.1} µs: \
-                     pcuvd takes the frame rate (each angle's Doppler sampling rate) from the \
-                     frame period, i.e. an event PRF of {:.1} Hz, not 1/{:.1} µs",
-                    spacing * 1e6,
-                    period * 1e6,
-                    event_prf,
-                    spacing * 1e6
-                )
-            })
-        });
-    Ok(FrameTiming {
-        event_prf,
-        simultaneous,
-        warning,
-    })
-}
 
 /// The polarity (±1) of each transmit from zea's `tx_apodizations` (n_tx rows of `n_el`, in
 /// [−1, 1], negative = fired with opposite polarity): the sign shared by the elements that fire.
