@@ -255,7 +255,7 @@ def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
     overrides: acquisition fields that replace (or fill in) what the file says, in SI units:
     sampling_freq_hz, sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding
     ("none", "hadamard"), slot_delay_s, pulse_cycles, bandwidth (fractional, 0.6 = 60 %), track
-    (a zea file's track, by index or label);
+    (a zea file's track by index or label, a URX file's recorded group by index or description);
     `parameters` then names them as given by the user (a MUST file without param.t0 reads with
     t0_s=...). Raises OSError when the file cannot be opened, ValueError when its content or an
     override is unusable (the message the CLI prints), TypeError when `path` is not a path.

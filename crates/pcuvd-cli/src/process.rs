@@ -92,8 +92,9 @@ pub struct AcquisitionOverrides {
     /// it (pcuvd then takes 67 %, or the widest band the sampling holds) or states it wrongly.
     #[arg(long)]
     pub bandwidth: Option<f64>,
-    /// The track to read from a file of several (zea / OpenH-RF): its index N (tracks/track_N)
-    /// or its label; default the first with raw data (`pcuvd info` lists them).
+    /// The track to read from a file of several: zea / OpenH-RF, its index N (tracks/track_N) or
+    /// its label; URX, the recorded group's index or description; default the first with raw
+    /// data (`pcuvd info` lists them).
     #[arg(long)]
     pub track: Option<String>,
 }

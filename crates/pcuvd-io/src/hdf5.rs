@@ -1,4 +1,4 @@
-//! HDF5 files (MATLAB v7.3, USTB UFF, zea / OpenH-RF, Verasonics workspaces), read without a
+//! HDF5 files (MATLAB v7.3, USTB UFF, zea / OpenH-RF, URX, Verasonics workspaces), read without a
 //! system libhdf5.
 //!
 //! The crate is `rust-hdf5` (pure Rust, MIT): of the three pure-Rust readers the ecosystem notes

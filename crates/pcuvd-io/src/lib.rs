@@ -43,7 +43,7 @@ pub mod readers;
 pub mod recording;
 
 pub use readers::manifest::frames;
-pub use readers::{uff, verasonics, zea};
+pub use readers::{uff, urx, verasonics, zea};
 
 /// MUST/PyMUST-style recordings: the reader [`readers::must`], and [`read_must_mat`], which reads
 /// one whole through the format detection ([`open_recording`]) above the readers.

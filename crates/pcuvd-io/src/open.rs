@@ -18,7 +18,8 @@ pub use crate::recording::{OpenedRecording, SourceInfo, StoredSamples};
 pub const FORMATS: &str = "MUST/PyMUST MATLAB (v5 or v7.3: RF or IQ + param), a PyMUST-style \
      NumPy .npz (RF or IQ + param fields), USTB UFF (.uff, /channel_data), zea / OpenH-RF \
      (.hdf5, /data/raw_data or /tracks), a Verasonics workspace saved with -v7.3 (RcvData, \
-     Receive, Trans), and a pcuvd recording manifest (.toml) naming .npy, .npz, HDF5 or MATLAB \
+     Receive, Trans), URX (.urx, /dataset/acquisition: plane waves, linear array), and a pcuvd \
+     recording manifest (.toml) naming .npy, .npz, HDF5 or MATLAB \
      samples";
 
 /// A short description of what an unrecognised file looks like.
@@ -122,8 +123,12 @@ fn open_hdf5(path: &Path, overrides: &Overrides, ext: &str) -> Result<OpenedReco
     if (has("RF") || has("IQ")) && has("param") {
         return crate::readers::must::open_v73(path, &h5, overrides);
     }
+    if has("dataset") && h5.is_group(crate::readers::urx::ACQUISITION) {
+        return crate::readers::urx::open(path, &h5, overrides);
+    }
     let ext_hint = match ext {
         "uff" => " (the .uff extension suggests USTB UFF, but there is no /channel_data group)",
+        "urx" => " (the .urx extension suggests URX, but there is no /dataset/acquisition group)",
         "mat" => " (a MATLAB v7.3 file without the variables of a known layout)",
         "hdf5" | "h5" => "",
         _ => "",

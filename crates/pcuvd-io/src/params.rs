@@ -193,11 +193,18 @@ pub fn missing_t0(path: &Path, field: &str) -> IoError {
 
 /// The error for an event PRF that the file does not hold.
 pub fn missing_prf(path: &Path, field: &str) -> IoError {
+    underivable_prf(path, field, "is absent")
+}
+
+/// The error for an event PRF that `field` cannot give, `why` saying what it holds instead.
+pub fn underivable_prf(path: &Path, field: &str, why: &str) -> IoError {
     IoError::invalid(
         path,
         field,
-        "is absent: pcuvd needs the transmit-event repetition frequency (every Doppler velocity \
-         scales with it). Give it with --event-prf-hz HZ (pcuvd process / pcuvd info), \
-         event_prf_hz= (Python read_recording) or [acquisition].event_prf_hz in a manifest",
+        format!(
+            "{why}: pcuvd needs the transmit-event repetition frequency (every Doppler velocity \
+             scales with it). Give it with --event-prf-hz HZ (pcuvd process / pcuvd info), \
+             event_prf_hz= (Python read_recording) or [acquisition].event_prf_hz in a manifest"
+        ),
     )
 }

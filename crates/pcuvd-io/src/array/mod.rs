@@ -214,6 +214,18 @@ pub enum Backing {
         /// Imaginary parts, for complex values.
         imag: Option<Arc<Vec<f64>>>,
     },
+    /// An HDF5 dataset of `rows` × `columns` (or `rows` alone) whose values in C order are the
+    /// array's in C order: a URX group's `raw_data`, one row per sample (two columns, the real and
+    /// imaginary parts, for complex samples), its shape given by the group's events. A selection
+    /// reads the rows between its first and last element.
+    Hdf5Flat {
+        /// The file.
+        path: PathBuf,
+        /// The dataset.
+        dataset: String,
+        /// Values per row of a 2-D dataset; `None` for a 1-D one.
+        columns: Option<usize>,
+    },
     /// An HDF5 dataset, or two (the real and imaginary parts, as USTB stores complex data).
     Hdf5 {
         /// The file.
@@ -277,7 +289,9 @@ impl StoredArray {
     /// The file the values are read from, when not already in memory.
     pub fn file(&self) -> Option<&Path> {
         match &self.backing {
-            Backing::File { path, .. } | Backing::Hdf5 { path, .. } => Some(path),
+            Backing::File { path, .. }
+            | Backing::Hdf5 { path, .. }
+            | Backing::Hdf5Flat { path, .. } => Some(path),
             _ => None,
         }
     }
@@ -352,6 +366,35 @@ impl StoredArray {
                     Block::Real(a) => Block::Real(standard(a.permuted_axes(order))),
                     Block::Complex(a) => Block::Complex(standard(a.permuted_axes(order))),
                 })
+            }
+            Backing::Hdf5Flat {
+                path,
+                dataset,
+                columns,
+            } => {
+                if n == 0 {
+                    return finish(&counts, vec![], None);
+                }
+                let (mut lo, mut hi) = (usize::MAX, 0usize);
+                for_each_index_bounds(&self.shape, false, ranges, &mut lo, &mut hi);
+                let width = columns.unwrap_or(1);
+                let rows = lo / width..hi / width + 1;
+                let (slab, slab_counts) = match columns {
+                    None => (vec![rows.clone()], vec![rows.len()]),
+                    Some(k) => (vec![rows.clone(), 0..*k], vec![rows.len(), *k]),
+                };
+                let span = match read_hdf5(path, dataset, None, self.dtype, &slab, &slab_counts)? {
+                    Block::Real(a) => a.into_raw_vec_and_offset().0,
+                    Block::Complex(_) => {
+                        return Err(IoError::malformed(path, "a flat dataset of complex values"));
+                    }
+                };
+                let base = rows.start * width;
+                let mut re = Vec::with_capacity(n);
+                for_each_row(&self.shape, false, ranges, order, |first, stride, count| {
+                    re.extend((0..count).map(|i| span[first - base + i * stride]));
+                });
+                finish(&counts, re, None)
             }
             Backing::Values { real, imag } => {
                 let mut re = Vec::with_capacity(n);

@@ -1,6 +1,6 @@
 //! Every reader against files written by the format's own, independent writer
 //! (`tests/fixtures/readers/make_reader_fixtures.py`: numpy, hdf5storage, pyuff-ustb, zea, scipy,
-//! PyMUST): the real rotating disk (its first 8 transmits) in each format gives the samples and
+//! PyMUST; `make_urx_fixtures.py`: ultrasound-rawdata-exchange, Moduleus' URX): the real rotating disk (its first 8 transmits) in each format gives the samples and
 //! the maps of the original `.mat`; a steered recording simulated by pcuvd gives back its angles,
 //! PRF and t0; reading a block of frames at a time gives the frames read whole, bit for bit.
 
@@ -66,6 +66,23 @@ fn relative(a: &ndarray::Array2<f64>, b: &ndarray::Array2<f64>) -> f64 {
     diff / scale
 }
 
+/// The fixture `name` read from its track (zea) or recorded group (URX) `track`.
+fn open_track(name: &str, track: &str) -> Result<OpenedRecording, pcuvd_io::IoError> {
+    let overrides = Overrides {
+        track: Some(track.into()),
+        ..Overrides::default()
+    };
+    open_recording(&fixture(name), &overrides)
+}
+
+/// The first event's RF records (channels × samples), as a (1, channels, samples) array.
+fn first_event_rf(data: &ChannelData) -> ndarray::Array3<f32> {
+    let Samples::Rf(rf) = &data.samples else {
+        panic!("RF expected")
+    };
+    rf.slice(ndarray::s![0..1, .., ..]).to_owned()
+}
+
 /// Frames read in blocks of `block` equal the frames read whole, bit for bit.
 fn assert_blocks_match_whole(name: &str, source: &dyn FrameSource, block: usize) {
     let n = source.n_frames();
@@ -92,7 +109,7 @@ fn assert_blocks_match_whole(name: &str, source: &dyn FrameSource, block: usize)
     }
 }
 
-const DISK_FILES: [(&str, &str); 7] = [
+const DISK_FILES: [(&str, &str); 8] = [
     ("disk.npz", "PyMUST-style NumPy .npz"),
     (
         "disk_npz.toml",
@@ -106,6 +123,18 @@ const DISK_FILES: [(&str, &str); 7] = [
     ),
     ("disk_zea.hdf5", "zea / OpenH-RF (HDF5)"),
     ("disk_verasonics.mat", "Verasonics workspace (MATLAB v7.3)"),
+    (
+        "disk.urx",
+        "URX (Moduleus ultrasound raw data exchange, HDF5)",
+    ),
+];
+
+/// Fixtures whose format records no bandwidth (URX):
+/// `a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds` checks the band they read.
+const NO_BANDWIDTH: [&str; 3] = [
+    "disk_no_bandwidth.uff",
+    "disk_no_bandwidth_zea.hdf5",
+    "disk.urx",
 ];
 
 #[test]
@@ -129,7 +158,9 @@ fn every_format_of_the_disk_gives_the_samples_of_the_mat() {
         close(a.sequence.event_prf, b.sequence.event_prf, "PRF");
         close(a.probe.pitch, b.probe.pitch, "pitch");
         close(a.probe.center_frequency, b.probe.center_frequency, "f_c");
-        close(a.probe.bandwidth, b.probe.bandwidth, "bandwidth");
+        if !NO_BANDWIDTH.contains(&name) {
+            close(a.probe.bandwidth, b.probe.bandwidth, "bandwidth");
+        }
         close(
             a.probe.element_width,
             b.probe.element_width,
@@ -163,7 +194,7 @@ fn every_format_of_the_disk_gives_the_maps_of_the_mat() {
     }
 }
 
-/// UFF and zea may leave the bandwidth out. pcuvd's 67 % would fold at the disk's 6.67 MHz
+/// UFF and zea may leave the bandwidth out, and URX has none. pcuvd's 67 % would fold at the disk's 6.67 MHz
 /// sampling (it was refused); the reader takes the widest band centred on f_c that one Nyquist
 /// zone holds, says so, and the recording gives the maps of the `.mat` (the bandwidth only decides
 /// whether the sampling folds). `--bandwidth` states the probe's; a stated band that folds is
@@ -173,7 +204,7 @@ fn a_file_without_a_bandwidth_reads_with_the_band_its_sampling_holds() {
     let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
     let reference = disk_reference(events);
     let grid = Grid::new(-10e-3, 10e-3, 12e-3, 32e-3, 0.2e-3).unwrap();
-    for name in ["disk_no_bandwidth.uff", "disk_no_bandwidth_zea.hdf5"] {
+    for name in NO_BANDWIDTH {
         let opened = open(name);
         let acq = opened.source.acquisition().clone();
         let (fc, fs) = (acq.probe.center_frequency, acq.sampling_frequency);
@@ -233,13 +264,7 @@ fn a_zea_track_is_chosen_by_index_or_label() {
         "{:?}",
         default.info.warnings
     );
-    let with = |track: &str| {
-        let overrides = Overrides {
-            track: Some(track.into()),
-            ..Overrides::default()
-        };
-        open_recording(&fixture(name), &overrides)
-    };
+    let with = |track: &str| open_track(name, track);
     let events = expected()["disk"]["transmits"].as_u64().unwrap() as usize;
     let reference = disk_reference(events);
     let grid = Grid::new(-10e-3, 10e-3, 12e-3, 32e-3, 0.2e-3).unwrap();
@@ -399,8 +424,10 @@ fn steered_recordings_give_back_their_angles_prf_and_t0() {
         "steered_must.mat",
         "steered.uff",
         "steered_zea.hdf5",
+        "steered.urx",
         "steered_must_iq.mat",
         "steered_iq.uff",
+        "steered_iq.urx",
     ] {
         let opened = open(name);
         let acq = opened.source.acquisition().clone();
@@ -508,6 +535,113 @@ fn parameters_say_where_they_came_from() {
         prf.source.to_string().contains("time_to_next_transmit"),
         "{}",
         prf.source
+    );
+}
+
+/// URX files written by the format's own writer that pcuvd refuses, each naming the field and
+/// what it reads instead; a file without wave time zeros asks for `--t0-s` and reads with it.
+#[test]
+fn urx_files_pcuvd_cannot_read_say_why() {
+    let refused = |name: &str| match open_recording(&fixture(name), &Overrides::default()) {
+        Ok(_) => panic!("{name} was read"),
+        Err(e) => e.to_string(),
+    };
+    let e = refused("urx_converging.urx");
+    for want in [
+        "sequence/00000001/transmit_setup/wave/type",
+        "plane-wave",
+        "PLANE_WAVE",
+    ] {
+        assert!(e.contains(want), "{e} (wanted {want})");
+    }
+    let e = refused("urx_reversed_channels.urx");
+    for want in ["receive_setup/active_elements", "channel k to element k"] {
+        assert!(e.contains(want), "{e} (wanted {want})");
+    }
+    let e = refused("urx_no_time_zero.urx");
+    for want in ["wave/time_zero", "--t0-s"] {
+        assert!(e.contains(want), "{e} (wanted {want})");
+    }
+    let given = open_recording(
+        &fixture("urx_no_time_zero.urx"),
+        &Overrides {
+            t0_s: Some(5e-6),
+            ..Overrides::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(given.source.acquisition().t0, 5e-6);
+    assert_eq!(
+        given.info.parameter("t0_s").unwrap().source,
+        ParamSource::Override
+    );
+}
+
+/// A URX file of two recorded groups (one compound B-mode frame, then the two-angle Doppler
+/// group): the first unless `--track` names another by index or description, the groups listed
+/// in a warning; a group that is not there is refused naming them. Both groups begin with the
+/// same frame, so the Doppler group's first event is compared with the B-mode group's. The
+/// B-mode group's single sequence takes its event rate from its events' spacing.
+#[test]
+fn a_urx_group_is_chosen_by_index_or_description() {
+    let name = "urx_two_groups.urx";
+    let listed = "0 (\"bmode\"), 1 (\"doppler\")";
+    let default = open(name);
+    assert_eq!(default.source.n_frames(), 1);
+    // atan2 of the stored direction (sin θ, cos θ): θ to the last bit or two.
+    let two_angles = |angles: &[f64]| {
+        angles.len() == 2 && (angles[0] + 0.1).abs() < 1e-15 && (angles[1] - 0.1).abs() < 1e-15
+    };
+    let angles = &default.source.acquisition().sequence.angles;
+    assert!(two_angles(angles), "{angles:?}");
+    assert!((default.source.acquisition().sequence.event_prf - 4000.0).abs() < 1e-6);
+    let prf = default.info.parameter("event_prf_hz").unwrap();
+    assert!(
+        format!("{:?}", prf.source).contains("one sequence"),
+        "{:?}",
+        prf.source
+    );
+    assert!(
+        default.info.warnings.iter().any(|w| w.contains(listed)),
+        "{:?}",
+        default.info.warnings
+    );
+    let with = |track: &str| open_track(name, track);
+    let bmode = default.source.read_frames(0..1).unwrap();
+    for track in ["1", "doppler"] {
+        let opened = with(track).unwrap();
+        let acq = opened.source.acquisition();
+        assert_eq!(opened.source.n_frames(), 2, "{track}");
+        assert!(
+            two_angles(&acq.sequence.angles),
+            "{track}: {:?}",
+            acq.sequence.angles
+        );
+        assert!((acq.sequence.event_prf - 4000.0).abs() < 1e-6, "{track}");
+        assert!((acq.t0 - 5e-6).abs() < 1e-12, "{track}: t0 {}", acq.t0);
+        assert!(
+            opened.info.warnings.is_empty(),
+            "{:?}",
+            opened.info.warnings
+        );
+        let param = opened.info.parameter("track").unwrap();
+        assert_eq!(param.value, 1, "{track}");
+        assert_eq!(param.source, ParamSource::Override, "{track}");
+        let doppler = opened.source.read_frames(0..2).unwrap();
+        assert_eq!(
+            doppler.samples.dim(),
+            (4, 4, 8),
+            "{track}: events, channels, samples"
+        );
+        assert_eq!(first_event_rf(&doppler), first_event_rf(&bmode), "{track}");
+    }
+    let missing = match with("2") {
+        Ok(_) => panic!("group 2 was read"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        missing.contains("--track") && missing.contains(listed),
+        "{missing}"
     );
 }
 
