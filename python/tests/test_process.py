@@ -172,6 +172,11 @@ def test_every_format_reads_through_the_same_reader(disk):
     assert uff.parameters["event_prf_hz"]["source"] == {"kind": "file", "field": "channel_data/PRF"}
     mat = pcuvd.read_recording(disk)
     np.testing.assert_array_equal(uff.samples, mat.samples[:8])
+    # The same transmits written by Moduleus' own URX writer (ultrasound-rawdata-exchange).
+    urx = pcuvd.read_recording(fixtures / "disk.urx")
+    assert urx.format.startswith("URX")
+    np.testing.assert_array_equal(urx.samples, mat.samples[:8])
+    assert urx.t0_s == pytest.approx(mat.t0_s, rel=1e-12)
 
 
 def test_bandwidth_is_a_keyword_for_files_that_do_not_state_it():
@@ -195,6 +200,20 @@ def test_a_zea_track_is_a_keyword():
         assert chosen.parameters["track"] == {"value": "track_1", "source": {"kind": "override"}}
     with pytest.raises(ValueError, match="not tracks to choose from"):
         pcuvd.read_recording(fixtures / "disk.uff", track=1)
+
+
+def test_a_urx_recorded_group_is_the_track_keyword():
+    # A URX file of a B-mode group then a Doppler group: the first unless track= names another
+    # by index or by its group's description.
+    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+    two = fixtures / "urx_two_groups.urx"
+    assert pcuvd.read_recording(two).n_frames == 1
+    for track in (1, "doppler"):
+        chosen = pcuvd.read_recording(two, track=track)
+        assert chosen.n_frames == 2
+        assert chosen.parameters["track"] == {"value": 1, "source": {"kind": "override"}}
+    with pytest.raises(ValueError, match="--track"):
+        pcuvd.read_recording(two, track="flow")
 
 
 def test_a_decoded_hadamard_zea_track_processes_as_the_coded_recording():

@@ -156,6 +156,37 @@ impl<'a> Resolver<'a> {
         Ok(value)
     }
 
+    /// Resolves number `name` that the file always gives: the user's override, else `found`
+    /// (value and source). Records the result.
+    pub fn known(&mut self, name: &str, found: (f64, ParamSource)) -> f64 {
+        let (value, source) = match self.override_of(name) {
+            Some(v) => (v, ParamSource::Override),
+            None => found,
+        };
+        self.record(name, serde_json::json!(value), source);
+        value
+    }
+
+    /// Resolves number `name` that has a default: the user's override, else `found` (value and
+    /// source), else `default` (value and note). Records the result.
+    pub fn or_default(
+        &mut self,
+        name: &str,
+        found: Option<(f64, ParamSource)>,
+        default: (f64, &str),
+    ) -> f64 {
+        let (value, note) = default;
+        let found = found.unwrap_or_else(|| {
+            (
+                value,
+                ParamSource::Default {
+                    note: note.to_string(),
+                },
+            )
+        });
+        self.known(name, found)
+    }
+
     /// Resolves the steering angles: the user's, else `found` (rad). Records them in degrees.
     pub fn angles(&mut self, found: (Vec<f64>, ParamSource)) -> Vec<f64> {
         let (angles, source) = match &self.overrides.angles_rad {

@@ -222,21 +222,18 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             note: "UFF describes one wave per event".into(),
         },
     );
-    let pulse_cycles = r.number(
+    let pulse_cycles = r.or_default(
         "pulse_cycles",
         None,
-        Some((DEFAULT_PULSE_CYCLES, "UFF does not record the pulse length")),
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (DEFAULT_PULSE_CYCLES, "UFF does not record the pulse length"),
+    );
     let array = crate::datafile::open_hdf5_array(path, &f("data"))?;
     let iq = array.is_complex();
     let demod = if iq || modulation > 0.0 {
-        Some(r.number(
+        Some(r.known(
             "demod_frequency_hz",
-            Some((modulation, field(f("modulation_frequency")))),
-            None,
-            || IoError::malformed(path, "unreachable"),
-        )?)
+            (modulation, field(f("modulation_frequency"))),
+        ))
     } else {
         None
     };

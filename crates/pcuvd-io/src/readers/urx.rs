@@ -482,15 +482,13 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             return Err(differs("modulation_frequency"));
         }
     }
-    let fs = r.number(
+    let fs = r.known(
         "sampling_frequency_hz",
-        Some((
+        (
             first.sampling_frequency,
             field(format!("{}/receive_setup/sampling_frequency", events[0])),
-        )),
-        None,
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        ),
+    );
     let fs = positive(path, "receive_setup/sampling_frequency", fs)?;
     let timing = format!("{group}/sequence/*: receive and transmit time_offset, wave/time_zero");
     let t0_found = match read.iter().map(|e| e.t0).collect::<Option<Vec<f64>>>() {
@@ -570,15 +568,14 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         fc,
         fs,
     );
-    let pulse_cycles = r.number(
+    let pulse_cycles = r.or_default(
         "pulse_cycles",
         None,
-        Some((
+        (
             DEFAULT_PULSE_CYCLES,
             "URX records the excitation's drive waveform, not the pulse's length",
-        )),
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        ),
+    );
     r.record(
         "coding",
         json!("none"),
@@ -635,15 +632,13 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     }
     let sequences = rows / per_sequence;
     let demod = if iq {
-        Some(r.number(
+        Some(r.known(
             "demod_frequency_hz",
-            Some((
+            (
                 modulation,
                 field(format!("{}/receive_setup/modulation_frequency", events[0])),
-            )),
-            None,
-            || IoError::malformed(path, "unreachable"),
-        )?)
+            ),
+        ))
     } else {
         None
     };

@@ -113,23 +113,19 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             .and_then(MatValue::as_scalar),
         "Resource.Parameters.speedOfSound",
     )?;
-    let c = r.number(
+    let c = r.known(
         "sound_speed_m_s",
-        Some((c, field("Resource.Parameters.speedOfSound"))),
-        None,
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (c, field("Resource.Parameters.speedOfSound")),
+    );
     let c = positive(path, "Resource.Parameters.speedOfSound", c)?;
     let f_mhz = need(
         trans.field("frequency").and_then(MatValue::as_scalar),
         "Trans.frequency",
     )?;
-    let fc = r.number(
+    let fc = r.known(
         "center_frequency_hz",
-        Some((f_mhz * 1e6, derived("Trans.frequency (MHz) × 10⁶"))),
-        None,
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (f_mhz * 1e6, derived("Trans.frequency (MHz) × 10⁶")),
+    );
     let fc = positive(path, "Trans.frequency", fc)?;
     let wavelength = c / (f_mhz * 1e6);
     let units = trans
@@ -309,15 +305,13 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             "differs between acquisitions",
         ));
     }
-    let fs = r.number(
+    let fs = r.known(
         "sampling_frequency_hz",
-        Some((
+        (
             fs,
             derived("Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶"),
-        )),
-        None,
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        ),
+    );
     let fs = positive(path, "Receive.decimSampleRate", fs)?;
     let band = numbers(trans.field("Bandwidth"));
     // Resolved once the sampling is known, which decides the default's width.
@@ -342,17 +336,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             "acquisitions of different lengths are not supported",
         ));
     }
-    let t0 = r.number(
+    let t0 = r.known(
         "t0_s",
-        Some((
+        (
             common_t0(path, "Receive.startDepth", &t0s, fs)?,
             derived(
                 "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency)",
             ),
-        )),
-        None,
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        ),
+    );
     // The compound frame: the shortest period of the acquisitions' steering.
     let apf = angles_per_acq.len();
     let period = (1..=apf)
@@ -383,12 +375,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         .flatten()
         .and_then(|tw| elements(&tw).first().map(|m| numbers(m.get("Parameters"))))
         .and_then(|p| p.get(2).copied());
-    let pulse_cycles = r.number(
+    let pulse_cycles = r.or_default(
         "pulse_cycles",
         half_cycles.map(|h| (h / 2.0, derived("TW(1).Parameters(3) (half cycles) / 2"))),
-        Some((DEFAULT_PULSE_CYCLES, "TW.Parameters is absent")),
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (DEFAULT_PULSE_CYCLES, "TW.Parameters is absent"),
+    );
     r.record(
         "coding",
         json!("none"),

@@ -420,12 +420,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         );
         Coding::Conventional
     };
-    let pulse_cycles = r.number(
+    let pulse_cycles = r.or_default(
         "pulse_cycles",
         None,
-        Some((DEFAULT_PULSE_CYCLES, "zea does not record the pulse length")),
-        || IoError::malformed(path, "unreachable"),
-    )?;
+        (DEFAULT_PULSE_CYCLES, "zea does not record the pulse length"),
+    );
     let demod = if iq {
         Some(r.number(
             "demod_frequency_hz",

@@ -50,25 +50,20 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
     };
     let mut acq = parsed.acquisition.clone();
     let mut r = Resolver::new(overrides);
-    let never = || IoError::malformed(path, "unreachable");
-    acq.sampling_frequency = r.number(
+    acq.sampling_frequency = r.known(
         "sampling_frequency_hz",
-        Some((
+        (
             acq.sampling_frequency,
             src("acquisition", "sampling_frequency_hz"),
-        )),
-        None,
-        never,
-    )?;
-    acq.probe.center_frequency = r.number(
+        ),
+    );
+    acq.probe.center_frequency = r.known(
         "center_frequency_hz",
-        Some((
+        (
             acq.probe.center_frequency,
             src("probe", "center_frequency_hz"),
-        )),
-        None,
-        never,
-    )?;
+        ),
+    );
     r.record(
         "n_elements",
         json!(acq.probe.n_elements),
@@ -88,35 +83,21 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
         acq.probe.center_frequency,
         acq.sampling_frequency,
     );
-    acq.sound_speed = r.number(
+    acq.sound_speed = r.known(
         "sound_speed_m_s",
-        Some((acq.sound_speed, src("acquisition", "sound_speed_m_s"))),
-        None,
-        never,
-    )?;
-    acq.t0 = r.number(
-        "t0_s",
-        Some((acq.t0, src("acquisition", "t0_s"))),
-        None,
-        never,
-    )?;
-    acq.sequence.event_prf = r.number(
+        (acq.sound_speed, src("acquisition", "sound_speed_m_s")),
+    );
+    acq.t0 = r.known("t0_s", (acq.t0, src("acquisition", "t0_s")));
+    acq.sequence.event_prf = r.known(
         "event_prf_hz",
-        Some((acq.sequence.event_prf, src("acquisition", "event_prf_hz"))),
-        None,
-        never,
-    )?;
+        (acq.sequence.event_prf, src("acquisition", "event_prf_hz")),
+    );
     let cycles_source = if !has("acquisition", "pulse_cycles") && acq.sequence.pulse.is_some() {
         crate::params::derived("[acquisition.pulse] (its length in cycles of the centre frequency)")
     } else {
         src("acquisition", "pulse_cycles")
     };
-    acq.sequence.pulse_cycles = r.number(
-        "pulse_cycles",
-        Some((acq.sequence.pulse_cycles, cycles_source)),
-        None,
-        never,
-    )?;
+    acq.sequence.pulse_cycles = r.known("pulse_cycles", (acq.sequence.pulse_cycles, cycles_source));
     let angle_key = if has("acquisition", "angles_deg") {
         "angles_deg"
     } else if has("acquisition", "angles_rad") {
@@ -179,15 +160,12 @@ pub fn open(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoErr
             field("[acquisition].slot_delay_s"),
         );
     }
-    let demod = match parsed.demod {
-        Some(f) => Some(r.number(
+    let demod = parsed.demod.map(|f| {
+        r.known(
             "demod_frequency_hz",
-            Some((f, field("[data].demod_frequency_hz"))),
-            None,
-            never,
-        )?),
-        None => None,
-    };
+            (f, field("[data].demod_frequency_hz")),
+        )
+    });
     let acq = checked_acquisition(path, acq)?;
     let spec = crate::datafile::DataSpec {
         path: parsed.data_path.clone(),
