@@ -204,8 +204,9 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         }
     );
     println!(
-        "  timing       event PRF {:.1} Hz, {frames} frames at {:.1} Hz ({:.3} s)",
+        "  timing       event PRF {:.1} Hz, {frames} frame{} at {:.1} Hz ({:.3} s)",
         seq.event_prf,
+        if frames == 1 { "" } else { "s" },
         acq.frame_rate(),
         frames as f64 / acq.frame_rate()
     );
