@@ -539,7 +539,8 @@ fn parameters_say_where_they_came_from() {
 }
 
 /// URX files written by the format's own writer that pcuvd refuses, each naming the field and
-/// what it reads instead; a file without wave time zeros asks for `--t0-s` and reads with it.
+/// what it reads instead; a file without wave time zeros asks for `--t0-s` and reads with it, and
+/// one of a single transmit asks for `--event-prf-hz`.
 #[test]
 fn urx_files_pcuvd_cannot_read_say_why() {
     let refused = |name: &str| match open_recording(&fixture(name), &Overrides::default()) {
@@ -575,6 +576,15 @@ fn urx_files_pcuvd_cannot_read_say_why() {
         given.info.parameter("t0_s").unwrap().source,
         ParamSource::Override
     );
+    // One transmit in all: no interval between events gives the event rate.
+    let e = refused("urx_one_event.urx");
+    for want in [
+        "event_timestamps",
+        "holds 1 event time(s)",
+        "--event-prf-hz",
+    ] {
+        assert!(e.contains(want), "{e} (wanted {want})");
+    }
 }
 
 /// A URX file of two recorded groups (one compound B-mode frame, then the two-angle Doppler
