@@ -110,13 +110,24 @@ fn untransformed(h5: &Hdf5, transform: &str) -> Result<(), IoError> {
     Ok(())
 }
 
+/// `v` as a count or index: a finite, non-negative whole number.
+fn whole(v: f64) -> Option<usize> {
+    (v.is_finite() && v >= 0.0 && v.fract() == 0.0 && v <= u32::MAX as f64).then_some(v as usize)
+}
+
 /// The element indices of an `active_elements` list (one list per channel or excitation).
 fn active(h5: &Hdf5, group: &str) -> Result<Vec<Vec<usize>>, IoError> {
     list(h5, group)?
         .iter()
         .map(|m| {
             let (_, v) = h5.read_f64(m)?;
-            Ok(v.into_iter().map(|i| i as usize).collect())
+            v.into_iter()
+                .map(|i| {
+                    whole(i).ok_or_else(|| {
+                        IoError::invalid(&h5.path, m, format!("holds {i}, not an element index"))
+                    })
+                })
+                .collect()
         })
         .collect()
 }
@@ -284,13 +295,21 @@ fn event(
         .collect::<Result<_, _>>()?;
     let sampling_frequency = number(h5, &format!("{rx}/sampling_frequency"))?
         .ok_or_else(|| IoError::missing(path, &rx, "dataset 'sampling_frequency'"))?;
-    let samples = scalar(h5, &format!("{rx}/number_samples"))?
+    let number_samples = format!("{rx}/number_samples");
+    let samples = scalar(h5, &number_samples)?
         .ok_or_else(|| IoError::missing(path, &rx, "dataset 'number_samples'"))?;
+    let samples = whole(samples).filter(|&n| n > 0).ok_or_else(|| {
+        IoError::invalid(
+            path,
+            &number_samples,
+            format!("is {samples}: a receive records a whole number of samples, at least one"),
+        )
+    })?;
     Ok(Event {
         angle,
         t0,
         sampling_frequency,
-        samples: samples as usize,
+        samples,
         modulation: number(h5, &format!("{rx}/modulation_frequency"))?.unwrap_or(0.0),
         excitations,
     })
@@ -617,7 +636,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ),
         ));
     }
-    let per_sequence = events.len() * n * first.samples;
+    let per_sequence = events
+        .len()
+        .checked_mul(n)
+        .and_then(|v| v.checked_mul(first.samples))
+        .unwrap_or(0);
     if per_sequence == 0 || rows % per_sequence != 0 {
         return Err(IoError::invalid(
             path,
@@ -756,4 +779,21 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             cardiac_triggers_s: None,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::whole;
+
+    /// URX stores counts and indices as uint32; a file that stores them otherwise is refused
+    /// rather than read with a truncated value.
+    #[test]
+    fn counts_and_indices_are_whole_non_negative_numbers() {
+        assert_eq!(whole(0.0), Some(0));
+        assert_eq!(whole(127.0), Some(127));
+        assert_eq!(whole(u32::MAX as f64), Some(u32::MAX as usize));
+        for bad in [-1.0, 2.5, f64::NAN, f64::INFINITY, 1e12] {
+            assert_eq!(whole(bad), None, "{bad}");
+        }
+    }
 }
