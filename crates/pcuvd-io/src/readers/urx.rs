@@ -617,7 +617,6 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     };
-    let iq = columns == Some(2) || stored.dtype.is_complex();
     if stored.dtype.is_complex() {
         return Err(IoError::invalid(
             path,
@@ -625,6 +624,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             "holds complex HDF5 values; URX stores IQ as (N, 2) real numbers",
         ));
     }
+    let iq = columns == Some(2);
     if iq != (modulation > 0.0) {
         return Err(IoError::invalid(
             path,
@@ -667,14 +667,14 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     };
 
     // The event PRF: events per sequence over the interval between sequences.
-    let stamps: Vec<f64> = list(h5, &format!("{gd}/event_timestamps"))?
+    let stamps_field = format!("{gd}/event_timestamps");
+    let stamps: Vec<f64> = list(h5, &stamps_field)?
         .iter()
         .map(|m| h5.read_f64(m).map(|(_, v)| v))
         .collect::<Result<Vec<_>, _>>()?
         .concat();
-    let stamps_field = format!("{gd}/event_timestamps");
+    let mut intervals: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
     let prf_found = if stamps.len() == sequences * events.len() && sequences >= 2 {
-        let intervals: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
         let timing = frame_timing(&intervals, events.len())
             .map_err(|e| IoError::invalid(path, &stamps_field, e))?;
         if timing.simultaneous {
@@ -694,7 +694,6 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         ))
     } else if stamps.len() == events.len() && stamps.len() >= 2 {
         // One sequence: its events' spacing is all the file says of the event rate.
-        let mut intervals: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
         intervals.sort_by(f64::total_cmp);
         let interval = intervals[intervals.len() / 2];
         (interval > 0.0).then(|| {

@@ -29,6 +29,7 @@ use serde_json::json;
 use crate::array::{ArrayFrames, Axis};
 use crate::error::IoError;
 use crate::hdf5::Hdf5;
+// Where frame timing was public before it moved to `layout` (URX shares it).
 pub use crate::layout::{FrameTiming, frame_timing};
 use crate::layout::{common_t0, linear_array, per_transmit, positive, scalar};
 use crate::params::{Overrides, ParamSource, Resolver, derived, field, missing_prf, missing_t0};
@@ -511,47 +512,6 @@ fn per_transmit_rows(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn prf_is_per_transmit_not_per_frame() {
-        // 3 transmits 100 µs apart, frames every 300 µs: 10 kHz events, 3.33 kHz frames.
-        let even = vec![100e-6; 12];
-        let t = frame_timing(&even, 3).unwrap();
-        assert!((t.event_prf - 10_000.0).abs() < 1e-6 && t.warning.is_none() && !t.simultaneous);
-        // The same transmits with a 700 µs pause after each frame: frames every 900 µs, so each
-        // angle is sampled at 1.11 kHz, i.e. pcuvd's event PRF 3/900 µs, with a warning.
-        let paused: Vec<f64> = (0..12)
-            .map(|i| if i % 3 == 2 { 700e-6 } else { 100e-6 })
-            .collect();
-        let t = frame_timing(&paused, 3).unwrap();
-        assert!((t.event_prf - 3.0 / 900e-6).abs() < 1e-6, "{}", t.event_prf);
-        assert!(t.warning.unwrap().contains("100.0 µs apart"));
-        assert!(frame_timing(&[1e-4, -1.0, 1e-4], 3).is_err());
-        assert!(frame_timing(&[1e-4], 3).is_err());
-    }
-
-    #[test]
-    fn decoded_angles_share_their_frame_time() {
-        // 4 decoded angles per frame, at one time, frames 500 µs apart (4 coded events at
-        // 8 kHz): the frame rate is 2 kHz, pcuvd's event PRF 4 × 2 kHz, and no pause warning.
-        let decoded: Vec<f64> = (0..12)
-            .map(|i| if i % 4 == 3 { 500e-6 } else { 0.0 })
-            .collect();
-        let t = frame_timing(&decoded, 4).unwrap();
-        assert!(t.simultaneous && t.warning.is_none());
-        assert!((t.event_prf - 8_000.0).abs() < 1e-6, "{}", t.event_prf);
-        // Some transmits of a frame at one time and others apart: neither reading holds.
-        let mixed: Vec<f64> = (0..8)
-            .map(|i| match i % 4 {
-                0 => 0.0,
-                3 => 300e-6,
-                _ => 100e-6,
-            })
-            .collect();
-        assert!(frame_timing(&mixed, 4).unwrap_err().contains("2 of the 6"));
-        // A frame of zero duration.
-        assert!(frame_timing(&[0.0; 8], 4).unwrap_err().contains("frame 1"));
-    }
 
     #[test]
     fn polarity_is_the_sign_the_firing_elements_share() {
