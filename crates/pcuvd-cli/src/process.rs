@@ -247,11 +247,13 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         zarr,
     };
     let pngs = save(&args.out, data, &plan, &processed, record, &progress)?;
+    let (angles, frames) = (data.acquisition().sequence.n_angles(), data.n_frames());
     println!(
-        "{}: {} angle(s), {} frames at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x {} pixels",
+        "{}: {angles} angle{}, {frames} frame{} at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x \
+         {} pixels (depth x lateral)",
         args.input.display(),
-        data.acquisition().sequence.n_angles(),
-        data.n_frames(),
+        if angles == 1 { "" } else { "s" },
+        if frames == 1 { "" } else { "s" },
         data.acquisition().frame_rate(),
         processed.out.maps.nyquist_velocity * 1e3,
         processed.out.grid.z.len(),
