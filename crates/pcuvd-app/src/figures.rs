@@ -323,7 +323,11 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         1,
     ));
 
-    let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::FLOW_FIGURE_DB);
+    let mask = masks::figure_flow_mask(
+        &out.maps.power_doppler,
+        masks::FLOW_FIGURE_DB,
+        grid.axial_step(),
+    );
     let background = bmode_background(&out.bmode_db);
     // Red = toward the probe (upward), as in the paper's colour maps.
     let upward_mm_s = out.maps.color_doppler.mapv(|v| -v * 1e3);
@@ -346,7 +350,11 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
     ));
 
     if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
-        let mask = masks::within_db_of_peak(&out.maps.power_doppler, masks::VECTOR_FIGURE_DB);
+        let mask = masks::figure_flow_mask(
+            &out.maps.power_doppler,
+            masks::VECTOR_FIGURE_DB,
+            grid.axial_step(),
+        );
         // One speed scale for both estimators, so that their colours compare.
         let vmax = speed_scale(&[(ls, &mask), (irls, &mask)]);
         let panels = [

@@ -164,7 +164,7 @@ pub fn ensemble_figure_in_chunks(
         }
     }
     mean /= count;
-    let flow = masks::within_db_of_peak(&mean, masks::FLOW_FIGURE_DB);
+    let flow = masks::figure_flow_mask(&mean, masks::FLOW_FIGURE_DB, grid.axial_step());
     let flow_pixels: Vec<(usize, usize)> = flow
         .indexed_iter()
         .filter(|(_, f)| **f)
