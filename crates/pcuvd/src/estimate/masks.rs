@@ -91,9 +91,9 @@ pub fn above_noise_floor(power: &Array2<f64>, margin_db: f64) -> Array2<bool> {
 }
 
 /// Margin (dB) above the depth's noise floor ([`figure_flow_mask`]) from which a recording's
-/// figures draw flow: power Doppler over N frames of noise spreads about ±10·log10(1 ± 2/√N) dB
-/// around its floor (±1.3 dB at 32 frames), so 6 dB keeps noise pixels out at any frame count
-/// from about 10.
+/// figures draw flow: power Doppler over N frames of noise stays within 10·log10(1 ± 2/√N) dB
+/// of its mean at two standard deviations (+1.3 / −1.9 dB at 32 frames, +2.1 dB at 10), so 6 dB
+/// keeps noise pixels out from about 10 frames on.
 pub const FIGURE_ABOVE_FLOOR_DB: f64 = 6.0;
 
 /// Half-height (m) of the depth window over which [`figure_flow_mask`] takes the median of the
