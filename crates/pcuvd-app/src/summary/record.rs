@@ -40,6 +40,8 @@ pub struct Summary {
     pub dynamics: DynamicsRecord,
     /// How the frames were split into blocks for imaging.
     pub blocks: BlocksRecord,
+    /// Which pixels the figures draw as flow.
+    pub figures: FiguresRecord,
     /// The segments of a recording too long to hold whole, or why there were none.
     pub segments: Described<SegmentsRecord>,
     /// The Doppler time series' ensembles, or why there were none.
@@ -446,6 +448,7 @@ impl Summary {
                 margin_frames: processed.blocks.margin,
                 rule: blocks_rule(),
             },
+            figures: FiguresRecord::default(),
             segments: match &processed.segments {
                 None => Described::None("none: the whole recording was held and processed at once"),
                 Some(done) => Described::Done(SegmentsRecord {

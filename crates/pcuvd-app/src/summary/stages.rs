@@ -4,6 +4,7 @@
 
 use pcuvd::dynamics::{self, PoolingSummary};
 use pcuvd::estimate::clutter::{self, BlockLayout, ClutterReport};
+use pcuvd::estimate::masks;
 use pcuvd::estimate::partial_volume::CellCovariance;
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 use serde::Serialize;
@@ -344,6 +345,31 @@ pub struct EnsemblesRecord {
 }
 
 /// The rule `summary.json` states for the blocks.
+/// Which pixels a recording's figures draw as flow (colour Doppler, vectors, ensembles); the
+/// `.npy` maps are not masked.
+#[derive(Debug, Clone, Serialize)]
+pub struct FiguresRecord {
+    /// The rule, in words ([`masks::FIGURE_FLOW_DEFINITION`]).
+    pub flow_rule: &'static str,
+    /// The colour Doppler's and ensembles' level (dB re the 99.9th-percentile power).
+    pub colour_level_db: f64,
+    /// The vector figure's level (dB re the 99.9th-percentile power).
+    pub vector_level_db: f64,
+    /// The margin above the noise floor of the pixel's depth (dB).
+    pub above_floor_db: f64,
+}
+
+impl Default for FiguresRecord {
+    fn default() -> FiguresRecord {
+        FiguresRecord {
+            flow_rule: masks::FIGURE_FLOW_DEFINITION,
+            colour_level_db: masks::FLOW_FIGURE_DB,
+            vector_level_db: masks::VECTOR_FIGURE_DB,
+            above_floor_db: masks::FIGURE_ABOVE_FLOOR_DB,
+        }
+    }
+}
+
 pub(super) fn blocks_rule() -> String {
     format!(
         "images formed a block of frames at a time, decoded in the memory they are read into: at \

@@ -342,6 +342,18 @@ mod tests {
     }
 
     #[test]
+    fn figure_flow_definition_states_the_constants() {
+        for part in [
+            format!("{} dB above", FIGURE_ABOVE_FLOOR_DB),
+            format!("{}th-percentile powers", NOISE_FLOOR_QUANTILE * 100.0),
+            format!("within {} mm", FIGURE_FLOOR_REACH_M * 1e3),
+            format!("{}th-percentile power,", PEAK_QUANTILE * 100.0),
+        ] {
+            assert!(FIGURE_FLOW_DEFINITION.contains(&part), "{part}");
+        }
+    }
+
+    #[test]
     fn figure_mask_drops_lifted_noise_and_keeps_a_vessel_filling_its_rows() {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Gamma};
