@@ -12,6 +12,9 @@ import pytest
 import pcuvd
 from conftest import assert_same_array, run_cli
 
+# The reader fixtures, files written by each format's own tools.
+READER_FIXTURES = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
+
 
 def _outputs(folder: Path) -> dict[str, np.ndarray]:
     return {p.stem: np.load(p) for p in sorted(folder.glob("*.npy"))}
@@ -166,14 +169,13 @@ def test_parameters_say_where_they_came_from(disk):
 def test_every_format_reads_through_the_same_reader(disk):
     # The disk written by pyuff-ustb (its first 8 transmits): the .mat's samples, read by the
     # reader `pcuvd process` uses.
-    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
-    uff = pcuvd.read_recording(fixtures / "disk.uff")
+    uff = pcuvd.read_recording(READER_FIXTURES / "disk.uff")
     assert uff.format == "USTB UFF channel data (HDF5)"
     assert uff.parameters["event_prf_hz"]["source"] == {"kind": "file", "field": "channel_data/PRF"}
     mat = pcuvd.read_recording(disk)
     np.testing.assert_array_equal(uff.samples, mat.samples[:8])
     # The same transmits written by Moduleus' own URX writer (ultrasound-rawdata-exchange).
-    urx = pcuvd.read_recording(fixtures / "disk.urx")
+    urx = pcuvd.read_recording(READER_FIXTURES / "disk.urx")
     assert urx.format.startswith("URX")
     np.testing.assert_array_equal(urx.samples, mat.samples[:8])
     assert urx.t0_s == pytest.approx(mat.t0_s, rel=1e-12)
@@ -182,31 +184,28 @@ def test_every_format_reads_through_the_same_reader(disk):
 def test_bandwidth_is_a_keyword_for_files_that_do_not_state_it():
     # UFF written by pyuff-ustb without pulse/fractional_bandwidth: read with the band the
     # sampling holds (a note says so), or with the probe's own given as bandwidth=.
-    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
-    unstated = pcuvd.read_recording(fixtures / "disk_no_bandwidth.uff")
+    unstated = pcuvd.read_recording(READER_FIXTURES / "disk_no_bandwidth.uff")
     assert "widest band" in unstated.parameters["bandwidth"]["source"]["note"]
-    given = pcuvd.read_recording(fixtures / "disk_no_bandwidth.uff", bandwidth=0.15)
+    given = pcuvd.read_recording(READER_FIXTURES / "disk_no_bandwidth.uff", bandwidth=0.15)
     assert given.parameters["bandwidth"] == {"value": 0.15, "source": {"kind": "override"}}
     assert given.probe["bandwidth"] == 0.15
 
 
 def test_a_zea_track_is_a_keyword():
-    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
-    two = fixtures / "disk_two_tracks_zea.hdf5"
+    two = READER_FIXTURES / "disk_two_tracks_zea.hdf5"
     assert pcuvd.read_recording(two).n_frames == 4
     for track in (1, "disk"):
         chosen = pcuvd.read_recording(two, track=track)
         assert chosen.n_frames == 8
         assert chosen.parameters["track"] == {"value": "track_1", "source": {"kind": "override"}}
     with pytest.raises(ValueError, match="not tracks to choose from"):
-        pcuvd.read_recording(fixtures / "disk.uff", track=1)
+        pcuvd.read_recording(READER_FIXTURES / "disk.uff", track=1)
 
 
 def test_a_urx_recorded_group_is_the_track_keyword():
     # A URX file of a B-mode group then a Doppler group: the first unless track= names another
     # by index or by its group's description.
-    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
-    two = fixtures / "urx_two_groups.urx"
+    two = READER_FIXTURES / "urx_two_groups.urx"
     assert pcuvd.read_recording(two).n_frames == 1
     for track in (1, "doppler"):
         chosen = pcuvd.read_recording(two, track=track)
@@ -220,11 +219,12 @@ def test_a_decoded_hadamard_zea_track_processes_as_the_coded_recording():
     # The coded events (a pcuvd manifest) and the same events decoded with NumPy, stored by zea
     # with the code's polarity: processing both (events aligned as eq. 2 takes them) gives one
     # set of maps.
-    fixtures = Path(__file__).resolve().parents[2] / "crates/pcuvd-io/tests/fixtures/readers"
-    decoded = pcuvd.read_recording(fixtures / "decoded_hadamard_zea.hdf5", track="hadamard-decoded")
+    decoded = pcuvd.read_recording(
+        READER_FIXTURES / "decoded_hadamard_zea.hdf5", track="hadamard-decoded"
+    )
     assert decoded.coding == "decoded"
     np.testing.assert_array_equal(np.diag(decoded.code_matrix), [1, -1, 1, -1])
-    coded = pcuvd.read_recording(fixtures / "coded_hadamard.toml")
+    coded = pcuvd.read_recording(READER_FIXTURES / "coded_hadamard.toml")
     assert decoded.frame_rate_hz == pytest.approx(coded.frame_rate_hz, rel=1e-6)
     grid = dict(grid_mm=(-4, 4, 9, 15, 0.2), dynamics="off", quiet=True)
     ours = pcuvd.process(coded, event_alignment="simultaneous", **grid)

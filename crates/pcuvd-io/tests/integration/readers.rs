@@ -57,6 +57,13 @@ fn maps_aligned(source: &dyn FrameSource, grid: &Grid, alignment: EventAlignment
 }
 
 /// Largest |a − b| over the largest |b|.
+/// Asserts that the error message `message` names every one of `wanted`.
+fn assert_mentions(message: &str, wanted: &[&str]) {
+    for want in wanted {
+        assert!(message.contains(want), "{message} (wanted {want})");
+    }
+}
+
 fn relative(a: &ndarray::Array2<f64>, b: &ndarray::Array2<f64>) -> f64 {
     let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let diff = a
@@ -548,21 +555,21 @@ fn urx_files_pcuvd_cannot_read_say_why() {
         Err(e) => e.to_string(),
     };
     let e = refused("urx_converging.urx");
-    for want in [
-        "sequence/00000001/transmit_setup/wave/type",
-        "plane-wave",
-        "PLANE_WAVE",
-    ] {
-        assert!(e.contains(want), "{e} (wanted {want})");
-    }
+    assert_mentions(
+        &e,
+        &[
+            "sequence/00000001/transmit_setup/wave/type",
+            "plane-wave",
+            "PLANE_WAVE",
+        ],
+    );
     let e = refused("urx_reversed_channels.urx");
-    for want in ["receive_setup/active_elements", "channel k to element k"] {
-        assert!(e.contains(want), "{e} (wanted {want})");
-    }
+    assert_mentions(
+        &e,
+        &["receive_setup/active_elements", "channel k to element k"],
+    );
     let e = refused("urx_no_time_zero.urx");
-    for want in ["wave/time_zero", "--t0-s"] {
-        assert!(e.contains(want), "{e} (wanted {want})");
-    }
+    assert_mentions(&e, &["wave/time_zero", "--t0-s"]);
     let given = open_recording(
         &fixture("urx_no_time_zero.urx"),
         &Overrides {
@@ -578,13 +585,14 @@ fn urx_files_pcuvd_cannot_read_say_why() {
     );
     // One transmit in all: no interval between events gives the event rate.
     let e = refused("urx_one_event.urx");
-    for want in [
-        "event_timestamps",
-        "holds 1 event time(s)",
-        "--event-prf-hz",
-    ] {
-        assert!(e.contains(want), "{e} (wanted {want})");
-    }
+    assert_mentions(
+        &e,
+        &[
+            "event_timestamps",
+            "holds 1 event time(s)",
+            "--event-prf-hz",
+        ],
+    );
 }
 
 /// A URX file of two recorded groups (one compound B-mode frame, then the two-angle Doppler
@@ -672,9 +680,7 @@ fn a_must_file_without_t0_is_an_error_that_says_how_to_give_it() {
     let e = open_recording(&path, &Overrides::default())
         .unwrap_err()
         .to_string();
-    for want in ["param.t0", "is absent", "0.77 mm per µs", "--t0-s"] {
-        assert!(e.contains(want), "{e} (wanted {want})");
-    }
+    assert_mentions(&e, &["param.t0", "is absent", "0.77 mm per µs", "--t0-s"]);
     let given = open_recording(
         &path,
         &Overrides {
