@@ -123,6 +123,16 @@ impl Plan {
         });
         let segments = Segments::plan(data.n_frames(), segment_frames, windows, ensembles)
             .context("--segment-frames")?;
+        let shortest_filtered = segments
+            .iter()
+            .flat_map(|s| s.ranges(data.n_frames()))
+            .map(|(_, imaged)| imaged.len())
+            .chain(ensembles.map(|e| e.frames))
+            .fold(data.n_frames(), usize::min);
+        params
+            .clutter
+            .check_for(shortest_filtered)
+            .context("--svd-low / --svd-high")?;
         Ok(Plan {
             ensembles,
             segments,

@@ -126,6 +126,42 @@ impl Default for ClutterParams {
     }
 }
 
+impl ClutterParams {
+    /// Refuses fixed cut-offs that would keep no component of a series of `frames` frames
+    /// (the shortest series the filter will see), before any image is formed: the filter
+    /// itself would refuse them only once it reached them.
+    pub fn check_for(&self, frames: usize) -> Result<()> {
+        let fixed = |cut: RankCut| match cut {
+            RankCut::Fixed(k) => Some(k),
+            _ => None,
+        };
+        let keeps_none = match (fixed(self.low), fixed(self.high)) {
+            (Some(low), Some(high)) => low >= high || high > frames,
+            (Some(low), None) => low >= frames,
+            (None, Some(high)) => high == 0 || high > frames,
+            (None, None) => false,
+        };
+        if keeps_none {
+            let shown = |cut: RankCut| match cut {
+                RankCut::Fixed(k) => k.to_string(),
+                RankCut::Off => "off".into(),
+                RankCut::Auto | RankCut::Similarity => "chosen from the data".into(),
+            };
+            return Err(invalid(
+                "clutter filter",
+                format!(
+                    "cut-offs low = {}, high = {} keep no component of the {frames} frames it \
+                     filters at a time (the low cut-off removes that many leading components, \
+                     the high one every component from that index on)",
+                    shown(self.low),
+                    shown(self.high)
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// What the filter did.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ClutterReport {
@@ -347,7 +383,9 @@ fn filter_with_gram(
     // remove a few components of hundreds).
     let keep: Vec<usize> = (low..high).collect();
     let cut: Vec<usize> = (0..low).chain(high..frames).collect();
-    let through_cut = cut.len() < keep.len();
+    // A spectrum of only the leading vectors (no noise cut-off) holds the cut ones and no
+    // others, even where the cut is not the smaller side (half the frames).
+    let through_cut = cut.len() < keep.len() || vectors.ncols() < frames;
     debug_assert!(
         vectors.ncols() == frames || (through_cut && high == frames && low <= vectors.ncols()),
         "the spectrum holds the vectors the projection reads"

@@ -987,3 +987,54 @@ fn reused_scratch_filters_as_fresh_memory() {
         assert!(reused == fresh, "{blocks:?}: the series differ");
     }
 }
+
+/// The cut-offs refused before imaging are exactly those the filter refuses: every fixed or
+/// open pair on a series of 6 frames, checked both ways.
+#[test]
+fn cut_offs_refused_up_front_are_those_the_filter_refuses() {
+    let (nz, nx, nf) = (4, 4, 6);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let normal = Normal::new(0.0f32, 1.0).unwrap();
+    let series = Array3::from_shape_simple_fn((nz, nx, nf), || {
+        Complex32::new(normal.sample(&mut rng), normal.sample(&mut rng))
+    });
+    let cuts = std::iter::once(RankCut::Off).chain((0..=nf + 1).map(RankCut::Fixed));
+    let mut refused = 0;
+    for low in cuts.clone() {
+        for high in cuts.clone() {
+            let params = ClutterParams {
+                low,
+                high,
+                ..ClutterParams::default()
+            };
+            let up_front = params.check_for(nf);
+            let filtered = svd_filter(&mut series.clone(), &params);
+            assert_eq!(
+                up_front.is_err(),
+                filtered.is_err(),
+                "{low:?} {high:?}: {up_front:?} / {filtered:?}"
+            );
+            refused += usize::from(up_front.is_err());
+        }
+    }
+    assert!(refused > 10, "{refused}");
+    // Half the frames cut with no noise cut-off reads only the leading vectors; cut with the
+    // noise cut-off at the last frame (the same projection) it reads the whole spectrum.
+    let filtered = |high| {
+        let mut s = series.clone();
+        let params = ClutterParams {
+            low: RankCut::Fixed(nf / 2),
+            high,
+            ..ClutterParams::default()
+        };
+        svd_filter(&mut s, &params).unwrap();
+        s
+    };
+    let (leading, whole) = (filtered(RankCut::Off), filtered(RankCut::Fixed(nf)));
+    let scale = whole.iter().fold(0.0f32, |m, v| m.max(v.norm()));
+    let worst = leading
+        .iter()
+        .zip(&whole)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).norm()));
+    assert!(worst <= 1e-5 * scale, "{worst} of {scale}");
+}
