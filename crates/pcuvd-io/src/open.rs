@@ -50,6 +50,7 @@ fn looks_like(head: &[u8]) -> String {
 pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
     // A folder, a named pipe (reading one would wait forever) or a link loop is said as such.
     crate::paths::check_regular_file(path)?;
+    overrides.check(path)?;
     let head = read_head(path, 8192)?;
     let ext = path
         .extension()
@@ -83,6 +84,7 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         )),
         Container::Hdf5 { .. } => open_hdf5(path, overrides, &ext),
     }?;
+    overrides.check_applied(path, &opened.info.parameters)?;
     // A track names one of several acquisitions in a file: a reader that has none to choose
     // from says so rather than ignore the choice.
     if let Some(track) = &overrides.track

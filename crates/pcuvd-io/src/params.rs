@@ -34,10 +34,132 @@ pub struct Overrides {
     pub track: Option<String>,
 }
 
+/// Each numeric override: the parameter it replaces (as recorded in [`Parameter::name`]), its
+/// command-line option and Python keyword (either empty where only the other takes it), for
+/// messages, and
+/// whether zero is a valid value.
+const NUMERIC_OVERRIDES: [(&str, &str, &str, bool); 8] = [
+    ("t0_s", "--t0-s", "t0_s", true),
+    (
+        "sound_speed_m_s",
+        "--sound-speed-m-s",
+        "sound_speed_m_s",
+        false,
+    ),
+    ("event_prf_hz", "--event-prf-hz", "event_prf_hz", false),
+    (
+        "sampling_frequency_hz",
+        "--sampling-freq-hz",
+        "sampling_freq_hz",
+        false,
+    ),
+    (
+        "center_frequency_hz",
+        "--center-freq-hz",
+        "center_freq_hz",
+        false,
+    ),
+    // IQ stored at baseband relative to 0 Hz is IQ of the analytic signal itself.
+    ("demod_frequency_hz", "--demod-freq-hz", "", true),
+    ("pulse_cycles", "", "pulse_cycles", false),
+    ("bandwidth", "--bandwidth", "bandwidth", false),
+];
+
+/// How the user gave an override, for messages: "--t0-s (t0_s=)".
+fn given_as(option: &str, keyword: &str) -> String {
+    if option.is_empty() {
+        format!("{keyword}=")
+    } else if keyword.is_empty() {
+        option.to_string()
+    } else {
+        format!("{option} ({keyword}=)")
+    }
+}
+
 impl Overrides {
     /// True when nothing is overridden.
     pub fn is_empty(&self) -> bool {
         *self == Overrides::default()
+    }
+
+    /// The value given for parameter `name` (a [`NUMERIC_OVERRIDES`] name), if any.
+    fn numeric(&self, name: &str) -> Option<f64> {
+        match name {
+            "t0_s" => self.t0_s,
+            "sound_speed_m_s" => self.sound_speed_m_s,
+            "event_prf_hz" => self.event_prf_hz,
+            "sampling_frequency_hz" => self.sampling_freq_hz,
+            "center_frequency_hz" => self.center_freq_hz,
+            "demod_frequency_hz" => self.demod_freq_hz,
+            "pulse_cycles" => self.pulse_cycles,
+            "bandwidth" => self.bandwidth,
+            _ => None,
+        }
+    }
+
+    /// Refuses a value no recording can have (not finite, or ≤ 0 for a speed, rate, frequency,
+    /// length or bandwidth, < 0 for a demodulation frequency), naming the option that gave it,
+    /// before any file is read: the reader's own check would blame the file's field.
+    pub fn check(&self, path: &Path) -> Result<(), IoError> {
+        for (name, option, keyword, zero_allowed) in NUMERIC_OVERRIDES {
+            let Some(v) = self.numeric(name) else {
+                continue;
+            };
+            let fine = v.is_finite() && (v > 0.0 || (zero_allowed && v >= 0.0) || name == "t0_s");
+            if !fine {
+                let rule = match (name, zero_allowed) {
+                    ("t0_s", _) => "must be finite",
+                    (_, true) => "must be finite and ≥ 0",
+                    (_, false) => "must be finite and > 0",
+                };
+                return Err(IoError::invalid(
+                    path,
+                    given_as(option, keyword),
+                    format!("{rule}, got {v}"),
+                ));
+            }
+        }
+        if let Some(angles) = &self.angles_rad
+            && let Some(bad) = angles
+                .iter()
+                .find(|a| !a.is_finite() || a.abs() >= std::f64::consts::FRAC_PI_2)
+        {
+            return Err(IoError::invalid(
+                path,
+                "angles_rad=",
+                format!("must each be finite and within ±π/2 rad, got {bad}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Refuses an override the recording's reader did not apply (it records every parameter it
+    /// resolves; one the recording does not have, such as the demodulation frequency of RF
+    /// samples, is not there to replace): a value the user gave is never silently dropped.
+    pub fn check_applied(&self, path: &Path, parameters: &[Parameter]) -> Result<(), IoError> {
+        for (name, option, keyword, _) in NUMERIC_OVERRIDES {
+            let Some(v) = self.numeric(name) else {
+                continue;
+            };
+            let applied = parameters
+                .iter()
+                .any(|p| p.name == name && p.source == ParamSource::Override);
+            if !applied {
+                let why = if name == "demod_frequency_hz" {
+                    "the recording holds RF samples, which pcuvd demodulates at the probe's \
+                     centre frequency (--center-freq-hz sets it)"
+                        .to_string()
+                } else {
+                    format!("this recording's reader has no parameter {name} to replace")
+                };
+                return Err(IoError::invalid(
+                    path,
+                    given_as(option, keyword),
+                    format!("{v} was given but is not used: {why}"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

@@ -938,6 +938,28 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
     );
     cases.process("option_svd", &good, &["--svd-low", "lots"], &["--svd-low"]);
     cases.process(
+        "option_svd_keeps_nothing",
+        &good,
+        &["--svd-low", "30", "--svd-high", "5"],
+        &[
+            "--svd-low / --svd-high",
+            "low = 30, high = 5",
+            "keep no component",
+        ],
+    );
+    cases.process(
+        "option_demod_of_rf",
+        &good,
+        &["--demod-freq-hz", "5e6"],
+        &["--demod-freq-hz", "RF samples", "not used"],
+    );
+    cases.process(
+        "option_sound_speed_zero",
+        &good,
+        &["--sound-speed-m-s", "0"],
+        &["--sound-speed-m-s", "> 0, got 0"],
+    );
+    cases.process(
         "option_grid_step",
         &good,
         &["--grid=-1,1,1,6,1e-300"],

@@ -56,7 +56,6 @@ fn maps_aligned(source: &dyn FrameSource, grid: &Grid, alignment: EventAlignment
     pipeline::analyse(images, &params, &quiet).unwrap()
 }
 
-/// Largest |a − b| over the largest |b|.
 /// Asserts that the error message `message` names every one of `wanted`.
 fn assert_mentions(message: &str, wanted: &[&str]) {
     for want in wanted {
@@ -64,6 +63,7 @@ fn assert_mentions(message: &str, wanted: &[&str]) {
     }
 }
 
+/// Largest |a − b| over the largest |b|.
 fn relative(a: &ndarray::Array2<f64>, b: &ndarray::Array2<f64>) -> f64 {
     let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let diff = a
@@ -727,4 +727,103 @@ fn unrecognised_files_say_what_they_look_like() {
     // An archive that is not PyMUST-style asks for a manifest.
     let e = open_recording(&fixture("disk.npz"), &Overrides::default()).map(|_| ());
     assert!(e.is_ok());
+}
+
+/// Every reader applies every acquisition override the user gives, and records it as given:
+/// each fixture opened again with its own values given back as overrides (so that nothing else
+/// changes) names each of them as the user's. An override the recording has no use for (a
+/// demodulation frequency for RF samples) and a value no recording can have are refused,
+/// naming the option, not the file's field.
+#[test]
+fn every_reader_applies_every_override_or_refuses_it() {
+    let fixtures = [
+        "disk.npz",
+        "disk.uff",
+        "disk.urx",
+        "disk_v73.mat",
+        "disk_verasonics.mat",
+        "disk_zea.hdf5",
+        "disk_uff.toml",
+        "steered_must_iq.mat",
+        "steered_iq.uff",
+        "steered_iq.urx",
+        "coded_hadamard.toml",
+    ];
+    for name in fixtures {
+        let plain = open(name);
+        let value = |p: &str| {
+            plain
+                .info
+                .parameter(p)
+                .and_then(|p| p.value.as_f64())
+                .unwrap_or_else(|| panic!("{name}: no number {p}"))
+        };
+        let iq = plain.info.parameter("demod_frequency_hz").is_some();
+        let overrides = Overrides {
+            t0_s: Some(value("t0_s")),
+            sound_speed_m_s: Some(value("sound_speed_m_s")),
+            event_prf_hz: Some(value("event_prf_hz")),
+            sampling_freq_hz: Some(value("sampling_frequency_hz")),
+            center_freq_hz: Some(value("center_frequency_hz")),
+            demod_freq_hz: iq.then(|| value("demod_frequency_hz")),
+            pulse_cycles: Some(value("pulse_cycles")),
+            bandwidth: Some(value("bandwidth")),
+            ..Overrides::default()
+        };
+        let given =
+            open_recording(&fixture(name), &overrides).unwrap_or_else(|e| panic!("{name}: {e}"));
+        for p in &plain.info.parameters {
+            let again = given.info.parameter(&p.name).unwrap();
+            assert_eq!(again.value, p.value, "{name}: {}", p.name);
+        }
+        let mut overridden: Vec<&str> = given
+            .info
+            .parameters
+            .iter()
+            .filter(|p| p.source == ParamSource::Override)
+            .map(|p| p.name.as_str())
+            .collect();
+        overridden.sort_unstable();
+        let mut want = vec![
+            "bandwidth",
+            "center_frequency_hz",
+            "event_prf_hz",
+            "pulse_cycles",
+            "sampling_frequency_hz",
+            "sound_speed_m_s",
+            "t0_s",
+        ];
+        if iq {
+            want.push("demod_frequency_hz");
+            want.sort_unstable();
+        }
+        assert_eq!(overridden, want, "{name}");
+        if !iq {
+            let rf = Overrides {
+                demod_freq_hz: Some(5e6),
+                ..Overrides::default()
+            };
+            let refused = open_recording(&fixture(name), &rf).unwrap_err().to_string();
+            assert_mentions(&refused, &["--demod-freq-hz", "RF samples", "not used"]);
+        }
+    }
+    let zero = Overrides {
+        sound_speed_m_s: Some(0.0),
+        ..Overrides::default()
+    };
+    let refused = open_recording(&fixture("disk.npz"), &zero)
+        .unwrap_err()
+        .to_string();
+    assert_mentions(
+        &refused,
+        &["--sound-speed-m-s", "sound_speed_m_s=", "> 0, got 0"],
+    );
+    let nan = Overrides {
+        t0_s: Some(f64::NAN),
+        ..Overrides::default()
+    };
+    let refused = open_recording(&fixture("disk.uff"), &nan)
+        .unwrap_err()
+        .to_string();
+    assert_mentions(&refused, &["--t0-s", "finite"]);
 }
