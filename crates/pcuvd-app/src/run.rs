@@ -42,6 +42,16 @@ impl Plan {
         data: &dyn FrameSource,
         recorded_triggers: Option<&[f64]>,
     ) -> Result<Plan> {
+        // Every map compares frames with one another (the lag-1 autocorrelation, the clutter
+        // filter's temporal subspace): refused now, not after beamforming.
+        if data.n_frames() < 2 {
+            bail!(
+                "the recording holds {} frame{}: Doppler needs at least 2 (each velocity is the \
+                 phase change from one frame to the next)",
+                data.n_frames(),
+                if data.n_frames() == 1 { "" } else { "s" }
+            );
+        }
         let params = options.params(data)?;
         let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
             None

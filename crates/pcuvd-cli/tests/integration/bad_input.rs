@@ -843,6 +843,20 @@ fn every_bad_input_is_refused_naming_the_file_field_and_problem() {
     let data_offset = base_npy.len() - 8 * 4 * 96 * 4;
     let payload = &base_npy[data_offset..];
     cases.npy(&base, "npy_empty", vec![], &[]);
+    // One frame, valid in itself: refused before imaging, for what Doppler needs.
+    std::fs::write(
+        dir.join("one_frame.npy"),
+        npy_bytes("<f4", &[1, 4, 4, 96], &payload[..payload.len() / 2]),
+    )
+    .unwrap();
+    let one_frame = dir.join("one_frame.toml");
+    std::fs::write(&one_frame, set(&base, "file", "file = \"one_frame.npy\"")).unwrap();
+    cases.process(
+        "one_frame",
+        &one_frame,
+        &[],
+        &["holds 1 frame", "Doppler needs at least 2"],
+    );
     cases.npy(
         &base,
         "npy_truncated",
