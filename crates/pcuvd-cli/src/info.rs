@@ -19,7 +19,7 @@ const DIRECTIVITY_F_NUMBER_RULE: &str = "1 / (2 tan θ) where the element's dire
 #[derive(Args, Debug)]
 pub struct InfoArgs {
     /// Recording: MUST .mat (v5 or v7.3) or .npz, USTB .uff, zea .hdf5, a Verasonics workspace
-    /// .mat, or a pcuvd recording manifest .toml; recognised from its content.
+    /// .mat, URX .urx, or a pcuvd recording manifest .toml; recognised from its content.
     pub input: PathBuf,
     /// Acquisition values given on the command line.
     #[command(flatten)]

@@ -31,7 +31,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Process a recording (any format `pcuvd info` reads: MUST, USTB UFF, zea, Verasonics, pcuvd manifest) into B-mode, power, colour and vector Doppler maps.
+    /// Process a recording (any format `pcuvd info` reads: MUST, USTB UFF, zea, Verasonics, URX, pcuvd manifest) into B-mode, power, colour and vector Doppler maps.
     Process(Box<process::ProcessArgs>),
     /// Simulate RF recordings (manifest + .npy) of a flow phantom, conventional and/or Hadamard-coded, with ground truth.
     Simulate(simulate::SimulateArgs),
@@ -41,7 +41,7 @@ enum Command {
     ///
     /// With PCUVD_BEAMFORM_KERNEL=avx2 (or portable) in its environment, the beamformer runs that kernel where the CPU has a faster one: what a CPU without AVX-512 would spend there.
     Bench(bench::BenchArgs),
-    /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
+    /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network, the virtual rat brain; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),
 }
 

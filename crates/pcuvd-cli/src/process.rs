@@ -18,7 +18,8 @@ use crate::progress::Bars;
 #[derive(Args, Debug)]
 pub struct ProcessArgs {
     /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
-    /// a Verasonics workspace .mat, or a pcuvd recording manifest .toml); recognised by content.
+    /// a Verasonics workspace .mat, URX .urx, or a pcuvd recording manifest .toml); recognised
+    /// by content.
     pub input: PathBuf,
     /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]

@@ -2,7 +2,7 @@
 //!
 //! Readers over one vocabulary, in layers that import only downward:
 //! - on top, [`open`]: [`open_recording`], the one entry point that recognises any supported
-//!   recording from its content (MUST v5/v7.3/npz, UFF, zea, Verasonics, manifests) and hands it
+//!   recording from its content (MUST v5/v7.3/npz, UFF, zea, Verasonics, URX, manifests) and hands it
 //!   to its reader;
 //! - [`readers`]: one reader per format ([`must`], [`uff`], [`zea`], [`verasonics`], and
 //!   [`readers::manifest`] with [`frames`]), each reading a block of frames at a time; no reader
