@@ -176,29 +176,49 @@ impl CellCovariance {
 /// zero beyond the edges: a separable correlation.
 fn correlate(a: &Array2<f64>, taps_z: &[f64], taps_x: &[f64]) -> Array2<f64> {
     let (nz, nx) = a.dim();
-    let pass = |a: &Array2<f64>, taps: &[f64], axis: Axis| -> Array2<f64> {
-        let n = a.len_of(axis) as isize;
-        let radius = (taps.len() / 2) as isize;
-        let mut out = Array2::zeros((nz, nx));
-        Zip::indexed(&mut out).par_for_each(|(iz, ix), out| {
-            let centre = if axis == Axis(0) { iz } else { ix } as isize;
-            let mut sum = 0.0;
-            for (k, &w) in taps.iter().enumerate() {
-                let j = centre + k as isize - radius;
-                if (0..n).contains(&j) {
-                    let j = j as usize;
-                    sum += w * if axis == Axis(0) {
-                        a[[j, ix]]
-                    } else {
-                        a[[iz, j]]
-                    };
+    let a = a.as_standard_layout();
+    let rows = |iz: usize| &a.as_slice().expect("standard layout")[iz * nx..(iz + 1) * nx];
+    // Each output row is a weighted sum of whole input rows (depth), then each row is correlated
+    // along itself (lateral): both in rows, which vectorise. Every pixel's terms are added in
+    // the taps' order, the rows beyond the edges skipped.
+    let radius_z = (taps_z.len() / 2) as isize;
+    let mut deep = Array2::<f64>::zeros((nz, nx));
+    deep.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(iz, mut out)| {
+            let out = out.as_slice_mut().expect("standard layout");
+            for (k, &w) in taps_z.iter().enumerate() {
+                let j = iz as isize + k as isize - radius_z;
+                if (0..nz as isize).contains(&j) {
+                    for (o, &v) in out.iter_mut().zip(rows(j as usize)) {
+                        *o += w * v;
+                    }
                 }
             }
-            *out = sum;
         });
-        out
-    };
-    pass(&pass(a, taps_z, Axis(0)), taps_x, Axis(1))
+    let radius_x = (taps_x.len() / 2) as isize;
+    let mut out = Array2::<f64>::zeros((nz, nx));
+    out.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .zip(deep.axis_iter(Axis(0)))
+        .for_each(|(mut out, row)| {
+            let (out, row) = (
+                out.as_slice_mut().expect("standard layout"),
+                row.as_slice().expect("standard layout"),
+            );
+            for (ix, o) in out.iter_mut().enumerate() {
+                let mut sum = 0.0;
+                for (k, &w) in taps_x.iter().enumerate() {
+                    let j = ix as isize + k as isize - radius_x;
+                    if (0..nx as isize).contains(&j) {
+                        sum += w * row[j as usize];
+                    }
+                }
+                *o = sum;
+            }
+        });
+    out
 }
 
 /// Gaussian taps of standard deviation `sigma_px` pixels over ±3σ, each times its offset to the
@@ -225,61 +245,93 @@ pub fn local_gradient_in_mask(
     sigma_px: f64,
     step: f64,
 ) -> (Array2<f64>, Array2<f64>) {
-    let used = Zip::from(map)
-        .and(mask)
-        .map_collect(|&v, &m| if m && v.is_finite() { 1.0 } else { 0.0 });
-    let values = Zip::from(map)
-        .and(&used)
-        .map_collect(|&v, &u| if u > 0.0 { v } else { 0.0 });
-    let g: Vec<Vec<f64>> = (0..3).map(|p| gaussian_taps(sigma_px, p)).collect();
-    // Correlating with taps of i gives Σ w·i·a[z + i]: moments of the neighbours' offsets from
-    // the pixel (i in depth, j laterally).
-    let s00 = correlate(&used, &g[0], &g[0]);
-    let s10 = correlate(&used, &g[1], &g[0]);
-    let s01 = correlate(&used, &g[0], &g[1]);
-    let s20 = correlate(&used, &g[2], &g[0]);
-    let s11 = correlate(&used, &g[1], &g[1]);
-    let s02 = correlate(&used, &g[0], &g[2]);
-    let t00 = correlate(&values, &g[0], &g[0]);
-    let t10 = correlate(&values, &g[1], &g[0]);
-    let t01 = correlate(&values, &g[0], &g[1]);
-    let (nz, nx) = map.dim();
-    let mut dx = Array2::from_elem((nz, nx), f64::NAN);
-    let mut dz = Array2::from_elem((nz, nx), f64::NAN);
-    let det3 = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    for iz in 0..nz {
-        for ix in 0..nx {
-            if !mask[[iz, ix]] {
-                continue;
+    let plane = PlaneFit::new(sigma_px, step);
+    let used = plane.used(map, mask);
+    plane.gradient(map, mask, &used, &plane.moments(&used))
+}
+
+/// The Gaussian-weighted least-squares plane of [`local_gradient_in_mask`], in two parts: the
+/// moments of the pixels used (which the vectors' two components share), then the fit of a map.
+struct PlaneFit {
+    /// Gaussian taps times the offset to the power 0, 1, 2.
+    taps: [Vec<f64>; 3],
+    /// The grid's step (m).
+    step: f64,
+}
+
+impl PlaneFit {
+    fn new(sigma_px: f64, step: f64) -> Self {
+        PlaneFit {
+            taps: [0, 1, 2].map(|p| gaussian_taps(sigma_px, p)),
+            step,
+        }
+    }
+
+    /// 1 at the mask's pixels where `map` is finite, else 0.
+    fn used(&self, map: &Array2<f64>, mask: ArrayView2<bool>) -> Array2<f64> {
+        Zip::from(map)
+            .and(mask)
+            .map_collect(|&v, &m| if m && v.is_finite() { 1.0 } else { 0.0 })
+    }
+
+    /// The weighted moments s00, s10, s01, s20, s11, s02 of the neighbours' offsets from each
+    /// pixel (i in depth, j laterally) over the pixels `used`: correlating with taps of i gives
+    /// Σ w·i·a[z + i].
+    fn moments(&self, used: &Array2<f64>) -> [Array2<f64>; 6] {
+        let g = &self.taps;
+        [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)].map(|(i, j)| correlate(used, &g[i], &g[j]))
+    }
+
+    /// The gradient (∂/∂x, ∂/∂z) (per metre) of `map` at each pixel of `mask`, from the moments
+    /// of the pixels `used`; NaN outside the mask or where no plane is determined.
+    fn gradient(
+        &self,
+        map: &Array2<f64>,
+        mask: ArrayView2<bool>,
+        used: &Array2<f64>,
+        moments: &[Array2<f64>; 6],
+    ) -> (Array2<f64>, Array2<f64>) {
+        let g = &self.taps;
+        let values = Zip::from(map)
+            .and(used)
+            .map_collect(|&v, &u| if u > 0.0 { v } else { 0.0 });
+        let t00 = correlate(&values, &g[0], &g[0]);
+        let t10 = correlate(&values, &g[1], &g[0]);
+        let t01 = correlate(&values, &g[0], &g[1]);
+        let [s00, s10, s01, s20, s11, s02] = moments;
+        let det3 = |m: &[[f64; 3]; 3]| {
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        };
+        let step = self.step;
+        let solved = Zip::indexed(mask).par_map_collect(|(iz, ix), &inside| {
+            if !inside {
+                return (f64::NAN, f64::NAN);
             }
             let p = |a: &Array2<f64>| a[[iz, ix]];
             // [s00 s10 s01; s10 s20 s11; s01 s11 s02]·(c, bz, bx) = (t00, t10, t01), by Cramer.
             let m = [
-                [p(&s00), p(&s10), p(&s01)],
-                [p(&s10), p(&s20), p(&s11)],
-                [p(&s01), p(&s11), p(&s02)],
+                [p(s00), p(s10), p(s01)],
+                [p(s10), p(s20), p(s11)],
+                [p(s01), p(s11), p(s02)],
             ];
             let rhs = [p(&t00), p(&t10), p(&t01)];
             let det = det3(&m);
             // A NaN determinant (no neighbours) fails the test too.
-            let determined = det.abs() > 1e-9 * p(&s00).powi(3);
+            let determined = det.abs() > 1e-9 * p(s00).powi(3);
             if !determined {
-                continue;
+                return (f64::NAN, f64::NAN);
             }
             let with_column = |c: usize| {
                 let mut a = m;
                 (0..3).for_each(|r| a[r][c] = rhs[r]);
                 det3(&a) / det
             };
-            dz[[iz, ix]] = with_column(1) / step;
-            dx[[iz, ix]] = with_column(2) / step;
-        }
+            (with_column(2) / step, with_column(1) / step)
+        });
+        (solved.mapv(|d| d.0), solved.mapv(|d| d.1))
     }
-    (dx, dz)
 }
 
 /// Central differences (∂/∂x, ∂/∂z) of `map` (nz, nx) on square pixels `step` (m) apart,
@@ -376,63 +428,134 @@ pub fn projection_shifts(
     flow: ArrayView2<bool>,
     step: f64,
 ) -> Result<Array3<f64>> {
-    let AngleCells {
-        power,
-        cells,
-        kernel,
-    } = *cells;
-    let (n, nz, nx) = power.dim();
-    if cells.len() != n
-        || angles.len() != n
-        || flow.dim() != (nz, nx)
-        || flow_field.vx.dim() != (nz, nx)
-    {
-        return Err(Error::Shape(format!(
-            "partial-volume shifts of power {:?} with {} cells, {} angles, flow mask {:?} and \
-             vectors {:?}",
-            power.dim(),
-            cells.len(),
-            angles.len(),
-            flow.dim(),
-            flow_field.vx.dim()
-        )));
-    }
-    let mut shifts = Array3::zeros((n, nz, nx));
-    // Smooth over the widest cell's lateral extent, at least one pixel: finer than the cell the
-    // field's gradient is the speckle's, not the flow's.
-    let sigma_px = cells
-        .iter()
-        .flatten()
-        .map(|c| c.through_kernel(kernel, step).xx.sqrt() / step)
-        .fold(1.0, f64::max);
-    let (vx_dx, vx_dz) = local_gradient_in_mask(&flow_field.vx, flow, sigma_px, step);
-    let (vz_dx, vz_dz) = local_gradient_in_mask(&flow_field.vz, flow, sigma_px, step);
-    for (k, cell) in cells.iter().enumerate() {
-        let Some(cell) = cell else { continue };
-        let p = power.index_axis(Axis(0), k);
-        let floor = p.iter().cloned().fold(0.0, f64::max) * 1e-8;
-        if floor <= 0.0 {
-            continue;
+    let offsets = CentroidOffsets::of(cells, angles, flow, step)?;
+    offsets.shifts(flow_field, flow)
+}
+
+/// What the shifts take from the echoes alone, not from the flow: each angle's offset (x, z) (m)
+/// of the centroid its Doppler reads from each pixel ([`kernel_centroid_offsets`]), and the
+/// smoothing of the flow's gradient. Computed once for every round of [`refined_shifts`].
+struct CentroidOffsets {
+    /// Per angle: its offsets, `None` without a cell or power.
+    angles: Vec<Option<AngleOffsets>>,
+    /// The Gaussian of the flow's gradient fit (pixels).
+    sigma_px: f64,
+    /// The grid's step (m).
+    step: f64,
+}
+
+/// One angle's part of [`CentroidOffsets`].
+struct AngleOffsets {
+    /// Its projection weights (lateral, axial).
+    weights: (f64, f64),
+    /// The centroid's lateral offset from each pixel (m).
+    x: Array2<f64>,
+    /// Its axial offset (m).
+    z: Array2<f64>,
+}
+
+impl CentroidOffsets {
+    fn of(cells: &AngleCells, angles: &[f64], flow: ArrayView2<bool>, step: f64) -> Result<Self> {
+        let AngleCells {
+            power,
+            cells,
+            kernel,
+        } = *cells;
+        let (n, nz, nx) = power.dim();
+        if cells.len() != n || angles.len() != n || flow.dim() != (nz, nx) {
+            return Err(Error::Shape(format!(
+                "partial-volume shifts of power {:?} with {} cells, {} angles and flow mask {:?}",
+                power.dim(),
+                cells.len(),
+                angles.len(),
+                flow.dim(),
+            )));
         }
-        let log_power = p.mapv(|v| v.max(floor).ln());
-        let (lp_dx, lp_dz) = gradient(&log_power, step);
-        let (offset_x, offset_z) = kernel_centroid_offsets(p, (&lp_dx, &lp_dz), cell, kernel, step);
-        let (lateral, axial) = projection_weights(angles[k]);
-        Zip::indexed(shifts.index_axis_mut(Axis(0), k)).for_each(|(iz, ix), shift| {
-            if !flow[[iz, ix]] {
-                return;
-            }
-            let (ox, oz) = (offset_x[[iz, ix]], offset_z[[iz, ix]]);
-            // ∇V_θ = ½ (sin θ ∇Vx + (1 + cos θ) ∇Vz).
-            let gx = 0.5 * (lateral * vx_dx[[iz, ix]] + axial * vz_dx[[iz, ix]]);
-            let gz = 0.5 * (lateral * vx_dz[[iz, ix]] + axial * vz_dz[[iz, ix]]);
-            let moved = gx * ox + gz * oz;
-            if moved.is_finite() {
-                *shift = moved;
-            }
-        });
+        // Smooth over the widest cell's lateral extent, at least one pixel: finer than the cell
+        // the field's gradient is the speckle's, not the flow's.
+        let sigma_px = cells
+            .iter()
+            .flatten()
+            .map(|c| c.through_kernel(kernel, step).xx.sqrt() / step)
+            .fold(1.0, f64::max);
+        let angles = (0..n)
+            .into_par_iter()
+            .map(|k| {
+                let cell = cells[k].as_ref()?;
+                let p = power.index_axis(Axis(0), k);
+                let floor = p.iter().cloned().fold(0.0, f64::max) * 1e-8;
+                if floor <= 0.0 {
+                    return None;
+                }
+                let log_power = p.mapv(|v| v.max(floor).ln());
+                let (lp_dx, lp_dz) = gradient(&log_power, step);
+                let (offset_x, offset_z) =
+                    kernel_centroid_offsets(p, (&lp_dx, &lp_dz), cell, kernel, step);
+                Some(AngleOffsets {
+                    weights: projection_weights(angles[k]),
+                    x: offset_x,
+                    z: offset_z,
+                })
+            })
+            .collect();
+        Ok(CentroidOffsets {
+            angles,
+            sigma_px,
+            step,
+        })
     }
-    Ok(shifts)
+
+    /// The shifts (angles, nz, nx; m/s) for the flow `flow_field` in the pixels of `flow`.
+    fn shifts(&self, flow_field: &VectorField, flow: ArrayView2<bool>) -> Result<Array3<f64>> {
+        let (nz, nx) = flow.dim();
+        if flow_field.vx.dim() != (nz, nx) || flow_field.vz.dim() != (nz, nx) {
+            return Err(Error::Shape(format!(
+                "partial-volume shifts with flow mask {:?} and vectors {:?}",
+                flow.dim(),
+                flow_field.vx.dim()
+            )));
+        }
+        let plane = PlaneFit::new(self.sigma_px, self.step);
+        let (used_x, used_z) = (
+            plane.used(&flow_field.vx, flow),
+            plane.used(&flow_field.vz, flow),
+        );
+        // Both components are finite in the same pixels but where a fit failed in one only.
+        let moments_x = plane.moments(&used_x);
+        let moments_z = (used_z != used_x).then(|| plane.moments(&used_z));
+        let ((vx_dx, vx_dz), (vz_dx, vz_dz)) = rayon::join(
+            || plane.gradient(&flow_field.vx, flow, &used_x, &moments_x),
+            || {
+                let moments = moments_z.as_ref().unwrap_or(&moments_x);
+                plane.gradient(&flow_field.vz, flow, &used_z, moments)
+            },
+        );
+        let mut shifts = Array3::zeros((self.angles.len(), nz, nx));
+        for (k, angle) in self.angles.iter().enumerate() {
+            let Some(AngleOffsets {
+                weights: (lateral, axial),
+                x: offset_x,
+                z: offset_z,
+            }) = angle
+            else {
+                continue;
+            };
+            Zip::indexed(shifts.index_axis_mut(Axis(0), k)).for_each(|(iz, ix), shift| {
+                if !flow[[iz, ix]] {
+                    return;
+                }
+                let (ox, oz) = (offset_x[[iz, ix]], offset_z[[iz, ix]]);
+                // ∇V_θ = ½ (sin θ ∇Vx + (1 + cos θ) ∇Vz).
+                let gx = 0.5 * (lateral * vx_dx[[iz, ix]] + axial * vz_dx[[iz, ix]]);
+                let gz = 0.5 * (lateral * vx_dz[[iz, ix]] + axial * vz_dz[[iz, ix]]);
+                let moved = gx * ox + gz * oz;
+                if moved.is_finite() {
+                    *shift = moved;
+                }
+            });
+        }
+        Ok(shifts)
+    }
 }
 
 /// How many times the pipeline estimates the shifts ([`refined_shifts`]). The gradient of the
@@ -458,6 +581,10 @@ pub fn refined_shifts(
     fit: impl Fn(ArrayView3<f64>) -> Result<VectorField>,
 ) -> Result<Array3<f64>> {
     let mut shifts = Array3::zeros(projections.dim());
+    if rounds == 0 {
+        return Ok(shifts);
+    }
+    let offsets = CentroidOffsets::of(cells, angles, flow, step)?;
     for round in 0..rounds {
         let corrected;
         let reference = if round == 0 {
@@ -466,7 +593,7 @@ pub fn refined_shifts(
             corrected = fit(corrected_projections(projections, shifts.view())?.view())?;
             &corrected
         };
-        shifts = projection_shifts(cells, angles, reference, flow, step)?;
+        shifts = offsets.shifts(reference, flow)?;
     }
     Ok(shifts)
 }
