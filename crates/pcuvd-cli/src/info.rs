@@ -222,9 +222,10 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     );
     if let Some(times) = &info.cardiac_triggers_s {
         println!(
-            "  cardiac      {} recorded triggers ([cardiac]): {} cycle(s) from {:.3} to {:.3} s, used by the dynamics stage",
+            "  cardiac      {} recorded triggers ([cardiac]): {} cycle{} from {:.3} to {:.3} s, used by the dynamics stage",
             times.len(),
             times.len() - 1,
+            if times.len() == 2 { "" } else { "s" },
             times[0],
             times[times.len() - 1]
         );

@@ -189,7 +189,7 @@ fn write_dynamics(
     let pngs = figures::dynamics_figures(dir, maps, series, &dparams, &out.grid, name)?;
     let count = |code: u8| maps.vessel_class.iter().filter(|&&c| c == code).count();
     progress.report(&format!(
-        "RI maps: heart rate {:.2} Hz ({}), {} cycle(s); {} arteriole, {} venule, {} undetermined pixels",
+        "RI maps: heart rate {:.2} Hz ({}), {} cycle{}; {} arteriole, {} venule, {} undetermined pixels",
         maps.heart_rate_hz,
         match maps.cycle_source {
             dynamics::CycleSource::GivenRate => "given",
@@ -199,6 +199,7 @@ fn write_dynamics(
             dynamics::CycleSource::Autocorrelation => "measured: autocorrelation",
         },
         maps.cycles.len(),
+        if maps.cycles.len() == 1 { "" } else { "s" },
         count(dynamics::ARTERIOLE),
         count(dynamics::VENULE),
         count(dynamics::UNDETERMINED)
