@@ -35,6 +35,23 @@ def test_a_grid_beyond_the_recording_gives_the_cli_message(disk, cli, tmp_path):
     assert str(raised.value) == expected
 
 
+def test_cut_offs_that_keep_nothing_give_the_cli_message(disk, cli, tmp_path):
+    expected = _cli_error(
+        cli, "process", disk, "--out", tmp_path / "o", "--svd-low=30", "--svd-high=5"
+    )
+    assert "keep no component" in expected
+    with pytest.raises(ValueError) as raised:
+        pcuvd.process(disk, svd_low=30, svd_high=5, quiet=True)
+    assert str(raised.value) == expected
+
+
+def test_an_impossible_override_names_the_keyword(disk):
+    with pytest.raises(ValueError, match=r"sound_speed_m_s=\) must be finite and > 0, got 0"):
+        pcuvd.read_recording(disk, sound_speed_m_s=0)
+    with pytest.raises(ValueError, match="angles_rad= must each be finite and within"):
+        pcuvd.read_recording(disk, angles_rad=[15.0])
+
+
 def test_a_memory_bomb_grid_is_refused_before_any_work(disk):
     with pytest.raises(ValueError, match="too many"):
         pcuvd.process(disk, grid_m=(-1, 1, 0, 1, 1e-6))
