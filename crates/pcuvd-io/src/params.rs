@@ -35,9 +35,8 @@ pub struct Overrides {
 }
 
 /// Each numeric override: the parameter it replaces (as recorded in [`Parameter::name`]), its
-/// command-line option and Python keyword (either empty where only the other takes it), for
-/// messages, and
-/// whether zero is a valid value.
+/// command-line option and Python keyword for messages (either empty where only the other takes
+/// it), and whether zero is a valid value.
 const NUMERIC_OVERRIDES: [(&str, &str, &str, bool); 8] = [
     ("t0_s", "--t0-s", "t0_s", true),
     (
@@ -238,17 +237,7 @@ impl<'a> Resolver<'a> {
 
     /// The override of parameter `name`, if the user gave one.
     fn override_of(&self, name: &str) -> Option<f64> {
-        let o = self.overrides;
-        match name {
-            "t0_s" => o.t0_s,
-            "sound_speed_m_s" => o.sound_speed_m_s,
-            "event_prf_hz" => o.event_prf_hz,
-            "sampling_frequency_hz" => o.sampling_freq_hz,
-            "center_frequency_hz" => o.center_freq_hz,
-            "demod_frequency_hz" => o.demod_freq_hz,
-            "pulse_cycles" => o.pulse_cycles,
-            _ => None,
-        }
+        self.overrides.numeric(name)
     }
 
     /// Resolves number `name`: the user's override, else `found` (value and source), else
