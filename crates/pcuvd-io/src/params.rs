@@ -104,18 +104,24 @@ impl Overrides {
             let Some(v) = self.numeric(name) else {
                 continue;
             };
-            let fine = v.is_finite() && (v > 0.0 || (zero_allowed && v >= 0.0) || name == "t0_s");
-            if !fine {
-                let rule = match (name, zero_allowed) {
-                    ("t0_s", _) => "must be finite",
-                    (_, true) => "must be finite and ≥ 0",
-                    (_, false) => "must be finite and > 0",
-                };
-                return Err(IoError::invalid(
-                    path,
-                    given_as(option, keyword),
-                    format!("{rule}, got {v}"),
-                ));
+            let field = given_as(option, keyword);
+            let refused =
+                |rule: &str| Err(IoError::invalid(path, &field, format!("{rule}, got {v}")));
+            match (name, zero_allowed) {
+                // A time origin may precede the firing: only a number is asked of it.
+                ("t0_s", _) => {
+                    if !v.is_finite() {
+                        return refused("must be finite");
+                    }
+                }
+                (_, true) => {
+                    if !(v.is_finite() && v >= 0.0) {
+                        return refused("must be finite and ≥ 0");
+                    }
+                }
+                (_, false) => {
+                    crate::layout::positive(path, &field, v)?;
+                }
             }
         }
         if let Some(angles) = &self.angles_rad
