@@ -177,7 +177,8 @@ impl CellCovariance {
 fn correlate(a: &Array2<f64>, taps_z: &[f64], taps_x: &[f64]) -> Array2<f64> {
     let (nz, nx) = a.dim();
     let a = a.as_standard_layout();
-    let rows = |iz: usize| &a.as_slice().expect("standard layout")[iz * nx..(iz + 1) * nx];
+    let values = a.as_slice().expect("standard layout");
+    let rows = |iz: usize| &values[iz * nx..(iz + 1) * nx];
     // Each output row is a weighted sum of whole input rows (depth), then each row is correlated
     // along itself (lateral): both in rows, which vectorise. Every pixel's terms are added in
     // the taps' order, the rows beyond the edges skipped.
@@ -438,10 +439,8 @@ pub fn projection_shifts(
 struct CentroidOffsets {
     /// Per angle: its offsets, `None` without a cell or power.
     angles: Vec<Option<AngleOffsets>>,
-    /// The Gaussian of the flow's gradient fit (pixels).
-    sigma_px: f64,
-    /// The grid's step (m).
-    step: f64,
+    /// The fit of the flow's gradient, smoothed over the widest cell.
+    plane: PlaneFit,
 }
 
 /// One angle's part of [`CentroidOffsets`].
@@ -500,8 +499,7 @@ impl CentroidOffsets {
             .collect();
         Ok(CentroidOffsets {
             angles,
-            sigma_px,
-            step,
+            plane: PlaneFit::new(sigma_px, step),
         })
     }
 
@@ -515,7 +513,7 @@ impl CentroidOffsets {
                 flow_field.vx.dim()
             )));
         }
-        let plane = PlaneFit::new(self.sigma_px, self.step);
+        let plane = &self.plane;
         let (used_x, used_z) = (
             plane.used(&flow_field.vx, flow),
             plane.used(&flow_field.vz, flow),
