@@ -72,30 +72,49 @@ impl Autocorrelation {
     }
 }
 
+/// The mean of `map` over a box of `kernel` = (rows, cols) pixels centred on each pixel (odd
+/// sizes), the box cut at the image's edges. Separable: each row's sums along x, then those
+/// sums added down z, rows + cols terms per pixel instead of rows × cols.
 pub(super) fn box_average<T>(map: &Array2<T>, kernel: (usize, usize)) -> Array2<T>
 where
     T: Copy + Default + Send + Sync + std::ops::AddAssign + std::ops::Div<f64, Output = T>,
 {
     let (nz, nx) = map.dim();
     let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
-    let mut out = Array2::<T>::default((nz, nx));
-    out.axis_iter_mut(Axis(0))
-        .into_par_iter()
-        .enumerate()
-        .for_each(|(z, mut row)| {
-            let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
-            for (x, out) in row.iter_mut().enumerate() {
-                let (x0, x1) = (x.saturating_sub(hx), (x + hx + 1).min(nx));
+    if nz == 0 || nx == 0 {
+        return map.clone();
+    }
+    let columns = |x: usize| (x.saturating_sub(hx), (x + hx + 1).min(nx));
+    let map = map.as_standard_layout();
+    let rows = map.as_slice().expect("standard layout");
+    let mut along_x = vec![T::default(); nz * nx];
+    along_x
+        .par_chunks_mut(nx)
+        .zip(rows.par_chunks(nx))
+        .for_each(|(sums, row)| {
+            for (x, sum) in sums.iter_mut().enumerate() {
+                let (x0, x1) = columns(x);
                 let mut acc = T::default();
-                for zz in z0..z1 {
-                    for xx in x0..x1 {
-                        acc += map[[zz, xx]];
-                    }
+                for &v in &row[x0..x1] {
+                    acc += v;
                 }
-                *out = acc / ((z1 - z0) * (x1 - x0)) as f64;
+                *sum = acc;
             }
         });
-    out
+    let mut out = vec![T::default(); nz * nx];
+    out.par_chunks_mut(nx).enumerate().for_each(|(z, row)| {
+        let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
+        for sums in along_x[z0 * nx..z1 * nx].chunks(nx) {
+            for (acc, &v) in row.iter_mut().zip(sums) {
+                *acc += v;
+            }
+        }
+        for (x, out) in row.iter_mut().enumerate() {
+            let (x0, x1) = columns(x);
+            *out = *out / ((z1 - z0) * (x1 - x0)) as f64;
+        }
+    });
+    Array2::from_shape_vec((nz, nx), out).expect("nz × nx values")
 }
 
 /// Axial-lag autocorrelation R(1, 0) per pixel, shape (nz, nx): the mean over frames of
@@ -286,4 +305,38 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
             }
         });
     Ok(SpatialLag { plus, minus, same })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The separable box mean is the mean over each pixel's box written out term by term, the
+    /// box cut at the edges, on maps narrower and shorter than the box too.
+    #[test]
+    fn box_average_is_the_mean_over_each_pixels_box() {
+        for (nz, nx) in [(9, 11), (2, 3), (1, 6)] {
+            let map = Array2::from_shape_fn((nz, nx), |(z, x)| {
+                Complex64::new((z * 31 + x * 7) as f64 % 13.0 - 6.0, ((z * x) % 5) as f64)
+            });
+            for kernel in [(1, 1), (3, 5), (7, 7), (5, 1)] {
+                let averaged = box_average(&map, kernel);
+                for ((z, x), &got) in averaged.indexed_iter() {
+                    let (hz, hx) = (kernel.0 / 2, kernel.1 / 2);
+                    let (mut sum, mut count) = (Complex64::new(0.0, 0.0), 0);
+                    for zz in z.saturating_sub(hz)..(z + hz + 1).min(nz) {
+                        for xx in x.saturating_sub(hx)..(x + hx + 1).min(nx) {
+                            sum += map[[zz, xx]];
+                            count += 1;
+                        }
+                    }
+                    let want = sum / count as f64;
+                    assert!(
+                        (got - want).norm() < 1e-12,
+                        "{kernel:?} on {nz} × {nx} at ({z}, {x}): {got} against {want}"
+                    );
+                }
+            }
+        }
+    }
 }
