@@ -301,102 +301,67 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     } else {
         Vec::new()
     };
-    let maps = (0..n_windows)
-        .into_par_iter()
-        .map(|k| {
-            let start = k * params.step;
-            let mut projections = Array3::<f64>::zeros((n, nz, nx));
-            let mut lateral = Array3::<f64>::zeros((n, nz, nx));
-            let mut nyquist = Array3::<f64>::zeros((n, nz, nx));
-            let mut power_per_angle = Array3::<f64>::zeros((n, nz, nx));
-            for (a, series) in filtered.iter().enumerate() {
-                let window = series.slice(s![.., .., start..start + params.window]);
-                let maps = doppler::doppler_maps(
-                    window,
-                    params.kernel,
-                    params.doppler,
-                    &doppler::DopplerGeometry {
-                        sound_speed,
-                        frame_rate,
-                        demodulation_frequency: center_frequency,
-                        axial_step: images.grid.axial_step(),
-                        axial_weight: vector::projection_weights(angles[a]).1,
-                        lateral_step: images.grid.step(),
-                        lateral_weight: vector::projection_weights(angles[a]).0,
-                    },
-                )?;
-                projections
-                    .index_axis_mut(Axis(0), a)
-                    .assign(&maps.velocity);
-                lateral
-                    .index_axis_mut(Axis(0), a)
-                    .assign(&maps.lateral_weight);
-                nyquist.index_axis_mut(Axis(0), a).assign(
-                    &maps
-                        .mean_frequency
-                        .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
-                );
-                power_per_angle
-                    .index_axis_mut(Axis(0), a)
-                    .assign(&maps.power);
+    let geometries: Vec<_> = angles
+        .iter()
+        .map(|&angle| {
+            let (lateral_weight, axial_weight) = vector::projection_weights(angle);
+            doppler::DopplerGeometry {
+                sound_speed,
+                frame_rate,
+                demodulation_frequency: center_frequency,
+                axial_step: images.grid.axial_step(),
+                axial_weight,
+                lateral_step: grid_step,
+                lateral_weight,
             }
-            let mut power = Array2::<f64>::zeros((nz, nx));
-            for angle_power in power_per_angle.outer_iter() {
-                power += &angle_power;
-            }
-            power /= n as f64;
-            if let Some(c) = coverage {
-                vector::drop_unreached(&mut projections, c);
-            }
-            // Kasai's rows are the model's; Loupas fits its measured lateral weights.
-            let measured =
-                (params.doppler == doppler::DopplerEstimator::Loupas).then(|| lateral.view());
-            let flow = dealias::flow_mask(&power, grid_step);
-            // The correction's shifts rest on a least-squares fit; the window's estimator fits
-            // the corrected projections.
-            let estimators = if params.partial_volume && params.estimator != Estimator::LeastSquares
-            {
-                vec![Estimator::LeastSquares, params.estimator]
-            } else {
-                vec![params.estimator]
-            };
-            let maps = Projections::new(angles, projections.view(), measured, nyquist.view())?;
-            let fits = dealias::dealiased_vectors_each(
-                &maps,
-                &estimators,
-                params.dealias,
-                power.view(),
-                flow.view(),
-            )?;
-            let field = if params.partial_volume {
-                let pairs: Vec<_> = estimators.iter().copied().zip(&fits).collect();
-                crate::estimate::partial_volume::corrected_fits(
-                    &maps,
-                    &pairs,
-                    &crate::estimate::partial_volume::AngleCells {
-                        power: power_per_angle.view(),
-                        cells: &cells,
-                        kernel: params.kernel,
-                    },
-                    flow.view(),
-                    grid_step,
-                )?
-                .pop()
-            } else {
-                fits.into_iter().next().map(|f| f.field)
-            }
-            .ok_or_else(|| Error::Shape("one vector field per estimator".into()))?;
-            Ok((field.vx, field.vz, power))
         })
-        .collect::<Result<Vec<_>>>()?;
-
+        .collect();
+    let fit = WindowFit {
+        angles,
+        coverage,
+        params,
+        cells: &cells,
+        grid_step,
+    };
     let mut vx = Array3::<f64>::zeros((n_windows, nz, nx));
     let mut vz = Array3::<f64>::zeros((n_windows, nz, nx));
     let mut power = Array3::<f64>::zeros((n_windows, nz, nx));
-    for (k, (x, z, p)) in maps.into_iter().enumerate() {
-        vx.index_axis_mut(Axis(0), k).assign(&x);
-        vz.index_axis_mut(Axis(0), k).assign(&z);
-        power.index_axis_mut(Axis(0), k).assign(&p);
+    // Windows are taken a chunk at a time, each angle's moments of the whole chunk from one pass
+    // over its frames; the chunk bounds the memory of the moments and of the angles' maps.
+    let per_window_bytes = nz * nx * (n * AngleMaps::BYTES_PER_PIXEL + MOMENT_BYTES_PER_PIXEL);
+    let chunk = (CHUNK_BYTES / per_window_bytes.max(1)).clamp(1, n_windows);
+    for first in (0..n_windows).step_by(chunk) {
+        let ks = first..(first + chunk).min(n_windows);
+        let starts: Vec<usize> = ks.clone().map(|k| k * params.step).collect();
+        let mut chunk_maps: Vec<AngleMaps> =
+            ks.clone().map(|_| AngleMaps::zeros(n, nz, nx)).collect();
+        for (a, (series, geometry)) in filtered.iter().zip(&geometries).enumerate() {
+            let moments = doppler::window_moments(
+                series.view(),
+                &starts,
+                params.window,
+                params.doppler,
+                geometry,
+            )?;
+            chunk_maps
+                .par_iter_mut()
+                .zip(moments.par_iter())
+                .try_for_each(|(maps, moments)| {
+                    let doppler =
+                        doppler::maps_of_moments(moments, params.kernel, params.doppler, geometry)?;
+                    maps.assign(a, &doppler, sound_speed, frame_rate);
+                    Ok::<_, Error>(())
+                })?;
+        }
+        let fields = chunk_maps
+            .into_par_iter()
+            .map(|maps| fit.vectors(maps))
+            .collect::<Result<Vec<_>>>()?;
+        for (k, (x, z, p)) in ks.zip(fields) {
+            vx.index_axis_mut(Axis(0), k).assign(&x);
+            vz.index_axis_mut(Axis(0), k).assign(&z);
+            power.index_axis_mut(Axis(0), k).assign(&p);
+        }
     }
     let half = (params.window - 1) as f64 / 2.0;
     let times_s = (0..n_windows)
@@ -410,4 +375,123 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
         window_s: params.window as f64 / frame_rate,
         step_s: dt,
     })
+}
+
+/// Memory of the windows taken at a time (bytes): their moments and their angles' maps.
+const CHUNK_BYTES: usize = 256 << 20;
+
+/// Bytes per pixel of one window's moments of one angle (power, and seven complex products).
+const MOMENT_BYTES_PER_PIXEL: usize = 8 + 7 * 16;
+
+/// One window's Doppler maps of every angle, each (angles, nz, nx).
+struct AngleMaps {
+    /// Projection velocity V_θ (m/s).
+    projections: Array3<f64>,
+    /// Lateral weight of each projection (the model's or measured).
+    lateral: Array3<f64>,
+    /// Nyquist velocity of each projection (m/s) at its mean frequency.
+    nyquist: Array3<f64>,
+    /// Power Doppler (|IQ|² units).
+    power: Array3<f64>,
+}
+
+impl AngleMaps {
+    /// Bytes per pixel per angle.
+    const BYTES_PER_PIXEL: usize = 4 * 8;
+
+    fn zeros(angles: usize, nz: usize, nx: usize) -> AngleMaps {
+        let zeros = || Array3::<f64>::zeros((angles, nz, nx));
+        AngleMaps {
+            projections: zeros(),
+            lateral: zeros(),
+            nyquist: zeros(),
+            power: zeros(),
+        }
+    }
+
+    /// Takes angle `a`'s maps from its Doppler.
+    fn assign(&mut self, a: usize, maps: &doppler::DopplerMaps, sound_speed: f64, frame_rate: f64) {
+        self.projections
+            .index_axis_mut(Axis(0), a)
+            .assign(&maps.velocity);
+        self.lateral
+            .index_axis_mut(Axis(0), a)
+            .assign(&maps.lateral_weight);
+        self.nyquist.index_axis_mut(Axis(0), a).assign(
+            &maps
+                .mean_frequency
+                .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
+        );
+        self.power.index_axis_mut(Axis(0), a).assign(&maps.power);
+    }
+}
+
+/// What turns a window's angle maps into its vectors: the same for every window.
+struct WindowFit<'a> {
+    angles: &'a [f64],
+    coverage: Option<ndarray::ArrayView3<'a, bool>>,
+    params: &'a DynamicsParams,
+    cells: &'a [Option<CellCovariance>],
+    grid_step: f64,
+}
+
+impl WindowFit<'_> {
+    /// The window's (Vx, Vz) maps (m/s) and its power Doppler averaged over the angles.
+    fn vectors(&self, maps: AngleMaps) -> Result<(Array2<f64>, Array2<f64>, Array2<f64>)> {
+        let AngleMaps {
+            mut projections,
+            lateral,
+            nyquist,
+            power: power_per_angle,
+        } = maps;
+        let (params, grid_step) = (self.params, self.grid_step);
+        let n = self.angles.len();
+        let (_, nz, nx) = projections.dim();
+        let mut power = Array2::<f64>::zeros((nz, nx));
+        for angle_power in power_per_angle.outer_iter() {
+            power += &angle_power;
+        }
+        power /= n as f64;
+        if let Some(c) = self.coverage {
+            vector::drop_unreached(&mut projections, c);
+        }
+        // Kasai's rows are the model's; Loupas fits its measured lateral weights.
+        let measured =
+            (params.doppler == doppler::DopplerEstimator::Loupas).then(|| lateral.view());
+        let flow = dealias::flow_mask(&power, grid_step);
+        // The correction's shifts rest on a least-squares fit; the window's estimator fits
+        // the corrected projections.
+        let estimators = if params.partial_volume && params.estimator != Estimator::LeastSquares {
+            vec![Estimator::LeastSquares, params.estimator]
+        } else {
+            vec![params.estimator]
+        };
+        let maps = Projections::new(self.angles, projections.view(), measured, nyquist.view())?;
+        let fits = dealias::dealiased_vectors_each(
+            &maps,
+            &estimators,
+            params.dealias,
+            power.view(),
+            flow.view(),
+        )?;
+        let field = if params.partial_volume {
+            let pairs: Vec<_> = estimators.iter().copied().zip(&fits).collect();
+            crate::estimate::partial_volume::corrected_fits(
+                &maps,
+                &pairs,
+                &crate::estimate::partial_volume::AngleCells {
+                    power: power_per_angle.view(),
+                    cells: self.cells,
+                    kernel: params.kernel,
+                },
+                flow.view(),
+                grid_step,
+            )?
+            .pop()
+        } else {
+            fits.into_iter().next().map(|f| f.field)
+        }
+        .ok_or_else(|| Error::Shape("one vector field per estimator".into()))?;
+        Ok((field.vx, field.vz, power))
+    }
 }

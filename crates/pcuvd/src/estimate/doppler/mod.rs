@@ -45,10 +45,12 @@ use crate::core::error::{Error, Result, invalid, require_positive};
 mod autocorrelation;
 mod loupas;
 mod maps;
+mod sliding;
 
 pub use autocorrelation::*;
 pub use loupas::*;
 pub use maps::*;
+pub use sliding::*;
 
 /// Which frequency turns the lag-1 phase into velocity (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
