@@ -137,15 +137,13 @@ pub fn solve_rows(rows: &[(f64, f64)], v_theta: &[f64], estimator: &Estimator) -
     let Estimator::Irls(p) = estimator else {
         return v;
     };
+    // The weights of the next round are formed beside the current ones, then swapped in.
+    let mut new_w = vec![0.0; n];
     for _ in 0..p.max_iterations {
-        let mut new_w: Vec<f64> = rows
-            .iter()
-            .zip(v_theta)
-            .map(|(&(s, c), &vt)| {
-                let residual_mm_s = (2.0 * vt - v.1 * c - v.0 * s) * 1e3;
-                1.0 / (residual_mm_s.abs() + p.lambda_mm_s)
-            })
-            .collect();
+        for ((next, &(s, c)), &vt) in new_w.iter_mut().zip(rows).zip(v_theta) {
+            let residual_mm_s = (2.0 * vt - v.1 * c - v.0 * s) * 1e3;
+            *next = 1.0 / (residual_mm_s.abs() + p.lambda_mm_s);
+        }
         let total: f64 = new_w.iter().sum();
         new_w.iter_mut().for_each(|x| *x /= total);
         let change = new_w
@@ -153,7 +151,7 @@ pub fn solve_rows(rows: &[(f64, f64)], v_theta: &[f64], estimator: &Estimator) -
             .zip(&w)
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
-        w = new_w;
+        std::mem::swap(&mut w, &mut new_w);
         match weighted_solve(rows, v_theta, &w) {
             Some(next) => v = next,
             None => break,
