@@ -14,6 +14,9 @@
 //! them), against the plain fit of the whole map.
 //! Demodulation: one angle of 90 RF frames, 128 channels, 1903 samples at 65 MHz (the rat
 //! network's records), mixed to baseband and low-pass filtered into rows of frames.
+//! Dynamics: the sliding windows of `process` (36 frames, 9 apart, Loupas, 5 × 5 kernel, IRLS)
+//! over 90 frames of 8 angles, 192 × 128 pixels (0.05 mm grid) of random speckle: 7 windows,
+//! each frame in four of them.
 //! Clutter: a 256 × 256 × 100 series with 5 components cut over the whole image; a 256 × 128 ×
 //! 180 series of slowly moving tissue cut by the auto rule block by block (37-pixel blocks, made
 //! 38 so that half-block steps tile the image).
@@ -284,8 +287,53 @@ fn dealias(c: &mut Criterion) {
     group.bench_function("plain_ls_256x256px_8angles", |b| {
         b.iter(|| vector_velocity(&angles, v_theta.view(), &Estimator::LeastSquares).unwrap())
     });
+    group.bench_function("plain_irls_256x256px_8angles", |b| {
+        let irls = Estimator::Irls(IrlsParams::default());
+        b.iter(|| vector_velocity(&angles, v_theta.view(), &irls).unwrap())
+    });
     group.finish();
 }
 
-criterion_group!(benches, das, demodulate, clutter, decode, dealias);
+fn dynamics(c: &mut Criterion) {
+    use pcuvd::dynamics::{DynamicsParams, sliding_vectors};
+    use pcuvd::form::images::AngleImages;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let (nz, nx, frames, step) = (192, 128, 90, 5e-5);
+    let angles: Vec<f64> = (0..8)
+        .map(|i| (-15.0 + 30.0 * i as f64 / 7.0_f64).to_radians())
+        .collect();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let mut draw = || -> f32 { StandardNormal.sample(&mut rng) };
+    let series = angles
+        .iter()
+        .map(|_| Array3::from_shape_fn((nz, nx, frames), |_| Complex32::new(draw(), draw())))
+        .collect();
+    let images = AngleImages {
+        grid: Grid {
+            x: (0..nx).map(|i| i as f64 * step).collect(),
+            z: (0..nz).map(|i| 2e-3 + i as f64 * step).collect(),
+        },
+        angles,
+        frame_rate: 1800.0,
+        sound_speed: 1540.0,
+        demodulation_frequency: 15.625e6,
+        coverage: None,
+        series,
+    };
+    let params = DynamicsParams {
+        kernel: (5, 5),
+        heart_rate_hz: None,
+        ..DynamicsParams::rat()
+    };
+    let mut group = c.benchmark_group("dynamics");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements((nz * nx * 7 * 8) as u64));
+    group.bench_function("windows_36fr_step9_192x128px_8angles_90fr", |b| {
+        b.iter(|| sliding_vectors(&images, &params).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, das, demodulate, clutter, decode, dealias, dynamics);
 criterion_main!(benches);
