@@ -330,11 +330,12 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     // over its frames; the chunk bounds the memory of the moments and of the angles' maps.
     let per_window_bytes = nz * nx * (n * AngleMaps::BYTES_PER_PIXEL + MOMENT_BYTES_PER_PIXEL);
     let chunk = (CHUNK_BYTES / per_window_bytes.max(1)).clamp(1, n_windows);
+    // Every window's maps are written whole: the chunk's are reused from one chunk to the next.
+    let mut chunk_maps: Vec<AngleMaps> = (0..chunk).map(|_| AngleMaps::zeros(n, nz, nx)).collect();
     for first in (0..n_windows).step_by(chunk) {
         let ks = first..(first + chunk).min(n_windows);
         let starts: Vec<usize> = ks.clone().map(|k| k * params.step).collect();
-        let mut chunk_maps: Vec<AngleMaps> =
-            ks.clone().map(|_| AngleMaps::zeros(n, nz, nx)).collect();
+        let chunk_maps = &mut chunk_maps[..ks.len()];
         for (a, (series, geometry)) in filtered.iter().zip(&geometries).enumerate() {
             let moments = doppler::window_moments(
                 series.view(),
@@ -354,7 +355,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
                 })?;
         }
         let fields = chunk_maps
-            .into_par_iter()
+            .par_iter_mut()
             .map(|maps| fit.vectors(maps))
             .collect::<Result<Vec<_>>>()?;
         for (k, (x, z, p)) in ks.zip(fields) {
@@ -436,10 +437,11 @@ struct WindowFit<'a> {
 }
 
 impl WindowFit<'_> {
-    /// The window's (Vx, Vz) maps (m/s) and its power Doppler averaged over the angles.
-    fn vectors(&self, maps: AngleMaps) -> Result<(Array2<f64>, Array2<f64>, Array2<f64>)> {
+    /// The window's (Vx, Vz) maps (m/s) and its power Doppler averaged over the angles; `maps`
+    /// keep their projections only where the angle reaches the pixel.
+    fn vectors(&self, maps: &mut AngleMaps) -> Result<(Array2<f64>, Array2<f64>, Array2<f64>)> {
         let AngleMaps {
-            mut projections,
+            projections,
             lateral,
             nyquist,
             power: power_per_angle,
@@ -453,7 +455,7 @@ impl WindowFit<'_> {
         }
         power /= n as f64;
         if let Some(c) = self.coverage {
-            vector::drop_unreached(&mut projections, c);
+            vector::drop_unreached(projections, c);
         }
         // Kasai's rows are the model's; Loupas fits its measured lateral weights.
         let measured =
