@@ -328,7 +328,8 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     let mut power = Array3::<f64>::zeros((n_windows, nz, nx));
     // Windows are taken a chunk at a time, each angle's moments of the whole chunk from one pass
     // over its frames; the chunk bounds the memory of the moments and of the angles' maps.
-    let per_window_bytes = nz * nx * (n * AngleMaps::BYTES_PER_PIXEL + MOMENT_BYTES_PER_PIXEL);
+    let per_window_bytes =
+        nz * nx * (n * AngleMaps::BYTES_PER_PIXEL + doppler::WINDOW_MOMENT_BYTES_PER_PIXEL);
     let chunk = (CHUNK_BYTES / per_window_bytes.max(1)).clamp(1, n_windows);
     // Every window's maps are written whole: the chunk's are reused from one chunk to the next.
     let mut chunk_maps: Vec<AngleMaps> = (0..chunk).map(|_| AngleMaps::zeros(n, nz, nx)).collect();
@@ -380,9 +381,6 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
 
 /// Memory of the windows taken at a time (bytes): their moments and their angles' maps.
 const CHUNK_BYTES: usize = 256 << 20;
-
-/// Bytes per pixel of one window's moments of one angle (power, and seven complex products).
-const MOMENT_BYTES_PER_PIXEL: usize = 8 + 7 * 16;
 
 /// One window's Doppler maps of every angle, each (angles, nz, nx).
 struct AngleMaps {

@@ -106,7 +106,7 @@ impl Segments {
         let overlap = dynamics
             .map_or(0, |d| d.window.saturating_sub(d.step))
             .max(ensembles.map_or(0, |e| e.frames.saturating_sub(e.step)));
-        let align = lcm(
+        let align = num_integer::lcm(
             dynamics.map_or(1, |d| d.step.max(1)),
             ensembles.map_or(1, |e| e.step.max(1)),
         );
@@ -130,13 +130,6 @@ impl Segments {
             })
             .collect()
     }
-}
-
-fn lcm(a: usize, b: usize) -> usize {
-    fn gcd(a: usize, b: usize) -> usize {
-        if b == 0 { a } else { gcd(b, a % b) }
-    }
-    a / gcd(a, b) * b
 }
 
 /// What [`process_in_segments`] gives: the maps, and the stages that run over time.

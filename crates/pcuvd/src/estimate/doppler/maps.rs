@@ -76,6 +76,41 @@ impl Moments {
     }
 }
 
+/// Which spatial lags an estimator's [`Moments`] hold: the axial one (Loupas), and the lateral
+/// one too where Loupas measures the lateral weight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct MeasuredLags {
+    /// The axial lag ([`Moments::axial`]).
+    pub axial: bool,
+    /// The lateral lag ([`Moments::lateral`]).
+    pub lateral: bool,
+}
+
+impl MeasuredLags {
+    /// The lags `estimator` measures on `geometry` in an image `nx` pixels wide: none for Kasai;
+    /// for Loupas the axial lag (an axial step too coarse for it is refused here, before the
+    /// work) and the lateral one where [`DopplerGeometry::measures_lateral`] and nx ≥ 2.
+    pub(super) fn of(
+        estimator: DopplerEstimator,
+        geometry: &DopplerGeometry,
+        nx: usize,
+    ) -> Result<MeasuredLags> {
+        Ok(match estimator {
+            DopplerEstimator::Kasai => MeasuredLags {
+                axial: false,
+                lateral: false,
+            },
+            DopplerEstimator::Loupas => {
+                geometry.loupas_axial()?;
+                MeasuredLags {
+                    axial: true,
+                    lateral: nx >= 2 && geometry.measures_lateral(),
+                }
+            }
+        })
+    }
+}
+
 /// The [`Moments`] of `series` (nz, nx, frames ≥ 2) that `estimator` needs on this `geometry`:
 /// power and lag-1 for both, the axial lag for Loupas (which needs ≥ 2 rows and an axial step
 /// fine enough for [`AxialSampling::with_weight`], refused here, before the work), the lateral
@@ -86,18 +121,15 @@ pub fn moments(
     geometry: &DopplerGeometry,
 ) -> Result<Moments> {
     let (_, nx, nf) = series.dim();
-    let (axial, lateral) = match estimator {
-        DopplerEstimator::Kasai => (None, None),
-        DopplerEstimator::Loupas => {
-            geometry.loupas_axial()?;
-            let lateral = if nx >= 2 && geometry.measures_lateral() {
-                Some(spatial_lag_means(series, Axis(1))?)
-            } else {
-                None
-            };
-            (Some(spatial_lag_means(series, Axis(0))?), lateral)
-        }
-    };
+    let lags = MeasuredLags::of(estimator, geometry, nx)?;
+    let lateral = lags
+        .lateral
+        .then(|| spatial_lag_means(series, Axis(1)))
+        .transpose()?;
+    let axial = lags
+        .axial
+        .then(|| spatial_lag_means(series, Axis(0)))
+        .transpose()?;
     let raw = autocorrelation(series, (1, 1))?;
     Ok(Moments {
         power: raw.power,

@@ -41,13 +41,10 @@ fn conj_product(x: Complex32, y: Complex32) -> Complex64 {
     )
 }
 
-/// Which spatial lags a window's moments hold: the axial one (Loupas), and the lateral one too
-/// where Loupas measures the lateral weight.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Lags {
-    axial: bool,
-    lateral: bool,
-}
+/// The most memory one window's [`Moments`] from [`window_moments`] take per pixel (bytes): the
+/// power and seven complex products (lag 1, and the three of each spatial lag).
+pub const WINDOW_MOMENT_BYTES_PER_PIXEL: usize =
+    std::mem::size_of::<f64>() + 7 * std::mem::size_of::<Complex64>();
 
 /// The [`Moments`] of the windows of `window` frames of `series` (nz, nx, frames) that start at
 /// each of `starts` (frame indices, ascending), as [`moments`] of each window's frames would give
@@ -79,25 +76,13 @@ pub fn window_moments(
             ),
         ));
     }
-    let lags = match estimator {
-        DopplerEstimator::Kasai => Lags {
-            axial: false,
-            lateral: false,
-        },
-        DopplerEstimator::Loupas => {
-            geometry.loupas_axial()?;
-            if nz < 2 {
-                return Err(invalid(
-                    "Doppler",
-                    format!("a spatial-lag autocorrelation needs at least 2 rows, got {nz}"),
-                ));
-            }
-            Lags {
-                axial: true,
-                lateral: nx >= 2 && geometry.measures_lateral(),
-            }
-        }
-    };
+    let lags = MeasuredLags::of(estimator, geometry, nx)?;
+    if lags.axial && nz < 2 {
+        return Err(invalid(
+            "Doppler",
+            format!("a spatial-lag autocorrelation needs at least 2 rows, got {nz}"),
+        ));
+    }
     // Bins of g frames from the first start: every window begins and ends on a bin boundary.
     let bin = starts
         .iter()
