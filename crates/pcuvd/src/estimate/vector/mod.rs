@@ -7,8 +7,12 @@
 //! (eq. 13) or an iteration cap.
 
 use ndarray::{Array2, Array3, ArrayView3, Axis, Zip};
+use rayon::prelude::*;
 
 use crate::core::error::{Error, Result, invalid};
+
+mod lanes;
+use lanes::{LANES, PixelLanes};
 
 /// Iteratively reweighted least-squares settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -238,25 +242,35 @@ fn field(
     let nominal: Vec<(f64, f64)> = angles.iter().map(|&a| projection_weights(a)).collect();
     let mut vx = Array2::<f64>::zeros((nz, nx));
     let mut vz = Array2::<f64>::zeros((nz, nx));
-    let lanes = v_theta.permuted_axes([1, 2, 0]);
-    let lateral = lateral.map(|l| l.permuted_axes([1, 2, 0]));
-    Zip::indexed(&mut vx)
-        .and(&mut vz)
-        .and(lanes.lanes(Axis(2)))
-        .par_for_each(|(iz, ix), x, z, proj| {
-            let proj: Vec<f64> = proj.to_vec();
-            let rows: Vec<(f64, f64)> = match &lateral {
-                None => nominal.clone(),
-                Some(l) => nominal
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &(s, c))| {
-                        let m = l[[iz, ix, k]];
-                        (if m.is_finite() { m } else { s }, c)
-                    })
-                    .collect(),
-            };
-            (*x, *z) = solve_rows(&rows, &proj, estimator);
+    // A row of pixels per task, LANES pixels of it at a time.
+    vx.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .zip(vz.axis_iter_mut(Axis(0)))
+        .enumerate()
+        .for_each(|(iz, (mut vx_row, mut vz_row))| {
+            let mut lanes = PixelLanes::new(&nominal);
+            for x0 in (0..nx).step_by(LANES) {
+                let count = LANES.min(nx - x0);
+                for l in 0..LANES {
+                    // Lanes past the row's end solve no projection, and are not written.
+                    let ix = x0 + l.min(count - 1);
+                    let pixel = (nominal.iter().enumerate()).map(|(k, &(s, _))| {
+                        // The measured lateral weight where it is finite, else sin θ.
+                        let m = lateral.map_or(s, |lat| lat[[k, iz, ix]]);
+                        let p = if l < count {
+                            v_theta[[k, iz, ix]]
+                        } else {
+                            f64::NAN
+                        };
+                        (if m.is_finite() { m } else { s }, p)
+                    });
+                    lanes.set(l, pixel);
+                }
+                let (x, z) = lanes.solve(estimator);
+                for l in 0..count {
+                    (vx_row[x0 + l], vz_row[x0 + l]) = (x[l], z[l]);
+                }
+            }
         });
     Ok(VectorField { vx, vz })
 }
@@ -361,6 +375,85 @@ mod tests {
         let irls_err = (ix - vx).hypot(iz - vz) / truth;
         assert!(irls_err < 0.05, "IRLS error {irls_err}");
         assert!(ls_err > 0.05, "LS error {ls_err} should exceed 5 %");
+    }
+
+    /// The field's pixels, solved [`LANES`] at a time, are each pixel's [`solve_rows`] to the bit:
+    /// noisy projections (so IRLS takes a different number of rounds per pixel), rows whose
+    /// width is not a multiple of LANES, missing projections and lateral weights, a pixel whose
+    /// system is singular, both estimators and iteration caps that stop rounds early.
+    #[test]
+    fn field_solves_each_pixel_as_alone_to_the_bit() {
+        let angles = paper_angles();
+        let (nz, nx) = (5, 19);
+        let mut seed = 7u64;
+        let mut uniform = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut p = Array3::from_shape_fn((8, nz, nx), |_| 0.0);
+        let mut lateral = Array3::from_shape_fn((8, nz, nx), |_| 0.0);
+        for iz in 0..nz {
+            for ix in 0..nx {
+                let (vx, vz) = (0.04 * uniform() - 0.02, 0.04 * uniform() - 0.02);
+                for (k, &t) in angles.iter().enumerate() {
+                    let (s, c) = projection_weights(t);
+                    let s = s * (0.8 + 0.4 * uniform());
+                    lateral[[k, iz, ix]] = s;
+                    p[[k, iz, ix]] = 0.5 * (vx * s + vz * c) + 0.004 * (uniform() - 0.5);
+                }
+            }
+        }
+        p[[2, 1, 3]] = f64::NAN;
+        p[[0, 1, 3]] = f64::INFINITY;
+        for k in 1..8 {
+            p[[k, 2, 17]] = f64::NAN;
+        }
+        lateral[[4, 3, 9]] = f64::NAN;
+        // Every lateral weight zero: Vx cannot be told, the system is singular.
+        for k in 0..8 {
+            lateral[[k, 4, 0]] = 0.0;
+        }
+        let irls = |max_iterations, epsilon| {
+            Estimator::Irls(IrlsParams {
+                max_iterations,
+                epsilon,
+                ..Default::default()
+            })
+        };
+        for est in [
+            Estimator::LeastSquares,
+            irls(50, 1e-4),
+            irls(3, 1e-4),
+            irls(50, 1e-9),
+        ] {
+            for measured in [None, Some(lateral.view())] {
+                let field = vector_velocity_with(&angles, p.view(), measured, &est).unwrap();
+                for iz in 0..nz {
+                    for ix in 0..nx {
+                        let rows: Vec<(f64, f64)> = (angles.iter().enumerate())
+                            .map(|(k, &t)| {
+                                let (s, c) = projection_weights(t);
+                                let m = measured.map_or(s, |l| l[[k, iz, ix]]);
+                                (if m.is_finite() { m } else { s }, c)
+                            })
+                            .collect();
+                        let alone: Vec<f64> = (0..8).map(|k| p[[k, iz, ix]]).collect();
+                        let (x, z) = solve_rows(&rows, &alone, &est);
+                        let got = (field.vx[[iz, ix]], field.vz[[iz, ix]]);
+                        assert!(
+                            x.to_bits() == got.0.to_bits() && z.to_bits() == got.1.to_bits(),
+                            "{est:?}, measured {}: pixel ({iz}, {ix}) {got:?} against {:?}",
+                            measured.is_some(),
+                            (x, z)
+                        );
+                    }
+                }
+                assert!(field.vx[[4, 0]].is_nan() == measured.is_some());
+                assert!(field.vx[[2, 17]].is_nan());
+            }
+        }
     }
 
     #[test]
