@@ -87,20 +87,27 @@ where
     let columns = |x: usize| (x.saturating_sub(hx), (x + hx + 1).min(nx));
     let map = map.as_standard_layout();
     let rows = map.as_slice().expect("standard layout");
-    let mut along_x = vec![T::default(); nz * nx];
-    along_x
-        .par_chunks_mut(nx)
-        .zip(rows.par_chunks(nx))
-        .for_each(|(sums, row)| {
-            for (x, sum) in sums.iter_mut().enumerate() {
-                let (x0, x1) = columns(x);
-                let mut acc = T::default();
-                for &v in &row[x0..x1] {
-                    acc += v;
+    // A box one pixel wide (the default 5x1 kernel) needs no sums along x: each is the value
+    // itself. (The sums down z start from +0, so a value of −0 adds as its one-term sum, +0,
+    // would: the same to the bit.)
+    let along_x: std::borrow::Cow<[T]> = if hx == 0 {
+        std::borrow::Cow::Borrowed(rows)
+    } else {
+        let mut sums = vec![T::default(); nz * nx];
+        sums.par_chunks_mut(nx)
+            .zip(rows.par_chunks(nx))
+            .for_each(|(sums, row)| {
+                for (x, sum) in sums.iter_mut().enumerate() {
+                    let (x0, x1) = columns(x);
+                    let mut acc = T::default();
+                    for &v in &row[x0..x1] {
+                        acc += v;
+                    }
+                    *sum = acc;
                 }
-                *sum = acc;
-            }
-        });
+            });
+        std::borrow::Cow::Owned(sums)
+    };
     let mut out = vec![T::default(); nz * nx];
     out.par_chunks_mut(nx).enumerate().for_each(|(z, row)| {
         let (z0, z1) = (z.saturating_sub(hz), (z + hz + 1).min(nz));
