@@ -76,251 +76,344 @@ impl PixelLanes {
         (0..LANES).fold(0, |solvable, l| solvable | (u8::from(count[l] >= 2) << l))
     }
 
-    /// Every lane's (Vx, Vz) in m/s, as [`solve_rows`](super::solve_rows) gives it: in AVX-512 registers where the
-    /// CPU has them.
+    /// Every lane's (Vx, Vz) in m/s, as [`solve_rows`](super::solve_rows) gives it: in pairs of
+    /// AVX2 registers where the CPU has them. (One AVX-512 register per operation was no faster
+    /// on an Intel Xeon with AVX-512: 26–27 ms against 25–26 ms for criterion's
+    /// `dealias/plain_irls`, the divisions bounding both; the portable path 41–42 ms, one pixel
+    /// at a time 60 ms.)
     pub(super) fn solve(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
         #[cfg(target_arch = "x86_64")]
-        {
-            if is_x86_feature_detected!("avx512f") {
-                // SAFETY: AVX-512F was detected.
-                return unsafe { self.solve_avx512(estimator) };
-            }
-            if is_x86_feature_detected!("avx2") {
-                // SAFETY: AVX2 was detected.
-                return unsafe { self.solve_avx2(estimator) };
-            }
+        if is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 was detected.
+            return unsafe { self.solve_avx2(estimator) };
         }
-        self.solve_portable(estimator)
+        self.solve_in::<Lanes>(estimator)
     }
 
-    /// [`PixelLanes::solve_portable`] in AVX-512 registers, a lane per pixel, with the same
-    /// operations in the same order (the compiler's own vectorisation of the portable loops
-    /// mixed register widths and shuffles: a fifth faster than one pixel at a time, against
-    /// twice as fast here).
+    /// [`PixelLanes::solve_in`] in pairs of AVX2 registers.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    unsafe fn solve_avx512(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
-        use std::arch::x86_64::*;
-        let load = |a: &Lanes| unsafe { _mm512_loadu_pd(a.as_ptr()) };
-        let store = |to: &mut Lanes, v: __m512d| unsafe { _mm512_storeu_pd(to.as_mut_ptr(), v) };
-        let lanes = |v: __m512d| {
-            let mut out = [0.0; LANES];
-            store(&mut out, v);
-            out
-        };
+    #[target_feature(enable = "avx2")]
+    unsafe fn solve_avx2(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
+        self.solve_in::<simd::Avx2Pair>(estimator)
+    }
+
+    /// [`solve_rows`](super::solve_rows) of every lane at once, in the registers of `V`: the same
+    /// operations in the same order as one pixel alone, lanes that are done left as they are.
+    #[inline(always)]
+    fn solve_in<V: EightLanes>(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
         let solvable = self.start();
-        let (vx, vz, solved) = self.weighted_solve_avx512();
+        let (vx, vz, solved) = self.weighted_solve_in::<V>();
         // A lane whose first solve fails, or that has fewer than two projections, has no vector.
         let solved = solved & solvable;
-        let nan = _mm512_set1_pd(f64::NAN);
-        let (mut vx, mut vz) = (
-            _mm512_mask_blend_pd(solved, nan, vx),
-            _mm512_mask_blend_pd(solved, nan, vz),
-        );
+        let nan = V::splat(f64::NAN);
+        let (mut vx, mut vz) = (V::select(solved, vx, nan), V::select(solved, vz, nan));
         let Estimator::Irls(p) = estimator else {
-            return (lanes(vx), lanes(vz));
+            return (vx.lanes(), vz.lanes());
         };
-        let (two, thousand, one) = (
-            _mm512_set1_pd(2.0),
-            _mm512_set1_pd(1e3),
-            _mm512_set1_pd(1.0),
-        );
-        let (lambda, epsilon) = (_mm512_set1_pd(p.lambda_mm_s), _mm512_set1_pd(p.epsilon));
+        let (two, thousand, one) = (V::splat(2.0), V::splat(1e3), V::splat(1.0));
+        let (lambda, epsilon) = (V::splat(p.lambda_mm_s), V::splat(p.epsilon));
         let mut active = solved;
         for _ in 0..p.max_iterations {
             if active == 0 {
                 break;
             }
-            // The weights 1/(|r| + λ), r = 2·V_θ − Vz·c − Vx·s in mm/s (0 where a lane has no
-            // projection), and their sum in the angles' order.
-            let mut total = _mm512_set1_pd(-0.0);
+            // The weights 1/(|r| + λ), r = (2·V_θ − Vz·c − Vx·s)·10³ in mm/s (0 where a lane has
+            // no projection), and their sum in the angles' order.
+            let mut total = V::splat(-0.0);
             for ((((next, lateral), &c), v), &present) in (self.new_w.iter_mut())
                 .zip(&self.lateral)
                 .zip(&self.axial)
                 .zip(&self.v_theta)
                 .zip(&self.present)
             {
-                let fitted = _mm512_sub_pd(
-                    _mm512_mul_pd(two, load(v)),
-                    _mm512_mul_pd(vz, _mm512_set1_pd(c)),
-                );
-                let residual_mm_s = _mm512_mul_pd(
-                    _mm512_sub_pd(fitted, _mm512_mul_pd(vx, load(lateral))),
-                    thousand,
-                );
-                let weight = _mm512_maskz_div_pd(
-                    present,
-                    one,
-                    _mm512_add_pd(_mm512_abs_pd(residual_mm_s), lambda),
-                );
-                store(next, weight);
-                total = _mm512_add_pd(total, weight);
+                let fitted = two.mul(V::load(v)).sub(vz.mul(V::splat(c)));
+                let residual_mm_s = fitted.sub(vx.mul(V::load(lateral))).mul(thousand);
+                let weight = one
+                    .div(residual_mm_s.abs().add(lambda))
+                    .zero_unless(present);
+                weight.store(next);
+                total = total.add(weight);
             }
-            // Normalised, and the largest change of a weight (max ignores a NaN change, as
-            // f64::max does: the second operand is what it returns when either is NaN).
-            let mut change = _mm512_setzero_pd();
+            // Normalised, and the largest change of a weight (a NaN change ignored, as f64::max
+            // ignores it).
+            let mut change = V::splat(0.0);
             for (next, w) in self.new_w.iter_mut().zip(&self.w) {
-                let normalised = _mm512_div_pd(load(next), total);
-                store(next, normalised);
-                change = _mm512_max_pd(_mm512_abs_pd(_mm512_sub_pd(normalised, load(w))), change);
+                let normalised = V::load(next).div(total);
+                normalised.store(next);
+                change = change.max_of(normalised.sub(V::load(w)).abs());
             }
             std::mem::swap(&mut self.w, &mut self.new_w);
-            let (x, z, solved) = self.weighted_solve_avx512();
+            let (x, z, solved) = self.weighted_solve_in::<V>();
             let moved = active & solved;
-            vx = _mm512_mask_blend_pd(moved, vx, x);
-            vz = _mm512_mask_blend_pd(moved, vz, z);
-            let converged = _mm512_cmp_pd_mask::<_CMP_LT_OQ>(change, epsilon);
+            vx = V::select(moved, x, vx);
+            vz = V::select(moved, z, vz);
+            let converged = change.less_than(epsilon);
             active = moved & !converged;
         }
-        (lanes(vx), lanes(vz))
+        (vx.lanes(), vz.lanes())
     }
 
-    /// [`PixelLanes::weighted_solve`] in AVX-512 registers: (Vx, Vz) and the lanes solved.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    fn weighted_solve_avx512(
-        &self,
-    ) -> (
-        std::arch::x86_64::__m512d,
-        std::arch::x86_64::__m512d,
-        std::arch::x86_64::__mmask8,
-    ) {
-        use std::arch::x86_64::*;
-        let load = |a: &Lanes| unsafe { _mm512_loadu_pd(a.as_ptr()) };
-        let zero = _mm512_setzero_pd();
-        let two = _mm512_set1_pd(2.0);
+    /// [`weighted_solve`](super::weighted_solve) of every lane with the weights `self.w`, in the
+    /// registers of `V`: (Vx, Vz) and the lanes whose system could be solved.
+    #[inline(always)]
+    fn weighted_solve_in<V: EightLanes>(&self) -> (V, V, u8) {
+        let zero = V::splat(0.0);
+        let two = V::splat(2.0);
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (zero, zero, zero, zero, zero);
         for (((s, &c), v), w) in (self.lateral.iter())
             .zip(&self.axial)
             .zip(&self.v_theta)
             .zip(&self.w)
         {
-            let (s, c, v, w) = (load(s), _mm512_set1_pd(c), load(v), load(w));
+            let (s, c, v, w) = (V::load(s), V::splat(c), V::load(v), V::load(w));
             // w·s·s, w·s·c, w·c·c, w·s·2·v, w·c·2·v, each multiplied from the left.
-            let (ws, wc) = (_mm512_mul_pd(w, s), _mm512_mul_pd(w, c));
-            a11 = _mm512_add_pd(a11, _mm512_mul_pd(ws, s));
-            a12 = _mm512_add_pd(a12, _mm512_mul_pd(ws, c));
-            a22 = _mm512_add_pd(a22, _mm512_mul_pd(wc, c));
-            b1 = _mm512_add_pd(b1, _mm512_mul_pd(_mm512_mul_pd(ws, two), v));
-            b2 = _mm512_add_pd(b2, _mm512_mul_pd(_mm512_mul_pd(wc, two), v));
+            let (ws, wc) = (w.mul(s), w.mul(c));
+            a11 = a11.add(ws.mul(s));
+            a12 = a12.add(ws.mul(c));
+            a22 = a22.add(wc.mul(c));
+            b1 = b1.add(ws.mul(two).mul(v));
+            b2 = b2.add(wc.mul(two).mul(v));
         }
-        let det = _mm512_sub_pd(_mm512_mul_pd(a11, a22), _mm512_mul_pd(a12, a12));
-        // max returns its second operand where the product is NaN, as f64::max does.
-        let floor = _mm512_mul_pd(
-            _mm512_set1_pd(1e-12),
-            _mm512_max_pd(
-                _mm512_abs_pd(_mm512_mul_pd(a11, a22)),
-                _mm512_set1_pd(f64::MIN_POSITIVE),
-            ),
-        );
-        let singular = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(_mm512_abs_pd(det), floor);
-        let vx = _mm512_div_pd(
-            _mm512_sub_pd(_mm512_mul_pd(a22, b1), _mm512_mul_pd(a12, b2)),
-            det,
-        );
-        let vz = _mm512_div_pd(
-            _mm512_sub_pd(_mm512_mul_pd(a11, b2), _mm512_mul_pd(a12, b1)),
-            det,
-        );
+        let det = a11.mul(a22).sub(a12.mul(a12));
+        let floor = V::splat(1e-12).mul(a11.mul(a22).abs().at_least(f64::MIN_POSITIVE));
+        let singular = det.abs().at_most(floor);
+        let vx = a22.mul(b1).sub(a12.mul(b2)).div(det);
+        let vz = a11.mul(b2).sub(a12.mul(b1)).div(det);
         (vx, vz, !singular)
     }
+}
 
-    /// [`PixelLanes::solve_portable`] compiled for AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn solve_avx2(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
-        self.solve_portable(estimator)
+/// Eight f64 lanes in registers and the operations [`PixelLanes`] solves with: each lane's result
+/// is the one IEEE operation f64 does (no fused multiply-adds), so every path gives the same bits.
+/// Masks are a bit per lane (bit l: lane l).
+trait EightLanes: Copy {
+    /// Every lane `v`.
+    fn splat(v: f64) -> Self;
+    /// The lanes of `a`.
+    fn load(a: &Lanes) -> Self;
+    /// Writes the lanes to `to`.
+    fn store(self, to: &mut Lanes);
+    /// The lanes, as an array.
+    fn lanes(self) -> Lanes {
+        let mut out = [0.0; LANES];
+        self.store(&mut out);
+        out
+    }
+    /// self + o.
+    fn add(self, o: Self) -> Self;
+    /// self − o.
+    fn sub(self, o: Self) -> Self;
+    /// self · o.
+    fn mul(self, o: Self) -> Self;
+    /// self / o.
+    fn div(self, o: Self) -> Self;
+    /// |self|.
+    fn abs(self) -> Self;
+    /// f64::max(self, o) where self is not NaN: self where o is NaN.
+    fn max_of(self, o: Self) -> Self;
+    /// f64::max(self, floor) for a floor that is not NaN: floor where self is NaN.
+    fn at_least(self, floor: f64) -> Self;
+    /// The lanes where self < o (false where either is NaN).
+    fn less_than(self, o: Self) -> u8;
+    /// The lanes where self ≤ o (false where either is NaN).
+    fn at_most(self, o: Self) -> u8;
+    /// `if_set`'s lanes where `mask` has them, `if_clear`'s elsewhere.
+    fn select(mask: u8, if_set: Self, if_clear: Self) -> Self;
+    /// These lanes where `mask` has them, +0 elsewhere.
+    fn zero_unless(self, mask: u8) -> Self;
+}
+
+/// The portable path: each lane one f64 operation after another.
+impl EightLanes for Lanes {
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        [v; LANES]
+    }
+    #[inline(always)]
+    fn load(a: &Lanes) -> Self {
+        *a
+    }
+    #[inline(always)]
+    fn store(self, to: &mut Lanes) {
+        *to = self;
+    }
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        std::array::from_fn(|l| self[l] + o[l])
+    }
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        std::array::from_fn(|l| self[l] - o[l])
+    }
+    #[inline(always)]
+    fn mul(self, o: Self) -> Self {
+        std::array::from_fn(|l| self[l] * o[l])
+    }
+    #[inline(always)]
+    fn div(self, o: Self) -> Self {
+        std::array::from_fn(|l| self[l] / o[l])
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        self.map(f64::abs)
+    }
+    #[inline(always)]
+    fn max_of(self, o: Self) -> Self {
+        std::array::from_fn(|l| self[l].max(o[l]))
+    }
+    #[inline(always)]
+    fn at_least(self, floor: f64) -> Self {
+        self.map(|v| v.max(floor))
+    }
+    #[inline(always)]
+    fn less_than(self, o: Self) -> u8 {
+        (0..LANES).fold(0, |m, l| m | (u8::from(self[l] < o[l]) << l))
+    }
+    #[inline(always)]
+    fn at_most(self, o: Self) -> u8 {
+        (0..LANES).fold(0, |m, l| m | (u8::from(self[l] <= o[l]) << l))
+    }
+    #[inline(always)]
+    fn select(mask: u8, if_set: Self, if_clear: Self) -> Self {
+        std::array::from_fn(|l| {
+            if mask >> l & 1 == 1 {
+                if_set[l]
+            } else {
+                if_clear[l]
+            }
+        })
+    }
+    #[inline(always)]
+    fn zero_unless(self, mask: u8) -> Self {
+        Self::select(mask, self, [0.0; LANES])
+    }
+}
+
+/// The vector-register path. Its operations are inlined into [`PixelLanes::solve_avx2`], which
+/// runs only where `solve` detected AVX2: that is what makes each `unsafe` intrinsic call below
+/// sound.
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    use super::{EightLanes, LANES, Lanes};
+    use std::arch::x86_64::*;
+
+    /// Eight lanes in two AVX2 registers (lanes 0–3, 4–7).
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx2Pair([__m256d; 2]);
+
+    impl Avx2Pair {
+        /// `f` on each register.
+        #[inline(always)]
+        fn each(self, f: impl Fn(__m256d) -> __m256d) -> Self {
+            Avx2Pair([f(self.0[0]), f(self.0[1])])
+        }
+        /// `f` on each pair of registers.
+        #[inline(always)]
+        fn with(self, o: Self, f: impl Fn(__m256d, __m256d) -> __m256d) -> Self {
+            Avx2Pair([f(self.0[0], o.0[0]), f(self.0[1], o.0[1])])
+        }
+        /// A lane mask as bit l of `mask` for lane l, from both registers' comparisons.
+        #[inline(always)]
+        fn bits(low: __m256d, high: __m256d) -> u8 {
+            unsafe { (_mm256_movemask_pd(low) | _mm256_movemask_pd(high) << 4) as u8 }
+        }
+        /// Each register's lanes all ones where `mask` has them, zeros elsewhere.
+        #[inline(always)]
+        fn lane_masks(mask: u8) -> [__m256d; 2] {
+            let lane = |l: usize| if mask >> l & 1 == 1 { -1i64 } else { 0 };
+            unsafe {
+                [
+                    _mm256_castsi256_pd(_mm256_setr_epi64x(lane(0), lane(1), lane(2), lane(3))),
+                    _mm256_castsi256_pd(_mm256_setr_epi64x(lane(4), lane(5), lane(6), lane(7))),
+                ]
+            }
+        }
     }
 
-    /// [`solve_rows`](super::solve_rows) lane by lane, written as loops over the lanes.
-    #[inline(always)]
-    fn solve_portable(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
-        let solvable = self.start();
-        let (mut vx, mut vz, first) = self.weighted_solve();
-        // A lane whose first solve fails, or that has fewer than two projections, has no vector.
-        let mut active = [false; LANES];
-        for l in 0..LANES {
-            active[l] = first[l] && solvable >> l & 1 == 1;
-            if !active[l] {
-                (vx[l], vz[l]) = (f64::NAN, f64::NAN);
+    // SAFETY (every block below): reached only from code compiled for AVX2 after detection.
+    impl EightLanes for Avx2Pair {
+        #[inline(always)]
+        fn splat(v: f64) -> Self {
+            let v = unsafe { _mm256_set1_pd(v) };
+            Avx2Pair([v, v])
+        }
+        #[inline(always)]
+        fn load(a: &Lanes) -> Self {
+            const HALF: usize = LANES / 2;
+            unsafe {
+                Avx2Pair([
+                    _mm256_loadu_pd(a.as_ptr()),
+                    _mm256_loadu_pd(a.as_ptr().add(HALF)),
+                ])
             }
         }
-        let Estimator::Irls(p) = estimator else {
-            return (vx, vz);
-        };
-        for _ in 0..p.max_iterations {
-            if !active.iter().any(|&a| a) {
-                break;
-            }
-            for ((((next, lateral), &c), v), &present) in (self.new_w.iter_mut())
-                .zip(&self.lateral)
-                .zip(&self.axial)
-                .zip(&self.v_theta)
-                .zip(&self.present)
-            {
-                for l in 0..LANES {
-                    let residual_mm_s = (2.0 * v[l] - vz[l] * c - vx[l] * lateral[l]) * 1e3;
-                    next[l] = if present >> l & 1 == 1 {
-                        1.0 / (residual_mm_s.abs() + p.lambda_mm_s)
-                    } else {
-                        0.0
-                    };
-                }
-            }
-            let mut total = [-0.0; LANES];
-            for next in &self.new_w {
-                for l in 0..LANES {
-                    total[l] += next[l];
-                }
-            }
-            let mut change = [0.0f64; LANES];
-            for (next, w) in self.new_w.iter_mut().zip(&self.w) {
-                for l in 0..LANES {
-                    next[l] /= total[l];
-                    change[l] = change[l].max((next[l] - w[l]).abs());
-                }
-            }
-            std::mem::swap(&mut self.w, &mut self.new_w);
-            let (x, z, solved) = self.weighted_solve();
-            for l in 0..LANES {
-                if active[l] && solved[l] {
-                    (vx[l], vz[l]) = (x[l], z[l]);
-                }
-                let converged = change[l] < p.epsilon;
-                active[l] = active[l] && solved[l] && !converged;
+        #[inline(always)]
+        fn store(self, to: &mut Lanes) {
+            const HALF: usize = LANES / 2;
+            unsafe {
+                _mm256_storeu_pd(to.as_mut_ptr(), self.0[0]);
+                _mm256_storeu_pd(to.as_mut_ptr().add(HALF), self.0[1]);
             }
         }
-        (vx, vz)
-    }
-
-    /// [`weighted_solve`](super::weighted_solve) of every lane with the weights `self.w`: (Vx, Vz) and whether the
-    /// lane's system could be solved.
-    #[inline(always)]
-    fn weighted_solve(&self) -> (Lanes, Lanes, [bool; LANES]) {
-        let zero = [0.0f64; LANES];
-        let (mut a11, mut a12, mut a22, mut b1, mut b2) = (zero, zero, zero, zero, zero);
-        for (((s, &c), v), w) in (self.lateral.iter())
-            .zip(&self.axial)
-            .zip(&self.v_theta)
-            .zip(&self.w)
-        {
-            for l in 0..LANES {
-                a11[l] += w[l] * s[l] * s[l];
-                a12[l] += w[l] * s[l] * c;
-                a22[l] += w[l] * c * c;
-                b1[l] += w[l] * s[l] * 2.0 * v[l];
-                b2[l] += w[l] * c * 2.0 * v[l];
+        #[inline(always)]
+        fn add(self, o: Self) -> Self {
+            self.with(o, |a, b| unsafe { _mm256_add_pd(a, b) })
+        }
+        #[inline(always)]
+        fn sub(self, o: Self) -> Self {
+            self.with(o, |a, b| unsafe { _mm256_sub_pd(a, b) })
+        }
+        #[inline(always)]
+        fn mul(self, o: Self) -> Self {
+            self.with(o, |a, b| unsafe { _mm256_mul_pd(a, b) })
+        }
+        #[inline(always)]
+        fn div(self, o: Self) -> Self {
+            self.with(o, |a, b| unsafe { _mm256_div_pd(a, b) })
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            self.each(|a| unsafe { _mm256_andnot_pd(_mm256_set1_pd(-0.0), a) })
+        }
+        // max_pd returns its second operand where either is NaN.
+        #[inline(always)]
+        fn max_of(self, o: Self) -> Self {
+            o.with(self, |a, b| unsafe { _mm256_max_pd(a, b) })
+        }
+        #[inline(always)]
+        fn at_least(self, floor: f64) -> Self {
+            self.each(|a| unsafe { _mm256_max_pd(a, _mm256_set1_pd(floor)) })
+        }
+        #[inline(always)]
+        fn less_than(self, o: Self) -> u8 {
+            let lt = |a, b| unsafe { _mm256_cmp_pd::<_CMP_LT_OQ>(a, b) };
+            Self::bits(lt(self.0[0], o.0[0]), lt(self.0[1], o.0[1]))
+        }
+        #[inline(always)]
+        fn at_most(self, o: Self) -> u8 {
+            let le = |a, b| unsafe { _mm256_cmp_pd::<_CMP_LE_OQ>(a, b) };
+            Self::bits(le(self.0[0], o.0[0]), le(self.0[1], o.0[1]))
+        }
+        #[inline(always)]
+        fn select(mask: u8, if_set: Self, if_clear: Self) -> Self {
+            let m = Self::lane_masks(mask);
+            unsafe {
+                Avx2Pair([
+                    _mm256_blendv_pd(if_clear.0[0], if_set.0[0], m[0]),
+                    _mm256_blendv_pd(if_clear.0[1], if_set.0[1], m[1]),
+                ])
             }
         }
-        let (mut vx, mut vz, mut solved) = (zero, zero, [false; LANES]);
-        for l in 0..LANES {
-            let det = a11[l] * a22[l] - a12[l] * a12[l];
-            let singular = det.abs() <= 1e-12 * (a11[l] * a22[l]).abs().max(f64::MIN_POSITIVE);
-            solved[l] = !singular;
-            vx[l] = (a22[l] * b1[l] - a12[l] * b2[l]) / det;
-            vz[l] = (a11[l] * b2[l] - a12[l] * b1[l]) / det;
+        #[inline(always)]
+        fn zero_unless(self, mask: u8) -> Self {
+            let m = Self::lane_masks(mask);
+            unsafe {
+                Avx2Pair([
+                    _mm256_and_pd(self.0[0], m[0]),
+                    _mm256_and_pd(self.0[1], m[1]),
+                ])
+            }
         }
-        (vx, vz, solved)
     }
 }
 
@@ -335,7 +428,7 @@ mod tests {
             .collect()
     }
 
-    /// Every path of [`PixelLanes::solve`] the CPU can run (portable, AVX2, AVX-512) gives each
+    /// Every path of [`PixelLanes::solve`] the CPU can run (portable, AVX2) gives each
     /// lane [`solve_rows`]'s vector to the bit: lanes missing projections, a lane with one
     /// projection and a singular lane (both NaN) among them.
     #[test]
@@ -382,16 +475,12 @@ mod tests {
                     ..Default::default()
                 }),
             ] {
-                let mut paths = vec![("portable", lanes.solve_portable(&est))];
+                let mut paths = vec![("portable", lanes.solve_in::<Lanes>(&est))];
                 #[cfg(target_arch = "x86_64")]
                 {
                     if is_x86_feature_detected!("avx2") {
                         // SAFETY: AVX2 was detected.
                         paths.push(("AVX2", unsafe { lanes.solve_avx2(&est) }));
-                    }
-                    if is_x86_feature_detected!("avx512f") {
-                        // SAFETY: AVX-512F was detected.
-                        paths.push(("AVX-512", unsafe { lanes.solve_avx512(&est) }));
                     }
                 }
                 for (path, (x, z)) in paths {
