@@ -419,14 +419,9 @@ mod simd {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::paper_angles;
     use super::super::{IrlsParams, projection_weights, solve_rows};
     use super::*;
-
-    fn paper_angles() -> Vec<f64> {
-        (0..8)
-            .map(|i| (-15.0 + 30.0 * i as f64 / 7.0_f64).to_radians())
-            .collect()
-    }
 
     /// Every path of [`PixelLanes::solve`] the CPU can run (portable, AVX2) gives each
     /// lane [`solve_rows`]'s vector to the bit: lanes missing projections, a lane with one
@@ -435,13 +430,9 @@ mod tests {
     fn every_lane_path_solves_as_solve_rows() {
         let angles = paper_angles();
         let nominal: Vec<(f64, f64)> = angles.iter().map(|&a| projection_weights(a)).collect();
-        let mut seed = 11u64;
-        let mut uniform = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let mut uniform = move || rng.random_range(0.0..1.0);
         for group in 0..20 {
             let mut lanes = PixelLanes::new(&nominal);
             let mut problems = Vec::new();

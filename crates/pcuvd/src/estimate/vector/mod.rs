@@ -279,7 +279,8 @@ fn field(
 mod tests {
     use super::*;
 
-    fn paper_angles() -> Vec<f64> {
+    /// The paper's 8 angles, −15° to 15° (rad).
+    pub(super) fn paper_angles() -> Vec<f64> {
         (0..8)
             .map(|i| (-15.0 + 30.0 * i as f64 / 7.0_f64).to_radians())
             .collect()
@@ -385,13 +386,9 @@ mod tests {
     fn field_solves_each_pixel_as_alone_to_the_bit() {
         let angles = paper_angles();
         let (nz, nx) = (5, 19);
-        let mut seed = 7u64;
-        let mut uniform = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let mut uniform = move || rng.random_range(0.0..1.0);
         let mut p = Array3::from_shape_fn((8, nz, nx), |_| 0.0);
         let mut lateral = Array3::from_shape_fn((8, nz, nx), |_| 0.0);
         for iz in 0..nz {
