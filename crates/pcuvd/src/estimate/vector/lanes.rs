@@ -11,11 +11,11 @@ type Lanes = [f64; LANES];
 
 /// LANES pixels' problems with the same axial weights (1 + cos θ per angle), and the working
 /// arrays of their solve, kept from one group of pixels to the next. Solving them together does
-/// the pixels' arithmetic in vector registers, a lane each, and each lane does [`solve_rows`](super::solve_rows)'s
-/// operations in its order (no fused multiply-adds, the same sums in the same order), so a
-/// pixel's vector is the same to the bit as solved alone, and its IRLS rounds stop where they
-/// would alone. An angle a pixel has no projection for has weight zero in its lane: its terms
-/// add zeros, which leave every sum as [`solve_rows`](super::solve_rows) leaves it without that angle.
+/// the pixels' arithmetic in vector registers, a lane each, and each lane does the operations of
+/// [`solve_rows`](super::solve_rows) in their order (no fused multiply-adds, the same sums in the
+/// same order), so a pixel's vector is the same to the bit as solved alone, and its IRLS rounds
+/// stop where they would alone. An angle a pixel has no projection for has weight zero in its
+/// lane: its terms add zeros, which leave every sum as it is without that angle.
 pub(super) struct PixelLanes {
     /// Per angle: the shared axial weight.
     axial: Vec<f64>,
@@ -45,7 +45,8 @@ impl PixelLanes {
     }
 
     /// Sets lane `l`'s problem: per angle, its (finite lateral weight, projection in m/s); a
-    /// projection that is not finite is left out, as [`solve_rows`](super::solve_rows) leaves it out.
+    /// projection that is not finite is left out, as [`solve_rows`](super::solve_rows) leaves
+    /// it out.
     pub(super) fn set(&mut self, l: usize, angles: impl Iterator<Item = (f64, f64)>) {
         for (k, (s, p)) in angles.enumerate() {
             self.lateral[k][l] = s;
@@ -77,10 +78,9 @@ impl PixelLanes {
     }
 
     /// Every lane's (Vx, Vz) in m/s, as [`solve_rows`](super::solve_rows) gives it: in pairs of
-    /// AVX2 registers where the CPU has them. (One AVX-512 register per operation was no faster
-    /// on an Intel Xeon with AVX-512: 26–27 ms against 25–26 ms for criterion's
-    /// `dealias/plain_irls`, the divisions bounding both; the portable path 41–42 ms, one pixel
-    /// at a time 60 ms.)
+    /// AVX2 registers where the CPU has them. (No AVX-512 path: the divisions bound the solve,
+    /// and one AVX-512 register per operation was no faster than two AVX2 ones; the speed page
+    /// has the numbers.)
     pub(super) fn solve(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2") {
