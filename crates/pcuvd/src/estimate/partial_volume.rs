@@ -20,91 +20,16 @@
 //! shifts are estimated again from the corrected vectors, [`REFINEMENT_ROUNDS`] times in all
 //! ([`refined_shifts`]).
 
-use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip, s};
-use num_complex::{Complex32, Complex64};
+use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, Zip};
+use num_complex::Complex64;
 use rayon::prelude::*;
 
-use crate::core::buffers::contiguous;
 use crate::core::error::{Error, Result};
-use crate::core::lags::conj_dot;
 use crate::estimate::dealias::DealiasedField;
 use crate::estimate::projections::Projections;
 use crate::estimate::vector::{Estimator, VectorField, projection_weights, vector_velocity_with};
 
-/// Products of each pixel of an image series with its neighbour one pixel step away, within
-/// frames, summed over the image and averaged over the frames: the spatial autocorrelation of
-/// the echoes, whose fall-off with the step measures the resolution cell ([`CellCovariance`]).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct CellLags {
-    /// Σ |S|² over the pixels (|IQ|² units).
-    pub zero: f64,
-    /// Σ S*(z, x)·S(z + 1, x): one step deeper.
-    pub down: Complex64,
-    /// Σ S*(z, x)·S(z, x + 1): one step toward +x.
-    pub right: Complex64,
-    /// Σ S*(z, x)·S(z + 1, x + 1).
-    pub down_right: Complex64,
-    /// Σ S*(z, x)·S(z + 1, x − 1).
-    pub down_left: Complex64,
-}
-
-impl CellLags {
-    /// The lags of `series` (nz, nx, frames), each pixel's frames contiguous or not.
-    pub fn of(series: ArrayView3<Complex32>) -> CellLags {
-        let (nz, nx, nf) = series.dim();
-        let rows: Vec<[Complex64; 5]> = (0..nz)
-            .into_par_iter()
-            .map(|iz| {
-                let pixel = |iz: usize, ix: usize| contiguous(series.slice(s![iz, ix, ..]));
-                let mut acc = [Complex64::new(0.0, 0.0); 5];
-                for ix in 0..nx {
-                    let here = pixel(iz, ix);
-                    acc[0] += conj_dot(&here, &here);
-                    if iz + 1 < nz {
-                        acc[1] += conj_dot(&here, &pixel(iz + 1, ix));
-                        if ix + 1 < nx {
-                            acc[3] += conj_dot(&here, &pixel(iz + 1, ix + 1));
-                        }
-                        if ix > 0 {
-                            acc[4] += conj_dot(&here, &pixel(iz + 1, ix - 1));
-                        }
-                    }
-                    if ix + 1 < nx {
-                        acc[2] += conj_dot(&here, &pixel(iz, ix + 1));
-                    }
-                }
-                acc
-            })
-            .collect();
-        let frames = nf.max(1) as f64;
-        let total = rows.iter().fold([Complex64::new(0.0, 0.0); 5], |mut t, r| {
-            t.iter_mut().zip(r).for_each(|(t, r)| *t += r);
-            t
-        });
-        CellLags {
-            zero: total[0].re / frames,
-            down: total[1] / frames,
-            right: total[2] / frames,
-            down_right: total[3] / frames,
-            down_left: total[4] / frames,
-        }
-    }
-
-    /// Combines the lags of two sets of frames of the same pixels, `frames` and `other_frames`
-    /// of them: means weighted by their frames.
-    pub fn merged(&self, frames: usize, other: &CellLags, other_frames: usize) -> CellLags {
-        let (a, b) = (frames as f64, other_frames as f64);
-        let total = (a + b).max(1.0);
-        let mix = |x: Complex64, y: Complex64| (x * a + y * b) / total;
-        CellLags {
-            zero: (self.zero * a + other.zero * b) / total,
-            down: mix(self.down, other.down),
-            right: mix(self.right, other.right),
-            down_right: mix(self.down_right, other.down_right),
-            down_left: mix(self.down_left, other.down_left),
-        }
-    }
-}
+pub use crate::estimate::doppler::CellLags;
 
 /// Covariance of a resolution cell's intensity (m²), in (x, z): the cell as a Gaussian
 /// exp(−½ dᵀΣ⁻¹d) of the offset d from its centre.
@@ -661,6 +586,8 @@ pub fn corrected_projections(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ndarray::s;
+    use num_complex::Complex32;
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

@@ -142,15 +142,17 @@ pub fn moments(
         .enumerate()
         .map(|(k, image)| {
             let series = image.slice(ndarray::s![.., .., range.clone()]);
-            let mut m = doppler::moments(
+            // The cell's lags, for the partial-volume correction, in the moments' own pass.
+            let measure = if params.measures_cells(images.series.len()) {
+                doppler::moments_with_cell
+            } else {
+                doppler::moments
+            };
+            measure(
                 series,
                 params.doppler_estimator,
                 &doppler_geometry(images, &params.grid, Some(k)),
-            )?;
-            if params.measures_cells(images.series.len()) {
-                m.cell = Some(partial_volume::CellLags::of(series));
-            }
-            Ok(m)
+            )
         })
         .collect::<Result<Vec<_>>>()?;
     let compound = match per_angle.as_slice() {

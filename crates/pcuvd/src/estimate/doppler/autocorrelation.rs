@@ -1,9 +1,8 @@
 //! Lag-1 autocorrelations of the slow-time series: the temporal one (Kasai's), its box average
 //! over a kernel, and the spatial lags (axial, lateral) that give each echo's mean frequency.
 
+use super::lag_sums::{Wanted, lag_sums};
 use super::*;
-use crate::core::buffers::contiguous;
-use crate::core::lags::conj_dot;
 
 /// Power and lag-1 autocorrelation per pixel, shape (nz, nx).
 #[derive(Debug, Clone, PartialEq)]
@@ -20,29 +19,31 @@ pub fn autocorrelation(
     series: ArrayView3<Complex32>,
     kernel: (usize, usize),
 ) -> Result<Autocorrelation> {
-    let (nz, nx, nf) = series.dim();
+    check_frames(series.dim().2)?;
+    check_kernel(kernel)?;
+    let wanted = Wanted {
+        temporal: true,
+        ..Wanted::default()
+    };
+    let Autocorrelation { mut power, mut r1 } = lag_sums(series, wanted)
+        .temporal
+        .expect("the temporal lags were asked for");
+    if kernel != (1, 1) {
+        power = box_average(&power, kernel);
+        r1 = box_average(&r1, kernel);
+    }
+    Ok(Autocorrelation { power, r1 })
+}
+
+/// Refuses a series of fewer than 2 frames, which has no lag-1 product.
+pub(super) fn check_frames(nf: usize) -> Result<()> {
     if nf < 2 {
         return Err(invalid(
             "Doppler",
             format!("needs at least 2 frames, got {nf}"),
         ));
     }
-    check_kernel(kernel)?;
-    let mut power = Array2::<f64>::zeros((nz, nx));
-    let mut r1 = Array2::<Complex64>::zeros((nz, nx));
-    Zip::from(&mut power)
-        .and(&mut r1)
-        .and(series.lanes(Axis(2)))
-        .par_for_each(|p, r, s| {
-            let s = contiguous(s);
-            *p = conj_dot(&s, &s).re / nf as f64;
-            *r = conj_dot(&s[..nf - 1], &s[1..]) / (nf - 1) as f64;
-        });
-    if kernel != (1, 1) {
-        power = box_average(&power, kernel);
-        r1 = box_average(&r1, kernel);
-    }
-    Ok(Autocorrelation { power, r1 })
+    Ok(())
 }
 
 /// Refuses an averaging box with an even size (it would have no centre pixel).
@@ -259,7 +260,23 @@ impl SpatialLag {
 
 /// [`SpatialLag`] of `series` (nz, nx, frames) one pixel along `along`.
 pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> Result<SpatialLag> {
-    let (nz, nx, nf) = series.dim();
+    check_spatial_lag(series.dim(), along)?;
+    let wanted = Wanted {
+        axial: along == Axis(0),
+        lateral: along == Axis(1),
+        ..Wanted::default()
+    };
+    let sums = lag_sums(series, wanted);
+    Ok(sums
+        .axial
+        .or(sums.lateral)
+        .expect("the lag along `along` was asked for"))
+}
+
+/// Refuses a series of `dim` (nz, nx, frames) too small for a spatial lag along `along`: it
+/// needs 2 pixels along it and 2 frames.
+pub(super) fn check_spatial_lag(dim: (usize, usize, usize), along: Axis) -> Result<()> {
+    let (nz, nx, nf) = dim;
     let (n_along, what) = if along == Axis(0) {
         (nz, "rows")
     } else {
@@ -273,45 +290,7 @@ pub(super) fn spatial_lag_means(series: ArrayView3<Complex32>, along: Axis) -> R
             ),
         ));
     }
-    let mut plus = Array2::<Complex64>::zeros((nz, nx));
-    let mut minus = Array2::<Complex64>::zeros((nz, nx));
-    let mut same = Array2::<Complex64>::zeros((nz, nx));
-    plus.axis_iter_mut(Axis(0))
-        .into_par_iter()
-        .zip(minus.axis_iter_mut(Axis(0)))
-        .zip(same.axis_iter_mut(Axis(0)))
-        .enumerate()
-        .for_each(|(iz, ((mut p_row, mut m_row), mut q_row))| {
-            for ix in 0..nx {
-                // The pixel and its neighbour one step along `along`; the last one pairs with the
-                // one before it, roles swapped, so the phase keeps its sign.
-                let i = if along == Axis(0) { iz } else { ix };
-                let (first, second) = if i + 1 < n_along {
-                    (i, i + 1)
-                } else {
-                    (i - 1, i)
-                };
-                let at = |j: usize| {
-                    if along == Axis(0) {
-                        series.slice(s![j, ix, ..])
-                    } else {
-                        series.slice(s![iz, j, ..])
-                    }
-                };
-                let (a, b) = (at(first), at(second));
-                // A pixel's frames are contiguous in a formed series: summed as slices, without
-                // an index computation per term.
-                let (a, b) = (contiguous(a), contiguous(b));
-                let p = conj_dot(&a[..nf - 1], &b[1..]);
-                let m = conj_dot(&a[1..], &b[..nf - 1]);
-                let q = conj_dot(&a, &b);
-                let pairs = (nf - 1) as f64;
-                p_row[ix] = p / pairs;
-                m_row[ix] = m / pairs;
-                q_row[ix] = q / nf as f64;
-            }
-        });
-    Ok(SpatialLag { plus, minus, same })
+    Ok(())
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! The moments the estimators sum (power, lag-1 autocorrelation, spatial lags) and the maps made
 //! from them: power, colour and signed power Doppler, and each angle's projection velocity.
 
+use super::lag_sums::{Wanted, lag_sums};
 use super::*;
 
 /// What [`doppler_maps`] derives every map from, per pixel (nz, nx), before any spatial
@@ -19,9 +20,9 @@ pub struct Moments {
     /// [`DopplerGeometry::measures_lateral`]; else `None`).
     pub lateral: Option<SpatialLag>,
     /// The spatial lags within frames, summed over the image: the resolution cell
-    /// ([`crate::estimate::partial_volume`]); measured only when asked for (`None` from [`moments`];
-    /// [`crate::pipeline::moments`] with the partial-volume correction on).
-    pub cell: Option<crate::estimate::partial_volume::CellLags>,
+    /// ([`crate::estimate::partial_volume`]); measured only when asked for ([`moments_with_cell`];
+    /// `None` from [`moments`]).
+    pub cell: Option<CellLags>,
     /// Frames the power is a mean over.
     pub frames: usize,
     /// Frame pairs the lag-1 products are means over.
@@ -120,23 +121,51 @@ pub fn moments(
     estimator: DopplerEstimator,
     geometry: &DopplerGeometry,
 ) -> Result<Moments> {
+    measure(series, estimator, geometry, false)
+}
+
+/// [`moments`] with the resolution cell's lags ([`Moments::cell`]) measured in the same pass,
+/// for the partial-volume correction.
+pub fn moments_with_cell(
+    series: ArrayView3<Complex32>,
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+) -> Result<Moments> {
+    measure(series, estimator, geometry, true)
+}
+
+/// [`moments`], with the cell's lags when `cell`.
+fn measure(
+    series: ArrayView3<Complex32>,
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+    cell: bool,
+) -> Result<Moments> {
     let (_, nx, nf) = series.dim();
     let lags = MeasuredLags::of(estimator, geometry, nx)?;
-    let lateral = lags
-        .lateral
-        .then(|| spatial_lag_means(series, Axis(1)))
-        .transpose()?;
-    let axial = lags
-        .axial
-        .then(|| spatial_lag_means(series, Axis(0)))
-        .transpose()?;
-    let raw = autocorrelation(series, (1, 1))?;
+    if lags.lateral {
+        check_spatial_lag(series.dim(), Axis(1))?;
+    }
+    if lags.axial {
+        check_spatial_lag(series.dim(), Axis(0))?;
+    }
+    check_frames(nf)?;
+    let sums = lag_sums(
+        series,
+        Wanted {
+            temporal: true,
+            axial: lags.axial,
+            lateral: lags.lateral,
+            cell,
+        },
+    );
+    let raw = sums.temporal.expect("the temporal lags were asked for");
     Ok(Moments {
         power: raw.power,
         r1: raw.r1,
-        axial,
-        lateral,
-        cell: None,
+        axial: sums.axial,
+        lateral: sums.lateral,
+        cell: sums.cell,
         frames: nf,
         pairs: nf - 1,
     })

@@ -43,11 +43,13 @@ use rayon::prelude::*;
 use crate::core::error::{Error, Result, invalid, require_positive};
 
 mod autocorrelation;
+mod lag_sums;
 mod loupas;
 mod maps;
 mod sliding;
 
 pub use autocorrelation::*;
+pub use lag_sums::CellLags;
 pub use loupas::*;
 pub use maps::*;
 pub use sliding::*;
