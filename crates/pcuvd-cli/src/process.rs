@@ -165,10 +165,11 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     // The checksums read the whole input (BLAKE3 with SIMD: about a second of a core for 2.8 GB
     // through the page cache, half of it the copy; SHA-256 without SHA instructions: 10 s). They
     // are needed before any work only to skip a folder processed before. Otherwise a reader that
-    // reads its samples file block by block hashes each block with BLAKE3 as it reads it, on
-    // every core, so that the file is not read twice. Other inputs, and SHA-256 (sequential: in
-    // the reader's pass it would hold the other core idle), are hashed beside the processing, on
-    // a thread of their own that takes only the time the processing leaves idle.
+    // reads its samples file block by block hashes it with BLAKE3 as it reads it (each run of a
+    // block while it is in cache), so that the file is not read twice. Other inputs, and SHA-256
+    // (without SHA instructions several times BLAKE3's time, which the reader's pass would hold
+    // the other core idle for), are hashed beside the processing, on a thread of their own that
+    // takes only the time the processing leaves idle.
     let in_pass = opened
         .read_pass
         .clone()

@@ -1049,3 +1049,57 @@ fn absurd_values_name_the_key() {
         }
     }
 }
+
+/// A block read in runs on every core feeds an attached checksum every byte once, in order, each
+/// run from the block's own memory as it is read: none is read from the file again as a gap
+/// (which a run offered before the runs ahead of it would be). The file's tail, which no block
+/// reads, comes at the end.
+#[test]
+fn a_block_is_fed_to_the_checksum_run_by_run_in_the_files_order() {
+    use pcuvd::acquisition::source::FrameSource;
+    use std::sync::{Arc, Mutex};
+    /// Keeps each piece it is fed, and where in memory it was.
+    type Fed = Arc<Mutex<Vec<(usize, Vec<u8>)>>>;
+    struct Pieces(Fed);
+    impl crate::ChecksumSink for Pieces {
+        fn update(&mut self, bytes: &[u8]) {
+            let at = bytes.as_ptr() as usize;
+            self.0.lock().unwrap().push((at, bytes.to_vec()));
+        }
+        fn hex(self: Box<Self>) -> String {
+            String::new()
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // A frame of 4 events on 6 channels of 40,000 samples is 3.84 MB of f32: the first two
+    // frames span 30 runs of 256 KiB, read into the block's own samples (f32, as stored).
+    let (_, manifest, npy, _) = coded_recording(dir.path(), 40_000);
+    let file = std::fs::read(&npy).unwrap();
+    let frames = crate::ManifestFrames::open(&manifest).unwrap().unwrap();
+    let fed: Fed = Arc::default();
+    frames.read_pass().attach(Box::new(Pieces(fed.clone())));
+    let block = frames.read_frames(0..2).unwrap();
+    let Samples::Rf(samples) = &block.samples else {
+        panic!("RF samples")
+    };
+    let memory = samples.as_ptr() as usize..samples.as_ptr() as usize + samples.len() * 4;
+    // The same frames again add nothing.
+    frames.read_frames(0..2).unwrap();
+    let done = frames.read_pass().finish().unwrap().unwrap();
+    assert_eq!(done.size_bytes, file.len() as u64);
+    let fed = fed.lock().unwrap();
+    let bytes: Vec<u8> = fed.iter().flat_map(|(_, b)| b.iter().copied()).collect();
+    assert!(bytes == file, "every byte once, in order");
+    let header = file.len() - 3 * 4 * 6 * 40_000 * 4;
+    assert_eq!(fed[0].1.len(), header, "the header first, as a gap");
+    let runs = &fed[1..fed.len() - 1];
+    assert_eq!(runs.len(), memory.len().div_ceil(256 << 10));
+    assert!(
+        runs.iter().all(|(at, _)| memory.contains(at)),
+        "a run read from the file again"
+    );
+    assert!(
+        !memory.contains(&fed.last().unwrap().0),
+        "the tail from the file"
+    );
+}

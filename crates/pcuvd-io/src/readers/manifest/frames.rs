@@ -13,11 +13,9 @@ use pcuvd::core::buffers::{array_reusing, floats_finite};
 use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
 
-/// Bytes each core reads at a time from a samples file.
-const READ_PIECE: usize = 32 << 20;
-/// Bytes of a piece read and then tested at once: they are tested while still in L2, where a
-/// test of the whole block after reading it read a gigabyte from memory again.
-const TEST_PIECE: usize = 256 << 10;
+/// Bytes a core reads from a samples file at a time, then tests and offers to the checksum while
+/// they are still in L2.
+const RUN_BYTES: usize = 256 << 10;
 
 use crate::error::IoError;
 use crate::manifest::{event_shape, kind_error, parse_manifest};
@@ -197,31 +195,65 @@ impl ManifestFrames {
         #[cfg(unix)]
         let passed = {
             use std::os::unix::fs::FileExt;
-            // In pieces on every core: one core copying a block (about a gigabyte) out of the
-            // page cache held the other idle for a second per block. (Pieces are whole values:
-            // both piece sizes are multiples of every stored size.)
-            bytes
-                .par_chunks_mut(READ_PIECE)
-                .enumerate()
-                .map(|(i, piece)| {
+            use std::sync::atomic::{AtomicUsize, Ordering};
+            use std::sync::{Mutex, OnceLock};
+            // In runs on every core, each core taking the next run not yet read: one core
+            // copying a block (about a gigabyte) out of the page cache held the other idle for a
+            // second per block. Each run is tested as it is read, while it is in L2, and offered
+            // to the checksum in the file's order as soon as the runs before it are: hashed in
+            // cache, where a hash of the whole block after reading it read it from memory
+            // again. (Runs are whole values: the run size is a multiple of every stored size.)
+            let unread: Vec<Mutex<Option<&mut [u8]>>> = bytes
+                .chunks_mut(RUN_BYTES)
+                .map(|run| Mutex::new(Some(run)))
+                .collect();
+            let read: Vec<OnceLock<&[u8]>> = unread.iter().map(|_| OnceLock::new()).collect();
+            let next_unread = AtomicUsize::new(0);
+            // Runs offered so far, held by whoever offers: a core that finds it held goes on
+            // reading, and the holder offers the run too if it is read before it lets go.
+            let offered = Mutex::new(0usize);
+            let offer_read = |offered: &mut usize| {
+                while let Some(run) = read.get(*offered).and_then(OnceLock::get) {
+                    self.pass.offer(start + (*offered * RUN_BYTES) as u64, run);
+                    *offered += 1;
+                }
+            };
+            let passed = (0..rayon::current_num_threads())
+                .into_par_iter()
+                .map(|_| {
                     let mut passed = true;
-                    for (j, run) in piece.chunks_mut(TEST_PIECE).enumerate() {
-                        let at = start + (i * READ_PIECE + j * TEST_PIECE) as u64;
-                        file.read_exact_at(run, at)?;
+                    loop {
+                        let i = next_unread.fetch_add(1, Ordering::Relaxed);
+                        let Some(slot) = unread.get(i) else {
+                            return Ok::<bool, std::io::Error>(passed);
+                        };
+                        let run = slot
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .take()
+                            .expect("each run is taken once");
+                        file.read_exact_at(run, start + (i * RUN_BYTES) as u64)?;
+                        let run: &[u8] = run;
                         passed &= !little || test(bytemuck::cast_slice(run));
+                        read[i].get_or_init(|| run);
+                        if let Ok(mut offered) = offered.try_lock() {
+                            offer_read(&mut offered);
+                        }
                     }
-                    Ok::<bool, std::io::Error>(passed)
                 })
-                .try_reduce(|| true, |a, b| Ok(a && b))?
+                .try_reduce(|| true, |a, b| Ok(a && b))?;
+            // The runs read while another core was offering, after it had looked for them.
+            offer_read(&mut offered.lock().unwrap_or_else(|e| e.into_inner()));
+            passed
         };
         #[cfg(not(unix))]
         let passed = {
             use std::io::{Read, SeekFrom};
             file.seek(SeekFrom::Start(start))?;
             file.read_exact(bytes)?;
+            self.pass.offer(start, bytes);
             !little || test(bytemuck::cast_slice(bytes))
         };
-        self.pass.offer(start, bytes);
         if !little {
             values
                 .iter_mut()
