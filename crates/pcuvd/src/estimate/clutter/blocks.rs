@@ -411,25 +411,53 @@ impl LowerHalf {
 }
 
 /// The Gram matrix (lower half) of the cell (`za`, `xa`) that the edges `z_cuts` and `x_cuts`
-/// cut `series` into, in `buffer`'s memory.
-pub(super) fn cell_gram(
+/// cut `series` into, in `buffer`'s memory, computed in `work`'s.
+fn cell_gram(
     series: &Array3<Complex32>,
     z_cuts: &[usize],
     x_cuts: &[usize],
     (za, xa): (usize, usize),
     buffer: Vec<c64>,
+    work: &mut CellWork,
 ) -> LowerHalf {
     let frames = series.dim().2;
     let (z0, z1, x0, x1) = (z_cuts[za], z_cuts[za + 1], x_cuts[xa], x_cuts[xa + 1]);
-    // Each pixel's series one column.
-    let mut pixels = Mat::<c64>::zeros(frames, (z1 - z0) * (x1 - x0));
+    // Each pixel's series one column, each value written once: a matrix zeroed first and then
+    // filled entry by entry cost about as much as the cell's product of the rat network's
+    // recordings outside the product itself.
+    let pixels = (z1 - z0) * (x1 - x0);
+    let columns = &mut work.columns;
+    columns.clear();
+    columns.reserve(frames * pixels);
     let cell = series.slice(ndarray::s![z0..z1, x0..x1, ..]);
-    for (p, pixel) in cell.lanes(ndarray::Axis(2)).into_iter().enumerate() {
-        for (f, value) in pixel.iter().enumerate() {
-            pixels[(f, p)] = c64::new(value.re as f64, value.im as f64);
+    for pixel in cell.lanes(ndarray::Axis(2)) {
+        let pixel = crate::core::buffers::contiguous(pixel);
+        columns.extend(pixel.iter().map(|v| c64::new(v.re as f64, v.im as f64)));
+    }
+    let columns = MatRef::from_column_major_slice(columns, frames, pixels);
+    if work.gram.nrows() != frames {
+        work.gram = Mat::zeros(frames, frames);
+    }
+    lower_gram_of_columns_into(work.gram.as_mut(), columns);
+    LowerHalf::of(&work.gram, buffer)
+}
+
+/// A thread's memory for [`cell_gram`], kept from one cell to the next: a megabyte or so, which
+/// asked for anew per cell came as fresh pages the system clears.
+struct CellWork {
+    /// The cell's pixels' series, one column each.
+    columns: Vec<c64>,
+    /// The cell's Gram matrix (its lower half written).
+    gram: Mat<c64>,
+}
+
+impl Default for CellWork {
+    fn default() -> CellWork {
+        CellWork {
+            columns: Vec::new(),
+            gram: Mat::zeros(0, 0),
         }
     }
-    LowerHalf::of(&lower_gram_of_columns(pixels.as_ref()), buffer)
 }
 
 /// The Gram matrices of `cells`, in parallel, in buffers from `scratch`.
@@ -442,7 +470,9 @@ fn cell_grams(
 ) -> Vec<LowerHalf> {
     (cells.par_iter())
         .zip(scratch.buffers(cells.len(), series.dim().2))
-        .map(|(&cell, buffer)| cell_gram(series, z_cuts, x_cuts, cell, buffer))
+        .map_init(CellWork::default, |work, (&cell, buffer)| {
+            cell_gram(series, z_cuts, x_cuts, cell, buffer, work)
+        })
         .collect()
 }
 

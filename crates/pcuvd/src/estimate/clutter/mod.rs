@@ -53,7 +53,7 @@
 //! back into the series once no block reads it again, rather than over a second whole series.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
-use faer::{Mat, MatRef, Side, c32, c64};
+use faer::{Mat, MatMut, MatRef, Side, c32, c64};
 use ndarray::{Array2, Array3};
 use num_complex::Complex32;
 use rayon::prelude::*;
@@ -469,16 +469,23 @@ fn lower_gram(rows: usize, frames: usize, entry: impl Fn(usize, usize) -> Comple
 
 /// The lower half of the Gram matrix G = SᴴS of the pixels × frames matrix S whose transpose
 /// `pixels` holds (frames × pixels: each pixel's time series one column, contiguous):
-/// G = conj(Sᵀ)·(Sᵀ)ᵀ.
-fn lower_gram_of_columns(pixels: MatRef<'_, c64>) -> Mat<c64> {
-    lower_conj_product(pixels, pixels.transpose())
+/// G = conj(Sᵀ)·(Sᵀ)ᵀ, written into the lower half of `gram` (frames × frames; its upper half
+/// left as it was).
+fn lower_gram_of_columns_into(gram: MatMut<'_, c64>, pixels: MatRef<'_, c64>) {
+    lower_conj_product_into(gram, pixels, pixels.transpose())
 }
 
 /// The lower half (the diagonal included) of the square product conj(`left`)·`right`.
 fn lower_conj_product(left: MatRef<'_, c64>, right: MatRef<'_, c64>) -> Mat<c64> {
     let mut g = Mat::<c64>::zeros(left.nrows(), right.ncols());
+    lower_conj_product_into(g.as_mut(), left, right);
+    g
+}
+
+/// [`lower_conj_product`] written into the lower half of `g`, its upper half left as it was.
+fn lower_conj_product_into(g: MatMut<'_, c64>, left: MatRef<'_, c64>, right: MatRef<'_, c64>) {
     triangular::matmul_with_conj(
-        g.as_mut(),
+        g,
         BlockStructure::TriangularLower,
         faer::Accum::Replace,
         left,
@@ -490,7 +497,6 @@ fn lower_conj_product(left: MatRef<'_, c64>, right: MatRef<'_, c64>) -> Mat<c64>
         c64::new(1.0, 0.0),
         faer::Par::Seq,
     );
-    g
 }
 
 #[cfg(test)]
