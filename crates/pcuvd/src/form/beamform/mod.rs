@@ -207,6 +207,35 @@ mod tests {
         }
     }
 
+    /// The compound is each pixel's sum over the angles, added in the angles' order, to the bit,
+    /// whatever the series' memory layouts; one angle is its own compound; none is refused.
+    #[test]
+    fn the_compound_is_the_sum_over_angles_in_their_order() {
+        let mut value = noise(5);
+        let mut series = |dim: (usize, usize, usize)| {
+            Array3::from_shape_simple_fn(dim, || Complex32::new(value(), value() * 1e-3))
+        };
+        let dim = (9, 31, 40);
+        let standard: Vec<Array3<Complex32>> = (0..5).map(|_| series(dim)).collect();
+        let mut transposed = standard.clone();
+        transposed[2] = series((40, 31, 9)).reversed_axes();
+        for images in [&standard, &transposed] {
+            let sum = compound(images).unwrap();
+            for ((z, x, f), &got) in sum.indexed_iter() {
+                let mut want = images[0][[z, x, f]];
+                for img in &images[1..] {
+                    want += img[[z, x, f]];
+                }
+                assert_eq!(
+                    (got.re.to_bits(), got.im.to_bits()),
+                    (want.re.to_bits(), want.im.to_bits())
+                );
+            }
+        }
+        assert_eq!(compound(&standard[..1]).unwrap(), standard[0]);
+        assert!(compound(&[]).is_err());
+    }
+
     /// The B-mode is 20·log10 of each pixel's mean modulus over the brightest's, the moduli
     /// of the samples as stored (f32 parts) taken exactly (f64 `hypot`), whether a pixel's frames
     /// are one run or strided.
