@@ -58,8 +58,8 @@ impl CellLags {
 
     /// The lags from each row's sums over its pixels (zero, down, right, down-right, down-left),
     /// added in the order of the rows, and the series' `frames`.
-    fn of_row_sums(rows: &[[Complex64; 5]], frames: usize) -> CellLags {
-        let total = rows.iter().fold([Complex64::new(0.0, 0.0); 5], |mut t, r| {
+    fn of_row_sums(rows: impl Iterator<Item = [Complex64; 5]>, frames: usize) -> CellLags {
+        let total = rows.fold([Complex64::new(0.0, 0.0); 5], |mut t, r| {
             t.iter_mut().zip(r).for_each(|(t, r)| *t += r);
             t
         });
@@ -132,7 +132,13 @@ pub(super) fn lag_sums(series: ArrayView3<Complex32>, wanted: Wanted) -> LagSums
         .into_par_iter()
         .map(|iz| {
             let pixel = |iz: usize, ix: usize| contiguous(series.slice(s![iz, ix, ..]));
-            let mut values = vec![Complex64::new(0.0, 0.0); PER_PIXEL * nx];
+            // No maps when only the cell's sums over the image are asked for.
+            let maps = if wanted.temporal || wanted.axial || wanted.lateral {
+                PER_PIXEL * nx
+            } else {
+                0
+            };
+            let mut values = vec![Complex64::new(0.0, 0.0); maps];
             let mut cell = [Complex64::new(0.0, 0.0); 5];
             let below = iz + 1 < nz;
             for ix in 0..nx {
@@ -205,10 +211,9 @@ pub(super) fn lag_sums(series: ArrayView3<Complex32>, wanted: Wanted) -> LagSums
         }),
         axial: wanted.axial.then(|| spatial(AXIAL)),
         lateral: wanted.lateral.then(|| spatial(LATERAL)),
-        cell: wanted.cell.then(|| {
-            let sums: Vec<[Complex64; 5]> = rows.iter().map(|r| r.cell).collect();
-            CellLags::of_row_sums(&sums, nf)
-        }),
+        cell: wanted
+            .cell
+            .then(|| CellLags::of_row_sums(rows.iter().map(|r| r.cell), nf)),
     }
 }
 
