@@ -33,6 +33,7 @@ pub(super) unsafe fn pixel_chunk(
     taps: &Taps,
     start: usize,
     len: usize,
+    fresh: bool,
 ) {
     debug_assert!(!acc.is_empty() && acc.len().div_ceil(4) <= MAX_VECTORS);
     // SAFETY: forwarded from the caller.
@@ -40,16 +41,16 @@ pub(super) unsafe fn pixel_chunk(
         // A run of whole vectors takes plain loads throughout; only a partial last vector is
         // masked (a masked load costs an extra micro-op on Intel cores).
         match (acc.len().div_ceil(4), acc.len().is_multiple_of(4)) {
-            (1, true) => run::<1, false>(acc, next, data, f0, row, taps, start, len),
-            (1, false) => run::<1, true>(acc, next, data, f0, row, taps, start, len),
-            (2, true) => run::<2, false>(acc, next, data, f0, row, taps, start, len),
-            (2, false) => run::<2, true>(acc, next, data, f0, row, taps, start, len),
-            (3, true) => run::<3, false>(acc, next, data, f0, row, taps, start, len),
-            (3, false) => run::<3, true>(acc, next, data, f0, row, taps, start, len),
-            (4, true) => run::<4, false>(acc, next, data, f0, row, taps, start, len),
-            (4, false) => run::<4, true>(acc, next, data, f0, row, taps, start, len),
-            (5, true) => run::<5, false>(acc, next, data, f0, row, taps, start, len),
-            (5, false) => run::<5, true>(acc, next, data, f0, row, taps, start, len),
+            (1, true) => run::<1, false>(acc, next, data, f0, row, taps, start, len, fresh),
+            (1, false) => run::<1, true>(acc, next, data, f0, row, taps, start, len, fresh),
+            (2, true) => run::<2, false>(acc, next, data, f0, row, taps, start, len, fresh),
+            (2, false) => run::<2, true>(acc, next, data, f0, row, taps, start, len, fresh),
+            (3, true) => run::<3, false>(acc, next, data, f0, row, taps, start, len, fresh),
+            (3, false) => run::<3, true>(acc, next, data, f0, row, taps, start, len, fresh),
+            (4, true) => run::<4, false>(acc, next, data, f0, row, taps, start, len, fresh),
+            (4, false) => run::<4, true>(acc, next, data, f0, row, taps, start, len, fresh),
+            (5, true) => run::<5, false>(acc, next, data, f0, row, taps, start, len, fresh),
+            (5, false) => run::<5, true>(acc, next, data, f0, row, taps, start, len, fresh),
             _ => {}
         }
     }
@@ -61,7 +62,9 @@ fn prefetch<const N: usize>(a: *const f32, row: usize) {
     prefetch_near(a, 32 * N, row);
 }
 
-/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs. With c = (p, q) and
+/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs; with `fresh`, acc = the
+/// sum, from sums started at +0 as a zeroed acc would start them (the same bits), without
+/// reading acc. With c = (p, q) and
 /// a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums p·a and q·a in two registers
 /// per vector, and the swap and sign of the second are applied once, after the loop, so
 /// that each tap costs four FMAs per vector and no shuffle. With MASKED, the last vector is
@@ -79,6 +82,7 @@ unsafe fn run<const N: usize, const MASKED: bool>(
     taps: &Taps,
     start: usize,
     len: usize,
+    fresh: bool,
 ) {
     // Frames in the last vector, 1..=4, two floats each: the lanes below 2·last are read.
     let last = acc.len() - 4 * (N - 1);
@@ -89,7 +93,9 @@ unsafe fn run<const N: usize, const MASKED: bool>(
     let out = acc.as_mut_ptr().cast::<f32>();
     // SAFETY: acc holds 4·(N − 1) + `last` complex values, and the last load is masked.
     let mut sp: [__m256; N] = std::array::from_fn(|j| unsafe {
-        if j + 1 < N || !MASKED {
+        if fresh {
+            _mm256_setzero_ps()
+        } else if j + 1 < N || !MASKED {
             _mm256_loadu_ps(out.add(8 * j))
         } else {
             _mm256_maskload_ps(out.add(8 * j), tail)

@@ -34,24 +34,25 @@ pub(super) unsafe fn pixel_chunk(
     taps: &Taps,
     start: usize,
     len: usize,
+    fresh: bool,
 ) {
     debug_assert!(!acc.is_empty() && acc.len().div_ceil(8) <= MAX_VECTORS);
     // SAFETY: forwarded from the caller.
     unsafe {
         match acc.len().div_ceil(8) {
-            1 => run::<1>(acc, next, data, f0, row, taps, start, len),
-            2 => run::<2>(acc, next, data, f0, row, taps, start, len),
-            3 => run::<3>(acc, next, data, f0, row, taps, start, len),
-            4 => run::<4>(acc, next, data, f0, row, taps, start, len),
-            5 => run::<5>(acc, next, data, f0, row, taps, start, len),
-            6 => run::<6>(acc, next, data, f0, row, taps, start, len),
-            7 => run::<7>(acc, next, data, f0, row, taps, start, len),
-            8 => run::<8>(acc, next, data, f0, row, taps, start, len),
-            9 => run::<9>(acc, next, data, f0, row, taps, start, len),
-            10 => run::<10>(acc, next, data, f0, row, taps, start, len),
-            11 => run::<11>(acc, next, data, f0, row, taps, start, len),
-            12 => run::<12>(acc, next, data, f0, row, taps, start, len),
-            13 => run::<13>(acc, next, data, f0, row, taps, start, len),
+            1 => run::<1>(acc, next, data, f0, row, taps, start, len, fresh),
+            2 => run::<2>(acc, next, data, f0, row, taps, start, len, fresh),
+            3 => run::<3>(acc, next, data, f0, row, taps, start, len, fresh),
+            4 => run::<4>(acc, next, data, f0, row, taps, start, len, fresh),
+            5 => run::<5>(acc, next, data, f0, row, taps, start, len, fresh),
+            6 => run::<6>(acc, next, data, f0, row, taps, start, len, fresh),
+            7 => run::<7>(acc, next, data, f0, row, taps, start, len, fresh),
+            8 => run::<8>(acc, next, data, f0, row, taps, start, len, fresh),
+            9 => run::<9>(acc, next, data, f0, row, taps, start, len, fresh),
+            10 => run::<10>(acc, next, data, f0, row, taps, start, len, fresh),
+            11 => run::<11>(acc, next, data, f0, row, taps, start, len, fresh),
+            12 => run::<12>(acc, next, data, f0, row, taps, start, len, fresh),
+            13 => run::<13>(acc, next, data, f0, row, taps, start, len, fresh),
             _ => {}
         }
     }
@@ -63,10 +64,10 @@ fn prefetch<const N: usize>(a: *const f32, row: usize) {
     prefetch_near(a, 64 * N, row);
 }
 
-/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs, as [`super::avx2`]'s
-/// `run` (two sums per vector, the swap and sign applied once after the loop), 16 floats
-/// per vector; the last vector is masked to the frames of `acc`, so that no frame is left
-/// to a scalar tail and nothing beyond them is read or written.
+/// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs (acc = the sum when
+/// `fresh`), as [`super::avx2`]'s `run` (two sums per vector, the swap and sign applied once
+/// after the loop), 16 floats per vector; the last vector is masked to the frames of `acc`, so
+/// that no frame is left to a scalar tail and nothing beyond them is read or written.
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
 unsafe fn run<const N: usize>(
@@ -78,6 +79,7 @@ unsafe fn run<const N: usize>(
     taps: &Taps,
     start: usize,
     len: usize,
+    fresh: bool,
 ) {
     // Frames in the last vector, 1..=8, two floats each.
     let last = acc.len() - 8 * (N - 1);
@@ -89,7 +91,9 @@ unsafe fn run<const N: usize>(
     let out = acc.as_mut_ptr().cast::<f32>();
     // SAFETY: acc holds 8·(N − 1) + `last` complex values, and the last load is masked.
     let mut sp: [__m512; N] = std::array::from_fn(|j| unsafe {
-        if j + 1 < N {
+        if fresh {
+            _mm512_setzero_ps()
+        } else if j + 1 < N {
             _mm512_loadu_ps(out.add(16 * j))
         } else {
             _mm512_maskz_loadu_ps(tail, out.add(16 * j))

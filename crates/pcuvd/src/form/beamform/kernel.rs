@@ -96,8 +96,10 @@ impl Kernel {
     }
 
     /// Adds to `out`, frames `f0..f0 + out.len()` of pixel `p`, Σ over its taps of c0·a + c1·b,
-    /// a and b being the tap element's frames at samples i0 and i0 + 1. `next` (the next
-    /// pixel's sums) is only prefetched.
+    /// a and b being the tap element's frames at samples i0 and i0 + 1; with `fresh`, writes
+    /// that sum to `out`, bit for bit what adding it to zeros gives, without reading `out` (a
+    /// pixel's first pass: its memory then needs no zeroing). `next` (the next pixel's sums) is
+    /// only prefetched.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn accumulate(
         self,
@@ -108,6 +110,7 @@ impl Kernel {
         taps: &Taps,
         p: usize,
         next: *const Complex32,
+        fresh: bool,
     ) {
         let (frames, n_samples, row) = (setup.frames, setup.n_samples, setup.row);
         let Span { start, len } = taps.spans[p];
@@ -123,7 +126,7 @@ impl Kernel {
             // SAFETY: AVX-512F/DQ, AVX2 and FMA were detected. Reads stay within `data` as for
             // AVX2 below; the masked last vector reads and writes only frames below
             // f0 + out.len().
-            unsafe { avx512::pixel_chunk(out, next, data, f0, row, taps, start, len) };
+            unsafe { avx512::pixel_chunk(out, next, data, f0, row, taps, start, len, fresh) };
             return;
         }
         #[cfg(target_arch = "x86_64")]
@@ -133,8 +136,11 @@ impl Kernel {
             // i0 + 1 < n_samples (the `Taps` invariant), frames below f0 + out.len() ≤ frames
             // (asserted above; the masked last vector reads and writes no frame beyond); the tap
             // arrays hold `end` entries and `rows` PF more (asserted above).
-            unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len) };
+            unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len, fresh) };
             return;
+        }
+        if fresh {
+            out.fill(Complex32::new(0.0, 0.0));
         }
         portable::pixel_chunk(out, data, f0, row, taps, start, len);
     }
@@ -176,7 +182,8 @@ mod tests {
     /// vectors, more than one run), and on a whole image. Both sum the same f32 products in a
     /// different order and with or without FMA, so they differ by rounding only: a few ulps of
     /// the largest partial sum (here |sum| ≲ 8·|terms|), hence a relative bound of 1e-5 of the
-    /// sum's size, or of 1 where the sum nearly cancels.
+    /// sum's size, or of 1 where the sum nearly cancels. A fresh run writes, to the bit, what a
+    /// run adds to zeros, whatever the memory held.
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     fn kernel_matches_portable_loop(kernel: Kernel) {
         for frames in [1, 3, 8, 37, 100, 104, 105, 230] {
@@ -226,22 +233,26 @@ mod tests {
                         range.clone().map(|_| Complex32::new(r(), r())).collect();
                     let (mut fast, mut slow) = (start.clone(), start);
                     let next = data.as_ptr();
-                    kernel.accumulate(&mut fast, range.start, data, &setup, &taps, p, next);
-                    Kernel::Portable.accumulate(
-                        &mut slow,
-                        range.start,
-                        data,
-                        &setup,
-                        &taps,
-                        p,
-                        next,
-                    );
+                    let run = |out: &mut [Complex32], kernel: Kernel, fresh: bool| {
+                        kernel.accumulate(out, range.start, data, &setup, &taps, p, next, fresh)
+                    };
+                    run(&mut fast, kernel, false);
+                    run(&mut slow, Kernel::Portable, false);
                     for (a, b) in fast.iter().zip(&slow) {
                         assert!(
                             (a - b).norm() <= 1e-5 * b.norm().max(1.0),
                             "{kernel:?}, {frames} frames: {a} vs {b}"
                         );
                     }
+                    // A fresh run writes over whatever was there what a run adds to zeros.
+                    let mut written = vec![Complex32::new(f32::NAN, f32::INFINITY); range.len()];
+                    let mut added = vec![Complex32::new(0.0, 0.0); range.len()];
+                    run(&mut written, kernel, true);
+                    run(&mut added, kernel, false);
+                    let bits = |v: &[Complex32]| -> Vec<(u32, u32)> {
+                        v.iter().map(|c| (c.re.to_bits(), c.im.to_bits())).collect()
+                    };
+                    assert_eq!(bits(&written), bits(&added), "{kernel:?}, {frames} frames");
                 }
             }
         }

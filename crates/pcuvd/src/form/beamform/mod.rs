@@ -374,6 +374,65 @@ mod tests {
         }
     }
 
+    /// Pixels beside the probe, which only its last elements reach, and pixels beyond it, which
+    /// no element reaches, are written over whatever the memory held: the first with the
+    /// textbook loop's sums, the second with zeros, by every kernel this CPU runs, over several
+    /// runs of frames.
+    #[test]
+    fn every_pixel_is_written_over_what_the_memory_held() {
+        let probe = Probe::l22_14vx();
+        // The elements span ±6.35 mm; at F# 1.5 and 2–3 mm deep the aperture is ±0.7–1 mm.
+        let grid = Grid::new(5.5e-3, 8.5e-3, 2e-3, 3e-3, 0.1e-3).unwrap();
+        let params = DasParams {
+            f_number: 1.5,
+            ..DasParams::new(1540.0)
+        };
+        let iq = random_iq(probe.n_elements, 400, 110, 9);
+        let slow = reference(&iq, &probe, 0.05, &grid, &params);
+        let scale = slow.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+        let mut kernels = vec![Kernel::detect(), Kernel::Portable];
+        #[cfg(target_arch = "x86_64")]
+        if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            kernels.push(Kernel::Avx2);
+        }
+        for kernel in kernels {
+            let marker = Complex32::new(f32::NAN, 7.0);
+            let mut image = Array3::from_elem(slow.dim(), marker);
+            tiling::beamform_into_with(kernel, &iq, &probe, 0.05, &grid, &params, image.view_mut())
+                .unwrap();
+            let (mut reached, mut beyond) = (0, 0);
+            for (&x, (a, b)) in pixel_xs(&grid)
+                .iter()
+                .zip(image.lanes(Axis(2)).into_iter().zip(slow.lanes(Axis(2))))
+            {
+                if b.iter().all(|v| v.norm() == 0.0) {
+                    beyond += 1;
+                    assert!(
+                        a.iter().all(|v| (v.re.to_bits(), v.im.to_bits()) == (0, 0)),
+                        "{kernel:?} at x = {x}"
+                    );
+                } else {
+                    reached += 1;
+                    for (u, v) in a.iter().zip(b) {
+                        assert!(
+                            (u - v).norm() <= 1e-5 * scale,
+                            "{kernel:?} at x = {x}: {u} vs {v}"
+                        );
+                    }
+                }
+            }
+            assert!(
+                reached > 0 && beyond > 0,
+                "{reached} pixels reached, {beyond} beyond"
+            );
+        }
+    }
+
+    /// Each pixel's x (m), in the order of an image's pixels (z, then x).
+    fn pixel_xs(grid: &Grid) -> Vec<f64> {
+        grid.z.iter().flat_map(|_| grid.x.iter().copied()).collect()
+    }
+
     /// Into the block's frames of a longer series (each pixel's frames contiguous but pixels a
     /// series apart) and into a view whose frames are not contiguous, the images are those
     /// `beamform` returns, and the frames around the block are left as they were.

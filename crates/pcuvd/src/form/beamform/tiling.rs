@@ -104,13 +104,12 @@ pub(super) fn beamform_into_with(
         tiles
             .into_par_iter()
             .for_each_init(Taps::default, |taps, mut pixels| {
-                // The sums start from zero, set by the thread that sums them: a fresh series is
-                // then faulted in on every core (zeroed whole by the calling thread, it kept the
-                // first block of a 360-frame coded recording at 1.25 of 2 cores), and each pixel
-                // is in cache when summed.
-                for (_, _, pixel) in pixels.iter_mut() {
-                    pixel.fill(Complex32::new(0.0, 0.0));
-                }
+                // Each pixel's sums are first written by the thread that sums them, its first
+                // pass over them (`fresh`), where zeroing them first was a pass over the whole
+                // series more: a fresh series is then faulted in on every core (zeroed whole by
+                // the calling thread, it kept the first block of a 360-frame coded recording at
+                // 1.25 of 2 cores). `started[p·runs + r]`: pixel p's run r of frames was written.
+                let mut started = vec![false; pixels.len() * chunks.len()];
                 // Within a tile, one group of elements and one run of frames at a time (a
                 // pass): the samples they need (a few hundred KB) are reused from L2 by all
                 // the pixels. (Prefetching the next pass's samples into L2 while one ran cost
@@ -121,7 +120,8 @@ pub(super) fn beamform_into_with(
                     .flat_map(|g| {
                         chunks
                             .iter()
-                            .map(move |f| (g..(g + GROUP).min(channels), f.clone()))
+                            .enumerate()
+                            .map(move |(r, f)| (g..(g + GROUP).min(channels), r, f.clone()))
                     })
                     .collect();
                 // Every pixel's taps over its whole aperture at once, then each group's as a
@@ -132,7 +132,7 @@ pub(super) fn beamform_into_with(
                     setup.taps(*x, *z, 0..channels, kernel, taps);
                 }
                 taps.finish();
-                for (elements, frames) in &passes {
+                for (elements, run, frames) in &passes {
                     if frames.start == 0 {
                         taps.select(elements.clone());
                     }
@@ -142,6 +142,7 @@ pub(super) fn beamform_into_with(
                         }
                         // The next pixel's sums are fetched while this one is summed.
                         let next = pixels[(p + 1).min(pixels.len() - 1)].2[frames.clone()].as_ptr();
+                        let fresh = !std::mem::replace(&mut started[p * chunks.len() + run], true);
                         kernel.accumulate(
                             &mut pixels[p].2[frames.clone()],
                             frames.start,
@@ -150,7 +151,16 @@ pub(super) fn beamform_into_with(
                             taps,
                             p,
                             next,
+                            fresh,
                         );
+                    }
+                }
+                // Runs that no element reached (outside every aperture) sum nothing.
+                for (p, (_, _, pixel)) in pixels.iter_mut().enumerate() {
+                    for (run, frames) in chunks.iter().enumerate() {
+                        if !started[p * chunks.len() + run] {
+                            pixel[frames.clone()].fill(Complex32::new(0.0, 0.0));
+                        }
                     }
                 }
             });
