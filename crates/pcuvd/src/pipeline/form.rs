@@ -230,9 +230,12 @@ impl BlockBuffers {
     /// otherwise leave an array too small for them; and a segment's blocks are read into the
     /// previous segment's memory, whose pages are already faulted in (on a virtual machine that
     /// hands freed memory back to its host, a fresh gigabyte can cost seconds of system time).
-    /// New room is reserved, not touched: pages are faulted in as samples are read into them.
+    /// The array holds whole events: the last block's, to be read over, or new room of zeros
+    /// that the system maps in as samples are first read into it (zeroing it here was a pass
+    /// over the whole block before the read wrote it again).
     fn make_room(&mut self, acquisition: &Acquisition, events: usize, trace: (usize, usize)) {
-        let room = events * trace.0 * trace.1;
+        let per_event = trace.0 * trace.1;
+        let room = events * per_event;
         // Memory too small is dropped before new memory is reserved.
         let kept = match self.read.take().map(|block| block.samples) {
             Some(crate::acquisition::channel::Samples::Rf(array)) => {
@@ -240,18 +243,14 @@ impl BlockBuffers {
             }
             _ => None,
         };
-        let memory = match kept {
-            Some(mut memory) => {
-                memory.clear();
-                memory
-            }
-            None => Vec::with_capacity(room),
-        };
-        let empty =
-            Array3::from_shape_vec((0, trace.0, trace.1), memory).expect("no events, no samples");
+        let mut memory = kept.unwrap_or_else(|| bytemuck::zeroed_vec(room));
+        let held = memory.len().checked_div(per_event).unwrap_or(0);
+        memory.truncate(held * per_event);
+        let array = Array3::from_shape_vec((held, trace.0, trace.1), memory)
+            .expect("whole events of the trace's samples");
         self.read = Some(ChannelData {
             acquisition: acquisition.clone(),
-            samples: crate::acquisition::channel::Samples::Rf(empty),
+            samples: crate::acquisition::channel::Samples::Rf(array),
         });
     }
 }
@@ -343,11 +342,14 @@ mod tests {
         let mut buffers = BlockBuffers::default();
         buffers.make_room(&acq, 64, (4, 16));
         let (first, events) = read_memory(&buffers);
-        assert_eq!(events, 0, "room is reserved, not filled");
+        assert_eq!(events, 64, "new room is events of zeros");
         buffers.make_room(&acq, 48, (4, 16));
-        assert_eq!(read_memory(&buffers).0, first);
+        assert_eq!(read_memory(&buffers), (first, 64));
         buffers.make_room(&acq, 64, (4, 16));
-        assert_eq!(read_memory(&buffers).0, first);
+        assert_eq!(read_memory(&buffers), (first, 64));
+        // Another trace shape: the memory's whole events of it.
+        buffers.make_room(&acq, 40, (3, 16));
+        assert_eq!(read_memory(&buffers), (first, 64 * 4 / 3));
         // More than it has: new room, enough for the events asked for.
         buffers.make_room(&acq, 4096, (4, 16));
         let Some(ChannelData {
