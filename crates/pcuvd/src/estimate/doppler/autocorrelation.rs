@@ -117,9 +117,21 @@ where
                 *acc += v;
             }
         }
-        for (x, out) in row.iter_mut().enumerate() {
+        // Each run of pixels whose boxes hold as many pixels (all but the edges' hx on either
+        // side) divided by one count: the loop then vectorises, where a count per pixel left
+        // every division on its own.
+        let width = |x: usize| {
             let (x0, x1) = columns(x);
-            *out = *out / ((z1 - z0) * (x1 - x0)) as f64;
+            x1 - x0
+        };
+        let mut x = 0;
+        while x < nx {
+            let end = (x + 1..nx).find(|&e| width(e) != width(x)).unwrap_or(nx);
+            let count = ((z1 - z0) * width(x)) as f64;
+            for out in &mut row[x..end] {
+                *out = *out / count;
+            }
+            x = end;
         }
     });
     Array2::from_shape_vec((nz, nx), out).expect("nz × nx values")
