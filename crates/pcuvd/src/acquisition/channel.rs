@@ -5,7 +5,7 @@ use num_complex::Complex32;
 
 use crate::acquisition::probe::Probe;
 use crate::acquisition::sequence::Sequence;
-use crate::core::buffers::{complex_floats, floats_finite_on_every_core};
+use crate::core::buffers::{complex_finite_on_every_core, floats_finite_on_every_core};
 use crate::core::error::{Error, Result, invalid, require_positive};
 
 /// Everything needed to interpret a recording's samples.
@@ -220,10 +220,7 @@ impl Samples {
                 Some(values) => floats_finite_on_every_core(values),
                 None => a.iter().all(|v| v.is_finite()),
             },
-            Samples::Iq { data, .. } => match data.as_slice_memory_order() {
-                Some(values) => floats_finite_on_every_core(complex_floats(values)),
-                None => data.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
-            },
+            Samples::Iq { data, .. } => complex_finite_on_every_core(data.view()),
         }
     }
 

@@ -9,7 +9,7 @@
 //! images: about 5 s of system time against 2.5).
 
 use bytemuck::Zeroable;
-use ndarray::{Array, Array1, Array3, ArrayView1, Dimension, IntoDimension, s};
+use ndarray::{Array, Array1, Array3, ArrayView, ArrayView1, Dimension, IntoDimension, s};
 use num_complex::Complex32;
 use rayon::prelude::*;
 
@@ -164,6 +164,16 @@ pub fn floats_finite_on_every_core(values: &[f32]) -> bool {
     values.par_chunks(1 << 16).all(floats_finite)
 }
 
+/// Whether every complex value of `array` has finite parts: [`floats_finite_on_every_core`] where
+/// its elements are one run of memory (a recording's IQ block, a formed series), else a value at
+/// a time.
+pub fn complex_finite_on_every_core<D: Dimension>(array: ArrayView<'_, Complex32, D>) -> bool {
+    match array.as_slice_memory_order() {
+        Some(values) => floats_finite_on_every_core(complex_floats(values)),
+        None => array.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
+    }
+}
+
 /// A 1-D view's elements as a slice: borrowed where they lie contiguous (a pixel's frames in a
 /// formed series, a trace of a recording), else copied.
 pub fn contiguous<T: Clone>(view: ArrayView1<'_, T>) -> std::borrow::Cow<'_, [T]> {
@@ -246,6 +256,35 @@ mod tests {
         // Elements that do not tile a line are left unpadded.
         let odd = padded_rows_reusing::<[u8; 3]>(None, (2, 2, 5));
         assert_eq!(odd.dim(), (2, 2, 5));
+    }
+
+    /// A complex array is finite unless a part of one value is NaN or infinite, whether its
+    /// elements are one run of memory or strided.
+    #[test]
+    fn complex_arrays_are_finite_unless_one_part_is_not() {
+        let mut array = ndarray::Array3::from_shape_fn((3, 4, 70_000), |(a, b, c)| {
+            Complex32::new((a + b) as f32, c as f32 * -1e30)
+        });
+        let strided = |a: &ndarray::Array3<Complex32>| {
+            complex_finite_on_every_core(a.slice(s![.., .., ..;3]))
+        };
+        assert!(complex_finite_on_every_core(array.view()) && strided(&array));
+        for bad in [
+            Complex32::new(f32::NAN, 0.0),
+            Complex32::new(0.0, f32::INFINITY),
+        ] {
+            let old = std::mem::replace(&mut array[[2, 1, 69_999]], bad);
+            assert!(!complex_finite_on_every_core(array.view()), "{bad}");
+            assert!(
+                !complex_finite_on_every_core(array.view().reversed_axes()),
+                "{bad}"
+            );
+            array[[2, 1, 69_999]] = old;
+            let old = std::mem::replace(&mut array[[1, 3, 3]], bad);
+            assert!(!strided(&array), "{bad}");
+            array[[1, 3, 3]] = old;
+        }
+        assert!(complex_finite_on_every_core(array.view()) && strided(&array));
     }
 
     /// Finite extremes (largest, smallest normal, subnormal, signed zeros) pass; a NaN (quiet

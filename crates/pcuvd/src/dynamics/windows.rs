@@ -1,7 +1,7 @@
 //! Vector velocity in sliding windows over slow time.
 
 use super::*;
-use crate::core::buffers::{complex_floats, floats_finite_on_every_core};
+use crate::core::buffers::complex_finite_on_every_core;
 use crate::estimate::partial_volume::{CellCovariance, CellLags};
 use crate::estimate::projections::Projections;
 
@@ -196,13 +196,9 @@ pub(super) fn check_series(
                 series.dim()
             )));
         }
-        // On every core and vectorised where the series is one run of memory (2 GB for 360
-        // frames of 8 angles: a value at a time on one core took most of a second).
-        let finite = match series.as_slice_memory_order() {
-            Some(values) => floats_finite_on_every_core(complex_floats(values)),
-            None => series.iter().all(|v| v.re.is_finite() && v.im.is_finite()),
-        };
-        if !finite {
+        // On every core (2 GB for 360 frames of 8 angles: a value at a time on one core took
+        // most of a second).
+        if !complex_finite_on_every_core(series.view()) {
             return Err(Error::NonFinite(format!("filtered IQ series of angle {k}")));
         }
     }
