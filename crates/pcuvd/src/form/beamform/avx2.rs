@@ -64,13 +64,12 @@ fn prefetch<const N: usize>(a: *const f32, row: usize) {
 
 /// acc += `Σ_k c0[k]·a_k + c1[k]·b_k` on interleaved (re, im) pairs; with `fresh`, acc = the
 /// sum, from sums started at +0 as a zeroed acc would start them (the same bits), without
-/// reading acc. With c = (p, q) and
-/// a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums p·a and q·a in two registers
-/// per vector, and the swap and sign of the second are applied once, after the loop, so
-/// that each tap costs four FMAs per vector and no shuffle. With MASKED, the last vector is
-/// masked to the frames of `acc`: nothing beyond them is read or written, and every frame is
-/// summed by the same FMAs wherever a run puts it, so that processing a recording in blocks
-/// of frames gives its images bit for bit.
+/// reading acc. With c = (p, q) and a = (u, v), c·a = p·(u, v) + (−q v, q u): the loop sums
+/// p·a and q·a in two registers per vector, and the swap and sign of the second are applied
+/// once, after the loop, so that each tap costs four FMAs per vector and no shuffle. With
+/// MASKED, the last vector is masked to the frames of `acc`: nothing beyond them is read or
+/// written, and every frame is summed by the same FMAs wherever a run puts it, so that
+/// processing a recording in blocks of frames gives its images bit for bit.
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn run<const N: usize, const MASKED: bool>(

@@ -104,11 +104,12 @@ pub(super) fn beamform_into_with(
         tiles
             .into_par_iter()
             .for_each_init(Taps::default, |taps, mut pixels| {
-                // Each pixel's sums are first written by the thread that sums them, its first
-                // pass over them (`fresh`), where zeroing them first was a pass over the whole
-                // series more: a fresh series is then faulted in on every core (zeroed whole by
-                // the calling thread, it kept the first block of a 360-frame coded recording at
-                // 1.25 of 2 cores). `started[p·runs + r]`: pixel p's run r of frames was written.
+                // A pixel's first pass writes its sums (`fresh`) rather than adding them to
+                // zeros: zeroing them beforehand was a pass over the whole series of its own.
+                // Written by the thread that sums them, a fresh series is faulted in on every
+                // core (zeroed whole by the calling thread, it kept the first block of a
+                // 360-frame coded recording at 1.25 of 2 cores). `started[p·runs + r]`: pixel
+                // p's run r of frames has been written.
                 let mut started = vec![false; pixels.len() * chunks.len()];
                 // Within a tile, one group of elements and one run of frames at a time (a
                 // pass): the samples they need (a few hundred KB) are reused from L2 by all
