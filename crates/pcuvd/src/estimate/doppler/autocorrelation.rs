@@ -132,8 +132,9 @@ where
         };
         let mut x = 0;
         while x < nx {
-            let end = (x + 1..nx).find(|&e| width(e) != width(x)).unwrap_or(nx);
-            let count = ((z1 - z0) * width(x)) as f64;
+            let w = width(x);
+            let end = (x + 1..nx).find(|&e| width(e) != w).unwrap_or(nx);
+            let count = ((z1 - z0) * w) as f64;
             for out in &mut row[x..end] {
                 *out = *out / count;
             }
