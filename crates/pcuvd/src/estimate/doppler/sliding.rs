@@ -124,41 +124,70 @@ pub fn window_moments(
         let at = (z * nx + x) * nf + first;
         &samples[at..at + span]
     };
+    let windows = Windows {
+        starts,
+        first,
+        bin,
+        window,
+        n_bins,
+        planes,
+    };
     rows.into_par_iter().enumerate().for_each_init(
-        || (vec![Sums::default(); n_bins], vec![Sums::default(); n_bins]),
-        |(bins, straddling), (iz, (mut power_rows, mut product_rows))| {
-            for ix in 0..nx {
-                // The pixel and its neighbour one step along each lag; the last one pairs with the
-                // one before it, roles swapped, as [`spatial_lag_means`] pairs them.
-                let pair = |i: usize, n: usize| if i + 1 < n { (i, i + 1) } else { (i - 1, i) };
-                let axial = lags.axial.then(|| {
-                    let (a, b) = pair(iz, nz);
-                    (frames(a, ix), frames(b, ix))
-                });
-                let lateral = lags.lateral.then(|| {
-                    let (a, b) = pair(ix, nx);
-                    (frames(iz, a), frames(iz, b))
-                });
-                bin_sums(frames(iz, ix), [axial, lateral], bin, bins, straddling);
-                let pairs = (window - 1) as f64;
-                for ((&start, power), products) in starts
-                    .iter()
-                    .zip(power_rows.iter_mut())
-                    .zip(product_rows.chunks_mut(planes))
-                {
-                    let (j0, j1) = ((start - first) / bin, (start - first + window) / bin);
-                    let mut sums = bins[j0];
-                    for j in j0 + 1..j1 {
-                        sums += &bins[j];
-                        sums += &straddling[j];
-                    }
-                    power[ix] = sums.power / window as f64;
-                    products[0][ix] = sums.r1 / pairs;
-                    for (lag, planes) in sums.lags.iter().zip(products[1..].chunks_mut(3)) {
-                        planes[0][ix] = lag[0] / pairs;
-                        planes[1][ix] = lag[1] / pairs;
-                        planes[2][ix] = lag[2] / window as f64;
-                    }
+        || LaneScratch::new(n_bins),
+        |scratch, (iz, (mut power_rows, mut product_rows))| {
+            // The pixel and its neighbour one step along each lag; the last one pairs with the
+            // one before it, roles swapped, as [`spatial_lag_means`] pairs them.
+            let pair = |i: usize, n: usize| if i + 1 < n { (i, i + 1) } else { (i - 1, i) };
+            let mut ix = 0;
+            while ix < nx {
+                // Pixels side by side where each has its right-hand neighbour; one at a time at
+                // the row's end.
+                if ix + LANES < nx {
+                    let own: [&[Complex32]; LANES + 1] =
+                        std::array::from_fn(|c| frames(iz, ix + c));
+                    let axial = lags.axial.then(|| {
+                        let (z, order) = if iz + 1 < nz {
+                            (iz + 1, AxialPair::OwnThenOther)
+                        } else {
+                            (iz - 1, AxialPair::OtherThenOwn)
+                        };
+                        let other: [&[Complex32]; LANES] =
+                            std::array::from_fn(|c| frames(z, ix + c));
+                        (other, order)
+                    });
+                    let pixels = LanePixels {
+                        own,
+                        axial,
+                        lateral: lags.lateral,
+                    };
+                    let mut out = WindowRows {
+                        ix,
+                        power: &mut power_rows,
+                        products: &mut product_rows,
+                    };
+                    lane_window_sums(&pixels, &windows, &mut out, scratch);
+                    ix += LANES;
+                } else {
+                    let axial = lags.axial.then(|| {
+                        let (a, b) = pair(iz, nz);
+                        (frames(a, ix), frames(b, ix))
+                    });
+                    let lateral = lags.lateral.then(|| {
+                        let (a, b) = pair(ix, nx);
+                        (frames(iz, a), frames(iz, b))
+                    });
+                    let (bins, straddling) = (
+                        &mut scratch.bins[..n_bins],
+                        &mut scratch.straddling[..n_bins],
+                    );
+                    bin_sums(frames(iz, ix), [axial, lateral], bin, bins, straddling);
+                    let mut out = WindowRows {
+                        ix,
+                        power: &mut power_rows,
+                        products: &mut product_rows,
+                    };
+                    window_sums(bins, straddling, &windows, &mut out);
+                    ix += 1;
                 }
             }
         },
@@ -230,6 +259,536 @@ fn bin_sums(
     }
 }
 
+/// Where a row's windows lie in the bins of its pixels' frames.
+struct Windows<'a> {
+    /// Each window's first frame, ascending.
+    starts: &'a [usize],
+    /// The first window's first frame: the first bin's.
+    first: usize,
+    /// Frames per bin.
+    bin: usize,
+    /// Frames per window.
+    window: usize,
+    /// Bins per pixel.
+    n_bins: usize,
+    /// Product maps per window: lag 1, then [plus, minus, same] per spatial lag measured.
+    planes: usize,
+}
+
+impl Windows<'_> {
+    /// Each window's first and last bin + 1.
+    fn bins(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.starts.iter().map(|&start| {
+            let from = start - self.first;
+            (from / self.bin, (from + self.window) / self.bin)
+        })
+    }
+}
+
+/// A row's slice of every window's maps, and the pixel written next.
+struct WindowRows<'r, 'm> {
+    /// The pixel's place in the row.
+    ix: usize,
+    /// Per window, the power map's row.
+    power: &'r mut [ndarray::ArrayViewMut1<'m, f64>],
+    /// Per window, [`Windows::planes`] product maps' rows.
+    products: &'r mut [ndarray::ArrayViewMut1<'m, Complex64>],
+}
+
+/// Writes one pixel's window sums into its place of every window's maps: each window's bins,
+/// with the pairs straddling their boundaries, divided by the window's frames (power, the
+/// products within frames) or pairs (the products across a frame).
+fn window_sums(bins: &[Sums], straddling: &[Sums], windows: &Windows, out: &mut WindowRows) {
+    let ix = out.ix;
+    let (frames, pairs) = (windows.window as f64, (windows.window - 1) as f64);
+    for (((j0, j1), power), products) in windows
+        .bins()
+        .zip(out.power.iter_mut())
+        .zip(out.products.chunks_mut(windows.planes))
+    {
+        let mut sums = bins[j0];
+        for j in j0 + 1..j1 {
+            sums += &bins[j];
+            sums += &straddling[j];
+        }
+        power[ix] = sums.power / frames;
+        products[0][ix] = sums.r1 / pairs;
+        for (lag, planes) in sums.lags.iter().zip(products[1..].chunks_mut(3)) {
+            planes[0][ix] = lag[0] / pairs;
+            planes[1][ix] = lag[1] / pairs;
+            planes[2][ix] = lag[2] / frames;
+        }
+    }
+}
+
+/// Pixels of a row summed side by side: the f64 lanes of an AVX-512 register.
+const LANES: usize = 8;
+
+/// Which of a pixel's rows comes first in its axial pair: its own (the row below follows), or the
+/// row above (the image's last row, paired with the one before it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum AxialPair {
+    /// (own row, next row).
+    OwnThenOther,
+    /// (row before, own row).
+    OtherThenOwn,
+}
+
+/// [`LANES`] pixels of a row side by side, with the frames their sums read.
+struct LanePixels<'a> {
+    /// The pixels' frames, and the right-hand neighbour's of the last.
+    own: [&'a [Complex32]; LANES + 1],
+    /// The same pixels' frames in the other row of their axial pair, and the pair's order.
+    axial: Option<([&'a [Complex32]; LANES], AxialPair)>,
+    /// Whether the lateral pair (pixel, right-hand neighbour) is measured.
+    lateral: bool,
+}
+
+/// The working memory of [`lane_window_sums`], kept from one call to the next.
+struct LaneScratch {
+    /// One pixel's bins, where pixels are summed one at a time.
+    bins: Vec<Sums>,
+    /// One pixel's straddling pairs, alike.
+    straddling: Vec<Sums>,
+    /// The bins and straddling pairs in registers' lanes.
+    #[cfg(target_arch = "x86_64")]
+    wide: Option<lanes_avx512::Bins>,
+}
+
+impl LaneScratch {
+    /// Room for `n_bins` bins of each lane.
+    fn new(n_bins: usize) -> LaneScratch {
+        LaneScratch {
+            bins: vec![Sums::default(); n_bins],
+            straddling: vec![Sums::default(); n_bins],
+            #[cfg(target_arch = "x86_64")]
+            wide: is_x86_feature_detected!("avx512f").then(|| lanes_avx512::Bins::new(n_bins)),
+        }
+    }
+}
+
+/// [`bin_sums`] and [`window_sums`] of [`LANES`] pixels side by side, written into their places
+/// `out.ix ..` of every window's maps. Each lane's sums are its pixel's alone, to the bit: the
+/// same products, widened and added in the same order. Summed a pixel at a time, each frame's
+/// seven products waited on the widening and sums of the one before.
+fn lane_window_sums(
+    pixels: &LanePixels,
+    windows: &Windows,
+    out: &mut WindowRows,
+    scratch: &mut LaneScratch,
+) {
+    let frames = windows.n_bins * windows.bin;
+    assert!(pixels.own.iter().all(|s| s.len() >= frames));
+    assert!(
+        pixels
+            .axial
+            .is_none_or(|(other, _)| other.iter().all(|s| s.len() >= frames))
+    );
+    assert!(out.power.iter().all(|row| row.len() >= out.ix + LANES));
+    assert!(out.products.iter().all(|row| row.len() >= out.ix + LANES));
+    #[cfg(target_arch = "x86_64")]
+    {
+        if let Some(wide) = scratch.wide.as_mut() {
+            // SAFETY: `wide` is made only where AVX-512F was detected; every series holds the
+            // frames the bins read, and every row the pixels written (the checks above).
+            unsafe {
+                lanes_avx512::bin_sums(pixels, windows.bin, wide);
+                lanes_avx512::window_sums(wide, windows, out);
+            }
+            return;
+        }
+    }
+    one_at_a_time(pixels, windows, out, scratch);
+}
+
+/// [`lane_window_sums`] a pixel at a time, where the CPU has no AVX-512.
+fn one_at_a_time(
+    pixels: &LanePixels,
+    windows: &Windows,
+    out: &mut WindowRows,
+    scratch: &mut LaneScratch,
+) {
+    let n_bins = windows.n_bins;
+    let first = out.ix;
+    for l in 0..LANES {
+        let own = &pixels.own;
+        let lags = [
+            pixels.axial.map(|(other, order)| match order {
+                AxialPair::OwnThenOther => (own[l], other[l]),
+                AxialPair::OtherThenOwn => (other[l], own[l]),
+            }),
+            pixels.lateral.then(|| (own[l], own[l + 1])),
+        ];
+        let (bins, straddling) = (
+            &mut scratch.bins[..n_bins],
+            &mut scratch.straddling[..n_bins],
+        );
+        bin_sums(own[l], lags, windows.bin, bins, straddling);
+        out.ix = first + l;
+        window_sums(bins, straddling, windows, out);
+    }
+    out.ix = first;
+}
+
+/// [`lane_window_sums`] in AVX-512 registers: eight frames of eight pixels loaded at a time and
+/// turned in registers so that each vector holds one frame of every pixel, real and imaginary
+/// parts apart; each sum of [`Sums`] one register of eight f64 lanes, from the
+/// frames to the windows' maps.
+#[cfg(target_arch = "x86_64")]
+mod lanes_avx512 {
+    use super::{AxialPair, Complex32, Complex64, LANES, LanePixels, WindowRows, Windows};
+    use std::arch::x86_64::*;
+
+    /// One frame of the eight pixels: real parts, imaginary parts.
+    #[derive(Clone, Copy)]
+    struct Lanes {
+        re: __m256,
+        im: __m256,
+    }
+
+    /// One frame of the pixels, of their right-hand neighbours, and of the other row of their
+    /// axial pair.
+    #[derive(Clone, Copy)]
+    struct Frame {
+        own: Lanes,
+        right: Lanes,
+        other: Lanes,
+    }
+
+    impl Frame {
+        /// The (first, second) series of the axial pair.
+        #[inline(always)]
+        fn axial(&self, order: AxialPair) -> (Lanes, Lanes) {
+            match order {
+                AxialPair::OwnThenOther => (self.own, self.other),
+                AxialPair::OtherThenOwn => (self.other, self.own),
+            }
+        }
+    }
+
+    /// [`Sums`](super::Sums) of eight pixels, lane by lane.
+    #[derive(Clone, Copy)]
+    struct LaneSums {
+        power: __m512d,
+        /// Re, Im.
+        r1: [__m512d; 2],
+        /// Axial then lateral: [plus, minus, same], each Re, Im.
+        lags: [[[__m512d; 2]; 3]; 2],
+    }
+
+    impl LaneSums {
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        fn zero() -> LaneSums {
+            let z = _mm512_setzero_pd();
+            LaneSums {
+                power: z,
+                r1: [z; 2],
+                lags: [[[z; 2]; 3]; 2],
+            }
+        }
+
+        /// Adds `other`'s sums lane by lane, as [`super::Sums`] adds.
+        #[target_feature(enable = "avx512f")]
+        #[inline]
+        fn add(&mut self, other: &LaneSums) {
+            self.power = _mm512_add_pd(self.power, other.power);
+            for (mine, theirs) in self.r1.iter_mut().zip(&other.r1) {
+                *mine = _mm512_add_pd(*mine, *theirs);
+            }
+            let theirs = other.lags.iter().flatten().flatten();
+            for (mine, theirs) in self.lags.iter_mut().flatten().flatten().zip(theirs) {
+                *mine = _mm512_add_pd(*mine, *theirs);
+            }
+        }
+    }
+
+    /// Eight pixels' bins and straddling pairs ([`super::bin_sums`]), lane by lane.
+    pub(super) struct Bins {
+        bins: Vec<LaneSums>,
+        straddling: Vec<LaneSums>,
+    }
+
+    impl Bins {
+        /// Room for `n_bins` bins.
+        pub(super) fn new(n_bins: usize) -> Bins {
+            // SAFETY: every bit pattern, zeros among them, is a vector of eight f64.
+            let zero: LaneSums = unsafe { std::mem::zeroed() };
+            Bins {
+                bins: vec![zero; n_bins],
+                straddling: vec![zero; n_bins],
+            }
+        }
+    }
+
+    /// Adds conj(x)·y to `sum` (Re, Im) lane by lane, each product in f32 and widened to f64 as
+    /// [`super::conj_product`] forms it.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    fn add_conj_product(sum: &mut [__m512d; 2], x: Lanes, y: Lanes) {
+        let wide = |v: __m256| _mm512_cvtps_pd(v);
+        let re = _mm512_add_pd(
+            wide(_mm256_mul_ps(x.re, y.re)),
+            wide(_mm256_mul_ps(x.im, y.im)),
+        );
+        let im = _mm512_sub_pd(
+            wide(_mm256_mul_ps(x.re, y.im)),
+            wide(_mm256_mul_ps(x.im, y.re)),
+        );
+        sum[0] = _mm512_add_pd(sum[0], re);
+        sum[1] = _mm512_add_pd(sum[1], im);
+    }
+
+    /// Frames `t .. t + count` (count ≤ 8) of eight series, turned: element k holds frame t + k
+    /// of every series.
+    ///
+    /// # Safety
+    /// Frames t .. t + count must lie within every series.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn turned(series: [&[Complex32]; 8], t: usize, count: usize) -> [Lanes; 8] {
+        let mask: __mmask8 = if count >= 8 { 0xff } else { (1u8 << count) - 1 };
+        // Each complex sample is one 64-bit element: its real part in the low half.
+        // SAFETY (of the loads): the mask reads only frames t .. t + count, within each series.
+        let r: [__m512i; 8] = std::array::from_fn(|p| unsafe {
+            _mm512_maskz_loadu_epi64(mask, series[p].as_ptr().add(t).cast::<i64>())
+        });
+        // The 8 × 8 transpose of 64-bit elements: pairs of rows interleaved, then pairs of
+        // pairs, then halves.
+        let lo = |a, b| _mm512_unpacklo_epi64(a, b);
+        let hi = |a, b| _mm512_unpackhi_epi64(a, b);
+        let (t0, t1, t2, t3) = (
+            lo(r[0], r[1]),
+            hi(r[0], r[1]),
+            lo(r[2], r[3]),
+            hi(r[2], r[3]),
+        );
+        let (t4, t5, t6, t7) = (
+            lo(r[4], r[5]),
+            hi(r[4], r[5]),
+            lo(r[6], r[7]),
+            hi(r[6], r[7]),
+        );
+        let pick = |a, idx: [i64; 8], b| {
+            let idx = _mm512_setr_epi64(
+                idx[0], idx[1], idx[2], idx[3], idx[4], idx[5], idx[6], idx[7],
+            );
+            _mm512_permutex2var_epi64(a, idx, b)
+        };
+        const EVEN: [i64; 8] = [0, 1, 8, 9, 4, 5, 12, 13];
+        const ODD: [i64; 8] = [2, 3, 10, 11, 6, 7, 14, 15];
+        // s0: frames 0 and 4 of rows 0–3; s1: 2 and 6; s2: 1 and 5; s3: 3 and 7; s4–s7 rows 4–7.
+        let (s0, s1, s2, s3) = (
+            pick(t0, EVEN, t2),
+            pick(t0, ODD, t2),
+            pick(t1, EVEN, t3),
+            pick(t1, ODD, t3),
+        );
+        let (s4, s5, s6, s7) = (
+            pick(t4, EVEN, t6),
+            pick(t4, ODD, t6),
+            pick(t5, EVEN, t7),
+            pick(t5, ODD, t7),
+        );
+        const LOW: [i64; 8] = [0, 1, 2, 3, 8, 9, 10, 11];
+        const HIGH: [i64; 8] = [4, 5, 6, 7, 12, 13, 14, 15];
+        let frames = [
+            pick(s0, LOW, s4),
+            pick(s2, LOW, s6),
+            pick(s1, LOW, s5),
+            pick(s3, LOW, s7),
+            pick(s0, HIGH, s4),
+            pick(s2, HIGH, s6),
+            pick(s1, HIGH, s5),
+            pick(s3, HIGH, s7),
+        ];
+        let mut out = [Lanes {
+            re: _mm256_setzero_ps(),
+            im: _mm256_setzero_ps(),
+        }; 8];
+        for (lanes, f) in out.iter_mut().zip(frames) {
+            lanes.re = _mm256_castsi256_ps(_mm512_cvtepi64_epi32(f));
+            lanes.im = _mm256_castsi256_ps(_mm512_cvtepi64_epi32(_mm512_srli_epi64::<32>(f)));
+        }
+        out
+    }
+
+    /// How many groups of 8 frames ahead each series is fetched.
+    const PREFETCH_GROUPS: usize = 2;
+
+    /// The bins and straddling pairs of `pixels`' frames in bins of `bin` frames, as many bins as
+    /// `out` holds. See [`super::lane_window_sums`], whose checks it relies on.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn bin_sums(pixels: &LanePixels, bin: usize, out: &mut Bins) {
+        let (own, axial, lateral) = (&pixels.own, pixels.axial, pixels.lateral);
+        let n_bins = out.bins.len();
+        let frames = n_bins * bin;
+        let pixels: [&[Complex32]; 8] = std::array::from_fn(|l| own[l]);
+        let right: [&[Complex32]; 8] = std::array::from_fn(|l| own[l + 1]);
+        let within = |sums: &mut LaneSums, now: &Frame| {
+            let s = now.own;
+            let power = _mm512_add_pd(
+                _mm512_cvtps_pd(_mm256_mul_ps(s.re, s.re)),
+                _mm512_cvtps_pd(_mm256_mul_ps(s.im, s.im)),
+            );
+            sums.power = _mm512_add_pd(sums.power, power);
+            if let Some((_, order)) = axial {
+                let (a, b) = now.axial(order);
+                add_conj_product(&mut sums.lags[0][2], a, b);
+            }
+            if lateral {
+                add_conj_product(&mut sums.lags[1][2], now.own, now.right);
+            }
+        };
+        let across = |sums: &mut LaneSums, before: &Frame, now: &Frame| {
+            add_conj_product(&mut sums.r1, before.own, now.own);
+            if let Some((_, order)) = axial {
+                let ((a0, b0), (a1, b1)) = (before.axial(order), now.axial(order));
+                add_conj_product(&mut sums.lags[0][0], a0, b1);
+                add_conj_product(&mut sums.lags[0][1], a1, b0);
+            }
+            if lateral {
+                add_conj_product(&mut sums.lags[1][0], before.own, now.right);
+                add_conj_product(&mut sums.lags[1][1], now.own, before.right);
+            }
+        };
+        let nothing = [Lanes {
+            re: _mm256_setzero_ps(),
+            im: _mm256_setzero_ps(),
+        }; 8];
+        let mut sums = LaneSums::zero();
+        let mut before = Frame {
+            own: nothing[0],
+            right: nothing[0],
+            other: nothing[0],
+        };
+        let mut t0 = 0;
+        while t0 < frames {
+            let count = (frames - t0).min(8);
+            // Every series is its own stream through memory, more than the hardware follows:
+            // each is fetched a few groups ahead.
+            let ahead = t0 + 8 * PREFETCH_GROUPS;
+            if ahead < frames {
+                let fetch = |s: &[Complex32]| {
+                    _mm_prefetch::<_MM_HINT_T0>(s[ahead..].as_ptr().cast::<i8>());
+                };
+                own.iter().for_each(|s| fetch(s));
+                if let Some((other, _)) = axial {
+                    other.iter().for_each(|s| fetch(s));
+                }
+            }
+            // SAFETY: frames t0 .. t0 + count lie within every series (the caller's checks).
+            let (own_at, right_at, other_at) = unsafe {
+                (
+                    turned(pixels, t0, count),
+                    if lateral {
+                        turned(right, t0, count)
+                    } else {
+                        nothing
+                    },
+                    match axial {
+                        Some((other, _)) => turned(other, t0, count),
+                        None => nothing,
+                    },
+                )
+            };
+            for k in 0..count {
+                let t = t0 + k;
+                let now = Frame {
+                    own: own_at[k],
+                    right: right_at[k],
+                    other: other_at[k],
+                };
+                if t % bin == 0 {
+                    // A bin's first frame: the bin before is whole, and the pair across the
+                    // boundary is the new bin's straddling pair (none before the first).
+                    let j = t / bin;
+                    if j > 0 {
+                        out.bins[j - 1] = sums;
+                        sums = LaneSums::zero();
+                    }
+                    let mut straddle = LaneSums::zero();
+                    if j > 0 {
+                        across(&mut straddle, &before, &now);
+                    }
+                    out.straddling[j] = straddle;
+                    within(&mut sums, &now);
+                } else {
+                    within(&mut sums, &now);
+                    across(&mut sums, &before, &now);
+                }
+                before = now;
+            }
+            t0 += count;
+        }
+        if n_bins > 0 {
+            out.bins[n_bins - 1] = sums;
+        }
+    }
+
+    /// Writes the eight pixels' window sums from `bins` into their places `out.ix ..` of every
+    /// window's maps, as [`super::window_sums`] writes each. See [`super::lane_window_sums`],
+    /// whose checks it relies on.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn window_sums(bins: &Bins, windows: &Windows, out: &mut WindowRows) {
+        let ix = out.ix;
+        let frames = _mm512_set1_pd(windows.window as f64);
+        let pairs = _mm512_set1_pd((windows.window - 1) as f64);
+        // Complex values are (Re, Im) after each other: the lanes' real and imaginary parts
+        // interleaved, the first four pixels' then the last four's.
+        let first_four = _mm512_setr_epi64(0, 1, 8, 9, 2, 3, 10, 11);
+        let last_four = _mm512_setr_epi64(4, 5, 12, 13, 6, 7, 14, 15);
+        let store_complex = |row: &mut ndarray::ArrayViewMut1<Complex64>, re, im| {
+            let row = row
+                .as_slice_mut()
+                .expect("a row of a map in standard layout");
+            let at = row[ix..ix + LANES].as_mut_ptr().cast::<f64>();
+            let (even, odd) = (_mm512_unpacklo_pd(re, im), _mm512_unpackhi_pd(re, im));
+            // SAFETY: the 16 f64 written are the 8 complex values of row[ix .. ix + 8].
+            unsafe {
+                _mm512_storeu_pd(at, _mm512_permutex2var_pd(even, first_four, odd));
+                _mm512_storeu_pd(at.add(8), _mm512_permutex2var_pd(even, last_four, odd));
+            }
+        };
+        for (((j0, j1), power), products) in windows
+            .bins()
+            .zip(out.power.iter_mut())
+            .zip(out.products.chunks_mut(windows.planes))
+        {
+            let mut sums = bins.bins[j0];
+            for j in j0 + 1..j1 {
+                sums.add(&bins.bins[j]);
+                sums.add(&bins.straddling[j]);
+            }
+            let row = power
+                .as_slice_mut()
+                .expect("a row of a map in standard layout");
+            // SAFETY: the 8 f64 written are row[ix .. ix + 8].
+            unsafe {
+                _mm512_storeu_pd(
+                    row[ix..ix + LANES].as_mut_ptr(),
+                    _mm512_div_pd(sums.power, frames),
+                )
+            };
+            let r1 = sums.r1;
+            store_complex(
+                &mut products[0],
+                _mm512_div_pd(r1[0], pairs),
+                _mm512_div_pd(r1[1], pairs),
+            );
+            for (lag, planes) in sums.lags.iter().zip(products[1..].chunks_mut(3)) {
+                for (m, (plane, by)) in planes.iter_mut().zip([pairs, pairs, frames]).enumerate() {
+                    store_complex(
+                        plane,
+                        _mm512_div_pd(lag[m][0], by),
+                        _mm512_div_pd(lag[m][1], by),
+                    );
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,13 +808,120 @@ mod tests {
         }
     }
 
+    /// Pixels summed side by side write the windows' moments each writes summed alone, to the
+    /// bit and in their own places: with and without each spatial lag, both orders of the axial
+    /// pair, bins of one frame and of several, frames that fill the last group of eight and
+    /// frames that do not, windows from a later first frame.
+    #[test]
+    fn pixels_side_by_side_sum_as_each_alone() {
+        let span = 61;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut draw = || -> f32 { StandardNormal.sample(&mut rng) };
+        let series: Vec<Vec<Complex32>> = (0..2 * LANES + 1)
+            .map(|_| (0..span).map(|_| Complex32::new(draw(), draw())).collect())
+            .collect();
+        let cases: [(&[usize], usize); 6] = [
+            (&[0, 9, 18, 27], 27),
+            (&[0, 1, 2, 3], 2),
+            (&[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13], 16),
+            (&[2, 7, 12, 47], 10),
+            (&[3], 58),
+            (&[0, 4], 8),
+        ];
+        let ix = 2;
+        for (starts, window) in cases {
+            let first = starts[0];
+            let bin = starts
+                .iter()
+                .fold(window, |g, &s| num_integer::gcd(g, s - first));
+            let n_bins = (starts[starts.len() - 1] + window - first) / bin;
+            let frames = |c: usize| &series[c][first..];
+            let own: [&[Complex32]; LANES + 1] = std::array::from_fn(frames);
+            let other: [&[Complex32]; LANES] = std::array::from_fn(|c| frames(LANES + 1 + c));
+            for (axial, lateral) in [
+                (None, false),
+                (Some((other, AxialPair::OwnThenOther)), false),
+                (Some((other, AxialPair::OtherThenOwn)), true),
+                (Some((other, AxialPair::OwnThenOther)), true),
+            ] {
+                let planes = 1 + 3 * (axial.is_some() as usize + lateral as usize);
+                let windows = Windows {
+                    starts,
+                    first,
+                    bin,
+                    window,
+                    n_bins,
+                    planes,
+                };
+                let pixels = LanePixels {
+                    own,
+                    axial,
+                    lateral,
+                };
+                // Each way writes into maps of NaN two pixels wider than the lanes.
+                let written = |side_by_side: bool| {
+                    let width = ix + LANES + 2;
+                    let mut power = vec![ndarray::Array1::from_elem(width, f64::NAN); starts.len()];
+                    let nan = Complex64::new(f64::NAN, f64::NAN);
+                    let mut products =
+                        vec![ndarray::Array1::from_elem(width, nan); starts.len() * planes];
+                    let mut power_rows: Vec<_> = power.iter_mut().map(|r| r.view_mut()).collect();
+                    let mut product_rows: Vec<_> =
+                        products.iter_mut().map(|r| r.view_mut()).collect();
+                    let mut out = WindowRows {
+                        ix,
+                        power: &mut power_rows,
+                        products: &mut product_rows,
+                    };
+                    let mut scratch = LaneScratch::new(n_bins);
+                    if side_by_side {
+                        lane_window_sums(&pixels, &windows, &mut out, &mut scratch);
+                    } else {
+                        one_at_a_time(&pixels, &windows, &mut out, &mut scratch);
+                    }
+                    let mut bits: Vec<u64> = power.iter().flatten().map(|v| v.to_bits()).collect();
+                    bits.extend(
+                        products
+                            .iter()
+                            .flatten()
+                            .flat_map(|c| [c.re.to_bits(), c.im.to_bits()]),
+                    );
+                    bits
+                };
+                let (lanes, alone) = (written(true), written(false));
+                let what = format!(
+                    "{starts:?} × {window}, axial {:?}, lateral {lateral}",
+                    axial.map(|a| a.1)
+                );
+                assert_eq!(lanes, alone, "{what}");
+                // Each pixel's place and only those are written.
+                let power_row = &alone[..ix + LANES + 2];
+                assert!(
+                    power_row[ix..ix + LANES]
+                        .iter()
+                        .all(|&b| f64::from_bits(b).is_finite())
+                );
+                assert!(
+                    power_row[..ix].iter().all(|&b| f64::from_bits(b).is_nan()),
+                    "{what}"
+                );
+                assert!(
+                    power_row[ix + LANES..]
+                        .iter()
+                        .all(|&b| f64::from_bits(b).is_nan())
+                );
+            }
+        }
+    }
+
     /// Every window's moments are those of [`moments`] on the window's own frames, to the
     /// rounding of the f64 sums: windows whose starts share a bin of several frames, windows one
     /// frame apart (bins of one frame: every pair straddles), a lone window, both estimators, and
     /// a grid too coarse for the lateral lag.
     #[test]
     fn each_window_has_the_moments_of_its_own_frames() {
-        let (nz, nx, nf) = (5, 4, 40);
+        // Rows wide enough for pixels side by side and for the row's end one at a time.
+        let (nz, nx, nf) = (5, 19, 40);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let mut draw = || -> f32 { StandardNormal.sample(&mut rng) };
         let series = Array3::from_shape_fn((nz, nx, nf), |_| Complex32::new(draw(), draw()));
