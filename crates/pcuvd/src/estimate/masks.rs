@@ -163,18 +163,75 @@ pub fn figure_flow_mask(power: &Array2<f64>, level_db: f64, step: f64) -> Array2
 /// while dropping side lobes tens of dB down.
 pub fn near_local_peak(power: &Array2<f64>, radius: usize, within_db: f64) -> Array2<bool> {
     let (nz, nx) = power.dim();
-    let finite = power.mapv(|p| if p.is_finite() { p } else { 0.0 });
-    let along_x = Array2::from_shape_fn((nz, nx), |(iz, ix)| {
-        let (lo, hi) = (ix.saturating_sub(radius), (ix + radius).min(nx - 1));
-        (lo..=hi).map(|j| finite[[iz, j]]).fold(0.0, f64::max)
-    });
+    // Non-finite power counts as none; the peak of a square is at least zero.
+    let finite: Vec<f64> = power
+        .iter()
+        .map(|&p| if p.is_finite() { p.max(0.0) } else { 0.0 })
+        .collect();
+    // The square's maximum is the maximum along z of the maxima along x.
+    let along_x = sliding_max(&finite, (nz, nx), false, radius);
+    let peaks = sliding_max(&along_x, (nz, nx), true, radius);
     let gain = 10f64.powf(-within_db / 10.0);
-    Array2::from_shape_fn((nz, nx), |(iz, ix)| {
-        let (lo, hi) = (iz.saturating_sub(radius), (iz + radius).min(nz - 1));
-        let peak = (lo..=hi).map(|i| along_x[[i, ix]]).fold(0.0, f64::max);
-        let p = power[[iz, ix]];
-        p.is_finite() && p > 0.0 && p >= peak * gain
-    })
+    let mut mask = Array2::from_elem((nz, nx), false);
+    for ((m, &p), &peak) in mask.iter_mut().zip(power.iter()).zip(&peaks) {
+        *m = p.is_finite() && p > 0.0 && p >= peak * gain;
+    }
+    mask
+}
+
+/// The maximum of each value's neighbours up to `radius` steps away, cut at the edges, along one
+/// axis of an (nz, nx) map in standard layout: along z where `along_z`, else along x.
+///
+/// Van Herk's running maxima: the axis is cut into blocks of 2·radius + 1 values, each value
+/// takes the maximum from its block's start (forward) and to its block's end (backward), and a
+/// neighbourhood, which spans at most two blocks, is the larger of the backward maximum at its
+/// first value and the forward one at its last (a neighbourhood within one block, cut at an
+/// edge, is one of them): three comparisons a value whatever the radius, where scanning each
+/// neighbourhood took 2·radius + 1. A maximum is exact, so the result is the scan's.
+fn sliding_max(values: &[f64], shape: (usize, usize), along_z: bool, radius: usize) -> Vec<f64> {
+    let (nz, nx) = shape;
+    let (lines, len) = if along_z { (nx, nz) } else { (nz, nx) };
+    let block = 2 * radius + 1;
+    let at = |line: usize, i: usize| {
+        if along_z {
+            i * nx + line
+        } else {
+            line * nx + i
+        }
+    };
+    let (mut forward, mut backward) = (vec![0.0; values.len()], vec![0.0; values.len()]);
+    let mut out = vec![0.0; values.len()];
+    for line in 0..lines {
+        for i in 0..len {
+            let v = values[at(line, i)];
+            forward[at(line, i)] = if i % block == 0 {
+                v
+            } else {
+                v.max(forward[at(line, i - 1)])
+            };
+        }
+        for i in (0..len).rev() {
+            let v = values[at(line, i)];
+            backward[at(line, i)] = if i % block == block - 1 || i + 1 == len {
+                v
+            } else {
+                v.max(backward[at(line, i + 1)])
+            };
+        }
+        for i in 0..len {
+            let (lo, hi) = (i.saturating_sub(radius), (i + radius).min(len - 1));
+            out[at(line, i)] = if lo / block != hi / block {
+                backward[at(line, lo)].max(forward[at(line, hi)])
+            } else if lo % block == 0 {
+                // Within one block, cut at the axis' start or a whole block: from its start.
+                forward[at(line, hi)]
+            } else {
+                // Within one block, cut at the axis' end: to its end.
+                backward[at(line, lo)]
+            };
+        }
+    }
+    out
 }
 
 /// Default margin (dB) above the noise floor of the recording's power Doppler
@@ -402,6 +459,42 @@ mod tests {
 
     /// A bright vessel with a side-lobe haze 25 dB below it on either side, and a vessel 35–38 dB
     /// weaker than the bright one farther away: the haze goes, both vessels (edges included) stay.
+    /// The running maxima give each pixel the peak of its own square, scanned value by value:
+    /// on maps narrower and shorter than the square, with NaN, negative and zero power, radius 0.
+    #[test]
+    fn near_local_peak_tests_each_pixel_against_its_own_square() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for (nz, nx) in [(17, 23), (1, 9), (8, 1), (40, 6)] {
+            let power = Array2::from_shape_fn((nz, nx), |_| match rng.random_range(0..10) {
+                0 => f64::NAN,
+                1 => -1.0,
+                2 => 0.0,
+                _ => 10f64.powf(rng.random_range(-4.0..0.0)),
+            });
+            for radius in [0, 1, 2, 5, 30] {
+                for within_db in [3.0, 20.0] {
+                    let got = near_local_peak(&power, radius, within_db);
+                    let gain = 10f64.powf(-within_db / 10.0);
+                    for ((iz, ix), &m) in got.indexed_iter() {
+                        let mut peak = 0.0f64;
+                        for z in iz.saturating_sub(radius)..=(iz + radius).min(nz - 1) {
+                            for x in ix.saturating_sub(radius)..=(ix + radius).min(nx - 1) {
+                                let p = power[[z, x]];
+                                if p.is_finite() {
+                                    peak = peak.max(p);
+                                }
+                            }
+                        }
+                        let p = power[[iz, ix]];
+                        let want = p.is_finite() && p > 0.0 && p >= peak * gain;
+                        assert_eq!(m, want, "{nz} × {nx}, radius {radius}, at ({iz}, {ix})");
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn local_peak_test_drops_side_lobes_and_keeps_weak_vessels() {
         let (nz, nx) = (30, 120);
