@@ -83,17 +83,14 @@ pub fn window_moments(
             format!("a spatial-lag autocorrelation needs at least 2 rows, got {nz}"),
         ));
     }
-    // Bins of g frames from the first start: every window begins and ends on a bin boundary.
-    let bin = starts
-        .iter()
-        .fold(window, |g, &s| num_integer::gcd(g, s - first));
-    let span = last + window - first;
-    let n_bins = span / bin;
     let n_windows = starts.len();
     let n_lags = lags.axial as usize + lags.lateral as usize;
     // Per window: r1, then [plus, minus, same] of each lag measured. Each map is allocated on its
     // own, small enough for the allocator to reuse from one call to the next.
     let planes = 1 + 3 * n_lags;
+    let windows = Windows::new(starts, window, planes);
+    let (bin, n_bins) = (windows.bin, windows.n_bins);
+    let span = bin * n_bins;
     let mut power: Vec<Array2<f64>> = (0..n_windows).map(|_| Array2::zeros((nz, nx))).collect();
     let mut products: Vec<Vec<Array2<Complex64>>> = (0..n_windows)
         .map(|_| (0..planes).map(|_| Array2::zeros((nz, nx))).collect())
@@ -123,14 +120,6 @@ pub fn window_moments(
     let frames = |z: usize, x: usize| -> &[Complex32] {
         let at = (z * nx + x) * nf + first;
         &samples[at..at + span]
-    };
-    let windows = Windows {
-        starts,
-        first,
-        bin,
-        window,
-        n_bins,
-        planes,
     };
     rows.into_par_iter().enumerate().for_each_init(
         || LaneScratch::new(n_bins),
@@ -275,7 +264,27 @@ struct Windows<'a> {
     planes: usize,
 }
 
-impl Windows<'_> {
+impl<'a> Windows<'a> {
+    /// Windows of `window` frames from each of `starts` (not empty, ascending), with `planes`
+    /// product maps each: in bins of g frames from the first start, g the largest that divides
+    /// the window and every start's distance from the first, so that every window begins and
+    /// ends on a bin boundary.
+    fn new(starts: &'a [usize], window: usize, planes: usize) -> Windows<'a> {
+        let first = starts[0];
+        let bin = starts
+            .iter()
+            .fold(window, |g, &s| num_integer::gcd(g, s - first));
+        let last = starts[starts.len() - 1];
+        Windows {
+            starts,
+            first,
+            bin,
+            window,
+            n_bins: (last + window - first) / bin,
+            planes,
+        }
+    }
+
     /// Each window's first and last bin + 1.
     fn bins(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
         self.starts.iter().map(|&start| {
@@ -831,10 +840,6 @@ mod tests {
         let ix = 2;
         for (starts, window) in cases {
             let first = starts[0];
-            let bin = starts
-                .iter()
-                .fold(window, |g, &s| num_integer::gcd(g, s - first));
-            let n_bins = (starts[starts.len() - 1] + window - first) / bin;
             let frames = |c: usize| &series[c][first..];
             let own: [&[Complex32]; LANES + 1] = std::array::from_fn(frames);
             let other: [&[Complex32]; LANES] = std::array::from_fn(|c| frames(LANES + 1 + c));
@@ -845,14 +850,8 @@ mod tests {
                 (Some((other, AxialPair::OwnThenOther)), true),
             ] {
                 let planes = 1 + 3 * (axial.is_some() as usize + lateral as usize);
-                let windows = Windows {
-                    starts,
-                    first,
-                    bin,
-                    window,
-                    n_bins,
-                    planes,
-                };
+                let windows = Windows::new(starts, window, planes);
+                let n_bins = windows.n_bins;
                 let pixels = LanePixels {
                     own,
                     axial,
