@@ -267,8 +267,9 @@ impl SpatialLag {
             .and(&minus)
             .and(r1)
             .map_collect(|&p, &m, &r| {
-                let turn = if r.norm() > 0.0 {
-                    r / r.norm()
+                let magnitude = r.norm();
+                let turn = if magnitude > 0.0 {
+                    r / magnitude
                 } else {
                     Complex64::new(1.0, 0.0)
                 };

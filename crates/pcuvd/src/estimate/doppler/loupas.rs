@@ -91,7 +91,7 @@ pub fn loupas_velocity(
     axial: &AxialSampling,
 ) -> f64 {
     let f = axial.mean_frequency(r_axial);
-    if r1.norm() > 0.0 && r_axial.norm() > 0.0 && f > 0.0 {
+    if has_magnitude(r1) && has_magnitude(r_axial) && f > 0.0 {
         -sound_speed * frame_rate * r1.arg() / (4.0 * std::f64::consts::PI * f)
     } else {
         0.0

@@ -244,7 +244,7 @@ pub fn maps_of_moments(
                 .and(&r_axial_same)
                 .map_collect(|&r, &q| {
                     let f = secant(axial.mean_frequency(q), axial.mean_frequency(r));
-                    if r.norm() > 0.0 && q.norm() > 0.0 && f > 0.0 {
+                    if has_magnitude(r) && has_magnitude(q) && f > 0.0 {
                         f
                     } else {
                         f_demod
@@ -258,13 +258,15 @@ pub fn maps_of_moments(
                     let wavelength = sound_speed / f_demod;
                     let tau = std::f64::consts::TAU;
                     let expected = tau * geometry.lateral_weight * step / wavelength;
-                    let unwrapped =
-                        |r: Complex64| r.arg() + tau * ((expected - r.arg()) / tau).round();
+                    let unwrapped = |r: Complex64| {
+                        let phase = r.arg();
+                        phase + tau * ((expected - phase) / tau).round()
+                    };
                     Zip::from(&r_lateral)
                         .and(&r_lateral_same)
                         .and(&f_bar)
                         .map_collect(|&r, &q, &f| {
-                            if r.norm() > 0.0 && q.norm() > 0.0 {
+                            if has_magnitude(r) && has_magnitude(q) {
                                 let phase = secant(unwrapped(q), unwrapped(r));
                                 // k̄x / k̄, k̄ = 2π f̄ / c.
                                 phase / step * sound_speed / (tau * f)
@@ -281,7 +283,7 @@ pub fn maps_of_moments(
     // −scale·arg R with scale = c·f_frame/(4π f̄), in the order of [`projection_velocity`], so
     // that Kasai's maps are bit for bit those of the lag-1 stage functions.
     let velocity = Zip::from(&r1).and(&mean_frequency).map_collect(|&r, &f| {
-        if r.norm() > 0.0 {
+        if has_magnitude(r) {
             -(sound_speed * frame_rate / (4.0 * std::f64::consts::PI * f)) * r.arg()
         } else {
             0.0
