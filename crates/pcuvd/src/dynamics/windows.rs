@@ -416,11 +416,11 @@ impl AngleMaps {
         self.lateral
             .index_axis_mut(Axis(0), a)
             .assign(&maps.lateral_weight);
-        self.nyquist.index_axis_mut(Axis(0), a).assign(
-            &maps
-                .mean_frequency
-                .mapv(|f| doppler::nyquist_velocity(sound_speed, frame_rate, f)),
-        );
+        ndarray::Zip::from(self.nyquist.index_axis_mut(Axis(0), a))
+            .and(&maps.mean_frequency)
+            .for_each(|nyquist, &f| {
+                *nyquist = doppler::nyquist_velocity(sound_speed, frame_rate, f);
+            });
         self.power.index_axis_mut(Axis(0), a).assign(&maps.power);
     }
 }
