@@ -501,13 +501,17 @@ mod lanes_avx512 {
         #[target_feature(enable = "avx512f")]
         #[inline]
         fn add(&mut self, other: &LaneSums) {
+            // Indexed loops of constant bounds, which unroll into registers.
             self.power = _mm512_add_pd(self.power, other.power);
-            for (mine, theirs) in self.r1.iter_mut().zip(&other.r1) {
-                *mine = _mm512_add_pd(*mine, *theirs);
+            for c in 0..2 {
+                self.r1[c] = _mm512_add_pd(self.r1[c], other.r1[c]);
             }
-            let theirs = other.lags.iter().flatten().flatten();
-            for (mine, theirs) in self.lags.iter_mut().flatten().flatten().zip(theirs) {
-                *mine = _mm512_add_pd(*mine, *theirs);
+            for k in 0..2 {
+                for m in 0..3 {
+                    for c in 0..2 {
+                        self.lags[k][m][c] = _mm512_add_pd(self.lags[k][m][c], other.lags[k][m][c]);
+                    }
+                }
             }
         }
     }
