@@ -457,8 +457,6 @@ mod tests {
         assert!(lifted > 10 * nx, "{lifted}");
     }
 
-    /// A bright vessel with a side-lobe haze 25 dB below it on either side, and a vessel 35–38 dB
-    /// weaker than the bright one farther away: the haze goes, both vessels (edges included) stay.
     /// The running maxima give each pixel the peak of its own square, scanned value by value:
     /// on maps narrower and shorter than the square, with NaN, negative and zero power, radius 0.
     #[test]
@@ -495,6 +493,8 @@ mod tests {
         }
     }
 
+    /// A bright vessel with a side-lobe haze 25 dB below it on either side, and a vessel 35–38 dB
+    /// weaker than the bright one farther away: the haze goes, both vessels (edges included) stay.
     #[test]
     fn local_peak_test_drops_side_lobes_and_keeps_weak_vessels() {
         let (nz, nx) = (30, 120);
