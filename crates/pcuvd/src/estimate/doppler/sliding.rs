@@ -165,17 +165,13 @@ pub fn window_moments(
                         let (a, b) = pair(ix, nx);
                         (frames(iz, a), frames(iz, b))
                     });
-                    let (bins, straddling) = (
-                        &mut scratch.bins[..n_bins],
-                        &mut scratch.straddling[..n_bins],
-                    );
-                    bin_sums(frames(iz, ix), [axial, lateral], bin, bins, straddling);
                     let mut out = WindowRows {
                         ix,
                         power: &mut power_rows,
                         products: &mut product_rows,
                     };
-                    window_sums(bins, straddling, &windows, &mut out);
+                    let lags = [axial, lateral];
+                    pixel_window_sums(frames(iz, ix), lags, &windows, &mut out, scratch);
                     ix += 1;
                 }
             }
@@ -365,7 +361,7 @@ struct LaneScratch {
 }
 
 impl LaneScratch {
-    /// Room for `n_bins` bins of each lane.
+    /// Room for `n_bins` bins: one pixel's, and eight lanes' where the CPU has AVX-512.
     fn new(n_bins: usize) -> LaneScratch {
         LaneScratch {
             bins: vec![Sums::default(); n_bins],
@@ -417,7 +413,6 @@ fn one_at_a_time(
     out: &mut WindowRows,
     scratch: &mut LaneScratch,
 ) {
-    let n_bins = windows.n_bins;
     let first = out.ix;
     for l in 0..LANES {
         let own = &pixels.own;
@@ -428,15 +423,24 @@ fn one_at_a_time(
             }),
             pixels.lateral.then(|| (own[l], own[l + 1])),
         ];
-        let (bins, straddling) = (
-            &mut scratch.bins[..n_bins],
-            &mut scratch.straddling[..n_bins],
-        );
-        bin_sums(own[l], lags, windows.bin, bins, straddling);
         out.ix = first + l;
-        window_sums(bins, straddling, windows, out);
+        pixel_window_sums(own[l], lags, windows, out, scratch);
     }
     out.ix = first;
+}
+
+/// [`bin_sums`] and [`window_sums`] of one pixel, written into its place `out.ix` of every
+/// window's maps; `lags` as [`bin_sums`] takes them.
+fn pixel_window_sums(
+    pixel: &[Complex32],
+    lags: [Option<(&[Complex32], &[Complex32])>; 2],
+    windows: &Windows,
+    out: &mut WindowRows,
+    scratch: &mut LaneScratch,
+) {
+    let (bins, straddling) = (&mut scratch.bins, &mut scratch.straddling);
+    bin_sums(pixel, lags, windows.bin, bins, straddling);
+    window_sums(bins, straddling, windows, out);
 }
 
 /// [`lane_window_sums`] in AVX-512 registers: eight frames of eight pixels loaded at a time and
