@@ -10,6 +10,9 @@
 
 use super::*;
 
+#[cfg(target_arch = "x86_64")]
+mod lanes;
+
 /// What a window sums per pixel: power and lag-1 product of the pixel itself, and for each spatial
 /// lag (axial, then lateral) its products at temporal lags +1 and −1 and within frames.
 #[derive(Debug, Clone, Copy, Default)]
@@ -326,7 +329,8 @@ fn window_sums(bins: &[Sums], straddling: &[Sums], windows: &Windows, out: &mut 
     }
 }
 
-/// Pixels of a row summed side by side: the f64 lanes of an AVX-512 register.
+/// Pixels of a row summed side by side: the f64 lanes of an AVX-512 register, or of two AVX2
+/// registers in turn.
 const LANES: usize = 8;
 
 /// Which of a pixel's rows comes first in its axial pair: its own (the row below follows), or the
@@ -355,19 +359,68 @@ struct LaneScratch {
     bins: Vec<Sums>,
     /// One pixel's straddling pairs, alike.
     straddling: Vec<Sums>,
-    /// The bins and straddling pairs in registers' lanes.
+    /// The bins and straddling pairs in registers' lanes, where the CPU has the registers.
+    wide: Wide,
+}
+
+/// The vector registers pixels are summed side by side in, and their bins.
+enum Wide {
+    /// AVX-512: the eight pixels at once.
     #[cfg(target_arch = "x86_64")]
-    wide: Option<lanes_avx512::Bins>,
+    Avx512(lanes::Bins<lanes::Avx512>),
+    /// AVX2: four pixels at a time.
+    #[cfg(target_arch = "x86_64")]
+    Avx2(lanes::Bins<lanes::Avx2>),
+    /// None: a pixel at a time.
+    Scalar,
+}
+
+/// The ways [`lane_window_sums`] can sum, widest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Path {
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    Scalar,
+}
+
+impl Path {
+    /// The paths this CPU runs, widest first; the scalar one is always last.
+    fn supported() -> Vec<Path> {
+        let mut paths = Vec::new();
+        #[cfg(target_arch = "x86_64")]
+        {
+            if is_x86_feature_detected!("avx512f") {
+                paths.push(Path::Avx512);
+            }
+            if is_x86_feature_detected!("avx2") {
+                paths.push(Path::Avx2);
+            }
+        }
+        paths.push(Path::Scalar);
+        paths
+    }
 }
 
 impl LaneScratch {
-    /// Room for `n_bins` bins: one pixel's, and eight lanes' where the CPU has AVX-512.
+    /// Room for `n_bins` bins: one pixel's, and the lanes' of the widest registers the CPU has.
     fn new(n_bins: usize) -> LaneScratch {
+        LaneScratch::on(Path::supported()[0], n_bins)
+    }
+
+    /// Room for `n_bins` bins, to sum on `path` (one the CPU runs: [`Path::supported`]).
+    fn on(path: Path, n_bins: usize) -> LaneScratch {
         LaneScratch {
             bins: vec![Sums::default(); n_bins],
             straddling: vec![Sums::default(); n_bins],
-            #[cfg(target_arch = "x86_64")]
-            wide: is_x86_feature_detected!("avx512f").then(|| lanes_avx512::Bins::new(n_bins)),
+            wide: match path {
+                #[cfg(target_arch = "x86_64")]
+                Path::Avx512 => Wide::Avx512(lanes::Bins::new(n_bins)),
+                #[cfg(target_arch = "x86_64")]
+                Path::Avx2 => Wide::Avx2(lanes::Bins::new(n_bins)),
+                Path::Scalar => Wide::Scalar,
+            },
         }
     }
 }
@@ -391,22 +444,18 @@ fn lane_window_sums(
     );
     assert!(out.power.iter().all(|row| row.len() >= out.ix + LANES));
     assert!(out.products.iter().all(|row| row.len() >= out.ix + LANES));
-    #[cfg(target_arch = "x86_64")]
-    {
-        if let Some(wide) = scratch.wide.as_mut() {
-            // SAFETY: `wide` is made only where AVX-512F was detected; every series holds the
-            // frames the bins read, and every row the pixels written (the checks above).
-            unsafe {
-                lanes_avx512::bin_sums(pixels, windows.bin, wide);
-                lanes_avx512::window_sums(wide, windows, out);
-            }
-            return;
-        }
+    // SAFETY (both): the registers' bins are made only on a path the CPU runs; every series
+    // holds the frames the bins read, and every row the pixels written (the checks above).
+    match &mut scratch.wide {
+        #[cfg(target_arch = "x86_64")]
+        Wide::Avx512(bins) => unsafe { lanes::sums_avx512(pixels, windows, out, bins) },
+        #[cfg(target_arch = "x86_64")]
+        Wide::Avx2(bins) => unsafe { lanes::sums_avx2(pixels, windows, out, bins) },
+        Wide::Scalar => one_at_a_time(pixels, windows, out, scratch),
     }
-    one_at_a_time(pixels, windows, out, scratch);
 }
 
-/// [`lane_window_sums`] a pixel at a time, where the CPU has no AVX-512.
+/// [`lane_window_sums`] a pixel at a time, where the CPU has neither AVX-512 nor AVX2.
 fn one_at_a_time(
     pixels: &LanePixels,
     windows: &Windows,
@@ -443,369 +492,6 @@ fn pixel_window_sums(
     window_sums(bins, straddling, windows, out);
 }
 
-/// [`lane_window_sums`] in AVX-512 registers: eight frames of eight pixels loaded at a time and
-/// turned in registers so that each vector holds one frame of every pixel, real and imaginary
-/// parts apart; each sum of [`Sums`] one register of eight f64 lanes, from the
-/// frames to the windows' maps.
-#[cfg(target_arch = "x86_64")]
-mod lanes_avx512 {
-    use super::{AxialPair, Complex32, Complex64, LANES, LanePixels, WindowRows, Windows};
-    use std::arch::x86_64::*;
-
-    /// One frame of the eight pixels: real parts, imaginary parts.
-    #[derive(Clone, Copy)]
-    struct Lanes {
-        re: __m256,
-        im: __m256,
-    }
-
-    /// One frame of the pixels, of their right-hand neighbours, and of the other row of their
-    /// axial pair.
-    #[derive(Clone, Copy)]
-    struct Frame {
-        own: Lanes,
-        right: Lanes,
-        other: Lanes,
-    }
-
-    impl Frame {
-        /// The (first, second) series of the axial pair.
-        #[inline(always)]
-        fn axial(&self, order: AxialPair) -> (Lanes, Lanes) {
-            match order {
-                AxialPair::OwnThenOther => (self.own, self.other),
-                AxialPair::OtherThenOwn => (self.other, self.own),
-            }
-        }
-    }
-
-    /// [`Sums`](super::Sums) of eight pixels, lane by lane.
-    #[derive(Clone, Copy)]
-    struct LaneSums {
-        power: __m512d,
-        /// Re, Im.
-        r1: [__m512d; 2],
-        /// Axial then lateral: [plus, minus, same], each Re, Im.
-        lags: [[[__m512d; 2]; 3]; 2],
-    }
-
-    impl LaneSums {
-        #[target_feature(enable = "avx512f")]
-        #[inline]
-        fn zero() -> LaneSums {
-            let z = _mm512_setzero_pd();
-            LaneSums {
-                power: z,
-                r1: [z; 2],
-                lags: [[[z; 2]; 3]; 2],
-            }
-        }
-
-        /// Adds `other`'s sums lane by lane, as [`super::Sums`] adds.
-        #[target_feature(enable = "avx512f")]
-        #[inline]
-        fn add(&mut self, other: &LaneSums) {
-            // Indexed loops of constant bounds, which unroll into registers.
-            self.power = _mm512_add_pd(self.power, other.power);
-            for c in 0..2 {
-                self.r1[c] = _mm512_add_pd(self.r1[c], other.r1[c]);
-            }
-            for k in 0..2 {
-                for m in 0..3 {
-                    for c in 0..2 {
-                        self.lags[k][m][c] = _mm512_add_pd(self.lags[k][m][c], other.lags[k][m][c]);
-                    }
-                }
-            }
-        }
-    }
-
-    /// Eight pixels' bins and straddling pairs ([`super::bin_sums`]), lane by lane.
-    pub(super) struct Bins {
-        bins: Vec<LaneSums>,
-        straddling: Vec<LaneSums>,
-    }
-
-    impl Bins {
-        /// Room for `n_bins` bins.
-        pub(super) fn new(n_bins: usize) -> Bins {
-            // SAFETY: every bit pattern, zeros among them, is a vector of eight f64.
-            let zero: LaneSums = unsafe { std::mem::zeroed() };
-            Bins {
-                bins: vec![zero; n_bins],
-                straddling: vec![zero; n_bins],
-            }
-        }
-    }
-
-    /// Adds conj(x)·y to `sum` (Re, Im) lane by lane, each product in f32 and widened to f64 as
-    /// [`super::conj_product`] forms it.
-    #[target_feature(enable = "avx512f")]
-    #[inline]
-    fn add_conj_product(sum: &mut [__m512d; 2], x: Lanes, y: Lanes) {
-        let wide = |v: __m256| _mm512_cvtps_pd(v);
-        let re = _mm512_add_pd(
-            wide(_mm256_mul_ps(x.re, y.re)),
-            wide(_mm256_mul_ps(x.im, y.im)),
-        );
-        let im = _mm512_sub_pd(
-            wide(_mm256_mul_ps(x.re, y.im)),
-            wide(_mm256_mul_ps(x.im, y.re)),
-        );
-        sum[0] = _mm512_add_pd(sum[0], re);
-        sum[1] = _mm512_add_pd(sum[1], im);
-    }
-
-    /// Frames `t .. t + count` (count ≤ 8) of eight series, turned: element k holds frame t + k
-    /// of every series.
-    ///
-    /// # Safety
-    /// Frames t .. t + count must lie within every series.
-    #[target_feature(enable = "avx512f")]
-    #[inline]
-    unsafe fn turned(series: [&[Complex32]; 8], t: usize, count: usize) -> [Lanes; 8] {
-        let mask: __mmask8 = if count >= 8 { 0xff } else { (1u8 << count) - 1 };
-        // Each complex sample is one 64-bit element: its real part in the low half.
-        // SAFETY (of the loads): the mask reads only frames t .. t + count, within each series.
-        let r: [__m512i; 8] = std::array::from_fn(|p| unsafe {
-            _mm512_maskz_loadu_epi64(mask, series[p].as_ptr().add(t).cast::<i64>())
-        });
-        // The 8 × 8 transpose of 64-bit elements: pairs of rows interleaved, then pairs of
-        // pairs, then halves.
-        let lo = |a, b| _mm512_unpacklo_epi64(a, b);
-        let hi = |a, b| _mm512_unpackhi_epi64(a, b);
-        let (t0, t1, t2, t3) = (
-            lo(r[0], r[1]),
-            hi(r[0], r[1]),
-            lo(r[2], r[3]),
-            hi(r[2], r[3]),
-        );
-        let (t4, t5, t6, t7) = (
-            lo(r[4], r[5]),
-            hi(r[4], r[5]),
-            lo(r[6], r[7]),
-            hi(r[6], r[7]),
-        );
-        let pick = |a, idx: [i64; 8], b| {
-            let idx = _mm512_setr_epi64(
-                idx[0], idx[1], idx[2], idx[3], idx[4], idx[5], idx[6], idx[7],
-            );
-            _mm512_permutex2var_epi64(a, idx, b)
-        };
-        const EVEN: [i64; 8] = [0, 1, 8, 9, 4, 5, 12, 13];
-        const ODD: [i64; 8] = [2, 3, 10, 11, 6, 7, 14, 15];
-        // s0: frames 0 and 4 of rows 0–3; s1: 2 and 6; s2: 1 and 5; s3: 3 and 7; s4–s7 rows 4–7.
-        let (s0, s1, s2, s3) = (
-            pick(t0, EVEN, t2),
-            pick(t0, ODD, t2),
-            pick(t1, EVEN, t3),
-            pick(t1, ODD, t3),
-        );
-        let (s4, s5, s6, s7) = (
-            pick(t4, EVEN, t6),
-            pick(t4, ODD, t6),
-            pick(t5, EVEN, t7),
-            pick(t5, ODD, t7),
-        );
-        const LOW: [i64; 8] = [0, 1, 2, 3, 8, 9, 10, 11];
-        const HIGH: [i64; 8] = [4, 5, 6, 7, 12, 13, 14, 15];
-        let frames = [
-            pick(s0, LOW, s4),
-            pick(s2, LOW, s6),
-            pick(s1, LOW, s5),
-            pick(s3, LOW, s7),
-            pick(s0, HIGH, s4),
-            pick(s2, HIGH, s6),
-            pick(s1, HIGH, s5),
-            pick(s3, HIGH, s7),
-        ];
-        let mut out = [Lanes {
-            re: _mm256_setzero_ps(),
-            im: _mm256_setzero_ps(),
-        }; 8];
-        for (lanes, f) in out.iter_mut().zip(frames) {
-            lanes.re = _mm256_castsi256_ps(_mm512_cvtepi64_epi32(f));
-            lanes.im = _mm256_castsi256_ps(_mm512_cvtepi64_epi32(_mm512_srli_epi64::<32>(f)));
-        }
-        out
-    }
-
-    /// How many groups of 8 frames ahead each series is fetched.
-    const PREFETCH_GROUPS: usize = 2;
-
-    /// The bins and straddling pairs of `pixels`' frames in bins of `bin` frames, as many bins as
-    /// `out` holds. See [`super::lane_window_sums`], whose checks it relies on.
-    #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn bin_sums(pixels: &LanePixels, bin: usize, out: &mut Bins) {
-        let (own, axial, lateral) = (&pixels.own, pixels.axial, pixels.lateral);
-        let n_bins = out.bins.len();
-        let frames = n_bins * bin;
-        let pixels: [&[Complex32]; 8] = std::array::from_fn(|l| own[l]);
-        let right: [&[Complex32]; 8] = std::array::from_fn(|l| own[l + 1]);
-        let within = |sums: &mut LaneSums, now: &Frame| {
-            let s = now.own;
-            let power = _mm512_add_pd(
-                _mm512_cvtps_pd(_mm256_mul_ps(s.re, s.re)),
-                _mm512_cvtps_pd(_mm256_mul_ps(s.im, s.im)),
-            );
-            sums.power = _mm512_add_pd(sums.power, power);
-            if let Some((_, order)) = axial {
-                let (a, b) = now.axial(order);
-                add_conj_product(&mut sums.lags[0][2], a, b);
-            }
-            if lateral {
-                add_conj_product(&mut sums.lags[1][2], now.own, now.right);
-            }
-        };
-        let across = |sums: &mut LaneSums, before: &Frame, now: &Frame| {
-            add_conj_product(&mut sums.r1, before.own, now.own);
-            if let Some((_, order)) = axial {
-                let ((a0, b0), (a1, b1)) = (before.axial(order), now.axial(order));
-                add_conj_product(&mut sums.lags[0][0], a0, b1);
-                add_conj_product(&mut sums.lags[0][1], a1, b0);
-            }
-            if lateral {
-                add_conj_product(&mut sums.lags[1][0], before.own, now.right);
-                add_conj_product(&mut sums.lags[1][1], now.own, before.right);
-            }
-        };
-        let nothing = [Lanes {
-            re: _mm256_setzero_ps(),
-            im: _mm256_setzero_ps(),
-        }; 8];
-        let mut sums = LaneSums::zero();
-        let mut before = Frame {
-            own: nothing[0],
-            right: nothing[0],
-            other: nothing[0],
-        };
-        let mut t0 = 0;
-        while t0 < frames {
-            let count = (frames - t0).min(8);
-            // Every series is its own stream through memory, more than the hardware follows:
-            // each is fetched a few groups ahead.
-            let ahead = t0 + 8 * PREFETCH_GROUPS;
-            if ahead < frames {
-                let fetch = |s: &[Complex32]| {
-                    _mm_prefetch::<_MM_HINT_T0>(s[ahead..].as_ptr().cast::<i8>());
-                };
-                own.iter().for_each(|s| fetch(s));
-                if let Some((other, _)) = axial {
-                    other.iter().for_each(|s| fetch(s));
-                }
-            }
-            // SAFETY: frames t0 .. t0 + count lie within every series (the caller's checks).
-            let (own_at, right_at, other_at) = unsafe {
-                (
-                    turned(pixels, t0, count),
-                    if lateral {
-                        turned(right, t0, count)
-                    } else {
-                        nothing
-                    },
-                    match axial {
-                        Some((other, _)) => turned(other, t0, count),
-                        None => nothing,
-                    },
-                )
-            };
-            for k in 0..count {
-                let t = t0 + k;
-                let now = Frame {
-                    own: own_at[k],
-                    right: right_at[k],
-                    other: other_at[k],
-                };
-                if t % bin == 0 {
-                    // A bin's first frame: the bin before is whole, and the pair across the
-                    // boundary is the new bin's straddling pair (none before the first).
-                    let j = t / bin;
-                    if j > 0 {
-                        out.bins[j - 1] = sums;
-                        sums = LaneSums::zero();
-                    }
-                    let mut straddle = LaneSums::zero();
-                    if j > 0 {
-                        across(&mut straddle, &before, &now);
-                    }
-                    out.straddling[j] = straddle;
-                    within(&mut sums, &now);
-                } else {
-                    within(&mut sums, &now);
-                    across(&mut sums, &before, &now);
-                }
-                before = now;
-            }
-            t0 += count;
-        }
-        if n_bins > 0 {
-            out.bins[n_bins - 1] = sums;
-        }
-    }
-
-    /// Writes the eight pixels' window sums from `bins` into their places `out.ix ..` of every
-    /// window's maps, as [`super::window_sums`] writes each. See [`super::lane_window_sums`],
-    /// whose checks it relies on.
-    #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn window_sums(bins: &Bins, windows: &Windows, out: &mut WindowRows) {
-        let ix = out.ix;
-        let frames = _mm512_set1_pd(windows.window as f64);
-        let pairs = _mm512_set1_pd((windows.window - 1) as f64);
-        // Complex values are (Re, Im) after each other: the lanes' real and imaginary parts
-        // interleaved, the first four pixels' then the last four's.
-        let first_four = _mm512_setr_epi64(0, 1, 8, 9, 2, 3, 10, 11);
-        let last_four = _mm512_setr_epi64(4, 5, 12, 13, 6, 7, 14, 15);
-        let store_complex = |row: &mut ndarray::ArrayViewMut1<Complex64>, re, im| {
-            let row = row
-                .as_slice_mut()
-                .expect("a row of a map in standard layout");
-            let at = row[ix..ix + LANES].as_mut_ptr().cast::<f64>();
-            let (even, odd) = (_mm512_unpacklo_pd(re, im), _mm512_unpackhi_pd(re, im));
-            // SAFETY: the 16 f64 written are the 8 complex values of row[ix .. ix + 8].
-            unsafe {
-                _mm512_storeu_pd(at, _mm512_permutex2var_pd(even, first_four, odd));
-                _mm512_storeu_pd(at.add(8), _mm512_permutex2var_pd(even, last_four, odd));
-            }
-        };
-        for (((j0, j1), power), products) in windows
-            .bins()
-            .zip(out.power.iter_mut())
-            .zip(out.products.chunks_mut(windows.planes))
-        {
-            let mut sums = bins.bins[j0];
-            for j in j0 + 1..j1 {
-                sums.add(&bins.bins[j]);
-                sums.add(&bins.straddling[j]);
-            }
-            let row = power
-                .as_slice_mut()
-                .expect("a row of a map in standard layout");
-            // SAFETY: the 8 f64 written are row[ix .. ix + 8].
-            unsafe {
-                _mm512_storeu_pd(
-                    row[ix..ix + LANES].as_mut_ptr(),
-                    _mm512_div_pd(sums.power, frames),
-                )
-            };
-            let r1 = sums.r1;
-            store_complex(
-                &mut products[0],
-                _mm512_div_pd(r1[0], pairs),
-                _mm512_div_pd(r1[1], pairs),
-            );
-            for (lag, planes) in sums.lags.iter().zip(products[1..].chunks_mut(3)) {
-                for (m, (plane, by)) in planes.iter_mut().zip([pairs, pairs, frames]).enumerate() {
-                    store_complex(
-                        plane,
-                        _mm512_div_pd(lag[m][0], by),
-                        _mm512_div_pd(lag[m][1], by),
-                    );
-                }
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -825,10 +511,11 @@ mod tests {
         }
     }
 
-    /// Pixels summed side by side write the windows' moments each writes summed alone, to the
-    /// bit and in their own places: with and without each spatial lag, both orders of the axial
-    /// pair, bins of one frame and of several, frames that fill the last group of eight and
-    /// frames that do not, windows from a later first frame.
+    /// Pixels summed side by side, on every path the CPU runs (AVX-512, AVX2, scalar), write
+    /// the windows' moments each writes summed alone, to the bit and in their own places: with
+    /// and without each spatial lag, both orders of the axial pair, bins of one frame and of
+    /// several, frames that fill the last group of eight (and of four) and frames that do not,
+    /// windows from a later first frame.
     #[test]
     fn pixels_side_by_side_sum_as_each_alone() {
         let span = 61;
@@ -866,7 +553,7 @@ mod tests {
                     lateral,
                 };
                 // Each way writes into maps of NaN two pixels wider than the lanes.
-                let written = |side_by_side: bool| {
+                let written = |side_by_side: Option<Path>| {
                     let width = ix + LANES + 2;
                     let mut power = vec![ndarray::Array1::from_elem(width, f64::NAN); starts.len()];
                     let nan = Complex64::new(f64::NAN, f64::NAN);
@@ -880,11 +567,15 @@ mod tests {
                         power: &mut power_rows,
                         products: &mut product_rows,
                     };
-                    let mut scratch = LaneScratch::new(n_bins);
-                    if side_by_side {
-                        lane_window_sums(&pixels, &windows, &mut out, &mut scratch);
-                    } else {
-                        one_at_a_time(&pixels, &windows, &mut out, &mut scratch);
+                    match side_by_side {
+                        Some(path) => {
+                            let mut scratch = LaneScratch::on(path, n_bins);
+                            lane_window_sums(&pixels, &windows, &mut out, &mut scratch);
+                        }
+                        None => {
+                            let mut scratch = LaneScratch::new(n_bins);
+                            one_at_a_time(&pixels, &windows, &mut out, &mut scratch);
+                        }
                     }
                     let mut bits: Vec<u64> = power.iter().flatten().map(|v| v.to_bits()).collect();
                     bits.extend(
@@ -895,12 +586,14 @@ mod tests {
                     );
                     bits
                 };
-                let (lanes, alone) = (written(true), written(false));
+                let alone = written(None);
                 let what = format!(
                     "{starts:?} × {window}, axial {:?}, lateral {lateral}",
                     axial.map(|a| a.1)
                 );
-                assert_eq!(lanes, alone, "{what}");
+                for path in Path::supported() {
+                    assert_eq!(written(Some(path)), alone, "{path:?}: {what}");
+                }
                 // Each pixel's place and only those are written.
                 let power_row = &alone[..ix + LANES + 2];
                 assert!(
