@@ -32,8 +32,12 @@ pub(super) trait Registers: Copy {
     fn add(a: Self::Wide, b: Self::Wide) -> Self::Wide;
     /// a / b.
     fn div(a: Self::Wide, b: Self::Wide) -> Self::Wide;
-    /// re² + im² of each lane, each square in f32, widened and added in f64.
-    fn power(s: Self::Frame) -> Self::Wide;
+    /// re² + im² of each lane, each square in f32, widened and added in f64: the real part of
+    /// conj(s)·s, whose imaginary part the compiler drops.
+    #[inline(always)]
+    fn power(s: Self::Frame) -> Self::Wide {
+        Self::conj_product(s, s)[0]
+    }
     /// conj(x)·y lane by lane (Re, Im), each product in f32 and widened to f64 as
     /// [`super::conj_product`] forms it.
     fn conj_product(x: Self::Frame, y: Self::Frame) -> [Self::Wide; 2];
@@ -449,15 +453,6 @@ impl Registers for Avx512 {
         unsafe { _mm512_div_pd(a, b) }
     }
     #[inline(always)]
-    fn power(s: Frame8) -> __m512d {
-        unsafe {
-            _mm512_add_pd(
-                _mm512_cvtps_pd(_mm256_mul_ps(s.re, s.re)),
-                _mm512_cvtps_pd(_mm256_mul_ps(s.im, s.im)),
-            )
-        }
-    }
-    #[inline(always)]
     fn conj_product(x: Frame8, y: Frame8) -> [__m512d; 2] {
         unsafe {
             [
@@ -633,15 +628,6 @@ impl Registers for Avx2 {
     #[inline(always)]
     fn div(a: __m256d, b: __m256d) -> __m256d {
         unsafe { _mm256_div_pd(a, b) }
-    }
-    #[inline(always)]
-    fn power(s: Frame4) -> __m256d {
-        unsafe {
-            _mm256_add_pd(
-                _mm256_cvtps_pd(_mm_mul_ps(s.re, s.re)),
-                _mm256_cvtps_pd(_mm_mul_ps(s.im, s.im)),
-            )
-        }
     }
     #[inline(always)]
     fn conj_product(x: Frame4, y: Frame4) -> [__m256d; 2] {
