@@ -267,17 +267,30 @@ pub fn ensemble_figure_in_chunks(
         });
         y_label = "power (dB) / speed (mm/s)".into();
     }
-    let plot = PlotPanel {
-        title: "Flow region over time (one point per ensemble)".into(),
-        x_label: "ensemble centre time (ms)".into(),
-        y_label,
-        series,
-        ..Default::default()
+    // A grid that holds no flow (a region beside the vessels) has no time series to plot: the
+    // figure keeps its maps and says so, where drawing an empty plot failed the whole run.
+    let any_flow = series.iter().any(|s| s.y.iter().any(|v| v.is_finite()));
+    let (plot, title) = if any_flow {
+        let plot = PlotPanel {
+            title: "Flow region over time (one point per ensemble)".into(),
+            x_label: "ensemble centre time (ms)".into(),
+            y_label,
+            series,
+            ..Default::default()
+        };
+        let title = format!("{name}: Doppler time series, {count} ensembles");
+        (Panel::Plot(plot), title)
+    } else {
+        let title = format!(
+            "{name}: Doppler time series, {count} ensembles; no flow pixel, so no flow region \
+             over time"
+        );
+        (Panel::Empty, title)
     };
     save(
         &dir.join("ensembles.png"),
-        &format!("{name}: Doppler time series, {count} ensembles"),
-        vec![Panel::Image(mean_panel), variation_panel, Panel::Plot(plot)],
+        &title,
+        vec![Panel::Image(mean_panel), variation_panel, plot],
         3,
         size,
     )

@@ -280,6 +280,32 @@ fn every_ensemble_of_the_disk_sees_the_same_rotation() {
 /// The disk processed in segments of 8 frames (8-frame ensembles, one per segment): the ensembles are the whole-recording run's exactly (the same images,
 /// each ensemble filtered on its own), the whole-recording colour Doppler is the same rotation,
 /// and summary.json says how the recording was cut.
+/// A grid beside the disk, where no pixel has flow: the Doppler time series has no flow region
+/// to plot, and the run still ends with its figure (maps only) and its summary.
+#[test]
+fn a_time_series_of_a_grid_without_flow_still_has_its_figure() {
+    let out = tempfile::tempdir().unwrap();
+    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["--quiet", "process"])
+        .arg(disk_file())
+        .arg("--out")
+        .arg(out.path())
+        .args(["--force", "--dynamics", "off", "--ensemble-frames", "4"])
+        .arg("--grid=-0.2,0.2,7.5,8.5,0.01")
+        .output()
+        .unwrap();
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    let power: ndarray::Array3<f64> =
+        read_npy(out.path().join("ensemble_power_doppler.npy")).unwrap();
+    assert_eq!(power.dim().0, 8, "32 frames in ensembles of 4");
+    assert!(out.path().join("ensembles.png").exists());
+    assert!(out.path().join("summary.json").exists());
+}
+
 #[test]
 fn the_disk_in_segments_gives_the_same_maps() {
     let run = |extra: &[&str]| {
