@@ -277,23 +277,15 @@ fn every_ensemble_of_the_disk_sees_the_same_rotation() {
     }
 }
 
-/// The disk processed in segments of 8 frames (8-frame ensembles, one per segment): the ensembles are the whole-recording run's exactly (the same images,
-/// each ensemble filtered on its own), the whole-recording colour Doppler is the same rotation,
-/// and summary.json says how the recording was cut.
 /// A grid beside the disk, where no pixel has flow: the Doppler time series has no flow region
 /// to plot, and the run still ends with its figure (maps only) and its summary.
 #[test]
 fn a_time_series_of_a_grid_without_flow_still_has_its_figure() {
     let out = tempfile::tempdir().unwrap();
-    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .args(["--quiet", "process"])
-        .arg(disk_file())
-        .arg("--out")
-        .arg(out.path())
-        .args(["--force", "--dynamics", "off", "--ensemble-frames", "4"])
-        .arg("--grid=-0.2,0.2,7.5,8.5,0.01")
-        .output()
-        .unwrap();
+    let done = process_disk(
+        out.path(),
+        &["--ensemble-frames", "4", "--grid=-0.2,0.2,7.5,8.5,0.01"],
+    );
     assert!(
         done.status.success(),
         "{}",
@@ -306,20 +298,28 @@ fn a_time_series_of_a_grid_without_flow_still_has_its_figure() {
     assert!(out.path().join("summary.json").exists());
 }
 
+/// `pcuvd --quiet process` of the disk recording into `out` (forced, dynamics off), with `extra`.
+fn process_disk(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(["--quiet", "process"])
+        .arg(disk_file())
+        .arg("--out")
+        .arg(out)
+        .args(["--force", "--dynamics", "off"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// The disk processed in segments of 8 frames (8-frame ensembles, one per segment): the ensembles are the whole-recording run's exactly (the same images,
+/// each ensemble filtered on its own), the whole-recording colour Doppler is the same rotation,
+/// and summary.json says how the recording was cut.
 #[test]
 fn the_disk_in_segments_gives_the_same_maps() {
     let run = |extra: &[&str]| {
         let out = tempfile::tempdir().unwrap();
-        let status = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-            .args(["--quiet", "process"])
-            .arg(disk_file())
-            .arg("--out")
-            .arg(out.path())
-            .args(["--dynamics", "off", "--ensemble-frames", "8"])
-            .args(extra)
-            .status()
-            .unwrap();
-        assert!(status.success());
+        let args = [&["--ensemble-frames", "8"][..], extra].concat();
+        assert!(process_disk(out.path(), &args).status.success());
         out
     };
     let whole = run(&[]);
