@@ -1,10 +1,11 @@
 //! Pixels solved side by side: [`solve_rows`](super::solve_rows) for [`LANES`] pixels at once, a
-//! pixel per lane of a vector register, each lane to the bit what the pixel gives alone.
+//! pixel per lane of a vector register, each lane to the bit what the pixel gives alone, and
+//! taking the next pixel as soon as its own is done.
 
 use super::Estimator;
 
 /// Pixels [`field`](super::field) solves side by side, one per lane of a vector register.
-pub(super) const LANES: usize = 8;
+const LANES: usize = 8;
 
 /// A value per pixel of a [`PixelLanes`].
 type Lanes = [f64; LANES];
@@ -56,101 +57,165 @@ impl PixelLanes {
         }
     }
 
-    /// Each lane's starting weights, 1/n over its n projections (0 where it has none), and the
-    /// lanes that have at least two (the others have no vector).
-    fn start(&mut self) -> u8 {
-        let mut count = [0usize; LANES];
-        for &present in &self.present {
-            for (l, count) in count.iter_mut().enumerate() {
-                *count += usize::from(present >> l & 1 == 1);
-            }
-        }
+    /// Lane `l`'s starting weights, 1/n over its n projections (0 where it has none), and
+    /// whether it has at least two (with fewer it has no vector).
+    fn start(&mut self, l: usize) -> bool {
+        let count = (self.present.iter())
+            .filter(|&&present| present >> l & 1 == 1)
+            .count();
         for (w, &present) in self.w.iter_mut().zip(&self.present) {
-            for (l, w) in w.iter_mut().enumerate() {
-                *w = if present >> l & 1 == 1 {
-                    1.0 / count[l] as f64
-                } else {
-                    0.0
-                };
-            }
+            w[l] = if present >> l & 1 == 1 {
+                1.0 / count as f64
+            } else {
+                0.0
+            };
         }
-        (0..LANES).fold(0, |solvable, l| solvable | (u8::from(count[l] >= 2) << l))
+        count >= 2
     }
 
-    /// Every lane's (Vx, Vz) in m/s, as [`solve_rows`](super::solve_rows) gives it: in pairs of
-    /// AVX2 registers where the CPU has them. (No AVX-512 path: the divisions bound the solve,
-    /// and one AVX-512 register per operation was no faster than two AVX2 ones; the speed page
-    /// has the numbers.)
-    pub(super) fn solve(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
+    /// Solves pixels `0..count` each as [`solve_rows`](super::solve_rows) solves it alone:
+    /// `load(i, l, lanes)` sets pixel i's problem into lane l ([`PixelLanes::set`]) and
+    /// `done(i, vx, vz)` takes its vector (m/s). A lane takes the next pixel as soon as its own
+    /// pixel is done, so that lanes whose IRLS rounds stop early do not wait, idle, on the
+    /// slowest pixel of a group (solved eight at a time, a group's lanes were busy 63 % of its
+    /// rounds on the rat network). In pairs of AVX2 registers where the CPU has them. (No
+    /// AVX-512 path: the divisions bound the solve, and one AVX-512 register per operation was
+    /// no faster than two AVX2 ones; the speed page has the numbers.)
+    pub(super) fn solve_each(
+        &mut self,
+        estimator: &Estimator,
+        count: usize,
+        load: &mut dyn FnMut(usize, usize, &mut PixelLanes),
+        done: &mut dyn FnMut(usize, f64, f64),
+    ) {
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2") {
             // SAFETY: AVX2 was detected.
-            return unsafe { self.solve_avx2(estimator) };
+            return unsafe { self.solve_each_avx2(estimator, count, load, done) };
         }
-        self.solve_in::<Lanes>(estimator)
+        self.solve_each_in::<Lanes>(estimator, count, load, done)
     }
 
-    /// [`PixelLanes::solve_in`] in pairs of AVX2 registers.
+    /// [`PixelLanes::solve_each_in`] in pairs of AVX2 registers.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn solve_avx2(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
-        self.solve_in::<simd::Avx2Pair>(estimator)
+    unsafe fn solve_each_avx2(
+        &mut self,
+        estimator: &Estimator,
+        count: usize,
+        load: &mut dyn FnMut(usize, usize, &mut PixelLanes),
+        done: &mut dyn FnMut(usize, f64, f64),
+    ) {
+        self.solve_each_in::<simd::Avx2Pair>(estimator, count, load, done)
     }
 
-    /// [`solve_rows`](super::solve_rows) of every lane at once, in the registers of `V`: the same
-    /// operations in the same order as one pixel alone, lanes that are done left as they are.
+    /// [`PixelLanes::solve_each`] in the registers of `V`. Each step solves every lane once: a
+    /// lane that has just taken a pixel solves it with its starting weights (the least-squares
+    /// start), a lane in IRLS rounds first reweighs from its last vector; each lane does the
+    /// operations of [`solve_rows`](super::solve_rows) in their order, whatever the others do.
     #[inline(always)]
-    fn solve_in<V: EightLanes>(&mut self, estimator: &Estimator) -> (Lanes, Lanes) {
-        let solvable = self.start();
-        let (vx, vz, solved) = self.weighted_solve_in::<V>();
-        // A lane whose first solve fails, or that has fewer than two projections, has no vector.
-        let solved = solved & solvable;
-        let nan = V::splat(f64::NAN);
-        let (mut vx, mut vz) = (V::select(solved, vx, nan), V::select(solved, vz, nan));
-        let Estimator::Irls(p) = estimator else {
-            return (vx.lanes(), vz.lanes());
+    fn solve_each_in<V: EightLanes>(
+        &mut self,
+        estimator: &Estimator,
+        count: usize,
+        load: &mut dyn FnMut(usize, usize, &mut PixelLanes),
+        done: &mut dyn FnMut(usize, f64, f64),
+    ) {
+        let irls = match estimator {
+            Estimator::Irls(p) => Some(*p),
+            Estimator::LeastSquares => None,
         };
+        let max_rounds = irls.map_or(0, |p| p.max_iterations);
         let (two, thousand, one) = (V::splat(2.0), V::splat(1e3), V::splat(1.0));
-        let (lambda, epsilon) = (V::splat(p.lambda_mm_s), V::splat(p.epsilon));
-        let mut active = solved;
-        for _ in 0..p.max_iterations {
-            if active == 0 {
+        let (lambda, epsilon) = irls.map_or((one, one), |p| {
+            (V::splat(p.lambda_mm_s), V::splat(p.epsilon))
+        });
+        let nan = V::splat(f64::NAN);
+        let (mut vx, mut vz) = (nan, nan);
+        // Per lane: its pixel, and the IRLS rounds it has done.
+        let mut pixel: [Option<usize>; LANES] = [None; LANES];
+        let mut rounds = [0usize; LANES];
+        // Lanes whose pixel waits for its first solve, lanes in IRLS rounds, and lanes whose
+        // pixel has at least two projections.
+        let (mut fresh, mut iterating, mut solvable) = (0u8, 0u8, 0u8);
+        let mut next = 0;
+        loop {
+            for (l, lane_pixel) in pixel.iter_mut().enumerate() {
+                if lane_pixel.is_none() && next < count {
+                    load(next, l, self);
+                    *lane_pixel = Some(next);
+                    next += 1;
+                    let bit = 1 << l;
+                    solvable = (solvable & !bit) | if self.start(l) { bit } else { 0 };
+                    fresh |= bit;
+                }
+            }
+            if fresh | iterating == 0 {
                 break;
             }
-            // The weights 1/(|r| + λ), r = (2·V_θ − Vz·c − Vx·s)·10³ in mm/s (0 where a lane has
-            // no projection), and their sum in the angles' order.
-            let mut total = V::splat(-0.0);
-            for ((((next, lateral), &c), v), &present) in (self.new_w.iter_mut())
-                .zip(&self.lateral)
-                .zip(&self.axial)
-                .zip(&self.v_theta)
-                .zip(&self.present)
-            {
-                let fitted = two.mul(V::load(v)).sub(vz.mul(V::splat(c)));
-                let residual_mm_s = fitted.sub(vx.mul(V::load(lateral))).mul(thousand);
-                let weight = one
-                    .div(residual_mm_s.abs().add(lambda))
-                    .zero_unless(present);
-                weight.store(next);
-                total = total.add(weight);
-            }
-            // Normalised, and the largest change of a weight (a NaN change ignored, as f64::max
-            // ignores it).
+            // The iterating lanes' weights 1/(|r| + λ), r = (2·V_θ − Vz·c − Vx·s)·10³ in mm/s
+            // (0 where a lane has no projection), normalised by their sum in the angles' order,
+            // and the largest change of a weight (a NaN change ignored, as f64::max ignores it);
+            // the fresh lanes keep their starting weights.
             let mut change = V::splat(0.0);
-            for (next, w) in self.new_w.iter_mut().zip(&self.w) {
-                let normalised = V::load(next).div(total);
-                normalised.store(next);
-                change = change.max_of(normalised.sub(V::load(w)).abs());
+            if iterating != 0 {
+                let mut total = V::splat(-0.0);
+                for ((((next, lateral), &c), v), &present) in (self.new_w.iter_mut())
+                    .zip(&self.lateral)
+                    .zip(&self.axial)
+                    .zip(&self.v_theta)
+                    .zip(&self.present)
+                {
+                    let fitted = two.mul(V::load(v)).sub(vz.mul(V::splat(c)));
+                    let residual_mm_s = fitted.sub(vx.mul(V::load(lateral))).mul(thousand);
+                    let weight = one
+                        .div(residual_mm_s.abs().add(lambda))
+                        .zero_unless(present);
+                    weight.store(next);
+                    total = total.add(weight);
+                }
+                for (next, w) in self.new_w.iter().zip(self.w.iter_mut()) {
+                    let (normalised, old) = (V::load(next).div(total), V::load(w));
+                    change = change.max_of(normalised.sub(old).abs());
+                    V::select(iterating, normalised, old).store(w);
+                }
             }
-            std::mem::swap(&mut self.w, &mut self.new_w);
             let (x, z, solved) = self.weighted_solve_in::<V>();
-            let moved = active & solved;
-            vx = V::select(moved, x, vx);
-            vz = V::select(moved, z, vz);
-            let converged = change.less_than(epsilon);
-            active = moved & !converged;
+            // A fresh lane whose first solve fails, or that has fewer than two projections, has
+            // no vector; an iterating lane keeps its last vector where a round's solve fails.
+            let started = solved & solvable & fresh;
+            let moved = solved & iterating;
+            vx = V::select(moved, x, V::select(fresh, V::select(started, x, nan), vx));
+            vz = V::select(moved, z, V::select(fresh, V::select(started, z, nan), vz));
+            let going_on = moved & !change.less_than(epsilon);
+            let mut finished = 0u8;
+            for (l, rounds) in rounds.iter_mut().enumerate() {
+                let bit = 1 << l;
+                if iterating & bit != 0 {
+                    *rounds += 1;
+                    if going_on & bit == 0 || *rounds == max_rounds {
+                        finished |= bit;
+                    }
+                } else if fresh & bit != 0 {
+                    *rounds = 0;
+                    if started & bit == 0 || max_rounds == 0 {
+                        finished |= bit;
+                    }
+                }
+            }
+            iterating = (iterating | fresh) & !finished;
+            fresh = 0;
+            if finished != 0 {
+                let (x, z) = (vx.lanes(), vz.lanes());
+                for (l, lane_pixel) in pixel.iter_mut().enumerate() {
+                    if finished >> l & 1 == 1
+                        && let Some(i) = lane_pixel.take()
+                    {
+                        done(i, x[l], z[l]);
+                    }
+                }
+            }
         }
-        (vx.lanes(), vz.lanes())
     }
 
     /// [`weighted_solve`](super::weighted_solve) of every lane with the weights `self.w`, in the
@@ -289,8 +354,8 @@ impl EightLanes for Lanes {
     }
 }
 
-/// The vector-register path. Its operations are inlined into [`PixelLanes::solve_avx2`], which
-/// runs only where `solve` detected AVX2: that is what makes each `unsafe` intrinsic call below
+/// The vector-register path. Its operations are inlined into [`PixelLanes::solve_each_avx2`],
+/// which runs only where `solve_each` detected AVX2: that is what makes each `unsafe` intrinsic call below
 /// sound.
 #[cfg(target_arch = "x86_64")]
 mod simd {
@@ -423,9 +488,10 @@ mod tests {
     use super::super::{IrlsParams, projection_weights, solve_rows};
     use super::*;
 
-    /// Every path of [`PixelLanes::solve`] the CPU can run (portable, AVX2) gives each
-    /// lane [`solve_rows`]'s vector to the bit: lanes missing projections, a lane with one
-    /// projection and a singular lane (both NaN) among them.
+    /// Every path of [`PixelLanes::solve_each`] the CPU can run (portable, AVX2) gives each
+    /// pixel [`solve_rows`]'s vector to the bit, lanes taking new pixels as theirs finish:
+    /// pixels missing projections, one with a single projection and singular ones (both NaN)
+    /// among them, with least squares, IRLS to convergence and IRLS cut short.
     #[test]
     fn every_lane_path_solves_as_solve_rows() {
         let angles = paper_angles();
@@ -433,63 +499,84 @@ mod tests {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(11);
         let mut uniform = move || rng.random_range(0.0..1.0);
-        for group in 0..20 {
-            let mut lanes = PixelLanes::new(&nominal);
-            let mut problems = Vec::new();
-            for l in 0..LANES {
-                let (vx, vz) = (0.04 * uniform() - 0.02, 0.04 * uniform() - 0.02);
-                let singular = group % 5 == 0 && l == 3;
-                // Some lanes miss two projections, one all but one.
-                let missing = |k: usize| {
-                    (group % 3 == 1 && (k == l || k == (l + 3) % 8))
-                        || (group % 7 == 2 && l == 5 && k != 4)
+        let mut problems: Vec<Vec<(f64, f64)>> = Vec::new();
+        for i in 0..163 {
+            let (group, l) = (i / LANES, i % LANES);
+            let (vx, vz) = (0.04 * uniform() - 0.02, 0.04 * uniform() - 0.02);
+            let singular = group % 5 == 0 && l == 3;
+            // Some pixels miss two projections, one all but one.
+            let missing = |k: usize| {
+                (group % 3 == 1 && (k == l || k == (l + 3) % 8))
+                    || (group % 7 == 2 && l == 5 && k != 4)
+            };
+            // Noise from none to a lot, so that IRLS takes from a few rounds to all of them.
+            let noise = 0.012 * (i % 4) as f64;
+            let problem: Vec<(f64, f64)> = (nominal.iter().enumerate())
+                .map(|(k, &(s, c))| {
+                    let s = if singular {
+                        0.0
+                    } else {
+                        s * (0.8 + 0.4 * uniform())
+                    };
+                    let p = 0.5 * (vx * s + vz * c) + noise * (uniform() - 0.5);
+                    (s, if missing(k) { f64::NAN } else { p })
+                })
+                .collect();
+            problems.push(problem);
+        }
+        for est in [
+            Estimator::LeastSquares,
+            Estimator::Irls(IrlsParams::default()),
+            Estimator::Irls(IrlsParams {
+                max_iterations: 2,
+                ..Default::default()
+            }),
+        ] {
+            let solved = |path: &str| {
+                let mut lanes = PixelLanes::new(&nominal);
+                let mut out = vec![(f64::NAN, 0.0); problems.len()];
+                let mut rounds_done = vec![0; problems.len()];
+                let load = &mut |i: usize, l: usize, lanes: &mut PixelLanes| {
+                    lanes.set(l, problems[i].iter().copied())
                 };
-                let problem: Vec<(f64, f64)> = (nominal.iter().enumerate())
-                    .map(|(k, &(s, c))| {
-                        let s = if singular {
-                            0.0
-                        } else {
-                            s * (0.8 + 0.4 * uniform())
-                        };
-                        let p = 0.5 * (vx * s + vz * c) + 0.006 * (uniform() - 0.5);
-                        (s, if missing(k) { f64::NAN } else { p })
-                    })
-                    .collect();
-                lanes.set(l, problem.iter().copied());
-                problems.push(problem);
-            }
-            for est in [
-                Estimator::LeastSquares,
-                Estimator::Irls(IrlsParams::default()),
-                Estimator::Irls(IrlsParams {
-                    max_iterations: 2,
-                    ..Default::default()
-                }),
-            ] {
-                let mut paths = vec![("portable", lanes.solve_in::<Lanes>(&est))];
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if is_x86_feature_detected!("avx2") {
-                        // SAFETY: AVX2 was detected.
-                        paths.push(("AVX2", unsafe { lanes.solve_avx2(&est) }));
-                    }
+                let done = &mut |i: usize, x: f64, z: f64| {
+                    out[i] = (x, z);
+                    rounds_done[i] += 1;
+                };
+                match path {
+                    "portable" => lanes.solve_each_in::<Lanes>(&est, problems.len(), load, done),
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: called only where AVX2 was detected (below).
+                    "AVX2" => unsafe { lanes.solve_each_avx2(&est, problems.len(), load, done) },
+                    _ => unreachable!(),
                 }
-                for (path, (x, z)) in paths {
-                    for (l, problem) in problems.iter().enumerate() {
-                        let rows: Vec<(f64, f64)> = problem
-                            .iter()
-                            .zip(&nominal)
-                            .map(|(&(s, _), &(_, c))| (s, c))
-                            .collect();
-                        let v: Vec<f64> = problem.iter().map(|&(_, v)| v).collect();
-                        let want = solve_rows(&rows, &v, &est);
-                        assert!(
-                            want.0.to_bits() == x[l].to_bits()
-                                && want.1.to_bits() == z[l].to_bits(),
-                            "{path}, {est:?}, group {group} lane {l}: {:?} against {want:?}",
-                            (x[l], z[l])
-                        );
-                    }
+                assert!(
+                    rounds_done.iter().all(|&n| n == 1),
+                    "{path}: each pixel done once"
+                );
+                out
+            };
+            let mut paths = vec!["portable"];
+            #[cfg(target_arch = "x86_64")]
+            {
+                if is_x86_feature_detected!("avx2") {
+                    paths.push("AVX2");
+                }
+            }
+            for path in paths {
+                for (i, ((x, z), problem)) in solved(path).into_iter().zip(&problems).enumerate() {
+                    let rows: Vec<(f64, f64)> = problem
+                        .iter()
+                        .zip(&nominal)
+                        .map(|(&(s, _), &(_, c))| (s, c))
+                        .collect();
+                    let v: Vec<f64> = problem.iter().map(|&(_, v)| v).collect();
+                    let want = solve_rows(&rows, &v, &est);
+                    assert!(
+                        want.0.to_bits() == x.to_bits() && want.1.to_bits() == z.to_bits(),
+                        "{path}, {est:?}, pixel {i}: {:?} against {want:?}",
+                        (x, z)
+                    );
                 }
             }
         }

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use crate::core::error::{Error, Result, invalid};
 
 mod lanes;
-use lanes::{LANES, PixelLanes};
+use lanes::PixelLanes;
 
 /// Iteratively reweighted least-squares settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -242,35 +242,23 @@ fn field(
     let nominal: Vec<(f64, f64)> = angles.iter().map(|&a| projection_weights(a)).collect();
     let mut vx = Array2::<f64>::zeros((nz, nx));
     let mut vz = Array2::<f64>::zeros((nz, nx));
-    // A row of pixels per task, LANES pixels of it at a time.
+    // A row of pixels per task, its pixels through the lanes of one `PixelLanes`.
     vx.axis_iter_mut(Axis(0))
         .into_par_iter()
         .zip(vz.axis_iter_mut(Axis(0)))
         .enumerate()
         .for_each(|(iz, (mut vx_row, mut vz_row))| {
             let mut lanes = PixelLanes::new(&nominal);
-            for x0 in (0..nx).step_by(LANES) {
-                let count = LANES.min(nx - x0);
-                for l in 0..LANES {
-                    // Lanes past the row's end solve no projection, and are not written.
-                    let ix = x0 + l.min(count - 1);
-                    let pixel = (nominal.iter().enumerate()).map(|(k, &(s, _))| {
-                        // The measured lateral weight where it is finite, else sin θ.
-                        let m = lateral.map_or(s, |lat| lat[[k, iz, ix]]);
-                        let p = if l < count {
-                            v_theta[[k, iz, ix]]
-                        } else {
-                            f64::NAN
-                        };
-                        (if m.is_finite() { m } else { s }, p)
-                    });
-                    lanes.set(l, pixel);
-                }
-                let (x, z) = lanes.solve(estimator);
-                for l in 0..count {
-                    (vx_row[x0 + l], vz_row[x0 + l]) = (x[l], z[l]);
-                }
-            }
+            let load = &mut |ix: usize, l: usize, lanes: &mut PixelLanes| {
+                let pixel = (nominal.iter().enumerate()).map(|(k, &(s, _))| {
+                    // The measured lateral weight where it is finite, else sin θ.
+                    let m = lateral.map_or(s, |lat| lat[[k, iz, ix]]);
+                    (if m.is_finite() { m } else { s }, v_theta[[k, iz, ix]])
+                });
+                lanes.set(l, pixel);
+            };
+            let done = &mut |ix: usize, x: f64, z: f64| (vx_row[ix], vz_row[ix]) = (x, z);
+            lanes.solve_each(estimator, nx, load, done);
         });
     Ok(VectorField { vx, vz })
 }
@@ -378,10 +366,11 @@ mod tests {
         assert!(ls_err > 0.05, "LS error {ls_err} should exceed 5 %");
     }
 
-    /// The field's pixels, solved [`LANES`] at a time, are each pixel's [`solve_rows`] to the bit:
-    /// noisy projections (so IRLS takes a different number of rounds per pixel), rows whose
-    /// width is not a multiple of LANES, missing projections and lateral weights, a pixel whose
-    /// system is singular, both estimators and iteration caps that stop rounds early.
+    /// The field's pixels, solved side by side in lanes that take the next pixel as theirs
+    /// finish, are each pixel's [`solve_rows`] to the bit: noisy projections (so IRLS takes a
+    /// different number of rounds per pixel), rows whose width is not a multiple of eight,
+    /// missing projections and lateral weights, a pixel whose system is singular, both
+    /// estimators and iteration caps that stop rounds early.
     #[test]
     fn field_solves_each_pixel_as_alone_to_the_bit() {
         let angles = paper_angles();
