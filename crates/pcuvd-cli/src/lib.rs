@@ -88,11 +88,6 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// Removes the temporary files of writes in progress, then ends the process by SIGPIPE, as the
-/// signal's default would have. SIGPIPE is raised in the thread whose write met the closed pipe,
-/// inside that write (a line printed), never inside the allocator or the list of those files,
-/// so the removal runs as it would anywhere else in that thread.
-#[cfg(unix)]
 /// Keeps memory the process frees for its next allocations instead of handing it back to the
 /// system at once: the dynamics windows allocate and free the same maps window after window, and
 /// memory handed back is faulted in and zeroed again at its next use (in a virtual machine whose
@@ -111,6 +106,11 @@ fn keep_freed_memory() {
     }
 }
 
+/// Removes the temporary files of writes in progress, then ends the process by SIGPIPE, as the
+/// signal's default would have. SIGPIPE is raised in the thread whose write met the closed pipe,
+/// inside that write (a line printed), never inside the allocator or the list of those files,
+/// so the removal runs as it would anywhere else in that thread.
+#[cfg(unix)]
 extern "C" fn on_closed_pipe(_: libc::c_int) {
     pcuvd_io::remove_partial_files();
     // SAFETY: restoring the default disposition and raising the signal again, which is blocked

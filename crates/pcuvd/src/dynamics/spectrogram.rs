@@ -150,11 +150,7 @@ pub fn spectrogram_of_kept(
             power[[column, nfft - 1 - j]] = buffer[bin].norm_sqr();
         }
         let r1: Complex64 = frames_k.windows(2).map(|p| p[0].conj() * p[1]).sum();
-        let v_proj = if r1.norm() > 0.0 {
-            -scale * r1.arg()
-        } else {
-            0.0
-        };
+        let v_proj = doppler::lag_velocity(r1, scale);
         mean_velocity.push(2.0 * v_proj / (1.0 + mean_cos));
     }
     let velocities_m_s: Vec<f64> = (0..nfft)

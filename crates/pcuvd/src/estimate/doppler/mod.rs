@@ -207,13 +207,17 @@ pub fn projection_velocity(
     center_frequency: f64,
 ) -> Result<Array2<f64>> {
     let scale = velocity_scale(sound_speed, frame_rate, center_frequency)?;
-    Ok(r1.mapv(|r| {
-        if has_magnitude(r) {
-            -scale * r.arg()
-        } else {
-            0.0
-        }
-    }))
+    Ok(r1.mapv(|r| lag_velocity(r, scale)))
+}
+
+/// The projection velocity (m/s) of one lag-1 autocorrelation `r`, −scale·arg R (`scale` from
+/// [`velocity_scale`]); 0 where R has no magnitude (no echo, or no phase to read).
+pub(crate) fn lag_velocity(r: Complex64, scale: f64) -> f64 {
+    if has_magnitude(r) {
+        -scale * r.arg()
+    } else {
+        0.0
+    }
 }
 
 #[cfg(test)]

@@ -77,8 +77,7 @@ impl PixelLanes {
     /// `load(i, l, lanes)` sets pixel i's problem into lane l ([`PixelLanes::set`]) and
     /// `done(i, vx, vz)` takes its vector (m/s). A lane takes the next pixel as soon as its own
     /// pixel is done, so that lanes whose IRLS rounds stop early do not wait, idle, on the
-    /// slowest pixel of a group (solved eight at a time, a group's lanes were busy 63 % of its
-    /// rounds on the rat network). In pairs of AVX2 registers where the CPU has them. (No
+    /// slowest pixel of a group. In pairs of AVX2 registers where the CPU has them. (No
     /// AVX-512 path: the divisions bound the solve, and one AVX-512 register per operation was
     /// no faster than two AVX2 ones; the speed page has the numbers.)
     pub(super) fn solve_each(

@@ -185,7 +185,7 @@ impl<F: Copy> Frame<F> {
 /// `R::WIDTH` pixels of a row: their frames, the right-hand neighbour's of the last, the other
 /// row of their axial pair with the pair's order, and whether the lateral pair is measured.
 #[derive(Clone, Copy)]
-struct Group<'a> {
+struct PixelGroup<'a> {
     own: &'a [&'a [Complex32]],
     axial: Option<(&'a [&'a [Complex32]], AxialPair)>,
     lateral: bool,
@@ -207,7 +207,7 @@ fn prefetch(frames: &[Complex32]) {
 /// # Safety
 /// The CPU runs `R`'s instructions; every series holds the frames of `out`'s bins.
 #[inline(always)]
-unsafe fn bin_sums<R: Registers>(pixels: Group, bin: usize, out: &mut Bins<R>) {
+unsafe fn bin_sums<R: Registers>(pixels: PixelGroup, bin: usize, out: &mut Bins<R>) {
     let (axial, lateral) = (pixels.axial.map(|(_, order)| order), pixels.lateral);
     let n_bins = out.bins.len();
     let frames = n_bins * bin;
@@ -342,7 +342,7 @@ unsafe fn group_sums<R: Registers>(
     out: &mut WindowRows,
     bins: &mut Bins<R>,
 ) {
-    let group = Group {
+    let group = PixelGroup {
         own: &pixels.own[offset..offset + R::WIDTH + 1],
         axial: pixels
             .axial
