@@ -6,6 +6,7 @@ use std::ops::Range;
 use ndarray::s;
 
 use crate::acquisition::channel::{Acquisition, ChannelData, Samples};
+use crate::core::buffers::copy_reusing;
 use crate::core::error::{Result, invalid};
 
 /// A recording that hands out its compound frames in blocks: in memory ([`ChannelData`]) or read
@@ -61,6 +62,18 @@ impl FrameSource for ChannelData {
     }
 
     fn read_frames(&self, frames: Range<usize>) -> Result<ChannelData> {
+        let mut block = None;
+        self.read_frames_into(frames, &mut block)?;
+        Ok(block.expect("a block read"))
+    }
+
+    /// A copy of the frames' events in the previous block's memory: a recording in memory (read
+    /// whole, simulated, built from arrays) is processed a block at a time as a file is.
+    fn read_frames_into(
+        &self,
+        frames: Range<usize>,
+        block: &mut Option<ChannelData>,
+    ) -> Result<()> {
         let n = self.acquisition.sequence.n_angles();
         if frames.start >= frames.end || frames.end > ChannelData::n_frames(self) {
             return Err(invalid(
@@ -72,19 +85,33 @@ impl FrameSource for ChannelData {
             ));
         }
         let events = frames.start * n..frames.end * n;
+        let old = block.take().map(|block| block.samples);
         let samples = match &self.samples {
-            Samples::Rf(a) => Samples::Rf(a.slice(s![events, .., ..]).to_owned()),
+            Samples::Rf(a) => {
+                let old = match old {
+                    Some(Samples::Rf(old)) => Some(old),
+                    _ => None,
+                };
+                Samples::Rf(copy_reusing(a.slice(s![events, .., ..]), old))
+            }
             Samples::Iq {
                 data,
                 demod_frequency,
-            } => Samples::Iq {
-                data: data.slice(s![events, .., ..]).to_owned(),
-                demod_frequency: *demod_frequency,
-            },
+            } => {
+                let old = match old {
+                    Some(Samples::Iq { data, .. }) => Some(data),
+                    _ => None,
+                };
+                Samples::Iq {
+                    data: copy_reusing(data.slice(s![events, .., ..]), old),
+                    demod_frequency: *demod_frequency,
+                }
+            }
         };
-        Ok(ChannelData {
+        *block = Some(ChannelData {
             acquisition: self.acquisition.clone(),
             samples,
-        })
+        });
+        Ok(())
     }
 }

@@ -33,6 +33,26 @@ where
     Array::from_shape_vec(shape, memory).expect("exactly the shape's number of elements")
 }
 
+/// A copy of `values` in `old`'s memory where that has room for it ([`array_reusing`]), copied
+/// on every core where `values` lie in one run of memory: a block of frames taken from a
+/// recording held in memory is copied into the previous block's pages rather than fresh ones,
+/// which cost more to fault in and zero than the copy.
+pub fn copy_reusing<T, D>(values: ArrayView<'_, T, D>, old: Option<Array<T, D>>) -> Array<T, D>
+where
+    T: Copy + Zeroable + Send + Sync,
+    D: Dimension,
+{
+    let mut copy = array_reusing(old, values.raw_dim());
+    match (values.as_slice(), copy.as_slice_mut()) {
+        (Some(from), Some(to)) => to
+            .par_chunks_mut(1 << 16)
+            .zip(from.par_chunks(1 << 16))
+            .for_each(|(to, from)| to.copy_from_slice(from)),
+        _ => copy.assign(&values),
+    }
+    copy
+}
+
 /// An array of zeros of `shape`, in `old`'s memory where that has room for it (zeroed here, on
 /// every core), else in new memory: blocks of simulated traces, one after another, are made in
 /// the memory of a block already written, whose pages are faulted in.
@@ -186,6 +206,25 @@ pub fn contiguous<T: Clone>(view: ArrayView1<'_, T>) -> std::borrow::Cow<'_, [T]
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A copy holds every value where it was, in the old array's memory where that has room,
+    /// from a view in one run of memory (copied in chunks on every core) or strided.
+    #[test]
+    fn copies_hold_every_value_in_reused_memory() {
+        let whole = ndarray::Array3::from_shape_fn((9, 3, 70_000), |(e, c, s)| {
+            (e * 1_000_003 + c * 70_001 + s) as f32
+        });
+        let old = ndarray::Array3::<f32>::from_elem((5, 3, 70_000), -1.0);
+        let memory = old.as_ptr();
+        let block = whole.slice(s![2..6, .., ..]);
+        let copy = copy_reusing(block, Some(old));
+        assert_eq!(copy, block);
+        assert_eq!(copy.as_ptr(), memory);
+        let strided = whole.slice(s![.., 1.., ..;3]);
+        let copy = copy_reusing(strided, None);
+        assert_eq!(copy, strided);
+        assert!(copy.is_standard_layout());
+    }
 
     /// An array takes the old one's memory where it has room (shorter, then as long again),
     /// and new memory where it has not; either way it has the asked-for shape, in standard
