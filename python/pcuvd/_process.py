@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from . import _checks, _pcuvd
-from ._recording import Recording, read_recording
+from ._recording import Recording
 
 # What each array of a result is, for docs and `to_xarray`: (dimensions, description).
 MAPS: dict[str, tuple[tuple[str, ...], str]] = {
@@ -198,8 +198,9 @@ def process(
     """Runs `pcuvd process`'s chain (decode, demodulate, beamform, SVD clutter filter, power /
     colour / vector Doppler, dynamics) on a recording, with the CLI's defaults.
 
-    recording: a `Recording` or a path (read with `read_recording`). options: the CLI's options
-    with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
+    recording: a `Recording`, or a path, whose file is then read a block of frames at a time as
+    the command reads it (the run's memory bounded by a block; `read_recording` reads it
+    whole). options: the CLI's options with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
     `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity;
     for conventional recordings: on a Hadamard-coded one a UserWarning says it cannot help),
@@ -217,9 +218,13 @@ def process(
             "process() expects a Recording or the path of a recording, got "
             f"{type(recording).__name__} (arrays: pcuvd.Recording.from_arrays)"
         )
-    if not isinstance(recording, Recording):
-        recording = read_recording(recording)
     given = process_options("process", options)
+    if not isinstance(recording, Recording):
+        # Read a block of frames at a time, as the command reads it: the memory a run takes is
+        # a block's, whatever the recording's length.
+        return ProcessResult(
+            _pcuvd.process_file(os.fspath(recording), "{}", given, bool(quiet))
+        )
     return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
 
 

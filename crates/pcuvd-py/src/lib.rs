@@ -127,6 +127,7 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(recording_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
+    m.add_function(wrap_pyfunction!(process_file, m)?)?;
     m.add_function(wrap_pyfunction!(segment_count, m)?)?;
     m.add_function(wrap_pyfunction!(process_segment, m)?)?;
     m.add_function(wrap_pyfunction!(join_segments, m)?)?;

@@ -72,7 +72,77 @@ pub(crate) fn process(
             Ok((plan, processed))
         })
         .map_err(to_py)?;
-    let coded = data.acquisition.sequence.is_coded();
+    finish(
+        py,
+        call.options,
+        data,
+        recording.input.clone(),
+        recording.info.clone(),
+        plan,
+        processed,
+    )
+}
+
+/// Runs `pcuvd process`'s chain on the recording file at `path`, read a block of frames at a
+/// time as the command reads it (memory bounded by a block, not by the recording's length),
+/// with the reader `overrides` and the keyword `options` (both JSON).
+#[pyfunction]
+pub(crate) fn process_file(
+    py: Python<'_>,
+    path: PathBuf,
+    overrides: &str,
+    options: &str,
+    quiet: bool,
+) -> PyResult<PyProcessResult> {
+    let progress = Lines::new(quiet);
+    let (opened, processed) = py.detach(|| -> PyResult<_> {
+        let opened = open(&path, overrides, options)?;
+        pcuvd_app::memory::check_memory(
+            opened.source.as_ref(),
+            &opened.plan,
+            opened.call.max_memory_gb,
+        )
+        .map_err(to_py)?;
+        let processed = pcuvd_app::run(opened.source.as_ref(), &opened.plan, &progress)
+            .with_context(|| format!("{}: processing failed", path.display()))
+            .map_err(to_py)?;
+        Ok((opened, processed))
+    })?;
+    opened.result(py, path.display().to_string(), processed)
+}
+
+impl Opened {
+    /// The result of this recording's run, `input` naming it.
+    pub(crate) fn result(
+        self,
+        py: Python<'_>,
+        input: String,
+        processed: Processed,
+    ) -> PyResult<PyProcessResult> {
+        finish(
+            py,
+            self.call.options,
+            self.source,
+            input,
+            self.info,
+            self.plan,
+            processed,
+        )
+    }
+}
+
+/// The result of a run, after the warning `pcuvd process` prints where dealiasing was asked of
+/// a coded recording.
+fn finish(
+    py: Python<'_>,
+    options: ProcessingSettings,
+    recording: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
+    input: String,
+    info: pcuvd_io::SourceInfo,
+    plan: Plan,
+    processed: Processed,
+) -> PyResult<PyProcessResult> {
+    let coded = recording.acquisition().sequence.is_coded();
     if let Some(warning) =
         pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
     {
@@ -86,12 +156,68 @@ pub(crate) fn process(
         )?;
     }
     Ok(PyProcessResult {
-        options: call.options,
-        recording: data,
-        input: recording.input.clone(),
-        info: recording.info.clone(),
+        options,
+        recording,
+        input,
+        info,
         plan,
         processed,
+    })
+}
+
+/// The overrides [`reader_overrides`] reads: the ones a recording read a block at a time takes.
+const READER_OVERRIDES: [&str; 9] = [
+    "t0_s",
+    "sound_speed_m_s",
+    "event_prf_hz",
+    "sampling_freq_hz",
+    "center_freq_hz",
+    "angles_rad",
+    "pulse_cycles",
+    "bandwidth",
+    "track",
+];
+
+/// A recording opened from its file (frames read a block at a time) and the plan of its run.
+pub(crate) struct Opened {
+    pub(crate) source: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
+    pub(crate) info: pcuvd_io::SourceInfo,
+    pub(crate) call: ProcessCall,
+    pub(crate) plan: Plan,
+}
+
+/// Opens `path` with the reader `overrides` (JSON) and plans the run of the keyword `options`
+/// (JSON), as `pcuvd.process` would.
+pub(crate) fn open(path: &std::path::Path, overrides: &str, options: &str) -> PyResult<Opened> {
+    let overrides: serde_json::Map<String, Value> =
+        serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    if let Some(other) = overrides
+        .keys()
+        .find(|k| !READER_OVERRIDES.contains(&k.as_str()))
+    {
+        return Err(PyValueError::new_err(format!(
+            "overrides: {other:?} is not one the reader applies as it reads the file a block at a \
+             time ({}); read the recording with pcuvd.read_recording and use pcuvd.process",
+            READER_OVERRIDES.join(", ")
+        )));
+    }
+    let reader_overrides = reader_overrides(&overrides)
+        .with_context(|| format!("{}: overrides", path.display()))
+        .map_err(to_py)?;
+    let call = ProcessCall::from_json(options)?;
+    let opened = pcuvd_app::input::open_input(path, &reader_overrides).map_err(to_py)?;
+    let plan = Plan::new(
+        &call.options,
+        &call.dynamics,
+        opened.source.as_ref(),
+        opened.info.cardiac_triggers_s.as_deref(),
+    )
+    .map_err(to_py)?;
+    Ok(Opened {
+        source: Arc::from(opened.source),
+        info: opened.info,
+        call,
+        plan,
     })
 }
 

@@ -5,64 +5,8 @@
 
 use pyo3::types::PyBytes;
 
-use crate::process::{ProcessCall, PyProcessResult};
+use crate::process::{PyProcessResult, open};
 use crate::*;
-
-/// The overrides [`reader_overrides`] reads: the ones a recording read a block at a time takes.
-const READER_OVERRIDES: [&str; 9] = [
-    "t0_s",
-    "sound_speed_m_s",
-    "event_prf_hz",
-    "sampling_freq_hz",
-    "center_freq_hz",
-    "angles_rad",
-    "pulse_cycles",
-    "bandwidth",
-    "track",
-];
-
-/// A recording opened from its file (frames read a block at a time) and the plan of its run.
-struct Opened {
-    source: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
-    info: pcuvd_io::SourceInfo,
-    call: ProcessCall,
-    plan: Plan,
-}
-
-/// Opens `path` with the reader `overrides` (JSON) and plans the run of the keyword `options`
-/// (JSON), as `pcuvd.process` would.
-fn open(path: &std::path::Path, overrides: &str, options: &str) -> PyResult<Opened> {
-    let overrides: serde_json::Map<String, Value> =
-        serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    if let Some(other) = overrides
-        .keys()
-        .find(|k| !READER_OVERRIDES.contains(&k.as_str()))
-    {
-        return Err(PyValueError::new_err(format!(
-            "overrides: {other:?} is not one the reader applies as it reads the file a block at a \
-             time ({}); read the recording with pcuvd.read_recording and use pcuvd.process",
-            READER_OVERRIDES.join(", ")
-        )));
-    }
-    let reader_overrides = reader_overrides(&overrides)
-        .with_context(|| format!("{}: overrides", path.display()))
-        .map_err(to_py)?;
-    let call = ProcessCall::from_json(options)?;
-    let opened = pcuvd_app::input::open_input(path, &reader_overrides).map_err(to_py)?;
-    let plan = Plan::new(
-        &call.options,
-        &call.dynamics,
-        opened.source.as_ref(),
-        opened.info.cardiac_triggers_s.as_deref(),
-    )
-    .map_err(to_py)?;
-    Ok(Opened {
-        source: Arc::from(opened.source),
-        info: opened.info,
-        call,
-        plan,
-    })
-}
 
 /// How many segments the run of `path` with `options` has (its memory checked as
 /// `pcuvd process` checks it), and whether the later ones need segment 0's `window_intervals`;
@@ -143,12 +87,5 @@ pub(crate) fn join_segments(
                 .map_err(to_py)?;
         Ok((opened, processed))
     })?;
-    Ok(PyProcessResult {
-        options: opened.call.options,
-        recording: opened.source,
-        input: path.display().to_string(),
-        info: opened.info,
-        plan: opened.plan,
-        processed,
-    })
+    opened.result(py, path.display().to_string(), processed)
 }
