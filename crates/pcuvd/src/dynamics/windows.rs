@@ -333,17 +333,20 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     let chunk = (CHUNK_BYTES / per_window_bytes.max(1)).clamp(1, n_windows);
     // Every window's maps are written whole: the chunk's are reused from one chunk to the next.
     let mut chunk_maps: Vec<AngleMaps> = (0..chunk).map(|_| AngleMaps::zeros(n, nz, nx)).collect();
+    // Likewise each angle's moments of the chunk.
+    let mut moments = Vec::new();
     for first in (0..n_windows).step_by(chunk) {
         let ks = first..(first + chunk).min(n_windows);
         let starts: Vec<usize> = ks.clone().map(|k| k * params.step).collect();
         let chunk_maps = &mut chunk_maps[..ks.len()];
         for (a, (series, geometry)) in filtered.iter().zip(&geometries).enumerate() {
-            let moments = doppler::window_moments(
+            doppler::window_moments_into(
                 series.view(),
                 &starts,
                 params.window,
                 params.doppler,
                 geometry,
+                &mut moments,
             )?;
             chunk_maps
                 .par_iter_mut()

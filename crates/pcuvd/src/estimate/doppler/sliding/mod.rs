@@ -60,9 +60,29 @@ pub fn window_moments(
     estimator: DopplerEstimator,
     geometry: &DopplerGeometry,
 ) -> Result<Vec<Moments>> {
+    let mut moments = Vec::new();
+    window_moments_into(series, starts, window, estimator, geometry, &mut moments)?;
+    Ok(moments)
+}
+
+/// [`window_moments`] into `moments`, whose maps (a previous call's) are written again where
+/// they have the series' image size: the dynamics stage takes its windows a chunk at a time, and
+/// maps freed and allocated again each chunk were faulted in and zeroed anew each time where
+/// the allocator hands freed memory back to the system.
+pub fn window_moments_into(
+    series: ArrayView3<Complex32>,
+    starts: &[usize],
+    window: usize,
+    estimator: DopplerEstimator,
+    geometry: &DopplerGeometry,
+    moments: &mut Vec<Moments>,
+) -> Result<()> {
     let (nz, nx, nf) = series.dim();
+    // Every element of every map is written below (each pixel's window sums), so the old maps'
+    // values need no clearing.
+    let (mut spare_power, mut spare_products) = spare_maps(std::mem::take(moments), (nz, nx));
     let (Some(&first), Some(&last)) = (starts.first(), starts.last()) else {
-        return Ok(Vec::new());
+        return Ok(());
     };
     if window < 2 {
         return Err(invalid(
@@ -94,10 +114,22 @@ pub fn window_moments(
     let windows = Windows::new(starts, window, planes);
     let (bin, n_bins) = (windows.bin, windows.n_bins);
     let span = bin * n_bins;
-    let mut power: Vec<Array2<f64>> = (0..n_windows).map(|_| Array2::zeros((nz, nx))).collect();
-    let mut products: Vec<Vec<Array2<Complex64>>> = (0..n_windows)
-        .map(|_| (0..planes).map(|_| Array2::zeros((nz, nx))).collect())
+    let mut power: Vec<Array2<f64>> = (0..n_windows)
+        .map(|_| spare_power.pop().unwrap_or_else(|| Array2::zeros((nz, nx))))
         .collect();
+    let mut products: Vec<Vec<Array2<Complex64>>> = (0..n_windows)
+        .map(|_| {
+            (0..planes)
+                .map(|_| {
+                    spare_products
+                        .pop()
+                        .unwrap_or_else(|| Array2::zeros((nz, nx)))
+                })
+                .collect()
+        })
+        .collect();
+    // Maps beyond this call's windows are let go before the sums.
+    drop((spare_power, spare_products));
     // Each depth row's slice of every map, so that rows fill in parallel.
     let mut rows: Vec<_> = (0..nz)
         .map(|_| {
@@ -180,32 +212,47 @@ pub fn window_moments(
             }
         },
     );
-    Ok(power
-        .into_iter()
-        .zip(products)
-        .map(|(power, planes)| {
-            let mut planes = planes.into_iter();
-            let r1 = planes.next().expect("the lag-1 map");
-            let mut spatial = || {
-                Some(SpatialLag {
-                    plus: planes.next()?,
-                    minus: planes.next()?,
-                    same: planes.next()?,
-                })
-            };
-            let axial = if lags.axial { spatial() } else { None };
-            let lateral = if lags.lateral { spatial() } else { None };
-            Moments {
-                power,
-                r1,
-                axial,
-                lateral,
-                cell: None,
-                frames: window,
-                pairs: window - 1,
-            }
-        })
-        .collect())
+    moments.extend(power.into_iter().zip(products).map(|(power, planes)| {
+        let mut planes = planes.into_iter();
+        let r1 = planes.next().expect("the lag-1 map");
+        let mut spatial = || {
+            Some(SpatialLag {
+                plus: planes.next()?,
+                minus: planes.next()?,
+                same: planes.next()?,
+            })
+        };
+        let axial = if lags.axial { spatial() } else { None };
+        let lateral = if lags.lateral { spatial() } else { None };
+        Moments {
+            power,
+            r1,
+            axial,
+            lateral,
+            cell: None,
+            frames: window,
+            pairs: window - 1,
+        }
+    }));
+    Ok(())
+}
+
+/// The power maps and complex product maps of `moments` that have `dim`, to be written again.
+fn spare_maps(
+    moments: Vec<Moments>,
+    dim: (usize, usize),
+) -> (Vec<Array2<f64>>, Vec<Array2<Complex64>>) {
+    let (mut power, mut products) = (Vec::new(), Vec::new());
+    for m in moments {
+        power.push(m.power);
+        products.push(m.r1);
+        for lag in [m.axial, m.lateral].into_iter().flatten() {
+            products.extend([lag.plus, lag.minus, lag.same]);
+        }
+    }
+    power.retain(|map| map.dim() == dim);
+    products.retain(|map| map.dim() == dim);
+    (power, products)
 }
 
 /// One pixel's products over its frames, summed in bins of `bin` frames: `bins[j]` holds the
@@ -637,6 +684,10 @@ mod tests {
             (&[3], 37),
             (&[0, 2, 4], 2),
         ];
+        // One set of moments written again case after case (other windows, planes, lags), and
+        // once for a smaller image: each the same as fresh, in the old maps' memory where they
+        // have the image's size.
+        let mut reused = Vec::new();
         for estimator in DopplerEstimator::ALL {
             for lateral_step in [40e-6, 1e-3] {
                 let geometry = geometry(lateral_step);
@@ -644,6 +695,20 @@ mod tests {
                     let all = window_moments(series.view(), starts, window, estimator, &geometry)
                         .unwrap();
                     assert_eq!(all.len(), starts.len());
+                    let old: Vec<_> = reused.iter().map(|m: &Moments| m.power.as_ptr()).collect();
+                    window_moments_into(
+                        series.view(),
+                        starts,
+                        window,
+                        estimator,
+                        &geometry,
+                        &mut reused,
+                    )
+                    .unwrap();
+                    assert_eq!(reused, all);
+                    if !old.is_empty() {
+                        assert!(reused.iter().any(|m| old.contains(&m.power.as_ptr())));
+                    }
                     for (got, &start) in all.iter().zip(starts) {
                         let want = moments(
                             series.slice(s![.., .., start..start + window]),
@@ -676,9 +741,15 @@ mod tests {
                 }
             }
         }
-        // Windows out of order, past the end or of one frame are refused; none give none.
         let geometry = geometry(40e-6);
         let kasai = DopplerEstimator::Kasai;
+        let smaller = series.slice(s![..4, .., ..]);
+        window_moments_into(smaller, &[0, 5], 8, kasai, &geometry, &mut reused).unwrap();
+        assert_eq!(
+            reused,
+            window_moments(smaller, &[0, 5], 8, kasai, &geometry).unwrap()
+        );
+        // Windows out of order, past the end or of one frame are refused; none give none.
         assert!(window_moments(series.view(), &[9, 0], 5, kasai, &geometry).is_err());
         assert!(window_moments(series.view(), &[0, 30], 11, kasai, &geometry).is_err());
         assert!(window_moments(series.view(), &[0, 1], 1, kasai, &geometry).is_err());
