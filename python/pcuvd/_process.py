@@ -193,14 +193,21 @@ def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> P
 
 
 def process(
-    recording: Recording | str | os.PathLike, *, quiet: bool = False, **options: Any
+    recording: Recording | str | os.PathLike,
+    *,
+    overrides: dict[str, Any] | None = None,
+    quiet: bool = False,
+    **options: Any,
 ) -> ProcessResult:
     """Runs `pcuvd process`'s chain (decode, demodulate, beamform, SVD clutter filter, power /
     colour / vector Doppler, dynamics) on a recording, with the CLI's defaults.
 
     recording: a `Recording`, or a path, whose file is then read a block of frames at a time as
     the command reads it (the run's memory bounded by a block; `read_recording` reads it
-    whole). options: the CLI's options with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
+    whole). overrides (with a path): the reader's acquisition overrides (`t0_s`,
+    `sound_speed_m_s`, `event_prf_hz`, `sampling_freq_hz`, `center_freq_hz`, `angles_rad`,
+    `pulse_cycles`, `bandwidth`, `track`), as `read_recording` takes them; a `Recording` carries
+    its own. options: the CLI's options with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
     mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
     `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity;
     for conventional recordings: on a Hadamard-coded one a UserWarning says it cannot help),
@@ -222,10 +229,21 @@ def process(
     if not isinstance(recording, Recording):
         # Read a block of frames at a time, as the command reads it: the memory a run takes is
         # a block's, whatever the recording's length.
-        return ProcessResult(
-            _pcuvd.process_file(os.fspath(recording), "{}", given, bool(quiet))
+        read = reader_overrides(overrides)
+        return ProcessResult(_pcuvd.process_file(os.fspath(recording), read, given, bool(quiet)))
+    if overrides:
+        raise ValueError(
+            "overrides apply to a recording read from its path; a Recording carries its "
+            "acquisition: read it with pcuvd.read_recording(path, **overrides)"
         )
     return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
+
+
+def reader_overrides(overrides: dict[str, Any] | None) -> str:
+    """The reader's acquisition overrides as the JSON the native half reads (arrays as lists)."""
+    return json.dumps(
+        {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in (overrides or {}).items()}
+    )
 
 
 def process_options(function: str, options: dict[str, Any]) -> str:

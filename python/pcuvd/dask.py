@@ -17,15 +17,12 @@ come back to this process and are joined in recording order: the result is the o
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from typing import Any
 
-import numpy as np
-
 from . import _pcuvd
-from ._process import ProcessResult, process_options
+from ._process import ProcessResult, process_options, reader_overrides
 
 
 def process(
@@ -55,9 +52,7 @@ def process(
         )
     path = os.fspath(recording)
     given = process_options("pcuvd.dask.process", options)
-    read = json.dumps(
-        {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in (overrides or {}).items()}
-    )
+    read = reader_overrides(overrides)
     planned = _pcuvd.segment_count(path, read, given)
     if planned is None:
         raise ValueError(

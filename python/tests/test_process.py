@@ -176,6 +176,20 @@ def test_overrides_change_the_acquisition(disk):
     assert recording.sound_speed_m_s == 1480.0 and recording.t0_s == 0.0
     with pytest.raises(ValueError, match="unknown acquisition field"):
         pcuvd.read_recording(disk, speed_of_sound=1480.0)
+    # A path processed a block at a time takes the same overrides, as the reader applies them.
+    overrides = {"sound_speed_m_s": 1480.0, "t0_s": 0.0}
+    streamed = pcuvd.process(disk, overrides=overrides, quiet=True)
+    read_whole = pcuvd.process(recording, quiet=True)
+    assert streamed.summary["acquisition"]["sound_speed_m_s"] == 1480.0
+    for name in ("bmode_db", "power_doppler", "color_doppler"):
+        assert_same_array(getattr(streamed, name), getattr(read_whole, name), name)
+    assert not np.array_equal(
+        streamed.color_doppler, pcuvd.process(disk, quiet=True).color_doppler, equal_nan=True
+    )
+    with pytest.raises(ValueError, match="is not one the reader applies"):
+        pcuvd.process(disk, overrides={"coding": "none"}, quiet=True)
+    with pytest.raises(ValueError, match="a Recording carries its acquisition"):
+        pcuvd.process(recording, overrides={"t0_s": 0.0}, quiet=True)
 
 
 def test_parameters_say_where_they_came_from(disk):
