@@ -29,14 +29,16 @@ def main() -> None:
     parser.add_argument("--out", default=Path("color_doppler.png"), type=Path)
     args = parser.parse_args()
 
-    recording = pcuvd.read_recording(args.recording)
-    print(f"{args.recording.name}: {recording}")
-    result = pcuvd.process(recording)  # the same chain and defaults as `pcuvd process`
+    # The same chain and defaults as `pcuvd process`, the file read a block of frames at a time
+    # (pcuvd.read_recording gives the samples and acquisition of a recording as arrays).
+    result = pcuvd.process(args.recording)
 
     # Colour Doppler where the power Doppler stands 10 dB above its median (the disk).
     power_db = 10 * np.log10(result.power_doppler / np.median(result.power_doppler))
     velocity = np.where(power_db > 10, result.color_doppler, np.nan)
-    vmax = recording.nyquist_velocity_m_s * 1e3
+    vmax = result.summary["nyquist_velocity_m_s"] * 1e3
+    size = f"{result.z.size} x {result.x.size} pixels (depth x lateral)"
+    print(f"{args.recording.name}: {size}, Nyquist velocity {vmax:.1f} mm/s")
     extent_mm = [result.x[0] * 1e3, result.x[-1] * 1e3, result.z[-1] * 1e3, result.z[0] * 1e3]
 
     fig, (ax_b, ax_c) = plt.subplots(1, 2, figsize=(10, 4.5), sharey=True)
