@@ -96,13 +96,7 @@ pub(crate) fn process_file(
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
     let (opened, processed) = py.detach(|| -> PyResult<_> {
-        let opened = open(&path, overrides, options)?;
-        pcuvd_app::memory::check_memory(
-            opened.source.as_ref(),
-            &opened.plan,
-            opened.call.max_memory_gb,
-        )
-        .map_err(to_py)?;
+        let opened = open_checked(&path, overrides, options)?;
         let processed = pcuvd_app::run(opened.source.as_ref(), &opened.plan, &progress)
             .with_context(|| format!("{}: processing failed", path.display()))
             .map_err(to_py)?;
@@ -219,6 +213,22 @@ pub(crate) fn open(path: &std::path::Path, overrides: &str, options: &str) -> Py
         call,
         plan,
     })
+}
+
+/// [`open`], then the run's memory checked as `pcuvd process` checks it, before any work.
+pub(crate) fn open_checked(
+    path: &std::path::Path,
+    overrides: &str,
+    options: &str,
+) -> PyResult<Opened> {
+    let opened = open(path, overrides, options)?;
+    pcuvd_app::memory::check_memory(
+        opened.source.as_ref(),
+        &opened.plan,
+        opened.call.max_memory_gb,
+    )
+    .map_err(to_py)?;
+    Ok(opened)
 }
 
 impl PyProcessResult {

@@ -5,7 +5,7 @@
 
 use pyo3::types::PyBytes;
 
-use crate::process::{PyProcessResult, open};
+use crate::process::{PyProcessResult, open, open_checked};
 use crate::*;
 
 /// How many segments the run of `path` with `options` has (its memory checked as
@@ -19,13 +19,7 @@ pub(crate) fn segment_count(
     options: &str,
 ) -> PyResult<Option<(usize, bool)>> {
     py.detach(|| {
-        let opened = open(&path, overrides, options)?;
-        pcuvd_app::memory::check_memory(
-            opened.source.as_ref(),
-            &opened.plan,
-            opened.call.max_memory_gb,
-        )
-        .map_err(to_py)?;
+        let opened = open_checked(&path, overrides, options)?;
         Ok(pcuvd_app::run::segment_count(
             opened.source.as_ref(),
             &opened.plan,
