@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from . import _checks, _pcuvd
-from ._recording import Recording
+from ._recording import Recording, reader_overrides
 
 # What each array of a result is, for docs and `to_xarray`: (dimensions, description).
 MAPS: dict[str, tuple[tuple[str, ...], str]] = {
@@ -237,13 +237,6 @@ def process(
             "acquisition: read it with pcuvd.read_recording(path, **overrides)"
         )
     return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
-
-
-def reader_overrides(overrides: dict[str, Any] | None) -> str:
-    """The reader's acquisition overrides as the JSON the native half reads (arrays as lists)."""
-    return json.dumps(
-        {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in (overrides or {}).items()}
-    )
 
 
 def process_options(function: str, options: dict[str, Any]) -> str:

@@ -264,8 +264,19 @@ def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
         raise TypeError(
             f"read_recording() expects the path of a recording, got {type(path).__name__}"
         )
-    for key, value in overrides.items():
-        if isinstance(value, np.ndarray):
-            overrides[key] = value.tolist()
-    native = _pcuvd.read_recording(os.fspath(path), json.dumps(overrides))
+    native = _pcuvd.read_recording(os.fspath(path), reader_overrides(overrides))
     return Recording(native)
+
+
+def reader_overrides(overrides: dict[str, Any] | None) -> str:
+    """The reader's acquisition overrides as the JSON the native half reads (arrays as lists);
+    a value that is not finite is a ValueError naming its field (JSON has no NaN)."""
+    plain = {
+        key: value.tolist() if isinstance(value, np.ndarray) else value
+        for key, value in (overrides or {}).items()
+    }
+    for key, value in plain.items():
+        values = value if isinstance(value, list) else [value]
+        if any(isinstance(v, float) and not np.isfinite(v) for v in values):
+            raise ValueError(f"{key}: expected finite numbers, got {value!r}")
+    return json.dumps(plain)

@@ -22,7 +22,8 @@ import sys
 from typing import Any
 
 from . import _pcuvd
-from ._process import ProcessResult, process_options, reader_overrides
+from ._process import ProcessResult, process_options
+from ._recording import reader_overrides
 
 
 def process(

@@ -190,6 +190,11 @@ def test_overrides_change_the_acquisition(disk):
         pcuvd.process(disk, overrides={"coding": "none"}, quiet=True)
     with pytest.raises(ValueError, match="a Recording carries its acquisition"):
         pcuvd.process(recording, overrides={"t0_s": 0.0}, quiet=True)
+    # JSON has no NaN: a value that is not finite is named before it reaches the reader.
+    with pytest.raises(ValueError, match="t0_s: expected finite numbers, got nan"):
+        pcuvd.read_recording(disk, t0_s=float("nan"))
+    with pytest.raises(ValueError, match="angles_rad: expected finite numbers"):
+        pcuvd.process(disk, overrides={"angles_rad": np.array([0.0, np.inf])}, quiet=True)
 
 
 def test_parameters_say_where_they_came_from(disk):
