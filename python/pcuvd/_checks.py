@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -111,7 +112,24 @@ def to_options(function: str, options: Mapping[str, Any], known: Iterable[str]) 
         if isinstance(value, bool):
             raise TypeError(f"{function}(): {key} takes a value, not {value!r}")
         given[key] = _plain(value)
-    return json.dumps(given)
+    return finite_json(given)
+
+
+def finite_json(values: Mapping[str, Any]) -> str:
+    """Plain keyword values as a JSON object; a number that is not finite (JSON has none) is a
+    ValueError naming its keyword, where the native half could only say where its parse failed."""
+
+    def numbers(value: Any) -> Iterable[Any]:
+        if isinstance(value, list):
+            for v in value:
+                yield from numbers(v)
+        else:
+            yield value
+
+    for key, value in values.items():
+        if any(isinstance(v, float) and not math.isfinite(v) for v in numbers(value)):
+            raise ValueError(f"{key}: expected finite numbers, got {value!r}")
+    return json.dumps(values)
 
 
 def _plain(value: Any) -> Any:

@@ -275,8 +275,4 @@ def reader_overrides(overrides: dict[str, Any] | None) -> str:
         key: value.tolist() if isinstance(value, np.ndarray) else value
         for key, value in (overrides or {}).items()
     }
-    for key, value in plain.items():
-        values = value if isinstance(value, list) else [value]
-        if any(isinstance(v, float) and not np.isfinite(v) for v in values):
-            raise ValueError(f"{key}: expected finite numbers, got {value!r}")
-    return json.dumps(plain)
+    return _checks.finite_json(plain)

@@ -68,6 +68,10 @@ def test_a_memory_bomb_grid_is_refused_before_any_work(disk):
         ({"max_memory_gb": -3}, ValueError, "max-memory-gb"),
         ({"grid_m": (0, 1)}, ValueError, "five numbers|expected"),
         ({"grid_m": (-1, 1, 0, 1, 0.1), "grid_mm": (-1, 1, 0, 1, 0.1)}, TypeError, "one of"),
+        # JSON has no NaN or infinity: the keyword is named, not the place a parse failed.
+        ({"heart_rate_hz": float("nan")}, ValueError, "heart_rate_hz: expected finite numbers"),
+        ({"window_ms": np.float32("inf")}, ValueError, "window_ms: expected finite numbers"),
+        ({"grid_mm": (-1, 1, 5, 9, np.nan)}, ValueError, "grid_mm: expected finite numbers"),
     ],
 )
 def test_bad_process_options(disk, kwargs, error, match):
@@ -180,6 +184,8 @@ def test_bad_simulation_requests():
         pcuvd.simulate("tube", "coded", frames=0)
     with pytest.raises(TypeError, match="unexpected keyword 'colour'"):
         pcuvd.simulate("tube", colour="red")
+    with pytest.raises(ValueError, match="noise_db: expected finite numbers"):
+        pcuvd.simulate("tube", frames=2, noise_db=float("nan"))
     with pytest.raises(ValueError, match="--tube-profile applies to --preset tube only"):
         pcuvd.simulate("paper-spiral", frames=1, tube_profile="plug")
 
