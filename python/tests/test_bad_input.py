@@ -186,6 +186,9 @@ def test_bad_simulation_requests():
         pcuvd.simulate("tube", colour="red")
     with pytest.raises(ValueError, match="noise_db: expected finite numbers"):
         pcuvd.simulate("tube", frames=2, noise_db=float("nan"))
+    # Petabytes held in memory: refused before any work, not an allocation that fails.
+    with pytest.raises(ValueError, match="held in memory, need about .* GB but"):
+        pcuvd.simulate("tube", frames=10**9, quiet=True)
     with pytest.raises(ValueError, match="--tube-profile applies to --preset tube only"):
         pcuvd.simulate("paper-spiral", frames=1, tube_profile="plug")
 

@@ -70,6 +70,47 @@ pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) 
     Ok(())
 }
 
+/// Refuses work that would hold `bytes` in memory where less may still be allocated
+/// ([`memory_room`]): `what` is what would be held, `instead` what the user can do.
+pub fn check_room_for(bytes: u64, what: &str, instead: &str) -> Result<()> {
+    if let Some(room) = memory_room()
+        && bytes as f64 > room.bytes
+    {
+        bail!(
+            "{what} need about {} but {} are available ({}): {instead}",
+            gigabytes(bytes as f64),
+            gigabytes(room.bytes.max(0.0)),
+            room.bound
+        );
+    }
+    Ok(())
+}
+
+/// `bytes` in GB for a message: three decimals up to 10 GB, whole GB beyond.
+pub fn gigabytes(bytes: f64) -> String {
+    let gb = bytes / 1e9;
+    if gb < 10.0 {
+        format!("{gb:.3} GB")
+    } else {
+        format!("{gb:.0} GB")
+    }
+}
+
+/// Bytes this process may still write on the file system that holds `path`, where the system
+/// says (Unix).
+pub fn free_disk_space(path: &std::path::Path) -> Option<u64> {
+    #[cfg(unix)]
+    {
+        let stats = rustix::fs::statvfs(path).ok()?;
+        Some(stats.f_bavail.saturating_mul(stats.f_frsize))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = path;
+        None
+    }
+}
+
 /// Memory a run may still take (bytes), and what bounds it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MemoryRoom {

@@ -294,6 +294,17 @@ impl Simulation {
         Ok(rf)
     }
 
+    /// Bytes of every recording's samples (float32 RF), as written or held in memory.
+    pub fn samples_bytes(&self) -> u64 {
+        self.modes
+            .iter()
+            .map(|(_, p)| {
+                let events = self.frames as u64 * p.sequence.n_angles() as u64;
+                events * p.probe.n_elements as u64 * p.n_samples as u64 * 4
+            })
+            .sum()
+    }
+
     /// Simulates recording `index` of [`Self::modes`]; `progress(events done, events)`.
     pub fn recording(
         &self,

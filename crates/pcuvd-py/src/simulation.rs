@@ -25,6 +25,11 @@ pub(crate) fn simulate<'py>(
     let (recordings, truth, displacement, scenario, triggers) = py
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
+            pcuvd_app::memory::check_room_for(
+                simulation.samples_bytes(),
+                "the simulated recordings, held in memory,",
+                "fewer frames, or `pcuvd simulate`, which writes them to disk a block at a time",
+            )?;
             let mut made = Vec::new();
             let levels = simulation.echo_levels()?;
             for (index, (name, _)) in simulation.modes.iter().enumerate() {

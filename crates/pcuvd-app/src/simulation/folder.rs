@@ -87,6 +87,31 @@ fn remove_stale_outputs(
     Ok(())
 }
 
+/// Refuses a simulation whose recordings would not fit on the disk that holds `out` (the
+/// recordings it replaces there counted as free): a run of a billion frames would otherwise
+/// write until the disk is full.
+fn check_disk_space(simulation: &Simulation, out: &Path, recordings: &[&str]) -> Result<()> {
+    let Some(free) = crate::memory::free_disk_space(out) else {
+        return Ok(());
+    };
+    let replaced: u64 = recordings
+        .iter()
+        .filter_map(|name| std::fs::metadata(out.join(format!("{name}.npy"))).ok())
+        .map(|file| file.len())
+        .sum();
+    let needed = simulation.samples_bytes();
+    if needed > free.saturating_add(replaced) {
+        anyhow::bail!(
+            "{}: the recordings need about {} of disk but {} are free there: fewer --frames, or \
+             another --out",
+            out.display(),
+            crate::memory::gigabytes(needed as f64),
+            crate::memory::gigabytes(free.saturating_add(replaced) as f64)
+        );
+    }
+    Ok(())
+}
+
 /// Writes `simulation` into the folder `out` (created if needed): removes what an earlier run of
 /// another preset left there, then writes the recordings, the truth and `scenario.toml` (last, so
 /// that an interrupted run leaves none). `progress(events done, events in all)`; `say` takes a
@@ -99,6 +124,7 @@ pub fn write(
 ) -> Result<()> {
     crate::input::create_dir(out)?;
     let recordings: Vec<&str> = simulation.modes.iter().map(|(name, _)| *name).collect();
+    check_disk_space(simulation, out, &recordings)?;
     // Once every setting is checked: a refused run deletes nothing.
     remove_stale_outputs(
         out,

@@ -295,7 +295,7 @@ fn bad_simulation_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
     let tube = ["simulate", "--preset", "tube", "--frames", "1", "--out", d];
-    let cases: [(&[&str], &str); 10] = [
+    let cases: [(&[&str], &str); 11] = [
         (&["simulate", "--preset", "nope", "--out", d], "nope"),
         (
             &[
@@ -356,6 +356,12 @@ fn bad_simulation_requests_are_refused() {
             &[&tube[..], &["--tube-length-mm", "-2"]].concat(),
             "--tube-length-mm -2: must be a finite length > 0 mm",
         ),
+        // Petabytes of recording: refused before a byte is written, not written until the
+        // disk is full.
+        (
+            &["simulate", "--frames", "1000000000", "--out", d],
+            "of disk but",
+        ),
     ];
     for (args, needle) in cases {
         let (ok, _, stderr) = pcuvd(args);
@@ -365,6 +371,7 @@ fn bad_simulation_requests_are_refused() {
             "{args:?}: {needle:?} missing from {stderr}"
         );
     }
+    assert_eq!(std::fs::read_dir(d).unwrap().count(), 0, "nothing written");
 }
 
 #[test]
