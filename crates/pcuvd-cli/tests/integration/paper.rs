@@ -244,6 +244,12 @@ fn paper_rejects_bad_arguments() {
         vec!["--part", "brain", "--brain-scenario", "tube"],
         vec!["--part", "brain", "--brain-scenario", "no-such-file.toml"],
         vec!["--part", "brain", "--brain-svd-low", "banana"],
+        // A billion frames: refused for what they would need, before any work (they aborted on
+        // the failed allocation, or would have filled the disk).
+        vec!["--part", "spiral", "--frames", "1000000000"],
+        vec!["--part", "network", "--network-frames", "1000000000"],
+        vec!["--part", "dealias", "--frames", "1000000000"],
+        vec!["--part", "brain", "--brain-frames", "1000000000"],
     ] {
         let out = tempfile::tempdir().unwrap();
         let result = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
@@ -260,6 +266,13 @@ fn paper_rejects_bad_arguments() {
                 && !stderr.contains("panicked"),
             "{args:?}: {stderr}"
         );
+        if args.contains(&"1000000000") {
+            assert!(
+                stderr.contains("more than this machine can allocate")
+                    || stderr.contains("of disk but"),
+                "{args:?}: {stderr}"
+            );
+        }
         if args.contains(&"--f-number") {
             assert!(stderr.contains("f-number"), "{args:?}: {stderr}");
             assert!(

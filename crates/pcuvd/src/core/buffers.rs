@@ -13,6 +13,8 @@ use ndarray::{Array, Array1, Array3, ArrayView, ArrayView1, Dimension, IntoDimen
 use num_complex::Complex32;
 use rayon::prelude::*;
 
+use crate::core::error::{Result, invalid};
+
 /// An array of `shape` in `old`'s memory where that has room for it, else a new one: blocks of
 /// frames come one after another in sizes that differ a little (a recording's first and last),
 /// and fresh pages cost more to fault in and zero than the work done on them. The elements'
@@ -88,6 +90,27 @@ fn memory_reusing<T: Zeroable + Send>(old: Option<Vec<T>>, len: usize) -> Vec<T>
         // threads that first write them, rather than filled here on one.
         None => bytemuck::zeroed_vec(len),
     }
+}
+
+/// Refuses a request for `bytes` of memory that the system cannot map at all (beyond its
+/// address space or its overcommit limit), with `what` needs them said in the message: asked
+/// of the allocator later, such a request aborts the process. The probe maps nothing it keeps
+/// and touches no page.
+pub fn check_allocatable(bytes: u128, what: &str) -> Result<()> {
+    let refused = || {
+        invalid(
+            "memory",
+            format!(
+                "{what} need {:.3e} bytes ({:.0} GB), more than this machine can allocate",
+                bytes as f64,
+                bytes as f64 / 1e9
+            ),
+        )
+    };
+    let len = usize::try_from(bytes).map_err(|_| refused())?;
+    Vec::<u8>::new()
+        .try_reserve_exact(len)
+        .map_err(|_| refused())
 }
 
 /// Bytes of a cache line, to which [`padded_rows_reusing`] aligns every row.
@@ -224,6 +247,22 @@ mod tests {
         let copy = copy_reusing(strided, None);
         assert_eq!(copy, strided);
         assert!(copy.is_standard_layout());
+    }
+
+    /// What no machine can allocate is refused with what needed it; a small request passes and
+    /// keeps nothing.
+    #[test]
+    fn requests_beyond_any_machine_are_refused_by_name() {
+        assert!(check_allocatable(1 << 20, "a megabyte").is_ok());
+        for bytes in [u128::MAX, 1 << 62] {
+            let refused = check_allocatable(bytes, "a billion frames").unwrap_err();
+            let message = refused.to_string();
+            assert!(message.contains("a billion frames need"), "{message}");
+            assert!(
+                message.contains("more than this machine can allocate"),
+                "{message}"
+            );
+        }
     }
 
     /// An array takes the old one's memory where it has room (shorter, then as long again),

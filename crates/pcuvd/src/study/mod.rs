@@ -241,6 +241,7 @@ pub fn simulate_and_form(
     progress: Progress<'_>,
 ) -> Result<Formed> {
     let frames = what.frames;
+    check_series_memory(&what, grid, 2)?;
     let mut signal: Vec<Array3<Complex32>> = Vec::new();
     let mut noise: Vec<Array3<Complex32>> = Vec::new();
     let (acquisition, metadata) = form_echo_and_noise(
@@ -281,6 +282,21 @@ pub struct FormedSum {
     pub noise_power: ndarray::Array2<f64>,
 }
 
+/// Refuses `copies` image series of every angle of `what` on `grid` that the machine cannot
+/// allocate: a study asked for a billion frames aborted on the failed allocation.
+fn check_series_memory(what: &Acquire<'_>, grid: &Grid, copies: u128) -> Result<()> {
+    let (nz, nx) = grid.shape();
+    let angles = what.params.sequence.n_angles() as u128;
+    let bytes = copies * angles * (nz * nx) as u128 * what.frames as u128 * 8;
+    crate::core::buffers::check_allocatable(
+        bytes,
+        &format!(
+            "{} frames of {} ({nz} x {nx} pixels)",
+            what.frames, what.label
+        ),
+    )
+}
+
 /// As [`simulate_and_form`], holding only the sum of echoes and noise (the network study needs no
 /// other noise level): half the memory of [`Formed`]. The compounded powers equal
 /// [`compound_mean_power`] of the echo and noise images [`simulate_and_form`] gives.
@@ -291,6 +307,7 @@ pub fn simulate_and_form_sum(
     progress: Progress<'_>,
 ) -> Result<FormedSum> {
     let frames = what.frames;
+    check_series_memory(&what, grid, 1)?;
     let mut series: Vec<Array3<Complex32>> = Vec::new();
     let mut sums: [ndarray::Array2<f64>; 2] = Default::default();
     let (acquisition, metadata) = form_echo_and_noise(
