@@ -250,7 +250,8 @@ class Recording:
 
 def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
     """Reads a recording in any format `pcuvd process` reads (see the README's "What goes in"),
-    recognised from its content, with the same reader as the command.
+    recognised from its content, with the same reader as the command, whole into memory
+    (`pcuvd.process(path)` reads a block of frames at a time instead).
 
     overrides: acquisition fields that replace (or fill in) what the file says, in SI units:
     sampling_freq_hz, sound_speed_m_s, t0_s, event_prf_hz, center_freq_hz, angles_rad, coding
