@@ -207,8 +207,9 @@ def process(
     whole). overrides (with a path): the reader's acquisition overrides (`t0_s`,
     `sound_speed_m_s`, `event_prf_hz`, `sampling_freq_hz`, `center_freq_hz`, `angles_rad`,
     `pulse_cycles`, `bandwidth`, `track`), as `read_recording` takes them; a `Recording` carries
-    its own. options: the CLI's options with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)` (x_min, x_max, z_min, z_max, step in
-    mm; `grid_m` takes metres), `svd_low="auto"`, `doppler_kernel=(3, 3)`,
+    its own. options: the CLI's options with `_` for `-`, e.g. `grid_mm=(-6, 6, 2, 14, 0.05)`
+    (x_min, x_max, z_min, z_max, step in mm; `grid_m` takes metres), `svd_low="auto"`,
+    `doppler_kernel=(3, 3)`,
     `dynamics="off"`, `dealias="auto"` (or K: unwrap projections beyond the Nyquist velocity;
     for conventional recordings: on a Hadamard-coded one a UserWarning says it cannot help),
     `doppler_estimator="kasai"` (divide the Doppler phase by the nominal centre frequency; the

@@ -56,6 +56,11 @@ fn poisoned(what: &str) -> anyhow::Error {
     anyhow::anyhow!("{what}: another simulation thread failed")
 }
 
+/// Bytes of one compound frame's samples (float32 RF: every angle's event of every element).
+fn frame_bytes(params: &SimParams) -> usize {
+    params.sequence.n_angles() * params.probe.n_elements * params.n_samples * 4
+}
+
 /// Samples of one block of frames of a simulation (bytes): [`Simulation::in_blocks`] holds two
 /// at most, one being written while the next is simulated.
 pub const BLOCK_BYTES: usize = 256 << 20;
@@ -298,10 +303,7 @@ impl Simulation {
     pub fn samples_bytes(&self) -> u64 {
         self.modes
             .iter()
-            .map(|(_, p)| {
-                let events = self.frames as u64 * p.sequence.n_angles() as u64;
-                events * p.probe.n_elements as u64 * p.n_samples as u64 * 4
-            })
+            .map(|(_, p)| self.frames as u64 * frame_bytes(p) as u64)
             .sum()
     }
 
@@ -335,7 +337,7 @@ impl Simulation {
         let frame_bytes = self
             .modes
             .iter()
-            .map(|(_, p)| p.sequence.n_angles() * p.probe.n_elements * p.n_samples * 4)
+            .map(|(_, p)| frame_bytes(p))
             .max()
             .unwrap_or(1);
         // A short recording in a few blocks too, so that writing one overlaps simulating the

@@ -72,15 +72,13 @@ pub(crate) fn process(
             Ok((plan, processed))
         })
         .map_err(to_py)?;
-    finish(
-        py,
-        call.options,
-        data,
-        recording.input.clone(),
-        recording.info.clone(),
+    let opened = Opened {
+        source: data,
+        info: recording.info.clone(),
+        call,
         plan,
-        processed,
-    )
+    };
+    opened.result(py, input.clone(), processed)
 }
 
 /// Runs `pcuvd process`'s chain on the recording file at `path`, read a block of frames at a
@@ -106,57 +104,36 @@ pub(crate) fn process_file(
 }
 
 impl Opened {
-    /// The result of this recording's run, `input` naming it.
+    /// The result of this recording's run, `input` naming it, after the warning `pcuvd process`
+    /// prints where dealiasing was asked of a coded recording.
     pub(crate) fn result(
         self,
         py: Python<'_>,
         input: String,
         processed: Processed,
     ) -> PyResult<PyProcessResult> {
-        finish(
-            py,
-            self.call.options,
-            self.source,
+        let coded = self.source.acquisition().sequence.is_coded();
+        if let Some(warning) =
+            pcuvd::pipeline::dealias_warning(self.plan.params.dealias, coded, &processed.out)
+        {
+            let message = std::ffi::CString::new(format!("{input}: {warning}"))
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            PyErr::warn(
+                py,
+                &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+                &message,
+                1,
+            )?;
+        }
+        Ok(PyProcessResult {
+            options: self.call.options,
+            recording: self.source,
             input,
-            self.info,
-            self.plan,
+            info: self.info,
+            plan: self.plan,
             processed,
-        )
+        })
     }
-}
-
-/// The result of a run, after the warning `pcuvd process` prints where dealiasing was asked of
-/// a coded recording.
-fn finish(
-    py: Python<'_>,
-    options: ProcessingSettings,
-    recording: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
-    input: String,
-    info: pcuvd_io::SourceInfo,
-    plan: Plan,
-    processed: Processed,
-) -> PyResult<PyProcessResult> {
-    let coded = recording.acquisition().sequence.is_coded();
-    if let Some(warning) =
-        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
-    {
-        let message = std::ffi::CString::new(format!("{input}: {warning}"))
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        PyErr::warn(
-            py,
-            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
-            &message,
-            1,
-        )?;
-    }
-    Ok(PyProcessResult {
-        options,
-        recording,
-        input,
-        info,
-        plan,
-        processed,
-    })
 }
 
 /// The overrides [`reader_overrides`] reads: the ones a recording read a block at a time takes.
@@ -172,7 +149,8 @@ const READER_OVERRIDES: [&str; 9] = [
     "track",
 ];
 
-/// A recording opened from its file (frames read a block at a time) and the plan of its run.
+/// A recording ready to run (in memory, or opened from its file and read a block at a time),
+/// what its reader said of it, the call's settings and the plan of its run.
 pub(crate) struct Opened {
     pub(crate) source: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
     pub(crate) info: pcuvd_io::SourceInfo,
