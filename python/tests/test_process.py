@@ -200,6 +200,8 @@ def test_overrides_change_the_acquisition(disk):
 def test_parameters_say_where_they_came_from(disk):
     recording = pcuvd.read_recording(disk)
     assert recording.parameters["t0_s"]["source"] == {"kind": "file", "field": "param.t0"}
+    # The file's reader reads blocks; this recording was read whole, and says so.
+    assert recording.reader.endswith(", read whole by pcuvd.read_recording")
     assert recording.parameters["pulse_cycles"]["source"]["kind"] == "default"
     given = pcuvd.read_recording(disk, t0_s=1e-6)
     assert given.t0_s == 1e-6

@@ -117,12 +117,15 @@ pub(crate) fn read_recording(
     let reader_overrides = reader_overrides(&overrides)
         .with_context(|| format!("{}: overrides", path.display()))
         .map_err(to_py)?;
-    let (mut data, info) = py
+    let (mut data, mut info) = py
         .detach(|| -> anyhow::Result<_> {
             let opened = pcuvd_io::open_recording(&path, &reader_overrides)?;
             Ok((opened.read_all()?, opened.info))
         })
         .map_err(to_py)?;
+    // The reader names how it reads blocks; this recording was read whole, and the summary of a
+    // run from it should not say otherwise.
+    info.reader = format!("{}, read whole by pcuvd.read_recording", info.reader);
     apply_overrides(&mut data, &overrides)
         .with_context(|| format!("{}: overrides", path.display()))
         .map_err(to_py)?;

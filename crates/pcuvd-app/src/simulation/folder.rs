@@ -102,9 +102,10 @@ fn check_disk_space(simulation: &Simulation, out: &Path, recordings: &[&str]) ->
     let needed = simulation.samples_bytes();
     if needed > free.saturating_add(replaced) {
         anyhow::bail!(
-            "{}: the recordings need about {} of disk but {} are free there: fewer --frames, or \
-             another --out",
+            "{}: the recordings of {} frames need about {} of disk but {} are free there: \
+             simulate fewer frames, or into a folder on a larger disk",
             out.display(),
+            simulation.frames,
             crate::memory::gigabytes(needed as f64),
             crate::memory::gigabytes(free.saturating_add(replaced) as f64)
         );
