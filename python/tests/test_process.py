@@ -116,6 +116,13 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     cli_summary = json.loads((by_cli / "summary.json").read_text())
     py_summary = json.loads((by_python / "summary.json").read_text())
     assert _without_run_details(py_summary) == _without_run_details(cli_summary)
+    # The simulated tube is scored against the truth of the scenario beside it, the same way
+    # from Python; the measured disk has none.
+    if which == "disk":
+        assert "against_truth" not in cli_summary
+    else:
+        assert cli_summary["against_truth"]["vessel_pixels"] > 0
+        assert (by_python / "against_truth.png").is_file()
     # The summary in memory is the saved one, less the timings of reading and writing.
     assert _without_run_details(result.summary) == _without_run_details(py_summary)
 

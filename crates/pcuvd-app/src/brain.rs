@@ -42,14 +42,7 @@ use score::{ScoreContext, lumen_of, score};
 /// The scenario the study simulates unless told otherwise (a shipped scenario's name).
 pub const DEFAULT_SCENARIO: &str = "rat-brain";
 
-/// Narrowest vessel whose pixels count as lumen (m): wider than the capillaries (see the module
-/// documentation).
-pub const LUMEN_MIN_DIAMETER_M: f64 = 20e-6;
-
-/// Times over the recording at which the truth's velocity is averaged: a whole-recording map
-/// estimates the recording's mean velocity, and the pulsatile flow changes several-fold within a
-/// cardiac cycle (RI up to 0.8), so the velocity at one time is not its truth.
-pub const TRUTH_TIMES: usize = 24;
+pub use crate::simulation::{LUMEN_MIN_DIAMETER_M, TRUTH_TIMES};
 
 /// Vessel diameter classes of the scores (m): [lower, upper) and a label.
 pub const DIAMETER_CLASSES: [(f64, f64, &str); 3] = [
@@ -656,9 +649,7 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
             let acq = source.acquisition();
             let n_samples = source.trace_shape().1;
             let duration = source.n_frames() as f64 / acq.frame_rate();
-            let times: Vec<f64> = (0..TRUTH_TIMES)
-                .map(|k| duration * (k as f64 + 0.5) / TRUTH_TIMES as f64)
-                .collect();
+            let times = crate::simulation::truth_times(duration);
             let averaged = simulation.truth_averaged(acq, n_samples, &times)?;
             if averaged.truth.mask.dim() != plan.params.grid.shape() {
                 bail!("brain study: the processing grid differs from the truth's (give no --grid)");

@@ -265,6 +265,19 @@ fn bmode_panel(out: &ProcessOutput) -> Result<(ImagePanel, (u32, u32))> {
     Ok((bmode, size))
 }
 
+/// Writes the figure of `panels` (`ncols` a row) to `path`, its panels sized as those of the
+/// other figures of `out`.
+pub fn save_figure(
+    path: &Path,
+    title: &str,
+    panels: Vec<Panel>,
+    ncols: usize,
+    out: &ProcessOutput,
+) -> Result<PathBuf> {
+    let (_, size) = bmode_panel(out)?;
+    save(path, title, panels, ncols, size)
+}
+
 /// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
 pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
     let grid = &out.grid;

@@ -19,6 +19,7 @@
 
 #![warn(missing_docs)]
 
+pub mod against_truth;
 pub mod brain;
 pub mod figures;
 pub mod input;

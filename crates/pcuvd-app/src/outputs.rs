@@ -53,6 +53,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "waveform.png",
     "ensembles.png",
     "clutter_blocks.png",
+    "against_truth.png",
     // --nifti, named by map: the image and its sidecar.
     "power_doppler.nii.gz",
     "power_doppler.json",

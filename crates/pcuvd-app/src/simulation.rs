@@ -65,6 +65,23 @@ fn frame_bytes(params: &SimParams) -> usize {
 /// at most, one being written while the next is simulated.
 pub const BLOCK_BYTES: usize = 256 << 20;
 
+/// Narrowest vessel whose pixels count as lumen (m): wider than the capillaries, whose echo
+/// (under 1 % of a voxel near the probe) no Doppler estimator can be asked to read.
+pub const LUMEN_MIN_DIAMETER_M: f64 = 20e-6;
+
+/// Times over the recording at which the truth's velocity is averaged: a whole-recording map
+/// estimates the recording's mean velocity, and the pulsatile flow changes several-fold within a
+/// cardiac cycle (RI up to 0.8), so the velocity at one time is not its truth.
+pub const TRUTH_TIMES: usize = 24;
+
+/// [`TRUTH_TIMES`] times (s) evenly spread over a recording of `duration_s` seconds, each in the
+/// middle of its share of it.
+pub fn truth_times(duration_s: f64) -> Vec<f64> {
+    (0..TRUTH_TIMES)
+        .map(|k| duration_s * (k as f64 + 0.5) / TRUTH_TIMES as f64)
+        .collect()
+}
+
 /// How a simulation's echoes compare (see [`Simulation::echo_levels`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EchoLevels {
@@ -579,8 +596,18 @@ impl Simulation {
         n_samples: usize,
         times: &[f64],
     ) -> Result<SimulatedTruth> {
-        use rayon::prelude::*;
         let grid = pipeline::default_grid_for(acq, n_samples)?;
+        Ok(self.truth_averaged_on(&grid, times))
+    }
+
+    /// [`Simulation::truth_averaged`] on `grid`, any grid: the truth of a run processed on a grid
+    /// of the user's.
+    pub fn truth_averaged_on(
+        &self,
+        grid: &pcuvd::core::grid::Grid,
+        times: &[f64],
+    ) -> SimulatedTruth {
+        use rayon::prelude::*;
         let (x, z) = (&grid.x, &grid.z);
         let all: Vec<f64> = std::iter::once(0.0).chain(times.iter().copied()).collect();
         // The tree's truth is the elevation beam's view of it, not the plane's cut; its
@@ -614,7 +641,7 @@ impl Simulation {
         let mut flows: Vec<pcuvd::simulate::phantom::Truth> = flows
             .into_iter()
             .zip(&all)
-            .map(|(flow, &t)| self.carried(flow, &grid, t))
+            .map(|(flow, &t)| self.carried(flow, grid, t))
             .collect();
         let mut truth = flows.remove(0);
         let mut beam_ri = None;
@@ -622,7 +649,7 @@ impl Simulation {
             (truth.vx, truth.vz) = mean_where_blood(&flows);
             beam_ri = Some(speed_ri_where_blood(&flows));
         }
-        Ok(SimulatedTruth {
+        SimulatedTruth {
             truth,
             elevation,
             beam_ri,
@@ -633,7 +660,23 @@ impl Simulation {
             cycle,
             x: grid.x.clone(),
             z: grid.z.clone(),
-        })
+        }
+    }
+
+    /// For a vascular tree, the diameter (m) of the vessel each pixel of `truth` sees most of
+    /// (NaN without blood) and its lumen pixels: blood in the beam from a vessel at least
+    /// [`LUMEN_MIN_DIAMETER_M`] wide. `None` for other phantoms, whose every blood pixel is lumen.
+    pub fn lumen(
+        &self,
+        truth: &SimulatedTruth,
+    ) -> Option<(ndarray::Array2<f64>, ndarray::Array2<bool>)> {
+        let segments = &self.tree.as_ref()?.flow().segments;
+        let diameter_m = (truth.cycle.as_ref()?.vessel_index)
+            .mapv(|i| segments.get(i).map_or(f64::NAN, |s| s.diameter));
+        let lumen = ndarray::Zip::from(&truth.truth.mask)
+            .and(&diameter_m)
+            .map_collect(|&blood, &d| blood && d >= LUMEN_MIN_DIAMETER_M);
+        Some((diameter_m, lumen))
     }
 
     /// The elevation aperture of the simulation and its wavelength (m), in three dimensions.

@@ -248,7 +248,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         nifti: nifti.as_ref(),
         zarr,
     };
-    let pngs = save(&args.out, data, &plan, &processed, record, &progress)?;
+    let saved = save(&args.out, data, &plan, &processed, record, &progress)?;
     let (angles, frames) = (data.acquisition().sequence.n_angles(), data.n_frames());
     println!(
         "{}: {angles} angle{}, {frames} frame{} at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x \
@@ -261,9 +261,12 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         processed.out.grid.z.len(),
         processed.out.grid.x.len()
     );
+    if let Some(scored) = &saved.against_truth {
+        println!("{}", scored.line());
+    }
     println!(
         "wrote maps (.npy), summary.json and {} figures to {}",
-        pngs.len(),
+        saved.figures.len(),
         args.out.display()
     );
     Ok(())

@@ -339,8 +339,11 @@ impl PyProcessResult {
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        let summary =
+        let against =
+            pcuvd_app::against_truth::score_run(&source.input, &*self.recording, &self.processed);
+        let mut summary =
             pcuvd_app::summary::Summary::of(&*self.recording, &self.plan, &self.processed, source);
+        summary.against_truth = against.map(|scored| scored.record);
         serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
@@ -397,6 +400,7 @@ impl PyProcessResult {
                 },
                 &Lines::new(true),
             )
+            .map(|saved| saved.figures)
         })
         .map_err(to_py)
     }

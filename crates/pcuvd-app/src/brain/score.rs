@@ -10,16 +10,9 @@ pub(super) fn lumen_of(
     simulation: &Simulation,
     truth: &SimulatedTruth,
 ) -> Result<(Array2<f64>, Array2<bool>)> {
-    let tree = simulation.tree.as_ref().context("a tree scenario")?;
-    let segments = &tree.flow().segments;
-    let cycle = truth.cycle.as_ref().context("the tree's cycle truth")?;
-    let diameter_m = cycle
-        .vessel_index
-        .mapv(|i| segments.get(i).map_or(f64::NAN, |s| s.diameter));
-    let lumen = Zip::from(&truth.truth.mask)
-        .and(&diameter_m)
-        .map_collect(|&blood, &d| blood && d >= LUMEN_MIN_DIAMETER_M);
-    Ok((diameter_m, lumen))
+    simulation
+        .lumen(truth)
+        .context("a tree scenario and its cycle truth")
 }
 
 pub(super) struct ScoreContext<'a> {

@@ -34,9 +34,18 @@ pub struct Record<'a> {
     pub zarr: Option<crate::zarr::ZarrStore>,
 }
 
+/// What [`save`] wrote.
+pub struct Saved {
+    /// The figures.
+    pub figures: Vec<PathBuf>,
+    /// The run scored against the truth of the simulation it came from, when it came from one.
+    pub against_truth: Option<crate::against_truth::TruthRecord>,
+}
+
 /// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
-/// figures, dynamics maps, and `summary.json` last with `record`'s provenance and timings; what
-/// was found is said to `progress`. Returns the figures.
+/// figures, dynamics maps, the scores against a simulation's truth where the input has one
+/// beside it, and `summary.json` last with `record`'s provenance and timings; what was found is
+/// said to `progress`.
 pub fn save(
     dir: &Path,
     data: &dyn FrameSource,
@@ -44,7 +53,7 @@ pub fn save(
     processed: &Processed,
     record: Record<'_>,
     progress: &dyn Progress,
-) -> Result<Vec<PathBuf>> {
+) -> Result<Saved> {
     let Record {
         source,
         name,
@@ -55,8 +64,17 @@ pub fn save(
     let clock = std::time::Instant::now();
     let out = &processed.out;
     write_maps(dir, out)?;
+    // A simulation's truth is computed while the figures are drawn: the two share the cores.
+    let (pngs, against) = rayon::join(
+        || figures::process_figures(dir, out, name),
+        || crate::against_truth::score_run(&source.input, data, processed),
+    );
+    let mut pngs = pngs?;
     let mut summary = Summary::of(data, plan, processed, source);
-    let mut pngs = figures::process_figures(dir, out, name)?;
+    summary.against_truth = against.as_ref().map(|scored| scored.record.clone());
+    if let Some(scored) = &against {
+        pngs.extend(scored.figure(dir, processed, name)?);
+    }
     let clutter = clutter_by_segment(processed);
     if let Some(cut_offs) = block_cut_offs(&clutter)? {
         pcuvd_io::write_npy(&dir.join("clutter_block_cut_offs.npy"), &cut_offs)?;
@@ -105,7 +123,10 @@ pub fn save(
     summary.peak_resident_bytes = crate::memory::peak_resident_memory();
     // Written last: a folder without summary.json is visibly incomplete.
     pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
-    Ok(pngs)
+    Ok(Saved {
+        figures: pngs,
+        against_truth: summary.against_truth,
+    })
 }
 
 /// Where the results came from: pcuvd's version, the command line, every input file with its

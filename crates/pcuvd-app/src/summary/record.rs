@@ -53,6 +53,10 @@ pub struct Summary {
     /// the time series alone when they went to it as the run went.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub zarr: Option<ZarrRecord>,
+    /// The maps scored against the truth of the simulation they came from, where the recording
+    /// has the scenario `pcuvd simulate` wrote beside it (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub against_truth: Option<crate::against_truth::TruthRecord>,
     /// Wall-clock seconds by stage.
     pub timings_s: BTreeMap<String, f64>,
     /// The process's peak resident memory (bytes) when the summary was written, all outputs but
@@ -487,6 +491,7 @@ impl Summary {
             },
             nifti: None,
             zarr: None,
+            against_truth: None,
             timings_s: (out.timings.iter())
                 .map(|(stage, seconds)| (stage.label().to_string(), *seconds))
                 .collect(),

@@ -193,6 +193,195 @@ fn simulated_tube_round_trips_through_process() {
     assert_eq!(std::fs::read(dir.path().join("speed.npy")).unwrap(), before);
 }
 
+/// The scores `against_truth` should hold for the run in `out`, which covers the pixels `rows`,
+/// `cols` of the default grid, computed here from the maps it wrote and the truth files beside
+/// the recording (a steady tube: its truth averaged over the recording is the truth at its
+/// start that the files hold).
+fn check_scores(
+    scored: &serde_json::Value,
+    out: &std::path::Path,
+    tube: &TubeTruth,
+    rows: std::ops::Range<usize>,
+    cols: std::ops::Range<usize>,
+) {
+    use ndarray::{Array1, Array2, Zip, s};
+    let map = |name: &str| -> Array2<f64> { ndarray_npy::read_npy(out.join(name)).unwrap() };
+    let axis = |name: &str| -> Array1<f64> { ndarray_npy::read_npy(out.join(name)).unwrap() };
+    let close = |a: f64, b: f64, what: &str| {
+        assert!(
+            (a - b).abs() <= 1e-9 * b.abs().max(1e-6),
+            "{what}: {a} against {b}"
+        );
+    };
+    for (run, truth) in [
+        (axis("x.npy"), tube.x.slice(s![cols.clone()])),
+        (axis("z.npy"), tube.z.slice(s![rows.clone()])),
+    ] {
+        assert_eq!(run.len(), truth.len());
+        Zip::from(&run)
+            .and(&truth)
+            .for_each(|a, b| assert!((a - b).abs() < 1e-12, "{a} against {b}"));
+    }
+    let block = s![rows, cols];
+    let (tvx, tvz) = (tube.vx.slice(block), tube.vz.slice(block));
+    let mask = tube.mask.slice(block).mapv(|m| m != 0);
+    let vessel_pixels = mask.iter().filter(|&&m| m).count();
+    assert!(vessel_pixels > 100, "{vessel_pixels} vessel pixels");
+    assert_eq!(scored["vessel_pixels"].as_u64(), Some(vessel_pixels as u64));
+    let rmse = |estimate: &Array2<f64>, truth: ndarray::ArrayView2<f64>| {
+        let mut sum = 0.0;
+        Zip::from(estimate)
+            .and(truth)
+            .and(&mask)
+            .for_each(|&e, &t, &m| {
+                if m {
+                    let error = if e.is_finite() { e - t } else { t };
+                    sum += error * error;
+                }
+            });
+        (sum / vessel_pixels as f64).sqrt() * 1e3
+    };
+    let mut peak = 0.0_f64;
+    Zip::from(&tvx).and(&tvz).and(&mask).for_each(|&x, &z, &m| {
+        if m {
+            peak = peak.max(x.hypot(z));
+        }
+    });
+    close(
+        scored["peak_speed_mm_s"].as_f64().unwrap(),
+        peak * 1e3,
+        "peak",
+    );
+    close(
+        scored["color_doppler_rmse_mm_s"].as_f64().unwrap(),
+        rmse(&map("color_doppler.npy"), tvz),
+        "colour Doppler",
+    );
+    for (estimator, suffix) in [("irls", ""), ("ls", "_ls")] {
+        let (vx, vz) = (
+            map(&format!("vx{suffix}.npy")),
+            map(&format!("vz{suffix}.npy")),
+        );
+        let rmse_of = &scored["vector_rmse_mm_s"][estimator];
+        close(rmse_of["vx"].as_f64().unwrap(), rmse(&vx, tvx), estimator);
+        close(rmse_of["vz"].as_f64().unwrap(), rmse(&vz, tvz), estimator);
+        let mut within = 0usize;
+        Zip::from(&vx)
+            .and(&vz)
+            .and(&tvx)
+            .and(&tvz)
+            .and(&mask)
+            .for_each(|&ex, &ez, &tx, &tz, &m| {
+                within += usize::from(m && (ex - tx).hypot(ez - tz) <= 0.1 * peak);
+            });
+        close(
+            scored["vector_within_10_percent_of_peak"][estimator]
+                .as_f64()
+                .unwrap(),
+            within as f64 / vessel_pixels as f64,
+            estimator,
+        );
+    }
+    assert_eq!(
+        scored["ri"], "the scenario's flow is steady: no cardiac cycle",
+        "a steady tube has no RI truth"
+    );
+    assert!(scored["definitions"]["vector_rmse"].is_string());
+    assert!(out.join("against_truth.png").is_file());
+}
+
+/// `pcuvd process` scores a simulated recording against the truth of the scenario beside it, on
+/// the default grid and on a grid of the user's; a scenario that no longer describes the
+/// recording gives the reason instead of scores.
+#[test]
+fn a_simulated_recording_is_scored_against_its_truth() {
+    let tube = simulated_tube(&[]);
+    let d = tube.dir.path();
+    // simulated_tube's one frame is too short for Doppler: eight frames of the same tube.
+    let (ok, _, stderr) = pcuvd(&[
+        "--quiet",
+        "simulate",
+        "--preset",
+        "tube",
+        "--mode",
+        "conventional",
+        "--frames",
+        "8",
+        "--angles",
+        "2",
+        "--noise-db",
+        "off",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let recording = d.join("conventional.toml");
+    let run = |name: &str, extra: &[&str]| {
+        let out = d.join(name);
+        let (ok, stdout, stderr) = pcuvd(
+            &[
+                &[
+                    "--quiet",
+                    "process",
+                    recording.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--dynamics",
+                    "off",
+                ],
+                extra,
+            ]
+            .concat(),
+        );
+        assert!(ok, "{stderr}");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        (summary["against_truth"].clone(), stdout, out)
+    };
+    let (nz, nx) = tube.mask.dim();
+    let (scored, stdout, out) = run("whole", &[]);
+    check_scores(&scored, &out, &tube, 0..nz, 0..nx);
+    assert!(
+        stdout.contains(&format!(
+            "({} vessel pixels",
+            scored["vessel_pixels"].as_u64().unwrap()
+        )),
+        "{stdout}"
+    );
+
+    // A grid of the user's, cut from the default one: scored on its own pixels.
+    let (rows, cols) = (80..300, 30..190);
+    let mm = |v: f64| format!("{}", v * 1e3);
+    let grid = format!(
+        "--grid={},{},{},{},{}",
+        mm(tube.x[cols.start]),
+        mm(tube.x[cols.end - 1]),
+        mm(tube.z[rows.start]),
+        mm(tube.z[rows.end - 1]),
+        mm(tube.x[1] - tube.x[0])
+    );
+    let (scored, _, out) = run("cut", &[&grid]);
+    check_scores(&scored, &out, &tube, rows, cols);
+
+    // The scenario beside the recording edited since: a reason, not scores against it.
+    let scenario = d.join("scenario.toml");
+    let text = std::fs::read_to_string(&scenario).unwrap();
+    assert!(text.contains("frames = 8"), "{text}");
+    std::fs::write(&scenario, text.replace("frames = 8", "frames = 9")).unwrap();
+    let (scored, stdout, _) = run("edited", &[]);
+    assert!(
+        scored["not_scored"]
+            .as_str()
+            .is_some_and(|why| why.contains("describes other recordings")),
+        "{scored}"
+    );
+    assert!(
+        stdout.contains("not scored against the truth of"),
+        "{stdout}"
+    );
+}
+
 #[test]
 fn a_plug_tube_moves_at_its_peak_speed_up_to_the_wall() {
     let TubeTruth { vx, vz, mask, .. } =
