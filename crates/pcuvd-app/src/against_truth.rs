@@ -27,7 +27,7 @@ use serde::Serialize;
 
 use crate::figures;
 use crate::run::{DynamicsOutcome, Processed};
-use crate::simulation::folder::SCENARIO_FILE;
+use crate::simulation::folder::{SCENARIO_FILE, SCENARIO_HEADER};
 use crate::simulation::{Simulation, truth_times};
 
 /// The figure of a run scored against its truth: the truth beside the estimate and their error.
@@ -164,15 +164,21 @@ struct ScoredTruth {
     cycle: Option<NetworkTruth>,
 }
 
-/// The scenario file beside the recording `input` (a path as the user gave it), if there is one:
-/// the sign of a recording `pcuvd simulate` wrote.
+/// The scenario file `pcuvd simulate` wrote beside the recording `input` (a path as the user
+/// gave it), if there is one: the sign of a recording it simulated. A file of that name that
+/// pcuvd did not write (a lab's own notes beside a measured recording) is not taken for one.
 pub fn scenario_beside(input: &str) -> Option<PathBuf> {
+    use std::io::BufRead;
     let input = Path::new(input);
     if !input.is_file() {
         return None;
     }
     let scenario = input.parent()?.join(SCENARIO_FILE);
-    scenario.is_file().then_some(scenario)
+    let mut first_line = String::new();
+    std::io::BufReader::new(std::fs::File::open(&scenario).ok()?)
+        .read_line(&mut first_line)
+        .ok()?;
+    first_line.starts_with(SCENARIO_HEADER).then_some(scenario)
 }
 
 /// The run on `data` (read from `input`) scored against the truth of the scenario beside it;

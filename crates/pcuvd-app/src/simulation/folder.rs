@@ -27,6 +27,9 @@ const TISSUE_TRUTH_FILES: [&str; 3] = [
 /// The scenario simulated, every option applied: `pcuvd simulate --scenario` of this file
 /// simulates the same recordings again.
 pub const SCENARIO_FILE: &str = "scenario.toml";
+/// How [`SCENARIO_FILE`] begins: what tells it from a file of the same name that pcuvd did not
+/// write.
+pub const SCENARIO_HEADER: &str = "# The scenario `pcuvd simulate` simulated here";
 /// Ground-truth files of a phantom in three dimensions: out-of-plane velocity (m/s) and the
 /// blood's share of each pixel's elevation beam.
 const ELEVATION_TRUTH_FILES: [&str; 2] = ["truth_vy.npy", "truth_blood_fraction.npy"];
@@ -238,7 +241,7 @@ pub fn write(
         }
     }
     let text = format!(
-        "# The scenario `pcuvd simulate` simulated here (from {}, every option applied):\n\
+        "{SCENARIO_HEADER} (from {}, every option applied):\n\
          # `pcuvd simulate --scenario {SCENARIO_FILE}` simulates the same recordings again.\n\n{}",
         simulation.source,
         simulation.scenario.to_toml()?

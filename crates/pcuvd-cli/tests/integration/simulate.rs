@@ -380,6 +380,12 @@ fn a_simulated_recording_is_scored_against_its_truth() {
         stdout.contains("not scored against the truth of"),
         "{stdout}"
     );
+
+    // A file of that name that pcuvd did not write is not a simulation's scenario.
+    std::fs::write(&scenario, "# the lab's own notes\nprobe = \"L22-14v\"\n").unwrap();
+    let (scored, stdout, _) = run("notes", &[]);
+    assert!(scored.is_null(), "{scored}");
+    assert!(!stdout.contains("truth"), "{stdout}");
 }
 
 #[test]
