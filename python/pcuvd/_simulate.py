@@ -17,7 +17,9 @@ class Truth:
     """Ground truth of a simulation on the default processing grid (SI units).
 
     x (nx), z (nz) in m; vx, vz (nz, nx) in m/s at t = 0 (vx > 0 toward +x, vz > 0 deeper);
-    mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
+    mean_vx, mean_vz (nz, nx): the velocity averaged over the recording (24 times, at each pixel
+    over those it holds blood), what a whole-recording vector map estimates: a pulsing vessel's
+    mean, not its speed at the start; mask (nz, nx) True inside the moving medium. For the vessel network also `cycle`: ri, psv,
     edv (m/s), vessel_class (0 background, 1 arteriole, 2 venule, 3 undetermined), flow_up, and
     class_share: the share of each pixel's blood of the class named (below 1 where an artery and
     a vein share the elevation beam of the rat brain), and axis_profile: where in its vessel the
@@ -35,6 +37,8 @@ class Truth:
     vx: np.ndarray
     vz: np.ndarray
     mask: np.ndarray
+    mean_vx: np.ndarray | None = None
+    mean_vz: np.ndarray | None = None
     cycle: dict[str, np.ndarray] = field(default_factory=dict)
     tissue: dict[str, np.ndarray] = field(default_factory=dict)
     vy: np.ndarray | None = None
@@ -92,6 +96,8 @@ def simulate(
         vx=arrays["vx"],
         vz=arrays["vz"],
         mask=arrays["mask"],
+        mean_vx=arrays["mean_vx"],
+        mean_vz=arrays["mean_vz"],
         cycle={k: arrays[k] for k in cycle_keys if k in arrays},
         tissue={
             k.removeprefix("tissue_"): arrays[k]

@@ -88,11 +88,26 @@ def test_a_plug_tube_moves_at_its_peak_speed_up_to_the_wall():
     speed = np.hypot(truth.vx, truth.vz)[truth.mask]
     assert speed.size > 100
     np.testing.assert_allclose(speed, 0.09, rtol=1e-9)
+    # Steady flow: its mean over the recording is its velocity at the start.
+    np.testing.assert_allclose(truth.mean_vx, truth.vx, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(truth.mean_vz, truth.vz, rtol=1e-12, atol=1e-15)
     _, laminar = pcuvd.simulate(
         "tube", "conventional", frames=1, noise_db=None, angles=2, quiet=True,
         peak_velocity_mm_s=90,
     )
     assert np.hypot(laminar.vx, laminar.vz)[laminar.mask].min() < 0.02, "parabolic by default"
+
+
+def test_a_pulsing_networks_mean_is_not_its_start():
+    # 50 ms of the network, a quarter of its 5.5 Hz beat: the vessels' mean speed over it is not
+    # their speed at its start, and lies within the range their speed takes.
+    _, truth = pcuvd.simulate("rat-network", "conventional", frames=90, noise_db=None, angles=1,
+                              quiet=True)
+    inside = truth.mask
+    start = np.hypot(truth.vx, truth.vz)[inside]
+    mean = np.hypot(truth.mean_vx, truth.mean_vz)[inside]
+    assert np.abs(mean - start).max() > 1e-3
+    assert mean.max() <= truth.cycle["psv"][inside].max() * (1 + 1e-9)
 
 
 def test_vector_fits_recover_an_exact_vector():

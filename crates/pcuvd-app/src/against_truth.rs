@@ -593,5 +593,33 @@ mod tests {
                 }
             });
         assert!(moved > 1e-4, "largest change {moved} m/s");
+        // Each pixel's mean over the times it holds blood, from the truth at each time alone.
+        let (mut sum, mut count) = (
+            Array2::<f64>::zeros(cut.shape()),
+            Array2::<f64>::zeros(cut.shape()),
+        );
+        for &t in &times {
+            let at = simulation.truth_averaged_on(&cut, &[t]);
+            Zip::from(&mut sum)
+                .and(&mut count)
+                .and(&at.truth.vx)
+                .and(&at.truth.mask)
+                .for_each(|s, n, &vx, &blood| {
+                    if blood {
+                        *s += vx;
+                        *n += 1.0;
+                    }
+                });
+        }
+        Zip::from(&on_cut.truth.vx)
+            .and(&sum)
+            .and(&count)
+            .for_each(|&mean, &s, &n| {
+                let expected = if n > 0.0 { s / n } else { 0.0 };
+                assert!(
+                    (mean - expected).abs() <= 1e-12,
+                    "{mean} against {expected}"
+                );
+            });
     }
 }

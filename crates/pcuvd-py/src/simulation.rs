@@ -18,11 +18,12 @@ pub(crate) fn simulate<'py>(
     type Made = (
         Vec<(String, ChannelData, toml::Table)>,
         pcuvd_app::simulation::SimulatedTruth,
+        pcuvd_app::simulation::SimulatedTruth,
         Option<ndarray::Array3<f64>>,
         String,
         Option<Vec<f64>>,
     );
-    let (recordings, truth, displacement, scenario, triggers) = py
+    let (recordings, truth, mean, displacement, scenario, triggers) = py
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             pcuvd_app::memory::check_room_for(
@@ -39,10 +40,19 @@ pub(crate) fn simulate<'py>(
                 made.push((name.to_string(), data, simulation.provenance(index, levels)));
             }
             let truth = simulation.truth(&made[0].1)?;
+            // What a whole-recording map estimates: a pulsing vessel's mean, not its start.
+            let acquisition = &made[0].1.acquisition;
+            let duration_s = simulation.frames as f64 / acquisition.frame_rate();
+            let mean = simulation.truth_averaged(
+                acquisition,
+                made[0].1.samples.dim().2,
+                &pcuvd_app::simulation::truth_times(duration_s),
+            )?;
             let displacement = simulation.tissue_displacement(&truth.z);
             Ok((
                 made,
                 truth,
+                mean,
                 displacement,
                 simulation.scenario.to_toml()?,
                 simulation.cardiac_triggers(),
@@ -55,6 +65,8 @@ pub(crate) fn simulate<'py>(
     dict.set_item("vx", truth.truth.vx.to_pyarray(py))?;
     dict.set_item("vz", truth.truth.vz.to_pyarray(py))?;
     dict.set_item("mask", truth.truth.mask.to_pyarray(py))?;
+    dict.set_item("mean_vx", mean.truth.vx.to_pyarray(py))?;
+    dict.set_item("mean_vz", mean.truth.vz.to_pyarray(py))?;
     if let Some(cycle) = &truth.cycle {
         dict.set_item("ri", cycle.ri.to_pyarray(py))?;
         dict.set_item("psv", cycle.psv.to_pyarray(py))?;
