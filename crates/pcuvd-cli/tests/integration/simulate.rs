@@ -28,6 +28,11 @@ struct TubeTruth {
 }
 
 fn simulated_tube(tube_options: &[&str]) -> TubeTruth {
+    simulated_tube_of("1", tube_options)
+}
+
+/// [`simulated_tube`] with `frames` frames.
+fn simulated_tube_of(frames: &str, tube_options: &[&str]) -> TubeTruth {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
     let fixed = [
@@ -38,7 +43,7 @@ fn simulated_tube(tube_options: &[&str]) -> TubeTruth {
         "--mode",
         "conventional",
         "--frames",
-        "1",
+        frames,
         "--angles",
         "2",
         "--noise-db",
@@ -295,26 +300,9 @@ fn check_scores(
 /// recording gives the reason instead of scores.
 #[test]
 fn a_simulated_recording_is_scored_against_its_truth() {
-    let tube = simulated_tube(&[]);
+    // Eight frames: one is too short for Doppler.
+    let tube = simulated_tube_of("8", &[]);
     let d = tube.dir.path();
-    // simulated_tube's one frame is too short for Doppler: eight frames of the same tube.
-    let (ok, _, stderr) = pcuvd(&[
-        "--quiet",
-        "simulate",
-        "--preset",
-        "tube",
-        "--mode",
-        "conventional",
-        "--frames",
-        "8",
-        "--angles",
-        "2",
-        "--noise-db",
-        "off",
-        "--out",
-        d.to_str().unwrap(),
-    ]);
-    assert!(ok, "{stderr}");
     let recording = d.join("conventional.toml");
     let run = |name: &str, extra: &[&str]| {
         let out = d.join(name);
