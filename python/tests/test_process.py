@@ -123,6 +123,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     else:
         assert cli_summary["against_truth"]["vessel_pixels"] > 0
         assert (by_python / "against_truth.png").is_file()
+    assert (by_python / "report.html").is_file() and (by_cli / "report.html").is_file()
     # The summary in memory is the saved one, less the timings of reading and writing.
     assert _without_run_details(result.summary) == _without_run_details(py_summary)
 

@@ -9,6 +9,7 @@ use anyhow::{Context, Result, bail};
 /// Every file `pcuvd process` may write into its output folder.
 pub const PROCESS_OUTPUTS: &[&str] = &[
     "summary.json",
+    "report.html",
     "x.npy",
     "z.npy",
     "bmode_db.npy",

@@ -265,7 +265,8 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         println!("{}", scored.line());
     }
     println!(
-        "wrote maps (.npy), summary.json and {} figures to {}",
+        "wrote maps (.npy), summary.json, {} and {} figures to {}",
+        pcuvd_app::summary::REPORT,
         saved.figures.len(),
         args.out.display()
     );

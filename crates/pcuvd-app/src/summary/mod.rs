@@ -16,8 +16,10 @@ use crate::progress::Progress;
 use crate::run::{DynamicsOutcome, Plan, Processed};
 
 mod record;
+mod report;
 mod stages;
 pub use record::*;
+pub use report::{REPORT, caption, write_report};
 pub use stages::*;
 
 /// What a saved run records beside its results.
@@ -121,6 +123,7 @@ pub fn save(
         processed.dynamics_s + clock.elapsed().as_secs_f64(),
     );
     summary.peak_resident_bytes = crate::memory::peak_resident_memory();
+    write_report(dir, &summary, &pngs)?;
     // Written last: a folder without summary.json is visibly incomplete.
     pcuvd_io::write_json(&dir.join("summary.json"), &summary)?;
     Ok(Saved {

@@ -27,6 +27,25 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
     let source = &summary["source"];
     // A measured recording has no simulation's truth to be scored against.
     assert!(summary.get("against_truth").is_none());
+    // report.html: one page that holds every figure drawn (no file or address outside it) and
+    // says what was read.
+    let report = std::fs::read_to_string(out.path().join("report.html")).unwrap();
+    let figures = std::fs::read_dir(out.path())
+        .unwrap()
+        .filter(|entry| {
+            let name = entry.as_ref().unwrap().file_name();
+            name.to_string_lossy().ends_with(".png")
+        })
+        .count();
+    assert!(figures >= 4, "{figures} figures");
+    assert_eq!(report.matches("data:image/png;base64,").count(), figures);
+    assert!(!report.contains("src=\"http") && !report.contains("src=\"/"));
+    let nyquist_mm_s = summary["nyquist_velocity_m_s"].as_f64().unwrap() * 1e3;
+    assert!(
+        report.contains(&format!("Nyquist velocity {nyquist_mm_s:.1} mm/s")),
+        "{}",
+        &report[..2000.min(report.len())]
+    );
     assert_eq!(
         source["files"][0]["size_bytes"].as_u64(),
         Some(std::fs::metadata(&input).unwrap().len())

@@ -330,6 +330,11 @@ fn a_simulated_recording_is_scored_against_its_truth() {
     let (nz, nx) = tube.mask.dim();
     let (scored, stdout, out) = run("whole", &[]);
     check_scores(&scored, &out, &tube, 0..nz, 0..nx);
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        report.contains("Against the simulation&#39;s truth"),
+        "the report's section"
+    );
     assert!(
         stdout.contains(&format!(
             "({} vessel pixels",
