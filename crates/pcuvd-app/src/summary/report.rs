@@ -64,21 +64,26 @@ pub fn write_report(dir: &Path, summary: &Summary, figures: &[PathBuf]) -> Resul
     report.paragraph(&processing_line(summary));
     if let DynamicsRecord::Done(done) = &summary.dynamics {
         report.paragraph(&format!(
-            "RI maps: heart rate {:.2} Hz ({}), {} cardiac cycle{} from {}.",
-            done.heart_rate_hz,
-            if done.heart_rate_given {
-                "given"
-            } else {
-                "measured"
-            },
+            "RI maps over {} cardiac cycle{} at {:.2} Hz{}: {}.",
             done.cycles_count,
             if done.cycles_count == 1 { "" } else { "s" },
+            done.heart_rate_hz,
+            if done.heart_rate_given {
+                " (given)"
+            } else {
+                ""
+            },
             done.cycles_from
         ));
     }
     if let Some(scored) = &summary.against_truth {
         report.heading("Against the simulation's truth");
-        report.paragraph(&scored.line());
+        let line = scored.line();
+        let mut letters = line.chars();
+        let capitalised: String = (letters.next().map(|c| c.to_ascii_uppercase()).into_iter())
+            .chain(letters)
+            .collect();
+        report.paragraph(&format!("{capitalised}."));
     }
     report.heading("Figures");
     for figure in figures {
@@ -138,13 +143,32 @@ fn recording_line(summary: &Summary) -> String {
 /// How it was processed: the grid, the receive f-number, the clutter filter's cut-offs.
 fn processing_line(summary: &Summary) -> String {
     let grid = &summary.grid;
-    let lows: Vec<String> = (summary.clutter_filter.cut_offs_per_angle.iter())
-        .map(|c| c.low.to_string())
+    let lows: Vec<usize> = (summary.clutter_filter.cut_offs_per_angle.iter())
+        .map(|c| c.low)
         .collect();
+    let cut = match lows.as_slice() {
+        [] => "no tissue component".to_string(),
+        [first, rest @ ..] if rest.iter().all(|low| low == first) => format!(
+            "{first} tissue component{} at {}",
+            if *first == 1 { "" } else { "s" },
+            if rest.is_empty() {
+                "its angle"
+            } else {
+                "every angle"
+            }
+        ),
+        _ => format!(
+            "{} tissue components at the angles in turn",
+            lows.iter()
+                .map(|low| low.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
     format!(
         "Imaged on {} × {} pixels (depth × lateral) of {:.0} µm, x {:.2} to {:.2} mm, z {:.2} to \
-         {:.2} mm, receive F# {}; the clutter filter cut {} tissue component{} per angle; \
-         Doppler by {} over {}×{} pixels.",
+         {:.2} mm, receive F# {}; the clutter filter cut {cut}; Doppler by {} over {}×{} \
+         pixels.",
         grid.nz,
         grid.nx,
         grid.step_m * 1e6,
@@ -153,16 +177,6 @@ fn processing_line(summary: &Summary) -> String {
         grid.z_min_m * 1e3,
         grid.z_max_m * 1e3,
         summary.beamforming.f_number,
-        if lows.is_empty() {
-            "no".to_string()
-        } else {
-            lows.join(", ")
-        },
-        if lows.len() == 1 && lows[0] == "1" {
-            ""
-        } else {
-            "s"
-        },
         summary.doppler.estimator,
         summary.doppler.kernel[0],
         summary.doppler.kernel[1],
