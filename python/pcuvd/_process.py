@@ -120,6 +120,23 @@ class ProcessResult:
         stage timings, dynamics, provenance), as a dict."""
         return json.loads(self._native.summary_json())
 
+    def against_truth(self, truth: Any) -> dict:
+        """These maps scored against a simulation's truth: `truth` as `pcuvd.simulate` returns it
+        (or its scenario as TOML text). The truth is computed again from the scenario on this
+        result's grid, averaged over the recording as a whole-recording map averages a pulsing
+        flow; the dict is what summary.json's `against_truth` holds for a simulated recording
+        processed from its folder (vector and colour-Doppler RMSE in mm/s, the share within
+        10 % of the peak speed, flow drawn inside and outside the vessels, RI against the cardiac
+        cycle's truth, every definition), or `not_scored` with the reason where the scenario
+        does not describe this recording."""
+        scenario = truth if isinstance(truth, str) else getattr(truth, "scenario", None)
+        if not isinstance(scenario, str) or not scenario:
+            raise TypeError(
+                "against_truth(truth): the truth pcuvd.simulate returned, or its scenario as "
+                f"TOML text, not {type(truth).__name__}"
+            )
+        return json.loads(self._native.against_truth_json(scenario))
+
     def save(
         self,
         folder: str | os.PathLike,

@@ -268,3 +268,32 @@ def test_the_quickstart_example_runs_and_draws(disk, tmp_path):
     assert done.returncode == 0, done.stderr
     assert figure.stat().st_size > 10_000
     assert "PWI_disk.mat" in done.stdout
+
+
+def test_a_simulation_in_memory_is_scored_against_its_truth():
+    recording, truth = pcuvd.simulate(
+        "tube", "conventional", frames=8, noise_db=None, angles=2, quiet=True
+    )
+    result = pcuvd.process(recording, dynamics="off", quiet=True)
+    scores = result.against_truth(truth)
+    inside = truth.mask
+    assert scores["vessel_pixels"] == inside.sum() > 100
+
+    def rmse(estimate, true):
+        error = np.where(np.isfinite(estimate), estimate - true, true)[inside]
+        return np.sqrt(np.mean(error**2)) * 1e3
+
+    for estimator, suffix in (("irls", ""), ("ls", "_ls")):
+        vx, vz = getattr(result, "vx" + suffix), getattr(result, "vz" + suffix)
+        got = scores["vector_rmse_mm_s"][estimator]
+        np.testing.assert_allclose(got["vx"], rmse(vx, truth.mean_vx), rtol=1e-9)
+        np.testing.assert_allclose(got["vz"], rmse(vz, truth.mean_vz), rtol=1e-9)
+    np.testing.assert_allclose(
+        scores["color_doppler_rmse_mm_s"], rmse(result.color_doppler, truth.mean_vz), rtol=1e-9
+    )
+    assert scores["ri"] == "the scenario's flow is steady: no cardiac cycle"
+    # The truth of another simulation (nine frames) does not describe these eight.
+    _, other = pcuvd.simulate("tube", "conventional", frames=9, noise_db=None, angles=2, quiet=True)
+    assert "describes other recordings" in result.against_truth(other)["not_scored"]
+    with pytest.raises(TypeError, match="the truth pcuvd.simulate returned"):
+        result.against_truth(42)

@@ -188,9 +188,30 @@ pub fn score_run(
     data: &dyn FrameSource,
     processed: &Processed,
 ) -> Option<AgainstTruth> {
-    let scenario = scenario_beside(input)?;
-    let named = scenario.display().to_string();
-    Some(match scored_truth(&scenario, data, &processed.out.grid) {
+    let path = scenario_beside(input)?;
+    let named = path.display().to_string();
+    Some(match crate::scenario::Scenario::load(&named) {
+        Ok(scenario) => score_against(scenario, &named, data, processed),
+        Err(e) => AgainstTruth {
+            record: TruthRecord::NotScored {
+                scenario: named,
+                not_scored: format!("{e:#}"),
+            },
+            truth: None,
+        },
+    })
+}
+
+/// The run on `data` scored against the truth of `scenario` (named `named` in the record): a
+/// recording simulated in memory, whose scenario came with it rather than beside a file.
+pub fn score_against(
+    scenario: crate::scenario::Scenario,
+    named: &str,
+    data: &dyn FrameSource,
+    processed: &Processed,
+) -> AgainstTruth {
+    let named = named.to_string();
+    match scored_truth(scenario, &named, data, &processed.out.grid) {
         Ok(truth) => AgainstTruth {
             record: match scores(&named, &truth, processed) {
                 Ok(scores) => TruthRecord::Scored(Box::new(scores)),
@@ -208,16 +229,18 @@ pub fn score_run(
             },
             truth: None,
         },
-    })
+    }
 }
 
-/// The truth of the scenario at `path` on `grid`, averaged over the recording `data`, and its
-/// scored pixels; an error where the scenario does not describe `data`.
-fn scored_truth(path: &Path, data: &dyn FrameSource, grid: &Grid) -> Result<ScoredTruth> {
-    let source = path.display().to_string();
-    let scenario = crate::scenario::Scenario::load(&source)?;
-    let simulation =
-        Simulation::of(scenario, source).context("the scenario beside the recording")?;
+/// The truth of `scenario` (named `named`) on `grid`, averaged over the recording `data`, and
+/// its scored pixels; an error where the scenario does not describe `data`.
+fn scored_truth(
+    scenario: crate::scenario::Scenario,
+    named: &str,
+    data: &dyn FrameSource,
+    grid: &Grid,
+) -> Result<ScoredTruth> {
+    let simulation = Simulation::of(scenario, named.to_string()).context("the scenario")?;
     let acq = data.acquisition();
     let (angles, coded) = (acq.sequence.n_angles(), acq.sequence.is_coded());
     let same_rate = |rate: f64| (rate - acq.frame_rate()).abs() <= 1e-9 * acq.frame_rate();

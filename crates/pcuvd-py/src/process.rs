@@ -347,6 +347,23 @@ impl PyProcessResult {
         serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
+    /// The maps scored against the truth of the simulation `scenario` (TOML, as `pcuvd.simulate`
+    /// returns it with its truth) describes, as JSON: summary.json's `against_truth` for a
+    /// recording simulated in memory.
+    fn against_truth_json(&self, py: Python<'_>, scenario: &str) -> PyResult<String> {
+        let scenario = pcuvd_app::scenario::Scenario::parse(scenario)
+            .map_err(|e| PyValueError::new_err(format!("scenario: {e:#}")))?;
+        let scored = py.detach(|| {
+            pcuvd_app::against_truth::score_against(
+                scenario,
+                "the scenario given",
+                &*self.recording,
+                &self.processed,
+            )
+        });
+        serde_json::to_string(&scored.record).map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+
     /// Writes into `folder` exactly what `pcuvd process` writes (maps, figures, summary.json last);
     /// a folder that holds anything is refused unless `force`. `nifti`: also the NIfTI images,
     /// named by map, or by BIDS entities `bids` = (subject, session, task). `zarr`: also the
