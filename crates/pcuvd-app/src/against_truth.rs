@@ -50,8 +50,8 @@ axial velocity Vz over the vessel pixels; a pixel without an estimate (NaN) coun
 
 /// How the figures' flow pixels are scored.
 pub const SHOWN_DEFINITION: &str = "shares of the vessel pixels and of the pixels without blood \
-that the colour-Doppler figure draws as flow (summary.json's figures.flow_rule at \
-figures.colour_level_db)";
+(none at the recording's start, a tree's capillaries counting as blood) that the colour-Doppler \
+figure draws as flow (summary.json's figures.flow_rule at figures.colour_level_db)";
 
 /// A run's scores against the truth of the simulation it processed, or why it has none.
 #[derive(Debug, Clone, Serialize)]
@@ -160,6 +160,8 @@ pub struct AgainstTruth {
 struct ScoredTruth {
     /// Velocity (m/s, averaged over the recording) and the scored pixels as its mask.
     flow: Truth,
+    /// The pixels holding any blood at the recording's start (a tree's capillaries too).
+    blood: Array2<bool>,
     /// The cardiac cycle's truth, with the pixels outside the scored ones as background.
     cycle: Option<NetworkTruth>,
 }
@@ -292,6 +294,7 @@ fn scored_truth(
             vz: truth.truth.vz,
             mask: scored,
         },
+        blood: truth.truth.mask,
         cycle,
     })
 }
@@ -328,10 +331,10 @@ fn scores(
     };
     let estimators = maps.vector_irls.as_ref().zip(maps.vector_ls.as_ref());
     let shown = colour_flow_mask(out);
-    let share = |select: &dyn Fn(bool) -> bool| {
+    let share = |select: &Array2<bool>, within: bool| {
         let (mut drawn, mut all) = (0usize, 0usize);
-        Zip::from(&shown).and(&flow.mask).for_each(|&s, &m| {
-            if select(m) {
+        Zip::from(&shown).and(select).for_each(|&s, &m| {
+            if m == within {
                 all += 1;
                 drawn += usize::from(s);
             }
@@ -360,8 +363,8 @@ fn scores(
             irls: metrics::within_fraction_of_peak(irls, flow, peak, 0.1),
             ls: metrics::within_fraction_of_peak(ls, flow, peak, 0.1),
         }),
-        vessel_pixels_shown: share(&|vessel| vessel),
-        blood_free_pixels_shown: share(&|vessel| !vessel),
+        vessel_pixels_shown: share(&flow.mask, true),
+        blood_free_pixels_shown: share(&truth.blood, false),
         ri,
         definitions: Definitions::default(),
     })
