@@ -78,6 +78,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
     let coding = pcuvd_app::summary::CodingRecord::of(seq);
+    let simulated = pcuvd_app::against_truth::scenario_beside(&args.input.to_string_lossy());
     let directivity_f_number = probe.directivity_f_number(-3.0, acq.sound_speed);
     let report = json!({
         "input": args.input.display().to_string(),
@@ -116,6 +117,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "memory_estimate_bytes": memory_bytes,
             "memory_estimate_rule": pcuvd::pipeline::MEMORY_ESTIMATE_RULE,
         },
+        "simulated_scenario": simulated.as_ref().map(|path| path.display().to_string()),
         "warnings": warnings,
     });
     if args.json {
@@ -220,6 +222,13 @@ pub fn run(args: &InfoArgs) -> Result<()> {
          directivity edge is at F# {directivity_f_number:.2} (--f-number)",
         size(memory_bytes)
     );
+    if let Some(scenario) = &simulated {
+        println!(
+            "  simulation   the scenario `pcuvd simulate` wrote beside it, {}: `pcuvd process` \
+             scores its maps against that truth",
+            scenario.display()
+        );
+    }
     if let Some(times) = &info.cardiac_triggers_s {
         println!(
             "  cardiac      {} recorded triggers ([cardiac]): {} cycle{} from {:.3} to {:.3} s, used by the dynamics stage",

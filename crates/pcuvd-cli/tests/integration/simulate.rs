@@ -327,6 +327,17 @@ fn a_simulated_recording_is_scored_against_its_truth() {
                 .unwrap();
         (summary["against_truth"].clone(), stdout, out)
     };
+    let simulated = || {
+        let (ok, stdout, stderr) = pcuvd(&["info", "--json", recording.to_str().unwrap()]);
+        assert!(ok, "{stderr}");
+        serde_json::from_str::<serde_json::Value>(&stdout).unwrap()["simulated_scenario"].clone()
+    };
+    let scenario = d.join("scenario.toml");
+    assert_eq!(
+        simulated(),
+        scenario.to_str().unwrap(),
+        "info names the scenario"
+    );
     let (nz, nx) = tube.mask.dim();
     let (scored, stdout, out) = run("whole", &[]);
     check_scores(&scored, &out, &tube, 0..nz, 0..nx);
@@ -358,7 +369,6 @@ fn a_simulated_recording_is_scored_against_its_truth() {
     check_scores(&scored, &out, &tube, rows, cols);
 
     // The scenario beside the recording edited since: a reason, not scores against it.
-    let scenario = d.join("scenario.toml");
     let text = std::fs::read_to_string(&scenario).unwrap();
     assert!(text.contains("frames = 8"), "{text}");
     std::fs::write(&scenario, text.replace("frames = 8", "frames = 9")).unwrap();
@@ -379,6 +389,7 @@ fn a_simulated_recording_is_scored_against_its_truth() {
     let (scored, stdout, _) = run("notes", &[]);
     assert!(scored.is_null(), "{scored}");
     assert!(!stdout.contains("truth"), "{stdout}");
+    assert!(simulated().is_null());
 }
 
 #[test]
