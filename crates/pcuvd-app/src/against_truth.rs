@@ -453,22 +453,18 @@ impl AgainstTruth {
                         (0.0, vmax),
                         "speed (mm/s)",
                     );
-                    // The speed of every vessel pixel, as the error panel beside it has them: a
-                    // vessel narrower than the triangles' blocks still shows.
+                    // The speed of every vessel pixel, as the error panel beside it has them,
+                    // without triangles: over vessels a few pixels wide they hide the speed, and
+                    // the error panel holds the direction's error (vector.png the directions).
                     panel.mask = Some(flow.mask.clone());
                     panel.background = Some(background.clone());
-                    // Grey triangles: drawn in the speed's own colours they would vanish into
-                    // the map under them.
-                    let mut arrows = figures::vector_overlay(field, grid, &flow.mask, vmax);
-                    arrows.colormap = Colormap::Gray;
-                    panel.arrows = Some(arrows);
                     Panel::Image(panel)
                 };
                 panels.push(speed_panel(
-                    "Truth (averaged over the recording)",
+                    "Truth: speed, averaged over the recording",
                     &true_field,
                 ));
-                panels.push(speed_panel("PC-UVD estimator (IRLS-WLS)", irls));
+                panels.push(speed_panel("Speed, PC-UVD estimator (IRLS-WLS)", irls));
                 let error = Zip::from(&irls.vx)
                     .and(&irls.vz)
                     .and(&flow.vx)

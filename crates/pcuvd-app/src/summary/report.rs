@@ -46,7 +46,7 @@ pub fn caption(file: &str) -> Option<&'static str> {
             "The Doppler time series: its mean, how much it varies, and its mean over the vessels, ensemble by ensemble."
         }
         crate::against_truth::FIGURE => {
-            "Against the simulation's truth: the truth averaged over the recording beside the estimate, and their error over the vessel pixels (RI too when it was scored)."
+            "Against the simulation's truth: the true speed averaged over the recording beside the estimate's, and the vector error over the vessel pixels (RI too when it was scored)."
         }
         _ => return None,
     })
