@@ -48,7 +48,7 @@ def main() -> None:
     # pcuvd's colour Doppler is > 0 moving away from the probe; red = toward, as on scanners.
     image = ax_c.imshow(-velocity * 1e3, cmap="RdBu_r", vmin=-vmax, vmax=vmax, extent=extent_mm)
     ax_c.set(title="Colour Doppler", xlabel="x (mm)")
-    fig.colorbar(image, ax=ax_c, label="axial velocity (mm/s), red = toward the probe")
+    fig.colorbar(image, ax=ax_c, label="velocity toward the probe (mm/s): red = up")
     fig.tight_layout()
     fig.savefig(args.out, dpi=120)
     print(f"wrote {args.out}")
