@@ -16,10 +16,8 @@ use ndarray::{Array2, Zip};
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::core::grid::Grid;
 use pcuvd::dynamics::BACKGROUND;
-use pcuvd::estimate::masks;
 use pcuvd::estimate::vector::VectorField;
 use pcuvd::evaluate::metrics::{self, RiScores, Rmse};
-use pcuvd::pipeline::ProcessOutput;
 use pcuvd::simulate::phantom::Truth;
 use pcuvd::simulate::phantom::network::NetworkTruth;
 use pcuvd_render::{Colormap, Panel};
@@ -194,13 +192,7 @@ pub fn score_run(
     let named = path.display().to_string();
     Some(match crate::scenario::Scenario::load(&named) {
         Ok(scenario) => score_against(scenario, &named, data, processed),
-        Err(e) => AgainstTruth {
-            record: TruthRecord::NotScored {
-                scenario: named,
-                not_scored: format!("{e:#}"),
-            },
-            truth: None,
-        },
+        Err(e) => AgainstTruth::not_scored(named, format!("{e:#}")),
     })
 }
 
@@ -213,24 +205,16 @@ pub fn score_against(
     processed: &Processed,
 ) -> AgainstTruth {
     let named = named.to_string();
-    match scored_truth(scenario, &named, data, &processed.out.grid) {
-        Ok(truth) => AgainstTruth {
-            record: match scores(&named, &truth, processed) {
-                Ok(scores) => TruthRecord::Scored(Box::new(scores)),
-                Err(why) => TruthRecord::NotScored {
-                    scenario: named,
-                    not_scored: why.to_string(),
-                },
-            },
+    let truth = match scored_truth(scenario, &named, data, &processed.out.grid) {
+        Ok(truth) => truth,
+        Err(e) => return AgainstTruth::not_scored(named, format!("{e:#}")),
+    };
+    match scores(&named, &truth, processed) {
+        Ok(scores) => AgainstTruth {
+            record: TruthRecord::Scored(Box::new(scores)),
             truth: Some(truth),
         },
-        Err(e) => AgainstTruth {
-            record: TruthRecord::NotScored {
-                scenario: named,
-                not_scored: format!("{e:#}"),
-            },
-            truth: None,
-        },
+        Err(why) => AgainstTruth::not_scored(named, why.to_string()),
     }
 }
 
@@ -330,7 +314,7 @@ fn scores(
         vz: maps.color_doppler.clone(),
     };
     let estimators = maps.vector_irls.as_ref().zip(maps.vector_ls.as_ref());
-    let shown = colour_flow_mask(out);
+    let shown = figures::colour_flow_mask(out);
     let share = |select: &Array2<bool>, within: bool| {
         let (mut drawn, mut all) = (0usize, 0usize);
         Zip::from(&shown).and(select).for_each(|&s, &m| {
@@ -368,15 +352,6 @@ fn scores(
         ri,
         definitions: Definitions::default(),
     })
-}
-
-/// The pixels the colour-Doppler figure draws as flow.
-fn colour_flow_mask(out: &ProcessOutput) -> Array2<bool> {
-    masks::figure_flow_mask(
-        &out.maps.power_doppler,
-        masks::FLOW_FIGURE_DB,
-        out.grid.axial_step(),
-    )
 }
 
 impl TruthRecord {
@@ -420,6 +395,17 @@ impl TruthRecord {
 }
 
 impl AgainstTruth {
+    /// A run the scenario named `scenario` gave no scores, and `why`.
+    fn not_scored(scenario: String, why: String) -> Self {
+        AgainstTruth {
+            record: TruthRecord::NotScored {
+                scenario,
+                not_scored: why,
+            },
+            truth: None,
+        }
+    }
+
     /// Draws [`FIGURE`] into `dir`: the truth beside the estimate (the IRLS vectors, or the colour
     /// Doppler with a single angle) and their error over the vessel pixels, and the same for RI
     /// where it was scored. `None` where the run was not scored.
@@ -436,6 +422,24 @@ impl AgainstTruth {
                 .and(&flow.mask)
                 .map_collect(|&v, &m| if m { v } else { f64::NAN })
         };
+        // A map drawn over the B-mode at the pixels `shown`.
+        let on_bmode = |title: &str,
+                        data: Array2<f64>,
+                        colormap: Colormap,
+                        range: (f64, f64),
+                        label: &str,
+                        shown: Array2<bool>| {
+            let mut panel = figures::map_panel(title, data, grid, colormap, range, label);
+            panel.mask = Some(shown);
+            panel.background = Some(background.clone());
+            Panel::Image(panel)
+        };
+        // Errors over the vessel pixels that have one (NaN elsewhere).
+        let error_panel = |title: &str, error: Array2<f64>, top: f64, label: &str| {
+            let error = masked(error);
+            let shown = error.mapv(|e| !e.is_nan());
+            on_bmode(title, error, Colormap::Magma, (0.0, top), label, shown)
+        };
         let mut panels = Vec::new();
         match &out.maps.vector_irls {
             Some(irls) => {
@@ -444,21 +448,20 @@ impl AgainstTruth {
                     vz: flow.vz.clone(),
                 };
                 let vmax = figures::speed_scale(&[(&true_field, &flow.mask)]);
+                // The speed of every vessel pixel, as the error panel beside it has them,
+                // without triangles: over vessels a few pixels wide they hide the speed, and the
+                // error panel holds the direction's error (vector.png the directions).
                 let speed_panel = |title: &str, field: &VectorField| {
-                    let mut panel = figures::map_panel(
+                    let speed = field.speed().mapv(|v| v * 1e3);
+                    let range = (0.0, vmax);
+                    on_bmode(
                         title,
-                        field.speed().mapv(|v| v * 1e3),
-                        grid,
+                        speed,
                         Colormap::Viridis,
-                        (0.0, vmax),
+                        range,
                         "speed (mm/s)",
-                    );
-                    // The speed of every vessel pixel, as the error panel beside it has them,
-                    // without triangles: over vessels a few pixels wide they hide the speed, and
-                    // the error panel holds the direction's error (vector.png the directions).
-                    panel.mask = Some(flow.mask.clone());
-                    panel.background = Some(background.clone());
-                    Panel::Image(panel)
+                        flow.mask.clone(),
+                    )
                 };
                 panels.push(speed_panel(
                     "Truth: speed, averaged over the recording",
@@ -472,9 +475,7 @@ impl AgainstTruth {
                     .map_collect(|&ex, &ez, &tx, &tz| (ex - tx).hypot(ez - tz) * 1e3);
                 panels.push(error_panel(
                     "Vector error |v − v_true|",
-                    masked(error),
-                    grid,
-                    &background,
+                    error,
                     vmax,
                     "mm/s",
                 ));
@@ -496,45 +497,29 @@ impl AgainstTruth {
                     &flow.mask,
                 ));
                 let error = (&out.maps.color_doppler - &flow.vz).mapv(|e| e.abs() * 1e3);
-                panels.push(error_panel(
-                    "Axial error |v − v_true|",
-                    masked(error),
-                    grid,
-                    &background,
-                    vmax,
-                    "mm/s",
-                ));
+                panels.push(error_panel("Axial error |v − v_true|", error, vmax, "mm/s"));
             }
         }
         if let (Some(cycle), RiRecord::Scored(_), DynamicsOutcome::Done { maps, .. }) =
             (&truth.cycle, &scores.ri, &processed.dynamics)
         {
             let ri_panel = |title: &str, ri: &Array2<f64>| {
-                let mut panel = figures::map_panel(
+                let ri = masked(ri.clone());
+                on_bmode(
                     title,
-                    masked(ri.clone()),
-                    grid,
+                    ri,
                     Colormap::Viridis,
                     (0.0, 1.0),
                     "RI",
-                );
-                panel.mask = Some(flow.mask.clone());
-                panel.background = Some(background.clone());
-                Panel::Image(panel)
+                    flow.mask.clone(),
+                )
             };
             panels.push(ri_panel("Truth: RI", &cycle.ri));
             panels.push(ri_panel("RI (PC-UVD)", &maps.ri));
             let error = Zip::from(&maps.ri)
                 .and(&cycle.ri)
                 .map_collect(|&est, &truth| (est - truth).abs());
-            panels.push(error_panel(
-                "RI error |RI − RI_true|",
-                masked(error),
-                grid,
-                &background,
-                1.0,
-                "|ΔRI|",
-            ));
+            panels.push(error_panel("RI error |RI − RI_true|", error, 1.0, "|ΔRI|"));
         }
         let title = format!(
             "{name}: against the simulation's truth ({})",
@@ -542,22 +527,6 @@ impl AgainstTruth {
         );
         figures::save_figure(&dir.join(FIGURE), &title, panels, 3, out).map(Some)
     }
-}
-
-/// A map of errors over the vessel pixels (NaN elsewhere), on the B-mode.
-fn error_panel(
-    title: &str,
-    error: Array2<f64>,
-    grid: &Grid,
-    background: &Array2<f64>,
-    top: f64,
-    label: &str,
-) -> Panel {
-    let shown = error.mapv(|e| !e.is_nan());
-    let mut panel = figures::map_panel(title, error, grid, Colormap::Magma, (0.0, top), label);
-    panel.mask = Some(shown);
-    panel.background = Some(background.clone());
-    Panel::Image(panel)
 }
 
 #[cfg(test)]

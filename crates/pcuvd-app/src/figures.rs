@@ -278,6 +278,16 @@ pub fn save_figure(
     save(path, title, panels, ncols, size)
 }
 
+/// The pixels `color_doppler.png` draws as flow (`summary.json`'s `figures.flow_rule` at its
+/// colour level).
+pub fn colour_flow_mask(out: &ProcessOutput) -> Array2<bool> {
+    masks::figure_flow_mask(
+        &out.maps.power_doppler,
+        masks::FLOW_FIGURE_DB,
+        out.grid.axial_step(),
+    )
+}
+
 /// B-mode, power Doppler, colour Doppler and (with several angles) vector-map figures of one result.
 pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Vec<PathBuf>> {
     let grid = &out.grid;
@@ -337,11 +347,7 @@ pub fn process_figures(dir: &Path, out: &ProcessOutput, name: &str) -> Result<Ve
         1,
     ));
 
-    let mask = masks::figure_flow_mask(
-        &out.maps.power_doppler,
-        masks::FLOW_FIGURE_DB,
-        grid.axial_step(),
-    );
+    let mask = colour_flow_mask(out);
     let background = bmode_background(&out.bmode_db);
     // Red = toward the probe (upward), as in the paper's colour maps.
     let upward_mm_s = out.maps.color_doppler.mapv(|v| -v * 1e3);
