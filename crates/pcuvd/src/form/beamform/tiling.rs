@@ -129,6 +129,7 @@ pub(super) fn beamform_into_with(
                 // sub-range: per group, the calls (and their aperture search and transmit delay)
                 // cost more than the elements of a group did.
                 taps.clear();
+                taps.reserve(pixels.len(), channels);
                 for (x, z, _) in pixels.iter() {
                     setup.taps(*x, *z, 0..channels, kernel, taps);
                 }
