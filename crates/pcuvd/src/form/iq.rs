@@ -237,13 +237,18 @@ fn mix_into_rows(
     let rows = weights.len();
     assert!(band.len() >= rows * stride && f0 + tile.len() <= stride);
     assert!(tile.iter().all(|trace| trace.len() >= rows));
-    let mut done = 0;
+    // Rows the AVX2 path mixes, eight at a time; the loop below takes the rest.
     #[cfg(target_arch = "x86_64")]
-    if tile.len() == 8 && is_x86_feature_detected!("avx2") {
-        done = rows / 8 * 8;
+    let done = if tile.len() == 8 && is_x86_feature_detected!("avx2") {
+        let done = rows / 8 * 8;
         // SAFETY: AVX2 was detected; the asserts above bound every row and trace read or written.
         unsafe { mix_eight_avx2(band, stride, f0, tile, &weights[..done]) };
-    }
+        done
+    } else {
+        0
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
     for i in done..rows {
         let row = &mut band[i * stride + f0..i * stride + f0 + tile.len()];
         for (out, trace) in row.iter_mut().zip(tile) {

@@ -31,6 +31,8 @@ pub(super) enum Kernel {
 
 impl Kernel {
     /// The kernels this CPU runs, fastest first; the portable loop is always last.
+    // Elsewhere than on x86_64 only the portable loop is pushed.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(clippy::vec_init_then_push))]
     fn supported() -> &'static [Kernel] {
         use std::sync::OnceLock;
         static SUPPORTED: OnceLock<Vec<Kernel>> = OnceLock::new();
@@ -139,6 +141,8 @@ impl Kernel {
             unsafe { avx2::pixel_chunk(out, next, data, f0, row, taps, start, len, fresh) };
             return;
         }
+        // Only the SIMD kernels prefetch.
+        let _ = next;
         if fresh {
             out.fill(Complex32::new(0.0, 0.0));
         }

@@ -434,6 +434,8 @@ enum Path {
 
 impl Path {
     /// The paths this CPU runs, widest first; the scalar one is always last.
+    // Elsewhere than on x86_64 only the scalar path is pushed.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(clippy::vec_init_then_push))]
     fn supported() -> Vec<Path> {
         let mut paths = Vec::new();
         #[cfg(target_arch = "x86_64")]
