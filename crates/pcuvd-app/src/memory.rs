@@ -135,7 +135,10 @@ pub fn memory_room() -> Option<MemoryRoom> {
             bound: "the machine".into(),
         });
     }
+    // Resource limits are Unix's (a Windows job's limit is not read).
+    #[cfg(unix)]
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    #[cfg(unix)]
     for (resource, field, name) in [
         (
             rlimit::Resource::AS,
@@ -178,6 +181,7 @@ pub fn memory_room() -> Option<MemoryRoom> {
 }
 
 /// A `Name:  N kB` line of /proc/self/status (kibibytes).
+#[cfg(unix)]
 fn status_kib(status: &str, field: &str) -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with(field))?;
     line[field.len()..].split_whitespace().next()?.parse().ok()

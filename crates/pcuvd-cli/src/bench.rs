@@ -206,7 +206,15 @@ fn median(mut values: Vec<f64>) -> f64 {
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// This process's CPU time so far (s): (user, system), from getrusage; NaN where there is none
+/// (not Unix).
+#[cfg(not(unix))]
+fn cpu_times() -> (f64, f64) {
+    (f64::NAN, f64::NAN)
+}
+
 /// This process's CPU time so far (s): (user, system), from getrusage.
+#[cfg(unix)]
 fn cpu_times() -> (f64, f64) {
     // SAFETY: getrusage writes one rusage into the zeroed struct it is given, nothing else.
     let usage = unsafe {

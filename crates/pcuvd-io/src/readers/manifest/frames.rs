@@ -14,7 +14,8 @@ use pcuvd::{Acquisition, ChannelData, Samples};
 use rayon::prelude::*;
 
 /// Bytes a core reads from a samples file at a time, then tests and offers to the checksum while
-/// they are still in L2.
+/// they are still in L2 (positional reads from several cores: Unix's `read_exact_at`).
+#[cfg(unix)]
 const RUN_BYTES: usize = 256 << 10;
 
 use crate::error::IoError;
