@@ -96,8 +96,8 @@ pub fn gigabytes(bytes: f64) -> String {
     }
 }
 
-/// Bytes this process may still write on the file system that holds `path`, where the system
-/// says (Unix).
+/// Bytes this process may still write on the file system that holds `path` (an existing
+/// folder), where the system says: statvfs on Unix, GetDiskFreeSpaceExW on Windows.
 pub fn free_disk_space(path: &std::path::Path) -> Option<u64> {
     #[cfg(unix)]
     {
@@ -106,8 +106,7 @@ pub fn free_disk_space(path: &std::path::Path) -> Option<u64> {
     }
     #[cfg(not(unix))]
     {
-        let _ = path;
-        None
+        fs4::available_space(path).ok()
     }
 }
 
@@ -217,12 +216,26 @@ fn cgroup_memory() -> Option<(f64, f64)> {
     None
 }
 
-/// Memory available to a new process (bytes): `MemAvailable` of /proc/meminfo, where there is one.
+/// Memory available to a new process (bytes): `MemAvailable` of /proc/meminfo on Linux, what
+/// the system reports as available elsewhere (macOS, Windows).
 pub fn available_memory() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    #[cfg(target_os = "linux")]
+    {
+        let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kb * 1024)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        use sysinfo::{MemoryRefreshKind, RefreshKind, System};
+        let system = System::new_with_specifics(
+            RefreshKind::nothing().with_memory(MemoryRefreshKind::nothing().with_ram()),
+        )
+        .ok()?;
+        // Zero is what sysinfo reports where it could not read the memory.
+        Some(system.available_memory()).filter(|&bytes| bytes > 0)
+    }
 }
 
 /// Peak resident memory of this process so far (bytes): `VmHWM` of /proc/self/status, where there

@@ -962,6 +962,10 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        all(windows, target_env = "gnu"),
+        ignore = "a MinGW-w64 test build simulates other samples (its fmaf is not correctly rounded); its release build gives these digests"
+    )]
     fn every_preset_gives_the_samples_it_gave_before_tissue_and_elevation() {
         // Two frames of each preset, conventional then coded, as pcuvd simulated them before
         // the third dimension, tissue, keyframes and scenario files existed (commit ead5e0c):

