@@ -494,7 +494,11 @@ fn bad_simulation_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
     let tube = ["simulate", "--preset", "tube", "--frames", "1", "--out", d];
-    let cases: [(&[&str], &str); 11] = [
+    // A folder inside a file can be made on no system.
+    let file = tempfile::NamedTempFile::new().unwrap();
+    let unwritable = file.path().join("pcuvd-cannot-write-here");
+    let unwritable = unwritable.to_str().unwrap();
+    let cases: [(&[&str], &str); 12] = [
         (&["simulate", "--preset", "nope", "--out", d], "nope"),
         (
             &[
@@ -530,13 +534,7 @@ fn bad_simulation_requests_are_refused() {
             "overlap",
         ),
         (
-            &[
-                "simulate",
-                "--frames",
-                "1",
-                "--out",
-                "/proc/pcuvd-cannot-write-here",
-            ],
+            &["simulate", "--frames", "1", "--out", unwritable],
             "pcuvd-cannot-write-here",
         ),
         (
@@ -554,6 +552,12 @@ fn bad_simulation_requests_are_refused() {
         (
             &[&tube[..], &["--tube-length-mm", "-2"]].concat(),
             "--tube-length-mm -2: must be a finite length > 0 mm",
+        ),
+        // Noise whose samples single precision cannot hold: refused before simulating, not
+        // found as infinities in the file written.
+        (
+            &[&tube[..], &["--noise-db", "1000"]].concat(),
+            "beyond the single precision",
         ),
         // Petabytes of recording: refused before a byte is written, not written until the
         // disk is full.

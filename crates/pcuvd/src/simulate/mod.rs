@@ -547,11 +547,24 @@ fn noise_generator(
             if !(rms > 0.0 && rms.is_finite()) {
                 return Err(invalid(
                     "noise level",
-                    "the phantom's noiseless 0° echo is zero in the receive window, so a noise level \
-                     relative to it is undefined",
+                    "the phantom's noiseless 0° echo is zero in the receive window (do its \
+                     scatterers lie within the receive depths?), so a noise level relative to it \
+                     is undefined",
                 ));
             }
             let noise_rms = rms * 10f64.powf(spec.level_db / 20.0);
+            // The samples are single precision: noise whose peaks (a few RMS) overflow it would
+            // write infinities.
+            if !(noise_rms * 10.0 < f32::MAX as f64) {
+                return Err(invalid(
+                    "noise level",
+                    format!(
+                        "{} dB re the echo gives noise of RMS {noise_rms:.3e}, beyond the single \
+                         precision of the samples",
+                        spec.level_db
+                    ),
+                ));
+            }
             Some(noise::NoiseGenerator::new(
                 ns,
                 params.sampling_frequency,
