@@ -555,7 +555,7 @@ fn noise_generator(
             let noise_rms = rms * 10f64.powf(spec.level_db / 20.0);
             // The samples are single precision: noise whose peaks (a few RMS) overflow it would
             // write infinities.
-            if !(noise_rms * 10.0 < f32::MAX as f64) {
+            if noise_rms.is_nan() || noise_rms * 10.0 >= f32::MAX as f64 {
                 return Err(invalid(
                     "noise level",
                     format!(
