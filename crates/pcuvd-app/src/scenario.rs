@@ -53,6 +53,26 @@ fn finite(key: &str, v: f64) -> Result<()> {
     }
 }
 
+/// Checks that a blood speed (m/s) is positive and far below the sound speed `c` (m/s): the
+/// simulator holds the scatterers still during each event (stop-and-go), which a flow at a
+/// tenth of c already strains; a faster one is a unit slip, not blood.
+fn blood_speed(key: &str, v: f64, c: f64) -> Result<()> {
+    positive(key, v)?;
+    if v < c / 10.0 {
+        Ok(())
+    } else {
+        Err(refuse(
+            key,
+            v,
+            &format!(
+                "must be below a tenth of the sound speed ({} m/s): the simulator holds the \
+                 scatterers still during each event",
+                c / 10.0
+            ),
+        ))
+    }
+}
+
 /// Checks that `range` is finite and increasing (`nonnegative`: from 0 up).
 fn increasing(key: &str, range: [f64; 2], nonnegative: bool) -> Result<()> {
     let [a, b] = range;
@@ -260,6 +280,7 @@ impl Scenario {
     }
 
     fn check_vessels(&self) -> Result<()> {
+        let c = self.medium.sound_speed_m_s;
         match &self.vessels {
             Vessels::Spiral(v) => {
                 finite("[vessels].centre_m", v.centre_m[0])?;
@@ -268,7 +289,7 @@ impl Scenario {
                 positive("[vessels].turn_spacing_m_per_rad", v.turn_spacing_m_per_rad)?;
                 positive("[vessels].turns", v.turns)?;
                 positive("[vessels].radius_m", v.radius_m)?;
-                positive("[vessels].peak_velocity_m_s", v.peak_velocity_m_s)?;
+                blood_speed("[vessels].peak_velocity_m_s", v.peak_velocity_m_s, c)?;
                 positive("[vessels].density_per_m2", v.density_per_m2)?;
             }
             Vessels::Tube(v) => {
@@ -277,12 +298,12 @@ impl Scenario {
                 finite("[vessels].angle_deg", v.angle_deg)?;
                 positive("[vessels].length_m", v.length_m)?;
                 positive("[vessels].radius_m", v.radius_m)?;
-                positive("[vessels].peak_velocity_m_s", v.peak_velocity_m_s)?;
+                blood_speed("[vessels].peak_velocity_m_s", v.peak_velocity_m_s, c)?;
                 positive("[vessels].density_per_m2", v.density_per_m2)?;
             }
             Vessels::RatNetwork(v) => {
                 if let Some(psv) = v.fastest_psv_m_s {
-                    positive("[vessels].fastest_psv_m_s", psv)?;
+                    blood_speed("[vessels].fastest_psv_m_s", psv, c)?;
                 }
             }
             Vessels::Tree(v) => {

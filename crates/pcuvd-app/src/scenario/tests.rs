@@ -157,6 +157,20 @@ fn out_of_range_values_are_refused_by_their_key() {
 }
 
 #[test]
+fn blood_at_a_tenth_of_the_sound_speed_or_faster_is_refused() {
+    // A stenotic jet (6 m/s) is blood; 154 m/s is a unit slip, or a flow the stop-and-go model
+    // cannot hold.
+    let tube = |speed: &str| format!("{SMALL}peak_velocity_m_s = {speed}\n");
+    assert!(Scenario::parse(&tube("6.0")).is_ok());
+    let error = refusal(&tube("154.0"));
+    assert!(
+        error.contains("[vessels].peak_velocity_m_s = 154")
+            && error.contains("below a tenth of the sound speed (154 m/s)"),
+        "{error}"
+    );
+}
+
+#[test]
 fn what_goes_together_is_refused_apart() {
     // A tree or a slab of tissue lies in three dimensions: without the elevation it cannot.
     let flat = |t: &str| t.replace("element_height_m = 1.5e-3", "");
