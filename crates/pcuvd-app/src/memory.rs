@@ -238,11 +238,29 @@ pub fn available_memory() -> Option<u64> {
     }
 }
 
-/// Peak resident memory of this process so far (bytes): `VmHWM` of /proc/self/status, where there
-/// is one. From Python it is the interpreter's peak, the run's included.
+/// Peak resident memory of this process so far (bytes): `VmHWM` of /proc/self/status on Linux,
+/// getrusage's `ru_maxrss` on macOS; `None` elsewhere. From Python it is the interpreter's peak,
+/// the run's included.
 pub fn peak_resident_memory() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
+    #[cfg(target_os = "linux")]
+    {
+        let status = std::fs::read_to_string("/proc/self/status").ok()?;
+        let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib * 1024)
+    }
+    #[cfg(target_os = "macos")]
+    {
+        // SAFETY: getrusage writes one rusage into the zeroed struct it is given, nothing else.
+        let usage = unsafe {
+            let mut usage: libc::rusage = std::mem::zeroed();
+            (libc::getrusage(libc::RUSAGE_SELF, &mut usage) == 0).then_some(usage)
+        }?;
+        // macOS counts ru_maxrss in bytes (Linux and the BSDs in KiB).
+        u64::try_from(usage.ru_maxrss).ok()
+    }
+    #[cfg(not(any(target_os = "linux", target_os = "macos")))]
+    {
+        None
+    }
 }
