@@ -239,8 +239,8 @@ pub fn available_memory() -> Option<u64> {
 }
 
 /// Peak resident memory of this process so far (bytes): `VmHWM` of /proc/self/status on Linux,
-/// getrusage's `ru_maxrss` on macOS; `None` elsewhere. From Python it is the interpreter's peak,
-/// the run's included.
+/// getrusage's `ru_maxrss` on macOS, the peak working set on Windows; `None` elsewhere. From
+/// Python it is the interpreter's peak, the run's included.
 pub fn peak_resident_memory() -> Option<u64> {
     #[cfg(target_os = "linux")]
     {
@@ -259,7 +259,22 @@ pub fn peak_resident_memory() -> Option<u64> {
         // macOS counts ru_maxrss in bytes (Linux and the BSDs in KiB).
         u64::try_from(usage.ru_maxrss).ok()
     }
-    #[cfg(not(any(target_os = "linux", target_os = "macos")))]
+    #[cfg(windows)]
+    {
+        use windows_sys::Win32::System::ProcessStatus::{
+            GetProcessMemoryInfo, PROCESS_MEMORY_COUNTERS,
+        };
+        use windows_sys::Win32::System::Threading::GetCurrentProcess;
+        let mut counters = PROCESS_MEMORY_COUNTERS {
+            cb: std::mem::size_of::<PROCESS_MEMORY_COUNTERS>() as u32,
+            ..Default::default()
+        };
+        // SAFETY: the call writes `cb` bytes into `counters`, which holds them; the handle is
+        // the pseudo-handle of this process, never closed.
+        let done = unsafe { GetProcessMemoryInfo(GetCurrentProcess(), &mut counters, counters.cb) };
+        (done != 0).then_some(counters.PeakWorkingSetSize as u64)
+    }
+    #[cfg(not(any(target_os = "linux", target_os = "macos", windows)))]
     {
         None
     }
