@@ -812,6 +812,7 @@ mod tests {
             x: (0..nx).map(|i| i as f64 * 1e-4).collect(),
             z: (0..nz).map(|i| i as f64 * 1e-4).collect(),
             truth,
+            start_velocity: None,
             cycle: None,
             tissue: None,
             elevation: None,

@@ -97,8 +97,12 @@ pub struct SimulatedTruth {
     pub x: Vec<f64>,
     /// Pixel rows (m).
     pub z: Vec<f64>,
-    /// Velocity and flow mask at t = 0, shape (nz, nx).
+    /// Velocity (at t = 0, or averaged over the times asked for: [`Simulation::truth_averaged`])
+    /// and flow mask at t = 0, shape (nz, nx).
     pub truth: pcuvd::simulate::phantom::Truth,
+    /// The in-plane velocity (vx, vz) at t = 0 (m/s), shape (nz, nx), where `truth`'s is the
+    /// average over times; `None` without times (`truth`'s is then t = 0's).
+    pub start_velocity: Option<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
     /// The vessel network's cardiac-cycle truth (RI, PSV, EDV, classes), when it is one.
     pub cycle: Option<pcuvd::simulate::phantom::network::NetworkTruth>,
     /// The tissue's velocity and displacement at t = 0, when there is tissue.
@@ -645,12 +649,18 @@ impl Simulation {
             .collect();
         let mut truth = flows.remove(0);
         let mut beam_ri = None;
+        let mut start_velocity = None;
         if !times.is_empty() {
-            (truth.vx, truth.vz) = mean_where_blood(&flows);
+            let (vx, vz) = mean_where_blood(&flows);
+            start_velocity = Some((
+                std::mem::replace(&mut truth.vx, vx),
+                std::mem::replace(&mut truth.vz, vz),
+            ));
             beam_ri = Some(speed_ri_where_blood(&flows));
         }
         SimulatedTruth {
             truth,
+            start_velocity,
             elevation,
             beam_ri,
             tissue: self

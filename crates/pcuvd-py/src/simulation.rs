@@ -18,12 +18,11 @@ pub(crate) fn simulate<'py>(
     type Made = (
         Vec<(String, ChannelData, toml::Table)>,
         pcuvd_app::simulation::SimulatedTruth,
-        pcuvd_app::simulation::SimulatedTruth,
         Option<ndarray::Array3<f64>>,
         String,
         Option<Vec<f64>>,
     );
-    let (recordings, truth, mean, displacement, scenario, triggers) = py
+    let (recordings, truth, displacement, scenario, triggers) = py
         .detach(|| -> anyhow::Result<Made> {
             let simulation = pcuvd_app::simulation::Simulation::new(&options)?;
             pcuvd_app::memory::check_room_for(
@@ -39,11 +38,11 @@ pub(crate) fn simulate<'py>(
                     .recording(index, &|done, total| progress.update(&task, done, total))?;
                 made.push((name.to_string(), data, simulation.provenance(index, levels)));
             }
-            let truth = simulation.truth(&made[0].1)?;
-            // What a whole-recording map estimates: a pulsing vessel's mean, not its start.
+            // The truth at the start and, what a whole-recording map estimates, a pulsing
+            // vessel's mean over the recording, from one evaluation of the times.
             let acquisition = &made[0].1.acquisition;
             let duration_s = simulation.frames as f64 / acquisition.frame_rate();
-            let mean = simulation.truth_averaged(
+            let truth = simulation.truth_averaged(
                 acquisition,
                 made[0].1.samples.dim().2,
                 &pcuvd_app::simulation::truth_times(duration_s),
@@ -52,7 +51,6 @@ pub(crate) fn simulate<'py>(
             Ok((
                 made,
                 truth,
-                mean,
                 displacement,
                 simulation.scenario.to_toml()?,
                 simulation.cardiac_triggers(),
@@ -62,11 +60,15 @@ pub(crate) fn simulate<'py>(
     let dict = PyDict::new(py);
     dict.set_item("x", PyArray1::from_slice(py, &truth.x))?;
     dict.set_item("z", PyArray1::from_slice(py, &truth.z))?;
-    dict.set_item("vx", truth.truth.vx.to_pyarray(py))?;
-    dict.set_item("vz", truth.truth.vz.to_pyarray(py))?;
+    let (start_vx, start_vz) = truth
+        .start_velocity
+        .as_ref()
+        .map_or((&truth.truth.vx, &truth.truth.vz), |(vx, vz)| (vx, vz));
+    dict.set_item("vx", start_vx.to_pyarray(py))?;
+    dict.set_item("vz", start_vz.to_pyarray(py))?;
     dict.set_item("mask", truth.truth.mask.to_pyarray(py))?;
-    dict.set_item("mean_vx", mean.truth.vx.to_pyarray(py))?;
-    dict.set_item("mean_vz", mean.truth.vz.to_pyarray(py))?;
+    dict.set_item("mean_vx", truth.truth.vx.to_pyarray(py))?;
+    dict.set_item("mean_vz", truth.truth.vz.to_pyarray(py))?;
     if let Some(cycle) = &truth.cycle {
         dict.set_item("ri", cycle.ri.to_pyarray(py))?;
         dict.set_item("psv", cycle.psv.to_pyarray(py))?;
