@@ -179,7 +179,7 @@ pub fn memory_room() -> Option<MemoryRoom> {
         .min_by(|a, b| a.bytes.total_cmp(&b.bytes))
 }
 
-/// A `Name:  N kB` line of /proc/self/status (kibibytes).
+/// A `Name:  N kB` line of /proc/self/status or /proc/meminfo (kibibytes).
 #[cfg(unix)]
 fn status_kib(status: &str, field: &str) -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with(field))?;
@@ -221,10 +221,8 @@ fn cgroup_memory() -> Option<(f64, f64)> {
 pub fn available_memory() -> Option<u64> {
     #[cfg(target_os = "linux")]
     {
-        let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-        let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        Some(kb * 1024)
+        let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+        status_kib(&meminfo, "MemAvailable:").map(|kib| kib * 1024)
     }
     #[cfg(not(target_os = "linux"))]
     {
@@ -245,9 +243,7 @@ pub fn peak_resident_memory() -> Option<u64> {
     #[cfg(target_os = "linux")]
     {
         let status = std::fs::read_to_string("/proc/self/status").ok()?;
-        let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        Some(kib * 1024)
+        status_kib(&status, "VmHWM:").map(|kib| kib * 1024)
     }
     #[cfg(target_os = "macos")]
     {
