@@ -76,7 +76,7 @@ pub const ROI_BOX_RGB: (u8, u8, u8) = (120, 255, 120);
 /// Colour-bar label of an axial velocity drawn positive toward the probe with
 /// [`Colormap::RedBlue`]: red is flow toward the probe (up), in every figure, as in the paper.
 /// The label names the sign, since the maps written beside the figure count + away (deeper).
-pub const TOWARD_PROBE_LABEL: &str = "velocity toward the probe (mm/s): red = up, blue = away";
+pub const TOWARD_PROBE_LABEL: &str = "velocity toward the probe (mm/s): red = toward, blue = away";
 /// Colour-bar label of Vz (positive deeper) drawn with [`Colormap::BlueRed`]: red = up.
 pub const VZ_LABEL: &str = "Vz (mm/s, + = deeper): red = toward probe (up), blue = away";
 /// Colour-bar label of Vx drawn with [`Colormap::RedBlue`].

@@ -476,26 +476,23 @@ pub(crate) fn draw(
             false,
         )?;
     }
+    // The cell's own margin: a label that reached the edge would touch the next panel's.
+    let margin = st.px(8.0);
     if !ip.colorbar_label.is_empty() {
-        let w = c.text_width(&ip.colorbar_label, ts);
-        let cx = (cb.x0 + cb.x1) / 2.0;
-        // Keep the label inside the panel's right edge.
-        let right_limit = cb.x1 + tick_len + gap + max_label_w(c, &l.ct, ts) + st.px(6.0);
-        let cx = cx.min(right_limit - w / 2.0);
-        c.text(
+        // Centred over the bar where it fits; else shifted left, and shrunk if even the
+        // cell is too narrow.
+        c.title(
             &ip.colorbar_label,
-            cx,
+            (cb.x0 + cb.x1) / 2.0,
             cb.y0 - ts * 0.6,
             ts,
-            HAlign::Center,
-            VAlign::Bottom,
+            l.cell.x0 + margin,
+            l.cell.x1 - margin,
             INK,
-            false,
         )?;
     }
 
     // Title, centred over the image.
-    let margin = st.px(4.0);
     c.title(
         &ip.title,
         (plot.x0 + plot.x1) / 2.0,
@@ -506,10 +503,6 @@ pub(crate) fn draw(
         INK,
     )?;
     Ok(())
-}
-
-fn max_label_w(c: &Canvas, t: &[Tick], size: f64) -> f64 {
-    max_width(c, t, size)
 }
 
 /// Slender isosceles triangles centred at each (x, z), pointing along (vx, vz).
