@@ -235,9 +235,9 @@ def process(
     from its resolution cell's power centroid back to the pixel before the vector fit),
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
-    A recording `pcuvd simulate` wrote (its `scenario.toml` beside it) is scored against its
-    truth: `result.summary["against_truth"]`; for one simulated in memory,
-    `result.against_truth(truth)`.
+    A recording `pcuvd simulate` wrote (its `scenario.toml` beside it), or one `pcuvd.simulate`
+    made in memory (it carries its scenario), is scored against its truth:
+    `result.summary["against_truth"]`, and `save` draws `against_truth.png`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
     for a bad option or recording, before any work where the CLI would.
     """

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -270,7 +272,7 @@ def test_the_quickstart_example_runs_and_draws(disk, tmp_path):
     assert "PWI_disk.mat" in done.stdout
 
 
-def test_a_simulation_in_memory_is_scored_against_its_truth():
+def test_a_simulation_in_memory_is_scored_against_its_truth(tmp_path):
     recording, truth = pcuvd.simulate(
         "tube", "conventional", frames=8, noise_db=None, angles=2, quiet=True
     )
@@ -292,6 +294,22 @@ def test_a_simulation_in_memory_is_scored_against_its_truth():
         scores["color_doppler_rmse_mm_s"], rmse(result.color_doppler, truth.mean_vz), rtol=1e-9
     )
     assert scores["ri"] == "the scenario's flow is steady: no cardiac cycle"
+    # The recording carries its scenario: the summary and the saved folder are scored as a
+    # folder `pcuvd simulate` wrote is, the truth's figure included.
+    in_summary = result.summary["against_truth"]
+    assert in_summary.pop("scenario") == "the scenario it was simulated with"
+    assert in_summary == {k: v for k, v in scores.items() if k != "scenario"}
+    folder = tmp_path / "saved"
+    figures = result.save(folder)
+    assert folder / "against_truth.png" in figures
+    assert (folder / "against_truth.png").stat().st_size > 10_000
+    saved = json.loads((folder / "summary.json").read_text())
+    assert saved["against_truth"]["vessel_pixels"] == scores["vessel_pixels"]
+    # The figures carry a short name; the simulator's record is kept whole beside it.
+    assert saved["source"]["input"] == "pcuvd.simulate (conventional)"
+    simulation = saved["source"]["simulation"]
+    assert simulation["simulator"] == "pcuvd simulate" and simulation["noise_db"] == "off"
+    assert simulation["scenario"]["sequence"]["frames"] == 8
     # The truth of another simulation (nine frames) does not describe these eight.
     _, other = pcuvd.simulate("tube", "conventional", frames=9, noise_db=None, angles=2, quiet=True)
     assert "describes other recordings" in result.against_truth(other)["not_scored"]

@@ -69,7 +69,8 @@ pub enum TruthRecord {
 /// A run's maps scored against the simulation's truth.
 #[derive(Debug, Clone, Serialize)]
 pub struct TruthScores {
-    /// The scenario file the truth was computed from.
+    /// The scenario file the truth was computed from (or how the scenario came with the
+    /// recording: one simulated in memory carries its own).
     pub scenario: String,
     /// Vessel pixels scored ([`PIXELS_DEFINITION`]).
     pub vessel_pixels: usize,
@@ -181,19 +182,41 @@ pub fn scenario_beside(input: &str) -> Option<PathBuf> {
     first_line.starts_with(SCENARIO_HEADER).then_some(scenario)
 }
 
-/// The run on `data` (read from `input`) scored against the truth of the scenario beside it;
-/// `None` where there is none (not a simulation).
+/// The run on `data` scored against the truth of the simulation it came from: `simulated_from`,
+/// the scenario (TOML) a recording simulated in memory carries, or else the scenario file beside
+/// `input`, its file; `None` where there is neither (not a simulation).
 pub fn score_run(
     input: &str,
+    simulated_from: Option<&str>,
     data: &dyn FrameSource,
     processed: &Processed,
 ) -> Option<AgainstTruth> {
+    if let Some(text) = simulated_from {
+        return Some(score_scenario_text(text, SIMULATED_WITH, data, processed));
+    }
     let path = scenario_beside(input)?;
     let named = path.display().to_string();
     Some(match crate::scenario::Scenario::load(&named) {
         Ok(scenario) => score_against(scenario, &named, data, processed),
         Err(e) => AgainstTruth::not_scored(named, format!("{e:#}")),
     })
+}
+
+/// How the record names the scenario a recording simulated in memory came with.
+const SIMULATED_WITH: &str = "the scenario it was simulated with";
+
+/// The run on `data` scored against the truth of the scenario `text` (TOML) describes, named
+/// `named` in the record; a scenario that does not parse is recorded as not scored, with why.
+pub fn score_scenario_text(
+    text: &str,
+    named: &str,
+    data: &dyn FrameSource,
+    processed: &Processed,
+) -> AgainstTruth {
+    match crate::scenario::Scenario::parse(text) {
+        Ok(scenario) => score_against(scenario, named, data, processed),
+        Err(e) => AgainstTruth::not_scored(named.to_string(), format!("{e:#}")),
+    }
 }
 
 /// The run on `data` scored against the truth of `scenario` (named `named` in the record): a

@@ -247,6 +247,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         extra_timings: &extra_timings,
         nifti: nifti.as_ref(),
         zarr,
+        simulated_from: None,
     };
     let saved = save(&args.out, data, &plan, &processed, record, &progress)?;
     let (angles, frames) = (data.acquisition().sequence.n_angles(), data.n_frames());

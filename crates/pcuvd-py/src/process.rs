@@ -43,6 +43,8 @@ pub(crate) struct PyProcessResult {
     pub(crate) info: pcuvd_io::SourceInfo,
     pub(crate) plan: Plan,
     pub(crate) processed: Processed,
+    /// What a recording simulated in memory came from: its truth scores the run.
+    pub(crate) simulated: Option<Arc<SimulatedFrom>>,
 }
 
 /// Runs `pcuvd process`'s chain on `recording` with the keyword options in `options` (JSON).
@@ -77,6 +79,7 @@ pub(crate) fn process(
         info: recording.info.clone(),
         call,
         plan,
+        simulated: recording.simulated.clone(),
     };
     opened.result(py, input.clone(), processed)
 }
@@ -132,6 +135,7 @@ impl Opened {
             info: self.info,
             plan: self.plan,
             processed,
+            simulated: self.simulated,
         })
     }
 }
@@ -156,6 +160,8 @@ pub(crate) struct Opened {
     pub(crate) info: pcuvd_io::SourceInfo,
     pub(crate) call: ProcessCall,
     pub(crate) plan: Plan,
+    /// What a recording simulated in memory came from; `None` for a file's.
+    pub(crate) simulated: Option<Arc<SimulatedFrom>>,
 }
 
 /// Opens `path` with the reader `overrides` (JSON) and plans the run of the keyword `options`
@@ -190,6 +196,7 @@ pub(crate) fn open(path: &std::path::Path, overrides: &str, options: &str) -> Py
         info: opened.info,
         call,
         plan,
+        simulated: None,
     })
 }
 
@@ -211,14 +218,16 @@ pub(crate) fn open_checked(
 
 impl PyProcessResult {
     fn source(&self) -> anyhow::Result<pcuvd_app::summary::Provenance> {
-        pcuvd_app::summary::provenance(
+        let mut source = pcuvd_app::summary::provenance(
             &self.input,
             &self.info,
             &self.plan.options_text,
             vec![format!("python: pcuvd.process({:?})", self.input)],
             pcuvd_app::outputs::Checksum::default(),
             &[],
-        )
+        )?;
+        source.simulation = self.simulated.as_ref().map(|s| s.record.clone());
+        Ok(source)
     }
 }
 
@@ -333,14 +342,19 @@ impl PyProcessResult {
                 segments: self.processed.segments.clone(),
                 kept: self.processed.kept.clone(),
             },
+            simulated: self.simulated.clone(),
         })
     }
 
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        let against =
-            pcuvd_app::against_truth::score_run(&source.input, &*self.recording, &self.processed);
+        let against = pcuvd_app::against_truth::score_run(
+            &source.input,
+            self.simulated.as_ref().map(|s| s.scenario.as_str()),
+            &*self.recording,
+            &self.processed,
+        );
         let mut summary =
             pcuvd_app::summary::Summary::of(&*self.recording, &self.plan, &self.processed, source);
         summary.against_truth = against.map(|scored| scored.record);
@@ -414,6 +428,7 @@ impl PyProcessResult {
                     extra_timings: &[("checksum", checksum_s)],
                     nifti: naming.as_ref(),
                     zarr,
+                    simulated_from: self.simulated.as_ref().map(|s| s.scenario.as_str()),
                 },
                 &Lines::new(true),
             )

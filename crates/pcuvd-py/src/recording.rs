@@ -11,6 +11,18 @@ pub(crate) struct PyRecording {
     /// What the reader reported: files (empty for arrays or a simulation), format, reader, every
     /// acquisition parameter with its source, warnings.
     pub(crate) info: pcuvd_io::SourceInfo,
+    /// What `pcuvd.simulate` made it from; `None` for a recording read or given as arrays.
+    pub(crate) simulated: Option<Arc<SimulatedFrom>>,
+}
+
+/// What a recording `pcuvd.simulate` made came from.
+pub(crate) struct SimulatedFrom {
+    /// The scenario (TOML): a run is scored against its truth, as a file's run is against the
+    /// scenario beside it.
+    pub(crate) scenario: String,
+    /// The simulator's record (scenario, seed, noise and its definition), as a simulated
+    /// file's manifest holds it in `[provenance]`: summary.json's `source.simulation`.
+    pub(crate) record: toml::Table,
 }
 
 impl PyRecording {
@@ -32,6 +44,7 @@ impl PyRecording {
                 warnings: vec![],
                 cardiac_triggers_s: None,
             },
+            simulated: None,
         }
     }
 }
@@ -133,6 +146,7 @@ pub(crate) fn read_recording(
         data: Arc::new(data),
         input: path.display().to_string(),
         info,
+        simulated: None,
     })
 }
 

@@ -89,16 +89,20 @@ pub(crate) fn simulate<'py>(
     if let Some(displacement) = &displacement {
         dict.set_item("tissue_displacement", displacement.to_pyarray(py))?;
     }
-    dict.set_item("scenario", scenario)?;
+    dict.set_item("scenario", &scenario)?;
     let recordings = recordings
         .into_iter()
         .map(|(name, data, provenance)| {
-            let label = format!("pcuvd simulate ({name}): {provenance}");
+            let label = format!("pcuvd.simulate ({name})");
             let mut recording =
                 PyRecording::new(data, vec![], label, ("simulation", "pcuvd.simulate"));
             // The heartbeats, as an ECG beside the scanner would record them: the RI maps use
             // them as they use a manifest's [cardiac] triggers.
             recording.info.cardiac_triggers_s = triggers.clone();
+            recording.simulated = Some(Arc::new(SimulatedFrom {
+                scenario: scenario.clone(),
+                record: provenance,
+            }));
             (name, recording)
         })
         .collect();

@@ -34,6 +34,9 @@ pub struct Record<'a> {
     pub nifti: Option<&'a crate::nifti::NiftiNaming>,
     /// The run's Zarr store, to finish with the maps; `None` for none.
     pub zarr: Option<crate::zarr::ZarrStore>,
+    /// The scenario (TOML) of a recording simulated in memory, to score the run against its
+    /// truth; `None` looks for the scenario file beside the input.
+    pub simulated_from: Option<&'a str>,
 }
 
 /// What [`save`] wrote.
@@ -46,7 +49,7 @@ pub struct Saved {
 
 /// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
 /// figures, dynamics maps, the scores against a simulation's truth where the input has one
-/// beside it, and `summary.json` last with `record`'s provenance and timings; what was found is
+/// beside it or came with one, and `summary.json` last with `record`'s provenance and timings; what was found is
 /// said to `progress`.
 pub fn save(
     dir: &Path,
@@ -62,6 +65,7 @@ pub fn save(
         extra_timings,
         nifti,
         zarr,
+        simulated_from,
     } = record;
     let clock = std::time::Instant::now();
     let out = &processed.out;
@@ -69,7 +73,7 @@ pub fn save(
     // A simulation's truth is computed while the figures are drawn: the two share the cores.
     let (pngs, against) = rayon::join(
         || figures::process_figures(dir, out, name),
-        || crate::against_truth::score_run(&source.input, data, processed),
+        || crate::against_truth::score_run(&source.input, simulated_from, data, processed),
     );
     let mut pngs = pngs?;
     let mut summary = Summary::of(data, plan, processed, source);
@@ -171,6 +175,7 @@ pub fn provenance(
         pcuvd_version: env!("CARGO_PKG_VERSION").to_string(),
         command_line,
         options: options_text.to_string(),
+        simulation: None,
     })
 }
 

@@ -147,6 +147,10 @@ pub struct Provenance {
     pub command_line: Vec<String>,
     /// Every processing and dynamics setting, defaults included ([`crate::run::settings_text`]).
     pub options: String,
+    /// A recording simulated in memory: the simulator's record (scenario, seed, noise), as a
+    /// simulated recording's manifest holds it in `[provenance]`; absent for every other input.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub simulation: Option<toml::Table>,
 }
 
 impl Provenance {
@@ -516,6 +520,7 @@ mod tests {
             pcuvd_version: env!("CARGO_PKG_VERSION").into(),
             command_line: vec!["pcuvd".into()],
             options: "{\"processing\":{}}".into(),
+            simulation: None,
         }
     }
 
