@@ -976,6 +976,10 @@ mod tests {
         all(windows, target_env = "gnu"),
         ignore = "a MinGW-w64 test build simulates other samples (its fmaf is not correctly rounded); its release build gives these digests"
     )]
+    #[cfg_attr(
+        not(target_arch = "x86_64"),
+        ignore = "the digests are an x86-64 build's: other CPUs' maths library and FFT round otherwise (64-bit ARM: the last bit of most samples, 5e-8 of their RMS)"
+    )]
     fn every_preset_gives_the_samples_it_gave_before_tissue_and_elevation() {
         // Two frames of each preset, conventional then coded, as pcuvd simulated them before
         // the third dimension, tissue, keyframes and scenario files existed (commit ead5e0c):

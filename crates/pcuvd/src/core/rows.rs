@@ -187,6 +187,7 @@ mod tests {
     fn sliding_outputs_are_each_windows_weighted_rows() {
         type Variant<const M: usize> = fn(&mut [&mut [f32]; M], &[&[f32]], &[f32]);
         fn check<const M: usize>(rows: &[Vec<f32>], w: &[f32]) {
+            #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
             let mut variants: Vec<(&str, Variant<M>)> = vec![
                 ("dispatched", sliding_weighted_rows::<M>),
                 ("portable", |d, s, w| {

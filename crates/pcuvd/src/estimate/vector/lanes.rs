@@ -555,6 +555,7 @@ mod tests {
                 );
                 out
             };
+            #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
             let mut paths = vec!["portable"];
             #[cfg(target_arch = "x86_64")]
             {

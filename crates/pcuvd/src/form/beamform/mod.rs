@@ -390,6 +390,7 @@ mod tests {
         let iq = random_iq(probe.n_elements, 400, 110, 9);
         let slow = reference(&iq, &probe, 0.05, &grid, &params);
         let scale = slow.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
         let mut kernels = vec![Kernel::detect(), Kernel::Portable];
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
