@@ -207,7 +207,7 @@ const SIMULATED_WITH: &str = "the scenario it was simulated with";
 
 /// The run on `data` scored against the truth of the scenario `text` (TOML) describes, named
 /// `named` in the record; a scenario that does not parse is recorded as not scored, with why.
-pub fn score_scenario_text(
+fn score_scenario_text(
     text: &str,
     named: &str,
     data: &dyn FrameSource,
