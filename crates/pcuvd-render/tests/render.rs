@@ -794,15 +794,19 @@ fn labelled_lines_get_a_legend_clear_of_them() {
 fn a_long_colour_bar_label_keeps_clear_of_the_cell_edges() {
     // As long as the velocity labels the command draws, in two 400-px columns.
     // Wider than deep, so that the image, and the colour bar beside it, reach the right margin.
-    let mut panel = image_panel(Array2::zeros((6, 20)), Colormap::BlueRed, (-600.0, 600.0));
-    panel.z_mm = (0.0, 5.0);
-    panel.colorbar_label = "PSV (mm/s): red = flowing up (toward probe), blue = down".into();
-    let fig = figure(
-        vec![Panel::Image(panel.clone()), Panel::Image(panel)],
-        2,
-        "",
-    );
-    let img = decode(&render_png_bytes(&fig).unwrap());
+    let render = |label: &str| {
+        let mut panel = image_panel(Array2::zeros((6, 20)), Colormap::BlueRed, (-600.0, 600.0));
+        panel.z_mm = (0.0, 5.0);
+        panel.colorbar_label = label.into();
+        let fig = figure(
+            vec![Panel::Image(panel.clone()), Panel::Image(panel)],
+            2,
+            "",
+        );
+        decode(&render_png_bytes(&fig).unwrap())
+    };
+    let img = render("PSV (mm/s): red = flowing up (toward probe), blue = down");
+    let bare = render("");
     assert_eq!(img.w, 800);
     let inked = |x: usize| (0..img.h).any(|y| img.px(x, y) != (255, 255, 255));
     // Five output pixels inside each cell's right edge stay blank: nothing touches the
@@ -811,9 +815,15 @@ fn a_long_colour_bar_label_keeps_clear_of_the_cell_edges() {
         let touching: Vec<usize> = (edge - 5..edge).filter(|&x| inked(x)).collect();
         assert!(touching.is_empty(), "ink at columns {touching:?}");
     }
-    // The label is drawn (ink above the colour bar, left of it).
-    let bar_top = (0..img.h)
-        .find(|&y| (300..400).any(|x| img.px(x, y) != (255, 255, 255)))
-        .unwrap();
-    assert!(bar_top < img.h / 3, "nothing drawn near the top: {bar_top}");
+    // The label is drawn, above what the unlabelled panel draws over the bar's columns.
+    let first_ink = |img: &Img| {
+        (0..img.h)
+            .find(|&y| (300..400).any(|x| img.px(x, y) != (255, 255, 255)))
+            .unwrap()
+    };
+    let (labelled, unlabelled) = (first_ink(&img), first_ink(&bare));
+    assert!(
+        labelled + 5 < unlabelled,
+        "no label above the bar: first ink at row {labelled}, {unlabelled} without the label"
+    );
 }
