@@ -49,8 +49,8 @@ pub struct Saved {
 
 /// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
 /// figures, dynamics maps, the scores against a simulation's truth where the input has one
-/// beside it or came with one, and `summary.json` last with `record`'s provenance and timings; what was found is
-/// said to `progress`.
+/// beside it or came with one, and `summary.json` last with `record`'s provenance and timings;
+/// what was found is said to `progress`.
 pub fn save(
     dir: &Path,
     data: &dyn FrameSource,
