@@ -7,8 +7,8 @@
 //! - `Resource.Parameters.speedOfSound` (m/s);
 //! - `Receive(i)` of buffer 1 and frame 1 (`bufnum`, `framenum`), in event order: `startSample`,
 //!   `endSample` (1-based rows of the frame), `decimSampleRate` (MHz) / `quadDecim`, `sampleMode`
-//!   (RF modes NS200BW, BS67BW; the interleaved-IQ modes are refused), `startDepth` (wavelengths);
-//!   every frame repeats frame 1's acquisitions;
+//!   (see below), `demodFrequency` (MHz, checked in the interleaved modes), `startDepth`
+//!   (wavelengths); every frame repeats frame 1's acquisitions;
 //! - `Event(j).tx`, `.rcv`, `.seqControl` (which transmit each acquisition fires, in order, and
 //!   its `SeqControl(k)` of command `timeToNextAcq`, argument in µs: the event PRF); without
 //!   `Event`, `Receive(i)` fires `TX(i)` (or the one `TX`);
@@ -20,11 +20,22 @@
 //!
 //! t0 = 2·startDepth·λ/c − 2·lensCorrection·λ/c (λ = c / Trans.frequency): the receive window
 //! opens startDepth wavelengths deep (round trip) after the first element fires.
+//!
+//! Sample modes: NS200BW, BS67BW and custom store RF at decimSampleRate (BS67BW band-pass
+//! sampled); others (NS200BWI, two acquisitions interleaved) are refused. The
+//! interleaved modes BS100BW and BS50BW sample at f_ADC = decimSampleRate = 4 f_d and keep, of
+//! every 4 (BS100BW) or 8 (BS50BW) samples, the first two, stored one after the other: a pair
+//! a quarter period of f_d apart. With s = A cos(2π f_d t + φ) the first is A cos(2π f_d t + φ)
+//! and the second −A sin(2π f_d t + φ), so I − jQ is the analytic signal at the pair's first
+//! sample, read (as Verasonics' own reconstruction reads it) as if both were taken then. pcuvd's
+//! IQ is baseband at absolute time, IQ(t) = analytic(t)·e^{−2πi f_d t}: at the pairs' instants
+//! t0 + k·(4 or 8)/f_ADC that factor is e^{−2πi f_d t0}, one rotation for the whole recording.
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use ndarray::Array3;
+use num_complex::Complex32;
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::{Acquisition, ChannelData, Samples};
 use serde_json::json;
@@ -54,6 +65,29 @@ pub struct VerasonicsFrames {
     channels: usize,
     /// The buffer's HDF5 shape has a frame axis (3-D) or not (one frame, 2-D).
     has_frame_axis: bool,
+    /// In the interleaved I/Q modes, the demodulation frequency (Hz) of the pairs; RF otherwise.
+    pairs_demod_frequency: Option<f64>,
+}
+
+/// How a `Receive.sampleMode` stores its samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum SampleMode {
+    /// Real RF at the decimated rate (NS200BW; BS67BW, band-pass sampled; custom, at the rate
+    /// decimSampleRate states; no mode given).
+    Rf,
+    /// I/Q pairs, one every `every` ADC samples (BS100BW: 4, BS50BW: 8).
+    Pairs { every: usize },
+}
+
+impl SampleMode {
+    fn of(mode: Option<&str>) -> Option<SampleMode> {
+        match mode {
+            None | Some("NS200BW" | "BS67BW" | "custom") => Some(SampleMode::Rf),
+            Some("BS100BW") => Some(SampleMode::Pairs { every: 4 }),
+            Some("BS50BW") => Some(SampleMode::Pairs { every: 8 }),
+            Some(_) => None,
+        }
+    }
 }
 
 fn struct_field<'a>(v: &'a MatValue, name: &str) -> Option<&'a MatValue> {
@@ -242,6 +276,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let mut fs_all = Vec::with_capacity(order.len());
     let mut angles_per_acq = Vec::with_capacity(order.len());
     let mut intervals = Vec::new();
+    let mut modes = Vec::with_capacity(order.len());
+    let mut demods = Vec::with_capacity(order.len());
     let controls = seq_control.as_ref().map(elements).unwrap_or_default();
     for (rc, t, sc) in &order {
         let m = receives[*rc];
@@ -259,17 +295,20 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         let rate = need(number(m, "decimSampleRate"), &field_of("decimSampleRate"))?;
         let quad = number(m, "quadDecim").unwrap_or(1.0);
         fs_all.push(rate / quad * 1e6);
-        if let Some(mode) = m.get("sampleMode").and_then(MatValue::as_str)
-            && matches!(mode, "BS100BW" | "BS50BW")
-        {
-            return Err(IoError::invalid(
+        let mode_name = m.get("sampleMode").and_then(MatValue::as_str);
+        let mode = SampleMode::of(mode_name).ok_or_else(|| {
+            IoError::invalid(
                 path,
                 field_of("sampleMode"),
                 format!(
-                    "is {mode}: interleaved I/Q sampling is not read yet (RF modes NS200BW and BS67BW are)"
+                    "is {:?}; pcuvd reads NS200BW, BS67BW, custom (RF at decimSampleRate) and \
+                     BS100BW, BS50BW (I/Q pairs)",
+                    mode_name.unwrap_or_default()
                 ),
-            ));
-        }
+            )
+        })?;
+        modes.push((mode, mode_name.unwrap_or("NS200BW").to_string()));
+        demods.push(number(m, "demodFrequency"));
         let depth = need(number(m, "startDepth"), &field_of("startDepth"))?;
         t0s.push(2.0 * depth * wavelength / c - 2.0 * lens * wavelength / c);
         let txm = tx_list.get(*t).ok_or_else(|| {
@@ -305,14 +344,64 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             "differs between acquisitions",
         ));
     }
-    let fs = r.known(
-        "sampling_frequency_hz",
-        (
-            fs,
-            derived("Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶"),
+    let (mode, mode_name) = modes[0].clone();
+    if modes.iter().any(|(m, _)| *m != mode) {
+        return Err(IoError::invalid(
+            path,
+            "Receive.sampleMode",
+            "differs between acquisitions",
+        ));
+    }
+    let adc_rate = fs;
+    let (fs, fs_source) = match mode {
+        SampleMode::Rf => (
+            adc_rate,
+            "Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶".to_string(),
         ),
-    );
+        SampleMode::Pairs { every } => (
+            adc_rate / every as f64,
+            format!(
+                "Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶ / {every} ({mode_name}: an \
+                 I/Q pair every {every} samples)"
+            ),
+        ),
+    };
+    let fs = r.known("sampling_frequency_hz", (fs, derived(fs_source)));
     let fs = positive(path, "Receive.decimSampleRate", fs)?;
+    let pairs_demod_frequency = match mode {
+        SampleMode::Rf => None,
+        SampleMode::Pairs { .. } => {
+            // The pair is a quarter period apart at f_ADC / 4 only: a demodFrequency that says
+            // otherwise describes another acquisition than these samples.
+            let quarter = adc_rate / 4.0;
+            if let Some(d) = demods
+                .iter()
+                .flatten()
+                .find(|d| (**d * 1e6 - quarter).abs() > 1e-6 * quarter)
+            {
+                return Err(IoError::invalid(
+                    path,
+                    "Receive.demodFrequency",
+                    format!(
+                        "is {d} MHz, but {mode_name} pairs samples a quarter period apart at \
+                         decimSampleRate / 4 = {:.6} MHz",
+                        quarter * 1e-6
+                    ),
+                ));
+            }
+            let demod = r.known(
+                "demod_frequency_hz",
+                (
+                    quarter,
+                    derived(format!(
+                        "Receive(1).decimSampleRate / quadDecim / 4 ({mode_name}: the I/Q pair's \
+                         samples a quarter period apart)"
+                    )),
+                ),
+            );
+            Some(positive(path, "Receive.demodFrequency", demod)?)
+        }
+    };
     let band = numbers(trans.field("Bandwidth"));
     // Resolved once the sampling is known, which decides the default's width.
     let bandwidth = resolve_bandwidth(
@@ -328,13 +417,43 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         fs,
     );
     let bandwidth = positive(path, "Trans.Bandwidth", bandwidth)?;
-    let n_samples = rows[0].len();
-    if rows.iter().any(|r| r.len() != n_samples) {
+    let n_rows = rows[0].len();
+    if rows.iter().any(|r| r.len() != n_rows) {
         return Err(IoError::invalid(
             path,
             "Receive.endSample",
             "acquisitions of different lengths are not supported",
         ));
+    }
+    let n_samples = match mode {
+        SampleMode::Rf => n_rows,
+        SampleMode::Pairs { .. } if n_rows % 2 == 0 => n_rows / 2,
+        SampleMode::Pairs { .. } => {
+            return Err(IoError::invalid(
+                path,
+                "Receive.endSample",
+                format!(
+                    "{mode_name} stores I/Q pairs, but an acquisition holds {n_rows} rows, an odd count"
+                ),
+            ));
+        }
+    };
+    if let Some(demod) = pairs_demod_frequency {
+        // Complex samples at f_s hold a band f_s wide around f_d; the probe's wider band folds.
+        let band = fc * bandwidth;
+        let (low, high) = (fc - band / 2.0 - demod, fc + band / 2.0 - demod);
+        if low < -fs / 2.0 || high > fs / 2.0 {
+            warnings.push(format!(
+                "{mode_name}'s I/Q pairs at {:.4} MHz hold {:.3}–{:.3} MHz; the probe's band \
+                 {:.3}–{:.3} MHz (bandwidth {:.0} %) is wider, and its edges fold onto the band",
+                fs * 1e-6,
+                (demod - fs / 2.0) * 1e-6,
+                (demod + fs / 2.0) * 1e-6,
+                (fc - band / 2.0) * 1e-6,
+                (fc + band / 2.0) * 1e-6,
+                bandwidth * 100.0
+            ));
+        }
     }
     let t0 = r.known(
         "t0_s",
@@ -483,17 +602,24 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let stored = StoredSamples {
         array: format!("{}:RcvData{{1}} ({dataset})", path.display()),
         shape: shape.clone(),
-        axes: if has_frame_axis {
-            vec![
-                "buffer frames".into(),
-                "channels".into(),
-                "rows (acquisitions × samples)".into(),
-            ]
-        } else {
-            vec!["channels".into(), "rows (acquisitions × samples)".into()]
+        axes: {
+            let rows = if pairs_demod_frequency.is_some() {
+                "rows (acquisitions × interleaved I/Q pairs)"
+            } else {
+                "rows (acquisitions × samples)"
+            };
+            let mut axes = vec!["channels".to_string(), rows.to_string()];
+            if has_frame_axis {
+                axes.insert(0, "buffer frames".into());
+            }
+            axes
         },
         dtype: "int16".into(),
-        kind: "rf".into(),
+        kind: if pairs_demod_frequency.is_some() {
+            "iq".into()
+        } else {
+            "rf".into()
+        },
     };
     let frames = VerasonicsFrames {
         acquisition,
@@ -504,6 +630,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         rows,
         channels,
         has_frame_axis,
+        pairs_demod_frequency,
     };
     Ok(OpenedRecording {
         source: Box::new(frames),
@@ -520,6 +647,18 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     })
 }
 
+impl VerasonicsFrames {
+    /// Samples of each trace: the rows of an acquisition, or its I/Q pairs.
+    fn samples_per_trace(&self) -> usize {
+        let rows = self.rows[0].len();
+        if self.pairs_demod_frequency.is_some() {
+            rows / 2
+        } else {
+            rows
+        }
+    }
+}
+
 impl FrameSource for VerasonicsFrames {
     fn acquisition(&self) -> &Acquisition {
         &self.acquisition
@@ -530,7 +669,7 @@ impl FrameSource for VerasonicsFrames {
     }
 
     fn trace_shape(&self) -> (usize, usize) {
-        (self.channels, self.rows[0].len())
+        (self.channels, self.samples_per_trace())
     }
 
     fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
@@ -544,43 +683,83 @@ impl FrameSource for VerasonicsFrames {
         }
         let apf = self.rows.len();
         let events = frames.start * n..frames.end * n;
-        let samples = self.rows[0].len();
-        let mut out = Array3::<f32>::zeros((events.len(), self.channels, samples));
+        let samples = self.samples_per_trace();
         let lo = self.rows.iter().map(|r| r.start).min().unwrap_or(0);
         let hi = self.rows.iter().map(|r| r.end).max().unwrap_or(0);
+        let width = hi - lo;
         let err = |e: IoError| pcuvd::Error::Read(e.to_string());
         let h5 = Hdf5::open(&self.path).map_err(err)?;
         let ds = h5.dataset(&self.dataset).map_err(err)?;
         let first_vframe = events.start / apf;
         let last_vframe = (events.end - 1) / apf;
+        // The buffer frames read, and each acquisition in them: (event's index in the block, its
+        // rows in its frame's slice, that frame).
+        let mut buffers: Vec<Vec<i16>> = Vec::new();
+        let mut traces: Vec<(usize, Range<usize>, usize)> = Vec::new();
         for vframe in first_vframe..=last_vframe {
             let slot = (self.first_slot + vframe) % self.n_buffer_frames;
             let (starts, counts) = if self.has_frame_axis {
-                (vec![slot, 0, lo], vec![1, self.channels, hi - lo])
+                (vec![slot, 0, lo], vec![1, self.channels, width])
             } else {
-                (vec![0, lo], vec![self.channels, hi - lo])
+                (vec![0, lo], vec![self.channels, width])
             };
             let buf: Vec<i16> = crate::hdf5::guard(&self.path, "RcvData: read", || {
                 ds.read_slice::<i16>(&starts, &counts)
             })
             .map_err(err)?;
-            let width = hi - lo;
             for (acq, rows) in self.rows.iter().enumerate() {
                 let e = vframe * apf + acq;
-                if !events.contains(&e) {
-                    continue;
-                }
-                let k = e - events.start;
-                for ch in 0..self.channels {
-                    for (s, row) in rows.clone().enumerate() {
-                        out[[k, ch, s]] = f32::from(buf[ch * width + row - lo]);
-                    }
+                if events.contains(&e) {
+                    traces.push((
+                        e - events.start,
+                        rows.start - lo..rows.end - lo,
+                        buffers.len(),
+                    ));
                 }
             }
+            buffers.push(buf);
         }
+        let samples = match self.pairs_demod_frequency {
+            None => {
+                let mut out = Array3::<f32>::zeros((events.len(), self.channels, samples));
+                for (k, rows, frame) in &traces {
+                    for ch in 0..self.channels {
+                        let trace = &buffers[*frame][ch * width..][rows.clone()];
+                        for (o, &v) in out.slice_mut(ndarray::s![*k, ch, ..]).iter_mut().zip(trace)
+                        {
+                            *o = f32::from(v);
+                        }
+                    }
+                }
+                Samples::Rf(out)
+            }
+            Some(demod_frequency) => {
+                // I − jQ is the analytic signal at the pair's first sample; e^{−2πi f_d t0}
+                // takes it to baseband at absolute time (module doc).
+                let turn = -std::f64::consts::TAU * demod_frequency * self.acquisition.t0;
+                let rotation = Complex32::new(turn.cos() as f32, turn.sin() as f32);
+                let mut out = Array3::<Complex32>::zeros((events.len(), self.channels, samples));
+                for (k, rows, frame) in &traces {
+                    for ch in 0..self.channels {
+                        let trace = &buffers[*frame][ch * width..][rows.clone()];
+                        for (o, pair) in out
+                            .slice_mut(ndarray::s![*k, ch, ..])
+                            .iter_mut()
+                            .zip(trace.chunks_exact(2))
+                        {
+                            *o = Complex32::new(f32::from(pair[0]), -f32::from(pair[1])) * rotation;
+                        }
+                    }
+                }
+                Samples::Iq {
+                    data: out,
+                    demod_frequency,
+                }
+            }
+        };
         Ok(ChannelData {
             acquisition: self.acquisition.clone(),
-            samples: Samples::Rf(out),
+            samples,
         })
     }
 }
