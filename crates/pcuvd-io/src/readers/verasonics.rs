@@ -1,7 +1,8 @@
 //! A Verasonics Vantage workspace saved with `save(..., '-v7.3')` (HDF5 behind MATLAB's user
 //! block). What is read, and nothing else:
-//! - `RcvData{1}`: the receive buffer, int16, MATLAB (rows, channels, frames); channel c is taken
-//!   as element c (`Trans.Connector` is not applied: a warning says so);
+//! - `RcvData{1}`: the receive buffer, int16, MATLAB (rows, channels, frames); element e's
+//!   channel is `Trans.ConnectorES(e)`, else `Trans.Connector(e)` (1-based, as Verasonics'
+//!   scripts index `RcvData(:, Trans.Connector, :)`), else channel e (a warning says so);
 //! - `Resource.RcvBuffer(1).numFrames` and `.lastFrame` (1-based, the newest frame of the circular
 //!   buffer: chronological frame k sits in slot (lastFrame + k) mod numFrames);
 //! - `Resource.Parameters.speedOfSound` (m/s);
@@ -62,7 +63,10 @@ pub struct VerasonicsFrames {
     first_slot: usize,
     /// Rows of each acquisition of a buffer frame, in event order (0-based, end exclusive).
     rows: Vec<Range<usize>>,
-    channels: usize,
+    /// The buffer column (0-based) of each element, in element order.
+    columns: Vec<usize>,
+    /// Columns of the buffer (the system's receive channels).
+    buffer_channels: usize,
     /// The buffer's HDF5 shape has a frame axis (3-D) or not (one frame, 2-D).
     has_frame_axis: bool,
     /// In the interleaved I/Q modes, the demodulation frequency (Hz) of the pairs; RF otherwise.
@@ -120,11 +124,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let need = |v: Option<f64>, what: &str| {
         v.ok_or_else(|| IoError::missing(path, "the Verasonics workspace", what.to_string()))
     };
-    let mut warnings = vec![
-        "RcvData's channels are taken as the probe's elements in order (Trans.Connector is not \
-         applied)"
-            .to_string(),
-    ];
+    let mut warnings = Vec::new();
     let mut r = Resolver::new(overrides);
     let trans = read("Trans")?;
     let resource = read("Resource")?;
@@ -537,14 +537,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     };
-    if channels != n_el {
-        return Err(IoError::invalid(
-            path,
-            "RcvData{1}",
-            format!("has {channels} channels but Trans.ElementPos {n_el} elements"),
-        ));
-    }
-    crate::array::check_frame_size(path, rows.len(), channels, n_samples)?;
+    let (columns, channel_map) = element_columns(path, &trans, n_el, channels, &mut warnings)?;
+    crate::array::check_frame_size(path, rows.len(), channels.max(n_el), n_samples)?;
     if rows.iter().any(|r| r.end > buffer_rows) {
         return Err(IoError::invalid(
             path,
@@ -628,7 +622,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         n_buffer_frames,
         first_slot,
         rows,
-        channels,
+        columns,
+        buffer_channels: channels,
         has_frame_axis,
         pairs_demod_frequency,
     };
@@ -638,13 +633,80 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         info: SourceInfo {
             files: vec![path.to_path_buf()],
             format: "Verasonics workspace (MATLAB v7.3)".into(),
-            reader: "pcuvd_io::verasonics (rust-hdf5, a block of buffer frames at a time, circular buffer reordered)".into(),
+            reader: format!(
+                "pcuvd_io::verasonics (rust-hdf5, a block of buffer frames at a time, circular \
+                 buffer reordered{})",
+                channel_map.map_or(String::new(), |m| format!(", element channels by {m}"))
+            ),
             parameters: r.params,
             stored: Some(stored),
             warnings,
             cardiac_triggers_s: None,
         },
     })
+}
+
+/// The buffer column (0-based) of each of the `n_el` elements: `Trans.ConnectorES`, else
+/// `Trans.Connector` (1-based channels, one per element, each at most once), else element e in
+/// column e when the buffer has one column per element; with the field that said so.
+fn element_columns(
+    path: &Path,
+    trans: &MatValue,
+    n_el: usize,
+    channels: usize,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<usize>, Option<String>), IoError> {
+    let Some((name, map)) = ["ConnectorES", "Connector"].iter().find_map(|name| {
+        let map = numbers(trans.field(name));
+        (!map.is_empty()).then(|| (format!("Trans.{name}"), map))
+    }) else {
+        if channels != n_el {
+            return Err(IoError::invalid(
+                path,
+                "RcvData{1}",
+                format!(
+                    "has {channels} channels for Trans.ElementPos's {n_el} elements, and \
+                     Trans.Connector, which says which channel each element is on, is absent"
+                ),
+            ));
+        }
+        warnings.push(
+            "Trans.Connector is absent: RcvData's channels are taken as the probe's elements in \
+             order"
+                .into(),
+        );
+        return Ok(((0..n_el).collect(), None));
+    };
+    if map.len() != n_el {
+        return Err(IoError::invalid(
+            path,
+            &name,
+            format!("lists {} channels for {n_el} elements", map.len()),
+        ));
+    }
+    let mut columns = Vec::with_capacity(n_el);
+    for (element, &channel) in map.iter().enumerate() {
+        if !(channel >= 1.0 && channel <= channels as f64 && channel.fract() == 0.0) {
+            return Err(IoError::invalid(
+                path,
+                &name,
+                format!(
+                    "puts element {} on channel {channel}, not one of RcvData's channels 1–{channels}",
+                    element + 1
+                ),
+            ));
+        }
+        let column = channel as usize - 1;
+        if columns.contains(&column) {
+            return Err(IoError::invalid(
+                path,
+                &name,
+                format!("puts two elements on channel {channel}"),
+            ));
+        }
+        columns.push(column);
+    }
+    Ok((columns, Some(name)))
 }
 
 impl VerasonicsFrames {
@@ -669,7 +731,7 @@ impl FrameSource for VerasonicsFrames {
     }
 
     fn trace_shape(&self) -> (usize, usize) {
-        (self.channels, self.samples_per_trace())
+        (self.columns.len(), self.samples_per_trace())
     }
 
     fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<ChannelData> {
@@ -699,9 +761,9 @@ impl FrameSource for VerasonicsFrames {
         for vframe in first_vframe..=last_vframe {
             let slot = (self.first_slot + vframe) % self.n_buffer_frames;
             let (starts, counts) = if self.has_frame_axis {
-                (vec![slot, 0, lo], vec![1, self.channels, width])
+                (vec![slot, 0, lo], vec![1, self.buffer_channels, width])
             } else {
-                (vec![0, lo], vec![self.channels, width])
+                (vec![0, lo], vec![self.buffer_channels, width])
             };
             let buf: Vec<i16> = crate::hdf5::guard(&self.path, "RcvData: read", || {
                 ds.read_slice::<i16>(&starts, &counts)
@@ -721,10 +783,10 @@ impl FrameSource for VerasonicsFrames {
         }
         let samples = match self.pairs_demod_frequency {
             None => {
-                let mut out = Array3::<f32>::zeros((events.len(), self.channels, samples));
+                let mut out = Array3::<f32>::zeros((events.len(), self.columns.len(), samples));
                 for (k, rows, frame) in &traces {
-                    for ch in 0..self.channels {
-                        let trace = &buffers[*frame][ch * width..][rows.clone()];
+                    for (ch, &column) in self.columns.iter().enumerate() {
+                        let trace = &buffers[*frame][column * width..][rows.clone()];
                         for (o, &v) in out.slice_mut(ndarray::s![*k, ch, ..]).iter_mut().zip(trace)
                         {
                             *o = f32::from(v);
@@ -738,10 +800,11 @@ impl FrameSource for VerasonicsFrames {
                 // takes it to baseband at absolute time (module doc).
                 let turn = -std::f64::consts::TAU * demod_frequency * self.acquisition.t0;
                 let rotation = Complex32::new(turn.cos() as f32, turn.sin() as f32);
-                let mut out = Array3::<Complex32>::zeros((events.len(), self.channels, samples));
+                let mut out =
+                    Array3::<Complex32>::zeros((events.len(), self.columns.len(), samples));
                 for (k, rows, frame) in &traces {
-                    for ch in 0..self.channels {
-                        let trace = &buffers[*frame][ch * width..][rows.clone()];
+                    for (ch, &column) in self.columns.iter().enumerate() {
+                        let trace = &buffers[*frame][column * width..][rows.clone()];
                         for (o, pair) in out
                             .slice_mut(ndarray::s![*k, ch, ..])
                             .iter_mut()

@@ -603,6 +603,62 @@ fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
         &refused("refused/verasonics_ns200bwi.mat"),
         &["Receive(1).sampleMode", "NS200BWI", "BS100BW"],
     );
+    assert_mentions(
+        &refused("refused/verasonics_two_elements_one_channel.mat"),
+        &["Trans.Connector", "two elements on channel 2"],
+    );
+}
+
+/// A Verasonics buffer holds the system's channels, and element e's samples lie in the column
+/// `Trans.ConnectorES(e)` names, else `Trans.Connector(e)`: the steered recording's first frame
+/// stored on 64 channels, its elements on channels 64, 62, ..., 2, reads back sample for sample
+/// as the same frame stored one column per element, with either field (the ConnectorES file
+/// also holds an identity `Connector`, which it takes precedence over).
+#[test]
+fn verasonics_elements_are_read_from_their_channels() {
+    let plain = open("steered_verasonics.mat");
+    let frame = plain.source.read_frames(0..1).unwrap();
+    for (name, field) in [
+        ("steered_verasonics_connector.mat", "Trans.Connector"),
+        ("steered_verasonics_connector_es.mat", "Trans.ConnectorES"),
+    ] {
+        let mapped = open(name);
+        assert_eq!(mapped.source.n_frames(), 1, "{name}");
+        assert_eq!(
+            mapped.source.trace_shape(),
+            plain.source.trace_shape(),
+            "{name}"
+        );
+        assert!(
+            mapped
+                .info
+                .reader
+                .ends_with(&format!("element channels by {field})")),
+            "{}",
+            mapped.info.reader
+        );
+        assert!(
+            !mapped.info.warnings.iter().any(|w| w.contains("Connector")),
+            "{name}: {:?}",
+            mapped.info.warnings
+        );
+        let got = mapped.source.read_frames(0..1).unwrap();
+        match (&got.samples, &frame.samples) {
+            (Samples::Rf(a), Samples::Rf(b)) => {
+                assert!(b.iter().any(|&v| v != 0.0));
+                assert_eq!(a, b, "{name}");
+            }
+            _ => panic!("{name}: RF expected"),
+        }
+    }
+    // Without a map the buffer's columns are the elements, and the user is told so.
+    assert!(
+        plain
+            .info
+            .warnings
+            .iter()
+            .any(|w| w.contains("Trans.Connector is absent"))
+    );
 }
 
 #[test]
