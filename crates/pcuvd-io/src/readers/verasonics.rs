@@ -17,10 +17,12 @@
 //! - `Trans.frequency` (MHz), `Trans.units` ('mm' or 'wavelengths'), `Trans.ElementPos` (x, y, z
 //!   of each element in those units), `Trans.elementWidth` (same units), `Trans.Bandwidth`
 //!   ([low high] MHz), `Trans.lensCorrection` (one-way wavelengths);
-//! - `TW(1).Parameters(3)` (half cycles of the parametric pulse).
+//! - `TW(1).Parameters(3)` (half cycles of the parametric pulse), `TW(1).peak` (wavelengths).
 //!
-//! t0 = 2·startDepth·λ/c − 2·lensCorrection·λ/c (λ = c / Trans.frequency): the receive window
-//! opens startDepth wavelengths deep (round trip) after the first element fires.
+//! t0 = 2·startDepth·λ/c − 2·lensCorrection·λ/c − TW(1).peak·λ/c (λ = c / Trans.frequency):
+//! the receive window opens startDepth wavelengths deep (round trip) after the first element
+//! fires, and the transmit waveform peaks `peak` wavelengths (periods) after that (USTB's
+//! Verasonics reader takes the same offset).
 //!
 //! Sample modes: NS200BW, BS67BW and custom store RF at decimSampleRate (BS67BW band-pass
 //! sampled); others (NS200BWI, two acquisitions interleaved) are refused. The
@@ -455,13 +457,24 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     }
+    let tw = h5.exists("TW").then(|| read("TW").ok()).flatten();
+    let tw1 = tw.as_ref().and_then(|tw| elements(tw).first().copied());
+    // The transmit waveform's peak comes TW.peak wavelengths (periods) after the firing, and
+    // pcuvd's time origin is the pulse's centre leaving the first element.
+    let peak = tw1
+        .and_then(|m| number(m, "peak"))
+        .filter(|p| p.is_finite());
     let t0 = r.known(
         "t0_s",
         (
-            common_t0(path, "Receive.startDepth", &t0s, fs)?,
-            derived(
-                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency)",
-            ),
+            common_t0(path, "Receive.startDepth", &t0s, fs)? - peak.unwrap_or(0.0) * wavelength / c,
+            derived(if peak.is_some() {
+                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c − TW(1).peak·λ/c (λ = c / \
+                 Trans.frequency)"
+            } else {
+                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency; \
+                 TW(1).peak is absent: the pulse taken as centred on its firing)"
+            }),
         ),
     );
     // The compound frame: the shortest period of the acquisitions' steering.
@@ -488,11 +501,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         missing_prf(path, "SeqControl timeToNextAcq")
     })?;
     let prf = positive(path, "event_prf_hz", prf)?;
-    let half_cycles = h5
-        .exists("TW")
-        .then(|| read("TW").ok())
-        .flatten()
-        .and_then(|tw| elements(&tw).first().map(|m| numbers(m.get("Parameters"))))
+    let half_cycles = tw1
+        .map(|m| numbers(m.get("Parameters")))
         .and_then(|p| p.get(2).copied());
     let pulse_cycles = r.or_default(
         "pulse_cycles",

@@ -613,7 +613,9 @@ fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
 /// `Trans.ConnectorES(e)` names, else `Trans.Connector(e)`: the steered recording's first frame
 /// stored on 64 channels, its elements on channels 64, 62, ..., 2, reads back sample for sample
 /// as the same frame stored one column per element, with either field (the ConnectorES file
-/// also holds an identity `Connector`, which it takes precedence over).
+/// also holds an identity `Connector`, which it takes precedence over). That file also states
+/// `TW.peak` = 1.5 wavelengths with a window opening 0.75 wavelengths deeper (round trip): the
+/// waveform's peak delays every echo by 1.5 periods, so its t0 is the plain file's.
 #[test]
 fn verasonics_elements_are_read_from_their_channels() {
     let plain = open("steered_verasonics.mat");
@@ -642,6 +644,11 @@ fn verasonics_elements_are_read_from_their_channels() {
             "{name}: {:?}",
             mapped.info.warnings
         );
+        let t0 = (
+            mapped.source.acquisition().t0,
+            plain.source.acquisition().t0,
+        );
+        assert!((t0.0 - t0.1).abs() < 1e-12, "{name}: t0 {t0:?}");
         let got = mapped.source.read_frames(0..1).unwrap();
         match (&got.samples, &frame.samples) {
             (Samples::Rf(a), Samples::Rf(b)) => {
