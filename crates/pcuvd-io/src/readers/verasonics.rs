@@ -419,6 +419,25 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         fs,
     );
     let bandwidth = positive(path, "Trans.Bandwidth", bandwidth)?;
+    // Receive.mode 1 accumulates an acquisition into rows another already filled: the buffer
+    // then holds their sum, which no reading can take apart.
+    for (i, a) in rows.iter().enumerate() {
+        if let Some((j, _)) = rows[..i]
+            .iter()
+            .enumerate()
+            .find(|(_, b)| a.start < b.end && b.start < a.end)
+        {
+            return Err(IoError::invalid(
+                path,
+                format!("Receive({}).startSample", order[i].0 + 1),
+                format!(
+                    "puts its samples in rows that Receive({}) fills too (Receive.mode 1 \
+                     accumulates acquisitions): pcuvd reads one acquisition per rows",
+                    order[j].0 + 1
+                ),
+            ));
+        }
+    }
     let n_rows = rows[0].len();
     if rows.iter().any(|r| r.len() != n_rows) {
         return Err(IoError::invalid(

@@ -587,8 +587,9 @@ fn verasonics_interleaved_pairs_are_the_rf_demodulated_at_their_instants() {
 
 /// Verasonics workspaces written by hdf5storage that pcuvd refuses, each naming the field and
 /// what it found: BS100BW pairs stating a demodulation frequency other than the quarter period
-/// they were taken at (decimSampleRate / 4), and the NS200BWI mode, whose RF is two
-/// acquisitions interleaved.
+/// they were taken at (decimSampleRate / 4), the NS200BWI mode, whose RF is two acquisitions
+/// interleaved, a channel map with two elements on one channel, and acquisitions accumulated
+/// (Receive.mode 1) into the same rows.
 #[test]
 fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
     let refused = |name: &str| match open_recording(&fixture(name), &Overrides::default()) {
@@ -606,6 +607,10 @@ fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
     assert_mentions(
         &refused("refused/verasonics_two_elements_one_channel.mat"),
         &["Trans.Connector", "two elements on channel 2"],
+    );
+    assert_mentions(
+        &refused("refused/verasonics_accumulated.mat"),
+        &["Receive(2).startSample", "Receive(1)", "Receive.mode 1"],
     );
 }
 
