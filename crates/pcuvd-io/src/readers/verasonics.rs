@@ -24,15 +24,17 @@
 //! fires, and the transmit waveform peaks `peak` wavelengths (periods) after that (USTB's
 //! Verasonics reader takes the same offset).
 //!
-//! Sample modes: NS200BW, BS67BW and custom store RF at decimSampleRate (BS67BW band-pass
-//! sampled); others (NS200BWI, two acquisitions interleaved) are refused. The
-//! interleaved modes BS100BW and BS50BW sample at f_ADC = decimSampleRate = 4 f_d and keep, of
-//! every 4 (BS100BW) or 8 (BS50BW) samples, the first two, stored one after the other: a pair
-//! a quarter period of f_d apart. With s = A cos(2π f_d t + φ) the first is A cos(2π f_d t + φ)
-//! and the second −A sin(2π f_d t + φ), so I − jQ is the analytic signal at the pair's first
-//! sample, read (as Verasonics' own reconstruction reads it) as if both were taken then. pcuvd's
-//! IQ is baseband at absolute time, IQ(t) = analytic(t)·e^{−2πi f_d t}: at the pairs' instants
-//! t0 + k·(4 or 8)/f_ADC that factor is e^{−2πi f_d t0}, one rotation for the whole recording.
+//! Sample modes: NS200BW, BS67BW and custom store RF at decimSampleRate / quadDecim (BS67BW
+//! band-pass sampled); others (NS200BWI, two acquisitions interleaved) are refused. The
+//! interleaved modes BS100BW and BS50BW sample at 4 f_d (f_d = `Receive.demodFrequency`) and
+//! keep, of every 4 (BS100BW) or 8 (BS50BW) samples, the first two, stored one after the other:
+//! a pair a quarter period apart, so the IQ rate is f_d or f_d / 2. decimSampleRate / quadDecim
+//! must agree: as the stored samples' rate (twice the IQ rate) or as the A/D's (4 f_d). With
+//! s = A cos(2π f_d t + φ) the pair's first sample is A cos(2π f_d t + φ) and its second
+//! −A sin(2π f_d t + φ), so I − jQ is the analytic signal at the first, read (as zea's converter
+//! reads it) as if both were taken then. pcuvd's IQ is
+//! baseband at absolute time, IQ(t) = analytic(t)·e^{−2πi f_d t}: at the pairs' instants
+//! t0 + k/f_d (or 2k/f_d) that factor is e^{−2πi f_d t0}, one rotation for the whole recording.
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -354,56 +356,89 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             "differs between acquisitions",
         ));
     }
-    let adc_rate = fs;
-    let (fs, fs_source) = match mode {
-        SampleMode::Rf => (
-            adc_rate,
+    // decimSampleRate / quadDecim: the stored samples' rate (the RF's, in the RF modes).
+    let stored_rate = fs;
+    let pairs_demod_frequency = match mode {
+        SampleMode::Rf => None,
+        SampleMode::Pairs { .. } => {
+            let first = demods[0];
+            if demods.iter().any(|d| *d != first) {
+                return Err(IoError::invalid(
+                    path,
+                    "Receive.demodFrequency",
+                    "differs between acquisitions",
+                ));
+            }
+            let found = first.map(|d| {
+                (
+                    d * 1e6,
+                    derived(format!(
+                        "Receive({}).demodFrequency (MHz) × 10⁶",
+                        order[0].0 + 1
+                    )),
+                )
+            });
+            let demod = r.number("demod_frequency_hz", found, None, || {
+                IoError::missing(
+                    path,
+                    "the Verasonics workspace",
+                    format!(
+                        "Receive.demodFrequency, at which {mode_name}'s I/Q pairs are taken (or \
+                         give --demod-freq-hz)"
+                    ),
+                )
+            })?;
+            Some(positive(path, "Receive.demodFrequency", demod)?)
+        }
+    };
+    let (fs, fs_source) = match (mode, pairs_demod_frequency) {
+        (SampleMode::Pairs { every }, Some(demod)) => {
+            let periods = every / 4;
+            let iq_rate = demod / periods as f64;
+            // Readers of these modes take decimSampleRate / quadDecim as the stored samples'
+            // rate, two a pair (zea's converter), or as the A/D's, 4 f_d: either agrees with
+            // the pairs; anything else describes other samples than these.
+            let agrees = |rate: f64| (stored_rate - rate).abs() <= 1e-6 * rate;
+            if !agrees(2.0 * iq_rate) && !agrees(4.0 * demod) {
+                return Err(IoError::invalid(
+                    path,
+                    "Receive.decimSampleRate",
+                    format!(
+                        "/ quadDecim is {:.6} MHz, but {mode_name} at a demodFrequency of {:.6} \
+                         MHz stores {:.6} MHz of samples (an I/Q pair every {}) from an A/D at \
+                         {:.6} MHz",
+                        stored_rate * 1e-6,
+                        demod * 1e-6,
+                        2.0 * iq_rate * 1e-6,
+                        if periods == 1 {
+                            "period"
+                        } else {
+                            "two periods"
+                        },
+                        4.0 * demod * 1e-6
+                    ),
+                ));
+            }
+            (
+                iq_rate,
+                format!(
+                    "Receive(1).demodFrequency × 10⁶{} ({mode_name}: an I/Q pair every {})",
+                    if periods == 1 { "" } else { " / 2" },
+                    if periods == 1 {
+                        "period"
+                    } else {
+                        "two periods"
+                    }
+                ),
+            )
+        }
+        _ => (
+            stored_rate,
             "Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶".to_string(),
-        ),
-        SampleMode::Pairs { every } => (
-            adc_rate / every as f64,
-            format!(
-                "Receive(1).decimSampleRate (MHz) / quadDecim × 10⁶ / {every} ({mode_name}: an \
-                 I/Q pair every {every} samples)"
-            ),
         ),
     };
     let fs = r.known("sampling_frequency_hz", (fs, derived(fs_source)));
     let fs = positive(path, "Receive.decimSampleRate", fs)?;
-    let pairs_demod_frequency = match mode {
-        SampleMode::Rf => None,
-        SampleMode::Pairs { .. } => {
-            // The pair is a quarter period apart at f_ADC / 4 only: a demodFrequency that says
-            // otherwise describes another acquisition than these samples.
-            let quarter = adc_rate / 4.0;
-            if let Some(d) = demods
-                .iter()
-                .flatten()
-                .find(|d| (**d * 1e6 - quarter).abs() > 1e-6 * quarter)
-            {
-                return Err(IoError::invalid(
-                    path,
-                    "Receive.demodFrequency",
-                    format!(
-                        "is {d} MHz, but {mode_name} pairs samples a quarter period apart at \
-                         decimSampleRate / 4 = {:.6} MHz",
-                        quarter * 1e-6
-                    ),
-                ));
-            }
-            let demod = r.known(
-                "demod_frequency_hz",
-                (
-                    quarter,
-                    derived(format!(
-                        "Receive(1).decimSampleRate / quadDecim / 4 ({mode_name}: the I/Q pair's \
-                         samples a quarter period apart)"
-                    )),
-                ),
-            );
-            Some(positive(path, "Receive.demodFrequency", demod)?)
-        }
-    };
     let band = numbers(trans.field("Bandwidth"));
     // Resolved once the sampling is known, which decides the default's width.
     let bandwidth = resolve_bandwidth(

@@ -586,8 +586,8 @@ fn verasonics_interleaved_pairs_are_the_rf_demodulated_at_their_instants() {
 }
 
 /// Verasonics workspaces written by hdf5storage that pcuvd refuses, each naming the field and
-/// what it found: BS100BW pairs stating a demodulation frequency other than the quarter period
-/// they were taken at (decimSampleRate / 4), the NS200BWI mode, whose RF is two acquisitions
+/// what it found: BS100BW pairs whose demodFrequency agrees with neither reading of
+/// decimSampleRate / quadDecim (the stored samples' rate, the A/D's), the NS200BWI mode, whose RF is two acquisitions
 /// interleaved, a channel map with two elements on one channel, and acquisitions accumulated
 /// (Receive.mode 1) into the same rows.
 #[test]
@@ -598,7 +598,11 @@ fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
     };
     assert_mentions(
         &refused("refused/verasonics_bs100_other_demod.mat"),
-        &["Receive.demodFrequency", "4 MHz", "BS100BW", "5.000000 MHz"],
+        &[
+            "Receive.decimSampleRate",
+            "quadDecim is 10.000000 MHz",
+            "BS100BW at a demodFrequency of 4.000000 MHz",
+        ],
     );
     assert_mentions(
         &refused("refused/verasonics_ns200bwi.mat"),
