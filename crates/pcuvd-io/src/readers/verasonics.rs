@@ -32,9 +32,9 @@
 //! must agree: as the stored samples' rate (twice the IQ rate) or as the A/D's (4 f_d). With
 //! s = A cos(2π f_d t + φ) the pair's first sample is A cos(2π f_d t + φ) and its second
 //! −A sin(2π f_d t + φ), so I − jQ is the analytic signal at the first, read (as zea's converter
-//! reads it) as if both were taken then. pcuvd's IQ is
-//! baseband at absolute time, IQ(t) = analytic(t)·e^{−2πi f_d t}: at the pairs' instants
-//! t0 + k/f_d (or 2k/f_d) that factor is e^{−2πi f_d t0}, one rotation for the whole recording.
+//! reads it) as if both were taken then. pcuvd's IQ is baseband at absolute time,
+//! IQ(t) = analytic(t)·e^{−2πi f_d t}: at the pairs' instants t0 + k/f_d (or 2k/f_d) that factor
+//! is e^{−2πi f_d t0}, one rotation for the whole recording.
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -395,6 +395,11 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         (SampleMode::Pairs { every }, Some(demod)) => {
             let periods = every / 4;
             let iq_rate = demod / periods as f64;
+            let spacing = if periods == 1 {
+                "period"
+            } else {
+                "two periods"
+            };
             // Readers of these modes take decimSampleRate / quadDecim as the stored samples'
             // rate, two a pair (zea's converter), or as the A/D's, 4 f_d: either agrees with
             // the pairs; anything else describes other samples than these.
@@ -410,11 +415,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                         stored_rate * 1e-6,
                         demod * 1e-6,
                         2.0 * iq_rate * 1e-6,
-                        if periods == 1 {
-                            "period"
-                        } else {
-                            "two periods"
-                        },
+                        spacing,
                         4.0 * demod * 1e-6
                     ),
                 ));
@@ -422,13 +423,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             (
                 iq_rate,
                 format!(
-                    "Receive(1).demodFrequency × 10⁶{} ({mode_name}: an I/Q pair every {})",
+                    "Receive(1).demodFrequency × 10⁶{} ({mode_name}: an I/Q pair every {spacing})",
                     if periods == 1 { "" } else { " / 2" },
-                    if periods == 1 {
-                        "period"
-                    } else {
-                        "two periods"
-                    }
                 ),
             )
         }
