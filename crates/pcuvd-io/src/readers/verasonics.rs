@@ -777,6 +777,16 @@ fn element_columns(
     Ok((columns, Some(name)))
 }
 
+/// A block of frames being read: RF, or IQ taken to baseband at absolute time by `rotation`.
+enum Block {
+    Rf(Array3<f32>),
+    Iq {
+        data: Array3<Complex32>,
+        rotation: Complex32,
+        demod_frequency: f64,
+    },
+}
+
 impl VerasonicsFrames {
     /// Samples of each trace: the rows of an acquisition, or its I/Q pairs.
     fn samples_per_trace(&self) -> usize {
@@ -822,10 +832,21 @@ impl FrameSource for VerasonicsFrames {
         let ds = h5.dataset(&self.dataset).map_err(err)?;
         let first_vframe = events.start / apf;
         let last_vframe = (events.end - 1) / apf;
-        // The buffer frames read, and each acquisition in them: (event's index in the block, its
-        // rows in its frame's slice, that frame).
-        let mut buffers: Vec<Vec<i16>> = Vec::new();
-        let mut traces: Vec<(usize, Range<usize>, usize)> = Vec::new();
+        let shape = (events.len(), self.columns.len(), samples);
+        let mut block = match self.pairs_demod_frequency {
+            None => Block::Rf(Array3::zeros(shape)),
+            Some(demod_frequency) => {
+                // I − jQ is the analytic signal at the pair's first sample; e^{−2πi f_d t0}
+                // takes it to baseband at absolute time (module doc).
+                let turn = -std::f64::consts::TAU * demod_frequency * self.acquisition.t0;
+                Block::Iq {
+                    data: Array3::zeros(shape),
+                    rotation: Complex32::new(turn.cos() as f32, turn.sin() as f32),
+                    demod_frequency,
+                }
+            }
+        };
+        // A buffer frame at a time, each copied out before the next is read.
         for vframe in first_vframe..=last_vframe {
             let slot = (self.first_slot + vframe) % self.n_buffer_frames;
             let (starts, counts) = if self.has_frame_axis {
@@ -839,54 +860,45 @@ impl FrameSource for VerasonicsFrames {
             .map_err(err)?;
             for (acq, rows) in self.rows.iter().enumerate() {
                 let e = vframe * apf + acq;
-                if events.contains(&e) {
-                    traces.push((
-                        e - events.start,
-                        rows.start - lo..rows.end - lo,
-                        buffers.len(),
-                    ));
+                if !events.contains(&e) {
+                    continue;
+                }
+                let k = e - events.start;
+                let rows = rows.start - lo..rows.end - lo;
+                for (ch, &column) in self.columns.iter().enumerate() {
+                    let trace = &buf[column * width..][rows.clone()];
+                    match &mut block {
+                        Block::Rf(out) => {
+                            for (o, &v) in
+                                out.slice_mut(ndarray::s![k, ch, ..]).iter_mut().zip(trace)
+                            {
+                                *o = f32::from(v);
+                            }
+                        }
+                        Block::Iq { data, rotation, .. } => {
+                            for (o, pair) in data
+                                .slice_mut(ndarray::s![k, ch, ..])
+                                .iter_mut()
+                                .zip(trace.chunks_exact(2))
+                            {
+                                *o = Complex32::new(f32::from(pair[0]), -f32::from(pair[1]))
+                                    * *rotation;
+                            }
+                        }
+                    }
                 }
             }
-            buffers.push(buf);
         }
-        let samples = match self.pairs_demod_frequency {
-            None => {
-                let mut out = Array3::<f32>::zeros((events.len(), self.columns.len(), samples));
-                for (k, rows, frame) in &traces {
-                    for (ch, &column) in self.columns.iter().enumerate() {
-                        let trace = &buffers[*frame][column * width..][rows.clone()];
-                        for (o, &v) in out.slice_mut(ndarray::s![*k, ch, ..]).iter_mut().zip(trace)
-                        {
-                            *o = f32::from(v);
-                        }
-                    }
-                }
-                Samples::Rf(out)
-            }
-            Some(demod_frequency) => {
-                // I − jQ is the analytic signal at the pair's first sample; e^{−2πi f_d t0}
-                // takes it to baseband at absolute time (module doc).
-                let turn = -std::f64::consts::TAU * demod_frequency * self.acquisition.t0;
-                let rotation = Complex32::new(turn.cos() as f32, turn.sin() as f32);
-                let mut out =
-                    Array3::<Complex32>::zeros((events.len(), self.columns.len(), samples));
-                for (k, rows, frame) in &traces {
-                    for (ch, &column) in self.columns.iter().enumerate() {
-                        let trace = &buffers[*frame][column * width..][rows.clone()];
-                        for (o, pair) in out
-                            .slice_mut(ndarray::s![*k, ch, ..])
-                            .iter_mut()
-                            .zip(trace.chunks_exact(2))
-                        {
-                            *o = Complex32::new(f32::from(pair[0]), -f32::from(pair[1])) * rotation;
-                        }
-                    }
-                }
-                Samples::Iq {
-                    data: out,
-                    demod_frequency,
-                }
-            }
+        let samples = match block {
+            Block::Rf(out) => Samples::Rf(out),
+            Block::Iq {
+                data,
+                demod_frequency,
+                ..
+            } => Samples::Iq {
+                data,
+                demod_frequency,
+            },
         };
         Ok(ChannelData {
             acquisition: self.acquisition.clone(),
