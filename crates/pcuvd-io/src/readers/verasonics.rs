@@ -17,9 +17,10 @@
 //! - `Trans.frequency` (MHz), `Trans.units` ('mm' or 'wavelengths'), `Trans.ElementPos` (x, y, z
 //!   of each element in those units), `Trans.elementWidth` (same units), `Trans.Bandwidth`
 //!   ([low high] MHz), `Trans.lensCorrection` (one-way wavelengths);
-//! - `TW(1).Parameters(3)` (half cycles of the parametric pulse), `TW(1).peak` (wavelengths).
+//! - `TW(1).Parameters(3)` (half cycles of the parametric pulse), `TW(w).peak` (wavelengths) of
+//!   each transmit's waveform w = `TX(t).waveform`.
 //!
-//! t0 = 2·startDepth·λ/c − 2·lensCorrection·λ/c − TW(1).peak·λ/c (λ = c / Trans.frequency):
+//! t0 = 2·startDepth·λ/c − 2·lensCorrection·λ/c − TW(w).peak·λ/c (λ = c / Trans.frequency):
 //! the receive window opens startDepth wavelengths deep (round trip) after the first element
 //! fires, and the transmit waveform peaks `peak` wavelengths (periods) after that (USTB's
 //! Verasonics reader takes the same offset).
@@ -282,6 +283,9 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let mut intervals = Vec::new();
     let mut modes = Vec::with_capacity(order.len());
     let mut demods = Vec::with_capacity(order.len());
+    let tw = h5.exists("TW").then(|| read("TW").ok()).flatten();
+    let waveforms = tw.as_ref().map(elements).unwrap_or_default();
+    let mut peaks_given = false;
     let controls = seq_control.as_ref().map(elements).unwrap_or_default();
     for (rc, t, sc) in &order {
         let m = receives[*rc];
@@ -314,7 +318,6 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         modes.push((mode, mode_name.unwrap_or("NS200BW").to_string()));
         demods.push(number(m, "demodFrequency"));
         let depth = need(number(m, "startDepth"), &field_of("startDepth"))?;
-        t0s.push(2.0 * depth * wavelength / c - 2.0 * lens * wavelength / c);
         let txm = tx_list.get(*t).ok_or_else(|| {
             IoError::invalid(
                 path,
@@ -322,6 +325,19 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 "names a TX that does not exist",
             )
         })?;
+        // The transmit's waveform peaks TW.peak wavelengths (periods) after its firing, and
+        // pcuvd's time origin is the pulse's centre leaving the first element.
+        let waveform = number(txm, "waveform").map_or(0, |w| (w.max(1.0) as usize) - 1);
+        let peak = waveforms
+            .get(waveform)
+            .and_then(|w| number(w, "peak"))
+            .filter(|p| p.is_finite());
+        peaks_given |= peak.is_some();
+        t0s.push(
+            2.0 * depth * wavelength / c
+                - 2.0 * lens * wavelength / c
+                - peak.unwrap_or(0.0) * wavelength / c,
+        );
         if number(txm, "focus").is_some_and(|f| f != 0.0) {
             return Err(IoError::invalid(
                 path,
@@ -507,23 +523,25 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
     }
-    let tw = h5.exists("TW").then(|| read("TW").ok()).flatten();
-    let tw1 = tw.as_ref().and_then(|tw| elements(tw).first().copied());
-    // The transmit waveform's peak comes TW.peak wavelengths (periods) after the firing, and
-    // pcuvd's time origin is the pulse's centre leaving the first element.
-    let peak = tw1
-        .and_then(|m| number(m, "peak"))
-        .filter(|p| p.is_finite());
     let t0 = r.known(
         "t0_s",
         (
-            common_t0(path, "Receive.startDepth", &t0s, fs)? - peak.unwrap_or(0.0) * wavelength / c,
-            derived(if peak.is_some() {
-                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c − TW(1).peak·λ/c (λ = c / \
-                 Trans.frequency)"
+            common_t0(
+                path,
+                if peaks_given {
+                    "Receive.startDepth with TW(TX.waveform).peak"
+                } else {
+                    "Receive.startDepth"
+                },
+                &t0s,
+                fs,
+            )?,
+            derived(if peaks_given {
+                "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c − TW(TX.waveform).peak·λ/c \
+                 (λ = c / Trans.frequency)"
             } else {
                 "2·Receive.startDepth·λ/c − 2·Trans.lensCorrection·λ/c (λ = c / Trans.frequency; \
-                 TW(1).peak is absent: the pulse taken as centred on its firing)"
+                 TW.peak is absent: the pulse taken as centred on its firing)"
             }),
         ),
     );
@@ -551,7 +569,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         missing_prf(path, "SeqControl timeToNextAcq")
     })?;
     let prf = positive(path, "event_prf_hz", prf)?;
-    let half_cycles = tw1
+    let half_cycles = waveforms
+        .first()
         .map(|m| numbers(m.get("Parameters")))
         .and_then(|p| p.get(2).copied());
     let pulse_cycles = r.or_default(

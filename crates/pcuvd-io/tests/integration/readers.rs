@@ -633,9 +633,11 @@ fn verasonics_sample_modes_pcuvd_cannot_read_say_why() {
 /// `Trans.ConnectorES(e)` names, else `Trans.Connector(e)`: the steered recording's first frame
 /// stored on 64 channels, its elements on channels 64, 62, ..., 2, reads back sample for sample
 /// as the same frame stored one column per element, with either field (the ConnectorES file
-/// also holds an identity `Connector`, which it takes precedence over). That file also states
-/// `TW.peak` = 1.5 wavelengths with a window opening 0.75 wavelengths deeper (round trip): the
-/// waveform's peak delays every echo by 1.5 periods, so its t0 is the plain file's.
+/// also holds an identity `Connector`, which it takes precedence over). That file also gives
+/// each angle a `TW` of its own (`TX.waveform`), peaking 1.5, 2.5 and 1.5 wavelengths after the
+/// firing, each acquisition's window opening half that much deeper (round trip): each
+/// waveform's peak delays its echoes by that many periods, so its t0 is the plain file's (and
+/// with one TW's peak taken for all, the acquisitions' t0 would disagree).
 #[test]
 fn verasonics_elements_are_read_from_their_channels() {
     let plain = open("steered_verasonics.mat");
