@@ -777,8 +777,6 @@ fn element_columns(
         }
         let column = channel as usize - 1;
         if columns.contains(&column) {
-            // A multiplexed probe's elements share channels, each Receive's aperture choosing
-            // which of them a channel hears.
             let why = if trans.field("HVMux").is_some() {
                 ": a multiplexed probe (Trans.HVMux), whose channels each Receive's aperture \
                  switches between elements; pcuvd reads one element per channel"
