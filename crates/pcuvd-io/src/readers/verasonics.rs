@@ -9,7 +9,8 @@
 //! - `Receive(i)` of buffer 1 and frame 1 (`bufnum`, `framenum`), in event order: `startSample`,
 //!   `endSample` (1-based rows of the frame), `decimSampleRate` (MHz) / `quadDecim`, `sampleMode`
 //!   (see below), `demodFrequency` (MHz, checked in the interleaved modes), `startDepth`
-//!   (wavelengths); every frame repeats frame 1's acquisitions;
+//!   (wavelengths), `Apod` (an element it sets to 0 did not receive: its channel holds stale
+//!   samples, read as zero); every frame repeats frame 1's acquisitions;
 //! - `Event(j).tx`, `.rcv`, `.seqControl` (which transmit each acquisition fires, in order, and
 //!   its `SeqControl(k)` of command `timeToNextAcq`, argument in µs: the event PRF); without
 //!   `Event`, `Receive(i)` fires `TX(i)` (or the one `TX`);
@@ -70,6 +71,8 @@ pub struct VerasonicsFrames {
     rows: Vec<Range<usize>>,
     /// The buffer column (0-based) of each element, in element order.
     columns: Vec<usize>,
+    /// The elements each acquisition's `Receive.Apod` leaves out (read as zero).
+    silent_elements: Vec<Vec<usize>>,
     /// Columns of the buffer (the system's receive channels).
     buffer_channels: usize,
     /// The buffer's HDF5 shape has a frame axis (3-D) or not (one frame, 2-D).
@@ -283,6 +286,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
     let mut intervals = Vec::new();
     let mut modes = Vec::with_capacity(order.len());
     let mut demods = Vec::with_capacity(order.len());
+    let mut silent_elements: Vec<Vec<usize>> = Vec::with_capacity(order.len());
     let tw = h5.exists("TW").then(|| read("TW").ok()).flatten();
     let waveforms = tw.as_ref().map(elements).unwrap_or_default();
     let mut peaks_given = false;
@@ -300,6 +304,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
         rows.push(start as usize - 1..end as usize);
+        // Channels a Receive's Apod leaves out are not written: they hold whatever the buffer
+        // held before, not this acquisition's echoes.
+        let apod = numbers(m.get("Apod"));
+        let silent: Vec<usize> = if apod.len() == n_el {
+            (0..n_el).filter(|&e| apod[e] == 0.0).collect()
+        } else {
+            Vec::new()
+        };
+        silent_elements.push(silent);
         let rate = need(number(m, "decimSampleRate"), &field_of("decimSampleRate"))?;
         let quad = number(m, "quadDecim").unwrap_or(1.0);
         fs_all.push(rate / quad * 1e6);
@@ -355,6 +368,15 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 intervals.push(us * 1e-6);
             }
         }
+    }
+    let left_out = silent_elements.iter().filter(|s| !s.is_empty()).count();
+    if left_out > 0 {
+        warnings.push(format!(
+            "Receive.Apod leaves elements out of {left_out} of the frame's {} acquisitions (up to \
+             {} elements): their samples read as zero",
+            silent_elements.len(),
+            silent_elements.iter().map(Vec::len).max().unwrap_or(0)
+        ));
     }
     let fs = fs_all[0];
     if fs_all.iter().any(|&f| f != fs) {
@@ -702,6 +724,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
         first_slot,
         rows,
         columns,
+        silent_elements,
         buffer_channels: channels,
         has_frame_axis,
         pairs_demod_frequency,
@@ -882,7 +905,11 @@ impl FrameSource for VerasonicsFrames {
                 }
                 let k = e - events.start;
                 let rows = rows.start - lo..rows.end - lo;
+                let silent = &self.silent_elements[acq];
                 for (ch, &column) in self.columns.iter().enumerate() {
+                    if silent.contains(&ch) {
+                        continue;
+                    }
                     let trace = &buf[column * width..][rows.clone()];
                     match &mut block {
                         Block::Rf(out) => {

@@ -688,6 +688,33 @@ fn verasonics_elements_are_read_from_their_channels() {
     );
 }
 
+/// A channel that a Verasonics Receive's `Apod` leaves out is not written by that acquisition:
+/// it holds stale samples. The steered recording's first frame, its second acquisition's
+/// elements 1–8 left out and their rows filled with a constant, reads as the plain frame with
+/// those eight traces zero (and the others untouched), and `info` says so.
+#[test]
+fn verasonics_elements_a_receive_leaves_out_read_as_zero() {
+    let plain = open("steered_verasonics.mat");
+    let Samples::Rf(mut want) = plain.source.read_frames(0..1).unwrap().samples else {
+        panic!("RF expected")
+    };
+    want.slice_mut(ndarray::s![1, 0..8, ..]).fill(0.0);
+    let apod = open("steered_verasonics_apod.mat");
+    let Samples::Rf(got) = apod.source.read_frames(0..1).unwrap().samples else {
+        panic!("RF expected")
+    };
+    assert!(got.slice(ndarray::s![1, 8.., ..]).iter().any(|&v| v != 0.0));
+    assert_eq!(got, want);
+    assert!(
+        apod.info
+            .warnings
+            .iter()
+            .any(|w| w.contains("Receive.Apod") && w.contains("1 of the frame's 3")),
+        "{:?}",
+        apod.info.warnings
+    );
+}
+
 #[test]
 fn parameters_say_where_they_came_from() {
     let opened = open("disk.uff");
