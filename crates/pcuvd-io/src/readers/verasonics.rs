@@ -9,8 +9,8 @@
 //! - `Receive(i)` of buffer 1 and frame 1 (`bufnum`, `framenum`), in event order: `startSample`,
 //!   `endSample` (1-based rows of the frame), `decimSampleRate` (MHz) / `quadDecim`, `sampleMode`
 //!   (see below), `demodFrequency` (MHz, checked in the interleaved modes), `startDepth`
-//!   (wavelengths), `Apod` (an element it sets to 0 did not receive: its channel holds stale
-//!   samples, read as zero); every frame repeats frame 1's acquisitions;
+//!   (wavelengths), `Apod` (an element it sets to 0 did not receive: whatever its channel holds
+//!   there reads as zero); every frame repeats frame 1's acquisitions;
 //! - `Event(j).tx`, `.rcv`, `.seqControl` (which transmit each acquisition fires, in order, and
 //!   its `SeqControl(k)` of command `timeToNextAcq`, argument in µs: the event PRF); without
 //!   `Event`, `Receive(i)` fires `TX(i)` (or the one `TX`);
@@ -304,8 +304,8 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
             ));
         }
         rows.push(start as usize - 1..end as usize);
-        // Channels a Receive's Apod leaves out are not written: they hold whatever the buffer
-        // held before, not this acquisition's echoes.
+        // Channels a Receive's Apod leaves out are not written by it: they hold whatever the
+        // buffer held there (zeros, or what an earlier acquisition left), not its echoes.
         let apod = numbers(m.get("Apod"));
         let silent: Vec<usize> = if apod.len() == n_el {
             (0..n_el).filter(|&e| apod[e] == 0.0).collect()
