@@ -828,6 +828,52 @@ enum Block {
 }
 
 impl VerasonicsFrames {
+    /// Copies the acquisitions of buffer frame `vframe` (chronological; `frame` its slice of the
+    /// buffer, columns `width` rows wide from row `lo`) that fall in `events` into `block`.
+    fn copy_frame(
+        &self,
+        vframe: usize,
+        frame: &[i16],
+        width: usize,
+        lo: usize,
+        events: &Range<usize>,
+        block: &mut Block,
+    ) {
+        let apf = self.rows.len();
+        for (acq, rows) in self.rows.iter().enumerate() {
+            let e = vframe * apf + acq;
+            if !events.contains(&e) {
+                continue;
+            }
+            let k = e - events.start;
+            let rows = rows.start - lo..rows.end - lo;
+            let silent = &self.silent_elements[acq];
+            for (ch, &column) in self.columns.iter().enumerate() {
+                if silent.contains(&ch) {
+                    continue;
+                }
+                let trace = &frame[column * width..][rows.clone()];
+                match block {
+                    Block::Rf(out) => {
+                        for (o, &v) in out.slice_mut(ndarray::s![k, ch, ..]).iter_mut().zip(trace) {
+                            *o = f32::from(v);
+                        }
+                    }
+                    Block::Iq { data, rotation, .. } => {
+                        for (o, pair) in data
+                            .slice_mut(ndarray::s![k, ch, ..])
+                            .iter_mut()
+                            .zip(trace.chunks_exact(2))
+                        {
+                            *o =
+                                Complex32::new(f32::from(pair[0]), -f32::from(pair[1])) * *rotation;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Samples of each trace: the rows of an acquisition, or its I/Q pairs.
     fn samples_per_trace(&self) -> usize {
         let rows = self.rows[0].len();
@@ -886,11 +932,29 @@ impl FrameSource for VerasonicsFrames {
                 }
             }
         };
-        // A buffer frame at a time, each copied out before the next is read.
-        for vframe in first_vframe..=last_vframe {
+        // Buffer frames in runs that lie in one chunk of the dataset along its frame axis, each
+        // run copied out before the next is read: a compressed chunk holding several frames
+        // is then inflated once per block, not once per frame (a frame at a time inflated each
+        // chunk as many times as it has frames), and the raw samples held stay one chunk's.
+        let chunk_frames = if self.has_frame_axis {
+            ds.chunk_dims()
+                .and_then(|c| c.first().copied())
+                .unwrap_or(1)
+                .max(1)
+        } else {
+            1
+        };
+        let frame_len = self.buffer_channels * width;
+        let mut vframe = first_vframe;
+        while vframe <= last_vframe {
             let slot = (self.first_slot + vframe) % self.n_buffer_frames;
+            // The run stops at the block's end, the buffer's end (the circular buffer wraps)
+            // and the chunk's.
+            let run = (last_vframe - vframe + 1)
+                .min(self.n_buffer_frames - slot)
+                .min(chunk_frames - slot % chunk_frames);
             let (starts, counts) = if self.has_frame_axis {
-                (vec![slot, 0, lo], vec![1, self.buffer_channels, width])
+                (vec![slot, 0, lo], vec![run, self.buffer_channels, width])
             } else {
                 (vec![0, lo], vec![self.buffer_channels, width])
             };
@@ -898,40 +962,10 @@ impl FrameSource for VerasonicsFrames {
                 ds.read_slice::<i16>(&starts, &counts)
             })
             .map_err(err)?;
-            for (acq, rows) in self.rows.iter().enumerate() {
-                let e = vframe * apf + acq;
-                if !events.contains(&e) {
-                    continue;
-                }
-                let k = e - events.start;
-                let rows = rows.start - lo..rows.end - lo;
-                let silent = &self.silent_elements[acq];
-                for (ch, &column) in self.columns.iter().enumerate() {
-                    if silent.contains(&ch) {
-                        continue;
-                    }
-                    let trace = &buf[column * width..][rows.clone()];
-                    match &mut block {
-                        Block::Rf(out) => {
-                            for (o, &v) in
-                                out.slice_mut(ndarray::s![k, ch, ..]).iter_mut().zip(trace)
-                            {
-                                *o = f32::from(v);
-                            }
-                        }
-                        Block::Iq { data, rotation, .. } => {
-                            for (o, pair) in data
-                                .slice_mut(ndarray::s![k, ch, ..])
-                                .iter_mut()
-                                .zip(trace.chunks_exact(2))
-                            {
-                                *o = Complex32::new(f32::from(pair[0]), -f32::from(pair[1]))
-                                    * *rotation;
-                            }
-                        }
-                    }
-                }
+            for (offset, frame) in buf.chunks_exact(frame_len).enumerate() {
+                self.copy_frame(vframe + offset, frame, width, lo, &events, &mut block);
             }
+            vframe += run;
         }
         let samples = match block {
             Block::Rf(out) => Samples::Rf(out),

@@ -688,6 +688,38 @@ fn verasonics_elements_are_read_from_their_channels() {
     );
 }
 
+/// A Verasonics buffer is read in runs of frames that share a compressed chunk (hdf5storage
+/// chunks these fixtures two buffer frames deep), cut where the circular buffer wraps: blocks of
+/// every size, one frame at a time included, starting on and off the chunks' edges, read the
+/// same samples as the whole recording does. The 5-frame buffer (newest frame the third) has a
+/// run that its chunk would carry past the buffer's last slot, and reads as the 6-frame file's
+/// first five frames.
+#[test]
+fn verasonics_blocks_of_any_size_read_the_same_samples() {
+    for name in [
+        "steered_verasonics.mat",
+        "steered_verasonics_bs100.mat",
+        "steered_verasonics_5frames.mat",
+    ] {
+        let opened = open(name);
+        for block in 1..=opened.source.n_frames() {
+            assert_blocks_match_whole(name, opened.source.as_ref(), block);
+        }
+    }
+    let five = open("steered_verasonics_5frames.mat")
+        .source
+        .read_frames(0..5)
+        .unwrap();
+    let six = open("steered_verasonics.mat")
+        .source
+        .read_frames(0..5)
+        .unwrap();
+    match (&five.samples, &six.samples) {
+        (Samples::Rf(a), Samples::Rf(b)) => assert_eq!(a, b),
+        _ => panic!("RF expected"),
+    }
+}
+
 /// A channel that a Verasonics Receive's `Apod` leaves out is not written by that acquisition:
 /// it holds stale samples. The steered recording's first frame, its second acquisition's
 /// elements 1–8 left out and their rows filled with a constant, reads as the plain frame with
