@@ -77,6 +77,10 @@ pub fn ri_maps_where(
 /// is fitted to the whole series (the mean beat, steadiest); with cycles of their own durations
 /// (triggers, upstrokes) each cycle gets its own fit at its own period. The spread maps are the
 /// standard deviations across cycles of the per-cycle values, each cycle fitted on its own.
+///
+/// A series of one projection ([`VelocitySeries::axial_only`]) reads PSV and EDV of |Vz| (vessel
+/// pooling, which needs the flow's direction in the plane, is refused); its vessel pixels whose velocity does not keep its sign
+/// ([`AXIAL_COHERENCE_MIN`]) are undetermined, with NaN PSV, EDV and RI.
 pub fn ri_maps_triggered(
     series: &VelocitySeries,
     params: &DynamicsParams,
@@ -106,6 +110,13 @@ pub fn ri_maps_triggered(
         ));
     }
     params.validate_thresholds()?;
+    if series.axial_only && params.pooling.is_some() {
+        return Err(invalid(
+            "vessel pooling",
+            "pools along each pixel's flow direction in the image plane, which one steering \
+             angle does not give: pool with two or more angles, or turn pooling off",
+        ));
+    }
     if let Some(hr) = params.heart_rate_hz {
         require_positive("heart rate", hr)?;
         check_period_vs_window(hr, series.window_s)?;
@@ -182,6 +193,14 @@ pub fn ri_maps_triggered(
             if !mask[[iz, ix]] {
                 return PixelCycles::background();
             }
+            if series.axial_only
+                && axial_coherence(series.vz.slice(s![.., iz, ix])) < AXIAL_COHERENCE_MIN
+            {
+                return PixelCycles {
+                    class: UNDETERMINED,
+                    ..PixelCycles::background()
+                };
+            }
             let raw: Vec<f64> = speed.slice(s![.., iz, ix]).to_vec();
             let per_cycle: Vec<(f64, f64)> = cycles
                 .iter()
@@ -242,6 +261,29 @@ pub fn ri_maps_triggered(
         cycles,
         cycle_source: found.source,
     })
+}
+
+/// Least [`axial_coherence`] of a vessel pixel whose RI is read from one projection
+/// ([`VelocitySeries::axial_only`]). RI = 1 − EDV/PSV is blind to a waveform's scale, so the
+/// projection |V|·|cos φ| of a vessel that keeps its direction φ to the beam gives the vessel's
+/// RI, as spectral Doppler's RI does; but across a vessel near 90° to the beam the projection is
+/// the windows' estimation noise, whose extremes read any RI. A window speed v ± σ (Gaussian
+/// jitter σ) has coherence v / E|v ± σ|: 0.86 at v = σ, 0.56 at v = σ/2, so 0.8 keeps the
+/// pixels whose time-mean speed is above about 0.85 σ; the others are undetermined.
+pub const AXIAL_COHERENCE_MIN: f64 = 0.8;
+
+/// How steadily a pixel's velocity series keeps one sign: |Σ v| / Σ |v| over its finite windows
+/// (1 for a flow that never reverses, near 0 for noise about zero); 0 without a finite window.
+pub fn axial_coherence(vz: ndarray::ArrayView1<f64>) -> f64 {
+    let (sum, magnitude) = vz
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0.0), |(s, m), &v| (s + v, m + v.abs()));
+    if magnitude > 0.0 {
+        sum.abs() / magnitude
+    } else {
+        0.0
+    }
 }
 
 /// One pixel's cycle values: means over cycles, class, direction, and spreads across cycles.

@@ -5,7 +5,8 @@ use crate::core::buffers::complex_finite_on_every_core;
 use crate::estimate::partial_volume::{CellCovariance, CellLags};
 use crate::estimate::projections::Projections;
 
-/// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx).
+/// Vector velocity over time: one (Vx, Vz) map per sliding window, shapes (time, nz, nx); of a
+/// recording of one steering angle, the colour-Doppler velocity alone ([`Self::axial_only`]).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VelocitySeries {
     /// Window centres (s) from the first frame.
@@ -20,11 +21,19 @@ pub struct VelocitySeries {
     pub window_s: f64,
     /// Time between consecutive windows (s).
     pub step_s: f64,
+    /// True when one steering angle gave the series: `vz` is the colour-Doppler velocity (m/s,
+    /// the angle's projection scaled to the axis, as `color_doppler.npy`), `vx` is NaN (one
+    /// projection cannot tell it), and [`Self::speed`] is |Vz|.
+    #[serde(default)]
+    pub axial_only: bool,
 }
 
 impl VelocitySeries {
-    /// Speed |V| = √(Vx² + Vz²) (m/s), shape (time, nz, nx).
+    /// Speed |V| = √(Vx² + Vz²) (m/s), shape (time, nz, nx); |Vz| when [`Self::axial_only`].
     pub fn speed(&self) -> Array3<f64> {
+        if self.axial_only {
+            return self.vz.mapv(f64::abs);
+        }
         ndarray::Zip::from(&self.vx)
             .and(&self.vz)
             .map_collect(|&x, &z| x.hypot(z))
@@ -65,10 +74,11 @@ impl VelocitySeries {
         let first = parts
             .first()
             .ok_or_else(|| invalid("velocity series", "no segment has a whole window"))?;
-        if parts
-            .iter()
-            .any(|p| p.window_s != first.window_s || p.step_s != first.step_s)
-        {
+        if parts.iter().any(|p| {
+            p.window_s != first.window_s
+                || p.step_s != first.step_s
+                || p.axial_only != first.axial_only
+        }) {
             return Err(invalid("velocity series", "segments with other windows"));
         }
         let stack = |field: fn(&VelocitySeries) -> &Array3<f64>| {
@@ -83,6 +93,7 @@ impl VelocitySeries {
             power: stack(|p| &p.power)?,
             window_s: first.window_s,
             step_s: first.step_s,
+            axial_only: first.axial_only,
         })
     }
 
@@ -257,7 +268,9 @@ pub(super) fn cycle_length(n: usize, dt: f64, hr: f64) -> Result<(f64, usize)> {
 /// frame rate, sound speed and demodulation frequency; an angle is used only where its
 /// `coverage` says its plane wave reaches the pixel (every angle everywhere without coverage).
 /// Windows run in parallel; each is computed independently, so the output does not depend on the
-/// number of threads.
+/// number of threads. One angle gives its colour-Doppler velocity alone
+/// ([`VelocitySeries::axial_only`]), whose RI is the vessel's wherever the vessel keeps its
+/// direction over the cycle ([`ri_maps_triggered`]).
 pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<VelocitySeries> {
     let (filtered, angles) = (&images.series[..], &images.angles[..]);
     let coverage = images.coverage.as_ref().map(|c| c.view());
@@ -270,9 +283,6 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     require_positive("speed of sound", sound_speed)?;
     require_positive("centre frequency", center_frequency)?;
     let (nz, nx, frames) = check_series(filtered, angles)?;
-    if angles.len() < 2 {
-        return Err(invalid("angles", "vector Doppler needs at least 2 angles"));
-    }
     if let Some(c) = coverage
         && c.dim() != (angles.len(), nz, nx)
     {
@@ -293,7 +303,8 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
     let grid_step = images.grid.step();
     // A cell is the beamformer's and the speckle's, not the window's: measured once, on every
     // frame.
-    let cells: Vec<_> = if params.partial_volume {
+    let axial_only = n == 1;
+    let cells: Vec<_> = if params.partial_volume && !axial_only {
         filtered
             .par_iter()
             .map(|series| CellCovariance::from_lags(&CellLags::of(series.view()), grid_step))
@@ -360,7 +371,13 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
         }
         let fields = chunk_maps
             .par_iter_mut()
-            .map(|maps| fit.vectors(maps))
+            .map(|maps| {
+                if axial_only {
+                    Ok(fit.axial(maps))
+                } else {
+                    fit.vectors(maps)
+                }
+            })
             .collect::<Result<Vec<_>>>()?;
         for (k, (x, z, p)) in ks.zip(fields) {
             vx.index_axis_mut(Axis(0), k).assign(&x);
@@ -379,6 +396,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
         power,
         window_s: params.window as f64 / frame_rate,
         step_s: dt,
+        axial_only,
     })
 }
 
@@ -438,6 +456,24 @@ struct WindowFit<'a> {
 }
 
 impl WindowFit<'_> {
+    /// The window's maps of its one angle: NaN Vx, the colour-Doppler velocity as Vz (the
+    /// projection V_θ along (sin θ, 1 + cos θ)/2 read as 2·V_θ/(1 + cos θ), as the whole
+    /// recording's `color_doppler` is; NaN where the plane wave misses the pixel), and its power.
+    /// Neither dealiasing nor the partial-volume correction applies: both rest on a vector fit.
+    fn axial(&self, maps: &AngleMaps) -> (Array2<f64>, Array2<f64>, Array2<f64>) {
+        let scale = 2.0 / (1.0 + self.angles[0].cos());
+        let mut vz = maps.projections.index_axis(Axis(0), 0).mapv(|v| v * scale);
+        if let Some(c) = self.coverage {
+            vz.zip_mut_with(&c.index_axis(Axis(0), 0), |v, &reached| {
+                if !reached {
+                    *v = f64::NAN;
+                }
+            });
+        }
+        let power = maps.power.index_axis(Axis(0), 0).to_owned();
+        (Array2::from_elem(vz.dim(), f64::NAN), vz, power)
+    }
+
     /// The window's (Vx, Vz) maps (m/s) and its power Doppler averaged over the angles; `maps`
     /// keep their projections only where the angle reaches the pixel.
     fn vectors(&self, maps: &mut AngleMaps) -> Result<(Array2<f64>, Array2<f64>, Array2<f64>)> {

@@ -326,12 +326,6 @@ pub fn dynamics(
     vessel: &VesselTests,
     triggers: Option<&[f64]>,
 ) -> Result<(VelocitySeries, RiMaps)> {
-    if out.filtered.n_angles() < 2 {
-        return Err(invalid(
-            "angles",
-            "vector velocity needs two or more steering angles; the recording has one",
-        ));
-    }
     if out.filtered.series.is_empty() {
         return Err(invalid(
             "filtered series",
