@@ -18,10 +18,9 @@ fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
     let pixels = (nz * nx) as u128;
     let frames = data.n_frames();
-    // The stage runs only with two angles or more and a window the recording holds.
-    let vectors = data.acquisition().sequence.n_angles() >= 2;
+    // The stage runs only with a window the recording holds.
     let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
-        if !vectors || d.params.window > frames {
+        if d.params.window > frames {
             return 0;
         }
         let windows = (frames - d.params.window) / d.params.step.max(1) + 1;

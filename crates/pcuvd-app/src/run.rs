@@ -53,20 +53,25 @@ impl Plan {
             );
         }
         let params = options.params(data)?;
+        let one_angle = data.acquisition().sequence.n_angles() < 2;
         let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
             None
         } else {
+            let windows = dynamics.params(
+                data.acquisition().frame_rate(),
+                params.irls,
+                params.dealias,
+                params.grid.step(),
+            )?;
             Some(DynamicsPlan {
                 params: pcuvd::dynamics::DynamicsParams {
                     // The windows read velocity as the whole-recording maps do.
                     doppler: params.doppler_estimator,
                     partial_volume: dynamics.dynamics_partial_volume == Switch::On,
-                    ..dynamics.params(
-                        data.acquisition().frame_rate(),
-                        params.irls,
-                        params.dealias,
-                        params.grid.step(),
-                    )?
+                    // Pooling follows each pixel's flow direction in the plane, which one angle's
+                    // projection does not give (summary.json's dynamics says so).
+                    pooling: windows.pooling.filter(|_| !one_angle),
+                    ..windows
                 },
                 vessel: dynamics.vessel_tests()?,
                 triggers: match (dynamics.triggers()?, recorded_triggers) {
@@ -85,12 +90,6 @@ impl Plan {
         {
             // Asked for: what the recording cannot give is refused now, not after processing.
             let acq = data.acquisition();
-            if acq.sequence.n_angles() < 2 {
-                bail!(
-                    "the dynamics stage (asked for by --dynamics on or a dynamics option) needs two \
-                     or more steering angles for vector velocity; the recording has one"
-                );
-            }
             settings
                 .params
                 .validate(acq.frame_rate())
@@ -119,10 +118,7 @@ impl Plan {
         }
         let ensembles = options.ensembles(data.n_frames())?;
         let (nz, nx) = params.grid.shape();
-        let windows = dynamics_settings
-            .as_ref()
-            .map(|d| &d.params)
-            .filter(|_| data.acquisition().sequence.n_angles() >= 2);
+        let windows = dynamics_settings.as_ref().map(|d| &d.params);
         // By default as many frames as fit, but never too few for the windows and ensembles.
         let segment_frames = options.segment_frames.unwrap_or_else(|| {
             pcuvd::pipeline::segments::frames_that_fit(
@@ -255,17 +251,16 @@ pub fn run_into(
 }
 
 /// The segmented run `plan` makes of `data`: its settings, with the velocity windows only where
-/// the recording can give them (two or more angles, a window that fits).
+/// the recording can give them (a window that fits).
 fn segment_run<'a>(
     data: &dyn FrameSource,
     plan: &'a Plan,
     segments: &'a Segments,
 ) -> pcuvd::pipeline::segments::SegmentRun<'a> {
-    let vectors = data.acquisition().sequence.n_angles() >= 2;
     let windows = plan
         .dynamics
         .as_ref()
-        .filter(|d| vectors && d.params.validate(data.acquisition().frame_rate()).is_ok());
+        .filter(|d| d.params.validate(data.acquisition().frame_rate()).is_ok());
     pcuvd::pipeline::segments::SegmentRun {
         params: &plan.params,
         segments,
@@ -376,7 +371,6 @@ fn finish_segmented(
     progress: &dyn Progress,
     ensembles_in_store: bool,
 ) -> Result<Processed> {
-    let vectors = data.acquisition().sequence.n_angles() >= 2;
     let clock = std::time::Instant::now();
     let dynamics = dynamics_outcome(plan, progress, || match (&plan.dynamics, done.series) {
         (Some(settings), Some(series)) => {
@@ -390,14 +384,8 @@ fn finish_segmented(
             )?;
             Ok((series, maps))
         }
-        // The stage's own checks say why it cannot run (one angle, a window too long).
+        // The stage's own checks say why it cannot run (a window too long).
         (Some(settings), None) => {
-            if !vectors {
-                return Err(pcuvd::core::error::invalid(
-                    "angles",
-                    "vector velocity needs two or more steering angles; the recording has one",
-                ));
-            }
             settings.params.validate(data.acquisition().frame_rate())?;
             Err(pcuvd::core::error::invalid(
                 "dynamics",

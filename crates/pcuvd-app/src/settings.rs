@@ -452,7 +452,8 @@ impl From<bool> for Switch {
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum DynamicsChoice {
-    /// When the recording holds a cardiac cycle and several angles; otherwise skipped with a note.
+    /// When the recording holds a cardiac cycle (one angle: RI of the colour-Doppler speed);
+    /// otherwise skipped with a note.
     Auto,
     /// Always: a recording that cannot give RI maps is an error.
     On,
@@ -530,7 +531,8 @@ pub struct DynamicsSettings {
     /// Vessel pooling for the RI maps, half-length (mm) along the flow: each pixel's waveform
     /// shape is averaged over same-direction neighbours in an ellipse aligned with its flow (RI
     /// does not change with the lumen's velocity profile nor along a vessel, only the jitter
-    /// does); 0 with --pool-across-mm 0 turns it off.
+    /// does); 0 with --pool-across-mm 0 turns it off. Off for a recording of one angle, which
+    /// gives no flow direction in the plane.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = DynamicsSettings::default().pool_along_mm))]
     pub pool_along_mm: f64,
     /// Vessel pooling half-width (mm) across the flow: parallel vessels farther apart than this

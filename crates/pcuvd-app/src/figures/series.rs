@@ -44,7 +44,12 @@ pub fn dynamics_figures(
     let mut written = vec![save(
         &dir.join("ri.png"),
         &format!(
-            "{name}: resistivity index, heart rate {:.2} Hz",
+            "{name}: resistivity index{}, heart rate {:.2} Hz",
+            if series.axial_only {
+                " of the colour-Doppler speed (one angle)"
+            } else {
+                ""
+            },
             maps.heart_rate_hz
         ),
         panels,
@@ -79,11 +84,17 @@ pub fn dynamics_figures(
             rgb: (214, 39, 40),
         })
         .collect();
+    let speed = if series.axial_only {
+        "colour-Doppler speed |Vz|"
+    } else {
+        "speed"
+    };
     let plot = PlotPanel {
-        title: "Mean speed over vessel pixels (red marks: first and last window of each cycle)"
-            .into(),
+        title: format!(
+            "Mean {speed} over vessel pixels (red marks: first and last window of each cycle)"
+        ),
         x_label: "time (ms)".into(),
-        y_label: "speed (mm/s)".into(),
+        y_label: format!("{speed} (mm/s)"),
         series: vec![Series {
             label: "mean vessel speed".into(),
             x: t_ms,

@@ -218,6 +218,18 @@ impl Level {
     }
 }
 
+/// What the RI maps of a recording of one steering angle are read from.
+fn axial_speed() -> String {
+    format!(
+        "|Vz| of the colour-Doppler velocity (one steering angle): RI is a ratio, so a vessel \
+         that keeps its direction to the beam over the cycle reads its own RI at any angle but \
+         across the beam; vessel pixels whose velocity does not keep its sign (|sum v| / sum |v| \
+         over the windows below {}: a vessel near 90 degrees to the beam, or noise) are \
+         undetermined, with NaN PSV, EDV and RI; speed_series.npy holds |Vz|",
+        dynamics::AXIAL_COHERENCE_MIN
+    )
+}
+
 /// What the dynamics stage did.
 #[derive(Debug, Clone, Serialize)]
 pub struct DynamicsDone {
@@ -243,6 +255,8 @@ pub struct DynamicsDone {
     pub step_s: f64,
     /// Harmonics of the heart rate fitted.
     pub harmonics: usize,
+    /// The speed PSV, EDV and RI are read from: the vector's, or one angle's colour Doppler's.
+    pub speed: String,
     /// The velocity estimator.
     pub estimator: &'static str,
     /// Doppler averaging kernel (rows, columns).
@@ -485,7 +499,16 @@ impl DynamicsRecord {
             harmonics: dparams
                 .harmonics
                 .unwrap_or_else(|| dynamics::auto_harmonics(maps.heart_rate_hz, series.window_s)),
-            estimator: "IRLS-WLS (PC-UVD)",
+            speed: if series.axial_only {
+                axial_speed()
+            } else {
+                "|V| of the in-plane velocity vector".into()
+            },
+            estimator: if series.axial_only {
+                "none: one steering angle gives one projection, not a vector"
+            } else {
+                "IRLS-WLS (PC-UVD)"
+            },
             kernel: [dparams.kernel.0, dparams.kernel.1],
             partial_volume: dparams.partial_volume,
             artery_ri_min: dparams.artery_ri_min,
@@ -496,7 +519,14 @@ impl DynamicsRecord {
                                       30th percentile (masks::noise_floor_by_depth)",
             vessel_local_db: Level::of(vessel.local_db),
             vessel_local_radius_mm: vessel.local_radius_m * 1e3,
-            vessel_pooling: PoolingSummary::new(dparams.pooling, processed.out.grid.step()),
+            vessel_pooling: if series.axial_only {
+                PoolingSummary::Off(
+                    "off: it follows each pixel's flow direction in the image plane, which one \
+                     steering angle does not give",
+                )
+            } else {
+                PoolingSummary::new(dparams.pooling, processed.out.grid.step())
+            },
             cycles_windows: maps.cycles.clone(),
             pixels: ClassCounts {
                 arteriole: count(dynamics::ARTERIOLE),
