@@ -101,15 +101,7 @@ def beamform(
 
     array = _checks.reorder("iq", np.asarray(iq), axes, FRAME_AXES)
     data = _checks.complex64("iq", array, FRAME_AXES)
-    grid = None
-    if grid_m is not None:
-        grid = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
-        if len(grid) != 5:
-            raise ValueError(
-                f"grid_m: expected (x_min, x_max, z_min, z_max, step), got {grid_m!r}"
-            )
-    x = None if x_m is None else _checks.float64("x_m", x_m, ("x",)).tolist()
-    z = None if z_m is None else _checks.float64("z_m", z_m, ("z",)).tolist()
+    grid, x, z = _grid(grid_m, x_m, z_m)
     return _pcuvd.beamform_iq(
         data,
         json.dumps(probe),
@@ -124,6 +116,21 @@ def beamform(
         _checks.finite_number("f_number", f_number),
         apodization,
     )
+
+
+def _grid(grid_m: Sequence[float] | None, x_m: Any, z_m: Any) -> tuple[Any, Any, Any]:
+    """A pixel grid as the native stages take it: (x_min, x_max, z_min, z_max, step) checked,
+    or the pixel positions as lists."""
+    grid = None
+    if grid_m is not None:
+        grid = [_checks.finite_number("grid_m", v, positive=False) for v in grid_m]
+        if len(grid) != 5:
+            raise ValueError(
+                f"grid_m: expected (x_min, x_max, z_min, z_max, step), got {grid_m!r}"
+            )
+    x = None if x_m is None else _checks.float64("x_m", x_m, ("x",)).tolist()
+    z = None if z_m is None else _checks.float64("z_m", z_m, ("z",)).tolist()
+    return grid, x, z
 
 
 def svd_filter(
@@ -249,3 +256,59 @@ def resistivity_index(psv: Any, edv: Any) -> np.ndarray:
     a = _checks.float64("psv", psv, ("z", "x"))
     b = _checks.float64("edv", edv, ("z", "x"))
     return _pcuvd.resistivity_index(a, b)
+
+
+def ri_maps(
+    filtered: Any,
+    *,
+    frame_rate_hz: float,
+    center_freq_hz: float,
+    sound_speed_m_s: float = 1540.0,
+    grid_m: Sequence[float] | None = None,
+    x_m: Any = None,
+    z_m: Any = None,
+    angles_rad: Sequence[float] = (0.0,),
+    doppler_estimator: str = "loupas",
+    **options: Any,
+) -> dict:
+    """The dynamics stage (sliding-window velocity, heart rate, PSV/EDV/RI maps, vessel classes)
+    on clutter-filtered image series formed elsewhere: a scanner's beamformed IQ, say, filtered
+    with `svd_filter`.
+
+    filtered: one series (nz, nx, frames) (one steering angle, or a compound image), or one per
+    angle of `angles_rad` (a sequence, or an (angles, nz, nx, frames) array), complex baseband
+    at `center_freq_hz` and `frame_rate_hz` (the compound frame rate). The pixel grid: grid_m =
+    (x_min, x_max, z_min, z_max, step) in m, or the pixel positions x_m (nx) and z_m (nz) in m.
+    One angle gives no vector: its RI is read from the colour-Doppler speed |Vz| (a ratio, so a
+    vessel that keeps its direction to the beam reads its own RI; vessels across the beam are
+    undetermined). doppler_estimator: "loupas" (needs axial pixels finer than a quarter
+    wavelength) or "kasai". options: the dynamics keywords of `pcuvd.dynamics`
+    (`heart_rate_hz`, `window_ms`, `cardiac_triggers`, `artery_ri_min`, ...).
+    Returns {"ri", "psv", "edv", "psv_spread", "edv_spread", "ri_spread", "vessel_class",
+    "flow_up", "speed_series", "times", "heart_rate_hz", "cycles", "cycles_from",
+    "axial_only"}: maps (nz, nx) in m/s where they are speeds, named as `process` names them.
+    """
+    if isinstance(filtered, np.ndarray) and filtered.ndim == 4:
+        series = list(filtered)
+    elif isinstance(filtered, (list, tuple)):
+        series = list(filtered)
+    else:
+        series = [filtered]
+    series = [_checks.complex64("filtered", s, SERIES_AXES) for s in series]
+    angles = [_checks.finite_number("angles_rad", a, positive=False) for a in angles_rad]
+    if len(angles) != len(series):
+        raise ValueError(f"filtered: {len(series)} series for {len(angles)} angles (angles_rad)")
+    grid, x, z = _grid(grid_m, x_m, z_m)
+    given = _checks.to_options("ri_maps", options, _pcuvd.option_names_of("dynamics"))
+    return _pcuvd.ri_maps_of_images(
+        series,
+        angles,
+        _checks.finite_number("frame_rate_hz", frame_rate_hz),
+        _checks.finite_number("center_freq_hz", center_freq_hz),
+        _checks.finite_number("sound_speed_m_s", sound_speed_m_s),
+        str(doppler_estimator),
+        given,
+        grid,
+        x,
+        z,
+    )

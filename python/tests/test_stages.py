@@ -315,3 +315,74 @@ def test_a_simulation_in_memory_is_scored_against_its_truth(tmp_path):
     assert "describes other recordings" in result.against_truth(other)["not_scored"]
     with pytest.raises(TypeError, match="the truth pcuvd.simulate returned"):
         result.against_truth(42)
+
+
+def _pulsatile_series(seed: int = 3) -> tuple[np.ndarray, dict]:
+    """A one-angle filtered series (nz, nx, frames) at 1.8 kHz of 2.5 beats at 6 Hz: an arteriole
+    flowing up (PSV 20, EDV 6 mm/s: RI 0.7) in rows 3–7, a venule flowing down (15 and 10.5
+    mm/s: RI 0.3) in rows 11–15, and echoes that do not move (a vessel across the beam projects
+    nothing) in rows 19–23, each a unit Doppler phasor over 8 columns, in complex noise 40 dB
+    below. Returns the series and the blocks' (rows, columns) slices."""
+    frame_rate, hr, fc, c = 1800.0, 6.0, 15.625e6, 1540.0
+    frames = int(2.5 * frame_rate / hr)
+    t = (np.arange(frames) + 0.5) / frame_rate
+    rng = np.random.default_rng(seed)
+    series = (rng.standard_normal((26, 24, frames)) + 1j * rng.standard_normal((26, 24, frames)))
+    series *= np.sqrt(1e-4 / 2)
+
+    def pulse(psv, edv):
+        return edv + (psv - edv) * 0.5 * (1 - np.cos(2 * np.pi * hr * t))
+
+    blocks = {
+        "artery": (slice(3, 8), slice(4, 12)),
+        "vein": (slice(11, 16), slice(12, 20)),
+        "across": (slice(19, 24), slice(4, 12)),
+    }
+    for name, vz in (
+        ("artery", -pulse(0.020, 0.006)),
+        ("vein", pulse(0.015, 0.0105)),
+        ("across", np.zeros(frames)),
+    ):
+        # Kasai's sign: a velocity away from the probe turns the phase back, 4π f_c vz / (c f_frame)
+        # a frame.
+        phase = np.cumsum(-4 * np.pi * fc * vz / (c * frame_rate))
+        series[blocks[name]] += np.exp(1j * phase)
+    return series.astype(np.complex64), blocks
+
+
+def test_ri_maps_of_a_one_angle_series_formed_elsewhere():
+    """ri_maps runs the dynamics stage on a series the user formed (a scanner's beamformed IQ):
+    one angle reads RI from the colour-Doppler speed, which keeps each vessel's RI (a ratio), and
+    leaves the echoes that project no motion undetermined rather than giving them noise's RI."""
+    series, blocks = _pulsatile_series()
+    grid = {"x_m": np.arange(24) * 1e-4 - 1.2e-3, "z_m": 5e-3 + np.arange(26) * 1e-4}
+    maps = pcuvd.ri_maps(
+        series, frame_rate_hz=1800.0, center_freq_hz=15.625e6, doppler_estimator="kasai",
+        **grid,
+    )
+    assert maps["axial_only"] is True
+    assert abs(maps["heart_rate_hz"] - 6.0) < 0.18, maps["heart_rate_hz"]
+    assert maps["ri"].shape == (26, 24) and maps["speed_series"].shape[1:] == (26, 24)
+    for name, ri, kind, up in (("artery", 0.7, 1, 1), ("vein", 0.3, 2, 0)):
+        block = blocks[name]
+        assert abs(np.median(maps["ri"][block]) - ri) < 0.05, (name, maps["ri"][block])
+        assert np.mean(maps["vessel_class"][block] == kind) >= 0.95, (name, maps["vessel_class"][block])
+        assert np.all(maps["flow_up"][block] == up), name
+    across = blocks["across"]
+    assert np.mean(maps["vessel_class"][across] == 3) >= 0.9, maps["vessel_class"][across]
+    assert np.mean(np.isnan(maps["ri"][across])) >= 0.9
+    # A given heart rate and the same series as a list of one angle: the same maps.
+    given = pcuvd.ri_maps(
+        [series], angles_rad=[0.0], frame_rate_hz=1800.0, center_freq_hz=15.625e6,
+        doppler_estimator="kasai", heart_rate_hz=6.0, **grid,
+    )
+    assert given["cycles_from"].startswith("heart rate given"), given["cycles_from"]
+    assert np.array_equal(given["vessel_class"] > 0, maps["vessel_class"] > 0)
+    with pytest.raises(ValueError, match="2 angles"):
+        pcuvd.ri_maps([series], angles_rad=[0.0, 0.1], frame_rate_hz=1800.0,
+                      center_freq_hz=15.625e6, **grid)
+    with pytest.raises(ValueError, match="grid of"):
+        pcuvd.ri_maps(series, frame_rate_hz=1800.0, center_freq_hz=15.625e6,
+                      doppler_estimator="kasai", grid_m=(-1e-3, 1e-3, 5e-3, 6e-3, 1e-4))
+    with pytest.raises(TypeError, match="unexpected keyword 'svd_low'"):
+        pcuvd.ri_maps(series, frame_rate_hz=1800.0, center_freq_hz=15.625e6, svd_low=3, **grid)

@@ -429,6 +429,46 @@ pub fn run_dynamics(
     })
 }
 
+/// The dynamics stage on clutter-filtered images formed elsewhere (a scanner's beamformed IQ, or
+/// the Python stages'): `images`' series per angle (one angle: RI of the colour-Doppler speed),
+/// `dynamics`' windows, thresholds, vessel tests and cycles (its `--cardiac-triggers` file, if
+/// any), the Doppler phase read with `doppler`, the PC-UVD estimator at the paper's IRLS settings,
+/// no dealiasing; the vessel mask's power Doppler is the compound's mean |IQ|² over the frames,
+/// as `process`'s. Returns the windows' velocity series and the RI maps.
+pub fn dynamics_of_images(
+    images: &pcuvd::form::images::AngleImages,
+    dynamics: &DynamicsSettings,
+    doppler: pcuvd::estimate::doppler::DopplerEstimator,
+) -> Result<(VelocitySeries, RiMaps)> {
+    let windows = dynamics.params(
+        images.frame_rate,
+        pcuvd::estimate::vector::IrlsParams::default(),
+        pcuvd::estimate::dealias::Dealias::Off,
+        images.grid.step(),
+    )?;
+    let params = DynamicsParams {
+        doppler,
+        partial_volume: dynamics.dynamics_partial_volume == Switch::On,
+        pooling: windows.pooling.filter(|_| images.n_angles() >= 2),
+        ..windows
+    };
+    let series = pcuvd::dynamics::sliding_vectors(images, &params)?;
+    let compound = pcuvd::form::beamform::compounded(&images.series)?;
+    let power = compound.map_axis(ndarray::Axis(2), |lane| {
+        lane.iter().map(|v| f64::from(v.norm_sqr())).sum::<f64>() / lane.len().max(1) as f64
+    });
+    let triggers = dynamics.triggers()?;
+    let maps = pipeline::ri_maps_of(
+        &series,
+        &power,
+        &images.grid,
+        &params,
+        &dynamics.vessel_tests()?,
+        triggers.as_deref(),
+    )?;
+    Ok((series, maps))
+}
+
 /// The dynamics stage's outcome as `plan` says: off, done by `stage`, or skipped with a note when
 /// the recording cannot give RI maps and no dynamics setting was given (else an error).
 fn dynamics_outcome(

@@ -141,6 +141,7 @@ fn _pcuvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(kasai, m)?)?;
     m.add_function(wrap_pyfunction!(vector_fit, m)?)?;
     m.add_function(wrap_pyfunction!(resistivity_index, m)?)?;
+    m.add_function(wrap_pyfunction!(ri_maps_of_images, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(study, m)?)?;
     Ok(())

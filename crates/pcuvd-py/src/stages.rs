@@ -342,3 +342,80 @@ pub(crate) fn resistivity_index<'py>(
         .map_collect(|&p, &e| pcuvd::dynamics::resistivity_index(p, e));
     Ok(ri.into_pyarray(py))
 }
+
+/// The dynamics stage on clutter-filtered image series formed elsewhere: `series` one (nz, nx,
+/// frames) per steering angle at `angles_rad` (one: RI of the colour-Doppler speed), on the
+/// grid `grid_m` (x_min, x_max, z_min, z_max, step, m) or the pixel positions `x_m`, `z_m`, at
+/// `frame_rate_hz`, their Doppler phase read with `doppler` ("loupas" or "kasai") at
+/// `center_freq_hz` and `sound_speed_m_s`; `options`: the dynamics keywords (JSON). Returns the
+/// RI maps and the windows' series, named as `process`'s.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (series, angles_rad, frame_rate_hz, center_freq_hz, sound_speed_m_s, doppler, options, grid_m=None, x_m=None, z_m=None))]
+pub(crate) fn ri_maps_of_images<'py>(
+    py: Python<'py>,
+    series: Vec<PyReadonlyArray3<'py, Complex32>>,
+    angles_rad: Vec<f64>,
+    frame_rate_hz: f64,
+    center_freq_hz: f64,
+    sound_speed_m_s: f64,
+    doppler: &str,
+    options: &str,
+    grid_m: Option<[f64; 5]>,
+    x_m: Option<Vec<f64>>,
+    z_m: Option<Vec<f64>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let doppler = match doppler {
+        "loupas" => pcuvd::estimate::doppler::DopplerEstimator::Loupas,
+        "kasai" => pcuvd::estimate::doppler::DopplerEstimator::Kasai,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "doppler_estimator {other:?}: expected \"loupas\" or \"kasai\""
+            )));
+        }
+    };
+    let grid = grid_from(grid_m, x_m, z_m)?;
+    let shape = grid.shape();
+    let series: Vec<_> = series
+        .iter()
+        .map(|s| s.as_array().as_standard_layout().into_owned())
+        .collect();
+    if let Some(bad) = series.iter().find(|s| (s.dim().0, s.dim().1) != shape) {
+        return Err(PyValueError::new_err(format!(
+            "a series of {} × {} pixels on a grid of {} × {} (nz, nx)",
+            bad.dim().0,
+            bad.dim().1,
+            shape.0,
+            shape.1
+        )));
+    }
+    let images = pcuvd::form::images::AngleImages {
+        grid,
+        angles: angles_rad,
+        frame_rate: frame_rate_hz,
+        sound_speed: sound_speed_m_s,
+        demodulation_frequency: center_freq_hz,
+        coverage: None,
+        series,
+    };
+    let dynamics: DynamicsSettings = settings(options)?;
+    let (series, maps) = py
+        .detach(|| pcuvd_app::run::dynamics_of_images(&images, &dynamics, doppler))
+        .map_err(to_py)?;
+    let dict = PyDict::new(py);
+    dict.set_item("ri", maps.ri.into_pyarray(py))?;
+    dict.set_item("psv", maps.psv.into_pyarray(py))?;
+    dict.set_item("edv", maps.edv.into_pyarray(py))?;
+    dict.set_item("psv_spread", maps.psv_spread.into_pyarray(py))?;
+    dict.set_item("edv_spread", maps.edv_spread.into_pyarray(py))?;
+    dict.set_item("ri_spread", maps.ri_spread.into_pyarray(py))?;
+    dict.set_item("vessel_class", maps.vessel_class.into_pyarray(py))?;
+    dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
+    dict.set_item("speed_series", series.speed().into_pyarray(py))?;
+    dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+    dict.set_item("heart_rate_hz", maps.heart_rate_hz)?;
+    dict.set_item("cycles", maps.cycles)?;
+    dict.set_item("cycles_from", maps.cycle_source.describe())?;
+    dict.set_item("axial_only", series.axial_only)?;
+    Ok(dict)
+}

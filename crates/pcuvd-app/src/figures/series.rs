@@ -96,7 +96,7 @@ pub fn dynamics_figures(
         x_label: "time (ms)".into(),
         y_label: format!("{speed} (mm/s)"),
         series: vec![Series {
-            label: "mean vessel speed".into(),
+            label: format!("mean vessel {speed}"),
             x: t_ms,
             y: mean,
             y_err: None,
