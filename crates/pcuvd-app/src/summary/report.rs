@@ -64,7 +64,13 @@ pub fn write_report(dir: &Path, summary: &Summary, figures: &[PathBuf]) -> Resul
     report.paragraph(&processing_line(summary));
     if let DynamicsRecord::Done(done) = &summary.dynamics {
         report.paragraph(&format!(
-            "RI maps over {} cardiac cycle{} at {:.2} Hz{}: {}.",
+            "RI maps{} over {} cardiac cycle{} at {:.2} Hz{}: {}.",
+            if done.axial_only {
+                " of the colour-Doppler speed (one steering angle: vessels across the beam are \
+                 undetermined)"
+            } else {
+                ""
+            },
             done.cycles_count,
             if done.cycles_count == 1 { "" } else { "s" },
             done.heart_rate_hz,

@@ -255,6 +255,8 @@ pub struct DynamicsDone {
     pub step_s: f64,
     /// Harmonics of the heart rate fitted.
     pub harmonics: usize,
+    /// True when one steering angle gave the maps: PSV, EDV and RI of the colour-Doppler speed.
+    pub axial_only: bool,
     /// The speed PSV, EDV and RI are read from: the vector's, or one angle's colour Doppler's.
     pub speed: String,
     /// The velocity estimator.
@@ -499,6 +501,7 @@ impl DynamicsRecord {
             harmonics: dparams
                 .harmonics
                 .unwrap_or_else(|| dynamics::auto_harmonics(maps.heart_rate_hz, series.window_s)),
+            axial_only: series.axial_only,
             speed: if series.axial_only {
                 axial_speed()
             } else {

@@ -159,6 +159,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["dynamics"]["heart_rate_hz"], 12.0);
+    assert_eq!(summary["dynamics"]["axial_only"], false);
     let pooling = &summary["dynamics"]["vessel_pooling"];
     // Default ellipse: 2 mm along the flow, 0.25 mm across, on the 0.1 mm grid.
     assert_eq!(pooling["half_length_along_flow_px"], 20.0, "{pooling}");
@@ -498,6 +499,7 @@ fn one_angle_gives_ri_maps_from_the_colour_doppler_speed() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let dynamics = &summary["dynamics"];
+    assert_eq!(dynamics["axial_only"], true, "{dynamics}");
     assert!(
         dynamics["speed"]
             .as_str()
