@@ -258,6 +258,17 @@ def resistivity_index(psv: Any, edv: Any) -> np.ndarray:
     return _pcuvd.resistivity_index(a, b)
 
 
+# The processing keywords that reach the dynamics stage of images formed elsewhere.
+_RI_MAPS_PROCESSING = (
+    "doppler_estimator",
+    "doppler_kernel",
+    "irls_lambda",
+    "irls_epsilon",
+    "irls_max_iterations",
+    "dealias",
+)
+
+
 def ri_maps(
     filtered: Any,
     *,
@@ -268,7 +279,6 @@ def ri_maps(
     x_m: Any = None,
     z_m: Any = None,
     angles_rad: Sequence[float] = (0.0,),
-    doppler_estimator: str = "loupas",
     **options: Any,
 ) -> dict:
     """The dynamics stage (sliding-window velocity, heart rate, PSV/EDV/RI maps, vessel classes)
@@ -281,9 +291,11 @@ def ri_maps(
     (x_min, x_max, z_min, z_max, step) in m, or the pixel positions x_m (nx) and z_m (nz) in m.
     One angle gives no vector: its RI is read from the colour-Doppler speed |Vz| (a ratio, so a
     vessel that keeps its direction to the beam reads its own RI; vessels across the beam are
-    undetermined). doppler_estimator: "loupas" (needs axial pixels finer than a quarter
-    wavelength) or "kasai". options: the dynamics keywords of `pcuvd.dynamics`
-    (`heart_rate_hz`, `window_ms`, `cardiac_triggers`, `artery_ri_min`, ...).
+    undetermined). options: the Doppler keywords of `pcuvd.process` (`doppler_estimator`:
+    "loupas", the default, needs axial pixels finer than a quarter wavelength, or "kasai";
+    `doppler_kernel`, whose box also averages the power Doppler the vessel mask is drawn on;
+    `irls_*`, `dealias`) and the dynamics keywords of `pcuvd.dynamics` (`heart_rate_hz`,
+    `window_ms`, `cardiac_triggers`, `artery_ri_min`, ...), with `process`'s defaults.
     Returns {"ri", "psv", "edv", "psv_spread", "edv_spread", "ri_spread", "vessel_class",
     "flow_up", "speed_series", "times", "heart_rate_hz", "cycles", "cycles_from",
     "axial_only"}: maps (nz, nx) in m/s where they are speeds, named as `process` names them.
@@ -299,15 +311,18 @@ def ri_maps(
     if len(angles) != len(series):
         raise ValueError(f"filtered: {len(series)} series for {len(angles)} angles (angles_rad)")
     grid, x, z = _grid(grid_m, x_m, z_m)
-    given = _checks.to_options("ri_maps", options, _pcuvd.option_names_of("dynamics"))
+    doppler = {k: options.pop(k) for k in list(options) if k in _RI_MAPS_PROCESSING}
+    dynamics = _checks.to_options(
+        "ri_maps", options, [*_pcuvd.option_names_of("dynamics"), *_RI_MAPS_PROCESSING]
+    )
     return _pcuvd.ri_maps_of_images(
         series,
         angles,
         _checks.finite_number("frame_rate_hz", frame_rate_hz),
         _checks.finite_number("center_freq_hz", center_freq_hz),
         _checks.finite_number("sound_speed_m_s", sound_speed_m_s),
-        str(doppler_estimator),
-        given,
+        _checks.to_options("ri_maps", doppler, _RI_MAPS_PROCESSING),
+        dynamics,
         grid,
         x,
         z,

@@ -430,33 +430,33 @@ pub fn run_dynamics(
 }
 
 /// The dynamics stage on clutter-filtered images formed elsewhere (a scanner's beamformed IQ, or
-/// the Python stages'): `images`' series per angle (one angle: RI of the colour-Doppler speed),
-/// `dynamics`' windows, thresholds, vessel tests and cycles (its `--cardiac-triggers` file, if
-/// any), the Doppler phase read with `doppler`, the PC-UVD estimator at the paper's IRLS settings,
-/// no dealiasing; the vessel mask's power Doppler is the compound's mean |IQ|² over the frames,
-/// as `process`'s. Returns the windows' velocity series and the RI maps.
+/// the Python stages'), as `process` runs it: `images`' series per angle (one angle: RI of the
+/// colour-Doppler speed); `dynamics`' windows, thresholds, vessel tests and cycles (its
+/// `--cardiac-triggers` file, if any); `processing`'s Doppler estimator, IRLS settings and
+/// dealiasing; the vessel mask on the compound's power Doppler averaged over `processing`'s
+/// Doppler kernel, as `process`'s maps. Returns the windows' velocity series and the RI maps.
 pub fn dynamics_of_images(
     images: &pcuvd::form::images::AngleImages,
+    processing: &ProcessingSettings,
     dynamics: &DynamicsSettings,
-    doppler: pcuvd::estimate::doppler::DopplerEstimator,
 ) -> Result<(VelocitySeries, RiMaps)> {
     let windows = dynamics.params(
         images.frame_rate,
-        pcuvd::estimate::vector::IrlsParams::default(),
-        pcuvd::estimate::dealias::Dealias::Off,
+        processing.irls()?,
+        processing.dealias()?,
         images.grid.step(),
     )?;
     let params = DynamicsParams {
-        doppler,
+        doppler: processing.doppler_estimator.into(),
         partial_volume: dynamics.dynamics_partial_volume == Switch::On,
         pooling: windows.pooling.filter(|_| images.n_angles() >= 2),
         ..windows
     };
     let series = pcuvd::dynamics::sliding_vectors(images, &params)?;
+    let kernel =
+        crate::settings::parse_kernel(&processing.doppler_kernel).context("--doppler-kernel")?;
     let compound = pcuvd::form::beamform::compounded(&images.series)?;
-    let power = compound.map_axis(ndarray::Axis(2), |lane| {
-        lane.iter().map(|v| f64::from(v.norm_sqr())).sum::<f64>() / lane.len().max(1) as f64
-    });
+    let power = pcuvd::estimate::doppler::autocorrelation(compound.view(), kernel)?.power;
     let triggers = dynamics.triggers()?;
     let maps = pipeline::ri_maps_of(
         &series,
@@ -526,4 +526,93 @@ pub fn settings_text(options: &ProcessingSettings, dynamics: &DynamicsSettings) 
     })
     .map(|settings| settings.to_string())
     .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pcuvd::simulate::phantom::network::{NetworkPhantom, NetworkSpec, VesselKind, VesselSpec};
+    use pcuvd::simulate::{self, SimParams};
+    use pcuvd::{Coding, Probe, Sequence};
+
+    /// `dynamics_of_images`, the stage on images formed elsewhere, is the run's own dynamics
+    /// stage: fed a one-angle run's filtered images with the same settings, it gives the run's
+    /// RI maps to the bit (the same windows, vessel mask and cycles).
+    #[test]
+    fn the_stage_on_given_images_is_the_runs_own() {
+        let vessel = |name: &str, kind, x: f64, angle_deg: f64, psv, ri| VesselSpec {
+            name: name.into(),
+            kind,
+            centre: [x, 6.5e-3],
+            angle: f64::to_radians(angle_deg),
+            length: 2.5e-3,
+            radius: 0.25e-3,
+            psv,
+            ri,
+            delay_s: 0.01,
+        };
+        let spec = NetworkSpec {
+            vessels: vec![
+                vessel("A", VesselKind::Arteriole, -0.6e-3, 70.0, 25e-3, 0.7),
+                vessel("V", VesselKind::Venule, 0.6e-3, -110.0, 12e-3, 0.3),
+            ],
+            heart_rate_hz: 12.0,
+            density: 3e8,
+        };
+        let phantom = NetworkPhantom::new(spec, 2).unwrap();
+        let mut probe = Probe::l22_14vx();
+        probe.n_elements = 32;
+        let sequence = Sequence {
+            angles: vec![0.0],
+            event_prf: 1.8e3,
+            coding: Coding::Conventional,
+            pulse_cycles: 2.0,
+            pulse: None,
+        };
+        let params = SimParams::new(probe, sequence, 65e6, 1540.0, (5.0e-3, 8.0e-3)).unwrap();
+        let data = simulate::simulate(&phantom, &params, 240, &|_, _| {}).unwrap();
+        let options = ProcessingSettings {
+            grid: Some("-0.8,0.8,5.5,7.5,0.1".into()),
+            svd_low: "off".into(),
+            doppler_estimator: crate::settings::DopplerEstimatorOption::Kasai,
+            ..ProcessingSettings::default()
+        };
+        let dynamics = DynamicsSettings {
+            heart_rate: Some(12.0),
+            ..DynamicsSettings::default()
+        };
+        let plan = Plan::new(&options, &dynamics, &data, None).unwrap();
+        let processed = run(&data, &plan, &crate::progress::Silent).unwrap();
+        let DynamicsOutcome::Done { series, maps } = &processed.dynamics else {
+            panic!("no RI maps: {:?}", processed.dynamics);
+        };
+        assert!(series.axial_only);
+        assert!(
+            maps.vessel_class
+                .iter()
+                .any(|&c| c == pcuvd::dynamics::ARTERIOLE)
+        );
+        let (given_series, given) =
+            dynamics_of_images(&processed.out.filtered, &options, &dynamics).unwrap();
+        // NaN (the unknown Vx, the background's RI) compared by its bits.
+        let same_bits = |a: ndarray::ArrayViewD<f64>, b: ndarray::ArrayViewD<f64>| {
+            a.shape() == b.shape() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        assert_eq!(given_series.times_s, series.times_s);
+        for (a, b) in [
+            (&given_series.vx, &series.vx),
+            (&given_series.vz, &series.vz),
+            (&given_series.power, &series.power),
+        ] {
+            assert!(same_bits(a.view().into_dyn(), b.view().into_dyn()));
+        }
+        assert_eq!(given.vessel_class, maps.vessel_class);
+        for (a, b) in [
+            (&given.ri, &maps.ri),
+            (&given.psv, &maps.psv),
+            (&given.edv, &maps.edv),
+        ] {
+            assert!(same_bits(a.view().into_dyn(), b.view().into_dyn()));
+        }
+    }
 }

@@ -142,6 +142,18 @@ impl Default for ProcessingSettings {
 }
 
 impl ProcessingSettings {
+    /// The IRLS vector fit's settings, checked.
+    pub fn irls(&self) -> Result<IrlsParams> {
+        let irls = IrlsParams {
+            lambda_mm_s: self.irls_lambda,
+            epsilon: self.irls_epsilon,
+            max_iterations: self.irls_max_iterations,
+        };
+        irls.validate()
+            .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
+        Ok(irls)
+    }
+
     /// The dealiasing of `--dealias`.
     pub fn dealias(&self) -> Result<pcuvd::estimate::dealias::Dealias> {
         pcuvd::estimate::dealias::Dealias::parse(&self.dealias).context("--dealias")
@@ -736,13 +748,7 @@ impl ProcessingSettings {
                 F_NUMBER_RANGE.1
             );
         }
-        let irls = IrlsParams {
-            lambda_mm_s: self.irls_lambda,
-            epsilon: self.irls_epsilon,
-            max_iterations: self.irls_max_iterations,
-        };
-        irls.validate()
-            .context("--irls-lambda / --irls-epsilon / --irls-max-iterations")?;
+        let irls = self.irls()?;
         let blocks = self.svd_blocks(&grid)?;
         let params = ProcessParams {
             grid,

@@ -346,12 +346,12 @@ pub(crate) fn resistivity_index<'py>(
 /// The dynamics stage on clutter-filtered image series formed elsewhere: `series` one (nz, nx,
 /// frames) per steering angle at `angles_rad` (one: RI of the colour-Doppler speed), on the
 /// grid `grid_m` (x_min, x_max, z_min, z_max, step, m) or the pixel positions `x_m`, `z_m`, at
-/// `frame_rate_hz`, their Doppler phase read with `doppler` ("loupas" or "kasai") at
-/// `center_freq_hz` and `sound_speed_m_s`; `options`: the dynamics keywords (JSON). Returns the
-/// RI maps and the windows' series, named as `process`'s.
+/// `frame_rate_hz`, `center_freq_hz` and `sound_speed_m_s`; `processing`: the Doppler
+/// keywords (estimator, kernel, IRLS, dealiasing; JSON), `options`: the dynamics keywords (JSON).
+/// Returns the RI maps and the windows' series, named as `process`'s.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
-#[pyo3(signature = (series, angles_rad, frame_rate_hz, center_freq_hz, sound_speed_m_s, doppler, options, grid_m=None, x_m=None, z_m=None))]
+#[pyo3(signature = (series, angles_rad, frame_rate_hz, center_freq_hz, sound_speed_m_s, processing, options, grid_m=None, x_m=None, z_m=None))]
 pub(crate) fn ri_maps_of_images<'py>(
     py: Python<'py>,
     series: Vec<PyReadonlyArray3<'py, Complex32>>,
@@ -359,21 +359,13 @@ pub(crate) fn ri_maps_of_images<'py>(
     frame_rate_hz: f64,
     center_freq_hz: f64,
     sound_speed_m_s: f64,
-    doppler: &str,
+    processing: &str,
     options: &str,
     grid_m: Option<[f64; 5]>,
     x_m: Option<Vec<f64>>,
     z_m: Option<Vec<f64>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let doppler = match doppler {
-        "loupas" => pcuvd::estimate::doppler::DopplerEstimator::Loupas,
-        "kasai" => pcuvd::estimate::doppler::DopplerEstimator::Kasai,
-        other => {
-            return Err(PyValueError::new_err(format!(
-                "doppler_estimator {other:?}: expected \"loupas\" or \"kasai\""
-            )));
-        }
-    };
+    let processing: ProcessingSettings = settings(processing)?;
     let grid = grid_from(grid_m, x_m, z_m)?;
     let shape = grid.shape();
     let series: Vec<_> = series
@@ -400,7 +392,7 @@ pub(crate) fn ri_maps_of_images<'py>(
     };
     let dynamics: DynamicsSettings = settings(options)?;
     let (series, maps) = py
-        .detach(|| pcuvd_app::run::dynamics_of_images(&images, &dynamics, doppler))
+        .detach(|| pcuvd_app::run::dynamics_of_images(&images, &processing, &dynamics))
         .map_err(to_py)?;
     let dict = PyDict::new(py);
     dict.set_item("ri", maps.ri.into_pyarray(py))?;
