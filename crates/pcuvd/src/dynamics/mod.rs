@@ -4,7 +4,8 @@
 //!
 //! Data flow: the clutter-filtered per-angle IQ series (nz, nx, frames) are cut into windows of
 //! `window` frames, `step` frames apart ([`sliding_vectors`]); each window gives per-angle lag-1
-//! autocorrelations → projections V_θ → (Vx, Vz) (the same estimators as [`crate::estimate::vector`]). The
+//! autocorrelations → projections V_θ → (Vx, Vz) (the same estimators as [`crate::estimate::vector`];
+//! one angle gives its colour-Doppler velocity alone, and RI of its magnitude). The
 //! spatial mean speed over vessel pixels gives the cardiac period and the cycles ([`find_cycles`]);
 //! per pixel, PSV is the largest speed of each cycle and EDV the smallest (end-diastole: the
 //! minimum just before the next systolic upstroke), both averaged over the complete cycles in the
