@@ -266,16 +266,7 @@ impl PyProcessResult {
             dict.set_item("clutter_block_cut_offs", cut_offs.into_pyarray(py))?;
         }
         if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
-            dict.set_item("ri", maps.ri.to_pyarray(py))?;
-            dict.set_item("psv", maps.psv.to_pyarray(py))?;
-            dict.set_item("edv", maps.edv.to_pyarray(py))?;
-            dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
-            dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
-            dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
-            dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
-            dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
-            dict.set_item("speed_series", series.speed().into_pyarray(py))?;
-            dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+            put_ri_maps(&dict, maps, series)?;
         }
         if let Some(ensembles) = &self.processed.ensembles {
             let maps = [

@@ -395,19 +395,30 @@ pub(crate) fn ri_maps_of_images<'py>(
         .detach(|| pcuvd_app::run::dynamics_of_images(&images, &processing, &dynamics))
         .map_err(to_py)?;
     let dict = PyDict::new(py);
-    dict.set_item("ri", maps.ri.into_pyarray(py))?;
-    dict.set_item("psv", maps.psv.into_pyarray(py))?;
-    dict.set_item("edv", maps.edv.into_pyarray(py))?;
-    dict.set_item("psv_spread", maps.psv_spread.into_pyarray(py))?;
-    dict.set_item("edv_spread", maps.edv_spread.into_pyarray(py))?;
-    dict.set_item("ri_spread", maps.ri_spread.into_pyarray(py))?;
-    dict.set_item("vessel_class", maps.vessel_class.into_pyarray(py))?;
-    dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
-    dict.set_item("speed_series", series.speed().into_pyarray(py))?;
-    dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+    put_ri_maps(&dict, &maps, &series)?;
     dict.set_item("heart_rate_hz", maps.heart_rate_hz)?;
     dict.set_item("cycles", maps.cycles)?;
     dict.set_item("cycles_from", maps.cycle_source.describe())?;
     dict.set_item("axial_only", series.axial_only)?;
     Ok(dict)
+}
+
+/// The dynamics stage's maps and speed series into `dict`, under the names `process` gives them.
+pub(crate) fn put_ri_maps(
+    dict: &Bound<'_, PyDict>,
+    maps: &pcuvd::dynamics::RiMaps,
+    series: &pcuvd::dynamics::VelocitySeries,
+) -> PyResult<()> {
+    let py = dict.py();
+    dict.set_item("ri", maps.ri.to_pyarray(py))?;
+    dict.set_item("psv", maps.psv.to_pyarray(py))?;
+    dict.set_item("edv", maps.edv.to_pyarray(py))?;
+    dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
+    dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
+    dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
+    dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
+    dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
+    dict.set_item("speed_series", series.speed().into_pyarray(py))?;
+    dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+    Ok(())
 }
