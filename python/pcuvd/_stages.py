@@ -292,7 +292,7 @@ def ri_maps(
     One angle gives no vector: its RI is read from the colour-Doppler speed |Vz| (a ratio, so a
     vessel that keeps its direction to the beam reads its own RI; vessels across the beam are
     undetermined). options: the Doppler keywords of `pcuvd.process` (`doppler_estimator`:
-    "loupas", the default, needs axial pixels finer than a quarter wavelength, or "kasai";
+    "loupas", the default, needs axial pixels no coarser than a wavelength, or "kasai";
     `doppler_kernel`, whose box also averages the power Doppler the vessel mask is drawn on;
     `irls_*`, `dealias`) and the dynamics keywords of `pcuvd.dynamics` (`heart_rate_hz`,
     `window_ms`, `cardiac_triggers`, `artery_ri_min`, ...), with `process`'s defaults.
