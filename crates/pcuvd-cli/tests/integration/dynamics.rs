@@ -455,8 +455,8 @@ fn a_recording_without_flow_is_processed_with_a_note_on_its_ri_maps() {
 
 /// One steering angle (64 elements, 0°, a 1.8 kHz frame rate, 400 frames: 2.7 beats at 12 Hz,
 /// noise off) of the slow tier's arteriole and venule, 20° off the beam, and a third vessel across
-/// the beam: RI is read from the colour-Doppler speed, which keeps each oblique vessel's RI (a ratio,
-/// blind to the cosine that scales its waveform), while the vessel across the beam, whose
+/// the beam: RI is read from the colour-Doppler speed, which keeps each oblique vessel's RI (a
+/// ratio, blind to the cosine that scales its waveform), while the vessel across the beam, whose
 /// projection is nothing but the windows' scatter about zero, is left undetermined with no RI.
 #[test]
 #[ignore = "slow tier: cargo test -- --include-ignored"]

@@ -79,8 +79,9 @@ pub fn ri_maps_where(
 /// standard deviations across cycles of the per-cycle values, each cycle fitted on its own.
 ///
 /// A series of one projection ([`VelocitySeries::axial_only`]) reads PSV and EDV of |Vz| (vessel
-/// pooling, which needs the flow's direction in the plane, is refused); its vessel pixels whose velocity does not keep its sign
-/// ([`AXIAL_COHERENCE_MIN`]) are undetermined, with NaN PSV, EDV and RI.
+/// pooling, which needs the flow's direction in the plane, is refused); its vessel pixels whose
+/// velocity does not keep its sign ([`AXIAL_COHERENCE_MIN`]) are undetermined, with NaN PSV, EDV
+/// and RI.
 pub fn ri_maps_triggered(
     series: &VelocitySeries,
     params: &DynamicsParams,
