@@ -294,7 +294,8 @@ def ri_maps(
     undetermined). options: the Doppler keywords of `pcuvd.process` (`doppler_estimator`:
     "loupas", the default, needs axial pixels no coarser than a wavelength, or "kasai";
     `doppler_kernel`, whose box also averages the power Doppler the vessel mask is drawn on;
-    `irls_*`, `dealias`) and the dynamics keywords of `pcuvd.dynamics` (`heart_rate_hz`,
+    `irls_*`, `dealias`: "auto" decides in each window, there being no whole-recording maps to
+    decide on) and the dynamics keywords of `pcuvd.dynamics` (`heart_rate_hz`,
     `window_ms`, `cardiac_triggers`, `artery_ri_min`, ...), with `process`'s defaults.
     Returns {"ri", "psv", "edv", "psv_spread", "edv_spread", "ri_spread", "vessel_class",
     "flow_up", "speed_series", "times", "heart_rate_hz", "cycles", "cycles_from",
