@@ -334,17 +334,18 @@ impl ZarrStore {
                 "s",
                 "centre time of each velocity window from the first frame",
             );
-            let arrays: Vec<&MapKind> = ["window_vx", "window_vz", "window_power"]
-                .iter()
-                .map(|n| map_kind(n))
-                .collect();
+            // One angle's windows hold no lateral velocity: no array of NaN stands for it.
+            let vx = (!series.axial_only).then_some(("window_vx", series.vx.view()));
+            let (names, views): (Vec<&str>, Vec<_>) = vx
+                .into_iter()
+                .chain([
+                    ("window_vz", series.vz.view()),
+                    ("window_power", series.power.view()),
+                ])
+                .unzip();
+            let arrays: Vec<&MapKind> = names.iter().map(|n| map_kind(n)).collect();
             let mut windows = self.new_series(&time, &arrays)?;
-            self.append_to(
-                &mut windows,
-                0,
-                &series.times_s,
-                &[series.vx.view(), series.vz.view(), series.power.view()],
-            )?;
+            self.append_to(&mut windows, 0, &series.times_s, &views)?;
         }
         if !processed.ensembles_in_store
             && let Some(ensembles) = &processed.ensembles

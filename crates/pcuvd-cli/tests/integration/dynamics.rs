@@ -493,9 +493,15 @@ fn one_angle_gives_ri_maps_from_the_colour_doppler_speed() {
         "off",
         "--heart-rate",
         "12",
+        "--zarr",
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("RI maps"), "{stdout}");
+    // The store's windows hold the colour-Doppler velocity and power, and no array of NaN for
+    // the lateral velocity one angle cannot give.
+    let store = out.join("pcuvd.zarr");
+    assert!(store.join("window_vz").is_dir() && store.join("window_power").is_dir());
+    assert!(!store.join("window_vx").exists());
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let dynamics = &summary["dynamics"];
