@@ -460,16 +460,12 @@ impl WindowFit<'_> {
     /// projection V_θ along (sin θ, 1 + cos θ)/2 read as 2·V_θ/(1 + cos θ), as the whole
     /// recording's `color_doppler` is; NaN where the plane wave misses the pixel), and its power.
     /// Neither dealiasing nor the partial-volume correction applies: both rest on a vector fit.
-    fn axial(&self, maps: &AngleMaps) -> (Array2<f64>, Array2<f64>, Array2<f64>) {
-        let scale = 2.0 / (1.0 + self.angles[0].cos());
-        let mut vz = maps.projections.index_axis(Axis(0), 0).mapv(|v| v * scale);
+    fn axial(&self, maps: &mut AngleMaps) -> (Array2<f64>, Array2<f64>, Array2<f64>) {
         if let Some(c) = self.coverage {
-            vz.zip_mut_with(&c.index_axis(Axis(0), 0), |v, &reached| {
-                if !reached {
-                    *v = f64::NAN;
-                }
-            });
+            vector::drop_unreached(&mut maps.projections, c);
         }
+        let scale = 2.0 / (1.0 + self.angles[0].cos());
+        let vz = maps.projections.index_axis(Axis(0), 0).mapv(|v| v * scale);
         let power = maps.power.index_axis(Axis(0), 0).to_owned();
         (Array2::from_elem(vz.dim(), f64::NAN), vz, power)
     }
