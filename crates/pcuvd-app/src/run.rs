@@ -53,26 +53,19 @@ impl Plan {
             );
         }
         let params = options.params(data)?;
-        let one_angle = data.acquisition().sequence.n_angles() < 2;
         let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
             None
         } else {
-            let windows = dynamics.params(
-                data.acquisition().frame_rate(),
-                params.irls,
-                params.dealias,
-                params.grid.step(),
-            )?;
             Some(DynamicsPlan {
-                params: pcuvd::dynamics::DynamicsParams {
-                    // The windows read velocity as the whole-recording maps do.
-                    doppler: params.doppler_estimator,
-                    partial_volume: dynamics.dynamics_partial_volume == Switch::On,
-                    // Pooling follows each pixel's flow direction in the plane, which one angle's
-                    // projection does not give (summary.json's dynamics says so).
-                    pooling: windows.pooling.filter(|_| !one_angle),
-                    ..windows
-                },
+                params: window_params(
+                    dynamics,
+                    data.acquisition().frame_rate(),
+                    params.grid.step(),
+                    data.acquisition().sequence.n_angles(),
+                    params.irls,
+                    params.dealias,
+                    params.doppler_estimator,
+                )?,
                 vessel: dynamics.vessel_tests()?,
                 triggers: match (dynamics.triggers()?, recorded_triggers) {
                     (Some(given), _) => Some((given, "--cardiac-triggers".into())),
@@ -429,6 +422,29 @@ pub fn run_dynamics(
     })
 }
 
+/// The dynamics windows' settings: `dynamics`' windows, thresholds and pooling at `frame_rate`
+/// (Hz) on a grid of `grid_step` (m), the velocity read as the whole-recording maps read it
+/// (`irls`, `dealias`, `doppler`). Pooling follows each pixel's flow direction in the plane,
+/// which one angle's projection does not give: off below two angles (summary.json's dynamics
+/// says so).
+fn window_params(
+    dynamics: &DynamicsSettings,
+    frame_rate: f64,
+    grid_step: f64,
+    n_angles: usize,
+    irls: pcuvd::estimate::vector::IrlsParams,
+    dealias: pcuvd::estimate::dealias::Dealias,
+    doppler: pcuvd::estimate::doppler::DopplerEstimator,
+) -> Result<DynamicsParams> {
+    let windows = dynamics.params(frame_rate, irls, dealias, grid_step)?;
+    Ok(DynamicsParams {
+        doppler,
+        partial_volume: dynamics.dynamics_partial_volume == Switch::On,
+        pooling: windows.pooling.filter(|_| n_angles >= 2),
+        ..windows
+    })
+}
+
 /// The dynamics stage on clutter-filtered images formed elsewhere (a scanner's beamformed IQ, or
 /// the Python stages'), as `process` runs it: `images`' series per angle (one angle: RI of the
 /// colour-Doppler speed); `dynamics`' windows, thresholds, vessel tests and cycles (its
@@ -440,18 +456,15 @@ pub fn dynamics_of_images(
     processing: &ProcessingSettings,
     dynamics: &DynamicsSettings,
 ) -> Result<(VelocitySeries, RiMaps)> {
-    let windows = dynamics.params(
+    let params = window_params(
+        dynamics,
         images.frame_rate,
+        images.grid.step(),
+        images.n_angles(),
         processing.irls()?,
         processing.dealias()?,
-        images.grid.step(),
+        processing.doppler_estimator.into(),
     )?;
-    let params = DynamicsParams {
-        doppler: processing.doppler_estimator.into(),
-        partial_volume: dynamics.dynamics_partial_volume == Switch::On,
-        pooling: windows.pooling.filter(|_| images.n_angles() >= 2),
-        ..windows
-    };
     let series = pcuvd::dynamics::sliding_vectors(images, &params)?;
     let kernel =
         crate::settings::parse_kernel(&processing.doppler_kernel).context("--doppler-kernel")?;
@@ -599,20 +612,25 @@ mod tests {
             a.shape() == b.shape() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
         };
         assert_eq!(given_series.times_s, series.times_s);
-        for (a, b) in [
-            (&given_series.vx, &series.vx),
-            (&given_series.vz, &series.vz),
-            (&given_series.power, &series.power),
-        ] {
-            assert!(same_bits(a.view().into_dyn(), b.view().into_dyn()));
-        }
         assert_eq!(given.vessel_class, maps.vessel_class);
         for (a, b) in [
-            (&given.ri, &maps.ri),
-            (&given.psv, &maps.psv),
-            (&given.edv, &maps.edv),
+            (
+                given_series.vx.view().into_dyn(),
+                series.vx.view().into_dyn(),
+            ),
+            (
+                given_series.vz.view().into_dyn(),
+                series.vz.view().into_dyn(),
+            ),
+            (
+                given_series.power.view().into_dyn(),
+                series.power.view().into_dyn(),
+            ),
+            (given.ri.view().into_dyn(), maps.ri.view().into_dyn()),
+            (given.psv.view().into_dyn(), maps.psv.view().into_dyn()),
+            (given.edv.view().into_dyn(), maps.edv.view().into_dyn()),
         ] {
-            assert!(same_bits(a.view().into_dyn(), b.view().into_dyn()));
+            assert!(same_bits(a, b));
         }
     }
 }
