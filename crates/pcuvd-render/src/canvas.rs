@@ -70,6 +70,14 @@ pub(crate) enum VAlign {
 // are ~0.626*size tall.
 const BASELINE: f64 = 0.5;
 const CAP: f64 = 0.626;
+/// Baseline-to-baseline distance of a title's lines, in font sizes.
+pub(crate) const TITLE_LINE_STEP: f64 = 1.2;
+
+/// Height a title of font size `size` takes above its usual one-line band: its lines beyond
+/// the first (the text split at `\n`).
+pub(crate) fn extra_title_height(title: &str, size: f64) -> f64 {
+    title.lines().count().saturating_sub(1) as f64 * TITLE_LINE_STEP * size
+}
 
 fn rgb(c: (u8, u8, u8)) -> RGBColor {
     RGBColor(c.0, c.1, c.2)
@@ -109,8 +117,9 @@ impl<'a> Canvas<'a> {
             .unwrap_or(0.6 * size * s.chars().count() as f64)
     }
 
-    /// Draw a single-line title centred near `cx` with its baseline at `y`, shrunk
-    /// (down to 55 %) and shifted as needed to stay within [x0, x1].
+    /// Draw a title centred near `cx` with its last line's baseline at `y`, its lines (split at
+    /// `\n`) one above another, shrunk alike (down to 55 %) and shifted as needed to stay
+    /// within [x0, x1].
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn title(
         &self,
@@ -123,19 +132,36 @@ impl<'a> Canvas<'a> {
         c: (u8, u8, u8),
     ) -> Result<(), RenderError> {
         let avail = (x1 - x0).max(1.0);
-        let w = self.text_width(s, size);
-        let size = if w > avail {
-            (size * avail / w).max(size * 0.55)
+        let widest = s
+            .lines()
+            .map(|line| self.text_width(line, size))
+            .fold(0.0, f64::max);
+        let size = if widest > avail {
+            (size * avail / widest).max(size * 0.55)
         } else {
             size
         };
-        let w = self.text_width(s, size);
-        let cx = if w >= avail {
-            (x0 + x1) / 2.0
-        } else {
-            cx.min(x1 - w / 2.0).max(x0 + w / 2.0)
-        };
-        self.text(s, cx, y, size, HAlign::Center, VAlign::Bottom, c, false)
+        let lines: Vec<&str> = s.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
+            let w = self.text_width(line, size);
+            let cx = if w >= avail {
+                (x0 + x1) / 2.0
+            } else {
+                cx.min(x1 - w / 2.0).max(x0 + w / 2.0)
+            };
+            let above = (lines.len() - 1 - i) as f64 * TITLE_LINE_STEP * size;
+            self.text(
+                line,
+                cx,
+                y - above,
+                size,
+                HAlign::Center,
+                VAlign::Bottom,
+                c,
+                false,
+            )?;
+        }
+        Ok(())
     }
 
     /// Draw text anchored at (x, y); `rotated` = reads bottom-to-top (for y-axis labels).

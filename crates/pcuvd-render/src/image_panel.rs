@@ -204,7 +204,7 @@ pub(crate) fn layout(
     let zt_w0 = max_width(m, &zt0, ts);
     let ct_w0 = max_width(m, &ct0, ts);
 
-    let title_h = tts * 1.7;
+    let title_h = tts * 1.7 + crate::canvas::extra_title_height(&ip.title, tts);
     let top_pad = ts * 1.9;
     let left = st.px(6.0) + ls * 1.2 + st.px(5.0) + zt_w0 + gap + tick_len;
     let bottom = tick_len + gap + ts * 0.8 + st.px(8.0) + ls * 0.8 + st.px(8.0);

@@ -248,7 +248,7 @@ pub(crate) fn layout(
     let xt0 = linear_ticks(xr.0, xr.1, 8);
     let last_x_w = xt0.last().map_or(0.0, |t| m.text_width(&t.label, ts));
 
-    let title_h = tts * 1.7;
+    let title_h = tts * 1.7 + crate::canvas::extra_title_height(&pp.title, tts);
     let left = st.px(6.0)
         + if pp.y_label.is_empty() {
             0.0

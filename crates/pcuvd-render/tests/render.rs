@@ -827,3 +827,33 @@ fn a_long_colour_bar_label_keeps_clear_of_the_cell_edges() {
         "no label above the bar: first ink at row {labelled}, {unlabelled} without the label"
     );
 }
+
+#[test]
+fn a_title_of_two_lines_gets_room_for_both_above_the_image() {
+    let render = |title: &str| {
+        let mut panel = image_panel(Array2::zeros((40, 40)), Colormap::Gray, (0.0, 1.0));
+        panel.title = title.into();
+        decode(&render_png_bytes(&figure(vec![Panel::Image(panel)], 1, "")).unwrap())
+    };
+    let one = render("PC-UVD: no RI:");
+    let two = render("PC-UVD: no RI:\nthe waveform is too short");
+    let black = |p: (u8, u8, u8)| p == (0, 0, 0);
+    let (_, top_one, _, _) = bbox(&one, black).unwrap();
+    let (_, top_two, _, _) = bbox(&two, black).unwrap();
+    // The rows above the image (but for its anti-aliased edge), over its columns, that hold
+    // ink: one band of text per line.
+    let bands = |img: &Img, top: usize| {
+        let (x0, _, x1, _) = bbox(img, black).unwrap();
+        let inked: Vec<bool> = (0..top - 2)
+            .map(|y| (x0..=x1).any(|x| img.px(x, y) != (255, 255, 255)))
+            .collect();
+        inked.windows(2).filter(|w| !w[0] && w[1]).count() + usize::from(inked[0])
+    };
+    assert_eq!(bands(&one, top_one), 1);
+    assert_eq!(bands(&two, top_two), 2);
+    // The second line pushes the image down rather than drawing over it.
+    assert!(
+        top_two > top_one + 8,
+        "image top at row {top_two} with two lines, {top_one} with one"
+    );
+}

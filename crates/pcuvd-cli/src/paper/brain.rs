@@ -429,7 +429,7 @@ pub fn brain_figures(
         "RI",
         cycle.map(|c| view.cut(&c.ri)),
         &|ri| view.cut(&ri.ri),
-        &|why| format!("no RI ({why})"),
+        &|why| format!("no RI:\n{why}"),
         (Colormap::Viridis, (0.0, 1.0), "RI"),
     );
     for (which, kind) in [(ARTERIOLE, "arterioles"), (VENULE, "venules")] {
@@ -718,30 +718,30 @@ fn refusal(skipped: &str) -> &str {
     reason.split([';', '(']).next().unwrap_or(reason).trim()
 }
 
-/// Why a method has no RI maps, short enough for a panel's title: the reason's first clause
-/// (what the dynamics stage refused), without the error's kind.
+/// Why a method has no RI maps, for a panel's title: the reason's first clause (what the
+/// dynamics stage refused), without the error's kind, in lines of at most [`TITLE_LINE_CHARS`].
 fn no_ri_reason(skipped: &str) -> String {
-    const MOST: usize = 44;
-    let clause = refusal(skipped);
-    if clause.chars().count() <= MOST {
-        clause.to_string()
-    } else {
-        let cut: String = clause.chars().take(MOST - 1).collect();
-        format!("{}…", cut.trim_end())
-    }
+    textwrap::wrap(refusal(skipped), TITLE_LINE_CHARS).join("\n")
 }
+
+/// Characters in a line of a panel's title that the figures' three columns show unshrunk.
+const TITLE_LINE_CHARS: usize = 40;
 
 #[cfg(test)]
 mod tests {
     use super::no_ri_reason;
 
     #[test]
-    fn a_refusal_becomes_a_short_title() {
+    fn a_refusal_becomes_a_title_of_short_lines() {
         let skipped = "invalid recording: 10.0 ms of waveform is too short to measure a heart \
                        rate between 3 and 15 Hz from the data (about 1.5 cycles are needed)";
-        let short = no_ri_reason(skipped);
-        assert_eq!(short, "10.0 ms of waveform is too short to measure…");
-        assert!(short.chars().count() <= 44);
+        let title = no_ri_reason(skipped);
+        assert_eq!(
+            title,
+            "10.0 ms of waveform is too short to\nmeasure a heart rate between 3 and 15 Hz\nfrom \
+             the data"
+        );
+        assert!(title.lines().all(|line| line.chars().count() <= 40));
         assert_eq!(no_ri_reason("no heart rate given"), "no heart rate given");
     }
 }
