@@ -8,6 +8,50 @@ use ndarray_npy::ReadNpyExt;
 
 use crate::error::IoError;
 
+/// `[cardiac]` of a manifest (a recording's or an images manifest): the cardiac cycles recorded
+/// beside the ultrasound, for the dynamics stage.
+#[derive(Debug, Default, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct CardiacSection {
+    /// Cycle start times (s from the first frame): ECG R-waves or scanner triggers.
+    pub(crate) triggers_s: Option<Vec<f64>>,
+    /// A 1-D `.npy` or text file of such times, relative to the manifest's folder.
+    pub(crate) triggers_file: Option<String>,
+}
+
+/// The cycle start times of the manifest `path`'s `[cardiac]` table (inline or from its file),
+/// checked; `None` without the table.
+pub(crate) fn triggers_of_section(
+    path: &Path,
+    cardiac: Option<CardiacSection>,
+) -> Result<Option<Vec<f64>>, IoError> {
+    let Some(c) = cardiac else {
+        return Ok(None);
+    };
+    match (c.triggers_s, c.triggers_file) {
+        (Some(times), None) => {
+            check_times_of(path, "[cardiac].triggers_s", &times)?;
+            Ok(Some(times))
+        }
+        (None, Some(file)) => {
+            let file = path.parent().unwrap_or(Path::new("")).join(file);
+            read_trigger_times(&file)
+                .map(Some)
+                .map_err(|e| IoError::invalid(path, "[cardiac].triggers_file", format!("{e}")))
+        }
+        (Some(_), Some(_)) => Err(IoError::invalid(
+            path,
+            "[cardiac]",
+            "give triggers_s or triggers_file, not both",
+        )),
+        (None, None) => Err(IoError::missing(
+            path,
+            "table [cardiac]",
+            "key 'triggers_s' or 'triggers_file'",
+        )),
+    }
+}
+
 /// Reads cardiac cycle start times (s, from the recording's first frame) from a 1-D `.npy` file
 /// (float64, float32 or integer) or a text file of numbers separated by commas, spaces or new
 /// lines (`#` starts a comment). The times must be finite and strictly increasing.

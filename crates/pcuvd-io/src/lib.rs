@@ -15,7 +15,8 @@
 //!   bytes say it is), [`mat`] (a MATLAB v5 MAT-file reader and a small writer), [`mat73`],
 //!   [`hdf5`], [`npz`], [`array`](mod@array), [`layout`];
 //! - beside them: [`read_pass`] (a samples file fed to a checksum as its blocks are read),
-//!   [`cardiac`] (cardiac cycle start times recorded beside a recording), [`npy`]
+//!   [`cardiac`] (cardiac cycle start times recorded beside a recording), [`images`] (the
+//!   "pcuvd-images" manifest of beamformed IQ images formed elsewhere), [`npy`]
 //!   (thin `.npy`/JSON writers for results), [`paths`] (what a path names, said before it is
 //!   opened).
 //!
@@ -29,6 +30,7 @@ pub mod container;
 pub mod datafile;
 pub mod error;
 pub mod hdf5;
+pub mod images;
 pub mod layout;
 pub mod manifest;
 pub mod mat;

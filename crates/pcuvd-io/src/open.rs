@@ -57,6 +57,14 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
+    if crate::images::is_images_manifest(&head) {
+        return Err(IoError::malformed(
+            path,
+            "is an images manifest (beamformed IQ images, format \"pcuvd-images\"), not a \
+             recording of channel data: `pcuvd process` reads it (decoding and beamforming \
+             skipped), as does pcuvd-io's images::read_images",
+        ));
+    }
     let container = match sniff(&head) {
         Some(c) => c,
         // TOML has no magic: a .toml that does not name the format gets the manifest's own
@@ -80,7 +88,8 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
             path,
             "is a bare NumPy .npy array: it holds samples but not how they were acquired. Write \
              a pcuvd recording manifest (.toml) that describes the acquisition and names this \
-             file in [data].file (see crates/pcuvd-io/examples/recording.toml)",
+             file in [data].file (see crates/pcuvd-io/examples/recording.toml), or, for \
+             beamformed IQ images, an images manifest (crates/pcuvd-io/examples/images.toml)",
         )),
         Container::Hdf5 { .. } => open_hdf5(path, overrides, &ext),
     }?;

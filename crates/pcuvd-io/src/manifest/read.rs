@@ -8,7 +8,7 @@ use pcuvd::{Acquisition, ChannelData, Samples};
 
 use super::acquisition::{acquisition_of, probe_of};
 use super::axes::{axis_permutation, event_shape, to_events};
-use super::schema::{CardiacSection, ManifestFile};
+use super::schema::ManifestFile;
 use super::{FORMAT, Recording, VERSION};
 use crate::error::IoError;
 use crate::npy::NpyArray;
@@ -178,38 +178,6 @@ pub(crate) struct Parsed {
     pub(crate) cardiac_triggers_s: Option<Vec<f64>>,
 }
 
-/// The cycle start times of a manifest's `[cardiac]` table (inline or from its file), checked.
-fn cardiac_triggers(
-    path: &Path,
-    cardiac: Option<CardiacSection>,
-) -> Result<Option<Vec<f64>>, IoError> {
-    let Some(c) = cardiac else {
-        return Ok(None);
-    };
-    match (c.triggers_s, c.triggers_file) {
-        (Some(times), None) => {
-            crate::cardiac::check_times_of(path, "[cardiac].triggers_s", &times)?;
-            Ok(Some(times))
-        }
-        (None, Some(file)) => {
-            let file = path.parent().unwrap_or(Path::new("")).join(file);
-            crate::cardiac::read_trigger_times(&file)
-                .map(Some)
-                .map_err(|e| IoError::invalid(path, "[cardiac].triggers_file", format!("{e}")))
-        }
-        (Some(_), Some(_)) => Err(IoError::invalid(
-            path,
-            "[cardiac]",
-            "give triggers_s or triggers_file, not both",
-        )),
-        (None, None) => Err(IoError::missing(
-            path,
-            "table [cardiac]",
-            "key 'triggers_s' or 'triggers_file'",
-        )),
-    }
-}
-
 /// Reads and checks a manifest, up to (not including) its samples.
 pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, "read", e))?;
@@ -288,7 +256,7 @@ pub(crate) fn parse_manifest(path: &Path) -> Result<Parsed, IoError> {
     let perm =
         axis_permutation(&axes, version).map_err(|p| IoError::invalid(path, "[data].axes", p))?;
     let data = crate::datafile::parse_data_file(path, &file)?;
-    let cardiac_triggers_s = cardiac_triggers(path, m.cardiac)?;
+    let cardiac_triggers_s = crate::cardiac::triggers_of_section(path, m.cardiac)?;
     Ok(Parsed {
         cardiac_triggers_s,
         acquisition,

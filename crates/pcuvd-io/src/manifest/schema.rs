@@ -20,15 +20,7 @@ pub(super) struct ManifestFile {
     pub(super) provenance: toml::Table,
 }
 
-/// `[cardiac]`: the cardiac cycles recorded beside the ultrasound, for the dynamics stage.
-#[derive(Debug, Default, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct CardiacSection {
-    /// Cycle start times (s from the first frame): ECG R-waves or scanner triggers.
-    pub(super) triggers_s: Option<Vec<f64>>,
-    /// A 1-D `.npy` or text file of such times, relative to the manifest's folder.
-    pub(super) triggers_file: Option<String>,
-}
+pub(super) use crate::cardiac::CardiacSection;
 
 /// `[probe]`: a preset, or the probe's own keys (which override the preset's).
 #[derive(Debug, Default, Deserialize, Serialize)]

@@ -1,0 +1,459 @@
+//! The images manifest: a TOML file (format "pcuvd-images", SI units with the unit in each key)
+//! that describes beamformed IQ images formed elsewhere (a functional-ultrasound scanner's
+//! compound images, another beamformer's output) and names the `.npy` file that holds them. What
+//! Doppler needs of them is their frame rate, the frequency their IQ was demodulated at (which
+//! turns phase into velocity), the speed of sound, the pixels' positions and the steering angle
+//! of each series; nothing of the probe or the transmit sequence is needed, since the images are
+//! already formed. See `crates/pcuvd-io/examples/images.toml`.
+
+use std::path::Path;
+
+use ndarray::{Array3, Axis};
+use num_complex::Complex32;
+use pcuvd::core::grid::Grid;
+use pcuvd::form::images::AngleImages;
+use serde::Deserialize;
+
+use crate::error::IoError;
+use crate::npy::{NpyArray, read_npy};
+use crate::params::{ParamSource, Parameter};
+use crate::recording::{SourceInfo, StoredSamples};
+
+/// The format string an images manifest starts with.
+pub const FORMAT: &str = "pcuvd-images";
+
+/// The newest version of the images manifest this reader reads.
+pub const VERSION: u32 = 1;
+
+/// The axes an images array may have, in any order: slow time, depth, lateral, and optionally
+/// one series per steering angle.
+const AXES: [&str; 4] = ["frames", "z", "x", "angles"];
+
+/// The manifest as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    format: String,
+    version: u32,
+    images: ImagesSection,
+    cardiac: Option<crate::cardiac::CardiacSection>,
+    #[serde(default)]
+    #[allow(dead_code)] // free-form, kept for people: read so that it is not an unknown key
+    provenance: toml::Table,
+}
+
+/// `[images]`: the array and what Doppler needs to read it.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ImagesSection {
+    file: String,
+    axes: Vec<String>,
+    frame_rate_hz: f64,
+    demod_frequency_hz: f64,
+    #[serde(default = "default_sound_speed")]
+    sound_speed_m_s: f64,
+    angles_deg: Option<Vec<f64>>,
+    x_m: [f64; 2],
+    z_m: [f64; 2],
+}
+
+fn default_sound_speed() -> f64 {
+    1540.0
+}
+
+/// Beamformed images read from an images manifest, and what was read.
+#[derive(Debug, Clone)]
+pub struct ImagesRecording {
+    /// The image series, one per steering angle, on their grid, with their frame rate (Hz),
+    /// demodulation frequency (Hz) and speed of sound (m/s).
+    pub images: AngleImages,
+    /// The manifest and its images file, the format, every parameter with where it came from.
+    pub info: SourceInfo,
+}
+
+/// True when a file's first bytes `head` name the images manifest's format.
+pub fn is_images_manifest(head: &[u8]) -> bool {
+    let text = String::from_utf8_lossy(&head[..head.len().min(4096)]);
+    text.contains(&format!("\"{FORMAT}\"")) || text.contains(&format!("'{FORMAT}'"))
+}
+
+/// Reads the images manifest at `path` and the complex images it names (complex64 or
+/// complex128, any axis order the manifest gives).
+pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
+    let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, "read", e))?;
+    let manifest: Manifest = toml::from_str(&text).map_err(|e| {
+        IoError::malformed(
+            path,
+            format!("not a valid images manifest: {}", crate::error::flat(e)),
+        )
+    })?;
+    if manifest.format != FORMAT {
+        return Err(IoError::invalid(
+            path,
+            "format",
+            format!(
+                "is {:?}; an images manifest says {FORMAT:?}",
+                manifest.format
+            ),
+        ));
+    }
+    if manifest.version == 0 || manifest.version > VERSION {
+        return Err(IoError::invalid(
+            path,
+            "version",
+            format!(
+                "is {}; this pcuvd reads version {VERSION} (a newer pcuvd may read it)",
+                manifest.version
+            ),
+        ));
+    }
+    let section = manifest.images;
+    let positive = |field: &str, value: f64| {
+        if value.is_finite() && value > 0.0 {
+            Ok(value)
+        } else {
+            Err(IoError::invalid(
+                path,
+                format!("[images].{field}"),
+                format!("is {value}; must be a positive number"),
+            ))
+        }
+    };
+    let frame_rate = positive("frame_rate_hz", section.frame_rate_hz)?;
+    let demodulation_frequency = positive("demod_frequency_hz", section.demod_frequency_hz)?;
+    let sound_speed = positive("sound_speed_m_s", section.sound_speed_m_s)?;
+    let axes = axes_order(path, &section.axes)?;
+    let cardiac_triggers_s = crate::cardiac::triggers_of_section(path, manifest.cardiac)?;
+    let file = path.parent().unwrap_or(Path::new(".")).join(&section.file);
+    crate::paths::check_regular_file(&file)?;
+    let array = match read_npy(&file)? {
+        NpyArray::Complex(array) => array,
+        NpyArray::Real(_) => {
+            return Err(IoError::invalid(
+                path,
+                "[images].file",
+                format!(
+                    "{} holds real numbers: beamformed IQ images are complex (complex64 or \
+                     complex128)",
+                    section.file
+                ),
+            ));
+        }
+    };
+    if array.ndim() != section.axes.len() {
+        return Err(IoError::invalid(
+            path,
+            "[images].axes",
+            format!(
+                "names {} axes but {} has {} (shape {:?})",
+                section.axes.len(),
+                section.file,
+                array.ndim(),
+                array.shape()
+            ),
+        ));
+    }
+    let shape = array.shape().to_vec();
+    // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
+    let order: Vec<usize> = ["angles", "z", "x", "frames"]
+        .iter()
+        .filter_map(|name| axes.iter().position(|a| a == name))
+        .collect();
+    let array = array.permuted_axes(order);
+    let array = if array.ndim() == 3 {
+        array.insert_axis(Axis(0))
+    } else {
+        array
+    };
+    let (n_angles, nz, nx, frames) = (
+        array.shape()[0],
+        array.shape()[1],
+        array.shape()[2],
+        array.shape()[3],
+    );
+    let angles_deg = section.angles_deg.clone().unwrap_or_else(|| vec![0.0]);
+    if angles_deg.len() != n_angles || angles_deg.iter().any(|a| !a.is_finite() || a.abs() >= 90.0) {
+        return Err(IoError::invalid(
+            path,
+            "[images].angles_deg",
+            format!(
+                "gives {} angle(s) {angles_deg:?}; the images hold {n_angles} series (the \
+                 \"angles\" axis, or one without it), each steered within ±90°",
+                angles_deg.len()
+            ),
+        ));
+    }
+    if frames < 2 || nz < 2 || nx < 2 {
+        return Err(IoError::invalid(
+            path,
+            "[images].file",
+            format!(
+                "{} holds {frames} frame(s) of {nz} × {nx} pixels: Doppler needs 2 frames or more \
+                 of 2 × 2 pixels or more",
+                section.file
+            ),
+        ));
+    }
+    let x = pixel_positions(path, "x_m", section.x_m, nx)?;
+    let z = pixel_positions(path, "z_m", section.z_m, nz)?;
+    let series: Vec<Array3<Complex32>> = array
+        .axis_iter(Axis(0))
+        .map(|one| {
+            one.into_dimensionality::<ndarray::Ix3>()
+                .map(|s| s.as_standard_layout().into_owned())
+        })
+        .collect::<Result<_, _>>()
+        .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
+    if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
+        return Err(IoError::invalid(
+            path,
+            "[images].file",
+            format!(
+                "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
+                 the (angles, z, x, frames) series",
+                section.file
+            ),
+        ));
+    }
+    let angles: Vec<f64> = angles_deg.iter().map(|a| a.to_radians()).collect();
+    let images = AngleImages {
+        grid: Grid { x, z },
+        angles,
+        frame_rate,
+        sound_speed,
+        demodulation_frequency,
+        coverage: None,
+        series,
+    };
+    let from_file = |name: &str, value: serde_json::Value, field: &str| Parameter {
+        name: name.into(),
+        value,
+        source: ParamSource::File {
+            field: format!("[images].{field}"),
+        },
+    };
+    let mut parameters = vec![
+        from_file("frame_rate_hz", frame_rate.into(), "frame_rate_hz"),
+        from_file(
+            "demod_frequency_hz",
+            demodulation_frequency.into(),
+            "demod_frequency_hz",
+        ),
+        from_file("x_m", serde_json::json!(section.x_m), "x_m"),
+        from_file("z_m", serde_json::json!(section.z_m), "z_m"),
+    ];
+    let defaulted = |name: &str, value: serde_json::Value, what: &str| Parameter {
+        name: name.into(),
+        value,
+        source: ParamSource::Default { note: what.into() },
+    };
+    parameters.push(match section.angles_deg {
+        Some(given) => from_file("angles_deg", serde_json::json!(given), "angles_deg"),
+        None => defaulted(
+            "angles_deg",
+            serde_json::json!([0.0]),
+            "one series, read as a 0° plane wave's (a compound of small angles reads within \
+             1 − cos θ of it)",
+        ),
+    });
+    parameters.push(if text.contains("sound_speed_m_s") {
+        from_file("sound_speed_m_s", sound_speed.into(), "sound_speed_m_s")
+    } else {
+        defaulted("sound_speed_m_s", sound_speed.into(), "soft tissue")
+    });
+    let info = SourceInfo {
+        files: vec![path.to_path_buf(), file.clone()],
+        format: "pcuvd images manifest (TOML) with NumPy .npy images".into(),
+        reader: "pcuvd_io::images (read whole)".into(),
+        parameters,
+        stored: Some(StoredSamples {
+            array: file.display().to_string(),
+            shape,
+            axes: section.axes.clone(),
+            dtype: stored_dtype(&file),
+            kind: "beamformed iq".into(),
+        }),
+        warnings: Vec::new(),
+        cardiac_triggers_s,
+    };
+    Ok(ImagesRecording { images, info })
+}
+
+/// NumPy's name of the element type of the `.npy` file at `file` ("complex64"…), as stored.
+fn stored_dtype(file: &Path) -> String {
+    let header = std::fs::File::open(file).ok().and_then(|f| {
+        ndarray_npy::npy::header::Header::from_reader(&mut std::io::BufReader::new(f)).ok()
+    });
+    header
+        .and_then(|h| {
+            let descr = h.type_descriptor.to_string();
+            crate::array::Dtype::from_numpy(descr.trim_matches(['<', '>', '=', '|', '\'', '"']))
+        })
+        .map_or_else(|| "complex".into(), |dtype| dtype.name().into())
+}
+
+/// `axes`, checked: "frames", "z" and "x" once each, "angles" at most once, nothing else.
+fn axes_order(path: &Path, axes: &[String]) -> Result<Vec<String>, IoError> {
+    let unknown = axes.iter().find(|a| !AXES.contains(&a.as_str()));
+    let each_once = AXES
+        .iter()
+        .all(|name| axes.iter().filter(|a| a == name).count() <= 1);
+    let required = ["frames", "z", "x"]
+        .iter()
+        .all(|name| axes.iter().any(|a| a == name));
+    if unknown.is_some() || !each_once || !required {
+        return Err(IoError::invalid(
+            path,
+            "[images].axes",
+            format!(
+                "is {axes:?}; give the array's axes in order: \"frames\", \"z\" and \"x\" once \
+                 each, and \"angles\" where the array holds one series per steering angle"
+            ),
+        ));
+    }
+    Ok(axes.to_vec())
+}
+
+/// `n` pixel centres from `first_last` (m), evenly spaced and increasing.
+fn pixel_positions(
+    path: &Path,
+    field: &str,
+    [first, last]: [f64; 2],
+    n: usize,
+) -> Result<Vec<f64>, IoError> {
+    if !(first.is_finite() && last.is_finite() && last > first) {
+        return Err(IoError::invalid(
+            path,
+            format!("[images].{field}"),
+            format!(
+                "is [{first}, {last}]; give the first and last pixel centres (m), the last the \
+                 greater"
+            ),
+        ));
+    }
+    let step = (last - first) / (n - 1) as f64;
+    Ok((0..n).map(|i| first + i as f64 * step).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array4, ArrayD, IxDyn};
+    use std::path::PathBuf;
+
+    const MANIFEST: &str = "format = \"pcuvd-images\"\nversion = 1\n[images]\nfile = \"iq.npy\"\n\
+        frame_rate_hz = 500.0\ndemod_frequency_hz = 7.5e6\nx_m = [-1.0e-3, 1.0e-3]\n\
+        z_m = [2.0e-3, 4.0e-3]\n";
+
+    /// Writes `values` as iq.npy and a manifest with `axes` and `extra` keys; returns its path.
+    fn write(dir: &Path, values: &ArrayD<Complex32>, axes: &str, extra: &str) -> PathBuf {
+        ndarray_npy::write_npy(dir.join("iq.npy"), values).unwrap();
+        let path = dir.join("images.toml");
+        std::fs::write(&path, format!("{MANIFEST}axes = {axes}\n{extra}")).unwrap();
+        path
+    }
+
+    /// A value that names its place: (angle, z, x, frame) in its digits.
+    fn tagged(angle: usize, z: usize, x: usize, frame: usize) -> Complex32 {
+        Complex32::new((1000 * angle + 100 * z + 10 * x + frame) as f32, 0.5)
+    }
+
+    #[test]
+    fn any_axis_order_reads_as_angle_series_of_z_x_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        let (angles, nz, nx, frames) = (2, 3, 4, 5);
+        let canonical =
+            Array4::from_shape_fn((angles, nz, nx, frames), |(a, z, x, t)| tagged(a, z, x, t));
+        // Stored (x, frames, angles, z), as another tool might.
+        let stored = canonical.clone().permuted_axes([2, 3, 0, 1]).into_dyn();
+        let stored = stored.as_standard_layout().into_owned();
+        let path = write(
+            dir.path(),
+            &stored,
+            "[\"x\", \"frames\", \"angles\", \"z\"]",
+            "angles_deg = [-5.0, 5.0]\nsound_speed_m_s = 1500.0\n",
+        );
+        let read = read_images(&path).unwrap();
+        let images = &read.images;
+        assert_eq!(images.series.len(), 2);
+        for (a, series) in images.series.iter().enumerate() {
+            assert_eq!(series.dim(), (nz, nx, frames));
+            assert!(
+                series
+                    .indexed_iter()
+                    .all(|((z, x, t), v)| *v == tagged(a, z, x, t))
+            );
+        }
+        assert_eq!(
+            images.grid.x,
+            vec![
+                -1.0e-3,
+                -1.0e-3 + 2.0e-3 / 3.0,
+                -1.0e-3 + 4.0e-3 / 3.0,
+                1.0e-3
+            ]
+        );
+        assert_eq!(images.grid.z, vec![2.0e-3, 3.0e-3, 4.0e-3]);
+        assert_eq!(
+            images.angles,
+            vec![(-5.0f64).to_radians(), 5.0f64.to_radians()]
+        );
+        assert_eq!(
+            (
+                images.frame_rate,
+                images.demodulation_frequency,
+                images.sound_speed
+            ),
+            (500.0, 7.5e6, 1500.0)
+        );
+        assert_eq!(read.info.files.len(), 2);
+        let stored = read.info.stored.as_ref().unwrap();
+        assert_eq!(stored.shape, vec![nx, frames, angles, nz]);
+        assert_eq!(stored.dtype, "complex64");
+    }
+
+    #[test]
+    fn what_cannot_describe_the_images_is_refused_naming_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let three = ArrayD::from_shape_fn(IxDyn(&[4, 3, 2]), |d| tagged(0, d[1], d[2], d[0]));
+        let frames_z_x = "[\"frames\", \"z\", \"x\"]";
+        for (axes, extra, field) in [
+            ("[\"frames\", \"z\", \"y\"]", "", "[images].axes"),
+            ("[\"frames\", \"z\", \"z\"]", "", "[images].axes"),
+            (
+                "[\"frames\", \"z\", \"x\", \"angles\"]",
+                "",
+                "[images].axes",
+            ),
+            (
+                frames_z_x,
+                "angles_deg = [0.0, 3.0]\n",
+                "[images].angles_deg",
+            ),
+            (
+                frames_z_x,
+                "sound_speed_m_s = -1.0\n",
+                "[images].sound_speed_m_s",
+            ),
+            (frames_z_x, "colour = 1\n", "unknown field"),
+        ] {
+            let path = write(dir.path(), &three, axes, extra);
+            let error = read_images(&path).unwrap_err().to_string();
+            assert!(error.contains(field), "{axes} {extra}: {error}");
+        }
+        // Real numbers are not IQ.
+        let real = ArrayD::<f32>::zeros(IxDyn(&[4, 3, 2]));
+        let path = write(dir.path(), &three, frames_z_x, "");
+        ndarray_npy::write_npy(dir.path().join("iq.npy"), &real).unwrap();
+        let error = read_images(&path).unwrap_err().to_string();
+        assert!(error.contains("complex"), "{error}");
+        // A grid whose last pixel is not past its first.
+        let path = write(dir.path(), &three, frames_z_x, "");
+        let flipped = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace("x_m = [-1.0e-3, 1.0e-3]", "x_m = [1.0e-3, -1.0e-3]");
+        std::fs::write(&path, flipped).unwrap();
+        let error = read_images(&path).unwrap_err().to_string();
+        assert!(error.contains("[images].x_m"), "{error}");
+    }
+}
