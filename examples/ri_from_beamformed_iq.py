@@ -5,7 +5,9 @@ power Doppler, resistivity index and arteriole / venule classes with pcuvd's sta
         --grid-mm X_MIN,X_MAX,Z_MIN,Z_MAX,STEP [--heart-rate-hz H] [--out FIGURE.png]
     python examples/ri_from_beamformed_iq.py [--out FIGURE.png]
 
-IQ.npy holds complex compound images (time, z, x) on the grid given (pixel centres, mm). Without
+IQ.npy holds complex compound images (time, z, x) on the grid given (pixel centres, mm). The
+same maps, with pcuvd's figures, report and summary.json, come from `pcuvd process` on an images
+manifest that names the file (crates/pcuvd-io/examples/images.toml, docs/guide/inputs.md). Without
 a file, a recording is simulated first (the vessel network, one plane wave at a 1.8 kHz frame
 rate, 400 frames) and beamformed, to stand for the scanner's, and its RI is scored against the
 simulation's truth.

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import pcuvd
-from conftest import assert_same_array
+from conftest import assert_same_array, run_cli
 
 
 def test_chain_of_stages_equals_process_on_the_disk(disk):
@@ -294,6 +294,45 @@ def test_the_beamformed_iq_example_draws_ri_maps_close_to_the_truth(tmp_path):
     found = re.search(r"median \|dRI\| ([0-9.]+), ([0-9]+) % of the lumen classed right", done.stdout)
     assert found, done.stdout
     assert float(found.group(1)) < 0.1 and int(found.group(2)) >= 85, done.stdout
+
+
+def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, cli):
+    """`pcuvd process` on an images manifest naming a NumPy-written .npy of beamformed IQ (time,
+    z, x), the way a scanner's images reach it, gives the RI maps that the Python stages draw from
+    the same images (svd_filter, then ri_maps: what examples/ri_from_beamformed_iq.py does), and
+    they lie near the simulation's truth."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "ri_from_beamformed_iq.py"
+    spec = importlib.util.spec_from_file_location("ri_example", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    iq, parameters, truth = example.simulated_iq()
+    np.save(tmp_path / "iq.npy", iq.astype(np.complex64))
+    x, z = [float(v) for v in parameters["x_m"]], [float(v) for v in parameters["z_m"]]
+    (tmp_path / "images.toml").write_text(
+        'format = "pcuvd-images"\nversion = 1\n[images]\nfile = "iq.npy"\n'
+        'axes = ["frames", "z", "x"]\n'
+        f"frame_rate_hz = {float(parameters['frame_rate_hz'])!r}\n"
+        f"demod_frequency_hz = {float(parameters['center_freq_hz'])!r}\n"
+        f"x_m = [{x[0]!r}, {x[-1]!r}]\nz_m = [{z[0]!r}, {z[-1]!r}]\n"
+    )
+    out = tmp_path / "out"
+    done = run_cli(cli, "process", tmp_path / "images.toml", "--out", out, "--heart-rate", "5.5")
+    assert done.returncode == 0, done.stderr
+    series = np.ascontiguousarray(np.moveaxis(iq, 0, 2))
+    filtered, _ = pcuvd.svd_filter(series, low="auto", blocks=(40, 40))
+    maps = pcuvd.ri_maps(filtered, **parameters)
+    classes = np.load(out / "vessel_class.npy")
+    assert np.array_equal(classes, maps["vessel_class"])
+    np.testing.assert_allclose(np.load(out / "ri.npy"), maps["ri"], rtol=1e-9, atol=1e-12)
+    lumen = truth.cycle["vessel_class"] > 0
+    error = np.abs(np.where(np.isnan(maps["ri"]), 1.0, maps["ri"]) - truth.cycle["ri"])
+    assert np.median(error[lumen]) < 0.1, np.median(error[lumen])
+    assert np.mean(classes[lumen] == truth.cycle["vessel_class"][lumen]) >= 0.85
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["images"]["frames"] == iq.shape[0] and "probe" not in summary
 
 
 def test_a_simulation_in_memory_is_scored_against_its_truth(tmp_path):

@@ -53,62 +53,13 @@ impl Plan {
             );
         }
         let params = options.params(data)?;
-        let dynamics_settings = if dynamics.dynamics == DynamicsChoice::Off {
-            None
-        } else {
-            Some(DynamicsPlan {
-                params: window_params(
-                    dynamics,
-                    data.acquisition().frame_rate(),
-                    params.grid.step(),
-                    data.acquisition().sequence.n_angles(),
-                    params.irls,
-                    params.dealias,
-                    params.doppler_estimator,
-                )?,
-                vessel: dynamics.vessel_tests()?,
-                triggers: match (dynamics.triggers()?, recorded_triggers) {
-                    (Some(given), _) => Some((given, "--cardiac-triggers".into())),
-                    // The recording's own triggers, unless the user gave a heart rate.
-                    (None, Some(recorded)) if dynamics.heart_rate.is_none() => Some((
-                        recorded.to_vec(),
-                        "the recording's manifest ([cardiac])".into(),
-                    )),
-                    (None, _) => None,
-                },
-            })
-        };
-        if dynamics.explicit()
-            && let Some(settings) = &dynamics_settings
-        {
-            // Asked for: what the recording cannot give is refused now, not after processing.
-            let acq = data.acquisition();
-            settings
-                .params
-                .validate(acq.frame_rate())
-                .context("dynamics options")?;
-            let duration = data.n_frames() as f64 / acq.frame_rate();
-            if let Some(hr) = settings.params.heart_rate_hz
-                && 1.0 / hr > duration
-            {
-                bail!(
-                    "--heart-rate {}: a cycle lasts {:.4} s but the recording holds {:.4} s \
-                     ({} frames at {:.1} Hz); RI needs at least one whole cycle",
-                    crate::settings::shown("--heart-rate", hr),
-                    1.0 / hr,
-                    duration,
-                    data.n_frames(),
-                    acq.frame_rate()
-                );
-            }
-            if settings.params.window > data.n_frames() {
-                bail!(
-                    "--window-ms: a window of {} frames is longer than the recording's {} frames",
-                    settings.params.window,
-                    data.n_frames()
-                );
-            }
-        }
+        let acq = data.acquisition();
+        let dynamics_settings = dynamics_plan(
+            dynamics,
+            &params,
+            (acq.frame_rate(), data.n_frames(), acq.sequence.n_angles()),
+            recorded_triggers,
+        )?;
         let ensembles = options.ensembles(data.n_frames())?;
         let (nz, nx) = params.grid.shape();
         let windows = dynamics_settings.as_ref().map(|d| &d.params);
@@ -142,6 +93,103 @@ impl Plan {
             kept_pixels: Vec::new(),
         })
     }
+
+    /// The plan of a run on beamformed `images` formed elsewhere ([`run_images`]): held whole,
+    /// its Doppler time series (when asked for) cut from the images themselves.
+    /// `recorded_triggers`: cardiac cycle start times (s) recorded with them (an images
+    /// manifest's `[cardiac]`), used unless `--cardiac-triggers` or `--heart-rate` is given.
+    pub fn for_images(
+        options: &ProcessingSettings,
+        dynamics: &DynamicsSettings,
+        images: &pcuvd::form::images::AngleImages,
+        recorded_triggers: Option<&[f64]>,
+    ) -> Result<Plan> {
+        let params = options.images_params(images)?;
+        let n_frames = images.n_frames();
+        let dynamics_settings = dynamics_plan(
+            dynamics,
+            &params,
+            (images.frame_rate, n_frames, images.n_angles()),
+            recorded_triggers,
+        )?;
+        let ensembles = options.ensembles(n_frames)?;
+        let shortest = ensembles.map_or(n_frames, |e| e.frames.min(n_frames));
+        params
+            .clutter
+            .check_for(shortest)
+            .context("--svd-low / --svd-high")?;
+        Ok(Plan {
+            ensembles,
+            segments: None,
+            params,
+            dynamics: dynamics_settings,
+            dynamics_required: dynamics.explicit(),
+            options_text: settings_text(options, dynamics),
+            kept_pixels: Vec::new(),
+        })
+    }
+}
+
+/// The dynamics stage's settings for a recording of `n_frames` frames of `n_angles` angles at
+/// `frame_rate` (Hz), processed with `params`; `None` with `--dynamics off`. With a dynamics
+/// setting given, what the recording cannot give is refused now, not after processing.
+/// `recorded_triggers`: cardiac cycle start times (s) recorded with the recording.
+fn dynamics_plan(
+    dynamics: &DynamicsSettings,
+    params: &ProcessParams,
+    (frame_rate, n_frames, n_angles): (f64, usize, usize),
+    recorded_triggers: Option<&[f64]>,
+) -> Result<Option<DynamicsPlan>> {
+    if dynamics.dynamics == DynamicsChoice::Off {
+        return Ok(None);
+    }
+    let settings = DynamicsPlan {
+        params: window_params(
+            dynamics,
+            frame_rate,
+            params.grid.step(),
+            n_angles,
+            params.irls,
+            params.dealias,
+            params.doppler_estimator,
+        )?,
+        vessel: dynamics.vessel_tests()?,
+        triggers: match (dynamics.triggers()?, recorded_triggers) {
+            (Some(given), _) => Some((given, "--cardiac-triggers".into())),
+            // The recording's own triggers, unless the user gave a heart rate.
+            (None, Some(recorded)) if dynamics.heart_rate.is_none() => Some((
+                recorded.to_vec(),
+                "the recording's manifest ([cardiac])".into(),
+            )),
+            (None, _) => None,
+        },
+    };
+    if dynamics.explicit() {
+        settings
+            .params
+            .validate(frame_rate)
+            .context("dynamics options")?;
+        let duration = n_frames as f64 / frame_rate;
+        if let Some(hr) = settings.params.heart_rate_hz
+            && 1.0 / hr > duration
+        {
+            bail!(
+                "--heart-rate {}: a cycle lasts {:.4} s but the recording holds {:.4} s \
+                 ({n_frames} frames at {frame_rate:.1} Hz); RI needs at least one whole cycle",
+                crate::settings::shown("--heart-rate", hr),
+                1.0 / hr,
+                duration,
+            );
+        }
+        if settings.params.window > n_frames {
+            bail!(
+                "--window-ms: a window of {} frames is longer than the recording's {n_frames} \
+                 frames",
+                settings.params.window,
+            );
+        }
+    }
+    Ok(Some(settings))
 }
 
 /// What the dynamics stage gave: RI maps and the velocity series they came from, or why not.
@@ -240,6 +288,41 @@ pub fn run_into(
         blocks,
         segments: None,
         kept,
+    })
+}
+
+/// Runs the chain from the clutter filter on, the Doppler time series and the dynamics stage
+/// on beamformed `images` formed elsewhere (a scanner's compound IQ: nothing to decode or
+/// beamform), as `plan` ([`Plan::for_images`]) says, reporting to `progress`.
+pub fn run_images(
+    images: pcuvd::form::images::AngleImages,
+    plan: &Plan,
+    progress: &dyn Progress,
+) -> Result<Processed> {
+    let stages = crate::progress::stages(progress);
+    let n_frames = images.n_frames();
+    let clock = std::time::Instant::now();
+    let ensembles = plan
+        .ensembles
+        .map(|spec| pcuvd::pipeline::ensembles::ensemble_maps(&images, &plan.params, spec, &stages))
+        .transpose()?;
+    let ensembles_s = clock.elapsed().as_secs_f64();
+    let mut out = pipeline::analyse(images, &plan.params, &stages)?;
+    if ensembles.is_some() {
+        out.timings
+            .insert(0, (pipeline::Stage::Ensembles, ensembles_s));
+    }
+    let clock = std::time::Instant::now();
+    let dynamics = run_dynamics(&out, plan, progress)?;
+    Ok(Processed {
+        out: std::sync::Arc::new(out),
+        dynamics,
+        dynamics_s: clock.elapsed().as_secs_f64(),
+        ensembles,
+        ensembles_in_store: false,
+        blocks: pcuvd::pipeline::blocks::Blocks::whole(n_frames),
+        segments: None,
+        kept: None,
     })
 }
 

@@ -11,6 +11,7 @@ use pcuvd::dynamics::{self, DynamicsParams, VesselPooling, VesselTests};
 use pcuvd::estimate::clutter::{ClutterParams, RankCut};
 use pcuvd::estimate::vector::{Estimator, IrlsParams};
 use pcuvd::form::beamform::{Apodization, DasParams};
+use pcuvd::form::images::AngleImages;
 use pcuvd::pipeline::{self, ProcessParams};
 use serde::{Deserialize, Deserializer, Serialize};
 
@@ -732,6 +733,45 @@ impl ProcessingSettings {
             }
             None => pipeline::default_grid_for(data.acquisition(), data.trace_shape().1)?,
         };
+        let params = self.params_on(grid, data.acquisition().sound_speed)?;
+        // Refused now, not after imaging: an estimator the grid cannot serve.
+        pipeline::check_doppler_estimator(data.acquisition(), &params)
+            .with_context(|| self.estimator_context(&params))?;
+        Ok(params)
+    }
+
+    /// Stage settings for beamformed `images` formed elsewhere, on their own grid: the
+    /// imaging options (`--grid`, `--f-number`, `--event-alignment`, `--segment-frames`) are
+    /// refused, since the images are already formed and held whole.
+    pub fn images_params(&self, images: &AngleImages) -> Result<ProcessParams> {
+        let defaults = ProcessingSettings::default();
+        for (given, option) in [
+            (
+                self.grid.is_some(),
+                "--grid (the images' pixels are the manifest's x_m and z_m)",
+            ),
+            (self.f_number != defaults.f_number, "--f-number"),
+            (
+                self.event_alignment != defaults.event_alignment,
+                "--event-alignment",
+            ),
+            (
+                self.segment_frames.is_some(),
+                "--segment-frames (the images are held whole)",
+            ),
+        ] {
+            if given {
+                bail!("{option}: the images are already formed; the option sets their forming");
+            }
+        }
+        let params = self.params_on(images.grid.clone(), images.sound_speed)?;
+        pipeline::check_doppler_estimator_on(images, &params)
+            .with_context(|| self.estimator_context(&params))?;
+        Ok(params)
+    }
+
+    /// The stage settings on `grid` (m) at `sound_speed` (m/s), checked against it.
+    fn params_on(&self, grid: Grid, sound_speed: f64) -> Result<ProcessParams> {
         let (rows, cols) = parse_kernel(&self.doppler_kernel)?;
         let (nz, nx) = grid.shape();
         if rows % 2 == 0 || cols % 2 == 0 || rows > nz || cols > nx {
@@ -750,12 +790,12 @@ impl ProcessingSettings {
         }
         let irls = self.irls()?;
         let blocks = self.svd_blocks(&grid)?;
-        let params = ProcessParams {
+        Ok(ProcessParams {
             grid,
             das: DasParams {
                 f_number: self.f_number,
                 apodization: Apodization::Hann,
-                sound_speed: data.acquisition().sound_speed,
+                sound_speed,
             },
             clutter: ClutterParams {
                 low: rank_cut(&self.svd_low, "svd-low")?,
@@ -770,16 +810,16 @@ impl ProcessingSettings {
             event_alignment: self.event_alignment.into(),
             dealias: self.dealias()?,
             partial_volume: self.partial_volume == Switch::On,
-        };
-        // Refused now, not after imaging: an estimator the grid cannot serve.
-        pipeline::check_doppler_estimator(data.acquisition(), &params).with_context(|| {
-            format!(
-                "--doppler-estimator {} on a {:.1} µm axial grid step",
-                params.doppler_estimator.label(),
-                params.grid.axial_step() * 1e6
-            )
-        })?;
-        Ok(params)
+        })
+    }
+
+    /// What an estimator refusal is about: the option and the axial step it was refused on.
+    fn estimator_context(&self, params: &ProcessParams) -> String {
+        format!(
+            "--doppler-estimator {} on a {:.1} µm axial grid step",
+            params.doppler_estimator.label(),
+            params.grid.axial_step() * 1e6
+        )
     }
 }
 

@@ -19,7 +19,8 @@ use crate::progress::Bars;
 pub struct ProcessArgs {
     /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
     /// a Verasonics workspace .mat, URX .urx, or a pcuvd recording manifest .toml); recognised
-    /// by content.
+    /// by content. Or beamformed IQ images formed elsewhere, described by an images manifest
+    /// (.toml, format "pcuvd-images"): decoding and beamforming are then skipped.
     pub input: PathBuf,
     /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]
@@ -119,6 +120,10 @@ impl AcquisitionOverrides {
 
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
+    let head = pcuvd_io::container::read_head(&args.input, 4096).ok();
+    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+        return run_on_images(args);
+    }
     let clock = std::time::Instant::now();
     // Checked before any work, like every other option.
     let nifti = pcuvd_app::nifti::NiftiNaming::requested(
@@ -265,6 +270,129 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     if let Some(scored) = &saved.against_truth {
         println!("{}", scored.line());
     }
+    println!(
+        "wrote maps (.npy), summary.json, {} and {} figures to {}",
+        pcuvd_app::summary::REPORT,
+        saved.figures.len(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// `pcuvd process` on an images manifest: beamformed images formed elsewhere, read whole, their
+/// chain from the clutter filter on (nothing to decode or beamform), with the maps, figures,
+/// RI maps, report and summary.json a recording's run writes.
+fn run_on_images(args: &ProcessArgs) -> Result<()> {
+    let clock = std::time::Instant::now();
+    let refused = [
+        (args.zarr, "--zarr"),
+        (
+            args.nifti || args.bids_subject.is_some(),
+            "--nifti / --bids-subject",
+        ),
+        (
+            !args.acquisition.to_overrides().is_empty(),
+            "the acquisition overrides (--t0-s, --event-prf-hz...)",
+        ),
+        (args.max_memory_gb.is_some(), "--max-memory-gb"),
+    ];
+    if let Some((_, option)) = refused.iter().find(|(given, _)| *given) {
+        anyhow::bail!(
+            "{}: {option} is not available for beamformed images formed elsewhere (the images \
+             are read whole; NIfTI and Zarr outputs record a probe and a transmit sequence they \
+             do not have)",
+            args.input.display()
+        );
+    }
+    let read = pcuvd_io::images::read_images(&args.input)?;
+    let read_s = clock.elapsed().as_secs_f64();
+    let plan = pcuvd_app::run::Plan::for_images(
+        &args.options,
+        &args.dynamics,
+        &read.images,
+        read.info.cardiac_triggers_s.as_deref(),
+    )?;
+    let (input, info) = (args.input.display().to_string(), read.info.clone());
+    let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
+    let provenance_of_run = move || {
+        let clock = std::time::Instant::now();
+        let command_line = std::env::args().collect();
+        let source = provenance(&input, &info, &options_text, command_line, checksum, &[]);
+        source.map(|source| (source, clock.elapsed().as_secs_f64()))
+    };
+    let checksums = if !args.force && args.out.join("summary.json").is_file() {
+        let (source, seconds) = provenance_of_run()?;
+        if already_done(&args.out, &source) {
+            println!(
+                "{}: already processed from the same input (checksums) with the same options and \
+                 pcuvd version (summary.json); skipped (--force redoes it)",
+                args.out.display()
+            );
+            return Ok(());
+        }
+        Checksums::Done(Box::new(source), seconds)
+    } else {
+        Checksums::Running(std::thread::spawn(move || {
+            lower_this_threads_priority();
+            provenance_of_run()
+        }))
+    };
+    outputs::prepare(
+        &args.out,
+        outputs::PROCESS_OUTPUTS,
+        &read.info.files,
+        args.force,
+    )?;
+    let record_of_images = pcuvd_app::summary::ImagesRecord::of(&read.images);
+    let progress = Bars::new("");
+    let processed = pcuvd_app::run::run_images(read.images, &plan, &progress)
+        .with_context(|| format!("{}: processing failed", args.input.display()))?;
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, false, &processed.out)
+    {
+        eprintln!("warning: {}: {warning}", args.input.display());
+    }
+    let (source, checksum_s) = match checksums {
+        Checksums::Done(source, seconds) => (*source, seconds),
+        Checksums::Running(thread) => thread
+            .join()
+            .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
+        Checksums::InPass(..) => unreachable!("images are read whole, not in a reader's pass"),
+    };
+    let name = args
+        .input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let extra_timings = [("read", read_s), ("checksum", checksum_s)];
+    let record = Record {
+        source,
+        name: &name,
+        extra_timings: &extra_timings,
+        nifti: None,
+        zarr: None,
+        simulated_from: None,
+    };
+    let saved = pcuvd_app::summary::save_run(
+        &args.out,
+        pcuvd_app::summary::RunInput::Images(&record_of_images),
+        &plan,
+        &processed,
+        record,
+        &progress,
+    )?;
+    let angles = record_of_images.angles_deg.len();
+    println!(
+        "{}: beamformed images, {angles} angle{}, {} frames at {:.1} Hz; Nyquist velocity {:.1} \
+         mm/s; grid {} x {} pixels (depth x lateral)",
+        args.input.display(),
+        if angles == 1 { "" } else { "s" },
+        record_of_images.frames,
+        record_of_images.frame_rate_hz,
+        processed.out.maps.nyquist_velocity * 1e3,
+        processed.out.grid.z.len(),
+        processed.out.grid.x.len()
+    );
     println!(
         "wrote maps (.npy), summary.json, {} and {} figures to {}",
         pcuvd_app::summary::REPORT,

@@ -59,6 +59,26 @@ pub fn save(
     record: Record<'_>,
     progress: &dyn Progress,
 ) -> Result<Saved> {
+    save_run(
+        dir,
+        RunInput::Recording(data),
+        plan,
+        processed,
+        record,
+        progress,
+    )
+}
+
+/// [`save`] for a run on channel data or on beamformed images formed elsewhere; the NIfTI images
+/// and the Zarr store need the recording's acquisition, which images formed elsewhere lack.
+pub fn save_run(
+    dir: &Path,
+    input: RunInput<'_>,
+    plan: &Plan,
+    processed: &Processed,
+    record: Record<'_>,
+    progress: &dyn Progress,
+) -> Result<Saved> {
     let Record {
         source,
         name,
@@ -73,10 +93,15 @@ pub fn save(
     // A simulation's truth is computed while the figures are drawn: the two share the cores.
     let (pngs, against) = rayon::join(
         || figures::process_figures(dir, out, name),
-        || crate::against_truth::score_run(&source.input, simulated_from, data, processed),
+        || match input {
+            RunInput::Recording(data) => {
+                crate::against_truth::score_run(&source.input, simulated_from, data, processed)
+            }
+            RunInput::Images(_) => None,
+        },
     );
     let mut pngs = pngs?;
-    let mut summary = Summary::of(data, plan, processed, source);
+    let mut summary = Summary::of_input(input, plan, processed, source);
     summary.against_truth = against.as_ref().map(|scored| scored.record.clone());
     if let Some(scored) = &against {
         pngs.extend(scored.figure(dir, processed, name)?);
@@ -93,8 +118,15 @@ pub fn save(
         write_ensembles(dir, maps)?;
         pngs.push(figures::ensemble_figure(dir, out, maps, name)?);
     }
+    let recording = || match input {
+        RunInput::Recording(data) => Ok(data),
+        RunInput::Images(_) => Err(anyhow::anyhow!(
+            "NIfTI images and the Zarr store record the probe and the transmit sequence, which \
+             images formed elsewhere do not give: not written for them"
+        )),
+    };
     if let Some(naming) = nifti {
-        let images = crate::nifti::write_nifti(dir, data, plan, processed, naming)?;
+        let images = crate::nifti::write_nifti(dir, recording()?, plan, processed, naming)?;
         let names: Vec<String> = images
             .iter()
             .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
@@ -103,7 +135,7 @@ pub fn save(
     }
     if let Some(store) = zarr {
         let in_store_only = processed.ensembles_in_store;
-        let path = store.finish(data, plan, processed)?;
+        let path = store.finish(recording()?, plan, processed)?;
         // Series that went to the store as the run went are drawn from it, a run at a time.
         if in_store_only && let Some(timeline) = &processed.ensembles {
             pngs.push(crate::zarr::draw_ensembles(

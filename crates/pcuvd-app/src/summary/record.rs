@@ -18,14 +18,20 @@ pub struct Summary {
     pub units: &'static str,
     /// Where the input came from and the options it was processed with.
     pub source: Provenance,
-    /// The probe.
-    pub probe: ProbeRecord,
-    /// Sampling, angles, coding and frames.
-    pub acquisition: AcquisitionRecord,
+    /// The probe (absent for beamformed images formed elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub probe: Option<ProbeRecord>,
+    /// Sampling, angles, coding and frames (absent for beamformed images formed elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub acquisition: Option<AcquisitionRecord>,
+    /// The beamformed images the run read, formed elsewhere (absent for channel data).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub images: Option<ImagesRecord>,
     /// The image grid (m).
     pub grid: GridRecord,
-    /// Delay-and-sum settings.
-    pub beamforming: BeamformingRecord,
+    /// Delay-and-sum settings (absent for beamformed images formed elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beamforming: Option<BeamformingRecord>,
     /// The SVD clutter filter's settings and the cut-offs it chose.
     pub clutter_filter: ClutterRecord,
     /// Doppler estimation settings.
@@ -38,8 +44,10 @@ pub struct Summary {
     pub dealias: DealiasRecord,
     /// The dynamics stage (RI maps), or why it was skipped.
     pub dynamics: DynamicsRecord,
-    /// How the frames were split into blocks for imaging.
-    pub blocks: BlocksRecord,
+    /// How the frames were split into blocks for imaging (absent for beamformed images formed
+    /// elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blocks: Option<BlocksRecord>,
     /// Which pixels the figures draw as flow.
     pub figures: FiguresRecord,
     /// The segments of a recording too long to hold whole, or why there were none.
@@ -368,6 +376,65 @@ pub struct GridRecord {
     pub nz: usize,
 }
 
+/// Beamformed images formed elsewhere, as the run read them.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImagesRecord {
+    /// Frames of each series.
+    pub frames: usize,
+    /// Compound frame rate: the images' slow-time sampling rate (Hz).
+    pub frame_rate_hz: f64,
+    /// The frequency their IQ was demodulated at, which turns phase into velocity (Hz).
+    pub demod_frequency_hz: f64,
+    /// Speed of sound (m/s).
+    pub sound_speed_m_s: f64,
+    /// Steering angle of each series (degrees).
+    pub angles_deg: Vec<f64>,
+    /// What the run did not do to them.
+    pub formed: &'static str,
+}
+
+impl ImagesRecord {
+    /// The record of `images`.
+    pub fn of(images: &pcuvd::form::images::AngleImages) -> Self {
+        ImagesRecord {
+            frames: images.n_frames(),
+            frame_rate_hz: images.frame_rate,
+            demod_frequency_hz: images.demodulation_frequency,
+            sound_speed_m_s: images.sound_speed,
+            angles_deg: images.angles.iter().map(|a| a.to_degrees()).collect(),
+            formed: "formed elsewhere and read as given: no decoding, demodulation or \
+                     beamforming (the series' Doppler starts at the clutter filter)",
+        }
+    }
+}
+
+/// What a run read: a recording of channel data, or beamformed images formed elsewhere.
+#[derive(Clone, Copy)]
+pub enum RunInput<'a> {
+    /// Channel data that the run decoded, demodulated and beamformed.
+    Recording(&'a dyn FrameSource),
+    /// Images formed elsewhere.
+    Images(&'a ImagesRecord),
+}
+
+impl RunInput<'_> {
+    /// The compound frame rate (Hz).
+    pub fn frame_rate(&self) -> f64 {
+        match self {
+            RunInput::Recording(data) => data.acquisition().frame_rate(),
+            RunInput::Images(images) => images.frame_rate_hz,
+        }
+    }
+
+    /// Frames of the recording.
+    pub fn n_frames(&self) -> usize {
+        match self {
+            RunInput::Recording(data) => data.n_frames(),
+            RunInput::Images(images) => images.frames,
+        }
+    }
+}
+
 /// Delay-and-sum settings.
 #[derive(Debug, Clone, Serialize)]
 pub struct BeamformingRecord {
@@ -386,33 +453,54 @@ impl Summary {
         processed: &Processed,
         source: Provenance,
     ) -> Self {
+        Summary::of_input(RunInput::Recording(data), plan, processed, source)
+    }
+
+    /// [`Summary::of`] for a run on channel data or on beamformed images formed elsewhere.
+    pub fn of_input(
+        input: RunInput<'_>,
+        plan: &Plan,
+        processed: &Processed,
+        source: Provenance,
+    ) -> Self {
         let params = &plan.params;
         let out = &processed.out;
-        let acq = data.acquisition();
-        let seq = &acq.sequence;
-        let mut coding = CodingRecord::of(seq);
-        if seq.decodes_events() {
-            coding.event_alignment = Some(params.event_alignment.label());
-        }
         let (x, z) = (&out.grid.x, &out.grid.z);
         let block_layout = (out.clutter.first()).and_then(|report| report.block_layout.as_ref());
+        let frame_rate = input.frame_rate();
+        let (probe, acquisition, images, coded) = match input {
+            RunInput::Recording(data) => {
+                let acq = data.acquisition();
+                let seq = &acq.sequence;
+                let mut coding = CodingRecord::of(seq);
+                if seq.decodes_events() {
+                    coding.event_alignment = Some(params.event_alignment.label());
+                }
+                let acquisition = AcquisitionRecord {
+                    sampling_frequency_hz: acq.sampling_frequency,
+                    sound_speed_m_s: acq.sound_speed,
+                    t0_s: acq.t0,
+                    event_prf_hz: seq.event_prf,
+                    angles_deg: seq.angles.iter().map(|a| a.to_degrees()).collect(),
+                    coding,
+                    frames: data.n_frames(),
+                    frame_rate_hz: acq.frame_rate(),
+                    pulse_cycles: seq.pulse_cycles,
+                    transmit_pulse: PulseRecord::of(seq),
+                };
+                let probe = ProbeRecord::of(&acq.probe);
+                (Some(probe), Some(acquisition), None, seq.is_coded())
+            }
+            RunInput::Images(images) => (None, None, Some(images.clone()), false),
+        };
+        let formed_here = acquisition.is_some();
         Summary {
             units: "SI (m, s, Hz, m/s); colour Doppler and Vz positive = moving away from the \
                     probe (deeper)",
             source,
-            probe: ProbeRecord::of(&acq.probe),
-            acquisition: AcquisitionRecord {
-                sampling_frequency_hz: acq.sampling_frequency,
-                sound_speed_m_s: acq.sound_speed,
-                t0_s: acq.t0,
-                event_prf_hz: seq.event_prf,
-                angles_deg: seq.angles.iter().map(|a| a.to_degrees()).collect(),
-                coding,
-                frames: data.n_frames(),
-                frame_rate_hz: acq.frame_rate(),
-                pulse_cycles: seq.pulse_cycles,
-                transmit_pulse: PulseRecord::of(seq),
-            },
+            probe,
+            acquisition,
+            images,
             grid: GridRecord {
                 x_min_m: x[0],
                 x_max_m: x[x.len() - 1],
@@ -422,10 +510,10 @@ impl Summary {
                 nx: x.len(),
                 nz: z.len(),
             },
-            beamforming: BeamformingRecord {
+            beamforming: formed_here.then(|| BeamformingRecord {
                 f_number: params.das.f_number,
                 apodization: format!("{:?}", params.das.apodization),
-            },
+            }),
             clutter_filter: ClutterRecord {
                 low: format!("{:?}", params.clutter.low),
                 high: format!("{:?}", params.clutter.high),
@@ -449,13 +537,13 @@ impl Summary {
                 max_iterations: params.irls.max_iterations,
             },
             nyquist_velocity_m_s: out.maps.nyquist_velocity,
-            dealias: DealiasRecord::of(params, out, seq.is_coded()),
+            dealias: DealiasRecord::of(params, out, coded),
             dynamics: DynamicsRecord::of(plan, processed),
-            blocks: BlocksRecord {
+            blocks: formed_here.then(|| BlocksRecord {
                 frames: processed.blocks.frames,
                 margin_frames: processed.blocks.margin,
                 rule: blocks_rule(),
-            },
+            }),
             figures: FiguresRecord::default(),
             segments: match &processed.segments {
                 None => Described::None("none: the whole recording was held and processed at once"),
@@ -480,7 +568,7 @@ impl Summary {
                     frames: spec.frames,
                     step_frames: spec.step,
                     count: maps.starts.len(),
-                    duration_s: spec.frames as f64 / acq.frame_rate(),
+                    duration_s: spec.frames as f64 / frame_rate,
                     times_s: maps.times_s.clone(),
                     start_frames: maps.starts.clone(),
                     clutter_cut_offs_per_angle: (maps.clutter.iter())

@@ -117,31 +117,50 @@ pub fn write_report(dir: &Path, summary: &Summary, figures: &[PathBuf]) -> Resul
 
 /// What was read: the input, its format, angles, frames and Nyquist velocity.
 fn recording_line(summary: &Summary) -> String {
-    let acq = &summary.acquisition;
-    let angles = &acq.angles_deg;
-    let span = match (angles.first(), angles.last()) {
-        (Some(first), Some(last)) if angles.len() > 1 => format!(" from {first:.1}° to {last:.1}°"),
-        (Some(only), _) => format!(" at {only:.1}°"),
-        _ => String::new(),
+    let angles_span = |angles: &[f64]| {
+        let span = match (angles.first(), angles.last()) {
+            (Some(first), Some(last)) if angles.len() > 1 => {
+                format!(" from {first:.1}° to {last:.1}°")
+            }
+            (Some(only), _) => format!(" at {only:.1}°"),
+            _ => String::new(),
+        };
+        format!(
+            "{} plane-wave angle{}{span}",
+            angles.len(),
+            if angles.len() == 1 { "" } else { "s" }
+        )
+    };
+    let read = match (&summary.acquisition, &summary.probe, &summary.images) {
+        (Some(acq), Some(probe), _) => format!(
+            "{}, {}, {} compound frames at {:.1} Hz; probe {} ({} elements, {:.2} MHz)",
+            angles_span(&acq.angles_deg),
+            match &acq.coding.code {
+                CodeRecord::None => "one angle per event",
+                CodeRecord::Hadamard { .. } => "Hadamard-coded",
+                CodeRecord::Matrix { .. } => "coded by a code matrix",
+                CodeRecord::Decoded { .. } => "coded, stored decoded",
+            },
+            acq.frames,
+            acq.frame_rate_hz,
+            probe.name,
+            probe.n_elements,
+            probe.center_frequency_hz * 1e-6,
+        ),
+        (_, _, Some(images)) => format!(
+            "beamformed images formed elsewhere, {}, {} frames at {:.1} Hz, IQ demodulated at \
+             {:.2} MHz",
+            angles_span(&images.angles_deg),
+            images.frames,
+            images.frame_rate_hz,
+            images.demod_frequency_hz * 1e-6,
+        ),
+        _ => "no acquisition recorded".into(),
     };
     format!(
-        "{} ({}): {} plane-wave angle{}{span}, {}, {} compound frames at {:.1} Hz; probe {} \
-         ({} elements, {:.2} MHz); Nyquist velocity {:.1} mm/s.",
+        "{} ({}): {read}; Nyquist velocity {:.1} mm/s.",
         summary.source.input,
         summary.source.format,
-        angles.len(),
-        if angles.len() == 1 { "" } else { "s" },
-        match &acq.coding.code {
-            CodeRecord::None => "one angle per event",
-            CodeRecord::Hadamard { .. } => "Hadamard-coded",
-            CodeRecord::Matrix { .. } => "coded by a code matrix",
-            CodeRecord::Decoded { .. } => "coded, stored decoded",
-        },
-        acq.frames,
-        acq.frame_rate_hz,
-        summary.probe.name,
-        summary.probe.n_elements,
-        summary.probe.center_frequency_hz * 1e-6,
         summary.nyquist_velocity_m_s * 1e3,
     )
 }
@@ -173,8 +192,7 @@ fn processing_line(summary: &Summary) -> String {
     };
     format!(
         "Imaged on {} × {} pixels (depth × lateral) of {:.0} µm, x {:.2} to {:.2} mm, z {:.2} to \
-         {:.2} mm, receive F# {}; the clutter filter cut {cut}; Doppler by {} over {}×{} \
-         pixels.",
+         {:.2} mm, {}; the clutter filter cut {cut}; Doppler by {} over {}×{} pixels.",
         grid.nz,
         grid.nx,
         grid.step_m * 1e6,
@@ -182,7 +200,10 @@ fn processing_line(summary: &Summary) -> String {
         grid.x_max_m * 1e3,
         grid.z_min_m * 1e3,
         grid.z_max_m * 1e3,
-        summary.beamforming.f_number,
+        match &summary.beamforming {
+            Some(das) => format!("receive F# {}", das.f_number),
+            None => "beamformed elsewhere".into(),
+        },
         summary.doppler.estimator,
         summary.doppler.kernel[0],
         summary.doppler.kernel[1],

@@ -6,6 +6,7 @@
 mod bad_input;
 mod disk;
 mod dynamics;
+mod images;
 mod paper;
 mod simulate;
 

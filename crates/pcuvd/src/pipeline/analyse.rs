@@ -127,6 +127,17 @@ pub fn check_doppler_estimator(acq: &Acquisition, params: &ProcessParams) -> Res
     Ok(())
 }
 
+/// [`check_doppler_estimator`] for image series formed elsewhere: the estimator checked at
+/// each of `images`' angles and their compound, on `params.grid`.
+pub fn check_doppler_estimator_on(images: &AngleImages, params: &ProcessParams) -> Result<()> {
+    for angle in (0..images.n_angles()).map(Some).chain([None]) {
+        params
+            .doppler_estimator
+            .check(&doppler_geometry(images, &params.grid, angle))?;
+    }
+    Ok(())
+}
+
 /// The Doppler moments ([`doppler::moments`]) of each angle's clutter-filtered series of
 /// `images` (nz, nx, frames) and of their compound, for `params.doppler_estimator`; a range of
 /// `frames` only, when given (a segment's own frames).

@@ -1,0 +1,216 @@
+//! `pcuvd process` on beamformed IQ images formed elsewhere (an images manifest): the chain from
+//! the clutter filter on, scored against the analytic truth of a synthetic pulsatile vessel, and
+//! the options that set how images are formed refused with one clear line.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use ndarray::{Array2, Array3};
+use ndarray_npy::{read_npy, write_npy};
+use num_complex::Complex32;
+
+const FRAME_RATE: f64 = 1000.0;
+const DEMOD: f64 = 15.625e6;
+const SOUND_SPEED: f64 = 1540.0;
+const HEART_RATE: f64 = 5.0;
+/// The beat's peak systolic and end-diastolic velocities (m/s): RI 2/3.
+const PSV: f64 = 12e-3;
+const EDV: f64 = 4e-3;
+/// Rows and columns of the vessel, whose blood moves away from the probe: a third of the rows it
+/// crosses, so that their noise floor (a row's 30th percentile of power) is the tissue's.
+const VESSEL: ([usize; 2], [usize; 2]) = ([18, 30], [8, 30]);
+
+fn pcuvd(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .arg("--quiet")
+        .args(args)
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr,
+    )
+}
+
+/// The blood's axial velocity (m/s, positive = away from the probe) at `t` (s): a cosine beat
+/// between EDV and PSV.
+fn velocity(t: f64) -> f64 {
+    let (mean, swing) = ((PSV + EDV) / 2.0, (PSV - EDV) / 2.0);
+    mean + swing * (2.0 * std::f64::consts::PI * (HEART_RATE * t - 0.2)).cos()
+}
+
+/// Complex speckle (nz, nx): white noise from a fixed seed, smoothed over 3 × 3 pixels as a
+/// point-spread function would, so that neighbouring pixels correlate.
+fn speckle(nz: usize, nx: usize, seed: &mut u64) -> Array2<Complex32> {
+    let mut next = || {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+    };
+    let white = Array2::from_shape_simple_fn((nz + 2, nx + 2), || Complex32::new(next(), next()));
+    Array2::from_shape_fn((nz, nx), |(z, x)| {
+        white.slice(ndarray::s![z..z + 3, x..x + 3]).sum() / 9.0
+    })
+}
+
+/// Compound IQ images (frames, z, x) of static tissue 30 dB above a vessel of pulsatile blood,
+/// and a little noise: the blood's phase falls as it moves away (IQ demodulated by e^(−2πift)).
+fn synthetic_images(frames: usize) -> Array3<Complex32> {
+    let (nz, nx) = (48, 64);
+    let mut seed = 7;
+    let tissue = speckle(nz, nx, &mut seed) * 30.0;
+    let blood = speckle(nz, nx, &mut seed);
+    let mut phase = 0.0;
+    let mut images = Array3::zeros((frames, nz, nx));
+    for (t, mut frame) in images.outer_iter_mut().enumerate() {
+        phase += 4.0 * std::f64::consts::PI * DEMOD * velocity(t as f64 / FRAME_RATE)
+            / (SOUND_SPEED * FRAME_RATE);
+        let turn = Complex32::from_polar(1.0, -phase as f32);
+        let noise = speckle(nz, nx, &mut seed) * 0.05;
+        for ((z, x), value) in frame.indexed_iter_mut() {
+            let in_vessel =
+                (VESSEL.0[0]..VESSEL.0[1]).contains(&z) && (VESSEL.1[0]..VESSEL.1[1]).contains(&x);
+            let flow = if in_vessel {
+                blood[[z, x]] * turn
+            } else {
+                0.0.into()
+            };
+            *value = tissue[[z, x]] + flow + noise[[z, x]];
+        }
+    }
+    images
+}
+
+/// Writes `images` and their manifest, with `extra` tables, into `dir`; returns the manifest's
+/// path.
+fn write_images(dir: &Path, images: &Array3<Complex32>, extra: &str) -> PathBuf {
+    write_npy(dir.join("iq.npy"), images).unwrap();
+    let manifest = dir.join("images.toml");
+    std::fs::write(
+        &manifest,
+        format!(
+            "format = \"pcuvd-images\"\nversion = 1\n[images]\nfile = \"iq.npy\"\n\
+             axes = [\"frames\", \"z\", \"x\"]\nframe_rate_hz = {FRAME_RATE}\n\
+             demod_frequency_hz = {DEMOD}\nx_m = [-1.6e-3, 1.55e-3]\nz_m = [5.0e-3, 7.35e-3]\n\
+             {extra}"
+        ),
+    )
+    .unwrap();
+    manifest
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
+#[test]
+fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 400; // two beats
+    // The scanner's triggers at the beats' starts, as an ECG would give them.
+    let manifest = write_images(
+        dir.path(),
+        &synthetic_images(frames),
+        "[cardiac]\ntriggers_s = [0.0, 0.2]\n",
+    );
+    let out = dir.path().join("out");
+    let (ok, stdout, stderr) = pcuvd(&[
+        "process",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("beamformed images, 1 angle, 400 frames"),
+        "{stdout}"
+    );
+    let map = |name: &str| -> Array2<f64> { read_npy(out.join(name)).unwrap() };
+    let (colour, ri, class) = (
+        map("color_doppler.npy"),
+        map("ri.npy"),
+        read_npy::<_, Array2<u8>>(out.join("vessel_class.npy")).unwrap(),
+    );
+    // The vessel's inside, clear of the Doppler kernel's reach past its walls.
+    let inside: Vec<(usize, usize)> = (VESSEL.0[0] + 2..VESSEL.0[1] - 2)
+        .flat_map(|z| (VESSEL.1[0] + 1..VESSEL.1[1] - 1).map(move |x| (z, x)))
+        .collect();
+    let mean_velocity = (0..frames)
+        .map(|t| velocity(t as f64 / FRAME_RATE))
+        .sum::<f64>()
+        / frames as f64;
+    let read = median(inside.iter().map(|&p| colour[p]).collect());
+    assert!(
+        (read - mean_velocity).abs() < 0.03 * mean_velocity,
+        "colour Doppler {read} m/s against the mean velocity {mean_velocity} m/s"
+    );
+    let truth_ri = 1.0 - EDV / PSV;
+    let ri_read = median(inside.iter().map(|&p| ri[p]).collect());
+    assert!(
+        (ri_read - truth_ri).abs() < 0.03,
+        "RI {ri_read} against {truth_ri}"
+    );
+    let arterioles = inside
+        .iter()
+        .filter(|&&p| class[p] == pcuvd::dynamics::ARTERIOLE)
+        .count();
+    assert!(
+        arterioles as f64 >= 0.95 * inside.len() as f64,
+        "{arterioles} of {} inside pixels classed arterioles",
+        inside.len()
+    );
+    // Tissue alone, three rows or more from the vessel: never a vessel.
+    let far = class
+        .indexed_iter()
+        .filter(|((z, _), _)| *z + 3 < VESSEL.0[0] || *z >= VESSEL.0[1] + 3)
+        .filter(|(_, c)| **c != 0)
+        .count();
+    assert_eq!(far, 0, "{far} tissue pixels classed as vessels");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["images"]["frames"], 400);
+    let triggers_from = summary["dynamics"]["triggers_from"].as_str().unwrap();
+    assert!(triggers_from.contains("[cardiac]"), "{triggers_from}");
+    assert_eq!(summary["images"]["frame_rate_hz"], FRAME_RATE);
+    assert!(summary.get("probe").is_none() && summary.get("beamforming").is_none());
+    assert_eq!(summary["source"]["files"].as_array().unwrap().len(), 2);
+    assert!(out.join("report.html").is_file() && out.join("ri.png").is_file());
+}
+
+#[test]
+fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = write_images(dir.path(), &synthetic_images(40), "");
+    let manifest = manifest.to_str().unwrap();
+    let out = dir.path().join("out");
+    let out = out.to_str().unwrap();
+    for (option, said) in [
+        (&["--zarr"][..], "--zarr"),
+        (&["--grid=-1,1,5,7,0.05"][..], "--grid"),
+        (&["--f-number", "1.5"][..], "--f-number"),
+        (&["--sound-speed-m-s", "1500"][..], "acquisition overrides"),
+    ] {
+        let mut args = vec!["process", manifest, "--out", out, "--dynamics", "off"];
+        args.extend_from_slice(option);
+        let (ok, _, stderr) = pcuvd(&args);
+        assert!(!ok && stderr.contains(said), "{option:?}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    }
+    // `info` reads channel data only, and says where images go.
+    let (ok, _, stderr) = pcuvd(&["info", manifest]);
+    assert!(!ok && stderr.contains("images manifest"), "{stderr}");
+    // A bare .npy says what describes it.
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        dir.path().join("iq.npy").to_str().unwrap(),
+        "--out",
+        out,
+    ]);
+    assert!(!ok && stderr.contains("images manifest"), "{stderr}");
+}
