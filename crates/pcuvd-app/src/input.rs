@@ -1,5 +1,6 @@
 //! Opening a recording, any format, with the user's overrides, and the checks and warnings that
-//! come before any work.
+//! come before any work; what a run read ([`RunInput`]): a recording, or beamformed images
+//! formed elsewhere.
 
 use std::path::{Path, PathBuf};
 
@@ -80,4 +81,63 @@ fn check_recording(path: &Path, data: &dyn FrameSource) -> Result<()> {
 pub fn create_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create the output folder", dir.display()))
+}
+
+/// Beamformed images formed elsewhere, as the run read them.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ImagesRecord {
+    /// Frames of each series.
+    pub frames: usize,
+    /// Compound frame rate: the images' slow-time sampling rate (Hz).
+    pub frame_rate_hz: f64,
+    /// The frequency their IQ was demodulated at, which turns phase into velocity (Hz).
+    pub demod_frequency_hz: f64,
+    /// Speed of sound (m/s).
+    pub sound_speed_m_s: f64,
+    /// Steering angle of each series (degrees).
+    pub angles_deg: Vec<f64>,
+    /// What the run did not do to them.
+    pub formed: &'static str,
+}
+
+impl ImagesRecord {
+    /// The record of `images`.
+    pub fn of(images: &pcuvd::form::images::AngleImages) -> Self {
+        ImagesRecord {
+            frames: images.n_frames(),
+            frame_rate_hz: images.frame_rate,
+            demod_frequency_hz: images.demodulation_frequency,
+            sound_speed_m_s: images.sound_speed,
+            angles_deg: images.angles.iter().map(|a| a.to_degrees()).collect(),
+            formed: "formed elsewhere and read as given: no decoding, demodulation or \
+                     beamforming (the series' Doppler starts at the clutter filter)",
+        }
+    }
+}
+
+/// What a run read: a recording of channel data, or beamformed images formed elsewhere.
+#[derive(Clone, Copy)]
+pub enum RunInput<'a> {
+    /// Channel data that the run decoded, demodulated and beamformed.
+    Recording(&'a dyn FrameSource),
+    /// Images formed elsewhere.
+    Images(&'a ImagesRecord),
+}
+
+impl RunInput<'_> {
+    /// The compound frame rate (Hz).
+    pub fn frame_rate(&self) -> f64 {
+        match self {
+            RunInput::Recording(data) => data.acquisition().frame_rate(),
+            RunInput::Images(images) => images.frame_rate_hz,
+        }
+    }
+
+    /// Frames of the recording.
+    pub fn n_frames(&self) -> usize {
+        match self {
+            RunInput::Recording(data) => data.n_frames(),
+            RunInput::Images(images) => images.frames,
+        }
+    }
 }

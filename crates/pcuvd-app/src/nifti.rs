@@ -9,9 +9,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::input::RunInput;
 use anyhow::{Context, Result, bail};
 use ndarray::{Array2, Array3};
-use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline::ProcessOutput;
 use serde::Serialize;
 
@@ -176,16 +176,21 @@ fn series(maps: &Array3<f64>) -> ndarray16::Array4<f32> {
 #[derive(Debug, Clone, Serialize)]
 #[serde(rename_all = "PascalCase")]
 struct Sidecar {
-    /// Probe centre frequency (MHz).
-    probe_central_frequency: f64,
-    probe_number_of_elements: usize,
+    /// Probe centre frequency (MHz); the probe's fields are absent for images formed elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    probe_central_frequency: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    probe_number_of_elements: Option<usize>,
     /// Element pitch (mm).
-    probe_pitch: f64,
-    probe_type: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    probe_pitch: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    probe_type: Option<&'static str>,
     /// Depths of the first and last rows (mm).
     depth: [f64; 2],
-    /// Transmit events per second (Hz).
-    ultrasound_pulse_repetition_frequency: f64,
+    /// Transmit events per second (Hz); absent for images formed elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    ultrasound_pulse_repetition_frequency: Option<f64>,
     /// Plane-wave angles (degrees).
     plane_wave_angles: Vec<f64>,
     /// Compound frames per second (Hz).
@@ -197,7 +202,9 @@ struct Sidecar {
     power_doppler_integration_duration: f64,
     /// Speed of sound (m/s).
     sound_speed: f64,
-    transmit_coding: &'static str,
+    /// Absent for images formed elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    transmit_coding: Option<&'static str>,
     software_versions: String,
     /// A time series' step between images (s).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -227,21 +234,37 @@ struct ClutterFilter {
 /// The sidecar fields of a run whose clutter filter saw `integration_frames` frames, with the
 /// whole recording's clutter filter (its first angle's cut-offs).
 fn acquisition_fields(
-    data: &dyn FrameSource,
+    input: RunInput<'_>,
     out: &ProcessOutput,
     integration_frames: usize,
 ) -> Sidecar {
-    let acq = data.acquisition();
-    let frame_rate = acq.frame_rate();
+    let frame_rate = input.frame_rate();
     let window_ms = integration_frames as f64 / frame_rate * 1e3;
+    let (probe, sequence, sound_speed, angles) = match input {
+        RunInput::Recording(data) => {
+            let acq = data.acquisition();
+            (
+                Some(&acq.probe),
+                Some(&acq.sequence),
+                acq.sound_speed,
+                acq.sequence.angles.clone(),
+            )
+        }
+        RunInput::Images(images) => (
+            None,
+            None,
+            images.sound_speed_m_s,
+            images.angles_deg.iter().map(|a| a.to_radians()).collect(),
+        ),
+    };
     Sidecar {
-        probe_central_frequency: acq.probe.center_frequency * 1e-6,
-        probe_number_of_elements: acq.probe.n_elements,
-        probe_pitch: acq.probe.pitch * 1e3,
-        probe_type: "linear",
+        probe_central_frequency: probe.map(|p| p.center_frequency * 1e-6),
+        probe_number_of_elements: probe.map(|p| p.n_elements),
+        probe_pitch: probe.map(|p| p.pitch * 1e3),
+        probe_type: probe.map(|_| "linear"),
         depth: [out.grid.z[0] * 1e3, out.grid.z[out.grid.z.len() - 1] * 1e3],
-        ultrasound_pulse_repetition_frequency: acq.sequence.event_prf,
-        plane_wave_angles: acq.sequence.angles.iter().map(|a| a.to_degrees()).collect(),
+        ultrasound_pulse_repetition_frequency: sequence.map(|seq| seq.event_prf),
+        plane_wave_angles: angles.iter().map(|a| a.to_degrees()).collect(),
         compound_sampling_frequency: frame_rate,
         clutter_filter_window_duration: window_ms,
         // A block-wise filter's thresholds differ from block to block: summary.json lists them.
@@ -260,12 +283,8 @@ fn acquisition_fields(
             })
             .collect(),
         power_doppler_integration_duration: window_ms,
-        sound_speed: acq.sound_speed,
-        transmit_coding: if acq.sequence.is_coded() {
-            "hadamard"
-        } else {
-            "none"
-        },
+        sound_speed,
+        transmit_coding: sequence.map(|seq| if seq.is_coded() { "hadamard" } else { "none" }),
         software_versions: format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
         repetition_time: None,
         clutter_cutoffs_per_ensemble: None,
@@ -308,16 +327,16 @@ where
 /// sidecars into `dir`. Returns the images written.
 pub fn write_nifti(
     dir: &Path,
-    data: &dyn FrameSource,
+    input: RunInput<'_>,
     plan: &Plan,
     processed: &Processed,
     naming: &NiftiNaming,
 ) -> Result<Vec<PathBuf>> {
     naming.validate()?;
     let out = &processed.out;
-    let frame_rate = data.acquisition().frame_rate();
+    let frame_rate = input.frame_rate();
     let still = header(out, 0.0);
-    let fields = acquisition_fields(data, out, data.n_frames());
+    let fields = acquisition_fields(input, out, input.n_frames());
     let mut written = Vec::new();
     let mut maps: Vec<(&str, Array2<f64>)> = vec![
         ("power_doppler", out.maps.power_doppler.clone()),
@@ -360,7 +379,7 @@ pub fn write_nifti(
     ) {
         let step_s = spec.step as f64 / frame_rate;
         let timed = header(out, step_s);
-        let mut fields = acquisition_fields(data, out, spec.frames);
+        let mut fields = acquisition_fields(input, out, spec.frames);
         // Ensembles are evenly spaced: RepetitionTime says when each starts after the first,
         // DelayAfterTrigger when the first one's centre lies after the recording's first frame.
         fields.repetition_time = Some(step_s);

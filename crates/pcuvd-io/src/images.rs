@@ -172,7 +172,8 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
         array.shape()[3],
     );
     let angles_deg = section.angles_deg.clone().unwrap_or_else(|| vec![0.0]);
-    if angles_deg.len() != n_angles || angles_deg.iter().any(|a| !a.is_finite() || a.abs() >= 90.0) {
+    if angles_deg.len() != n_angles || angles_deg.iter().any(|a| !a.is_finite() || a.abs() >= 90.0)
+    {
         return Err(IoError::invalid(
             path,
             "[images].angles_deg",

@@ -121,12 +121,12 @@ pub fn save_run(
     let recording = || match input {
         RunInput::Recording(data) => Ok(data),
         RunInput::Images(_) => Err(anyhow::anyhow!(
-            "NIfTI images and the Zarr store record the probe and the transmit sequence, which \
-             images formed elsewhere do not give: not written for them"
+            "the Zarr store records the probe and the transmit sequence, which images formed \
+             elsewhere do not give: not written for them"
         )),
     };
     if let Some(naming) = nifti {
-        let images = crate::nifti::write_nifti(dir, recording()?, plan, processed, naming)?;
+        let images = crate::nifti::write_nifti(dir, input, plan, processed, naming)?;
         let names: Vec<String> = images
             .iter()
             .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
