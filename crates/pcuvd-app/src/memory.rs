@@ -15,9 +15,17 @@ maps and a filtered copy of one ensemble's frames per angle counted once more)";
 /// Bytes the stages after image formation hold beyond the chain's image series
 /// ([`STAGE_MEMORY_RULE`]): the dynamics stage's window series and a time series' maps.
 fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
+    stage_memory_of(
+        plan,
+        data.n_frames(),
+        data.acquisition().sequence.n_angles(),
+    )
+}
+
+/// [`stage_memory`] of a recording of `frames` frames of `n_angles` angles.
+fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
     let pixels = (nz * nx) as u128;
-    let frames = data.n_frames();
     // The stage runs only with a window the recording holds.
     let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
         if d.params.window > frames {
@@ -28,7 +36,7 @@ fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
     });
     let ensembles = plan.ensembles.map_or(0, |e| {
         let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
-        let angles = data.acquisition().sequence.n_angles() as u128;
+        let angles = n_angles as u128;
         count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * angles * 8
     });
     dynamics + ensembles
@@ -39,20 +47,7 @@ fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
 /// [`memory_room`], or the user's `limit_gb`), instead of aborting on allocation.
 pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
     let params = &plan.params;
-    let room = match limit_gb {
-        Some(gb) if gb.is_finite() && gb > 0.0 => Some(MemoryRoom {
-            bytes: gb * 1e9,
-            bound: format!(
-                "--max-memory-gb {}",
-                crate::settings::shown("--max-memory-gb", gb)
-            ),
-        }),
-        Some(gb) => bail!(
-            "--max-memory-gb {}: must be a positive number of GB",
-            crate::settings::shown("--max-memory-gb", gb)
-        ),
-        None => memory_room(),
-    };
+    let room = room_within(limit_gb)?;
     let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
     if let Some(room) = room
         && needed > room.bytes
@@ -67,6 +62,77 @@ pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) 
         );
     }
     Ok(())
+}
+
+/// The memory a run may use: `--max-memory-gb` when given (checked), else what the machine
+/// and the process's limits leave ([`memory_room`]).
+fn room_within(limit_gb: Option<f64>) -> Result<Option<MemoryRoom>> {
+    Ok(match limit_gb {
+        Some(gb) if gb.is_finite() && gb > 0.0 => Some(MemoryRoom {
+            bytes: gb * 1e9,
+            bound: format!(
+                "--max-memory-gb {}",
+                crate::settings::shown("--max-memory-gb", gb)
+            ),
+        }),
+        Some(gb) => bail!(
+            "--max-memory-gb {}: must be a positive number of GB",
+            crate::settings::shown("--max-memory-gb", gb)
+        ),
+        None => memory_room(),
+    })
+}
+
+/// How a run on images formed elsewhere is sized: they are held whole.
+pub const IMAGES_MEMORY_RULE: &str = "three times the images as complex64: the array read, its \
+                                      per-angle series (filtered in place) and their compound";
+
+/// Refuses, before they are read, beamformed images of `bytes` (as complex64) that a run could
+/// not hold ([`IMAGES_MEMORY_RULE`]) within `limit_gb` or what the machine leaves.
+pub fn check_images_memory(bytes: u64, limit_gb: Option<f64>) -> Result<()> {
+    let needed = 3.0 * bytes as f64;
+    if let Some(room) = room_within(limit_gb)?
+        && needed > room.bytes
+    {
+        bail!(
+            "processing the images needs about {} ({IMAGES_MEMORY_RULE}) but {} are available \
+             ({}): cut the images into shorter files",
+            gigabytes(needed),
+            gigabytes(room.bytes.max(0.0)),
+            room.bound
+        );
+    }
+    Ok(())
+}
+
+/// Refuses, once the images (of `images_bytes` as complex64, `frames` frames, `n_angles`
+/// angles) are read and `plan` made, stages whose memory ([`STAGE_MEMORY_RULE`]: the dynamics
+/// windows, the time series) would not fit beside them: within `limit_gb` with the images'
+/// [`IMAGES_MEMORY_RULE`], else in what the machine leaves now.
+pub fn check_images_stages(
+    plan: &Plan,
+    (images_bytes, frames, n_angles): (u64, usize, usize),
+    limit_gb: Option<f64>,
+) -> Result<()> {
+    let stages = stage_memory_of(plan, frames, n_angles) as f64;
+    let what = "the dynamics windows and Doppler time series";
+    let instead = "give --dynamics off, a longer --window-step-ms or fewer ensembles";
+    match room_within(limit_gb)? {
+        Some(room) if limit_gb.is_some() => {
+            let needed = 3.0 * images_bytes as f64 + stages;
+            if needed > room.bytes {
+                bail!(
+                    "processing the images needs about {} ({IMAGES_MEMORY_RULE}, {STAGE_MEMORY_RULE}) \
+                     but {} are available ({}): {instead}",
+                    gigabytes(needed),
+                    gigabytes(room.bytes.max(0.0)),
+                    room.bound
+                );
+            }
+            Ok(())
+        }
+        _ => check_room_for(stages as u64, what, instead),
+    }
 }
 
 /// Refuses work that would hold `bytes` in memory where less may still be allocated

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use pcuvd_app::input::{open_input, rf_band_pass_warning};
-use pcuvd_app::memory::check_memory;
+use pcuvd_app::memory::{check_images_memory, check_images_stages, check_memory};
 use pcuvd_app::outputs;
 use pcuvd_app::run::Plan;
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
@@ -285,25 +285,31 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
 fn run_on_images(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
     let refused = [
-        (args.zarr, "--zarr"),
         (
-            args.nifti || args.bids_subject.is_some(),
-            "--nifti / --bids-subject",
+            args.zarr,
+            "--zarr: the store records a probe and a transmit sequence, which images formed \
+             elsewhere do not have",
         ),
         (
             !args.acquisition.to_overrides().is_empty(),
-            "the acquisition overrides (--t0-s, --event-prf-hz...)",
+            "the acquisition overrides (--t0-s, --event-prf-hz...): the images are formed",
         ),
-        (args.max_memory_gb.is_some(), "--max-memory-gb"),
     ];
-    if let Some((_, option)) = refused.iter().find(|(given, _)| *given) {
+    if let Some((_, why)) = refused.iter().find(|(given, _)| *given) {
         anyhow::bail!(
-            "{}: {option} is not available for beamformed images formed elsewhere (the images \
-             are read whole; NIfTI and Zarr outputs record a probe and a transmit sequence they \
-             do not have)",
+            "{}: not for beamformed images formed elsewhere: {why}",
             args.input.display()
         );
     }
+    let nifti = pcuvd_app::nifti::NiftiNaming::requested(
+        args.nifti,
+        args.bids_subject.clone(),
+        args.bids_session.clone(),
+        args.bids_task.clone(),
+    )?;
+    let images_bytes = pcuvd_io::images::images_bytes(&args.input)?;
+    check_images_memory(images_bytes, args.max_memory_gb)
+        .with_context(|| args.input.display().to_string())?;
     let read = pcuvd_io::images::read_images(&args.input)?;
     let read_s = clock.elapsed().as_secs_f64();
     let plan = pcuvd_app::run::Plan::for_images(
@@ -312,6 +318,9 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         &read.images,
         read.info.cardiac_triggers_s.as_deref(),
     )?;
+    let shape = (images_bytes, read.images.n_frames(), read.images.n_angles());
+    check_images_stages(&plan, shape, args.max_memory_gb)
+        .with_context(|| args.input.display().to_string())?;
     let (input, info) = (args.input.display().to_string(), read.info.clone());
     let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
     let provenance_of_run = move || {
@@ -369,7 +378,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         source,
         name: &name,
         extra_timings: &extra_timings,
-        nifti: None,
+        nifti: nifti.as_ref(),
         zarr: None,
         simulated_from: None,
     };

@@ -77,9 +77,8 @@ pub fn is_images_manifest(head: &[u8]) -> bool {
     text.contains(&format!("\"{FORMAT}\"")) || text.contains(&format!("'{FORMAT}'"))
 }
 
-/// Reads the images manifest at `path` and the complex images it names (complex64 or
-/// complex128, any axis order the manifest gives).
-pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
+/// The manifest at `path`, parsed and its format and version checked, and its text.
+fn parse(path: &Path) -> Result<(Manifest, String), IoError> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, "read", e))?;
     let manifest: Manifest = toml::from_str(&text).map_err(|e| {
         IoError::malformed(
@@ -107,6 +106,38 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
             ),
         ));
     }
+    Ok((manifest, text))
+}
+
+/// The images file the manifest at `path` names, resolved against the manifest's folder.
+fn images_file(path: &Path, section: &ImagesSection) -> Result<std::path::PathBuf, IoError> {
+    let file = path.parent().unwrap_or(Path::new(".")).join(&section.file);
+    crate::paths::check_regular_file(&file)?;
+    Ok(file)
+}
+
+/// Bytes the images of the manifest at `path` take once read (complex64), from the `.npy`
+/// file's header alone: for a memory check before [`read_images`].
+pub fn images_bytes(path: &Path) -> Result<u64, IoError> {
+    let (manifest, _) = parse(path)?;
+    let file = images_file(path, &manifest.images)?;
+    let reader = std::fs::File::open(&file).map_err(|e| IoError::io(&file, "read", e))?;
+    let header =
+        ndarray_npy::npy::header::Header::from_reader(&mut std::io::BufReader::new(reader))
+            .map_err(|e| {
+                IoError::malformed(
+                    &file,
+                    format!("not a valid .npy file ({})", crate::error::flat(e)),
+                )
+            })?;
+    Ok(header.shape.iter().map(|&n| n as u64).product::<u64>()
+        * std::mem::size_of::<Complex32>() as u64)
+}
+
+/// Reads the images manifest at `path` and the complex images it names (complex64 or
+/// complex128, any axis order the manifest gives).
+pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
+    let (manifest, text) = parse(path)?;
     let section = manifest.images;
     let positive = |field: &str, value: f64| {
         if value.is_finite() && value > 0.0 {
@@ -124,8 +155,7 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
     let sound_speed = positive("sound_speed_m_s", section.sound_speed_m_s)?;
     let axes = axes_order(path, &section.axes)?;
     let cardiac_triggers_s = crate::cardiac::triggers_of_section(path, manifest.cardiac)?;
-    let file = path.parent().unwrap_or(Path::new(".")).join(&section.file);
-    crate::paths::check_regular_file(&file)?;
+    let file = images_file(path, &section)?;
     let array = match read_npy(&file)? {
         NpyArray::Complex(array) => array,
         NpyArray::Real(_) => {

@@ -120,17 +120,38 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         "[cardiac]\ntriggers_s = [0.0, 0.2]\n",
     );
     let out = dir.path().join("out");
+    // 9.8 MB of images (29.5 MB to hold and filter) fit in 35 MB, but not with the dynamics
+    // windows' 9.5 MB (77 windows of 20 frames, 5 maps of 3,072 pixels).
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--max-memory-gb",
+        "0.035",
+    ]);
+    assert!(!ok && stderr.contains("--dynamics off"), "{stderr}");
     let (ok, stdout, stderr) = pcuvd(&[
         "process",
         manifest.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
+        "--nifti",
     ]);
     assert!(ok, "{stderr}");
     assert!(
         stdout.contains("beamformed images, 1 angle, 400 frames"),
         "{stdout}"
     );
+    // fUSI-BIDS sidecars say what images give (their rate, angles and depths) and leave out
+    // the probe and transmit fields they do not.
+    let sidecar: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("power_doppler.json")).unwrap())
+            .unwrap();
+    assert_eq!(sidecar["CompoundSamplingFrequency"], FRAME_RATE);
+    assert_eq!(sidecar["PlaneWaveAngles"], serde_json::json!([0.0]));
+    assert!(sidecar.get("ProbeCentralFrequency").is_none(), "{sidecar}");
+    assert!(out.join("power_doppler.nii.gz").is_file() && out.join("ri.nii.gz").is_file());
     let map = |name: &str| -> Array2<f64> { read_npy(out.join(name)).unwrap() };
     let (colour, ri, class) = (
         map("color_doppler.npy"),
@@ -195,6 +216,8 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
         (&["--grid=-1,1,5,7,0.05"][..], "--grid"),
         (&["--f-number", "1.5"][..], "--f-number"),
         (&["--sound-speed-m-s", "1500"][..], "acquisition overrides"),
+        // 40 frames of 48 × 64 pixels: 0.98 MB as complex64, three times that to process.
+        (&["--max-memory-gb", "0.002"][..], "needs about"),
     ] {
         let mut args = vec!["process", manifest, "--out", out, "--dynamics", "off"];
         args.extend_from_slice(option);
