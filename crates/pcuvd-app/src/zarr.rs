@@ -18,9 +18,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::input::RunInput;
 use anyhow::{Context, Result};
 use ndarray::{Array2, Array3, ArrayView3};
-use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline::ensembles::EnsembleMaps;
 use pcuvd::pipeline::segments::EnsembleSink;
 use serde_json::{Map, Value, json};
@@ -82,10 +82,10 @@ fn block_f32(values: ArrayView3<f64>) -> Vec<f32> {
 }
 
 impl ZarrStore {
-    /// Creates the store at `path` (a folder that must not exist yet) for a run of `data` as
-    /// `plan` says: the root group with the acquisition's attributes and the `z`, `x`
-    /// coordinates.
-    pub fn create(path: &Path, data: &dyn FrameSource, plan: &Plan) -> Result<ZarrStore> {
+    /// Creates the store at `path` (a folder that must not exist yet) for a run of `input` as
+    /// `plan` says: the root group with the acquisition's attributes (what images formed
+    /// elsewhere give of it) and the `z`, `x` coordinates.
+    pub fn create(path: &Path, input: RunInput<'_>, plan: &Plan) -> Result<ZarrStore> {
         let context = || format!("{}: cannot create the Zarr store", path.display());
         if path.exists() {
             anyhow::bail!(
@@ -102,7 +102,7 @@ impl ZarrStore {
             grid: (grid.z.len(), grid.x.len()),
             series: Vec::new(),
         };
-        zarr.write_group(attributes(data, plan), None)?;
+        zarr.write_group(attributes(input, plan), None)?;
         zarr.write_coordinate(&MapKind::new("z", "m", "depth below the probe"), &grid.z)?;
         zarr.write_coordinate(&MapKind::new("x", "m", "lateral position"), &grid.x)?;
         Ok(zarr)
@@ -292,7 +292,7 @@ impl ZarrStore {
     /// Returns the store's folder.
     pub fn finish(
         mut self,
-        data: &dyn FrameSource,
+        input: RunInput<'_>,
         plan: &Plan,
         processed: &Processed,
     ) -> Result<PathBuf> {
@@ -359,7 +359,7 @@ impl ZarrStore {
                 ..Default::default()
             }
         });
-        self.write_group(attributes(data, plan), consolidated)?;
+        self.write_group(attributes(input, plan), consolidated)?;
         Ok(self.path)
     }
 }
@@ -373,30 +373,49 @@ impl EnsembleSink for ZarrStore {
 
 /// The store's attributes: the acquisition (ConfUSIus's names where they exist, SI units, the
 /// unit of each in `units`) and pcuvd's processing.
-fn attributes(data: &dyn FrameSource, plan: &Plan) -> Map<String, Value> {
-    let acq = data.acquisition();
-    let angles: Vec<f64> = acq.sequence.angles.iter().map(|a| a.to_degrees()).collect();
-    let values = json!({
-        "compound_sampling_frequency": acq.frame_rate(),
-        "transmit_frequency": acq.probe.center_frequency,
-        "beamforming_sound_velocity": acq.sound_speed,
-        "pulse_repetition_frequency": acq.sequence.event_prf,
-        "plane_wave_angles": angles,
-        "probe_number_of_elements": acq.probe.n_elements,
-        "probe_pitch": acq.probe.pitch,
-        "transmit_coding": if acq.sequence.is_coded() { "hadamard" } else { "none" },
-        "frames": data.n_frames(),
-        "units": {
-            "compound_sampling_frequency": "Hz",
-            "transmit_frequency": "Hz",
-            "beamforming_sound_velocity": "m/s",
-            "pulse_repetition_frequency": "Hz",
-            "plane_wave_angles": "degree",
-            "probe_pitch": "m",
-        },
-        "processing_options": plan.options_text,
-        "software": format!("pcuvd {}", env!("CARGO_PKG_VERSION")),
-    });
+fn attributes(input: RunInput<'_>, plan: &Plan) -> Map<String, Value> {
+    let mut values = match input {
+        RunInput::Recording(data) => {
+            let acq = data.acquisition();
+            let angles: Vec<f64> = acq.sequence.angles.iter().map(|a| a.to_degrees()).collect();
+            json!({
+                "compound_sampling_frequency": acq.frame_rate(),
+                "transmit_frequency": acq.probe.center_frequency,
+                "beamforming_sound_velocity": acq.sound_speed,
+                "pulse_repetition_frequency": acq.sequence.event_prf,
+                "plane_wave_angles": angles,
+                "probe_number_of_elements": acq.probe.n_elements,
+                "probe_pitch": acq.probe.pitch,
+                "transmit_coding": if acq.sequence.is_coded() { "hadamard" } else { "none" },
+                "frames": data.n_frames(),
+                "units": {
+                    "compound_sampling_frequency": "Hz",
+                    "transmit_frequency": "Hz",
+                    "beamforming_sound_velocity": "m/s",
+                    "pulse_repetition_frequency": "Hz",
+                    "plane_wave_angles": "degree",
+                    "probe_pitch": "m",
+                },
+            })
+        }
+        // Images formed elsewhere give no probe or transmit sequence: only what they hold.
+        RunInput::Images(images) => json!({
+            "compound_sampling_frequency": images.frame_rate_hz,
+            "demodulation_frequency": images.demod_frequency_hz,
+            "beamforming_sound_velocity": images.sound_speed_m_s,
+            "plane_wave_angles": images.angles_deg,
+            "frames": images.frames,
+            "formed": images.formed,
+            "units": {
+                "compound_sampling_frequency": "Hz",
+                "demodulation_frequency": "Hz",
+                "beamforming_sound_velocity": "m/s",
+                "plane_wave_angles": "degree",
+            },
+        }),
+    };
+    values["processing_options"] = json!(plan.options_text);
+    values["software"] = json!(format!("pcuvd {}", env!("CARGO_PKG_VERSION")));
     match values {
         Value::Object(map) => map,
         _ => unreachable!("a JSON object literal"),

@@ -217,7 +217,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let mut zarr = match args.zarr {
         true => Some(pcuvd_app::zarr::ZarrStore::create(
             &args.out.join(pcuvd_app::zarr::STORE),
-            data,
+            pcuvd_app::summary::RunInput::Recording(data),
             &plan,
         )?),
         false => None,
@@ -284,20 +284,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
 /// RI maps, report and summary.json a recording's run writes.
 fn run_on_images(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
-    let refused = [
-        (
-            args.zarr,
-            "--zarr: the store records a probe and a transmit sequence, which images formed \
-             elsewhere do not have",
-        ),
-        (
-            !args.acquisition.to_overrides().is_empty(),
-            "the acquisition overrides (--t0-s, --event-prf-hz...): the images are formed",
-        ),
-    ];
-    if let Some((_, why)) = refused.iter().find(|(given, _)| *given) {
+    if !args.acquisition.to_overrides().is_empty() {
         anyhow::bail!(
-            "{}: not for beamformed images formed elsewhere: {why}",
+            "{}: the acquisition overrides (--t0-s, --event-prf-hz...) are not for beamformed \
+             images formed elsewhere: the images are formed",
             args.input.display()
         );
     }
@@ -353,6 +343,14 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         args.force,
     )?;
     let record_of_images = pcuvd_app::summary::ImagesRecord::of(&read.images);
+    let zarr = match args.zarr {
+        true => Some(pcuvd_app::zarr::ZarrStore::create(
+            &args.out.join(pcuvd_app::zarr::STORE),
+            pcuvd_app::summary::RunInput::Images(&record_of_images),
+            &plan,
+        )?),
+        false => None,
+    };
     let progress = Bars::new("");
     let processed = pcuvd_app::run::run_images(read.images, &plan, &progress)
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
@@ -379,7 +377,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         name: &name,
         extra_timings: &extra_timings,
         nifti: nifti.as_ref(),
-        zarr: None,
+        zarr,
         simulated_from: None,
     };
     let saved = pcuvd_app::summary::save_run(

@@ -399,7 +399,7 @@ impl PyProcessResult {
             let zarr = match zarr {
                 true => Some(pcuvd_app::zarr::ZarrStore::create(
                     &folder.join(pcuvd_app::zarr::STORE),
-                    &*self.recording,
+                    pcuvd_app::summary::RunInput::Recording(&*self.recording),
                     &self.plan,
                 )?),
                 false => None,

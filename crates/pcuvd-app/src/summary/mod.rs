@@ -69,8 +69,8 @@ pub fn save(
     )
 }
 
-/// [`save`] for a run on channel data or on beamformed images formed elsewhere; the NIfTI images
-/// and the Zarr store need the recording's acquisition, which images formed elsewhere lack.
+/// [`save`] for a run on channel data or on beamformed images formed elsewhere (whose NIfTI
+/// sidecars and Zarr attributes hold what images give: no probe or transmit sequence).
 pub fn save_run(
     dir: &Path,
     input: RunInput<'_>,
@@ -118,13 +118,6 @@ pub fn save_run(
         write_ensembles(dir, maps)?;
         pngs.push(figures::ensemble_figure(dir, out, maps, name)?);
     }
-    let recording = || match input {
-        RunInput::Recording(data) => Ok(data),
-        RunInput::Images(_) => Err(anyhow::anyhow!(
-            "the Zarr store records the probe and the transmit sequence, which images formed \
-             elsewhere do not give: not written for them"
-        )),
-    };
     if let Some(naming) = nifti {
         let images = crate::nifti::write_nifti(dir, input, plan, processed, naming)?;
         let names: Vec<String> = images
@@ -135,7 +128,7 @@ pub fn save_run(
     }
     if let Some(store) = zarr {
         let in_store_only = processed.ensembles_in_store;
-        let path = store.finish(recording()?, plan, processed)?;
+        let path = store.finish(input, plan, processed)?;
         // Series that went to the store as the run went are drawn from it, a run at a time.
         if in_store_only && let Some(timeline) = &processed.ensembles {
             pngs.push(crate::zarr::draw_ensembles(

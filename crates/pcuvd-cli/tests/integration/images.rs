@@ -137,6 +137,7 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         "--out",
         out.to_str().unwrap(),
         "--nifti",
+        "--zarr",
     ]);
     assert!(ok, "{stderr}");
     assert!(
@@ -152,6 +153,16 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
     assert_eq!(sidecar["PlaneWaveAngles"], serde_json::json!([0.0]));
     assert!(sidecar.get("ProbeCentralFrequency").is_none(), "{sidecar}");
     assert!(out.join("power_doppler.nii.gz").is_file() && out.join("ri.nii.gz").is_file());
+    // The Zarr store's attributes, likewise, hold what images give.
+    let group: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("pcuvd.zarr").join("zarr.json")).unwrap(),
+    )
+    .unwrap();
+    let attributes = &group["attributes"];
+    assert_eq!(attributes["compound_sampling_frequency"], FRAME_RATE);
+    assert_eq!(attributes["demodulation_frequency"], DEMOD);
+    assert!(attributes.get("probe_pitch").is_none(), "{attributes}");
+    assert!(out.join("pcuvd.zarr").join("ri").is_dir());
     let map = |name: &str| -> Array2<f64> { read_npy(out.join(name)).unwrap() };
     let (colour, ri, class) = (
         map("color_doppler.npy"),
@@ -212,7 +223,6 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     let out = dir.path().join("out");
     let out = out.to_str().unwrap();
     for (option, said) in [
-        (&["--zarr"][..], "--zarr"),
         (&["--grid=-1,1,5,7,0.05"][..], "--grid"),
         (&["--f-number", "1.5"][..], "--f-number"),
         (&["--sound-speed-m-s", "1500"][..], "acquisition overrides"),
