@@ -296,6 +296,21 @@ def test_the_beamformed_iq_example_draws_ri_maps_close_to_the_truth(tmp_path):
     assert float(found.group(1)) < 0.1 and int(found.group(2)) >= 85, done.stdout
 
 
+def _images_manifest(folder, images, axes, x_m, z_m, **numbers):
+    """Saves `images` with NumPy as folder/iq.npy and writes the images manifest that describes
+    them (axes, the first and last pixel centres, and `numbers`' keys); returns its path."""
+    np.save(folder / "iq.npy", images)
+    x, z = [float(v) for v in x_m], [float(v) for v in z_m]
+    lines = ['format = "pcuvd-images"', "version = 1", "[images]", 'file = "iq.npy"',
+             f"axes = {json.dumps(list(axes))}", f"x_m = [{x[0]!r}, {x[-1]!r}]",
+             f"z_m = [{z[0]!r}, {z[-1]!r}]"]
+    lines += [f"{key} = {json.dumps(value if isinstance(value, list) else float(value))}"
+              for key, value in numbers.items()]
+    manifest = folder / "images.toml"
+    manifest.write_text("\n".join(lines) + "\n")
+    return manifest
+
+
 def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, cli):
     """`pcuvd process` on an images manifest naming a NumPy-written .npy of beamformed IQ (time,
     z, x), the way a scanner's images reach it, gives the RI maps that the Python stages draw from
@@ -309,17 +324,13 @@ def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, 
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
     iq, parameters, truth = example.simulated_iq()
-    np.save(tmp_path / "iq.npy", iq.astype(np.complex64))
-    x, z = [float(v) for v in parameters["x_m"]], [float(v) for v in parameters["z_m"]]
-    (tmp_path / "images.toml").write_text(
-        'format = "pcuvd-images"\nversion = 1\n[images]\nfile = "iq.npy"\n'
-        'axes = ["frames", "z", "x"]\n'
-        f"frame_rate_hz = {float(parameters['frame_rate_hz'])!r}\n"
-        f"demod_frequency_hz = {float(parameters['center_freq_hz'])!r}\n"
-        f"x_m = [{x[0]!r}, {x[-1]!r}]\nz_m = [{z[0]!r}, {z[-1]!r}]\n"
+    manifest = _images_manifest(
+        tmp_path, iq.astype(np.complex64), ["frames", "z", "x"], parameters["x_m"],
+        parameters["z_m"], frame_rate_hz=parameters["frame_rate_hz"],
+        demod_frequency_hz=parameters["center_freq_hz"],
     )
     out = tmp_path / "out"
-    done = run_cli(cli, "process", tmp_path / "images.toml", "--out", out, "--heart-rate", "5.5")
+    done = run_cli(cli, "process", manifest, "--out", out, "--heart-rate", "5.5")
     assert done.returncode == 0, done.stderr
     series = np.ascontiguousarray(np.moveaxis(iq, 0, 2))
     filtered, _ = pcuvd.svd_filter(series, low="auto", blocks=(40, 40))
@@ -354,19 +365,14 @@ def test_process_on_each_angles_images_gives_the_recordings_vectors(tmp_path, cl
                        sound_speed_m_s=recording.sound_speed_m_s)
         for k, angle in enumerate(recording.angles_rad)
     ])
-    np.save(tmp_path / "iq.npy", series)
-    x, z = [float(v) for v in result.x], [float(v) for v in result.z]
-    (tmp_path / "images.toml").write_text(
-        'format = "pcuvd-images"\nversion = 1\n[images]\nfile = "iq.npy"\n'
-        'axes = ["angles", "z", "x", "frames"]\n'
-        f"frame_rate_hz = {float(recording.frame_rate_hz)!r}\n"
-        f"demod_frequency_hz = {float(fc)!r}\n"
-        f"sound_speed_m_s = {float(recording.sound_speed_m_s)!r}\n"
-        f"angles_deg = {[float(a) for a in np.degrees(recording.angles_rad)]!r}\n"
-        f"x_m = [{x[0]!r}, {x[-1]!r}]\nz_m = [{z[0]!r}, {z[-1]!r}]\n"
+    manifest = _images_manifest(
+        tmp_path, series, ["angles", "z", "x", "frames"], result.x, result.z,
+        frame_rate_hz=recording.frame_rate_hz, demod_frequency_hz=fc,
+        sound_speed_m_s=recording.sound_speed_m_s,
+        angles_deg=[float(a) for a in np.degrees(recording.angles_rad)],
     )
     out = tmp_path / "out"
-    done = run_cli(cli, "process", tmp_path / "images.toml", "--out", out, "--dynamics", "off")
+    done = run_cli(cli, "process", manifest, "--out", out, "--dynamics", "off")
     assert done.returncode == 0, done.stderr
     reached = np.isfinite(result.projections).all(axis=0)
     assert reached.mean() > 0.5

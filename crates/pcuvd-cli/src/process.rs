@@ -181,12 +181,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .filter(|_| args.checksum == outputs::Checksum::Blake3);
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
         let (source, seconds) = provenance_of_run(vec![])?;
-        if already_done(&args.out, &source) {
-            println!(
-                "{}: already processed from the same input (checksums) with the same options and \
-                 pcuvd version (summary.json); skipped (--force redoes it)",
-                args.out.display()
-            );
+        if already_processed(&args.out, &source) {
             return Ok(());
         }
         Checksums::Done(Box::new(source), seconds)
@@ -270,12 +265,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     if let Some(scored) = &saved.against_truth {
         println!("{}", scored.line());
     }
-    println!(
-        "wrote maps (.npy), summary.json, {} and {} figures to {}",
-        pcuvd_app::summary::REPORT,
-        saved.figures.len(),
-        args.out.display()
-    );
+    say_written(&args.out, saved.figures.len());
     Ok(())
 }
 
@@ -321,12 +311,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
     };
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
         let (source, seconds) = provenance_of_run()?;
-        if already_done(&args.out, &source) {
-            println!(
-                "{}: already processed from the same input (checksums) with the same options and \
-                 pcuvd version (summary.json); skipped (--force redoes it)",
-                args.out.display()
-            );
+        if already_processed(&args.out, &source) {
             return Ok(());
         }
         Checksums::Done(Box::new(source), seconds)
@@ -400,13 +385,31 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         processed.out.grid.z.len(),
         processed.out.grid.x.len()
     );
-    println!(
-        "wrote maps (.npy), summary.json, {} and {} figures to {}",
-        pcuvd_app::summary::REPORT,
-        saved.figures.len(),
-        args.out.display()
-    );
+    say_written(&args.out, saved.figures.len());
     Ok(())
+}
+
+/// True, and said, when `out` holds an earlier run of the same input (checksums), options and
+/// pcuvd version: a batch re-run skips it.
+fn already_processed(out: &std::path::Path, source: &Provenance) -> bool {
+    let done = already_done(out, source);
+    if done {
+        println!(
+            "{}: already processed from the same input (checksums) with the same options and \
+             pcuvd version (summary.json); skipped (--force redoes it)",
+            out.display()
+        );
+    }
+    done
+}
+
+/// Says what a run wrote into `out`.
+fn say_written(out: &std::path::Path, figures: usize) {
+    println!(
+        "wrote maps (.npy), summary.json, {} and {figures} figures to {}",
+        pcuvd_app::summary::REPORT,
+        out.display()
+    );
 }
 
 /// What makes the input's provenance from the checksums the reader computed in its pass.
