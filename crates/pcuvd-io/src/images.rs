@@ -55,6 +55,8 @@ struct ImagesSection {
     angles_deg: Option<Vec<f64>>,
     x_m: [f64; 2],
     z_m: [f64; 2],
+    #[serde(default)]
+    conjugate: bool,
 }
 
 fn default_sound_speed() -> f64 {
@@ -227,11 +229,14 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
     }
     let x = pixel_positions(path, "x_m", section.x_m, nx)?;
     let z = pixel_positions(path, "z_m", section.z_m, nz)?;
+    // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
+    // e^(+2πift) stored its conjugate, whose flow would read reversed.
+    let sign = |v: Complex32| if section.conjugate { v.conj() } else { v };
     let series: Vec<Array3<Complex32>> = array
         .axis_iter(Axis(0))
         .map(|one| {
             one.into_dimensionality::<ndarray::Ix3>()
-                .map(|s| s.as_standard_layout().into_owned())
+                .map(|s| s.as_standard_layout().mapv(sign))
         })
         .collect::<Result<_, _>>()
         .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
@@ -287,6 +292,9 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
              1 − cos θ of it)",
         ),
     });
+    if section.conjugate {
+        parameters.push(from_file("conjugate", true.into(), "conjugate"));
+    }
     parameters.push(if text.contains("sound_speed_m_s") {
         from_file("sound_speed_m_s", sound_speed.into(), "sound_speed_m_s")
     } else {
@@ -438,6 +446,18 @@ mod tests {
             (500.0, 7.5e6, 1500.0)
         );
         assert_eq!(read.info.files.len(), 2);
+        // IQ demodulated by e^(+2πift), stored so, is read as its conjugate.
+        std::fs::write(
+            &path,
+            std::fs::read_to_string(&path).unwrap() + "conjugate = true\n",
+        )
+        .unwrap();
+        let conjugated = read_images(&path).unwrap().images;
+        assert!(
+            conjugated.series[1]
+                .indexed_iter()
+                .all(|((z, x, t), v)| *v == tagged(1, z, x, t).conj())
+        );
         let stored = read.info.stored.as_ref().unwrap();
         assert_eq!(stored.shape, vec![nx, frames, angles, nz]);
         assert_eq!(stored.dtype, "complex64");
