@@ -344,6 +344,15 @@ def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, 
     assert np.mean(classes[lumen] == truth.cycle["vessel_class"][lumen]) >= 0.85
     summary = json.loads((out / "summary.json").read_text())
     assert summary["images"]["frames"] == iq.shape[0] and "probe" not in summary
+    # The Python package runs the same images path on the manifest's path.
+    result = pcuvd.process(manifest, heart_rate_hz=5.5, quiet=True)
+    assert_same_array(result.ri, np.load(out / "ri.npy"), "ri")
+    assert_same_array(result.color_doppler, np.load(out / "color_doppler.npy"), "color_doppler")
+    assert result.summary["images"]["frame_rate_hz"] == parameters["frame_rate_hz"]
+    saved = result.save(tmp_path / "saved")
+    assert (tmp_path / "saved" / "summary.json").is_file() and saved
+    with pytest.raises(ValueError, match="channel data"):
+        result.against_truth(truth)
 
 
 def test_process_on_each_angles_images_gives_the_recordings_vectors(tmp_path, cli):

@@ -37,14 +37,47 @@ impl ProcessCall {
 pub(crate) struct PyProcessResult {
     /// The processing settings it ran with (a dynamics re-run keeps them).
     pub(crate) options: ProcessingSettings,
-    /// The recording: in memory, or (a distributed run's) its file, read a block at a time.
-    pub(crate) recording: Arc<dyn pcuvd::acquisition::source::FrameSource + Send>,
+    /// What was processed: a recording (in memory, or its file read a block at a time), or
+    /// beamformed images formed elsewhere.
+    pub(crate) source: RunSource,
     pub(crate) input: String,
     pub(crate) info: pcuvd_io::SourceInfo,
     pub(crate) plan: Plan,
     pub(crate) processed: Processed,
     /// What a recording simulated in memory came from: its truth scores the run.
     pub(crate) simulated: Option<Arc<SimulatedFrom>>,
+}
+
+/// What a result was processed from.
+pub(crate) enum RunSource {
+    /// A recording of channel data.
+    Recording(Arc<dyn pcuvd::acquisition::source::FrameSource + Send>),
+    /// Beamformed images formed elsewhere (an images manifest).
+    Images(Box<pcuvd_app::summary::ImagesRecord>),
+}
+
+impl RunSource {
+    /// The run's input, as the summary and the writers take it.
+    fn input(&self) -> pcuvd_app::summary::RunInput<'_> {
+        match self {
+            RunSource::Recording(data) => pcuvd_app::summary::RunInput::Recording(&**data),
+            RunSource::Images(images) => pcuvd_app::summary::RunInput::Images(images),
+        }
+    }
+
+    /// The recording, or an error saying that `what` needs one (images formed elsewhere have no
+    /// simulation to score against).
+    fn recording(
+        &self,
+        what: &str,
+    ) -> anyhow::Result<&dyn pcuvd::acquisition::source::FrameSource> {
+        match self {
+            RunSource::Recording(data) => Ok(&**data),
+            RunSource::Images(_) => Err(anyhow::anyhow!(
+                "{what} needs a recording of channel data, not images formed elsewhere"
+            )),
+        }
+    }
 }
 
 /// Runs `pcuvd process`'s chain on `recording` with the keyword options in `options` (JSON).
@@ -96,6 +129,10 @@ pub(crate) fn process_file(
     quiet: bool,
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
+    let head = pcuvd_io::container::read_head(&path, 4096).ok();
+    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+        return process_images(py, path, overrides, options, &progress);
+    }
     let (opened, processed) = py.detach(|| -> PyResult<_> {
         let opened = open_checked(&path, overrides, options)?;
         let processed = pcuvd_app::run(opened.source.as_ref(), &opened.plan, &progress)
@@ -104,6 +141,57 @@ pub(crate) fn process_file(
         Ok((opened, processed))
     })?;
     opened.result(py, path.display().to_string(), processed)
+}
+
+/// [`process_file`] on an images manifest: beamformed images formed elsewhere, read whole, their
+/// chain from the clutter filter on, as `pcuvd process` runs it.
+fn process_images(
+    py: Python<'_>,
+    path: PathBuf,
+    overrides: &str,
+    options: &str,
+    progress: &Lines,
+) -> PyResult<PyProcessResult> {
+    let given: serde_json::Map<String, Value> =
+        serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    if !given.is_empty() {
+        return Err(PyValueError::new_err(format!(
+            "{}: overrides are for recordings of channel data; the images are formed",
+            path.display()
+        )));
+    }
+    let call = ProcessCall::from_json(options)?;
+    let input = path.display().to_string();
+    let (info, record, plan, processed) = py
+        .detach(|| -> anyhow::Result<_> {
+            let bytes = pcuvd_io::images::images_bytes(&path)?;
+            pcuvd_app::memory::check_images_memory(bytes, call.max_memory_gb)
+                .with_context(|| input.clone())?;
+            let read = pcuvd_io::images::read_images(&path)?;
+            let plan = Plan::for_images(
+                &call.options,
+                &call.dynamics,
+                &read.images,
+                read.info.cardiac_triggers_s.as_deref(),
+            )?;
+            let shape = (bytes, read.images.n_frames(), read.images.n_angles());
+            pcuvd_app::memory::check_images_stages(&plan, shape, call.max_memory_gb)
+                .with_context(|| input.clone())?;
+            let record = pcuvd_app::summary::ImagesRecord::of(&read.images);
+            let processed = pcuvd_app::run::run_images(read.images, &plan, progress)
+                .with_context(|| format!("{input}: processing failed"))?;
+            Ok((read.info, record, plan, processed))
+        })
+        .map_err(to_py)?;
+    Ok(PyProcessResult {
+        options: call.options,
+        source: RunSource::Images(Box::new(record)),
+        input,
+        info,
+        plan,
+        processed,
+        simulated: None,
+    })
 }
 
 impl Opened {
@@ -130,7 +218,7 @@ impl Opened {
         }
         Ok(PyProcessResult {
             options: self.call.options,
-            recording: self.source,
+            source: RunSource::Recording(self.source),
             input,
             info: self.info,
             plan: self.plan,
@@ -306,12 +394,19 @@ impl PyProcessResult {
         let progress = Lines::new(quiet);
         let (plan, dynamics, seconds) = py
             .detach(|| -> anyhow::Result<_> {
-                let plan = Plan::new(
-                    &self.options,
-                    &dynamics,
-                    &*self.recording,
-                    self.info.cardiac_triggers_s.as_deref(),
-                )?;
+                let triggers = self.info.cardiac_triggers_s.as_deref();
+                let plan = match &self.source {
+                    RunSource::Recording(data) => {
+                        Plan::new(&self.options, &dynamics, &**data, triggers)?
+                    }
+                    // The filtered images hold the images' grid, angles and rates.
+                    RunSource::Images(_) => Plan::for_images(
+                        &self.options,
+                        &dynamics,
+                        &self.processed.out.filtered,
+                        triggers,
+                    )?,
+                };
                 let clock = std::time::Instant::now();
                 let dynamics = pcuvd_app::run::run_dynamics(&self.processed.out, &plan, &progress)?;
                 Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
@@ -319,7 +414,10 @@ impl PyProcessResult {
             .map_err(to_py)?;
         Ok(PyProcessResult {
             options: self.options.clone(),
-            recording: self.recording.clone(),
+            source: match &self.source {
+                RunSource::Recording(data) => RunSource::Recording(data.clone()),
+                RunSource::Images(images) => RunSource::Images(images.clone()),
+            },
             input: self.input.clone(),
             info: self.info.clone(),
             plan,
@@ -340,14 +438,21 @@ impl PyProcessResult {
     /// The summary.json this result would be saved with (less the writing timings), as JSON.
     fn summary_json(&self) -> PyResult<String> {
         let source = self.source().map_err(to_py)?;
-        let against = pcuvd_app::against_truth::score_run(
-            &source.input,
-            self.simulated.as_ref().map(|s| s.scenario.as_str()),
-            &*self.recording,
+        let against = match &self.source {
+            RunSource::Recording(data) => pcuvd_app::against_truth::score_run(
+                &source.input,
+                self.simulated.as_ref().map(|s| s.scenario.as_str()),
+                &**data,
+                &self.processed,
+            ),
+            RunSource::Images(_) => None,
+        };
+        let mut summary = pcuvd_app::summary::Summary::of_input(
+            self.source.input(),
+            &self.plan,
             &self.processed,
+            source,
         );
-        let mut summary =
-            pcuvd_app::summary::Summary::of(&*self.recording, &self.plan, &self.processed, source);
         summary.against_truth = against.map(|scored| scored.record);
         serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
     }
@@ -358,11 +463,15 @@ impl PyProcessResult {
     fn against_truth_json(&self, py: Python<'_>, scenario: &str) -> PyResult<String> {
         let scenario = pcuvd_app::scenario::Scenario::parse(scenario)
             .map_err(|e| PyValueError::new_err(format!("scenario: {e:#}")))?;
+        let recording = self
+            .source
+            .recording("scoring against a simulation's truth")
+            .map_err(to_py)?;
         let scored = py.detach(|| {
             pcuvd_app::against_truth::score_against(
                 scenario,
                 "the scenario given",
-                &*self.recording,
+                recording,
                 &self.processed,
             )
         });
@@ -399,7 +508,7 @@ impl PyProcessResult {
             let zarr = match zarr {
                 true => Some(pcuvd_app::zarr::ZarrStore::create(
                     &folder.join(pcuvd_app::zarr::STORE),
-                    pcuvd_app::summary::RunInput::Recording(&*self.recording),
+                    self.source.input(),
                     &self.plan,
                 )?),
                 false => None,
@@ -408,9 +517,9 @@ impl PyProcessResult {
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            pcuvd_app::summary::save(
+            pcuvd_app::summary::save_run(
                 &folder,
-                &*self.recording,
+                self.source.input(),
                 &self.plan,
                 &self.processed,
                 pcuvd_app::summary::Record {
