@@ -177,7 +177,9 @@ class ProcessResult:
         arrays = self.arrays
         summary = self.summary
         coords: dict[str, Any] = {"x": ("x", arrays["x"]), "z": ("z", arrays["z"])}
-        coords["angle"] = ("angle", np.radians(summary["acquisition"]["angles_deg"]))
+        # A recording's angles, or those of images formed elsewhere.
+        read = summary.get("acquisition") or summary["images"]
+        coords["angle"] = ("angle", np.radians(read["angles_deg"]))
         if "times" in arrays:
             coords["time"] = ("time", arrays["times"])
         if "ensemble_times" in arrays:

@@ -349,6 +349,8 @@ def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, 
     assert_same_array(result.ri, np.load(out / "ri.npy"), "ri")
     assert_same_array(result.color_doppler, np.load(out / "color_doppler.npy"), "color_doppler")
     assert result.summary["images"]["frame_rate_hz"] == parameters["frame_rate_hz"]
+    dataset = result.to_xarray()
+    assert dataset["ri"].dims == ("z", "x") and dataset.sizes["angle"] == 1
     saved = result.save(tmp_path / "saved")
     assert (tmp_path / "saved" / "summary.json").is_file() and saved
     with pytest.raises(ValueError, match="channel data"):
