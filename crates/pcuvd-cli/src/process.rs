@@ -101,6 +101,16 @@ pub struct AcquisitionOverrides {
     pub track: Option<String>,
 }
 
+impl ProcessArgs {
+    /// The name the figures carry: the input file's.
+    fn figure_name(&self) -> String {
+        self.input
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    }
+}
+
 impl AcquisitionOverrides {
     /// The overrides as the readers take them.
     pub fn to_overrides(&self) -> pcuvd_io::Overrides {
@@ -200,11 +210,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         &input_files,
         args.force,
     )?;
-    let name = args
-        .input
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let name = args.figure_name();
     // Said once the run is accepted (not before an error, which stays the only line).
     if let Some(warning) = band_warning {
         eprintln!("warning: {}: {warning}", args.input.display());
@@ -351,11 +357,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
             .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
         Checksums::InPass(..) => unreachable!("images are read whole, not in a reader's pass"),
     };
-    let name = args
-        .input
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let name = args.figure_name();
     let extra_timings = [("read", read_s), ("checksum", checksum_s)];
     let record = Record {
         source,
