@@ -19,7 +19,8 @@ const DIRECTIVITY_F_NUMBER_RULE: &str = "1 / (2 tan θ) where the element's dire
 #[derive(Args, Debug)]
 pub struct InfoArgs {
     /// Recording: MUST .mat (v5 or v7.3) or .npz, USTB .uff, zea .hdf5, a Verasonics workspace
-    /// .mat, URX .urx, or a pcuvd recording manifest .toml; recognised from its content.
+    /// .mat, URX .urx, or a pcuvd recording manifest .toml; recognised from its content. Or an
+    /// images manifest (.toml, format "pcuvd-images") of beamformed images formed elsewhere.
     pub input: PathBuf,
     /// Acquisition values given on the command line.
     #[command(flatten)]
@@ -35,6 +36,10 @@ const LOW_NYQUIST_M_S: f64 = 20e-3;
 
 /// Runs `pcuvd info`.
 pub fn run(args: &InfoArgs) -> Result<()> {
+    let head = pcuvd_io::container::read_head(&args.input, 4096).ok();
+    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+        return images_info(args);
+    }
     let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
     let source = opened.source.as_ref();
     let info = &opened.info;
@@ -237,6 +242,124 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             if times.len() == 2 { "" } else { "s" },
             times[0],
             times[times.len() - 1]
+        );
+    }
+    println!("  parameters   (value: where it came from)");
+    for p in &info.parameters {
+        println!("    {:<24} {}: {}", p.name, p.value, p.source);
+    }
+    for w in &warnings {
+        println!("  warning: {w}");
+    }
+    Ok(())
+}
+
+/// `pcuvd info` on an images manifest: what pcuvd understood of beamformed images formed
+/// elsewhere, from the manifest and the images file's header (the images are not read).
+fn images_info(args: &InfoArgs) -> Result<()> {
+    if !args.acquisition.to_overrides().is_empty() {
+        anyhow::bail!(
+            "{}: the acquisition overrides (--t0-s, --event-prf-hz...) are not for beamformed \
+             images formed elsewhere: the images are formed",
+            args.input.display()
+        );
+    }
+    let header = pcuvd_io::images::read_header(&args.input)?;
+    let info = &header.info;
+    let (nz, nx) = header.grid.shape();
+    let (x, z) = (&header.grid.x, &header.grid.z);
+    // The projection Nyquist velocity of each series: a phase of π per frame.
+    let nyquist: Vec<f64> = (header.angles.iter())
+        .map(|a| {
+            header.sound_speed * header.frame_rate
+                / (2.0 * header.demodulation_frequency * (1.0 + a.cos()))
+        })
+        .collect();
+    let lowest_nyquist = nyquist.iter().copied().fold(f64::INFINITY, f64::min);
+    let memory_bytes = 3 * header.bytes();
+    let mut warnings = info.warnings.clone();
+    if lowest_nyquist < LOW_NYQUIST_M_S {
+        warnings.push(format!(
+            "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases",
+            lowest_nyquist * 1e3
+        ));
+    }
+    let angles_deg: Vec<f64> = header.angles.iter().map(|a| a.to_degrees()).collect();
+    let duration = header.frames as f64 / header.frame_rate;
+    let report = json!({
+        "input": args.input.display().to_string(),
+        "files": info.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "format": info.format,
+        "reader": info.reader,
+        "stored_samples": info.stored,
+        "parameters": info.parameters,
+        "images": {
+            "angles_deg": angles_deg,
+            "frames": header.frames,
+            "frame_rate_hz": header.frame_rate,
+            "duration_s": duration,
+            "demodulation_frequency_hz": header.demodulation_frequency,
+            "sound_speed_m_s": header.sound_speed,
+            "grid_nz_nx": [nz, nx],
+            "x_m": [x[0], x[nx - 1]],
+            "z_m": [z[0], z[nz - 1]],
+            "nyquist_velocity_m_s": lowest_nyquist,
+            "cardiac_triggers_s": info.cardiac_triggers_s,
+        },
+        "processing": {
+            "memory_estimate_bytes": memory_bytes,
+            "memory_estimate_rule": pcuvd_app::memory::IMAGES_MEMORY_RULE,
+        },
+        "warnings": warnings,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!("{}", args.input.display());
+    println!("  format       {}", info.format);
+    println!("  reader       {}", info.reader);
+    if let Some(st) = &info.stored {
+        println!(
+            "  stored       {} {:?} ({}) in {}",
+            st.dtype,
+            st.shape,
+            st.axes.join(", "),
+            st.array
+        );
+    }
+    let angles: Vec<String> = angles_deg.iter().map(|a| format!("{a:.2}")).collect();
+    println!(
+        "  images       beamformed elsewhere: {} series at {}°, {nz} × {nx} pixels (z {:.2} to \
+         {:.2} mm, x {:.2} to {:.2} mm)",
+        header.angles.len(),
+        angles.join(", "),
+        z[0] * 1e3,
+        z[nz - 1] * 1e3,
+        x[0] * 1e3,
+        x[nx - 1] * 1e3
+    );
+    println!(
+        "  timing       {} frames at {:.1} Hz ({duration:.3} s); IQ demodulated at {:.3} MHz, \
+         c {:.1} m/s",
+        header.frames,
+        header.frame_rate,
+        header.demodulation_frequency * 1e-6,
+        header.sound_speed
+    );
+    println!(
+        "  Doppler      projection Nyquist velocity {:.1} mm/s",
+        lowest_nyquist * 1e3
+    );
+    println!(
+        "  processing   about {:.1} MB of memory ({})",
+        memory_bytes as f64 / 1e6,
+        pcuvd_app::memory::IMAGES_MEMORY_RULE
+    );
+    if let Some(times) = &info.cardiac_triggers_s {
+        println!(
+            "  cardiac      {} recorded triggers ([cardiac]), used by the dynamics stage",
+            times.len()
         );
     }
     println!("  parameters   (value: where it came from)");

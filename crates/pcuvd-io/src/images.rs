@@ -118,27 +118,45 @@ fn images_file(path: &Path, section: &ImagesSection) -> Result<std::path::PathBu
     Ok(file)
 }
 
-/// Bytes the images of the manifest at `path` take once read (complex64), from the `.npy`
-/// file's header alone: for a memory check before [`read_images`].
-pub fn images_bytes(path: &Path) -> Result<u64, IoError> {
-    let (manifest, _) = parse(path)?;
-    let file = images_file(path, &manifest.images)?;
-    let reader = std::fs::File::open(&file).map_err(|e| IoError::io(&file, "read", e))?;
-    let header =
-        ndarray_npy::npy::header::Header::from_reader(&mut std::io::BufReader::new(reader))
-            .map_err(|e| {
-                IoError::malformed(
-                    &file,
-                    format!("not a valid .npy file ({})", crate::error::flat(e)),
-                )
-            })?;
-    Ok(header.shape.iter().map(|&n| n as u64).product::<u64>()
-        * std::mem::size_of::<Complex32>() as u64)
+/// What an images manifest says of its images, from the manifest and the `.npy` file's header
+/// alone (nothing of the images is read): for `pcuvd info` and a memory check before
+/// [`read_images`].
+#[derive(Debug, Clone)]
+pub struct ImagesHeader {
+    /// The manifest and its images file, the format, every parameter with where it came from,
+    /// the stored array (shape, axes, dtype) and the cardiac triggers.
+    pub info: SourceInfo,
+    /// Steering angle of each series (rad).
+    pub angles: Vec<f64>,
+    /// Frames of each series.
+    pub frames: usize,
+    /// The pixels' positions (m).
+    pub grid: Grid,
+    /// Slow-time sampling rate (Hz).
+    pub frame_rate: f64,
+    /// The frequency the IQ was demodulated at (Hz).
+    pub demodulation_frequency: f64,
+    /// Speed of sound (m/s).
+    pub sound_speed: f64,
+    /// The images file.
+    file: std::path::PathBuf,
+    /// The array's axes, in the file's order.
+    axes: Vec<String>,
+    /// True when the stored IQ is conjugated on reading.
+    conjugate: bool,
 }
 
-/// Reads the images manifest at `path` and the complex images it names (complex64 or
-/// complex128, any axis order the manifest gives).
-pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
+impl ImagesHeader {
+    /// Bytes the images take once read (complex64).
+    pub fn bytes(&self) -> u64 {
+        let (nz, nx) = self.grid.shape();
+        (self.angles.len() * nz * nx * self.frames * std::mem::size_of::<Complex32>()) as u64
+    }
+}
+
+/// Reads the images manifest at `path` and its images file's header, and checks that they agree
+/// (axes, angles, at least 2 frames of 2 × 2 pixels).
+pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let (manifest, text) = parse(path)?;
     let section = manifest.images;
     let positive = |field: &str, value: f64| {
@@ -158,50 +176,45 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
     let axes = axes_order(path, &section.axes)?;
     let cardiac_triggers_s = crate::cardiac::triggers_of_section(path, manifest.cardiac)?;
     let file = images_file(path, &section)?;
-    let array = match read_npy(&file)? {
-        NpyArray::Complex(array) => array,
-        NpyArray::Real(_) => {
-            return Err(IoError::invalid(
-                path,
-                "[images].file",
-                format!(
-                    "{} holds real numbers: beamformed IQ images are complex (complex64 or \
-                     complex128)",
-                    section.file
-                ),
-            ));
-        }
-    };
-    if array.ndim() != section.axes.len() {
+    let reader = std::fs::File::open(&file).map_err(|e| IoError::io(&file, "read", e))?;
+    let header =
+        ndarray_npy::npy::header::Header::from_reader(&mut std::io::BufReader::new(reader))
+            .map_err(|e| {
+                IoError::malformed(
+                    &file,
+                    format!("not a valid .npy file ({})", crate::error::flat(e)),
+                )
+            })?;
+    let dtype = stored_dtype(&header);
+    if !dtype.starts_with("complex") {
+        return Err(IoError::invalid(
+            path,
+            "[images].file",
+            format!(
+                "{} holds {dtype}: beamformed IQ images are complex (complex64 or complex128)",
+                section.file
+            ),
+        ));
+    }
+    let shape = header.shape.clone();
+    if shape.len() != axes.len() {
         return Err(IoError::invalid(
             path,
             "[images].axes",
             format!(
-                "names {} axes but {} has {} (shape {:?})",
-                section.axes.len(),
+                "names {} axes but {} has {} (shape {shape:?})",
+                axes.len(),
                 section.file,
-                array.ndim(),
-                array.shape()
+                shape.len(),
             ),
         ));
     }
-    let shape = array.shape().to_vec();
-    // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
-    let order: Vec<usize> = ["angles", "z", "x", "frames"]
-        .iter()
-        .filter_map(|name| axes.iter().position(|a| a == name))
-        .collect();
-    let array = array.permuted_axes(order);
-    let array = if array.ndim() == 3 {
-        array.insert_axis(Axis(0))
-    } else {
-        array
-    };
+    let length = |name: &str| axes.iter().position(|a| a == name).map(|i| shape[i]);
     let (n_angles, nz, nx, frames) = (
-        array.shape()[0],
-        array.shape()[1],
-        array.shape()[2],
-        array.shape()[3],
+        length("angles").unwrap_or(1),
+        length("z").unwrap_or(0),
+        length("x").unwrap_or(0),
+        length("frames").unwrap_or(0),
     );
     let angles_deg = section.angles_deg.clone().unwrap_or_else(|| vec![0.0]);
     if angles_deg.len() != n_angles || angles_deg.iter().any(|a| !a.is_finite() || a.abs() >= 90.0)
@@ -229,38 +242,6 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
     }
     let x = pixel_positions(path, "x_m", section.x_m, nx)?;
     let z = pixel_positions(path, "z_m", section.z_m, nz)?;
-    // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
-    // e^(+2πift) stored its conjugate, whose flow would read reversed.
-    let sign = |v: Complex32| if section.conjugate { v.conj() } else { v };
-    let series: Vec<Array3<Complex32>> = array
-        .axis_iter(Axis(0))
-        .map(|one| {
-            one.into_dimensionality::<ndarray::Ix3>()
-                .map(|s| s.as_standard_layout().mapv(sign))
-        })
-        .collect::<Result<_, _>>()
-        .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
-    if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
-        return Err(IoError::invalid(
-            path,
-            "[images].file",
-            format!(
-                "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
-                 the (angles, z, x, frames) series",
-                section.file
-            ),
-        ));
-    }
-    let angles: Vec<f64> = angles_deg.iter().map(|a| a.to_radians()).collect();
-    let images = AngleImages {
-        grid: Grid { x, z },
-        angles,
-        frame_rate,
-        sound_speed,
-        demodulation_frequency,
-        coverage: None,
-        series,
-    };
     let from_file = |name: &str, value: serde_json::Value, field: &str| Parameter {
         name: name.into(),
         value,
@@ -283,7 +264,7 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
         value,
         source: ParamSource::Default { note: what.into() },
     };
-    parameters.push(match section.angles_deg {
+    parameters.push(match &section.angles_deg {
         Some(given) => from_file("angles_deg", serde_json::json!(given), "angles_deg"),
         None => defaulted(
             "angles_deg",
@@ -306,29 +287,107 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
         reader: "pcuvd_io::images (read whole)".into(),
         parameters,
         stored: Some(StoredSamples {
-            array: file.display().to_string(),
+            array: section.file.clone(),
             shape,
-            axes: section.axes.clone(),
-            dtype: stored_dtype(&file),
+            axes: axes.clone(),
+            dtype,
             kind: "beamformed iq".into(),
         }),
         warnings: Vec::new(),
         cardiac_triggers_s,
     };
-    Ok(ImagesRecording { images, info })
+    Ok(ImagesHeader {
+        info,
+        angles: angles_deg.iter().map(|a| a.to_radians()).collect(),
+        frames,
+        grid: Grid { x, z },
+        frame_rate,
+        demodulation_frequency,
+        sound_speed,
+        file,
+        axes,
+        conjugate: section.conjugate,
+    })
 }
 
-/// NumPy's name of the element type of the `.npy` file at `file` ("complex64"…), as stored.
-fn stored_dtype(file: &Path) -> String {
-    let header = std::fs::File::open(file).ok().and_then(|f| {
-        ndarray_npy::npy::header::Header::from_reader(&mut std::io::BufReader::new(f)).ok()
-    });
-    header
-        .and_then(|h| {
-            let descr = h.type_descriptor.to_string();
-            crate::array::Dtype::from_numpy(descr.trim_matches(['<', '>', '=', '|', '\'', '"']))
+/// Bytes the images of the manifest at `path` take once read (complex64), from the `.npy`
+/// file's header alone: for a memory check before [`read_images`].
+pub fn images_bytes(path: &Path) -> Result<u64, IoError> {
+    read_header(path).map(|header| header.bytes())
+}
+
+/// Reads the images manifest at `path` and the complex images it names (complex64 or
+/// complex128, any axis order the manifest gives).
+pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
+    let header = read_header(path)?;
+    let file = &header.file;
+    let NpyArray::Complex(array) = read_npy(file)? else {
+        return Err(IoError::malformed(
+            file,
+            "is no longer complex: it changed while read",
+        ));
+    };
+    let (nz, nx) = header.grid.shape();
+    let canonical = [header.angles.len(), nz, nx, header.frames];
+    // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
+    let order: Vec<usize> = ["angles", "z", "x", "frames"]
+        .iter()
+        .filter_map(|name| header.axes.iter().position(|a| a == name))
+        .collect();
+    let array = array.permuted_axes(order);
+    let array = if array.ndim() == 3 {
+        array.insert_axis(Axis(0))
+    } else {
+        array
+    };
+    if array.shape() != canonical {
+        return Err(IoError::malformed(
+            file,
+            "changed while read: its shape differs from its header's",
+        ));
+    }
+    // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
+    // e^(+2πift) stored its conjugate, whose flow would read reversed.
+    let sign = |v: Complex32| if header.conjugate { v.conj() } else { v };
+    let series: Vec<Array3<Complex32>> = array
+        .axis_iter(Axis(0))
+        .map(|one| {
+            one.into_dimensionality::<ndarray::Ix3>()
+                .map(|s| s.as_standard_layout().mapv(sign))
         })
-        .map_or_else(|| "complex".into(), |dtype| dtype.name().into())
+        .collect::<Result<_, _>>()
+        .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
+    if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
+        return Err(IoError::invalid(
+            path,
+            "[images].file",
+            format!(
+                "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
+                 the (angles, z, x, frames) series",
+                file.display()
+            ),
+        ));
+    }
+    let images = AngleImages {
+        grid: header.grid,
+        angles: header.angles,
+        frame_rate: header.frame_rate,
+        sound_speed: header.sound_speed,
+        demodulation_frequency: header.demodulation_frequency,
+        coverage: None,
+        series,
+    };
+    Ok(ImagesRecording {
+        images,
+        info: header.info,
+    })
+}
+
+/// NumPy's name of the element type an `.npy` header gives ("complex64"…), as stored.
+fn stored_dtype(header: &ndarray_npy::npy::header::Header) -> String {
+    let descr = header.type_descriptor.to_string();
+    let code = descr.trim_matches(['<', '>', '=', '|', '\'', '"']);
+    crate::array::Dtype::from_numpy(code).map_or(descr.clone(), |dtype| dtype.name().into())
 }
 
 /// `axes`, checked: "frames", "z" and "x" once each, "angles" at most once, nothing else.

@@ -61,8 +61,9 @@ pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecord
         return Err(IoError::malformed(
             path,
             "is an images manifest (beamformed IQ images, format \"pcuvd-images\"), not a \
-             recording of channel data: `pcuvd process` reads it (decoding and beamforming \
-             skipped), as does pcuvd-io's images::read_images",
+             recording of channel data: `pcuvd process`, `pcuvd info` and Python's \
+             pcuvd.process(path) read it (decoding and beamforming skipped); it is not read \
+             as a recording",
         ));
     }
     let container = match sniff(&head) {

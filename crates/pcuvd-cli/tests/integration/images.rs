@@ -235,9 +235,16 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
         assert!(!ok && stderr.contains(said), "{option:?}: {stderr}");
         assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     }
-    // `info` reads channel data only, and says where images go.
-    let (ok, _, stderr) = pcuvd(&["info", manifest]);
-    assert!(!ok && stderr.contains("images manifest"), "{stderr}");
+    // `info` says what it understood of the images, from the manifest and the file's header.
+    let (ok, stdout, stderr) = pcuvd(&["info", manifest, "--json"]);
+    assert!(ok, "{stderr}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(info["images"]["frames"], 40);
+    assert_eq!(info["images"]["grid_nz_nx"], serde_json::json!([48, 64]));
+    // A phase of π per frame at 0°: c·PRF / (4 f).
+    let nyquist = info["images"]["nyquist_velocity_m_s"].as_f64().unwrap();
+    assert!((nyquist - SOUND_SPEED * FRAME_RATE / (4.0 * DEMOD)).abs() < 1e-12);
+    assert_eq!(info["stored_samples"]["dtype"], "complex64");
     // A bare .npy says what describes it.
     let (ok, _, stderr) = pcuvd(&[
         "process",
