@@ -73,10 +73,15 @@ const CAP: f64 = 0.626;
 /// Baseline-to-baseline distance of a title's lines, in font sizes.
 pub(crate) const TITLE_LINE_STEP: f64 = 1.2;
 
-/// Height a title of font size `size` takes above its usual one-line band: its lines beyond
-/// the first (the text split at `\n`).
-pub(crate) fn extra_title_height(title: &str, size: f64) -> f64 {
-    title.lines().count().saturating_sub(1) as f64 * TITLE_LINE_STEP * size
+/// Lines of a title (the text split at `\n`; one for an empty title).
+pub(crate) fn title_lines(title: &str) -> usize {
+    title.lines().count().max(1)
+}
+
+/// Height a title band of `lines` lines at font size `size` takes above the usual one-line
+/// band.
+pub(crate) fn extra_title_height(lines: usize, size: f64) -> f64 {
+    lines.saturating_sub(1) as f64 * TITLE_LINE_STEP * size
 }
 
 fn rgb(c: (u8, u8, u8)) -> RGBColor {

@@ -65,6 +65,17 @@ pub fn render_rgb(fig: &Figure) -> Result<(u32, u32, Vec<u8>), RenderError> {
 
     // 1. Validate and lay out every panel (text measured on a scratch surface).
     let mut scratch = vec![0u8; 3];
+    // Each row's panels leave room for its longest title, so that the row's plots line up.
+    let title_of = |p: &Panel| match p {
+        Panel::Image(ip) => crate::canvas::title_lines(&ip.title),
+        Panel::Plot(pp) => crate::canvas::title_lines(&pp.title),
+        Panel::Empty => 1,
+    };
+    let row_title_lines: Vec<usize> = fig
+        .panels
+        .chunks(ncols.max(1))
+        .map(|row| row.iter().map(title_of).max().unwrap_or(1))
+        .collect();
     let layouts: Vec<Layout> = {
         let measurer = Canvas::new(&mut scratch, 1, 1)?;
         fig.panels
@@ -78,12 +89,13 @@ pub fn render_rgb(fig: &Figure) -> Result<(u32, u32, Vec<u8>), RenderError> {
                     (pw * SS) as f64,
                     (ph * SS) as f64,
                 );
+                let lines = row_title_lines[r];
                 Ok(match p {
                     Panel::Image(ip) => {
-                        Layout::Image(image_panel::layout(ip, cell, &style, &measurer)?)
+                        Layout::Image(image_panel::layout(ip, cell, &style, &measurer, lines)?)
                     }
                     Panel::Plot(pp) => {
-                        Layout::Plot(plot_panel::layout(pp, cell, &style, &measurer)?)
+                        Layout::Plot(plot_panel::layout(pp, cell, &style, &measurer, lines)?)
                     }
                     Panel::Empty => Layout::Empty,
                 })

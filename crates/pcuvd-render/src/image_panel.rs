@@ -162,12 +162,14 @@ fn max_width(m: &Canvas, ticks: &[Tick], size: f64) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Validate `ip` and place it inside `cell`.
+/// Validate `ip` and place it inside `cell`, below a title band of `title_lines` lines (at
+/// least its own title's: the most of its row's, so that a row's plots line up).
 pub(crate) fn layout(
     ip: &ImagePanel,
     cell: Rect,
     st: &Style,
     m: &Canvas,
+    title_lines: usize,
 ) -> Result<ImageLayout, RenderError> {
     validate(ip)?;
     let (nz, nx) = ip.data.dim();
@@ -204,7 +206,8 @@ pub(crate) fn layout(
     let zt_w0 = max_width(m, &zt0, ts);
     let ct_w0 = max_width(m, &ct0, ts);
 
-    let title_h = tts * 1.7 + crate::canvas::extra_title_height(&ip.title, tts);
+    let lines = title_lines.max(crate::canvas::title_lines(&ip.title));
+    let title_h = tts * 1.7 + crate::canvas::extra_title_height(lines, tts);
     let top_pad = ts * 1.9;
     let left = st.px(6.0) + ls * 1.2 + st.px(5.0) + zt_w0 + gap + tick_len;
     let bottom = tick_len + gap + ts * 0.8 + st.px(8.0) + ls * 0.8 + st.px(8.0);
@@ -287,7 +290,7 @@ pub(crate) fn fitted_size(ip: &ImagePanel, width_px: u32) -> Result<(u32, u32), 
             (width_px * SS) as f64,
             (width_px * SS * 64) as f64,
         );
-        let l = layout(ip, cell, &st, &m)?;
+        let l = layout(ip, cell, &st, &m, 1)?;
         let need = ((l.margin_v + l.plot.h()) / SS as f64).ceil() as u32;
         // Room for a readable colour bar, and at least the smallest panel accepted.
         // At least the height below which the text would shrink, and room for a readable

@@ -230,12 +230,14 @@ fn max_width(m: &Canvas, ticks: &[Tick], size: f64) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Validate `pp` and place it inside `cell`.
+/// Validate `pp` and place it inside `cell`, below a title band of `title_lines` lines (at
+/// least its own title's: the most of its row's, so that a row's plots line up).
 pub(crate) fn layout(
     pp: &PlotPanel,
     cell: Rect,
     st: &Style,
     m: &Canvas,
+    title_lines: usize,
 ) -> Result<PlotLayout, RenderError> {
     validate(pp)?;
     let (xr, yr) = data_ranges(pp)?;
@@ -248,7 +250,8 @@ pub(crate) fn layout(
     let xt0 = linear_ticks(xr.0, xr.1, 8);
     let last_x_w = xt0.last().map_or(0.0, |t| m.text_width(&t.label, ts));
 
-    let title_h = tts * 1.7 + crate::canvas::extra_title_height(&pp.title, tts);
+    let lines = title_lines.max(crate::canvas::title_lines(&pp.title));
+    let title_h = tts * 1.7 + crate::canvas::extra_title_height(lines, tts);
     let left = st.px(6.0)
         + if pp.y_label.is_empty() {
             0.0

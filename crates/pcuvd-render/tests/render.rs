@@ -857,3 +857,29 @@ fn a_title_of_two_lines_gets_room_for_both_above_the_image() {
         "image top at row {top_two} with two lines, {top_one} with one"
     );
 }
+
+#[test]
+fn a_rows_images_line_up_under_titles_of_different_lengths() {
+    let panel = |title: &str| {
+        let mut p = image_panel(Array2::zeros((40, 40)), Colormap::Gray, (0.0, 1.0));
+        p.title = title.into();
+        Panel::Image(p)
+    };
+    let fig = figure(
+        vec![
+            panel("Truth: RI"),
+            panel("PC-UVD: no RI:\nthe waveform\nis too short"),
+        ],
+        2,
+        "",
+    );
+    let img = decode(&render_png_bytes(&fig).unwrap());
+    let black = |p: (u8, u8, u8)| p == (0, 0, 0);
+    let top_in = |x0: usize, x1: usize| {
+        (0..img.h)
+            .find(|&y| (x0..x1).filter(|&x| black(img.px(x, y))).count() >= 20)
+            .unwrap()
+    };
+    let (left, right) = (top_in(0, img.w / 2), top_in(img.w / 2, img.w));
+    assert_eq!(left, right, "image tops at rows {left} and {right}");
+}
