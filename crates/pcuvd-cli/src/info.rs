@@ -136,18 +136,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             format!("{:.1} MB", b as f64 / 1e6)
         }
     };
-    println!("{}", args.input.display());
-    println!("  format       {}", info.format);
-    println!("  reader       {}", info.reader);
-    if let Some(st) = &info.stored {
-        println!(
-            "  stored       {} {:?} ({}) in {}",
-            st.dtype,
-            st.shape,
-            st.axes.join(", "),
-            st.array
-        );
-    }
+    print_what_was_read(&args.input, info);
     println!(
         "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} as float){}",
         size(input_bytes),
@@ -244,13 +233,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             times[times.len() - 1]
         );
     }
-    println!("  parameters   (value: where it came from)");
-    for p in &info.parameters {
-        println!("    {:<24} {}: {}", p.name, p.value, p.source);
-    }
-    for w in &warnings {
-        println!("  warning: {w}");
-    }
+    print_parameters_and_warnings(info, &warnings);
     Ok(())
 }
 
@@ -316,18 +299,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!("{}", args.input.display());
-    println!("  format       {}", info.format);
-    println!("  reader       {}", info.reader);
-    if let Some(st) = &info.stored {
-        println!(
-            "  stored       {} {:?} ({}) in {}",
-            st.dtype,
-            st.shape,
-            st.axes.join(", "),
-            st.array
-        );
-    }
+    print_what_was_read(&args.input, info);
     let angles: Vec<String> = angles_deg.iter().map(|a| format!("{a:.2}")).collect();
     println!(
         "  images       beamformed elsewhere: {} series at {}°, {nz} × {nx} pixels (z {:.2} to \
@@ -362,12 +334,33 @@ fn images_info(args: &InfoArgs) -> Result<()> {
             times.len()
         );
     }
+    print_parameters_and_warnings(info, &warnings);
+    Ok(())
+}
+
+/// The first lines of `info`'s text: the input, its format, reader and stored array.
+fn print_what_was_read(input: &std::path::Path, info: &pcuvd_io::SourceInfo) {
+    println!("{}", input.display());
+    println!("  format       {}", info.format);
+    println!("  reader       {}", info.reader);
+    if let Some(st) = &info.stored {
+        println!(
+            "  stored       {} {:?} ({}) in {}",
+            st.dtype,
+            st.shape,
+            st.axes.join(", "),
+            st.array
+        );
+    }
+}
+
+/// The last lines of `info`'s text: every parameter with where it came from, then `warnings`.
+fn print_parameters_and_warnings(info: &pcuvd_io::SourceInfo, warnings: &[String]) {
     println!("  parameters   (value: where it came from)");
     for p in &info.parameters {
         println!("    {:<24} {}: {}", p.name, p.value, p.source);
     }
-    for w in &warnings {
+    for w in warnings {
         println!("  warning: {w}");
     }
-    Ok(())
 }
