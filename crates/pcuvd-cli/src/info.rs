@@ -251,20 +251,18 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     let info = &header.info;
     let (nz, nx) = header.grid.shape();
     let (x, z) = (&header.grid.x, &header.grid.z);
-    // The projection Nyquist velocity of each series: a phase of π per frame.
-    let nyquist: Vec<f64> = (header.angles.iter())
-        .map(|a| {
-            header.sound_speed * header.frame_rate
-                / (2.0 * header.demodulation_frequency * (1.0 + a.cos()))
-        })
-        .collect();
-    let lowest_nyquist = nyquist.iter().copied().fold(f64::INFINITY, f64::min);
+    // As a recording's: the projection's, whatever the angles.
+    let nyquist = pcuvd::estimate::doppler::nyquist_velocity(
+        header.sound_speed,
+        header.frame_rate,
+        header.demodulation_frequency,
+    );
     let memory_bytes = 3 * header.bytes();
     let mut warnings = info.warnings.clone();
-    if lowest_nyquist < LOW_NYQUIST_M_S {
+    if nyquist < LOW_NYQUIST_M_S {
         warnings.push(format!(
             "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases",
-            lowest_nyquist * 1e3
+            nyquist * 1e3
         ));
     }
     let angles_deg: Vec<f64> = header.angles.iter().map(|a| a.to_degrees()).collect();
@@ -286,7 +284,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
             "grid_nz_nx": [nz, nx],
             "x_m": [x[0], x[nx - 1]],
             "z_m": [z[0], z[nz - 1]],
-            "nyquist_velocity_m_s": lowest_nyquist,
+            "nyquist_velocity_m_s": nyquist,
             "cardiac_triggers_s": info.cardiac_triggers_s,
         },
         "processing": {
@@ -321,7 +319,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     );
     println!(
         "  Doppler      projection Nyquist velocity {:.1} mm/s",
-        lowest_nyquist * 1e3
+        nyquist * 1e3
     );
     println!(
         "  processing   about {:.1} MB of memory ({})",
