@@ -83,6 +83,50 @@ pub fn create_dir(dir: &Path) -> Result<()> {
         .with_context(|| format!("{}: cannot create the output folder", dir.display()))
 }
 
+/// Beamformed images formed elsewhere, read and planned: what a run on them starts from.
+pub struct OpenedImages {
+    /// The image series, per angle, on their grid.
+    pub images: pcuvd::form::images::AngleImages,
+    /// The manifest and its images file, the format, every parameter with its source.
+    pub info: pcuvd_io::SourceInfo,
+    /// What summary.json, the NIfTI sidecars and the Zarr store record of them.
+    pub record: ImagesRecord,
+    /// The run's settings, checked against them.
+    pub plan: crate::run::Plan,
+}
+
+/// Opens the images manifest at `path` for `process`, as [`open_input`] opens a recording: the
+/// memory the images need checked from the file's header before they are read (within
+/// `limit_gb`, else what the machine leaves), the run planned with `options` and `dynamics`,
+/// and the stages' memory checked beside them.
+pub fn open_images(
+    path: &Path,
+    options: &crate::settings::ProcessingSettings,
+    dynamics: &crate::settings::DynamicsSettings,
+    limit_gb: Option<f64>,
+) -> Result<OpenedImages> {
+    let header = pcuvd_io::images::read_header(path)?;
+    let bytes = header.bytes();
+    crate::memory::check_images_memory(bytes, limit_gb)
+        .with_context(|| path.display().to_string())?;
+    let read = header.read_images()?;
+    let plan = crate::run::Plan::for_images(
+        options,
+        dynamics,
+        &read.images,
+        read.info.cardiac_triggers_s.as_deref(),
+    )?;
+    let shape = (bytes, read.images.n_frames(), read.images.n_angles());
+    crate::memory::check_images_stages(&plan, shape, limit_gb)
+        .with_context(|| path.display().to_string())?;
+    Ok(OpenedImages {
+        record: ImagesRecord::of(&read.images),
+        images: read.images,
+        info: read.info,
+        plan,
+    })
+}
+
 /// Beamformed images formed elsewhere, as the run read them.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ImagesRecord {

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use pcuvd_app::input::{open_input, rf_band_pass_warning};
-use pcuvd_app::memory::{check_images_memory, check_images_stages, check_memory};
+use pcuvd_app::input::{open_images, open_input, rf_band_pass_warning};
+use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
 use pcuvd_app::run::Plan;
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
@@ -255,7 +255,14 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         zarr,
         simulated_from: None,
     };
-    let saved = save(&args.out, data, &plan, &processed, record, &progress)?;
+    let saved = save(
+        &args.out,
+        pcuvd_app::summary::RunInput::Recording(data),
+        &plan,
+        &processed,
+        record,
+        &progress,
+    )?;
     let (angles, frames) = (data.acquisition().sequence.n_angles(), data.n_frames());
     println!(
         "{}: {angles} angle{}, {frames} frame{} at {:.1} Hz; Nyquist velocity {:.1} mm/s; grid {} x \
@@ -293,21 +300,15 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         args.bids_session.clone(),
         args.bids_task.clone(),
     )?;
-    let images_bytes = pcuvd_io::images::images_bytes(&args.input)?;
-    check_images_memory(images_bytes, args.max_memory_gb)
-        .with_context(|| args.input.display().to_string())?;
-    let read = pcuvd_io::images::read_images(&args.input)?;
-    let read_s = clock.elapsed().as_secs_f64();
-    let plan = pcuvd_app::run::Plan::for_images(
+    let opened = open_images(
+        &args.input,
         &args.options,
         &args.dynamics,
-        &read.images,
-        read.info.cardiac_triggers_s.as_deref(),
+        args.max_memory_gb,
     )?;
-    let shape = (images_bytes, read.images.n_frames(), read.images.n_angles());
-    check_images_stages(&plan, shape, args.max_memory_gb)
-        .with_context(|| args.input.display().to_string())?;
-    let (input, info) = (args.input.display().to_string(), read.info.clone());
+    let read_s = clock.elapsed().as_secs_f64();
+    let plan = opened.plan;
+    let (input, info) = (args.input.display().to_string(), opened.info.clone());
     let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
     let provenance_of_run = move || {
         let clock = std::time::Instant::now();
@@ -330,10 +331,10 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
-        &read.info.files,
+        &opened.info.files,
         args.force,
     )?;
-    let record_of_images = pcuvd_app::summary::ImagesRecord::of(&read.images);
+    let record_of_images = opened.record;
     let zarr = match args.zarr {
         true => Some(pcuvd_app::zarr::ZarrStore::create(
             &args.out.join(pcuvd_app::zarr::STORE),
@@ -343,7 +344,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         false => None,
     };
     let progress = Bars::new("");
-    let processed = pcuvd_app::run::run_images(read.images, &plan, &progress)
+    let processed = pcuvd_app::run::run_images(opened.images, &plan, &progress)
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     if let Some(warning) =
         pcuvd::pipeline::dealias_warning(plan.params.dealias, false, &processed.out)
@@ -367,7 +368,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         zarr,
         simulated_from: None,
     };
-    let saved = pcuvd_app::summary::save_run(
+    let saved = pcuvd_app::summary::save(
         &args.out,
         pcuvd_app::summary::RunInput::Images(&record_of_images),
         &plan,

@@ -119,8 +119,8 @@ fn images_file(path: &Path, section: &ImagesSection) -> Result<std::path::PathBu
 }
 
 /// What an images manifest says of its images, from the manifest and the `.npy` file's header
-/// alone (nothing of the images is read): for `pcuvd info` and a memory check before
-/// [`read_images`].
+/// alone (nothing of the images is read): for `pcuvd info`, and for a memory check before
+/// [`ImagesHeader::read_images`].
 #[derive(Debug, Clone)]
 pub struct ImagesHeader {
     /// The manifest and its images file, the format, every parameter with where it came from,
@@ -138,6 +138,8 @@ pub struct ImagesHeader {
     pub demodulation_frequency: f64,
     /// Speed of sound (m/s).
     pub sound_speed: f64,
+    /// The manifest, which errors about its images name.
+    manifest: std::path::PathBuf,
     /// The images file.
     file: std::path::PathBuf,
     /// The array's axes, in the file's order.
@@ -147,7 +149,7 @@ pub struct ImagesHeader {
 }
 
 impl ImagesHeader {
-    /// Bytes the images take once read (complex64).
+    /// Bytes the images take once read (complex64): for a memory check before they are read.
     pub fn bytes(&self) -> u64 {
         let (nz, nx) = self.grid.shape();
         (self.angles.len() * nz * nx * self.frames * std::mem::size_of::<Complex32>()) as u64
@@ -304,83 +306,87 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         frame_rate,
         demodulation_frequency,
         sound_speed,
+        manifest: path.to_path_buf(),
         file,
         axes,
         conjugate: section.conjugate,
     })
 }
 
-/// Bytes the images of the manifest at `path` take once read (complex64), from the `.npy`
-/// file's header alone: for a memory check before [`read_images`].
-pub fn images_bytes(path: &Path) -> Result<u64, IoError> {
-    read_header(path).map(|header| header.bytes())
-}
-
 /// Reads the images manifest at `path` and the complex images it names (complex64 or
 /// complex128, any axis order the manifest gives).
 pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
-    let header = read_header(path)?;
-    let file = &header.file;
-    let NpyArray::Complex(array) = read_npy(file)? else {
-        return Err(IoError::malformed(
-            file,
-            "is no longer complex: it changed while read",
-        ));
-    };
-    let (nz, nx) = header.grid.shape();
-    let canonical = [header.angles.len(), nz, nx, header.frames];
-    // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
-    let order: Vec<usize> = ["angles", "z", "x", "frames"]
-        .iter()
-        .filter_map(|name| header.axes.iter().position(|a| a == name))
-        .collect();
-    let array = array.permuted_axes(order);
-    let array = if array.ndim() == 3 {
-        array.insert_axis(Axis(0))
-    } else {
-        array
-    };
-    if array.shape() != canonical {
-        return Err(IoError::malformed(
-            file,
-            "changed while read: its shape differs from its header's",
-        ));
-    }
-    // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
-    // e^(+2πift) stored its conjugate, whose flow would read reversed.
-    let sign = |v: Complex32| if header.conjugate { v.conj() } else { v };
-    let series: Vec<Array3<Complex32>> = array
-        .axis_iter(Axis(0))
-        .map(|one| {
-            one.into_dimensionality::<ndarray::Ix3>()
-                .map(|s| s.as_standard_layout().mapv(sign))
+    read_header(path)?.read_images()
+}
+
+impl ImagesHeader {
+    /// Reads the images this header describes (its memory can be checked first, [`bytes`]).
+    ///
+    /// [`bytes`]: ImagesHeader::bytes
+    pub fn read_images(self) -> Result<ImagesRecording, IoError> {
+        let path = self.manifest.as_path();
+        let file = &self.file;
+        let NpyArray::Complex(array) = read_npy(file)? else {
+            return Err(IoError::malformed(
+                file,
+                "is no longer complex: it changed while read",
+            ));
+        };
+        let (nz, nx) = self.grid.shape();
+        let canonical = [self.angles.len(), nz, nx, self.frames];
+        // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
+        let order: Vec<usize> = ["angles", "z", "x", "frames"]
+            .iter()
+            .filter_map(|name| self.axes.iter().position(|a| a == name))
+            .collect();
+        let array = array.permuted_axes(order);
+        let array = if array.ndim() == 3 {
+            array.insert_axis(Axis(0))
+        } else {
+            array
+        };
+        if array.shape() != canonical {
+            return Err(IoError::malformed(
+                file,
+                "changed while read: its shape differs from its header's",
+            ));
+        }
+        // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
+        // e^(+2πift) stored its conjugate, whose flow would read reversed.
+        let sign = |v: Complex32| if self.conjugate { v.conj() } else { v };
+        let series: Vec<Array3<Complex32>> = array
+            .axis_iter(Axis(0))
+            .map(|one| {
+                one.into_dimensionality::<ndarray::Ix3>()
+                    .map(|s| s.as_standard_layout().mapv(sign))
+            })
+            .collect::<Result<_, _>>()
+            .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
+        if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
+            return Err(IoError::invalid(
+                path,
+                "[images].file",
+                format!(
+                    "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
+                     the (angles, z, x, frames) series",
+                    file.display()
+                ),
+            ));
+        }
+        let images = AngleImages {
+            grid: self.grid,
+            angles: self.angles,
+            frame_rate: self.frame_rate,
+            sound_speed: self.sound_speed,
+            demodulation_frequency: self.demodulation_frequency,
+            coverage: None,
+            series,
+        };
+        Ok(ImagesRecording {
+            images,
+            info: self.info,
         })
-        .collect::<Result<_, _>>()
-        .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
-    if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
-        return Err(IoError::invalid(
-            path,
-            "[images].file",
-            format!(
-                "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
-                 the (angles, z, x, frames) series",
-                file.display()
-            ),
-        ));
     }
-    let images = AngleImages {
-        grid: header.grid,
-        angles: header.angles,
-        frame_rate: header.frame_rate,
-        sound_speed: header.sound_speed,
-        demodulation_frequency: header.demodulation_frequency,
-        coverage: None,
-        series,
-    };
-    Ok(ImagesRecording {
-        images,
-        info: header.info,
-    })
 }
 
 /// NumPy's name of the element type an `.npy` header gives ("complex64"…), as stored.

@@ -49,6 +49,7 @@ pub(crate) struct PyProcessResult {
 }
 
 /// What a result was processed from.
+#[derive(Clone)]
 pub(crate) enum RunSource {
     /// A recording of channel data.
     Recording(Arc<dyn pcuvd::acquisition::source::FrameSource + Send>),
@@ -164,25 +165,18 @@ fn process_images(
     let input = path.display().to_string();
     let (info, record, plan, processed) = py
         .detach(|| -> anyhow::Result<_> {
-            let bytes = pcuvd_io::images::images_bytes(&path)?;
-            pcuvd_app::memory::check_images_memory(bytes, call.max_memory_gb)
-                .with_context(|| input.clone())?;
-            let read = pcuvd_io::images::read_images(&path)?;
-            let plan = Plan::for_images(
+            let opened = pcuvd_app::input::open_images(
+                &path,
                 &call.options,
                 &call.dynamics,
-                &read.images,
-                read.info.cardiac_triggers_s.as_deref(),
+                call.max_memory_gb,
             )?;
-            let shape = (bytes, read.images.n_frames(), read.images.n_angles());
-            pcuvd_app::memory::check_images_stages(&plan, shape, call.max_memory_gb)
-                .with_context(|| input.clone())?;
-            let record = pcuvd_app::summary::ImagesRecord::of(&read.images);
-            let processed = pcuvd_app::run::run_images(read.images, &plan, progress)
+            let processed = pcuvd_app::run::run_images(opened.images, &opened.plan, progress)
                 .with_context(|| format!("{input}: processing failed"))?;
-            Ok((read.info, record, plan, processed))
+            Ok((opened.info, opened.record, opened.plan, processed))
         })
         .map_err(to_py)?;
+    warn_of_dealiasing(py, &input, &plan, &processed, false)?;
     Ok(PyProcessResult {
         options: call.options,
         source: RunSource::Images(Box::new(record)),
@@ -192,6 +186,30 @@ fn process_images(
         processed,
         simulated: None,
     })
+}
+
+/// The warning `pcuvd process` prints where dealiasing was asked of a recording it cannot help
+/// (one angle; a `coded` one), as a Python UserWarning naming `input`.
+fn warn_of_dealiasing(
+    py: Python<'_>,
+    input: &str,
+    plan: &Plan,
+    processed: &Processed,
+    coded: bool,
+) -> PyResult<()> {
+    if let Some(warning) =
+        pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
+    {
+        let message = std::ffi::CString::new(format!("{input}: {warning}"))
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        PyErr::warn(
+            py,
+            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+            &message,
+            1,
+        )?;
+    }
+    Ok(())
 }
 
 impl Opened {
@@ -204,18 +222,7 @@ impl Opened {
         processed: Processed,
     ) -> PyResult<PyProcessResult> {
         let coded = self.source.acquisition().sequence.is_coded();
-        if let Some(warning) =
-            pcuvd::pipeline::dealias_warning(self.plan.params.dealias, coded, &processed.out)
-        {
-            let message = std::ffi::CString::new(format!("{input}: {warning}"))
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            PyErr::warn(
-                py,
-                &py.get_type::<pyo3::exceptions::PyUserWarning>(),
-                &message,
-                1,
-            )?;
-        }
+        warn_of_dealiasing(py, &input, &self.plan, &processed, coded)?;
         Ok(PyProcessResult {
             options: self.call.options,
             source: RunSource::Recording(self.source),
@@ -414,10 +421,7 @@ impl PyProcessResult {
             .map_err(to_py)?;
         Ok(PyProcessResult {
             options: self.options.clone(),
-            source: match &self.source {
-                RunSource::Recording(data) => RunSource::Recording(data.clone()),
-                RunSource::Images(images) => RunSource::Images(images.clone()),
-            },
+            source: self.source.clone(),
             input: self.input.clone(),
             info: self.info.clone(),
             plan,
@@ -447,7 +451,7 @@ impl PyProcessResult {
             ),
             RunSource::Images(_) => None,
         };
-        let mut summary = pcuvd_app::summary::Summary::of_input(
+        let mut summary = pcuvd_app::summary::Summary::of(
             self.source.input(),
             &self.plan,
             &self.processed,
@@ -517,7 +521,7 @@ impl PyProcessResult {
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            pcuvd_app::summary::save_run(
+            pcuvd_app::summary::save(
                 &folder,
                 self.source.input(),
                 &self.plan,

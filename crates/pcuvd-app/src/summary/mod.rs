@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use ndarray::Array1;
-use pcuvd::acquisition::source::FrameSource;
 use pcuvd::dynamics;
 use pcuvd::estimate::clutter::ClutterReport;
 use pcuvd::pipeline::ProcessOutput;
@@ -47,31 +46,13 @@ pub struct Saved {
     pub against_truth: Option<crate::against_truth::TruthRecord>,
 }
 
-/// Writes every output of `process` into `dir` (already prepared by [`outputs::prepare`]): maps,
-/// figures, dynamics maps, the scores against a simulation's truth where the input has one
-/// beside it or came with one, and `summary.json` last with `record`'s provenance and timings;
-/// what was found is said to `progress`.
+/// Writes every output of `process` on `input` into `dir` (already prepared by
+/// [`outputs::prepare`]): maps, figures, dynamics maps, the scores against a simulation's truth
+/// where a recording has one beside it or came with one, and `summary.json` last with
+/// `record`'s provenance and timings; what was found is said to `progress`. Images formed
+/// elsewhere get NIfTI sidecars and Zarr attributes of what they give (no probe or transmit
+/// sequence).
 pub fn save(
-    dir: &Path,
-    data: &dyn FrameSource,
-    plan: &Plan,
-    processed: &Processed,
-    record: Record<'_>,
-    progress: &dyn Progress,
-) -> Result<Saved> {
-    save_run(
-        dir,
-        RunInput::Recording(data),
-        plan,
-        processed,
-        record,
-        progress,
-    )
-}
-
-/// [`save`] for a run on channel data or on beamformed images formed elsewhere (whose NIfTI
-/// sidecars and Zarr attributes hold what images give: no probe or transmit sequence).
-pub fn save_run(
     dir: &Path,
     input: RunInput<'_>,
     plan: &Plan,
@@ -101,7 +82,7 @@ pub fn save_run(
         },
     );
     let mut pngs = pngs?;
-    let mut summary = Summary::of_input(input, plan, processed, source);
+    let mut summary = Summary::of(input, plan, processed, source);
     summary.against_truth = against.as_ref().map(|scored| scored.record.clone());
     if let Some(scored) = &against {
         pngs.extend(scored.figure(dir, processed, name)?);

@@ -3,7 +3,6 @@
 
 use std::collections::BTreeMap;
 
-use pcuvd::acquisition::source::FrameSource;
 use serde::{Deserialize, Serialize};
 
 pub use crate::input::{ImagesRecord, RunInput};
@@ -387,24 +386,10 @@ pub struct BeamformingRecord {
 }
 
 impl Summary {
-    /// The summary of a `process` run (without the writing timings): every parameter used, the
-    /// Nyquist velocity, clutter cut-offs, per-stage timings, the dynamics stage, and `source`.
-    pub fn of(
-        data: &dyn FrameSource,
-        plan: &Plan,
-        processed: &Processed,
-        source: Provenance,
-    ) -> Self {
-        Summary::of_input(RunInput::Recording(data), plan, processed, source)
-    }
-
-    /// [`Summary::of`] for a run on channel data or on beamformed images formed elsewhere.
-    pub fn of_input(
-        input: RunInput<'_>,
-        plan: &Plan,
-        processed: &Processed,
-        source: Provenance,
-    ) -> Self {
+    /// The summary of a `process` run on `input` (without the writing timings): every parameter
+    /// used, the Nyquist velocity, clutter cut-offs, per-stage timings, the dynamics stage, and
+    /// `source`.
+    pub fn of(input: RunInput<'_>, plan: &Plan, processed: &Processed, source: Provenance) -> Self {
         let params = &plan.params;
         let out = &processed.out;
         let (x, z) = (&out.grid.x, &out.grid.z);
