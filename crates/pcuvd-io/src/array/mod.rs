@@ -318,6 +318,17 @@ impl StoredArray {
     /// stored axes in `order` (a permutation): the block a reader wants, laid out as it wants it
     /// in one pass, rather than read in the stored order and copied again to permute it.
     pub fn read_ordered(&self, ranges: &[Range<usize>], order: &[usize]) -> Result<Block, IoError> {
+        self.read_ordered_with(ranges, order, SPARSE_SPAN_BYTES)
+    }
+
+    /// [`Self::read_ordered`], a file's selection read run by run where the span it covers is
+    /// larger than `sparse_above` bytes and twice the selection.
+    fn read_ordered_with(
+        &self,
+        ranges: &[Range<usize>],
+        order: &[usize],
+        sparse_above: u64,
+    ) -> Result<Block, IoError> {
         let mut sorted = order.to_vec();
         sorted.sort_unstable();
         if sorted != (0..self.shape.len()).collect::<Vec<_>>() {
@@ -442,11 +453,79 @@ impl StoredArray {
                 if n == 0 {
                     return finish(&counts, vec![], complex.then_some(vec![]));
                 }
+                let span_bytes = ((hi + 1 - lo) * size) as u64;
+                if !ranges.is_empty()
+                    && span_bytes > sparse_above
+                    && span_bytes > 2 * (n * size) as u64
+                {
+                    // A few frames of an array stored with frames as its fastest axis span
+                    // nearly the whole file: only the selection's own runs are read.
+                    let bytes = self.read_runs(path, *offset, ranges)?;
+                    let selection = StoredArray {
+                        shape: stored_counts.clone(),
+                        ..self.clone()
+                    };
+                    let all: Vec<Range<usize>> = stored_counts.iter().map(|&c| 0..c).collect();
+                    let (re, im) =
+                        selection.decode_selection(&bytes, 0, *little, &all, order, n)?;
+                    return finish(&counts, re, im);
+                }
                 let span = read_span(path, *offset, lo * size, (hi + 1 - lo) * size)?;
                 let (re, im) = self.decode_selection(&span, lo, *little, ranges, order, n)?;
                 finish(&counts, re, im)
             }
         }
+    }
+
+    /// The bytes of the selection `ranges` of the file at `path` (elements from byte `offset`),
+    /// in the storage order of the selection as an array of its own: one read per run of
+    /// elements contiguous in the file.
+    fn read_runs(
+        &self,
+        path: &Path,
+        offset: u64,
+        ranges: &[Range<usize>],
+    ) -> Result<Vec<u8>, IoError> {
+        use std::io::{Read, Seek, SeekFrom};
+        let size = self.dtype.size();
+        // Axes from the slowest-varying in storage to the fastest, with their strides.
+        let nd = self.shape.len();
+        let axes: Vec<usize> = if self.fortran {
+            (0..nd).rev().collect()
+        } else {
+            (0..nd).collect()
+        };
+        let mut strides = vec![1usize; nd];
+        for w in (0..nd.saturating_sub(1)).rev() {
+            strides[w] = strides[w + 1] * self.shape[axes[w + 1]];
+        }
+        // The run: the innermost axis not selected whole, and every faster axis.
+        let mut k = nd.saturating_sub(1);
+        while k > 0 && ranges[axes[k]] == (0..self.shape[axes[k]]) {
+            k -= 1;
+        }
+        let run = ranges[axes[k]].len() * strides[k];
+        let outer: Vec<Range<usize>> = axes[..k].iter().map(|&a| ranges[a].clone()).collect();
+        let total: usize = outer.iter().map(|r| r.len()).product::<usize>() * run;
+        let mut bytes = vec![0u8; total * size];
+        let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, "read", e))?;
+        let mut idx: Vec<usize> = outer.iter().map(|r| r.start).collect();
+        for chunk in bytes.chunks_exact_mut(run * size) {
+            let first: usize = idx.iter().zip(&strides).map(|(i, s)| i * s).sum::<usize>()
+                + ranges[axes[k]].start * strides[k];
+            file.seek(SeekFrom::Start(offset + (first * size) as u64))
+                .and_then(|_| file.read_exact(chunk))
+                .map_err(|e| IoError::io(path, "read", e))?;
+            // The next outer index, the last axis fastest.
+            for w in (0..k).rev() {
+                idx[w] += 1;
+                if idx[w] < outer[w].end {
+                    break;
+                }
+                idx[w] = outer[w].start;
+            }
+        }
+        Ok(bytes)
     }
 
     /// The selection decoded from `bytes`, which hold the stored elements from index `first_index`
@@ -499,6 +578,11 @@ impl StoredArray {
         Ok((re, complex.then_some(im)))
     }
 }
+
+/// Span of a file's selection (bytes) above which only the selection's runs are read, when they
+/// are less than half of it: larger than a block of frames stored contiguously needs to be read
+/// in one piece, so that ordinary blocks keep one read.
+const SPARSE_SPAN_BYTES: u64 = 64 << 20;
 
 fn read_span(path: &Path, offset: u64, start: usize, len: usize) -> Result<Vec<u8>, IoError> {
     use std::io::{Read, Seek, SeekFrom};
@@ -887,6 +971,12 @@ mod tests {
                             "fortran {fortran}, little {little}, {ranges:?} in {order:?}"
                         );
                     }
+                    // The file read run by run, as a selection far smaller than its span is.
+                    assert_eq!(
+                        in_file.read_ordered_with(&ranges, &order, 0).unwrap(),
+                        expected,
+                        "run by run: fortran {fortran}, little {little}, {ranges:?} in {order:?}"
+                    );
                 }
             }
         }
