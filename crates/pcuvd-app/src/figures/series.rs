@@ -72,9 +72,12 @@ pub fn dynamics_figures(
         .iter()
         .map(|v| v * 1e3)
         .collect();
-    let t_ms: Vec<f64> = series.times_s.iter().map(|t| t * 1e3).collect();
-    let markers = maps
-        .cycles
+    let mut t_ms: Vec<f64> = series.times_s.iter().map(|t| t * 1e3).collect();
+    let (windows, cycles) = waveform_span(&maps.cycles, t_ms.len());
+    t_ms.truncate(windows);
+    let mut mean = mean;
+    mean.truncate(windows);
+    let markers = maps.cycles[..cycles]
         .iter()
         .flat_map(|&(start, end)| [start, end - 1])
         .map(|k| Marker {
@@ -89,9 +92,17 @@ pub fn dynamics_figures(
     } else {
         "speed"
     };
+    let shown = match cycles < maps.cycles.len() {
+        true => format!(
+            "; the first {cycles} of {} cycles (every window: speed_series.npy)",
+            maps.cycles.len()
+        ),
+        false => String::new(),
+    };
     let plot = PlotPanel {
         title: format!(
-            "Mean {speed} over vessel pixels (red marks: first and last window of each cycle)"
+            "Mean {speed} over vessel pixels (red marks: first and last window of each \
+             cycle{shown})"
         ),
         x_label: "time (ms)".into(),
         y_label: format!("{speed} (mm/s)"),
@@ -114,6 +125,20 @@ pub fn dynamics_figures(
         (PROCESS_PANEL_WIDTH_PX, 480),
     )?);
     Ok(written)
+}
+
+/// Cardiac cycles the waveform figure draws at most: a long recording's hundreds of cycles would
+/// merge into a band on a plot one panel wide.
+const WAVEFORM_CYCLES: usize = 6;
+
+/// (windows, cycles) of `windows` velocity windows that the waveform figure draws: every one
+/// while the recording's `cycles` (window index ranges) are at most [`WAVEFORM_CYCLES`], else
+/// those up to the end of that many cycles.
+fn waveform_span(cycles: &[(usize, usize)], windows: usize) -> (usize, usize) {
+    match cycles.get(WAVEFORM_CYCLES - 1) {
+        Some(&(_, end)) if cycles.len() > WAVEFORM_CYCLES => (end.min(windows), WAVEFORM_CYCLES),
+        _ => (windows, cycles.len()),
+    }
 }
 
 /// A run of ensembles of a Doppler time series, as [`ensemble_figure_in_chunks`] reads them:
@@ -342,5 +367,22 @@ pub fn mean_doppler_line(spec: &pcuvd::dynamics::Spectrogram) -> Polyline {
         dashed: true,
         rgb: (255, 255, 255),
         label: "mean Doppler velocity (colour Doppler)".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording of a few cycles is drawn whole; a long one up to the end of its sixth cycle,
+    /// the windows before the first cycle included.
+    #[test]
+    fn the_waveform_draws_six_cycles_of_a_long_recording() {
+        let cycles: Vec<(usize, usize)> =
+            (0..118).map(|k| (3 + 40 * k, 3 + 40 * (k + 1))).collect();
+        assert_eq!(waveform_span(&cycles[..5], 300), (300, 5));
+        assert_eq!(waveform_span(&cycles[..6], 300), (300, 6));
+        assert_eq!(waveform_span(&cycles, 4800), (243, 6));
+        assert_eq!(waveform_span(&[], 10), (10, 0));
     }
 }
