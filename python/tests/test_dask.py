@@ -135,3 +135,66 @@ def test_a_cluster_run_refuses_what_it_cannot_share(long_tube, disk):
         pcuvd.dask.process(pcuvd.read_recording(disk), NoClient())
     with pytest.raises(TypeError, match="unexpected keyword 'segment_frame'"):
         pcuvd.dask.process(long_tube, NoClient(), segment_frame=10)
+
+
+@pytest.fixture(scope="module")
+def long_images(tmp_path_factory, cli) -> Path:
+    """The long tube's conventional twin (4 angles, 48 frames) beamformed per angle with the
+    Python stages and saved with NumPy as (z, x, angles, frames), frames the fastest axis, with
+    its images manifest."""
+    folder = tmp_path_factory.mktemp("long_images")
+    done = run_cli(
+        cli, "simulate", "--preset", "tube", "--mode", "conventional", "--frames", "48",
+        "--angles", "4", "--tube-length-mm", "6", "--out", folder,
+    )
+    assert done.returncode == 0, done.stderr
+    recording = pcuvd.read_recording(folder / "conventional.toml")
+    grid = pcuvd.process(recording, grid_mm=SEGMENTED["grid_mm"], dynamics="off", quiet=True)
+    fc = recording.probe["center_freq_hz"]
+    iq = pcuvd.rf_to_iq(recording.samples, sampling_freq_hz=recording.sampling_freq_hz,
+                        demod_freq_hz=fc, t0_s=recording.t0_s)
+    n = recording.n_angles
+    series = np.stack([
+        pcuvd.beamform(iq[k::n], probe=recording.probe, angle_rad=float(angle),
+                       sampling_freq_hz=recording.sampling_freq_hz, demod_freq_hz=fc,
+                       t0_s=recording.t0_s, x_m=grid.x, z_m=grid.z,
+                       sound_speed_m_s=recording.sound_speed_m_s)
+        for k, angle in enumerate(recording.angles_rad)
+    ])
+    np.save(folder / "iq.npy", np.ascontiguousarray(np.transpose(series, (1, 2, 0, 3))))
+    angles = ", ".join(repr(float(a)) for a in np.degrees(recording.angles_rad))
+    manifest = folder / "images.toml"
+    manifest.write_text(
+        'format = "pcuvd-images"\nversion = 1\n[images]\nfile = "iq.npy"\n'
+        'axes = ["z", "x", "angles", "frames"]\n'
+        f"frame_rate_hz = {recording.frame_rate_hz!r}\ndemod_frequency_hz = {fc!r}\n"
+        f"sound_speed_m_s = {recording.sound_speed_m_s!r}\nangles_deg = [{angles}]\n"
+        f"x_m = [{float(grid.x[0])!r}, {float(grid.x[-1])!r}]\n"
+        f"z_m = [{float(grid.z[0])!r}, {float(grid.z[-1])!r}]\n"
+    )
+    return manifest
+
+
+def test_images_across_a_cluster_equal_one_process(long_images):
+    """Beamformed images formed elsewhere are cut into segments as a recording is, each read
+    from the file by its own worker: the joined maps, windows, RI maps and time series are
+    those of `pcuvd.process` on the manifest."""
+    import pcuvd.dask
+
+    options = {k: v for k, v in SEGMENTED.items() if k != "grid_mm"}
+    one = pcuvd.process(str(long_images), quiet=True, **options)
+    assert len(one.summary["segments"]["own_frames"]) >= 3, one.summary["segments"]
+    assert "read images" in one.summary["timings_s"]
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        joined = pcuvd.dask.process(long_images, client, quiet=True, **options)
+    assert sorted(joined.arrays) == sorted(one.arrays)
+    for name in ("ri", "speed_series", "ensemble_power_doppler", "vx"):
+        assert name in one.arrays, name
+    for name, value in one.arrays.items():
+        assert_same_array(joined.arrays[name], value, name)
+    assert joined.summary["segments"] == one.summary["segments"]
+    assert joined.summary["images"] == one.summary["images"]
+    with pytest.raises(ValueError, match="overrides are for recordings"):
+        pcuvd.dask.process(long_images, None, overrides={"t0_s": 0.0}, **options)

@@ -83,10 +83,10 @@ pub fn create_dir(dir: &Path) -> Result<()> {
         .with_context(|| format!("{}: cannot create the output folder", dir.display()))
 }
 
-/// Beamformed images formed elsewhere, read and planned: what a run on them starts from.
+/// Beamformed images formed elsewhere, opened and planned: what a run on them starts from.
 pub struct OpenedImages {
-    /// The image series, per angle, on their grid.
-    pub images: pcuvd::form::images::AngleImages,
+    /// The images on file, which the run reads whole or a segment at a time.
+    pub images: pcuvd_io::images::ImagesFile,
     /// The manifest and its images file, the format, every parameter with its source.
     pub info: pcuvd_io::SourceInfo,
     /// What summary.json, the NIfTI sidecars and the Zarr store record of them.
@@ -96,33 +96,40 @@ pub struct OpenedImages {
 }
 
 /// Opens the images manifest at `path` for `process`, as [`open_input`] opens a recording: the
-/// memory the images need checked from the file's header before they are read (within
-/// `limit_gb`, else what the machine leaves), the run planned with `options` and `dynamics`,
-/// and the stages' memory checked beside them.
+/// run planned with `options` and `dynamics` from the manifest and the file's header (held
+/// whole, or in segments of `--segment-frames` or as many frames as fit), and the memory it
+/// needs checked before anything is read (within `limit_gb`, else what the machine leaves).
 pub fn open_images(
     path: &Path,
     options: &crate::settings::ProcessingSettings,
     dynamics: &crate::settings::DynamicsSettings,
     limit_gb: Option<f64>,
 ) -> Result<OpenedImages> {
+    use pcuvd::form::images::ImageFrames;
     let header = pcuvd_io::images::read_header(path)?;
-    let bytes = header.bytes();
-    crate::memory::check_images_memory(bytes, limit_gb)
-        .with_context(|| path.display().to_string())?;
-    let read = header.read_images()?;
+    let images = header.images_file()?;
+    let description = images.description();
+    let frames = images.n_frames();
     let plan = crate::run::Plan::for_images(
         options,
         dynamics,
-        &read.images,
-        read.info.cardiac_triggers_s.as_deref(),
+        &description,
+        frames,
+        header.info.cardiac_triggers_s.as_deref(),
     )?;
-    let shape = (bytes, read.images.n_frames(), read.images.n_angles());
-    crate::memory::check_images_stages(&plan, shape, limit_gb)
+    // A segment's frames are held at once, its overlap included; else the whole series.
+    let held = plan
+        .segments
+        .map_or(frames, |s| (s.core + s.overlap).min(frames));
+    let bytes = header.bytes() / frames.max(1) as u64 * held as u64;
+    let shape = (bytes, frames, description.n_angles());
+    crate::memory::check_images_memory(bytes, plan.segments.is_some(), limit_gb)
+        .and_then(|()| crate::memory::check_images_stages(&plan, shape, limit_gb))
         .with_context(|| path.display().to_string())?;
     Ok(OpenedImages {
-        record: ImagesRecord::of(&read.images),
-        images: read.images,
-        info: read.info,
+        record: ImagesRecord::of(&description, frames),
+        images,
+        info: header.info,
         plan,
     })
 }
@@ -145,10 +152,10 @@ pub struct ImagesRecord {
 }
 
 impl ImagesRecord {
-    /// The record of `images`.
-    pub fn of(images: &pcuvd::form::images::AngleImages) -> Self {
+    /// The record of `frames` frames of images described by `images` (grid, angles, rates).
+    pub fn of(images: &pcuvd::form::images::AngleImages, frames: usize) -> Self {
         ImagesRecord {
-            frames: images.n_frames(),
+            frames,
             frame_rate_hz: images.frame_rate,
             demod_frequency_hz: images.demodulation_frequency,
             sound_speed_m_s: images.sound_speed,

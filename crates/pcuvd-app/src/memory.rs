@@ -83,23 +83,30 @@ fn room_within(limit_gb: Option<f64>) -> Result<Option<MemoryRoom>> {
     })
 }
 
-/// How a run on images formed elsewhere is sized: they are held whole.
-pub const IMAGES_MEMORY_RULE: &str = "three times the images as complex64: the array read, its \
-                                      per-angle series (filtered in place) and their compound";
+/// How a run on images formed elsewhere is sized: their frames held at once (all of them, or a
+/// segment's).
+pub const IMAGES_MEMORY_RULE: &str = "three times the images held at once as complex64 (all \
+their frames, or one segment's with its overlap): an angle's frames as read, the per-angle \
+series (filtered in place) and their compound";
 
-/// Refuses, before they are read, beamformed images of `bytes` (as complex64) that a run could
-/// not hold ([`IMAGES_MEMORY_RULE`]) within `limit_gb` or what the machine leaves.
-pub fn check_images_memory(bytes: u64, limit_gb: Option<f64>) -> Result<()> {
+/// Refuses, before they are read, beamformed images of which `bytes` (as complex64) are held at
+/// once (`segmented`: a segment's) that a run could not hold ([`IMAGES_MEMORY_RULE`]) within
+/// `limit_gb` or what the machine leaves.
+pub fn check_images_memory(bytes: u64, segmented: bool, limit_gb: Option<f64>) -> Result<()> {
     let needed = 3.0 * bytes as f64;
     if let Some(room) = room_within(limit_gb)?
         && needed > room.bytes
     {
         bail!(
             "processing the images needs about {} ({IMAGES_MEMORY_RULE}) but {} are available \
-             ({}): cut the images into shorter files",
+             ({}): {}",
             gigabytes(needed),
             gigabytes(room.bytes.max(0.0)),
-            room.bound
+            room.bound,
+            match segmented {
+                true => "give a smaller --segment-frames",
+                false => "give --segment-frames to hold fewer frames at once",
+            }
         );
     }
     Ok(())

@@ -4,7 +4,8 @@
 use anyhow::{Context, Result, bail};
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::dynamics::{DynamicsParams, RiMaps, VelocitySeries, VesselTests};
-use pcuvd::pipeline::segments::Segments;
+use pcuvd::form::images::ImageFrames;
+use pcuvd::pipeline::segments::{SegmentSource, Segments};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 
 use crate::progress::Progress;
@@ -61,28 +62,13 @@ impl Plan {
             recorded_triggers,
         )?;
         let ensembles = options.ensembles(data.n_frames())?;
-        let (nz, nx) = params.grid.shape();
-        let windows = dynamics_settings.as_ref().map(|d| &d.params);
-        // By default as many frames as fit, but never too few for the windows and ensembles.
-        let segment_frames = options.segment_frames.unwrap_or_else(|| {
-            pcuvd::pipeline::segments::frames_that_fit(
-                nz * nx,
-                data.acquisition().sequence.n_angles(),
-            )
-            .max(Segments::shortest(windows, ensembles))
-        });
-        let segments = Segments::plan(data.n_frames(), segment_frames, windows, ensembles)
-            .context("--segment-frames")?;
-        let shortest_filtered = segments
-            .iter()
-            .flat_map(|s| s.ranges(data.n_frames()))
-            .map(|(_, imaged)| imaged.len())
-            .chain(ensembles.map(|e| e.frames))
-            .fold(data.n_frames(), usize::min);
-        params
-            .clutter
-            .check_for(shortest_filtered)
-            .context("--svd-low / --svd-high")?;
+        let segments = planned_cut(
+            options,
+            &params,
+            dynamics_settings.as_ref(),
+            ensembles,
+            (data.n_frames(), acq.sequence.n_angles()),
+        )?;
         Ok(Plan {
             ensembles,
             segments,
@@ -94,18 +80,19 @@ impl Plan {
         })
     }
 
-    /// The plan of a run on beamformed `images` formed elsewhere ([`run_images`]): held whole,
-    /// its Doppler time series (when asked for) cut from the images themselves.
-    /// `recorded_triggers`: cardiac cycle start times (s) recorded with them (an images
-    /// manifest's `[cardiac]`), used unless `--cardiac-triggers` or `--heart-rate` is given.
+    /// The plan of a run on beamformed images formed elsewhere ([`run_images`]) of `n_frames`
+    /// frames, described by `images` (their grid, angles and rates; no series needed): held
+    /// whole, or cut into segments as a recording is. `recorded_triggers`: cardiac cycle start
+    /// times (s) recorded with them (an images manifest's `[cardiac]`), used unless
+    /// `--cardiac-triggers` or `--heart-rate` is given.
     pub fn for_images(
         options: &ProcessingSettings,
         dynamics: &DynamicsSettings,
         images: &pcuvd::form::images::AngleImages,
+        n_frames: usize,
         recorded_triggers: Option<&[f64]>,
     ) -> Result<Plan> {
         let params = options.images_params(images)?;
-        let n_frames = images.n_frames();
         let dynamics_settings = dynamics_plan(
             dynamics,
             &params,
@@ -113,14 +100,16 @@ impl Plan {
             recorded_triggers,
         )?;
         let ensembles = options.ensembles(n_frames)?;
-        let shortest = ensembles.map_or(n_frames, |e| e.frames.min(n_frames));
-        params
-            .clutter
-            .check_for(shortest)
-            .context("--svd-low / --svd-high")?;
+        let segments = planned_cut(
+            options,
+            &params,
+            dynamics_settings.as_ref(),
+            ensembles,
+            (n_frames, images.n_angles()),
+        )?;
         Ok(Plan {
             ensembles,
-            segments: None,
+            segments,
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
@@ -128,6 +117,37 @@ impl Plan {
             kept_pixels: Vec::new(),
         })
     }
+}
+
+/// How a recording of `n_frames` frames of `n_angles` angles is cut (`None`: held whole):
+/// `--segment-frames`, by default as many frames as fit but never too few for the dynamics
+/// windows and ensembles; the clutter cut-offs checked against the shortest series filtered.
+fn planned_cut(
+    options: &ProcessingSettings,
+    params: &ProcessParams,
+    dynamics: Option<&DynamicsPlan>,
+    ensembles: Option<pcuvd::pipeline::ensembles::EnsembleSpec>,
+    (n_frames, n_angles): (usize, usize),
+) -> Result<Option<Segments>> {
+    let (nz, nx) = params.grid.shape();
+    let windows = dynamics.map(|d| &d.params);
+    let segment_frames = options.segment_frames.unwrap_or_else(|| {
+        pcuvd::pipeline::segments::default_segment_frames(nz * nx, n_angles)
+            .max(Segments::shortest(windows, ensembles))
+    });
+    let segments =
+        Segments::plan(n_frames, segment_frames, windows, ensembles).context("--segment-frames")?;
+    let shortest_filtered = segments
+        .iter()
+        .flat_map(|s| s.ranges(n_frames))
+        .map(|(_, imaged)| imaged.len())
+        .chain(ensembles.map(|e| e.frames))
+        .fold(n_frames, usize::min);
+    params
+        .clutter
+        .check_for(shortest_filtered)
+        .context("--svd-low / --svd-high")?;
+    Ok(segments)
 }
 
 /// The dynamics stage's settings for a recording of `n_frames` frames of `n_angles` angles at
@@ -262,10 +282,10 @@ pub fn run_into(
     let stages: &(dyn Fn(pipeline::Stage, usize, usize) + Sync) = &stages;
     // Images are formed a block of frames at a time, so that decoding and IQ need one block's
     // memory; each ensemble of a time series is filtered on its own, from the unfiltered images.
-    let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
     if let Some(segments) = &plan.segments {
-        return run_in_segments(data, plan, segments, blocks, progress, sink);
+        return run_in_segments(data.into(), plan, segments, progress, sink);
     }
+    let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
     let (out, mut ensembles) =
         pipeline::process_source(data, &plan.params, blocks, plan.ensembles, stages)?;
     let ensembles_in_store = match (&mut sink, &mut ensembles) {
@@ -293,16 +313,40 @@ pub fn run_into(
 
 /// Runs the chain from the clutter filter on, the Doppler time series and the dynamics stage
 /// on beamformed `images` formed elsewhere (a scanner's compound IQ: nothing to decode or
-/// beamform), as `plan` ([`Plan::for_images`]) says, reporting to `progress`.
+/// beamform), read whole or a segment at a time as `plan` ([`Plan::for_images`]) says,
+/// reporting to `progress`.
 pub fn run_images(
-    images: pcuvd::form::images::AngleImages,
+    images: &dyn ImageFrames,
     plan: &Plan,
     progress: &dyn Progress,
 ) -> Result<Processed> {
-    let stages = crate::progress::stages(progress);
+    run_images_into(images, plan, progress, None)
+}
+
+/// [`run_images`], the Doppler time series handed to `sink` (when given) as [`run_into`] hands
+/// a recording's.
+pub fn run_images_into(
+    images: &dyn ImageFrames,
+    plan: &Plan,
+    progress: &dyn Progress,
+    mut sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
+) -> Result<Processed> {
     let n_frames = images.n_frames();
+    if let Some(segments) = &plan.segments {
+        return run_in_segments(
+            SegmentSource::Images(images),
+            plan,
+            segments,
+            progress,
+            sink,
+        );
+    }
+    let stages = crate::progress::stages(progress);
     let clock = std::time::Instant::now();
-    let ensembles = plan
+    let images = images.read_frames(0..n_frames)?;
+    let read_s = clock.elapsed().as_secs_f64();
+    let clock = std::time::Instant::now();
+    let mut ensembles = plan
         .ensembles
         .map(|spec| pcuvd::pipeline::ensembles::ensemble_maps(&images, &plan.params, spec, &stages))
         .transpose()?;
@@ -312,6 +356,15 @@ pub fn run_images(
         out.timings
             .insert(0, (pipeline::Stage::Ensembles, ensembles_s));
     }
+    out.timings.insert(0, (pipeline::Stage::Read, read_s));
+    let ensembles_in_store = match (&mut sink, &mut ensembles) {
+        (Some(sink), Some(maps)) => {
+            sink.append(maps)?;
+            maps.keep_times_only();
+            true
+        }
+        _ => false,
+    };
     let clock = std::time::Instant::now();
     let dynamics = run_dynamics(&out, plan, progress)?;
     Ok(Processed {
@@ -319,7 +372,7 @@ pub fn run_images(
         dynamics,
         dynamics_s: clock.elapsed().as_secs_f64(),
         ensembles,
-        ensembles_in_store: false,
+        ensembles_in_store,
         blocks: pcuvd::pipeline::blocks::Blocks::whole(n_frames),
         segments: None,
         kept: None,
@@ -329,14 +382,14 @@ pub fn run_images(
 /// The segmented run `plan` makes of `data`: its settings, with the velocity windows only where
 /// the recording can give them (a window that fits).
 fn segment_run<'a>(
-    data: &dyn FrameSource,
+    data: SegmentSource,
     plan: &'a Plan,
     segments: &'a Segments,
 ) -> pcuvd::pipeline::segments::SegmentRun<'a> {
     let windows = plan
         .dynamics
         .as_ref()
-        .filter(|d| d.params.validate(data.acquisition().frame_rate()).is_ok());
+        .filter(|d| d.params.validate(data.frame_rate()).is_ok());
     pcuvd::pipeline::segments::SegmentRun {
         params: &plan.params,
         segments,
@@ -362,7 +415,7 @@ fn kept_of(
 }
 
 /// The plan's segments of `data`, or an error saying that one holds it whole.
-fn planned_segments<'a>(data: &dyn FrameSource, plan: &'a Plan) -> Result<&'a Segments> {
+fn planned_segments<'a>(data: SegmentSource, plan: &'a Plan) -> Result<&'a Segments> {
     plan.segments.as_ref().with_context(|| {
         format!(
             "the recording's {} frames are processed whole: there are no segments to share out \
@@ -375,7 +428,7 @@ fn planned_segments<'a>(data: &dyn FrameSource, plan: &'a Plan) -> Result<&'a Se
 /// How many segments `plan` cuts `data` into, and whether the later ones need the first's
 /// [`pcuvd::pipeline::segments::SegmentPart::window_intervals`]; `None` when it is processed
 /// whole.
-pub fn segment_count(data: &dyn FrameSource, plan: &Plan) -> Option<(usize, bool)> {
+pub fn segment_count(data: SegmentSource, plan: &Plan) -> Option<(usize, bool)> {
     plan.segments.as_ref().map(|segments| {
         let run = segment_run(data, plan, segments);
         (run.count(data), run.first_settles_windows(data))
@@ -386,7 +439,7 @@ pub fn segment_count(data: &dyn FrameSource, plan: &Plan) -> Option<(usize, bool
 /// process): what [`join_segments`] adds up. `window_intervals`: the first segment's
 /// [`pcuvd::pipeline::segments::SegmentPart::window_intervals`], for every later segment.
 pub fn run_segment(
-    data: &dyn FrameSource,
+    data: SegmentSource,
     plan: &Plan,
     index: usize,
     window_intervals: Option<u32>,
@@ -400,15 +453,14 @@ pub fn run_segment(
 /// The run of `data` from the parts of all its segments ([`run_segment`]): the same result as
 /// [`run`] gives in one process.
 pub fn join_segments(
-    data: &dyn FrameSource,
+    data: SegmentSource,
     plan: &Plan,
     parts: Vec<pcuvd::pipeline::segments::SegmentPart>,
     progress: &dyn Progress,
 ) -> Result<Processed> {
     let segments = planned_segments(data, plan)?;
     let done = segment_run(data, plan, segments).join(data, parts)?;
-    let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
-    finish_segmented(data, plan, done, blocks, progress, false)
+    finish_segmented(data, plan, done, progress, false)
 }
 
 /// A segment's part as bytes, to send to the process that joins the run.
@@ -425,28 +477,36 @@ pub fn part_from_bytes(bytes: &[u8]) -> Result<pcuvd::pipeline::segments::Segmen
 /// ([`pcuvd::pipeline::segments`]), the dynamics stage's windows and the ensembles from the segments, the
 /// RI maps from their series.
 fn run_in_segments(
-    data: &dyn FrameSource,
+    data: SegmentSource,
     plan: &Plan,
     segments: &Segments,
-    blocks: pcuvd::pipeline::blocks::Blocks,
     progress: &dyn Progress,
     sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
     let stages = crate::progress::stages(progress);
     let in_store = sink.is_some();
     let done = segment_run(data, plan, segments).process(data, sink, &stages)?;
-    finish_segmented(data, plan, done, blocks, progress, in_store)
+    finish_segmented(data, plan, done, progress, in_store)
 }
 
-/// The dynamics stage's RI maps from a segmented run's series, and what [`run`] returns.
+/// The dynamics stage's RI maps from a segmented run's series, and what [`run`] returns: the
+/// blocks of frames a recording's images were formed in (images read: each segment whole).
 fn finish_segmented(
-    data: &dyn FrameSource,
+    data: SegmentSource,
     plan: &Plan,
     done: pcuvd::pipeline::segments::Segmented,
-    blocks: pcuvd::pipeline::blocks::Blocks,
     progress: &dyn Progress,
     ensembles_in_store: bool,
 ) -> Result<Processed> {
+    let blocks = match data {
+        SegmentSource::Channels(source) => {
+            pipeline::blocks_for(source, plan.params.event_alignment)
+        }
+        SegmentSource::Images(_) => {
+            let longest = done.ranges.iter().map(|(_, imaged)| imaged.len()).max();
+            pcuvd::pipeline::blocks::Blocks::whole(longest.unwrap_or(0))
+        }
+    };
     let clock = std::time::Instant::now();
     let dynamics = dynamics_outcome(plan, progress, || match (&plan.dynamics, done.series) {
         (Some(settings), Some(series)) => {
@@ -462,7 +522,7 @@ fn finish_segmented(
         }
         // The stage's own checks say why it cannot run (a window too long).
         (Some(settings), None) => {
-            settings.params.validate(data.acquisition().frame_rate())?;
+            settings.params.validate(data.frame_rate())?;
             Err(pcuvd::core::error::invalid(
                 "dynamics",
                 "no segment gave a velocity window",

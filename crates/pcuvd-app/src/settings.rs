@@ -111,10 +111,10 @@ pub struct ProcessingSettings {
     /// Frames from one ensemble's start to the next's (default: --ensemble-frames, no overlap).
     #[cfg_attr(feature = "clap", arg(long, requires = "ensemble_frames"))]
     pub ensemble_step: Option<usize>,
-    /// Long recordings: compound frames per segment, each imaged, clutter-filtered and analysed
-    /// on its own so that memory stays bounded (default: as many as fit in 1.25 GiB of image
-    /// series; the whole recording in one when it fits, which gives the exact whole-recording
-    /// maps).
+    /// Long recordings and images: compound frames per segment, each imaged (or read),
+    /// clutter-filtered and analysed on its own so that memory and the clutter filter's cost stay
+    /// bounded (default: as many as fit in 1.25 GiB of image series, at most 1024; the whole
+    /// recording in one when it fits, which gives the exact whole-recording maps).
     #[cfg_attr(feature = "clap", arg(long))]
     pub segment_frames: Option<usize>,
 }
@@ -741,8 +741,8 @@ impl ProcessingSettings {
     }
 
     /// Stage settings for beamformed `images` formed elsewhere, on their own grid: the
-    /// imaging options (`--grid`, `--f-number`, `--event-alignment`, `--segment-frames`) are
-    /// refused, since the images are already formed and held whole.
+    /// imaging options (`--grid`, `--f-number`, `--event-alignment`) are refused, since the
+    /// images are already formed.
     pub fn images_params(&self, images: &AngleImages) -> Result<ProcessParams> {
         let defaults = ProcessingSettings::default();
         for (given, option) in [
@@ -754,10 +754,6 @@ impl ProcessingSettings {
             (
                 self.event_alignment != defaults.event_alignment,
                 "--event-alignment",
-            ),
-            (
-                self.segment_frames.is_some(),
-                "--segment-frames (the images are held whole)",
             ),
         ] {
             if given {

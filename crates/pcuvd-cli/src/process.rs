@@ -335,7 +335,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         args.force,
     )?;
     let record_of_images = opened.record;
-    let zarr = match args.zarr {
+    let mut zarr = match args.zarr {
         true => Some(pcuvd_app::zarr::ZarrStore::create(
             &args.out.join(pcuvd_app::zarr::STORE),
             pcuvd_app::summary::RunInput::Images(&record_of_images),
@@ -344,7 +344,10 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         false => None,
     };
     let progress = Bars::new("");
-    let processed = pcuvd_app::run::run_images(opened.images, &plan, &progress)
+    let sink = zarr
+        .as_mut()
+        .map(|z| z as &mut dyn pcuvd::pipeline::segments::EnsembleSink);
+    let processed = pcuvd_app::run::run_images_into(&opened.images, &plan, &progress, sink)
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     if let Some(warning) =
         pcuvd::pipeline::dealias_warning(plan.params.dealias, false, &processed.out)
@@ -356,7 +359,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         Checksums::Running(thread) => thread
             .join()
             .map_err(|_| anyhow::anyhow!("the checksum thread failed"))??,
-        Checksums::InPass(..) => unreachable!("images are read whole, not in a reader's pass"),
+        Checksums::InPass(..) => unreachable!("images are hashed apart, not in a reader's pass"),
     };
     let name = args.figure_name();
     let extra_timings = [("read", read_s), ("checksum", checksum_s)];

@@ -6,16 +6,17 @@
 //! of each series; nothing of the probe or the transmit sequence is needed, since the images are
 //! already formed. See `crates/pcuvd-io/examples/images.toml`.
 
+use std::ops::Range;
 use std::path::Path;
 
-use ndarray::{Array3, Axis};
+use ndarray::Array3;
 use num_complex::Complex32;
 use pcuvd::core::grid::Grid;
-use pcuvd::form::images::AngleImages;
+use pcuvd::form::images::{AngleImages, ImageFrames};
 use serde::Deserialize;
 
+use crate::array::Block;
 use crate::error::IoError;
-use crate::npy::{NpyArray, read_npy};
 use crate::params::{ParamSource, Parameter};
 use crate::recording::{SourceInfo, StoredSamples};
 
@@ -286,7 +287,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let info = SourceInfo {
         files: vec![path.to_path_buf(), file.clone()],
         format: "pcuvd images manifest (TOML) with NumPy .npy images".into(),
-        reader: "pcuvd_io::images (read whole)".into(),
+        reader: "pcuvd_io::images (a range of frames at a time)".into(),
         parameters,
         stored: Some(StoredSamples {
             array: section.file.clone(),
@@ -324,68 +325,148 @@ impl ImagesHeader {
     ///
     /// [`bytes`]: ImagesHeader::bytes
     pub fn read_images(self) -> Result<ImagesRecording, IoError> {
-        let path = self.manifest.as_path();
-        let file = &self.file;
-        let NpyArray::Complex(array) = read_npy(file)? else {
-            return Err(IoError::malformed(
-                file,
-                "is no longer complex: it changed while read",
-            ));
-        };
+        let images = self.images_file()?.read(0..self.frames)?;
+        Ok(ImagesRecording {
+            images,
+            info: self.info,
+        })
+    }
+
+    /// The images this header describes, to read a range of frames at a time.
+    pub fn images_file(&self) -> Result<ImagesFile, IoError> {
+        let array = crate::npz::open_npy(&self.file)?;
         let (nz, nx) = self.grid.shape();
-        let canonical = [self.angles.len(), nz, nx, self.frames];
+        let length = |name: &str| {
+            self.axes
+                .iter()
+                .position(|a| a == name)
+                .map(|i| array.shape.get(i).copied())
+        };
+        if array.shape.len() != self.axes.len()
+            || length("frames") != Some(Some(self.frames))
+            || length("z") != Some(Some(nz))
+            || length("x") != Some(Some(nx))
+            || length("angles").is_some_and(|n| n != Some(self.angles.len()))
+            || !array.is_complex()
+        {
+            return Err(IoError::malformed(
+                &self.file,
+                "changed since its header was read: its shape or type differs",
+            ));
+        }
         // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
         let order: Vec<usize> = ["angles", "z", "x", "frames"]
             .iter()
             .filter_map(|name| self.axes.iter().position(|a| a == name))
             .collect();
-        let array = array.permuted_axes(order);
-        let array = if array.ndim() == 3 {
-            array.insert_axis(Axis(0))
-        } else {
-            array
-        };
-        if array.shape() != canonical {
-            return Err(IoError::malformed(
-                file,
-                "changed while read: its shape differs from its header's",
-            ));
-        }
-        // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
-        // e^(+2πift) stored its conjugate, whose flow would read reversed.
-        let sign = |v: Complex32| if self.conjugate { v.conj() } else { v };
-        let series: Vec<Array3<Complex32>> = array
-            .axis_iter(Axis(0))
-            .map(|one| {
-                one.into_dimensionality::<ndarray::Ix3>()
-                    .map(|s| s.as_standard_layout().mapv(sign))
-            })
-            .collect::<Result<_, _>>()
-            .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
-        if let Some(bad) = series.iter().flatten().position(|v| !v.is_finite()) {
+        Ok(ImagesFile {
+            array,
+            order,
+            angles_axis: self.axes.iter().position(|a| a == "angles"),
+            frames_axis: self.axes.iter().position(|a| a == "frames").unwrap_or(0),
+            description: AngleImages {
+                grid: self.grid.clone(),
+                angles: self.angles.clone(),
+                frame_rate: self.frame_rate,
+                sound_speed: self.sound_speed,
+                demodulation_frequency: self.demodulation_frequency,
+                coverage: None,
+                series: Vec::new(),
+            },
+            frames: self.frames,
+            conjugate: self.conjugate,
+            manifest: self.manifest.clone(),
+        })
+    }
+}
+
+/// Beamformed images on file, as an images manifest describes them, read a range of frames at a
+/// time: a run in segments holds one segment's frames, not the recording's.
+#[derive(Debug, Clone)]
+pub struct ImagesFile {
+    array: crate::array::StoredArray,
+    /// The stored axes of (angles, z, x, frames), "angles" left out when the file has none.
+    order: Vec<usize>,
+    angles_axis: Option<usize>,
+    frames_axis: usize,
+    description: AngleImages,
+    frames: usize,
+    conjugate: bool,
+    /// The manifest, which errors name.
+    manifest: std::path::PathBuf,
+}
+
+impl ImagesFile {
+    /// Frames `frames` of every series, each (nz, nx, frames.len()); a value that is not finite
+    /// is refused, naming where it is.
+    pub fn read(&self, frames: Range<usize>) -> Result<AngleImages, IoError> {
+        let path = self.manifest.as_path();
+        if frames.start >= frames.end || frames.end > self.frames {
             return Err(IoError::invalid(
                 path,
-                "[images].file",
+                "frames",
                 format!(
-                    "{} holds a value that is not finite (NaN or infinite) at flat index {bad} of \
-                     the (angles, z, x, frames) series",
-                    file.display()
+                    "{frames:?} is not a range of the images' {} frames",
+                    self.frames
                 ),
             ));
         }
-        let images = AngleImages {
-            grid: self.grid,
-            angles: self.angles,
-            frame_rate: self.frame_rate,
-            sound_speed: self.sound_speed,
-            demodulation_frequency: self.demodulation_frequency,
-            coverage: None,
-            series,
-        };
-        Ok(ImagesRecording {
-            images,
-            info: self.info,
-        })
+        let (nz, nx) = self.description.grid.shape();
+        // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
+        // e^(+2πift) stored its conjugate, whose flow would read reversed.
+        let conjugate = self.conjugate;
+        let series = (0..self.description.n_angles())
+            .map(|angle| -> Result<Array3<Complex32>, IoError> {
+                let ranges: Vec<Range<usize>> = (0..self.array.shape.len())
+                    .map(|axis| match axis {
+                        _ if Some(axis) == self.angles_axis => angle..angle + 1,
+                        _ if axis == self.frames_axis => frames.clone(),
+                        _ => 0..self.array.shape[axis],
+                    })
+                    .collect();
+                let Block::Complex(block) = self.array.read_ordered(&ranges, &self.order)? else {
+                    return Err(IoError::malformed(
+                        Path::new(&self.array.label),
+                        "is no longer complex: it changed while read",
+                    ));
+                };
+                let mut one = block
+                    .into_shape_with_order((nz, nx, frames.len()))
+                    .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
+                if conjugate {
+                    one.mapv_inplace(|v| v.conj());
+                }
+                if let Some(((iz, ix, t), _)) = one.indexed_iter().find(|(_, v)| !v.is_finite()) {
+                    return Err(IoError::invalid(
+                        path,
+                        "[images].file",
+                        format!(
+                            "{} holds a value that is not finite (NaN or infinite) at frame {}, \
+                             pixel (z {iz}, x {ix}) of series {angle}",
+                            self.array.label,
+                            frames.start + t
+                        ),
+                    ));
+                }
+                Ok(one)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(self.description.with_series(series))
+    }
+}
+
+impl ImageFrames for ImagesFile {
+    fn description(&self) -> AngleImages {
+        self.description.clone()
+    }
+
+    fn n_frames(&self) -> usize {
+        self.frames
+    }
+
+    fn read_frames(&self, frames: Range<usize>) -> pcuvd::Result<AngleImages> {
+        self.read(frames)
+            .map_err(|e| pcuvd::Error::Read(e.to_string()))
     }
 }
 
@@ -526,6 +607,42 @@ mod tests {
         let stored = read.info.stored.as_ref().unwrap();
         assert_eq!(stored.shape, vec![nx, frames, angles, nz]);
         assert_eq!(stored.dtype, "complex64");
+        // A range of frames read on its own is that range of the series read whole, for every
+        // axis order (frames slowest, fastest, in between) and either memory order.
+        for (order, axes) in [
+            ([3, 0, 1, 2], "[\"frames\", \"angles\", \"z\", \"x\"]"),
+            ([1, 2, 0, 3], "[\"z\", \"x\", \"angles\", \"frames\"]"),
+            ([2, 3, 0, 1], "[\"x\", \"frames\", \"angles\", \"z\"]"),
+        ] {
+            let stored = canonical.clone().permuted_axes(order).into_dyn();
+            for fortran in [false, true] {
+                let stored = match fortran {
+                    false => stored.as_standard_layout().into_owned(),
+                    true => stored
+                        .clone()
+                        .reversed_axes()
+                        .as_standard_layout()
+                        .into_owned()
+                        .reversed_axes(),
+                };
+                let path = write(dir.path(), &stored, axes, "angles_deg = [-5.0, 5.0]\n");
+                let file = read_header(&path).unwrap().images_file().unwrap();
+                assert_eq!(file.n_frames(), frames);
+                for range in [0..frames, 1..4, 4..5] {
+                    let part = file.read_frames(range.clone()).unwrap();
+                    for (a, series) in part.series.iter().enumerate() {
+                        assert_eq!(series.dim(), (nz, nx, range.len()));
+                        assert!(
+                            series
+                                .indexed_iter()
+                                .all(|((z, x, t), v)| *v == tagged(a, z, x, range.start + t)),
+                            "{axes}, fortran {fortran}, frames {range:?}"
+                        );
+                    }
+                }
+                assert!(file.read_frames(3..6).is_err());
+            }
+        }
     }
 
     #[test]

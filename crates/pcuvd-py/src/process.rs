@@ -144,8 +144,8 @@ pub(crate) fn process_file(
     opened.result(py, path.display().to_string(), processed)
 }
 
-/// [`process_file`] on an images manifest: beamformed images formed elsewhere, read whole, their
-/// chain from the clutter filter on, as `pcuvd process` runs it.
+/// [`process_file`] on an images manifest: beamformed images formed elsewhere, read whole or a
+/// segment at a time, their chain from the clutter filter on, as `pcuvd process` runs it.
 fn process_images(
     py: Python<'_>,
     path: PathBuf,
@@ -153,39 +153,64 @@ fn process_images(
     options: &str,
     progress: &Lines,
 ) -> PyResult<PyProcessResult> {
-    let given: serde_json::Map<String, Value> =
-        serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    if !given.is_empty() {
-        return Err(PyValueError::new_err(format!(
-            "{}: overrides are for recordings of channel data; the images are formed",
-            path.display()
-        )));
-    }
-    let call = ProcessCall::from_json(options)?;
     let input = path.display().to_string();
-    let (info, record, plan, processed) = py
-        .detach(|| -> anyhow::Result<_> {
-            let opened = pcuvd_app::input::open_images(
-                &path,
-                &call.options,
-                &call.dynamics,
-                call.max_memory_gb,
-            )?;
-            let processed = pcuvd_app::run::run_images(opened.images, &opened.plan, progress)
-                .with_context(|| format!("{input}: processing failed"))?;
-            Ok((opened.info, opened.record, opened.plan, processed))
+    let (opened, processed) = py.detach(|| -> PyResult<_> {
+        let opened = OpenedImages::open(&path, overrides, options)?;
+        let processed =
+            pcuvd_app::run::run_images(&opened.images.images, &opened.images.plan, progress)
+                .with_context(|| format!("{input}: processing failed"))
+                .map_err(to_py)?;
+        Ok((opened, processed))
+    })?;
+    opened.result(py, input, processed)
+}
+
+/// An images manifest opened and its run planned and memory checked, as `pcuvd process` does,
+/// with the call's settings.
+pub(crate) struct OpenedImages {
+    pub(crate) images: pcuvd_app::input::OpenedImages,
+    pub(crate) call: ProcessCall,
+}
+
+impl OpenedImages {
+    /// Opens the images manifest at `path` for a run with the keyword `options` (JSON); reader
+    /// `overrides` (JSON) are refused, since they are for channel data.
+    pub(crate) fn open(path: &std::path::Path, overrides: &str, options: &str) -> PyResult<Self> {
+        let given: serde_json::Map<String, Value> =
+            serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        if !given.is_empty() {
+            return Err(PyValueError::new_err(format!(
+                "{}: overrides are for recordings of channel data; the images are formed",
+                path.display()
+            )));
+        }
+        let call = ProcessCall::from_json(options)?;
+        let images =
+            pcuvd_app::input::open_images(path, &call.options, &call.dynamics, call.max_memory_gb)
+                .map_err(to_py)?;
+        Ok(OpenedImages { images, call })
+    }
+
+    /// The result of the run on these images, `input` naming them, after the warning `pcuvd
+    /// process` prints where dealiasing was asked of one angle.
+    pub(crate) fn result(
+        self,
+        py: Python<'_>,
+        input: String,
+        processed: Processed,
+    ) -> PyResult<PyProcessResult> {
+        let opened = self.images;
+        warn_of_dealiasing(py, &input, &opened.plan, &processed, false)?;
+        Ok(PyProcessResult {
+            options: self.call.options,
+            source: RunSource::Images(Box::new(opened.record)),
+            input,
+            info: opened.info,
+            plan: opened.plan,
+            processed,
+            simulated: None,
         })
-        .map_err(to_py)?;
-    warn_of_dealiasing(py, &input, &plan, &processed, false)?;
-    Ok(PyProcessResult {
-        options: call.options,
-        source: RunSource::Images(Box::new(record)),
-        input,
-        info,
-        plan,
-        processed,
-        simulated: None,
-    })
+    }
 }
 
 /// The warning `pcuvd process` prints where dealiasing was asked of a recording it cannot help
@@ -407,10 +432,11 @@ impl PyProcessResult {
                         Plan::new(&self.options, &dynamics, &**data, triggers)?
                     }
                     // The filtered images hold the images' grid, angles and rates.
-                    RunSource::Images(_) => Plan::for_images(
+                    RunSource::Images(images) => Plan::for_images(
                         &self.options,
                         &dynamics,
                         &self.processed.out.filtered,
+                        images.frames,
                         triggers,
                     )?,
                 };

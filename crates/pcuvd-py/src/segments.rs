@@ -1,12 +1,59 @@
-//! `pcuvd.dask`'s native half: the segments of one recording processed apart (each in the process
-//! that calls it, reading its own frames from the file) and joined into the result `pcuvd process`
-//! gives. Every call opens the recording from its path and plans the run from the same options, so
-//! every process cuts the recording the same way.
+//! `pcuvd.dask`'s native half: the segments of one recording, or of beamformed images formed
+//! elsewhere (an images manifest), processed apart (each in the process that calls it, reading
+//! its own frames from the file) and joined into the result `pcuvd process` gives. Every call
+//! opens the input from its path and plans the run from the same options, so every process cuts
+//! it the same way.
 
+use pcuvd::pipeline::segments::SegmentSource;
 use pyo3::types::PyBytes;
 
-use crate::process::{PyProcessResult, open, open_checked};
+use crate::process::{Opened, OpenedImages, PyProcessResult, open, open_checked};
 use crate::*;
+
+/// What a segmented run reads: a recording of channel data, or images formed elsewhere.
+enum Input {
+    Recording(Box<Opened>),
+    Images(Box<OpenedImages>),
+}
+
+impl Input {
+    /// Opens the recording or images manifest at `path` with the reader `overrides` and plans
+    /// the run of `options` (both JSON); `checked`: the run's memory checked as `pcuvd process`
+    /// checks it (an images manifest's always is).
+    fn open(
+        path: &std::path::Path,
+        overrides: &str,
+        options: &str,
+        checked: bool,
+    ) -> PyResult<Self> {
+        let head = pcuvd_io::container::read_head(path, 4096).ok();
+        Ok(
+            match head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+                true => Input::Images(Box::new(OpenedImages::open(path, overrides, options)?)),
+                false if checked => {
+                    Input::Recording(Box::new(open_checked(path, overrides, options)?))
+                }
+                false => Input::Recording(Box::new(open(path, overrides, options)?)),
+            },
+        )
+    }
+
+    /// Where the segments' image series come from.
+    fn source(&self) -> SegmentSource<'_> {
+        match self {
+            Input::Recording(opened) => SegmentSource::Channels(opened.source.as_ref()),
+            Input::Images(opened) => SegmentSource::Images(&opened.images.images),
+        }
+    }
+
+    /// The run's plan.
+    fn plan(&self) -> &Plan {
+        match self {
+            Input::Recording(opened) => &opened.plan,
+            Input::Images(opened) => &opened.images.plan,
+        }
+    }
+}
 
 /// How many segments the run of `path` with `options` has (its memory checked as
 /// `pcuvd process` checks it), and whether the later ones need segment 0's `window_intervals`;
@@ -19,11 +66,8 @@ pub(crate) fn segment_count(
     options: &str,
 ) -> PyResult<Option<(usize, bool)>> {
     py.detach(|| {
-        let opened = open_checked(&path, overrides, options)?;
-        Ok(pcuvd_app::run::segment_count(
-            opened.source.as_ref(),
-            &opened.plan,
-        ))
+        let input = Input::open(&path, overrides, options, true)?;
+        Ok(pcuvd_app::run::segment_count(input.source(), input.plan()))
     })
 }
 
@@ -40,10 +84,10 @@ pub(crate) fn process_segment<'py>(
     window_intervals: Option<u32>,
 ) -> PyResult<(Bound<'py, PyBytes>, Option<u32>)> {
     let (bytes, settled) = py.detach(|| -> PyResult<_> {
-        let opened = open(&path, overrides, options)?;
+        let input = Input::open(&path, overrides, options, false)?;
         let part = pcuvd_app::run::run_segment(
-            opened.source.as_ref(),
-            &opened.plan,
+            input.source(),
+            input.plan(),
             index,
             window_intervals,
             &Lines::new(true),
@@ -57,7 +101,7 @@ pub(crate) fn process_segment<'py>(
 }
 
 /// The result of the run of `path` with `options` from every segment's part (`parts`, in any
-/// order): what `pcuvd.process` gives for the same recording and options.
+/// order): what `pcuvd.process` gives for the same input and options.
 #[pyfunction]
 pub(crate) fn join_segments(
     py: Python<'_>,
@@ -68,18 +112,22 @@ pub(crate) fn join_segments(
     quiet: bool,
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
-    let (opened, processed) = py.detach(|| -> PyResult<_> {
-        let opened = open(&path, overrides, options)?;
+    let (input, processed) = py.detach(|| -> PyResult<_> {
+        let input = Input::open(&path, overrides, options, false)?;
         let parts = parts
             .iter()
             .map(|bytes| pcuvd_app::run::part_from_bytes(bytes))
             .collect::<anyhow::Result<Vec<_>>>()
             .map_err(to_py)?;
         let processed =
-            pcuvd_app::run::join_segments(opened.source.as_ref(), &opened.plan, parts, &progress)
+            pcuvd_app::run::join_segments(input.source(), input.plan(), parts, &progress)
                 .with_context(|| format!("{}: joining its segments", path.display()))
                 .map_err(to_py)?;
-        Ok((opened, processed))
+        Ok((input, processed))
     })?;
-    opened.result(py, path.display().to_string(), processed)
+    let name = path.display().to_string();
+    match input {
+        Input::Recording(opened) => (*opened).result(py, name, processed),
+        Input::Images(opened) => (*opened).result(py, name, processed),
+    }
 }

@@ -401,11 +401,12 @@ pub(super) fn blocks_rule() -> String {
 pub(super) fn segments_rule() -> String {
     format!(
         "too long to hold whole (--segment-frames, default: the frames whose image series fit in \
-         {} MiB): each segment imaged with the frames its dynamics windows and ensembles reach \
-         into, clutter-filtered on its own; power and lag-1 autocorrelation summed over the \
-         segments' own frames, velocities and vectors from the sums; windows and ensembles from \
-         the segment their start is in",
-        pipeline::segments::SERIES_BYTES >> 20
+         {} MiB, at most {}): each segment imaged (or read, for images formed elsewhere) with \
+         the frames its dynamics windows and ensembles reach into, clutter-filtered on its own; \
+         power and lag-1 autocorrelation summed over the segments' own frames, velocities and \
+         vectors from the sums; windows and ensembles from the segment their start is in",
+        pipeline::segments::SERIES_BYTES >> 20,
+        pipeline::segments::MAX_SEGMENT_FRAMES
     )
 }
 

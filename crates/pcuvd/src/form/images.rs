@@ -242,6 +242,44 @@ impl PixelSeries {
     }
 }
 
+/// Beamformed image series read a range of frames at a time: images formed elsewhere, too long
+/// to hold whole, that a run processes in segments.
+pub trait ImageFrames: Sync {
+    /// The images' grid, steering angles, frame rate, speed of sound and demodulation frequency,
+    /// without series.
+    fn description(&self) -> AngleImages;
+    /// Frames per series.
+    fn n_frames(&self) -> usize;
+    /// Frames `frames` of every series, each (nz, nx, frames.len()).
+    fn read_frames(&self, frames: std::ops::Range<usize>) -> Result<AngleImages>;
+}
+
+impl ImageFrames for AngleImages {
+    fn description(&self) -> AngleImages {
+        self.with_series(Vec::new())
+    }
+
+    fn n_frames(&self) -> usize {
+        AngleImages::n_frames(self)
+    }
+
+    fn read_frames(&self, frames: std::ops::Range<usize>) -> Result<AngleImages> {
+        let total = AngleImages::n_frames(self);
+        if frames.start >= frames.end || frames.end > total {
+            return Err(invalid(
+                "frames",
+                format!("{frames:?} is not a range of the images' {total} frames"),
+            ));
+        }
+        Ok(self.with_series(
+            self.series
+                .iter()
+                .map(|s| s.slice(ndarray::s![.., .., frames.clone()]).to_owned())
+                .collect(),
+        ))
+    }
+}
+
 impl Seam {
     /// Frames in the tail.
     fn tail_frames(&self) -> usize {

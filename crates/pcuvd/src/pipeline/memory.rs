@@ -12,7 +12,8 @@ block's working memory (BLOCK_BYTES, or the whole recording's decoding and IQ wh
 smaller) + (1 + 1/angles) × pixels × frames × angles × 8 bytes (the image series, complex64, \
 filtered in place, and a compound of it, formed after the clutter filter, whose block-wise \
 filter keeps its cells' Gram matrices in that room first); frames: the recording's, or one segment's when it is \
-processed in segments: as few segments of even length as fit in segments::SERIES_BYTES, before \
+processed in segments: as few segments of even length as fit in segments::SERIES_BYTES and hold \
+at most segments::MAX_SEGMENT_FRAMES frames, before \
 the frames that dynamics windows and ensembles reach past a segment). FFT and filter lengths are \
 bounded by the data: a slot shift by less than a record \
 (check_record), an IQ filter of at most 3·10⁴ taps (iq::MIN_CUTOFF_RATIO), a slow-time FFT of \
@@ -70,7 +71,7 @@ pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     // A recording longer than one segment holds one segment's images at a time, and segments
     // share the recording evenly.
     let total = source.n_frames();
-    let fit = frames_that_fit(nz * nx, angles).max(1);
+    let fit = default_segment_frames(nz * nx, angles).max(1);
     let frames = total.div_ceil(total.div_ceil(fit).max(1)) as u128;
     let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
@@ -91,7 +92,17 @@ pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
 /// longer one, is cut into segments of about 200 frames, so both peak alike.
 pub const SERIES_BYTES: u64 = 5 << 28;
 
-/// Frames of per-angle images of `angles` angles on `pixels` pixels that fit in [`SERIES_BYTES`].
-pub fn frames_that_fit(pixels: usize, angles: usize) -> usize {
-    (SERIES_BYTES / (pixels.max(1) * angles.max(1) * 8) as u64) as usize
+/// Frames one segment holds at most by default, whatever the memory allows. The clutter filter's
+/// temporal Gram matrix grows as frames² and its cost as pixels × frames² per segment, so that
+/// on a small grid (functional ultrasound's 128 × 128 images) segments as long as memory allows
+/// (10,000 frames and more) would each need gigabytes and minutes: bounded segments keep the
+/// cost linear in the recording's length. 1024 frames (0.5–2 s at 500–2000 Hz) are longer than
+/// the 200–400-frame ensembles functional ultrasound filters, and than every shipped scenario.
+pub const MAX_SEGMENT_FRAMES: usize = 1024;
+
+/// Frames of a segment by default: those of per-angle images of `angles` angles on `pixels`
+/// pixels that fit in [`SERIES_BYTES`], at most [`MAX_SEGMENT_FRAMES`].
+pub fn default_segment_frames(pixels: usize, angles: usize) -> usize {
+    let fit = SERIES_BYTES / (pixels.max(1) * angles.max(1) * 8) as u64;
+    (fit as usize).min(MAX_SEGMENT_FRAMES)
 }

@@ -62,6 +62,8 @@ impl ProcessParams {
 /// Pipeline stages, in order, as reported to a progress callback.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Stage {
+    /// Reading images formed elsewhere from their file, a segment at a time.
+    Read,
     /// Hadamard decoding / angle separation.
     Decode,
     /// IQ demodulation and delay-and-sum, one step per angle.
@@ -79,6 +81,7 @@ impl Stage {
     /// Name shown to people.
     pub fn label(self) -> &'static str {
         match self {
+            Stage::Read => "read images",
             Stage::Decode => "decode",
             Stage::Beamform => "demodulate + beamform",
             Stage::Clutter => "clutter filter",

@@ -38,9 +38,9 @@ use crate::estimate::clutter::{self, ClutterReport};
 use crate::estimate::dealias::Dealias;
 use crate::estimate::doppler::Moments;
 use crate::form::beamform;
-use crate::form::images::{AngleImages, PixelSeries};
+use crate::form::images::{AngleImages, ImageFrames, PixelSeries};
 use crate::pipeline::ensembles::{self, EnsembleMaps, EnsembleSpec};
-pub use crate::pipeline::memory::{SERIES_BYTES, frames_that_fit};
+pub use crate::pipeline::memory::{MAX_SEGMENT_FRAMES, SERIES_BYTES, default_segment_frames};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
 
 /// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
@@ -322,6 +322,80 @@ pub struct SegmentPart {
     images: AngleImages,
 }
 
+/// Where a segmented run's image series come from.
+#[derive(Clone, Copy)]
+pub enum SegmentSource<'a> {
+    /// Channel data, decoded and beamformed a segment at a time.
+    Channels(&'a dyn FrameSource),
+    /// Images formed elsewhere (a scanner's beamformed IQ), read a segment at a time.
+    Images(&'a dyn ImageFrames),
+}
+
+impl SegmentSource<'_> {
+    /// Compound frames of the recording.
+    pub fn n_frames(&self) -> usize {
+        match self {
+            SegmentSource::Channels(source) => source.n_frames(),
+            SegmentSource::Images(images) => images.n_frames(),
+        }
+    }
+
+    /// Steering angles: one image series each.
+    pub fn n_angles(&self) -> usize {
+        match self {
+            SegmentSource::Channels(source) => source.acquisition().sequence.n_angles(),
+            SegmentSource::Images(images) => images.description().n_angles(),
+        }
+    }
+
+    /// The compound frame rate: the series' slow-time sampling rate (Hz).
+    pub fn frame_rate(&self) -> f64 {
+        match self {
+            SegmentSource::Channels(source) => source.acquisition().frame_rate(),
+            SegmentSource::Images(images) => images.description().frame_rate,
+        }
+    }
+
+    /// The image series of frames `imaged`, formed (channel data: in `params`' blocks, in the
+    /// memory of `spare` and `buffers`) or read, and the time each stage took.
+    fn images_of(
+        &self,
+        params: &ProcessParams,
+        imaged: Range<usize>,
+        spare: Vec<Array3<Complex32>>,
+        buffers: &mut pipeline::BlockBuffers,
+        progress: &dyn Fn(Stage, usize, usize),
+    ) -> Result<(AngleImages, Timings)> {
+        match self {
+            SegmentSource::Channels(source) => {
+                let blocks = pipeline::blocks_for(*source, params.event_alignment);
+                pipeline::form_images_of(*source, params, blocks, imaged, spare, buffers, progress)
+            }
+            SegmentSource::Images(images) => {
+                // The previous segment's series go before this one's are read.
+                drop(spare);
+                let clock = std::time::Instant::now();
+                let read = images.read_frames(imaged)?;
+                read.validate()?;
+                if read.grid != params.grid {
+                    return Err(invalid(
+                        "grid",
+                        "the images are on another grid than the processing settings'",
+                    ));
+                }
+                progress(Stage::Read, 1, 1);
+                Ok((read, vec![(Stage::Read, clock.elapsed().as_secs_f64())]))
+            }
+        }
+    }
+}
+
+impl<'a> From<&'a dyn FrameSource> for SegmentSource<'a> {
+    fn from(source: &'a dyn FrameSource) -> Self {
+        SegmentSource::Channels(source)
+    }
+}
+
 /// The settings every segment of one segmented run shares.
 #[derive(Debug, Clone, Copy)]
 pub struct SegmentRun<'a> {
@@ -340,27 +414,34 @@ pub struct SegmentRun<'a> {
 
 impl SegmentRun<'_> {
     /// The checks made before any segment is processed.
-    pub fn check(&self, source: &dyn FrameSource) -> Result<()> {
-        pipeline::check_doppler_estimator(source.acquisition(), self.params)?;
+    pub fn check(&self, source: SegmentSource) -> Result<()> {
+        match source {
+            SegmentSource::Channels(channels) => {
+                pipeline::check_doppler_estimator(channels.acquisition(), self.params)?
+            }
+            SegmentSource::Images(images) => {
+                pipeline::check_doppler_estimator_on(&images.description(), self.params)?
+            }
+        }
         if let Some(d) = self.dynamics {
-            d.validate(source.acquisition().frame_rate())?;
+            d.validate(source.frame_rate())?;
         }
         Ok(())
     }
 
     /// How many segments `source` is cut into.
-    pub fn count(&self, source: &dyn FrameSource) -> usize {
+    pub fn count(&self, source: SegmentSource) -> usize {
         self.segments.ranges(source.n_frames()).len()
     }
 
     /// Whether the first segment settles the Nyquist intervals K of every segment's velocity
     /// windows (their dealiasing automatic), so that the later segments need its
     /// [`SegmentPart::window_intervals`].
-    pub fn first_settles_windows(&self, source: &dyn FrameSource) -> bool {
+    pub fn first_settles_windows(&self, source: SegmentSource) -> bool {
         self.dynamics.is_some_and(|d| {
             d.dealias == Dealias::Auto
                 && self.params.dealias != Dealias::Off
-                && source.acquisition().sequence.n_angles() >= 2
+                && source.n_angles() >= 2
         })
     }
 
@@ -371,7 +452,7 @@ impl SegmentRun<'_> {
     /// the recording's.
     pub fn segment(
         &self,
-        source: &dyn FrameSource,
+        source: SegmentSource,
         index: usize,
         window_intervals: Option<u32>,
         progress: &dyn Fn(Stage, usize, usize),
@@ -394,7 +475,7 @@ impl SegmentRun<'_> {
     /// likewise).
     fn segment_in(
         &self,
-        source: &dyn FrameSource,
+        source: SegmentSource,
         index: usize,
         window_intervals: Option<u32>,
         spare: Vec<Array3<Complex32>>,
@@ -410,7 +491,7 @@ impl SegmentRun<'_> {
                 format!("{index} is not a segment of this recording (it has {count})"),
             ));
         };
-        let n = source.acquisition().sequence.n_angles();
+        let n = source.n_angles();
         let mut dynamics = self.dynamics.copied();
         let automatic_windows = self.first_settles_windows(source);
         if automatic_windows
@@ -425,17 +506,11 @@ impl SegmentRun<'_> {
                 Some(t) => t.1 += seconds,
                 None => timings.push((stage, seconds)),
             };
-        let blocks = pipeline::blocks_for(source, params.event_alignment);
         let k = index;
-        let (mut images, formed) = pipeline::form_images_of(
-            source,
-            params,
-            blocks,
-            imaged.clone(),
-            spare,
-            buffers,
-            &|stage, d, t| progress(stage, k * t + d, count * t),
-        )?;
+        let (mut images, formed) =
+            source.images_of(params, imaged.clone(), spare, buffers, &|stage, d, t| {
+                progress(stage, k * t + d, count * t)
+            })?;
         for (stage, seconds) in formed {
             add_time(stage, seconds);
         }
@@ -534,7 +609,7 @@ impl SegmentRun<'_> {
     /// ensembles joined along time. The same sums in the same order as one process would make.
     pub fn join(
         &self,
-        source: &dyn FrameSource,
+        source: SegmentSource,
         parts: impl IntoIterator<Item = SegmentPart>,
     ) -> Result<Segmented> {
         self.join_into(source, parts, None)
@@ -544,7 +619,7 @@ impl SegmentRun<'_> {
     /// being joined in memory (when a sink is given).
     pub fn join_into(
         &self,
-        source: &dyn FrameSource,
+        source: SegmentSource,
         parts: impl IntoIterator<Item = SegmentPart>,
         mut sink: Option<&mut dyn EnsembleSink>,
     ) -> Result<Segmented> {
@@ -560,7 +635,7 @@ impl SegmentRun<'_> {
                 ),
             ));
         }
-        let mut joined = Joined::new(self.params);
+        let mut joined = Joined::new(self.params, source);
         for part in parts {
             joined.add(part, sink.as_deref_mut())?;
         }
@@ -572,13 +647,13 @@ impl SegmentRun<'_> {
     /// kept.
     pub fn process(
         &self,
-        source: &dyn FrameSource,
+        source: SegmentSource,
         mut sink: Option<&mut dyn EnsembleSink>,
         progress: &dyn Fn(Stage, usize, usize),
     ) -> Result<Segmented> {
         self.check(source)?;
         let count = self.count(source);
-        let mut joined = Joined::new(self.params);
+        let mut joined = Joined::new(self.params, source);
         // The previous segment's series and events read, whose memory the next one's use.
         let mut spare = Vec::new();
         let mut buffers = pipeline::BlockBuffers::default();
@@ -625,7 +700,12 @@ struct Joined {
 }
 
 impl Joined {
-    fn new(params: &ProcessParams) -> Self {
+    /// No segment yet; the stages timed are `source`'s.
+    fn new(params: &ProcessParams, source: SegmentSource) -> Self {
+        let forming = match source {
+            SegmentSource::Channels(_) => vec![(Stage::Decode, 0.0), (Stage::Beamform, 0.0)],
+            SegmentSource::Images(_) => vec![(Stage::Read, 0.0)],
+        };
         Joined {
             per_angle: Vec::new(),
             compound: Sums::default(),
@@ -637,12 +717,10 @@ impl Joined {
             ensembles_sunk: false,
             clutter: Vec::new(),
             kept: None,
-            timings: vec![
-                (Stage::Decode, 0.0),
-                (Stage::Beamform, 0.0),
-                (Stage::Clutter, 0.0),
-                (Stage::Doppler, 0.0),
-            ],
+            timings: forming
+                .into_iter()
+                .chain([(Stage::Clutter, 0.0), (Stage::Doppler, 0.0)])
+                .collect(),
             images: None,
         }
     }
@@ -704,7 +782,7 @@ impl Joined {
     }
 
     /// The maps from the totals, the windows and ensembles read back and joined.
-    fn finish(mut self, run: &SegmentRun, source: &dyn FrameSource) -> Result<Segmented> {
+    fn finish(mut self, run: &SegmentRun, source: SegmentSource) -> Result<Segmented> {
         let params = run.params;
         let total = source.n_frames();
         let images = self
@@ -790,5 +868,5 @@ pub fn process_in_segments(
         ensembles: ensemble_spec,
         kept_pixels: &[],
     };
-    run.process(source, None, progress)
+    run.process(SegmentSource::Channels(source), None, progress)
 }

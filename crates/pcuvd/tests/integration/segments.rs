@@ -12,7 +12,7 @@ use pcuvd::estimate::dealias::Dealias;
 use pcuvd::estimate::doppler::DopplerEstimator;
 use pcuvd::form::decode::EventAlignment;
 use pcuvd::pipeline::ensembles::{self, EnsembleSpec};
-use pcuvd::pipeline::segments::{SegmentRun, Segments, process_in_segments};
+use pcuvd::pipeline::segments::{SegmentRun, SegmentSource, Segments, process_in_segments};
 use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
@@ -476,18 +476,25 @@ fn segments_processed_apart_join_into_the_one_process_run() {
         ensembles: Some(ENSEMBLES),
         kept_pixels: &[],
     };
-    let count = run.count(&data);
+    let count = run.count(SegmentSource::Channels(&data));
     assert!(count >= 3, "{count} segments");
-    assert!(run.first_settles_windows(&data));
-    let first = run.segment(&data, 0, None, &quiet).unwrap();
+    assert!(run.first_settles_windows(SegmentSource::Channels(&data)));
+    let first = run
+        .segment(SegmentSource::Channels(&data), 0, None, &quiet)
+        .unwrap();
     let intervals = first.window_intervals;
     assert!(intervals.is_some_and(|k| k > 0), "{intervals:?}");
     let mut parts: Vec<_> = (1..count)
         .rev()
-        .map(|index| run.segment(&data, index, intervals, &quiet).unwrap())
+        .map(|index| {
+            run.segment(SegmentSource::Channels(&data), index, intervals, &quiet)
+                .unwrap()
+        })
         .collect();
     parts.push(first);
-    let joined = run.join(&data, parts.clone()).unwrap();
+    let joined = run
+        .join(SegmentSource::Channels(&data), parts.clone())
+        .unwrap();
     assert_eq!(joined.out.bmode_db, one.out.bmode_db);
     assert_eq!(joined.out.maps.power_doppler, one.out.maps.power_doppler);
     let (a, b) = (
@@ -516,7 +523,11 @@ fn segments_processed_apart_join_into_the_one_process_run() {
     }
     let mut sink = Collect(Vec::new());
     let sunk = run
-        .join_into(&data, parts.clone(), Some(&mut sink))
+        .join_into(
+            SegmentSource::Channels(&data),
+            parts.clone(),
+            Some(&mut sink),
+        )
         .unwrap();
     assert_eq!(sink.0.len(), count);
     let expected = one.ensembles.clone().unwrap();
@@ -533,8 +544,76 @@ fn segments_processed_apart_join_into_the_one_process_run() {
     assert_eq!(sunk.out.maps.power_doppler, one.out.maps.power_doppler);
 
     parts.pop();
-    let missing = run.join(&data, parts).unwrap_err().to_string();
+    let missing = run
+        .join(SegmentSource::Channels(&data), parts)
+        .unwrap_err()
+        .to_string();
     assert!(missing.contains("do not make"), "{missing}");
+}
+
+/// Images formed elsewhere and read a segment at a time are processed as the channel data's own
+/// segments: the recording's images handed over whole, and cut by the run, give its segmented
+/// run bit for bit (every frame's images stand alone here): maps, B-mode, velocity windows,
+/// ensembles and clutter cut-offs, read time in place of decoding and beamforming.
+#[test]
+fn images_read_in_segments_give_the_recordings_segmented_run() {
+    let (data, params, dynamics) = aliasing_tube();
+    let segments = Segments::plan(FRAMES, 40, Some(&dynamics), Some(ENSEMBLES))
+        .unwrap()
+        .unwrap();
+    let run = SegmentRun {
+        params: &params,
+        segments: &segments,
+        dynamics: Some(&dynamics),
+        ensembles: Some(ENSEMBLES),
+        kept_pixels: &[(20, 31)],
+    };
+    let (images, _) = pipeline::form_images(&data, &params, &quiet).unwrap();
+    let from_data = run
+        .process(SegmentSource::Channels(&data), None, &quiet)
+        .unwrap();
+    let from_images = run
+        .process(SegmentSource::Images(&images), None, &quiet)
+        .unwrap();
+    assert!(from_images.ranges.len() >= 3, "{:?}", from_images.ranges);
+    assert_eq!(from_images.ranges, from_data.ranges);
+    assert_eq!(from_images.out.bmode_db, from_data.out.bmode_db);
+    assert_eq!(
+        from_images.out.maps.power_doppler,
+        from_data.out.maps.power_doppler
+    );
+    let same_bits = |x: &Array2<f64>, y: &Array2<f64>| {
+        x.dim() == y.dim() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
+    };
+    let (a, b) = (
+        from_images.out.maps.vector_irls.as_ref().unwrap(),
+        from_data.out.maps.vector_irls.as_ref().unwrap(),
+    );
+    assert!(same_bits(&a.vx, &b.vx) && same_bits(&a.vz, &b.vz));
+    assert_eq!(from_images.out.maps.dealias, from_data.out.maps.dealias);
+    assert_eq!(from_images.series, from_data.series);
+    assert_eq!(from_images.ensembles, from_data.ensembles);
+    assert_eq!(from_images.clutter, from_data.clutter);
+    assert_eq!(
+        from_images.kept.unwrap().series,
+        from_data.kept.unwrap().series
+    );
+    let stages: Vec<Stage> = from_images.out.timings.iter().map(|t| t.0).collect();
+    assert!(stages.contains(&Stage::Read), "{stages:?}");
+    assert!(!stages.contains(&Stage::Decode), "{stages:?}");
+    // Images on another grid than the settings' are refused, naming it.
+    let other = ProcessParams {
+        grid: pcuvd::core::grid::Grid::new(-1e-3, 1e-3, 5e-3, 7e-3, 1e-4).unwrap(),
+        ..params.clone()
+    };
+    let refused = SegmentRun {
+        params: &other,
+        ..run
+    }
+    .process(SegmentSource::Images(&images), None, &quiet)
+    .unwrap_err()
+    .to_string();
+    assert!(refused.contains("grid"), "{refused}");
 }
 
 /// The pixels a segmented run keeps are the whole path's filtered series at those pixels, over
@@ -557,7 +636,9 @@ fn kept_pixels_are_the_whole_series_at_those_pixels() {
         ensembles: None,
         kept_pixels: &pixels,
     };
-    let done = run.process(&data, None, &quiet).unwrap();
+    let done = run
+        .process(SegmentSource::Channels(&data), None, &quiet)
+        .unwrap();
     assert!(done.ranges.len() >= 3, "{:?}", done.ranges);
     let kept = done.kept.expect("kept pixels");
     assert_eq!(kept.pixels, pixels);
@@ -608,7 +689,11 @@ fn spectrogram_windows_read_one_clutter_filter_across_a_seam() {
         ensembles: None,
         kept_pixels: &[pixel],
     };
-    let kept = run.process(&data, None, &quiet).unwrap().kept.unwrap();
+    let kept = run
+        .process(SegmentSource::Channels(&data), None, &quiet)
+        .unwrap()
+        .kept
+        .unwrap();
     assert_eq!(kept.seams.len(), 1);
     let window = pcuvd::dynamics::SpectrogramParams {
         window: 16,
