@@ -94,7 +94,7 @@ pub fn dynamics_figures(
     };
     let shown = match cycles < maps.cycles.len() {
         true => format!(
-            "; the first {cycles} of {} cycles (every window: speed_series.npy)",
+            "\nthe first {cycles} of {} cycles (every window: speed_series.npy)",
             maps.cycles.len()
         ),
         false => String::new(),
@@ -102,12 +102,13 @@ pub fn dynamics_figures(
     let plot = PlotPanel {
         title: format!(
             "Mean {speed} over vessel pixels (red marks: first and last window of each \
-             cycle{shown})"
+             cycle){shown}"
         ),
         x_label: "time (ms)".into(),
         y_label: format!("{speed} (mm/s)"),
         series: vec![Series {
-            label: format!("mean vessel {speed}"),
+            // One curve, named by the title and the axis: no legend box over the beats.
+            label: String::new(),
             x: t_ms,
             y: mean,
             y_err: None,
