@@ -47,3 +47,39 @@ def assert_same_array(a: np.ndarray, b: np.ndarray, name: str) -> None:
     assert a.shape == b.shape, f"{name}: shape {a.shape} vs {b.shape}"
     assert a.dtype == b.dtype, f"{name}: dtype {a.dtype} vs {b.dtype}"
     np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def beamform_each_angle(recording, x_m, z_m) -> np.ndarray:
+    """The conventional `recording`'s images per steering angle, (angles, z, x, frames), formed
+    with the Python stages as `process` forms them (demodulated at the probe's centre frequency)
+    on the pixels `x_m`, `z_m`."""
+    import pcuvd
+
+    fc = recording.probe["center_freq_hz"]
+    iq = pcuvd.rf_to_iq(recording.samples, sampling_freq_hz=recording.sampling_freq_hz,
+                        demod_freq_hz=fc, t0_s=recording.t0_s)
+    n = recording.n_angles
+    return np.stack([
+        pcuvd.beamform(iq[k::n], probe=recording.probe, angle_rad=float(angle),
+                       sampling_freq_hz=recording.sampling_freq_hz, demod_freq_hz=fc,
+                       t0_s=recording.t0_s, x_m=x_m, z_m=z_m,
+                       sound_speed_m_s=recording.sound_speed_m_s)
+        for k, angle in enumerate(recording.angles_rad)
+    ])
+
+
+def images_manifest(folder, images, axes, x_m, z_m, **numbers):
+    """Saves `images` with NumPy as folder/iq.npy and writes the images manifest that describes
+    them (axes, the first and last pixel centres, and `numbers`' keys); returns its path."""
+    import json
+
+    np.save(folder / "iq.npy", images)
+    x, z = [float(v) for v in x_m], [float(v) for v in z_m]
+    lines = ['format = "pcuvd-images"', "version = 1", "[images]", 'file = "iq.npy"',
+             f"axes = {json.dumps(list(axes))}", f"x_m = [{x[0]!r}, {x[-1]!r}]",
+             f"z_m = [{z[0]!r}, {z[-1]!r}]"]
+    lines += [f"{key} = {json.dumps(value if isinstance(value, list) else float(value))}"
+              for key, value in numbers.items()]
+    manifest = folder / "images.toml"
+    manifest.write_text("\n".join(lines) + "\n")
+    return manifest

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import pcuvd
-from conftest import assert_same_array, run_cli
+from conftest import assert_same_array, beamform_each_angle, images_manifest, run_cli
 
 dask = pytest.importorskip("dask")
 distributed = pytest.importorskip("distributed")
@@ -150,27 +150,13 @@ def long_images(tmp_path_factory, cli) -> Path:
     assert done.returncode == 0, done.stderr
     recording = pcuvd.read_recording(folder / "conventional.toml")
     grid = pcuvd.process(recording, grid_mm=SEGMENTED["grid_mm"], dynamics="off", quiet=True)
-    fc = recording.probe["center_freq_hz"]
-    iq = pcuvd.rf_to_iq(recording.samples, sampling_freq_hz=recording.sampling_freq_hz,
-                        demod_freq_hz=fc, t0_s=recording.t0_s)
-    n = recording.n_angles
-    series = np.stack([
-        pcuvd.beamform(iq[k::n], probe=recording.probe, angle_rad=float(angle),
-                       sampling_freq_hz=recording.sampling_freq_hz, demod_freq_hz=fc,
-                       t0_s=recording.t0_s, x_m=grid.x, z_m=grid.z,
-                       sound_speed_m_s=recording.sound_speed_m_s)
-        for k, angle in enumerate(recording.angles_rad)
-    ])
-    np.save(folder / "iq.npy", np.ascontiguousarray(np.transpose(series, (1, 2, 0, 3))))
-    angles = ", ".join(repr(float(a)) for a in np.degrees(recording.angles_rad))
-    manifest = folder / "images.toml"
-    manifest.write_text(
-        'format = "pcuvd-images"\nversion = 1\n[images]\nfile = "iq.npy"\n'
-        'axes = ["z", "x", "angles", "frames"]\n'
-        f"frame_rate_hz = {recording.frame_rate_hz!r}\ndemod_frequency_hz = {fc!r}\n"
-        f"sound_speed_m_s = {recording.sound_speed_m_s!r}\nangles_deg = [{angles}]\n"
-        f"x_m = [{float(grid.x[0])!r}, {float(grid.x[-1])!r}]\n"
-        f"z_m = [{float(grid.z[0])!r}, {float(grid.z[-1])!r}]\n"
+    series = beamform_each_angle(recording, grid.x, grid.z)
+    manifest = images_manifest(
+        folder, np.ascontiguousarray(np.transpose(series, (1, 2, 0, 3))),
+        ["z", "x", "angles", "frames"], grid.x, grid.z, frame_rate_hz=recording.frame_rate_hz,
+        demod_frequency_hz=recording.probe["center_freq_hz"],
+        sound_speed_m_s=recording.sound_speed_m_s,
+        angles_deg=[float(a) for a in np.degrees(recording.angles_rad)],
     )
     return manifest
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import pcuvd
-from conftest import assert_same_array, run_cli
+from conftest import assert_same_array, beamform_each_angle, images_manifest, run_cli
 
 
 def test_chain_of_stages_equals_process_on_the_disk(disk):
@@ -296,21 +296,6 @@ def test_the_beamformed_iq_example_draws_ri_maps_close_to_the_truth(tmp_path):
     assert float(found.group(1)) < 0.1 and int(found.group(2)) >= 85, done.stdout
 
 
-def _images_manifest(folder, images, axes, x_m, z_m, **numbers):
-    """Saves `images` with NumPy as folder/iq.npy and writes the images manifest that describes
-    them (axes, the first and last pixel centres, and `numbers`' keys); returns its path."""
-    np.save(folder / "iq.npy", images)
-    x, z = [float(v) for v in x_m], [float(v) for v in z_m]
-    lines = ['format = "pcuvd-images"', "version = 1", "[images]", 'file = "iq.npy"',
-             f"axes = {json.dumps(list(axes))}", f"x_m = [{x[0]!r}, {x[-1]!r}]",
-             f"z_m = [{z[0]!r}, {z[-1]!r}]"]
-    lines += [f"{key} = {json.dumps(value if isinstance(value, list) else float(value))}"
-              for key, value in numbers.items()]
-    manifest = folder / "images.toml"
-    manifest.write_text("\n".join(lines) + "\n")
-    return manifest
-
-
 def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, cli):
     """`pcuvd process` on an images manifest naming a NumPy-written .npy of beamformed IQ (time,
     z, x), the way a scanner's images reach it, gives the RI maps that the Python stages draw from
@@ -324,7 +309,7 @@ def test_process_on_beamformed_images_gives_the_python_stages_ri_maps(tmp_path, 
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
     iq, parameters, truth = example.simulated_iq()
-    manifest = _images_manifest(
+    manifest = images_manifest(
         tmp_path, iq.astype(np.complex64), ["frames", "z", "x"], parameters["x_m"],
         parameters["z_m"], frame_rate_hz=parameters["frame_rate_hz"],
         demod_frequency_hz=parameters["center_freq_hz"],
@@ -366,17 +351,8 @@ def test_process_on_each_angles_images_gives_the_recordings_vectors(tmp_path, cl
                                   quiet=True)
     result = pcuvd.process(recording, dynamics="off", quiet=True)
     fc = recording.probe["center_freq_hz"]
-    iq = pcuvd.rf_to_iq(recording.samples, sampling_freq_hz=recording.sampling_freq_hz,
-                        demod_freq_hz=fc, t0_s=recording.t0_s)
-    n = recording.n_angles
-    series = np.stack([
-        pcuvd.beamform(iq[k::n], probe=recording.probe, angle_rad=float(angle),
-                       sampling_freq_hz=recording.sampling_freq_hz, demod_freq_hz=fc,
-                       t0_s=recording.t0_s, x_m=result.x, z_m=result.z,
-                       sound_speed_m_s=recording.sound_speed_m_s)
-        for k, angle in enumerate(recording.angles_rad)
-    ])
-    manifest = _images_manifest(
+    series = beamform_each_angle(recording, result.x, result.z)
+    manifest = images_manifest(
         tmp_path, series, ["angles", "z", "x", "frames"], result.x, result.z,
         frame_rate_hz=recording.frame_rate_hz, demod_frequency_hz=fc,
         sound_speed_m_s=recording.sound_speed_m_s,

@@ -276,7 +276,7 @@ pub fn run_into(
     data: &dyn FrameSource,
     plan: &Plan,
     progress: &dyn Progress,
-    mut sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
+    sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
     let stages = crate::progress::stages(progress);
     let stages: &(dyn Fn(pipeline::Stage, usize, usize) + Sync) = &stages;
@@ -286,8 +286,22 @@ pub fn run_into(
         return run_in_segments(data.into(), plan, segments, progress, sink);
     }
     let blocks = pipeline::blocks_for(data, plan.params.event_alignment);
-    let (out, mut ensembles) =
+    let (out, ensembles) =
         pipeline::process_source(data, &plan.params, blocks, plan.ensembles, stages)?;
+    finish_whole(out, ensembles, blocks, plan, progress, sink)
+}
+
+/// What a run held whole returns once the chain's maps `out` and the time series' `ensembles`
+/// are made (from images formed in `blocks`): the ensembles handed to `sink` when given, the
+/// dynamics stage run, the plan's kept pixels' series cut.
+fn finish_whole(
+    out: ProcessOutput,
+    mut ensembles: Option<pcuvd::pipeline::ensembles::EnsembleMaps>,
+    blocks: pcuvd::pipeline::blocks::Blocks,
+    plan: &Plan,
+    progress: &dyn Progress,
+    mut sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
+) -> Result<Processed> {
     let ensembles_in_store = match (&mut sink, &mut ensembles) {
         (Some(sink), Some(maps)) => {
             sink.append(maps)?;
@@ -329,7 +343,7 @@ pub fn run_images_into(
     images: &dyn ImageFrames,
     plan: &Plan,
     progress: &dyn Progress,
-    mut sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
+    sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
     let n_frames = images.n_frames();
     if let Some(segments) = &plan.segments {
@@ -346,7 +360,7 @@ pub fn run_images_into(
     let images = images.read_frames(0..n_frames)?;
     let read_s = clock.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
-    let mut ensembles = plan
+    let ensembles = plan
         .ensembles
         .map(|spec| pcuvd::pipeline::ensembles::ensemble_maps(&images, &plan.params, spec, &stages))
         .transpose()?;
@@ -357,26 +371,8 @@ pub fn run_images_into(
             .insert(0, (pipeline::Stage::Ensembles, ensembles_s));
     }
     out.timings.insert(0, (pipeline::Stage::Read, read_s));
-    let ensembles_in_store = match (&mut sink, &mut ensembles) {
-        (Some(sink), Some(maps)) => {
-            sink.append(maps)?;
-            maps.keep_times_only();
-            true
-        }
-        _ => false,
-    };
-    let clock = std::time::Instant::now();
-    let dynamics = run_dynamics(&out, plan, progress)?;
-    Ok(Processed {
-        out: std::sync::Arc::new(out),
-        dynamics,
-        dynamics_s: clock.elapsed().as_secs_f64(),
-        ensembles,
-        ensembles_in_store,
-        blocks: pcuvd::pipeline::blocks::Blocks::whole(n_frames),
-        segments: None,
-        kept: None,
-    })
+    let blocks = pcuvd::pipeline::blocks::Blocks::whole(n_frames);
+    finish_whole(out, ensembles, blocks, plan, progress, sink)
 }
 
 /// The segmented run `plan` makes of `data`: its settings, with the velocity windows only where

@@ -109,6 +109,21 @@ fn write_manifest(dir: &Path, axes: &str, extra: &str) -> PathBuf {
     manifest
 }
 
+/// The vessel's inside, clear of the Doppler kernel's reach past its walls.
+fn vessel_inside() -> Vec<(usize, usize)> {
+    (VESSEL.0[0] + 2..VESSEL.0[1] - 2)
+        .flat_map(|z| (VESSEL.1[0] + 1..VESSEL.1[1] - 1).map(move |x| (z, x)))
+        .collect()
+}
+
+/// The blood's mean velocity over `frames` frames (m/s): what colour Doppler reads.
+fn mean_blood_velocity(frames: usize) -> f64 {
+    (0..frames)
+        .map(|t| velocity(t as f64 / FRAME_RATE))
+        .sum::<f64>()
+        / frames as f64
+}
+
 fn median(mut values: Vec<f64>) -> f64 {
     values.sort_by(f64::total_cmp);
     values[values.len() / 2]
@@ -174,14 +189,7 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         map("ri.npy"),
         read_npy::<_, Array2<u8>>(out.join("vessel_class.npy")).unwrap(),
     );
-    // The vessel's inside, clear of the Doppler kernel's reach past its walls.
-    let inside: Vec<(usize, usize)> = (VESSEL.0[0] + 2..VESSEL.0[1] - 2)
-        .flat_map(|z| (VESSEL.1[0] + 1..VESSEL.1[1] - 1).map(move |x| (z, x)))
-        .collect();
-    let mean_velocity = (0..frames)
-        .map(|t| velocity(t as f64 / FRAME_RATE))
-        .sum::<f64>()
-        / frames as f64;
+    let (inside, mean_velocity) = (vessel_inside(), mean_blood_velocity(frames));
     let read = median(inside.iter().map(|&p| colour[p]).collect());
     assert!(
         (read - mean_velocity).abs() < 0.03 * mean_velocity,
@@ -254,13 +262,7 @@ fn images_too_long_to_hold_are_processed_in_segments() {
     assert!(segments["count"].as_u64().unwrap() >= 3, "{segments}");
     let colour: Array2<f64> = read_npy(dir.path().join("out/color_doppler.npy")).unwrap();
     let ri: Array2<f64> = read_npy(dir.path().join("out/ri.npy")).unwrap();
-    let inside: Vec<(usize, usize)> = (VESSEL.0[0] + 2..VESSEL.0[1] - 2)
-        .flat_map(|z| (VESSEL.1[0] + 1..VESSEL.1[1] - 1).map(move |x| (z, x)))
-        .collect();
-    let mean_velocity = (0..frames)
-        .map(|t| velocity(t as f64 / FRAME_RATE))
-        .sum::<f64>()
-        / frames as f64;
+    let (inside, mean_velocity) = (vessel_inside(), mean_blood_velocity(frames));
     let read = median(inside.iter().map(|&p| colour[p]).collect());
     assert!(
         (read - mean_velocity).abs() < 0.03 * mean_velocity,
