@@ -22,8 +22,10 @@ fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
     )
 }
 
-/// [`stage_memory`] of a recording of `frames` frames of `n_angles` angles.
-fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
+/// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
+/// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
+/// frames of `n_angles` angles.
+pub fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
     let pixels = (nz * nx) as u128;
     // The stage runs only with a window the recording holds.

@@ -66,6 +66,14 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let memory_bytes = grid.as_ref().map_or(0, |g| {
         usize::try_from(pcuvd::pipeline::memory_estimate(source, g)).unwrap_or(usize::MAX)
     });
+    let stage_bytes = pcuvd_app::run::Plan::new(
+        &Default::default(),
+        &Default::default(),
+        source,
+        info.cardiac_triggers_s.as_deref(),
+    )
+    .ok()
+    .map(|plan| pcuvd_app::memory::stage_memory_of(&plan, frames, seq.n_angles()) as u64);
     let mut warnings = info.warnings.clone();
     if demod.is_none()
         && let Some(warning) = pcuvd_app::input::band_pass_warning(acq)
@@ -121,6 +129,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "directivity_f_number_rule": DIRECTIVITY_F_NUMBER_RULE,
             "memory_estimate_bytes": memory_bytes,
             "memory_estimate_rule": pcuvd::pipeline::MEMORY_ESTIMATE_RULE,
+            "stage_memory_estimate_bytes": stage_bytes,
+            "stage_memory_estimate_rule": STAGE_MEMORY_AT_DEFAULTS,
         },
         "simulated_scenario": simulated.as_ref().map(|path| path.display().to_string()),
         "warnings": warnings,
@@ -129,13 +139,6 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    let size = |b: usize| {
-        if b >= 1_000_000_000 {
-            format!("{:.2} GB", b as f64 / 1e9)
-        } else {
-            format!("{:.1} MB", b as f64 / 1e6)
-        }
-    };
     print_what_was_read(&args.input, info);
     println!(
         "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} as float){}",
@@ -212,9 +215,10 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         depth * 1e3
     );
     println!(
-        "  processing   default grid {nz} × {nx} pixels; about {} of memory; the element's −3 dB \
-         directivity edge is at F# {directivity_f_number:.2} (--f-number)",
-        size(memory_bytes)
+        "  processing   default grid {nz} × {nx} pixels; about {} of memory{}; the element's \
+         −3 dB directivity edge is at F# {directivity_f_number:.2} (--f-number)",
+        size(memory_bytes),
+        stage_memory_text(stage_bytes)
     );
     if let Some(scenario) = &simulated {
         println!(
@@ -237,6 +241,31 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     Ok(())
 }
 
+/// `b` bytes as `info` prints them: MB, or GB from a gigabyte on.
+fn size(b: usize) -> String {
+    if b >= 1_000_000_000 {
+        format!("{:.2} GB", b as f64 / 1e9)
+    } else {
+        format!("{:.1} MB", b as f64 / 1e6)
+    }
+}
+
+/// What `info`'s stage memory estimate counts.
+const STAGE_MEMORY_AT_DEFAULTS: &str = "the dynamics windows and time series of a run at the \
+default settings (pcuvd_app::memory::STAGE_MEMORY_RULE), beside the memory estimate; null where \
+the defaults cannot plan the run";
+
+/// The stage memory estimate as `info` prints it after the images' memory, "" when there is none.
+fn stage_memory_text(bytes: Option<u64>) -> String {
+    match bytes {
+        Some(bytes) if bytes > 0 => format!(
+            " + {} for the dynamics windows at the defaults",
+            size(bytes as usize)
+        ),
+        _ => String::new(),
+    }
+}
+
 /// `pcuvd info` on an images manifest: what pcuvd understood of beamformed images formed
 /// elsewhere, from the manifest and the images file's header (the images are not read).
 fn images_info(args: &InfoArgs) -> Result<()> {
@@ -257,7 +286,22 @@ fn images_info(args: &InfoArgs) -> Result<()> {
         header.frame_rate,
         header.demodulation_frequency,
     );
-    let memory_bytes = 3 * header.bytes();
+    // As `process` holds them by default: whole, or a segment at a time.
+    let held = pcuvd::pipeline::segments::frames_held(header.frames, nz * nx, header.angles.len());
+    let segments = header.frames.div_ceil(held.max(1));
+    let memory_bytes = 3 * header.bytes() / header.frames.max(1) as u64 * held as u64;
+    let stage_bytes = header.images_file().ok().and_then(|images| {
+        use pcuvd::form::images::ImageFrames;
+        let plan = pcuvd_app::run::Plan::for_images(
+            &Default::default(),
+            &Default::default(),
+            &images.description(),
+            header.frames,
+            info.cardiac_triggers_s.as_deref(),
+        )
+        .ok()?;
+        Some(pcuvd_app::memory::stage_memory_of(&plan, header.frames, header.angles.len()) as u64)
+    });
     let mut warnings = info.warnings.clone();
     if nyquist < LOW_NYQUIST_M_S {
         warnings.push(format!(
@@ -288,8 +332,12 @@ fn images_info(args: &InfoArgs) -> Result<()> {
             "cardiac_triggers_s": info.cardiac_triggers_s,
         },
         "processing": {
+            "segments": segments,
+            "frames_held": held,
             "memory_estimate_bytes": memory_bytes,
             "memory_estimate_rule": pcuvd_app::memory::IMAGES_MEMORY_RULE,
+            "stage_memory_estimate_bytes": stage_bytes,
+            "stage_memory_estimate_rule": STAGE_MEMORY_AT_DEFAULTS,
         },
         "warnings": warnings,
     });
@@ -321,9 +369,14 @@ fn images_info(args: &InfoArgs) -> Result<()> {
         "  Doppler      projection Nyquist velocity {:.1} mm/s",
         nyquist * 1e3
     );
+    let cut = match segments {
+        1 => "held whole".to_string(),
+        _ => format!("in {segments} segments of about {held} frames"),
+    };
     println!(
-        "  processing   about {:.1} MB of memory ({})",
-        memory_bytes as f64 / 1e6,
+        "  processing   {cut}, about {} of memory{} ({})",
+        size(memory_bytes as usize),
+        stage_memory_text(stage_bytes),
         pcuvd_app::memory::IMAGES_MEMORY_RULE
     );
     if let Some(times) = &info.cardiac_triggers_s {

@@ -311,6 +311,12 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     let nyquist = info["images"]["nyquist_velocity_m_s"].as_f64().unwrap();
     assert!((nyquist - SOUND_SPEED * FRAME_RATE / (4.0 * DEMOD)).abs() < 1e-12);
     assert_eq!(info["stored_samples"]["dtype"], "complex64");
+    // Held whole; beside them, at the defaults, 5 velocity windows (20 frames every 5 of the 40)
+    // of 5 maps of 48 × 64 pixels in f64.
+    let processing = &info["processing"];
+    assert_eq!(processing["segments"], 1);
+    assert_eq!(processing["memory_estimate_bytes"], 3 * 40 * 48 * 64 * 8);
+    assert_eq!(processing["stage_memory_estimate_bytes"], 5 * 5 * 48 * 64 * 8);
     // A bare .npy says what describes it.
     let (ok, _, stderr) = pcuvd(&[
         "process",

@@ -68,11 +68,8 @@ pub fn blocks_for(source: &dyn FrameSource, alignment: decode::EventAlignment) -
 pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
     let (nz, nx) = grid.shape();
     let angles = source.acquisition().sequence.n_angles();
-    // A recording longer than one segment holds one segment's images at a time, and segments
-    // share the recording evenly.
     let total = source.n_frames();
-    let fit = default_segment_frames(nz * nx, angles).max(1);
-    let frames = total.div_ceil(total.div_ceil(fit).max(1)) as u128;
+    let frames = frames_held(total, nz * nx, angles) as u128;
     let angles = angles as u128;
     let blocks = blocks_for(source, decode::EventAlignment::MidFrame);
     let block = block_bytes(
@@ -99,6 +96,15 @@ pub const SERIES_BYTES: u64 = 5 << 28;
 /// cost linear in the recording's length. 1024 frames (0.5–2 s at 500–2000 Hz) are longer than
 /// the 200–400-frame ensembles functional ultrasound filters, and than every shipped scenario.
 pub const MAX_SEGMENT_FRAMES: usize = 1024;
+
+/// Frames of per-angle images of `angles` angles on `pixels` pixels that a run of `total` frames
+/// holds at once by default: all of them, or, for a recording longer than one segment, one
+/// segment's, segments sharing the recording evenly (before the frames that dynamics windows
+/// and ensembles reach past a segment).
+pub fn frames_held(total: usize, pixels: usize, angles: usize) -> usize {
+    let fit = default_segment_frames(pixels, angles).max(1);
+    total.div_ceil(total.div_ceil(fit).max(1))
+}
 
 /// Frames of a segment by default: those of per-angle images of `angles` angles on `pixels`
 /// pixels that fit in [`SERIES_BYTES`], at most [`MAX_SEGMENT_FRAMES`].

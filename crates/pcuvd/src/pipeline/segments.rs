@@ -40,7 +40,9 @@ use crate::estimate::doppler::Moments;
 use crate::form::beamform;
 use crate::form::images::{AngleImages, ImageFrames, PixelSeries};
 use crate::pipeline::ensembles::{self, EnsembleMaps, EnsembleSpec};
-pub use crate::pipeline::memory::{MAX_SEGMENT_FRAMES, SERIES_BYTES, default_segment_frames};
+pub use crate::pipeline::memory::{
+    MAX_SEGMENT_FRAMES, SERIES_BYTES, default_segment_frames, frames_held,
+};
 use crate::pipeline::{self, ProcessOutput, ProcessParams, Stage, Timings};
 
 /// How a long recording is cut: cores of `core` frames (the last one takes the rest), each imaged
