@@ -113,7 +113,7 @@ pub struct ProcessingSettings {
     pub ensemble_step: Option<usize>,
     /// Long recordings and images: compound frames per segment, each imaged (or read),
     /// clutter-filtered and analysed on its own so that memory and the clutter filter's cost stay
-    /// bounded (default: as many as fit in 1.25 GiB of image series, at most 1024; the whole
+    /// bounded (default: as many as fit in 1.25 GiB of image series, at most 512; the whole
     /// recording in one when it fits, which gives the exact whole-recording maps).
     #[cfg_attr(feature = "clap", arg(long))]
     pub segment_frames: Option<usize>,

@@ -90,12 +90,14 @@ pub fn memory_estimate(source: &dyn FrameSource, grid: &Grid) -> u128 {
 pub const SERIES_BYTES: u64 = 5 << 28;
 
 /// Frames one segment holds at most by default, whatever the memory allows. The clutter filter's
-/// temporal Gram matrix grows as frames² and its cost as pixels × frames² per segment, so that
-/// on a small grid (functional ultrasound's 128 × 128 images) segments as long as memory allows
-/// (10,000 frames and more) would each need gigabytes and minutes: bounded segments keep the
-/// cost linear in the recording's length. 1024 frames (0.5–2 s at 500–2000 Hz) are longer than
-/// the 200–400-frame ensembles functional ultrasound filters, and than every shipped scenario.
-pub const MAX_SEGMENT_FRAMES: usize = 1024;
+/// temporal Gram matrix grows as frames², its cost per frame as pixels × frames, and each
+/// block's eigendecomposition as frames³: on a small grid (functional ultrasound's 128 × 128
+/// images) segments as long as memory allows (10,000 frames and more) would each need
+/// gigabytes and many minutes. 6,000 such frames took 41 s of clutter filter in segments of
+/// 1,000 frames, 10 s in segments of 512 and 4 s of 256, with the same maps. 512 frames
+/// (0.25–1 s at 500–2,000 Hz) are longer than the 200–400-frame ensembles functional
+/// ultrasound filters, and than every shipped scenario.
+pub const MAX_SEGMENT_FRAMES: usize = 512;
 
 /// Frames of per-angle images of `angles` angles on `pixels` pixels that a run of `total` frames
 /// holds at once by default: all of them, or, for a recording longer than one segment, one
