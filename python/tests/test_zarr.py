@@ -112,7 +112,7 @@ def runs(pulsing, cli, tmp_path_factory):
     assert done.returncode == 0, done.stderr
     whole = pcuvd.process(
         pulsing, quiet=True, grid_mm=(-1.5, 1.5, 1.5, 3.5, 0.1), ensemble_frames=100,
-        ensemble_step=50, dynamics="off", svd_low=1,
+        ensemble_step=50, dynamics="off", svd_low=1, segment_frames=1800,
     )
     return out, whole
 

@@ -316,7 +316,10 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     let processing = &info["processing"];
     assert_eq!(processing["segments"], 1);
     assert_eq!(processing["memory_estimate_bytes"], 3 * 40 * 48 * 64 * 8);
-    assert_eq!(processing["stage_memory_estimate_bytes"], 5 * 5 * 48 * 64 * 8);
+    assert_eq!(
+        processing["stage_memory_estimate_bytes"],
+        5 * 5 * 48 * 64 * 8
+    );
     // A bare .npy says what describes it.
     let (ok, _, stderr) = pcuvd(&[
         "process",

@@ -539,7 +539,10 @@ impl SegmentRun<'_> {
         add_envelope(&mut envelope, &images.series, own.clone());
 
         let clock = std::time::Instant::now();
-        let clutter = clutter::svd_filter_each(&mut images.series, &params.clutter, |a| {
+        // Every segment's blocks are those its longest one needs, so that all share one layout.
+        let longest = ranges.iter().map(|(_, imaged)| imaged.len()).max();
+        let shared = (params.clutter).with_blocks_for(params.grid.shape(), longest.unwrap_or(0));
+        let clutter = clutter::svd_filter_each(&mut images.series, &shared, |a| {
             progress(Stage::Clutter, k * n + a, count * n)
         })?;
         add_time(Stage::Clutter, clock.elapsed().as_secs_f64());

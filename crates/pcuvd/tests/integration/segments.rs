@@ -616,6 +616,44 @@ fn images_read_in_segments_give_the_recordings_segmented_run() {
     assert!(refused.contains("grid"), "{refused}");
 }
 
+/// Blocks grow until they hold as many pixels as the series has frames; segments of a run image
+/// different numbers of frames (the last, without an overlap after it, fewer), yet all share the
+/// layout their longest one needs, so that their block cut-offs line up.
+#[test]
+fn segments_of_different_lengths_share_one_block_layout() {
+    let data = recording();
+    let params = ProcessParams {
+        clutter: ClutterParams {
+            low: RankCut::Fixed(1),
+            blocks: Some((4, 4)),
+            ..ClutterParams::default()
+        },
+        ..params(&data)
+    };
+    let segments = Segments {
+        core: 24,
+        overlap: 8,
+    };
+    let run = SegmentRun {
+        params: &params,
+        segments: &segments,
+        dynamics: None,
+        ensembles: None,
+        kept_pixels: &[],
+    };
+    let done = run
+        .process(SegmentSource::Channels(&data), None, &quiet)
+        .unwrap();
+    let imaged: Vec<usize> = done.ranges.iter().map(|(_, i)| i.len()).collect();
+    assert_eq!(imaged, vec![32, 32, 16]);
+    let layouts: Vec<_> = (done.clutter.iter().flatten())
+        .map(|report| report.block_layout.clone().expect("block-wise"))
+        .collect();
+    // 4 × 4 pixels grown to hold the longest segment's 32 frames: 6 × 6 (even sides).
+    assert_eq!(layouts[0].size, (6, 6));
+    assert!(layouts.iter().all(|l| *l == layouts[0]), "{layouts:?}");
+}
+
 /// The pixels a segmented run keeps are the whole path's filtered series at those pixels, over
 /// every frame, each segment giving its own (no clutter filter here, and every frame's images
 /// stand alone, so exactly); their spectrogram is the whole path's.

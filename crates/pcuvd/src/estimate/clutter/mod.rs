@@ -127,6 +127,17 @@ impl Default for ClutterParams {
 }
 
 impl ClutterParams {
+    /// These settings with their blocks grown as a series of `frames` frames on an `(nz, nx)`
+    /// image grows them: the blocks the segments of one run share, grown for its longest
+    /// segment, so that a shorter one (the last) keeps the others' layout and its block
+    /// cut-offs line up with theirs.
+    pub fn with_blocks_for(&self, (nz, nx): (usize, usize), frames: usize) -> ClutterParams {
+        ClutterParams {
+            blocks: (self.blocks).map(|size| holding_frames((nz, nx), size, frames)),
+            ..*self
+        }
+    }
+
     /// Refuses fixed cut-offs that would keep no component of a series of `frames` frames
     /// (the shortest series the filter will see), before any image is formed: the filter
     /// itself would refuse them only once it reached them.
