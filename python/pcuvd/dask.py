@@ -1,5 +1,5 @@
-"""One long recording across a Dask cluster: its segments as tasks, joined into `pcuvd.process`'s
-result.
+"""One long recording (or file of beamformed images) across a Dask cluster: its segments as tasks,
+joined into `pcuvd.process`'s result.
 
 A recording too long to hold whole is processed in segments whose Doppler sums, velocity windows
 and ensembles add up (see `segment_frames`); here each segment is one task on a worker process,
@@ -38,7 +38,9 @@ def process(
     `client` (a `distributed.Client`; worker processes, each with pcuvd installed and the
     recording's path readable).
 
-    recording: the path of a recording in any format `pcuvd process` reads. overrides: the
+    recording: the path of a recording in any format `pcuvd process` reads, or of an images
+    manifest (beamformed images formed elsewhere, each worker reading its segment's frames of
+    the images file; overrides do not apply to them). overrides: the
     reader's acquisition overrides (`t0_s`, `sound_speed_m_s`, `event_prf_hz`,
     `sampling_freq_hz`, `center_freq_hz`, `angles_rad`, `pulse_cycles`, `bandwidth`, `track`),
     as `read_recording` takes them. options: `process`'s keywords; `segment_frames` sets the
