@@ -22,6 +22,9 @@
 //!   maps, the segments' take it from the first segment's (the totals come too late).
 //!
 //! Where one segment holds the whole recording the results are the whole-recording path's.
+//! Images formed elsewhere ([`SegmentSource::Images`]: a scanner's beamformed IQ) are read a
+//! segment at a time where a recording's are formed, and processed alike from the clutter
+//! filter on.
 
 use std::ops::Range;
 
