@@ -346,7 +346,8 @@ def test_process_on_each_angles_images_gives_the_recordings_vectors(tmp_path, cl
     """Images of several steering angles, beamformed with the Python stages as `process` forms
     them and saved with NumPy under an `angles` axis, give through an images manifest the
     vectors, colour and power Doppler that `process` gives on the channel recording, wherever
-    every plane wave reaches (elsewhere a recording's run knows its coverage; images do not)."""
+    every plane wave reaches (elsewhere a recording's run knows its coverage; images do not,
+    unless the manifest gives the array's extent: then everywhere)."""
     recording, _ = pcuvd.simulate("tube", "conventional", frames=12, noise_db=None, angles=4,
                                   quiet=True)
     result = pcuvd.process(recording, dynamics="off", quiet=True)
@@ -379,6 +380,31 @@ def test_process_on_each_angles_images_gives_the_recordings_vectors(tmp_path, cl
     for name in ("vx", "vz", "vx_ls", "vz_ls"):
         assert_same_array(np.load(out / f"{name}.npy")[inside], getattr(result, name)[inside],
                           name)
+    # Given the array's extent (`aperture_m`), the manifest's images know each plane wave's
+    # lateral reach as the recording's run does: every map is the recording's at every pixel
+    # above the depth where a steep angle's record ends (which images do not say), less the
+    # correction's neighbourhood.
+    half = (recording.probe["n_elements"] - 1) / 2 * recording.probe["pitch_m"]
+    with_reach = tmp_path / "with_reach"
+    with_reach.mkdir()
+    manifest = images_manifest(
+        with_reach, series, ["angles", "z", "x", "frames"], result.x, result.z,
+        frame_rate_hz=recording.frame_rate_hz, demod_frequency_hz=fc,
+        sound_speed_m_s=recording.sound_speed_m_s,
+        angles_deg=[float(a) for a in np.degrees(recording.angles_rad)],
+        aperture_m=[-half, half],
+    )
+    out = with_reach / "out"
+    done = run_cli(cli, "process", manifest, "--out", out, "--dynamics", "off")
+    assert done.returncode == 0, done.stderr
+    record_ended = np.isnan(result.projections) & np.isfinite(np.load(out / "projections.npy"))
+    first = int(np.argmax(record_ended.any(axis=(0, 2)))) if record_ended.any() else len(result.z)
+    rows = slice(0, first - 16)
+    assert first - 16 > 0.8 * len(result.z), first
+    assert not reached[rows].all(), "steered waves miss pixels at the edges of these rows"
+    for name in ("power_doppler", "color_doppler", "projections", "vx", "vz", "vx_ls", "vz_ls"):
+        assert_same_array(np.load(out / f"{name}.npy")[..., rows, :],
+                          getattr(result, name)[..., rows, :], name)
 
 
 def test_a_simulation_in_memory_is_scored_against_its_truth(tmp_path):

@@ -58,6 +58,7 @@ struct ImagesSection {
     z_m: [f64; 2],
     #[serde(default)]
     conjugate: bool,
+    aperture_m: Option<[f64; 2]>,
 }
 
 fn default_sound_speed() -> f64 {
@@ -147,6 +148,9 @@ pub struct ImagesHeader {
     axes: Vec<String>,
     /// True when the stored IQ is conjugated on reading.
     conjugate: bool,
+    /// The x (m) of the array's first and last element centres, when given: each steered plane
+    /// wave's reach follows from it.
+    aperture: Option<(f64, f64)>,
 }
 
 impl ImagesHeader {
@@ -244,6 +248,22 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         ));
     }
     let x = pixel_positions(path, "x_m", section.x_m, nx)?;
+    let aperture = match section.aperture_m {
+        Some([first, last]) if first.is_finite() && last.is_finite() && last > first => {
+            Some((first, last))
+        }
+        Some([first, last]) => {
+            return Err(IoError::invalid(
+                path,
+                "[images].aperture_m",
+                format!(
+                    "is [{first}, {last}]; give the x of the array's first and last element \
+                     centres (m), the last the greater"
+                ),
+            ));
+        }
+        None => None,
+    };
     let z = pixel_positions(path, "z_m", section.z_m, nz)?;
     let from_file = |name: &str, value: serde_json::Value, field: &str| Parameter {
         name: name.into(),
@@ -276,6 +296,13 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
              1 − cos θ of it)",
         ),
     });
+    if let Some(given) = section.aperture_m {
+        parameters.push(from_file(
+            "aperture_m",
+            serde_json::json!(given),
+            "aperture_m",
+        ));
+    }
     if section.conjugate {
         parameters.push(from_file("conjugate", true.into(), "conjugate"));
     }
@@ -311,6 +338,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         file,
         axes,
         conjugate: section.conjugate,
+        aperture,
     })
 }
 
@@ -370,12 +398,29 @@ impl ImagesHeader {
                 frame_rate: self.frame_rate,
                 sound_speed: self.sound_speed,
                 demodulation_frequency: self.demodulation_frequency,
-                coverage: None,
+                coverage: self.aperture.map(|aperture| self.coverage(aperture)),
                 series: Vec::new(),
             },
             frames: self.frames,
             conjugate: self.conjugate,
             manifest: self.manifest.clone(),
+        })
+    }
+}
+
+impl ImagesHeader {
+    /// Per steering angle, the pixels its plane wave reaches from an array spanning `aperture`
+    /// (m) (angles, nz, nx): a recording's run leaves the others out of the vector fit, where a
+    /// steered wave missed and the images hold only edge waves or noise.
+    fn coverage(&self, aperture: (f64, f64)) -> Array3<bool> {
+        let (nz, nx) = self.grid.shape();
+        Array3::from_shape_fn((self.angles.len(), nz, nx), |(k, iz, ix)| {
+            pcuvd::core::geometry::insonified(
+                self.grid.x[ix],
+                self.grid.z[iz],
+                self.angles[k],
+                aperture,
+            )
         })
     }
 }
@@ -604,6 +649,25 @@ mod tests {
                 .indexed_iter()
                 .all(|((z, x, t), v)| *v == tagged(1, z, x, t).conj())
         );
+        assert!(
+            images.coverage.is_none(),
+            "no array extent given: every pixel reached"
+        );
+        // Given the array's extent, a pixel is reached by the wave steered by θ when the ray back
+        // along θ lands on the array: x − z·tan θ within it.
+        std::fs::write(
+            &path,
+            std::fs::read_to_string(&path).unwrap() + "aperture_m = [-1.0e-3, 1.0e-3]\n",
+        )
+        .unwrap();
+        let reached = read_images(&path).unwrap().images.coverage.unwrap();
+        assert_eq!(reached.dim(), (angles, nz, nx));
+        for ((k, iz, ix), &r) in reached.indexed_iter() {
+            let theta = if k == 0 { -5f64 } else { 5.0 }.to_radians();
+            let foot = images.grid.x[ix] - images.grid.z[iz] * theta.tan();
+            assert_eq!(r, (-1.0e-3..=1.0e-3).contains(&foot), "{k} {iz} {ix}");
+        }
+        assert!(reached.iter().any(|&r| !r) && reached.iter().any(|&r| r));
         let stored = read.info.stored.as_ref().unwrap();
         assert_eq!(stored.shape, vec![nx, frames, angles, nz]);
         assert_eq!(stored.dtype, "complex64");
@@ -667,6 +731,11 @@ mod tests {
                 frames_z_x,
                 "sound_speed_m_s = -1.0\n",
                 "[images].sound_speed_m_s",
+            ),
+            (
+                frames_z_x,
+                "aperture_m = [1.0e-3, -1.0e-3]\n",
+                "[images].aperture_m",
             ),
             (frames_z_x, "colour = 1\n", "unknown field"),
         ] {
