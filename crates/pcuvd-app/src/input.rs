@@ -121,7 +121,7 @@ pub fn open_images(
     let held = plan
         .segments
         .map_or(frames, |s| (s.core + s.overlap).min(frames));
-    let bytes = header.bytes() / frames.max(1) as u64 * held as u64;
+    let bytes = header.bytes_of_frames(held);
     let shape = (bytes, frames, description.n_angles());
     crate::memory::check_images_memory(bytes, plan.segments.is_some(), limit_gb)
         .and_then(|()| crate::memory::check_images_stages(&plan, shape, limit_gb))

@@ -269,13 +269,7 @@ fn stage_memory_text(bytes: Option<u64>) -> String {
 /// `pcuvd info` on an images manifest: what pcuvd understood of beamformed images formed
 /// elsewhere, from the manifest and the images file's header (the images are not read).
 fn images_info(args: &InfoArgs) -> Result<()> {
-    if !args.acquisition.to_overrides().is_empty() {
-        anyhow::bail!(
-            "{}: the acquisition overrides (--t0-s, --event-prf-hz...) are not for beamformed \
-             images formed elsewhere: the images are formed",
-            args.input.display()
-        );
-    }
+    args.acquisition.refuse_for_images(&args.input)?;
     let header = pcuvd_io::images::read_header(&args.input)?;
     let info = &header.info;
     let (nz, nx) = header.grid.shape();
@@ -289,7 +283,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     // As `process` holds them by default: whole, or a segment at a time.
     let held = pcuvd::pipeline::segments::frames_held(header.frames, nz * nx, header.angles.len());
     let segments = header.frames.div_ceil(held.max(1));
-    let memory_bytes = 3 * header.bytes() / header.frames.max(1) as u64 * held as u64;
+    let memory_bytes = 3 * header.bytes_of_frames(held);
     let stage_bytes = header.images_file().ok().and_then(|images| {
         use pcuvd::form::images::ImageFrames;
         let plan = pcuvd_app::run::Plan::for_images(

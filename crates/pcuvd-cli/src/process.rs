@@ -102,6 +102,16 @@ pub struct AcquisitionOverrides {
 }
 
 impl ProcessArgs {
+    /// The NIfTI images asked for (`--nifti`, the BIDS labels), checked before any work.
+    fn nifti_naming(&self) -> Result<Option<pcuvd_app::nifti::NiftiNaming>> {
+        pcuvd_app::nifti::NiftiNaming::requested(
+            self.nifti,
+            self.bids_subject.clone(),
+            self.bids_session.clone(),
+            self.bids_task.clone(),
+        )
+    }
+
     /// The name the figures carry: the input file's.
     fn figure_name(&self) -> String {
         self.input
@@ -112,6 +122,19 @@ impl ProcessArgs {
 }
 
 impl AcquisitionOverrides {
+    /// Refuses overrides given for the images manifest at `input`: they set how channel data
+    /// is read, and images come formed.
+    pub fn refuse_for_images(&self, input: &std::path::Path) -> Result<()> {
+        if !self.to_overrides().is_empty() {
+            anyhow::bail!(
+                "{}: the acquisition overrides (--t0-s, --event-prf-hz...) are not for beamformed \
+                 images formed elsewhere: the images are formed",
+                input.display()
+            );
+        }
+        Ok(())
+    }
+
     /// The overrides as the readers take them.
     pub fn to_overrides(&self) -> pcuvd_io::Overrides {
         pcuvd_io::Overrides {
@@ -136,12 +159,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     }
     let clock = std::time::Instant::now();
     // Checked before any work, like every other option.
-    let nifti = pcuvd_app::nifti::NiftiNaming::requested(
-        args.nifti,
-        args.bids_subject.clone(),
-        args.bids_session.clone(),
-        args.bids_task.clone(),
-    )?;
+    let nifti = args.nifti_naming()?;
     let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
     let input_files = opened.info.files.clone();
     let data = opened.source.as_ref();
@@ -282,24 +300,14 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     Ok(())
 }
 
-/// `pcuvd process` on an images manifest: beamformed images formed elsewhere, read whole, their
+/// `pcuvd process` on an images manifest: beamformed images formed elsewhere, read whole or a
+/// segment at a time, their
 /// chain from the clutter filter on (nothing to decode or beamform), with the maps, figures,
 /// RI maps, report and summary.json a recording's run writes.
 fn run_on_images(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
-    if !args.acquisition.to_overrides().is_empty() {
-        anyhow::bail!(
-            "{}: the acquisition overrides (--t0-s, --event-prf-hz...) are not for beamformed \
-             images formed elsewhere: the images are formed",
-            args.input.display()
-        );
-    }
-    let nifti = pcuvd_app::nifti::NiftiNaming::requested(
-        args.nifti,
-        args.bids_subject.clone(),
-        args.bids_session.clone(),
-        args.bids_task.clone(),
-    )?;
+    args.acquisition.refuse_for_images(&args.input)?;
+    let nifti = args.nifti_naming()?;
     let opened = open_images(
         &args.input,
         &args.options,

@@ -154,10 +154,11 @@ pub struct ImagesHeader {
 }
 
 impl ImagesHeader {
-    /// Bytes the images take once read (complex64): for a memory check before they are read.
-    pub fn bytes(&self) -> u64 {
+    /// Bytes `frames` frames of every series take once read (complex64): for a memory check
+    /// before they are read (all of them, or a segment's).
+    pub fn bytes_of_frames(&self, frames: usize) -> u64 {
         let (nz, nx) = self.grid.shape();
-        (self.angles.len() * nz * nx * self.frames * std::mem::size_of::<Complex32>()) as u64
+        (self.angles.len() * nz * nx * frames * std::mem::size_of::<Complex32>()) as u64
     }
 }
 
@@ -349,9 +350,8 @@ pub fn read_images(path: &Path) -> Result<ImagesRecording, IoError> {
 }
 
 impl ImagesHeader {
-    /// Reads the images this header describes (its memory can be checked first, [`bytes`]).
-    ///
-    /// [`bytes`]: ImagesHeader::bytes
+    /// Reads the images this header describes whole (their memory can be checked first,
+    /// [`ImagesHeader::bytes_of_frames`]).
     pub fn read_images(self) -> Result<ImagesRecording, IoError> {
         let images = self.images_file()?.read(0..self.frames)?;
         Ok(ImagesRecording {
