@@ -62,11 +62,17 @@ def process(
             f"{path}: processed whole, in one segment: give segment_frames= (fewer frames than "
             "the recording's) to share its segments among the workers"
         )
-    count, first_settles = planned
+    # The memory check here may drop the RI maps of `dynamics="auto"` (the windows of the whole
+    # recording, joined here, would not fit): every worker and the join then run without them.
+    count, first_settles, dynamics_dropped = planned
+    if dynamics_dropped is not None and not quiet:
+        print(f"note: no RI maps: {dynamics_dropped}", file=sys.stderr)
     done = 0
 
     def submit(index: int, intervals: int | None) -> Any:
-        return client.submit(_segment, path, read, given, index, intervals, pure=False)
+        return client.submit(
+            _segment, path, read, given, index, intervals, dynamics_dropped, pure=False
+        )
 
     def gathered(futures: list[Any]) -> list[tuple[bytes, int | None]]:
         # Parts in submission order; a line per finished segment unless quiet.
@@ -86,13 +92,22 @@ def process(
         parts = [first] + [part for part, _ in rest]
     else:
         parts = [part for part, _ in gathered([submit(i, None) for i in range(count)])]
-    return ProcessResult(_pcuvd.join_segments(path, read, given, parts, bool(quiet)))
+    return ProcessResult(
+        _pcuvd.join_segments(path, read, given, parts, bool(quiet), dynamics_dropped)
+    )
 
 
 def _segment(
-    path: str, overrides: str, options: str, index: int, window_intervals: int | None
+    path: str,
+    overrides: str,
+    options: str,
+    index: int,
+    window_intervals: int | None,
+    dynamics_dropped: str | None,
 ) -> tuple[bytes, int | None]:
     """One task: segment `index` of the run, processed in the worker (its part as bytes)."""
     from pcuvd import _pcuvd as native
 
-    return native.process_segment(path, overrides, options, index, window_intervals)
+    return native.process_segment(
+        path, overrides, options, index, window_intervals, dynamics_dropped
+    )

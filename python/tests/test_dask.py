@@ -184,3 +184,45 @@ def test_images_across_a_cluster_equal_one_process(long_images):
     assert joined.summary["images"] == one.summary["images"]
     with pytest.raises(ValueError, match="overrides are for recordings"):
         pcuvd.dask.process(long_images, None, overrides={"t0_s": 0.0}, **options)
+
+
+def test_ri_maps_dropped_for_memory_are_dropped_on_every_worker(tmp_path, capsys):
+    """Under `dynamics="auto"` the memory check where the run is planned drops the RI maps whose
+    windows would not fit beside the segments (400 frames of 48 x 64 pixels in segments of 150:
+    12.5 MB to process a segment, 9.5 MB of windows, 16 MB allowed): the cluster's run then
+    equals `pcuvd.process`'s, without windows or RI maps, and says why once."""
+    import pcuvd.dask
+
+    rng = np.random.default_rng(3)
+    frames, nz, nx = 400, 48, 64
+    tissue = 30 * (rng.standard_normal((nz, nx)) + 1j * rng.standard_normal((nz, nx)))
+    blood = rng.standard_normal((nz, nx)) + 1j * rng.standard_normal((nz, nx))
+    vessel = np.zeros((nz, nx), bool)
+    vessel[18:30, 8:30] = True
+    # 8 mm/s away from the probe at 1 kHz and 15.625 MHz: 1.02 rad a frame.
+    turn = np.exp(-1j * 4 * np.pi * 15.625e6 * 8e-3 / (1540.0 * 1000.0) * np.arange(frames))
+    noise = 0.05 * (rng.standard_normal((frames, nz, nx)) + 1j * rng.standard_normal((frames, nz, nx)))
+    images = (tissue + (blood * vessel) * turn[:, None, None] + noise).astype(np.complex64)
+    manifest = images_manifest(
+        tmp_path, images, ["frames", "z", "x"], np.linspace(-1.6e-3, 1.55e-3, nx),
+        np.linspace(5.0e-3, 7.35e-3, nz), frame_rate_hz=1000.0, demod_frequency_hz=15.625e6,
+    )
+    options = {"segment_frames": 150, "max_memory_gb": 0.016}
+    one = pcuvd.process(str(manifest), **options)
+    dropped = one.summary["dynamics"]["skipped"]
+    assert "dynamics windows" in dropped and "--window-step-ms" in dropped, dropped
+    assert "ri" not in one.arrays and "speed_series" not in one.arrays
+    capsys.readouterr()
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        joined = pcuvd.dask.process(manifest, client, **options)
+    said = [line for line in capsys.readouterr().err.splitlines() if "no RI maps" in line]
+    assert said == [f"note: no RI maps: {dropped}"], said
+    assert joined.summary["dynamics"] == one.summary["dynamics"]
+    assert sorted(joined.arrays) == sorted(one.arrays)
+    for name, value in one.arrays.items():
+        assert_same_array(joined.arrays[name], value, name)
+    # With the window step four times longer the windows fit, and the RI maps come back.
+    back = pcuvd.process(str(manifest), quiet=True, window_step_ms=25, heart_rate_hz=5, **options)
+    assert "ri" in back.arrays, back.summary["dynamics"]

@@ -93,17 +93,18 @@ pub struct OpenedImages {
     pub record: ImagesRecord,
     /// The run's settings, checked against them.
     pub plan: crate::run::Plan,
+    /// Bytes one frame of every series takes once read (complex64).
+    pub frame_bytes: u64,
 }
 
 /// Opens the images manifest at `path` for `process`, as [`open_input`] opens a recording: the
 /// run planned with `options` and `dynamics` from the manifest and the file's header (held
-/// whole, or in segments of `--segment-frames` or as many frames as fit), and the memory it
-/// needs checked before anything is read (within `limit_gb`, else what the machine leaves).
+/// whole, or in segments of `--segment-frames` or as many frames as fit); nothing is read yet,
+/// and [`OpenedImages::check_memory`] says whether the run fits.
 pub fn open_images(
     path: &Path,
     options: &crate::settings::ProcessingSettings,
     dynamics: &crate::settings::DynamicsSettings,
-    limit_gb: Option<f64>,
 ) -> Result<OpenedImages> {
     use pcuvd::form::images::ImageFrames;
     let header = pcuvd_io::images::read_header(path)?;
@@ -117,21 +118,34 @@ pub fn open_images(
         frames,
         header.info.cardiac_triggers_s.as_deref(),
     )?;
-    // A segment's frames are held at once, its overlap included; else the whole series.
-    let held = plan
-        .segments
-        .map_or(frames, |s| (s.core + s.overlap).min(frames));
-    let bytes = header.bytes_of_frames(held);
-    let shape = (bytes, frames, description.n_angles());
-    crate::memory::check_images_memory(bytes, plan.segments.is_some(), limit_gb)
-        .and_then(|()| crate::memory::check_images_stages(&plan, shape, limit_gb))
-        .with_context(|| path.display().to_string())?;
     Ok(OpenedImages {
         record: ImagesRecord::of(&description, frames),
         images,
+        frame_bytes: header.bytes_of_frames(1),
         info: header.info,
         plan,
     })
+}
+
+impl OpenedImages {
+    /// Refuses, before the images are read, a run that would not fit within `limit_gb` (else
+    /// what the machine leaves), or drops its dynamics stage where only that does not fit and
+    /// `--dynamics auto` asked for it ([`crate::memory::check_images_memory`]).
+    pub fn check_memory(&mut self, limit_gb: Option<f64>) -> Result<()> {
+        use pcuvd::form::images::ImageFrames;
+        let frames = self.images.n_frames();
+        // A segment's frames are held at once, its overlap included; else the whole series.
+        let held = self
+            .plan
+            .segments
+            .map_or(frames, |s| (s.core + s.overlap).min(frames));
+        let shape = (
+            self.frame_bytes * held as u64,
+            frames,
+            self.images.description().n_angles(),
+        );
+        crate::memory::check_images_memory(&mut self.plan, shape, limit_gb)
+    }
 }
 
 /// Beamformed images formed elsewhere, as the run read them.

@@ -12,58 +12,119 @@ pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 byt
 speed and the pooled speed per window) + time series: ensembles × pixels × 6 × 8 bytes (five \
 maps and a filtered copy of one ensemble's frames per angle counted once more)";
 
-/// Bytes the stages after image formation hold beyond the chain's image series
-/// ([`STAGE_MEMORY_RULE`]): the dynamics stage's window series and a time series' maps.
-fn stage_memory(data: &dyn FrameSource, plan: &Plan) -> u128 {
-    stage_memory_of(
-        plan,
-        data.n_frames(),
-        data.acquisition().sequence.n_angles(),
-    )
-}
-
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
 /// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
 /// frames of `n_angles` angles.
 pub fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
+    dynamics_memory(plan, frames) + ensembles_memory(plan, frames, n_angles)
+}
+
+/// Bytes the dynamics stage's windows of the whole recording hold ([`STAGE_MEMORY_RULE`]):
+/// none when the stage is off or no window fits in the recording's `frames`.
+fn dynamics_memory(plan: &Plan, frames: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
-    let pixels = (nz * nx) as u128;
-    // The stage runs only with a window the recording holds.
-    let dynamics = plan.dynamics.as_ref().map_or(0, |d| {
+    plan.dynamics.as_ref().map_or(0, |d| {
         if d.params.window > frames {
             return 0;
         }
         let windows = (frames - d.params.window) / d.params.step.max(1) + 1;
-        5 * windows as u128 * pixels * 8
-    });
-    let ensembles = plan.ensembles.map_or(0, |e| {
+        5 * windows as u128 * (nz * nx) as u128 * 8
+    })
+}
+
+/// Bytes the Doppler time series hold ([`STAGE_MEMORY_RULE`]); none without ensembles.
+fn ensembles_memory(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
+    let (nz, nx) = plan.params.grid.shape();
+    let pixels = (nz * nx) as u128;
+    plan.ensembles.map_or(0, |e| {
         let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
-        let angles = n_angles as u128;
-        count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * angles * 8
-    });
-    dynamics + ensembles
+        count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * n_angles as u128 * 8
+    })
 }
 
 /// Refuses, before any work, a recording, grid and stages whose processing would need more memory
 /// than this process may take ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`] against
-/// [`memory_room`], or the user's `limit_gb`), instead of aborting on allocation.
-pub fn check_memory(data: &dyn FrameSource, plan: &Plan, limit_gb: Option<f64>) -> Result<()> {
-    let params = &plan.params;
-    let room = room_within(limit_gb)?;
-    let needed = (pipeline::memory_estimate(data, &params.grid) + stage_memory(data, plan)) as f64;
-    if let Some(room) = room
-        && needed > room.bytes
-    {
-        bail!(
-            "processing needs about {:.3} GB ({} {STAGE_MEMORY_RULE}) but {:.3} GB are \
-             available ({}): use a coarser or smaller --grid, or a shorter recording",
-            needed / 1e9,
-            pipeline::MEMORY_ESTIMATE_RULE,
-            room.bytes.max(0.0) / 1e9,
-            room.bound
-        );
+/// [`memory_room`], or the user's `limit_gb`), instead of aborting on allocation. Under
+/// `--dynamics auto` a run that fits without the dynamics windows drops that stage instead
+/// ([`fit_stages`]).
+pub fn check_memory(data: &dyn FrameSource, plan: &mut Plan, limit_gb: Option<f64>) -> Result<()> {
+    let Some(room) = room_within(limit_gb)? else {
+        return Ok(());
+    };
+    let chain = pipeline::memory_estimate(data, &plan.params.grid) as f64;
+    let shape = (data.n_frames(), data.acquisition().sequence.n_angles());
+    let held = Held {
+        bytes: chain,
+        rule: pipeline::MEMORY_ESTIMATE_RULE,
+        instead: "use a coarser or smaller --grid, or a shorter recording",
+    };
+    fit_stages(plan, &held, shape, &room)
+}
+
+/// What a run holds before its later stages ([`fit_stages`]): bytes, the rule that counts them,
+/// and what the user can do when they alone do not fit.
+struct Held {
+    bytes: f64,
+    rule: &'static str,
+    instead: &'static str,
+}
+
+/// Checks that `held` and the later stages of `plan` (for a recording of `frames` frames of
+/// `n_angles` angles, [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics windows of the whole
+/// recording grow with its length (5 maps of 8 bytes per pixel per window: about 39 GB for five
+/// minutes of 128 × 128 pixels at a 5 ms step), the rest of a segmented run does not: where
+/// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the plan
+/// drops the stage and says why ([`Plan::dynamics_dropped`]), so that a long functional
+/// recording still gives its maps and time series; with a dynamics setting the run is refused,
+/// naming `--window-step-ms` and `--dynamics off`.
+fn fit_stages(
+    plan: &mut Plan,
+    held: &Held,
+    (frames, n_angles): (usize, usize),
+    room: &MemoryRoom,
+) -> Result<()> {
+    let windows = dynamics_memory(plan, frames) as f64;
+    let others = held.bytes + ensembles_memory(plan, frames, n_angles) as f64;
+    let needed = others + windows;
+    if needed <= room.bytes {
+        return Ok(());
     }
-    Ok(())
+    let available = format!(
+        "{} are available ({})",
+        gigabytes(room.bytes.max(0.0)),
+        room.bound
+    );
+    let without_windows = windows > 0.0 && others <= room.bytes;
+    if without_windows && !plan.dynamics_required {
+        plan.drop_dynamics(format!(
+            "the dynamics windows of the whole recording would need about {} beside the run's \
+             {}, and {available}: give a longer --window-step-ms, or run where more memory is \
+             free, for RI maps",
+            gigabytes(windows),
+            gigabytes(others)
+        ));
+        return Ok(());
+    }
+    let instead = if without_windows {
+        format!(
+            "the dynamics windows alone need {}: give a longer --window-step-ms, or \
+             --dynamics off",
+            gigabytes(windows)
+        )
+    } else if held.bytes <= room.bytes {
+        format!(
+            "the dynamics windows and Doppler time series need {}: give --dynamics off, a \
+             longer --window-step-ms or fewer ensembles",
+            gigabytes(needed - held.bytes)
+        )
+    } else {
+        held.instead.to_string()
+    };
+    bail!(
+        "processing needs about {} ({} {STAGE_MEMORY_RULE}) but {available}: {instead}",
+        gigabytes(needed),
+        held.rule,
+    )
 }
 
 /// The memory a run may use: `--max-memory-gb` when given (checked), else what the machine
@@ -92,56 +153,26 @@ their frames, or one segment's with its overlap): an angle's frames as read, the
 series (filtered in place) and their compound";
 
 /// Refuses, before they are read, beamformed images of which `bytes` (as complex64) are held at
-/// once (`segmented`: a segment's) that a run could not hold ([`IMAGES_MEMORY_RULE`]) within
-/// `limit_gb` or what the machine leaves.
-pub fn check_images_memory(bytes: u64, segmented: bool, limit_gb: Option<f64>) -> Result<()> {
-    let needed = 3.0 * bytes as f64;
-    if let Some(room) = room_within(limit_gb)?
-        && needed > room.bytes
-    {
-        bail!(
-            "processing the images needs about {} ({IMAGES_MEMORY_RULE}) but {} are available \
-             ({}): {}",
-            gigabytes(needed),
-            gigabytes(room.bytes.max(0.0)),
-            room.bound,
-            match segmented {
-                true => "give a smaller --segment-frames",
-                false => "give --segment-frames to hold fewer frames at once",
-            }
-        );
-    }
-    Ok(())
-}
-
-/// Refuses, once the images (of `images_bytes` as complex64, `frames` frames, `n_angles`
-/// angles) are read and `plan` made, stages whose memory ([`STAGE_MEMORY_RULE`]: the dynamics
-/// windows, the time series) would not fit beside them: within `limit_gb` with the images'
-/// [`IMAGES_MEMORY_RULE`], else in what the machine leaves now.
-pub fn check_images_stages(
-    plan: &Plan,
-    (images_bytes, frames, n_angles): (u64, usize, usize),
+/// once (all their `frames`, or a segment's when `plan` cuts them) that a run could not hold
+/// ([`IMAGES_MEMORY_RULE`]) with its later stages ([`STAGE_MEMORY_RULE`], [`fit_stages`])
+/// within `limit_gb` or what the machine leaves.
+pub fn check_images_memory(
+    plan: &mut Plan,
+    (bytes, frames, n_angles): (u64, usize, usize),
     limit_gb: Option<f64>,
 ) -> Result<()> {
-    let stages = stage_memory_of(plan, frames, n_angles) as f64;
-    let what = "the dynamics windows and Doppler time series";
-    let instead = "give --dynamics off, a longer --window-step-ms or fewer ensembles";
-    match room_within(limit_gb)? {
-        Some(room) if limit_gb.is_some() => {
-            let needed = 3.0 * images_bytes as f64 + stages;
-            if needed > room.bytes {
-                bail!(
-                    "processing the images needs about {} ({IMAGES_MEMORY_RULE}, {STAGE_MEMORY_RULE}) \
-                     but {} are available ({}): {instead}",
-                    gigabytes(needed),
-                    gigabytes(room.bytes.max(0.0)),
-                    room.bound
-                );
-            }
-            Ok(())
-        }
-        _ => check_room_for(stages as u64, what, instead),
-    }
+    let Some(room) = room_within(limit_gb)? else {
+        return Ok(());
+    };
+    let held = Held {
+        bytes: 3.0 * bytes as f64,
+        rule: IMAGES_MEMORY_RULE,
+        instead: match plan.segments.is_some() {
+            true => "give a smaller --segment-frames",
+            false => "give --segment-frames to hold fewer frames at once",
+        },
+    };
+    fit_stages(plan, &held, (frames, n_angles), &room)
 }
 
 /// Refuses work that would hold `bytes` in memory where less may still be allocated

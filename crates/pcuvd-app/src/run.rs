@@ -22,6 +22,9 @@ pub struct Plan {
     /// True when a dynamics setting was given, so that a recording that cannot honour it is an
     /// error rather than a skipped stage.
     pub dynamics_required: bool,
+    /// Why the dynamics stage, asked for by `--dynamics auto`, was dropped before the run (its
+    /// windows would not fit in memory: [`crate::memory::check_memory`]); `None` otherwise.
+    pub dynamics_dropped: Option<String>,
     /// Every processing and dynamics option, defaults included, as one line of text.
     pub options_text: String,
     /// The Doppler time series' ensembles, when asked for.
@@ -75,6 +78,7 @@ impl Plan {
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
+            dynamics_dropped: None,
             options_text: settings_text(options, dynamics),
             kept_pixels: Vec::new(),
         })
@@ -113,6 +117,7 @@ impl Plan {
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
+            dynamics_dropped: None,
             options_text: settings_text(options, dynamics),
             kept_pixels: Vec::new(),
         })
@@ -148,6 +153,15 @@ fn planned_cut(
         .check_for(shortest_filtered)
         .context("--svd-low / --svd-high")?;
     Ok(segments)
+}
+
+impl Plan {
+    /// Drops the dynamics stage that `--dynamics auto` asked for, saying why (the reason goes
+    /// to the run's notes and summary.json).
+    pub fn drop_dynamics(&mut self, reason: String) {
+        self.dynamics = None;
+        self.dynamics_dropped = Some(reason);
+    }
 }
 
 /// The dynamics stage's settings for a recording of `n_frames` frames of `n_angles` angles at
@@ -278,6 +292,7 @@ pub fn run_into(
     progress: &dyn Progress,
     sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
+    said_before_the_run(plan, progress);
     let stages = crate::progress::stages(progress);
     let stages: &(dyn Fn(pipeline::Stage, usize, usize) + Sync) = &stages;
     // Images are formed a block of frames at a time, so that decoding and IQ need one block's
@@ -289,6 +304,16 @@ pub fn run_into(
     let (out, ensembles) =
         pipeline::process_source(data, &plan.params, blocks, plan.ensembles, stages)?;
     finish_whole(out, ensembles, blocks, plan, progress, sink)
+}
+
+/// Says, before a long run, what the plan has left out that the user did not turn off: the
+/// dynamics stage dropped for memory ([`Plan::dynamics_dropped`]).
+fn said_before_the_run(plan: &Plan, progress: &dyn Progress) {
+    if let Some(reason) = &plan.dynamics_dropped {
+        progress.note(&format!(
+            "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, silences this)"
+        ));
+    }
 }
 
 /// What a run held whole returns once the chain's maps `out` and the time series' `ensembles`
@@ -345,6 +370,7 @@ pub fn run_images_into(
     progress: &dyn Progress,
     sink: Option<&mut dyn pcuvd::pipeline::segments::EnsembleSink>,
 ) -> Result<Processed> {
+    said_before_the_run(plan, progress);
     let n_frames = images.n_frames();
     if let Some(segments) = &plan.segments {
         return run_in_segments(
@@ -629,7 +655,12 @@ fn dynamics_outcome(
     stage: impl FnOnce() -> pcuvd::Result<(VelocitySeries, RiMaps)>,
 ) -> Result<DynamicsOutcome> {
     Ok(match &plan.dynamics {
-        None => DynamicsOutcome::Skipped("--dynamics off".into()),
+        // Said when the run started (`said_before_the_run`).
+        None => DynamicsOutcome::Skipped(
+            plan.dynamics_dropped
+                .clone()
+                .unwrap_or_else(|| "--dynamics off".into()),
+        ),
         Some(_) => match stage() {
             Ok((series, maps)) => DynamicsOutcome::Done {
                 series: Box::new(series),

@@ -176,7 +176,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             .push_str(&format!(" {:?}", args.acquisition));
     }
     let band_warning = rf_band_pass_warning(data)?;
-    check_memory(data, &plan, args.max_memory_gb)?;
+    check_memory(data, &mut plan, args.max_memory_gb)?;
     let provenance_of_run = {
         let (input, info) = (args.input.display().to_string(), opened.info.clone());
         let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
@@ -308,12 +308,10 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
     let clock = std::time::Instant::now();
     args.acquisition.refuse_for_images(&args.input)?;
     let nifti = args.nifti_naming()?;
-    let opened = open_images(
-        &args.input,
-        &args.options,
-        &args.dynamics,
-        args.max_memory_gb,
-    )?;
+    let mut opened = open_images(&args.input, &args.options, &args.dynamics)?;
+    opened
+        .check_memory(args.max_memory_gb)
+        .with_context(|| args.input.display().to_string())?;
     let read_s = clock.elapsed().as_secs_f64();
     let plan = opened.plan;
     let (input, info) = (args.input.display().to_string(), opened.info.clone());

@@ -96,13 +96,13 @@ pub(crate) fn process(
     let (plan, processed) = py
         .detach(|| -> anyhow::Result<(Plan, Processed)> {
             // As `pcuvd process`: options and memory are checked before any work.
-            let plan = Plan::new(
+            let mut plan = Plan::new(
                 &call.options,
                 &call.dynamics,
                 &*data,
                 recording.info.cardiac_triggers_s.as_deref(),
             )?;
-            pcuvd_app::memory::check_memory(&*data, &plan, call.max_memory_gb)?;
+            pcuvd_app::memory::check_memory(&*data, &mut plan, call.max_memory_gb)?;
             let processed = pcuvd_app::run(&*data, &plan, &progress)
                 .with_context(|| format!("{input}: processing failed"))?;
             Ok((plan, processed))
@@ -155,7 +155,7 @@ fn process_images(
 ) -> PyResult<PyProcessResult> {
     let input = path.display().to_string();
     let (opened, processed) = py.detach(|| -> PyResult<_> {
-        let opened = OpenedImages::open(&path, overrides, options)?;
+        let opened = OpenedImages::open(&path, overrides, options, true)?;
         let processed =
             pcuvd_app::run::run_images(&opened.images.images, &opened.images.plan, progress)
                 .with_context(|| format!("{input}: processing failed"))
@@ -165,7 +165,7 @@ fn process_images(
     opened.result(py, input, processed)
 }
 
-/// An images manifest opened and its run planned and memory checked, as `pcuvd process` does,
+/// An images manifest opened and its run planned (and memory checked, as `pcuvd process` does)
 /// with the call's settings.
 pub(crate) struct OpenedImages {
     pub(crate) images: pcuvd_app::input::OpenedImages,
@@ -173,9 +173,15 @@ pub(crate) struct OpenedImages {
 }
 
 impl OpenedImages {
-    /// Opens the images manifest at `path` for a run with the keyword `options` (JSON); reader
-    /// `overrides` (JSON) are refused, since they are for channel data.
-    pub(crate) fn open(path: &std::path::Path, overrides: &str, options: &str) -> PyResult<Self> {
+    /// Opens the images manifest at `path` for a run with the keyword `options` (JSON), its
+    /// memory checked when `checked`; reader `overrides` (JSON) are refused, since they are for
+    /// channel data.
+    pub(crate) fn open(
+        path: &std::path::Path,
+        overrides: &str,
+        options: &str,
+        checked: bool,
+    ) -> PyResult<Self> {
         let given: serde_json::Map<String, Value> =
             serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(e.to_string()))?;
         if !given.is_empty() {
@@ -185,9 +191,14 @@ impl OpenedImages {
             )));
         }
         let call = ProcessCall::from_json(options)?;
-        let images =
-            pcuvd_app::input::open_images(path, &call.options, &call.dynamics, call.max_memory_gb)
+        let mut images =
+            pcuvd_app::input::open_images(path, &call.options, &call.dynamics).map_err(to_py)?;
+        if checked {
+            images
+                .check_memory(call.max_memory_gb)
+                .with_context(|| path.display().to_string())
                 .map_err(to_py)?;
+        }
         Ok(OpenedImages { images, call })
     }
 
@@ -326,10 +337,10 @@ pub(crate) fn open_checked(
     overrides: &str,
     options: &str,
 ) -> PyResult<Opened> {
-    let opened = open(path, overrides, options)?;
+    let mut opened = open(path, overrides, options)?;
     pcuvd_app::memory::check_memory(
         opened.source.as_ref(),
-        &opened.plan,
+        &mut opened.plan,
         opened.call.max_memory_gb,
     )
     .map_err(to_py)?;

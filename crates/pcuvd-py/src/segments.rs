@@ -19,7 +19,7 @@ enum Input {
 impl Input {
     /// Opens the recording or images manifest at `path` with the reader `overrides` and plans
     /// the run of `options` (both JSON); `checked`: the run's memory checked as `pcuvd process`
-    /// checks it (an images manifest's always is).
+    /// checks it, which may drop the dynamics stage ([`pcuvd_app::run::Plan::dynamics_dropped`]).
     fn open(
         path: &std::path::Path,
         overrides: &str,
@@ -29,13 +29,36 @@ impl Input {
         let head = pcuvd_io::container::read_head(path, 4096).ok();
         Ok(
             match head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
-                true => Input::Images(Box::new(OpenedImages::open(path, overrides, options)?)),
+                true => Input::Images(Box::new(OpenedImages::open(
+                    path, overrides, options, checked,
+                )?)),
                 false if checked => {
                     Input::Recording(Box::new(open_checked(path, overrides, options)?))
                 }
                 false => Input::Recording(Box::new(open(path, overrides, options)?)),
             },
         )
+    }
+
+    /// Opens it as [`Input::open`] does unchecked, in a worker or for the join, with the plan
+    /// the run's memory check gave where it was counted ([`segment_count`]): the dynamics stage
+    /// dropped there (`dynamics_dropped`, its reason) is dropped here too, so that every
+    /// process runs one plan whatever memory it has.
+    fn open_as_counted(
+        path: &std::path::Path,
+        overrides: &str,
+        options: &str,
+        dynamics_dropped: Option<String>,
+    ) -> PyResult<Self> {
+        let mut input = Self::open(path, overrides, options, false)?;
+        if let Some(reason) = dynamics_dropped {
+            let plan = match &mut input {
+                Input::Recording(opened) => &mut opened.plan,
+                Input::Images(opened) => &mut opened.images.plan,
+            };
+            plan.drop_dynamics(reason);
+        }
+        Ok(input)
     }
 
     /// Where the segments' image series come from.
@@ -56,18 +79,21 @@ impl Input {
 }
 
 /// How many segments the run of `path` with `options` has (its memory checked as
-/// `pcuvd process` checks it), and whether the later ones need segment 0's `window_intervals`;
-/// `None` when it is processed whole.
+/// `pcuvd process` checks it), whether the later ones need segment 0's `window_intervals`, and
+/// why the check dropped the dynamics stage (`None` when it did not: pass it on to
+/// [`process_segment`] and [`join_segments`]); `None` when it is processed whole.
 #[pyfunction]
 pub(crate) fn segment_count(
     py: Python<'_>,
     path: PathBuf,
     overrides: &str,
     options: &str,
-) -> PyResult<Option<(usize, bool)>> {
+) -> PyResult<Option<(usize, bool, Option<String>)>> {
     py.detach(|| {
         let input = Input::open(&path, overrides, options, true)?;
-        Ok(pcuvd_app::run::segment_count(input.source(), input.plan()))
+        let dropped = input.plan().dynamics_dropped.clone();
+        Ok(pcuvd_app::run::segment_count(input.source(), input.plan())
+            .map(|(count, settles)| (count, settles, dropped)))
     })
 }
 
@@ -82,9 +108,10 @@ pub(crate) fn process_segment<'py>(
     options: &str,
     index: usize,
     window_intervals: Option<u32>,
+    dynamics_dropped: Option<String>,
 ) -> PyResult<(Bound<'py, PyBytes>, Option<u32>)> {
     let (bytes, settled) = py.detach(|| -> PyResult<_> {
-        let input = Input::open(&path, overrides, options, false)?;
+        let input = Input::open_as_counted(&path, overrides, options, dynamics_dropped)?;
         let part = pcuvd_app::run::run_segment(
             input.source(),
             input.plan(),
@@ -110,10 +137,11 @@ pub(crate) fn join_segments(
     options: &str,
     parts: Vec<Vec<u8>>,
     quiet: bool,
+    dynamics_dropped: Option<String>,
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
     let (input, processed) = py.detach(|| -> PyResult<_> {
-        let input = Input::open(&path, overrides, options, false)?;
+        let input = Input::open_as_counted(&path, overrides, options, dynamics_dropped)?;
         let parts = parts
             .iter()
             .map(|bytes| pcuvd_app::run::part_from_bytes(bytes))

@@ -141,21 +141,32 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
     );
     let out = dir.path().join("out");
     // 9.8 MB of images (29.5 MB to hold and filter) fit in 35 MB, but not with the dynamics
-    // windows' 9.5 MB (77 windows of 20 frames, 5 maps of 3,072 pixels).
-    let (ok, _, stderr) = pcuvd(&[
-        "process",
-        manifest.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--max-memory-gb",
-        "0.035",
-    ]);
+    // windows' 9.5 MB (77 windows of 20 frames, 5 maps of 3,072 pixels): without a dynamics
+    // setting the run goes on without them, and refuses with one.
+    let within = |extra: &[&str]| {
+        let mut args = vec![
+            "process",
+            manifest.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--max-memory-gb",
+            "0.035",
+            "--force",
+        ];
+        args.extend_from_slice(extra);
+        pcuvd(&args)
+    };
+    let (ok, _, stderr) = within(&[]);
+    assert!(ok && stderr.contains("no RI maps"), "{stderr}");
+    assert!(!out.join("ri.npy").exists());
+    let (ok, _, stderr) = within(&["--dynamics", "on"]);
     assert!(!ok && stderr.contains("--dynamics off"), "{stderr}");
     let (ok, stdout, stderr) = pcuvd(&[
         "process",
         manifest.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
+        "--force",
         "--nifti",
         "--zarr",
     ]);
@@ -278,6 +289,82 @@ fn images_too_long_to_hold_are_processed_in_segments() {
         summary["timings_s"]["read images"].as_f64().is_some(),
         "{}",
         summary["timings_s"]
+    );
+}
+
+/// The dynamics windows of the whole recording grow with its length, the rest of a segmented run
+/// does not: under `--dynamics auto` a run whose windows alone would not fit goes on without the
+/// RI maps and says why (before the run and in summary.json); with a dynamics setting given it is
+/// refused, naming the window step, which, longer, brings the RI maps back.
+#[test]
+fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 400;
+    let manifest = write_images(dir.path(), &synthetic_images(frames), "");
+    let manifest = manifest.to_str().unwrap();
+    let out = dir.path().join("out");
+    let out_str = out.to_str().unwrap();
+    // Segments of 150 frames hold at most 170 (the 20-frame window's overlap) of 48 × 64 pixels:
+    // 4.2 MB as complex64, 12.5 MB to process. The 77 windows of 20 frames every 5 hold 5 maps of
+    // f64 each, 9.5 MB: 22 MB in all, against 16 MB allowed; 16 windows every 25 frames, 2.0 MB.
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "process",
+            manifest,
+            "--out",
+            out_str,
+            "--force",
+            "--segment-frames",
+            "150",
+            "--max-memory-gb",
+            "0.016",
+        ];
+        args.extend_from_slice(extra);
+        let mut command = Command::new(env!("CARGO_BIN_EXE_pcuvd"));
+        let done = command.args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
+        assert!(!stderr.contains("panicked"), "{stderr}");
+        (done.status.success(), stderr)
+    };
+    let summary = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+    };
+    let (ok, stderr) = run(&[]);
+    assert!(ok, "{stderr}");
+    let note = stderr
+        .lines()
+        .find(|l| l.starts_with("note: no RI maps"))
+        .unwrap_or_else(|| panic!("no note of the RI maps dropped: {stderr}"));
+    assert!(
+        note.contains("dynamics windows") && note.contains("--window-step-ms"),
+        "{note}"
+    );
+    // Said before the run, not after it.
+    let first_stage = stderr.find("clutter filter").expect("the stages' progress");
+    assert!(stderr.find(note).unwrap() < first_stage, "{stderr}");
+    let skipped = summary()["dynamics"]["skipped"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(note.contains(&skipped), "{skipped}");
+    assert!(!out.join("ri.npy").exists() && out.join("color_doppler.npy").exists());
+    assert!(summary()["segments"]["count"].as_u64().unwrap() >= 3);
+
+    let (ok, stderr) = run(&["--heart-rate", "5"]);
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("the dynamics windows alone need") && stderr.contains("--dynamics off"),
+        "{stderr}"
+    );
+    let (ok, stderr) = run(&["--heart-rate", "5", "--window-step-ms", "25"]);
+    assert!(ok, "{stderr}");
+    assert!(!stderr.contains("no RI maps"), "{stderr}");
+    let ri: Array2<f64> = read_npy(out.join("ri.npy")).unwrap();
+    let ri_read = median(vessel_inside().iter().map(|&p| ri[p]).collect());
+    assert!(
+        (ri_read - (1.0 - EDV / PSV)).abs() < 0.05,
+        "RI {ri_read} against {}",
+        1.0 - EDV / PSV
     );
 }
 
