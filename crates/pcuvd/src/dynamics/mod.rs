@@ -26,7 +26,6 @@
 //! `ri` (RI maps and classes), `spectrogram`; the settings live here.
 
 use faer::Mat;
-use faer::linalg::solvers::SolveLstsq;
 use ndarray::{Array2, Array3, Axis, s};
 use num_complex::{Complex32, Complex64};
 use pcuvd_fft::FftPlanner64;
