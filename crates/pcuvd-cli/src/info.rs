@@ -28,6 +28,11 @@ pub struct InfoArgs {
     /// Print JSON (for programs) instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Memory a run at the defaults is checked against (GB), as `process --max-memory-gb`
+    /// checks it: a warning says when the run would be refused, or would go without its RI maps;
+    /// default: what the machine and the process's limits leave now.
+    #[arg(long)]
+    pub max_memory_gb: Option<f64>,
 }
 
 /// Slowest blood speed (m/s) a recording is expected to measure without aliasing: below this
@@ -66,15 +71,21 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let memory_bytes = grid.as_ref().map_or(0, |g| {
         usize::try_from(pcuvd::pipeline::memory_estimate(source, g)).unwrap_or(usize::MAX)
     });
-    let stage_bytes = pcuvd_app::run::Plan::new(
+    let plan = pcuvd_app::run::Plan::new(
         &Default::default(),
         &Default::default(),
         source,
         info.cardiac_triggers_s.as_deref(),
     )
-    .ok()
-    .map(|plan| pcuvd_app::memory::stage_memory_of(&plan, frames, seq.n_angles()) as u64);
+    .ok();
+    let stage_bytes = plan
+        .as_ref()
+        .map(|plan| pcuvd_app::memory::stage_memory_of(plan, frames, seq.n_angles()) as u64);
     let mut warnings = info.warnings.clone();
+    if let Some(mut plan) = plan {
+        let checked = pcuvd_app::memory::check_memory(source, &mut plan, args.max_memory_gb);
+        warnings.extend(memory_warning(checked, &plan));
+    }
     if demod.is_none()
         && let Some(warning) = pcuvd_app::input::band_pass_warning(acq)
     {
@@ -250,6 +261,20 @@ fn size(b: usize) -> String {
     }
 }
 
+/// What the memory check of a run at the defaults (`checked`, leaving `plan` as it planned it)
+/// means for the user, when it is not that the run fits.
+fn memory_warning(checked: Result<()>, plan: &pcuvd_app::run::Plan) -> Option<String> {
+    match (checked, &plan.dynamics_dropped) {
+        (Err(e), _) => Some(format!(
+            "at the defaults `pcuvd process` would refuse: {e:#}"
+        )),
+        (Ok(()), Some(reason)) => Some(format!(
+            "at the defaults `pcuvd process` would run without RI maps: {reason}"
+        )),
+        (Ok(()), None) => None,
+    }
+}
+
 /// What `info`'s stage memory estimate counts.
 const STAGE_MEMORY_AT_DEFAULTS: &str = "the dynamics windows and time series of a run at the \
 default settings (pcuvd_app::memory::STAGE_MEMORY_RULE), beside the memory estimate; null where \
@@ -284,19 +309,16 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     let held = pcuvd::pipeline::segments::frames_held(header.frames, nz * nx, header.angles.len());
     let segments = header.frames.div_ceil(held.max(1));
     let memory_bytes = 3 * header.bytes_of_frames(held);
-    let stage_bytes = header.images_file().ok().and_then(|images| {
-        use pcuvd::form::images::ImageFrames;
-        let plan = pcuvd_app::run::Plan::for_images(
-            &Default::default(),
-            &Default::default(),
-            &images.description(),
-            header.frames,
-            info.cardiac_triggers_s.as_deref(),
-        )
-        .ok()?;
-        Some(pcuvd_app::memory::stage_memory_of(&plan, header.frames, header.angles.len()) as u64)
+    let opened =
+        pcuvd_app::input::open_images(&args.input, &Default::default(), &Default::default()).ok();
+    let stage_bytes = opened.as_ref().map(|opened| {
+        pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
     });
     let mut warnings = info.warnings.clone();
+    if let Some(mut opened) = opened {
+        let checked = opened.check_memory(args.max_memory_gb);
+        warnings.extend(memory_warning(checked, &opened.plan));
+    }
     if nyquist < LOW_NYQUIST_M_S {
         warnings.push(format!(
             "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases",

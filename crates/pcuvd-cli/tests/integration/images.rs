@@ -161,6 +161,22 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
     assert!(!out.join("ri.npy").exists());
     let (ok, _, stderr) = within(&["--dynamics", "on"]);
     assert!(!ok && stderr.contains("--dynamics off"), "{stderr}");
+    // `info` says so before: within that memory, and not where the machine leaves more.
+    let warnings = |extra: &[&str]| {
+        let mut args = vec!["info", manifest.to_str().unwrap(), "--json"];
+        args.extend_from_slice(extra);
+        let (ok, stdout, stderr) = pcuvd(&args);
+        assert!(ok, "{stderr}");
+        let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        info["warnings"].to_string()
+    };
+    assert!(
+        warnings(&["--max-memory-gb", "0.035"]).contains("would run without RI maps"),
+        "{}",
+        warnings(&["--max-memory-gb", "0.035"])
+    );
+    assert!(warnings(&["--max-memory-gb", "0.02"]).contains("would refuse"));
+    assert!(!warnings(&[]).contains("`pcuvd process` would"));
     let (ok, stdout, stderr) = pcuvd(&[
         "process",
         manifest.to_str().unwrap(),
