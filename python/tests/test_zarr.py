@@ -14,7 +14,7 @@ import xarray as xr  # noqa: E402
 import zarr  # noqa: E402
 
 import pcuvd  # noqa: E402
-from conftest import run_cli  # noqa: E402
+from conftest import REPO, run_cli  # noqa: E402
 
 FRAMES, ANGLES, ELEMENTS, SAMPLES = 1800, 2, 16, 128
 FS, F0, C, FRAME_RATE = 20e6, 5e6, 1540.0, 1000.0
@@ -202,3 +202,24 @@ def test_python_saves_the_same_store(runs, tmp_path):
     assert (tmp_path / "out" / "ensemble_power_doppler.npy").exists()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["zarr"]["time_series_in_store_only"] is False
+
+
+def test_confusius_iq_store_gives_confusius_own_velocity(tmp_path):
+    """ConfUSIus's Zarr store of IQ (written by ConfUSIus: pcuvd-io's fixture) is read by
+    `pcuvd.process` as images formed elsewhere; with ConfUSIus's estimator (Kasai, one pixel, no
+    clutter filter) the colour Doppler is ConfUSIus's axial velocity with the sign turned
+    (ConfUSIus: toward the probe positive), and zarr-python reads the store pcuvd read."""
+    fixtures = REPO / "crates" / "pcuvd-io" / "tests" / "fixtures" / "confusius"
+    store = fixtures / "iq.zarr"
+    expected = json.loads((fixtures / "expected.json").read_text())
+    assert zarr.open_group(store, mode="r")["iq"].shape == tuple(expected["shape"])
+    result = pcuvd.process(
+        str(store), quiet=True, dynamics="off", doppler_estimator="kasai",
+        doppler_kernel="1x1", svd_low="off",
+    )
+    theirs = np.array(expected["confusius_axial_velocity_m_s"])
+    np.testing.assert_allclose(result.arrays["color_doppler"], -theirs, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(result.z, np.array(expected["depth_mm"]) * 1e-3, atol=1e-12)
+    result.save(tmp_path / "out")
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["source"]["format"] == "ConfUSIus beamformed IQ (Zarr v3)", summary["source"]

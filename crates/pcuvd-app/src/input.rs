@@ -107,7 +107,7 @@ pub fn open_images(
     dynamics: &crate::settings::DynamicsSettings,
 ) -> Result<OpenedImages> {
     use pcuvd::form::images::ImageFrames;
-    let header = pcuvd_io::images::read_header(path)?;
+    let header = pcuvd_io::open::read_images_header(path)?;
     let images = header.images_file()?;
     let description = images.description();
     let frames = images.n_frames();

@@ -19,8 +19,9 @@ const DIRECTIVITY_F_NUMBER_RULE: &str = "1 / (2 tan θ) where the element's dire
 #[derive(Args, Debug)]
 pub struct InfoArgs {
     /// Recording: MUST .mat (v5 or v7.3) or .npz, USTB .uff, zea .hdf5, a Verasonics workspace
-    /// .mat, URX .urx, or a pcuvd recording manifest .toml; recognised from its content. Or an
-    /// images manifest (.toml, format "pcuvd-images") of beamformed images formed elsewhere.
+    /// .mat, URX .urx, or a pcuvd recording manifest .toml; recognised from its content. Or
+    /// beamformed images formed elsewhere: an images manifest (.toml, format "pcuvd-images"), or
+    /// ConfUSIus's Zarr store of IQ (a .zarr folder with an `iq` array).
     pub input: PathBuf,
     /// Acquisition values given on the command line.
     #[command(flatten)]
@@ -41,8 +42,7 @@ const LOW_NYQUIST_M_S: f64 = 20e-3;
 
 /// Runs `pcuvd info`.
 pub fn run(args: &InfoArgs) -> Result<()> {
-    let head = pcuvd_io::container::read_head(&args.input, 4096).ok();
-    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+    if pcuvd_io::open::is_images_input(&args.input) {
         return images_info(args);
     }
     let opened = open_input(&args.input, &args.acquisition.to_overrides())?;
@@ -295,7 +295,7 @@ fn stage_memory_text(bytes: Option<u64>) -> String {
 /// elsewhere, from the manifest and the images file's header (the images are not read).
 fn images_info(args: &InfoArgs) -> Result<()> {
     args.acquisition.refuse_for_images(&args.input)?;
-    let header = pcuvd_io::images::read_header(&args.input)?;
+    let header = pcuvd_io::open::read_images_header(&args.input)?;
     let info = &header.info;
     let (nz, nx) = header.grid.shape();
     let (x, z) = (&header.grid.x, &header.grid.z);

@@ -20,7 +20,8 @@ pub struct ProcessArgs {
     /// Recording: any format `pcuvd info` reads (MUST .mat v5/v7.3 or .npz, USTB .uff, zea .hdf5,
     /// a Verasonics workspace .mat, URX .urx, or a pcuvd recording manifest .toml); recognised
     /// by content. Or beamformed IQ images formed elsewhere, described by an images manifest
-    /// (.toml, format "pcuvd-images"): decoding and beamforming are then skipped.
+    /// (.toml, format "pcuvd-images") or held in ConfUSIus's Zarr store (a .zarr folder with an
+    /// `iq` array): decoding and beamforming are then skipped.
     pub input: PathBuf,
     /// Output folder (created if needed; a folder that holds anything is refused unless --force).
     #[arg(long)]
@@ -153,8 +154,7 @@ impl AcquisitionOverrides {
 
 /// Runs `pcuvd process`.
 pub fn run(args: &ProcessArgs) -> Result<()> {
-    let head = pcuvd_io::container::read_head(&args.input, 4096).ok();
-    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+    if pcuvd_io::open::is_images_input(&args.input) {
         return run_on_images(args);
     }
     let clock = std::time::Instant::now();

@@ -140,17 +140,31 @@ pub struct ImagesHeader {
     pub demodulation_frequency: f64,
     /// Speed of sound (m/s).
     pub sound_speed: f64,
-    /// The manifest, which errors about its images name.
-    manifest: std::path::PathBuf,
-    /// The images file.
-    file: std::path::PathBuf,
-    /// The array's axes, in the file's order.
-    axes: Vec<String>,
+    /// The manifest (or store), which errors about its images name.
+    pub(crate) manifest: std::path::PathBuf,
+    /// Where the images are stored.
+    pub(crate) stored: Stored,
     /// True when the stored IQ is conjugated on reading.
-    conjugate: bool,
+    pub(crate) conjugate: bool,
     /// The x (m) of the array's first and last element centres, when given: each steered plane
     /// wave's reach follows from it.
-    aperture: Option<(f64, f64)>,
+    pub(crate) aperture: Option<(f64, f64)>,
+}
+
+/// Where beamformed images are stored.
+#[derive(Debug, Clone)]
+pub(crate) enum Stored {
+    /// A NumPy `.npy` file whose axes (in the file's order) the manifest names.
+    Npy {
+        file: std::path::PathBuf,
+        axes: Vec<String>,
+    },
+    /// A Zarr v3 store's `array` (its path in the store): (time, k, j, i) with k of length 1,
+    /// as ConfUSIus writes IQ (`crate::confusius`).
+    Zarr {
+        store: std::path::PathBuf,
+        array: String,
+    },
 }
 
 impl ImagesHeader {
@@ -163,7 +177,8 @@ impl ImagesHeader {
 }
 
 /// Reads the images manifest at `path` and its images file's header, and checks that they agree
-/// (axes, angles, at least 2 frames of 2 × 2 pixels).
+/// (axes, angles, at least 2 frames of 2 × 2 pixels). Any images input, a manifest or a Zarr
+/// store: [`crate::open::read_images_header`].
 pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let (manifest, text) = parse(path)?;
     let section = manifest.images;
@@ -336,8 +351,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         demodulation_frequency,
         sound_speed,
         manifest: path.to_path_buf(),
-        file,
-        axes,
+        stored: Stored::Npy { file, axes },
         conjugate: section.conjugate,
         aperture,
     })
@@ -362,36 +376,61 @@ impl ImagesHeader {
 
     /// The images this header describes, to read a range of frames at a time.
     pub fn images_file(&self) -> Result<ImagesFile, IoError> {
-        let array = crate::npz::open_npy(&self.file)?;
         let (nz, nx) = self.grid.shape();
-        let length = |name: &str| {
-            self.axes
-                .iter()
-                .position(|a| a == name)
-                .map(|i| array.shape.get(i).copied())
-        };
-        if array.shape.len() != self.axes.len()
-            || length("frames") != Some(Some(self.frames))
-            || length("z") != Some(Some(nz))
-            || length("x") != Some(Some(nx))
-            || length("angles").is_some_and(|n| n != Some(self.angles.len()))
-            || !array.is_complex()
-        {
-            return Err(IoError::malformed(
-                &self.file,
+        let changed = |path: &Path| {
+            IoError::malformed(
+                path,
                 "changed since its header was read: its shape or type differs",
-            ));
-        }
-        // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a time.
-        let order: Vec<usize> = ["angles", "z", "x", "frames"]
-            .iter()
-            .filter_map(|name| self.axes.iter().position(|a| a == name))
-            .collect();
+            )
+        };
+        let frames_of = match &self.stored {
+            Stored::Npy { file, axes } => {
+                let array = crate::npz::open_npy(file)?;
+                let length = |name: &str| {
+                    axes.iter()
+                        .position(|a| a == name)
+                        .map(|i| array.shape.get(i).copied())
+                };
+                if array.shape.len() != axes.len()
+                    || length("frames") != Some(Some(self.frames))
+                    || length("z") != Some(Some(nz))
+                    || length("x") != Some(Some(nx))
+                    || length("angles").is_some_and(|n| n != Some(self.angles.len()))
+                    || !array.is_complex()
+                {
+                    return Err(changed(file));
+                }
+                // (angles, z, x, frames): the series' own order (nz, nx, frames), an angle at a
+                // time.
+                let order: Vec<usize> = ["angles", "z", "x", "frames"]
+                    .iter()
+                    .filter_map(|name| axes.iter().position(|a| a == name))
+                    .collect();
+                StoredFrames::Npy {
+                    array,
+                    order,
+                    angles_axis: axes.iter().position(|a| a == "angles"),
+                    frames_axis: axes.iter().position(|a| a == "frames").unwrap_or(0),
+                }
+            }
+            Stored::Zarr { store, array } => {
+                let opened = zarr_array(store, array)?;
+                let shape = opened.shape();
+                let expected = [self.frames, 1, nz, nx];
+                // (time, k, j, i), or (time, pose, k, j, i) of one pose.
+                let plane: Vec<u64> = match shape.len() {
+                    4 => shape.to_vec(),
+                    5 if shape[1] == 1 => [shape[0], shape[2], shape[3], shape[4]].to_vec(),
+                    _ => return Err(changed(store)),
+                };
+                if plane.iter().zip(expected).any(|(&a, b)| a != b as u64) {
+                    return Err(changed(store));
+                }
+                StoredFrames::Zarr(std::sync::Arc::new(opened))
+            }
+        };
         Ok(ImagesFile {
-            array,
-            order,
-            angles_axis: self.axes.iter().position(|a| a == "angles"),
-            frames_axis: self.axes.iter().position(|a| a == "frames").unwrap_or(0),
+            frames_of,
             description: AngleImages {
                 grid: self.grid.clone(),
                 angles: self.angles.clone(),
@@ -425,15 +464,56 @@ impl ImagesHeader {
     }
 }
 
-/// Beamformed images on file, as an images manifest describes them, read a range of frames at a
-/// time: a run in segments holds one segment's frames, not the recording's.
+/// The array `array` of the Zarr store at `store`, opened (its metadata read).
+fn zarr_array(
+    store: &Path,
+    array: &str,
+) -> Result<zarrs::array::Array<zarrs::filesystem::FilesystemStore>, IoError> {
+    let failed = |e: String| {
+        IoError::malformed(
+            store,
+            format!(
+                "its {array} array cannot be opened as Zarr ({})",
+                crate::error::flat(e)
+            ),
+        )
+    };
+    let storage =
+        zarrs::filesystem::FilesystemStore::new(store).map_err(|e| failed(e.to_string()))?;
+    zarrs::array::Array::open(std::sync::Arc::new(storage), &format!("/{array}"))
+        .map_err(|e| failed(e.to_string()))
+}
+
+/// How an [`ImagesFile`] reads its frames.
+#[derive(Clone)]
+enum StoredFrames {
+    /// A `.npy` file's array: its axes of (angles, z, x, frames) in `order`, "angles" left out
+    /// when the file has none.
+    Npy {
+        array: crate::array::StoredArray,
+        order: Vec<usize>,
+        angles_axis: Option<usize>,
+        frames_axis: usize,
+    },
+    /// ConfUSIus's `iq` array (time, k, j, i), chunks read and decoded by zarrs.
+    Zarr(std::sync::Arc<zarrs::array::Array<zarrs::filesystem::FilesystemStore>>),
+}
+
+impl std::fmt::Debug for StoredFrames {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StoredFrames::Npy { array, .. } => write!(f, "Npy({})", array.label),
+            StoredFrames::Zarr(array) => write!(f, "Zarr({:?})", array.shape()),
+        }
+    }
+}
+
+/// Beamformed images on file, as an images manifest (or ConfUSIus's store) describes them, read
+/// a range of frames at a time: a run in segments holds one segment's frames, not the
+/// recording's.
 #[derive(Debug, Clone)]
 pub struct ImagesFile {
-    array: crate::array::StoredArray,
-    /// The stored axes of (angles, z, x, frames), "angles" left out when the file has none.
-    order: Vec<usize>,
-    angles_axis: Option<usize>,
-    frames_axis: usize,
+    frames_of: StoredFrames,
     description: AngleImages,
     frames: usize,
     conjugate: bool,
@@ -456,39 +536,26 @@ impl ImagesFile {
                 ),
             ));
         }
-        let (nz, nx) = self.description.grid.shape();
         // pcuvd's IQ is the RF demodulated by e^(−2πift); a scanner that demodulated by
         // e^(+2πift) stored its conjugate, whose flow would read reversed.
         let conjugate = self.conjugate;
         let series = (0..self.description.n_angles())
             .map(|angle| -> Result<Array3<Complex32>, IoError> {
-                let ranges: Vec<Range<usize>> = (0..self.array.shape.len())
-                    .map(|axis| match axis {
-                        _ if Some(axis) == self.angles_axis => angle..angle + 1,
-                        _ if axis == self.frames_axis => frames.clone(),
-                        _ => 0..self.array.shape[axis],
-                    })
-                    .collect();
-                let Block::Complex(block) = self.array.read_ordered(&ranges, &self.order)? else {
-                    return Err(IoError::malformed(
-                        Path::new(&self.array.label),
-                        "is no longer complex: it changed while read",
-                    ));
-                };
-                let mut one = block
-                    .into_shape_with_order((nz, nx, frames.len()))
-                    .map_err(|e| IoError::malformed(path, format!("images array: {e}")))?;
+                let mut one = self.read_series(angle, frames.clone())?;
                 if conjugate {
                     one.mapv_inplace(|v| v.conj());
                 }
                 if let Some(((iz, ix, t), _)) = one.indexed_iter().find(|(_, v)| !v.is_finite()) {
+                    let (field, label) = match &self.frames_of {
+                        StoredFrames::Npy { array, .. } => ("[images].file", array.label.clone()),
+                        StoredFrames::Zarr(_) => ("iq", "the iq array".to_string()),
+                    };
                     return Err(IoError::invalid(
                         path,
-                        "[images].file",
+                        field,
                         format!(
-                            "{} holds a value that is not finite (NaN or infinite) at frame {}, \
-                             pixel (z {iz}, x {ix}) of series {angle}",
-                            self.array.label,
+                            "{label} holds a value that is not finite (NaN or infinite) at frame \
+                             {}, pixel (z {iz}, x {ix}) of series {angle}",
                             frames.start + t
                         ),
                     ));
@@ -497,6 +564,73 @@ impl ImagesFile {
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(self.description.with_series(series))
+    }
+
+    /// Frames `frames` of series `angle` as stored, (nz, nx, frames.len()).
+    fn read_series(
+        &self,
+        angle: usize,
+        frames: Range<usize>,
+    ) -> Result<Array3<Complex32>, IoError> {
+        let path = self.manifest.as_path();
+        let (nz, nx) = self.description.grid.shape();
+        match &self.frames_of {
+            StoredFrames::Npy {
+                array,
+                order,
+                angles_axis,
+                frames_axis,
+            } => {
+                let ranges: Vec<Range<usize>> = (0..array.shape.len())
+                    .map(|axis| match axis {
+                        _ if Some(axis) == *angles_axis => angle..angle + 1,
+                        _ if axis == *frames_axis => frames.clone(),
+                        _ => 0..array.shape[axis],
+                    })
+                    .collect();
+                let Block::Complex(block) = array.read_ordered(&ranges, order)? else {
+                    return Err(IoError::malformed(
+                        Path::new(&array.label),
+                        "is no longer complex: it changed while read",
+                    ));
+                };
+                block
+                    .into_shape_with_order((nz, nx, frames.len()))
+                    .map_err(|e| IoError::malformed(path, format!("images array: {e}")))
+            }
+            StoredFrames::Zarr(array) => {
+                let mut ranges: Vec<Range<u64>> = array.shape().iter().map(|&n| 0..n).collect();
+                ranges[0] = frames.start as u64..frames.end as u64;
+                let subset = zarrs::array::ArraySubset::new_with_ranges(&ranges);
+                let failed = |e: String| {
+                    IoError::malformed(
+                        path,
+                        format!(
+                            "frames {frames:?} of its iq array cannot be read ({})",
+                            crate::error::flat(e)
+                        ),
+                    )
+                };
+                // (time, …, j, i) in C order, its plane's pixels after each frame's.
+                let values: Vec<Complex32> = match array.data_type().to_string().as_str() {
+                    "complex128" => array
+                        .retrieve_array_subset::<Vec<num_complex::Complex64>>(&subset)
+                        .map_err(|e| failed(e.to_string()))?
+                        .into_iter()
+                        .map(|v| Complex32::new(v.re as f32, v.im as f32))
+                        .collect(),
+                    _ => array
+                        .retrieve_array_subset::<Vec<Complex32>>(&subset)
+                        .map_err(|e| failed(e.to_string()))?,
+                };
+                let by_frame = Array3::from_shape_vec((frames.len(), nz, nx), values)
+                    .map_err(|e| IoError::malformed(path, format!("iq array: {e}")))?;
+                Ok(by_frame
+                    .permuted_axes([1, 2, 0])
+                    .as_standard_layout()
+                    .into_owned())
+            }
+        }
     }
 }
 

@@ -16,7 +16,8 @@
 //!   [`hdf5`], [`npz`], [`array`](mod@array), [`layout`];
 //! - beside them: [`read_pass`] (a samples file fed to a checksum as its blocks are read),
 //!   [`cardiac`] (cardiac cycle start times recorded beside a recording), [`images`] (the
-//!   "pcuvd-images" manifest of beamformed IQ images formed elsewhere), [`npy`]
+//!   "pcuvd-images" manifest of beamformed IQ images formed elsewhere), [`confusius`]
+//!   (ConfUSIus's Zarr store of beamformed IQ, read as images), [`npy`]
 //!   (thin `.npy`/JSON writers for results), [`paths`] (what a path names, said before it is
 //!   opened).
 //!
@@ -26,6 +27,7 @@
 
 pub mod array;
 pub mod cardiac;
+pub mod confusius;
 pub mod container;
 pub mod datafile;
 pub mod error;

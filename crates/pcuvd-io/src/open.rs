@@ -3,7 +3,9 @@
 //! to its reader ([`crate::readers`]), which returns a
 //! [`FrameSource`](pcuvd::acquisition::source::FrameSource) that reads a block of frames at a time, with what
 //! was read: the files, the format and reader, every acquisition parameter with its source, and
-//! warnings. This module sits on top: it imports the readers, and no reader imports it.
+//! warnings. Images formed elsewhere are told apart here too ([`is_images_input`],
+//! [`read_images_header`]). This module sits on top: it imports the readers, and no reader
+//! imports it.
 
 use std::path::Path;
 
@@ -161,6 +163,22 @@ fn open_hdf5(path: &Path, overrides: &Overrides, ext: &str) -> Result<OpenedReco
                 .unwrap_or_default()
         ),
     ))
+}
+
+/// True when `path` holds beamformed images pcuvd reads as images, not as a recording: an images
+/// manifest ([`crate::images`]), or ConfUSIus's Zarr store of IQ ([`crate::confusius`]).
+pub fn is_images_input(path: &Path) -> bool {
+    crate::confusius::is_store(path)
+        || read_head(path, 4096).is_ok_and(|head| crate::images::is_images_manifest(&head))
+}
+
+/// The header of the images at `path` (nothing of them is read): an images manifest's and its
+/// `.npy` file's, or ConfUSIus's Zarr store's ([`is_images_input`]).
+pub fn read_images_header(path: &Path) -> Result<crate::images::ImagesHeader, IoError> {
+    match crate::confusius::is_store(path) {
+        true => crate::confusius::read_header(path),
+        false => crate::images::read_header(path),
+    }
 }
 
 #[cfg(test)]

@@ -130,8 +130,7 @@ pub(crate) fn process_file(
     quiet: bool,
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
-    let head = pcuvd_io::container::read_head(&path, 4096).ok();
-    if head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
+    if pcuvd_io::open::is_images_input(&path) {
         return process_images(py, path, overrides, options, &progress);
     }
     let (opened, processed) = py.detach(|| -> PyResult<_> {

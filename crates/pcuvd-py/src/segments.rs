@@ -26,18 +26,13 @@ impl Input {
         options: &str,
         checked: bool,
     ) -> PyResult<Self> {
-        let head = pcuvd_io::container::read_head(path, 4096).ok();
-        Ok(
-            match head.is_some_and(|head| pcuvd_io::images::is_images_manifest(&head)) {
-                true => Input::Images(Box::new(OpenedImages::open(
-                    path, overrides, options, checked,
-                )?)),
-                false if checked => {
-                    Input::Recording(Box::new(open_checked(path, overrides, options)?))
-                }
-                false => Input::Recording(Box::new(open(path, overrides, options)?)),
-            },
-        )
+        Ok(match pcuvd_io::open::is_images_input(path) {
+            true => Input::Images(Box::new(OpenedImages::open(
+                path, overrides, options, checked,
+            )?)),
+            false if checked => Input::Recording(Box::new(open_checked(path, overrides, options)?)),
+            false => Input::Recording(Box::new(open(path, overrides, options)?)),
+        })
     }
 
     /// Opens it as [`Input::open`] does unchecked, in a worker or for the join, with the plan

@@ -432,3 +432,82 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     ]);
     assert!(!ok && stderr.contains("images manifest"), "{stderr}");
 }
+
+/// ConfUSIus's Zarr store of IQ (written by ConfUSIus, `pcuvd-io`'s fixture) is processed as
+/// images are: with the estimator ConfUSIus uses (Kasai, one pixel, no clutter filter) pcuvd's
+/// colour Doppler is ConfUSIus's own axial velocity of it with the sign turned (ConfUSIus counts
+/// a phase that advances, flow toward the probe, as positive; pcuvd flow away from it), on the
+/// pixels ConfUSIus places. At the defaults the vessel's flow reads away from the probe (Loupas's
+/// axial frequency is meaningless on this speckle, white from pixel to pixel, so its speed is not
+/// scored here).
+#[test]
+fn confusius_iq_gives_confusius_own_velocity() {
+    let fixtures =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../pcuvd-io/tests/fixtures/confusius");
+    let store = fixtures.join("iq.zarr");
+    let expected: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fixtures.join("expected.json")).unwrap())
+            .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "process",
+            store.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--force",
+            "--dynamics",
+            "off",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, stderr) = pcuvd(&args);
+        assert!(ok, "{stderr}");
+    };
+    run(&[
+        "--doppler-estimator",
+        "kasai",
+        "--doppler-kernel",
+        "1x1",
+        "--svd-low",
+        "off",
+    ]);
+    let colour: Array2<f64> = read_npy(out.join("color_doppler.npy")).unwrap();
+    let theirs = &expected["confusius_axial_velocity_m_s"];
+    for ((iz, ix), &v) in colour.indexed_iter() {
+        let confusius = theirs[iz][ix].as_f64().unwrap();
+        assert!(
+            (v + confusius).abs() < 1e-7,
+            "pixel ({iz}, {ix}): pcuvd {v} m/s, ConfUSIus {confusius} m/s"
+        );
+    }
+    let z: ndarray::Array1<f64> = read_npy(out.join("z.npy")).unwrap();
+    let depth = expected["depth_mm"].as_array().unwrap();
+    assert!(
+        z.iter()
+            .zip(depth)
+            .all(|(z, d)| (z - d.as_f64().unwrap() * 1e-3).abs() < 1e-12)
+    );
+    run(&[]);
+    let colour: Array2<f64> = read_npy(out.join("color_doppler.npy")).unwrap();
+    let rows = &expected["vessel_rows"];
+    let (first, last) = (
+        rows[0].as_u64().unwrap() as usize,
+        rows[1].as_u64().unwrap() as usize,
+    );
+    let blood = expected["blood_velocity_m_s"].as_f64().unwrap();
+    let inside: Vec<f64> = (first + 1..last - 1)
+        .flat_map(|z| (1..colour.ncols() - 1).map(move |x| (z, x)))
+        .map(|p| colour[p])
+        .collect();
+    let read = median(inside);
+    assert!(
+        read > 0.5 * blood && read < 1.5 * blood,
+        "{read} m/s against {blood} m/s"
+    );
+    let (ok, stdout, stderr) = pcuvd(&["info", store.to_str().unwrap(), "--json"]);
+    assert!(ok, "{stderr}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(info["format"], "ConfUSIus beamformed IQ (Zarr v3)");
+    assert_eq!(info["images"]["grid_nz_nx"], serde_json::json!([20, 24]));
+}

@@ -3,6 +3,7 @@
 //! One test binary for the crate (one build and one link of everything the tests share,
 //! instead of one per file); each file is a module.
 
+mod confusius;
 mod fuzz_regressions;
 mod public_paths;
 mod readers;
