@@ -214,6 +214,21 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
             },
         },
     });
+    let mut warnings = Vec::new();
+    let chunk_frames = metadata
+        .get("chunk_grid")
+        .and_then(|grid| grid.pointer("/configuration/chunk_shape/0"))
+        .and_then(Value::as_u64)
+        .unwrap_or(0) as usize;
+    let segment = pcuvd::pipeline::segments::MAX_SEGMENT_FRAMES;
+    if chunk_frames > segment && frames > segment {
+        warnings.push(format!(
+            "the iq array's chunks hold {chunk_frames} frames each: a run in segments (of at most \
+             {segment} frames by default) decodes whole chunks for each segment's frames, so each \
+             chunk is read several times and held whole while read; rechunk along time (ConfUSIus's \
+             volumes_per_chunk, or zarr's rechunking) for a long store"
+        ));
+    }
     let info = SourceInfo {
         files: store_files(path)?,
         format: "ConfUSIus beamformed IQ (Zarr v3)".into(),
@@ -226,7 +241,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
             dtype,
             kind: "beamformed iq".into(),
         }),
-        warnings: Vec::new(),
+        warnings,
         cardiac_triggers_s: None,
     };
     Ok(ImagesHeader {

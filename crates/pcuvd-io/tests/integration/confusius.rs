@@ -187,3 +187,21 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
         assert!(error.contains("iq.zarr"), "{error}");
     }
 }
+
+/// A store whose chunks hold more frames than a segment is read, with a warning that says what
+/// that costs and how to rechunk (its metadata alone says so: nothing of the images is read).
+#[test]
+fn chunks_longer_than_a_segment_are_warned_of() {
+    assert!(read_header(&store()).unwrap().info.warnings.is_empty());
+    let dir = edited(|json: &mut serde_json::Map<String, Value>| {
+        json["shape"][0] = 2000.into();
+        json["chunk_grid"]["configuration"]["chunk_shape"][0] = 2000.into();
+    });
+    let header = read_header(&dir.path().join("iq.zarr")).unwrap();
+    assert_eq!(header.frames, 2000);
+    let warnings = header.info.warnings.join(" ");
+    assert!(
+        warnings.contains("2000 frames each") && warnings.contains("rechunk"),
+        "{warnings}"
+    );
+}
