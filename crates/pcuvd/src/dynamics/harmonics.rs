@@ -42,6 +42,20 @@ pub(super) struct HarmonicFit {
 /// holds above the window's blur, at most a quarter of the samples' degrees of freedom.
 const NOISE_FIT_HARMONICS: usize = 6;
 
+/// The design matrix (times × `columns`) of a mean and harmonics of `heart_rate_hz` at `times`
+/// (s): 1, cos kωt, sin kωt for k = 1, 2, …
+fn harmonic_design(times: &[f64], heart_rate_hz: f64, columns: usize) -> Mat<f64> {
+    let omega = 2.0 * std::f64::consts::PI * heart_rate_hz;
+    Mat::<f64>::from_fn(times.len(), columns, |i, j| {
+        let k = j.div_ceil(2) as f64;
+        match j {
+            0 => 1.0,
+            _ if j % 2 == 1 => (k * omega * times[i]).cos(),
+            _ => (k * omega * times[i]).sin(),
+        }
+    })
+}
+
 /// Correlation of the noise of two windows `lag` steps apart when each is `overlap` steps long:
 /// white per frame, so two windows' means share 1 − |lag| / overlap of their frames.
 fn window_correlation(lag: usize, overlap: f64) -> f64 {
@@ -76,17 +90,7 @@ impl HarmonicFit {
         if harmonics == 0 || n <= columns {
             return None;
         }
-        let omega = 2.0 * std::f64::consts::PI * heart_rate_hz;
-        let design_of = |columns: usize| {
-            Mat::<f64>::from_fn(n, columns, |i, j| {
-                let k = j.div_ceil(2) as f64;
-                match j {
-                    0 => 1.0,
-                    _ if j % 2 == 1 => (k * omega * times[i]).cos(),
-                    _ => (k * omega * times[i]).sin(),
-                }
-            })
-        };
+        let design_of = |columns: usize| harmonic_design(times, heart_rate_hz, columns);
         let design = design_of(columns);
         // D = QR, so D⁺ = R⁻¹Qᵀ.
         let qr = design.qr();
@@ -289,16 +293,7 @@ mod tests {
         let (n, rate, harmonics, overlap) = (150, 5.3, 2, 3.5);
         let times: Vec<f64> = (0..n).map(|i| 0.012 + 0.005 * i as f64).collect();
         let omega = 2.0 * std::f64::consts::PI * rate;
-        let design_of = |columns: usize| {
-            Mat::<f64>::from_fn(n, columns, |i, j| {
-                let k = j.div_ceil(2) as f64;
-                match j {
-                    0 => 1.0,
-                    _ if j % 2 == 1 => (k * omega * times[i]).cos(),
-                    _ => (k * omega * times[i]).sin(),
-                }
-            })
-        };
+        let design_of = |columns: usize| harmonic_design(&times, rate, columns);
         let pinv_of = |d: &Mat<f64>| d.qr().solve_lstsq(Mat::<f64>::identity(n, n));
         let correlation = Mat::<f64>::from_fn(n, n, |i, j| {
             (1.0 - (i as f64 - j as f64).abs() / overlap).max(0.0)
