@@ -157,10 +157,13 @@ fn planned_cut(
 
 impl Plan {
     /// Drops the dynamics stage that `--dynamics auto` asked for, saying why (the reason goes
-    /// to the run's notes and summary.json).
+    /// to the run's notes and summary.json). The options' text says so too: a re-run with the
+    /// same options where the windows fit is not the same run, and is not skipped as done.
     pub fn drop_dynamics(&mut self, reason: String) {
         self.dynamics = None;
         self.dynamics_dropped = Some(reason);
+        self.options_text
+            .push_str(" (no dynamics stage: its windows would not fit in memory)");
     }
 }
 

@@ -365,6 +365,17 @@ fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
     assert!(note.contains(&skipped), "{skipped}");
     assert!(!out.join("ri.npy").exists() && out.join("color_doppler.npy").exists());
     assert!(summary()["segments"]["count"].as_u64().unwrap() >= 3);
+    // The same options where the windows fit are not the same run: not skipped as done (the
+    // folder holds another run's outputs, which only --force replaces).
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        manifest,
+        "--out",
+        out_str,
+        "--segment-frames",
+        "150",
+    ]);
+    assert!(!ok && stderr.contains("--force"), "{stderr}");
 
     let (ok, stderr) = run(&["--heart-rate", "5"]);
     assert!(!ok, "{stderr}");
