@@ -122,6 +122,16 @@ impl Plan {
             kept_pixels: Vec::new(),
         })
     }
+
+    /// Drops the dynamics stage that `--dynamics auto` asked for, saying why (the reason goes
+    /// to the run's notes and summary.json). The options' text says so too: a re-run with the
+    /// same options where the windows fit is not the same run, and is not skipped as done.
+    pub fn drop_dynamics(&mut self, reason: String) {
+        self.dynamics = None;
+        self.dynamics_dropped = Some(reason);
+        self.options_text
+            .push_str(" (no dynamics stage: its windows would not fit in memory)");
+    }
 }
 
 /// How a recording of `n_frames` frames of `n_angles` angles is cut (`None`: held whole):
@@ -153,18 +163,6 @@ fn planned_cut(
         .check_for(shortest_filtered)
         .context("--svd-low / --svd-high")?;
     Ok(segments)
-}
-
-impl Plan {
-    /// Drops the dynamics stage that `--dynamics auto` asked for, saying why (the reason goes
-    /// to the run's notes and summary.json). The options' text says so too: a re-run with the
-    /// same options where the windows fit is not the same run, and is not skipped as done.
-    pub fn drop_dynamics(&mut self, reason: String) {
-        self.dynamics = None;
-        self.dynamics_dropped = Some(reason);
-        self.options_text
-            .push_str(" (no dynamics stage: its windows would not fit in memory)");
-    }
 }
 
 /// The dynamics stage's settings for a recording of `n_frames` frames of `n_angles` angles at
