@@ -56,7 +56,8 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         .and_then(Value::as_str)
         .unwrap_or("")
         .to_string();
-    if dtype != "complex64" && dtype != "complex128" {
+    let complex128 = dtype == "complex128";
+    if dtype != "complex64" && !complex128 {
         return Err(IoError::invalid(
             path,
             field("data_type"),
@@ -256,6 +257,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         stored: Stored::Zarr {
             store: path.to_path_buf(),
             array: IQ_ARRAY.into(),
+            complex128,
         },
         conjugate: false,
         aperture: None,

@@ -164,6 +164,8 @@ pub(crate) enum Stored {
     Zarr {
         store: std::path::PathBuf,
         array: String,
+        /// True when its values are complex128 (read into complex64), else complex64.
+        complex128: bool,
     },
 }
 
@@ -413,7 +415,11 @@ impl ImagesHeader {
                     frames_axis: axes.iter().position(|a| a == "frames").unwrap_or(0),
                 }
             }
-            Stored::Zarr { store, array } => {
+            Stored::Zarr {
+                store,
+                array,
+                complex128,
+            } => {
                 let opened = zarr_array(store, array)?;
                 let shape = opened.shape();
                 let expected = [self.frames, 1, nz, nx];
@@ -426,7 +432,10 @@ impl ImagesHeader {
                 if plane.iter().zip(expected).any(|(&a, b)| a != b as u64) {
                     return Err(changed(store));
                 }
-                StoredFrames::Zarr(std::sync::Arc::new(opened))
+                StoredFrames::Zarr {
+                    array: std::sync::Arc::new(opened),
+                    complex128: *complex128,
+                }
             }
         };
         Ok(ImagesFile {
@@ -495,15 +504,19 @@ enum StoredFrames {
         angles_axis: Option<usize>,
         frames_axis: usize,
     },
-    /// ConfUSIus's `iq` array (time, k, j, i), chunks read and decoded by zarrs.
-    Zarr(std::sync::Arc<zarrs::array::Array<zarrs::filesystem::FilesystemStore>>),
+    /// ConfUSIus's `iq` array (time, k, j, i), chunks read and decoded by zarrs; complex128
+    /// values are read into complex64.
+    Zarr {
+        array: std::sync::Arc<zarrs::array::Array<zarrs::filesystem::FilesystemStore>>,
+        complex128: bool,
+    },
 }
 
 impl std::fmt::Debug for StoredFrames {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             StoredFrames::Npy { array, .. } => write!(f, "Npy({})", array.label),
-            StoredFrames::Zarr(array) => write!(f, "Zarr({:?})", array.shape()),
+            StoredFrames::Zarr { array, .. } => write!(f, "Zarr({:?})", array.shape()),
         }
     }
 }
@@ -548,7 +561,7 @@ impl ImagesFile {
                 if let Some(((iz, ix, t), _)) = one.indexed_iter().find(|(_, v)| !v.is_finite()) {
                     let (field, label) = match &self.frames_of {
                         StoredFrames::Npy { array, .. } => ("[images].file", array.label.clone()),
-                        StoredFrames::Zarr(_) => ("iq", "the iq array".to_string()),
+                        StoredFrames::Zarr { .. } => ("iq", "the iq array".to_string()),
                     };
                     return Err(IoError::invalid(
                         path,
@@ -598,7 +611,7 @@ impl ImagesFile {
                     .into_shape_with_order((nz, nx, frames.len()))
                     .map_err(|e| IoError::malformed(path, format!("images array: {e}")))
             }
-            StoredFrames::Zarr(array) => {
+            StoredFrames::Zarr { array, complex128 } => {
                 let mut ranges: Vec<Range<u64>> = array.shape().iter().map(|&n| 0..n).collect();
                 ranges[0] = frames.start as u64..frames.end as u64;
                 let subset = zarrs::array::ArraySubset::new_with_ranges(&ranges);
@@ -612,14 +625,14 @@ impl ImagesFile {
                     )
                 };
                 // (time, …, j, i) in C order, its plane's pixels after each frame's.
-                let values: Vec<Complex32> = match array.data_type().to_string().as_str() {
-                    "complex128" => array
+                let values: Vec<Complex32> = match complex128 {
+                    true => array
                         .retrieve_array_subset::<Vec<num_complex::Complex64>>(&subset)
                         .map_err(|e| failed(e.to_string()))?
                         .into_iter()
                         .map(|v| Complex32::new(v.re as f32, v.im as f32))
                         .collect(),
-                    _ => array
+                    false => array
                         .retrieve_array_subset::<Vec<Complex32>>(&subset)
                         .map_err(|e| failed(e.to_string()))?,
                 };

@@ -205,3 +205,20 @@ fn chunks_longer_than_a_segment_are_warned_of() {
         "{warnings}"
     );
 }
+
+/// A store of complex128 values is read into complex64: the same frames as the complex64 store
+/// ConfUSIus wrote of the same images (whose values complex64 holds exactly).
+#[test]
+fn complex128_is_read_as_complex64() {
+    let wide = store().with_file_name("iq_complex128.zarr");
+    let header = read_header(&wide).unwrap();
+    assert_eq!(header.info.stored.as_ref().unwrap().dtype, "complex128");
+    let read = header.images_file().unwrap().read(0..8).unwrap();
+    let narrow = read_header(&store())
+        .unwrap()
+        .images_file()
+        .unwrap()
+        .read(0..8)
+        .unwrap();
+    assert_eq!(read.series[0], narrow.series[0]);
+}
