@@ -223,3 +223,5 @@ def test_confusius_iq_store_gives_confusius_own_velocity(tmp_path):
     result.save(tmp_path / "out")
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["source"]["format"] == "ConfUSIus beamformed IQ (Zarr v3)", summary["source"]
+    with pytest.raises(ValueError, match="ConfUSIus's Zarr store"):
+        pcuvd.read_recording(store)

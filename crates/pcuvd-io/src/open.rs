@@ -50,6 +50,14 @@ fn looks_like(head: &[u8]) -> String {
 
 /// Opens the recording at `path`, whatever its format, applying the user's `overrides`.
 pub fn open_recording(path: &Path, overrides: &Overrides) -> Result<OpenedRecording, IoError> {
+    if crate::confusius::is_store(path) {
+        return Err(IoError::malformed(
+            path,
+            "is ConfUSIus's Zarr store of beamformed IQ images, not a recording of channel data: \
+             `pcuvd process`, `pcuvd info` and Python's pcuvd.process(path) read it (decoding and \
+             beamforming skipped); it is not read as a recording",
+        ));
+    }
     // A folder, a named pipe (reading one would wait forever) or a link loop is said as such.
     crate::paths::check_regular_file(path)?;
     overrides.check(path)?;

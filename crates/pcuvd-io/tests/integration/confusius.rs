@@ -67,6 +67,12 @@ fn the_header_is_what_confusius_wrote() {
         "{files:?}"
     );
     assert!(files.iter().all(|f| f.is_file()), "{files:?}");
+    // Read as a recording, it says what it is and what reads it.
+    let overrides = pcuvd_io::params::Overrides::default();
+    let Err(error) = pcuvd_io::open_recording(&store(), &overrides) else {
+        panic!("a store of images opened as a recording");
+    };
+    assert!(error.to_string().contains("pcuvd process"), "{error}");
 }
 
 #[test]
