@@ -241,8 +241,9 @@ def process(
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
     The path of an images manifest (beamformed IQ images formed elsewhere, format
-    "pcuvd-images": docs/guide/inputs.md) runs the chain from the clutter filter on, as the
-    command does; its summary has an `images` record in place of the probe and acquisition.
+    "pcuvd-images": docs/guide/inputs.md), or of ConfUSIus's Zarr store of IQ (a `.zarr`
+    folder with an `iq` array), runs the chain from the clutter filter on, as the command does;
+    its summary has an `images` record in place of the probe and acquisition.
     A recording `pcuvd simulate` wrote (its `scenario.toml` beside it), or one `pcuvd.simulate`
     made in memory (it carries its scenario), is scored against its truth:
     `result.summary["against_truth"]`, and `save` draws `against_truth.png`.

@@ -39,8 +39,8 @@ def process(
     recording's path readable).
 
     recording: the path of a recording in any format `pcuvd process` reads, or of an images
-    manifest (beamformed images formed elsewhere, each worker reading its segment's frames of
-    the images file; overrides do not apply to them). overrides: the
+    manifest or ConfUSIus's Zarr store of IQ (beamformed images formed elsewhere, each worker
+    reading its segment's frames; overrides do not apply to them). overrides: the
     reader's acquisition overrides (`t0_s`, `sound_speed_m_s`, `event_prf_hz`,
     `sampling_freq_hz`, `center_freq_hz`, `angles_rad`, `pulse_cycles`, `bandwidth`, `track`),
     as `read_recording` takes them. options: `process`'s keywords; `segment_frames` sets the
