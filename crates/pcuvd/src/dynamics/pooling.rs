@@ -173,9 +173,10 @@ impl VesselPooling {
 /// means, times its own time mean, so that its mean speed is kept and its shape is the pooled one.
 /// `speed` is (time, nz, nx); `mean_vx`, `mean_vz` are the time-mean velocities (nz, nx) that give
 /// each pixel's flow direction. Pixels without a finite series, or outside the mask, are kept as
-/// they are and pooled by none.
+/// they are and pooled by none. The pooled lanes replace the pixels' own in `speed`'s memory
+/// once all are made: a long recording's series is not held a second time.
 pub(super) fn pool_waveforms(
-    speed: &Array3<f64>,
+    mut speed: Array3<f64>,
     mask: &Array2<bool>,
     mean_vx: &Array2<f64>,
     mean_vz: &Array2<f64>,
@@ -241,12 +242,12 @@ pub(super) fn pool_waveforms(
             (mean_sum > 0.0).then(|| sum.iter().map(|v| v / mean_sum * own_mean).collect())
         })
         .collect();
-    let mut out = speed.clone();
     for (p, lane) in pooled.into_iter().enumerate() {
         if let Some(lane) = lane {
-            out.slice_mut(s![.., p / nx, p % nx])
+            speed
+                .slice_mut(s![.., p / nx, p % nx])
                 .assign(&ndarray::Array1::from(lane));
         }
     }
-    out
+    speed
 }

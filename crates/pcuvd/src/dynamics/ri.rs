@@ -153,7 +153,7 @@ pub fn ri_maps_triggered(
             .mean_axis(Axis(0))
             .unwrap_or_else(|| Array2::zeros((nz, nx)));
         let weight = mean_power.mapv(|p| p * p);
-        speed = pool_waveforms(&speed, &mask, &mx, &mz, &weight, &pooling);
+        speed = pool_waveforms(speed, &mask, &mx, &mz, &weight, &pooling);
     }
     let harmonics_at = |rate: f64| {
         params
