@@ -106,8 +106,16 @@ pub fn open_images(
     options: &crate::settings::ProcessingSettings,
     dynamics: &crate::settings::DynamicsSettings,
 ) -> Result<OpenedImages> {
+    plan_images(pcuvd_io::open::read_images_header(path)?, options, dynamics)
+}
+
+/// [`open_images`] from the images' `header`, already read.
+pub fn plan_images(
+    header: pcuvd_io::images::ImagesHeader,
+    options: &crate::settings::ProcessingSettings,
+    dynamics: &crate::settings::DynamicsSettings,
+) -> Result<OpenedImages> {
     use pcuvd::form::images::ImageFrames;
-    let header = pcuvd_io::open::read_images_header(path)?;
     let images = header.images_file()?;
     let description = images.description();
     let frames = images.n_frames();

@@ -310,7 +310,8 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     let segments = header.frames.div_ceil(held.max(1));
     let memory_bytes = 3 * header.bytes_of_frames(held);
     let opened =
-        pcuvd_app::input::open_images(&args.input, &Default::default(), &Default::default()).ok();
+        pcuvd_app::input::plan_images(header.clone(), &Default::default(), &Default::default())
+            .ok();
     let stage_bytes = opened.as_ref().map(|opened| {
         pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
     });

@@ -561,7 +561,9 @@ impl ImagesFile {
                 if let Some(((iz, ix, t), _)) = one.indexed_iter().find(|(_, v)| !v.is_finite()) {
                     let (field, label) = match &self.frames_of {
                         StoredFrames::Npy { array, .. } => ("[images].file", array.label.clone()),
-                        StoredFrames::Zarr { .. } => ("iq", "the iq array".to_string()),
+                        StoredFrames::Zarr { array, .. } => {
+                            ("array", format!("its array {}", array.path()))
+                        }
                     };
                     return Err(IoError::invalid(
                         path,
@@ -619,7 +621,8 @@ impl ImagesFile {
                     IoError::malformed(
                         path,
                         format!(
-                            "frames {frames:?} of its iq array cannot be read ({})",
+                            "frames {frames:?} of its array {} cannot be read ({})",
+                            array.path(),
                             crate::error::flat(e)
                         ),
                     )
@@ -636,8 +639,10 @@ impl ImagesFile {
                         .retrieve_array_subset::<Vec<Complex32>>(&subset)
                         .map_err(|e| failed(e.to_string()))?,
                 };
-                let by_frame = Array3::from_shape_vec((frames.len(), nz, nx), values)
-                    .map_err(|e| IoError::malformed(path, format!("iq array: {e}")))?;
+                let by_frame =
+                    Array3::from_shape_vec((frames.len(), nz, nx), values).map_err(|e| {
+                        IoError::malformed(path, format!("array {}: {e}", array.path()))
+                    })?;
                 Ok(by_frame
                     .permuted_axes([1, 2, 0])
                     .as_standard_layout()
