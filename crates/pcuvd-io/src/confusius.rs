@@ -89,12 +89,10 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         .map(String::as_str)
         .filter(|d| *d != "pose")
         .collect();
-    let pose_length = dims
-        .iter()
-        .position(|d| d == "pose")
-        .and_then(|p| shape.get(p).copied())
-        .unwrap_or(1);
-    if plane_dims != DIMS || shape.len() != dims.len() {
+    let pose_axis = dims.iter().position(|d| d == "pose");
+    let pose_length = pose_axis.and_then(|p| shape.get(p).copied()).unwrap_or(1);
+    // ConfUSIus's order: the pose, when there is one, right after time.
+    if plane_dims != DIMS || shape.len() != dims.len() || pose_axis.is_some_and(|p| p != 1) {
         return Err(IoError::invalid(
             path,
             field("dimension_names"),

@@ -184,6 +184,13 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
             }),
             "complex",
         ),
+        (
+            Box::new(|json| {
+                json["dimension_names"] = serde_json::json!(["pose", "time", "k", "j", "i"]);
+                json["shape"] = serde_json::json!([1, 48, 1, 20, 24]);
+            }),
+            "dimension_names",
+        ),
     ];
     for (edit, said) in cases {
         let dir = edited(edit);
