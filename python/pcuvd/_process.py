@@ -205,6 +205,10 @@ def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> P
     `window_step_ms=5`, `artery_ri_min=0.55`, `vein_ri_max=0.5`, `pool_along_mm=0`,
     `dynamics="on"` (an error rather than a skipped stage when RI cannot be measured).
     Returns a new result with the same maps and the new RI maps (`ri`, `psv`, `edv`, ...).
+    Where the windows stay as the result made them (the same `window_ms`, `window_step_ms`,
+    `dynamics_kernel`, `dynamics_partial_volume`), the RI maps are made again from its velocity
+    windows: the only way for a recording processed in segments, whose filtered series were
+    not kept (new windows there raise ValueError), and quicker for any.
     """
     if not isinstance(result, ProcessResult):
         raise TypeError(

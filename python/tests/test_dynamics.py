@@ -79,3 +79,28 @@ def test_triggers_recorded_in_the_manifest_are_used(steady_tube, steady_without_
     rate = pcuvd.dynamics(from_manifest, quiet=True, **BEAT)
     assert rate.summary["dynamics"].get("triggers_from") is None
     assert rate.summary["dynamics"]["heart_rate_hz"] == 40
+
+
+def test_ri_settings_change_on_the_windows_of_a_run_in_segments(steady_tube):
+    """A recording processed in segments keeps its velocity windows, not its filtered series:
+    `pcuvd.dynamics` with other RI settings on the same windows gives what processing in
+    segments with those settings gives; new windows, or a run that made none, are refused
+    naming what may change."""
+    path = str(steady_tube / "coded.toml")
+    segmented = {"segment_frames": 40, **STEADY_GRID}
+    first = pcuvd.process(path, quiet=True, **segmented, **BEAT)
+    assert first.summary["segments"]["count"] >= 3, first.summary["segments"]
+    other = {"heart_rate_hz": 45, "artery_ri_min": 0.2, "vein_ri_max": 0.1, "pool_along_mm": 0,
+             "pool_across_mm": 0, **STEADY_WINDOWS}
+    rerun = pcuvd.dynamics(first, quiet=True, **other)
+    full = pcuvd.process(path, quiet=True, **segmented, **other)
+    for name in ("ri", "psv", "edv", "vessel_class", "flow_up", "speed_series", "times", "vx"):
+        assert_same_array(getattr(rerun, name), getattr(full, name), name)
+    assert rerun.summary["dynamics"] == full.summary["dynamics"]
+    assert rerun.summary["dynamics"]["heart_rate_hz"] == 45
+    assert rerun.summary["dynamics"] != first.summary["dynamics"]
+    with pytest.raises(ValueError, match="give the run's window_ms, window_step_ms"):
+        pcuvd.dynamics(first, heart_rate_hz=40, window_ms=4, window_step_ms=1)
+    without = pcuvd.process(path, quiet=True, dynamics="off", **segmented)
+    with pytest.raises(ValueError, match=r"made none \(--dynamics off\)"):
+        pcuvd.dynamics(without, **BEAT)

@@ -588,6 +588,55 @@ pub fn run_dynamics(
     })
 }
 
+/// The dynamics stage run again on `processed` (done as `done` planned it) as `plan` says. Where
+/// `plan` forms the windows `processed` already holds, only the RI maps are made again from them:
+/// what a long recording processed in segments allows, since its filtered series were not kept,
+/// and what spares any recording the windows' vector fits. New windows need the filtered series.
+pub fn rerun_dynamics(
+    processed: &Processed,
+    done: &Plan,
+    plan: &Plan,
+    progress: &dyn Progress,
+) -> Result<DynamicsOutcome> {
+    let held = match (&processed.dynamics, &done.dynamics, &plan.dynamics) {
+        (DynamicsOutcome::Done { series, .. }, Some(before), Some(now))
+            if before.params.forms_the_same_windows(&now.params) =>
+        {
+            Some((series, now))
+        }
+        _ => None,
+    };
+    if let Some((series, settings)) = held {
+        return dynamics_outcome(plan, progress, || {
+            let maps = pipeline::ri_maps_of(
+                series,
+                &processed.out.maps.power_doppler,
+                &processed.out.grid,
+                &settings.params,
+                &settings.vessel,
+                settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
+            )?;
+            Ok((VelocitySeries::clone(series), maps))
+        });
+    }
+    if plan.dynamics.is_some() && processed.out.filtered.series.is_empty() {
+        bail!(
+            "the recording was processed in segments (too long to hold whole) and its filtered \
+             series were not kept, so the dynamics stage can make its RI maps again only from the \
+             velocity windows the run made: {}",
+            match &processed.dynamics {
+                DynamicsOutcome::Done { .. } => "give the run's window_ms, window_step_ms, \
+                    dynamics_kernel and dynamics_partial_volume (the rest may change), or \
+                    process again with the new windows"
+                    .to_string(),
+                DynamicsOutcome::Skipped(why) =>
+                    format!("the run made none ({why}): process again with the dynamics settings"),
+            }
+        );
+    }
+    run_dynamics(&processed.out, plan, progress)
+}
+
 /// The dynamics windows' settings: `dynamics`' windows, thresholds and pooling at `frame_rate`
 /// (Hz) on a grid of `grid_step` (m), the velocity read as the whole-recording maps read it
 /// (`irls`, `dealias`, `doppler`). Pooling follows each pixel's flow direction in the plane,

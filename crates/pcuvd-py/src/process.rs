@@ -451,7 +451,8 @@ impl PyProcessResult {
                     )?,
                 };
                 let clock = std::time::Instant::now();
-                let dynamics = pcuvd_app::run::run_dynamics(&self.processed.out, &plan, &progress)?;
+                let dynamics =
+                    pcuvd_app::run::rerun_dynamics(&self.processed, &self.plan, &plan, &progress)?;
                 Ok((plan, dynamics, clock.elapsed().as_secs_f64()))
             })
             .map_err(to_py)?;

@@ -163,6 +163,25 @@ impl DynamicsParams {
         }
     }
 
+    /// True when `other` forms the same velocity windows ([`sliding_vectors`]) as `self`: they
+    /// differ at most in what the RI maps read from the windows (heart rate, RI thresholds,
+    /// vessel threshold, harmonics, pooling), so the windows of one stand for the other's.
+    pub fn forms_the_same_windows(&self, other: &Self) -> bool {
+        // Every field not named here is compared: a setting added later counts as the windows'
+        // until it is known not to be.
+        let windows_only = |p: &Self| DynamicsParams {
+            heart_rate_hz: None,
+            artery_ri_min: 0.0,
+            vein_ri_max: 0.0,
+            min_power_db: 0.0,
+            harmonics: None,
+            debias_harmonics: false,
+            pooling: None,
+            ..*p
+        };
+        windows_only(self) == windows_only(other)
+    }
+
     /// Checks every setting against the compound frame rate `frame_rate` (Hz).
     pub fn validate(&self, frame_rate: f64) -> Result<()> {
         require_positive("frame rate", frame_rate)?;

@@ -249,6 +249,50 @@ fn pulsatile_case() -> (Vec<Array3<Complex32>>, Vec<Vessel>, f64) {
     (iq, vessels, hr)
 }
 
+/// Settings that only the RI maps read leave the windows as they were, so a run's windows stand
+/// for another's that differs in those alone; a window's own settings make other windows.
+#[test]
+fn ri_settings_form_the_same_windows_and_window_settings_do_not() {
+    let (iq, _, hr) = pulsatile_case();
+    let images = images(&iq, &paper_angles(), FRAME_RATE, None);
+    let first = rat();
+    let ri_only = DynamicsParams {
+        heart_rate_hz: Some(hr),
+        artery_ri_min: 0.7,
+        vein_ri_max: 0.3,
+        min_power_db: -20.0,
+        harmonics: Some(3),
+        debias_harmonics: !first.debias_harmonics,
+        pooling: Some(VesselPooling {
+            along: 4.0,
+            across: 1.0,
+            max_angle: 0.5,
+        }),
+        ..first
+    };
+    assert!(first.forms_the_same_windows(&ri_only));
+    let windows = sliding_vectors(&images, &first).unwrap();
+    assert_eq!(windows, sliding_vectors(&images, &ri_only).unwrap());
+    for other in [
+        DynamicsParams {
+            kernel: (3, 3),
+            ..first
+        },
+        DynamicsParams { step: 10, ..first },
+        DynamicsParams {
+            window: 30,
+            ..first
+        },
+    ] {
+        assert!(!first.forms_the_same_windows(&other), "{other:?}");
+        assert_ne!(
+            windows,
+            sliding_vectors(&images, &other).unwrap(),
+            "{other:?}"
+        );
+    }
+}
+
 #[test]
 fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     let (iq, vessels, hr) = pulsatile_case();
