@@ -62,16 +62,17 @@ def process(
             f"{path}: processed whole, in one segment: give segment_frames= (fewer frames than "
             "the recording's) to share its segments among the workers"
         )
-    # The memory check here may drop the RI maps of `dynamics="auto"` (the windows of the whole
-    # recording, joined here, would not fit): every worker and the join then run without them.
-    count, first_settles, dynamics_dropped = planned
-    if dynamics_dropped is not None and not quiet:
-        print(f"note: no RI maps: {dynamics_dropped}", file=sys.stderr)
+    # The memory check here may space out or drop the dynamics windows of `dynamics="auto"` (the
+    # windows of the whole recording, joined here, would not fit): every worker and the join
+    # then run the same plan.
+    count, first_settles, dynamics_fit, note = planned
+    if note is not None and not quiet:
+        print(f"note: {note}", file=sys.stderr)
     done = 0
 
     def submit(index: int, intervals: int | None) -> Any:
         return client.submit(
-            _segment, path, read, given, index, intervals, dynamics_dropped, pure=False
+            _segment, path, read, given, index, intervals, dynamics_fit, pure=False
         )
 
     def gathered(futures: list[Any]) -> list[tuple[bytes, int | None]]:
@@ -93,7 +94,7 @@ def process(
     else:
         parts = [part for part, _ in gathered([submit(i, None) for i in range(count)])]
     return ProcessResult(
-        _pcuvd.join_segments(path, read, given, parts, bool(quiet), dynamics_dropped)
+        _pcuvd.join_segments(path, read, given, parts, bool(quiet), dynamics_fit)
     )
 
 
@@ -103,11 +104,11 @@ def _segment(
     options: str,
     index: int,
     window_intervals: int | None,
-    dynamics_dropped: str | None,
+    dynamics_fit: str | None,
 ) -> tuple[bytes, int | None]:
     """One task: segment `index` of the run, processed in the worker (its part as bytes)."""
     from pcuvd import _pcuvd as native
 
     return native.process_segment(
-        path, overrides, options, index, window_intervals, dynamics_dropped
+        path, overrides, options, index, window_intervals, dynamics_fit
     )

@@ -186,11 +186,18 @@ def test_images_across_a_cluster_equal_one_process(long_images):
         pcuvd.dask.process(long_images, None, overrides={"t0_s": 0.0}, **options)
 
 
-def test_ri_maps_dropped_for_memory_are_dropped_on_every_worker(tmp_path, capsys):
-    """Under `dynamics="auto"` the memory check where the run is planned drops the RI maps whose
-    windows would not fit beside the segments (400 frames of 48 x 64 pixels in segments of 150:
-    12.5 MB to process a segment, 9.5 MB of windows, 16 MB allowed): the cluster's run then
-    equals `pcuvd.process`'s, without windows or RI maps, and says why once."""
+@pytest.mark.parametrize(
+    ("limit_gb", "said"), [(0.016, "RI maps from dynamics windows every 10.0 ms"), (0.012, "no RI maps")]
+)
+def test_windows_fitted_to_memory_are_fitted_alike_on_every_worker(
+    tmp_path, capsys, limit_gb, said
+):
+    """Under `dynamics="auto"` the memory check where the run is planned spaces the dynamics
+    windows further apart (in 16 MB), or drops the RI maps (in 12 MB), where the windows of 20
+    frames every 5 would not fit beside the segments (400 frames of 48 x 64 pixels in segments of
+    150: 11.1 MB to process a segment, 9.5 MB of windows; 4.8 MB every 10 frames, 2.5 MB side by
+    side): every worker and the join follow it, so the cluster's run equals `pcuvd.process`'s,
+    and it is said once."""
     import pcuvd.dask
 
     rng = np.random.default_rng(3)
@@ -199,30 +206,41 @@ def test_ri_maps_dropped_for_memory_are_dropped_on_every_worker(tmp_path, capsys
     blood = rng.standard_normal((nz, nx)) + 1j * rng.standard_normal((nz, nx))
     vessel = np.zeros((nz, nx), bool)
     vessel[18:30, 8:30] = True
-    # 8 mm/s away from the probe at 1 kHz and 15.625 MHz: 1.02 rad a frame.
-    turn = np.exp(-1j * 4 * np.pi * 15.625e6 * 8e-3 / (1540.0 * 1000.0) * np.arange(frames))
+    # 8 mm/s away from the probe on average at 1 kHz and 15.625 MHz (1.02 rad a frame), pulsing
+    # ±50 % at 5 Hz: the cycles the RI maps need.
+    speed = 8e-3 * (1 + 0.5 * np.sin(2 * np.pi * 5 * np.arange(frames) / 1000.0))
+    turn = np.exp(-1j * np.cumsum(4 * np.pi * 15.625e6 * speed / (1540.0 * 1000.0)))
     noise = 0.05 * (rng.standard_normal((frames, nz, nx)) + 1j * rng.standard_normal((frames, nz, nx)))
     images = (tissue + (blood * vessel) * turn[:, None, None] + noise).astype(np.complex64)
     manifest = images_manifest(
         tmp_path, images, ["frames", "z", "x"], np.linspace(-1.6e-3, 1.55e-3, nx),
         np.linspace(5.0e-3, 7.35e-3, nz), frame_rate_hz=1000.0, demod_frequency_hz=15.625e6,
     )
-    options = {"segment_frames": 150, "max_memory_gb": 0.016}
+    options = {"segment_frames": 150, "max_memory_gb": limit_gb}
     one = pcuvd.process(str(manifest), **options)
-    dropped = one.summary["dynamics"]["skipped"]
-    assert "dynamics windows" in dropped and "--window-step-ms" in dropped, dropped
-    assert "ri" not in one.arrays and "speed_series" not in one.arrays
+    dynamics = one.summary["dynamics"]
+    if said == "no RI maps":
+        assert "dynamics windows" in dynamics["skipped"], dynamics
+        assert "side by side" in dynamics["skipped"], dynamics
+        assert "ri" not in one.arrays and "speed_series" not in one.arrays
+    else:
+        assert dynamics["step_frames"] == 10, dynamics
+        assert dynamics["step_spaced_for_memory"].startswith(said), dynamics
+        assert "ri" in one.arrays and one.arrays["speed_series"].shape[0] == (400 - 20) // 10 + 1
     capsys.readouterr()
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster, distributed.Client(cluster) as client:
         joined = pcuvd.dask.process(manifest, client, **options)
-    said = [line for line in capsys.readouterr().err.splitlines() if "no RI maps" in line]
-    assert said == [f"note: no RI maps: {dropped}"], said
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and notes[0].startswith(f"note: {said}"), notes
     assert joined.summary["dynamics"] == one.summary["dynamics"]
     assert sorted(joined.arrays) == sorted(one.arrays)
     for name, value in one.arrays.items():
         assert_same_array(joined.arrays[name], value, name)
-    # With the window step four times longer the windows fit, and the RI maps come back.
-    back = pcuvd.process(str(manifest), quiet=True, window_step_ms=25, heart_rate_hz=5, **options)
+    # In 16 MB with the window step five times longer the windows fit, and the RI maps are made.
+    back = pcuvd.process(
+        str(manifest), quiet=True, window_step_ms=25, heart_rate_hz=5, segment_frames=150,
+        max_memory_gb=0.016,
+    )
     assert "ri" in back.arrays, back.summary["dynamics"]

@@ -137,8 +137,9 @@ pub fn plan_images(
 
 impl OpenedImages {
     /// Refuses, before the images are read, a run that would not fit within `limit_gb` (else
-    /// what the machine leaves), or drops its dynamics stage where only that does not fit and
-    /// `--dynamics auto` asked for it ([`crate::memory::check_images_memory`]).
+    /// what the machine leaves), or spaces its dynamics windows further apart or drops the
+    /// stage where only they do not fit and `--dynamics auto` asked for it
+    /// ([`crate::memory::check_images_memory`]).
     pub fn check_memory(&mut self, limit_gb: Option<f64>) -> Result<()> {
         use pcuvd::form::images::ImageFrames;
         let frames = self.images.n_frames();
@@ -147,10 +148,12 @@ impl OpenedImages {
             .plan
             .segments
             .map_or(frames, |s| (s.core + s.overlap).min(frames));
+        let description = self.images.description();
         let shape = (
             self.frame_bytes * held as u64,
             frames,
-            self.images.description().n_angles(),
+            description.n_angles(),
+            description.frame_rate,
         );
         crate::memory::check_images_memory(&mut self.plan, shape, limit_gb)
     }

@@ -5,7 +5,7 @@ use anyhow::{Result, bail};
 use pcuvd::acquisition::source::FrameSource;
 use pcuvd::pipeline;
 
-use crate::run::Plan;
+use crate::run::{DynamicsFit, Plan};
 
 /// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
 pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
@@ -22,12 +22,19 @@ pub fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
 /// Bytes the dynamics stage's windows of the whole recording hold ([`STAGE_MEMORY_RULE`]):
 /// none when the stage is off or no window fits in the recording's `frames`.
 fn dynamics_memory(plan: &Plan, frames: usize) -> u128 {
+    plan.dynamics
+        .as_ref()
+        .map_or(0, |d| windows_memory(plan, frames, d.params.step))
+}
+
+/// Bytes the dynamics windows of `plan` hold when they start `step` frames apart.
+fn windows_memory(plan: &Plan, frames: usize, step: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
     plan.dynamics.as_ref().map_or(0, |d| {
         if d.params.window > frames {
             return 0;
         }
-        let windows = (frames - d.params.window) / d.params.step.max(1) + 1;
+        let windows = (frames - d.params.window) / step.max(1) + 1;
         5 * windows as u128 * (nz * nx) as u128 * 8
     })
 }
@@ -45,14 +52,15 @@ fn ensembles_memory(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
 /// Refuses, before any work, a recording, grid and stages whose processing would need more memory
 /// than this process may take ([`pipeline::memory_estimate`] + [`STAGE_MEMORY_RULE`] against
 /// [`memory_room`], or the user's `limit_gb`), instead of aborting on allocation. Under
-/// `--dynamics auto` a run that fits without the dynamics windows drops that stage instead
-/// ([`fit_stages`]).
+/// `--dynamics auto` a run that fits without the dynamics windows spaces them further apart, or
+/// drops that stage, instead ([`fit_stages`]).
 pub fn check_memory(data: &dyn FrameSource, plan: &mut Plan, limit_gb: Option<f64>) -> Result<()> {
     let Some(room) = room_within(limit_gb)? else {
         return Ok(());
     };
     let chain = pipeline::memory_estimate(data, &plan.params.grid) as f64;
-    let shape = (data.n_frames(), data.acquisition().sequence.n_angles());
+    let acq = data.acquisition();
+    let shape = (data.n_frames(), acq.sequence.n_angles(), acq.frame_rate());
     let held = Held {
         bytes: chain,
         rule: pipeline::MEMORY_ESTIMATE_RULE,
@@ -70,17 +78,21 @@ struct Held {
 }
 
 /// Checks that `held` and the later stages of `plan` (for a recording of `frames` frames of
-/// `n_angles` angles, [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics windows of the whole
+/// `n_angles` angles at `frame_rate` (Hz), [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics windows of the whole
 /// recording grow with its length (5 maps of 8 bytes per pixel per window: about 39 GB for five
 /// minutes of 128 × 128 pixels at a 5 ms step), the rest of a segmented run does not: where
-/// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the plan
-/// drops the stage and says why ([`Plan::dynamics_dropped`]), so that a long functional
-/// recording still gives its maps and time series; with a dynamics setting the run is refused,
-/// naming `--window-step-ms` and `--dynamics off`.
+/// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the windows
+/// start further apart, the step the fewest whole multiples of the default's that fit, up to
+/// the window's length (windows side by side: the RI maps read from a cycle's fitted
+/// harmonics, which a few windows per cycle hold, and on the rat-network phantom they read
+/// alike at steps of 5, 10 and 20 ms); where none fits, the plan drops the stage. Either is
+/// said ([`Plan::dynamics_fit`]), so that a long functional recording still gives its maps and
+/// time series; with a dynamics setting the run is refused, naming `--window-step-ms` and
+/// `--dynamics off`.
 fn fit_stages(
     plan: &mut Plan,
     held: &Held,
-    (frames, n_angles): (usize, usize),
+    (frames, n_angles, frame_rate): (usize, usize, f64),
     room: &MemoryRoom,
 ) -> Result<()> {
     let windows = dynamics_memory(plan, frames) as f64;
@@ -96,14 +108,20 @@ fn fit_stages(
     );
     let without_windows = windows > 0.0 && others <= room.bytes;
     if without_windows && !plan.dynamics_required {
-        plan.drop_dynamics(format!(
-            "the dynamics windows of the whole recording would need about {} beside the run's \
-             {}, and {available}: give a longer --window-step-ms, or run where more memory is \
-             free, for RI maps",
-            gigabytes(windows),
-            gigabytes(others)
-        ));
-        return Ok(());
+        let room_left = room.bytes - others;
+        let fit = spaced_windows(plan, (frames, frame_rate), room_left, &available).unwrap_or_else(
+            || {
+                DynamicsFit::Dropped(format!(
+                    "the dynamics windows of the whole recording would need about {} beside the \
+                     run's {} (at least {} with the windows side by side), and {available}: run \
+                     where more memory is free, for RI maps",
+                    gigabytes(windows),
+                    gigabytes(others),
+                    gigabytes(side_by_side(plan, frames)),
+                ))
+            },
+        );
+        return plan.apply_fit(fit, frames);
     }
     let instead = if without_windows {
         format!(
@@ -125,6 +143,44 @@ fn fit_stages(
         gigabytes(needed),
         held.rule,
     )
+}
+
+/// The dynamics windows of `plan`, for a recording of `frames` frames at `frame_rate` (Hz),
+/// started the fewest whole multiples of its step apart, up to the window's length, that fit in
+/// `room` bytes ([`fit_stages`]); `None` when none does.
+fn spaced_windows(
+    plan: &Plan,
+    (frames, frame_rate): (usize, f64),
+    room: f64,
+    available: &str,
+) -> Option<DynamicsFit> {
+    let params = plan.dynamics.as_ref()?.params;
+    let step_ms = |step: usize| step as f64 / frame_rate * 1e3;
+    let planned = windows_memory(plan, frames, params.step) as f64;
+    (2..)
+        .map(|k| k * params.step.max(1))
+        .take_while(|&step| step <= params.window)
+        .find(|&step| windows_memory(plan, frames, step) as f64 <= room)
+        .map(|step| DynamicsFit::Stepped {
+            step,
+            reason: format!(
+                "RI maps from dynamics windows every {:.1} ms rather than {:.1} ms: at {:.1} ms \
+                 the windows of the whole recording would need about {}, and {available} \
+                 (--window-step-ms sets the step; a recording of a few cycles would rather have \
+                 its windows closer)",
+                step_ms(step),
+                step_ms(params.step),
+                step_ms(params.step),
+                gigabytes(planned),
+            ),
+        })
+}
+
+/// Bytes the dynamics windows of `plan` hold side by side (started a window's length apart,
+/// the furthest [`spaced_windows`] spaces them).
+fn side_by_side(plan: &Plan, frames: usize) -> f64 {
+    let window = plan.dynamics.as_ref().map_or(1, |d| d.params.window);
+    windows_memory(plan, frames, window) as f64
 }
 
 /// The memory a run may use: `--max-memory-gb` when given (checked), else what the machine
@@ -152,13 +208,13 @@ pub const IMAGES_MEMORY_RULE: &str = "three times the images held at once as com
 their frames, or one segment's with its overlap): an angle's frames as read, the per-angle \
 series (filtered in place) and their compound";
 
-/// Refuses, before they are read, beamformed images of which `bytes` (as complex64) are held at
-/// once (all their `frames`, or a segment's when `plan` cuts them) that a run could not hold
+/// Refuses, before they are read, beamformed images at `frame_rate` (Hz) of which `bytes` (as
+/// complex64) are held at once (all their `frames`, or a segment's when `plan` cuts them) that a run could not hold
 /// ([`IMAGES_MEMORY_RULE`]) with its later stages ([`STAGE_MEMORY_RULE`], [`fit_stages`])
 /// within `limit_gb` or what the machine leaves.
 pub fn check_images_memory(
     plan: &mut Plan,
-    (bytes, frames, n_angles): (u64, usize, usize),
+    (bytes, frames, n_angles, frame_rate): (u64, usize, usize, f64),
     limit_gb: Option<f64>,
 ) -> Result<()> {
     let Some(room) = room_within(limit_gb)? else {
@@ -172,7 +228,7 @@ pub fn check_images_memory(
             false => "give --segment-frames to hold fewer frames at once",
         },
     };
-    fit_stages(plan, &held, (frames, n_angles), &room)
+    fit_stages(plan, &held, (frames, n_angles, frame_rate), &room)
 }
 
 /// Refuses work that would hold `bytes` in memory where less may still be allocated

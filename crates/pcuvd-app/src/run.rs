@@ -22,9 +22,10 @@ pub struct Plan {
     /// True when a dynamics setting was given, so that a recording that cannot honour it is an
     /// error rather than a skipped stage.
     pub dynamics_required: bool,
-    /// Why the dynamics stage, asked for by `--dynamics auto`, was dropped before the run (its
-    /// windows would not fit in memory: [`crate::memory::check_memory`]); `None` otherwise.
-    pub dynamics_dropped: Option<String>,
+    /// What the memory check ([`crate::memory::check_memory`]) did to the dynamics stage that
+    /// `--dynamics auto` asked for, so that its windows fit: dropped it, or spaced its windows
+    /// further apart; `None` when it left the stage as planned.
+    pub dynamics_fit: Option<DynamicsFit>,
     /// Every processing and dynamics option, defaults included, as one line of text.
     pub options_text: String,
     /// The Doppler time series' ensembles, when asked for.
@@ -78,7 +79,7 @@ impl Plan {
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
-            dynamics_dropped: None,
+            dynamics_fit: None,
             options_text: settings_text(options, dynamics),
             kept_pixels: Vec::new(),
         })
@@ -117,20 +118,83 @@ impl Plan {
             params,
             dynamics: dynamics_settings,
             dynamics_required: dynamics.explicit(),
-            dynamics_dropped: None,
+            dynamics_fit: None,
             options_text: settings_text(options, dynamics),
             kept_pixels: Vec::new(),
         })
     }
 
-    /// Drops the dynamics stage that `--dynamics auto` asked for, saying why (the reason goes
-    /// to the run's notes and summary.json). The options' text says so too: a re-run with the
-    /// same options where the windows fit is not the same run, and is not skipped as done.
-    pub fn drop_dynamics(&mut self, reason: String) {
-        self.dynamics = None;
-        self.dynamics_dropped = Some(reason);
-        self.options_text
-            .push_str(" (no dynamics stage: its windows would not fit in memory)");
+    /// Why the dynamics stage `--dynamics auto` asked for was dropped before the run (its
+    /// windows would not fit in memory); `None` when it was not.
+    pub fn dynamics_dropped(&self) -> Option<&str> {
+        match &self.dynamics_fit {
+            Some(DynamicsFit::Dropped(reason)) => Some(reason),
+            _ => None,
+        }
+    }
+
+    /// Applies `fit` to the dynamics stage that `--dynamics auto` asked for, in a plan of a
+    /// recording of `n_frames` frames: drops the stage, or starts its windows `step` frames
+    /// apart, the segments cut again for that step (the reason goes to the run's notes and
+    /// summary.json). The options' text says so too: a re-run with the same options where the
+    /// windows fit as planned is not the same run, and is not skipped as done.
+    pub fn apply_fit(&mut self, fit: DynamicsFit, n_frames: usize) -> Result<()> {
+        match &fit {
+            DynamicsFit::Dropped(_) => {
+                self.dynamics = None;
+                self.options_text
+                    .push_str(" (no dynamics stage: its windows would not fit in memory)");
+            }
+            DynamicsFit::Stepped { step, .. } => {
+                let Some(dynamics) = self.dynamics.as_mut() else {
+                    bail!("a window step for a dynamics stage that is off");
+                };
+                dynamics.params.step = *step;
+                if let Some(segments) = self.segments {
+                    self.segments = cut_and_check(
+                        &self.params,
+                        segments.core + segments.overlap,
+                        Some(&dynamics.params),
+                        self.ensembles,
+                        n_frames,
+                    )?;
+                }
+                self.options_text.push_str(&format!(
+                    " (dynamics windows {step} frames apart: the default's would not fit in memory)"
+                ));
+            }
+        }
+        self.dynamics_fit = Some(fit);
+        Ok(())
+    }
+}
+
+/// What the memory check did to the dynamics stage that `--dynamics auto` asked for
+/// ([`Plan::apply_fit`]); as JSON it travels to the processes of a run shared among workers,
+/// so that each runs the one plan.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum DynamicsFit {
+    /// No dynamics stage: its windows would not fit at any step up to their length; why.
+    Dropped(String),
+    /// The windows start `step` frames apart, more than the default, so that they fit; why.
+    Stepped {
+        /// Frames between window starts.
+        step: usize,
+        /// Why, and what the default would have needed.
+        reason: String,
+    },
+}
+
+impl DynamicsFit {
+    /// What the run says of it before it starts.
+    pub fn note(&self) -> String {
+        match self {
+            DynamicsFit::Dropped(reason) => format!(
+                "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, silences \
+                 this)"
+            ),
+            DynamicsFit::Stepped { reason, .. } => reason.clone(),
+        }
     }
 }
 
@@ -150,6 +214,19 @@ fn planned_cut(
         pcuvd::pipeline::segments::default_segment_frames(nz * nx, n_angles)
             .max(Segments::shortest(windows, ensembles))
     });
+    cut_and_check(params, segment_frames, windows, ensembles, n_frames)
+}
+
+/// How a recording of `n_frames` frames is cut into segments of at most `segment_frames`
+/// frames for these `windows` and `ensembles` ([`Segments::plan`]), the clutter cut-offs of
+/// `params` checked against the shortest series filtered.
+fn cut_and_check(
+    params: &ProcessParams,
+    segment_frames: usize,
+    windows: Option<&DynamicsParams>,
+    ensembles: Option<pcuvd::pipeline::ensembles::EnsembleSpec>,
+    n_frames: usize,
+) -> Result<Option<Segments>> {
     let segments =
         Segments::plan(n_frames, segment_frames, windows, ensembles).context("--segment-frames")?;
     let shortest_filtered = segments
@@ -307,13 +384,11 @@ pub fn run_into(
     finish_whole(out, ensembles, blocks, plan, progress, sink)
 }
 
-/// Says, before a long run, what the plan has left out that the user did not turn off: the
-/// dynamics stage dropped for memory ([`Plan::dynamics_dropped`]).
+/// Says, before a long run, what the plan changed that the user did not ask for: the dynamics
+/// stage dropped, or its windows spaced further apart, for memory ([`Plan::dynamics_fit`]).
 fn said_before_the_run(plan: &Plan, progress: &dyn Progress) {
-    if let Some(reason) = &plan.dynamics_dropped {
-        progress.note(&format!(
-            "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, silences this)"
-        ));
+    if let Some(fit) = &plan.dynamics_fit {
+        progress.note(&fit.note());
     }
 }
 
@@ -625,16 +700,25 @@ pub fn rerun_dynamics(
              series were not kept, so the dynamics stage can make its RI maps again only from the \
              velocity windows the run made: {}",
             match &processed.dynamics {
-                DynamicsOutcome::Done { .. } => "give the run's window_ms, window_step_ms, \
-                    dynamics_kernel and dynamics_partial_volume (the rest may change), or \
-                    process again with the new windows"
-                    .to_string(),
+                DynamicsOutcome::Done { series, .. } => format!(
+                    "give the run's window_ms ({} ms), window_step_ms ({} ms), dynamics_kernel \
+                     and dynamics_partial_volume (the rest may change), or process again with \
+                     the new windows",
+                    milliseconds(series.window_s),
+                    milliseconds(series.step_s)
+                ),
                 DynamicsOutcome::Skipped(why) =>
                     format!("the run made none ({why}): process again with the dynamics settings"),
             }
         );
     }
     run_dynamics(&processed.out, plan, progress)
+}
+
+/// `seconds` in milliseconds as an option takes them: rounded to the nanosecond, so that a
+/// step of 9 frames at 1.8 kHz reads 5, not 5.000000000000001.
+fn milliseconds(seconds: f64) -> f64 {
+    (seconds * 1e9).round() / 1e6
 }
 
 /// The dynamics windows' settings: `dynamics`' windows, thresholds and pooling at `frame_rate`
@@ -707,9 +791,8 @@ fn dynamics_outcome(
     Ok(match &plan.dynamics {
         // Said when the run started (`said_before_the_run`).
         None => DynamicsOutcome::Skipped(
-            plan.dynamics_dropped
-                .clone()
-                .unwrap_or_else(|| "--dynamics off".into()),
+            plan.dynamics_dropped()
+                .map_or_else(|| "--dynamics off".into(), str::to_string),
         ),
         Some(_) => match stage() {
             Ok((series, maps)) => DynamicsOutcome::Done {

@@ -264,12 +264,16 @@ fn size(b: usize) -> String {
 /// What the memory check of a run at the defaults (`checked`, leaving `plan` as it planned it)
 /// means for the user, when it is not that the run fits.
 fn memory_warning(checked: Result<()>, plan: &pcuvd_app::run::Plan) -> Option<String> {
-    match (checked, &plan.dynamics_dropped) {
+    use pcuvd_app::run::DynamicsFit;
+    match (checked, &plan.dynamics_fit) {
         (Err(e), _) => Some(format!(
             "at the defaults `pcuvd process` would refuse: {e:#}"
         )),
-        (Ok(()), Some(reason)) => Some(format!(
+        (Ok(()), Some(DynamicsFit::Dropped(reason))) => Some(format!(
             "at the defaults `pcuvd process` would run without RI maps: {reason}"
+        )),
+        (Ok(()), Some(DynamicsFit::Stepped { reason, .. })) => Some(format!(
+            "at the defaults `pcuvd process` would make its {reason}"
         )),
         (Ok(()), None) => None,
     }

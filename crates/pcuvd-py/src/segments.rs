@@ -19,7 +19,8 @@ enum Input {
 impl Input {
     /// Opens the recording or images manifest at `path` with the reader `overrides` and plans
     /// the run of `options` (both JSON); `checked`: the run's memory checked as `pcuvd process`
-    /// checks it, which may drop the dynamics stage ([`pcuvd_app::run::Plan::dynamics_dropped`]).
+    /// checks it, which may space the dynamics windows further apart or drop the stage
+    /// ([`pcuvd_app::run::Plan::dynamics_fit`]).
     fn open(
         path: &std::path::Path,
         overrides: &str,
@@ -36,22 +37,25 @@ impl Input {
     }
 
     /// Opens it as [`Input::open`] does unchecked, in a worker or for the join, with the plan
-    /// the run's memory check gave where it was counted ([`segment_count`]): the dynamics stage
-    /// dropped there (`dynamics_dropped`, its reason) is dropped here too, so that every
-    /// process runs one plan whatever memory it has.
+    /// the run's memory check gave where it was counted ([`segment_count`]): what it did to the
+    /// dynamics stage there (`dynamics_fit`, JSON) is done here too, so that every process runs
+    /// one plan whatever memory it has.
     fn open_as_counted(
         path: &std::path::Path,
         overrides: &str,
         options: &str,
-        dynamics_dropped: Option<String>,
+        dynamics_fit: Option<String>,
     ) -> PyResult<Self> {
         let mut input = Self::open(path, overrides, options, false)?;
-        if let Some(reason) = dynamics_dropped {
+        if let Some(fit) = dynamics_fit {
+            let fit: pcuvd_app::run::DynamicsFit = serde_json::from_str(&fit)
+                .map_err(|e| PyValueError::new_err(format!("dynamics_fit: {e}")))?;
+            let n_frames = input.source().n_frames();
             let plan = match &mut input {
                 Input::Recording(opened) => &mut opened.plan,
                 Input::Images(opened) => &mut opened.images.plan,
             };
-            plan.drop_dynamics(reason);
+            plan.apply_fit(fit, n_frames).map_err(to_py)?;
         }
         Ok(input)
     }
@@ -75,22 +79,35 @@ impl Input {
 
 /// How many segments the run of `path` with `options` has (its memory checked as
 /// `pcuvd process` checks it), whether the later ones need segment 0's `window_intervals`, and
-/// why the check dropped the dynamics stage (`None` when it did not: pass it on to
-/// [`process_segment`] and [`join_segments`]); `None` when it is processed whole.
+/// what the check did to the dynamics stage (JSON, `None` when nothing: pass it on to
+/// [`process_segment`] and [`join_segments`]) with the note that says so; `None` when it is
+/// processed whole.
 #[pyfunction]
 pub(crate) fn segment_count(
     py: Python<'_>,
     path: PathBuf,
     overrides: &str,
     options: &str,
-) -> PyResult<Option<(usize, bool, Option<String>)>> {
+) -> PyResult<Option<SegmentCount>> {
     py.detach(|| {
         let input = Input::open(&path, overrides, options, true)?;
-        let dropped = input.plan().dynamics_dropped.clone();
+        let fit = match &input.plan().dynamics_fit {
+            Some(fit) => Some((
+                serde_json::to_string(fit)
+                    .map_err(|e| PyValueError::new_err(format!("dynamics_fit: {e}")))?,
+                fit.note(),
+            )),
+            None => None,
+        };
+        let (fit, note) = fit.unzip();
         Ok(pcuvd_app::run::segment_count(input.source(), input.plan())
-            .map(|(count, settles)| (count, settles, dropped)))
+            .map(|(count, settles)| (count, settles, fit, note)))
     })
 }
+
+/// [`segment_count`]'s answer: segments, whether segment 0 settles the windows' Nyquist
+/// intervals, the memory check's change to the dynamics stage (JSON) and its note.
+type SegmentCount = (usize, bool, Option<String>, Option<String>);
 
 /// Segment `index` of the run of `path` with `options`, processed here: its part as bytes and,
 /// from segment 0, the Nyquist intervals every later segment's velocity windows take
@@ -103,10 +120,10 @@ pub(crate) fn process_segment<'py>(
     options: &str,
     index: usize,
     window_intervals: Option<u32>,
-    dynamics_dropped: Option<String>,
+    dynamics_fit: Option<String>,
 ) -> PyResult<(Bound<'py, PyBytes>, Option<u32>)> {
     let (bytes, settled) = py.detach(|| -> PyResult<_> {
-        let input = Input::open_as_counted(&path, overrides, options, dynamics_dropped)?;
+        let input = Input::open_as_counted(&path, overrides, options, dynamics_fit)?;
         let part = pcuvd_app::run::run_segment(
             input.source(),
             input.plan(),
@@ -132,11 +149,11 @@ pub(crate) fn join_segments(
     options: &str,
     parts: Vec<Vec<u8>>,
     quiet: bool,
-    dynamics_dropped: Option<String>,
+    dynamics_fit: Option<String>,
 ) -> PyResult<PyProcessResult> {
     let progress = Lines::new(quiet);
     let (input, processed) = py.detach(|| -> PyResult<_> {
-        let input = Input::open_as_counted(&path, overrides, options, dynamics_dropped)?;
+        let input = Input::open_as_counted(&path, overrides, options, dynamics_fit)?;
         let parts = parts
             .iter()
             .map(|bytes| pcuvd_app::run::part_from_bytes(bytes))

@@ -253,6 +253,10 @@ pub struct DynamicsDone {
     pub window_s: f64,
     /// Window step (s).
     pub step_s: f64,
+    /// Why the windows start further apart than the default step, when the memory check
+    /// spaced them so that the whole recording's fit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_spaced_for_memory: Option<String>,
     /// Harmonics of the heart rate fitted.
     pub harmonics: usize,
     /// True when one steering angle gave the maps: PSV, EDV and RI of the colour-Doppler speed.
@@ -499,6 +503,10 @@ impl DynamicsRecord {
             step_frames: dparams.step,
             window_s: series.window_s,
             step_s: series.step_s,
+            step_spaced_for_memory: match &plan.dynamics_fit {
+                Some(crate::run::DynamicsFit::Stepped { reason, .. }) => Some(reason.clone()),
+                _ => None,
+            },
             harmonics: dparams
                 .harmonics
                 .unwrap_or_else(|| dynamics::auto_harmonics(maps.heart_rate_hz, series.window_s)),

@@ -141,25 +141,32 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
     );
     let out = dir.path().join("out");
     // 9.8 MB of images (29.5 MB to hold and filter) fit in 35 MB, but not with the dynamics
-    // windows' 9.5 MB (77 windows of 20 frames, 5 maps of 3,072 pixels): without a dynamics
-    // setting the run goes on without them, and refuses with one.
-    let within = |extra: &[&str]| {
+    // windows' 9.5 MB (77 windows of 20 frames every 5, 5 maps of 3,072 pixels): without a
+    // dynamics setting the run starts them every 10 frames (4.8 MB), and refuses with one; in
+    // 31 MB not even side by side (2.5 MB) fit, and the run goes on without them.
+    let within = |limit_gb: &str, extra: &[&str]| {
         let mut args = vec![
             "process",
             manifest.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
             "--max-memory-gb",
-            "0.035",
+            limit_gb,
             "--force",
         ];
         args.extend_from_slice(extra);
         pcuvd(&args)
     };
-    let (ok, _, stderr) = within(&[]);
+    let (ok, _, stderr) = within("0.035", &[]);
+    assert!(
+        ok && stderr.contains("note: RI maps from dynamics windows every 10.0 ms"),
+        "{stderr}"
+    );
+    assert!(out.join("ri.npy").exists());
+    let (ok, _, stderr) = within("0.031", &[]);
     assert!(ok && stderr.contains("no RI maps"), "{stderr}");
     assert!(!out.join("ri.npy").exists());
-    let (ok, _, stderr) = within(&["--dynamics", "on"]);
+    let (ok, _, stderr) = within("0.035", &["--dynamics", "on"]);
     assert!(!ok && stderr.contains("--dynamics off"), "{stderr}");
     // `info` says so before: within that memory, and not where the machine leaves more.
     let warnings = |extra: &[&str]| {
@@ -171,7 +178,13 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         info["warnings"].to_string()
     };
     assert!(
-        warnings(&["--max-memory-gb", "0.035"]).contains("would run without RI maps"),
+        warnings(&["--max-memory-gb", "0.031"]).contains("would run without RI maps"),
+        "{}",
+        warnings(&["--max-memory-gb", "0.031"])
+    );
+    assert!(
+        warnings(&["--max-memory-gb", "0.035"])
+            .contains("would make its RI maps from dynamics windows every 10.0 ms"),
         "{}",
         warnings(&["--max-memory-gb", "0.035"])
     );
@@ -309,21 +322,25 @@ fn images_too_long_to_hold_are_processed_in_segments() {
 }
 
 /// The dynamics windows of the whole recording grow with its length, the rest of a segmented run
-/// does not: under `--dynamics auto` a run whose windows alone would not fit goes on without the
-/// RI maps and says why (before the run and in summary.json); with a dynamics setting given it is
-/// refused, naming the window step, which, longer, brings the RI maps back.
+/// does not: under `--dynamics auto` a run whose windows alone would not fit starts them further
+/// apart, up to side by side, and its RI maps still read the truth; where even that does not fit
+/// it goes on without the RI maps. Either is said before the run and in summary.json. With a
+/// dynamics setting given it is refused, naming the window step, which, longer, brings the RI
+/// maps back.
 #[test]
-fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
+fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
     let dir = tempfile::tempdir().unwrap();
     let frames = 400;
     let manifest = write_images(dir.path(), &synthetic_images(frames), "");
     let manifest = manifest.to_str().unwrap();
     let out = dir.path().join("out");
     let out_str = out.to_str().unwrap();
-    // Segments of 150 frames hold at most 170 (the 20-frame window's overlap) of 48 × 64 pixels:
-    // 4.2 MB as complex64, 12.5 MB to process. The 77 windows of 20 frames every 5 hold 5 maps of
-    // f64 each, 9.5 MB: 22 MB in all, against 16 MB allowed; 16 windows every 25 frames, 2.0 MB.
-    let run = |extra: &[&str]| {
+    // Three segments of 135 frames are imaged with 15 more (the 20-frame window's overlap), 150
+    // frames of 48 × 64 pixels: 3.7 MB as complex64, 11.1 MB to process. The windows of 20
+    // frames (20 ms) hold 5 maps of f64 each: 77 every 5 frames 9.5 MB, 39 every 10 frames 4.8
+    // MB, 20 side by side 2.5 MB. In 16 MB the first that fits is every 10 frames; in 12 MB
+    // none does.
+    let run = |limit_gb: &str, extra: &[&str]| {
         let mut args = vec![
             "process",
             manifest,
@@ -333,7 +350,7 @@ fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
             "--segment-frames",
             "150",
             "--max-memory-gb",
-            "0.016",
+            limit_gb,
         ];
         args.extend_from_slice(extra);
         let mut command = Command::new(env!("CARGO_BIN_EXE_pcuvd"));
@@ -345,26 +362,54 @@ fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
     let summary = || -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
     };
-    let (ok, stderr) = run(&[]);
+    let said_before_the_run = |stderr: &str, start: &str| -> String {
+        let note = stderr
+            .lines()
+            .find(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("no note starting {start:?}: {stderr}"));
+        let first_stage = stderr.find("clutter filter").expect("the stages' progress");
+        assert!(stderr.find(note).unwrap() < first_stage, "{stderr}");
+        note.to_string()
+    };
+    let ri_reads_the_truth = || {
+        let ri: Array2<f64> = read_npy(out.join("ri.npy")).unwrap();
+        let ri_read = median(vessel_inside().iter().map(|&p| ri[p]).collect());
+        assert!(
+            (ri_read - (1.0 - EDV / PSV)).abs() < 0.05,
+            "RI {ri_read} against {}",
+            1.0 - EDV / PSV
+        );
+    };
+
+    let (ok, stderr) = run("0.016", &[]);
     assert!(ok, "{stderr}");
-    let note = stderr
-        .lines()
-        .find(|l| l.starts_with("note: no RI maps"))
-        .unwrap_or_else(|| panic!("no note of the RI maps dropped: {stderr}"));
+    let note = said_before_the_run(&stderr, "note: RI maps from dynamics windows every 10.0 ms");
+    assert!(note.contains("rather than 5.0 ms"), "{note}");
+    let dynamics = &summary()["dynamics"];
+    assert_eq!(dynamics["step_frames"], 10, "{dynamics}");
+    assert_eq!(
+        dynamics["step_spaced_for_memory"].as_str(),
+        Some(note.trim_start_matches("note: ")),
+        "{dynamics}"
+    );
+    let times: ndarray::Array1<f64> = read_npy(out.join("times.npy")).unwrap();
+    assert_eq!(times.len(), (frames - 20) / 10 + 1);
+    ri_reads_the_truth();
+    assert!(summary()["segments"]["count"].as_u64().unwrap() >= 3);
+
+    let (ok, stderr) = run("0.012", &[]);
+    assert!(ok, "{stderr}");
+    let note = said_before_the_run(&stderr, "note: no RI maps");
     assert!(
-        note.contains("dynamics windows") && note.contains("--window-step-ms"),
+        note.contains("dynamics windows") && note.contains("side by side"),
         "{note}"
     );
-    // Said before the run, not after it.
-    let first_stage = stderr.find("clutter filter").expect("the stages' progress");
-    assert!(stderr.find(note).unwrap() < first_stage, "{stderr}");
     let skipped = summary()["dynamics"]["skipped"]
         .as_str()
         .unwrap()
         .to_string();
     assert!(note.contains(&skipped), "{skipped}");
     assert!(!out.join("ri.npy").exists() && out.join("color_doppler.npy").exists());
-    assert!(summary()["segments"]["count"].as_u64().unwrap() >= 3);
     // The same options where the windows fit are not the same run: not skipped as done (the
     // folder holds another run's outputs, which only --force replaces).
     let (ok, _, stderr) = pcuvd(&[
@@ -377,22 +422,17 @@ fn windows_that_do_not_fit_drop_the_ri_maps_of_dynamics_auto() {
     ]);
     assert!(!ok && stderr.contains("--force"), "{stderr}");
 
-    let (ok, stderr) = run(&["--heart-rate", "5"]);
+    let (ok, stderr) = run("0.016", &["--heart-rate", "5"]);
     assert!(!ok, "{stderr}");
     assert!(
         stderr.contains("the dynamics windows alone need") && stderr.contains("--dynamics off"),
         "{stderr}"
     );
-    let (ok, stderr) = run(&["--heart-rate", "5", "--window-step-ms", "25"]);
+    let (ok, stderr) = run("0.016", &["--heart-rate", "5", "--window-step-ms", "25"]);
     assert!(ok, "{stderr}");
-    assert!(!stderr.contains("no RI maps"), "{stderr}");
-    let ri: Array2<f64> = read_npy(out.join("ri.npy")).unwrap();
-    let ri_read = median(vessel_inside().iter().map(|&p| ri[p]).collect());
-    assert!(
-        (ri_read - (1.0 - EDV / PSV)).abs() < 0.05,
-        "RI {ri_read} against {}",
-        1.0 - EDV / PSV
-    );
+    assert!(!stderr.contains("note:"), "{stderr}");
+    assert_eq!(summary()["dynamics"].get("step_spaced_for_memory"), None);
+    ri_reads_the_truth();
 }
 
 #[test]
