@@ -187,17 +187,18 @@ def test_images_across_a_cluster_equal_one_process(long_images):
 
 
 @pytest.mark.parametrize(
-    ("limit_gb", "said"), [(0.016, "RI maps from dynamics windows every 10.0 ms"), (0.012, "no RI maps")]
+    ("limit_gb", "said"),
+    [(0.0135, "RI maps from dynamics windows every 10.0 ms"), (0.0115, "no RI maps")],
 )
 def test_windows_fitted_to_memory_are_fitted_alike_on_every_worker(
     tmp_path, capsys, limit_gb, said
 ):
     """Under `dynamics="auto"` the memory check where the run is planned spaces the dynamics
-    windows further apart (in 16 MB), or drops the RI maps (in 12 MB), where the windows of 20
-    frames every 5 would not fit beside the segments (400 frames of 48 x 64 pixels in segments of
-    150: 11.1 MB to process a segment, 9.5 MB of windows; 4.8 MB every 10 frames, 2.5 MB side by
-    side): every worker and the join follow it, so the cluster's run equals `pcuvd.process`'s,
-    and it is said once."""
+    windows further apart (in 13.5 MB), or drops the RI maps (in 11.5 MB), where the windows of
+    20 frames every 5 would not fit beside the segments (400 frames of 48 x 64 pixels of one
+    angle in segments of 150: 11.1 MB to process a segment, 3.8 MB of windows of 2 maps; 1.9 MB
+    every 10 frames, 1.0 MB side by side): every worker and the join follow it, so the cluster's
+    run equals `pcuvd.process`'s, and it is said once."""
     import pcuvd.dask
 
     rng = np.random.default_rng(3)

@@ -9,33 +9,37 @@ use crate::run::{DynamicsFit, Plan};
 
 /// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
 pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
-speed and the pooled speed per window) + time series: ensembles × pixels × 6 × 8 bytes (five \
+speed and the pooled speed per window; 2 with one steering angle: its velocity and power) + time \
+series: ensembles × pixels × 6 × 8 bytes (five \
 maps and a filtered copy of one ensemble's frames per angle counted once more)";
 
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
 /// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
 /// frames of `n_angles` angles.
 pub fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
-    dynamics_memory(plan, frames) + ensembles_memory(plan, frames, n_angles)
+    dynamics_memory(plan, (frames, n_angles)) + ensembles_memory(plan, frames, n_angles)
 }
 
 /// Bytes the dynamics stage's windows of the whole recording hold ([`STAGE_MEMORY_RULE`]):
 /// none when the stage is off or no window fits in the recording's `frames`.
-fn dynamics_memory(plan: &Plan, frames: usize) -> u128 {
+fn dynamics_memory(plan: &Plan, shape: (usize, usize)) -> u128 {
     plan.dynamics
         .as_ref()
-        .map_or(0, |d| windows_memory(plan, frames, d.params.step))
+        .map_or(0, |d| windows_memory(plan, shape, d.params.step))
 }
 
-/// Bytes the dynamics windows of `plan` hold when they start `step` frames apart.
-fn windows_memory(plan: &Plan, frames: usize, step: usize) -> u128 {
+/// Bytes the dynamics windows of `plan`, for a recording of `frames` frames of `n_angles`
+/// angles, hold when they start `step` frames apart.
+fn windows_memory(plan: &Plan, (frames, n_angles): (usize, usize), step: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
+    // One angle's windows hold its velocity and power, and its speed is read lane by lane.
+    let maps = if n_angles == 1 { 2 } else { 5 };
     plan.dynamics.as_ref().map_or(0, |d| {
         if d.params.window > frames {
             return 0;
         }
         let windows = (frames - d.params.window) / step.max(1) + 1;
-        5 * windows as u128 * (nz * nx) as u128 * 8
+        maps * windows as u128 * (nz * nx) as u128 * 8
     })
 }
 
@@ -78,9 +82,10 @@ struct Held {
 }
 
 /// Checks that `held` and the later stages of `plan` (for a recording of `frames` frames of
-/// `n_angles` angles at `frame_rate` (Hz), [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics windows of the whole
-/// recording grow with its length (5 maps of 8 bytes per pixel per window: about 39 GB for five
-/// minutes of 128 × 128 pixels at a 5 ms step), the rest of a segmented run does not: where
+/// `n_angles` angles at `frame_rate` (Hz), [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics
+/// windows of the whole recording grow with its length (5 maps of 8 bytes per pixel per window,
+/// 2 of one angle: about 39 GB, or 16, for five minutes of 128 × 128 pixels at a 5 ms step), the
+/// rest of a segmented run does not: where
 /// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the windows
 /// start further apart, the step the fewest whole multiples of the default's that fit, up to
 /// the window's length (windows side by side: the RI maps read from a cycle's fitted
@@ -95,7 +100,7 @@ fn fit_stages(
     (frames, n_angles, frame_rate): (usize, usize, f64),
     room: &MemoryRoom,
 ) -> Result<()> {
-    let windows = dynamics_memory(plan, frames) as f64;
+    let windows = dynamics_memory(plan, (frames, n_angles)) as f64;
     let others = held.bytes + ensembles_memory(plan, frames, n_angles) as f64;
     let needed = others + windows;
     if needed <= room.bytes {
@@ -109,18 +114,17 @@ fn fit_stages(
     let without_windows = windows > 0.0 && others <= room.bytes;
     if without_windows && !plan.dynamics_required {
         let room_left = room.bytes - others;
-        let fit = spaced_windows(plan, (frames, frame_rate), room_left, &available).unwrap_or_else(
-            || {
-                DynamicsFit::Dropped(format!(
-                    "the dynamics windows of the whole recording would need about {} beside the \
+        let recording = (frames, n_angles, frame_rate);
+        let fit = spaced_windows(plan, recording, room_left, &available).unwrap_or_else(|| {
+            DynamicsFit::Dropped(format!(
+                "the dynamics windows of the whole recording would need about {} beside the \
                      run's {} (at least {} with the windows side by side), and {available}: run \
                      where more memory is free, for RI maps",
-                    gigabytes(windows),
-                    gigabytes(others),
-                    gigabytes(side_by_side(plan, frames)),
-                ))
-            },
-        );
+                gigabytes(windows),
+                gigabytes(others),
+                gigabytes(side_by_side(plan, (frames, n_angles))),
+            ))
+        });
         return plan.apply_fit(fit, frames);
     }
     let instead = if without_windows {
@@ -145,22 +149,23 @@ fn fit_stages(
     )
 }
 
-/// The dynamics windows of `plan`, for a recording of `frames` frames at `frame_rate` (Hz),
+/// The dynamics windows of `plan`, for a recording of `frames` frames of `n_angles` angles at
+/// `frame_rate` (Hz),
 /// started the fewest whole multiples of its step apart, up to the window's length, that fit in
 /// `room` bytes ([`fit_stages`]); `None` when none does.
 fn spaced_windows(
     plan: &Plan,
-    (frames, frame_rate): (usize, f64),
+    (frames, n_angles, frame_rate): (usize, usize, f64),
     room: f64,
     available: &str,
 ) -> Option<DynamicsFit> {
     let params = plan.dynamics.as_ref()?.params;
     let step_ms = |step: usize| step as f64 / frame_rate * 1e3;
-    let planned = windows_memory(plan, frames, params.step) as f64;
+    let planned = windows_memory(plan, (frames, n_angles), params.step) as f64;
     (2..)
         .map(|k| k * params.step.max(1))
         .take_while(|&step| step <= params.window)
-        .find(|&step| windows_memory(plan, frames, step) as f64 <= room)
+        .find(|&step| windows_memory(plan, (frames, n_angles), step) as f64 <= room)
         .map(|step| DynamicsFit::Stepped {
             step,
             reason: format!(
@@ -178,9 +183,9 @@ fn spaced_windows(
 
 /// Bytes the dynamics windows of `plan` hold side by side (started a window's length apart,
 /// the furthest [`spaced_windows`] spaces them).
-fn side_by_side(plan: &Plan, frames: usize) -> f64 {
+fn side_by_side(plan: &Plan, shape: (usize, usize)) -> f64 {
     let window = plan.dynamics.as_ref().map_or(1, |d| d.params.window);
-    windows_memory(plan, frames, window) as f64
+    windows_memory(plan, shape, window) as f64
 }
 
 /// The memory a run may use: `--max-memory-gb` when given (checked), else what the machine

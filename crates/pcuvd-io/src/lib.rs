@@ -61,7 +61,7 @@ pub use error::IoError;
 pub use frames::ManifestFrames;
 pub use manifest::{Recording, RecordingWriter, read_manifest, read_recording, write_recording};
 pub use mat::{MatFile, MatValue, Numbers, NumericClass, read_mat, write_mat};
-pub use npy::{remove_partial_files, write_atomically, write_json, write_npy};
+pub use npy::{remove_partial_files, write_atomically, write_json, write_npy, write_npy_by_slices};
 pub use open::{open_recording, read_must_mat};
 pub use params::{Overrides, ParamSource, Parameter};
 pub use paths::check_regular_file;

@@ -71,6 +71,46 @@ where
     })
 }
 
+/// Writes a `.npy` of f64 of `shape` (C order), atomically, one slice of its first axis at a
+/// time: `slice(i)` gives slice `i`, of the other axes' shape. An array too large to hold twice
+/// (a long recording's speed in every window) is written without a copy of it whole.
+pub fn write_npy_by_slices(
+    path: &Path,
+    shape: &[usize],
+    mut slice: impl FnMut(usize) -> ndarray::ArrayD<f64>,
+) -> Result<(), IoError> {
+    use ndarray_npy::npy::header::Layout;
+    use std::io::Write;
+    let (&first, rest) = shape
+        .split_first()
+        .ok_or_else(|| IoError::malformed(path, "an array without axes"))?;
+    let rest = rest.to_vec();
+    write_atomically(path, |partial| {
+        let io = |e: std::io::Error| IoError::io(path, "write", e);
+        let mut file = std::io::BufWriter::new(std::fs::File::create(partial).map_err(io)?);
+        Header {
+            type_descriptor: <f64 as WritableElement>::type_descriptor(),
+            layout: Layout::Standard,
+            shape: shape.to_vec(),
+        }
+        .write(&mut file)
+        .map_err(|e| IoError::malformed(path, format!("cannot write the header: {e}")))?;
+        for i in 0..first {
+            let values = slice(i);
+            if values.shape() != rest.as_slice() {
+                return Err(IoError::malformed(
+                    path,
+                    format!("slice {i} has shape {:?}, not {rest:?}", values.shape()),
+                ));
+            }
+            let standard = values.as_standard_layout();
+            let floats = standard.as_slice().expect("standard layout is contiguous");
+            file.write_all(bytemuck::cast_slice(floats)).map_err(io)?;
+        }
+        file.flush().map_err(io)
+    })
+}
+
 /// Writes a JSON value to a file, pretty-printed, with a final newline, atomically.
 pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), IoError> {
     let mut text = serde_json::to_string_pretty(value)
@@ -173,6 +213,32 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, IoError> {
 mod tests {
     use super::*;
     use ndarray::{Array2, array};
+
+    /// Slice by slice is the same file as the array whole: header and values, byte for byte;
+    /// a slice of another shape is refused and leaves no file.
+    #[test]
+    fn an_array_written_by_slices_is_the_array_written_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let whole = ndarray::Array3::from_shape_fn((5, 3, 4), |(k, i, j)| {
+            (k * 100 + i * 10 + j) as f64 * 0.37 - 8.0
+        });
+        let (a, b) = (dir.path().join("whole.npy"), dir.path().join("slices.npy"));
+        write_npy(&a, &whole).unwrap();
+        write_npy_by_slices(&b, &[5, 3, 4], |k| {
+            whole.index_axis(ndarray::Axis(0), k).to_owned().into_dyn()
+        })
+        .unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        let c = dir.path().join("wrong.npy");
+        let refused = write_npy_by_slices(&c, &[5, 3, 4], |_| ndarray::ArrayD::zeros(vec![4, 3]));
+        assert!(
+            refused
+                .unwrap_err()
+                .to_string()
+                .contains("slice 0 has shape [4, 3]")
+        );
+        assert!(!c.exists());
+    }
 
     #[test]
     fn write_and_read_each_dtype() {

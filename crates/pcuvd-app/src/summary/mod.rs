@@ -216,7 +216,11 @@ fn write_dynamics(
     npy(dir, "ri_spread.npy", &maps.ri_spread)?;
     pcuvd_io::write_npy(&dir.join("vessel_class.npy"), &maps.vessel_class)?;
     pcuvd_io::write_npy(&dir.join("flow_up.npy"), &maps.flow_up.mapv(u8::from))?;
-    pcuvd_io::write_npy(&dir.join("speed_series.npy"), &series.speed())?;
+    // Window by window: a long recording's speeds are never held whole beside its windows.
+    let (windows, nz, nx) = series.vz.dim();
+    pcuvd_io::write_npy_by_slices(&dir.join("speed_series.npy"), &[windows, nz, nx], |k| {
+        series.speed_at(k).into_dyn()
+    })?;
     pcuvd_io::write_npy(
         &dir.join("times.npy"),
         &Array1::from(series.times_s.clone()),

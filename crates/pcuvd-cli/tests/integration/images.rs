@@ -140,10 +140,10 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         "[cardiac]\ntriggers_s = [0.0, 0.2]\n",
     );
     let out = dir.path().join("out");
-    // 9.8 MB of images (29.5 MB to hold and filter) fit in 35 MB, but not with the dynamics
-    // windows' 9.5 MB (77 windows of 20 frames every 5, 5 maps of 3,072 pixels): without a
-    // dynamics setting the run starts them every 10 frames (4.8 MB), and refuses with one; in
-    // 31 MB not even side by side (2.5 MB) fit, and the run goes on without them.
+    // 9.8 MB of images (29.5 MB to hold and filter) fit in 32 MB, but not with the dynamics
+    // windows' 3.8 MB (77 windows of 20 frames every 5; one angle: 2 maps of 3,072 pixels):
+    // without a dynamics setting the run starts them every 10 frames (1.9 MB), and refuses with
+    // one; in 30 MB not even side by side (1.0 MB) fit, and the run goes on without them.
     let within = |limit_gb: &str, extra: &[&str]| {
         let mut args = vec![
             "process",
@@ -157,16 +157,16 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         args.extend_from_slice(extra);
         pcuvd(&args)
     };
-    let (ok, _, stderr) = within("0.035", &[]);
+    let (ok, _, stderr) = within("0.032", &[]);
     assert!(
         ok && stderr.contains("note: RI maps from dynamics windows every 10.0 ms"),
         "{stderr}"
     );
     assert!(out.join("ri.npy").exists());
-    let (ok, _, stderr) = within("0.031", &[]);
+    let (ok, _, stderr) = within("0.030", &[]);
     assert!(ok && stderr.contains("no RI maps"), "{stderr}");
     assert!(!out.join("ri.npy").exists());
-    let (ok, _, stderr) = within("0.035", &["--dynamics", "on"]);
+    let (ok, _, stderr) = within("0.032", &["--dynamics", "on"]);
     assert!(!ok && stderr.contains("--dynamics off"), "{stderr}");
     // `info` says so before: within that memory, and not where the machine leaves more.
     let warnings = |extra: &[&str]| {
@@ -178,15 +178,15 @@ fn beamformed_images_give_colour_doppler_and_ri_as_the_truth() {
         info["warnings"].to_string()
     };
     assert!(
-        warnings(&["--max-memory-gb", "0.031"]).contains("would run without RI maps"),
+        warnings(&["--max-memory-gb", "0.030"]).contains("would run without RI maps"),
         "{}",
-        warnings(&["--max-memory-gb", "0.031"])
+        warnings(&["--max-memory-gb", "0.030"])
     );
     assert!(
-        warnings(&["--max-memory-gb", "0.035"])
+        warnings(&["--max-memory-gb", "0.032"])
             .contains("would make its RI maps from dynamics windows every 10.0 ms"),
         "{}",
-        warnings(&["--max-memory-gb", "0.035"])
+        warnings(&["--max-memory-gb", "0.032"])
     );
     assert!(warnings(&["--max-memory-gb", "0.02"]).contains("would refuse"));
     assert!(!warnings(&[]).contains("`pcuvd process` would"));
@@ -337,9 +337,9 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
     let out_str = out.to_str().unwrap();
     // Three segments of 135 frames are imaged with 15 more (the 20-frame window's overlap), 150
     // frames of 48 × 64 pixels: 3.7 MB as complex64, 11.1 MB to process. The windows of 20
-    // frames (20 ms) hold 5 maps of f64 each: 77 every 5 frames 9.5 MB, 39 every 10 frames 4.8
-    // MB, 20 side by side 2.5 MB. In 16 MB the first that fits is every 10 frames; in 12 MB
-    // none does.
+    // frames (20 ms) of one angle hold 2 maps of f64 each: 77 every 5 frames 3.8 MB, 39 every
+    // 10 frames 1.9 MB, 20 side by side 1.0 MB. In 13.5 MB the first that fits is every 10
+    // frames; in 11.5 MB none does.
     let run = |limit_gb: &str, extra: &[&str]| {
         let mut args = vec![
             "process",
@@ -381,7 +381,7 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
         );
     };
 
-    let (ok, stderr) = run("0.016", &[]);
+    let (ok, stderr) = run("0.0135", &[]);
     assert!(ok, "{stderr}");
     let note = said_before_the_run(&stderr, "note: RI maps from dynamics windows every 10.0 ms");
     assert!(note.contains("rather than 5.0 ms"), "{note}");
@@ -397,7 +397,7 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
     ri_reads_the_truth();
     assert!(summary()["segments"]["count"].as_u64().unwrap() >= 3);
 
-    let (ok, stderr) = run("0.012", &[]);
+    let (ok, stderr) = run("0.0115", &[]);
     assert!(ok, "{stderr}");
     let note = said_before_the_run(&stderr, "note: no RI maps");
     assert!(
@@ -422,13 +422,13 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
     ]);
     assert!(!ok && stderr.contains("--force"), "{stderr}");
 
-    let (ok, stderr) = run("0.016", &["--heart-rate", "5"]);
+    let (ok, stderr) = run("0.0135", &["--heart-rate", "5"]);
     assert!(!ok, "{stderr}");
     assert!(
         stderr.contains("the dynamics windows alone need") && stderr.contains("--dynamics off"),
         "{stderr}"
     );
-    let (ok, stderr) = run("0.016", &["--heart-rate", "5", "--window-step-ms", "25"]);
+    let (ok, stderr) = run("0.0135", &["--heart-rate", "5", "--window-step-ms", "25"]);
     assert!(ok, "{stderr}");
     assert!(!stderr.contains("note:"), "{stderr}");
     assert_eq!(summary()["dynamics"].get("step_spaced_for_memory"), None);
@@ -466,13 +466,13 @@ fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     assert!((nyquist - SOUND_SPEED * FRAME_RATE / (4.0 * DEMOD)).abs() < 1e-12);
     assert_eq!(info["stored_samples"]["dtype"], "complex64");
     // Held whole; beside them, at the defaults, 5 velocity windows (20 frames every 5 of the 40)
-    // of 5 maps of 48 × 64 pixels in f64.
+    // of 2 maps (one angle: its velocity and power) of 48 × 64 pixels in f64.
     let processing = &info["processing"];
     assert_eq!(processing["segments"], 1);
     assert_eq!(processing["memory_estimate_bytes"], 3 * 40 * 48 * 64 * 8);
     assert_eq!(
         processing["stage_memory_estimate_bytes"],
-        5 * 5 * 48 * 64 * 8
+        5 * 2 * 48 * 64 * 8
     );
     // A bare .npy says what describes it.
     let (ok, _, stderr) = pcuvd(&[

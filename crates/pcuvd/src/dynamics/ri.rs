@@ -91,8 +91,12 @@ pub fn ri_maps_triggered(
     if series.is_empty() {
         return Err(invalid("velocity series", "has no windows"));
     }
-    let (nt, nz, nx) = series.vx.dim();
-    if series.vz.dim() != (nt, nz, nx) || series.power.dim() != (nt, nz, nx) || nt != series.len() {
+    let (nt, nz, nx) = series.vz.dim();
+    let vx_windows = if series.axial_only { 0 } else { nt };
+    if series.vx.dim() != (vx_windows, nz, nx)
+        || series.power.dim() != (nt, nz, nx)
+        || nt != series.len()
+    {
         return Err(Error::Shape(format!(
             "velocity series: vx {:?}, vz {:?}, power {:?} for {} times",
             series.vx.dim(),
@@ -145,16 +149,23 @@ pub fn ri_maps_triggered(
     check_period_vs_window(hr, series.window_s)?;
     let cycles = found.ranges.clone();
 
-    let mut speed = series.speed();
-    if let Some(pooling) = params.pooling {
-        let (mx, mz) = series.mean_velocity();
-        let mean_power = series
-            .power
-            .mean_axis(Axis(0))
-            .unwrap_or_else(|| Array2::zeros((nz, nx)));
-        let weight = mean_power.mapv(|p| p * p);
-        speed = pool_waveforms(speed, &mask, &mx, &mz, &weight, &pooling);
-    }
+    // A vector's speeds are held, for pooling across pixels; one angle's, |Vz|, are read lane by
+    // lane: a long single-angle recording's windows hold no map of them.
+    let held_speed = (!series.axial_only).then(|| {
+        let speed = series.speed();
+        match params.pooling {
+            Some(pooling) => {
+                let (mx, mz) = series.mean_velocity();
+                let mean_power = series
+                    .power
+                    .mean_axis(Axis(0))
+                    .unwrap_or_else(|| Array2::zeros((nz, nx)));
+                let weight = mean_power.mapv(|p| p * p);
+                pool_waveforms(speed, &mask, &mx, &mz, &weight, &pooling)
+            }
+            None => speed,
+        }
+    });
     let harmonics_at = |rate: f64| {
         params
             .harmonics
@@ -202,7 +213,10 @@ pub fn ri_maps_triggered(
                     ..PixelCycles::background()
                 };
             }
-            let raw: Vec<f64> = speed.slice(s![.., iz, ix]).to_vec();
+            let raw: Vec<f64> = match &held_speed {
+                Some(speed) => speed.slice(s![.., iz, ix]).to_vec(),
+                None => series.speed_lane(iz, ix),
+            };
             let per_cycle: Vec<(f64, f64)> = cycles
                 .iter()
                 .zip(&cycle_fits)

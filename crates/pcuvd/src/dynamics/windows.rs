@@ -11,7 +11,7 @@ use crate::estimate::projections::Projections;
 pub struct VelocitySeries {
     /// Window centres (s) from the first frame.
     pub times_s: Vec<f64>,
-    /// Lateral velocity (m/s), positive toward +x.
+    /// Lateral velocity (m/s), positive toward +x; no window when [`Self::axial_only`].
     pub vx: Array3<f64>,
     /// Axial velocity (m/s), positive moving deeper (away from the probe).
     pub vz: Array3<f64>,
@@ -22,8 +22,9 @@ pub struct VelocitySeries {
     /// Time between consecutive windows (s).
     pub step_s: f64,
     /// True when one steering angle gave the series: `vz` is the colour-Doppler velocity (m/s,
-    /// the angle's projection scaled to the axis, as `color_doppler.npy`), `vx` is NaN (one
-    /// projection cannot tell it), and [`Self::speed`] is |Vz|.
+    /// the angle's projection scaled to the axis, as `color_doppler.npy`), `vx` holds no window
+    /// (shape (0, nz, nx): one projection cannot tell it, and a long recording's windows of NaN
+    /// would take as much memory as `vz`'s), and [`Self::speed`] is |Vz|.
     #[serde(default)]
     pub axial_only: bool,
 }
@@ -37,6 +38,32 @@ impl VelocitySeries {
         ndarray::Zip::from(&self.vx)
             .and(&self.vz)
             .map_collect(|&x, &z| x.hypot(z))
+    }
+
+    /// Speed (m/s) of window `k` at every pixel, as [`Self::speed`] gives it, without the whole
+    /// series' speeds.
+    pub fn speed_at(&self, k: usize) -> Array2<f64> {
+        let vz = self.vz.index_axis(Axis(0), k);
+        if self.axial_only {
+            return vz.mapv(f64::abs);
+        }
+        ndarray::Zip::from(self.vx.index_axis(Axis(0), k))
+            .and(vz)
+            .map_collect(|&x, &z| x.hypot(z))
+    }
+
+    /// Speed (m/s) of pixel (`iz`, `ix`) in every window, as [`Self::speed`] gives it.
+    pub fn speed_lane(&self, iz: usize, ix: usize) -> Vec<f64> {
+        let vz = self.vz.slice(ndarray::s![.., iz, ix]);
+        if self.axial_only {
+            return vz.iter().map(|v| v.abs()).collect();
+        }
+        self.vx
+            .slice(ndarray::s![.., iz, ix])
+            .iter()
+            .zip(vz)
+            .map(|(x, z)| x.hypot(*z))
+            .collect()
     }
 
     /// Time-mean velocity (m/s) per pixel over the finite windows, (Vx, Vz) maps of shape (nz, nx);
@@ -59,7 +86,9 @@ impl VelocitySeries {
         let keep = windows.min(self.len());
         self.times_s.truncate(keep);
         for a in [&mut self.vx, &mut self.vz, &mut self.power] {
-            a.slice_collapse(ndarray::s![..keep, .., ..]);
+            // One angle's Vx holds no window.
+            let kept = keep.min(a.dim().0);
+            a.slice_collapse(ndarray::s![..kept, .., ..]);
         }
     }
 
@@ -138,10 +167,9 @@ impl VelocitySeries {
     /// nearest one's at either end), so that it cannot break the waveform the cycles are found on;
     /// [`Error::NoFlow`] when no window has one.
     pub fn mean_speed(&self, mask: &Array2<bool>) -> Result<Vec<f64>> {
-        let speed = self.speed();
-        let means: Vec<Option<f64>> = speed
-            .outer_iter()
-            .map(|frame| {
+        let means: Vec<Option<f64>> = (0..self.len())
+            .map(|k| {
+                let frame = self.speed_at(k);
                 let (mut sum, mut count) = (0.0, 0usize);
                 for (&v, &m) in frame.iter().zip(mask.iter()) {
                     if m && v.is_finite() {
@@ -334,7 +362,7 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
         cells: &cells,
         grid_step,
     };
-    let mut vx = Array3::<f64>::zeros((n_windows, nz, nx));
+    let mut vx = Array3::<f64>::zeros((if axial_only { 0 } else { n_windows }, nz, nx));
     let mut vz = Array3::<f64>::zeros((n_windows, nz, nx));
     let mut power = Array3::<f64>::zeros((n_windows, nz, nx));
     // Windows are taken a chunk at a time, each angle's moments of the whole chunk from one pass
@@ -380,7 +408,9 @@ pub fn sliding_vectors(images: &AngleImages, params: &DynamicsParams) -> Result<
             })
             .collect::<Result<Vec<_>>>()?;
         for (k, (x, z, p)) in ks.zip(fields) {
-            vx.index_axis_mut(Axis(0), k).assign(&x);
+            if !axial_only {
+                vx.index_axis_mut(Axis(0), k).assign(&x);
+            }
             vz.index_axis_mut(Axis(0), k).assign(&z);
             power.index_axis_mut(Axis(0), k).assign(&p);
         }

@@ -759,8 +759,17 @@ impl Joined {
         self.compound.add(part.compound)?;
         self.envelope += &part.envelope;
         if let Some(mut windows) = part.windows {
-            self.windows_aside
-                .put(&mut [&mut windows.vx, &mut windows.vz, &mut windows.power])?;
+            // One angle's windows hold no Vx (`VelocitySeries::axial_only`).
+            match windows.axial_only {
+                true => self
+                    .windows_aside
+                    .put(&mut [&mut windows.vz, &mut windows.power])?,
+                false => self.windows_aside.put(&mut [
+                    &mut windows.vx,
+                    &mut windows.vz,
+                    &mut windows.power,
+                ])?,
+            }
             self.windows.push(windows);
         }
         if let Some(mut ensembles) = part.ensembles {
@@ -809,12 +818,16 @@ impl Joined {
         let series = match run.dynamics {
             Some(_) => {
                 let mut series = VelocitySeries::concatenate(self.windows)?;
-                let [vx, vz, power]: [Array3<f64>; 3] = self
-                    .windows_aside
-                    .take()?
-                    .try_into()
-                    .map_err(|_| Error::Shape("velocity windows set aside".into()))?;
-                (series.vx, series.vz, series.power) = (vx, vz, power);
+                let mut joined = self.windows_aside.take()?.into_iter();
+                let mut next = || {
+                    joined
+                        .next()
+                        .ok_or_else(|| Error::Shape("velocity windows set aside".into()))
+                };
+                if !series.axial_only {
+                    series.vx = next()?;
+                }
+                (series.vz, series.power) = (next()?, next()?);
                 Some(series)
             }
             None => None,

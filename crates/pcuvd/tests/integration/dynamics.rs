@@ -302,6 +302,9 @@ fn sliding_vectors_track_pulsatile_flow_and_classify_vessels() {
     let series = sliding_vectors(&images(&iq, &angles, FRAME_RATE, None), &params).unwrap();
     assert_eq!(series.len(), (750 - 36) / 9 + 1);
     assert_eq!(series.vx.dim(), (series.len(), 2, 3));
+    let speed = series.speed();
+    assert_eq!(series.speed_at(7), speed.index_axis(ndarray::Axis(0), 7));
+    assert_eq!(series.speed_lane(0, 1), speed.slice(s![.., 0, 1]).to_vec());
     assert!((series.times_s[0] - 17.5 / FRAME_RATE).abs() < 1e-12);
     assert!((series.step_s - 0.005).abs() < 1e-12 && (series.window_s - 0.02).abs() < 1e-12);
 
@@ -406,8 +409,19 @@ fn one_angle_reads_ri_from_the_colour_doppler_velocity() {
     let iq = synthetic_iq_at(&[0.0], &vessels, (2, 3), frames, hr, 4e-4, 11);
     let series = sliding_vectors(&images(&iq, &[0.0], FRAME_RATE, None), &params).unwrap();
     assert!(series.axial_only);
-    assert!(series.vx.iter().all(|v| v.is_nan()));
+    // No Vx is held, not even NaN: a long single-angle recording's windows are two maps each.
+    assert_eq!(series.vx.dim(), (0, 2, 3));
     assert_eq!(series.speed(), series.vz.mapv(f64::abs));
+    for k in 0..series.len() {
+        assert_eq!(
+            series.speed_at(k),
+            series.speed().index_axis(ndarray::Axis(0), k)
+        );
+    }
+    assert_eq!(
+        series.speed_lane(1, 2),
+        series.speed().slice(s![.., 1, 2]).to_vec()
+    );
     for vessel in &vessels[..2] {
         let (iz, ix) = vessel.pixel;
         let mut sq = 0.0;
