@@ -8,9 +8,8 @@ use pcuvd::pipeline;
 use crate::run::{DynamicsFit, Plan};
 
 /// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
-pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 5 × windows × pixels × 8 bytes (vx, vz, power, \
-speed and the pooled speed per window; 2 with one steering angle: its velocity and power) + time \
-series: ensembles × pixels × 6 × 8 bytes (five \
+pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 4 × windows × pixels × 8 bytes (vx, vz, power \
+and speed per window; 2 with one steering angle: its velocity and power) + time series: ensembles × pixels × 6 × 8 bytes (five \
 maps and a filtered copy of one ensemble's frames per angle counted once more)";
 
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
@@ -33,7 +32,7 @@ fn dynamics_memory(plan: &Plan, shape: (usize, usize)) -> u128 {
 fn windows_memory(plan: &Plan, (frames, n_angles): (usize, usize), step: usize) -> u128 {
     let (nz, nx) = plan.params.grid.shape();
     // One angle's windows hold its velocity and power, and its speed is read lane by lane.
-    let maps = if n_angles == 1 { 2 } else { 5 };
+    let maps = if n_angles == 1 { 2 } else { 4 };
     plan.dynamics.as_ref().map_or(0, |d| {
         if d.params.window > frames {
             return 0;
@@ -83,8 +82,8 @@ struct Held {
 
 /// Checks that `held` and the later stages of `plan` (for a recording of `frames` frames of
 /// `n_angles` angles at `frame_rate` (Hz), [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics
-/// windows of the whole recording grow with its length (5 maps of 8 bytes per pixel per window,
-/// 2 of one angle: about 39 GB, or 16, for five minutes of 128 × 128 pixels at a 5 ms step), the
+/// windows of the whole recording grow with its length (4 maps of 8 bytes per pixel per window,
+/// 2 of one angle: about 31 GB, or 16, for five minutes of 128 × 128 pixels at a 5 ms step), the
 /// rest of a segmented run does not: where
 /// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the windows
 /// start further apart, the step the fewest whole multiples of the default's that fit, up to

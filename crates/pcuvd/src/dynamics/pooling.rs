@@ -168,86 +168,102 @@ impl VesselPooling {
     }
 }
 
-/// Each `mask` pixel's speed series replaced by its pooled waveform (see [`VesselPooling`]): the
-/// sum of the series of its same-vessel neighbours (itself included) over the sum of their time
-/// means, times its own time mean, so that its mean speed is kept and its shape is the pooled one.
-/// `speed` is (time, nz, nx); `mean_vx`, `mean_vz` are the time-mean velocities (nz, nx) that give
-/// each pixel's flow direction. Pixels without a finite series, or outside the mask, are kept as
-/// they are and pooled by none. The pooled lanes replace the pixels' own in `speed`'s memory
-/// once all are made: a long recording's series is not held a second time.
-pub(super) fn pool_waveforms(
-    mut speed: Array3<f64>,
-    mask: &Array2<bool>,
-    mean_vx: &Array2<f64>,
-    mean_vz: &Array2<f64>,
-    weight: &Array2<f64>,
-    pooling: &VesselPooling,
-) -> Array3<f64> {
-    let (nt, nz, nx) = speed.dim();
-    // A neighbourhood wider than the image reaches no further than the image (and a half-axis of
-    // 10³⁰⁰ pixels must not become a loop of 10¹⁸ steps).
-    let r = pooling
-        .along
-        .max(pooling.across)
-        .min(nz.max(nx) as f64)
-        .ceil() as isize;
-    let min_cos = pooling.max_angle.cos();
-    // Per pixel: the unit flow direction and the time mean, or None when it cannot take part.
-    let members: Vec<Option<([f64; 2], f64, f64)>> = (0..nz * nx)
-        .map(|p| {
-            let (iz, ix) = (p / nx, p % nx);
-            let lane = speed.slice(s![.., iz, ix]);
-            let norm = mean_vx[[iz, ix]].hypot(mean_vz[[iz, ix]]);
-            if !mask[[iz, ix]]
-                || norm.is_nan()
-                || norm <= 0.0
-                || lane.iter().any(|v| !v.is_finite())
-            {
-                return None;
-            }
-            let unit = [mean_vx[[iz, ix]] / norm, mean_vz[[iz, ix]] / norm];
-            Some((unit, lane.sum() / nt as f64, weight[[iz, ix]]))
-        })
-        .collect();
-    let pooled: Vec<Option<Vec<f64>>> = (0..nz * nx)
-        .into_par_iter()
-        .map(|p| {
-            let (unit, own_mean, _) = members[p]?;
-            let (iz, ix) = ((p / nx) as isize, (p % nx) as isize);
-            let mut sum = vec![0.0; nt];
-            let mut mean_sum = 0.0;
-            let offsets = (-r..=r)
-                .flat_map(|dz| (-r..=r).map(move |dx| (dz, dx)))
-                .filter(|&(dz, dx)| pooling.reaches(unit, dx as f64, dz as f64));
-            for (dz, dx) in offsets {
-                let (qz, qx) = (iz + dz, ix + dx);
-                if qz < 0 || qx < 0 || qz >= nz as isize || qx >= nx as isize {
-                    continue;
-                }
-                let q = qz as usize * nx + qx as usize;
-                let Some((u, mean, w)) = members[q] else {
-                    continue;
-                };
-                if u[0] * unit[0] + u[1] * unit[1] < min_cos {
-                    continue;
-                }
-                for (acc, &v) in sum
-                    .iter_mut()
-                    .zip(speed.slice(s![.., qz as usize, qx as usize]))
+/// Each `mask` pixel's pooled waveform (see [`VesselPooling`]): the sum of the speed series of
+/// its same-vessel neighbours (itself included) over the sum of their time means, times its own
+/// time mean, so that its mean speed is kept and its shape is the pooled one. Pixels without a
+/// finite series, or outside the mask, are pooled by none and keep their own series. Each lane
+/// is made when asked for ([`PooledSpeeds::lane`]): the pooled series of a long recording are
+/// never held beside its speeds.
+pub(super) struct PooledSpeeds<'a> {
+    /// Speeds (time, nz, nx).
+    speed: &'a Array3<f64>,
+    pooling: VesselPooling,
+    /// Per pixel: the unit flow direction, the time mean and the weight, or None when it cannot
+    /// take part.
+    members: Vec<Option<([f64; 2], f64, f64)>>,
+    /// Reach of the neighbourhood (pixels).
+    reach: isize,
+}
+
+impl<'a> PooledSpeeds<'a> {
+    /// The pools of `speed` (time, nz, nx) over the `mask` pixels, each pixel's flow direction
+    /// that of its time-mean velocity (`mean_vx`, `mean_vz`, (nz, nx)), each neighbour weighted
+    /// by `weight` (nz, nx).
+    pub(super) fn new(
+        speed: &'a Array3<f64>,
+        mask: &Array2<bool>,
+        (mean_vx, mean_vz): (&Array2<f64>, &Array2<f64>),
+        weight: &Array2<f64>,
+        pooling: VesselPooling,
+    ) -> Self {
+        let (nt, nz, nx) = speed.dim();
+        // A neighbourhood wider than the image reaches no further than the image (and a
+        // half-axis of 10³⁰⁰ pixels must not become a loop of 10¹⁸ steps).
+        let reach = pooling
+            .along
+            .max(pooling.across)
+            .min(nz.max(nx) as f64)
+            .ceil() as isize;
+        let members = (0..nz * nx)
+            .map(|p| {
+                let (iz, ix) = (p / nx, p % nx);
+                let lane = speed.slice(s![.., iz, ix]);
+                let norm = mean_vx[[iz, ix]].hypot(mean_vz[[iz, ix]]);
+                if !mask[[iz, ix]]
+                    || norm.is_nan()
+                    || norm <= 0.0
+                    || lane.iter().any(|v| !v.is_finite())
                 {
-                    *acc += w * v;
+                    return None;
                 }
-                mean_sum += w * mean;
-            }
-            (mean_sum > 0.0).then(|| sum.iter().map(|v| v / mean_sum * own_mean).collect())
-        })
-        .collect();
-    for (p, lane) in pooled.into_iter().enumerate() {
-        if let Some(lane) = lane {
-            speed
-                .slice_mut(s![.., p / nx, p % nx])
-                .assign(&ndarray::Array1::from(lane));
+                let unit = [mean_vx[[iz, ix]] / norm, mean_vz[[iz, ix]] / norm];
+                Some((unit, lane.sum() / nt as f64, weight[[iz, ix]]))
+            })
+            .collect();
+        PooledSpeeds {
+            speed,
+            pooling,
+            members,
+            reach,
         }
     }
-    speed
+
+    /// Pixel (`iz`, `ix`)'s series: its pooled waveform, or its own speeds where it pools none.
+    pub(super) fn lane(&self, iz: usize, ix: usize) -> Vec<f64> {
+        self.pooled(iz, ix)
+            .unwrap_or_else(|| self.speed.slice(s![.., iz, ix]).to_vec())
+    }
+
+    fn pooled(&self, iz: usize, ix: usize) -> Option<Vec<f64>> {
+        let (nt, nz, nx) = self.speed.dim();
+        let (unit, own_mean, _) = self.members[iz * nx + ix]?;
+        let (iz, ix) = (iz as isize, ix as isize);
+        let r = self.reach;
+        let min_cos = self.pooling.max_angle.cos();
+        let mut sum = vec![0.0; nt];
+        let mut mean_sum = 0.0;
+        let offsets = (-r..=r)
+            .flat_map(|dz| (-r..=r).map(move |dx| (dz, dx)))
+            .filter(|&(dz, dx)| self.pooling.reaches(unit, dx as f64, dz as f64));
+        for (dz, dx) in offsets {
+            let (qz, qx) = (iz + dz, ix + dx);
+            if qz < 0 || qx < 0 || qz >= nz as isize || qx >= nx as isize {
+                continue;
+            }
+            let Some((u, mean, w)) = self.members[qz as usize * nx + qx as usize] else {
+                continue;
+            };
+            if u[0] * unit[0] + u[1] * unit[1] < min_cos {
+                continue;
+            }
+            for (acc, &v) in sum
+                .iter_mut()
+                .zip(self.speed.slice(s![.., qz as usize, qx as usize]))
+            {
+                *acc += w * v;
+            }
+            mean_sum += w * mean;
+        }
+        (mean_sum > 0.0).then(|| sum.iter().map(|v| v / mean_sum * own_mean).collect())
+    }
 }

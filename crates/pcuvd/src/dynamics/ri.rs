@@ -151,21 +151,25 @@ pub fn ri_maps_triggered(
 
     // A vector's speeds are held, for pooling across pixels; one angle's, |Vz|, are read lane by
     // lane: a long single-angle recording's windows hold no map of them.
-    let held_speed = (!series.axial_only).then(|| {
-        let speed = series.speed();
-        match params.pooling {
-            Some(pooling) => {
-                let (mx, mz) = series.mean_velocity();
-                let mean_power = series
-                    .power
-                    .mean_axis(Axis(0))
-                    .unwrap_or_else(|| Array2::zeros((nz, nx)));
-                let weight = mean_power.mapv(|p| p * p);
-                pool_waveforms(speed, &mask, &mx, &mz, &weight, &pooling)
-            }
-            None => speed,
+    let held_speed = (!series.axial_only).then(|| series.speed());
+    let pools = match (&held_speed, params.pooling) {
+        (Some(speed), Some(pooling)) => {
+            let mean_power = series
+                .power
+                .mean_axis(Axis(0))
+                .unwrap_or_else(|| Array2::zeros((nz, nx)));
+            let weight = mean_power.mapv(|p| p * p);
+            let (mx, mz) = series.mean_velocity();
+            Some(PooledSpeeds::new(
+                speed,
+                &mask,
+                (&mx, &mz),
+                &weight,
+                pooling,
+            ))
         }
-    });
+        _ => None,
+    };
     let harmonics_at = |rate: f64| {
         params
             .harmonics
@@ -213,9 +217,10 @@ pub fn ri_maps_triggered(
                     ..PixelCycles::background()
                 };
             }
-            let raw: Vec<f64> = match &held_speed {
-                Some(speed) => speed.slice(s![.., iz, ix]).to_vec(),
-                None => series.speed_lane(iz, ix),
+            let raw: Vec<f64> = match (&pools, &held_speed) {
+                (Some(pools), _) => pools.lane(iz, ix),
+                (None, Some(speed)) => speed.slice(s![.., iz, ix]).to_vec(),
+                (None, None) => series.speed_lane(iz, ix),
             };
             let per_cycle: Vec<(f64, f64)> = cycles
                 .iter()
