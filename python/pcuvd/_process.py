@@ -208,7 +208,9 @@ def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> P
     Where the windows stay as the result made them (the same `window_ms`, `window_step_ms`,
     `dynamics_kernel`, `dynamics_partial_volume`), the RI maps are made again from its velocity
     windows: the only way for a recording processed in segments, whose filtered series were
-    not kept (new windows there raise ValueError), and quicker for any.
+    not kept (new windows there raise ValueError), and quicker for any. Windows the run spaced
+    further apart for memory (`summary["dynamics"]["step_spaced_for_memory"]`) stay so unless
+    `window_ms` or `window_step_ms` is given.
     """
     if not isinstance(result, ProcessResult):
         raise TypeError(

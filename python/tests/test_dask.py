@@ -228,6 +228,12 @@ def test_windows_fitted_to_memory_are_fitted_alike_on_every_worker(
         assert dynamics["step_frames"] == 10, dynamics
         assert dynamics["step_spaced_for_memory"].startswith(said), dynamics
         assert "ri" in one.arrays and one.arrays["speed_series"].shape[0] == (400 - 20) // 10 + 1
+        # The RI settings change on the spaced windows, as processing with them spaces them.
+        rerun = pcuvd.dynamics(one, quiet=True, artery_ri_min=0.7, vein_ri_max=0.6)
+        again = pcuvd.process(str(manifest), quiet=True, artery_ri_min=0.7, vein_ri_max=0.6, **options)
+        assert rerun.summary["dynamics"] == again.summary["dynamics"]
+        for name in ("ri", "vessel_class", "speed_series", "times"):
+            assert_same_array(rerun.arrays[name], again.arrays[name], name)
     capsys.readouterr()
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None

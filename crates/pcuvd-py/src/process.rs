@@ -437,19 +437,32 @@ impl PyProcessResult {
         let (plan, dynamics, seconds) = py
             .detach(|| -> anyhow::Result<_> {
                 let triggers = self.info.cardiac_triggers_s.as_deref();
-                let plan = match &self.source {
-                    RunSource::Recording(data) => {
-                        Plan::new(&self.options, &dynamics, &**data, triggers)?
-                    }
+                let (mut plan, n_frames) = match &self.source {
+                    RunSource::Recording(data) => (
+                        Plan::new(&self.options, &dynamics, &**data, triggers)?,
+                        data.n_frames(),
+                    ),
                     // The filtered images hold the images' grid, angles and rates.
-                    RunSource::Images(images) => Plan::for_images(
-                        &self.options,
-                        &dynamics,
-                        &self.processed.out.filtered,
+                    RunSource::Images(images) => (
+                        Plan::for_images(
+                            &self.options,
+                            &dynamics,
+                            &self.processed.out.filtered,
+                            images.frames,
+                            triggers,
+                        )?,
                         images.frames,
-                        triggers,
-                    )?,
+                    ),
                 };
+                // Windows the run spaced out for memory stay so unless new ones are asked for.
+                if let Some(fit @ pcuvd_app::run::DynamicsFit::Stepped { .. }) =
+                    &self.plan.dynamics_fit
+                    && dynamics.window_ms.is_none()
+                    && dynamics.window_step_ms.is_none()
+                    && plan.dynamics.is_some()
+                {
+                    plan.apply_fit(fit.clone(), n_frames)?;
+                }
                 let clock = std::time::Instant::now();
                 let dynamics =
                     pcuvd_app::run::rerun_dynamics(&self.processed, &self.plan, &plan, &progress)?;
