@@ -9,8 +9,9 @@ use crate::run::{DynamicsFit, Plan};
 
 /// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
 pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 4 × windows × pixels × 8 bytes (vx, vz, power \
-and speed per window; 2 with one steering angle: its velocity and power) + time series: ensembles × pixels × 6 × 8 bytes (five \
-maps and a filtered copy of one ensemble's frames per angle counted once more)";
+and speed per window; 2 with one steering angle: its velocity and power) + time series: \
+ensembles × pixels × 6 × 8 bytes (five maps and a filtered copy of one ensemble's frames per \
+angle counted once more)";
 
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
 /// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
@@ -84,9 +85,8 @@ struct Held {
 /// `n_angles` angles at `frame_rate` (Hz), [`STAGE_MEMORY_RULE`]) fit in `room`. The dynamics
 /// windows of the whole recording grow with its length (4 maps of 8 bytes per pixel per window,
 /// 2 of one angle: about 31 GB, or 16, for five minutes of 128 × 128 pixels at a 5 ms step), the
-/// rest of a segmented run does not: where
-/// they alone would not fit and no dynamics setting was given (`--dynamics auto`), the windows
-/// start further apart, the step the fewest whole multiples of the default's that fit, up to
+/// rest of a segmented run does not: where they alone would not fit and no dynamics setting was
+/// given (`--dynamics auto`), the windows start further apart, the step the fewest whole multiples of the default's that fit, up to
 /// the window's length (windows side by side: the RI maps read from a cycle's fitted
 /// harmonics, which a few windows per cycle hold, and on the rat-network phantom they read
 /// alike at steps of 5, 10 and 20 ms); where none fits, the plan drops the stage. Either is
@@ -149,9 +149,8 @@ fn fit_stages(
 }
 
 /// The dynamics windows of `plan`, for a recording of `frames` frames of `n_angles` angles at
-/// `frame_rate` (Hz),
-/// started the fewest whole multiples of its step apart, up to the window's length, that fit in
-/// `room` bytes ([`fit_stages`]); `None` when none does.
+/// `frame_rate` (Hz), started the fewest whole multiples of its step apart, up to the window's
+/// length, that fit in `room` bytes ([`fit_stages`]); `None` when none does.
 fn spaced_windows(
     plan: &Plan,
     (frames, n_angles, frame_rate): (usize, usize, f64),

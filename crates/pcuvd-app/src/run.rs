@@ -309,8 +309,9 @@ fn dynamics_plan(
 pub enum DynamicsOutcome {
     /// The stage ran.
     Done {
-        /// Vector velocity in sliding windows.
-        series: Box<VelocitySeries>,
+        /// Vector velocity in sliding windows (shared: the RI maps made again with other
+        /// settings read the same windows, a long recording's gigabytes).
+        series: std::sync::Arc<VelocitySeries>,
         /// PSV, EDV, RI, classes and flow directions.
         maps: Box<RiMaps>,
     },
@@ -616,7 +617,7 @@ fn finish_segmented(
                 &settings.vessel,
                 settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
             )?;
-            Ok((series, maps))
+            Ok((series.into(), maps))
         }
         // The stage's own checks say why it cannot run (a window too long).
         (Some(settings), None) => {
@@ -660,6 +661,7 @@ pub fn run_dynamics(
             &settings.vessel,
             settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
         )
+        .map(|(series, maps)| (series.into(), maps))
     })
 }
 
@@ -691,7 +693,7 @@ pub fn rerun_dynamics(
                 &settings.vessel,
                 settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
             )?;
-            Ok((VelocitySeries::clone(series), maps))
+            Ok((std::sync::Arc::clone(series), maps))
         });
     }
     if plan.dynamics.is_some() && processed.out.filtered.series.is_empty() {
@@ -786,7 +788,7 @@ pub fn dynamics_of_images(
 fn dynamics_outcome(
     plan: &Plan,
     progress: &dyn Progress,
-    stage: impl FnOnce() -> pcuvd::Result<(VelocitySeries, RiMaps)>,
+    stage: impl FnOnce() -> pcuvd::Result<(std::sync::Arc<VelocitySeries>, RiMaps)>,
 ) -> Result<DynamicsOutcome> {
     Ok(match &plan.dynamics {
         // Said when the run started (`said_before_the_run`).
@@ -796,7 +798,7 @@ fn dynamics_outcome(
         ),
         Some(_) => match stage() {
             Ok((series, maps)) => DynamicsOutcome::Done {
-                series: Box::new(series),
+                series,
                 maps: Box::new(maps),
             },
             // Settings the user gave are errors when the recording cannot meet them; a
