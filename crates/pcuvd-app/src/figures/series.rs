@@ -94,15 +94,19 @@ pub fn dynamics_figures(
     };
     let shown = match cycles < maps.cycles.len() {
         true => format!(
-            "\nthe first {cycles} of {} cycles (every window: speed_series.npy)",
+            "; the first {cycles} of {} cycles (every window: speed_series.npy)",
             maps.cycles.len()
         ),
         false => String::new(),
     };
+    // Windows a run spaced out for memory sample the beat more coarsely: the title says so.
+    let ms = |seconds: f64| (seconds * 1e4).round() / 10.0;
     let plot = PlotPanel {
         title: format!(
             "Mean {speed} over vessel pixels (red marks: first and last window of each \
-             cycle){shown}"
+             cycle)\nwindows of {} ms every {} ms{shown}",
+            ms(series.window_s),
+            ms(series.step_s)
         ),
         x_label: "time (ms)".into(),
         y_label: format!("{speed} (mm/s)"),
