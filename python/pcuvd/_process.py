@@ -93,6 +93,7 @@ class ProcessResult:
     def __init__(self, native: Any):
         self._native = native
         self._arrays: dict[str, np.ndarray] | None = None
+        self._named: dict[str, np.ndarray] = {}
 
     @property
     def arrays(self) -> dict[str, np.ndarray]:
@@ -104,9 +105,16 @@ class ProcessResult:
     def __getattr__(self, name: str) -> np.ndarray:
         if name.startswith("_"):
             raise AttributeError(name)
-        arrays = self.arrays
-        if name in arrays:
-            return arrays[name]
+        # One map alone, not every map: a long recording's speed series (the size of its
+        # velocity windows) is made only when asked for.
+        if self._arrays is not None and name in self._arrays:
+            return self._arrays[name]
+        if name not in self._named:
+            found = self._native.array(name)
+            if found is not None:
+                self._named[name] = found
+        if name in self._named:
+            return self._named[name]
         if name in MAPS:
             raise AttributeError(
                 f"this result has no {name!r} ({MAPS[name][1]}): see summary['dynamics'] "
@@ -115,7 +123,7 @@ class ProcessResult:
         raise AttributeError(name)
 
     def __dir__(self) -> list[str]:
-        return sorted(set(super().__dir__()) | set(self.arrays))
+        return sorted(set(super().__dir__()) | set(self._native.array_names()))
 
     @property
     def summary(self) -> dict:
@@ -192,8 +200,8 @@ class ProcessResult:
         return xr.Dataset(data_vars, coords=coords, attrs={"summary": json.dumps(summary)})
 
     def __repr__(self) -> str:
-        maps = ", ".join(sorted(k for k in self.arrays if k not in ("x", "z")))
-        nz, nx = len(self.arrays["z"]), len(self.arrays["x"])
+        maps = ", ".join(sorted(k for k in self._native.array_names() if k not in ("x", "z")))
+        nz, nx = len(self.z), len(self.x)
         return f"<pcuvd.ProcessResult {nz}×{nx} pixels: {maps}>"
 
 

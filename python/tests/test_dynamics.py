@@ -104,3 +104,21 @@ def test_ri_settings_change_on_the_windows_of_a_run_in_segments(steady_tube):
     without = pcuvd.process(path, quiet=True, dynamics="off", **segmented)
     with pytest.raises(ValueError, match=r"made none \(--dynamics off\)"):
         pcuvd.dynamics(without, **BEAT)
+
+
+def test_one_map_is_made_alone_and_every_map_is_listed(steady_tube):
+    """An attribute makes its map alone (a long recording's speed series only when asked for),
+    equal to the one `arrays` gives; `repr` and `dir` list the maps without making them."""
+    result = pcuvd.process(
+        str(steady_tube / "coded.toml"), quiet=True, ensemble_frames=40, **STEADY_GRID, **BEAT
+    )
+    for name in ("ri", "speed_series", "ensemble_speed", "clutter_block_cut_offs", "x"):
+        getattr(result, name)
+    assert "speed_series" in repr(result) and "ensemble_speed" in dir(result)
+    assert result._arrays is None, "an attribute or repr made every map"
+    named = {name: getattr(result, name) for name in result._native.array_names()}
+    assert sorted(named) == sorted(result.arrays)
+    for name, value in result.arrays.items():
+        assert_same_array(named[name], value, name)
+    with pytest.raises(AttributeError):
+        result.no_such_map

@@ -361,72 +361,121 @@ impl PyProcessResult {
     }
 }
 
+impl PyProcessResult {
+    /// The maps whose names `want` takes, as [`PyProcessResult::arrays`] gives them.
+    fn arrays_where<'py>(
+        &self,
+        py: Python<'py>,
+        want: &dyn Fn(&str) -> bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let out = &self.processed.out;
+        let dict = PyDict::new(py);
+        let put = |name: &str, make: &dyn Fn() -> PyResult<Bound<'py, PyAny>>| -> PyResult<()> {
+            if want(name) {
+                dict.set_item(name, make()?)?;
+            }
+            Ok(())
+        };
+        put(
+            "x",
+            &|| Ok(PyArray1::from_slice(py, &out.grid.x).into_any()),
+        )?;
+        put(
+            "z",
+            &|| Ok(PyArray1::from_slice(py, &out.grid.z).into_any()),
+        )?;
+        put("bmode_db", &|| Ok(out.bmode_db.to_pyarray(py).into_any()))?;
+        put("power_doppler", &|| {
+            Ok(out.maps.power_doppler.to_pyarray(py).into_any())
+        })?;
+        put("color_doppler", &|| {
+            Ok(out.maps.color_doppler.to_pyarray(py).into_any())
+        })?;
+        put("signed_power_doppler", &|| {
+            Ok(out.signed_power_doppler().into_pyarray(py).into_any())
+        })?;
+        put("projections", &|| {
+            Ok(out.maps.projections.to_pyarray(py).into_any())
+        })?;
+        put("projection_nyquist", &|| {
+            Ok(out.maps.projection_nyquist.to_pyarray(py).into_any())
+        })?;
+        if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
+            put("vx", &|| Ok(irls.vx.to_pyarray(py).into_any()))?;
+            put("vz", &|| Ok(irls.vz.to_pyarray(py).into_any()))?;
+            put("speed", &|| Ok(irls.speed().into_pyarray(py).into_any()))?;
+            put("vx_ls", &|| Ok(ls.vx.to_pyarray(py).into_any()))?;
+            put("vz_ls", &|| Ok(ls.vz.to_pyarray(py).into_any()))?;
+            put("speed_ls", &|| Ok(ls.speed().into_pyarray(py).into_any()))?;
+        }
+        if let Some(done) = &out.maps.dealias {
+            put("alias_counts", &|| {
+                Ok(done.irls.alias_counts.to_pyarray(py).into_any())
+            })?;
+            put("alias_counts_ls", &|| {
+                Ok(done.ls.alias_counts.to_pyarray(py).into_any())
+            })?;
+        }
+        // `want` is asked only of the maps this result has ([`Self::array_names`]).
+        let clutter = pcuvd_app::summary::clutter_by_segment(&self.processed);
+        if let Some(cut_offs) = pcuvd_app::summary::block_cut_offs(&clutter).map_err(to_py)?
+            && want("clutter_block_cut_offs")
+        {
+            dict.set_item("clutter_block_cut_offs", cut_offs.into_pyarray(py))?;
+        }
+        if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
+            put_ri_maps(&dict, maps, series, want)?;
+        }
+        if let Some(ensembles) = &self.processed.ensembles {
+            put("ensemble_power_doppler", &|| {
+                Ok(ensembles.power_doppler.to_pyarray(py).into_any())
+            })?;
+            put("ensemble_color_doppler", &|| {
+                Ok(ensembles.color_doppler.to_pyarray(py).into_any())
+            })?;
+            put("ensemble_signed_power_doppler", &|| {
+                Ok(ensembles.signed_power_doppler().into_pyarray(py).into_any())
+            })?;
+            if let Some(vx) = &ensembles.vx {
+                put("ensemble_vx", &|| Ok(vx.to_pyarray(py).into_any()))?;
+            }
+            if let Some(vz) = &ensembles.vz {
+                put("ensemble_vz", &|| Ok(vz.to_pyarray(py).into_any()))?;
+            }
+            if ensembles.vx.is_some() && ensembles.vz.is_some() && want("ensemble_speed") {
+                let speed = ensembles.speed().expect("vx and vz give the speed");
+                dict.set_item("ensemble_speed", speed.into_pyarray(py))?;
+            }
+            put("ensemble_times", &|| {
+                Ok(PyArray1::from_slice(py, &ensembles.times_s).into_any())
+            })?;
+        }
+        Ok(dict)
+    }
+}
+
 #[pymethods]
 impl PyProcessResult {
     /// Every map `pcuvd process` writes as .npy, by file stem: numpy arrays in SI units.
     fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let out = &self.processed.out;
-        let dict = PyDict::new(py);
-        dict.set_item("x", PyArray1::from_slice(py, &out.grid.x))?;
-        dict.set_item("z", PyArray1::from_slice(py, &out.grid.z))?;
-        dict.set_item("bmode_db", out.bmode_db.to_pyarray(py))?;
-        dict.set_item("power_doppler", out.maps.power_doppler.to_pyarray(py))?;
-        dict.set_item("color_doppler", out.maps.color_doppler.to_pyarray(py))?;
-        let signed = out.signed_power_doppler();
-        dict.set_item("signed_power_doppler", signed.into_pyarray(py))?;
-        dict.set_item("projections", out.maps.projections.to_pyarray(py))?;
-        dict.set_item(
-            "projection_nyquist",
-            out.maps.projection_nyquist.to_pyarray(py),
-        )?;
-        if let (Some(ls), Some(irls)) = (&out.maps.vector_ls, &out.maps.vector_irls) {
-            dict.set_item("vx", irls.vx.to_pyarray(py))?;
-            dict.set_item("vz", irls.vz.to_pyarray(py))?;
-            dict.set_item("speed", irls.speed().into_pyarray(py))?;
-            dict.set_item("vx_ls", ls.vx.to_pyarray(py))?;
-            dict.set_item("vz_ls", ls.vz.to_pyarray(py))?;
-            dict.set_item("speed_ls", ls.speed().into_pyarray(py))?;
-        }
-        if let Some(done) = &out.maps.dealias {
-            dict.set_item("alias_counts", done.irls.alias_counts.to_pyarray(py))?;
-            dict.set_item("alias_counts_ls", done.ls.alias_counts.to_pyarray(py))?;
-        }
-        let clutter = pcuvd_app::summary::clutter_by_segment(&self.processed);
-        if let Some(cut_offs) = pcuvd_app::summary::block_cut_offs(&clutter).map_err(to_py)? {
-            dict.set_item("clutter_block_cut_offs", cut_offs.into_pyarray(py))?;
-        }
-        if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
-            put_ri_maps(&dict, maps, series)?;
-        }
-        if let Some(ensembles) = &self.processed.ensembles {
-            let maps = [
-                (
-                    "ensemble_power_doppler",
-                    Some(ensembles.power_doppler.clone()),
-                ),
-                (
-                    "ensemble_color_doppler",
-                    Some(ensembles.color_doppler.clone()),
-                ),
-                (
-                    "ensemble_signed_power_doppler",
-                    Some(ensembles.signed_power_doppler()),
-                ),
-                ("ensemble_vx", ensembles.vx.clone()),
-                ("ensemble_vz", ensembles.vz.clone()),
-                ("ensemble_speed", ensembles.speed()),
-            ];
-            for (name, map) in maps {
-                if let Some(map) = map {
-                    dict.set_item(name, map.into_pyarray(py))?;
-                }
-            }
-            dict.set_item(
-                "ensemble_times",
-                PyArray1::from_slice(py, &ensembles.times_s),
-            )?;
-        }
-        Ok(dict)
+        self.arrays_where(py, &|_| true)
+    }
+
+    /// The names of the maps [`Self::arrays`] gives, without making them.
+    fn array_names(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        let names = std::cell::RefCell::new(Vec::new());
+        self.arrays_where(py, &|name| {
+            names.borrow_mut().push(name.to_string());
+            false
+        })?;
+        Ok(names.into_inner())
+    }
+
+    /// The map `pcuvd process` writes as `name`.npy, alone (`None` when this result has none):
+    /// a long recording's speed series or ensembles are made only when asked for.
+    fn array<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.arrays_where(py, &|wanted| wanted == name)?
+            .get_item(name)
     }
 
     /// The same maps with the dynamics stage run again with the keyword options in `options`

@@ -395,7 +395,7 @@ pub(crate) fn ri_maps_of_images<'py>(
         .detach(|| pcuvd_app::run::dynamics_of_images(&images, &processing, &dynamics))
         .map_err(to_py)?;
     let dict = PyDict::new(py);
-    put_ri_maps(&dict, &maps, &series)?;
+    put_ri_maps(&dict, &maps, &series, &|_| true)?;
     dict.set_item("heart_rate_hz", maps.heart_rate_hz)?;
     dict.set_item("cycles", maps.cycles)?;
     dict.set_item("cycles_from", maps.cycle_source.describe())?;
@@ -403,22 +403,39 @@ pub(crate) fn ri_maps_of_images<'py>(
     Ok(dict)
 }
 
-/// The dynamics stage's maps and speed series into `dict`, under the names `process` gives them.
+/// The dynamics stage's maps and speed series whose names `want` takes into `dict`, under the
+/// names `process` gives them (the speed series, the size of the windows, made only if taken).
 pub(crate) fn put_ri_maps(
     dict: &Bound<'_, PyDict>,
     maps: &pcuvd::dynamics::RiMaps,
     series: &pcuvd::dynamics::VelocitySeries,
+    want: &dyn Fn(&str) -> bool,
 ) -> PyResult<()> {
     let py = dict.py();
-    dict.set_item("ri", maps.ri.to_pyarray(py))?;
-    dict.set_item("psv", maps.psv.to_pyarray(py))?;
-    dict.set_item("edv", maps.edv.to_pyarray(py))?;
-    dict.set_item("psv_spread", maps.psv_spread.to_pyarray(py))?;
-    dict.set_item("edv_spread", maps.edv_spread.to_pyarray(py))?;
-    dict.set_item("ri_spread", maps.ri_spread.to_pyarray(py))?;
-    dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
-    dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
-    dict.set_item("speed_series", series.speed().into_pyarray(py))?;
-    dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+    let float_maps = [
+        ("ri", &maps.ri),
+        ("psv", &maps.psv),
+        ("edv", &maps.edv),
+        ("psv_spread", &maps.psv_spread),
+        ("edv_spread", &maps.edv_spread),
+        ("ri_spread", &maps.ri_spread),
+    ];
+    for (name, map) in float_maps {
+        if want(name) {
+            dict.set_item(name, map.to_pyarray(py))?;
+        }
+    }
+    if want("vessel_class") {
+        dict.set_item("vessel_class", maps.vessel_class.to_pyarray(py))?;
+    }
+    if want("flow_up") {
+        dict.set_item("flow_up", maps.flow_up.mapv(u8::from).into_pyarray(py))?;
+    }
+    if want("speed_series") {
+        dict.set_item("speed_series", series.speed().into_pyarray(py))?;
+    }
+    if want("times") {
+        dict.set_item("times", PyArray1::from_slice(py, &series.times_s))?;
+    }
     Ok(())
 }
