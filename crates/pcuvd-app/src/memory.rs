@@ -9,9 +9,9 @@ use crate::run::{DynamicsFit, Plan};
 
 /// How [`check_memory`] counts beyond [`pipeline::MEMORY_ESTIMATE_RULE`].
 pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 4 × windows × pixels × 8 bytes (vx, vz, power \
-and speed per window; 2 with one steering angle: its velocity and power) + time series: \
-ensembles × pixels × 6 × 8 bytes (five maps and a filtered copy of one ensemble's frames per \
-angle counted once more)";
+and, for vessel pooling, speed per window; 2 with one steering angle: its velocity and power) + \
+time series: ensembles × pixels × 6 × 8 bytes (five maps and a filtered copy of one ensemble's \
+frames per angle counted once more)";
 
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
 /// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
@@ -86,10 +86,10 @@ struct Held {
 /// windows of the whole recording grow with its length (4 maps of 8 bytes per pixel per window,
 /// 2 of one angle: about 31 GB, or 16, for five minutes of 128 × 128 pixels at a 5 ms step), the
 /// rest of a segmented run does not: where they alone would not fit and no dynamics setting was
-/// given (`--dynamics auto`), the windows start further apart, the step the fewest whole multiples of the default's that fit, up to
-/// the window's length (windows side by side: the RI maps read from a cycle's fitted
-/// harmonics, which a few windows per cycle hold, and on the rat-network phantom they read
-/// alike at steps of 5, 10 and 20 ms); where none fits, the plan drops the stage. Either is
+/// given (`--dynamics auto`), the windows start further apart, the step the fewest whole
+/// multiples of the default's that fit, up to the window's length (windows side by side: the RI
+/// maps read from a cycle's fitted harmonics, which a few windows per cycle hold, and on the
+/// rat-network phantom they read alike at steps of 5, 10 and 20 ms); where none fits, the plan drops the stage. Either is
 /// said ([`Plan::dynamics_fit`]), so that a long functional recording still gives its maps and
 /// time series; with a dynamics setting the run is refused, naming `--window-step-ms` and
 /// `--dynamics off`.
@@ -212,8 +212,8 @@ their frames, or one segment's with its overlap): an angle's frames as read, the
 series (filtered in place) and their compound";
 
 /// Refuses, before they are read, beamformed images at `frame_rate` (Hz) of which `bytes` (as
-/// complex64) are held at once (all their `frames`, or a segment's when `plan` cuts them) that a run could not hold
-/// ([`IMAGES_MEMORY_RULE`]) with its later stages ([`STAGE_MEMORY_RULE`], [`fit_stages`])
+/// complex64) are held at once (all their `frames`, or a segment's when `plan` cuts them) that a
+/// run could not hold ([`IMAGES_MEMORY_RULE`]) with its later stages ([`STAGE_MEMORY_RULE`], [`fit_stages`])
 /// within `limit_gb` or what the machine leaves.
 pub fn check_images_memory(
     plan: &mut Plan,

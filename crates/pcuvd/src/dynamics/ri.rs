@@ -149,27 +149,18 @@ pub fn ri_maps_triggered(
     check_period_vs_window(hr, series.window_s)?;
     let cycles = found.ranges.clone();
 
-    // A vector's speeds are held, for pooling across pixels; one angle's, |Vz|, are read lane by
-    // lane: a long single-angle recording's windows hold no map of them.
-    let held_speed = (!series.axial_only).then(|| series.speed());
-    let pools = match (&held_speed, params.pooling) {
-        (Some(speed), Some(pooling)) => {
-            let mean_power = series
-                .power
-                .mean_axis(Axis(0))
-                .unwrap_or_else(|| Array2::zeros((nz, nx)));
-            let weight = mean_power.mapv(|p| p * p);
-            let (mx, mz) = series.mean_velocity();
-            Some(PooledSpeeds::new(
-                speed,
-                &mask,
-                (&mx, &mz),
-                &weight,
-                pooling,
-            ))
-        }
-        _ => None,
-    };
+    // Pooling reads its neighbours' speeds, so it holds them once; without it each pixel's
+    // speed is read lane by lane from the windows, and no map of them is held.
+    let held_speed = params.pooling.map(|pooling| (series.speed(), pooling));
+    let pools = held_speed.as_ref().map(|(speed, pooling)| {
+        let mean_power = series
+            .power
+            .mean_axis(Axis(0))
+            .unwrap_or_else(|| Array2::zeros((nz, nx)));
+        let weight = mean_power.mapv(|p| p * p);
+        let (mx, mz) = series.mean_velocity();
+        PooledSpeeds::new(speed, &mask, (&mx, &mz), &weight, *pooling)
+    });
     let harmonics_at = |rate: f64| {
         params
             .harmonics
@@ -217,10 +208,9 @@ pub fn ri_maps_triggered(
                     ..PixelCycles::background()
                 };
             }
-            let raw: Vec<f64> = match (&pools, &held_speed) {
-                (Some(pools), _) => pools.lane(iz, ix),
-                (None, Some(speed)) => speed.slice(s![.., iz, ix]).to_vec(),
-                (None, None) => series.speed_lane(iz, ix),
+            let raw: Vec<f64> = match &pools {
+                Some(pools) => pools.lane(iz, ix),
+                None => series.speed_lane(iz, ix),
             };
             let per_cycle: Vec<(f64, f64)> = cycles
                 .iter()
