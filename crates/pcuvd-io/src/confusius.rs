@@ -31,31 +31,21 @@ pub fn is_store(path: &Path) -> bool {
         && path.join(IQ_ARRAY).join("zarr.json").is_file()
 }
 
-/// The `iq` array's metadata in the store at `path`, parsed.
-fn array_metadata(path: &Path) -> Result<serde_json::Map<String, Value>, IoError> {
-    let file = path.join(IQ_ARRAY).join("zarr.json");
-    let text = std::fs::read_to_string(&file).map_err(|e| IoError::io(&file, "read", e))?;
-    match serde_json::from_str(&text) {
-        Ok(Value::Object(map)) => Ok(map),
-        Ok(_) => Err(IoError::malformed(&file, "is not a JSON object")),
-        Err(e) => Err(IoError::malformed(
-            &file,
-            format!("not valid JSON ({})", crate::error::flat(e)),
-        )),
-    }
-}
-
 /// Reads what the ConfUSIus store at `path` says of its IQ (nothing of the images is read):
 /// their shape and type, frame rate, demodulation frequency, speed of sound and pixel positions,
 /// each checked, into the header an images manifest gives.
 pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
-    let metadata = array_metadata(path)?;
+    // zarrs parses and checks the whole metadata document (codecs, chunk grid, fill value), so a
+    // store the reader could not decode is refused here, before any work, as `info` reads it.
+    let array = crate::images::zarr_array(path, IQ_ARRAY)?;
+    let zarrs::array::ArrayMetadata::V3(metadata) = array.metadata() else {
+        return Err(IoError::malformed(
+            path,
+            format!("its {IQ_ARRAY} array is not Zarr v3, which ConfUSIus writes"),
+        ));
+    };
     let field = |name: &str| format!("{IQ_ARRAY}/zarr.json {name}");
-    let dtype = metadata
-        .get("data_type")
-        .and_then(Value::as_str)
-        .unwrap_or("")
-        .to_string();
+    let dtype = metadata.data_type.name().to_string();
     let complex128 = dtype == "complex128";
     if dtype != "complex64" && !complex128 {
         return Err(IoError::invalid(
@@ -64,25 +54,13 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
             format!("is {dtype:?}: beamformed IQ images are complex (complex64 or complex128)"),
         ));
     }
-    let shape: Vec<usize> = metadata
-        .get("shape")
-        .and_then(Value::as_array)
-        .map(|s| {
-            s.iter()
-                .filter_map(Value::as_u64)
-                .map(|n| n as usize)
-                .collect()
-        })
-        .unwrap_or_default();
+    let shape: Vec<usize> = metadata.shape.iter().map(|&n| n as usize).collect();
     let dims: Vec<String> = metadata
-        .get("dimension_names")
-        .and_then(Value::as_array)
-        .map(|d| {
-            d.iter()
-                .map(|n| n.as_str().unwrap_or("").to_string())
-                .collect()
-        })
-        .unwrap_or_default();
+        .dimension_names
+        .iter()
+        .flatten()
+        .map(|name| name.clone().unwrap_or_default())
+        .collect();
     // Multi-pose data of one pose is one plane too; (time, pose, k, j, i) is read past its pose.
     let plane_dims: Vec<&str> = dims
         .iter()
@@ -124,11 +102,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
             ),
         ));
     }
-    let attributes = metadata
-        .get("attributes")
-        .and_then(Value::as_object)
-        .cloned()
-        .unwrap_or_default();
+    let attributes = &metadata.attributes;
     let attribute = |name: &str| attributes.get(name).and_then(Value::as_f64);
     let positive = |name: &str, what: &str| match attribute(name) {
         Some(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -155,7 +129,7 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         ),
         None => (1540.0, false),
     };
-    let (z, x) = pixel_positions(path, &attributes, nz, nx)?;
+    let (z, x) = pixel_positions(path, attributes, nz, nx)?;
 
     let from_store = |name: &str, value: Value, key: &str| Parameter {
         name: name.into(),
@@ -214,11 +188,9 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
         },
     });
     let mut warnings = Vec::new();
-    let chunk_frames = metadata
-        .get("chunk_grid")
-        .and_then(|grid| grid.pointer("/configuration/chunk_shape/0"))
-        .and_then(Value::as_u64)
-        .unwrap_or(0) as usize;
+    let chunk_frames = array
+        .chunk_shape(&vec![0; shape.len()])
+        .map_or(0, |chunk| chunk[0].get() as usize);
     let segment = pcuvd::pipeline::segments::MAX_SEGMENT_FRAMES;
     if chunk_frames > segment && frames > segment {
         warnings.push(format!(

@@ -474,7 +474,7 @@ impl ImagesHeader {
 }
 
 /// The array `array` of the Zarr store at `store`, opened (its metadata read).
-fn zarr_array(
+pub(crate) fn zarr_array(
     store: &Path,
     array: &str,
 ) -> Result<zarrs::array::Array<zarrs::filesystem::FilesystemStore>, IoError> {

@@ -181,6 +181,7 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
         (
             Box::new(|json| {
                 json["data_type"] = "float32".into();
+                json["fill_value"] = 0.0.into();
             }),
             "complex",
         ),
@@ -188,8 +189,17 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
             Box::new(|json| {
                 json["dimension_names"] = serde_json::json!(["pose", "time", "k", "j", "i"]);
                 json["shape"] = serde_json::json!([1, 48, 1, 20, 24]);
+                json["chunk_grid"]["configuration"]["chunk_shape"] =
+                    serde_json::json!([1, 48, 1, 20, 24]);
             }),
             "dimension_names",
+        ),
+        // What the reader could not decode is refused with the header, as `info` reads it.
+        (
+            Box::new(|json| {
+                json["codecs"][1]["name"] = "lz4hc".into();
+            }),
+            "cannot be opened as Zarr",
         ),
     ];
     for (edit, said) in cases {
