@@ -2,8 +2,8 @@
 //! PSV, EDV and vessel-class maps (the arteriole more resistive than the venule); recordings and
 //! settings that cannot give RI maps are refused with one clear line.
 
+use super::pcuvd;
 use std::path::Path;
-use std::process::Command;
 
 use ndarray::{Array1, Array2};
 use ndarray_npy::read_npy;
@@ -13,24 +13,6 @@ use pcuvd::simulate::{self, SimParams};
 use pcuvd::{Coding, Probe, Sequence};
 
 const HEART_RATE: f64 = 12.0;
-
-fn pcuvd(args: &[&str]) -> (bool, String, String) {
-    // --quiet: progress lines (printed when stderr is not a terminal) would precede an error.
-    let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .arg("--quiet")
-        .args(args)
-        .env("RUST_BACKTRACE", "1")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(!stderr.to_lowercase().contains("backtrace"), "{stderr}");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr,
-    )
-}
 
 fn vessel(name: &str, kind: VesselKind, x_mm: f64, angle_deg: f64) -> VesselSpec {
     let (psv, ri) = match kind {

@@ -3,7 +3,8 @@
 //! the options that set how images are formed refused with one clear line.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+use super::{pcuvd, pcuvd_with_progress};
 
 use ndarray::{Array2, Array3};
 use ndarray_npy::{read_npy, write_npy};
@@ -19,22 +20,6 @@ const EDV: f64 = 4e-3;
 /// Rows and columns of the vessel, whose blood moves away from the probe: a third of the rows it
 /// crosses, so that their noise floor (a row's 30th percentile of power) is the tissue's.
 const VESSEL: ([usize; 2], [usize; 2]) = ([18, 30], [8, 30]);
-
-fn pcuvd(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .arg("--quiet")
-        .args(args)
-        .env("RUST_BACKTRACE", "1")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr,
-    )
-}
 
 /// The blood's axial velocity (m/s, positive = away from the probe) at `t` (s): a cosine beat
 /// between EDV and PSV.
@@ -353,11 +338,8 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
             limit_gb,
         ];
         args.extend_from_slice(extra);
-        let mut command = Command::new(env!("CARGO_BIN_EXE_pcuvd"));
-        let done = command.args(&args).output().unwrap();
-        let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
-        assert!(!stderr.contains("panicked"), "{stderr}");
-        (done.status.success(), stderr)
+        let (ok, _, stderr) = pcuvd_with_progress(&args);
+        (ok, stderr)
     };
     let summary = || -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()

@@ -10,6 +10,35 @@ mod images;
 mod paper;
 mod simulate;
 
+/// Runs `pcuvd ARGS` as a user would, with `RUST_BACKTRACE=1` set: whether it succeeded, its
+/// stdout and its stderr, which must hold neither a panic nor a backtrace. `--quiet` leaves out
+/// the progress lines (printed when stderr is not a terminal), which would precede an error.
+fn pcuvd(args: &[&str]) -> (bool, String, String) {
+    run_pcuvd(&[&["--quiet"], args].concat())
+}
+
+/// [`pcuvd`] with the progress lines kept on stderr: for tests of what is said before, between
+/// or after the stages.
+fn pcuvd_with_progress(args: &[&str]) -> (bool, String, String) {
+    run_pcuvd(args)
+}
+
+fn run_pcuvd(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .args(args)
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(!stderr.to_lowercase().contains("backtrace"), "{stderr}");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr,
+    )
+}
+
 /// The SHA-256 of the file at `path` in hex, as those who check with a tool of their own get
 /// it: coreutils' `sha256sum` on Unix, elsewhere the file hashed whole here.
 fn sha256_of_file(path: &std::path::Path) -> String {

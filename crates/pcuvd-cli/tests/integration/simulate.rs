@@ -2,19 +2,7 @@
 
 use std::process::Command;
 
-fn pcuvd(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
-        .args(args)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr,
-    )
-}
+use super::pcuvd_with_progress;
 
 /// The truth `pcuvd simulate --preset tube` writes for one conventional noiseless frame of two
 /// angles with `tube_options`: (Vx, Vz) in m/s, the lumen mask, x and z (m), and the folder.
@@ -51,7 +39,7 @@ fn simulated_tube_of(frames: &str, tube_options: &[&str]) -> TubeTruth {
         "--out",
         d,
     ];
-    let (ok, _, stderr) = pcuvd(&[&fixed[..], tube_options].concat());
+    let (ok, _, stderr) = pcuvd_with_progress(&[&fixed[..], tube_options].concat());
     assert!(ok, "{stderr}");
     let path = |name: &str| dir.path().join(name);
     TubeTruth {
@@ -68,7 +56,7 @@ fn simulated_tube_of(frames: &str, tube_options: &[&str]) -> TubeTruth {
 fn simulated_tube_round_trips_through_process() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "simulate", "--preset", "tube", "--mode", "coded", "--frames", "6", "--angles", "4",
         "--out", d,
     ]);
@@ -89,7 +77,7 @@ fn simulated_tube_round_trips_through_process() {
             && manifest.contains("noise_definition")
     );
     let out = dir.path().join("out");
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "process",
         dir.path().join("coded.toml").to_str().unwrap(),
         "--out",
@@ -152,7 +140,7 @@ fn simulated_tube_round_trips_through_process() {
     );
 
     // A grid too coarse for Loupas is refused before any work, saying what to do instead.
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "--quiet",
         "process",
         dir.path().join("coded.toml").to_str().unwrap(),
@@ -183,7 +171,7 @@ fn simulated_tube_round_trips_through_process() {
     )
     .unwrap();
     let before = std::fs::read(dir.path().join("speed.npy")).unwrap();
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "--quiet",
         "process",
         dir.path().join("coded.toml").to_str().unwrap(),
@@ -306,7 +294,7 @@ fn a_simulated_recording_is_scored_against_its_truth() {
     let recording = d.join("conventional.toml");
     let run = |name: &str, extra: &[&str]| {
         let out = d.join(name);
-        let (ok, stdout, stderr) = pcuvd(
+        let (ok, stdout, stderr) = pcuvd_with_progress(
             &[
                 &[
                     "--quiet",
@@ -328,7 +316,8 @@ fn a_simulated_recording_is_scored_against_its_truth() {
         (summary["against_truth"].clone(), stdout, out)
     };
     let simulated = || {
-        let (ok, stdout, stderr) = pcuvd(&["info", "--json", recording.to_str().unwrap()]);
+        let (ok, stdout, stderr) =
+            pcuvd_with_progress(&["info", "--json", recording.to_str().unwrap()]);
         assert!(ok, "{stderr}");
         serde_json::from_str::<serde_json::Value>(&stdout).unwrap()["simulated_scenario"].clone()
     };
@@ -567,7 +556,7 @@ fn bad_simulation_requests_are_refused() {
         ),
     ];
     for (args, needle) in cases {
-        let (ok, _, stderr) = pcuvd(args);
+        let (ok, _, stderr) = pcuvd_with_progress(args);
         assert!(!ok, "{args:?} should fail");
         assert!(
             stderr.contains(needle),
@@ -582,7 +571,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
     let small = ["--frames", "1", "--angles", "2", "--noise-db", "off"];
-    let (ok, _, stderr) = pcuvd(
+    let (ok, _, stderr) = pcuvd_with_progress(
         &[
             &[
                 "simulate",
@@ -614,7 +603,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
     let network_z = std::fs::read(dir.path().join("truth_z.npy")).unwrap();
     // A request refused for its second mode (6 angles: no Hadamard order) touches nothing.
     let conventional = std::fs::read(dir.path().join("conventional.toml")).unwrap();
-    let (ok, _, stderr) = pcuvd(
+    let (ok, _, stderr) = pcuvd_with_progress(
         &[
             &["simulate", "--preset", "tube", "--mode", "both", "--out", d][..],
             &["--frames", "1", "--angles", "6", "--noise-db", "off"],
@@ -631,7 +620,7 @@ fn a_reused_folder_keeps_no_stale_truth_or_recording() {
     std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
     std::fs::write(dir.path().join("truth_extra.npy"), "mine too").unwrap();
 
-    let (ok, stdout, stderr) = pcuvd(
+    let (ok, stdout, stderr) = pcuvd_with_progress(
         &[
             &[
                 "simulate", "--preset", "tube", "--mode", "coded", "--out", d,
@@ -747,7 +736,7 @@ fn bench_counts_a_scenarios_echoes() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
     let json_arg = json.to_str().unwrap();
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "bench",
         "--scenario",
         "tube",
@@ -768,7 +757,7 @@ fn bench_counts_a_scenarios_echoes() {
     let ns = report["ns_per_echo"].as_f64().unwrap();
     let seconds = report["simulate_s"].as_f64().unwrap();
     assert!((ns * 1e-9 * blood * 144.0 - seconds).abs() <= 1e-9 * seconds);
-    let (ok, _, stderr) = pcuvd(&["bench", "--scenario", "rat-heart"]);
+    let (ok, _, stderr) = pcuvd_with_progress(&["bench", "--scenario", "rat-heart"]);
     assert!(!ok && stderr.contains("rat-brain"), "{stderr}");
 }
 
@@ -819,7 +808,7 @@ fn a_closed_pipe_leaves_no_partial_files() {
 fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
     let dir = tempfile::tempdir().unwrap();
     let sim = dir.path().join("sim");
-    let (ok, _, stderr) = pcuvd(&[
+    let (ok, _, stderr) = pcuvd_with_progress(&[
         "--quiet",
         "simulate",
         "--preset",
@@ -862,7 +851,7 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
                 "--checksum",
                 checksum,
             ];
-            let (ok, _, stderr) = pcuvd(&[&fixed[..], options].concat());
+            let (ok, _, stderr) = pcuvd_with_progress(&[&fixed[..], options].concat());
             assert!(ok, "{stderr}");
             let summary: serde_json::Value =
                 serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
