@@ -78,14 +78,14 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         info.cardiac_triggers_s.as_deref(),
     )
     .ok();
-    let stage_bytes = plan
-        .as_ref()
-        .map(|plan| pcuvd_app::memory::stage_memory_of(plan, frames, seq.n_angles()) as u64);
     let mut warnings = info.warnings.clone();
-    if let Some(mut plan) = plan {
+    // Counted after the memory check, which may space the windows or drop the stage: what the
+    // run would hold.
+    let stage_bytes = plan.map(|mut plan| {
         let checked = pcuvd_app::memory::check_memory(source, &mut plan, args.max_memory_gb);
         warnings.extend(memory_warning(checked, &plan));
-    }
+        pcuvd_app::memory::stage_memory_of(&plan, frames, seq.n_angles()) as u64
+    });
     if demod.is_none()
         && let Some(warning) = pcuvd_app::input::band_pass_warning(acq)
     {
@@ -281,8 +281,10 @@ fn memory_warning(checked: Result<()>, plan: &pcuvd_app::run::Plan) -> Option<St
 
 /// What `info`'s stage memory estimate counts.
 const STAGE_MEMORY_AT_DEFAULTS: &str = "the dynamics windows and time series of a run at the \
-default settings (pcuvd_app::memory::STAGE_MEMORY_RULE), beside the memory estimate; null where \
-the defaults cannot plan the run";
+default settings (pcuvd_app::memory::STAGE_MEMORY_RULE), beside the memory estimate, as the \
+memory check leaves the run (under --dynamics auto its windows spaced further apart, or none, \
+where those of the default step would not fit: the warnings say so); null where the defaults \
+cannot plan the run";
 
 /// The stage memory estimate as `info` prints it after the images' memory, "" when there is none.
 fn stage_memory_text(bytes: Option<u64>) -> String {
@@ -316,14 +318,13 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     let opened =
         pcuvd_app::input::plan_images(header.clone(), &Default::default(), &Default::default())
             .ok();
-    let stage_bytes = opened.as_ref().map(|opened| {
-        pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
-    });
     let mut warnings = info.warnings.clone();
-    if let Some(mut opened) = opened {
+    // Counted after the memory check, as for a recording.
+    let stage_bytes = opened.map(|mut opened| {
         let checked = opened.check_memory(args.max_memory_gb);
         warnings.extend(memory_warning(checked, &opened.plan));
-    }
+        pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
+    });
     if nyquist < LOW_NYQUIST_M_S {
         warnings.push(format!(
             "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases",

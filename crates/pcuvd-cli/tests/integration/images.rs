@@ -363,6 +363,30 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
         );
     };
 
+    // `info` counts the windows the run would hold: whole, the 400 frames' images take 29.5 MB;
+    // beside them the windows every 5 frames (3.8 MB) fit in 34 MB, every 10 frames (1.9 MB)
+    // in 32 MB, none in 30 MB (side by side, 1.0 MB).
+    let windows_in_info = |limit_gb: &str| {
+        let (ok, stdout, stderr) =
+            pcuvd(&["info", manifest, "--json", "--max-memory-gb", limit_gb]);
+        assert!(ok, "{stderr}");
+        let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        let warnings = info["warnings"].to_string();
+        (
+            info["processing"]["stage_memory_estimate_bytes"].clone(),
+            warnings,
+        )
+    };
+    let map_bytes = 2 * 48 * 64 * 8;
+    let (bytes, warnings) = windows_in_info("0.034");
+    assert_eq!(bytes, 77 * map_bytes, "{warnings}");
+    let (bytes, warnings) = windows_in_info("0.032");
+    assert_eq!(bytes, 39 * map_bytes, "{warnings}");
+    assert!(warnings.contains("every 10.0 ms"), "{warnings}");
+    let (bytes, warnings) = windows_in_info("0.030");
+    assert_eq!(bytes, 0, "{warnings}");
+    assert!(warnings.contains("without RI maps"), "{warnings}");
+
     let (ok, stderr) = run("0.0135", &[]);
     assert!(ok, "{stderr}");
     let note = said_before_the_run(&stderr, "note: RI maps from dynamics windows every 10.0 ms");
