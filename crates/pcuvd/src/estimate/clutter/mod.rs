@@ -48,9 +48,13 @@
 //! sides are made even, so that the half-block steps cut the image into cells of half a block,
 //! four to a block; the whole image's Gram matrix, which caps the blocks' cut-offs, is the sum
 //! of the cells' too, and the cells that fit in the room the series' compound will take later
-//! are kept for the blocks rather than summed again. Only the eigenvalues a block's rule reads (the leading ones and the median)
-//! are found, by bisection, and the blend is summed over a band of a block's rows, each row going
-//! back into the series once no block reads it again, rather than over a second whole series.
+//! are kept for the blocks rather than summed again. Only the eigenpairs a block's rule reads
+//! are found: capped by the whole image's cut-off, a block needs a few leading ones, which Krylov
+//! iteration finds in O(n²) products where an upper bound of the median (the mean of the ranks
+//! above it) decides the rule as the median would; elsewhere the leading eigenvalues and the
+//! median by bisection after the O(n³) reduction to tridiagonal form. The blend is summed over
+//! a band of a block's rows, each row going back into the series once no block reads it again,
+//! rather than over a second whole series.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Mat, MatMut, MatRef, Side, c32, c64};
