@@ -1125,3 +1125,54 @@ fn krylov_gives_way_where_the_bound_of_the_median_does_not_decide() {
     let krylov = Spectrum::leading_by_krylov(&with_eigenvalues(&flat, 9), Some(1)).unwrap();
     assert_eq!(strong_and_steep(&krylov.eigenvalues, krylov.median, 400), 1);
 }
+
+/// Blocks of a long series (400 frames, where each block's tissue rule reads its leading
+/// eigenpairs by Krylov iteration) filter as each block's own whole filter (every eigenvalue,
+/// the full decomposition) blended by hand: the same cut-off in every block, the series within
+/// 10⁻⁵ of its largest value.
+#[test]
+fn blocks_of_a_long_series_filter_as_each_blocks_own_whole_filter() {
+    let (nz, nx, nf) = (40, 40, 400);
+    let series = toned((nz, nx, nf), 21, |z, x| {
+        vec![(40.0, 0.0), (1.0, 40.0 + (x % 5) as f32 + z as f32 / 8.0)]
+    });
+    let params = ClutterParams {
+        blocks: Some((20, 20)),
+        ..ClutterParams::default()
+    };
+    let mut blocked = series.clone();
+    let report = svd_filter(&mut blocked, &params).unwrap();
+    let layout = report.block_layout.clone().unwrap();
+    assert_eq!(layout.size, (20, 20));
+    assert!(
+        report.block_cut_offs.iter().all(|&(low, _)| low == 1),
+        "{report:?}"
+    );
+    let own = ClutterParams {
+        blocks: None,
+        ..params
+    };
+    let mut sums = Array3::<Complex32>::zeros((nz, nx, nf));
+    let mut weights = Array2::<f32>::zeros((nz, nx));
+    for (z0, x0) in layout.origins() {
+        let mut block = series
+            .slice(ndarray::s![z0..z0 + 20, x0..x0 + 20, ..])
+            .to_owned();
+        assert_eq!(svd_filter(&mut block, &own).unwrap().low, 1);
+        for ((i, j, f), v) in block.indexed_iter() {
+            let w = tent(i, 20) * tent(j, 20);
+            sums[[z0 + i, x0 + j, f]] += v * w;
+            if f == 0 {
+                weights[[z0 + i, x0 + j]] += w;
+            }
+        }
+    }
+    let largest = series.iter().map(|v| v.norm()).fold(0.0, f32::max);
+    for ((z, x, f), v) in blocked.indexed_iter() {
+        let expected = sums[[z, x, f]] / weights[[z, x]];
+        assert!(
+            (v - expected).norm() <= 1e-5 * largest,
+            "({z}, {x}, {f}): {v} vs {expected}"
+        );
+    }
+}
