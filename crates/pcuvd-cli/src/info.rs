@@ -1,5 +1,6 @@
 //! `pcuvd info`: what pcuvd understood of a recording, without processing it.
 
+use std::ops::Range;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -313,18 +314,36 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     );
     // As `process` holds them by default: whole, or a segment at a time.
     let held = pcuvd::pipeline::segments::frames_held(header.frames, nz * nx, header.angles.len());
-    let segments = header.frames.div_ceil(held.max(1));
     let memory_bytes = 3 * header.bytes_of_frames(held);
     let opened =
         pcuvd_app::input::plan_images(header.clone(), &Default::default(), &Default::default())
             .ok();
     let mut warnings = info.warnings.clone();
+    // The segments as the run cuts them (their own frames a multiple of the windows' step, and
+    // the frames the windows reach past them): (count, frames imaged, own frames) of the
+    // longest; as `frames_held` shares the recording where the defaults cannot plan the run.
+    let mut cut = (header.frames.div_ceil(held.max(1)), held, held);
     // Counted after the memory check, as for a recording.
     let stage_bytes = opened.map(|mut opened| {
         let checked = opened.check_memory(args.max_memory_gb);
         warnings.extend(memory_warning(checked, &opened.plan));
+        cut = match opened.plan.segments {
+            Some(planned) => {
+                let ranges = planned.ranges(header.frames);
+                let longest = |len: fn(&(Range<usize>, Range<usize>)) -> usize| {
+                    ranges.iter().map(len).max().unwrap_or(0)
+                };
+                (
+                    ranges.len(),
+                    longest(|(_, imaged)| imaged.len()),
+                    longest(|(own, _)| own.len()),
+                )
+            }
+            None => (1, header.frames, header.frames),
+        };
         pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
     });
+    let (segments, imaged, own) = cut;
     if nyquist < LOW_NYQUIST_M_S {
         warnings.push(format!(
             "the projection Nyquist velocity is {:.1} mm/s: faster blood aliases",
@@ -355,6 +374,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
         },
         "processing": {
             "segments": segments,
+            "segment_frames": imaged,
             "frames_held": held,
             "memory_estimate_bytes": memory_bytes,
             "memory_estimate_rule": pcuvd_app::memory::IMAGES_MEMORY_RULE,
@@ -393,7 +413,11 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     );
     let cut = match segments {
         1 => "held whole".to_string(),
-        _ => format!("in {segments} segments of about {held} frames"),
+        _ if own == imaged => format!("in {segments} segments of up to {imaged} frames"),
+        _ => format!(
+            "in {segments} segments of up to {imaged} frames ({own} of their own, the rest shared \
+             with the next for the windows that reach into it)"
+        ),
     };
     println!(
         "  processing   {cut}, about {} of memory{} ({})",

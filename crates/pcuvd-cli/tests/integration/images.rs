@@ -306,6 +306,40 @@ fn images_too_long_to_hold_are_processed_in_segments() {
     );
 }
 
+/// `pcuvd info` says how `process` will cut images longer than a segment (512 frames by
+/// default): the segments' count and their longest imaged span, as the run's summary records
+/// them, the windows' reach past each segment's own frames included.
+#[test]
+fn info_cuts_the_segments_as_the_run_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = write_images(dir.path(), &synthetic_images(1010), "");
+    let manifest = manifest.to_str().unwrap();
+    let (ok, stdout, stderr) = pcuvd(&["info", manifest, "--json"]);
+    assert!(ok, "{stderr}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let out = dir.path().join("out");
+    let (ok, _, stderr) = pcuvd(&["process", manifest, "--out", out.to_str().unwrap()]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let segments = &summary["segments"];
+    let longest = segments["imaged_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r[1].as_u64().unwrap() - r[0].as_u64().unwrap())
+        .max()
+        .unwrap();
+    assert_eq!(
+        info["processing"]["segments"], segments["count"],
+        "{segments}"
+    );
+    assert_eq!(info["processing"]["segment_frames"], longest, "{segments}");
+    // 1,010 frames in 3 segments of 340 frames of their own and the 15 the 20-frame windows
+    // every 5 frames reach past them (355), where sharing them evenly in 512 would say 2 of 505.
+    assert_eq!((segments["count"].as_u64(), longest), (Some(3), 355));
+}
+
 /// The dynamics windows of the whole recording grow with its length, the rest of a segmented run
 /// does not: under `--dynamics auto` a run whose windows alone would not fit starts them further
 /// apart, up to side by side, and its RI maps still read the truth; where even that does not fit
