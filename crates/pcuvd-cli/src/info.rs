@@ -82,9 +82,11 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     let mut warnings = info.warnings.clone();
     // Counted after the memory check, which may space the windows or drop the stage: what the
     // run would hold.
+    let mut cut = None;
     let stage_bytes = plan.map(|mut plan| {
         let checked = pcuvd_app::memory::check_memory(source, &mut plan, args.max_memory_gb);
         warnings.extend(memory_warning(checked, &plan));
+        cut = Some(segment_cut(&plan, frames));
         pcuvd_app::memory::stage_memory_of(&plan, frames, seq.n_angles()) as u64
     });
     if demod.is_none()
@@ -137,6 +139,8 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         },
         "processing": {
             "default_grid_nz_nx": [nz, nx],
+            "segments": cut.map(|(count, _, _)| count),
+            "segment_frames": cut.map(|(_, imaged, _)| imaged),
             "directivity_f_number": directivity_f_number,
             "directivity_f_number_rule": DIRECTIVITY_F_NUMBER_RULE,
             "memory_estimate_bytes": memory_bytes,
@@ -226,9 +230,13 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         acq.nyquist_velocity() * 1e3,
         depth * 1e3
     );
+    let segmented = match cut {
+        Some(cut) if cut.0 > 1 => format!(", {}", segments_text(cut)),
+        _ => String::new(),
+    };
     println!(
-        "  processing   default grid {nz} × {nx} pixels; about {} of memory{}; the element's \
-         −3 dB directivity edge is at F# {directivity_f_number:.2} (--f-number)",
+        "  processing   default grid {nz} × {nx} pixels{segmented}; about {} of memory{}; the \
+         element's −3 dB directivity edge is at F# {directivity_f_number:.2} (--f-number)",
         size(memory_bytes),
         stage_memory_text(stage_bytes)
     );
@@ -298,6 +306,34 @@ fn stage_memory_text(bytes: Option<u64>) -> String {
     }
 }
 
+/// How a run planned by `plan` cuts a recording of `frames` frames: the segments' count, and the
+/// frames imaged and of its own of the longest (all of them, in one, where it is held whole).
+fn segment_cut(plan: &pcuvd_app::run::Plan, frames: usize) -> (usize, usize, usize) {
+    let Some(planned) = plan.segments else {
+        return (1, frames, frames);
+    };
+    let ranges = planned.ranges(frames);
+    let longest =
+        |len: fn(&(Range<usize>, Range<usize>)) -> usize| ranges.iter().map(len).max().unwrap_or(0);
+    (
+        ranges.len(),
+        longest(|(_, imaged)| imaged.len()),
+        longest(|(own, _)| own.len()),
+    )
+}
+
+/// A run's segments as `info` prints them ([`segment_cut`]'s count, imaged and own frames).
+fn segments_text((segments, imaged, own): (usize, usize, usize)) -> String {
+    if own == imaged {
+        format!("in {segments} segments of up to {imaged} frames")
+    } else {
+        format!(
+            "in {segments} segments of up to {imaged} frames ({own} of their own, the rest \
+             shared with the next for the windows that reach into it)"
+        )
+    }
+}
+
 /// `pcuvd info` on an images manifest: what pcuvd understood of beamformed images formed
 /// elsewhere, from the manifest and the images file's header (the images are not read).
 fn images_info(args: &InfoArgs) -> Result<()> {
@@ -327,20 +363,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     let stage_bytes = opened.map(|mut opened| {
         let checked = opened.check_memory(args.max_memory_gb);
         warnings.extend(memory_warning(checked, &opened.plan));
-        cut = match opened.plan.segments {
-            Some(planned) => {
-                let ranges = planned.ranges(header.frames);
-                let longest = |len: fn(&(Range<usize>, Range<usize>)) -> usize| {
-                    ranges.iter().map(len).max().unwrap_or(0)
-                };
-                (
-                    ranges.len(),
-                    longest(|(_, imaged)| imaged.len()),
-                    longest(|(own, _)| own.len()),
-                )
-            }
-            None => (1, header.frames, header.frames),
-        };
+        cut = segment_cut(&opened.plan, header.frames);
         pcuvd_app::memory::stage_memory_of(&opened.plan, header.frames, header.angles.len()) as u64
     });
     let (segments, imaged, own) = cut;
@@ -413,11 +436,7 @@ fn images_info(args: &InfoArgs) -> Result<()> {
     );
     let cut = match segments {
         1 => "held whole".to_string(),
-        _ if own == imaged => format!("in {segments} segments of up to {imaged} frames"),
-        _ => format!(
-            "in {segments} segments of up to {imaged} frames ({own} of their own, the rest shared \
-             with the next for the windows that reach into it)"
-        ),
+        _ => segments_text((segments, imaged, own)),
     };
     println!(
         "  processing   {cut}, about {} of memory{} ({})",

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{pcuvd, pcuvd_with_progress};
+use super::{longest_imaged, pcuvd, pcuvd_with_progress};
 
 use ndarray::{Array2, Array3};
 use ndarray_npy::{read_npy, write_npy};
@@ -323,13 +323,7 @@ fn info_cuts_the_segments_as_the_run_does() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let segments = &summary["segments"];
-    let longest = segments["imaged_frames"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|r| r[1].as_u64().unwrap() - r[0].as_u64().unwrap())
-        .max()
-        .unwrap();
+    let longest = longest_imaged(segments);
     assert_eq!(
         info["processing"]["segments"], segments["count"],
         "{segments}"

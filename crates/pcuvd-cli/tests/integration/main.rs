@@ -39,6 +39,17 @@ fn run_pcuvd(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// The most frames any segment of a run imaged, from its summary's `segments` record.
+fn longest_imaged(segments: &serde_json::Value) -> u64 {
+    segments["imaged_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r[1].as_u64().unwrap() - r[0].as_u64().unwrap())
+        .max()
+        .unwrap()
+}
+
 /// The SHA-256 of the file at `path` in hex, as those who check with a tool of their own get
 /// it: coreutils' `sha256sum` on Unix, elsewhere the file hashed whole here.
 fn sha256_of_file(path: &std::path::Path) -> String {

@@ -2,7 +2,7 @@
 
 use std::process::Command;
 
-use super::pcuvd_with_progress;
+use super::{longest_imaged, pcuvd_with_progress};
 
 /// The truth `pcuvd simulate --preset tube` writes for one conventional noiseless frame of two
 /// angles with `tube_options`: (Vx, Vz) in m/s, the lumen mask, x and z (m), and the folder.
@@ -875,4 +875,37 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
             assert!(summary["timings_s"]["checksum"].as_f64().unwrap() > 0.0);
         }
     }
+}
+
+/// `pcuvd info` on a recording longer than a segment (600 frames, more than the 512 a segment
+/// holds by default) gives the segments as `process` cuts them: their count and the longest
+/// span imaged, the frames the dynamics windows reach past each segment's own included.
+#[test]
+#[ignore = "slow tier: cargo test -- --include-ignored"]
+fn info_cuts_a_long_recording_as_process_does() {
+    let tube = simulated_tube_of("600", &["--tube-length-mm", "4"]);
+    let recording = tube.dir.path().join("conventional.toml");
+    let recording = recording.to_str().unwrap();
+    let (ok, stdout, stderr) = pcuvd_with_progress(&["info", "--json", recording]);
+    assert!(ok, "{stderr}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let out = tube.dir.path().join("out");
+    let (ok, _, stderr) = pcuvd_with_progress(&[
+        "--quiet",
+        "process",
+        recording,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let segments = &summary["segments"];
+    let longest = longest_imaged(segments);
+    assert!(segments["count"].as_u64().unwrap() >= 2, "{segments}");
+    assert_eq!(
+        info["processing"]["segments"], segments["count"],
+        "{segments}"
+    );
+    assert_eq!(info["processing"]["segment_frames"], longest, "{segments}");
 }
