@@ -71,6 +71,23 @@ where
     })
 }
 
+/// Writes the header of a `.npy` of `T` of `shape` in C order to `file`, whose values are then
+/// written after it, in that order, as `T`'s native bytes (which the header's type names);
+/// `path` is the file the user will see, named by an error.
+pub(crate) fn write_header<T: WritableElement>(
+    file: &mut impl std::io::Write,
+    shape: &[usize],
+    path: &Path,
+) -> Result<(), IoError> {
+    Header {
+        type_descriptor: T::type_descriptor(),
+        layout: ndarray_npy::npy::header::Layout::Standard,
+        shape: shape.to_vec(),
+    }
+    .write(file)
+    .map_err(|e| IoError::malformed(path, format!("cannot write the header: {e}")))
+}
+
 /// Writes a `.npy` of f64 of `shape` (C order), atomically, one slice of its first axis at a
 /// time: `slice(i)` gives slice `i`, of the other axes' shape. An array too large to hold twice
 /// (a long recording's speed in every window) is written without a copy of it whole.
@@ -79,7 +96,6 @@ pub fn write_npy_by_slices(
     shape: &[usize],
     mut slice: impl FnMut(usize) -> ndarray::ArrayD<f64>,
 ) -> Result<(), IoError> {
-    use ndarray_npy::npy::header::Layout;
     use std::io::Write;
     let (&first, rest) = shape
         .split_first()
@@ -88,13 +104,7 @@ pub fn write_npy_by_slices(
     write_atomically(path, |partial| {
         let io = |e: std::io::Error| IoError::io(path, "write", e);
         let mut file = std::io::BufWriter::new(std::fs::File::create(partial).map_err(io)?);
-        Header {
-            type_descriptor: <f64 as WritableElement>::type_descriptor(),
-            layout: Layout::Standard,
-            shape: shape.to_vec(),
-        }
-        .write(&mut file)
-        .map_err(|e| IoError::malformed(path, format!("cannot write the header: {e}")))?;
+        write_header::<f64>(&mut file, shape, path)?;
         for i in 0..first {
             let values = slice(i);
             if values.shape() != rest.as_slice() {

@@ -62,14 +62,7 @@ impl RecordingWriter {
         let file =
             std::fs::File::create(&partial).map_err(|e| IoError::io(&partial, "create", e))?;
         let mut file = std::io::BufWriter::new(file);
-        let header = ndarray_npy::npy::header::Header {
-            type_descriptor: <f32 as ndarray_npy::WritableElement>::type_descriptor(),
-            layout: ndarray_npy::npy::header::Layout::Standard,
-            shape: vec![events / n, n, channels, samples],
-        };
-        header
-            .write(&mut file)
-            .map_err(|e| IoError::malformed(&npy_path, format!("cannot write the header: {e}")))?;
+        crate::npy::write_header::<f32>(&mut file, &[events / n, n, channels, samples], &npy_path)?;
         Ok(RecordingWriter {
             manifest_path,
             npy_name,
