@@ -92,29 +92,27 @@ class ProcessResult:
 
     def __init__(self, native: Any):
         self._native = native
-        self._arrays: dict[str, np.ndarray] | None = None
-        self._named: dict[str, np.ndarray] = {}
+        # The maps made so far, by name: each made once, when first asked for (a long
+        # recording's speed series is the size of its velocity windows).
+        self._maps: dict[str, np.ndarray] = {}
 
     @property
     def arrays(self) -> dict[str, np.ndarray]:
         """Every map by name (a dict of numpy arrays)."""
-        if self._arrays is None:
-            self._arrays = dict(self._native.arrays())
-        return self._arrays
+        for name in self._native.array_names():
+            if name not in self._maps:
+                self._maps[name] = self._native.array(name)
+        return self._maps
 
     def __getattr__(self, name: str) -> np.ndarray:
         if name.startswith("_"):
             raise AttributeError(name)
-        # One map alone, not every map: a long recording's speed series (the size of its
-        # velocity windows) is made only when asked for.
-        if self._arrays is not None and name in self._arrays:
-            return self._arrays[name]
-        if name not in self._named:
+        if name not in self._maps:
             found = self._native.array(name)
             if found is not None:
-                self._named[name] = found
-        if name in self._named:
-            return self._named[name]
+                self._maps[name] = found
+        if name in self._maps:
+            return self._maps[name]
         if name in MAPS:
             raise AttributeError(
                 f"this result has no {name!r} ({MAPS[name][1]}): see summary['dynamics'] "

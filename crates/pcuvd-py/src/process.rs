@@ -362,7 +362,8 @@ impl PyProcessResult {
 }
 
 impl PyProcessResult {
-    /// The maps whose names `want` takes, as [`PyProcessResult::arrays`] gives them.
+    /// The maps whose names `want` takes, numpy arrays in SI units under the file stems of the
+    /// .npy files `pcuvd process` writes.
     fn arrays_where<'py>(
         &self,
         py: Python<'py>,
@@ -456,12 +457,8 @@ impl PyProcessResult {
 
 #[pymethods]
 impl PyProcessResult {
-    /// Every map `pcuvd process` writes as .npy, by file stem: numpy arrays in SI units.
-    fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        self.arrays_where(py, &|_| true)
-    }
-
-    /// The names of the maps [`Self::arrays`] gives, without making them.
+    /// The names of the maps `pcuvd process` writes as .npy (by file stem) that this result
+    /// has, without making them.
     fn array_names(&self, py: Python<'_>) -> PyResult<Vec<String>> {
         let names = std::cell::RefCell::new(Vec::new());
         self.arrays_where(py, &|name| {
