@@ -374,6 +374,18 @@ fn filter_with_gram(
         RankCut::Auto => auto_high(eigenvalues, spectrum.median, pixels),
         RankCut::Similarity => similar.map_or(frames, |(_, high)| high),
     };
+    // Where the two cut-offs cross, one chosen from the data gives way to one the user fixed
+    // (the noise cut-off to a fixed tissue one: the series keeps the one component after it),
+    // and of two chosen from the data the noise cut-off gives way: the data can say this only
+    // once the images are formed, and the run's work is kept. Fixed cut-offs that cross were
+    // refused before any work (`check_for`).
+    let chosen = |cut: RankCut| matches!(cut, RankCut::Auto | RankCut::Similarity);
+    let (low, high) = match () {
+        _ if low < high => (low, high),
+        _ if chosen(params.high) && low < frames => (low, low + 1),
+        _ if chosen(params.low) && high > 0 => (high - 1, high),
+        _ => (low, high),
+    };
     if low >= high || high > frames {
         return Err(invalid(
             "clutter filter",

@@ -290,11 +290,37 @@ fn similarity_cut_offs_find_the_tissue_and_noise_subspaces() {
     };
     let report = svd_filter(&mut series.clone(), &similarity).unwrap();
     assert_eq!((report.low, report.high), (3, 9));
-    let auto = svd_filter(&mut series, &ClutterParams::default()).unwrap();
+    let auto = svd_filter(&mut series.clone(), &ClutterParams::default()).unwrap();
     assert_eq!(
         auto.low, 1,
         "the moving tissue is faster than the auto rule's limit"
     );
+
+    // Where a cut-off chosen from the data crosses one fixed, the chosen one gives way: the
+    // filter is then the projection of the fixed cut-offs it comes to, to the bit.
+    for (low, high, expected) in [
+        (RankCut::Fixed(12), RankCut::Similarity, (12, 13)),
+        (RankCut::Similarity, RankCut::Fixed(2), (1, 2)),
+        (RankCut::Auto, RankCut::Fixed(1), (0, 1)),
+        (RankCut::Fixed(40), RankCut::Auto, (40, 41)),
+    ] {
+        let crossing = ClutterParams {
+            low,
+            high,
+            ..similarity
+        };
+        let mut given = series.clone();
+        let report = svd_filter(&mut given, &crossing).unwrap();
+        assert_eq!((report.low, report.high), expected, "{low:?} {high:?}");
+        let fixed = ClutterParams {
+            low: RankCut::Fixed(expected.0),
+            high: RankCut::Fixed(expected.1),
+            ..similarity
+        };
+        let mut projected = series.clone();
+        svd_filter(&mut projected, &fixed).unwrap();
+        assert!(given == projected, "{low:?} {high:?}");
+    }
 }
 
 /// The summed-area fit equals the least-squares fit computed directly, block by block, on a
