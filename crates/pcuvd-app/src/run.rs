@@ -300,6 +300,10 @@ fn dynamics_plan(
                 settings.params.window,
             );
         }
+        settings
+            .params
+            .check_recording(n_frames, frame_rate, settings.triggers.is_some())
+            .context("the RI maps asked for (--dynamics on, or a dynamics option given)")?;
     }
     Ok(Some(settings))
 }

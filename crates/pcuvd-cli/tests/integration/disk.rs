@@ -448,6 +448,69 @@ fn progress_is_plain_lines_outside_a_terminal_and_quiet_silences_it() {
     );
 }
 
+/// RI maps asked for (`--dynamics on` or a window setting) that the disk's 3.2 ms cannot give are
+/// refused before anything is processed, saying why: one window, a given heart's cycle longer
+/// than the windows, no cycle the data could show; with none of them asked for, the run goes on.
+#[test]
+fn ri_the_recording_cannot_give_is_refused_before_processing() {
+    let input = disk_file();
+    let out = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["process", input.to_str().unwrap(), "--out"];
+        args.push(out.path().to_str().unwrap());
+        args.push("--force");
+        args.extend_from_slice(extra);
+        super::pcuvd_with_progress(&args)
+    };
+    for (extra, reason) in [
+        (
+            &["--window-ms", "2"][..],
+            "hold 1 window of 20 frames (2.0 ms)",
+        ),
+        (
+            &["--dynamics", "on", "--window-ms", "1"],
+            "at least 2 windows",
+        ),
+        (
+            &[
+                "--window-ms",
+                "0.5",
+                "--window-step-ms",
+                "0.1",
+                "--heart-rate",
+                "350",
+            ],
+            "a cycle at 350.00 Hz spans 2.9 ms (29 windows)",
+        ),
+        (
+            &["--window-ms", "0.3", "--window-step-ms", "0.1"],
+            "its 30 windows span 2.9 ms, shorter than one cardiac cycle at 15 Hz",
+        ),
+    ] {
+        let (ok, _, stderr) = run(extra);
+        assert!(!ok, "{extra:?}");
+        let error = stderr
+            .lines()
+            .find(|l| l.starts_with("error: "))
+            .unwrap_or_default();
+        assert!(error.contains(reason), "{extra:?}: {stderr}");
+        assert!(
+            !stderr.contains("decode"),
+            "{extra:?}: refused after work began: {stderr}"
+        );
+    }
+    // The same heart with windows whose cycle fits: RI maps of the one cycle.
+    let (ok, stdout, stderr) = run(&[
+        "--window-ms",
+        "0.5",
+        "--window-step-ms",
+        "0.1",
+        "--heart-rate",
+        "400",
+    ]);
+    assert!(ok && stdout.contains("1 cycle"), "{stdout}{stderr}");
+}
+
 /// An output folder is never mixed: a used one is refused without --force, --force replaces
 /// pcuvd's own outputs and keeps the user's files, and an output never lands on the input.
 #[test]

@@ -227,6 +227,60 @@ impl DynamicsParams {
         }
         Ok(())
     }
+
+    /// Checks, before any processing, that a recording of `n_frames` frames at `frame_rate`
+    /// (Hz) can give RI with these windows: at least 2 windows (the speed waveform RI is read
+    /// from), and one cardiac cycle within them, of the given heart rate or, with neither a
+    /// heart rate nor cycle start times (`cycles_given`), of the fastest rate the data are
+    /// searched for ([`HEART_RATE_SEARCH_HZ`]; a slower heart needs a longer recording, which
+    /// only the data can tell).
+    pub fn check_recording(
+        &self,
+        n_frames: usize,
+        frame_rate: f64,
+        cycles_given: bool,
+    ) -> Result<()> {
+        require_positive("frame rate", frame_rate)?;
+        let n_windows = window_count(n_frames, self.window, self.step, frame_rate)?;
+        let ms = |frames: usize| frames as f64 / frame_rate * 1e3;
+        if n_windows < 2 {
+            return Err(invalid(
+                "windows",
+                format!(
+                    "the recording's {n_frames} frames ({:.1} ms) hold 1 window of {} frames \
+                     ({:.1} ms) at a step of {} frames ({:.1} ms); RI is read from a speed \
+                     waveform of at least 2 windows: shorten the windows or their step, or record longer",
+                    ms(n_frames),
+                    self.window,
+                    ms(self.window),
+                    self.step,
+                    ms(self.step),
+                ),
+            ));
+        }
+        let dt = self.step as f64 / frame_rate;
+        if let Some(hr) = self.heart_rate_hz {
+            cycle_length(n_windows, dt, hr)?;
+        } else if !cycles_given {
+            let fastest = HEART_RATE_SEARCH_HZ.1;
+            // Two systolic upstrokes at least one fastest period apart: the least the data can
+            // give a cycle from.
+            let span = (n_windows - 1) as f64 * dt;
+            if span < 1.0 / fastest {
+                return Err(invalid(
+                    "recording",
+                    format!(
+                        "its {n_windows} windows span {:.1} ms, shorter than one cardiac cycle \
+                         at {fastest} Hz ({:.1} ms), the fastest heart rate measured from the \
+                         data: give the heart rate, or record at least one whole cycle",
+                        span * 1e3,
+                        1e3 / fastest
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Default for DynamicsParams {

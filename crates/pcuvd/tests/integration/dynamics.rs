@@ -1215,6 +1215,94 @@ fn heart_rate_from_two_upstrokes_in_little_more_than_one_cycle() {
     assert_eq!(message.matches("invalid recording").count(), 1, "{message}");
 }
 
+/// The window centres (s) and a pulsatile waveform at `heart_rate_hz` sampled at them, of the
+/// windows of `window` frames `step` apart that `n_frames` frames at `frame_rate` (Hz) hold:
+/// what the dynamics stage reads cycles from (counted here as windows fit, not by pcuvd).
+fn windows_waveform(
+    n_frames: usize,
+    (window, step): (usize, usize),
+    frame_rate: f64,
+    heart_rate_hz: f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let wave = CardiacWaveform {
+        heart_rate_hz,
+        ri: 0.65,
+        delay_s: 0.01,
+    };
+    let times: Vec<f64> = (0..)
+        .map(|k| k * step)
+        .take_while(|start| start + window <= n_frames)
+        .map(|start| (start as f64 + window as f64 / 2.0) / frame_rate)
+        .collect();
+    let v = times.iter().map(|&t| 0.02 * wave.value(t)).collect();
+    (times, v)
+}
+
+#[test]
+fn the_check_before_processing_refuses_what_the_stage_would() {
+    // `check_recording` runs before a recording is processed; the cycles are found after. With
+    // a heart rate given it must pass exactly the recordings whose windows hold a cycle.
+    let frame_rate = 1000.0;
+    let given = DynamicsParams {
+        window: 20,
+        step: 5,
+        heart_rate_hz: Some(12.0),
+        ..DynamicsParams::rat()
+    };
+    for n_frames in 20..260 {
+        let (times, v) = windows_waveform(n_frames, (20, 5), frame_rate, 12.0);
+        let stage = cardiac_cycles(&v, &times, Some(12.0), None);
+        let check = given.check_recording(n_frames, frame_rate, false);
+        assert_eq!(
+            check.is_ok(),
+            stage.is_ok(),
+            "{n_frames} frames: check {check:?}, stage {:?}",
+            stage.map(|c| c.ranges)
+        );
+    }
+    // Without one, the heart rate comes from the data: the check must never refuse what the
+    // data could give cycles from (a heart at the fastest rate searched, whose cycles fit the
+    // shortest recordings), and refuses the recordings too short for any.
+    let measured = DynamicsParams {
+        heart_rate_hz: None,
+        ..given
+    };
+    let fastest = dynamics::HEART_RATE_SEARCH_HZ.1;
+    let (mut refused, mut first_found) = (0, None);
+    for n_frames in 20..400 {
+        let (times, v) = windows_waveform(n_frames, (20, 5), frame_rate, fastest);
+        let stage = cardiac_cycles(&v, &times, None, None);
+        let check = measured.check_recording(n_frames, frame_rate, false);
+        if stage.is_ok() {
+            first_found.get_or_insert(n_frames);
+            assert!(check.is_ok(), "{n_frames} frames: {check:?}");
+        }
+        if let Err(e) = check {
+            refused += 1;
+            let reason = if times.len() < 2 {
+                "at least 2 windows"
+            } else {
+                "give the heart rate"
+            };
+            assert!(e.to_string().contains(reason), "{n_frames} frames: {e}");
+        }
+    }
+    // Refused: the recordings whose windows' centres span less than one 15 Hz cycle (66.7 ms:
+    // up to 14 windows, 89 frames, here).
+    assert_eq!(
+        refused,
+        90 - 20,
+        "first cycles found at {first_found:?} frames"
+    );
+    // Cycle start times given: the waveform's own span is not the limit (their period may be).
+    assert!(measured.check_recording(60, frame_rate, true).is_ok());
+    let one_window = given.check_recording(24, frame_rate, false).unwrap_err();
+    assert!(
+        one_window.to_string().contains("at least 2 windows"),
+        "{one_window}"
+    );
+}
+
 /// A beat-to-beat waveform sampled at `times`: beat k starts at `starts[k]` (s) and lasts to the
 /// next start, a raised cosine from `edv` up to `psvs[k]` at mid-beat and back (m/s).
 fn beats(times: &[f64], starts: &[f64], psvs: &[f64], edv: f64) -> Vec<f64> {
