@@ -45,6 +45,17 @@ def test_cut_offs_that_keep_nothing_give_the_cli_message(disk, cli, tmp_path):
     assert str(raised.value) == expected
 
 
+def test_ri_the_recording_cannot_give_is_refused_before_processing(disk, cli, tmp_path, capfd):
+    # The disk's 3.2 ms hold one 2 ms window: no speed waveform to read RI from.
+    expected = _cli_error(cli, "process", disk, "--out", tmp_path / "o", "--window-ms=2")
+    assert "at least 2 windows" in expected
+    capfd.readouterr()
+    with pytest.raises(ValueError) as raised:
+        pcuvd.process(disk, window_ms=2)
+    assert str(raised.value) == expected
+    assert "decode" not in capfd.readouterr().err
+
+
 def test_an_impossible_override_names_the_keyword(disk):
     with pytest.raises(ValueError, match=r"sound_speed_m_s=\) must be finite and > 0, got 0"):
         pcuvd.read_recording(disk, sound_speed_m_s=0)
