@@ -456,9 +456,22 @@ fn bad_parameters_are_errors() {
     let mut p = coded.clone();
     p.sampling_frequency = 20e6;
     assert!(simulate(&still, &p, 1, &no_progress).is_err());
-    let mut p = coded;
+    let mut p = coded.clone();
     p.attenuation_db_cm_mhz = -1.0;
     assert!(simulate(&still, &p, 1, &no_progress).is_err());
+    // Attenuation beyond any tissue's: refused, where the spectral bands it would take (one per
+    // eighth of the band its spectrum falls) overflowed the band index or outgrew memory.
+    for absurd in [1e3, 1e10, 1e300] {
+        let mut p = coded.clone();
+        p.attenuation_db_cm_mhz = absurd;
+        let err = simulate(&still, &p, 1, &no_progress)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("spectral bands"), "{absurd}: {err}");
+    }
+    let mut p = coded;
+    p.attenuation_db_cm_mhz = 20.0;
+    simulate(&still, &p, 1, &no_progress).unwrap();
     assert!(
         SimParams::new(
             probe(8),
