@@ -171,6 +171,45 @@ fn blood_at_a_tenth_of_the_sound_speed_or_faster_is_refused() {
 }
 
 #[test]
+fn tissue_faster_than_a_metre_a_second_is_refused() {
+    // The brain's breathing, its depth gradient raised until the tissue farthest from the
+    // reference depth (of the tissue's and the record's depths) moves at 1 m/s with every
+    // oscillation at its peak at once: the bound, worked out here from the scenario's numbers.
+    let brain = brain_with(str::to_string).unwrap();
+    let tissue = brain.tissue.as_ref().unwrap();
+    let reference = tissue.motion.reference_depth_m.unwrap();
+    let farthest = [tissue.depth_m, brain.receive.depth_m]
+        .iter()
+        .flatten()
+        .map(|z| (z - reference).abs())
+        .fold(0.0, f64::max);
+    let peak_speed = |o: &OscillationSection, gradient: f64| {
+        let amplitude = o.amplitude_m.iter().map(|a| a * a).sum::<f64>().sqrt();
+        2.0 * std::f64::consts::PI * o.frequency_hz * amplitude * (1.0 + gradient * farthest)
+    };
+    let [heart, breath] = &tissue.motion.oscillations[..] else {
+        panic!("the brain's motion is a heartbeat and breathing");
+    };
+    assert_eq!(heart.depth_gradient_per_m, 0.0);
+    let gradient = ((1.0 - peak_speed(heart, 0.0)) / peak_speed(breath, 0.0) - 1.0) / farthest;
+    let with = |g: f64| {
+        brain_with(|text| {
+            text.replacen(
+                "depth_gradient_per_m = 100.0",
+                &format!("depth_gradient_per_m = {g:e}"),
+                1,
+            )
+        })
+    };
+    with(0.99 * gradient).unwrap();
+    let error = crate::one_line(&with(1.01 * gradient).unwrap_err());
+    assert!(
+        error.contains("[[tissue.motion.oscillations]]") && error.contains("at most 1 m/s"),
+        "{error}"
+    );
+}
+
+#[test]
 fn what_goes_together_is_refused_apart() {
     // A tree or a slab of tissue lies in three dimensions: without the elevation it cannot.
     let flat = |t: &str| t.replace("element_height_m = 1.5e-3", "");

@@ -136,7 +136,11 @@ impl Simulator {
                 return Err(invalid(
                     "attenuation",
                     format!(
-                        "{} dB/cm/MHz lowers the echo's spectrum so steeply that the {:.1} mm of                          path recorded would take {count:.3e} spectral bands (at most                          {MAX_ATTENUATION_BANDS}): soft tissue's is 0.3–1.5; give a lower one, or                          attenuation that scales the amplitude only (frequency_dependent_attenuation                          = false)",
+                        "{} dB/cm/MHz lowers the echo's spectrum so steeply that the {:.1} mm of \
+                         path recorded would take {count:.3e} spectral bands (at most \
+                         {MAX_ATTENUATION_BANDS}): soft tissue's is 0.3–1.5; give a lower one, \
+                         or attenuation that scales the amplitude only \
+                         (frequency_dependent_attenuation = false)",
                         params.attenuation_db_cm_mhz,
                         longest * 1e3
                     ),
