@@ -477,7 +477,7 @@ impl Scenario {
             t.depth_m[1].max(self.receive.depth_m[1]),
         );
         let fastest = motion.motion().max_speed(depths);
-        if !(fastest <= MAX_TISSUE_SPEED_M_S) {
+        if fastest.is_nan() || fastest > MAX_TISSUE_SPEED_M_S {
             bail!(
                 "{key}: the tissue would move at up to {fastest:.3e} m/s between {} and {} m deep \
                  (each amplitude × 2π frequency × (1 + |depth_gradient_per_m| × the distance \

@@ -132,7 +132,7 @@ impl Simulator {
             let longest = c * (params.t0 + params.window_duration()) + c * wf.half_duration();
             let count = (longest / step).ceil() + 2.0;
             // Each band is an accumulator per thread, and the band index lives in i32 lanes.
-            if !(count <= MAX_ATTENUATION_BANDS as f64) {
+            if count.is_nan() || count > MAX_ATTENUATION_BANDS as f64 {
                 return Err(invalid(
                     "attenuation",
                     format!(
