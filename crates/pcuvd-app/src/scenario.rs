@@ -469,9 +469,8 @@ impl Scenario {
                 o.depth_gradient_per_m,
             )?;
         }
-        // The tissue's echoes are rendered at keyframes whose spacing shrinks as its speed
-        // grows (`keyframe_interval`): at 1 m/s some thirty to a 14.4 kHz event, twenty times the
-        // work of still tissue; a speed no tissue reaches is a slip in the numbers.
+        // A speed no tissue reaches is a slip in the numbers (a depth gradient in 1/mm, an
+        // amplitude in µm): refused, as the blood's beyond c/10 is (`blood_speed`).
         let depths = (
             t.depth_m[0].min(self.receive.depth_m[0]),
             t.depth_m[1].max(self.receive.depth_m[1]),

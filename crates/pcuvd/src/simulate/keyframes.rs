@@ -142,6 +142,14 @@ impl TissueKeyframes {
             self.rendered_for = Some(rendering);
         }
         let prf = params.sequence.event_prf;
+        // Keyframes closer together than the events (tissue faster than about 3 cm/s at 15.6
+        // MHz and 14.4 kHz) are rendered one at each event's start instead: every event then
+        // falls on a keyframe (weights 0, 1, 0, 0), and its echo is its own, as the blood's is.
+        let interval = if !still && interval < 1.0 / prf {
+            1.0 / prf
+        } else {
+            interval
+        };
         let position = |event: usize| {
             if still {
                 0.0
