@@ -195,6 +195,13 @@ fn tissue_motion_truth_is_the_field_on_the_grid() {
     assert!(v[[1, 2]] > v[[0, 2]], "breathing grows with depth");
 }
 
+/// The RMS of `got − want` over the RMS of `want`: how far a keyframed simulation is from the
+/// direct one.
+fn relative_rms(got: &ndarray::Array3<f32>, want: &ndarray::Array3<f32>) -> f64 {
+    let energy = |a: ndarray::ArrayView3<f32>| a.iter().map(|&v| (v as f64).powi(2)).sum::<f64>();
+    (energy((got - want).view()) / energy(want.view())).sqrt()
+}
+
 #[test]
 fn tissue_at_keyframes_matches_the_direct_simulation() {
     // Tissue moving 100 µm at 5 Hz (3.2 mm/s at its fastest, ten times the rat's brain) through
@@ -230,13 +237,8 @@ fn tissue_at_keyframes_matches_the_direct_simulation() {
         &no_progress,
     )
     .unwrap();
-    let energy = |a: ndarray::ArrayView3<f32>| a.iter().map(|&v| (v as f64).powi(2)).sum::<f64>();
-    let error = energy((&keyed - &direct).view()) / energy(direct.view());
-    assert!(
-        error.sqrt() < 1e-3,
-        "relative RMS error {:.2e}",
-        error.sqrt()
-    );
+    let error = relative_rms(&keyed, &direct);
+    assert!(error < 1e-3, "relative RMS error {error:.2e}");
     // A later block of the same recording gives the same events.
     let block = simulate_events_with_tissue(
         &no_blood,
@@ -268,20 +270,14 @@ fn tissue_at_keyframes_matches_the_direct_simulation() {
     shared
         .add(&moving, &p, events.clone(), coded.view_mut())
         .unwrap();
-    let error = energy((&coded - &keyed).view()) / energy(keyed.view());
+    let error = relative_rms(&coded, &keyed);
     assert!(
-        error.sqrt() < 1e-6,
-        "shared keyframes: relative RMS error {:.2e}",
-        error.sqrt()
+        error < 1e-6,
+        "shared keyframes: relative RMS error {error:.2e}"
     );
     let conventional_direct = traces(&moving, &conventional_params, frames);
-    let error =
-        energy((&conventional - &conventional_direct).view()) / energy(conventional_direct.view());
-    assert!(
-        error.sqrt() < 1e-3,
-        "conventional: relative RMS error {:.2e}",
-        error.sqrt()
-    );
+    let error = relative_rms(&conventional, &conventional_direct);
+    assert!(error < 1e-3, "conventional: relative RMS error {error:.2e}");
     // Tissue at 0.5 m/s (amplitude 100 µm at 800 Hz), whose keyframes would be 14 to an event:
     // one at each event instead, exact but for the f32 rounding of summing the slots apart
     // (interpolated between keyframes 0.3 rad apart it would err by ~2·10⁻⁴, as above).
@@ -308,24 +304,16 @@ fn tissue_at_keyframes_matches_the_direct_simulation() {
     let keyed =
         simulate_events_with_tissue(&no_blood, &fast, &p, 4, 0..8, fast_interval, &no_progress)
             .unwrap();
-    let error = energy((&keyed - &direct).view()) / energy(direct.view());
-    assert!(
-        error.sqrt() < 1e-6,
-        "fast tissue: relative RMS error {:.2e}",
-        error.sqrt()
-    );
+    let error = relative_rms(&keyed, &direct);
+    assert!(error < 1e-6, "fast tissue: relative RMS error {error:.2e}");
     // Still tissue: one keyframe, exact but for the f32 rounding of summing the slots apart.
     let still = tissue(TissueMotion::still(), 40.0, TissueSpec::DEFAULT_DENSITY_2D);
     let exact = traces(&still, &p, 2);
     let once =
         simulate_events_with_tissue(&no_blood, &still, &p, 2, 0..4, f64::INFINITY, &no_progress)
             .unwrap();
-    let error = energy((&once - &exact).view()) / energy(exact.view());
-    assert!(
-        error.sqrt() < 1e-6,
-        "relative RMS error {:.2e}",
-        error.sqrt()
-    );
+    let error = relative_rms(&once, &exact);
+    assert!(error < 1e-6, "relative RMS error {error:.2e}");
 }
 
 /// Points drifting at constant in-plane velocities (m/s) from their starts (m), each at its
@@ -413,7 +401,6 @@ fn blood_at_keyframes_by_speed_matches_the_direct_simulation() {
     }
     assert_eq!(classes.iter().map(|c| c.scatterers).sum::<usize>(), n);
 
-    let energy = |a: ndarray::ArrayView3<f32>| a.iter().map(|&v| (v as f64).powi(2)).sum::<f64>();
     let mut first = ndarray::Array3::<f32>::zeros((2 * frames, 32, conventional.n_samples));
     blood
         .add(
@@ -430,12 +417,11 @@ fn blood_at_keyframes_by_speed_matches_the_direct_simulation() {
         .unwrap();
     for (keyed, p) in [(&first, &conventional), (&keyed, &coded)] {
         let direct = traces(&drifting, p, frames);
-        let error = energy((keyed - &direct).view()) / energy(direct.view());
+        let error = relative_rms(keyed, &direct);
         assert!(
-            error.sqrt() < 1e-3,
-            "{:?}: relative RMS error {:.2e}",
-            p.sequence.coding,
-            error.sqrt()
+            error < 1e-3,
+            "{:?}: relative RMS error {error:.2e}",
+            p.sequence.coding
         );
     }
     // A later block of the same recording, through fresh classes, gives the same events.
