@@ -18,7 +18,7 @@ one long recording's segments on a Dask cluster (import `pcuvd.dask`, with `dist
 
 from . import study
 from ._pcuvd import __version__
-from ._process import ProcessResult, dynamics, process, process_option_names
+from ._process import DynamicsError, ProcessResult, dynamics, process, process_option_names
 from ._recording import Recording, read_recording
 from ._simulate import Truth, simulate, simulate_option_names
 from ._stages import (
@@ -35,6 +35,7 @@ from ._stages import (
 )
 
 __all__ = [
+    "DynamicsError",
     "ProcessResult",
     "Recording",
     "Truth",

@@ -203,13 +203,33 @@ class ProcessResult:
         return f"<pcuvd.ProcessResult {nz}×{nx} pixels: {maps}>"
 
 
+class DynamicsError(ValueError):
+    """The RI maps a dynamics setting asked for (`dynamics="on"`, a heart rate, windows) could
+    not be made from the recording: found only after the work (no cardiac cycle in its vessels'
+    speed, say). `result` holds the run's other maps; `result.save(folder)` writes them."""
+
+    def __init__(self, message: str, result: ProcessResult):
+        super().__init__(message)
+        self.result = result
+
+
+def _checked(native: Any) -> ProcessResult:
+    """The result of a native run, or the DynamicsError that carries it."""
+    result = ProcessResult(native)
+    failure = native.dynamics_failure()
+    if failure is not None:
+        raise DynamicsError(failure, result)
+    return result
+
+
 def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> ProcessResult:
     """The dynamics stage (sliding-window vectors, heart rate, PSV/EDV/RI maps, vessel classes)
     run again on a processed recording with other settings, without processing it again.
 
     options: the CLI's dynamics options, e.g. `heart_rate_hz=5.5`, `window_ms=20`,
     `window_step_ms=5`, `artery_ri_min=0.55`, `vein_ri_max=0.5`, `pool_along_mm=0`,
-    `dynamics="on"` (an error rather than a skipped stage when RI cannot be measured).
+    `dynamics="on"` (an error rather than a skipped stage when RI cannot be measured: a
+    DynamicsError, which carries the result without RI maps).
     Returns a new result with the same maps and the new RI maps (`ri`, `psv`, `edv`, ...).
     Where the windows stay as the result made them (the same `window_ms`, `window_step_ms`,
     `dynamics_kernel`, `dynamics_partial_volume`), the RI maps are made again from its velocity
@@ -223,7 +243,7 @@ def dynamics(result: ProcessResult, *, quiet: bool = False, **options: Any) -> P
             f"dynamics() expects the ProcessResult of pcuvd.process, got {type(result).__name__}"
         )
     given = _checks.to_options("dynamics", options, _pcuvd.option_names_of("dynamics"))
-    return ProcessResult(result._native.with_dynamics(given, bool(quiet)))
+    return _checked(result._native.with_dynamics(given, bool(quiet)))
 
 
 def process(
@@ -260,7 +280,9 @@ def process(
     made in memory (it carries its scenario), is scored against its truth:
     `result.summary["against_truth"]`, and `save` draws `against_truth.png`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
-    for a bad option or recording, before any work where the CLI would.
+    for a bad option or recording, before any work where the CLI would; where only the data
+    could tell that the RI maps a dynamics setting asked for cannot be made, a DynamicsError
+    (a ValueError) whose `result` holds the run's other maps.
     """
     if not isinstance(recording, (Recording, str, os.PathLike)):
         raise TypeError(
@@ -272,13 +294,13 @@ def process(
         # Read a block of frames at a time, as the command reads it: the memory a run takes is
         # a block's, whatever the recording's length.
         read = reader_overrides(overrides)
-        return ProcessResult(_pcuvd.process_file(os.fspath(recording), read, given, bool(quiet)))
+        return _checked(_pcuvd.process_file(os.fspath(recording), read, given, bool(quiet)))
     if overrides:
         raise ValueError(
             "overrides apply to a recording read from its path; a Recording carries its "
             "acquisition: read it with pcuvd.read_recording(path, **overrides)"
         )
-    return ProcessResult(_pcuvd.process(recording._native, given, bool(quiet)))
+    return _checked(_pcuvd.process(recording._native, given, bool(quiet)))
 
 
 def process_options(function: str, options: dict[str, Any]) -> str:

@@ -22,7 +22,7 @@ import sys
 from typing import Any
 
 from . import _pcuvd
-from ._process import ProcessResult, process_options
+from ._process import ProcessResult, _checked, process_options
 from ._recording import reader_overrides
 
 
@@ -93,9 +93,7 @@ def process(
         parts = [first] + [part for part, _ in rest]
     else:
         parts = [part for part, _ in gathered([submit(i, None) for i in range(count)])]
-    return ProcessResult(
-        _pcuvd.join_segments(path, read, given, parts, bool(quiet), dynamics_fit)
-    )
+    return _checked(_pcuvd.join_segments(path, read, given, parts, bool(quiet), dynamics_fit))
 
 
 def _segment(

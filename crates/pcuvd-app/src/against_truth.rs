@@ -350,7 +350,7 @@ fn scores(
     };
     let ri = match (&truth.cycle, &processed.dynamics) {
         (None, _) => RiRecord::NotScored("the scenario's flow is steady: no cardiac cycle"),
-        (Some(_), DynamicsOutcome::Skipped(_)) => {
+        (Some(_), DynamicsOutcome::Skipped(_) | DynamicsOutcome::Failed(_)) => {
             RiRecord::NotScored("the run made no RI maps (summary.json's dynamics says why)")
         }
         (Some(cycle), DynamicsOutcome::Done { maps, .. }) => {

@@ -671,7 +671,9 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         } = crate::run::run(source, &plan, &held)
             .with_context(|| format!("brain study: processing {}", path.display()))?;
         let skipped = match &dynamics {
-            DynamicsOutcome::Skipped(reason) => Some(reason.as_str()),
+            DynamicsOutcome::Skipped(reason) | DynamicsOutcome::Failed(reason) => {
+                Some(reason.as_str())
+            }
             DynamicsOutcome::Done { .. } => None,
         };
         held.pass_on(name, skipped);
@@ -693,7 +695,9 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         };
         let (ri, ri_skipped) = match dynamics {
             DynamicsOutcome::Done { maps, .. } => (Some(*maps), None),
-            DynamicsOutcome::Skipped(reason) => (None, Some(format!("{method}: {reason}"))),
+            DynamicsOutcome::Skipped(reason) | DynamicsOutcome::Failed(reason) => {
+                (None, Some(format!("{method}: {reason}")))
+            }
         };
         let detected = VesselTests::default().flow_mask(&out.maps.power_doppler, out.grid.step());
         timing.push((

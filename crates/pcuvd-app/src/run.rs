@@ -321,6 +321,11 @@ pub enum DynamicsOutcome {
     },
     /// The stage was skipped (off, or the recording cannot give RI maps); the reason.
     Skipped(String),
+    /// The stage a dynamics setting asked for ([`Plan::dynamics_required`]) could not be made
+    /// from this recording (no cardiac cycle in its vessels' speed, say); why. Only the data
+    /// could tell, after the work: the run's other results stand, and a caller keeps them
+    /// before it reports this as an error ([`Processed::dynamics_failure`]).
+    Failed(String),
 }
 
 /// Everything `process` computed, before anything is written.
@@ -346,6 +351,17 @@ pub struct Processed {
     pub segments: Option<SegmentsDone>,
     /// The series of the plan's kept pixels, when it names any.
     pub kept: Option<pcuvd::form::images::PixelSeries>,
+}
+
+impl Processed {
+    /// Why the RI maps a dynamics setting asked for could not be made from the recording: the
+    /// error to report once the run's other results are kept.
+    pub fn dynamics_failure(&self) -> Option<&str> {
+        match &self.dynamics {
+            DynamicsOutcome::Failed(reason) => Some(reason),
+            _ => None,
+        }
+    }
 }
 
 /// What processing in segments did, for summary.json.
@@ -632,7 +648,7 @@ fn finish_segmented(
             ))
         }
         (None, _) => Err(pcuvd::core::error::invalid("dynamics", "the stage is off")),
-    })?;
+    });
     Ok(Processed {
         out: std::sync::Arc::new(done.out),
         dynamics,
@@ -654,7 +670,7 @@ pub fn run_dynamics(
     plan: &Plan,
     progress: &dyn Progress,
 ) -> Result<DynamicsOutcome> {
-    dynamics_outcome(plan, progress, || {
+    Ok(dynamics_outcome(plan, progress, || {
         let settings = plan
             .dynamics
             .as_ref()
@@ -666,7 +682,7 @@ pub fn run_dynamics(
             settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
         )
         .map(|(series, maps)| (series.into(), maps))
-    })
+    }))
 }
 
 /// The dynamics stage run again on `processed` (done as `done` planned it) as `plan` says. Where
@@ -688,7 +704,7 @@ pub fn rerun_dynamics(
         _ => None,
     };
     if let Some((series, settings)) = held {
-        return dynamics_outcome(plan, progress, || {
+        return Ok(dynamics_outcome(plan, progress, || {
             let maps = pipeline::ri_maps_of(
                 series,
                 &processed.out.maps.power_doppler,
@@ -698,7 +714,7 @@ pub fn rerun_dynamics(
                 settings.triggers.as_ref().map(|(t, _)| t.as_slice()),
             )?;
             Ok((std::sync::Arc::clone(series), maps))
-        });
+        }));
     }
     if plan.dynamics.is_some() && processed.out.filtered.series.is_empty() {
         bail!(
@@ -713,7 +729,7 @@ pub fn rerun_dynamics(
                     milliseconds(series.window_s),
                     milliseconds(series.step_s)
                 ),
-                DynamicsOutcome::Skipped(why) =>
+                DynamicsOutcome::Skipped(why) | DynamicsOutcome::Failed(why) =>
                     format!("the run made none ({why}): process again with the dynamics settings"),
             }
         );
@@ -787,14 +803,15 @@ pub fn dynamics_of_images(
     Ok((series, maps))
 }
 
-/// The dynamics stage's outcome as `plan` says: off, done by `stage`, or skipped with a note when
-/// the recording cannot give RI maps and no dynamics setting was given (else an error).
+/// The dynamics stage's outcome as `plan` says: off, done by `stage`, or, when the recording
+/// cannot give RI maps, skipped with a note where no dynamics setting was given and failed
+/// where one was.
 fn dynamics_outcome(
     plan: &Plan,
     progress: &dyn Progress,
     stage: impl FnOnce() -> pcuvd::Result<(std::sync::Arc<VelocitySeries>, RiMaps)>,
-) -> Result<DynamicsOutcome> {
-    Ok(match &plan.dynamics {
+) -> DynamicsOutcome {
+    match &plan.dynamics {
         // Said when the run started (`said_before_the_run`).
         None => DynamicsOutcome::Skipped(
             plan.dynamics_dropped()
@@ -815,9 +832,9 @@ fn dynamics_outcome(
                 ));
                 DynamicsOutcome::Skipped(reason)
             }
-            Err(e) => return Err(anyhow::Error::from(e).context("dynamics (RI maps)")),
+            Err(e) => DynamicsOutcome::Failed(format!("{e:#}")),
         },
-    })
+    }
 }
 
 /// The dynamics stage's settings as read from the options.

@@ -468,7 +468,7 @@ pub enum DynamicsChoice {
     /// When the recording holds a cardiac cycle (one angle: RI of the colour-Doppler speed);
     /// otherwise skipped with a note.
     Auto,
-    /// Always: a recording that cannot give RI maps is an error.
+    /// Always: a recording that cannot give RI maps is an error (before the work where the options tell, else after the other outputs are written).
     On,
     /// Never.
     Off,

@@ -3,14 +3,16 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 use pcuvd_app::input::{open_images, open_input, rf_band_pass_warning};
 use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
-use pcuvd_app::run::Plan;
+use pcuvd_app::run::{Plan, Processed};
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
-use pcuvd_app::summary::{Provenance, Record, already_done, provenance, save};
+use pcuvd_app::summary::{
+    Provenance, Record, already_done, earlier_dynamics_failure, provenance, save,
+};
 
 use crate::progress::Bars;
 
@@ -209,7 +211,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .filter(|_| args.checksum == outputs::Checksum::Blake3);
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
         let (source, seconds) = provenance_of_run(vec![])?;
-        if already_processed(&args.out, &source) {
+        if already_processed(&args.out, &source)? {
             return Ok(());
         }
         Checksums::Done(Box::new(source), seconds)
@@ -297,7 +299,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         println!("{}", scored.line());
     }
     say_written(&args.out, saved.figures.len());
-    Ok(())
+    failed_after_saving(&args.input, &args.out, &processed)
 }
 
 /// `pcuvd process` on an images manifest: beamformed images formed elsewhere, read whole or a
@@ -324,7 +326,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
     };
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
         let (source, seconds) = provenance_of_run()?;
-        if already_processed(&args.out, &source) {
+        if already_processed(&args.out, &source)? {
             return Ok(());
         }
         Checksums::Done(Box::new(source), seconds)
@@ -398,12 +400,39 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         processed.out.grid.x.len()
     );
     say_written(&args.out, saved.figures.len());
-    Ok(())
+    failed_after_saving(&args.input, &args.out, &processed)
+}
+
+/// The error a run ends in once its results are written, when the RI maps a dynamics setting
+/// asked for could not be made from the recording (only the data could tell, after the work).
+fn failed_after_saving(
+    input: &std::path::Path,
+    out: &std::path::Path,
+    processed: &Processed,
+) -> Result<()> {
+    match processed.dynamics_failure() {
+        Some(reason) => bail!(
+            "{}: the RI maps asked for (--dynamics on, or a dynamics option given) could not be \
+             made: {reason}; the run's other maps, figures and summary.json are written to {}",
+            input.display(),
+            out.display()
+        ),
+        None => Ok(()),
+    }
 }
 
 /// True, and said, when `out` holds an earlier run of the same input (checksums), options and
-/// pcuvd version: a batch re-run skips it.
-fn already_processed(out: &std::path::Path, source: &Provenance) -> bool {
+/// pcuvd version: a batch re-run skips it. Where that run's RI maps could not be made, the
+/// error it ended in.
+fn already_processed(out: &std::path::Path, source: &Provenance) -> Result<bool> {
+    if let Some(reason) = earlier_dynamics_failure(out, source) {
+        bail!(
+            "{}: an earlier run of the same input (checksums), options and pcuvd version wrote its \
+             other outputs here, and the RI maps asked for (--dynamics on, or a dynamics option \
+             given) could not be made: {reason} (--force runs it again)",
+            out.display()
+        );
+    }
     let done = already_done(out, source);
     if done {
         println!(
@@ -412,7 +441,7 @@ fn already_processed(out: &std::path::Path, source: &Provenance) -> bool {
             out.display()
         );
     }
-    done
+    Ok(done)
 }
 
 /// Says what a run wrote into `out`.

@@ -475,6 +475,19 @@ impl PyProcessResult {
             .get_item(name)
     }
 
+    /// The error `pcuvd.process` raises, this result beside it, when the RI maps a dynamics
+    /// setting asked for could not be made from the recording; `None` otherwise.
+    fn dynamics_failure(&self) -> Option<String> {
+        self.processed.dynamics_failure().map(|reason| {
+            format!(
+                "{}: the RI maps asked for (dynamics=\"on\", or a dynamics option given) could \
+                 not be made: {reason}; the run's other maps are in this error's result \
+                 (result.save(folder) writes them)",
+                self.input
+            )
+        })
+    }
+
     /// The same maps with the dynamics stage run again with the keyword options in `options`
     /// (JSON: heart rate, windows, RI thresholds, vessel tests, pooling).
     fn with_dynamics(&self, py: Python<'_>, options: &str, quiet: bool) -> PyResult<Self> {

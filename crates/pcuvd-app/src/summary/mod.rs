@@ -192,6 +192,18 @@ pub fn already_done(out: &Path, source: &Provenance) -> bool {
     std::fs::read_to_string(out.join("summary.json")).is_ok_and(|text| source.same_run_as(&text))
 }
 
+/// Why the RI maps asked for could not be made, when `out` holds an earlier run of the same
+/// input, options and pcuvd version ([`already_done`]) that ended so: a re-run ends in the
+/// same error without the work.
+pub fn earlier_dynamics_failure(out: &Path, source: &Provenance) -> Option<String> {
+    let text = std::fs::read_to_string(out.join("summary.json")).ok()?;
+    if !source.same_run_as(&text) {
+        return None;
+    }
+    let summary = serde_json::from_str::<serde_json::Value>(&text).ok()?;
+    Some(summary["dynamics"].get("failed")?.as_str()?.to_string())
+}
+
 /// Writes the dynamics stage's maps and figures into `dir` (nothing when it was skipped);
 /// returns the figures written.
 fn write_dynamics(

@@ -82,6 +82,12 @@ pub fn write_report(dir: &Path, summary: &Summary, figures: &[PathBuf]) -> Resul
             done.cycles_from
         ));
     }
+    if let DynamicsRecord::Failed { failed } = &summary.dynamics {
+        report.paragraph(&format!(
+            "No RI maps: the dynamics settings asked for them and the recording could not give \
+             them ({failed}). The run ended in that error; its other maps are here."
+        ));
+    }
     if let Some(scored) = &summary.against_truth {
         report.heading("Against the simulation's truth");
         let line = scored.line();

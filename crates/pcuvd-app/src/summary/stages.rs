@@ -195,6 +195,12 @@ pub enum DynamicsRecord {
         /// Why.
         skipped: String,
     },
+    /// A dynamics setting asked for it and the recording could not give it (the run's other
+    /// results are written; the command then ends in an error).
+    Failed {
+        /// Why.
+        failed: String,
+    },
 }
 
 /// A vessel-test level (dB), or "off".
@@ -480,6 +486,11 @@ impl DynamicsRecord {
             (_, DynamicsOutcome::Skipped(reason)) => {
                 return DynamicsRecord::Skipped {
                     skipped: reason.clone(),
+                };
+            }
+            (_, DynamicsOutcome::Failed(reason)) => {
+                return DynamicsRecord::Failed {
+                    failed: reason.clone(),
                 };
             }
             (None, DynamicsOutcome::Done { .. }) => {

@@ -469,6 +469,73 @@ fn windows_that_do_not_fit_are_spaced_or_dropped_under_dynamics_auto() {
     ri_reads_the_truth();
 }
 
+/// RI maps a dynamics setting asks for that only the data can refuse (no heart rate given, half
+/// a beat recorded: windows spanning 70 ms, past the 67 ms checked before the work, hold no two
+/// systolic upstrokes) end the run in an error once its other outputs are written: the maps
+/// those of the run without the stage, summary.json and the report saying why. Its re-run ends
+/// in the same error without the work.
+#[test]
+fn ri_maps_the_data_cannot_give_end_the_run_in_an_error_after_its_other_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = write_images(dir.path(), &synthetic_images(100), "");
+    let (asked, off) = (dir.path().join("asked"), dir.path().join("off"));
+    let run = |out: &Path, dynamics: &[&str]| {
+        let mut args = vec![
+            "process",
+            manifest.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(dynamics);
+        pcuvd(&args)
+    };
+    let asking = ["--dynamics", "on", "--window-ms", "30"];
+    let (ok, stdout, stderr) = run(&asked, &asking);
+    assert!(!ok, "{stdout}");
+    let error = stderr.lines().last().unwrap();
+    assert!(
+        error.starts_with("error: ")
+            && error.contains("the RI maps asked for")
+            && error.contains("could not be made")
+            && error.contains("systolic upstrokes found")
+            && error.contains("written to"),
+        "{stderr}"
+    );
+    assert!(stdout.contains("wrote maps"), "{stdout}");
+    let (ok, _, stderr) = run(&off, &["--dynamics", "off"]);
+    assert!(ok, "{stderr}");
+    for map in ["color_doppler.npy", "power_doppler.npy", "bmode_db.npy"] {
+        let kept: Array2<f64> = read_npy(asked.join(map)).unwrap();
+        let without: Array2<f64> = read_npy(off.join(map)).unwrap();
+        assert_eq!(kept, without, "{map}");
+    }
+    assert!(asked.join("power_doppler.png").is_file() && !asked.join("ri.npy").exists());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(asked.join("summary.json")).unwrap())
+            .unwrap();
+    let failed = summary["dynamics"]["failed"].as_str().unwrap();
+    assert!(error.contains(failed), "{failed}");
+    let report = std::fs::read_to_string(asked.join("report.html")).unwrap();
+    assert!(
+        report.contains("No RI maps"),
+        "the report says nothing of the RI maps"
+    );
+    let clock = std::time::Instant::now();
+    let (ok, stdout, stderr) = run(&asked, &asking);
+    assert!(
+        !ok && stderr.contains("an earlier run") && stderr.contains(failed),
+        "{stdout}{stderr}"
+    );
+    let written = std::fs::metadata(asked.join("summary.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    assert!(
+        written < std::time::SystemTime::now() - clock.elapsed(),
+        "the re-run wrote again"
+    );
+}
+
 #[test]
 fn options_that_form_images_are_refused_for_images_formed_elsewhere() {
     let dir = tempfile::tempdir().unwrap();
