@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use crate::numbers::rounded;
 use anyhow::Result;
 use ndarray::{Array2, Zip};
 use pcuvd::core::grid::{Grid, Roi};
@@ -530,13 +531,15 @@ pub fn summary_line(m: &BrainMetrics) -> String {
     let deep = m.vector_by_depth.last();
     let ri = m.ri.first();
     format!(
-        "brain: vector RMSE UVD {:.2}, PC-UVD {:.2} mm/s ({:.0} % lower){}{}; coding gain {} dB by 1 mm band",
+        "brain: vector RMSE UVD {:.2}, PC-UVD {:.2} mm/s ({} % lower){}{}; coding gain {} dB by 1 mm band",
         m.vector_all.uvd.rmse_mm_s,
         m.vector_all.pcuvd.rmse_mm_s,
-        m.vector_all.improvement_pct,
+        rounded(m.vector_all.improvement_pct, 0),
         deep.map_or(String::new(), |d| format!(
-            "; deepest third {:.2} vs {:.2} ({:.0} %)",
-            d.uvd.rmse_mm_s, d.pcuvd.rmse_mm_s, d.improvement_pct
+            "; deepest third {:.2} vs {:.2} ({} %)",
+            d.uvd.rmse_mm_s,
+            d.pcuvd.rmse_mm_s,
+            rounded(d.improvement_pct, 0)
         )),
         ri.and_then(|r| r.pcuvd).map_or_else(
             || m.ri_skipped.first().map_or(String::new(), |skipped| {
@@ -551,7 +554,7 @@ pub fn summary_line(m: &BrainMetrics) -> String {
         ),
         m.contrast_by_depth
             .iter()
-            .map(|b| format!("{:.1}", b.gain_db))
+            .map(|b| rounded(b.gain_db, 1))
             .collect::<Vec<_>>()
             .join("/"),
     )
@@ -594,7 +597,7 @@ pub fn report_section(report: &mut Report, m: &BrainMetrics, figs: &[Rendered]) 
             g.uvd.pixels.to_string(),
             cell(&g.uvd),
             cell(&g.pcuvd),
-            format!("{:.0} %", g.improvement_pct),
+            format!("{} %", rounded(g.improvement_pct, 0)),
         ]
     };
     let header = [

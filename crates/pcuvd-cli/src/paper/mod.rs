@@ -16,6 +16,7 @@ use pcuvd::study::spiral::{self, SpiralMetrics, SpiralSettings, SpiralStudy};
 use pcuvd_render::{Colormap, Figure, Panel, PlotPanel, Polyline, Report, Series, SeriesStyle};
 use serde::Serialize;
 
+use crate::numbers::rounded;
 use crate::progress::Bars;
 use pcuvd_app::figures::{
     self, PCUVD_RGB, PROFILE_LINE_RGB, Rendered, TRUTH_RGB, UVD_RGB, VX_LABEL, VZ_LABEL, line,
@@ -128,28 +129,28 @@ pub fn run(args: &PaperArgs) -> Result<()> {
         let m = &study.metrics;
         let improvement = &m.improvement_pct;
         println!(
-            "spiral: SNR gain {:.2} dB (theory {:.2}); RMSE Vx/Vz mm/s: UVD {:.2}/{:.2}, PC-UVD {:.2}/{:.2} ({:.0} % / {:.0} % better); {:.0} s",
+            "spiral: SNR gain {:.2} dB (theory {:.2}); RMSE Vx/Vz mm/s: UVD {:.2}/{:.2}, PC-UVD {:.2}/{:.2} ({} % / {} % better); {:.0} s",
             m.snr_gain_db,
             m.snr_gain_theory_db,
             m.rmse_mm_s.uvd_ls.vx,
             m.rmse_mm_s.uvd_ls.vz,
             m.rmse_mm_s.pcuvd_irls.vx,
             m.rmse_mm_s.pcuvd_irls.vz,
-            improvement.vx,
-            improvement.vz,
+            rounded(improvement.vx, 0),
+            rounded(improvement.vz, 0),
             m.timing_s.get("total_s").copied().unwrap_or(f64::NAN)
         );
         if let Some(c) = &m.calibrated {
             match (c.noise_db, &c.rmse_mm_s, &c.improvement_pct) {
                 (Some(level), Some(r), Some(gain)) => println!(
-                    "spiral at the paper's baseline (UVD Vx RMSE {:.2} mm/s at {level:.2} dB): RMSE Vx/Vz mm/s: UVD {:.2}/{:.2}, PC-UVD {:.2}/{:.2} ({:.0} % / {:.0} % better; paper {:.2}/{:.2}, {:.0} % / {:.0} %)",
+                    "spiral at the paper's baseline (UVD Vx RMSE {:.2} mm/s at {level:.2} dB): RMSE Vx/Vz mm/s: UVD {:.2}/{:.2}, PC-UVD {:.2}/{:.2} ({} % / {} % better; paper {:.2}/{:.2}, {:.0} % / {:.0} %)",
                     c.target_uvd_vx_mm_s,
                     r.uvd_ls.vx,
                     r.uvd_ls.vz,
                     r.pcuvd_irls.vx,
                     r.pcuvd_irls.vz,
-                    gain.vx,
-                    gain.vz,
+                    rounded(gain.vx, 0),
+                    rounded(gain.vz, 0),
                     spiral::paper::PCUVD_RMSE_MM_S.0,
                     spiral::paper::PCUVD_RMSE_MM_S.1,
                     spiral::paper::IMPROVEMENT_PCT.0,
