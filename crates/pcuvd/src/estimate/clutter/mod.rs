@@ -327,6 +327,25 @@ fn cut_offs_with_gram(
     filter_with_gram(data, frames, gram, params, Pass::CutOffsOnly, true)
 }
 
+/// The cut-offs `low` and `high` of `frames` components, uncrossed where `params` chose one
+/// from the data: it gives way to one the user fixed (the noise cut-off to a fixed tissue one:
+/// the series keeps the one component after it), and of two chosen from the data the noise
+/// cut-off gives way. The data can say they cross only once the images are formed, and the
+/// run's work is kept. Fixed cut-offs that cross are left so: they were refused before any
+/// work (`check_for`).
+fn uncrossed(low: usize, high: usize, params: &ClutterParams, frames: usize) -> (usize, usize) {
+    let chosen = |cut: RankCut| matches!(cut, RankCut::Auto | RankCut::Similarity);
+    if low < high {
+        (low, high)
+    } else if chosen(params.high) && low < frames {
+        (low, low + 1)
+    } else if chosen(params.low) && high > 0 {
+        (high - 1, high)
+    } else {
+        (low, high)
+    }
+}
+
 /// The filter of `data` (pixels × frames, row-major) given its Gram matrix `gram` (lower half);
 /// the report's singular values are all of them with `every_value`, else those the rule read.
 fn filter_with_gram(
@@ -374,18 +393,7 @@ fn filter_with_gram(
         RankCut::Auto => auto_high(eigenvalues, spectrum.median, pixels),
         RankCut::Similarity => similar.map_or(frames, |(_, high)| high),
     };
-    // Where the two cut-offs cross, one chosen from the data gives way to one the user fixed
-    // (the noise cut-off to a fixed tissue one: the series keeps the one component after it),
-    // and of two chosen from the data the noise cut-off gives way: the data can say this only
-    // once the images are formed, and the run's work is kept. Fixed cut-offs that cross were
-    // refused before any work (`check_for`).
-    let chosen = |cut: RankCut| matches!(cut, RankCut::Auto | RankCut::Similarity);
-    let (low, high) = match () {
-        _ if low < high => (low, high),
-        _ if chosen(params.high) && low < frames => (low, low + 1),
-        _ if chosen(params.low) && high > 0 => (high - 1, high),
-        _ => (low, high),
-    };
+    let (low, high) = uncrossed(low, high, params, frames);
     if low >= high || high > frames {
         return Err(invalid(
             "clutter filter",

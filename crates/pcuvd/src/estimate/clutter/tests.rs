@@ -323,6 +323,40 @@ fn similarity_cut_offs_find_the_tissue_and_noise_subspaces() {
     }
 }
 
+/// Crossed cut-offs: the one chosen from the data gives way to a fixed one, the noise cut-off
+/// where both were chosen (one component kept after the tissue cut-off, or before the noise
+/// cut-off at the last frame); fixed ones stay crossed, for the error.
+#[test]
+fn a_cut_off_chosen_from_the_data_gives_way_where_they_cross() {
+    use RankCut::{Auto, Fixed, Similarity};
+    let frames = 50;
+    for (low_cut, high_cut, (low, high), expected) in [
+        (Auto, Auto, (4, 30), (4, 30)),
+        (Similarity, Auto, (12, 7), (12, 13)),
+        (Auto, Similarity, (9, 9), (9, 10)),
+        (Similarity, Similarity, (6, 2), (6, 7)),
+        (Fixed(20), Auto, (20, 15), (20, 21)),
+        (Auto, Fixed(5), (8, 5), (4, 5)),
+        (Similarity, Fixed(1), (3, 1), (0, 1)),
+        (Fixed(8), Fixed(5), (8, 5), (8, 5)),
+        // A noise cut-off chosen from the data gives way up to the last frame, no further: a
+        // tissue cut-off at the last frame then gives way if it was chosen too.
+        (Fixed(50), Auto, (50, 3), (50, 3)),
+        (Auto, Similarity, (50, 3), (2, 3)),
+    ] {
+        let params = ClutterParams {
+            low: low_cut,
+            high: high_cut,
+            ..ClutterParams::default()
+        };
+        assert_eq!(
+            super::uncrossed(low, high, &params, frames),
+            expected,
+            "{low_cut:?} {high_cut:?} ({low}, {high})"
+        );
+    }
+}
+
 /// The summed-area fit equals the least-squares fit computed directly, block by block, on a
 /// symmetric matrix with two noisy squares and anti-correlated corners.
 #[test]
