@@ -56,6 +56,14 @@ fn finite(key: &str, v: f64) -> Result<()> {
 /// The fastest a scenario's tissue may move (m/s), every oscillation at its peak at once.
 const MAX_TISSUE_SPEED_M_S: f64 = 1.0;
 
+/// The most steering angles a compound frame may have: compounding uses tens.
+const MAX_ANGLES: usize = 1024;
+
+/// The most transmit events (frames × angles) a scenario may record: a billion frames of four
+/// angles, some 10¹⁵ bytes of samples, which the disk and memory checks refuse in turn; more
+/// would overflow the sizes those checks compute.
+const MAX_EVENTS: u128 = 1 << 32;
+
 /// Checks that a blood speed (m/s) is positive and far below the sound speed `c` (m/s): the
 /// simulator holds the scatterers still during each event (stop-and-go), which a flow at a
 /// tenth of c already strains; a faster one is a unit slip, not blood.
@@ -202,9 +210,23 @@ impl Scenario {
             (Some(_), Some(_)) => bail!("[sequence]: give angles or angles_deg, not both"),
             (None, None) => bail!("[sequence].angles (a count) or angles_deg is missing"),
             (Some(0), None) => bail!("[sequence].angles = 0: must be at least 1"),
+            (Some(n), None) if n > MAX_ANGLES => {
+                return Err(refuse(
+                    "[sequence].angles",
+                    n,
+                    &format!("at most {MAX_ANGLES} steering angles a frame"),
+                ));
+            }
             (None, Some(list)) => {
                 if list.is_empty() {
                     bail!("[sequence].angles_deg is empty");
+                }
+                if list.len() > MAX_ANGLES {
+                    return Err(refuse(
+                        "[sequence].angles_deg",
+                        format!("[{} angles]", list.len()),
+                        &format!("at most {MAX_ANGLES} steering angles a frame"),
+                    ));
                 }
                 if s.max_angle_deg.is_some() {
                     bail!("[sequence].max_angle_deg goes with angles (a count), not angles_deg");
@@ -248,6 +270,21 @@ impl Scenario {
         }
         if s.frames == 0 {
             bail!("[sequence].frames = 0: must be at least 1");
+        }
+        let angles = s
+            .angles_deg
+            .as_ref()
+            .map_or(s.angles.unwrap_or(1), Vec::len);
+        let events = s.frames as u128 * angles as u128;
+        if events > MAX_EVENTS {
+            return Err(refuse(
+                "[sequence].frames",
+                s.frames,
+                &format!(
+                    "{events} transmit events at {angles} angles a frame, more than the \
+                     {MAX_EVENTS} a recording may hold"
+                ),
+            ));
         }
         let m = &self.medium;
         positive("[medium].sound_speed_m_s", m.sound_speed_m_s)?;

@@ -170,6 +170,37 @@ fn blood_at_a_tenth_of_the_sound_speed_or_faster_is_refused() {
     );
 }
 
+/// Steering angles past 1,024 a frame, and frames past 2³² transmit events, are refused by key
+/// (2⁶³ angles panicked building their list, and 2⁶³ frames wrapped the sizes the disk check
+/// computes to nothing, which it let through); the bounds themselves pass.
+#[test]
+fn angles_and_events_past_what_a_recording_holds_are_refused_by_key() {
+    let with = |angles: &str, frames: u64| {
+        SMALL
+            .replacen("angles = 2", &format!("angles = {angles}"), 1)
+            .replacen("frames = 1", &format!("frames = {frames}"), 1)
+    };
+    Scenario::parse(&with("1024", 1)).unwrap();
+    for angles in ["1025", "9223372036854775808"] {
+        let error = refusal(&with(angles, 1));
+        assert!(
+            error.starts_with(&format!("[sequence].angles = {angles}: at most 1024")),
+            "{error}"
+        );
+    }
+    Scenario::parse(&with("2", 1 << 31)).unwrap();
+    let error = refusal(&with("2", (1 << 31) + 1));
+    assert!(
+        error.starts_with("[sequence].frames = 2147483649: 4294967298 transmit events"),
+        "{error}"
+    );
+    let error = refusal(&with("2", 1 << 63));
+    assert!(
+        error.starts_with("[sequence].frames = 9223372036854775808"),
+        "{error}"
+    );
+}
+
 #[test]
 fn tissue_faster_than_a_metre_a_second_is_refused() {
     // The brain's breathing, its depth gradient raised until the tissue farthest from the
