@@ -59,10 +59,10 @@ const MAX_TISSUE_SPEED_M_S: f64 = 1.0;
 /// The most steering angles a compound frame may have: compounding uses tens.
 const MAX_ANGLES: usize = 1024;
 
-/// The most transmit events (frames × angles) a scenario may record: a billion frames of four
-/// angles, some 10¹⁵ bytes of samples, which the disk and memory checks refuse in turn; more
-/// would overflow the sizes those checks compute.
-const MAX_EVENTS: u128 = 1 << 32;
+/// The most transmit events (frames × angles) a scenario may record, some 10¹⁸ bytes of
+/// samples (which the disk and memory checks refuse in turn, saying what they would need): more
+/// would overflow the event counts and sizes the simulator computes.
+const MAX_EVENTS: u128 = 1 << 40;
 
 /// Checks that a blood speed (m/s) is positive and far below the sound speed `c` (m/s): the
 /// simulator holds the scatterers still during each event (stop-and-go), which a flow at a

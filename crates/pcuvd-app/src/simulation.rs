@@ -324,8 +324,8 @@ impl Simulation {
     pub fn samples_bytes(&self) -> u64 {
         self.modes
             .iter()
-            .map(|(_, p)| self.frames as u64 * frame_bytes(p) as u64)
-            .sum()
+            .map(|(_, p)| (self.frames as u64).saturating_mul(frame_bytes(p) as u64))
+            .fold(0, u64::saturating_add)
     }
 
     /// Simulates recording `index` of [`Self::modes`]; `progress(events done, events)`.

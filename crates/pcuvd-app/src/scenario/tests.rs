@@ -170,7 +170,7 @@ fn blood_at_a_tenth_of_the_sound_speed_or_faster_is_refused() {
     );
 }
 
-/// Steering angles past 1,024 a frame, and frames past 2³² transmit events, are refused by key
+/// Steering angles past 1,024 a frame, and frames past 2⁴⁰ transmit events, are refused by key
 /// (2⁶³ angles panicked building their list, and 2⁶³ frames wrapped the sizes the disk check
 /// computes to nothing, which it let through); the bounds themselves pass.
 #[test]
@@ -188,10 +188,10 @@ fn angles_and_events_past_what_a_recording_holds_are_refused_by_key() {
             "{error}"
         );
     }
-    Scenario::parse(&with("2", 1 << 31)).unwrap();
-    let error = refusal(&with("2", (1 << 31) + 1));
+    Scenario::parse(&with("2", 1 << 39)).unwrap();
+    let error = refusal(&with("2", (1 << 39) + 1));
     assert!(
-        error.starts_with("[sequence].frames = 2147483649: 4294967298 transmit events"),
+        error.starts_with("[sequence].frames = 549755813889: 1099511627778 transmit events"),
         "{error}"
     );
     let error = refusal(&with("2", 1 << 63));
