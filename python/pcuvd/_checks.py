@@ -86,6 +86,19 @@ def reorder(
     return np.transpose(array, [list(axes).index(a) for a in canonical])
 
 
+def whole_number(name: str, value: Any, minimum: int = 1) -> int:
+    """`value` as a whole number ≥ `minimum` that the native half holds (below 2⁶³), or
+    ValueError naming it (not OverflowError, nor a bare int() message)."""
+    need = f"{name}: expected a whole number ≥ {minimum}, got {value!r}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ValueError(need)
+    if isinstance(value, (float, np.floating)) and not (np.isfinite(value) and value == int(value)):
+        raise ValueError(need)
+    if not minimum <= int(value) < 2**63:
+        raise ValueError(need)
+    return int(value)
+
+
 def finite_number(name: str, value: Any, positive: bool = True) -> float:
     """`value` as a finite float (positive when asked), or ValueError naming it."""
     try:

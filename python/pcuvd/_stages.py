@@ -36,9 +36,8 @@ def decode_hadamard(
     rf32 = _checks.real32("rf", array, ("events", "channels", "samples"))
     fs = _checks.finite_number("sampling_freq_hz", sampling_freq_hz)
     delay = _checks.finite_number("slot_delay_s", slot_delay_s, positive=False)
-    if int(n_angles) != n_angles or n_angles < 1:
-        raise ValueError(f"n_angles: expected a whole number ≥ 1, got {n_angles!r}")
-    return _pcuvd.decode_hadamard_rf(rf32, int(n_angles), delay, fs, alignment)
+    n_angles = _checks.whole_number("n_angles", n_angles)
+    return _pcuvd.decode_hadamard_rf(rf32, n_angles, delay, fs, alignment)
 
 
 def rf_to_iq(
@@ -156,10 +155,10 @@ def svd_filter(
     """
     data = _checks.complex64("series", series, SERIES_AXES)
     if blocks is not None:
-        rows, cols = (int(b) for b in blocks)
-        if rows < 1 or cols < 1:
-            raise ValueError(f"blocks: expected positive sizes (rows, cols), got {tuple(blocks)!r}")
-        blocks = (rows, cols)
+        sizes = tuple(blocks)
+        if len(sizes) != 2:
+            raise ValueError(f"blocks: expected positive sizes (rows, cols), got {sizes!r}")
+        blocks = tuple(_checks.whole_number("blocks", b) for b in sizes)
     filtered, low_used, high_used, values, block_cut_offs, block_starts = _pcuvd.svd_filter(
         data,
         str(low),
@@ -177,9 +176,12 @@ def svd_filter(
 
 
 def _kernel(kernel: Sequence[int]) -> tuple[int, int]:
-    rows, cols = (int(k) for k in kernel)
-    if rows < 1 or cols < 1 or rows % 2 == 0 or cols % 2 == 0:
-        raise ValueError(f"kernel: expected odd sizes (rows, cols), got {tuple(kernel)!r}")
+    sizes = tuple(kernel)
+    if len(sizes) != 2:
+        raise ValueError(f"kernel: expected odd sizes (rows, cols), got {sizes!r}")
+    rows, cols = (_checks.whole_number("kernel", k) for k in sizes)
+    if rows % 2 == 0 or cols % 2 == 0:
+        raise ValueError(f"kernel: expected odd sizes (rows, cols), got {sizes!r}")
     return rows, cols
 
 
@@ -243,10 +245,8 @@ def vector_irls(
     irls = (
         _checks.finite_number("lambda_mm_s", lambda_mm_s),
         _checks.finite_number("epsilon", epsilon),
-        int(max_iterations),
+        _checks.whole_number("max_iterations", max_iterations),
     )
-    if irls[2] < 1:
-        raise ValueError(f"max_iterations: expected ≥ 1, got {max_iterations!r}")
     return _pcuvd.vector_fit(data, angles, irls)
 
 

@@ -83,6 +83,9 @@ def test_a_memory_bomb_grid_is_refused_before_any_work(disk):
         ({"heart_rate_hz": float("nan")}, ValueError, "heart_rate_hz: expected finite numbers"),
         ({"window_ms": np.float32("inf")}, ValueError, "window_ms: expected finite numbers"),
         ({"grid_mm": (-1, 1, 5, 9, np.nan)}, ValueError, "grid_mm: expected finite numbers"),
+        # A value of the wrong kind names its keyword, not a place in the package's JSON.
+        ({"ensemble_frames": 10**30}, ValueError, r"^ensemble_frames: invalid type: floating point `1e\+30`, expected usize$"),
+        ({"segment_frames": -3}, ValueError, r"^segment_frames: invalid value: integer `-3`"),
     ],
 )
 def test_bad_process_options(disk, kwargs, error, match):
@@ -184,6 +187,18 @@ def test_bad_arrays_for_stage_functions():
         pcuvd.beamform(iq, grid_m=(-1e-3, 1e-3, 1e-3, 2e-3, 1e-4), apodization="tukey", **beam)
     with pytest.raises(ValueError, match="shape"):
         pcuvd.resistivity_index(np.ones((2, 2)), np.ones((2, 3)))
+    # Whole numbers past 64 bits, or not whole: a ValueError naming the argument (the native
+    # half's conversion raised OverflowError, "int too big to convert").
+    projections = np.zeros((2, 2, 2))
+    for bad in (10**30, 2.5, float("inf"), "3"):
+        with pytest.raises(ValueError, match=r"^max_iterations: expected a whole number ≥ 1"):
+            pcuvd.vector_irls(projections, [0.0, 0.1], max_iterations=bad)
+        with pytest.raises(ValueError, match=r"^n_angles: expected a whole number ≥ 1"):
+            pcuvd.decode_hadamard(np.zeros((8, 2, 8)), bad, slot_delay_s=0, sampling_freq_hz=1e6)
+        with pytest.raises(ValueError, match=r"^blocks: expected a whole number ≥ 1"):
+            pcuvd.svd_filter(series, blocks=(bad, 2))
+        with pytest.raises(ValueError, match=r"^kernel: expected a whole number ≥ 1"):
+            pcuvd.power_doppler(series, kernel=(1, bad))
 
 
 def test_bad_simulation_requests():
@@ -193,13 +208,21 @@ def test_bad_simulation_requests():
         pcuvd.simulate("tube", "coded", frames=2, angles=6)
     with pytest.raises(ValueError, match="frames"):
         pcuvd.simulate("tube", "coded", frames=0)
+    with pytest.raises(ValueError, match=r"^frames: invalid type: floating point `1e\+30`"):
+        pcuvd.simulate("tube", "coded", frames=10**30)
+    # 2⁶³ steering angles panicked building their list.
+    with pytest.raises(ValueError, match=r"\[sequence\]\.angles = 9223372036854775808: at most 1024"):
+        pcuvd.simulate("tube", "coded", frames=2, angles=2**63)
     with pytest.raises(TypeError, match="unexpected keyword 'colour'"):
         pcuvd.simulate("tube", colour="red")
     with pytest.raises(ValueError, match="noise_db: expected finite numbers"):
         pcuvd.simulate("tube", frames=2, noise_db=float("nan"))
-    # Petabytes held in memory: refused before any work, not an allocation that fails.
+    # Petabytes held in memory: refused before any work, not an allocation that fails; a
+    # thousand times the frames are more transmit events than any recording holds.
     with pytest.raises(ValueError, match="held in memory, need about .* GB but"):
         pcuvd.simulate("tube", frames=10**9, quiet=True)
+    with pytest.raises(ValueError, match="8000000000000 transmit events at 8 angles a frame"):
+        pcuvd.simulate("tube", frames=10**12, quiet=True)
     with pytest.raises(ValueError, match="--tube-profile applies to --preset tube only"):
         pcuvd.simulate("paper-spiral", frames=1, tube_profile="plug")
 

@@ -80,7 +80,20 @@ fn lib_err(error: pcuvd::Error) -> PyErr {
 /// dropped there): a field it does not know, or a value of the wrong kind, is a `ValueError` that
 /// names it; checks of the values themselves come later, with the command line's messages.
 fn settings<T: DeserializeOwned>(options: &str) -> PyResult<T> {
-    serde_json::from_str(options).map_err(|e| PyValueError::new_err(format!("options: {e}")))
+    let options = &mut serde_json::Deserializer::from_str(options);
+    serde_path_to_error::deserialize(options).map_err(|e| {
+        // The JSON is the package's own, one line long: where in it says nothing to the user;
+        // the keyword does.
+        let why = e.inner().to_string();
+        let why = why
+            .rsplit_once(" at line ")
+            .map_or(why.as_str(), |(why, _)| why);
+        let keyword = e.path().to_string();
+        PyValueError::new_err(match keyword.as_str() {
+            "." | "" => format!("options: {why}"),
+            _ => format!("{keyword}: {why}"),
+        })
+    })
 }
 
 /// The keyword names settings `T` takes: its fields (as its `Default` serialises them) and
