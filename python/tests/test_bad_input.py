@@ -301,6 +301,10 @@ def test_ri_only_the_data_refuses_raises_with_the_other_maps(cli, tmp_path):
     for name in ("color_doppler", "power_doppler", "vx", "vz"):
         np.testing.assert_array_equal(getattr(kept, name), getattr(without, name), err_msg=name)
     assert "ri" not in kept.arrays and "systolic" in kept.summary["dynamics"]["failed"]
+    # The dynamics stage run again on a result: the same error, the same maps beside it.
+    with pytest.raises(pcuvd.DynamicsError, match="systolic upstrokes found") as again:
+        pcuvd.dynamics(without, dynamics="on", window_ms=40, quiet=True)
+    np.testing.assert_array_equal(again.value.result.vz, without.vz)
     kept.save(tmp_path / "saved")
     assert (tmp_path / "saved" / "vz.npy").is_file()
     out = tmp_path / "out"
