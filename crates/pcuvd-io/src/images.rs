@@ -184,20 +184,37 @@ impl ImagesHeader {
 pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let (manifest, text) = parse(path)?;
     let section = manifest.images;
-    let positive = |field: &str, value: f64| {
-        if value.is_finite() && value > 0.0 {
+    // The ranges a recording's numbers are held to: outside them a value is in another unit
+    // (kHz, mm/µs) or a mistake, which would read as velocities off by as much.
+    let within = |field: &str, value: f64, (low, high): (f64, f64), unit: &str| {
+        if value.is_finite() && (low..=high).contains(&value) {
             Ok(value)
         } else {
             Err(IoError::invalid(
                 path,
                 format!("[images].{field}"),
-                format!("is {value}; must be a positive number"),
+                format!("is {value:e}; must be within [{low:e}, {high:e}] {unit} (check the unit)"),
             ))
         }
     };
-    let frame_rate = positive("frame_rate_hz", section.frame_rate_hz)?;
-    let demodulation_frequency = positive("demod_frequency_hz", section.demod_frequency_hz)?;
-    let sound_speed = positive("sound_speed_m_s", section.sound_speed_m_s)?;
+    let frame_rate = within(
+        "frame_rate_hz",
+        section.frame_rate_hz,
+        FRAME_RATE_RANGE,
+        "Hz",
+    )?;
+    let demodulation_frequency = within(
+        "demod_frequency_hz",
+        section.demod_frequency_hz,
+        pcuvd::acquisition::probe::CENTER_FREQUENCY_RANGE,
+        "Hz",
+    )?;
+    let sound_speed = within(
+        "sound_speed_m_s",
+        section.sound_speed_m_s,
+        pcuvd::acquisition::channel::SOUND_SPEED_RANGE,
+        "m/s",
+    )?;
     let axes = axes_order(path, &section.axes)?;
     let cardiac_triggers_s = crate::cardiac::triggers_of_section(path, manifest.cardiac)?;
     let file = images_file(path, &section)?;
@@ -697,6 +714,14 @@ fn axes_order(path: &Path, axes: &[String]) -> Result<Vec<String>, IoError> {
 }
 
 /// `n` pixel centres from `first_last` (m), evenly spaced and increasing.
+/// Compound frame rates an images manifest may give (Hz): from a slow functional series to
+/// beyond any plane-wave sequence; outside them the value is in another unit.
+const FRAME_RATE_RANGE: (f64, f64) = (1.0, 1e6);
+
+/// The farthest a pixel centre may lie from the array (m): no ultrasound image reaches a metre,
+/// and positions of several metres are millimetres given as metres.
+const MAX_PIXEL_DISTANCE_M: f64 = 1.0;
+
 fn pixel_positions(
     path: &Path,
     field: &str,
@@ -708,8 +733,18 @@ fn pixel_positions(
             path,
             format!("[images].{field}"),
             format!(
-                "is [{first}, {last}]; give the first and last pixel centres (m), the last the \
-                 greater"
+                "is [{first:?}, {last:?}]; give the first and last pixel centres (m), the last \
+                 the greater"
+            ),
+        ));
+    }
+    if first.abs().max(last.abs()) > MAX_PIXEL_DISTANCE_M {
+        return Err(IoError::invalid(
+            path,
+            format!("[images].{field}"),
+            format!(
+                "is [{first:?}, {last:?}]: pixels more than {MAX_PIXEL_DISTANCE_M} m from the \
+                 array; give the pixel centres in metres (millimetres divided by 1000)"
             ),
         ));
     }
@@ -909,5 +944,63 @@ mod tests {
         std::fs::write(&path, flipped).unwrap();
         let error = read_images(&path).unwrap_err().to_string();
         assert!(error.contains("[images].x_m"), "{error}");
+        // Numbers in another unit: millimetres as metres, MHz as Hz, mm/µs as m/s, a rate
+        // beyond any sequence (1e300 Hz printed its 301 digits in a later refusal).
+        for (from, to, field, needle) in [
+            (
+                "x_m = [-1.0e-3, 1.0e-3]",
+                "x_m = [-6.4, 6.4]",
+                "[images].x_m",
+                "in metres",
+            ),
+            (
+                "z_m = [2.0e-3, 4.0e-3]",
+                "z_m = [1.0, 10.0]",
+                "[images].z_m",
+                "in metres",
+            ),
+            (
+                "demod_frequency_hz = 7.5e6",
+                "demod_frequency_hz = 7.5",
+                "demod_frequency_hz",
+                "unit",
+            ),
+            (
+                "frame_rate_hz = 500.0",
+                "frame_rate_hz = 1e300",
+                "frame_rate_hz",
+                "1e300",
+            ),
+            (
+                "frame_rate_hz = 500.0",
+                "frame_rate_hz = 0.0",
+                "frame_rate_hz",
+                "[1e0, 1e6] Hz",
+            ),
+            (
+                "x_m = [-1.0e-3, 1.0e-3]",
+                "x_m = [-1.0e-3, 1.0e-3]\nsound_speed_m_s = 1.54",
+                "sound_speed_m_s",
+                "m/s",
+            ),
+        ] {
+            let path = write(dir.path(), &three, frames_z_x, "");
+            let text = std::fs::read_to_string(&path).unwrap();
+            assert!(text.contains(from), "{from}");
+            std::fs::write(&path, text.replace(from, to)).unwrap();
+            let error = read_images(&path).unwrap_err().to_string();
+            assert!(
+                error.contains(field) && error.contains(needle),
+                "{to}: {error}"
+            );
+        }
+        // The bounds themselves pass: a metre from the array, a 1 Hz series.
+        let path = write(dir.path(), &three, frames_z_x, "");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let edges = text
+            .replace("x_m = [-1.0e-3, 1.0e-3]", "x_m = [-1.0, 1.0]")
+            .replace("frame_rate_hz = 500.0", "frame_rate_hz = 1.0");
+        std::fs::write(&path, edges).unwrap();
+        read_images(&path).unwrap();
     }
 }
