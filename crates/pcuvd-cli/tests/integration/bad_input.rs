@@ -168,6 +168,12 @@ fn grid_outside_the_recorded_depth_and_malformed_grid() {
         &["grid", "deepest recorded depth"],
     );
     expect_error(&ok, &["--grid", "1,2,3"], &["--grid", "five numbers"]);
+    // A grid in metres, read as millimetres: 10 µm wide in steps of 0.1 µm (it was imaged).
+    expect_error(
+        &ok,
+        &["--grid=-0.005,0.005,0.005,0.006,0.0001"],
+        &["--grid", "under a wavelength", "give it in millimetres"],
+    );
     expect_error(&ok, &["--svd-low", "many"], &["--svd-low"]);
     expect_error(
         &ok,

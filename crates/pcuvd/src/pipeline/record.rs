@@ -100,10 +100,36 @@ pub fn default_grid_for(acq: &Acquisition, n_samples: usize) -> Result<Grid> {
     Grid::new(x0, x1, z0, z1, step)
 }
 
+/// The finest step, in wavelengths, of a grid that spans less than a wavelength each way: a
+/// hundredth, 25 times finer than the quarter wavelength that samples the speckle. Such a grid
+/// was given in metres where millimetres are asked for (a 12 mm image in 0.1 mm steps becomes
+/// 12 µm in 0.1 µm steps); a fine grid over a real image, or a coarse one over a few pixels,
+/// is kept.
+pub const MIN_GRID_STEP_WAVELENGTHS: f64 = 0.01;
+
 /// Checks, before any work, that `grid` starts above the deepest depth a record of `n_samples`
-/// samples acquired as `acq` holds ([`recorded_depth_of`]).
+/// samples acquired as `acq` holds ([`recorded_depth_of`]), and that it is not a grid in
+/// metres read as millimetres ([`MIN_GRID_STEP_WAVELENGTHS`]).
 pub fn check_grid_depth(acq: &Acquisition, n_samples: usize, grid: &Grid) -> Result<()> {
-    check_depth(recorded_depth_of(acq, n_samples), grid)
+    check_depth(recorded_depth_of(acq, n_samples), grid)?;
+    let wavelength = acq.probe.wavelength(acq.sound_speed);
+    let span = |axis: &[f64]| axis.first().zip(axis.last()).map_or(0.0, |(f, l)| l - f);
+    let (width, depth) = (span(&grid.x), span(&grid.z));
+    let step = grid.step().min(grid.axial_step());
+    if width.max(depth) < wavelength && step < MIN_GRID_STEP_WAVELENGTHS * wavelength {
+        return Err(invalid(
+            "grid",
+            format!(
+                "it spans {:.3e} × {:.3e} mm in steps of {:.3e} mm, under a wavelength ({:.3} \
+                 mm) in steps under a hundredth of one: give it in millimetres",
+                width * 1e3,
+                depth * 1e3,
+                step * 1e3,
+                wavelength * 1e3
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// A grid deeper than the record can say nothing: refuse it rather than return zeros.
