@@ -309,13 +309,25 @@ fn check_heart_rate(hr: f64, frame_rate: f64, window: usize, step: usize) -> Res
     require_positive("heart rate", hr)?;
     let period_frames = frame_rate / hr;
     if period_frames < 2.0 * window as f64 {
+        // No heart beats 25 times a second (a mouse's, the fastest studied, about 10–14): such a
+        // rate was given in beats per minute.
+        let way_out = if hr > 25.0 {
+            format!(
+                "the heart rate is in Hz ({hr} beats per minute would be {:.2} Hz)",
+                hr / 60.0
+            )
+        } else {
+            format!(
+                "use a window of at most {} frames",
+                (period_frames / 2.0).floor()
+            )
+        };
         return Err(invalid(
             "heart rate",
             format!(
                 "{hr} Hz has a period of {period_frames:.1} frames at {frame_rate} Hz, shorter than \
                  2 windows of {window} frames: each window would blur systole into diastole; \
-                 use a window of at most {} frames",
-                (period_frames / 2.0).floor()
+                 {way_out}"
             ),
         ));
     }

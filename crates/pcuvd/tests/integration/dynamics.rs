@@ -718,13 +718,24 @@ fn bad_input_is_refused_with_clear_errors() {
         }),
         "RI thresholds",
     );
-    // 40 Hz: a 45-frame period is shorter than two 36-frame windows.
+    // 40 Hz: a 45-frame period is shorter than two 36-frame windows; no heart beats that fast,
+    // so the rate is taken as beats per minute given as Hz. 20 Hz could be a heart's: the way
+    // out is shorter windows.
     is_invalid(
         run(DynamicsParams {
             heart_rate_hz: Some(40.0),
             ..base
         }),
-        "2 windows",
+        "2 windows of 36 frames: each window would blur systole into diastole; the heart rate is \
+         in Hz (40 beats per minute would be 0.67 Hz)",
+    );
+    is_invalid(
+        run(DynamicsParams {
+            heart_rate_hz: Some(20.0),
+            window: 50,
+            ..base
+        }),
+        "use a window of at most 45 frames",
     );
     // Above the Nyquist rate of windows 100 frames apart (9 Hz).
     is_invalid(
