@@ -374,9 +374,10 @@ pub struct SegmentsDone {
 }
 
 /// Runs the chain, the time series and the dynamics stage on `data` as `plan` says, reporting
-/// to `progress`. With `--dynamics auto` and no
-/// dynamics setting given, a recording that cannot give RI maps (too short, one angle) skips the
-/// stage with a note; otherwise that is an error.
+/// to `progress`. With `--dynamics auto` and no dynamics setting given, a recording that cannot
+/// give RI maps (too short, one angle) skips the stage with a note; otherwise the stage is
+/// [`DynamicsOutcome::Failed`], the other results returned for the caller to keep before it
+/// reports the error.
 pub fn run(data: &dyn FrameSource, plan: &Plan, progress: &dyn Progress) -> Result<Processed> {
     run_into(data, plan, progress, None)
 }
