@@ -104,12 +104,13 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     }
     let attributes = &metadata.attributes;
     let attribute = |name: &str| attributes.get(name).and_then(Value::as_f64);
-    let positive = |name: &str, what: &str| match attribute(name) {
-        Some(v) if v.is_finite() && v > 0.0 => Ok(v),
+    // The ranges an images manifest's numbers are held to: outside them, another unit.
+    let within = |name: &str, what: &str, (low, high): (f64, f64)| match attribute(name) {
+        Some(v) if v.is_finite() && (low..=high).contains(&v) => Ok(v),
         Some(v) => Err(IoError::invalid(
             path,
             field(&format!("attributes.{name}")),
-            format!("is {v}; {what} must be a positive number"),
+            format!("is {v:e}; {what} must be within [{low:e}, {high:e}] (check the unit)"),
         )),
         None => Err(IoError::missing(
             path,
@@ -117,14 +118,23 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
             format!("{name} ({what}), which ConfUSIus's converters write"),
         )),
     };
-    let frame_rate = positive("compound_sampling_frequency", "the frame rate (Hz)")?;
-    let demodulation_frequency = positive(
+    let frame_rate = within(
+        "compound_sampling_frequency",
+        "the frame rate (Hz)",
+        crate::images::FRAME_RATE_RANGE,
+    )?;
+    let demodulation_frequency = within(
         "transmit_frequency",
         "the frequency the IQ was demodulated at (Hz)",
+        pcuvd::acquisition::probe::CENTER_FREQUENCY_RANGE,
     )?;
     let (sound_speed, speed_given) = match attribute("beamforming_sound_velocity") {
         Some(_) => (
-            positive("beamforming_sound_velocity", "the speed of sound (m/s)")?,
+            within(
+                "beamforming_sound_velocity",
+                "the speed of sound (m/s)",
+                pcuvd::acquisition::channel::SOUND_SPEED_RANGE,
+            )?,
             true,
         ),
         None => (1540.0, false),

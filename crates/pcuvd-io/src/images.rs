@@ -716,7 +716,7 @@ fn axes_order(path: &Path, axes: &[String]) -> Result<Vec<String>, IoError> {
 /// `n` pixel centres from `first_last` (m), evenly spaced and increasing.
 /// Compound frame rates an images manifest may give (Hz): from a slow functional series to
 /// beyond any plane-wave sequence; outside them the value is in another unit.
-const FRAME_RATE_RANGE: (f64, f64) = (1.0, 1e6);
+pub(crate) const FRAME_RATE_RANGE: (f64, f64) = (1.0, 1e6);
 
 /// The farthest a pixel centre may lie from the array (m): no ultrasound image reaches a metre,
 /// and positions of several metres are millimetres given as metres.

@@ -160,6 +160,20 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
             }),
             "compound_sampling_frequency",
         ),
+        // Numbers in another unit: the transmit frequency in MHz, the sound speed in mm/µs.
+        (
+            Box::new(|json| {
+                json["attributes"]["transmit_frequency"] = 15.625.into();
+            }),
+            "attributes.transmit_frequency is 1.5625e1; the frequency the IQ was demodulated at \
+             (Hz) must be within [2e4, 1e9] (check the unit)",
+        ),
+        (
+            Box::new(|json| {
+                json["attributes"]["beamforming_sound_velocity"] = 1.54.into();
+            }),
+            "attributes.beamforming_sound_velocity is 1.54e0",
+        ),
         (
             Box::new(|json| {
                 json["attributes"]["voxel_to_world_units"] = "furlong".into();
