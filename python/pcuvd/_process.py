@@ -206,11 +206,18 @@ class ProcessResult:
 class DynamicsError(ValueError):
     """The RI maps a dynamics setting asked for (`dynamics="on"`, a heart rate, windows) could
     not be made from the recording: found only after the work (no cardiac cycle in its vessels'
-    speed, say). `result` holds the run's other maps; `result.save(folder)` writes them."""
+    speed, say). `result` holds the run's other maps; `result.save(folder)` writes them (None
+    where the error came from another process, a Dask worker's: the maps stay where they were
+    made)."""
 
-    def __init__(self, message: str, result: ProcessResult):
+    def __init__(self, message: str, result: ProcessResult | None):
         super().__init__(message)
         self.result = result
+
+    def __reduce__(self) -> tuple:
+        # Pickled (a worker's error sent to its client) as the message alone: a result holds
+        # the native run, which does not travel.
+        return (DynamicsError, (str(self), None))
 
 
 def _checked(native: Any) -> ProcessResult:

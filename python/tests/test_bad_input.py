@@ -307,6 +307,12 @@ def test_ri_only_the_data_refuses_raises_with_the_other_maps(cli, tmp_path):
     np.testing.assert_array_equal(again.value.result.vz, without.vz)
     kept.save(tmp_path / "saved")
     assert (tmp_path / "saved" / "vz.npy").is_file()
+    # A Dask worker's error reaches its client pickled: the message, without the maps.
+    import pickle
+
+    sent = pickle.loads(pickle.dumps(raised.value))
+    assert isinstance(sent, pcuvd.DynamicsError) and str(sent) == str(raised.value)
+    assert sent.result is None
     out = tmp_path / "out"
     done = run_cli(cli, "process", manifest, "--out", out, "--dynamics", "on", "--window-ms", 40)
     assert done.returncode != 0 and kept.summary["dynamics"]["failed"] in done.stderr
