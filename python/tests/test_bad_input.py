@@ -277,22 +277,9 @@ def test_ri_only_the_data_refuses_raises_with_the_other_maps(cli, tmp_path):
     systolic upstrokes) raise a DynamicsError, a ValueError with the CLI's reason, whose result
     holds the maps of the run without the stage; the command writes those maps, then ends in
     the same error."""
-    from conftest import images_manifest
+    from conftest import steady_flow_manifest
 
-    rng = np.random.default_rng(7)
-    n_angles, frames, nz, nx = 2, 120, 24, 20
-
-    def speckle(*shape):
-        return rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
-
-    images = 30 * speckle(nz, nx) + 0.05 * speckle(n_angles, frames, nz, nx)
-    tone = np.exp(-2j * np.pi * 80.0 * np.arange(frames) / 1000.0)
-    images[:, :, 8:16, :] += speckle(nz, nx)[8:16] * tone[None, :, None, None]
-    manifest = images_manifest(
-        tmp_path, images.astype(np.complex64), ["angles", "frames", "z", "x"],
-        np.linspace(-1e-3, 1e-3, nx), np.linspace(5e-3, 7e-3, nz), frame_rate_hz=1000.0,
-        demod_frequency_hz=15.625e6, angles_deg=[-5.0, 5.0],
-    )
+    manifest = steady_flow_manifest(tmp_path)
     with pytest.raises(pcuvd.DynamicsError, match="systolic upstrokes found") as raised:
         pcuvd.process(manifest, dynamics="on", window_ms=40, quiet=True)
     assert isinstance(raised.value, ValueError)

@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 
 import pcuvd
-from conftest import assert_same_array, beamform_each_angle, images_manifest, run_cli
+from conftest import (
+    assert_same_array,
+    beamform_each_angle,
+    images_manifest,
+    run_cli,
+    steady_flow_manifest,
+)
 
 dask = pytest.importorskip("dask")
 distributed = pytest.importorskip("distributed")
@@ -251,3 +257,32 @@ def test_windows_fitted_to_memory_are_fitted_alike_on_every_worker(
         max_memory_gb=0.016,
     )
     assert "ri" in back.arrays, back.summary["dynamics"]
+
+
+def test_ri_only_the_data_refuses_raises_on_the_client(tmp_path):
+    """RI maps asked for that only the data can refuse (steady flow): a batch task's
+    DynamicsError reaches the client as itself, its message whole (the maps stayed on the
+    worker, which wrote nothing), and a cluster run of one recording's segments raises it with
+    the joined maps, those `pcuvd.process`'s error carries."""
+    import pcuvd.dask
+
+    manifest = str(steady_flow_manifest(tmp_path))
+    asked = {"dynamics": "on", "window_ms": 40}
+    with pytest.raises(pcuvd.DynamicsError) as serial:
+        pcuvd.process(manifest, quiet=True, **asked)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as client:
+        job = (manifest, str(tmp_path / "out"), asked)
+        with pytest.raises(pcuvd.DynamicsError) as sent:
+            db.from_sequence([job], npartitions=1).map(process_one).compute()
+        assert str(sent.value) == str(serial.value) and sent.value.result is None
+        with pytest.raises(pcuvd.DynamicsError, match="systolic upstrokes found") as joined:
+            pcuvd.dask.process(manifest, client, segment_frames=60, quiet=True, **asked)
+    with pytest.raises(pcuvd.DynamicsError) as one:
+        pcuvd.process(manifest, segment_frames=60, quiet=True, **asked)
+    assert str(joined.value) == str(one.value)
+    kept = one.value.result.arrays
+    assert sorted(joined.value.result.arrays) == sorted(kept) and "ri" not in kept
+    for name, value in kept.items():
+        assert_same_array(joined.value.result.arrays[name], value, name)
