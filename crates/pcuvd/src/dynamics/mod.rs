@@ -309,19 +309,12 @@ fn check_heart_rate(hr: f64, frame_rate: f64, window: usize, step: usize) -> Res
     require_positive("heart rate", hr)?;
     let period_frames = frame_rate / hr;
     if period_frames < 2.0 * window as f64 {
-        // No heart beats 25 times a second (a mouse's, the fastest studied, about 10–14): such a
-        // rate was given in beats per minute.
-        let way_out = if hr > 25.0 {
-            format!(
-                "the heart rate is in Hz ({hr} beats per minute would be {:.2} Hz)",
-                hr / 60.0
-            )
-        } else {
+        let way_out = way_out_of_a_short_period(hr, || {
             format!(
                 "use a window of at most {} frames",
                 (period_frames / 2.0).floor()
             )
-        };
+        });
         return Err(invalid(
             "heart rate",
             format!(
@@ -351,11 +344,49 @@ fn check_period_vs_window(hr: f64, window_s: f64) -> Result<()> {
             "heart rate",
             format!(
                 "{hr:.2} Hz has a period of {:.1} ms, shorter than 2 windows of {:.1} ms: each \
-                 window would blur systole into diastole; shorten the window",
+                 window would blur systole into diastole; {}",
                 1e3 / hr,
-                window_s * 1e3
+                window_s * 1e3,
+                way_out_of_a_short_period(hr, || "shorten the window".into())
             ),
         ));
     }
     Ok(())
+}
+
+/// What to do about a heart rate `hr` (Hz) whose period is shorter than two windows: what
+/// `shorter_windows` says, unless no heart beats that fast (above 25 Hz; a mouse's, the fastest
+/// studied, beats 10–14 times a second), where the rate was given in beats per minute.
+fn way_out_of_a_short_period(hr: f64, shorter_windows: impl FnOnce() -> String) -> String {
+    if hr > 25.0 {
+        format!(
+            "the heart rate is in Hz ({hr} beats per minute would be {:.2} Hz)",
+            hr / 60.0
+        )
+    } else {
+        shorter_windows()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both checks of a heart rate against the windows, in frames and in seconds, say that a
+    /// rate above any heart's was given in beats per minute, and otherwise how to shorten the
+    /// windows.
+    #[test]
+    fn a_heart_rate_above_any_hearts_is_taken_for_beats_per_minute() {
+        let said = |r: Result<()>| r.unwrap_err().to_string();
+        let bpm = "the heart rate is in Hz (330 beats per minute would be 5.50 Hz)";
+        assert!(said(check_heart_rate(330.0, 1000.0, 20, 5)).ends_with(bpm));
+        assert!(said(check_period_vs_window(330.0, 0.02)).ends_with(bpm));
+        let fast = said(check_heart_rate(20.0, 1000.0, 30, 5));
+        assert!(
+            fast.ends_with("use a window of at most 25 frames"),
+            "{fast}"
+        );
+        let fast = said(check_period_vs_window(20.0, 0.03));
+        assert!(fast.ends_with("shorten the window"), "{fast}");
+    }
 }
