@@ -105,35 +105,35 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let attributes = &metadata.attributes;
     let attribute = |name: &str| attributes.get(name).and_then(Value::as_f64);
     // The ranges an images manifest's numbers are held to: outside them, another unit.
-    let within = |name: &str, what: &str, (low, high): (f64, f64)| match attribute(name) {
-        Some(v) if v.is_finite() && (low..=high).contains(&v) => Ok(v),
-        Some(v) => Err(IoError::invalid(
-            path,
-            field(&format!("attributes.{name}")),
-            format!("is {v:e}; {what} must be within [{low:e}, {high:e}] (check the unit)"),
-        )),
+    let within = |name: &str, what: &str, range: (f64, f64), unit: &str| match attribute(name) {
+        Some(v) => {
+            IoError::require_range(path, &field(&format!("attributes.{name}")), v, range, unit)
+        }
         None => Err(IoError::missing(
             path,
             format!("{IQ_ARRAY}/zarr.json attributes"),
-            format!("{name} ({what}), which ConfUSIus's converters write"),
+            format!("{name} ({what} ({unit})), which ConfUSIus's converters write"),
         )),
     };
     let frame_rate = within(
         "compound_sampling_frequency",
-        "the frame rate (Hz)",
+        "the frame rate",
         crate::images::FRAME_RATE_RANGE,
+        "Hz",
     )?;
     let demodulation_frequency = within(
         "transmit_frequency",
-        "the frequency the IQ was demodulated at (Hz)",
+        "the frequency the IQ was demodulated at",
         pcuvd::acquisition::probe::CENTER_FREQUENCY_RANGE,
+        "Hz",
     )?;
     let (sound_speed, speed_given) = match attribute("beamforming_sound_velocity") {
         Some(_) => (
             within(
                 "beamforming_sound_velocity",
-                "the speed of sound (m/s)",
+                "the speed of sound",
                 pcuvd::acquisition::channel::SOUND_SPEED_RANGE,
+                "m/s",
             )?,
             true,
         ),

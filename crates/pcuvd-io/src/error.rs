@@ -121,6 +121,27 @@ impl IoError {
             problem: problem.into(),
         }
     }
+
+    /// `value`, the number `field` of `path` holds, when it lies within `range` (in `unit`),
+    /// as pcuvd's own parameters are checked ([`pcuvd::core::error::require_range`]); else its
+    /// refusal: outside the range the number is in another unit (mm as m, MHz as Hz) or wrong.
+    pub(crate) fn require_range(
+        path: &std::path::Path,
+        field: &str,
+        value: f64,
+        range: (f64, f64),
+        unit: &str,
+    ) -> Result<f64, IoError> {
+        pcuvd::core::error::require_range(field, value, range, unit)
+            .map(|()| value)
+            .map_err(|refused| {
+                let reason = match refused {
+                    pcuvd::Error::InvalidParameter { reason, .. } => reason,
+                    other => other.to_string(),
+                };
+                IoError::invalid(path, field, format!("{reason} (check the unit)"))
+            })
+    }
 }
 
 /// A foreign error's message on one line: its line breaks and the indentation after them become

@@ -186,16 +186,8 @@ pub fn read_header(path: &Path) -> Result<ImagesHeader, IoError> {
     let section = manifest.images;
     // The ranges a recording's numbers are held to: outside them a value is in another unit
     // (kHz, mm/µs) or a mistake, which would read as velocities off by as much.
-    let within = |field: &str, value: f64, (low, high): (f64, f64), unit: &str| {
-        if value.is_finite() && (low..=high).contains(&value) {
-            Ok(value)
-        } else {
-            Err(IoError::invalid(
-                path,
-                format!("[images].{field}"),
-                format!("is {value:e}; must be within [{low:e}, {high:e}] {unit} (check the unit)"),
-            ))
-        }
+    let within = |field: &str, value: f64, range: (f64, f64), unit: &str| {
+        IoError::require_range(path, &format!("[images].{field}"), value, range, unit)
     };
     let frame_rate = within(
         "frame_rate_hz",
@@ -713,7 +705,6 @@ fn axes_order(path: &Path, axes: &[String]) -> Result<Vec<String>, IoError> {
     Ok(axes.to_vec())
 }
 
-/// `n` pixel centres from `first_last` (m), evenly spaced and increasing.
 /// Compound frame rates an images manifest may give (Hz): from a slow functional series to
 /// beyond any plane-wave sequence; outside them the value is in another unit.
 pub(crate) const FRAME_RATE_RANGE: (f64, f64) = (1.0, 1e6);
@@ -722,6 +713,7 @@ pub(crate) const FRAME_RATE_RANGE: (f64, f64) = (1.0, 1e6);
 /// and positions of several metres are millimetres given as metres.
 const MAX_PIXEL_DISTANCE_M: f64 = 1.0;
 
+/// `n` pixel centres from `first_last` (m), evenly spaced and increasing.
 fn pixel_positions(
     path: &Path,
     field: &str,

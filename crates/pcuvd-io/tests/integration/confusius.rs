@@ -165,14 +165,15 @@ fn stores_pcuvd_cannot_place_are_refused_naming_why() {
             Box::new(|json| {
                 json["attributes"]["transmit_frequency"] = 15.625.into();
             }),
-            "attributes.transmit_frequency is 1.5625e1; the frequency the IQ was demodulated at \
-             (Hz) must be within [2e4, 1e9] (check the unit)",
+            "attributes.transmit_frequency must be finite and within [2e4, 1e9] Hz, got \
+             1.5625e1 Hz (check the unit)",
         ),
         (
             Box::new(|json| {
                 json["attributes"]["beamforming_sound_velocity"] = 1.54.into();
             }),
-            "attributes.beamforming_sound_velocity is 1.54e0",
+            "attributes.beamforming_sound_velocity must be finite and within [3e2, 1e4] m/s, got \
+             1.54e0 m/s (check the unit)",
         ),
         (
             Box::new(|json| {
