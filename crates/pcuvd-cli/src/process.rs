@@ -10,9 +10,7 @@ use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
 use pcuvd_app::run::{Plan, Processed};
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
-use pcuvd_app::summary::{
-    Provenance, Record, already_done, earlier_dynamics_failure, provenance, save,
-};
+use pcuvd_app::summary::{EarlierRun, Provenance, Record, earlier_run, provenance, save};
 
 use crate::progress::Bars;
 
@@ -425,23 +423,23 @@ fn failed_after_saving(
 /// pcuvd version: a batch re-run skips it. Where that run's RI maps could not be made, the
 /// error it ended in.
 fn already_processed(out: &std::path::Path, source: &Provenance) -> Result<bool> {
-    if let Some(reason) = earlier_dynamics_failure(out, source) {
-        bail!(
+    match earlier_run(out, source) {
+        EarlierRun::None => Ok(false),
+        EarlierRun::Done => {
+            println!(
+                "{}: already processed from the same input (checksums) with the same options and \
+                 pcuvd version (summary.json); skipped (--force redoes it)",
+                out.display()
+            );
+            Ok(true)
+        }
+        EarlierRun::DynamicsFailed(reason) => bail!(
             "{}: an earlier run of the same input (checksums), options and pcuvd version wrote its \
              other outputs here, and the RI maps asked for (--dynamics on, or a dynamics option \
              given) could not be made: {reason} (--force runs it again)",
             out.display()
-        );
+        ),
     }
-    let done = already_done(out, source);
-    if done {
-        println!(
-            "{}: already processed from the same input (checksums) with the same options and \
-             pcuvd version (summary.json); skipped (--force redoes it)",
-            out.display()
-        );
-    }
-    Ok(done)
 }
 
 /// Says what a run wrote into `out`.

@@ -185,23 +185,32 @@ pub fn provenance(
     })
 }
 
-/// True when `out` holds a complete earlier run (its summary.json) of the same input files (by
-/// size and checksum, of the same kind), options (every processing and dynamics setting, defaults
-/// included) and pcuvd version as `source` describes: a batch re-run can skip it.
-pub fn already_done(out: &Path, source: &Provenance) -> bool {
-    std::fs::read_to_string(out.join("summary.json")).is_ok_and(|text| source.same_run_as(&text))
+/// What `out` holds of an earlier run of the same input files (by size and checksum, of the
+/// same kind), options (every processing and dynamics setting, defaults included) and pcuvd
+/// version as `source` describes, by its summary.json.
+#[derive(Debug, Clone, PartialEq)]
+pub enum EarlierRun {
+    /// None: no summary.json, or another run's.
+    None,
+    /// A complete run: a batch re-run can skip it.
+    Done,
+    /// A run whose RI maps asked for could not be made, why: it wrote its other outputs and
+    /// ended in that error, which a re-run ends in again without the work.
+    DynamicsFailed(String),
 }
 
-/// Why the RI maps asked for could not be made, when `out` holds an earlier run of the same
-/// input, options and pcuvd version ([`already_done`]) that ended so: a re-run ends in the
-/// same error without the work.
-pub fn earlier_dynamics_failure(out: &Path, source: &Provenance) -> Option<String> {
-    let text = std::fs::read_to_string(out.join("summary.json")).ok()?;
+/// The earlier run `out` holds of the run `source` describes ([`EarlierRun`]).
+pub fn earlier_run(out: &Path, source: &Provenance) -> EarlierRun {
+    let Ok(text) = std::fs::read_to_string(out.join("summary.json")) else {
+        return EarlierRun::None;
+    };
     if !source.same_run_as(&text) {
-        return None;
+        return EarlierRun::None;
     }
-    let summary = serde_json::from_str::<serde_json::Value>(&text).ok()?;
-    Some(summary["dynamics"].get("failed")?.as_str()?.to_string())
+    let failed = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|summary| Some(summary["dynamics"].get("failed")?.as_str()?.to_string()));
+    failed.map_or(EarlierRun::Done, EarlierRun::DynamicsFailed)
 }
 
 /// Writes the dynamics stage's maps and figures into `dir` (nothing when it was skipped);
