@@ -84,6 +84,17 @@ fn cpu() -> (String, Vec<&'static str>, usize) {
     (model, features, rayon::current_num_threads())
 }
 
+/// The vector instructions pcuvd's kernels use in this run: the CPU's widest, or the narrower
+/// level that `PCUVD_SIMD` names (said so).
+fn kernels_in_use() -> String {
+    use pcuvd::core::simd::{Level, SIMD_VARIABLE, level};
+    if level() < Level::detected() {
+        format!("{} ({SIMD_VARIABLE})", level().name())
+    } else {
+        level().name().to_string()
+    }
+}
+
 /// Memory bandwidth (bytes/s, read + written) of copying a 256 MiB buffer: one core, and every
 /// core on its own share. The best of three.
 fn memory_bandwidth() -> (f64, f64) {
@@ -270,7 +281,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     let channels = simulation.modes[0].1.probe.n_elements;
     let report = json!({
         "scenario": source,
-        "machine": { "cpu": model, "features": features, "threads": threads },
+        "machine": { "cpu": model, "features": features, "threads": threads, "kernels": kernels_in_use() },
         "frames": simulation.frames,
         "modes": simulation.modes.iter().map(|(name, _)| *name).collect::<Vec<_>>(),
         "scatterers": { "blood": blood, "tissue": tissue },
@@ -290,8 +301,9 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         simulation.frames
     );
     println!(
-        "  machine      {model} ({}; {threads} threads)",
-        features.join(", ")
+        "  machine      {model} ({}; {threads} threads; {} kernels)",
+        features.join(", "),
+        kernels_in_use()
     );
     println!("  scatterers   {blood} blood, {tissue} tissue");
     println!("  set-up       {setup_s:.1} s (tree, flow, scatterers, tissue)");
@@ -401,7 +413,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         "input": input.display().to_string(),
         "runs": args.repeat,
         "processing": &args.options,
-        "machine": { "cpu": model, "features": features, "threads": threads },
+        "machine": { "cpu": model, "features": features, "threads": threads, "kernels": kernels_in_use() },
         "memory_bandwidth_bytes_per_s": { "one_core": copy_one, "all_cores": copy_all },
         "fresh_memory_bytes_per_s": fresh,
         "recording": {
@@ -440,8 +452,9 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         args.repeat
     );
     println!(
-        "  machine      {model} ({}; {threads} threads)",
-        features.join(", ")
+        "  machine      {model} ({}; {threads} threads; {} kernels)",
+        features.join(", "),
+        kernels_in_use()
     );
     println!(
         "  memory       copy {:.1} GB/s on one core, {:.1} GB/s on all (read + write); fresh \

@@ -39,7 +39,7 @@ enum Command {
     Info(info::InfoArgs),
     /// Time each stage on a recording and report its throughput beside its bound (memory bandwidth; the beamformer's points/s beside its arithmetic bound), naming the CPU: a speed report to run by hand in a release build.
     ///
-    /// With PCUVD_BEAMFORM_KERNEL=avx2 (or portable) in its environment, the beamformer runs that kernel where the CPU has a faster one: what a CPU without AVX-512 would spend there.
+    /// With PCUVD_SIMD=avx2 (or portable) in its environment, every pcuvd kernel uses those vector instructions where the CPU has wider ones: what a CPU without AVX-512 would spend (the libraries' matrix products and checksum choose their own). PCUVD_BEAMFORM_KERNEL=avx2 (or portable) does so for the beamformer alone.
     Bench(bench::BenchArgs),
     /// Reproduce the PC-UVD paper's studies (spiral flow, vessel network, the virtual rat brain; and vector dealiasing beyond the paper): simulate, process, compare with truth; figures, metrics.json, report.html.
     Paper(paper::PaperArgs),

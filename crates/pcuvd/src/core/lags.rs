@@ -13,11 +13,11 @@ pub fn conj_dot(a: &[Complex32], b: &[Complex32]) -> Complex64 {
     );
     #[cfg(target_arch = "x86_64")]
     {
-        if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx512dq") {
+        if crate::core::simd::avx512() {
             // SAFETY: AVX-512F and DQ were detected.
             return unsafe { conj_dot_avx512(a, b) };
         }
-        if is_x86_feature_detected!("avx2") {
+        if crate::core::simd::avx2() {
             // SAFETY: AVX2 was detected.
             return unsafe { conj_dot_avx2(a, b) };
         }

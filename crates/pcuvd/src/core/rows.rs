@@ -55,11 +55,11 @@ fn combined_rows<const M: usize>(
     assert!(dests.iter().all(|d| d.len() == len) && sources.iter().all(|s| s.len() >= len));
     #[cfg(target_arch = "x86_64")]
     {
-        if is_x86_feature_detected!("avx512f") {
+        if crate::core::simd::avx512() {
             // SAFETY: AVX-512F was detected.
             return unsafe { combined_avx512(dests, sources, weight) };
         }
-        if is_x86_feature_detected!("avx2") {
+        if crate::core::simd::avx2() {
             // SAFETY: AVX2 was detected.
             return unsafe { combined_avx2(dests, sources, weight) };
         }

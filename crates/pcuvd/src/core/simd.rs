@@ -1,4 +1,84 @@
-//! Register shuffles the vector kernels share.
+//! The vector instructions the kernels may use, and the register shuffles they share.
+//!
+//! Every kernel with vector paths asks [`level`] which to run: the widest this CPU has, detected
+//! once at run time (so that one build runs everywhere), or a narrower one that the environment
+//! variable [`SIMD_VARIABLE`] names. The cap is for speed reports: what a CPU without AVX-512
+//! (or without AVX2) spends, timed on one that has it. The libraries pcuvd calls (faer's matrix
+//! products, BLAKE3) choose their own instructions and are not capped.
+
+/// The environment variable that caps the vector instructions pcuvd's kernels use: `avx2` or
+/// `portable` (any case); another value, or one wider than this CPU has, leaves the widest.
+pub const SIMD_VARIABLE: &str = "PCUVD_SIMD";
+
+/// Vector instructions a kernel may use, narrowest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Level {
+    /// Plain Rust: whatever the compiler makes of it for the build's target.
+    Portable,
+    /// AVX2 with FMA: 256-bit vectors, 16 registers.
+    Avx2,
+    /// AVX-512 F and DQ, with AVX2 and FMA: 512-bit vectors, 32 registers, masked loads.
+    Avx512,
+}
+
+impl Level {
+    /// The level's name in a speed report and in [`SIMD_VARIABLE`]'s values.
+    pub fn name(self) -> &'static str {
+        match self {
+            Level::Portable => "portable",
+            Level::Avx2 => "AVX2",
+            Level::Avx512 => "AVX-512",
+        }
+    }
+
+    /// The widest level this CPU runs.
+    pub fn detected() -> Level {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+            if avx2 && is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx512dq") {
+                return Level::Avx512;
+            }
+            if avx2 {
+                return Level::Avx2;
+            }
+        }
+        Level::Portable
+    }
+
+    /// `detected` capped at the level `name` gives (`avx512`, `avx2`, `portable`, with or
+    /// without a hyphen, any case); no name, an unknown one or a wider level leaves `detected`.
+    pub fn capped(detected: Level, name: Option<&str>) -> Level {
+        let wanted = name.and_then(|name| {
+            let name = name.trim().replace('-', "").to_ascii_lowercase();
+            [Level::Portable, Level::Avx2, Level::Avx512]
+                .into_iter()
+                .find(|level| level.name().replace('-', "").to_ascii_lowercase() == name)
+        });
+        wanted.map_or(detected, |wanted| wanted.min(detected))
+    }
+}
+
+/// The vector instructions the kernels use in this process: [`Level::detected`], capped by
+/// [`SIMD_VARIABLE`]; read once.
+pub fn level() -> Level {
+    use std::sync::OnceLock;
+    static LEVEL: OnceLock<Level> = OnceLock::new();
+    *LEVEL.get_or_init(|| {
+        let name = std::env::var(SIMD_VARIABLE).ok();
+        Level::capped(Level::detected(), name.as_deref())
+    })
+}
+
+/// Whether the kernels may use AVX-512 (F, DQ) here, with AVX2 and FMA.
+pub fn avx512() -> bool {
+    level() >= Level::Avx512
+}
+
+/// Whether the kernels may use AVX2 and FMA here.
+pub fn avx2() -> bool {
+    level() >= Level::Avx2
+}
 
 /// The 8 × 8 transpose of eight AVX vectors of 8 floats: out[i][j] = rows[j][i]. Kernels that
 /// compute across one axis and store along the other (the simulator's powers per scatterer, the
@@ -38,6 +118,45 @@ pub fn transpose_8x8(rows: [std::arch::x86_64::__m256; 8]) -> [std::arch::x86_64
         _mm256_permute2f128_ps::<0x31>(u2, u6),
         _mm256_permute2f128_ps::<0x31>(u3, u7),
     ]
+}
+
+#[cfg(test)]
+mod level_tests {
+    use super::*;
+
+    /// A name caps the level at its own, never above what the CPU has; no name, an unknown one
+    /// or a wider one leaves the CPU's.
+    #[test]
+    fn a_named_level_caps_the_detected_one() {
+        use Level::*;
+        let cases = [
+            (Avx512, None, Avx512),
+            (Avx512, Some("avx2"), Avx2),
+            (Avx512, Some(" AVX-2 "), Avx2),
+            (Avx512, Some("Portable"), Portable),
+            (Avx512, Some("avx-512"), Avx512),
+            (Avx512, Some("sse4"), Avx512),
+            (Avx512, Some(""), Avx512),
+            (Avx2, Some("avx512"), Avx2),
+            (Avx2, Some("portable"), Portable),
+            (Portable, Some("avx2"), Portable),
+        ];
+        for (detected, name, want) in cases {
+            assert_eq!(
+                Level::capped(detected, name),
+                want,
+                "{detected:?} capped by {name:?}"
+            );
+        }
+    }
+
+    /// The process's level is one this CPU runs.
+    #[test]
+    fn the_level_in_use_is_within_the_cpus() {
+        assert!(level() <= Level::detected());
+        assert_eq!(avx512(), level() == Level::Avx512);
+        assert_eq!(avx2(), level() >= Level::Avx2);
+    }
 }
 
 #[cfg(all(test, target_arch = "x86_64"))]

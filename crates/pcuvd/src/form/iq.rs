@@ -239,7 +239,7 @@ fn mix_into_rows(
     assert!(tile.iter().all(|trace| trace.len() >= rows));
     // Rows the AVX2 path mixes, eight at a time; the loop below takes the rest.
     #[cfg(target_arch = "x86_64")]
-    let done = if tile.len() == 8 && is_x86_feature_detected!("avx2") {
+    let done = if tile.len() == 8 && crate::core::simd::avx2() {
         let done = rows / 8 * 8;
         // SAFETY: AVX2 was detected; the asserts above bound every row and trace read or written.
         unsafe { mix_eight_avx2(band, stride, f0, tile, &weights[..done]) };

@@ -361,17 +361,13 @@ impl Simulator {
         trace: &mut [f32],
     ) {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma")
-        {
+        if crate::core::simd::avx512() {
             // SAFETY: the CPU supports AVX-512F, AVX2 and FMA, checked just above.
             unsafe { self.render_channel_avx512(xe, ev, scratch, trace) };
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
+        if crate::core::simd::avx2() {
             // SAFETY: the CPU supports AVX2 and FMA, checked just above.
             unsafe { self.render_channel_avx2(xe, ev, scratch, trace) };
             return;

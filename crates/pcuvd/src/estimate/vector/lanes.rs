@@ -88,7 +88,7 @@ impl PixelLanes {
         done: &mut dyn FnMut(usize, f64, f64),
     ) {
         #[cfg(target_arch = "x86_64")]
-        if is_x86_feature_detected!("avx2") {
+        if crate::core::simd::avx2() {
             // SAFETY: AVX2 was detected.
             return unsafe { self.solve_each_avx2(estimator, count, load, done) };
         }

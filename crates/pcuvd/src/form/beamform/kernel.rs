@@ -30,7 +30,8 @@ pub(super) enum Kernel {
 }
 
 impl Kernel {
-    /// The kernels this CPU runs, fastest first; the portable loop is always last.
+    /// The kernels this process runs (those of [`crate::core::simd::level`]), fastest first;
+    /// the portable loop is always last.
     // Elsewhere than on x86_64 only the portable loop is pushed.
     #[cfg_attr(not(target_arch = "x86_64"), allow(clippy::vec_init_then_push))]
     fn supported() -> &'static [Kernel] {
@@ -40,14 +41,10 @@ impl Kernel {
             let mut kernels = Vec::new();
             #[cfg(target_arch = "x86_64")]
             {
-                let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
-                if avx2
-                    && is_x86_feature_detected!("avx512f")
-                    && is_x86_feature_detected!("avx512dq")
-                {
+                if crate::core::simd::avx512() {
                     kernels.push(Kernel::Avx512);
                 }
-                if avx2 {
+                if crate::core::simd::avx2() {
                     kernels.push(Kernel::Avx2);
                 }
             }

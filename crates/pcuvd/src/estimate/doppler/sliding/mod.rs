@@ -440,10 +440,10 @@ impl Path {
         let mut paths = Vec::new();
         #[cfg(target_arch = "x86_64")]
         {
-            if is_x86_feature_detected!("avx512f") {
+            if crate::core::simd::avx512() {
                 paths.push(Path::Avx512);
             }
-            if is_x86_feature_detected!("avx2") {
+            if crate::core::simd::avx2() {
                 paths.push(Path::Avx2);
             }
         }
