@@ -74,11 +74,58 @@ unsafe fn conj_dot_avx512(a: &[f32], b: &[f32]) -> Complex64 {
     Complex64::new(re, im)
 }
 
-/// [`conj_dot`] compiled for AVX2.
+/// [`conj_dot`] in AVX2 registers, as [`conj_dot_avx512`] sums it: 4 complex samples per step,
+/// each product in f32 and widened to f64 in four sums, the last step masked. The compiler's
+/// own vectorisation of [`conj_dot_floats`] for AVX2 took half again the Doppler stage's time
+/// on the 360 coded rat-network frames (measured on a Zen 4 EPYC with AVX-512 turned off).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn conj_dot_avx2(a: &[f32], b: &[f32]) -> Complex64 {
-    conj_dot_floats(a, b)
+    use std::arch::x86_64::*;
+    let n = a.len().min(b.len());
+    let (a, b) = (a.as_ptr(), b.as_ptr());
+    let zero = _mm256_setzero_pd();
+    let (mut same_lo, mut same_hi, mut swapped_lo, mut swapped_hi) = (zero, zero, zero, zero);
+    let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let mut at = 0;
+    while at < n {
+        let left = n - at;
+        // SAFETY: whole steps read 8 floats from `at` on, within both slices; the last step's
+        // masked loads read only the `left` floats there are.
+        let (x, y) = unsafe {
+            if left >= 8 {
+                (_mm256_loadu_ps(a.add(at)), _mm256_loadu_ps(b.add(at)))
+            } else {
+                let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left as i32), lanes);
+                (
+                    _mm256_maskload_ps(a.add(at), mask),
+                    _mm256_maskload_ps(b.add(at), mask),
+                )
+            }
+        };
+        // (re, im) pairs swapped: y_im, y_re.
+        let y_swapped = _mm256_permute_ps::<0b1011_0001>(y);
+        let same = _mm256_mul_ps(x, y);
+        let swapped = _mm256_mul_ps(x, y_swapped);
+        let low = |v: __m256| _mm256_cvtps_pd(_mm256_castps256_ps128(v));
+        let high = |v: __m256| _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v));
+        same_lo = _mm256_add_pd(same_lo, low(same));
+        same_hi = _mm256_add_pd(same_hi, high(same));
+        swapped_lo = _mm256_add_pd(swapped_lo, low(swapped));
+        swapped_hi = _mm256_add_pd(swapped_hi, high(swapped));
+        at += 8;
+    }
+    let mut same = [0.0f64; 4];
+    let mut swapped = [0.0f64; 4];
+    // SAFETY: each store writes 4 doubles into its array.
+    unsafe {
+        _mm256_storeu_pd(same.as_mut_ptr(), _mm256_add_pd(same_lo, same_hi));
+        _mm256_storeu_pd(swapped.as_mut_ptr(), _mm256_add_pd(swapped_lo, swapped_hi));
+    }
+    // Im: even floats' products added, odd ones' subtracted.
+    let re = (same[0] + same[1]) + (same[2] + same[3]);
+    let im = (swapped[0] - swapped[1]) + (swapped[2] - swapped[3]);
+    Complex64::new(re, im)
 }
 
 /// [`conj_dot`] on the series' floats, (re, im) after each other. Re(conj(a)·b) = a_re·b_re +
