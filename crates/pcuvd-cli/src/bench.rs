@@ -95,6 +95,21 @@ fn kernels_in_use() -> String {
     }
 }
 
+/// A note when `PCUVD_SIMD` (`value`) is set to a name of no level: the report would otherwise
+/// time the CPU's widest kernels (`in_use`) where a narrower level was meant, and say so only
+/// in its machine line.
+fn unknown_simd_level(value: Option<&str>, in_use: pcuvd::core::simd::Level) -> Option<String> {
+    use pcuvd::core::simd::{Level, SIMD_VARIABLE};
+    let value = value?;
+    Level::named(value).is_none().then(|| {
+        format!(
+            "note: {SIMD_VARIABLE}={value:?} names no level (avx512, avx2, portable): the kernels \
+             use {}",
+            in_use.name()
+        )
+    })
+}
+
 /// Memory bandwidth (bytes/s, read + written) of copying a 256 MiB buffer: one core, and every
 /// core on its own share. The best of three.
 fn memory_bandwidth() -> (f64, f64) {
@@ -331,6 +346,10 @@ pub fn run(args: &BenchArgs) -> Result<()> {
             "note: this pcuvd is a debug build; time a release build (cargo build --release)"
         );
     }
+    let simd = std::env::var(pcuvd::core::simd::SIMD_VARIABLE).ok();
+    if let Some(note) = unknown_simd_level(simd.as_deref(), pcuvd::core::simd::level()) {
+        eprintln!("{note}");
+    }
     let input = match (&args.input, &args.scenario) {
         (_, Some(source)) => return run_simulation(args, source),
         (Some(input), None) => input,
@@ -522,7 +541,28 @@ pub fn run(args: &BenchArgs) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::fma_rate;
+    use super::{fma_rate, unknown_simd_level};
+
+    /// A name of no level is noted, naming the kernels used instead; a level's name, in any of
+    /// its spellings, or no variable at all, is not.
+    #[test]
+    fn an_unknown_simd_level_is_noted() {
+        use pcuvd::core::simd::Level;
+        let note = unknown_simd_level(Some("sse4"), Level::Avx512).expect("a note");
+        assert!(
+            note.contains("\"sse4\" names no level") && note.ends_with("use AVX-512"),
+            "{note}"
+        );
+        assert!(unknown_simd_level(Some(""), Level::Avx2).is_some());
+        for known in ["avx2", "AVX-512", " portable "] {
+            assert_eq!(
+                unknown_simd_level(Some(known), Level::Avx2),
+                None,
+                "{known}"
+            );
+        }
+        assert_eq!(unknown_simd_level(None, Level::Avx512), None);
+    }
 
     #[test]
     fn the_fma_rate_is_measured_for_the_widths_this_cpu_has() {

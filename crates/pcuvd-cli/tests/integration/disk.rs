@@ -735,3 +735,35 @@ fn bench_counts_the_beamformers_points_on_the_process_grid() {
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("--scenario times a simulation"));
 }
+
+/// With `PCUVD_SIMD=portable` every kernel of `pcuvd bench`'s runs is the portable one, and the
+/// report says so (beside the CPU, which keeps its features): what a CPU without AVX2 spends.
+#[test]
+fn bench_names_the_vector_level_that_pcuvd_simd_caps() {
+    use pcuvd::core::simd::{Level, SIMD_VARIABLE};
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let done = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+        .env(SIMD_VARIABLE, "portable")
+        .args(["bench", "--repeat", "1", "--json"])
+        .arg(&json)
+        .arg(disk_file())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&done.stdout);
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let expected = if Level::detected() > Level::Portable {
+        "portable (PCUVD_SIMD)"
+    } else {
+        "portable"
+    };
+    assert_eq!(report["machine"]["kernels"], expected);
+    assert_eq!(report["throughput"]["beamform_kernel"], "portable");
+    assert!(stdout.contains(&format!("{expected} kernels")), "{stdout}");
+}

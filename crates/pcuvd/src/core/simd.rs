@@ -46,16 +46,20 @@ impl Level {
         Level::Portable
     }
 
-    /// `detected` capped at the level `name` gives (`avx512`, `avx2`, `portable`, with or
-    /// without a hyphen, any case); no name, an unknown one or a wider level leaves `detected`.
+    /// The level `name` gives (`avx512`, `avx2`, `portable`, with or without a hyphen, any
+    /// case), if any.
+    pub fn named(name: &str) -> Option<Level> {
+        let name = name.trim().replace('-', "").to_ascii_lowercase();
+        [Level::Portable, Level::Avx2, Level::Avx512]
+            .into_iter()
+            .find(|level| level.name().replace('-', "").to_ascii_lowercase() == name)
+    }
+
+    /// `detected` capped at the level `name` gives ([`Level::named`]); no name, an unknown one
+    /// or a wider level leaves `detected`.
     pub fn capped(detected: Level, name: Option<&str>) -> Level {
-        let wanted = name.and_then(|name| {
-            let name = name.trim().replace('-', "").to_ascii_lowercase();
-            [Level::Portable, Level::Avx2, Level::Avx512]
-                .into_iter()
-                .find(|level| level.name().replace('-', "").to_ascii_lowercase() == name)
-        });
-        wanted.map_or(detected, |wanted| wanted.min(detected))
+        name.and_then(Level::named)
+            .map_or(detected, |wanted| wanted.min(detected))
     }
 }
 
