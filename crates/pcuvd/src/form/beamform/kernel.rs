@@ -9,6 +9,7 @@ use super::avx2;
 use super::avx512;
 use super::portable;
 use super::taps::{PF, Setup, Span, Taps};
+use crate::core::simd::Level;
 
 /// The environment variable that picks a slower beamformer kernel than this CPU's fastest
 /// ([`Kernel::detect`]); `pcuvd bench` names the kernel that ran.
@@ -65,17 +66,35 @@ impl Kernel {
         })
     }
 
-    /// The kernel of `name` among `supported`, else the first of them: a name this CPU cannot
-    /// run, or no name, leaves the fastest. The name is the speed report's (`describe`) without
-    /// its hyphen, in any case: `avx512`, `avx2`, `portable`.
+    /// The kernel of `name` among `supported` (fastest first, every slower level's kernel after
+    /// the first), else the first of them: a name this CPU cannot run, or no name, leaves the
+    /// fastest. The names are [`Level::named`]'s, as `PCUVD_SIMD` takes them: `avx512`, `avx2`,
+    /// `portable`.
     fn named(name: Option<&str>, supported: &[Kernel]) -> Kernel {
-        let wanted = name.and_then(|name| {
-            supported.iter().copied().find(|kernel| {
-                let label = kernel.describe().name.replace('-', "");
-                name.trim().eq_ignore_ascii_case(&label)
-            })
-        });
-        wanted.unwrap_or(supported[0])
+        Kernel::at(Level::capped(supported[0].level(), name))
+    }
+
+    /// The vector instructions the kernel uses.
+    fn level(self) -> Level {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512 => Level::Avx512,
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => Level::Avx2,
+            Kernel::Portable => Level::Portable,
+        }
+    }
+
+    /// The kernel that uses `level`'s vector instructions.
+    fn at(level: Level) -> Kernel {
+        match level {
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx512 => Kernel::Avx512,
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx2 => Kernel::Avx2,
+            // Elsewhere than on x86_64 no wider level is detected.
+            _ => Kernel::Portable,
+        }
     }
 
     /// What the kernel is, for a speed report (see [`super::AccumulationKernel`]).
