@@ -10,7 +10,9 @@ use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
 use pcuvd_app::run::{Plan, Processed};
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
-use pcuvd_app::summary::{EarlierRun, Provenance, Record, earlier_run, provenance, save};
+use pcuvd_app::summary::{
+    EarlierRun, Provenance, Record, checksum_for, earlier_run, provenance, save,
+};
 
 use crate::progress::Bars;
 
@@ -36,9 +38,10 @@ pub struct ProcessArgs {
     #[arg(long)]
     pub max_memory_gb: Option<f64>,
     /// The checksum that identifies each input file in summary.json (and lets a re-run skip a
-    /// folder processed from the same input): blake3 (b3sum), or sha256 to check with sha256sum.
-    #[arg(long, value_enum, default_value_t = outputs::Checksum::Blake3)]
-    pub checksum: outputs::Checksum,
+    /// folder processed from the same input): xxh128 (xxh128sum), blake3 (b3sum), or sha256
+    /// (sha256sum). Default: the kind an earlier run in --out recorded, else xxh128.
+    #[arg(long, value_enum)]
+    pub checksum: Option<outputs::Checksum>,
     /// Also write the maps and the time series as NIfTI images (.nii.gz) with fUSI-BIDS (BEP040)
     /// JSON sidecars, named by map (power_doppler.nii.gz…), as nibabel and BIDS tools read them.
     #[arg(long)]
@@ -103,6 +106,15 @@ pub struct AcquisitionOverrides {
 }
 
 impl ProcessArgs {
+    /// The checksum to identify the input by: `--checksum`, else, unless forced, the kind an
+    /// earlier run in the folder recorded (a re-run then recognises it), else the default.
+    fn checksum_kind(&self) -> outputs::Checksum {
+        match self.force {
+            true => self.checksum.unwrap_or_default(),
+            false => checksum_for(&self.out, self.checksum),
+        }
+    }
+
     /// The NIfTI images asked for (`--nifti`, the BIDS labels), checked before any work.
     fn nifti_naming(&self) -> Result<Option<pcuvd_app::nifti::NiftiNaming>> {
         pcuvd_app::nifti::NiftiNaming::requested(
@@ -177,9 +189,10 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     }
     let band_warning = rf_band_pass_warning(data)?;
     check_memory(data, &mut plan, args.max_memory_gb)?;
+    let checksum = args.checksum_kind();
     let provenance_of_run = {
         let (input, info) = (args.input.display().to_string(), opened.info.clone());
-        let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
+        let (options_text, checksum) = (plan.options_text.clone(), checksum);
         move |hashed: Vec<(std::path::PathBuf, pcuvd_io::Checksummed)>| {
             let clock = std::time::Instant::now();
             let command_line = std::env::args().collect();
@@ -195,18 +208,18 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             source.map(|source| (source, hashing_s + clock.elapsed().as_secs_f64()))
         }
     };
-    // The checksums read the whole input (BLAKE3 with SIMD: about a second of a core for 2.8 GB
-    // through the page cache, half of it the copy; SHA-256 without SHA instructions: 10 s). They
-    // are needed before any work only to skip a folder processed before. Otherwise a reader that
-    // reads its samples file block by block hashes it with BLAKE3 as it reads it (each run of a
-    // block while it is in cache), so that the file is not read twice. Other inputs, and SHA-256
-    // (without SHA instructions several times BLAKE3's time, which the reader's pass would hold
-    // the other core idle for), are hashed beside the processing, on a thread of their own that
-    // takes only the time the processing leaves idle.
+    // The checksums read the whole input (XXH3: about 0.2 s of a core for 2.8 GB, BLAKE3 with
+    // SIMD 0.8 s, SHA-256 without SHA instructions 10 s). They are needed before any work only
+    // to skip a folder processed before. Otherwise a reader that reads its samples file block by
+    // block hashes it as it reads it (each run of a block while it is in cache), so that the
+    // file is not read twice. Other inputs, and SHA-256 (without SHA instructions many times
+    // the others' time, which the reader's pass would hold the other core idle for), are hashed
+    // beside the processing, on a thread of their own that takes only the time the processing
+    // leaves idle.
     let in_pass = opened
         .read_pass
         .clone()
-        .filter(|_| args.checksum == outputs::Checksum::Blake3);
+        .filter(|_| checksum != outputs::Checksum::Sha256);
     let checksums = if !args.force && args.out.join("summary.json").is_file() {
         let (source, seconds) = provenance_of_run(vec![])?;
         if already_processed(&args.out, &source)? {
@@ -214,7 +227,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         }
         Checksums::Done(Box::new(source), seconds)
     } else if let Some(pass) = in_pass {
-        pass.attach(Box::new(outputs::Digest::on_every_core(args.checksum)));
+        pass.attach(Box::new(outputs::Digest::on_every_core(checksum)));
         Checksums::InPass(pass, Box::new(provenance_of_run))
     } else {
         Checksums::Running(std::thread::spawn(move || {
@@ -315,7 +328,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
     let read_s = clock.elapsed().as_secs_f64();
     let plan = opened.plan;
     let (input, info) = (args.input.display().to_string(), opened.info.clone());
-    let (options_text, checksum) = (plan.options_text.clone(), args.checksum);
+    let (options_text, checksum) = (plan.options_text.clone(), args.checksum_kind());
     let provenance_of_run = move || {
         let clock = std::time::Instant::now();
         let command_line = std::env::args().collect();

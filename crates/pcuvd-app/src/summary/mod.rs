@@ -199,6 +199,18 @@ pub enum EarlierRun {
     DynamicsFailed(String),
 }
 
+/// The kind of checksum `checksum` asks for, or where none is asked for, the kind by which an
+/// earlier run in `out` records its input (so that a re-run of a folder made before the default
+/// changed still knows it), else the default.
+pub fn checksum_for(out: &Path, checksum: Option<outputs::Checksum>) -> outputs::Checksum {
+    checksum
+        .or_else(|| {
+            let text = std::fs::read_to_string(out.join("summary.json")).ok()?;
+            Provenance::checksum_of(&text)
+        })
+        .unwrap_or_default()
+}
+
 /// The earlier run `out` holds of the run `source` describes ([`EarlierRun`]).
 pub fn earlier_run(out: &Path, source: &Provenance) -> EarlierRun {
     let Ok(text) = std::fs::read_to_string(out.join("summary.json")) else {

@@ -101,6 +101,9 @@ pub struct FileRecord {
     pub path: String,
     /// Its size (bytes).
     pub size_bytes: u64,
+    /// Its XXH3-128 checksum (hex, as `xxh128sum` prints it), when that was the kind asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub xxh128: Option<String>,
     /// Its BLAKE3 checksum (hex), when that was the kind asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub blake3: Option<String>,
@@ -112,21 +115,34 @@ pub struct FileRecord {
 impl FileRecord {
     /// The record of a file of `size_bytes` whose `checksum` is `hex`.
     pub fn new(path: String, size_bytes: u64, checksum: Checksum, hex: String) -> Self {
-        let (blake3, sha256) = match checksum {
-            Checksum::Blake3 => (Some(hex), None),
-            Checksum::Sha256 => (None, Some(hex)),
-        };
+        let (mut xxh128, mut blake3, mut sha256) = (None, None, None);
+        *match checksum {
+            Checksum::Xxh128 => &mut xxh128,
+            Checksum::Blake3 => &mut blake3,
+            Checksum::Sha256 => &mut sha256,
+        } = Some(hex);
         FileRecord {
             path,
             size_bytes,
+            xxh128,
             blake3,
             sha256,
         }
     }
 
-    /// Whether it records a checksum (summaries of old versions may not).
-    fn has_checksum(&self) -> bool {
-        self.blake3.is_some() || self.sha256.is_some()
+    /// The kind of checksum it records (summaries of old versions may record none).
+    fn checksum(&self) -> Option<Checksum> {
+        match (&self.xxh128, &self.blake3, &self.sha256) {
+            (Some(_), None, None) => Some(Checksum::Xxh128),
+            (None, Some(_), None) => Some(Checksum::Blake3),
+            (None, None, Some(_)) => Some(Checksum::Sha256),
+            _ => None,
+        }
+    }
+
+    /// The checksums it records, for comparing one file's content with another's.
+    fn content(&self) -> (u64, &Option<String>, &Option<String>, &Option<String>) {
+        (self.size_bytes, &self.xxh128, &self.blake3, &self.sha256)
     }
 }
 
@@ -161,27 +177,39 @@ pub struct Provenance {
     pub simulation: Option<toml::Table>,
 }
 
+/// What a re-run compares of an earlier run's summary.json.
+#[derive(Deserialize)]
+struct Earlier {
+    source: EarlierSource,
+}
+
+/// The `source` section of an earlier run's summary.json, as far as a re-run compares it.
+#[derive(Deserialize)]
+struct EarlierSource {
+    files: Vec<FileRecord>,
+    options: String,
+    pcuvd_version: String,
+}
+
 impl Provenance {
+    /// The kind of checksum by which `earlier` (an earlier run's summary.json) records its input
+    /// files, where it records them all by one: a re-run hashes its input with it, whatever
+    /// today's default, to know whether that run was of the same files.
+    pub fn checksum_of(earlier: &str) -> Option<Checksum> {
+        let Earlier { source } = serde_json::from_str::<Earlier>(earlier).ok()?;
+        let mut kinds = source.files.iter().map(FileRecord::checksum);
+        let first = kinds.next()??;
+        kinds.all(|kind| kind == Some(first)).then_some(first)
+    }
+
     /// True when `earlier` (an earlier run's summary.json) records the same input files (by size
     /// and checksum, of the same kind), options and pcuvd version.
     pub fn same_run_as(&self, earlier: &str) -> bool {
-        #[derive(Deserialize)]
-        struct Earlier {
-            source: EarlierSource,
-        }
-        #[derive(Deserialize)]
-        struct EarlierSource {
-            files: Vec<FileRecord>,
-            options: String,
-            pcuvd_version: String,
-        }
         let Ok(Earlier { source: earlier }) = serde_json::from_str::<Earlier>(earlier) else {
             return false;
         };
-        let same_content = |a: &FileRecord, b: &FileRecord| {
-            a.has_checksum()
-                && (a.size_bytes, &a.blake3, &a.sha256) == (b.size_bytes, &b.blake3, &b.sha256)
-        };
+        let same_content =
+            |a: &FileRecord, b: &FileRecord| a.checksum().is_some() && a.content() == b.content();
         earlier.files.len() == self.files.len()
             && earlier
                 .files
@@ -564,6 +592,7 @@ mod tests {
             provenance(vec![file(11, Checksum::Blake3, "ab")]),
             // The same hex under another kind of checksum is not the same content.
             provenance(vec![file(10, Checksum::Sha256, "ab")]),
+            provenance(vec![file(10, Checksum::Xxh128, "ab")]),
             provenance(vec![
                 file(10, Checksum::Blake3, "ab"),
                 file(1, Checksum::Blake3, "cd"),
@@ -585,6 +614,27 @@ mod tests {
             "options": "{\"processing\":{}}", "pcuvd_version": "0.1.0"}}"#;
         assert!(!run.same_run_as(unchecked));
         assert!(!run.same_run_as("not json"));
+    }
+
+    #[test]
+    fn an_earlier_run_names_the_one_kind_of_checksum_it_recorded() {
+        for kind in [Checksum::Xxh128, Checksum::Blake3, Checksum::Sha256] {
+            let run = provenance(vec![file(10, kind, "ab"), file(3, kind, "cd")]);
+            assert_eq!(Provenance::checksum_of(&summary_of(&run)), Some(kind));
+        }
+        let mixed = provenance(vec![
+            file(10, Checksum::Blake3, "ab"),
+            file(3, Checksum::Xxh128, "cd"),
+        ]);
+        assert_eq!(Provenance::checksum_of(&summary_of(&mixed)), None);
+        let unchecked = r#"{"source": {"files": [{"path": "in.mat", "size_bytes": 10}],
+            "options": "{\"processing\":{}}", "pcuvd_version": "0.1.0"}}"#;
+        assert_eq!(Provenance::checksum_of(unchecked), None);
+        assert_eq!(Provenance::checksum_of("not json"), None);
+        assert_eq!(
+            Provenance::checksum_of(&summary_of(&provenance(vec![]))),
+            None
+        );
     }
 
     #[test]

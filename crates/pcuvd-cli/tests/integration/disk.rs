@@ -50,9 +50,11 @@ fn rotating_disk_colour_doppler_is_linear_in_x() {
         source["files"][0]["size_bytes"].as_u64(),
         Some(std::fs::metadata(&input).unwrap().len())
     );
+    // XXH3-128 by default, as xxh128sum prints it.
+    let bytes = std::fs::read(&input).unwrap();
     assert_eq!(
-        source["files"][0]["blake3"].as_str().map(str::len),
-        Some(64)
+        source["files"][0]["xxh128"].as_str(),
+        Some(format!("{:032x}", twox_hash::xxhash3_128::Hasher::oneshot(&bytes)).as_str())
     );
     // SHA-256 for those who check with sha256sum: the same digest as coreutils'.
     let sha_out = tempfile::tempdir().unwrap();
@@ -571,6 +573,54 @@ fn used_output_folders_are_refused_unless_forced_and_inputs_are_never_overwritte
         .filter(|e| e.file_name().to_string_lossy().ends_with(".part"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+/// A folder whose summary.json identifies its input by another kind of checksum than today's
+/// default (BLAKE3, the default of earlier versions) is still recognised by a re-run: the input
+/// is hashed as that run hashed it. Forced, the new run takes the default.
+#[test]
+fn a_rerun_recognises_a_folder_identified_by_another_checksum() {
+    let input = disk_file();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let run = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["--quiet", "process", "--dynamics", "off"])
+            .arg(&input)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let files = || {
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        summary["source"]["files"][0].clone()
+    };
+    assert!(run(&["--checksum", "blake3"]).status.success());
+    let bytes = std::fs::read(&input).unwrap();
+    assert_eq!(
+        files()["blake3"].as_str(),
+        Some(blake3::hash(&bytes).to_hex().as_str())
+    );
+    let summary = std::fs::read(out.join("summary.json")).unwrap();
+    let again = run(&[]);
+    assert!(again.status.success());
+    assert!(String::from_utf8_lossy(&again.stdout).contains("skipped"));
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), summary);
+    // Asked for by name, another kind is another identity: the folder is not this run's.
+    let other = run(&["--checksum", "sha256"]);
+    assert!(!other.status.success());
+    assert!(String::from_utf8_lossy(&other.stderr).contains("--force"));
+    assert!(run(&["--force"]).status.success());
+    let file = files();
+    assert!(file["blake3"].is_null(), "{file}");
+    assert_eq!(
+        file["xxh128"].as_str(),
+        Some(format!("{:032x}", twox_hash::xxhash3_128::Hasher::oneshot(&bytes)).as_str())
+    );
 }
 
 /// Output read by a reader that closes early (`pcuvd info … | head`): the command ends quietly,

@@ -801,9 +801,9 @@ fn a_closed_pipe_leaves_no_partial_files() {
 }
 
 /// A recording read a block of frames at a time is identified in the reader's own pass over its
-/// samples file (BLAKE3; SHA-256 on a thread beside): whatever the blocks (overlapping ensembles,
-/// frames no ensemble reads), the checksums in `summary.json` are those of the whole file, as
-/// b3sum's and sha256sum's.
+/// samples file (XXH3-128, BLAKE3; SHA-256 on a thread beside): whatever the blocks (overlapping
+/// ensembles, frames no ensemble reads), the checksums in `summary.json` are those of the whole
+/// file, as xxh128sum's, b3sum's and sha256sum's.
 #[test]
 fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
     let dir = tempfile::tempdir().unwrap();
@@ -825,6 +825,7 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
     assert!(ok, "{stderr}");
     let samples = std::fs::read(sim.join("coded.npy")).unwrap();
     let blake3 = blake3::hash(&samples).to_hex().to_string();
+    let xxh128 = format!("{:032x}", twox_hash::xxhash3_128::Hasher::oneshot(&samples));
     let sha256 = super::sha256_of_file(&sim.join("coded.npy"));
     let blocks: [&[&str]; 3] = [
         &[],
@@ -834,7 +835,11 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
         &["--ensemble-frames", "5", "--ensemble-step", "4"],
     ];
     for (run, options) in blocks.iter().enumerate() {
-        for (checksum, expected) in [("blake3", &blake3), ("sha256", &sha256)] {
+        for (checksum, expected) in [
+            ("xxh128", &xxh128),
+            ("blake3", &blake3),
+            ("sha256", &sha256),
+        ] {
             let out = dir.path().join(format!("out-{run}-{checksum}"));
             let manifest = sim.join("coded.toml");
             let fixed = [
