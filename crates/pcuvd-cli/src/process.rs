@@ -192,7 +192,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
     let checksum = args.checksum_kind();
     let provenance_of_run = {
         let (input, info) = (args.input.display().to_string(), opened.info.clone());
-        let (options_text, checksum) = (plan.options_text.clone(), checksum);
+        let options_text = plan.options_text.clone();
         move |hashed: Vec<(std::path::PathBuf, pcuvd_io::Checksummed)>| {
             let clock = std::time::Instant::now();
             let command_line = std::env::args().collect();

@@ -50,6 +50,12 @@ fn longest_imaged(segments: &serde_json::Value) -> u64 {
         .unwrap()
 }
 
+/// The XXH3-128 of `bytes` in hex as `xxh128sum` prints it (the 128 bits big-endian), the digest
+/// `summary.json` records by default.
+fn xxh128_of(bytes: &[u8]) -> String {
+    format!("{:032x}", twox_hash::xxhash3_128::Hasher::oneshot(bytes))
+}
+
 /// The SHA-256 of the file at `path` in hex, as those who check with a tool of their own get
 /// it: coreutils' `sha256sum` on Unix, elsewhere the file hashed whole here.
 fn sha256_of_file(path: &std::path::Path) -> String {

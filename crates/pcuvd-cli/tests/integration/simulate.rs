@@ -825,7 +825,7 @@ fn a_recording_read_in_blocks_is_identified_by_the_whole_files_checksum() {
     assert!(ok, "{stderr}");
     let samples = std::fs::read(sim.join("coded.npy")).unwrap();
     let blake3 = blake3::hash(&samples).to_hex().to_string();
-    let xxh128 = format!("{:032x}", twox_hash::xxhash3_128::Hasher::oneshot(&samples));
+    let xxh128 = super::xxh128_of(&samples);
     let sha256 = super::sha256_of_file(&sim.join("coded.npy"));
     let blocks: [&[&str]; 3] = [
         &[],
