@@ -395,9 +395,7 @@ impl Setup {
 /// quarter turns (¾ and on, outside the aperture, where the weight is not used) or the sine need.
 #[inline(always)]
 fn hann_weight(cycles: f64) -> f32 {
-    let quarter = (4.0 * cycles + 0.5).floor();
-    let t = ((cycles - 0.25 * quarter) * std::f64::consts::TAU) as f32;
-    let (s, c) = quarter_turn_polynomials(t);
+    let (quarter, s, c) = octant(cycles);
     // Quarter turns 0, 1, 2: cos = c, −s, −c.
     let cos = if quarter == 1.0 {
         -s
@@ -409,25 +407,26 @@ fn hann_weight(cycles: f64) -> f32 {
     0.5 * (1.0 + cos)
 }
 
-/// (sin t, cos t) on the octant |t| ≤ π/4, f32 Taylor polynomials (error < 1e-7).
+/// The quarter turns nearest 2π·`cycles` (a whole number) and the sine and cosine of what remains,
+/// t ∈ [−π/4, π/4]: the turn count is removed in f64, where it is exact to far below f32
+/// resolution; t gets f32 Taylor polynomials (error < 1e-7).
 #[inline(always)]
-fn quarter_turn_polynomials(t: f32) -> (f32, f32) {
+fn octant(cycles: f64) -> (f64, f32, f32) {
+    let quarter = (4.0 * cycles + 0.5).floor();
+    let t = ((cycles - 0.25 * quarter) * std::f64::consts::TAU) as f32;
     let t2 = t * t;
     let s = t
         * (1.0
             + t2 * (-1.0 / 6.0
                 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (1.0 / 362880.0)))));
     let c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0))));
-    (s, c)
+    (quarter, s, c)
 }
 
-/// (cos, sin) of 2π·`cycles`. The turn count is removed in f64, where it is exact to far below
-/// f32 resolution; the remaining octant [−π/4, π/4] gets f32 Taylor polynomials (error < 1e-7).
+/// (cos, sin) of 2π·`cycles`, from its [`octant`] turned back by the quarter turns removed.
 #[inline(always)]
 fn cis_cycles(cycles: f64) -> (f32, f32) {
-    let quarter = (4.0 * cycles + 0.5).floor();
-    let t = ((cycles - 0.25 * quarter) * std::f64::consts::TAU) as f32;
-    let (s, c) = quarter_turn_polynomials(t);
+    let (quarter, s, c) = octant(cycles);
     let q = quarter - 4.0 * (0.25 * quarter).floor();
     // Quarter turns q = 0, 1, 2, 3 map (c, s) to (c, s), (−s, c), (−c, −s), (s, −c).
     let odd = q == 1.0 || q == 3.0;
