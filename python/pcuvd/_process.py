@@ -287,7 +287,7 @@ def process(
     made in memory (it carries its scenario), is scored against its truth:
     `result.summary["against_truth"]`, and `save` draws `against_truth.png`.
     Progress goes to stderr (`quiet=True` for none). Raises ValueError with the CLI's message
-    for a bad option or recording, before any work where the CLI would; where only the data
+    (its options named as keywords: `f_number=-1.0: ...`) for a bad option or recording, before any work where the CLI would; where only the data
     could tell that the RI maps a dynamics setting asked for cannot be made, a DynamicsError
     (a ValueError) whose `result` holds the run's other maps.
     """

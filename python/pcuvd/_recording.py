@@ -259,7 +259,7 @@ def read_recording(path: str | os.PathLike, **overrides: Any) -> Recording:
     (a zea file's track by index or label, a URX file's recorded group by index or description);
     `parameters` then names them as given by the user (a MUST file without param.t0 reads with
     t0_s=...). Raises OSError when the file cannot be opened, ValueError when its content or an
-    override is unusable (the message the CLI prints), TypeError when `path` is not a path.
+    override is unusable (the message the CLI prints, its options named as keywords), TypeError when `path` is not a path.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(

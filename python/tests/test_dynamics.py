@@ -102,7 +102,7 @@ def test_ri_settings_change_on_the_windows_of_a_run_in_segments(steady_tube):
     with pytest.raises(ValueError, match=r"give the run's window_ms \(5 ms\), window_step_ms"):
         pcuvd.dynamics(first, heart_rate_hz=40, window_ms=4, window_step_ms=1)
     without = pcuvd.process(path, quiet=True, dynamics="off", **segmented)
-    with pytest.raises(ValueError, match=r"made none \(--dynamics off\)"):
+    with pytest.raises(ValueError, match=r"made none \(dynamics=\"off\"\)"):
         pcuvd.dynamics(without, **BEAT)
 
 

@@ -103,7 +103,7 @@ def test_the_rat_brain_takes_its_vessels_from_three_tables(tmp_path):
 
 def test_bad_vessel_tables_name_the_file_and_what_is_wrong(tmp_path):
     _write_tables(tmp_path, "vertex,type,value,pulse\n0,pressure,1600,300\n7,pressure,1333,0\n")
-    with pytest.raises(ValueError, match="vessel-tables"):
+    with pytest.raises(ValueError, match=r"\[vessels\].tables, vessel_tables\)"):
         pcuvd.simulate("rat-brain", "conventional", frames=1, angles=1, vessel_tables=str(tmp_path))
     # A missing file is an OSError, as Python's own open() raises it.
     with pytest.raises(OSError, match="vertices.csv"):

@@ -13,7 +13,8 @@
 //! - [`scenario`]: simulation scenarios (TOML files) and the shipped ones;
 //! - [`simulation`]: simulated recordings with ground truth;
 //! - [`study`]: the paper's studies' settings;
-//! - [`progress`]: the one [`progress::Progress`] trait.
+//! - [`progress`]: the one [`progress::Progress`] trait;
+//! - [`keywords`]: the command's flags in messages, as a keyword front end names them.
 //!
 //! No command-line parsing, no terminal bars, no signal handling here.
 
@@ -23,6 +24,7 @@ pub mod against_truth;
 pub mod brain;
 pub mod figures;
 pub mod input;
+pub mod keywords;
 pub mod map_kinds;
 pub mod memory;
 pub mod nifti;

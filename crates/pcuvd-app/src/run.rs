@@ -189,10 +189,9 @@ impl DynamicsFit {
     /// What the run says of it before it starts.
     pub fn note(&self) -> String {
         match self {
-            DynamicsFit::Dropped(reason) => format!(
-                "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, silences \
-                 this)"
-            ),
+            DynamicsFit::Dropped(reason) => {
+                format!("no RI maps: {reason} (--dynamics off silences this)")
+            }
             DynamicsFit::Stepped { reason, .. } => reason.clone(),
         }
     }
@@ -828,8 +827,7 @@ fn dynamics_outcome(
             Err(e) if !plan.dynamics_required || matches!(e, pcuvd::Error::NoFlow(_)) => {
                 let reason = format!("{e:#}");
                 progress.note(&format!(
-                    "no RI maps: {reason} (--dynamics off, or dynamics=\"off\" in Python, \
-                     silences this)"
+                    "no RI maps: {reason} (--dynamics off silences this)"
                 ));
                 DynamicsOutcome::Skipped(reason)
             }

@@ -8,6 +8,7 @@
 
 #![warn(missing_docs)]
 
+mod keywords;
 mod process;
 mod recording;
 mod segments;
@@ -18,6 +19,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
+use keywords::PyLines as Lines;
 use ndarray::{Array2, Axis};
 use num_complex::Complex32;
 use numpy::{
@@ -32,7 +34,6 @@ use pcuvd::form::decode::{self, EventAlignment};
 use pcuvd::form::iq;
 use pcuvd::{AngleSamples, ChannelData, Coding, Probe, Samples, Sequence};
 use pcuvd_app::Progress;
-use pcuvd_app::progress::Lines;
 use pcuvd_app::run::{DynamicsOutcome, Plan, Processed};
 use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
 use pcuvd_app::simulation::SimulationSettings;
@@ -47,7 +48,7 @@ use serde_json::{Value, json};
 /// A `ValueError` (or `OSError` when the operating system refused a file) with the message the
 /// command line prints for the same error.
 fn to_py(error: anyhow::Error) -> PyErr {
-    let message = pcuvd_app::one_line(&error);
+    let message = keywords::as_python(&pcuvd_app::one_line(&error));
     // What the file system refused (a missing file, a folder, a pipe, a read error) is an
     // OSError, a missing file a FileNotFoundError, as Python's own open() raises them.
     let missing = error.chain().any(|cause| {

@@ -235,7 +235,7 @@ fn warn_of_dealiasing(
     if let Some(warning) =
         pcuvd::pipeline::dealias_warning(plan.params.dealias, coded, &processed.out)
     {
-        let message = std::ffi::CString::new(format!("{input}: {warning}"))
+        let message = std::ffi::CString::new(format!("{input}: {}", keywords::as_python(&warning)))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         PyErr::warn(
             py,
@@ -481,9 +481,10 @@ impl PyProcessResult {
         self.processed.dynamics_failure().map(|reason| {
             format!(
                 "{}: the RI maps asked for (dynamics=\"on\", or a dynamics option given) could \
-                 not be made: {reason}; the run's other maps are in this error's result \
+                 not be made: {}; the run's other maps are in this error's result \
                  (result.save(folder) writes them)",
-                self.input
+                self.input,
+                keywords::as_python(&reason),
             )
         })
     }

@@ -123,7 +123,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 path,
                 &fc_field,
                 "is absent (and the data is RF): give the probe's centre frequency with \
-                 --center-freq-hz (Python: center_freq_hz=)",
+                 --center-freq-hz",
             )
         },
     )?;

@@ -572,7 +572,7 @@ pub fn open(path: &Path, h5: &Hdf5, overrides: &Overrides) -> Result<OpenedRecor
                 path,
                 format!("{ACQUISITION}/excitations"),
                 "give no transmit_frequency (and the data is RF): give the probe's centre \
-                 frequency with --center-freq-hz (Python: center_freq_hz=)",
+                 frequency with --center-freq-hz",
             )
         },
     )?;

@@ -1,0 +1,84 @@
+//! The command line's options in messages, written as the Python package's keywords.
+//!
+//! The run's errors and notes are the command's own (one wording for both users), and name its
+//! flags: `--f-number -1.0: must be within [0.1, 100]`. A Python user typed `f_number=-1.0`, so
+//! the package says `f_number=-1.0: must be within [0.1, 100]`. Only flags whose name, with `_`
+//! for `-`, is a keyword of one of the package's calls are rewritten; the others (`--out`, whose
+//! folder `save` takes as its argument) stay as the command spells them.
+
+use std::collections::HashSet;
+use std::sync::OnceLock;
+
+use pcuvd_app::Progress;
+use pcuvd_app::keywords::flags_as_keywords;
+use pcuvd_app::progress::Lines;
+use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
+use pcuvd_app::simulation::SimulationSettings;
+use pcuvd_app::study::StudySettings;
+
+use crate::recording::ACQUISITION_KEYS;
+use crate::{DYNAMICS_ALIASES, PROCESSING_ALIASES, field_names};
+
+/// Keyword options of `ProcessResult.save` that the command spells as flags with a value.
+const SAVE_KEYWORDS: [&str; 3] = ["bids_subject", "bids_session", "bids_task"];
+
+/// `ProcessResult.save`'s switches: a flag alone on the command line, `=True` in Python.
+const SAVE_SWITCHES: [&str; 3] = ["force", "nifti", "zarr"];
+
+/// Every keyword of `process`, `dynamics`, `simulate`, `study`, `read_recording` and `save`.
+fn keywords() -> &'static HashSet<String> {
+    static KEYWORDS: OnceLock<HashSet<String>> = OnceLock::new();
+    KEYWORDS.get_or_init(|| {
+        field_names::<ProcessingSettings>(&PROCESSING_ALIASES)
+            .into_iter()
+            .chain(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES))
+            .chain(field_names::<SimulationSettings>(&[]))
+            .chain(field_names::<StudySettings>(&[]))
+            .chain(
+                ACQUISITION_KEYS
+                    .iter()
+                    .chain(&SAVE_KEYWORDS)
+                    .chain(&["max_memory_gb"])
+                    .map(|k| k.to_string()),
+            )
+            .collect()
+    })
+}
+
+/// `text` with each `--flag` that is a Python keyword written as the keyword (a switch as
+/// `force=True`), with the value the message gives it as `keyword=VALUE`
+/// ([`flags_as_keywords`]).
+pub(crate) fn as_python(text: &str) -> String {
+    flags_as_keywords(text, |name| {
+        if SAVE_SWITCHES.contains(&name) {
+            Some(format!("{name}=True"))
+        } else {
+            keywords().contains(name).then(|| name.to_string())
+        }
+    })
+}
+
+/// Progress lines on stderr, as the command prints them, with its notes' options written as
+/// Python keywords.
+pub(crate) struct PyLines(Lines);
+
+impl PyLines {
+    /// Log lines, or none when `quiet` (notes still print).
+    pub(crate) fn new(quiet: bool) -> Self {
+        PyLines(Lines::new(quiet))
+    }
+}
+
+impl Progress for PyLines {
+    fn update(&self, task: &str, done: usize, total: usize) {
+        self.0.update(task, done, total);
+    }
+
+    fn note(&self, text: &str) {
+        self.0.note(&as_python(text));
+    }
+
+    fn report(&self, text: &str) {
+        self.0.report(text);
+    }
+}
