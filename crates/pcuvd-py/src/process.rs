@@ -484,7 +484,7 @@ impl PyProcessResult {
                  not be made: {}; the run's other maps are in this error's result \
                  (result.save(folder) writes them)",
                 self.input,
-                keywords::as_python(&reason),
+                keywords::as_python(reason),
             )
         })
     }
