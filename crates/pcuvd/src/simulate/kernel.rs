@@ -32,7 +32,7 @@ pub(crate) struct Slot {
 }
 
 /// Scatterers of one event that some slot insonifies, structure-of-arrays.
-struct EventScatterers {
+pub(crate) struct EventScatterers {
     /// Lateral positions (m).
     xs: Vec<f32>,
     /// Depths (m).
@@ -226,7 +226,7 @@ impl Simulator {
 
     /// Transmit part of one event, once per scatterer and slot; drops scatterers no slot reaches.
     /// The two-way elevation factor, which does not depend on the element, joins it here.
-    fn prepare(
+    pub(crate) fn prepare(
         &self,
         scatterers: &Snapshot,
         amplitudes: &[f64],
@@ -325,10 +325,20 @@ impl Simulator {
         scatterers: &Snapshot,
         amplitudes: &[f64],
         slots: &[Slot],
+        out: ArrayViewMut2<f32>,
+        noise: Option<(&NoiseGenerator, u64)>,
+    ) {
+        self.render_prepared(&self.prepare(scatterers, amplitudes, slots), out, noise);
+    }
+
+    /// Renders the event `ev` ([`Self::prepare`]) into `out` (channels × samples); `noise` adds
+    /// (generator, stream of channel 0 of this event).
+    pub(crate) fn render_prepared(
+        &self,
+        ev: &EventScatterers,
         mut out: ArrayViewMut2<f32>,
         noise: Option<(&NoiseGenerator, u64)>,
     ) {
-        let ev = self.prepare(scatterers, amplitudes, slots);
         out.axis_iter_mut(Axis(0))
             .into_par_iter()
             .enumerate()
@@ -343,7 +353,7 @@ impl Simulator {
                 },
                 |scratch, (e, mut row)| {
                     let trace = row.as_slice_mut().expect("rows of a standard-layout array");
-                    self.render_channel(self.element_x[e], &ev, scratch, trace);
+                    self.render_channel(self.element_x[e], ev, scratch, trace);
                     if let Some((generator, first)) = noise {
                         generator.add(trace, first + e as u64);
                     }

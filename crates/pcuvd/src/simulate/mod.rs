@@ -454,9 +454,8 @@ pub fn simulate_events_reusing(
     }
     let mut rf: Array3<f32> =
         crate::core::buffers::zeros_reusing(memory, (events.len(), n_channels, ns));
-    for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
-        let t = event as f64 / params.sequence.event_prf;
-        load(t, &mut scatterers)?;
+    let prepare = |event: usize, scatterers: &mut Snapshot| -> Result<kernel::EventScatterers> {
+        load(event as f64 / params.sequence.event_prf, scatterers)?;
         let slots: Vec<Slot> = params
             .sequence
             .event_pulses(event)
@@ -467,10 +466,31 @@ pub fn simulate_events_reusing(
                 offset,
             })
             .collect();
+        Ok(sim.prepare(scatterers, phantom.amplitudes(), &slots))
+    };
+    // An event's scatterers are moved and their transmit part computed (mostly one thread's work,
+    // a tenth of a single-angle event's time) while the event before renders on the other
+    // threads, so that no core waits for it; the traces are the same whatever the order.
+    let mut next = match events.clone().next() {
+        Some(first) => Some(prepare(first, &mut scatterers)?),
+        None => None,
+    };
+    for (event, out) in events.clone().zip(rf.axis_iter_mut(Axis(0))) {
+        let ev = next
+            .take()
+            .expect("each event is prepared before it renders");
         let streams = noise
             .as_ref()
             .map(|g| (g, event as u64 * n_channels as u64));
-        sim.render_event(&scatterers, phantom.amplitudes(), &slots, out, streams);
+        let ((), following) = rayon::join(
+            || sim.render_prepared(&ev, out, streams),
+            || {
+                (event + 1 < events.end)
+                    .then(|| prepare(event + 1, &mut scatterers))
+                    .transpose()
+            },
+        );
+        next = following?;
         progress(event + 1, n_events);
     }
     Ok(rf)
