@@ -147,7 +147,10 @@ impl Simulator {
                 ));
             }
             let count = count as usize;
+            // Each table is a few FFTs of its own: built side by side, they are not the
+            // start-up's serial part.
             let bands = (0..count)
+                .into_par_iter()
                 .map(|k| wf.attenuated(probe, &params.sequence, alpha * step * k as f64))
                 .collect::<Result<Vec<_>>>()?;
             (bands, step)
