@@ -184,62 +184,70 @@ pub fn write(
         |index, _, samples| Ok(writers[index].append(samples.view())?),
         progress,
     )?;
-    for (mode_index, ((_, params), writer)) in simulation.modes.iter().zip(writers).enumerate() {
-        let manifest = writer.finish()?;
-        say(&format!(
-            "wrote {} ({} events of {} channels × {} samples)",
-            manifest.display(),
-            events_of(params),
-            params.probe.n_elements,
-            params.n_samples
-        ));
-        // The truth is the same for every mode (same phantom, same default grid): write it once,
-        // whatever an earlier run left in the folder.
-        if mode_index == 0 {
-            let truth = simulation.truth_for(&params.acquisition(), params.n_samples)?;
-            let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| out.join(name));
-            pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
-            pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
-            pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
-            pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
-            pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
-            if let Some(cycle) = &truth.cycle {
-                let [
-                    ri,
-                    psv,
-                    edv,
-                    vessel_class,
-                    flow_up,
-                    class_share,
-                    axis_profile,
-                ] = NETWORK_TRUTH_FILES.map(|name| out.join(name));
-                pcuvd_io::write_npy(&ri, &cycle.ri)?;
-                pcuvd_io::write_npy(&psv, &cycle.psv)?;
-                pcuvd_io::write_npy(&edv, &cycle.edv)?;
-                pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
-                pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
-                pcuvd_io::write_npy(&class_share, &cycle.class_share)?;
-                pcuvd_io::write_npy(&axis_profile, &cycle.axis_profile)?;
-            }
-            if let Some((vy, fraction)) = &truth.elevation {
-                let [vy_path, fraction_path] = ELEVATION_TRUTH_FILES.map(|name| out.join(name));
-                pcuvd_io::write_npy(&vy_path, vy)?;
-                pcuvd_io::write_npy(&fraction_path, fraction)?;
-            }
-            if let Some(tissue) = &truth.tissue {
-                let [vx, vz, displacement] = TISSUE_TRUTH_FILES.map(|name| out.join(name));
-                pcuvd_io::write_npy(&vx, &tissue.velocity[0])?;
-                pcuvd_io::write_npy(&vz, &tissue.velocity[2])?;
-                if let Some(moved) = simulation.tissue_displacement(&truth.z) {
-                    pcuvd_io::write_npy(&displacement, &moved)?;
-                }
-            }
+    // The truth is the same for every mode (same phantom, same default grid): computed once, on
+    // a thread while the recordings are flushed to disk (where `finish` waits on the disk, not
+    // the CPU), and written whatever an earlier run left in the folder.
+    let (_, first) = simulation
+        .modes
+        .first()
+        .context("a simulation without a transmit mode")?;
+    let truth = std::thread::scope(|scope| -> Result<_> {
+        let truth = scope.spawn(|| simulation.truth_for(&first.acquisition(), first.n_samples));
+        for ((_, params), writer) in simulation.modes.iter().zip(writers) {
+            let manifest = writer.finish()?;
             say(&format!(
-                "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
-                out.display()
+                "wrote {} ({} events of {} channels × {} samples)",
+                manifest.display(),
+                events_of(params),
+                params.probe.n_elements,
+                params.n_samples
             ));
         }
+        truth
+            .join()
+            .map_err(|_| anyhow::anyhow!("the thread computing the ground truth failed"))?
+    })?;
+    let [x, z, vx, vz, mask] = TRUTH_FILES.map(|name| out.join(name));
+    pcuvd_io::write_npy(&x, &Array1::from(truth.x.clone()))?;
+    pcuvd_io::write_npy(&z, &Array1::from(truth.z.clone()))?;
+    pcuvd_io::write_npy(&vx, &truth.truth.vx)?;
+    pcuvd_io::write_npy(&vz, &truth.truth.vz)?;
+    pcuvd_io::write_npy(&mask, &truth.truth.mask.mapv(u8::from))?;
+    if let Some(cycle) = &truth.cycle {
+        let [
+            ri,
+            psv,
+            edv,
+            vessel_class,
+            flow_up,
+            class_share,
+            axis_profile,
+        ] = NETWORK_TRUTH_FILES.map(|name| out.join(name));
+        pcuvd_io::write_npy(&ri, &cycle.ri)?;
+        pcuvd_io::write_npy(&psv, &cycle.psv)?;
+        pcuvd_io::write_npy(&edv, &cycle.edv)?;
+        pcuvd_io::write_npy(&vessel_class, &cycle.vessel_class)?;
+        pcuvd_io::write_npy(&flow_up, &cycle.flow_up.mapv(u8::from))?;
+        pcuvd_io::write_npy(&class_share, &cycle.class_share)?;
+        pcuvd_io::write_npy(&axis_profile, &cycle.axis_profile)?;
     }
+    if let Some((vy, fraction)) = &truth.elevation {
+        let [vy_path, fraction_path] = ELEVATION_TRUTH_FILES.map(|name| out.join(name));
+        pcuvd_io::write_npy(&vy_path, vy)?;
+        pcuvd_io::write_npy(&fraction_path, fraction)?;
+    }
+    if let Some(tissue) = &truth.tissue {
+        let [vx, vz, displacement] = TISSUE_TRUTH_FILES.map(|name| out.join(name));
+        pcuvd_io::write_npy(&vx, &tissue.velocity[0])?;
+        pcuvd_io::write_npy(&vz, &tissue.velocity[2])?;
+        if let Some(moved) = simulation.tissue_displacement(&truth.z) {
+            pcuvd_io::write_npy(&displacement, &moved)?;
+        }
+    }
+    say(&format!(
+        "wrote the ground truth (truth_*.npy, m/s, on the default processing grid) to {}",
+        out.display()
+    ));
     let text = format!(
         "{SCENARIO_HEADER} (from {}, every option applied):\n\
          # `pcuvd simulate --scenario {SCENARIO_FILE}` simulates the same recordings again.\n\n{}",
