@@ -95,6 +95,21 @@ def test_ri_the_recording_cannot_give_is_refused_before_processing(disk, cli, tm
     assert "decode" not in capfd.readouterr().err
 
 
+def test_the_note_on_ri_maps_names_the_keyword_that_silences_it(disk, cli, tmp_path, capfd):
+    """The disk's 3.2 ms hold no dynamics window: the run goes on without RI maps and says so, the
+    command naming its flag, Python the keyword (the note is the command's, printed by the
+    native half)."""
+    done = run_cli(cli, "process", disk, "--out", tmp_path / "o")
+    assert done.returncode == 0, done.stderr
+    (said,) = [line for line in done.stderr.splitlines() if line.startswith("note: no RI maps")]
+    assert said.endswith("(--dynamics off silences this)"), said
+    capfd.readouterr()
+    pcuvd.process(disk, quiet=True)
+    notes = [line for line in capfd.readouterr().err.splitlines() if line.startswith("note:")]
+    assert notes == [_as_keywords(said)], notes
+    assert notes[0].endswith('(dynamics="off" silences this)'), notes
+
+
 def test_an_impossible_override_names_the_keyword(disk):
     with pytest.raises(ValueError, match=r"sound_speed_m_s=\) must be finite and > 0, got 0"):
         pcuvd.read_recording(disk, sound_speed_m_s=0)

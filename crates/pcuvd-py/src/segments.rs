@@ -95,7 +95,7 @@ pub(crate) fn segment_count(
             Some(fit) => Some((
                 serde_json::to_string(fit)
                     .map_err(|e| PyValueError::new_err(format!("dynamics_fit: {e}")))?,
-                fit.note(),
+                keywords::as_python(&fit.note()),
             )),
             None => None,
         };
