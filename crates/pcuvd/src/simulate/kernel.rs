@@ -57,6 +57,10 @@ struct Scratch {
     band_trace: Vec<f32>,
 }
 
+/// Rows beyond the record within which a scatterer's echo is still rendered (dropped beyond):
+/// more than the receive path's f32 rounding and the row's rounding can move it.
+const RECORD_MARGIN_ROWS: f64 = 4.0;
+
 /// Scatterers per block of the per-channel loop.
 const BLOCK: usize = 128;
 
@@ -292,8 +296,34 @@ impl Simulator {
                     }
                 });
         }
+        // A scatterer whose echo starts before the record's first row or after its last on every
+        // channel (by a margin beyond the f32 receive path's rounding) would only add zeros to
+        // the accumulator (its amplitude is zeroed there): dropped here with those no slot
+        // reaches, so that a phantom larger than the field (a long vessel) costs its part in the
+        // field. The echoes kept are the same; where some were dropped, the blocks of the render
+        // start at other scatterers, and an accumulator row then sums the same echoes in another
+        // order (each block adds its upper bands' shares before its lower ones): a rounding's
+        // difference.
+        let (first_x, last_x) = self
+            .element_x
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        let last_row = (self.n_samples + self.wf.taps()) as f64 + RECORD_MARGIN_ROWS;
+        let rows_per_m = self.fs / self.c;
         let active: Vec<usize> = (0..n)
-            .filter(|&i| (0..nk).any(|k| tx_amp[k * n + i] != 0.0))
+            .filter(|&i| {
+                let [x, z] = positions[i];
+                let nearest = (first_x - x).max(x - last_x).max(0.0).hypot(z) * rows_per_m;
+                let farthest = (x - first_x).abs().max((x - last_x).abs()).hypot(z) * rows_per_m;
+                (0..nk).any(|k| {
+                    let (start, gain) = (tx_pos[k * n + i], tx_amp[k * n + i]);
+                    gain != 0.0
+                        && start + farthest >= -RECORD_MARGIN_ROWS
+                        && start + nearest <= last_row
+                })
+            })
             .collect();
         let slot_major = |k: usize| active.iter().map(move |&i| k * n + i);
         let split = |p: f64| {

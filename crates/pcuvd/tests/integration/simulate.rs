@@ -910,3 +910,69 @@ fn attenuation_lowers_the_echo_spectrum_with_depth() {
         assert!((mean[0] / unattenuated - 1.0).abs() < 1e-3);
     }
 }
+
+/// Scatterers whose echoes fall outside the record on every channel (deeper than the receive
+/// window, or far beside the array) change nothing: the recording with them equals the one
+/// without, both modes, to rounding (the render's blocks of scatterers then start elsewhere, and
+/// an accumulator row may sum the same echoes in another order).
+#[test]
+fn scatterers_beyond_the_record_change_nothing() {
+    let (coded, conventional) = coded_and_conventional(4, 1e-6, 16);
+    let mut positions = Vec::new();
+    block([0.0, 0.0], 100.0, 7).positions_at(0.0, &mut positions);
+    let inside =
+        PointPhantom::new(positions.clone(), vec![1.0; positions.len()], [0.0; 2]).unwrap();
+    // Beyond the 9 mm window's depths, and beside the array at the window's own depths.
+    for k in 0..2000 {
+        let f = k as f64 / 2000.0;
+        positions.push(if k % 2 == 0 {
+            [-4e-3 + 8e-3 * f, 20e-3 + 40e-3 * f]
+        } else {
+            [0.1 + 0.2 * f, 4e-3 + 4e-3 * f]
+        });
+    }
+    let with_far =
+        PointPhantom::new(positions.clone(), vec![1.0; positions.len()], [0.0; 2]).unwrap();
+    for params in [&coded, &conventional] {
+        let alone = simulate(&inside, params, 2, &no_progress).unwrap();
+        let beside = simulate(&with_far, params, 2, &no_progress).unwrap();
+        let peak = rf(&alone).iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let difference = (rf(&alone) - rf(&beside))
+            .iter()
+            .fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(
+            peak > 0.0 && difference <= 1e-6 * peak,
+            "{difference} of {peak}"
+        );
+    }
+}
+
+/// A point's echo leaves the end of the record a sample at a time as the point moves deeper: the
+/// scatterers dropped before rendering (echoes beyond the record on every channel) are only those
+/// whose echo no sample holds.
+#[test]
+fn an_echo_at_the_end_of_the_record_is_rendered_until_it_leaves() {
+    let (_, conventional) = coded_and_conventional(1, 1e-6, 16);
+    let ns = conventional.n_samples;
+    // Half a sample of depth (c / (4 fs)) a step, over the last rows of the record and beyond.
+    let step = C / (4.0 * FS);
+    let mut held = Vec::new();
+    for k in 0..160 {
+        let z = 8.6e-3 + k as f64 * step;
+        let point = PointPhantom::new(vec![[0.0, z]], vec![1.0], [0.0; 2]).unwrap();
+        let data = simulate(&point, &conventional, 1, &no_progress).unwrap();
+        let trace = rf(&data).slice(ndarray::s![0, 8, ..]).to_owned();
+        held.push(trace.iter().rev().take(64).filter(|v| **v != 0.0).count());
+    }
+    // The echo (some 24 samples long) lies whole in the last 64 at first, and beyond them last.
+    assert!(
+        held[0] >= 16 && held[159] == 0,
+        "{held:?} (of the last 64 of {ns} samples)"
+    );
+    for pair in held.windows(2) {
+        assert!(
+            pair[1] + 2 >= pair[0],
+            "the echo left the record at once: {held:?}"
+        );
+    }
+}
