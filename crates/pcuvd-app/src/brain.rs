@@ -787,9 +787,7 @@ mod tests {
         let recorded = Recorded::default();
         let held = HeldNotes::new(&recorded);
         held.note("the grid was clipped to the recorded depth");
-        held.note(&format!(
-            "no RI maps: {reason} (--dynamics off silences this)"
-        ));
+        held.note(&crate::run::no_ri_maps_note(reason));
         assert!(
             recorded.0.lock().unwrap().is_empty(),
             "held until the run ends"

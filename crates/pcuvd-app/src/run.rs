@@ -185,13 +185,17 @@ pub enum DynamicsFit {
     },
 }
 
+/// The note of a run that goes on without the RI maps a dynamics setting of `auto` would have
+/// made, and why (`reason`).
+pub fn no_ri_maps_note(reason: &str) -> String {
+    format!("no RI maps: {reason} (--dynamics off silences this)")
+}
+
 impl DynamicsFit {
     /// What the run says of it before it starts.
     pub fn note(&self) -> String {
         match self {
-            DynamicsFit::Dropped(reason) => {
-                format!("no RI maps: {reason} (--dynamics off silences this)")
-            }
+            DynamicsFit::Dropped(reason) => no_ri_maps_note(reason),
             DynamicsFit::Stepped { reason, .. } => reason.clone(),
         }
     }
@@ -826,9 +830,7 @@ fn dynamics_outcome(
             // recording without flow (noise alone) is not: its other results stand.
             Err(e) if !plan.dynamics_required || matches!(e, pcuvd::Error::NoFlow(_)) => {
                 let reason = format!("{e:#}");
-                progress.note(&format!(
-                    "no RI maps: {reason} (--dynamics off silences this)"
-                ));
+                progress.note(&no_ri_maps_note(&reason));
                 DynamicsOutcome::Skipped(reason)
             }
             Err(e) => DynamicsOutcome::Failed(format!("{e:#}")),

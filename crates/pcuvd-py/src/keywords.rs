@@ -12,12 +12,9 @@ use std::sync::OnceLock;
 use pcuvd_app::Progress;
 use pcuvd_app::keywords::flags_as_keywords;
 use pcuvd_app::progress::Lines;
-use pcuvd_app::settings::{DynamicsSettings, ProcessingSettings};
-use pcuvd_app::simulation::SimulationSettings;
-use pcuvd_app::study::StudySettings;
 
 use crate::recording::ACQUISITION_KEYS;
-use crate::{DYNAMICS_ALIASES, PROCESSING_ALIASES, field_names};
+use crate::simulation::option_names_of;
 
 /// Keyword options of `ProcessResult.save` that the command spells as flags with a value.
 const SAVE_KEYWORDS: [&str; 3] = ["bids_subject", "bids_session", "bids_task"];
@@ -25,20 +22,18 @@ const SAVE_KEYWORDS: [&str; 3] = ["bids_subject", "bids_session", "bids_task"];
 /// `ProcessResult.save`'s switches: a flag alone on the command line, `=True` in Python.
 const SAVE_SWITCHES: [&str; 3] = ["force", "nifti", "zarr"];
 
-/// Every keyword of `process`, `dynamics`, `simulate`, `study`, `read_recording` and `save`.
+/// Every keyword of `process` (`dynamics`' among them), `simulate`, `study`, `read_recording`
+/// and `save`.
 fn keywords() -> &'static HashSet<String> {
     static KEYWORDS: OnceLock<HashSet<String>> = OnceLock::new();
     KEYWORDS.get_or_init(|| {
-        field_names::<ProcessingSettings>(&PROCESSING_ALIASES)
+        ["process", "simulate", "study"]
             .into_iter()
-            .chain(field_names::<DynamicsSettings>(&DYNAMICS_ALIASES))
-            .chain(field_names::<SimulationSettings>(&[]))
-            .chain(field_names::<StudySettings>(&[]))
+            .flat_map(|command| option_names_of(command).unwrap_or_default())
             .chain(
                 ACQUISITION_KEYS
                     .iter()
                     .chain(&SAVE_KEYWORDS)
-                    .chain(&["max_memory_gb"])
                     .map(|k| k.to_string()),
             )
             .collect()

@@ -304,12 +304,7 @@ impl Simulator {
         // start at other scatterers, and an accumulator row then sums the same echoes in another
         // order (each block adds its upper bands' shares before its lower ones): a rounding's
         // difference.
-        let (first_x, last_x) = self
-            .element_x
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-                (lo.min(x), hi.max(x))
-            });
+        let (first_x, last_x) = self.aperture;
         let last_row = (self.n_samples + self.wf.taps()) as f64 + RECORD_MARGIN_ROWS;
         let rows_per_m = self.fs / self.c;
         let active: Vec<usize> = (0..n)
