@@ -96,6 +96,28 @@ pub(crate) struct Simulator {
     r_min: f64,
     /// The two-way elevation factor, in a three-dimensional simulation.
     elevation: Option<std::sync::Arc<ElevationTable>>,
+    /// Working memory of finished channel tasks (zero, as each leaves it), for the next task:
+    /// rayon starts several tasks per event, and allocating and zeroing each one's accumulators
+    /// (half a megabyte with twelve bands) took a few per cent of a render's CPU.
+    scratch_pool: std::sync::Mutex<Vec<Scratch>>,
+}
+
+/// A channel task's [`Scratch`], given back to the pool when the task ends, unless it ends by a
+/// panic, which may leave the accumulators not zero.
+struct PooledScratch<'a> {
+    scratch: Option<Scratch>,
+    pool: &'a std::sync::Mutex<Vec<Scratch>>,
+}
+
+impl Drop for PooledScratch<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            return;
+        }
+        if let (Some(scratch), Ok(mut pool)) = (self.scratch.take(), self.pool.lock()) {
+            pool.push(scratch);
+        }
+    }
 }
 
 /// Transmit constants of one slot.
@@ -188,7 +210,29 @@ impl Simulator {
             r_ref: 1e-3,
             r_min: 0.5 * lambda,
             elevation,
+            scratch_pool: std::sync::Mutex::new(Vec::new()),
         })
+    }
+
+    /// A channel task's working memory: one a finished task left, or a new one.
+    fn scratch(&self) -> PooledScratch<'_> {
+        let reused = self
+            .scratch_pool
+            .lock()
+            .ok()
+            .and_then(|mut pool| pool.pop());
+        let bands = self.bands.len().max(1);
+        PooledScratch {
+            scratch: Some(reused.unwrap_or_else(|| Scratch {
+                impulses: vec![
+                    [0.0f32; FARROW_TERMS];
+                    (self.n_samples + self.wf.taps() + 1) * bands
+                ],
+                written: vec![0..0; bands],
+                band_trace: vec![0.0; self.n_samples],
+            })),
+            pool: &self.scratch_pool,
+        }
     }
 
     fn slot_geometry(&self, slot: &Slot) -> SlotGeometry {
@@ -307,11 +351,16 @@ impl Simulator {
         let (first_x, last_x) = self.aperture;
         let last_row = (self.n_samples + self.wf.taps()) as f64 + RECORD_MARGIN_ROWS;
         let rows_per_m = self.fs / self.c;
+        // √(a² + z²) rather than `hypot`, whose guard against overflow costs a call per
+        // scatterer: positions in metres are far from overflowing, and the margin absorbs an ulp.
+        let distance = |a: f64, z: f64| (a * a + z * z).sqrt();
         let active: Vec<usize> = (0..n)
+            .into_par_iter()
             .filter(|&i| {
                 let [x, z] = positions[i];
-                let nearest = (first_x - x).max(x - last_x).max(0.0).hypot(z) * rows_per_m;
-                let farthest = (x - first_x).abs().max((x - last_x).abs()).hypot(z) * rows_per_m;
+                let nearest = distance((first_x - x).max(x - last_x).max(0.0), z) * rows_per_m;
+                let farthest =
+                    distance((x - first_x).abs().max((x - last_x).abs()), z) * rows_per_m;
                 (0..nk).any(|k| {
                     let (start, gain) = (tx_pos[k * n + i], tx_amp[k * n + i]);
                     gain != 0.0
@@ -371,16 +420,10 @@ impl Simulator {
             .into_par_iter()
             .enumerate()
             .for_each_init(
-                || Scratch {
-                    impulses: vec![
-                        [0.0f32; FARROW_TERMS];
-                        (self.n_samples + self.wf.taps() + 1) * self.bands.len().max(1)
-                    ],
-                    written: vec![0..0; self.bands.len().max(1)],
-                    band_trace: vec![0.0; self.n_samples],
-                },
-                |scratch, (e, mut row)| {
+                || self.scratch(),
+                |pooled, (e, mut row)| {
                     let trace = row.as_slice_mut().expect("rows of a standard-layout array");
+                    let scratch = pooled.scratch.as_mut().expect("taken only when dropped");
                     self.render_channel(self.element_x[e], ev, scratch, trace);
                     if let Some((generator, first)) = noise {
                         generator.add(trace, first + e as u64);
