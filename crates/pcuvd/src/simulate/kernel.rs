@@ -10,8 +10,8 @@
 //! O(1) work per echo and O(samples × taps) per channel, whatever the number of scatterers and
 //! slots.
 //!
-//! One file of about 840 lines, kept whole on purpose: the block passes, the accumulator's
-//! insertion (portable and AVX-512) and the convolution share one data layout (the block size,
+//! One file of about 940 lines before its tests, kept whole on purpose: the block passes, the
+//! accumulator's insertion (portable and AVX2) and the convolution share one data layout (the block size,
 //! the 8-wide rows, the Farrow terms), and each loop's speed rests on assumptions the others make.
 
 use ndarray::{ArrayViewMut2, Axis};
@@ -552,7 +552,11 @@ impl Simulator {
         let n_bands = self.bands.len();
         let mut bounds = vec![(i32::MAX, -1i32); written.len()];
         let inv_step = (1.0 / self.band_step) as f32;
-        let mut band = [0i32; BLOCK];
+        // Per echo with bands: its row before the band's offset, and the band each of its two
+        // shares is added to (−1 for a share of zero amplitude, which no band's rows count).
+        let mut row = [0i32; BLOCK];
+        let mut band_lo = [0i32; BLOCK];
+        let mut band_hi = [0i32; BLOCK];
         let mut start_hi = [0i32; BLOCK];
         let mut amp_hi = [0.0f32; BLOCK];
         let nk = ev.slots;
@@ -650,8 +654,16 @@ impl Simulator {
                     // that it runs 8 wide like the stages above.
                     let tp = &ev.tx_path[k * n_active + lo..k * n_active + lo + m];
                     let stride = stride as i32;
-                    for (((tp, r), b), ((st, a), (sh, ah))) in
-                        tp.iter().zip(&r[..m]).zip(&mut band[..m]).zip(
+                    let (mut first_band, mut last_band) = (i32::MAX, i32::MIN);
+                    for (((tp, r), (row, (b_lo, b_hi))), ((st, a), (sh, ah))) in tp
+                        .iter()
+                        .zip(&r[..m])
+                        .zip(
+                            row[..m]
+                                .iter_mut()
+                                .zip(band_lo[..m].iter_mut().zip(band_hi[..m].iter_mut())),
+                        )
+                        .zip(
                             start[..m]
                                 .iter_mut()
                                 .zip(amp[..m].iter_mut())
@@ -662,17 +674,19 @@ impl Simulator {
                         let whole = position.floor().clamp(0.0, (n_bands - 2) as f32);
                         let beta = (position - whole).clamp(0.0, 1.0);
                         // `whole` is a small whole number: rounding it is exact.
-                        *b = round_f32(whole).1;
+                        let b = round_f32(whole).1;
+                        first_band = first_band.min(b);
+                        last_band = last_band.max(b);
                         *ah = *a * beta;
                         *a *= 1.0 - beta;
+                        *row = *st;
+                        *b_lo = if *a != 0.0 { b } else { -1 };
+                        *b_hi = if *ah != 0.0 { b.wrapping_add(1) } else { -1 };
                         *sh = st.wrapping_add(b.wrapping_add(1).wrapping_mul(stride));
                         *st = st.wrapping_add(b.wrapping_mul(stride));
                     }
                     // Each band's rows: the bands this block reaches, each a masked min/max over
                     // the block (a few passes 8 wide rather than one scattered update per echo).
-                    let (first_band, last_band) = band[..m]
-                        .iter()
-                        .fold((i32::MAX, i32::MIN), |(l, h), &b| (l.min(b), h.max(b)));
                     for (target, bound) in bounds
                         .iter_mut()
                         .enumerate()
@@ -681,17 +695,12 @@ impl Simulator {
                     {
                         let target = target as i32;
                         let (mut low, mut high) = (i32::MAX, -1i32);
-                        for ((b, (st, a)), ah) in band[..m]
-                            .iter()
-                            .zip(start[..m].iter().zip(&amp[..m]))
-                            .zip(&amp_hi[..m])
+                        for ((b_lo, b_hi), row) in
+                            band_lo[..m].iter().zip(&band_hi[..m]).zip(&row[..m])
                         {
-                            // The echo's row before its band's offset (the same in both bands).
-                            let row = st.wrapping_sub(b.wrapping_mul(stride));
-                            let here = (*b == target && *a != 0.0)
-                                || (b.wrapping_add(1) == target && *ah != 0.0);
-                            low = low.min(if here { row } else { i32::MAX });
-                            high = high.max(if here { row } else { -1 });
+                            let here = *b_lo == target || *b_hi == target;
+                            low = low.min(if here { *row } else { i32::MAX });
+                            high = high.max(if here { *row } else { -1 });
                         }
                         *bound = (bound.0.min(low), bound.1.max(high));
                     }
