@@ -11,8 +11,9 @@
 //! slots.
 //!
 //! One file of about 940 lines before its tests, kept whole on purpose: the block passes, the
-//! accumulator's insertion (portable and AVX2) and the convolution share one data layout (the block size,
-//! the 8-wide rows, the Farrow terms), and each loop's speed rests on assumptions the others make.
+//! accumulator's insertion (portable and AVX2) and the convolution share one data layout (the
+//! block size, the 8-wide rows, the Farrow terms), and each loop's speed rests on assumptions the
+//! others make.
 
 use ndarray::{ArrayViewMut2, Axis};
 use rayon::prelude::*;
