@@ -222,17 +222,19 @@ impl Simulator {
             .lock()
             .ok()
             .and_then(|mut pool| pool.pop());
-        let bands = self.bands.len().max(1);
         PooledScratch {
-            scratch: Some(reused.unwrap_or_else(|| Scratch {
-                impulses: vec![
-                    [0.0f32; FARROW_TERMS];
-                    (self.n_samples + self.wf.taps() + 1) * bands
-                ],
-                written: vec![0..0; bands],
-                band_trace: vec![0.0; self.n_samples],
-            })),
+            scratch: Some(reused.unwrap_or_else(|| self.new_scratch())),
             pool: &self.scratch_pool,
+        }
+    }
+
+    /// New working memory for one channel task, its accumulators zero.
+    fn new_scratch(&self) -> Scratch {
+        let bands = self.bands.len().max(1);
+        Scratch {
+            impulses: vec![[0.0f32; FARROW_TERMS]; (self.n_samples + self.wf.taps() + 1) * bands],
+            written: vec![0..0; bands],
+            band_trace: vec![0.0; self.n_samples],
         }
     }
 
@@ -1001,12 +1003,7 @@ mod tests {
     /// The traces of one coded event by the portable loops: [`Simulator::accumulate`] with
     /// [`Insert::Portable`], then the bands' convolution.
     fn portable_event(sim: &Simulator, ev: &EventScatterers) -> Vec<Vec<f32>> {
-        let bands = sim.bands.len().max(1);
-        let mut scratch = Scratch {
-            impulses: vec![[0.0; FARROW_TERMS]; (sim.n_samples + sim.wf.taps() + 1) * bands],
-            written: vec![0..0; bands],
-            band_trace: vec![0.0; sim.n_samples],
-        };
+        let mut scratch = sim.new_scratch();
         sim.element_x
             .iter()
             .map(|&xe| {
