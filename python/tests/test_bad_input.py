@@ -255,6 +255,31 @@ def test_bad_arrays_for_stage_functions():
             pcuvd.power_doppler(series, kernel=(1, bad))
 
 
+def test_samples_beyond_single_precision_products_are_refused(disk):
+    """Field II-scale RF (1e-22) and images far above any scanner's are refused with the peak
+    and a factor into the range, where they gave maps of noise or an infinite power; a power of
+    two inside the range changes no velocity."""
+    recording = pcuvd.read_recording(disk)
+    layout = dict(axes=("events", "channels", "samples"), probe=recording.probe,
+                  sampling_freq_hz=recording.sampling_freq_hz, t0_s=recording.t0_s,
+                  event_prf_hz=recording.event_prf_hz, angles_rad=recording.angles_rad)
+
+    def scaled(factor):
+        return pcuvd.Recording.from_arrays(recording.samples * np.float32(factor), **layout)
+
+    for factor, side in ((1e-22, "below"), (1e16, "above")):
+        with pytest.raises(ValueError, match=f"sample scale.*{side}.*scale the samples into it"):
+            pcuvd.process(scaled(factor), dynamics="off", quiet=True)
+    unit = pcuvd.process(scaled(1.0), dynamics="off", quiet=True)
+    small = pcuvd.process(scaled(2.0**-40), dynamics="off", quiet=True)
+    np.testing.assert_array_equal(small.color_doppler, unit.color_doppler)
+    np.testing.assert_array_equal(small.power_doppler, unit.power_doppler * 2.0**-80)
+    series = np.full((4, 5, 6), 1e20, np.complex64)
+    for stage in (pcuvd.power_doppler, pcuvd.svd_filter):
+        with pytest.raises(ValueError, match="the series peak at 1.00e20.*above"):
+            stage(series)
+
+
 def test_bad_simulation_requests():
     with pytest.raises(ValueError, match="nowhere"):
         pcuvd.simulate("nowhere")

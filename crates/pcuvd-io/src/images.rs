@@ -567,13 +567,14 @@ impl ImagesFile {
                 if conjugate {
                     one.mapv_inplace(|v| v.conj());
                 }
+                let stored = || match &self.frames_of {
+                    StoredFrames::Npy { array, .. } => ("[images].file", array.label.clone()),
+                    StoredFrames::Zarr { array, .. } => {
+                        ("array", format!("its array {}", array.path()))
+                    }
+                };
                 if let Some(((iz, ix, t), _)) = one.indexed_iter().find(|(_, v)| !v.is_finite()) {
-                    let (field, label) = match &self.frames_of {
-                        StoredFrames::Npy { array, .. } => ("[images].file", array.label.clone()),
-                        StoredFrames::Zarr { array, .. } => {
-                            ("array", format!("its array {}", array.path()))
-                        }
-                    };
+                    let (field, label) = stored();
                     return Err(IoError::invalid(
                         path,
                         field,
@@ -583,6 +584,16 @@ impl ImagesFile {
                             frames.start + t
                         ),
                     ));
+                }
+                // The images are scaled as a whole: each read's first frame stands for them.
+                let peak = one
+                    .index_axis(ndarray::Axis(2), 0)
+                    .iter()
+                    .fold(0.0f32, |peak, v| peak.max(v.re.abs()).max(v.im.abs()));
+                let what = format!("the images of frame {} (series {angle})", frames.start);
+                if let Some(reason) = pcuvd::core::lags::sample_peak_problem(peak, &what) {
+                    let (field, label) = stored();
+                    return Err(IoError::invalid(path, field, format!("{label}: {reason}")));
                 }
                 Ok(one)
             })
@@ -765,6 +776,32 @@ mod tests {
     /// A value that names its place: (angle, z, x, frame) in its digits.
     fn tagged(angle: usize, z: usize, x: usize, frame: usize) -> Complex32 {
         Complex32::new((1000 * angle + 100 * z + 10 * x + frame) as f32, 0.5)
+    }
+
+    /// Images that peak beyond what single-precision lag products hold (a scanner's IQ scaled
+    /// to 10⁻²⁰, or 10¹⁷) are refused naming the file and a factor into the range; at a power of
+    /// two inside it they read as written.
+    #[test]
+    fn images_outside_the_single_precision_range_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let values = |scale: f32| {
+            ndarray::Array3::from_shape_fn((3, 4, 5), |(z, x, t)| tagged(0, z, x, t) * scale)
+                .into_dyn()
+        };
+        let axes = "[\"z\", \"x\", \"frames\"]";
+        for (scale, side) in [(1e-20f32, "below"), (1e17, "above")] {
+            let path = write(dir.path(), &values(scale), axes, "");
+            let error = read_images(&path).unwrap_err().to_string();
+            for needle in ["iq.npy", "peak at", side, "scale the samples into it"] {
+                assert!(error.contains(needle), "{needle:?} missing from: {error}");
+            }
+        }
+        let path = write(dir.path(), &values(2f32.powi(-20)), axes, "");
+        let read = read_images(&path).unwrap();
+        assert_eq!(
+            read.images.series[0],
+            values(2f32.powi(-20)).into_dimensionality().unwrap()
+        );
     }
 
     #[test]

@@ -239,6 +239,7 @@ pub(crate) fn svd_filter<'py>(
         blocks,
     };
     let mut data = series.as_array().as_standard_layout().into_owned();
+    check_series_scale(data.view(), "the series")?;
     let report = py
         .detach(|| clutter::svd_filter(&mut data, &params))
         .map_err(lib_err)?;
@@ -252,12 +253,25 @@ pub(crate) fn svd_filter<'py>(
     ))
 }
 
+/// Refuses a series whose peak magnitude lies outside what the stages' single-precision lag
+/// products hold ([`pcuvd::core::lags::SAMPLE_PEAK_RANGE`]), naming it as `what`.
+fn check_series_scale(series: ndarray::ArrayView3<'_, Complex32>, what: &str) -> PyResult<()> {
+    let peak = match series.as_slice_memory_order() {
+        Some(values) => pcuvd::core::lags::complex_peak_magnitude(values),
+        None => series
+            .iter()
+            .fold(0.0f32, |peak, v| peak.max(v.re.abs()).max(v.im.abs())),
+    };
+    pcuvd::core::lags::check_sample_peak(peak, what).map_err(lib_err)
+}
+
 pub(crate) fn autocorrelation(
     py: Python<'_>,
     series: &PyReadonlyArray3<'_, Complex32>,
     kernel: (usize, usize),
 ) -> PyResult<pcuvd::estimate::doppler::Autocorrelation> {
     let view = series.as_array();
+    check_series_scale(view, "the series")?;
     py.detach(|| pcuvd::estimate::doppler::autocorrelation(view, kernel))
         .map_err(lib_err)
 }
@@ -372,6 +386,9 @@ pub(crate) fn ri_maps_of_images<'py>(
         .iter()
         .map(|s| s.as_array().as_standard_layout().into_owned())
         .collect();
+    for (k, one) in series.iter().enumerate() {
+        check_series_scale(one.view(), &format!("series {k}"))?;
+    }
     if let Some(bad) = series.iter().find(|s| (s.dim().0, s.dim().1) != shape) {
         return Err(PyValueError::new_err(format!(
             "a series of {} × {} pixels on a grid of {} × {} (nz, nx)",

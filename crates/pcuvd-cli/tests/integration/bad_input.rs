@@ -147,6 +147,27 @@ fn non_finite_samples() {
     );
 }
 
+/// RF at Field II's scale (10⁻²² here) or far above any scanner's is refused, naming the
+/// samples' peak and a factor into the range pcuvd's single-precision products hold, where it
+/// would have given maps of noise or infinite power.
+#[test]
+fn samples_outside_the_single_precision_range() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, scale, needle) in [("tiny.mat", 1e-22, "below"), ("huge.mat", 1e17, "above")] {
+        let path = must_file(dir.path(), name, |rf, _| {
+            let MatValue::Numeric { real, .. } = rf else {
+                unreachable!()
+            };
+            real.as_f64_mut().iter_mut().for_each(|v| *v *= scale);
+        });
+        expect_error(
+            &path,
+            &[],
+            &[name, "sample scale", needle, "scale the samples into it"],
+        );
+    }
+}
+
 #[test]
 fn non_positive_physical_parameters() {
     let dir = tempfile::tempdir().unwrap();

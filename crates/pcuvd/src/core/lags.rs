@@ -3,6 +3,61 @@
 
 use num_complex::{Complex32, Complex64};
 
+use crate::core::error::{Result, invalid};
+
+/// The peak sample magnitude a recording or an image series may have, in its own units: the
+/// chain forms every lag product and power in single precision, whose normal range (2⁻¹²⁶ to
+/// 2¹²⁸) holds the square of a beamformed sample only between about 2⁻⁶³ and 2⁶⁴. Below 2⁻⁵⁰
+/// (about 9·10⁻¹⁶; Field II's RF is often 10⁻²⁰ and smaller) the weaker echoes' products fall
+/// into subnormals and then to zero, and the maps become noise; above 2⁴⁸ (about 3·10¹⁴) a
+/// beamformed sum over a large aperture (up to 2¹⁰ times a channel's) squares past the largest
+/// f32, and the power becomes infinite. Within the range every map but the power maps is the same
+/// at any scale (multiplying the samples by a power of two changes no bit of them).
+pub const SAMPLE_PEAK_RANGE: (f32, f32) = (1.0 / (1u64 << 50) as f32, (1u64 << 48) as f32);
+
+/// The largest |value| of `values` (0 for none). Finite values are assumed (a NaN reads as
+/// larger than any): compared as the bits of their magnitudes, which orders them as numbers and
+/// vectorises.
+pub fn peak_magnitude(values: &[f32]) -> f32 {
+    let bits = values
+        .iter()
+        .map(|v| v.to_bits() & 0x7fff_ffff)
+        .fold(0u32, u32::max);
+    f32::from_bits(bits)
+}
+
+/// [`peak_magnitude`] of complex samples' parts.
+pub fn complex_peak_magnitude(samples: &[Complex32]) -> f32 {
+    peak_magnitude(crate::core::buffers::complex_floats(samples))
+}
+
+/// Why samples whose peak magnitude is `peak` (in their own units) cannot be processed, naming
+/// `what` they are: a peak outside [`SAMPLE_PEAK_RANGE`]. All-zero samples (peak 0) have nothing
+/// to lose.
+pub fn sample_peak_problem(peak: f32, what: &str) -> Option<String> {
+    let (low, high) = SAMPLE_PEAK_RANGE;
+    if peak == 0.0 || (low..=high).contains(&peak) {
+        return None;
+    }
+    let direction = if peak < low { "below" } else { "above" };
+    Some(format!(
+        "{what} peak at {peak:.2e}, {direction} the {low:.0e} to {high:.0e} that pcuvd's \
+         single-precision lag products and powers hold (beyond it the maps would be noise or \
+         infinite); scale the samples into it, e.g. by {:.0e} (every map but the power maps is \
+         the same at any scale)",
+        1.0 / peak
+    ))
+}
+
+/// Refuses samples whose peak magnitude lies outside [`SAMPLE_PEAK_RANGE`]
+/// ([`sample_peak_problem`]).
+pub fn check_sample_peak(peak: f32, what: &str) -> Result<()> {
+    match sample_peak_problem(peak, what) {
+        Some(reason) => Err(invalid("sample scale", reason)),
+        None => Ok(()),
+    }
+}
+
 /// Σ_t conj(a_t)·b_t over two series of equal length, each product in f32 (the series'
 /// precision) and the sum in f64, so that long ensembles lose nothing to the sum.
 pub fn conj_dot(a: &[Complex32], b: &[Complex32]) -> Complex64 {
@@ -158,6 +213,62 @@ fn conj_dot_floats(a: &[f32], b: &[f32]) -> Complex64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The peak magnitude is the largest |v|, whatever the signs, the lengths (past and short of
+    /// a vector's lanes) and the extremes (subnormals, the largest float, signed zeros).
+    #[test]
+    fn peak_magnitude_is_the_largest_absolute_value() {
+        for len in [0usize, 1, 7, 8, 9, 33, 1000] {
+            let mut values: Vec<f32> = (0..len)
+                .map(|i| ((i * 7919) % 1000) as f32 * if i % 3 == 0 { -1e-3 } else { 1e-3 })
+                .collect();
+            let expected = |v: &[f32]| v.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+            assert_eq!(peak_magnitude(&values), expected(&values), "{len}");
+            if len > 0 {
+                for extreme in [f32::MIN, f32::MAX, -1e-45, -0.0] {
+                    let at = len / 2;
+                    let old = std::mem::replace(&mut values[at], extreme);
+                    assert_eq!(
+                        peak_magnitude(&values),
+                        expected(&values),
+                        "{extreme} in {len}"
+                    );
+                    values[at] = old;
+                }
+            }
+        }
+        let complex = [Complex32::new(0.5, -3.0), Complex32::new(-2.0, 1.0)];
+        assert_eq!(complex_peak_magnitude(&complex), 3.0);
+    }
+
+    /// Peaks at the range's ends pass and one step beyond them fails, naming the side and a factor
+    /// that brings the peak to 1; zero (no sample recorded) passes.
+    #[test]
+    fn sample_peaks_outside_the_range_are_refused() {
+        let (low, high) = SAMPLE_PEAK_RANGE;
+        for ok in [0.0, low, 1.0, 32768.0, high] {
+            assert!(check_sample_peak(ok, "the samples").is_ok(), "{ok:e}");
+        }
+        let beyond =
+            |v: f32, up: bool| f32::from_bits(if up { v.to_bits() + 1 } else { v.to_bits() - 1 });
+        for (peak, side, factor) in [
+            (beyond(low, false), "below", "1e15"),
+            (1e-22, "below", "1e22"),
+            (beyond(high, true), "above", "4e-15"),
+        ] {
+            let error = check_sample_peak(peak, "the samples of frame 3")
+                .unwrap_err()
+                .to_string();
+            for needle in [
+                "sample scale",
+                "the samples of frame 3 peak at",
+                side,
+                factor,
+            ] {
+                assert!(error.contains(needle), "{needle:?} missing from: {error}");
+            }
+        }
+    }
 
     /// The lag sums against the sum written out in f64, for series shorter and longer than a
     /// vector's lanes and of odd lengths.

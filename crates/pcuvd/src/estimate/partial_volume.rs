@@ -407,11 +407,13 @@ impl CentroidOffsets {
             .map(|k| {
                 let cell = cells[k].as_ref()?;
                 let p = power.index_axis(Axis(0), k);
-                let floor = p.iter().cloned().fold(0.0, f64::max) * 1e-8;
-                if floor <= 0.0 {
+                let peak = p.iter().cloned().fold(0.0, f64::max);
+                if peak <= 0.0 {
                     return None;
                 }
-                let log_power = p.mapv(|v| v.max(floor).ln());
+                // Relative to the peak, floored 80 dB under it: the logarithm's gradient is then
+                // the same to the bit at any power-of-two scale of the recording.
+                let log_power = p.mapv(|v| (v / peak).max(1e-8).ln());
                 let (lp_dx, lp_dz) = gradient(&log_power, step);
                 let (offset_x, offset_z) =
                     kernel_centroid_offsets(p, (&lp_dx, &lp_dz), cell, kernel, step);

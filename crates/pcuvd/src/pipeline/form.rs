@@ -284,6 +284,13 @@ pub fn form_block_into(
     progress(Stage::Decode, 0);
     source.read_frames_into(decoded.clone(), &mut buffers.read)?;
     let data = buffers.read.as_ref().expect("just read");
+    // A recording is scaled as a whole: each block's first frame stands for it, at no cost
+    // worth a pass over the block.
+    let n_angles = acq.sequence.n_angles();
+    crate::core::lags::check_sample_peak(
+        data.samples.peak_of_first_events(n_angles),
+        &format!("the samples of frame {}", decoded.start),
+    )?;
     let recorded = data.samples.any_nonzero();
     let kept = block.start - decoded.start..block.end - decoded.start;
     let data = buffers.read.as_mut().expect("just read");

@@ -8,6 +8,7 @@ mod coverage;
 mod dynamics;
 mod network;
 mod roundtrip;
+mod scale;
 mod segments;
 mod simulate;
 mod stages;
