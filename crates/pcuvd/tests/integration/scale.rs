@@ -1,5 +1,5 @@
-//! A recording's scale: every map but the power maps is the same, bit for bit, at any
-//! power-of-two scale within the range single-precision lag products hold (no absolute amplitude
+//! A recording's scale: every map but the power maps (the dynamics windows' too) is the same, bit
+//! for bit, at any power-of-two scale within the range single-precision lag products hold (no absolute amplitude
 //! threshold hides in the chain), and a recording outside that range is refused, where it would
 //! have become noise (Field II's 10⁻²⁰-scale RF) or infinities.
 
@@ -7,6 +7,7 @@ use pcuvd_testing as common;
 
 use pcuvd::acquisition::channel::Samples;
 use pcuvd::core::lags::SAMPLE_PEAK_RANGE;
+use pcuvd::dynamics::{DynamicsParams, sliding_vectors};
 use pcuvd::estimate::clutter::RankCut;
 use pcuvd::form::decode::EventAlignment;
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams, Stage};
@@ -40,6 +41,18 @@ fn params(data: &ChannelData) -> ProcessParams {
     params.clutter.low = RankCut::Auto;
     params.partial_volume = true;
     params
+}
+
+/// Sliding windows of 6 frames, 3 apart, at the dynamics' defaults otherwise (IRLS, the
+/// partial-volume correction).
+fn dynamics() -> DynamicsParams {
+    DynamicsParams {
+        window: 6,
+        step: 3,
+        heart_rate_hz: None,
+        partial_volume: true,
+        ..DynamicsParams::rat()
+    }
 }
 
 /// Whether two maps hold the same values bit for bit (NaN where the other has the same NaN).
@@ -121,6 +134,13 @@ fn maps_are_the_same_at_any_power_of_two_scale_within_range() {
             let out = pipeline::process(&scaled(&data, 2f32.powi(k)), &params, &quiet).unwrap();
             let label = format!("coded {coded}, scaled by 2^{k}");
             assert_same_maps(&out, &reference, 2f64.powi(2 * k), &label);
+            // The dynamics windows (the RI maps' velocities), with their own correction.
+            let windows = |o: &ProcessOutput| sliding_vectors(&o.filtered, &dynamics()).unwrap();
+            let (got, want) = (windows(&out), windows(&reference));
+            assert!(same_bits(&got.vx, &want.vx), "{label}: windows' vx");
+            assert!(same_bits(&got.vz, &want.vz), "{label}: windows' vz");
+            let power = want.power.mapv(|p| p * 2f64.powi(2 * k));
+            assert!(same_bits(&got.power, &power), "{label}: windows' power");
         }
         // At the range's floor the weakest pixels' single-precision products reach subnormals
         // and lose their last bits: a rounding's difference, not noise.
