@@ -586,10 +586,9 @@ impl ImagesFile {
                     ));
                 }
                 // The images are scaled as a whole: each read's first frame stands for them.
-                let peak = one
-                    .index_axis(ndarray::Axis(2), 0)
-                    .iter()
-                    .fold(0.0f32, |peak, v| peak.max(v.re.abs()).max(v.im.abs()));
+                let peak = pcuvd::core::lags::complex_peak_magnitude(
+                    one.index_axis(ndarray::Axis(2), 0).iter(),
+                );
                 let what = format!("the images of frame {} (series {angle})", frames.start);
                 if let Some(reason) = pcuvd::core::lags::sample_peak_problem(peak, &what) {
                     let (field, label) = stored();

@@ -258,9 +258,7 @@ pub(crate) fn svd_filter<'py>(
 fn check_series_scale(series: ndarray::ArrayView3<'_, Complex32>, what: &str) -> PyResult<()> {
     let peak = match series.as_slice_memory_order() {
         Some(values) => pcuvd::core::lags::complex_peak_magnitude(values),
-        None => series
-            .iter()
-            .fold(0.0f32, |peak, v| peak.max(v.re.abs()).max(v.im.abs())),
+        None => pcuvd::core::lags::complex_peak_magnitude(series.iter()),
     };
     pcuvd::core::lags::check_sample_peak(peak, what).map_err(lib_err)
 }

@@ -169,16 +169,10 @@ impl Samples {
     /// in the samples' units: what [`crate::core::lags::check_sample_peak`] tests.
     pub fn peak_of_first_events(&self, events: usize) -> f32 {
         use crate::core::lags::{complex_peak_magnitude, peak_magnitude};
-        fn first<T: Clone>(a: &Array3<T>, events: usize) -> std::borrow::Cow<'_, [T]> {
-            let head = a.slice(ndarray::s![..events.min(a.dim().0), .., ..]);
-            match head.to_slice() {
-                Some(run) => std::borrow::Cow::Borrowed(run),
-                None => std::borrow::Cow::Owned(head.iter().cloned().collect()),
-            }
-        }
+        let head = |n: usize| ndarray::s![..events.min(n), .., ..];
         match self {
-            Samples::Rf(a) => peak_magnitude(&first(a, events)),
-            Samples::Iq { data, .. } => complex_peak_magnitude(&first(data, events)),
+            Samples::Rf(a) => peak_magnitude(a.slice(head(a.dim().0))),
+            Samples::Iq { data, .. } => complex_peak_magnitude(data.slice(head(data.dim().0))),
         }
     }
 

@@ -12,32 +12,47 @@ use crate::core::error::{Result, invalid};
 /// into subnormals and then to zero, and the maps become noise; above 2⁴⁸ (about 3·10¹⁴) a
 /// beamformed sum over a large aperture (up to 2¹⁰ times a channel's) squares past the largest
 /// f32, and the power becomes infinite. Within the range every map but the power maps is the same
-/// at any scale (multiplying the samples by a power of two changes no bit of them).
+/// at any scale: multiplying the samples by a power of two changes no bit of them, but where the
+/// weakest pixels' products reach subnormals near the floor (a rounding's difference).
 pub const SAMPLE_PEAK_RANGE: (f32, f32) = (1.0 / (1u64 << 50) as f32, (1u64 << 48) as f32);
 
-/// The largest |value| of `values` (0 for none). Finite values are assumed (a NaN reads as
-/// larger than any): compared as the bits of their magnitudes, which orders them as numbers and
-/// vectorises.
-pub fn peak_magnitude(values: &[f32]) -> f32 {
+/// The largest |value| of `values` (a slice, or a strided view's iterator; 0 for none). A NaN
+/// reads as larger than any number, an infinity as larger than any finite one: compared as the
+/// bits of their magnitudes, which order them so and vectorise.
+pub fn peak_magnitude<'a>(values: impl IntoIterator<Item = &'a f32>) -> f32 {
     let bits = values
-        .iter()
-        .map(|v| v.to_bits() & 0x7fff_ffff)
-        .fold(0u32, u32::max);
+        .into_iter()
+        .map(|&v| magnitude_bits(v))
+        .fold(0, u32::max);
     f32::from_bits(bits)
 }
 
 /// [`peak_magnitude`] of complex samples' parts.
-pub fn complex_peak_magnitude(samples: &[Complex32]) -> f32 {
-    peak_magnitude(crate::core::buffers::complex_floats(samples))
+pub fn complex_peak_magnitude<'a>(samples: impl IntoIterator<Item = &'a Complex32>) -> f32 {
+    let bits = samples
+        .into_iter()
+        .map(|v| magnitude_bits(v.re).max(magnitude_bits(v.im)))
+        .fold(0, u32::max);
+    f32::from_bits(bits)
+}
+
+/// A float's magnitude as bits that order as the magnitudes do (NaN above infinity).
+fn magnitude_bits(value: f32) -> u32 {
+    value.to_bits() & 0x7fff_ffff
 }
 
 /// Why samples whose peak magnitude is `peak` (in their own units) cannot be processed, naming
-/// `what` they are: a peak outside [`SAMPLE_PEAK_RANGE`]. All-zero samples (peak 0) have nothing
-/// to lose.
+/// `what` they are: a peak outside [`SAMPLE_PEAK_RANGE`], or not finite (a NaN or an infinity
+/// among them). All-zero samples (peak 0) have nothing to lose.
 pub fn sample_peak_problem(peak: f32, what: &str) -> Option<String> {
     let (low, high) = SAMPLE_PEAK_RANGE;
     if peak == 0.0 || (low..=high).contains(&peak) {
         return None;
+    }
+    if !peak.is_finite() {
+        return Some(format!(
+            "{what} hold a value that is not finite (NaN or infinite)"
+        ));
     }
     let direction = if peak < low { "below" } else { "above" };
     Some(format!(
@@ -248,6 +263,15 @@ mod tests {
         let (low, high) = SAMPLE_PEAK_RANGE;
         for ok in [0.0, low, 1.0, 32768.0, high] {
             assert!(check_sample_peak(ok, "the samples").is_ok(), "{ok:e}");
+        }
+        for bad in [f32::NAN, f32::INFINITY] {
+            let error = check_sample_peak(bad, "the series")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                error.contains("the series hold a value that is not finite"),
+                "{error}"
+            );
         }
         let beyond =
             |v: f32, up: bool| f32::from_bits(if up { v.to_bits() + 1 } else { v.to_bits() - 1 });
