@@ -104,6 +104,21 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     if frames < 2 {
         warnings.push("fewer than 2 frames: no Doppler estimate is possible".into());
     }
+    // The first frame's peak, which `process` checks before it forms anything: a recording at a
+    // scale single precision cannot hold is refused there, and said here.
+    let peak = match (frames > 0).then(|| source.read_frames(0..1)) {
+        Some(Ok(first)) => Some(first.samples.peak_of_first_events(n_angles)),
+        Some(Err(error)) => {
+            warnings.push(format!("the first frame could not be read: {error}"));
+            None
+        }
+        None => None,
+    };
+    if let Some(reason) =
+        peak.and_then(|p| pcuvd::core::lags::sample_peak_problem(p, "the samples of frame 0"))
+    {
+        warnings.push(format!("process would refuse it: {reason}"));
+    }
     let coding = pcuvd_app::summary::CodingRecord::of(seq);
     let simulated = pcuvd_app::against_truth::scenario_beside(&args.input.to_string_lossy());
     let directivity_f_number = probe.directivity_f_number(-3.0, acq.sound_speed);
@@ -119,6 +134,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
             "shape_events_channels_samples": [events, channels, samples],
             "bytes_in_memory": input_bytes,
             "demodulation_frequency_hz": demod,
+            "peak_of_first_frame": peak,
         },
         "probe": pcuvd_app::summary::ProbeRecord::of(probe),
         "acquisition": {
@@ -157,12 +173,13 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     }
     print_what_was_read(&args.input, info);
     println!(
-        "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} as float){}",
+        "  samples      {kind}, {events} events × {channels} channels × {samples} samples ({} as float){}{}",
         size(input_bytes),
         demod.map_or(String::new(), |f| format!(
             ", demodulated at {:.3} MHz",
             f * 1e-6
-        ))
+        )),
+        peak.map_or(String::new(), |p| format!(", peak {p:.3e} in frame 0"))
     );
     println!(
         "  probe        {} ({} elements, pitch {:.3} mm, f_c {:.3} MHz, bandwidth {:.0} %)",

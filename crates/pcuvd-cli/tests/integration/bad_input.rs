@@ -165,6 +165,19 @@ fn samples_outside_the_single_precision_range() {
             &[],
             &[name, "sample scale", needle, "scale the samples into it"],
         );
+        // `pcuvd info` says so before any run.
+        let info = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .arg("info")
+            .arg(&path)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&info.stdout);
+        assert!(info.status.success(), "{text}");
+        assert!(
+            text.contains("warning: process would refuse it: the samples of frame 0 peak at")
+                && text.contains(needle),
+            "{text}"
+        );
     }
 }
 

@@ -702,6 +702,27 @@ fn info_reports_the_acquisition_without_processing() {
     );
     let depth = 0.5 * c * (t0 + 333.0 / fs);
     assert!((acq["recorded_depth_m"].as_f64().unwrap() - depth).abs() < 1e-12);
+    // The first frame's peak, which `process` checks: the largest |sample| of the file's first
+    // transmit (RF is samples × elements × transmits, column-major, so its first 334 × 128
+    // values), and within the range (no warning of a refusal).
+    let file = pcuvd_io::read_mat(&input).unwrap();
+    let Some(pcuvd_io::MatValue::Numeric { real, .. }) = file.get("RF") else {
+        panic!("the disk's RF")
+    };
+    let first = real.to_f64()[..334 * 128]
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs())) as f32;
+    assert_eq!(
+        info["samples"]["peak_of_first_frame"].as_f64(),
+        Some(first as f64),
+        "{}",
+        info["samples"]
+    );
+    assert!(
+        text.contains(&format!("peak {first:.3e} in frame 0")),
+        "{text}"
+    );
+    assert!(!text.contains("would refuse"), "{text}");
 }
 
 /// `pcuvd bench` counts the beamformer's work as other beamformers publish it (points = pixels ×
