@@ -1,5 +1,6 @@
 //! The scenarios the workspace's tests share, written once: a small simulated tube recording
-//! and the real rotating-disk recording that lives beside the repository. A dev-dependency only
+//! and the real rotating-disk recording that lives beside the repository; and what "the same
+//! map" means where NaN marks pixels without a value. A dev-dependency only
 //! (a crate of its own rather than a feature of `pcuvd`, so that the library the tests, the
 //! command and the Python wheel link is built once with one set of features).
 #![warn(missing_docs)]
@@ -63,4 +64,13 @@ pub fn disk_recording() -> PathBuf {
         path.display()
     );
     path
+}
+
+/// Whether two maps are the same bit for bit: the same shape, and each value's bits (a NaN where
+/// the other has the same NaN, which `==` would call different).
+pub fn same_bits<D: ndarray::Dimension>(
+    a: &ndarray::Array<f64, D>,
+    b: &ndarray::Array<f64, D>,
+) -> bool {
+    a.shape() == b.shape() && a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits())
 }

@@ -271,10 +271,7 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
         );
         let ri_recorded: Array2<f64> = read_npy(out_recorded.join("ri.npy")).unwrap();
         assert!(
-            ri_recorded
-                .iter()
-                .zip(&ri_triggered)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            pcuvd_testing::same_bits(&ri_recorded, &ri_triggered),
             "{name}: RI differs from --cardiac-triggers'"
         );
     }

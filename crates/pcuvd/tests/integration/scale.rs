@@ -1,9 +1,11 @@
 //! A recording's scale: every map but the power maps (the dynamics windows' too) is the same, bit
-//! for bit, at any power-of-two scale within the range single-precision lag products hold (no absolute amplitude
-//! threshold hides in the chain), and a recording outside that range is refused, where it would
-//! have become noise (Field II's 10⁻²⁰-scale RF) or infinities.
+//! for bit, at any power-of-two scale within the range single-precision lag products hold (no
+//! absolute amplitude threshold hides in the chain), and a recording outside that range is
+//! refused, where it would have become noise (Field II's 10⁻²⁰-scale RF) or infinities.
 
 use pcuvd_testing as common;
+
+use ndarray::{Array, Dimension};
 
 use pcuvd::acquisition::channel::Samples;
 use pcuvd::core::lags::SAMPLE_PEAK_RANGE;
@@ -55,69 +57,54 @@ fn dynamics() -> DynamicsParams {
     }
 }
 
-/// Whether two maps hold the same values bit for bit (NaN where the other has the same NaN).
-fn same_bits<'a>(
-    a: impl IntoIterator<Item = &'a f64>,
-    b: impl IntoIterator<Item = &'a f64>,
-) -> bool {
-    let (a, b): (Vec<u64>, Vec<u64>) = (
-        a.into_iter().map(|v| v.to_bits()).collect(),
-        b.into_iter().map(|v| v.to_bits()).collect(),
+/// Asserts [`common::same_bits`] of two maps, saying how many values differ and by how much.
+fn assert_same<D: Dimension>(got: &Array<f64, D>, want: &Array<f64, D>, what: &str) {
+    let differing = || {
+        got.iter()
+            .zip(want)
+            .filter(|(a, b)| a.to_bits() != b.to_bits())
+    };
+    let worst = differing()
+        .map(|(a, b)| ((a - b) / b).abs())
+        .fold(0.0f64, |w, e| if e.is_nan() || e > w { e } else { w });
+    assert!(
+        common::same_bits(got, want),
+        "{what}: {} values differ, worst {worst:e}",
+        differing().count()
     );
-    a == b
 }
 
 fn assert_same_maps(out: &ProcessOutput, reference: &ProcessOutput, power_scale: f64, label: &str) {
     let (maps, expected) = (&out.maps, &reference.maps);
-    let fields = |m: &pcuvd::pipeline::DopplerMaps| {
-        let vectors =
-            [&m.vector_ls, &m.vector_irls].map(|v| v.clone().expect("two angles or more"));
-        [
-            m.color_doppler.clone().into_raw_vec_and_offset().0,
-            m.projections.clone().into_raw_vec_and_offset().0,
-            vectors[0].vx.clone().into_raw_vec_and_offset().0,
-            vectors[0].vz.clone().into_raw_vec_and_offset().0,
-            vectors[1].vx.clone().into_raw_vec_and_offset().0,
-            vectors[1].vz.clone().into_raw_vec_and_offset().0,
-        ]
-    };
-    let names = [
-        "colour Doppler",
-        "projections",
-        "LS vx",
-        "LS vz",
-        "IRLS vx",
-        "IRLS vz",
-    ];
-    for ((name, got), want) in names.iter().zip(fields(maps)).zip(fields(expected)) {
-        let worst = got
-            .iter()
-            .zip(&want)
-            .filter(|(a, b)| a.to_bits() != b.to_bits())
-            .map(|(a, b)| ((a - b) / b).abs())
-            .fold(0.0f64, |w, e| if e.is_nan() || e > w { e } else { w });
-        let count = got
-            .iter()
-            .zip(&want)
-            .filter(|(a, b)| a.to_bits() != b.to_bits())
-            .count();
-        assert!(
-            same_bits(&got, &want),
-            "{label}: {name}: {count} values differ, worst {worst:e}"
-        );
-    }
-    assert!(
-        same_bits(&out.bmode_db, &reference.bmode_db),
-        "{label}: B-mode"
+    let what = |name: &str| format!("{label}: {name}");
+    assert_same(
+        &maps.color_doppler,
+        &expected.color_doppler,
+        &what("colour Doppler"),
     );
+    assert_same(
+        &maps.projections,
+        &expected.projections,
+        &what("projections"),
+    );
+    for (name, got, want) in [
+        ("LS", &maps.vector_ls, &expected.vector_ls),
+        ("IRLS", &maps.vector_irls, &expected.vector_irls),
+    ] {
+        let (got, want) = (
+            got.as_ref().expect("two angles"),
+            want.as_ref().expect("two angles"),
+        );
+        assert_same(&got.vx, &want.vx, &what(&format!("{name} vx")));
+        assert_same(&got.vz, &want.vz, &what(&format!("{name} vz")));
+    }
+    assert_same(&out.bmode_db, &reference.bmode_db, &what("B-mode"));
     let cut = |o: &ProcessOutput| o.clutter.iter().map(|c| c.low).collect::<Vec<_>>();
     assert_eq!(cut(out), cut(reference), "{label}: tissue cut-offs");
-    assert!(
-        same_bits(
-            &maps.power_doppler,
-            &expected.power_doppler.mapv(|p| p * power_scale)
-        ),
-        "{label}: power Doppler, scaled by the square of the samples' scale"
+    assert_same(
+        &maps.power_doppler,
+        &expected.power_doppler.mapv(|p| p * power_scale),
+        &what("power Doppler, scaled by the square of the samples' scale"),
     );
 }
 
@@ -137,10 +124,10 @@ fn maps_are_the_same_at_any_power_of_two_scale_within_range() {
             // The dynamics windows (the RI maps' velocities), with their own correction.
             let windows = |o: &ProcessOutput| sliding_vectors(&o.filtered, &dynamics()).unwrap();
             let (got, want) = (windows(&out), windows(&reference));
-            assert!(same_bits(&got.vx, &want.vx), "{label}: windows' vx");
-            assert!(same_bits(&got.vz, &want.vz), "{label}: windows' vz");
+            assert_same(&got.vx, &want.vx, &format!("{label}: windows' vx"));
+            assert_same(&got.vz, &want.vz, &format!("{label}: windows' vz"));
             let power = want.power.mapv(|p| p * 2f64.powi(2 * k));
-            assert!(same_bits(&got.power, &power), "{label}: windows' power");
+            assert_same(&got.power, &power, &format!("{label}: windows' power"));
         }
         // At the range's floor the weakest pixels' single-precision products reach subnormals
         // and lose their last bits: a rounding's difference, not noise.

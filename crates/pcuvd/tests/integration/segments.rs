@@ -17,7 +17,7 @@ use pcuvd::pipeline::{self, ProcessParams, Stage};
 use pcuvd::simulate::phantom::{Phantom, TubePhantom};
 use pcuvd::simulate::{NoiseSpec, SimParams, simulate};
 use pcuvd::{ChannelData, Coding, Probe, Samples, Sequence};
-use pcuvd_testing::{tube, tube_at};
+use pcuvd_testing::{same_bits, tube, tube_at};
 
 const FRAMES: usize = 64;
 
@@ -501,10 +501,6 @@ fn segments_processed_apart_join_into_the_one_process_run() {
         joined.out.maps.vector_irls.as_ref().unwrap(),
         one.out.maps.vector_irls.as_ref().unwrap(),
     );
-    // Bit for bit, NaN where the other has NaN.
-    let same_bits = |x: &Array2<f64>, y: &Array2<f64>| {
-        x.dim() == y.dim() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
-    };
     assert!(same_bits(&a.vx, &b.vx) && same_bits(&a.vz, &b.vz));
     assert_eq!(joined.out.maps.dealias, one.out.maps.dealias);
     assert_eq!(joined.series, one.series);
@@ -582,9 +578,6 @@ fn images_read_in_segments_give_the_recordings_segmented_run() {
         from_images.out.maps.power_doppler,
         from_data.out.maps.power_doppler
     );
-    let same_bits = |x: &Array2<f64>, y: &Array2<f64>| {
-        x.dim() == y.dim() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
-    };
     let (a, b) = (
         from_images.out.maps.vector_irls.as_ref().unwrap(),
         from_data.out.maps.vector_irls.as_ref().unwrap(),
