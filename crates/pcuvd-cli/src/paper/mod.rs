@@ -9,6 +9,7 @@ use clap::Args;
 use ndarray::{Array2, Zip};
 use pcuvd::estimate::masks;
 use pcuvd::estimate::vector::VectorField;
+use pcuvd::simulate::phantom::Truth;
 use pcuvd::study::dealias::DealiasMetrics;
 use pcuvd::study::describe_alignment;
 use pcuvd::study::network::{NetworkMetrics, NetworkSettings};
@@ -258,13 +259,25 @@ pub fn run(args: &PaperArgs) -> Result<()> {
 }
 
 /// The figures the spiral part writes into the output folder.
-pub const SPIRAL_FIGURES: [&str; 5] = [
+pub const SPIRAL_FIGURES: [&str; 6] = [
     "fig2_power_doppler_snr.png",
     "fig3_vector_maps.png",
     "fig4_profiles.png",
     "fig5_accuracy.png",
+    BASELINE_FIGURE,
     "fig_noise_sweep.png",
 ];
+
+/// Removes the figure at `path` that an earlier run wrote, if there is one.
+fn remove_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => {
+            Err(e).with_context(|| format!("{}: cannot remove this earlier figure", path.display()))
+        }
+    }
+}
 
 /// The subfolders where the spiral part draws each mode's maps ([`figures::PROCESS_FIGURES`]).
 const MODE_FOLDERS: [&str; 2] = ["conventional", "coded"];
@@ -303,15 +316,7 @@ fn remove_other_part(dir: &Path, part: Part) -> Result<()> {
         );
     }
     for path in stale {
-        match std::fs::remove_file(&path) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => {
-                return Err(e).with_context(|| {
-                    format!("{}: cannot remove this earlier figure", path.display())
-                });
-            }
-        }
+        remove_if_present(&path)?;
     }
     if spiral_off {
         for folder in MODE_FOLDERS {

@@ -157,7 +157,7 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
         vec_panel.mask = Some(Array2::from_elem(truth.mask.dim(), false));
         panels.push(Panel::Image(vec_panel));
     }
-    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx (red = toward +x), Vz (red = toward the probe, up, as in every figure), speed and vector map inside the vessel.", Figure { title: "Spiral flow: vector velocity".into(), panels, ncols: 4, panel_size_px: (430, 400) })?);
+    out.push(render(dir, "fig3_vector_maps.png", "Figure 3 analogue: ground truth (top), conventional UVD with least squares (middle) and PC-UVD with IRLS-WLS (bottom): Vx (red = toward +x), Vz (red = toward the probe, up, as in every figure), speed and vector map inside the vessel.", Figure { title: format!("Spiral flow: vector velocity, noise {} dB", study.settings.noise_db), panels, ncols: 4, panel_size_px: (430, 400) })?);
 
     // Figure 4: the profiles (drawn as lines on Fig. 2).
     let mut panels = Vec::new();
@@ -213,59 +213,45 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
             ..Default::default()
         }));
     }
-    out.push(render(dir, "fig4_profiles.png", "Figure 4 analogue: velocity profiles across the vessel versus distance from its centre (mean over a 0.2 rad stretch of the vessel, 0.05 mm bins).", Figure { title: "Velocity profiles".into(), panels, ncols: 2, panel_size_px: (560, 440) })?);
+    out.push(render(dir, "fig4_profiles.png", "Figure 4 analogue: velocity profiles across the vessel versus distance from its centre (mean over a 0.2 rad stretch of the vessel, 0.05 mm bins).", Figure { title: format!("Velocity profiles, noise {} dB", study.settings.noise_db), panels, ncols: 2, panel_size_px: (560, 440) })?);
 
     // Figure 5: estimated versus true, binned per 1 mm/s, error bars = standard deviation.
     let mut panels = Vec::new();
     for (name, field) in [("UVD", &rows[1].1), ("PC-UVD", &rows[2].1)] {
-        let err = pcuvd::evaluate::metrics::rmse(field, truth);
-        for (component, est, tru, value) in [
-            ("Vx", &field.vx, &truth.vx, err.vx),
-            ("Vz", &field.vz, &truth.vz, err.vz),
-        ] {
-            let mut bins: std::collections::BTreeMap<i64, Vec<f64>> = Default::default();
-            Zip::from(est)
-                .and(tru)
-                .and(&truth.mask)
-                .for_each(|&e, &t, &m| {
-                    if m && e.is_finite() {
-                        bins.entry((t * 1e3).round() as i64)
-                            .or_default()
-                            .push(e * 1e3);
-                    }
-                });
-            let (mut x, mut y, mut s) = (vec![], vec![], vec![]);
-            for (k, v) in bins {
-                if v.len() < 5 {
-                    continue;
-                }
-                let mean = v.iter().sum::<f64>() / v.len() as f64;
-                let var = v.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / v.len() as f64;
-                x.push(k as f64);
-                y.push(mean);
-                s.push(var.sqrt());
-            }
-            panels.push(Panel::Plot(PlotPanel {
-                title: format!("{name}: {component}"),
-                x_label: format!("true {component} (mm/s)"),
-                y_label: format!("estimated {component} (mm/s)"),
-                series: vec![Series {
-                    label: "mean ± SD per 1 mm/s".into(),
-                    x,
-                    y,
-                    y_err: Some(s),
-                    style: SeriesStyle::Points,
-                    rgb: Some(if name == "UVD" { UVD_RGB } else { PCUVD_RGB }),
-                }],
-                x_range: Some((-28.0, 28.0)),
-                y_range: Some((-28.0, 28.0)),
-                annotations: vec![format!("RMSE {value:.2} mm/s")],
-                diagonal: true,
-                ..Default::default()
-            }));
+        for component in [Component::Vx, Component::Vz] {
+            panels.push(accuracy_panel(name, component, field, truth));
         }
     }
-    out.push(render(dir, "fig5_accuracy.png", "Figure 5 analogue: estimated versus true velocity over all vessel pixels; points are means per 1 mm/s bin of the truth, bars one standard deviation; RMSE over all vessel pixels.", Figure { title: "Accuracy of Vx and Vz".into(), panels, ncols: 2, panel_size_px: (500, 460) })?);
+    out.push(render(dir, "fig5_accuracy.png", "Figure 5 analogue: estimated versus true velocity over all vessel pixels; points are means per 1 mm/s bin of the truth, bars one standard deviation; RMSE over all vessel pixels.", Figure { title: format!("Accuracy of Vx and Vz, noise {} dB", study.settings.noise_db), panels, ncols: 2, panel_size_px: (500, 460) })?);
+
+    // Figures 3 and 5 again at the paper's own baseline, where pcuvd's main level leaves both
+    // methods at their noise-free floor and the paper's contrast does not show.
+    let baseline = dir.join(BASELINE_FIGURE);
+    match (&study.at_baseline, &study.metrics.calibrated) {
+        (Some(at), Some(calibrated)) => {
+            let mut panels = Vec::new();
+            for (name, field) in [("UVD", &at.uvd), ("PC-UVD", &at.pcuvd)] {
+                panels.push(Panel::Image(map_panel(
+                    &format!("{name}: Vx"),
+                    masked(&field.vx, &truth.mask, 1e3),
+                    grid,
+                    Colormap::RedBlue,
+                    (-vmax, vmax),
+                    VX_LABEL,
+                )));
+                for component in [Component::Vx, Component::Vz] {
+                    panels.push(accuracy_panel(name, component, field, truth));
+                }
+            }
+            let title = format!(
+                "At the paper's baseline: noise {:+.1} dB, where UVD's Vx RMSE is the paper's {:.2} mm/s",
+                at.noise_db, calibrated.target_uvd_vx_mm_s
+            );
+            out.push(render(dir, BASELINE_FIGURE, "Figures 3 and 5 at the paper's own baseline (the noise level calibrated so that conventional UVD's Vx RMSE is the paper's, Fig. 5a): each method's Vx inside the vessel (the truth is Fig. 3's top row), and its estimated versus true velocity as in Fig. 5.", Figure { title, panels, ncols: 3, panel_size_px: (480, 440) })?);
+        }
+        // No level found, or none asked for: no figure, and none left from an earlier run.
+        _ => remove_if_present(&baseline)?,
+    }
 
     // Beyond the paper: RMSE versus noise level for four estimators.
     let levels: Vec<f64> = sweep.iter().map(|r| r.noise_db).collect();
@@ -324,4 +310,65 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
         figures::process_figures(&sub, o, &format!("spiral, {mode}"))?;
     }
     Ok(out)
+}
+
+/// The figure of Figs. 3 and 5 at the paper's calibrated baseline (absent without one).
+pub(super) const BASELINE_FIGURE: &str = "fig5b_accuracy_at_baseline.png";
+
+/// A velocity component of a vector field.
+#[derive(Clone, Copy)]
+enum Component {
+    Vx,
+    Vz,
+}
+
+/// `name`'s estimated `component` against the truth over the vessel pixels, as the paper's Fig. 5:
+/// means per 1 mm/s bin of the truth (bins of at least 5 pixels), one standard deviation as
+/// bars, the RMSE over every vessel pixel.
+fn accuracy_panel(name: &str, component: Component, field: &VectorField, truth: &Truth) -> Panel {
+    let err = pcuvd::evaluate::metrics::rmse(field, truth);
+    let (label, est, tru, value) = match component {
+        Component::Vx => ("Vx", &field.vx, &truth.vx, err.vx),
+        Component::Vz => ("Vz", &field.vz, &truth.vz, err.vz),
+    };
+    let mut bins: std::collections::BTreeMap<i64, Vec<f64>> = Default::default();
+    Zip::from(est)
+        .and(tru)
+        .and(&truth.mask)
+        .for_each(|&e, &t, &m| {
+            if m && e.is_finite() {
+                bins.entry((t * 1e3).round() as i64)
+                    .or_default()
+                    .push(e * 1e3);
+            }
+        });
+    let (mut x, mut y, mut s) = (vec![], vec![], vec![]);
+    for (k, v) in bins {
+        if v.len() < 5 {
+            continue;
+        }
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / v.len() as f64;
+        x.push(k as f64);
+        y.push(mean);
+        s.push(var.sqrt());
+    }
+    Panel::Plot(PlotPanel {
+        title: format!("{name}: {label}"),
+        x_label: format!("true {label} (mm/s)"),
+        y_label: format!("estimated {label} (mm/s)"),
+        series: vec![Series {
+            label: "mean ± SD per 1 mm/s".into(),
+            x,
+            y,
+            y_err: Some(s),
+            style: SeriesStyle::Points,
+            rgb: Some(if name == "UVD" { UVD_RGB } else { PCUVD_RGB }),
+        }],
+        x_range: Some((-28.0, 28.0)),
+        y_range: Some((-28.0, 28.0)),
+        annotations: vec![format!("RMSE {value:.2} mm/s")],
+        diagonal: true,
+        ..Default::default()
+    })
 }

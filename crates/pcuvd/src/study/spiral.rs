@@ -403,6 +403,21 @@ pub struct SpiralStudy {
     pub noise_power: [Array2<f64>; 2],
     /// SNR by depth, conventional then coded.
     pub snr: [Vec<DepthSnr>; 2],
+    /// UVD's and PC-UVD's vector fields at the paper's calibrated baseline, where a level was
+    /// found ([`SpiralMetrics::calibrated`]).
+    pub at_baseline: Option<BaselineFields>,
+}
+
+/// The two methods' vector fields at the noise level calibrated to the paper's baseline: what its
+/// Figs. 3–5 show, where pcuvd's main level leaves both methods at their noise-free floor.
+#[derive(Debug, Clone)]
+pub struct BaselineFields {
+    /// The calibrated noise level (dB, pcuvd's definition).
+    pub noise_db: f64,
+    /// UVD's vector field there: conventional recording, least squares (m/s).
+    pub uvd: VectorField,
+    /// PC-UVD's vector field there: coded recording, IRLS-WLS (m/s).
+    pub pcuvd: VectorField,
 }
 
 impl SpiralStudy {
@@ -531,10 +546,16 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         .iter()
         .map(|f| super::compound_mean_power(&f.signal))
         .collect::<Result<_>>()?;
-    // The four estimators' RMSE with both recordings' noise at `gain` × the simulated level.
+    // Both recordings processed with their noise at `gain` × the simulated level.
+    let analyse_at_gain = |gain: f32, params: &ProcessParams| -> Result<[ProcessOutput; 2]> {
+        Ok([
+            pipeline::analyse(formed[0].at_gain(gain), params, &quiet)?,
+            pipeline::analyse(formed[1].at_gain(gain), params, &quiet)?,
+        ])
+    };
+    // The four estimators' RMSE there.
     let rmse_at_gain = |gain: f32, params: &ProcessParams| -> Result<EstimatorRmse> {
-        let conv = pipeline::analyse(formed[0].at_gain(gain), params, &quiet)?;
-        let coded = pipeline::analyse(formed[1].at_gain(gain), params, &quiet)?;
+        let [conv, coded] = analyse_at_gain(gain, params)?;
         Ok(estimator_rmse(&conv, &coded, &truth))
     };
 
@@ -563,37 +584,44 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
 
     let clock = Instant::now();
     // The level where UVD (LS) with `params` reads Vx at `target` (m/s), starting from `swept`,
-    // and every estimator's scores there.
+    // and every estimator's scores there, with UVD's and PC-UVD's vector fields.
     let calibrate_with = |target: f64, params: &ProcessParams, swept: &[(f64, f64)]| {
         let uvd_vx = |level: f64| uvd_vx_at(&formed[0], settings.noise_db, level, params, &truth);
         let c = calibrate(target * 1e3, swept, uvd_vx)?;
         Ok::<_, crate::core::error::Error>(match c.noise_db {
             Some(level) => {
-                let rmse = rmse_at_gain(gain_of(settings.noise_db, level), params)?;
-                Calibrated {
+                let [conv, coded] = analyse_at_gain(gain_of(settings.noise_db, level), params)?;
+                let rmse = estimator_rmse(&conv, &coded, &truth);
+                let calibrated = Calibrated {
                     rmse_mm_s: Some(rmse),
                     improvement_pct: Some(PerComponent {
                         vx: improvement(rmse.uvd_ls.vx, rmse.pcuvd_irls.vx),
                         vz: improvement(rmse.uvd_ls.vz, rmse.pcuvd_irls.vz),
                     }),
                     ..c
-                }
+                };
+                let fields = BaselineFields {
+                    noise_db: level,
+                    uvd: conv.maps.vector_ls.expect("8 angles"),
+                    pcuvd: coded.maps.vector_irls.expect("8 angles"),
+                };
+                (calibrated, Some(fields))
             }
-            None => c,
+            None => (c, None),
         })
     };
-    let calibrated = match settings.calibrate_uvd_vx_m_s {
+    let (calibrated, at_baseline) = match settings.calibrate_uvd_vx_m_s {
         Some(target) => {
             progress("calibration", 0, 1);
             let swept: Vec<(f64, f64)> = noise_sweep
                 .iter()
                 .map(|r| (r.noise_db, r.rmse.uvd_ls.vx))
                 .collect();
-            let c = calibrate_with(target, &params, &swept)?;
+            let (c, fields) = calibrate_with(target, &params, &swept)?;
             progress("calibration", 1, 1);
-            Some(c)
+            (Some(c), fields)
         }
-        None => None,
+        None => (None, None),
     };
     timing.insert("calibration_s".into(), clock.elapsed().as_secs_f64());
 
@@ -621,7 +649,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
                             uvd_vx_at(&formed[0], main, level, &params, &truth).map(|v| (level, v))
                         })
                         .collect::<Result<Vec<_>>>()?;
-                    Some(calibrate_with(target, &params, &swept)?)
+                    Some(calibrate_with(target, &params, &swept)?.0)
                 }
                 None => None,
             };
@@ -702,6 +730,7 @@ pub fn run(settings: &SpiralSettings, progress: Progress<'_>) -> Result<SpiralSt
         coded,
         noise_power: [noise_conv, noise_coded],
         snr,
+        at_baseline,
     })
 }
 
