@@ -293,6 +293,18 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
             SeriesStyle::DashedLine,
             (120, 120, 120),
         ));
+        if let Some(at) = &study.at_baseline {
+            series.push(line(
+                &format!(
+                    "paper's baseline ({:+.1} dB, {BASELINE_FIGURE})",
+                    at.noise_db
+                ),
+                vec![at.noise_db, at.noise_db],
+                vec![0.0, top],
+                SeriesStyle::DashedLine,
+                BASELINE_LINE_RGB,
+            ));
+        }
         panels.push(Panel::Plot(PlotPanel {
             title: format!("RMSE of {component} versus noise level"),
             x_label: "noise level (dB, see definition)".into(),
@@ -301,7 +313,7 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
             ..Default::default()
         }));
     }
-    out.push(render(dir, "fig_noise_sweep.png", "Beyond the paper: RMSE of Vx and Vz versus channel noise level for conventional and coded transmission, each with least squares and IRLS-WLS (same scatterers and noise realisation at every level).", Figure { title: "Noise sweep".into(), panels, ncols: 2, panel_size_px: (560, 440) })?);
+    out.push(render(dir, "fig_noise_sweep.png", "Beyond the paper: RMSE of Vx and Vz versus channel noise level for conventional and coded transmission, each with least squares and IRLS-WLS (same scatterers and noise realisation at every level); the dashed verticals mark the main study's level and the level calibrated to the paper's baseline.", Figure { title: "Noise sweep".into(), panels, ncols: 2, panel_size_px: (560, 440) })?);
 
     // The maps of each mode, as `pcuvd process` would draw them.
     for (o, mode) in [conv, coded].into_iter().zip(MODE_FOLDERS) {
@@ -314,6 +326,9 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
 
 /// The figure of Figs. 3 and 5 at the paper's calibrated baseline (absent without one).
 pub(super) const BASELINE_FIGURE: &str = "fig5b_accuracy_at_baseline.png";
+
+/// The noise sweep's mark of the calibrated baseline (a dark teal, apart from the methods' colours).
+const BASELINE_LINE_RGB: (u8, u8, u8) = (0, 110, 110);
 
 /// A velocity component of a vector field.
 #[derive(Clone, Copy)]
