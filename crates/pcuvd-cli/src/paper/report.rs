@@ -145,8 +145,9 @@ pub(super) fn calibrated_report(report: &mut Report, c: &spiral::Calibrated) {
     let f = |x: f64| format!("{x:.2}");
     report.heading("At the paper's baseline: the noise level where UVD's Vx RMSE is the paper's");
     report.paragraph(&format!(
-        "pcuvd's noise level (dB) is not the paper's, whose definition is not given. This level is calibrated instead: found by bisection on the noise level, over the same scatterers and noise realisation as the sweep, where conventional UVD (LS) reads Vx with the paper's RMSE, {} mm/s; every estimator is scored there. {}.",
+        "pcuvd's noise level (dB) is not the paper's, whose definition is not given. This level is calibrated instead: found by bisection on the noise level, over the same scatterers and noise realisation as the sweep, where conventional UVD (LS) reads Vx with the paper's RMSE, {} mm/s; every estimator is scored there, and `{}` draws UVD and PC-UVD there as the paper's Figs. 3 and 5 do. {}.",
         f(c.target_uvd_vx_mm_s),
+        BASELINE_FIGURE,
         c.note
     ));
     let (Some(level), Some(r), Some(gain)) = (c.noise_db, &c.rmse_mm_s, &c.improvement_pct) else {
