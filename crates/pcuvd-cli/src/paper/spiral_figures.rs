@@ -2,6 +2,7 @@
 //! noise, and the spatial averaging's effect.
 
 use super::*;
+use pcuvd::core::grid::Grid;
 
 pub(super) fn masked(values: &Array2<f64>, mask: &Array2<bool>, scale: f64) -> Array2<f64> {
     Zip::from(values)
@@ -118,14 +119,7 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
     ];
     for (name, field) in &rows {
         let speed = field.speed();
-        panels.push(Panel::Image(map_panel(
-            &format!("{name}: Vx"),
-            masked(&field.vx, &truth.mask, 1e3),
-            grid,
-            Colormap::RedBlue,
-            (-vmax, vmax),
-            VX_LABEL,
-        )));
+        panels.push(vx_panel(name, field, truth, grid, vmax));
         // Vz is positive deeper: the reversed map keeps red = toward the probe (up), as in
         // every other figure and in the paper.
         panels.push(Panel::Image(map_panel(
@@ -231,14 +225,7 @@ pub(super) fn paper_figures(dir: &Path, study: &SpiralStudy) -> Result<Vec<Rende
         (Some(at), Some(calibrated)) => {
             let mut panels = Vec::new();
             for (name, field) in [("UVD", &at.uvd), ("PC-UVD", &at.pcuvd)] {
-                panels.push(Panel::Image(map_panel(
-                    &format!("{name}: Vx"),
-                    masked(&field.vx, &truth.mask, 1e3),
-                    grid,
-                    Colormap::RedBlue,
-                    (-vmax, vmax),
-                    VX_LABEL,
-                )));
+                panels.push(vx_panel(name, field, truth, grid, vmax));
                 for component in [Component::Vx, Component::Vz] {
                     panels.push(accuracy_panel(name, component, field, truth));
                 }
@@ -329,6 +316,18 @@ pub(super) const BASELINE_FIGURE: &str = "fig5b_accuracy_at_baseline.png";
 
 /// The noise sweep's mark of the calibrated baseline (a dark teal, apart from the methods' colours).
 const BASELINE_LINE_RGB: (u8, u8, u8) = (0, 110, 110);
+
+/// `name`'s Vx (mm/s) inside the true vessel, red toward +x, on ±`vmax` mm/s.
+fn vx_panel(name: &str, field: &VectorField, truth: &Truth, grid: &Grid, vmax: f64) -> Panel {
+    Panel::Image(map_panel(
+        &format!("{name}: Vx"),
+        masked(&field.vx, &truth.mask, 1e3),
+        grid,
+        Colormap::RedBlue,
+        (-vmax, vmax),
+        VX_LABEL,
+    ))
+}
 
 /// A velocity component of a vector field.
 #[derive(Clone, Copy)]
