@@ -267,17 +267,17 @@ pub fn form_block_into(
     progress: &dyn Fn(Stage, usize),
 ) -> Result<BlockFormed> {
     let acq = source.acquisition();
+    let n_angles = acq.sequence.n_angles();
     if !(decoded.start <= block.start && block.end <= decoded.end && block.start < block.end) {
         return Err(invalid(
             "frames",
             format!("block {block:?} is not within the decoded frames {decoded:?}"),
         ));
     }
-    if images.len() != acq.sequence.n_angles() {
+    if images.len() != n_angles {
         return Err(Error::Shape(format!(
-            "{} image series for {} angles",
+            "{} image series for {n_angles} angles",
             images.len(),
-            acq.sequence.n_angles()
         )));
     }
     let clock = Instant::now();
@@ -286,7 +286,6 @@ pub fn form_block_into(
     let data = buffers.read.as_ref().expect("just read");
     // A recording is scaled as a whole: each block's first frame stands for it, at no cost
     // worth a pass over the block.
-    let n_angles = acq.sequence.n_angles();
     crate::core::lags::check_sample_peak(
         data.samples.peak_of_first_events(n_angles),
         &format!("the samples of frame {}", decoded.start),
@@ -296,7 +295,7 @@ pub fn form_block_into(
     let data = buffers.read.as_mut().expect("just read");
     decode::Decoder::new(data, params.event_alignment)?
         .decode_in_place(&mut data.samples, kept.clone())?;
-    let per_angle = data.samples.decoded_frames(acq.sequence.n_angles(), kept)?;
+    let per_angle = data.samples.decoded_frames(n_angles, kept)?;
     let decode_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
