@@ -367,10 +367,10 @@ fn process_writes_ri_maps_and_refuses_what_cannot_work() {
     );
 }
 
-/// A small valid coded recording without flow where the grid lies (16 elements, 4 angles, 64 frames
-/// at 1 kHz, every echo from beyond the grid's depths) processed with dynamics settings given: the maps are written and
-/// the missing RI maps are a note and a line of summary.json, not a failed run (it failed with "no
-/// pixel has power").
+/// A small valid coded recording without flow where the grid lies (16 elements, 4 angles, 64
+/// frames at 1 kHz, every echo from beyond the grid's depths) processed with dynamics settings
+/// given: the maps are written and the missing RI maps are a note and a line of summary.json, not
+/// a failed run (it failed with "no pixel has power").
 #[test]
 fn a_recording_without_flow_is_processed_with_a_note_on_its_ri_maps() {
     use pcuvd::{Acquisition, ChannelData, Samples};
