@@ -86,7 +86,9 @@ class ProcessResult:
     dynamics stage ran; `ensemble_power_doppler`, `ensemble_color_doppler`,
     `ensemble_signed_power_doppler`, `ensemble_vx`,
     `ensemble_vz`, `ensemble_speed` (ensembles, nz, nx) and `ensemble_times` with
-    `ensemble_frames=N`; `clutter_block_cut_offs` (segments, angles, block rows, block
+    `ensemble_frames=N`; `site_spectrograms` (sites, windows, velocities, dB), `site_velocities`
+    (sites, velocities), `site_times` and `site_mean_velocity` (sites, windows) with
+    `sites_mm=[(x, z), ...]`; `clutter_block_cut_offs` (segments, angles, block rows, block
     columns, 2) with the block-wise clutter filter (the default); `x` (nx) and `z` (nz) in m.
     """
 
@@ -278,7 +280,10 @@ def process(
     step of at most about a wavelength), `partial_volume="on"` (move each angle's projection
     from its resolution cell's power centroid back to the pixel before the vector fit),
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
-    `ensemble_step=16` (a Doppler time series); see `process_option_names()`.
+    `ensemble_step=16` (a Doppler time series), `sites_mm=[(x, z), ...]` (points in mm whose
+    Doppler spectrograms the result gives as `site_spectrograms`, `site_velocities`,
+    `site_times`, `site_mean_velocity`, and `save` draws in `sites.png`); see
+    `process_option_names()`.
     The path of an images manifest (beamformed IQ images formed elsewhere, format
     "pcuvd-images": docs/guide/inputs.md), or of ConfUSIus's Zarr store of IQ (a `.zarr`
     folder with an `iq` array), runs the chain from the clutter filter on, as the command does;

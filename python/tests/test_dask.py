@@ -102,7 +102,9 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
     "auto", the whole image's filter)."""
     import pcuvd.dask
 
-    runs = {dealias: {**SEGMENTED, "dealias": dealias} for dealias in ("off", "auto")}
+    # Two spectrogram sites, their series kept by each worker from its segments and joined.
+    sites = [(0, 8), (0.5, 7.5)]
+    runs = {d: {**SEGMENTED, "dealias": d, "sites_mm": sites} for d in ("off", "auto")}
     runs["off"]["svd_block_mm"] = 1.0
     runs["auto"]["svd_block_mm"] = "whole"
     serial = {d: pcuvd.process(str(long_tube), quiet=True, **o) for d, o in runs.items()}
@@ -116,7 +118,8 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
         assert len(segments) >= 3, segments
         both = joined[dealias]
         assert sorted(both.arrays) == sorted(one.arrays)
-        for name in ("ri", "speed_series", "ensemble_power_doppler", "vx", "power_doppler"):
+        for name in ("ri", "speed_series", "ensemble_power_doppler", "vx", "power_doppler",
+                     "site_spectrograms", "site_mean_velocity"):
             assert name in one.arrays, name
         assert ("clutter_block_cut_offs" in one.arrays) == (dealias == "off")
         for name, value in one.arrays.items():
@@ -124,6 +127,8 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
         assert both.summary["segments"] == one.summary["segments"]
         assert both.summary["ensembles"] == one.summary["ensembles"]
         assert both.summary["dynamics"] == one.summary["dynamics"]
+        assert both.summary["sites"] == one.summary["sites"]
+        assert [(s["x_mm"], s["z_mm"]) for s in one.summary["sites"]] == sites
 
 
 def test_a_cluster_run_refuses_what_it_cannot_share(long_tube, disk):

@@ -51,6 +51,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         "--ensemble-frames=4",
         "--ensemble-step=3",
         "--dealias=auto",
+        "--sites=0,8;-1,7",
     ]
     options = tube_options if which == "tube" else []
     if which == "tube in segments":
@@ -60,6 +61,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
             "--ensemble-step=2",
             "--segment-frames=8",
             "--dealias=auto",
+            "--sites=0,8;-1,7",
         ]
     if which == "tube in blocks":
         # The block-wise clutter filter (1.2 mm: 15 pixels, made 16) in two segments.
@@ -74,6 +76,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         "ensemble_frames": 4,
         "ensemble_step": 3,
         "dealias": "auto",
+        "sites_mm": [(0, 8), (-1, 7)],
     }
     kwargs = tube_kwargs if which == "tube" else {}
     if which == "tube in segments":
@@ -101,6 +104,18 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         assert cli_arrays["ensemble_vx"].shape == (4, *cli_arrays["vx"].shape)
         segments = json.loads((by_cli / "summary.json").read_text())["segments"]
         assert segments["own_frames"] == [[0, 6], [6, 10]]
+    if which in ("tube", "tube in segments"):
+        # Two sites' spectrograms: 8-frame windows every 2 frames of the 10 (a recording
+        # shorter than four 20 ms windows takes a quarter of its frames, at least 8).
+        windows, columns = 2, 64
+        assert cli_arrays["site_spectrograms"].shape == (2, windows, columns)
+        assert cli_arrays["site_velocities"].shape == (2, columns)
+        assert cli_arrays["site_mean_velocity"].shape == (2, windows)
+        sites = json.loads((by_cli / "summary.json").read_text())["sites"]
+        assert [(s["x_mm"], s["z_mm"]) for s in sites] == [(0, 8), (-1, 7)]
+        assert (by_cli / "sites.png").is_file()
+    else:
+        assert "site_spectrograms" not in cli_arrays
     if which == "tube in blocks":
         # Each segment's and angle's blocks: 9 rows and 9 columns of them on the 76-pixel grid
         # (16-pixel blocks at 8-pixel steps, the last flush with the edge at 60).

@@ -34,6 +34,7 @@ pub mod run;
 pub mod scenario;
 pub mod settings;
 pub mod simulation;
+pub mod sites;
 pub mod study;
 pub mod summary;
 pub mod zarr;

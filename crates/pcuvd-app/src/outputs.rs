@@ -44,6 +44,10 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ensemble_speed.npy",
     "ensemble_times.npy",
     "clutter_block_cut_offs.npy",
+    "site_spectrograms.npy",
+    "site_times.npy",
+    "site_velocities.npy",
+    "site_mean_velocity.npy",
     "bmode.png",
     "power_doppler.png",
     "signed_power_doppler.png",
@@ -55,6 +59,7 @@ pub const PROCESS_OUTPUTS: &[&str] = &[
     "ensembles.png",
     "clutter_blocks.png",
     "against_truth.png",
+    "sites.png",
     // --nifti, named by map: the image and its sidecar.
     "power_doppler.nii.gz",
     "power_doppler.json",

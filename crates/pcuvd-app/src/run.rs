@@ -9,7 +9,7 @@ use pcuvd::pipeline::segments::{SegmentSource, Segments};
 use pcuvd::pipeline::{self, ProcessOutput, ProcessParams};
 
 use crate::progress::Progress;
-use crate::settings::{DynamicsChoice, DynamicsSettings, ProcessingSettings, Switch};
+use crate::settings::{DynamicsChoice, DynamicsSettings, ProcessingSettings, Site, Switch};
 
 /// Every setting of a `process` run, read and checked before any work: the pipeline's, the
 /// dynamics stage's, and the options as text (what summary.json records and a re-run compares).
@@ -33,8 +33,46 @@ pub struct Plan {
     /// How a recording too long to hold whole is cut; `None`: processed whole.
     pub segments: Option<Segments>,
     /// Pixels (row, col) whose clutter-filtered series the run keeps over the whole recording
-    /// ([`Processed::kept`], for spectrograms); empty by default.
+    /// ([`Processed::kept`], for spectrograms); the sites' pixels, in their order, else empty.
     pub kept_pixels: Vec<(usize, usize)>,
+    /// The points `--sites` asked to see the flow at over time, and their spectrograms' windows;
+    /// `None` when none were asked for.
+    pub sites: Option<SitePlan>,
+}
+
+/// The spectrogram sites of a run ([`ProcessingSettings::sites`]) and the windows their
+/// spectrograms take (the dynamics stage's).
+#[derive(Debug, Clone)]
+pub struct SitePlan {
+    /// The points, in the order given; the run keeps their pixels' series in this order.
+    pub sites: Vec<Site>,
+    /// Each spectrogram's windows (frames at the compound frame rate).
+    pub spectrogram: pcuvd::dynamics::SpectrogramParams,
+}
+
+impl SitePlan {
+    /// The sites `options` asks for on `grid`, their windows those of `dynamics` at
+    /// `frame_rate` (Hz) over `n_frames` frames; `None` when none were asked for.
+    fn of(
+        options: &ProcessingSettings,
+        dynamics: &DynamicsSettings,
+        grid: &pcuvd::core::grid::Grid,
+        (frame_rate, n_frames): (f64, usize),
+    ) -> Result<Option<SitePlan>> {
+        let sites = options.sites(grid)?;
+        if sites.is_empty() {
+            return Ok(None);
+        }
+        let (window, step) = dynamics.window_frames(frame_rate)?;
+        let spectrogram = pcuvd::dynamics::SpectrogramParams::for_windows(window, step, n_frames)
+            .context("--sites")?;
+        Ok(Some(SitePlan { sites, spectrogram }))
+    }
+
+    /// The sites' pixels, in their order.
+    fn pixels(&self) -> Vec<(usize, usize)> {
+        self.sites.iter().map(|s| s.pixel).collect()
+    }
 }
 
 impl Plan {
@@ -66,6 +104,12 @@ impl Plan {
             recorded_triggers,
         )?;
         let ensembles = options.ensembles(data.n_frames())?;
+        let sites = SitePlan::of(
+            options,
+            dynamics,
+            &params.grid,
+            (acq.frame_rate(), data.n_frames()),
+        )?;
         let segments = planned_cut(
             options,
             &params,
@@ -81,7 +125,8 @@ impl Plan {
             dynamics_required: dynamics.explicit(),
             dynamics_fit: None,
             options_text: settings_text(options, dynamics),
-            kept_pixels: Vec::new(),
+            kept_pixels: sites.as_ref().map(SitePlan::pixels).unwrap_or_default(),
+            sites,
         })
     }
 
@@ -105,6 +150,12 @@ impl Plan {
             recorded_triggers,
         )?;
         let ensembles = options.ensembles(n_frames)?;
+        let sites = SitePlan::of(
+            options,
+            dynamics,
+            &params.grid,
+            (images.frame_rate, n_frames),
+        )?;
         let segments = planned_cut(
             options,
             &params,
@@ -120,7 +171,8 @@ impl Plan {
             dynamics_required: dynamics.explicit(),
             dynamics_fit: None,
             options_text: settings_text(options, dynamics),
-            kept_pixels: Vec::new(),
+            kept_pixels: sites.as_ref().map(SitePlan::pixels).unwrap_or_default(),
+            sites,
         })
     }
 

@@ -117,6 +117,21 @@ pub struct ProcessingSettings {
     /// recording in one when it fits, which gives the exact whole-recording maps).
     #[cfg_attr(feature = "clap", arg(long))]
     pub segment_frames: Option<usize>,
+    /// Points (mm) at which to show the flow over time: each one's compounded Doppler
+    /// spectrogram over the dynamics windows (--window-ms, --window-step-ms), read at the grid
+    /// pixel nearest to it (sites.png, site_*.npy). X,Z pairs separated by ";" (or every number
+    /// by ","), e.g. --sites=-1.5,8;2,10.
+    #[cfg_attr(
+        feature = "clap",
+        arg(
+            long,
+            visible_alias = "sites-mm",
+            allow_hyphen_values = true,
+            value_name = "X,Z[;X,Z...]"
+        )
+    )]
+    #[serde(alias = "sites_mm", deserialize_with = "optional_text")]
+    pub sites: Option<String>,
 }
 
 impl Default for ProcessingSettings {
@@ -138,6 +153,7 @@ impl Default for ProcessingSettings {
             ensemble_frames: None,
             ensemble_step: None,
             segment_frames: None,
+            sites: None,
         }
     }
 }
@@ -177,11 +193,75 @@ impl ProcessingSettings {
             .context("--ensemble-frames / --ensemble-step")?;
         Ok(Some(spec))
     }
+
+    /// The points of `--sites` on `grid`, each with its nearest pixel; empty when none were
+    /// asked for. A point farther than half a pixel beyond the grid's edge is refused: it was not
+    /// imaged.
+    pub fn sites(&self, grid: &Grid) -> Result<Vec<Site>> {
+        let Some(text) = &self.sites else {
+            return Ok(Vec::new());
+        };
+        let numbers = parse_numbers(&text.replace(';', ",")).with_context(|| {
+            format!("--sites {text:?}: expected X,Z pairs in mm, e.g. --sites=-1.5,8;2,10")
+        })?;
+        if numbers.is_empty() || numbers.len() % 2 != 0 {
+            bail!(
+                "--sites {text:?}: expected X,Z pairs in mm (an even count of numbers), got {}",
+                numbers.len()
+            );
+        }
+        let span = |axis: &[f64]| (axis[0] * 1e3, axis[axis.len() - 1] * 1e3);
+        numbers
+            .chunks(2)
+            .map(|pair| {
+                let (x_m, z_m) = (pair[0] * 1e-3, pair[1] * 1e-3);
+                match (nearest_on(&grid.x, x_m), nearest_on(&grid.z, z_m)) {
+                    (Some(ix), Some(iz)) => Ok(Site {
+                        x_m,
+                        z_m,
+                        pixel: (iz, ix),
+                    }),
+                    _ => {
+                        let ((x0, x1), (z0, z1)) = (span(&grid.x), span(&grid.z));
+                        bail!(
+                            "--sites {text:?}: ({}, {}) mm lies outside the imaged grid (x from \
+                             {x0:.2} to {x1:.2} mm, z from {z0:.2} to {z1:.2} mm)",
+                            pair[0],
+                            pair[1]
+                        )
+                    }
+                }
+            })
+            .collect()
+    }
+}
+
+/// The index of the sample of `axis` (m, evenly spaced) nearest to `v` (m); `None` when `v` lies
+/// more than half a step beyond either end.
+fn nearest_on(axis: &[f64], v: f64) -> Option<usize> {
+    let (first, last) = (*axis.first()?, *axis.last()?);
+    let half_step = 0.5 * (last - first).abs() / (axis.len() - 1).max(1) as f64;
+    if !(v >= first.min(last) - half_step && v <= first.max(last) + half_step) {
+        return None;
+    }
+    (0..axis.len()).min_by(|&a, &b| (axis[a] - v).abs().total_cmp(&(axis[b] - v).abs()))
+}
+
+/// A point whose flow a run shows over time (`--sites`): where it was asked for and the grid
+/// pixel nearest to it, whose spectrogram is read.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Site {
+    /// Lateral position asked for (m).
+    pub x_m: f64,
+    /// Depth asked for (m).
+    pub z_m: f64,
+    /// The nearest pixel, (row, col).
+    pub pixel: (usize, usize),
 }
 
 /// A setting that is a word or a number ("auto", "off", 3) or a list of numbers ("3x3", [3, 3]),
 /// as the text the command line would hold: a list joins with ",", which every list-reading
-/// setting accepts (a kernel reads "3,3" as "3x3").
+/// setting accepts (a kernel reads "3,3" as "3x3"), and a list of points with ";" between them.
 #[derive(Deserialize)]
 #[serde(untagged)]
 enum TextValue {
@@ -198,11 +278,16 @@ impl TextValue {
             TextValue::Whole(n) => n.to_string(),
             // As Python's repr writes a float: the shortest text that reads back the same.
             TextValue::Number(v) => format!("{v:?}"),
-            TextValue::List(items) => items
-                .into_iter()
-                .map(TextValue::into_text)
-                .collect::<Vec<_>>()
-                .join(","),
+            TextValue::List(items) => {
+                // A list of lists (points, [[x, z], ...]) joins its points with ";", as the
+                // command line writes them.
+                let nested = items.iter().any(|item| matches!(item, TextValue::List(_)));
+                items
+                    .into_iter()
+                    .map(TextValue::into_text)
+                    .collect::<Vec<_>>()
+                    .join(if nested { ";" } else { "," })
+            }
         }
     }
 }
@@ -626,18 +711,9 @@ impl DynamicsSettings {
         Ok(tests)
     }
 
-    /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
-    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls` and `dealias`, the averaging kernel of
-    /// `--dynamics-kernel`, vessel pooling converted from mm to pixels of `grid_step_m` (m).
-    pub fn params(
-        &self,
-        frame_rate: f64,
-        irls: IrlsParams,
-        dealias: pcuvd::estimate::dealias::Dealias,
-        grid_step_m: f64,
-    ) -> Result<DynamicsParams> {
-        let kernel = parse_kernel(&self.dynamics_kernel)
-            .map_err(|e| anyhow::anyhow!("{e}").context("--dynamics-kernel"))?;
+    /// The sliding windows of `--window-ms` and `--window-step-ms` in frames at compound frame
+    /// rate `frame_rate` (Hz): (window ≥ 2, step ≥ 1).
+    pub fn window_frames(&self, frame_rate: f64) -> Result<(usize, usize)> {
         let frames = |ms: f64, option: &str| -> Result<usize> {
             let flag = format!("--{option}");
             if !(ms.is_finite() && ms > 0.0) {
@@ -669,6 +745,22 @@ impl DynamicsSettings {
             "window-step-ms",
         )?
         .max(1);
+        Ok((window, step))
+    }
+
+    /// Dynamics settings at compound frame rate `frame_rate` (Hz): windows converted from ms to
+    /// frames, the PC-UVD estimator (IRLS-WLS) with `irls` and `dealias`, the averaging kernel of
+    /// `--dynamics-kernel`, vessel pooling converted from mm to pixels of `grid_step_m` (m).
+    pub fn params(
+        &self,
+        frame_rate: f64,
+        irls: IrlsParams,
+        dealias: pcuvd::estimate::dealias::Dealias,
+        grid_step_m: f64,
+    ) -> Result<DynamicsParams> {
+        let kernel = parse_kernel(&self.dynamics_kernel)
+            .map_err(|e| anyhow::anyhow!("{e}").context("--dynamics-kernel"))?;
+        let (window, step) = self.window_frames(frame_rate)?;
         if let Some(hr) = self.heart_rate
             && !(hr.is_finite() && hr > 0.0 && hr <= frame_rate)
         {
@@ -876,6 +968,51 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(error.contains("long"), "{error}");
+    }
+
+    #[test]
+    fn sites_are_points_in_mm_read_at_their_nearest_pixel() {
+        // x from −2 to 2 mm, z from 6 to 10 mm, 0.1 mm steps.
+        let grid = parse_grid("-2,2,6,10,0.1").unwrap();
+        let from_python: ProcessingSettings =
+            serde_json::from_str(r#"{"sites_mm": [[0, 8], [-1.96, 6.04]]}"#).unwrap();
+        assert_eq!(from_python.sites.as_deref(), Some("0,8;-1.96,6.04"));
+        let sites = from_python.sites(&grid).unwrap();
+        assert_eq!(sites.len(), 2);
+        assert_eq!(sites[0].pixel, (20, 20));
+        assert_eq!(sites[1].pixel, (0, 0));
+        assert!((sites[1].x_m + 1.96e-3).abs() < 1e-12 && (sites[1].z_m - 6.04e-3).abs() < 1e-12);
+        // Every number by "," reads the same; half a step beyond the edge is still the edge.
+        let flat = ProcessingSettings {
+            sites: Some("0,8,2.04,10.04".into()),
+            ..ProcessingSettings::default()
+        };
+        let pixels: Vec<_> = flat.sites(&grid).unwrap().iter().map(|s| s.pixel).collect();
+        assert_eq!(pixels, [(20, 20), (40, 40)]);
+        assert!(
+            ProcessingSettings::default()
+                .sites(&grid)
+                .unwrap()
+                .is_empty()
+        );
+        for (text, expected) in [
+            ("0,8;2.1,8", "(2.1, 8) mm lies outside the imaged grid"),
+            ("0,5.9", "(0, 5.9) mm lies outside the imaged grid"),
+            ("0,8;1", "an even count of numbers"),
+            ("", "expected X,Z pairs"),
+            ("0,eight", "expected X,Z pairs"),
+            ("0,NaN", "expected X,Z pairs"),
+        ] {
+            let settings = ProcessingSettings {
+                sites: Some(text.into()),
+                ..ProcessingSettings::default()
+            };
+            let error = format!("{:#}", settings.sites(&grid).unwrap_err());
+            assert!(
+                error.contains("--sites") && error.contains(expected),
+                "{text}: {error}"
+            );
+        }
     }
 
     #[test]

@@ -112,7 +112,7 @@ fn field_names<T: Serialize + Default>(aliases: &[&str]) -> Vec<String> {
 
 /// The keyword aliases of [`ProcessingSettings`]: units in the name, as the command line's
 /// visible aliases.
-const PROCESSING_ALIASES: [&str; 1] = ["grid_mm"];
+const PROCESSING_ALIASES: [&str; 2] = ["grid_mm", "sites_mm"];
 /// The keyword aliases of [`DynamicsSettings`].
 const DYNAMICS_ALIASES: [&str; 1] = ["heart_rate_hz"];
 

@@ -2,6 +2,7 @@
 //! dynamics re-run and saving.
 
 use crate::*;
+use pcuvd_app::sites::{ARRAYS as SITE_ARRAYS, SiteSpectrograms};
 
 /// `pcuvd process`'s options, without the input and the output folder: keywords split between
 /// the processing and the dynamics settings by their names.
@@ -426,6 +427,24 @@ impl PyProcessResult {
         }
         if let DynamicsOutcome::Done { series, maps } = &self.processed.dynamics {
             put_ri_maps(&dict, maps, series, want)?;
+        }
+        if self.plan.sites.is_some() {
+            let wanted: Vec<&str> = SITE_ARRAYS.into_iter().filter(|n| want(n)).collect();
+            // Made only when one of them is asked for (the names cost nothing).
+            if !wanted.is_empty()
+                && let Some(sites) =
+                    SiteSpectrograms::of(&self.plan, &self.processed).map_err(to_py)?
+            {
+                for name in wanted {
+                    let array = match name {
+                        "site_spectrograms" => sites.power_db().into_pyarray(py).into_any(),
+                        "site_times" => PyArray1::from_slice(py, &sites.times_s).into_any(),
+                        "site_velocities" => sites.velocities().into_pyarray(py).into_any(),
+                        _ => sites.mean_velocity().into_pyarray(py).into_any(),
+                    };
+                    dict.set_item(name, array)?;
+                }
+            }
         }
         if let Some(ensembles) = &self.processed.ensembles {
             put("ensemble_power_doppler", &|| {

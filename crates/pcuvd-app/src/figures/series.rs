@@ -345,10 +345,17 @@ pub fn spectrogram_panel(
     lines: Vec<Polyline>,
 ) -> pcuvd_render::ImagePanel {
     let (t, v) = (&spec.times_s, &spec.velocities_m_s);
+    // One window has no extent in time: drawn a millisecond wide around its centre.
+    let (first, last) = (t[0] * 1e3, t[t.len() - 1] * 1e3);
+    let time_span = if last > first {
+        (first, last)
+    } else {
+        (first - 0.5, last + 0.5)
+    };
     pcuvd_render::ImagePanel {
         title,
         data: spec.power_db.t().to_owned(),
-        x_mm: (t[0] * 1e3, t[t.len() - 1] * 1e3),
+        x_mm: time_span,
         z_mm: (v[0] * 1e3, v[v.len() - 1] * 1e3),
         colormap: Colormap::Gray,
         range: (-40.0, 0.0),

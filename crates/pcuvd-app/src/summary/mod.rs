@@ -93,6 +93,7 @@ pub fn save(
         pngs.extend(figures::clutter_blocks_figure(dir, out, &clutter, name)?);
     }
     pngs.append(&mut write_dynamics(dir, plan, processed, name, progress)?);
+    pngs.extend(crate::sites::write_sites(dir, plan, processed, name)?);
     if let Some(maps) = &processed.ensembles
         && !processed.ensembles_in_store
     {

@@ -65,6 +65,10 @@ pub struct Summary {
     /// has the scenario `pcuvd simulate` wrote beside it (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub against_truth: Option<crate::against_truth::TruthRecord>,
+    /// The points whose spectrograms the run drew (`--sites`: sites.png, site_*.npy), with the
+    /// pixels read (absent when none were asked for).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sites: Option<Vec<crate::sites::SiteRecord>>,
     /// Wall-clock seconds by stage.
     pub timings_s: BTreeMap<String, f64>,
     /// The process's peak resident memory (bytes) when the summary was written, all outputs but
@@ -539,6 +543,11 @@ impl Summary {
             nifti: None,
             zarr: None,
             against_truth: None,
+            // A spectrogram that cannot be made fails the save, which makes them again.
+            sites: crate::sites::SiteSpectrograms::of(plan, processed)
+                .ok()
+                .flatten()
+                .map(|sites| sites.records(&processed.out.grid)),
             timings_s: (out.timings.iter())
                 .map(|(stage, seconds)| (stage.label().to_string(), *seconds))
                 .collect(),

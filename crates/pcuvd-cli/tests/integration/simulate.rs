@@ -21,6 +21,11 @@ fn simulated_tube(tube_options: &[&str]) -> TubeTruth {
 
 /// [`simulated_tube`] with `frames` frames.
 fn simulated_tube_of(frames: &str, tube_options: &[&str]) -> TubeTruth {
+    simulated_tube_at(frames, "2", tube_options)
+}
+
+/// [`simulated_tube_of`] with `angles` plane-wave angles.
+fn simulated_tube_at(frames: &str, angles: &str, tube_options: &[&str]) -> TubeTruth {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_str().unwrap();
     let fixed = [
@@ -33,7 +38,7 @@ fn simulated_tube_of(frames: &str, tube_options: &[&str]) -> TubeTruth {
         "--frames",
         frames,
         "--angles",
-        "2",
+        angles,
         "--noise-db",
         "off",
         "--out",
@@ -913,4 +918,127 @@ fn info_cuts_a_long_recording_as_process_does() {
         "{segments}"
     );
     assert_eq!(info["processing"]["segment_frames"], longest, "{segments}");
+}
+
+/// `--sites`: the spectrogram at the axis of a tube whose flow has a known axial speed shows
+/// that speed over time, and one outside the grid is refused before any work. One angle: a
+/// compounded spectrum of several weights each angle's Doppler shift, which the lateral flow
+/// sets apart (by 2·Vx·sin θ), by its power at the pixel.
+#[test]
+fn a_site_on_the_tubes_axis_shows_its_axial_speed() {
+    let tube = simulated_tube_at("64", "1", &["--peak-velocity-mm-s", "100"]);
+    let out = tube.dir.path().join("sites");
+    let recording = tube.dir.path().join("conventional.toml");
+    let (x_axis, z_axis) = (0.0, 8.0);
+    let (ok, _, stderr) = pcuvd_with_progress(&[
+        "process",
+        recording.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--grid=-2,2,6,10,0.08",
+        "--svd-low",
+        "off",
+        // The axis, and a point a millimetre above the tube, where its side lobes are all.
+        "--sites=0,8;0,6.5",
+    ]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let sites = summary["sites"].as_array().unwrap();
+    assert_eq!(sites.len(), 2);
+    let pixel_x = sites[0]["pixel_x_mm"].as_f64().unwrap();
+    let pixel_z = sites[0]["pixel_z_mm"].as_f64().unwrap();
+    assert!((pixel_x - x_axis).abs() <= 0.04 && (pixel_z - z_axis).abs() <= 0.04);
+    // The truth at the pixel read: the nearest sample of the truth's own grid.
+    let nearest = |axis: &ndarray::Array1<f64>, v_mm: f64| {
+        (0..axis.len())
+            .min_by(|&a, &b| {
+                (axis[a] - v_mm * 1e-3)
+                    .abs()
+                    .total_cmp(&(axis[b] - v_mm * 1e-3).abs())
+            })
+            .unwrap()
+    };
+    let (iz, ix) = (nearest(&tube.z, pixel_z), nearest(&tube.x, pixel_x));
+    assert_eq!(tube.mask[[iz, ix]], 1, "the site lies in the lumen");
+    let true_vz = tube.vz[[iz, ix]];
+    // 100 mm/s at 30° below +x: about 50 mm/s deeper on the axis.
+    assert!((true_vz - 0.05).abs() < 0.005, "true Vz {true_vz} m/s");
+
+    let power: ndarray::Array3<f64> =
+        ndarray_npy::read_npy(out.join("site_spectrograms.npy")).unwrap();
+    let times: ndarray::Array1<f64> = ndarray_npy::read_npy(out.join("site_times.npy")).unwrap();
+    let velocities: ndarray::Array2<f64> =
+        ndarray_npy::read_npy(out.join("site_velocities.npy")).unwrap();
+    let velocities = velocities.row(0);
+    let mean: ndarray::Array2<f64> =
+        ndarray_npy::read_npy(out.join("site_mean_velocity.npy")).unwrap();
+    assert_eq!(power.dim(), (2, times.len(), velocities.len()));
+    // Turned into velocity at the pixel's measured mean RF frequency (the default estimator,
+    // Loupas), as the colour Doppler map is: below the 15.625 MHz transmitted at 8 mm.
+    let frequency = sites[0]["frequency_hz"].as_f64().unwrap();
+    assert!(frequency > 12e6 && frequency < 15.625e6, "{frequency} Hz");
+    assert_eq!(mean.dim(), (2, times.len()));
+    assert!(times.len() >= 8, "{} windows over 64 frames", times.len());
+    assert!(times.windows(2).into_iter().all(|t| t[1] > t[0]));
+    // The windows' mean Doppler velocities read the axis's speed within 5 % on average; each
+    // window alone (a few speckle renewals of one pixel) jitters by some 20 %.
+    let windows_mean = mean.row(0).mean().unwrap();
+    assert!(
+        (windows_mean - true_vz).abs() < 0.05 * true_vz,
+        "{windows_mean} m/s against {true_vz}"
+    );
+    for &v in mean.row(0) {
+        assert!(
+            v > 0.5 * true_vz && v < 1.5 * true_vz,
+            "{v} m/s against {true_vz}"
+        );
+    }
+    // The spectrum's peak, averaged over time, lies within one resolution cell of it: the
+    // window's frame rate over its frames, in velocity.
+    let averaged: Vec<f64> = (0..velocities.len())
+        .map(|j| {
+            (0..times.len())
+                .map(|t| 10f64.powf(power[[0, t, j]] / 10.0))
+                .sum()
+        })
+        .collect();
+    let peak = (0..averaged.len())
+        .max_by(|&a, &b| averaged[a].total_cmp(&averaged[b]))
+        .unwrap();
+    let frame_rate = summary["acquisition"]["frame_rate_hz"].as_f64().unwrap();
+    // A window of W frames is centred (W − 1) / 2 frames after its start.
+    let window_frames = 2.0 * times[0] * frame_rate + 1.0;
+    let bin = (velocities[1] - velocities[0]).abs();
+    let cell = bin * velocities.len() as f64 / window_frames;
+    assert!(
+        (velocities[peak] - true_vz).abs() <= cell,
+        "peak at {} m/s against {true_vz} (cell {cell} m/s)",
+        velocities[peak]
+    );
+    assert!(out.join("sites.png").is_file());
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(report.contains("sites.png") || report.contains("the sites asked for"));
+
+    let (ok, _, stderr) = pcuvd_with_progress(&[
+        "process",
+        recording.to_str().unwrap(),
+        "--out",
+        tube.dir.path().join("refused").to_str().unwrap(),
+        "--grid=-2,2,6,10,0.08",
+        "--sites=0,8;5,8",
+    ]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("--sites") && stderr.contains("(5, 8) mm lies outside the imaged grid"),
+        "{stderr}"
+    );
+    assert!(
+        !tube
+            .dir
+            .path()
+            .join("refused")
+            .join("summary.json")
+            .exists()
+    );
 }

@@ -26,6 +26,37 @@ impl SpectrogramParams {
     }
 }
 
+impl SpectrogramParams {
+    /// Windows of `window_frames` frames every `step_frames` over a recording of `frames`
+    /// frames, as the dynamics stage's windows, so that a spectrogram and the window speeds share
+    /// a time axis. A recording shorter than four such windows takes windows of a quarter of its
+    /// frames (at least 8, or all but one of them) every quarter window instead, so that a short
+    /// recording still shows its flow over time. The FFT is twice the next power of two (at
+    /// least 64 points): a smooth display, the resolution staying f_frame / window.
+    pub fn for_windows(window_frames: usize, step_frames: usize, frames: usize) -> Result<Self> {
+        if frames < 2 || window_frames < 2 {
+            return Err(invalid(
+                "spectrogram window",
+                format!(
+                    "{window_frames}-frame windows over {frames} frame(s): a Doppler spectrum \
+                     needs at least 2 frames"
+                ),
+            ));
+        }
+        let (window, step) = if frames >= 4 * window_frames {
+            (window_frames, step_frames.max(1))
+        } else {
+            let window = (frames / 4).max(8.min(frames - 1)).max(2);
+            (window, (window / 4).max(1))
+        };
+        Ok(SpectrogramParams {
+            window,
+            step,
+            nfft: (2 * window.next_power_of_two()).max(64),
+        })
+    }
+}
+
 impl Default for SpectrogramParams {
     /// [`SpectrogramParams::rat`].
     fn default() -> Self {
@@ -172,4 +203,38 @@ pub fn spectrogram_of_kept(
         mean_velocity_m_s: mean_velocity,
         nyquist_m_s: 0.5 * frame_rate * per_hz.abs(),
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_of_the_rat_recording_are_the_rat_spectrogram() {
+        // 20 ms and 5 ms at the rat's 1.8 kHz: 36 and 9 frames.
+        assert_eq!(
+            SpectrogramParams::for_windows(36, 9, 360).unwrap(),
+            SpectrogramParams::rat()
+        );
+    }
+
+    #[test]
+    fn a_short_recording_takes_shorter_windows() {
+        // The rotating disk: 32 frames at 10 kHz, where 20 ms would be 200 frames.
+        let disk = SpectrogramParams::for_windows(200, 50, 32).unwrap();
+        assert_eq!((disk.window, disk.step, disk.nfft), (8, 2, 64));
+        // rat-brain-small: 48 frames at 1.8 kHz.
+        let small = SpectrogramParams::for_windows(36, 9, 48).unwrap();
+        assert_eq!((small.window, small.step), (12, 3));
+        // Four windows fit: the dynamics windows as given (a zero step is one frame).
+        let fits = SpectrogramParams::for_windows(100, 0, 400).unwrap();
+        assert_eq!((fits.window, fits.step, fits.nfft), (100, 1, 256));
+        // Two frames: one window of both.
+        let two = SpectrogramParams::for_windows(36, 9, 2).unwrap();
+        assert_eq!((two.window, two.step), (2, 1));
+        let five = SpectrogramParams::for_windows(36, 9, 5).unwrap();
+        assert_eq!((five.window, five.step), (4, 1));
+        let error = SpectrogramParams::for_windows(36, 9, 1).unwrap_err();
+        assert!(error.to_string().contains("at least 2 frames"), "{error}");
+    }
 }
