@@ -53,6 +53,29 @@ fn finite(key: &str, v: f64) -> Result<()> {
     }
 }
 
+/// The most a scenario's tissue may echo above (or below) the blood, in dB of echo power: in
+/// vivo 30–60 dB, a bone or a specular wall some 80. Beyond about 250 dB the samples of the
+/// tube preset's tissue outgrow the 3·10¹⁴ that processing holds in single precision, so that
+/// `pcuvd simulate` would write a recording `pcuvd process` refuses; 150 leaves a wide margin
+/// for denser and thicker tissue.
+pub const MAX_ECHOGENICITY_DB: f64 = 150.0;
+
+/// Checks a tissue echo power re the blood's (dB): finite and within ±[`MAX_ECHOGENICITY_DB`].
+fn echogenicity(key: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v.abs() <= MAX_ECHOGENICITY_DB {
+        Ok(())
+    } else {
+        Err(refuse(
+            key,
+            v,
+            &format!(
+                "must be a number of dB within ±{MAX_ECHOGENICITY_DB} of the blood's echo (in \
+                 vivo tissue echoes 30–60 dB above it)"
+            ),
+        ))
+    }
+}
+
 /// The fastest a scenario's tissue may move (m/s), every oscillation at its peak at once.
 const MAX_TISSUE_SPEED_M_S: f64 = 1.0;
 
@@ -441,7 +464,7 @@ impl Scenario {
     }
 
     fn check_tissue(&self, t: &TissueSection) -> Result<()> {
-        finite("[tissue].echogenicity_db", t.echogenicity_db)?;
+        echogenicity("[tissue].echogenicity_db", t.echogenicity_db)?;
         if let Some(range) = t.x_range_m {
             increasing("[tissue].x_range_m", range, false)?;
         }
@@ -475,7 +498,7 @@ impl Scenario {
         for layer in &t.layers {
             finite("[[tissue.layers]].top_m", layer.top_m)?;
             positive("[[tissue.layers]].thickness_m", layer.thickness_m)?;
-            finite("[[tissue.layers]].echogenicity_db", layer.echogenicity_db)?;
+            echogenicity("[[tissue.layers]].echogenicity_db", layer.echogenicity_db)?;
         }
         for region in &t.anechoic {
             finite("[[tissue.anechoic]].centre_m", region.centre_m[0])?;

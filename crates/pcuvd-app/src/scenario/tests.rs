@@ -145,6 +145,17 @@ fn out_of_range_values_are_refused_by_their_key() {
             "sound_speed_m_s = 0.0",
             "[medium].sound_speed_m_s",
         ),
+        // Echoes `process` could not hold in single precision.
+        (
+            "echogenicity_db = 40.0",
+            "echogenicity_db = 300.0",
+            "[tissue].echogenicity_db = 300: must be a number of dB within ±150",
+        ),
+        (
+            "echogenicity_db = 50.0",
+            "echogenicity_db = 151.0",
+            "[[tissue.layers]].echogenicity_db = 151",
+        ),
     ];
     for (from, to, key) in cases {
         let edited = brain_with(|t| {

@@ -5,7 +5,8 @@ use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
 use crate::scenario::{
-    LayerSection, MotionSection, NoiseSection, Scenario, TissueSection, TubeSection, Vessels,
+    LayerSection, MAX_ECHOGENICITY_DB, MotionSection, NoiseSection, Scenario, TissueSection,
+    TubeSection, Vessels,
 };
 use crate::settings::parse_numbers;
 
@@ -90,7 +91,8 @@ pub struct SimulationSettings {
     /// Radius of the tube preset (mm; default 0.5).
     #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_radius_mm: Option<f64>,
-    /// Tissue this many dB brighter than blood per unit area or volume (in vivo 30–60; try 40).
+    /// Tissue this many dB brighter than blood per unit area or volume (in vivo 30–60; try 40;
+    /// within ±150, its layers too).
     /// A scenario with tissue (rat-brain) shifts its tissue and layers by the difference. One
     /// without gets fully developed speckle in the imaging plane over the image, a bright 0.1 mm
     /// layer (+10 dB) at 0.5 mm like the dura, no tissue inside the vessels; vessels and tissue
@@ -217,8 +219,11 @@ impl SimulationSettings {
             }
         }
         match (&mut scenario.tissue, self.tissue_db) {
-            (_, Some(db)) if !db.is_finite() => {
-                bail!("--tissue-db {db}: must be a finite number of dB")
+            (_, Some(db)) if !(db.is_finite() && db.abs() <= MAX_ECHOGENICITY_DB) => {
+                bail!(
+                    "--tissue-db {db}: must be a number of dB within ±{MAX_ECHOGENICITY_DB} of the \
+                     blood's echo (in vivo tissue echoes 30–60 dB above it)"
+                )
             }
             (Some(tissue), Some(db)) => {
                 // The layers keep their contrast to the parenchyma.
@@ -250,6 +255,20 @@ impl SimulationSettings {
                 });
             }
             (_, None) => {}
+        }
+        if let (Some(tissue), Some(db)) = (&scenario.tissue, self.tissue_db) {
+            let brightest = tissue
+                .layers
+                .iter()
+                .map(|l| l.echogenicity_db)
+                .fold(db, f64::max);
+            if brightest > MAX_ECHOGENICITY_DB {
+                bail!(
+                    "--tissue-db {db}: the scenario's brightest layer, {} dB above its tissue, \
+                     would echo {brightest} dB above the blood, beyond {MAX_ECHOGENICITY_DB}",
+                    brightest - db
+                );
+            }
         }
         if let Some(choice) = self.tissue_motion {
             let Some(tissue) = &mut scenario.tissue else {

@@ -492,7 +492,7 @@ fn bad_simulation_requests_are_refused() {
     let file = tempfile::NamedTempFile::new().unwrap();
     let unwritable = file.path().join("pcuvd-cannot-write-here");
     let unwritable = unwritable.to_str().unwrap();
-    let cases: [(&[&str], &str); 12] = [
+    let cases: [(&[&str], &str); 14] = [
         (&["simulate", "--preset", "nope", "--out", d], "nope"),
         (
             &[
@@ -552,6 +552,17 @@ fn bad_simulation_requests_are_refused() {
         (
             &[&tube[..], &["--noise-db", "1000"]].concat(),
             "beyond the single precision",
+        ),
+        // Tissue whose echoes `process` could not hold (300 dB peaked at 3e16 on the tube):
+        // refused before simulating, not written for `process` to refuse.
+        (
+            &[&tube[..], &["--tissue-db", "300"]].concat(),
+            "--tissue-db 300: must be a number of dB within ±150",
+        ),
+        // The tube's dura-like layer stands 10 dB above its tissue.
+        (
+            &[&tube[..], &["--tissue-db", "145"]].concat(),
+            "would echo 155 dB above the blood, beyond 150",
         ),
         // Petabytes of recording: refused before a byte is written, not written until the
         // disk is full.
