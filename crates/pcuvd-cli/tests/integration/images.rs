@@ -663,3 +663,61 @@ fn confusius_iq_gives_confusius_own_velocity() {
     assert_eq!(info["format"], "ConfUSIus beamformed IQ (Zarr v3)");
     assert_eq!(info["images"]["grid_nz_nx"], serde_json::json!([20, 24]));
 }
+
+/// `--sites` on images whose vessel's velocity is known at every frame, processed in segments:
+/// each window of the site's spectrogram reads the beat's velocity averaged over its frames, at
+/// its centre time, across the segments' seams, and the vector fit's windows beside it.
+#[test]
+fn a_site_follows_the_beat_across_segments() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 400; // two beats
+    let manifest = write_images(dir.path(), &synthetic_images(frames), "");
+    let out = dir.path().join("out");
+    // The vessel's centre: row 24 (z 6.2 mm) and column 19 (x −0.65 mm) of the 0.05 mm grid.
+    let (ok, _, stderr) = pcuvd(&[
+        "process",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--heart-rate",
+        "5",
+        "--segment-frames",
+        "150",
+        "--sites=-0.65,6.2",
+    ]);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["segments"]["count"].as_u64().unwrap() >= 3);
+    assert_eq!(summary["sites"][0]["pixel"], serde_json::json!([24, 19]));
+    let times: ndarray::Array1<f64> = read_npy(out.join("site_times.npy")).unwrap();
+    let mean: Array2<f64> = read_npy(out.join("site_mean_velocity.npy")).unwrap();
+    // The dynamics stage's windows: 20 frames every 5, centred 9.5 frames after their start.
+    assert_eq!(times.len(), (frames - 20) / 5 + 1);
+    for (k, (&t, &read)) in times.iter().zip(mean.row(0)).enumerate() {
+        assert!(
+            (t - (5 * k) as f64 / FRAME_RATE - 9.5e-3).abs() < 1e-12,
+            "{t} s"
+        );
+        // The blood's mean velocity over the window's 20 frames (its phase steps between them);
+        // read within 0.3 mm/s, the tissue's residue and the noise.
+        let truth = (5 * k + 1..5 * k + 20)
+            .map(|f| velocity(f as f64 / FRAME_RATE))
+            .sum::<f64>()
+            / 19.0;
+        assert!(
+            (read - truth).abs() < 0.03 * PSV,
+            "window {k} at {t} s: {read} m/s against {truth}"
+        );
+    }
+    // Systole and diastole both seen: the windows span nearly the whole beat's swing.
+    let (low, high) = mean
+        .row(0)
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    assert!(
+        low < EDV + 0.1 * (PSV - EDV) && high > PSV - 0.1 * (PSV - EDV),
+        "{low}..{high}"
+    );
+    assert!(out.join("sites.png").is_file());
+}
