@@ -684,10 +684,16 @@ pub fn run(settings: &BrainSettings, progress: &dyn Progress) -> Result<BrainStu
         // A recording shorter than one spectrogram window has no spectrogram to show.
         let long_enough = source.n_frames() >= SpectrogramParams::rat().window;
         let spectrograms = match &kept {
+            // Each at the frequency the maps read velocity with at its pixel.
             Some(kept) if long_enough => (0..sites.len())
                 .map(|k| {
                     let params = SpectrogramParams::rat();
+                    let demodulation = out.filtered.demodulation_frequency;
+                    let frequency = out
+                        .mean_frequency_at(sites[k].pixel)
+                        .unwrap_or(demodulation);
                     pcuvd::dynamics::spectrogram_of_kept(kept, k, &out.filtered, &params)
+                        .map(|spec| spec.map(|spec| spec.at_frequency(demodulation, frequency)))
                 })
                 .collect::<pcuvd::Result<Vec<_>>>()
                 .context("brain study: spectrograms")?,

@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use ndarray::{Array1, Array2, Array3};
 use pcuvd::dynamics::Spectrogram;
-use pcuvd::estimate::doppler::DopplerEstimator;
 use pcuvd::estimate::masks;
 use pcuvd_render::{Colormap, Panel, Polyline};
 use serde::Serialize;
@@ -74,31 +73,28 @@ impl SiteSpectrograms {
             return Ok(None);
         };
         let images = &processed.out.filtered;
-        let mut spectrograms = (0..site_plan.sites.len())
+        let spectrograms = (0..site_plan.sites.len())
             .map(|k| pcuvd::dynamics::spectrogram_of_kept(kept, k, images, &site_plan.spectrogram))
             .collect::<pcuvd::Result<Vec<_>>>()
             .context("--sites: the spectrograms")?;
+        // Each spectrogram reads velocity at the frequency the maps read it with at its pixel
+        // (Loupas: the measured mean RF frequency; Kasai: the demodulation frequency).
         let demodulation = images.demodulation_frequency;
         let frequencies_hz: Vec<f64> = site_plan
             .sites
             .iter()
-            .map(|site| match plan.params.doppler_estimator {
-                DopplerEstimator::Kasai => demodulation,
-                DopplerEstimator::Loupas => {
-                    measured_frequency(&processed.out, site.pixel).unwrap_or(demodulation)
-                }
+            .map(|site| {
+                processed
+                    .out
+                    .mean_frequency_at(site.pixel)
+                    .unwrap_or(demodulation)
             })
             .collect();
-        // Velocity goes as 1 / frequency: the spectrogram converted at the demodulation
-        // frequency reads at the measured one scaled by their ratio.
-        for (spec, &f) in spectrograms.iter_mut().zip(&frequencies_hz) {
-            if let Some(spec) = spec {
-                let scale = demodulation / f;
-                spec.velocities_m_s.iter_mut().for_each(|v| *v *= scale);
-                spec.mean_velocity_m_s.iter_mut().for_each(|v| *v *= scale);
-                spec.nyquist_m_s *= scale;
-            }
-        }
+        let spectrograms: Vec<Option<Spectrogram>> = spectrograms
+            .into_iter()
+            .zip(&frequencies_hz)
+            .map(|(spec, &f)| spec.map(|spec| spec.at_frequency(demodulation, f)))
+            .collect();
         // Every spectrogram has the same windows; where no site has a signal, they are those
         // spectrogram_of_kept would have made (each window's centre).
         let params = &site_plan.spectrogram;
@@ -277,27 +273,6 @@ impl SiteSpectrograms {
         figures::render(dir, FIGURE, "", figure)?;
         Ok(dir.join(FIGURE))
     }
-}
-
-/// The mean RF frequency (Hz) the maps measured at `pixel`, from each angle's Nyquist velocity
-/// there (v_N = c·f_frame / (4 f̄)), averaged over the angles whose plane wave reaches it; `None`
-/// where none does.
-fn measured_frequency(out: &pcuvd::pipeline::ProcessOutput, pixel: (usize, usize)) -> Option<f64> {
-    let images = &out.filtered;
-    let nyquist_at_demodulation = pcuvd::estimate::doppler::nyquist_velocity(
-        images.sound_speed,
-        images.frame_rate,
-        images.demodulation_frequency,
-    );
-    let frequencies: Vec<f64> = out
-        .maps
-        .projection_nyquist
-        .slice(ndarray::s![.., pixel.0, pixel.1])
-        .iter()
-        .filter(|v| v.is_finite() && **v > 0.0)
-        .map(|v| images.demodulation_frequency * nyquist_at_demodulation / v)
-        .collect();
-    (!frequencies.is_empty()).then(|| frequencies.iter().sum::<f64>() / frequencies.len() as f64)
 }
 
 /// The colour of site `k` on the map: distinct on the power Doppler's hot scale.

@@ -80,6 +80,22 @@ pub struct Spectrogram {
     pub nyquist_m_s: f64,
 }
 
+impl Spectrogram {
+    /// This spectrogram with its velocities turned from Doppler frequency at `frequency_hz` (Hz;
+    /// the pixel's mean RF frequency, as a Loupas estimate measures it:
+    /// [`crate::pipeline::ProcessOutput::mean_frequency_at`]) instead of the demodulation
+    /// frequency `demodulation_hz` (Hz) it was computed at: velocity goes as 1 / frequency. The
+    /// nominal frequency reads the flow slow by f̄ / f_0 where attenuation has lowered the echo's
+    /// spectrum.
+    pub fn at_frequency(mut self, demodulation_hz: f64, frequency_hz: f64) -> Self {
+        let scale = demodulation_hz / frequency_hz;
+        self.velocities_m_s.iter_mut().for_each(|v| *v *= scale);
+        self.mean_velocity_m_s.iter_mut().for_each(|v| *v *= scale);
+        self.nyquist_m_s *= scale;
+        self
+    }
+}
+
 /// Compounded Doppler spectrogram at pixel `pixel` = (iz, ix) (paper Fig. 8b): the angles' series
 /// are summed (coherent compounding), then Hann-windowed FFTs over slow time in sliding windows.
 ///
@@ -208,6 +224,25 @@ pub fn spectrogram_of_kept(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lower_frequency_reads_faster_by_the_ratio() {
+        let spec = Spectrogram {
+            times_s: vec![0.01],
+            velocities_m_s: vec![-0.02, 0.0, 0.02],
+            power_db: ndarray::array![[-10.0, 0.0, -10.0]],
+            mean_velocity_m_s: vec![0.005],
+            nyquist_m_s: 0.03,
+        };
+        let lower = spec.clone().at_frequency(15e6, 12e6);
+        assert_eq!(lower.velocities_m_s, [-0.025, 0.0, 0.025]);
+        assert_eq!(lower.mean_velocity_m_s, [0.00625]);
+        assert!((lower.nyquist_m_s - 0.0375).abs() < 1e-15);
+        assert_eq!(
+            (lower.times_s, lower.power_db),
+            (spec.times_s, spec.power_db)
+        );
+    }
 
     #[test]
     fn windows_of_the_rat_recording_are_the_rat_spectrogram() {

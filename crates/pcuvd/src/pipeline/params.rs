@@ -119,6 +119,22 @@ impl ProcessOutput {
         doppler::signed_power(&self.maps.power_doppler, &self.maps.color_doppler)
     }
 
+    /// The mean RF frequency (Hz) the Doppler maps turned phase into velocity with at `pixel`
+    /// (row, col): each angle's from its Nyquist velocity there (v_N = c·f_frame / (4 f̄)),
+    /// averaged over the angles whose plane wave reaches the pixel. Loupas measures it at each
+    /// pixel; Kasai's is the demodulation frequency everywhere. `None` where no angle reaches it.
+    pub fn mean_frequency_at(&self, (iz, ix): (usize, usize)) -> Option<f64> {
+        let images = &self.filtered;
+        let nyquist = self.maps.projection_nyquist.slice(ndarray::s![.., iz, ix]);
+        let frequencies: Vec<f64> = nyquist
+            .iter()
+            .filter(|v| v.is_finite() && **v > 0.0)
+            .map(|v| images.sound_speed * images.frame_rate / (4.0 * v))
+            .collect();
+        (!frequencies.is_empty())
+            .then(|| frequencies.iter().sum::<f64>() / frequencies.len() as f64)
+    }
+
     /// Gathers the Doppler maps ([`doppler_maps`]) with the rest of what the chain measured: the
     /// one place both the whole-recording path and the segmented one ([`crate::pipeline::segments`]) build
     /// their output.

@@ -447,9 +447,17 @@ pub fn run(settings: &NetworkSettings, progress: Progress<'_>) -> Result<Network
         let mut out = pipeline::analyse(images, &process, &|_, _, _| {})?;
         let dparams = settings.dynamics_params(mode)?;
         let (series, ri) = pipeline::dynamics(&out, &dparams, &vessel_tests, None)?;
+        // Each at the frequency the maps read velocity with at its pixel, as the colour and
+        // vector maps beside it.
+        let demodulation = out.filtered.demodulation_frequency;
         let spectrograms = sites
             .iter()
-            .map(|p| dynamics::spectrogram(&out.filtered, p.pixel, &SpectrogramParams::rat()))
+            .map(|p| {
+                let spec =
+                    dynamics::spectrogram(&out.filtered, p.pixel, &SpectrogramParams::rat())?;
+                let frequency = out.mean_frequency_at(p.pixel).unwrap_or(demodulation);
+                Ok(spec.at_frequency(demodulation, frequency))
+            })
             .collect::<Result<Vec<_>>>()?;
         // The filtered series (the largest thing a mode holds) has given all it will: drop it
         // so that the other mode is simulated and processed in its place.
