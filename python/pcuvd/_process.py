@@ -64,6 +64,19 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
         "the block-wise clutter filter's cut-offs of every block: first tissue component kept"
         " (low) and first noise component removed (high), per segment and angle",
     ),
+    "site_spectrograms": (
+        ("site", "site_time", "site_velocity_bin"),
+        "Doppler spectrogram at each site (dB re its maximum; NaN without signal)",
+    ),
+    "site_velocities": (
+        ("site", "site_velocity_bin"),
+        "axial velocity of each spectrogram column (m/s, > 0 deeper)",
+    ),
+    "site_times": (("site_time",), "spectrogram window centres (s)"),
+    "site_mean_velocity": (
+        ("site", "site_time"),
+        "mean Doppler velocity of each spectrogram window (m/s, > 0 deeper)",
+    ),
 }
 
 
@@ -192,10 +205,12 @@ class ProcessResult:
             coords["time"] = ("time", arrays["times"])
         if "ensemble_times" in arrays:
             coords["ensemble"] = ("ensemble", arrays["ensemble_times"])
+        if "site_times" in arrays:
+            coords["site_time"] = ("site_time", arrays["site_times"])
         data_vars = {
             name: (MAPS[name][0], value, {"description": MAPS[name][1]})
             for name, value in arrays.items()
-            if name not in ("x", "z", "times", "ensemble_times")
+            if name not in ("x", "z", "times", "ensemble_times", "site_times")
         }
         return xr.Dataset(data_vars, coords=coords, attrs={"summary": json.dumps(summary)})
 

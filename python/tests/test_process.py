@@ -338,9 +338,13 @@ def test_int16_samples_are_cast_not_truncated(disk):
 
 def test_to_xarray_has_coordinates_in_metres(disk):
     xr = pytest.importorskip("xarray")
-    result = pcuvd.process(disk, quiet=True)
+    result = pcuvd.process(disk, quiet=True, sites_mm=[(0, 25), (-5, 20)])
     dataset = result.to_xarray()
     assert isinstance(dataset, xr.Dataset)
+    # The sites' spectrograms, on their windows' times.
+    assert dataset["site_spectrograms"].dims == ("site", "site_time", "site_velocity_bin")
+    np.testing.assert_array_equal(dataset["site_time"].values, result.site_times)
+    assert dataset["site_mean_velocity"].shape == (2, len(result.site_times))
     np.testing.assert_array_equal(dataset["x"].values, result.x)
     np.testing.assert_array_equal(dataset["z"].values, result.z)
     assert dataset["color_doppler"].dims == ("z", "x")
