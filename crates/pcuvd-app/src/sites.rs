@@ -18,6 +18,10 @@ use crate::settings::Site;
 /// The figure of the sites.
 pub const FIGURE: &str = "sites.png";
 
+/// Colour of the dynamics windows' Vz drawn over each spectrogram: cyan, as the network
+/// study's vector speed.
+const WINDOW_VZ_RGB: (u8, u8, u8) = (80, 220, 255);
+
 /// Size of each panel of [`FIGURE`] (px).
 const SPECTROGRAM_PANEL_PX: (u32, u32) = (600, 460);
 
@@ -246,8 +250,11 @@ impl SiteSpectrograms {
                         .map(|w| series.vz[[w, iz, ix]] * 1e3)
                         .collect(),
                     dashed: false,
-                    rgb: figures::TRUTH_RGB,
-                    label: "Vz of the vector fit (each window)".into(),
+                    rgb: WINDOW_VZ_RGB,
+                    label: match series.axial_only {
+                        true => "axial velocity of each window (one angle)".into(),
+                        false => "Vz of the vector fit (each window)".into(),
+                    },
                 });
             }
             // Each spectrogram is scaled to its own peak: the pixel's power says how strong it is.

@@ -46,7 +46,7 @@ pub fn caption(file: &str) -> Option<&'static str> {
             "The Doppler time series: its mean, how much it varies, and its mean over the vessels, ensemble by ensemble."
         }
         crate::sites::FIGURE => {
-            "The flow over time at the sites asked for (--sites): each one's compounded Doppler spectrogram (axial velocity, + = deeper, at the pixel's mean RF frequency as the colour Doppler reads it; grey, dB re its own maximum; its title gives the pixel's power Doppler re the map's peak and that frequency) with its mean Doppler velocity (dashed white) and, where the dynamics stage ran, the vector fit's axial velocity in each window (blue); the power Doppler marks where each site lies."
+            "The flow over time at the sites asked for (--sites): each one's compounded Doppler spectrogram (axial velocity, + = deeper, at the pixel's mean RF frequency as the colour Doppler reads it; grey, dB re its own maximum; its title gives the pixel's power Doppler re the map's peak and that frequency) with its mean Doppler velocity (dashed white) and, where the dynamics stage ran, the vector fit's axial velocity in each window (cyan); the power Doppler marks where each site lies."
         }
         crate::against_truth::FIGURE => {
             "Against the simulation's truth: the true speed averaged over the recording beside the estimate's, and the vector error over the vessel pixels (RI too when it was scored)."
