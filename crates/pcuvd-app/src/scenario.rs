@@ -53,23 +53,23 @@ fn finite(key: &str, v: f64) -> Result<()> {
     }
 }
 
-/// The most a scenario's tissue may echo above (or below) the blood, in dB of echo power: in
+/// The most a scenario's tissue may echo above the blood, in dB of echo power: in
 /// vivo 30–60 dB, a bone or a specular wall some 80. Beyond about 250 dB the samples of the
 /// tube preset's tissue outgrow the 3·10¹⁴ that processing holds in single precision, so that
 /// `pcuvd simulate` would write a recording `pcuvd process` refuses; 150 leaves a wide margin
-/// for denser and thicker tissue.
+/// for denser and thicker tissue. Quieter tissue has no floor: −200 dB is a way to leave it out.
 pub const MAX_ECHOGENICITY_DB: f64 = 150.0;
 
-/// Checks a tissue echo power re the blood's (dB): finite and within ±[`MAX_ECHOGENICITY_DB`].
+/// Checks a tissue echo power re the blood's (dB): finite and at most [`MAX_ECHOGENICITY_DB`].
 fn echogenicity(key: &str, v: f64) -> Result<()> {
-    if v.is_finite() && v.abs() <= MAX_ECHOGENICITY_DB {
+    if v.is_finite() && v <= MAX_ECHOGENICITY_DB {
         Ok(())
     } else {
         Err(refuse(
             key,
             v,
             &format!(
-                "must be a number of dB within ±{MAX_ECHOGENICITY_DB} of the blood's echo (in \
+                "must be a finite number of dB, at most {MAX_ECHOGENICITY_DB} above the blood's echo (in \
                  vivo tissue echoes 30–60 dB above it)"
             ),
         ))

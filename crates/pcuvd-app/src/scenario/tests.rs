@@ -149,7 +149,7 @@ fn out_of_range_values_are_refused_by_their_key() {
         (
             "echogenicity_db = 40.0",
             "echogenicity_db = 300.0",
-            "[tissue].echogenicity_db = 300: must be a number of dB within ±150",
+            "[tissue].echogenicity_db = 300: must be a finite number of dB, at most 150 above",
         ),
         (
             "echogenicity_db = 50.0",

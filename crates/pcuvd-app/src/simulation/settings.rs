@@ -92,7 +92,7 @@ pub struct SimulationSettings {
     #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
     pub tube_radius_mm: Option<f64>,
     /// Tissue this many dB brighter than blood per unit area or volume (in vivo 30–60; try 40;
-    /// within ±150, its layers too).
+    /// at most 150, its layers too).
     /// A scenario with tissue (rat-brain) shifts its tissue and layers by the difference. One
     /// without gets fully developed speckle in the imaging plane over the image, a bright 0.1 mm
     /// layer (+10 dB) at 0.5 mm like the dura, no tissue inside the vessels; vessels and tissue
@@ -219,9 +219,9 @@ impl SimulationSettings {
             }
         }
         match (&mut scenario.tissue, self.tissue_db) {
-            (_, Some(db)) if !(db.is_finite() && db.abs() <= MAX_ECHOGENICITY_DB) => {
+            (_, Some(db)) if !(db.is_finite() && db <= MAX_ECHOGENICITY_DB) => {
                 bail!(
-                    "--tissue-db {db}: must be a number of dB within ±{MAX_ECHOGENICITY_DB} of the \
+                    "--tissue-db {db}: must be a finite number of dB, at most {MAX_ECHOGENICITY_DB} above the \
                      blood's echo (in vivo tissue echoes 30–60 dB above it)"
                 )
             }

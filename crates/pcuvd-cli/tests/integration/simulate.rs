@@ -557,7 +557,7 @@ fn bad_simulation_requests_are_refused() {
         // refused before simulating, not written for `process` to refuse.
         (
             &[&tube[..], &["--tissue-db", "300"]].concat(),
-            "--tissue-db 300: must be a number of dB within ±150",
+            "--tissue-db 300: must be a finite number of dB, at most 150 above",
         ),
         // The tube's dura-like layer stands 10 dB above its tissue.
         (
