@@ -11,13 +11,16 @@ use crate::run::{DynamicsFit, Plan};
 pub const STAGE_MEMORY_RULE: &str = "+ dynamics: 4 × windows × pixels × 8 bytes (vx, vz, power \
 and, for vessel pooling, speed per window; 2 with one steering angle: its velocity and power) + \
 time series: ensembles × pixels × 6 × 8 bytes (five maps and a filtered copy of one ensemble's \
-frames per angle counted once more)";
+frames per angle counted once more) + sites: sites × frames × angles × 8 bytes (each site's \
+filtered series over the whole recording)";
 
 /// Bytes the stages after image formation hold beyond the image series ([`STAGE_MEMORY_RULE`]:
 /// the dynamics windows, the time series) in a run planned by `plan` of a recording of `frames`
 /// frames of `n_angles` angles.
 pub fn stage_memory_of(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
-    dynamics_memory(plan, (frames, n_angles)) + ensembles_memory(plan, frames, n_angles)
+    dynamics_memory(plan, (frames, n_angles))
+        + ensembles_memory(plan, frames, n_angles)
+        + kept_memory(plan, frames, n_angles)
 }
 
 /// Bytes the dynamics stage's windows of the whole recording hold ([`STAGE_MEMORY_RULE`]):
@@ -51,6 +54,12 @@ fn ensembles_memory(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
         let count = frames.saturating_sub(e.frames) / e.step.max(1) + 1;
         count as u128 * pixels * 6 * 8 + e.frames as u128 * pixels * n_angles as u128 * 8
     })
+}
+
+/// Bytes the kept pixels' filtered series hold over the whole recording ([`STAGE_MEMORY_RULE`]):
+/// single-precision complex, per angle and frame.
+fn kept_memory(plan: &Plan, frames: usize, n_angles: usize) -> u128 {
+    plan.kept_pixels.len() as u128 * frames as u128 * n_angles as u128 * 8
 }
 
 /// Refuses, before any work, a recording, grid and stages whose processing would need more memory
@@ -100,7 +109,9 @@ fn fit_stages(
     room: &MemoryRoom,
 ) -> Result<()> {
     let windows = dynamics_memory(plan, (frames, n_angles)) as f64;
-    let others = held.bytes + ensembles_memory(plan, frames, n_angles) as f64;
+    let others = held.bytes
+        + ensembles_memory(plan, frames, n_angles) as f64
+        + kept_memory(plan, frames, n_angles) as f64;
     let needed = others + windows;
     if needed <= room.bytes {
         return Ok(());
@@ -437,5 +448,39 @@ pub fn peak_resident_memory() -> Option<u64> {
     #[cfg(not(any(target_os = "linux", target_os = "macos", windows)))]
     {
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::settings::{DynamicsSettings, ProcessingSettings};
+
+    /// Each site keeps its pixel's filtered series over the whole recording: the stages'
+    /// estimate grows by sites × frames × angles × 8 bytes, which a long recording makes
+    /// megabytes a site.
+    #[test]
+    fn each_site_adds_its_series_to_the_estimate() {
+        let data = pcuvd_testing::tube_recording(false, 4);
+        let plan = |sites: Option<&str>| {
+            let options = ProcessingSettings {
+                grid: Some("-1,1,5,7,0.05".into()),
+                sites: sites.map(str::to_string),
+                ..ProcessingSettings::default()
+            };
+            let dynamics = DynamicsSettings {
+                dynamics: crate::settings::DynamicsChoice::Off,
+                ..DynamicsSettings::default()
+            };
+            Plan::new(&options, &dynamics, &data, None).unwrap()
+        };
+        let (without, with) = (plan(None), plan(Some("0,6;0.5,6.5;-0.5,5.5")));
+        assert_eq!(with.kept_pixels.len(), 3);
+        // Five minutes at 1 kHz of eight angles: 19.2 MB a site.
+        let (frames, angles) = (300_000, 8);
+        assert_eq!(
+            stage_memory_of(&with, frames, angles) - stage_memory_of(&without, frames, angles),
+            3 * 300_000 * 8 * 8
+        );
     }
 }

@@ -210,6 +210,13 @@ impl ProcessingSettings {
                 numbers.len()
             );
         }
+        if numbers.len() / 2 > MAX_SITES {
+            bail!(
+                "--sites: {} points, at most {MAX_SITES} a run (a figure of more is unreadable): \
+                 give the others in another run",
+                numbers.len() / 2
+            );
+        }
         let span = |axis: &[f64]| (axis[0] * 1e3, axis[axis.len() - 1] * 1e3);
         numbers
             .chunks(2)
@@ -235,6 +242,9 @@ impl ProcessingSettings {
             .collect()
     }
 }
+
+/// The most points `--sites` takes in one run: eight rows of three spectrograms.
+pub const MAX_SITES: usize = 24;
 
 /// The index of the sample of `axis` (m, evenly spaced) nearest to `v` (m); `None` when `v` lies
 /// more than half a step beyond either end.
@@ -995,6 +1005,7 @@ mod tests {
                 .unwrap()
                 .is_empty()
         );
+        let many = ["0,8"; 25].join(";");
         for (text, expected) in [
             ("0,8;2.1,8", "(2.1, 8) mm lies outside the imaged grid"),
             ("0,5.9", "(0, 5.9) mm lies outside the imaged grid"),
@@ -1002,6 +1013,7 @@ mod tests {
             ("", "expected X,Z pairs"),
             ("0,eight", "expected X,Z pairs"),
             ("0,NaN", "expected X,Z pairs"),
+            (many.as_str(), "25 points, at most 24 a run"),
         ] {
             let settings = ProcessingSettings {
                 sites: Some(text.into()),
