@@ -297,7 +297,8 @@ def process(
     `heart_rate_hz=5.5`, `window_ms=20`, `ensemble_frames=64`,
     `ensemble_step=16` (a Doppler time series), `sites_mm=[(x, z), ...]` (points in mm whose
     Doppler spectrograms the result gives as `site_spectrograms`, `site_velocities`,
-    `site_times`, `site_mean_velocity`, and `save` draws in `sites.png`); see
+    `site_times`, `site_mean_velocity`, and `save` draws in `sites.png`; `site_radius_mm=0.2`
+    reads each over a sample volume of that radius); see
     `process_option_names()`.
     The path of an images manifest (beamformed IQ images formed elsewhere, format
     "pcuvd-images": docs/guide/inputs.md), or of ConfUSIus's Zarr store of IQ (a `.zarr`

@@ -104,7 +104,10 @@ def test_one_recording_across_a_cluster_equals_one_process(long_tube):
 
     # Two spectrogram sites, their series kept by each worker from its segments and joined.
     sites = [(0, 8), (0.5, 7.5)]
-    runs = {d: {**SEGMENTED, "dealias": d, "sites_mm": sites} for d in ("off", "auto")}
+    runs = {
+        d: {**SEGMENTED, "dealias": d, "sites_mm": sites, "site_radius_mm": 0.1}
+        for d in ("off", "auto")
+    }
     runs["off"]["svd_block_mm"] = 1.0
     runs["auto"]["svd_block_mm"] = "whole"
     serial = {d: pcuvd.process(str(long_tube), quiet=True, **o) for d, o in runs.items()}

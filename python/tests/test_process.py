@@ -62,6 +62,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
             "--segment-frames=8",
             "--dealias=auto",
             "--sites=0,8;-1,7",
+            "--site-radius-mm=0.1",
         ]
     if which == "tube in blocks":
         # The block-wise clutter filter (1.2 mm: 15 pixels, made 16) in two segments.
@@ -80,7 +81,7 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
     }
     kwargs = tube_kwargs if which == "tube" else {}
     if which == "tube in segments":
-        kwargs = {**tube_kwargs, "ensemble_step": 2, "segment_frames": 8}
+        kwargs = {**tube_kwargs, "ensemble_step": 2, "segment_frames": 8, "site_radius_mm": 0.1}
     if which == "tube in blocks":
         kwargs = {"grid_mm": (-3, 3, 4, 10, 0.08), "dynamics": "off", "svd_block_mm": 1.2,
                   "segment_frames": 5, "dealias": "auto"}
@@ -113,6 +114,8 @@ def test_process_equals_cli_array_for_array(which, disk, tube, cli, tmp_path):
         assert cli_arrays["site_mean_velocity"].shape == (2, windows)
         sites = json.loads((by_cli / "summary.json").read_text())["sites"]
         assert [(s["x_mm"], s["z_mm"]) for s in sites] == [(0, 8), (-1, 7)]
+        # In segments, over a sample volume of 0.1 mm: the cross of five at 0.08 mm steps.
+        assert [s["gate_pixels"] for s in sites] == ([5, 5] if which != "tube" else [1, 1])
         assert (by_cli / "sites.png").is_file()
     else:
         assert "site_spectrograms" not in cli_arrays

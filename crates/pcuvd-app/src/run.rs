@@ -44,8 +44,13 @@ pub struct Plan {
 /// spectrograms take (the dynamics stage's).
 #[derive(Debug, Clone)]
 pub struct SitePlan {
-    /// The points, in the order given; the run keeps their pixels' series in this order.
+    /// The points, in the order given.
     pub sites: Vec<Site>,
+    /// Each site's sample volume (`--site-radius-mm`): the pixels its spectrogram sums, its own
+    /// first; the run keeps their series in this order, site after site.
+    pub gates: Vec<Vec<(usize, usize)>>,
+    /// The sample volume's radius (m); 0: each site's pixel alone.
+    pub radius_m: f64,
     /// Each spectrogram's windows (frames at the compound frame rate).
     pub spectrogram: pcuvd::dynamics::SpectrogramParams,
 }
@@ -66,12 +71,41 @@ impl SitePlan {
         let (window, step) = dynamics.window_frames(frame_rate)?;
         let spectrogram = pcuvd::dynamics::SpectrogramParams::for_windows(window, step, n_frames)
             .context("--sites")?;
-        Ok(Some(SitePlan { sites, spectrogram }))
+        let radius_m = options.site_radius_mm * 1e-3;
+        let gates = sites
+            .iter()
+            .map(|site| {
+                let mut gate = crate::settings::gate_pixels(grid, site.pixel, radius_m);
+                // The site's own pixel first: the one a gate of one pixel is.
+                gate.retain(|&p| p != site.pixel);
+                gate.insert(0, site.pixel);
+                gate
+            })
+            .collect();
+        Ok(Some(SitePlan {
+            sites,
+            gates,
+            radius_m,
+            spectrogram,
+        }))
     }
 
-    /// The sites' pixels, in their order.
+    /// The pixels of every site's gate, site after site: the kept pixels.
     fn pixels(&self) -> Vec<(usize, usize)> {
-        self.sites.iter().map(|s| s.pixel).collect()
+        self.gates.concat()
+    }
+
+    /// Where each site's gate lies among the kept pixels: its indices there.
+    pub fn gate_indices(&self) -> Vec<Vec<usize>> {
+        let mut start = 0;
+        self.gates
+            .iter()
+            .map(|gate| {
+                let indices = (start..start + gate.len()).collect();
+                start += gate.len();
+                indices
+            })
+            .collect()
     }
 }
 

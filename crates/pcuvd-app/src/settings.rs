@@ -132,6 +132,12 @@ pub struct ProcessingSettings {
     )]
     #[serde(alias = "sites_mm", deserialize_with = "optional_text")]
     pub sites: Option<String>,
+    /// Radius (mm) of each site's sample volume, as a scanner's pulsed-wave gate: the
+    /// spectrogram sums the power spectra of the grid pixels within it of the site's pixel, each
+    /// with its echo power, which averages out one pixel's window-to-window speckle jitter.
+    /// Default 0: the pixel alone; at most 2.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = ProcessingSettings::default().site_radius_mm))]
+    pub site_radius_mm: f64,
 }
 
 impl Default for ProcessingSettings {
@@ -154,6 +160,7 @@ impl Default for ProcessingSettings {
             ensemble_step: None,
             segment_frames: None,
             sites: None,
+            site_radius_mm: 0.0,
         }
     }
 }
@@ -198,7 +205,18 @@ impl ProcessingSettings {
     /// asked for. A point farther than half a pixel beyond the grid's edge is refused: it was not
     /// imaged.
     pub fn sites(&self, grid: &Grid) -> Result<Vec<Site>> {
+        let radius = self.site_radius_mm;
+        if !(radius.is_finite() && (0.0..=MAX_SITE_RADIUS_MM).contains(&radius)) {
+            bail!(
+                "--site-radius-mm {}: must be within [0, {MAX_SITE_RADIUS_MM}] mm (a wider gate \
+                 mixes vessels)",
+                shown("--site-radius-mm", radius)
+            );
+        }
         let Some(text) = &self.sites else {
+            if radius > 0.0 {
+                bail!("--site-radius-mm applies to the points of --sites: give them too");
+            }
             return Ok(Vec::new());
         };
         let numbers = parse_numbers(&text.replace(';', ",")).with_context(|| {
@@ -245,6 +263,24 @@ impl ProcessingSettings {
 
 /// The most points `--sites` takes in one run: eight rows of three spectrograms.
 pub const MAX_SITES: usize = 24;
+
+/// The widest sample volume `--site-radius-mm` takes (mm).
+pub const MAX_SITE_RADIUS_MM: f64 = 2.0;
+
+/// The pixels of `grid` within `radius_m` (m) of pixel `centre` (row, col), in row-major order;
+/// the centre always among them.
+pub fn gate_pixels(grid: &Grid, centre: (usize, usize), radius_m: f64) -> Vec<(usize, usize)> {
+    let (cz, cx) = (grid.z[centre.0], grid.x[centre.1]);
+    // A radius of whole steps takes the pixels on it, whatever the grid's rounding.
+    let radius_m = radius_m * (1.0 + 1e-9);
+    let rows = (0..grid.z.len()).filter(|&iz| (grid.z[iz] - cz).abs() <= radius_m);
+    rows.flat_map(|iz| {
+        (0..grid.x.len())
+            .filter(move |&ix| (grid.z[iz] - cz).hypot(grid.x[ix] - cx) <= radius_m)
+            .map(move |ix| (iz, ix))
+    })
+    .collect()
+}
 
 /// The index of the sample of `axis` (m, evenly spaced) nearest to `v` (m); `None` when `v` lies
 /// more than half a step beyond either end.
@@ -1024,6 +1060,40 @@ mod tests {
                 error.contains("--sites") && error.contains(expected),
                 "{text}: {error}"
             );
+        }
+    }
+
+    #[test]
+    fn a_sample_volume_is_the_pixels_within_its_radius() {
+        let grid = parse_grid("-2,2,6,10,0.1").unwrap();
+        // A cross of five at one step (the diagonals lie √2 steps away); three at a corner.
+        assert_eq!(
+            gate_pixels(&grid, (20, 20), 0.1e-3),
+            [(19, 20), (20, 19), (20, 20), (20, 21), (21, 20)]
+        );
+        assert_eq!(gate_pixels(&grid, (0, 0), 0.1e-3), [(0, 0), (0, 1), (1, 0)]);
+        assert_eq!(gate_pixels(&grid, (20, 20), 0.0), [(20, 20)]);
+        for (radius, sites, expected) in [
+            (
+                3.0,
+                Some("0,8"),
+                "--site-radius-mm 3.0: must be within [0, 2] mm",
+            ),
+            (-0.1, Some("0,8"), "must be within [0, 2] mm"),
+            (f64::NAN, Some("0,8"), "must be within [0, 2] mm"),
+            (
+                0.1,
+                None,
+                "--site-radius-mm applies to the points of --sites",
+            ),
+        ] {
+            let settings = ProcessingSettings {
+                sites: sites.map(str::to_string),
+                site_radius_mm: radius,
+                ..ProcessingSettings::default()
+            };
+            let error = format!("{:#}", settings.sites(&grid).unwrap_err());
+            assert!(error.contains(expected), "{radius}: {error}");
         }
     }
 

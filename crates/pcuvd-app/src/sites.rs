@@ -37,6 +37,10 @@ pub const ARRAYS: [&str; 4] = [
 pub struct SiteSpectrograms {
     /// The sites.
     pub sites: Vec<Site>,
+    /// Per site, the pixels of its sample volume (1: the pixel alone).
+    pub gate_pixels: Vec<usize>,
+    /// The sample volume's radius (m); 0: the pixel alone.
+    pub radius_m: f64,
     /// Per site, its spectrogram, its velocities at the mean RF frequency the maps' estimator
     /// reads at its pixel; `None` where the pixel's filtered series is zero (no Doppler signal).
     pub spectrograms: Vec<Option<Spectrogram>>,
@@ -63,6 +67,8 @@ pub struct SiteRecord {
     pub pixel_x_mm: f64,
     /// The pixel's depth (mm).
     pub pixel_z_mm: f64,
+    /// Pixels of its sample volume (`--site-radius-mm`; 1: the pixel alone).
+    pub gate_pixels: usize,
     /// False when the pixel's clutter-filtered series is zero: no spectrogram to show.
     pub has_signal: bool,
     /// The frequency (Hz) its Doppler shifts were turned into velocity with: the pixel's
@@ -77,21 +83,29 @@ impl SiteSpectrograms {
             return Ok(None);
         };
         let images = &processed.out.filtered;
-        let spectrograms = (0..site_plan.sites.len())
-            .map(|k| pcuvd::dynamics::spectrogram_of_kept(kept, k, images, &site_plan.spectrogram))
+        let spectrograms = site_plan
+            .gate_indices()
+            .iter()
+            .map(|gate| {
+                pcuvd::dynamics::spectrogram_of_gate(kept, gate, images, &site_plan.spectrogram)
+            })
             .collect::<pcuvd::Result<Vec<_>>>()
             .context("--sites: the spectrograms")?;
-        // Each spectrogram reads velocity at the frequency the maps read it with at its pixel
+        // Each spectrogram reads velocity at the frequency the maps read it with over its gate
         // (Loupas: the measured mean RF frequency; Kasai: the demodulation frequency).
         let demodulation = images.demodulation_frequency;
         let frequencies_hz: Vec<f64> = site_plan
-            .sites
+            .gates
             .iter()
-            .map(|site| {
-                processed
-                    .out
-                    .mean_frequency_at(site.pixel)
-                    .unwrap_or(demodulation)
+            .map(|gate| {
+                let measured: Vec<f64> = gate
+                    .iter()
+                    .filter_map(|&p| processed.out.mean_frequency_at(p))
+                    .collect();
+                match measured.is_empty() {
+                    true => demodulation,
+                    false => measured.iter().sum::<f64>() / measured.len() as f64,
+                }
             })
             .collect();
         let spectrograms: Vec<Option<Spectrogram>> = spectrograms
@@ -118,6 +132,8 @@ impl SiteSpectrograms {
         };
         Ok(Some(SiteSpectrograms {
             sites: site_plan.sites.clone(),
+            gate_pixels: site_plan.gates.iter().map(Vec::len).collect(),
+            radius_m: site_plan.radius_m,
             spectrograms,
             frequencies_hz,
             times_s,
@@ -171,12 +187,14 @@ impl SiteSpectrograms {
             .iter()
             .zip(&self.spectrograms)
             .zip(&self.frequencies_hz)
-            .map(|((site, spec), &frequency_hz)| SiteRecord {
+            .zip(&self.gate_pixels)
+            .map(|(((site, spec), &frequency_hz), &gate_pixels)| SiteRecord {
                 x_mm: site.x_m * 1e3,
                 z_mm: site.z_m * 1e3,
                 pixel: site.pixel,
                 pixel_x_mm: grid.x[site.pixel.1] * 1e3,
                 pixel_z_mm: grid.z[site.pixel.0] * 1e3,
+                gate_pixels,
                 has_signal: spec.is_some(),
                 frequency_hz,
             })
@@ -210,10 +228,12 @@ impl SiteSpectrograms {
             (-40.0, 0.0),
             "dB",
         );
-        // A square around each site's pixel, a 25th of the map's width on a side (at least
-        // two pixels), in the site's colour.
+        // A square around each site's pixel and its whole sample volume, a 25th of the map's
+        // width on a side at least (and two pixels), in the site's colour.
         let width_mm = (grid.x[grid.x.len() - 1] - grid.x[0]).abs() * 1e3;
-        let half = (grid.step() * 1e3).max(width_mm / 50.0);
+        let half = (grid.step() * 1e3)
+            .max(width_mm / 50.0)
+            .max(self.radius_m * 1e3);
         for (k, site) in self.sites.iter().enumerate() {
             let (x, z) = (grid.x[site.pixel.1] * 1e3, grid.z[site.pixel.0] * 1e3);
             let signal = if self.spectrograms[k].is_some() {
@@ -258,8 +278,12 @@ impl SiteSpectrograms {
                 });
             }
             // Each spectrogram is scaled to its own peak: the pixel's power says how strong it is.
+            let gate = match self.gate_pixels[k] {
+                1 => String::new(),
+                n => format!(", {n} px"),
+            };
             let title = format!(
-                "{}: x {:.2}, z {:.2} mm ({:.0} dB, echo {:.1} MHz)",
+                "{}: x {:.2}, z {:.2} mm ({:.0} dB, echo {:.1} MHz{gate})",
                 k + 1,
                 grid.x[site.pixel.1] * 1e3,
                 grid.z[site.pixel.0] * 1e3,
@@ -330,6 +354,8 @@ mod tests {
         };
         let sites = SiteSpectrograms {
             sites: vec![site(0.0, (1, 0)), site(1e-3, (1, 1))],
+            gate_pixels: vec![1, 1],
+            radius_m: 0.0,
             spectrograms: vec![None, Some(spec.clone())],
             frequencies_hz: vec![15e6, 14e6],
             times_s: spec.times_s.clone(),

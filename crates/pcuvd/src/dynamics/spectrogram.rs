@@ -145,14 +145,30 @@ pub fn spectrogram_of_kept(
     images: &AngleImages,
     params: &SpectrogramParams,
 ) -> Result<Option<Spectrogram>> {
+    spectrogram_of_gate(kept, &[k], images, params)
+}
+
+/// [`spectrogram_of_kept`] over a sample volume, the pixels `gate` of `kept` (as a scanner's
+/// pulsed-wave gate): each window's power spectra summed over them and its mean velocity read from
+/// their summed lag-1 autocorrelation, so that each pixel counts with its echo power and the
+/// speckle's window-to-window jitter averages out. One pixel is [`spectrogram_of_kept`]'s to
+/// the bit. `None` when every pixel's compounded series is zero.
+pub fn spectrogram_of_gate(
+    kept: &crate::form::images::PixelSeries,
+    gate: &[usize],
+    images: &AngleImages,
+    params: &SpectrogramParams,
+) -> Result<Option<Spectrogram>> {
     check_rates(images)?;
+    let Some(&first) = gate.first() else {
+        return Err(invalid("gate", "a spectrogram needs at least one pixel"));
+    };
     let angles = &images.angles;
     if angles.is_empty() {
         return Err(invalid("angles", "a spectrogram needs at least one angle"));
     }
     let (frame_rate, sound_speed) = (images.frame_rate, images.sound_speed);
-    let compound = kept.compound(k)?;
-    let frames = compound.len();
+    let frames = kept.compound(first)?.len();
     let n_windows = window_count(frames, params.window, params.step, frame_rate)?;
     if params.nfft < params.window {
         return Err(invalid(
@@ -163,7 +179,11 @@ pub fn spectrogram_of_kept(
             ),
         ));
     }
-    if compound.iter().all(|v| v.norm_sqr() == 0.0) {
+    let mut silent = true;
+    for &k in gate {
+        silent &= kept.compound(k)?.iter().all(|v| v.norm_sqr() == 0.0);
+    }
+    if silent {
         return Ok(None);
     }
     let center_frequency = images.demodulation_frequency;
@@ -184,19 +204,25 @@ pub fn spectrogram_of_kept(
     let mut buffer = vec![Complex64::new(0.0, 0.0); nfft];
     for column in 0..n_windows {
         let start = column * params.step;
-        let frames_k = &kept.compound_window(k, start..start + params.window)?;
-        buffer.fill(Complex64::new(0.0, 0.0));
-        for ((b, &x), &w) in buffer.iter_mut().zip(frames_k).zip(&hann) {
-            *b = x * w;
+        let mut r1 = Complex64::new(0.0, 0.0);
+        for &k in gate {
+            let frames_k = &kept.compound_window(k, start..start + params.window)?;
+            buffer.fill(Complex64::new(0.0, 0.0));
+            for ((b, &x), &w) in buffer.iter_mut().zip(frames_k).zip(&hann) {
+                *b = x * w;
+            }
+            fft.process(&mut buffer);
+            // Bin j of the fftshifted spectrum has frequency (j − nfft/2)·f_frame/nfft; velocity
+            // falls as frequency rises, so column c = nfft − 1 − j ascends in velocity.
+            for j in 0..nfft {
+                let bin = (j + nfft.div_ceil(2)) % nfft;
+                power[[column, nfft - 1 - j]] += buffer[bin].norm_sqr();
+            }
+            r1 += frames_k
+                .windows(2)
+                .map(|p| p[0].conj() * p[1])
+                .sum::<Complex64>();
         }
-        fft.process(&mut buffer);
-        // Bin j of the fftshifted spectrum has frequency (j − nfft/2)·f_frame/nfft; velocity
-        // falls as frequency rises, so column c = nfft − 1 − j ascends in velocity.
-        for j in 0..nfft {
-            let bin = (j + nfft.div_ceil(2)) % nfft;
-            power[[column, nfft - 1 - j]] = buffer[bin].norm_sqr();
-        }
-        let r1: Complex64 = frames_k.windows(2).map(|p| p[0].conj() * p[1]).sum();
         let v_proj = doppler::lag_velocity(r1, scale);
         mean_velocity.push(2.0 * v_proj / (1.0 + mean_cos));
     }
