@@ -113,23 +113,9 @@ impl SiteSpectrograms {
             .zip(&frequencies_hz)
             .map(|(spec, &f)| spec.map(|spec| spec.at_frequency(demodulation, f)))
             .collect();
-        // Every spectrogram has the same windows; where no site has a signal, they are those
-        // spectrogram_of_kept would have made (each window's centre).
+        // Every spectrogram has the same windows, a site without signal too.
         let params = &site_plan.spectrogram;
-        let times_s = match spectrograms.iter().flatten().next() {
-            Some(spec) => spec.times_s.clone(),
-            None => {
-                let frames = kept.series.first().map_or(0, |s| s.ncols());
-                let windows = match frames >= params.window {
-                    true => (frames - params.window) / params.step + 1,
-                    false => 0,
-                };
-                let half = (params.window - 1) as f64 / 2.0;
-                (0..windows)
-                    .map(|k| ((k * params.step) as f64 + half) / images.frame_rate)
-                    .collect()
-            }
-        };
+        let times_s = params.window_centres(kept.n_frames(), images.frame_rate);
         Ok(Some(SiteSpectrograms {
             sites: site_plan.sites.clone(),
             gate_pixels: site_plan.gates.iter().map(Vec::len).collect(),
@@ -317,20 +303,6 @@ fn site_colour(k: usize) -> (u8, u8, u8) {
         (180, 120, 255),
     ];
     COLOURS[k % COLOURS.len()]
-}
-
-/// Writes the sites' arrays and figure into `dir` when the run names sites; returns the figure.
-pub fn write_sites(
-    dir: &Path,
-    plan: &Plan,
-    processed: &Processed,
-    name: &str,
-) -> Result<Option<PathBuf>> {
-    let Some(sites) = SiteSpectrograms::of(plan, processed)? else {
-        return Ok(None);
-    };
-    sites.write(dir)?;
-    sites.figure(dir, processed, name).map(Some)
 }
 
 #[cfg(test)]

@@ -587,6 +587,9 @@ impl PyProcessResult {
             source,
         );
         summary.against_truth = against.map(|scored| scored.record);
+        summary.sites = SiteSpectrograms::of(&self.plan, &self.processed)
+            .map_err(to_py)?
+            .map(|sites| sites.records(&self.processed.out.grid));
         serde_json::to_string(&summary).map_err(|e| PyValueError::new_err(e.to_string()))
     }
 

@@ -84,6 +84,12 @@ pub fn save(
     let mut pngs = pngs?;
     let mut summary = Summary::of(input, plan, processed, source);
     summary.against_truth = against.as_ref().map(|scored| scored.record.clone());
+    // The sites' spectrograms, made once for the summary, the arrays and the figure.
+    if let Some(sites) = crate::sites::SiteSpectrograms::of(plan, processed)? {
+        summary.sites = Some(sites.records(&out.grid));
+        sites.write(dir)?;
+        pngs.push(sites.figure(dir, processed, name)?);
+    }
     if let Some(scored) = &against {
         pngs.extend(scored.figure(dir, processed, name)?);
     }
@@ -93,7 +99,6 @@ pub fn save(
         pngs.extend(figures::clutter_blocks_figure(dir, out, &clutter, name)?);
     }
     pngs.append(&mut write_dynamics(dir, plan, processed, name, progress)?);
-    pngs.extend(crate::sites::write_sites(dir, plan, processed, name)?);
     if let Some(maps) = &processed.ensembles
         && !processed.ensembles_in_store
     {

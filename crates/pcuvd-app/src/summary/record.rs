@@ -543,11 +543,7 @@ impl Summary {
             nifti: None,
             zarr: None,
             against_truth: None,
-            // A spectrogram that cannot be made fails the save, which makes them again.
-            sites: crate::sites::SiteSpectrograms::of(plan, processed)
-                .ok()
-                .flatten()
-                .map(|sites| sites.records(&processed.out.grid)),
+            sites: None,
             timings_s: (out.timings.iter())
                 .map(|(stage, seconds)| (stage.label().to_string(), *seconds))
                 .collect(),

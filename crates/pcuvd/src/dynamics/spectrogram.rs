@@ -57,6 +57,21 @@ impl SpectrogramParams {
     }
 }
 
+impl SpectrogramParams {
+    /// The centre (s from the first frame) of each window these settings take over `frames`
+    /// frames at `frame_rate` (Hz); none when a window is longer than the frames.
+    pub fn window_centres(&self, frames: usize, frame_rate: f64) -> Vec<f64> {
+        let windows = match frames >= self.window {
+            true => (frames - self.window) / self.step.max(1) + 1,
+            false => 0,
+        };
+        let half = (self.window - 1) as f64 / 2.0;
+        (0..windows)
+            .map(|k| ((k * self.step) as f64 + half) / frame_rate)
+            .collect()
+    }
+}
+
 impl Default for SpectrogramParams {
     /// [`SpectrogramParams::rat`].
     fn default() -> Self {
@@ -235,11 +250,8 @@ pub fn spectrogram_of_gate(
         .collect();
     let peak = power.iter().copied().fold(0.0, f64::max);
     let power_db = power.mapv(|p| power_to_db((p / peak).max(1e-20)));
-    let half = (params.window - 1) as f64 / 2.0;
     Ok(Some(Spectrogram {
-        times_s: (0..n_windows)
-            .map(|k| ((k * params.step) as f64 + half) / frame_rate)
-            .collect(),
+        times_s: params.window_centres(frames, frame_rate),
         velocities_m_s,
         power_db,
         mean_velocity_m_s: mean_velocity,
