@@ -58,12 +58,20 @@ pub fn band_pass_warning(acq: &pcuvd::Acquisition) -> Option<String> {
     }
 }
 
-/// [`band_pass_warning`] for a recording whose samples are RF (read from its first frame).
-pub fn rf_band_pass_warning(data: &dyn FrameSource) -> Result<Option<String>> {
+/// What frame 0 of a recording says before any work: samples at a scale that processing cannot
+/// hold are refused here, before the output folder is made (a recording is scaled as a whole,
+/// and `process` judges each block by its first frame, as it does here); for RF samples, the
+/// [`band_pass_warning`] to print once the run is accepted.
+pub fn check_first_frame(data: &dyn FrameSource) -> Result<Option<String>> {
     if data.n_frames() == 0 {
         return Ok(None);
     }
     let first = data.read_frames(0..1)?;
+    let n_angles = data.acquisition().sequence.n_angles();
+    pcuvd::core::lags::check_sample_peak(
+        first.samples.peak_of_first_events(n_angles),
+        "the samples of frame 0",
+    )?;
     Ok(match first.samples {
         pcuvd::Samples::Rf(_) => band_pass_warning(data.acquisition()),
         pcuvd::Samples::Iq { .. } => None,

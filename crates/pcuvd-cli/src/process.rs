@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use pcuvd_app::input::{open_images, open_input, rf_band_pass_warning};
+use pcuvd_app::input::{check_first_frame, open_images, open_input};
 use pcuvd_app::memory::check_memory;
 use pcuvd_app::outputs;
 use pcuvd_app::run::{Plan, Processed};
@@ -187,7 +187,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         plan.options_text
             .push_str(&format!(" {:?}", args.acquisition));
     }
-    let band_warning = rf_band_pass_warning(data)?;
+    let band_warning = check_first_frame(data).with_context(|| args.input.display().to_string())?;
     check_memory(data, &mut plan, args.max_memory_gb)?;
     let checksum = args.checksum_kind();
     let provenance_of_run = {

@@ -149,7 +149,7 @@ fn non_finite_samples() {
 
 /// RF at Field II's scale (10⁻²² here) or far above any scanner's is refused, naming the
 /// samples' peak and a factor into the range pcuvd's single-precision products hold, where it
-/// would have given maps of noise or infinite power.
+/// would have given maps of noise or infinite power, before the output folder is made.
 #[test]
 fn samples_outside_the_single_precision_range() {
     let dir = tempfile::tempdir().unwrap();
@@ -165,6 +165,17 @@ fn samples_outside_the_single_precision_range() {
             &[],
             &[name, "sample scale", needle, "scale the samples into it"],
         );
+        // Refused while planning, from frame 0: no output folder is left behind.
+        let out = dir.path().join(format!("{name}-out"));
+        let refused = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["--quiet", "process"])
+            .arg(&path)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_eq!(refused.status.code(), Some(2));
+        assert!(!out.exists(), "{} made for a refused run", out.display());
         // `pcuvd info` says so before any run.
         let info = Command::new(env!("CARGO_BIN_EXE_pcuvd"))
             .arg("info")
