@@ -13,6 +13,9 @@ from . import _checks, _pcuvd
 from ._recording import Recording, reader_overrides
 
 # What each array of a result is, for docs and `to_xarray`: (dimensions, description).
+# The arrays of `sites_mm`, computed together from the sites' spectrograms.
+SITE_ARRAYS = ("site_spectrograms", "site_velocities", "site_times", "site_mean_velocity")
+
 MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "x": (("x",), "pixel columns (m)"),
     "z": (("z",), "pixel rows, depth (m)"),
@@ -114,18 +117,20 @@ class ProcessResult:
     @property
     def arrays(self) -> dict[str, np.ndarray]:
         """Every map by name (a dict of numpy arrays)."""
-        for name in self._native.array_names():
-            if name not in self._maps:
-                self._maps[name] = self._native.array(name)
+        missing = [name for name in self._native.array_names() if name not in self._maps]
+        if missing:
+            self._maps.update(self._native.arrays_named(missing))
         return self._maps
 
     def __getattr__(self, name: str) -> np.ndarray:
         if name.startswith("_"):
             raise AttributeError(name)
         if name not in self._maps:
-            found = self._native.array(name)
-            if found is not None:
-                self._maps[name] = found
+            # The site arrays are made together: asking for one keeps the others.
+            together = SITE_ARRAYS if name in SITE_ARRAYS else (name,)
+            self._maps.update(
+                self._native.arrays_named([n for n in together if n not in self._maps])
+            )
         if name in self._maps:
             return self._maps[name]
         if name in MAPS:

@@ -487,11 +487,15 @@ impl PyProcessResult {
         Ok(names.into_inner())
     }
 
-    /// The map `pcuvd process` writes as `name`.npy, alone (`None` when this result has none):
-    /// a long recording's speed series or ensembles are made only when asked for.
-    fn array<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.arrays_where(py, &|wanted| wanted == name)?
-            .get_item(name)
+    /// The maps called `names` that this result has, by name (`pcuvd process` writes each as
+    /// `name`.npy), made in one pass: a long recording's speed series or ensembles only when
+    /// asked for, and the four site arrays from one computation of the sites' spectrograms.
+    fn arrays_named<'py>(
+        &self,
+        py: Python<'py>,
+        names: Vec<String>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        self.arrays_where(py, &|wanted| names.iter().any(|n| n == wanted))
     }
 
     /// The error `pcuvd.process` raises, this result beside it, when the RI maps a dynamics
