@@ -914,24 +914,33 @@ fn sin_half_pi(t: f64) -> f64 {
                 + x2 * (-1.0 / 5040.0 + x2 * (1.0 / 362_880.0 + x2 * (-1.0 / 39_916_800.0))))))
 }
 
-/// 2^y for y ≤ 0 (relative error < 10⁻⁶; flushes to 0 below 2⁻¹²⁶). Branch- and cast-free
+/// 2^y for y ≤ 0 (relative error < 3·10⁻⁷; flushes to 0 below 2⁻¹²⁶). Branch- and cast-free
 /// (rounding by the 1.5·2²³ trick), so that it vectorises.
 #[inline(always)]
 fn exp2_nonpositive(y: f32) -> f32 {
     const MAGIC: f32 = 12_582_912.0; // 1.5·2²³: adding it rounds to an integer in the low bits
+    // 2^f on [−½, ½]: the degree-5 polynomial of least relative error (Lawson's iteration on
+    // Chebyshev nodes), 7.5·10⁻⁸ in exact arithmetic and 2.1·10⁻⁷ evaluated in f32: five fused
+    // multiply-adds where a Taylor series in f·ln 2 needs degree 7.
+    const C: [f32; 6] = [
+        1.000_000_1,
+        0.693_146_94,
+        0.240_221_2,
+        0.055_507_13,
+        0.009_675_541,
+        0.001_327_647_1,
+    ];
     let y = y.clamp(-126.0, 0.0);
     let t = y + MAGIC;
     let n = t - MAGIC; // round(y)
     let f = y - n; // ∈ [−½, ½]
     let i = t.to_bits().wrapping_sub(MAGIC.to_bits()) as i32; // round(y) as an integer
-    // Taylor series of e^(f ln 2), degree 7.
-    const L: f32 = std::f32::consts::LN_2;
-    let x = f * L;
-    let p = 1.0
-        + x * (1.0
-            + x * (0.5
-                + x * (1.0 / 6.0
-                    + x * (1.0 / 24.0 + x * (1.0 / 120.0 + x * (1.0 / 720.0 + x / 5040.0))))));
+    let p = C[5]
+        .mul_add(f, C[4])
+        .mul_add(f, C[3])
+        .mul_add(f, C[2])
+        .mul_add(f, C[1])
+        .mul_add(f, C[0]);
     p * f32::from_bits((i.wrapping_add(127) as u32) << 23)
 }
 
@@ -958,11 +967,12 @@ mod tests {
 
     #[test]
     fn fast_exp2_is_accurate() {
-        for i in 0..2000 {
-            let y = -(i as f32) * 0.01;
+        // Every thousandth over the range not flushed, so every fraction of [−½, ½] many times.
+        for i in 0..126_000 {
+            let y = -(i as f32) * 1e-3;
             let exact = (y as f64).exp2();
             let rel = (exp2_nonpositive(y) as f64 - exact).abs() / exact;
-            assert!(rel < 1e-6, "y = {y}: rel err {rel}");
+            assert!(rel < 3e-7, "y = {y}: rel err {rel}");
         }
     }
 
