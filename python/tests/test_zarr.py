@@ -100,7 +100,7 @@ axes = ["frames", "angles", "channels", "samples"]
 OPTIONS = [
     "--grid=-1.5,1.5,1.5,3.5,0.1", "--ensemble-frames=100", "--ensemble-step=50",
     "--segment-frames=400", "--heart-rate=5", "--window-ms=60", "--window-step-ms=20",
-    "--svd-low=1",
+    "--svd-low=1", "--sites=0,2.5;1,2",
 ]
 
 
@@ -113,6 +113,7 @@ def runs(pulsing, cli, tmp_path_factory):
     whole = pcuvd.process(
         pulsing, quiet=True, grid_mm=(-1.5, 1.5, 1.5, 3.5, 0.1), ensemble_frames=100,
         ensemble_step=50, dynamics="off", svd_low=1, segment_frames=1800,
+        sites_mm=[(0, 2.5), (1, 2)],
     )
     return out, whole
 
@@ -162,6 +163,16 @@ def test_the_store_opens_lazily_in_xarray_with_the_runs_values(runs, tmp_path):
     np.testing.assert_allclose(speed_series, np.load(with_zarr / "speed_series.npy"), rtol=1e-5, atol=1e-9)
     for name in ["ri", "psv", "edv"]:
         np.testing.assert_allclose(ds[name].values, np.load(with_zarr / f"{name}.npy"), rtol=1e-6, err_msg=name)
+    # The sites' spectrograms (--sites) on an axis of their own, each site its velocity axis.
+    assert ds["site_spectrograms"].dims == ("site", "site_time", "site_velocity_bin")
+    assert ds["site_velocities"].dims == ("site", "site_velocity_bin")
+    assert ds["site_mean_velocity"].dims == ("site", "site_time")
+    np.testing.assert_allclose(ds["site_time"].values, np.load(with_zarr / "site_times.npy"))
+    for name in ["site_spectrograms", "site_velocities", "site_mean_velocity"]:
+        expected = np.load(with_zarr / f"{name}.npy")
+        assert ds[name].shape == expected.shape, name
+        np.testing.assert_allclose(ds[name].values, expected, rtol=1e-6, err_msg=name)
+    assert np.isfinite(ds["site_spectrograms"].values[0]).all(), "the vessel's site has a signal"
     # The vessel's power over time, plotted from the store as a user would.
     band = series.sel(z=slice(2.3e-3, 2.7e-3), x=slice(-0.2e-3, 0.2e-3)).mean(("z", "x"))
     figure, axes = plt.subplots()
@@ -199,6 +210,9 @@ def test_python_saves_the_same_store(runs, tmp_path):
             ds[name].values, expected, rtol=1e-6, atol=1e-6 * np.nanmax(np.abs(expected)), err_msg=name
         )
     assert "window_vx" not in ds.variables  # dynamics off
+    for name in ["site_spectrograms", "site_velocities", "site_mean_velocity"]:
+        np.testing.assert_allclose(ds[name].values, result.arrays[name], rtol=1e-6, err_msg=name)
+    np.testing.assert_allclose(ds["site_time"].values, result.arrays["site_times"])
     assert (tmp_path / "out" / "ensemble_power_doppler.npy").exists()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["zarr"]["time_series_in_store_only"] is False

@@ -24,7 +24,7 @@ impl MapKind {
 }
 
 /// Every map and series an output format describes.
-pub const MAP_KINDS: [MapKind; 19] = [
+pub const MAP_KINDS: [MapKind; 22] = [
     MapKind::new(
         "power_doppler",
         "|IQ|^2",
@@ -95,6 +95,21 @@ pub const MAP_KINDS: [MapKind; 19] = [
         "window_power",
         "|IQ|^2",
         "power Doppler of each window, mean over angles",
+    ),
+    MapKind::new(
+        "site_spectrograms",
+        "dB",
+        "Doppler spectrogram at each site, dB re its maximum (NaN without signal)",
+    ),
+    MapKind::new(
+        "site_velocities",
+        "m/s",
+        "axial velocity of each spectrogram bin at each site (> 0 deeper)",
+    ),
+    MapKind::new(
+        "site_mean_velocity",
+        "m/s",
+        "mean Doppler velocity of each window at each site (> 0 deeper)",
     ),
 ];
 

@@ -5,7 +5,9 @@
 //! - Maps: `(z, x)`; the Doppler time series: `(time, z, x)`, one step per ensemble, `time` its
 //!   centre; the dynamics stage's velocity windows: `(window_time, z, x)`. Coordinates `z`, `x`
 //!   (m), `time`, `window_time` (s from the first frame) are arrays of the same names, so xarray
-//!   indexes by them.
+//!   indexes by them. The sites' spectrograms (`--sites`): `(site, site_time,
+//!   site_velocity_bin)`, each site's velocity axis `(site, site_velocity_bin)` (each site has
+//!   its own echo frequency), its mean velocity `(site, site_time)`, coordinate `site_time`.
 //! - Values are float32 (seven significant digits, far finer than any estimate's spread: the
 //!   `.npy` maps keep float64), gzip-compressed; vessel classes are uint8. Every array carries
 //!   `units` and `long_name`; the store's attributes hold the acquisition under ConfUSIus's names
@@ -31,6 +33,7 @@ use zarrs::group::GroupBuilder;
 
 use crate::map_kinds::{MapKind, map_kind};
 use crate::run::{DynamicsOutcome, Plan, Processed};
+use crate::sites::SiteSpectrograms;
 
 /// The store's folder name in a run's output folder.
 pub const STORE: &str = "pcuvd.zarr";
@@ -189,6 +192,60 @@ impl ZarrStore {
         self.store(&array, &[0..nz, 0..nx], as_f32(values.iter().copied()))
     }
 
+    /// Writes an array of float32 `values` (row-major, of `shape`) along `dimensions`, one chunk.
+    fn write_whole(
+        &self,
+        what: &MapKind,
+        shape: &[usize],
+        dimensions: &[&str],
+        values: impl Iterator<Item = f64>,
+    ) -> Result<()> {
+        let shape: Vec<u64> = shape.iter().map(|&n| n as u64).collect();
+        let chunks = shape.iter().map(|&n| n.max(1)).collect();
+        let array = self.new_array(
+            what,
+            shape.clone(),
+            chunks,
+            dimensions,
+            data_type::float32(),
+            f32::NAN,
+        )?;
+        let ranges: Vec<std::ops::Range<u64>> = shape.iter().map(|&n| 0..n).collect();
+        self.store(&array, &ranges, as_f32(values))
+    }
+
+    /// Writes the sites' spectrograms, their velocity axes and mean velocities, on the
+    /// `site_time` coordinate (the windows' centres).
+    fn write_sites(&self, sites: &SiteSpectrograms) -> Result<()> {
+        let time = MapKind::new(
+            "site_time",
+            "s",
+            "centre time of each spectrogram window from the first frame",
+        );
+        self.write_coordinate(&time, &sites.times_s)?;
+        let power = sites.power_db();
+        self.write_whole(
+            map_kind("site_spectrograms"),
+            power.shape(),
+            &["site", "site_time", "site_velocity_bin"],
+            power.iter().copied(),
+        )?;
+        let velocities = sites.velocities();
+        self.write_whole(
+            map_kind("site_velocities"),
+            velocities.shape(),
+            &["site", "site_velocity_bin"],
+            velocities.iter().copied(),
+        )?;
+        let mean = sites.mean_velocity();
+        self.write_whole(
+            map_kind("site_mean_velocity"),
+            mean.shape(),
+            &["site", "site_time"],
+            mean.iter().copied(),
+        )
+    }
+
     /// Ensembles of one chunk: about [`CHUNK_BYTES`] of float32 maps.
     fn time_chunk(&self) -> u64 {
         let (nz, nx) = self.grid;
@@ -295,6 +352,7 @@ impl ZarrStore {
         input: RunInput<'_>,
         plan: &Plan,
         processed: &Processed,
+        sites: Option<&SiteSpectrograms>,
     ) -> Result<PathBuf> {
         let out = &processed.out;
         let maps = &out.maps;
@@ -351,6 +409,9 @@ impl ZarrStore {
             && let Some(ensembles) = &processed.ensembles
         {
             self.append_ensembles(ensembles)?;
+        }
+        if let Some(sites) = sites {
+            self.write_sites(sites)?;
         }
         let node = zarrs::node::Node::open(&self.store, "/").context("reading the store back")?;
         let consolidated = node.consolidate_metadata().map(|metadata| {

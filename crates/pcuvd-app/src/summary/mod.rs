@@ -84,8 +84,9 @@ pub fn save(
     let mut pngs = pngs?;
     let mut summary = Summary::of(input, plan, processed, source);
     summary.against_truth = against.as_ref().map(|scored| scored.record.clone());
-    // The sites' spectrograms, made once for the summary, the arrays and the figure.
-    if let Some(sites) = crate::sites::SiteSpectrograms::of(plan, processed)? {
+    // The sites' spectrograms, made once for the summary, the arrays, the figure and the store.
+    let sites = crate::sites::SiteSpectrograms::of(plan, processed)?;
+    if let Some(sites) = &sites {
         summary.sites = Some(sites.records(&out.grid));
         sites.write(dir)?;
         pngs.push(sites.figure(dir, processed, name)?);
@@ -115,7 +116,7 @@ pub fn save(
     }
     if let Some(store) = zarr {
         let in_store_only = processed.ensembles_in_store;
-        let path = store.finish(input, plan, processed)?;
+        let path = store.finish(input, plan, processed, sites.as_ref())?;
         // Series that went to the store as the run went are drawn from it, a run at a time.
         if in_store_only && let Some(timeline) = &processed.ensembles {
             pngs.push(crate::zarr::draw_ensembles(
