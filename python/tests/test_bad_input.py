@@ -28,6 +28,8 @@ def _as_keywords(message: str) -> str:
 
     def keyword(match: re.Match) -> str:
         name, value = match.group(1).replace("-", "_"), match.group(2)
+        # The package documents these with the unit in the name.
+        name = {"grid": "grid_mm", "sites": "sites_mm"}.get(name, name)
         if value is None:
             return name
         value = value.strip()
@@ -64,6 +66,14 @@ def test_a_bad_value_names_the_keyword_and_the_value_given(disk, kwargs, says):
     with pytest.raises(ValueError) as raised:
         pcuvd.process(disk, quiet=True, **kwargs)
     assert str(raised.value) == says
+
+
+def test_sites_off_the_grid_name_the_keyword_as_documented(disk, cli, tmp_path):
+    expected = _cli_error(cli, "process", disk, "--out", tmp_path / "o", "--sites=100,100")
+    with pytest.raises(ValueError) as raised:
+        pcuvd.process(disk, sites_mm=[(100, 100)], quiet=True)
+    assert str(raised.value) == _as_keywords(expected)
+    assert str(raised.value).startswith('sites_mm="100,100": (100, 100) mm lies outside the imaged grid')
 
 
 def test_a_grid_beyond_the_recording_gives_the_cli_message(disk, cli, tmp_path):

@@ -45,8 +45,13 @@ fn keywords() -> &'static HashSet<String> {
 /// ([`flags_as_keywords`]).
 pub(crate) fn as_python(text: &str) -> String {
     flags_as_keywords(text, |name| {
+        let with_unit = format!("{name}_mm");
         if SAVE_SWITCHES.contains(&name) {
             Some(format!("{name}=True"))
+        } else if crate::PROCESSING_ALIASES.contains(&with_unit.as_str()) {
+            // The package documents `grid_mm=` and `sites_mm=` (the unit in the name); each
+            // takes the command's text form that the message quotes.
+            Some(with_unit)
         } else {
             keywords().contains(name).then(|| name.to_string())
         }
