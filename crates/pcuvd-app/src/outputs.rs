@@ -106,6 +106,16 @@ fn resolved(path: &Path) -> PathBuf {
     }
 }
 
+/// After a run that failed before writing anything, removes the output folder `dir` if this run
+/// `made` it and it is still empty: a refused recording leaves no empty folder behind. A folder
+/// that was there before, or that holds anything (a Zarr store begun as the run went), stays.
+pub fn remove_if_empty(dir: &Path, made: bool) {
+    if made {
+        // Only an empty folder is removed; anything else makes this fail, which is the point.
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
 /// Makes `dir` ready for a run that writes the files named `own`: refuses when one of them would
 /// land on one of `inputs`; creates the folder; refuses a folder that holds anything unless
 /// `force`, and with `force` removes the files of `own` left there by an earlier run (only those,

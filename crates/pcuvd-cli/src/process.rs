@@ -235,6 +235,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
             provenance_of_run(vec![])
         }))
     };
+    let made_out = !args.out.exists();
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
@@ -259,6 +260,7 @@ pub fn run(args: &ProcessArgs) -> Result<()> {
         .as_mut()
         .map(|z| z as &mut dyn pcuvd::pipeline::segments::EnsembleSink);
     let processed = pcuvd_app::run_into(data, &plan, &progress, sink)
+        .inspect_err(|_| outputs::remove_if_empty(&args.out, made_out))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     let coded = data.acquisition().sequence.is_coded();
     if let Some(warning) =
@@ -347,6 +349,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
             provenance_of_run()
         }))
     };
+    let made_out = !args.out.exists();
     outputs::prepare(
         &args.out,
         outputs::PROCESS_OUTPUTS,
@@ -367,6 +370,7 @@ fn run_on_images(args: &ProcessArgs) -> Result<()> {
         .as_mut()
         .map(|z| z as &mut dyn pcuvd::pipeline::segments::EnsembleSink);
     let processed = pcuvd_app::run::run_images_into(&opened.images, &plan, &progress, sink)
+        .inspect_err(|_| outputs::remove_if_empty(&args.out, made_out))
         .with_context(|| format!("{}: processing failed", args.input.display()))?;
     if let Some(warning) =
         pcuvd::pipeline::dealias_warning(plan.params.dealias, false, &processed.out)

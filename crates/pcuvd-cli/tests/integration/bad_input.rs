@@ -147,6 +147,49 @@ fn non_finite_samples() {
     );
 }
 
+/// A NaN in a later frame of a manifest's samples is found when its block is read, after the
+/// output folder was made: the folder this run made, still empty, is removed with the refusal.
+#[test]
+fn a_refusal_after_planning_leaves_no_empty_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = pcuvd_io::write_recording(
+        dir.path(),
+        "late_nan",
+        &base_recording(),
+        &toml::Table::new(),
+    )
+    .unwrap();
+    // The file's last sample (little-endian f32) is the second frame's: frame 0, which planning
+    // reads, stays clean. pcuvd writes no NaN, so it is put in the file afterwards.
+    let samples = dir.path().join("late_nan.npy");
+    let mut bytes = std::fs::read(&samples).unwrap();
+    let end = bytes.len();
+    bytes[end - 4..].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&samples, bytes).unwrap();
+    let out = dir.path().join("out");
+    let run = |out: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_pcuvd"))
+            .args(["--quiet", "process"])
+            .arg(&path)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let refused = run(&out);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("processing failed") && stderr.contains("NaN"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "{} left behind", out.display());
+    // A folder the user made stays, empty as it was.
+    std::fs::create_dir(&out).unwrap();
+    assert_eq!(run(&out).status.code(), Some(2));
+    assert!(out.is_dir());
+}
+
 /// RF at Field II's scale (10⁻²² here) or far above any scanner's is refused, naming the
 /// samples' peak and a factor into the range pcuvd's single-precision products hold, where it
 /// would have given maps of noise or infinite power, before the output folder is made.
@@ -390,9 +433,16 @@ impl Cases {
     }
 }
 
-/// A valid recording manifest written by pcuvd (version 1, Hadamard order 4, 2 frames of 4 events,
-/// 4 elements, 96 samples of RF), samples in `base.npy`; returns its text.
+/// A valid recording manifest written by pcuvd ([`base_recording`]), samples in `base.npy`;
+/// returns its text.
 fn base_manifest(dir: &Path) -> String {
+    let path =
+        pcuvd_io::write_recording(dir, "base", &base_recording(), &toml::Table::new()).unwrap();
+    std::fs::read_to_string(path).unwrap()
+}
+
+/// A small valid recording: Hadamard order 4, 2 frames of 4 events, 4 elements, 96 samples of RF.
+fn base_recording() -> pcuvd::ChannelData {
     use pcuvd::{Acquisition, ChannelData, Coding, Probe, Samples, Sequence};
     let acquisition = Acquisition {
         probe: Probe {
@@ -417,12 +467,10 @@ fn base_manifest(dir: &Path) -> String {
     let samples = ndarray::Array3::from_shape_fn((8, 4, 96), |(e, c, s)| {
         ((e * 31 + c * 7 + s * 13) % 17) as f32 - 8.0
     });
-    let data = ChannelData {
+    ChannelData {
         acquisition,
         samples: Samples::Rf(samples),
-    };
-    let path = pcuvd_io::write_recording(dir, "base", &data, &toml::Table::new()).unwrap();
-    std::fs::read_to_string(path).unwrap()
+    }
 }
 
 /// `text` with the line that starts with `key =` replaced by `line` (removed when empty).
