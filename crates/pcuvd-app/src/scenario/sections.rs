@@ -309,7 +309,7 @@ pub struct TreeSection {
     pub cortex_thickness_m: f64,
     /// Slab width along x, centred on x = 0 (m).
     pub width_m: f64,
-    /// Slab thickness along the elevation y, centred on the imaging plane (m).
+    /// Slab thickness along the elevation y, centred on the imaging plane (m; at most 20 mm).
     pub slab_thickness_m: f64,
     /// Distance between neighbouring penetrating arterioles (m); a venule sits between each pair.
     pub spacing_m: f64,

@@ -10,6 +10,10 @@ use rand_chacha::ChaCha8Rng;
 use super::graph::{Boundary, BoundaryKind, Edge, VesselClass, VesselGraph, distance};
 use crate::core::error::{Result, invalid, require_positive, require_range};
 
+/// Thickest slab along the elevation (m): a rat brain's extent. A slab metres thick spread the
+/// vessels out of the elevation beam, and its tissue took minutes to simulate into noise.
+pub const MAX_SLAB_THICKNESS: f64 = 20e-3;
+
 /// Geometry, sizes and boundary pressures of a generated cortical slab (SI units).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CortexParams {
@@ -105,6 +109,17 @@ impl CortexParams {
         require_positive("cortical thickness", self.thickness)?;
         require_positive("slab width", self.width)?;
         require_positive("slab thickness", self.slab_thickness)?;
+        if self.slab_thickness > MAX_SLAB_THICKNESS {
+            return Err(invalid(
+                "slab thickness",
+                format!(
+                    "{:.1} mm: at most {:.0} mm, a rat brain's extent (the elevation beam sees a \
+                     millimetre or two of it: vessels spread farther add time, not signal)",
+                    self.slab_thickness * 1e3,
+                    MAX_SLAB_THICKNESS * 1e3
+                ),
+            ));
+        }
         require_positive("arteriole spacing", self.spacing)?;
         if self.width < 2.0 * self.spacing {
             return Err(invalid(

@@ -509,9 +509,28 @@ fn the_generator_is_deterministic_and_penetrates_near_normally() {
     assert!(
         generate(&CortexParams {
             inlet_pressure: 0.0,
-            ..p
+            ..p.clone()
         })
         .is_err()
+    );
+    // A slab thicker than a rat brain (here metres) is refused, naming the key; the largest kept.
+    let thick = generate(&CortexParams {
+        slab_thickness: 3.0,
+        ..p.clone()
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        thick.contains("slab thickness") && thick.contains("3000.0 mm"),
+        "{thick}"
+    );
+    assert!(
+        CortexParams {
+            slab_thickness: super::generator::MAX_SLAB_THICKNESS,
+            ..p
+        }
+        .validate()
+        .is_ok()
     );
 }
 
