@@ -180,16 +180,7 @@ impl ZarrStore {
 
     /// Writes a (z, x) map as float32.
     fn write_map(&self, what: &MapKind, values: &Array2<f64>) -> Result<()> {
-        let (nz, nx) = (values.nrows() as u64, values.ncols() as u64);
-        let array = self.new_array(
-            what,
-            vec![nz, nx],
-            vec![nz.max(1), nx.max(1)],
-            &["z", "x"],
-            data_type::float32(),
-            f32::NAN,
-        )?;
-        self.store(&array, &[0..nz, 0..nx], as_f32(values.iter().copied()))
+        self.write_whole(what, values.shape(), &["z", "x"], values.iter().copied())
     }
 
     /// Writes an array of float32 `values` (row-major, of `shape`) along `dimensions`, one chunk.
@@ -345,7 +336,8 @@ impl ZarrStore {
     }
 
     /// Writes the run's maps (those the stages made), its ensembles when they did not come as
-    /// the run went, and the dynamics stage's velocity windows; then consolidates the metadata.
+    /// the run went, the dynamics stage's velocity windows and the `sites`' spectrograms; then
+    /// consolidates the metadata.
     /// Returns the store's folder.
     pub fn finish(
         mut self,
