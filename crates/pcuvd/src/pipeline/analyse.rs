@@ -182,6 +182,30 @@ pub fn moments(
     Ok((per_angle, compound))
 }
 
+/// Refuses Doppler moments whose power overflowed single precision somewhere: a sample far beyond
+/// [`crate::core::lags::SAMPLE_PEAK_RANGE`] in a frame the scale check did not read (it reads
+/// each block's first frame, a recording being scaled as a whole) would otherwise give infinite
+/// power and maps of noise around it, written as if they were the flow.
+fn check_power_finite<'a>(moments: impl Iterator<Item = &'a Moments>) -> Result<()> {
+    let overflowed = moments
+        .map(|m| m.power.iter().filter(|p| p.is_infinite()).count())
+        .max()
+        .unwrap_or(0);
+    if overflowed == 0 {
+        return Ok(());
+    }
+    Err(invalid(
+        "sample scale",
+        format!(
+            "the power Doppler is infinite at {overflowed} pixels: some samples lie far above the \
+             {:.0e} that pcuvd's single-precision lag products hold (each block is judged by its \
+             first frame: a corrupt or saturated frame later in it is not); repair or rescale \
+             the recording",
+            crate::core::lags::SAMPLE_PEAK_RANGE.1
+        ),
+    ))
+}
+
 /// Velocities and vectors from Doppler moments ([`moments`], or those of several segments of a
 /// long recording merged, [`doppler::Moments::merge`]) with `params`' kernel, estimator and
 /// dealiasing: `images` gives the angles, frame rate, speed of sound, demodulation frequency and
@@ -200,6 +224,7 @@ pub fn doppler_maps(
             format!("{} for {n} angles", per_angle.len()),
         ));
     }
+    check_power_finite(per_angle.iter().chain([compound]))?;
     let frame_rate = images.frame_rate;
     let (c, f0) = (images.sound_speed, images.demodulation_frequency);
     let (nz, nx) = params.grid.shape();

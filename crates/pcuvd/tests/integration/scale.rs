@@ -167,3 +167,29 @@ fn recordings_outside_the_sample_range_are_refused() {
         );
     }
 }
+
+/// A frame beyond the range after the first one of its block (corrupt or saturated; the scale
+/// check reads each block's first frame) overflows the power Doppler: refused, not written as
+/// maps of infinities and noise around them.
+#[test]
+fn a_later_frame_beyond_the_range_is_refused_where_it_overflows() {
+    let data = common::tube_recording(false, 4);
+    let n_angles = data.acquisition.sequence.n_angles();
+    let mut corrupt = data.clone();
+    let Samples::Rf(samples) = &mut corrupt.samples else {
+        panic!("the tube is RF")
+    };
+    // Every channel of frame 2's first event.
+    samples
+        .index_axis_mut(ndarray::Axis(0), 2 * n_angles)
+        .fill(1e30);
+    let params = params(&data);
+    let error = pipeline::process(&corrupt, &params, &quiet).unwrap_err();
+    let Error::InvalidParameter { name, reason } = &error else {
+        panic!("{error}")
+    };
+    assert_eq!(name, "sample scale", "{error}");
+    assert!(reason.contains("infinite"), "{error}");
+    // The same recording without the corrupt frame processes.
+    assert!(pipeline::process(&data, &params, &quiet).is_ok());
+}
