@@ -24,9 +24,7 @@ impl SpectrogramParams {
             nfft: 128,
         }
     }
-}
 
-impl SpectrogramParams {
     /// Windows of `window_frames` frames every `step_frames` over a recording of `frames`
     /// frames, as the dynamics stage's windows, so that a spectrogram and the window speeds share
     /// a time axis. A recording shorter than four such windows takes windows of a quarter of its
@@ -55,16 +53,11 @@ impl SpectrogramParams {
             nfft: (2 * window.next_power_of_two()).max(64),
         })
     }
-}
 
-impl SpectrogramParams {
     /// The centre (s from the first frame) of each window these settings take over `frames`
-    /// frames at `frame_rate` (Hz); none when a window is longer than the frames.
+    /// frames at `frame_rate` (Hz); none when no window fits.
     pub fn window_centres(&self, frames: usize, frame_rate: f64) -> Vec<f64> {
-        let windows = match frames >= self.window {
-            true => (frames - self.window) / self.step.max(1) + 1,
-            false => 0,
-        };
+        let windows = window_count(frames, self.window, self.step, frame_rate).unwrap_or(0);
         let half = (self.window - 1) as f64 / 2.0;
         (0..windows)
             .map(|k| ((k * self.step) as f64 + half) / frame_rate)
