@@ -13,9 +13,6 @@ from . import _checks, _pcuvd
 from ._recording import Recording, reader_overrides
 
 # What each array of a result is, for docs and `to_xarray`: (dimensions, description).
-# The arrays of `sites_mm`, computed together from the sites' spectrograms.
-SITE_ARRAYS = ("site_spectrograms", "site_velocities", "site_times", "site_mean_velocity")
-
 MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "x": (("x",), "pixel columns (m)"),
     "z": (("z",), "pixel rows, depth (m)"),
@@ -81,6 +78,9 @@ MAPS: dict[str, tuple[tuple[str, ...], str]] = {
         "mean Doppler velocity of each spectrogram window (m/s, > 0 deeper)",
     ),
 }
+
+# The arrays of `sites_mm`, computed together from the sites' spectrograms.
+SITE_ARRAYS = tuple(name for name in MAPS if name.startswith("site_"))
 
 
 def process_option_names() -> list[str]:
