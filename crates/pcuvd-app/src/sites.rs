@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use ndarray::{Array1, Array2, Array3};
+use ndarray::{Array1, Array2, Array3, ArrayD};
 use pcuvd::dynamics::Spectrogram;
 use pcuvd::estimate::masks;
 use pcuvd_render::{Colormap, Panel, Polyline};
@@ -25,13 +25,41 @@ const WINDOW_VZ_RGB: (u8, u8, u8) = (80, 220, 255);
 /// Size of each panel of [`FIGURE`] (px).
 const SPECTROGRAM_PANEL_PX: (u32, u32) = (600, 460);
 
-/// The arrays the sites are written as (`.npy` file stems).
-pub const ARRAYS: [&str; 4] = [
-    "site_spectrograms",
-    "site_times",
-    "site_velocities",
-    "site_mean_velocity",
+/// Makes one of the sites' arrays from their spectrograms.
+type MakeArray = fn(&SiteSpectrograms) -> ArrayD<f64>;
+
+/// Each array the sites are written as: its name, its dimensions as the Zarr store and xarray
+/// name them (`site_time`: the windows' centres), and how it is made. The one list the `.npy`
+/// files, the Zarr store and the Python result read.
+const LAYOUT: [(&str, &[&str], MakeArray); 4] = [
+    (
+        "site_spectrograms",
+        &["site", "site_time", "site_velocity_bin"],
+        |sites| sites.power_db().into_dyn(),
+    ),
+    ("site_times", &["site_time"], |sites| {
+        Array1::from(sites.times_s.clone()).into_dyn()
+    }),
+    ("site_velocities", &["site", "site_velocity_bin"], |sites| {
+        sites.velocities().into_dyn()
+    }),
+    ("site_mean_velocity", &["site", "site_time"], |sites| {
+        sites.mean_velocity().into_dyn()
+    }),
 ];
+
+/// The arrays the sites are written as (`.npy` file stems).
+pub const ARRAYS: [&str; 4] = [LAYOUT[0].0, LAYOUT[1].0, LAYOUT[2].0, LAYOUT[3].0];
+
+/// One array of the sites: what [`ARRAYS`] names, with its dimensions and values.
+pub struct SiteArray {
+    /// Its name: the `.npy` file stem, the Python result's key.
+    pub name: &'static str,
+    /// Its dimensions' names, as the Zarr store writes them.
+    pub dimensions: &'static [&'static str],
+    /// Its values (dB, s or m/s, as [`SiteSpectrograms`]'s methods of the same meaning).
+    pub values: ArrayD<f64>,
+}
 
 /// Each site's spectrogram, in the order the sites were given.
 pub struct SiteSpectrograms {
@@ -187,15 +215,24 @@ impl SiteSpectrograms {
             .collect()
     }
 
-    /// Writes the arrays ([`ARRAYS`]) into `dir`.
+    /// The arrays of [`ARRAYS`] whose names `wanted` accepts, in that order.
+    pub fn arrays(&self, wanted: impl Fn(&str) -> bool) -> Vec<SiteArray> {
+        LAYOUT
+            .iter()
+            .filter(|(name, _, _)| wanted(name))
+            .map(|&(name, dimensions, make)| SiteArray {
+                name,
+                dimensions,
+                values: make(self),
+            })
+            .collect()
+    }
+
+    /// Writes the arrays ([`ARRAYS`]) into `dir`, each as `name.npy`.
     pub fn write(&self, dir: &Path) -> Result<()> {
-        pcuvd_io::write_npy(&dir.join("site_spectrograms.npy"), &self.power_db())?;
-        pcuvd_io::write_npy(
-            &dir.join("site_times.npy"),
-            &Array1::from(self.times_s.clone()),
-        )?;
-        pcuvd_io::write_npy(&dir.join("site_velocities.npy"), &self.velocities())?;
-        pcuvd_io::write_npy(&dir.join("site_mean_velocity.npy"), &self.mean_velocity())?;
+        for array in self.arrays(|_| true) {
+            pcuvd_io::write_npy(&dir.join(format!("{}.npy", array.name)), &array.values)?;
+        }
         Ok(())
     }
 

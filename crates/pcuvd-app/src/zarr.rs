@@ -214,27 +214,15 @@ impl ZarrStore {
             "centre time of each spectrogram window from the first frame",
         );
         self.write_coordinate(&time, &sites.times_s)?;
-        let power = sites.power_db();
-        self.write_whole(
-            map_kind("site_spectrograms"),
-            power.shape(),
-            &["site", "site_time", "site_velocity_bin"],
-            power.iter().copied(),
-        )?;
-        let velocities = sites.velocities();
-        self.write_whole(
-            map_kind("site_velocities"),
-            velocities.shape(),
-            &["site", "site_velocity_bin"],
-            velocities.iter().copied(),
-        )?;
-        let mean = sites.mean_velocity();
-        self.write_whole(
-            map_kind("site_mean_velocity"),
-            mean.shape(),
-            &["site", "site_time"],
-            mean.iter().copied(),
-        )
+        for array in sites.arrays(|name| name != "site_times") {
+            self.write_whole(
+                map_kind(array.name),
+                array.values.shape(),
+                array.dimensions,
+                array.values.iter().copied(),
+            )?;
+        }
+        Ok(())
     }
 
     /// Ensembles of one chunk: about [`CHUNK_BYTES`] of float32 maps.

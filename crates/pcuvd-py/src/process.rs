@@ -435,14 +435,8 @@ impl PyProcessResult {
                 && let Some(sites) =
                     SiteSpectrograms::of(&self.plan, &self.processed).map_err(to_py)?
             {
-                for name in wanted {
-                    let array = match name {
-                        "site_spectrograms" => sites.power_db().into_pyarray(py).into_any(),
-                        "site_times" => PyArray1::from_slice(py, &sites.times_s).into_any(),
-                        "site_velocities" => sites.velocities().into_pyarray(py).into_any(),
-                        _ => sites.mean_velocity().into_pyarray(py).into_any(),
-                    };
-                    dict.set_item(name, array)?;
+                for array in sites.arrays(|name| wanted.contains(&name)) {
+                    dict.set_item(array.name, array.values.into_pyarray(py))?;
                 }
             }
         }
