@@ -272,11 +272,10 @@ impl Beam {
         let rows = z
             .par_iter()
             .map(|&zz| {
-                (0..=2 * n)
-                    .map(|i| {
-                        let y = (i as f64 - n as f64) * Self::STEP;
-                        strip.one_way(y, zz).norm_sqr().powi(2)
-                    })
+                strip
+                    .row(zz, -(n as f64) * Self::STEP, Self::STEP, 2 * n + 1)
+                    .into_iter()
+                    .map(|g| g.norm_sqr().powi(2))
                     .collect()
             })
             .collect();
