@@ -132,14 +132,29 @@ impl TissueMotion {
 
     /// Displacement (m) at time `t` (s) of the point first at `start` = (x, y, z) (m).
     pub fn displacement(&self, start: [f64; 3], t: f64) -> [f64; 3] {
-        self.sum(start, |o| {
-            (o.omega() * t + o.phase_rad).sin() - o.phase_rad.sin()
-        })
+        self.at(t).displacement(start)
+    }
+
+    /// The field at time `t` (s), for the displacements of many points: each oscillation's
+    /// phase term is the same at every point, so it is computed once.
+    pub fn at(&self, t: f64) -> MotionAt<'_> {
+        MotionAt {
+            motion: self,
+            phases: self
+                .oscillations
+                .iter()
+                .map(|o| (o.omega() * t + o.phase_rad).sin() - o.phase_rad.sin())
+                .collect(),
+        }
     }
 
     /// Velocity (m/s) at time `t` (s) of the point first at `start` = (x, y, z) (m).
     pub fn velocity(&self, start: [f64; 3], t: f64) -> [f64; 3] {
-        self.sum(start, |o| o.omega() * (o.omega() * t + o.phase_rad).cos())
+        let weights = self
+            .oscillations
+            .iter()
+            .map(|o| o.omega() * (o.omega() * t + o.phase_rad).cos());
+        self.sum(start, weights)
     }
 
     /// Adds to the flow `truth` on the grid `x`, `z` (m), inside its mask, the in-plane velocity
@@ -156,15 +171,29 @@ impl TissueMotion {
         }
     }
 
-    fn sum(&self, start: [f64; 3], weight: impl Fn(&Oscillation) -> f64) -> [f64; 3] {
+    fn sum(&self, start: [f64; 3], weights: impl IntoIterator<Item = f64>) -> [f64; 3] {
         let mut total = [0.0; 3];
-        for o in &self.oscillations {
-            let scale = weight(o) * (1.0 + o.depth_gradient * (start[2] - self.reference_depth));
+        for (o, weight) in self.oscillations.iter().zip(weights) {
+            let scale = weight * (1.0 + o.depth_gradient * (start[2] - self.reference_depth));
             for (t, a) in total.iter_mut().zip(o.amplitude) {
                 *t += scale * a;
             }
         }
         total
+    }
+}
+
+/// A tissue motion at one time ([`TissueMotion::at`]).
+pub struct MotionAt<'a> {
+    motion: &'a TissueMotion,
+    /// Per oscillation: sin(ωt + φ) − sin φ, its displacement's share of its amplitude.
+    phases: Vec<f64>,
+}
+
+impl MotionAt<'_> {
+    /// Displacement (m) of the point first at `start` = (x, y, z) (m).
+    pub fn displacement(&self, start: [f64; 3]) -> [f64; 3] {
+        self.motion.sum(start, self.phases.iter().copied())
     }
 }
 
@@ -390,8 +419,9 @@ impl Phantom for TissuePhantom {
 
     fn positions_at(&self, t: f64, out: &mut Vec<[f64; 2]>) {
         out.clear();
+        let motion = self.spec.motion.at(t);
         out.extend(self.start.iter().map(|&p| {
-            let d = self.spec.motion.displacement(p, t);
+            let d = motion.displacement(p);
             [p[0] + d[0], p[2] + d[2]]
         }));
     }
@@ -406,11 +436,8 @@ impl Phantom for TissuePhantom {
                 .iter()
                 .any(|o| o.amplitude[1] != 0.0)
         {
-            out.extend(
-                self.start
-                    .iter()
-                    .map(|&p| p[1] + self.spec.motion.displacement(p, t)[1]),
-            );
+            let motion = self.spec.motion.at(t);
+            out.extend(self.start.iter().map(|&p| p[1] + motion.displacement(p)[1]));
         }
     }
 
@@ -440,9 +467,10 @@ impl Phantom for Moved<'_> {
         self.inner.positions_at(t, out);
         let mut ys = Vec::new();
         self.inner.elevations_at(t, &mut ys);
+        let motion = self.motion.at(t);
         for (i, p) in out.iter_mut().enumerate() {
             let y = ys.get(i).copied().unwrap_or(0.0);
-            let d = self.motion.displacement([p[0], y, p[1]], t);
+            let d = motion.displacement([p[0], y, p[1]]);
             p[0] += d[0];
             p[1] += d[2];
         }
@@ -463,8 +491,9 @@ impl Phantom for Moved<'_> {
         if out.is_empty() {
             out.resize(positions.len(), 0.0);
         }
+        let motion = self.motion.at(t);
         for (y, p) in out.iter_mut().zip(&positions) {
-            *y += self.motion.displacement([p[0], *y, p[1]], t)[1];
+            *y += motion.displacement([p[0], *y, p[1]])[1];
         }
     }
 

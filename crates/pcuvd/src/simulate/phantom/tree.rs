@@ -69,9 +69,11 @@ struct Seat {
     segment: usize,
     /// Distance along the axis from the segment's start at t = 0 (m).
     along: f64,
-    /// Offset across the axis: radius (m) and angle (rad) around it.
+    /// Distance from the axis (m).
     radius: f64,
-    angle: f64,
+    /// Offset from the axis (x, y, z) (m): `radius` along its angle around the axis, in the
+    /// segment's cross-section. Fixed, so computed once rather than at every event.
+    offset: [f64; 3],
 }
 
 /// Blood in a solved vascular tree, as a phantom.
@@ -80,8 +82,10 @@ pub struct TreePhantom {
     flow: VascularFlow,
     seats: Vec<Seat>,
     amplitudes: Vec<f64>,
-    /// Per segment: its unit axis and two unit normals spanning the cross-section.
-    frames: Vec<[[f64; 3]; 3]>,
+    /// Per segment: its unit axis, from its start to its end.
+    axes: Vec<[f64; 3]>,
+    /// Per segment: its chord (m), the length its blood wraps around.
+    chords: Vec<f64>,
 }
 
 impl TreePhantom {
@@ -98,10 +102,13 @@ impl TreePhantom {
         let mut rng = rng(seed);
         let mut seats = Vec::new();
         let mut amplitudes = Vec::new();
-        let mut frames = Vec::with_capacity(flow.segments.len());
+        let mut unit_axes = Vec::with_capacity(flow.segments.len());
+        let mut chords = Vec::with_capacity(flow.segments.len());
         for (index, s) in flow.segments.iter().enumerate() {
-            frames.push(axes(s.direction()));
+            let [u, n1, n2] = axes(s.direction());
+            unit_axes.push(u);
             let chord = s.chord();
+            chords.push(chord);
             let volume = s.area() * chord;
             let n = (spec.density * volume)
                 .max(spec.min_per_mm * chord * 1e3)
@@ -117,11 +124,13 @@ impl TreePhantom {
             for _ in 0..n as usize {
                 // Uniform over the disc: radius ∝ √u.
                 let r = radius * rng.random_range(0.0f64..1.0).sqrt();
+                let along = rng.random_range(0.0..chord);
+                let (sin, cos) = rng.random_range(0.0..std::f64::consts::TAU).sin_cos();
                 seats.push(Seat {
                     segment: index,
-                    along: rng.random_range(0.0..chord),
+                    along,
                     radius: r,
-                    angle: rng.random_range(0.0..std::f64::consts::TAU),
+                    offset: std::array::from_fn(|k| r * (cos * n1[k] + sin * n2[k])),
                 });
                 let a: f64 = StandardNormal.sample(&mut rng);
                 amplitudes.push(sigma * a);
@@ -131,7 +140,8 @@ impl TreePhantom {
             flow,
             seats,
             amplitudes,
-            frames,
+            axes: unit_axes,
+            chords,
         })
     }
 
@@ -179,13 +189,10 @@ impl TreePhantom {
     /// `travelled` (m).
     fn position(&self, seat: &Seat, travelled: f64) -> [f64; 3] {
         let s = &self.flow.segments[seat.segment];
-        let chord = s.chord();
+        let chord = self.chords[seat.segment];
         let along = (seat.along + travelled * self.profile(seat)).rem_euclid(chord);
-        let [u, n1, n2] = self.frames[seat.segment];
-        let (sin, cos) = seat.angle.sin_cos();
-        std::array::from_fn(|k| {
-            s.start[k] + along * u[k] + seat.radius * (cos * n1[k] + sin * n2[k])
-        })
+        let u = self.axes[seat.segment];
+        std::array::from_fn(|k| s.start[k] + along * u[k] + seat.offset[k])
     }
 
     /// The truth the imaging plane sees on the grid `x`, `z` (m) at time `t` (s), over each
