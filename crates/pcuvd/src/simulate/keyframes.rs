@@ -21,7 +21,8 @@
 
 use std::collections::HashMap;
 
-use ndarray::{Array2, Array3, ArrayViewMut3, Axis, Zip, s};
+use ndarray::{Array2, Array3, ArrayView2, ArrayViewMut3, Axis, Zip, s};
+use rayon::prelude::*;
 
 use super::kernel::{Simulator, Slot};
 use super::phantom::Phantom;
@@ -233,6 +234,8 @@ impl TissueKeyframes {
             let u = position(event);
             let j = u.floor() as i64;
             let weights = lagrange_cubic(u - j as f64);
+            // Every keyframe echo this event adds, with its weight, in the order they add.
+            let mut terms: Vec<(ArrayView2<'_, f32>, f32)> = Vec::new();
             for (k, polarity, offset) in params.sequence.event_pulses(event) {
                 let (slot, shift) = key(k, offset);
                 // Sample i of the slot's echo is sample i + lead − shift of its keyframe (a
@@ -241,12 +244,21 @@ impl TissueKeyframes {
                 // Nodes of weight 0 (all but one at a keyframe, or for still tissue) may not exist.
                 for (node, w) in (-1..=2).zip(weights).filter(|&(_, w)| w != 0.0) {
                     let echo = &self.echoes[&(j + node, slot)];
-                    let scale = w as f32 * polarity;
-                    Zip::from(&mut out)
-                        .and(echo.slice(s![.., from..from + ns]))
-                        .par_for_each(|o, &e| *o += scale * e);
+                    terms.push((echo.slice(s![.., from..from + ns]), w as f32 * polarity));
                 }
             }
+            // A channel at a time, every term in turn while its trace is in cache: each sample
+            // sums the same products in the same order as one pass per term would.
+            out.axis_iter_mut(Axis(0))
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(channel, mut trace)| {
+                    for (echo, scale) in &terms {
+                        Zip::from(&mut trace)
+                            .and(echo.row(channel))
+                            .for_each(|o, &e| *o += scale * e);
+                    }
+                });
         }
         Ok(())
     }
