@@ -25,25 +25,29 @@ const WINDOW_VZ_RGB: (u8, u8, u8) = (80, 220, 255);
 /// Size of each panel of [`FIGURE`] (px).
 const SPECTROGRAM_PANEL_PX: (u32, u32) = (600, 460);
 
+/// The sites' time dimension, the windows' centres: the Zarr store's coordinate, which the
+/// arrays along it name as their dimension so that xarray aligns them.
+pub const TIME_COORDINATE: &str = "site_time";
+
 /// Makes one of the sites' arrays from their spectrograms.
 type MakeArray = fn(&SiteSpectrograms) -> ArrayD<f64>;
 
 /// Each array the sites are written as: its name, its dimensions as the Zarr store and xarray
-/// name them (`site_time`: the windows' centres), and how it is made. The one list the `.npy`
-/// files, the Zarr store and the Python result read.
+/// name them ([`TIME_COORDINATE`]: the windows' centres), and how it is made. The one list the
+/// `.npy` files, the Zarr store and the Python result read.
 const LAYOUT: [(&str, &[&str], MakeArray); 4] = [
     (
         "site_spectrograms",
-        &["site", "site_time", "site_velocity_bin"],
+        &["site", TIME_COORDINATE, "site_velocity_bin"],
         |sites| sites.power_db().into_dyn(),
     ),
-    ("site_times", &["site_time"], |sites| {
+    ("site_times", &[TIME_COORDINATE], |sites| {
         Array1::from(sites.times_s.clone()).into_dyn()
     }),
     ("site_velocities", &["site", "site_velocity_bin"], |sites| {
         sites.velocities().into_dyn()
     }),
-    ("site_mean_velocity", &["site", "site_time"], |sites| {
+    ("site_mean_velocity", &["site", TIME_COORDINATE], |sites| {
         sites.mean_velocity().into_dyn()
     }),
 ];

@@ -206,10 +206,10 @@ impl ZarrStore {
     }
 
     /// Writes the sites' spectrograms, their velocity axes and mean velocities, on the
-    /// `site_time` coordinate (the windows' centres).
+    /// [`crate::sites::TIME_COORDINATE`] coordinate (the windows' centres).
     fn write_sites(&self, sites: &SiteSpectrograms) -> Result<()> {
         let time = MapKind::new(
-            "site_time",
+            crate::sites::TIME_COORDINATE,
             "s",
             "centre time of each spectrogram window from the first frame",
         );
