@@ -309,6 +309,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         "setup_s": setup_s,
         "simulate_s": simulate_s,
         "ns_per_echo": simulate_s / echoes * 1e9,
+        "render_kernels": pcuvd::simulate::render_level().name(),
         "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
     println!(
@@ -320,6 +321,14 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         features.join(", "),
         kernels_in_use()
     );
+    let render = pcuvd::simulate::render_level();
+    if render != pcuvd::core::simd::level() {
+        println!(
+            "  render       {} kernels (measured faster than {} on this CPU, the same samples)",
+            render.name(),
+            pcuvd::core::simd::level().name()
+        );
+    }
     println!("  scatterers   {blood} blood, {tissue} tissue");
     println!("  set-up       {setup_s:.1} s (tree, flow, scatterers, tissue)");
     println!(

@@ -74,6 +74,37 @@ pub fn level() -> Level {
     })
 }
 
+/// The x86-64 CPU's vendor (`GenuineIntel`, `AuthenticAMD`, …) and its family and model as
+/// `/proc/cpuinfo` numbers them (CPUID leaves 0 and 1, the extended fields folded in); `None`
+/// on other architectures. Kernels whose widest level is not their fastest on some CPUs ask it.
+pub fn cpu_identity() -> Option<([u8; 12], u32, u32)> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::__cpuid;
+        // CPUID is always available on x86-64; the intrinsic is safe from Rust 1.89 on.
+        #[allow(unused_unsafe)]
+        let (vendor, signature) = unsafe { (__cpuid(0), __cpuid(1).eax) };
+        let mut name = [0u8; 12];
+        name[..4].copy_from_slice(&vendor.ebx.to_le_bytes());
+        name[4..8].copy_from_slice(&vendor.edx.to_le_bytes());
+        name[8..].copy_from_slice(&vendor.ecx.to_le_bytes());
+        let base_family = (signature >> 8) & 0xf;
+        let family = if base_family == 0xf {
+            base_family + ((signature >> 20) & 0xff)
+        } else {
+            base_family
+        };
+        let model = if base_family == 0x6 || base_family == 0xf {
+            ((signature >> 4) & 0xf) | (((signature >> 16) & 0xf) << 4)
+        } else {
+            (signature >> 4) & 0xf
+        };
+        Some((name, family, model))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    None
+}
+
 /// Whether the kernels may use AVX-512 (F, DQ) here, with AVX2 and FMA.
 pub fn avx512() -> bool {
     level() >= Level::Avx512
@@ -127,6 +158,24 @@ pub fn transpose_8x8(rows: [std::arch::x86_64::__m256; 8]) -> [std::arch::x86_64
 #[cfg(test)]
 mod level_tests {
     use super::*;
+
+    /// CPUID's vendor, family and model are those the kernel reads and prints in /proc/cpuinfo.
+    #[test]
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    fn cpu_identity_is_what_the_kernel_reports() {
+        let text = std::fs::read_to_string("/proc/cpuinfo").expect("/proc/cpuinfo on Linux");
+        let field = |name: &str| {
+            text.lines()
+                .find(|line| line.split(':').next().map(str::trim) == Some(name))
+                .and_then(|line| line.split(':').nth(1))
+                .map(|value| value.trim().to_string())
+                .expect("field in /proc/cpuinfo")
+        };
+        let (vendor, family, model) = cpu_identity().expect("x86-64");
+        assert_eq!(std::str::from_utf8(&vendor).unwrap(), field("vendor_id"));
+        assert_eq!(family.to_string(), field("cpu family"));
+        assert_eq!(model.to_string(), field("model"));
+    }
 
     /// A name caps the level at its own, never above what the CPU has; no name, an unknown one
     /// or a wider one leaves the CPU's.

@@ -58,6 +58,7 @@ use ndarray::{Array3, Axis};
 use rayon::prelude::*;
 
 pub use self::elevation::ElevationAperture;
+pub use self::kernel::render_level;
 use self::kernel::{Simulator, Slot};
 pub use self::presets::{PAPER_FRAMES, RAT_FRAMES, paper_spiral_params, rat_params};
 pub use self::waveform::EchoWaveform;
