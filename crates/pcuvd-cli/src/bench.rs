@@ -294,6 +294,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
     )?;
     let simulate_s = clock.elapsed().as_secs_f64();
     let channels = simulation.modes[0].1.probe.n_elements;
+    let (render, kernels) = (pcuvd::simulate::render_level(), pcuvd::core::simd::level());
     let report = json!({
         "scenario": source,
         "machine": { "cpu": model, "features": features, "threads": threads, "kernels": kernels_in_use() },
@@ -309,7 +310,7 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         "setup_s": setup_s,
         "simulate_s": simulate_s,
         "ns_per_echo": simulate_s / echoes * 1e9,
-        "render_kernels": pcuvd::simulate::render_level().name(),
+        "render_kernels": render.name(),
         "peak_memory_bytes": pcuvd_app::memory::peak_resident_memory(),
     });
     println!(
@@ -321,12 +322,11 @@ fn run_simulation(args: &BenchArgs, source: &str) -> Result<()> {
         features.join(", "),
         kernels_in_use()
     );
-    let render = pcuvd::simulate::render_level();
-    if render != pcuvd::core::simd::level() {
+    if render != kernels {
         println!(
             "  render       {} kernels (measured faster than {} on this CPU, the same samples)",
             render.name(),
-            pcuvd::core::simd::level().name()
+            kernels.name()
         );
     }
     println!("  scatterers   {blood} blood, {tissue} tissue");
