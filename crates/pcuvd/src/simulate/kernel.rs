@@ -34,20 +34,24 @@ use crate::core::simd::Level;
 const AVX2_RENDER_CPUS: [(&[u8; 12], u32, u32); 1] = [(b"GenuineIntel", 6, 106)];
 
 /// The vector instructions the simulator's render uses in this process: the kernels' level
-/// ([`crate::core::simd::level`]), AVX2 instead of AVX-512 on the CPUs of [`AVX2_RENDER_CPUS`].
+/// ([`crate::core::simd::level`]), AVX2 instead of AVX-512 on the CPUs of [`AVX2_RENDER_CPUS`];
+/// decided once, as the kernels' level is.
 pub fn render_level() -> Level {
-    let level = crate::core::simd::level();
-    let narrower_faster =
-        crate::core::simd::cpu_identity().is_some_and(|(vendor, family, model)| {
-            AVX2_RENDER_CPUS
-                .iter()
-                .any(|&(v, f, m)| *v == vendor && f == family && m == model)
-        });
-    if level == Level::Avx512 && narrower_faster {
-        Level::Avx2
-    } else {
-        level
-    }
+    static RENDER_LEVEL: std::sync::OnceLock<Level> = std::sync::OnceLock::new();
+    *RENDER_LEVEL.get_or_init(|| {
+        let level = crate::core::simd::level();
+        let narrower_faster =
+            crate::core::simd::cpu_identity().is_some_and(|(vendor, family, model)| {
+                AVX2_RENDER_CPUS
+                    .iter()
+                    .any(|&(v, f, m)| *v == vendor && f == family && m == model)
+            });
+        if level == Level::Avx512 && narrower_faster {
+            Level::Avx2
+        } else {
+            level
+        }
+    })
 }
 
 /// One pulse slot of an event: steering angle (rad), polarity (±1) and start within the event (s).
@@ -1080,7 +1084,7 @@ mod tests {
         for spectral_bands in [true, false] {
             let mut params = super::super::paper_spiral_params(true).unwrap();
             params.frequency_dependent_attenuation = spectral_bands;
-            let sim = Simulator::new(&params).unwrap();
+            let mut sim = Simulator::new(&params).unwrap();
             assert_eq!(sim.bands.len() > 2, spectral_bands);
             let slots: Vec<Slot> = params
                 .sequence
@@ -1105,7 +1109,6 @@ mod tests {
                 .into_iter()
                 .filter(|&l| l <= crate::core::simd::level())
             {
-                let mut sim = Simulator::new(&params).unwrap();
                 sim.render_level = level;
                 let mut out = ndarray::Array2::<f32>::zeros((sim.element_x.len(), sim.n_samples));
                 sim.render_event(&scatterers, &amplitudes, &slots, out.view_mut(), None);
