@@ -20,6 +20,8 @@ pub struct LumenLookup<'a> {
 impl<'a> LumenLookup<'a> {
     /// About eight cells per segment over the boxes' extent.
     const CELLS_PER_SEGMENT: f64 = 8.0;
+    /// The most cells per segment, whatever the boxes' shape.
+    const MAX_CELLS_PER_SEGMENT: f64 = 64.0;
 
     /// The lookup of `segments`.
     pub fn new(segments: &'a [SegmentFlow]) -> Self {
@@ -41,10 +43,21 @@ impl<'a> LumenLookup<'a> {
         let finite = boxes
             .iter()
             .all(|(a, b)| a.iter().chain(b).all(|v| v.is_finite()));
-        let dims: [usize; 3] = if segments.is_empty() || !finite {
-            [0; 3]
-        } else {
+        let dims_of = |cell: f64| -> [usize; 3] {
             std::array::from_fn(|k| (extent[k] / cell).floor() as usize + 1)
+        };
+        let (cell, dims) = if segments.is_empty() || !finite {
+            (cell, [0; 3])
+        } else {
+            // An axis shorter than a cell still takes one: a tree far longer along one axis than
+            // across (a vessel placed metres or kilometres away) would get cells by the billion
+            // along it. The cell grows until their count is within a few times the plan.
+            let budget = Self::MAX_CELLS_PER_SEGMENT * segments.len() as f64 + 64.0;
+            let mut cell = cell;
+            while dims_of(cell).iter().map(|&d| d as f64).product::<f64>() > budget {
+                cell *= 2.0;
+            }
+            (cell, dims_of(cell))
         };
         let mut lookup = LumenLookup {
             segments,
@@ -71,6 +84,12 @@ impl<'a> LumenLookup<'a> {
             }
         }
         lookup
+    }
+
+    /// Cells of the grid.
+    #[cfg(test)]
+    pub(super) fn cell_count(&self) -> usize {
+        self.cells.len()
     }
 
     /// The cell along axis `k` of a coordinate `v` (m) within the boxes' extent. Rounding is

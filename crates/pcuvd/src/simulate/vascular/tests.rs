@@ -651,16 +651,38 @@ fn the_deep_brain_rises_from_its_basal_vessels_and_leaves_the_cortex_as_it_was()
 #[test]
 fn the_lumen_lookup_answers_as_testing_every_segment() {
     let flow = solve(&generate(&small_cortex(3)).unwrap(), &FlowParams::rat()).unwrap();
-    let lookup = LumenLookup::new(&flow.segments);
+    lookup_answers_as_testing_every_segment(&flow.segments);
+}
+
+/// A tree with one segment reaching a hundred kilometres deep (a scenario's vessel put far below the
+/// record): its lookup stays small and still answers right.
+#[test]
+fn a_lumen_lookup_over_a_far_reaching_segment_stays_small() {
+    let flow = solve(&generate(&small_cortex(3)).unwrap(), &FlowParams::rat()).unwrap();
+    let mut segments = flow.segments.clone();
+    let last = segments.len() - 1;
+    segments[last].end[2] = 1e5;
+    let lookup = LumenLookup::new(&segments);
+    assert!(
+        lookup.cell_count() <= 64 * segments.len() + 64,
+        "{} cells for {} segments",
+        lookup.cell_count(),
+        segments.len()
+    );
+    lookup_answers_as_testing_every_segment(&segments);
+}
+
+fn lookup_answers_as_testing_every_segment(segments: &[crate::simulate::vascular::SegmentFlow]) {
+    let lookup = LumenLookup::new(segments);
     let every = |p: &[f64; 3]| {
-        flow.segments.iter().any(|s| {
+        segments.iter().any(|s| {
             let (lo, hi) = s.bounds();
             (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]) && s.local(p).is_some()
         })
     };
     // Points over the tree's extent and past it, and points on the segments' axes and box
     // corners (where rounding decides), every kind held and not held.
-    let (lo, hi) = flow.segments.iter().map(|s| s.bounds()).fold(
+    let (lo, hi) = segments.iter().map(|s| s.bounds()).fold(
         ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
         |(lo, hi), (a, b)| {
             (
@@ -682,7 +704,7 @@ fn the_lumen_lookup_answers_as_testing_every_segment() {
             }
         }
     }
-    for s in &flow.segments {
+    for s in segments {
         let (a, b) = s.bounds();
         let middle: [f64; 3] = std::array::from_fn(|k| 0.5 * (s.start[k] + s.end[k]));
         points.extend([s.start, s.end, middle, a, b]);
