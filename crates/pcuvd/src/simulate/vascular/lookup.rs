@@ -40,24 +40,27 @@ impl<'a> LumenLookup<'a> {
         let cell = (volume / (Self::CELLS_PER_SEGMENT * segments.len().max(1) as f64))
             .cbrt()
             .max(1e-6);
+        // (Boxes of finite corners may still span more than f64 holds.)
         let finite = boxes
             .iter()
-            .all(|(a, b)| a.iter().chain(b).all(|v| v.is_finite()));
-        let dims_of = |cell: f64| -> [usize; 3] {
-            std::array::from_fn(|k| (extent[k] / cell).floor() as usize + 1)
-        };
+            .all(|(a, b)| a.iter().chain(b).all(|v| v.is_finite()))
+            && extent.iter().all(|e| e.is_finite());
+        // Counted in f64, which no extent overflows.
+        let cells_along =
+            |cell: f64| -> [f64; 3] { std::array::from_fn(|k| (extent[k] / cell).floor() + 1.0) };
         let (cell, dims) = if segments.is_empty() || !finite {
             (cell, [0; 3])
         } else {
             // An axis shorter than a cell still takes one: a tree far longer along one axis than
             // across (a vessel placed metres or kilometres away) would get cells by the billion
-            // along it. The cell grows until their count is within a few times the plan.
+            // along it. The cell grows until their count is within a few times the plan (at
+            // worst to infinity, where every extent takes one cell).
             let budget = Self::MAX_CELLS_PER_SEGMENT * segments.len() as f64 + 64.0;
             let mut cell = cell;
-            while dims_of(cell).iter().map(|&d| d as f64).product::<f64>() > budget {
+            while cells_along(cell).iter().product::<f64>() > budget {
                 cell *= 2.0;
             }
-            (cell, dims_of(cell))
+            (cell, cells_along(cell).map(|n| n as usize))
         };
         let mut lookup = LumenLookup {
             segments,

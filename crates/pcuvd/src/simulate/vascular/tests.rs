@@ -670,6 +670,12 @@ fn a_lumen_lookup_over_a_far_reaching_segment_stays_small() {
         segments.len()
     );
     lookup_answers_as_testing_every_segment(&segments);
+    // Reaching past what any grid could hold, and past what f64 spans: the same answers.
+    for far in [1e300, f64::MAX] {
+        segments[last].end[2] = far;
+        segments[0].start[2] = -far;
+        lookup_answers_as_testing_every_segment(&segments);
+    }
 }
 
 fn lookup_answers_as_testing_every_segment(segments: &[crate::simulate::vascular::SegmentFlow]) {
