@@ -390,6 +390,19 @@ impl Scenario {
                     ] {
                         positive(&format!("[vessels].{key}"), value)?;
                     }
+                    // Vessels wholly below the record would simulate a recording with no blood
+                    // in it: a unit slip (millimetres written as metres) more likely than a wish.
+                    let record_end = self.receive.depth_m[1];
+                    if v.surface_depth_m >= record_end {
+                        return Err(refuse(
+                            "[vessels].surface_depth_m",
+                            v.surface_depth_m,
+                            &format!(
+                                "the cortex would lie below the record, which ends \
+                                 {record_end} m deep ([receive].depth_m)"
+                            ),
+                        ));
+                    }
                     increasing(
                         "[vessels].arteriole_diameter_m",
                         v.arteriole_diameter_m,
@@ -453,6 +466,17 @@ impl Scenario {
                                 &format!(
                                     "the deep trunks would rise from deep_depth_m into the cortex \
                                      (which ends {cortex_floor} m deep)"
+                                ),
+                            ));
+                        }
+                        if v.deep_depth_m - v.deep_reach_m >= record_end {
+                            return Err(refuse(
+                                "[vessels].deep_depth_m",
+                                v.deep_depth_m,
+                                &format!(
+                                    "the deep vessels would lie below the record, which ends \
+                                     {record_end} m deep ([receive].depth_m), even where a trunk \
+                                     rises the whole deep_reach_m"
                                 ),
                             ));
                         }

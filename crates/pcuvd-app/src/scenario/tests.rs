@@ -156,6 +156,22 @@ fn out_of_range_values_are_refused_by_their_key() {
             "echogenicity_db = 151.0",
             "[[tissue.layers]].echogenicity_db = 151",
         ),
+        // Vessels wholly below the record (which ends 13 mm deep).
+        (
+            "surface_depth_m = 1e-3",
+            "surface_depth_m = 13e-3",
+            "[vessels].surface_depth_m = 0.013: the cortex would lie below the record",
+        ),
+        (
+            "deep_depth_m = 9e-3",
+            "deep_depth_m = 9e9",
+            "[vessels].deep_depth_m = 9000000000: the deep vessels would lie below the record",
+        ),
+        (
+            "deep_depth_m = 9e-3",
+            "deep_depth_m = 17e-3",
+            "[vessels].deep_depth_m = 0.017: the deep vessels would lie below the record",
+        ),
     ];
     for (from, to, key) in cases {
         let edited = brain_with(|t| {
@@ -165,6 +181,13 @@ fn out_of_range_values_are_refused_by_their_key() {
         let error = crate::one_line(&edited.unwrap_err());
         assert!(error.contains(key), "{key}: {error}");
     }
+}
+
+/// Deep vessels whose trunks, rising the whole reach, would just enter the record are simulated.
+#[test]
+fn deep_vessels_reaching_into_the_record_are_kept() {
+    let scenario = brain_with(|t| t.replacen("deep_depth_m = 9e-3", "deep_depth_m = 16.9e-3", 1));
+    assert!(scenario.is_ok(), "{:?}", scenario.err());
 }
 
 #[test]
