@@ -255,8 +255,10 @@ impl TableGrid {
             y_max,
             y_step,
             z_step,
-            ny: (2.0 * y_max / y_step).ceil() as usize + 1,
-            nz: (z_max / z_step).ceil() as usize + 2,
+            // Saturating: an aperture too tall for any table (a height of 10³⁰⁰ m converts to
+            // usize::MAX) must count as too many entries, not wrap around to none.
+            ny: ((2.0 * y_max / y_step).ceil() as usize).saturating_add(1),
+            nz: ((z_max / z_step).ceil() as usize).saturating_add(2),
         }
     }
 }
@@ -672,5 +674,19 @@ mod tests {
             .err()
             .unwrap();
         assert!(err.to_string().contains("element height"), "{err}");
+        // Too tall for any table, up to past what a count of entries holds: refused, not built.
+        for height in [1.0, 1e9, 1e300, f64::MAX] {
+            let tall = ElevationAperture {
+                height,
+                focus: 8e-3,
+            };
+            let err = ElevationTable::new(&tall, LAMBDA, 15.625e6, 10e-3)
+                .err()
+                .unwrap();
+            assert!(
+                err.to_string().contains("at most 5·10⁷ entries"),
+                "{height}: {err}"
+            );
+        }
     }
 }
