@@ -654,8 +654,8 @@ fn the_lumen_lookup_answers_as_testing_every_segment() {
     lookup_answers_as_testing_every_segment(&flow.segments);
 }
 
-/// A tree with one segment reaching a hundred kilometres deep (a scenario's vessel put far below the
-/// record): its lookup stays small and still answers right.
+/// A tree with one segment reaching a hundred kilometres deep (a user's vessel table with one
+/// far-off vertex): its lookup stays small and still answers right.
 #[test]
 fn a_lumen_lookup_over_a_far_reaching_segment_stays_small() {
     let flow = solve(&generate(&small_cortex(3)).unwrap(), &FlowParams::rat()).unwrap();
