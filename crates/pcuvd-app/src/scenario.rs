@@ -481,6 +481,25 @@ impl Scenario {
                             ));
                         }
                     }
+                    // And wholly above it, where a record starts deeper than the tree reaches.
+                    let cortex_floor = v.surface_depth_m + v.cortex_thickness_m;
+                    let deepest = if v.deep_pairs > 0 {
+                        v.deep_depth_m.max(cortex_floor)
+                    } else {
+                        cortex_floor
+                    };
+                    let record_start = self.receive.depth_m[0];
+                    if deepest <= record_start {
+                        return Err(refuse(
+                            "[receive].depth_m",
+                            format!("{:?}", self.receive.depth_m),
+                            &format!(
+                                "the record would start below the vessel tree, which ends \
+                                 {deepest} m deep (surface_depth_m + cortex_thickness_m, or \
+                                 deep_depth_m with deep_pairs)"
+                            ),
+                        ));
+                    }
                 }
             }
         }

@@ -172,6 +172,13 @@ fn out_of_range_values_are_refused_by_their_key() {
             "deep_depth_m = 17e-3",
             "[vessels].deep_depth_m = 0.017: the deep vessels would lie below the record",
         ),
+        // The record starting below the deep vessels (9 mm).
+        (
+            "depth_m = [0.0, 13e-3]",
+            "depth_m = [9e-3, 13e-3]",
+            "[receive].depth_m = [0.009, 0.013]: the record would start below the vessel tree, \
+             which ends 0.009 m deep",
+        ),
     ];
     for (from, to, key) in cases {
         let edited = brain_with(|t| {
@@ -187,6 +194,10 @@ fn out_of_range_values_are_refused_by_their_key() {
 #[test]
 fn deep_vessels_reaching_into_the_record_are_kept() {
     let scenario = brain_with(|t| t.replacen("deep_depth_m = 9e-3", "deep_depth_m = 16.9e-3", 1));
+    assert!(scenario.is_ok(), "{:?}", scenario.err());
+    // A record that starts within the deep vessels' depth: kept.
+    let scenario =
+        brain_with(|t| t.replacen("depth_m = [0.0, 13e-3]", "depth_m = [8.9e-3, 13e-3]", 1));
     assert!(scenario.is_ok(), "{:?}", scenario.err());
 }
 
