@@ -33,6 +33,11 @@ mod sections;
 pub use sections::*;
 
 /// A value refused by its key.
+/// How far outside the record (m) a generated vessel tree's axes may lie before the scenario is
+/// refused: its largest vessels (the pial and basal ones) are a few hundred µm across, so a tree
+/// this far outside has no lumen in the record.
+const OUTSIDE_MARGIN_M: f64 = 1e-3;
+
 fn refuse(key: &str, value: impl std::fmt::Display, why: &str) -> anyhow::Error {
     anyhow::anyhow!("{key} = {value}: {why}")
 }
@@ -390,16 +395,17 @@ impl Scenario {
                     ] {
                         positive(&format!("[vessels].{key}"), value)?;
                     }
-                    // Vessels wholly below the record would simulate a recording with no blood
+                    // Vessels wholly outside the record would simulate a recording with no blood
                     // in it: a unit slip (millimetres written as metres) more likely than a wish.
+                    // Depths here are the vessels' axes: a margin far wider than any lumen.
                     let record_end = self.receive.depth_m[1];
-                    if v.surface_depth_m >= record_end {
+                    if v.surface_depth_m >= record_end + OUTSIDE_MARGIN_M {
                         return Err(refuse(
                             "[vessels].surface_depth_m",
                             v.surface_depth_m,
                             &format!(
-                                "the cortex would lie below the record, which ends \
-                                 {record_end} m deep ([receive].depth_m)"
+                                "the cortex would start more than 1 mm below the record, which \
+                                 ends {record_end} m deep ([receive].depth_m)"
                             ),
                         ));
                     }
@@ -469,14 +475,14 @@ impl Scenario {
                                 ),
                             ));
                         }
-                        if v.deep_depth_m - v.deep_reach_m >= record_end {
+                        if v.deep_depth_m - v.deep_reach_m >= record_end + OUTSIDE_MARGIN_M {
                             return Err(refuse(
                                 "[vessels].deep_depth_m",
                                 v.deep_depth_m,
                                 &format!(
-                                    "the deep vessels would lie below the record, which ends \
-                                     {record_end} m deep ([receive].depth_m), even where a trunk \
-                                     rises the whole deep_reach_m"
+                                    "the deep vessels would lie more than 1 mm below the \
+                                     record, which ends {record_end} m deep ([receive].depth_m), \
+                                     even where a trunk rises the whole deep_reach_m"
                                 ),
                             ));
                         }
@@ -489,12 +495,13 @@ impl Scenario {
                         cortex_floor
                     };
                     let record_start = self.receive.depth_m[0];
-                    if deepest <= record_start {
+                    if deepest + OUTSIDE_MARGIN_M <= record_start {
                         return Err(refuse(
                             "[receive].depth_m",
                             format!("{:?}", self.receive.depth_m),
                             &format!(
-                                "the record would start below the vessel tree, which ends \
+                                "the record would start more than 1 mm below the vessel tree, \
+                                 which ends \
                                  {deepest} m deep (surface_depth_m + cortex_thickness_m, or \
                                  deep_depth_m with deep_pairs)"
                             ),

@@ -156,28 +156,28 @@ fn out_of_range_values_are_refused_by_their_key() {
             "echogenicity_db = 151.0",
             "[[tissue.layers]].echogenicity_db = 151",
         ),
-        // Vessels wholly below the record (which ends 13 mm deep).
+        // Vessels wholly below the record (which ends 13 mm deep), more than 1 mm.
         (
             "surface_depth_m = 1e-3",
-            "surface_depth_m = 13e-3",
-            "[vessels].surface_depth_m = 0.013: the cortex would lie below the record",
+            "surface_depth_m = 14e-3",
+            "[vessels].surface_depth_m = 0.014: the cortex would start more than 1 mm below",
         ),
         (
             "deep_depth_m = 9e-3",
             "deep_depth_m = 9e9",
-            "[vessels].deep_depth_m = 9000000000: the deep vessels would lie below the record",
+            "[vessels].deep_depth_m = 9000000000: the deep vessels would lie more than 1 mm",
         ),
         (
             "deep_depth_m = 9e-3",
-            "deep_depth_m = 17e-3",
-            "[vessels].deep_depth_m = 0.017: the deep vessels would lie below the record",
+            "deep_depth_m = 18e-3",
+            "[vessels].deep_depth_m = 0.018: the deep vessels would lie more than 1 mm",
         ),
-        // The record starting below the deep vessels (9 mm).
+        // The record starting more than 1 mm below the deep vessels (9 mm).
         (
             "depth_m = [0.0, 13e-3]",
-            "depth_m = [9e-3, 13e-3]",
-            "[receive].depth_m = [0.009, 0.013]: the record would start below the vessel tree, \
-             which ends 0.009 m deep",
+            "depth_m = [10e-3, 13e-3]",
+            "[receive].depth_m = [0.01, 0.013]: the record would start more than 1 mm below the \
+             vessel tree, which ends 0.009 m deep",
         ),
     ];
     for (from, to, key) in cases {
@@ -190,15 +190,26 @@ fn out_of_range_values_are_refused_by_their_key() {
     }
 }
 
-/// Deep vessels whose trunks, rising the whole reach, would just enter the record are simulated.
+/// Vessels within 1 mm of the record (their axes; their lumens may reach in) are simulated.
 #[test]
-fn deep_vessels_reaching_into_the_record_are_kept() {
-    let scenario = brain_with(|t| t.replacen("deep_depth_m = 9e-3", "deep_depth_m = 16.9e-3", 1));
-    assert!(scenario.is_ok(), "{:?}", scenario.err());
-    // A record that starts within the deep vessels' depth: kept.
-    let scenario =
-        brain_with(|t| t.replacen("depth_m = [0.0, 13e-3]", "depth_m = [8.9e-3, 13e-3]", 1));
-    assert!(scenario.is_ok(), "{:?}", scenario.err());
+fn vessels_within_a_millimetre_of_the_record_are_kept() {
+    // (A cortex that deep leaves no room for the deep pairs below it.)
+    let cases: [&[(&str, &str)]; 3] = [
+        &[("deep_depth_m = 9e-3", "deep_depth_m = 17.9e-3")],
+        &[
+            ("surface_depth_m = 1e-3", "surface_depth_m = 13.9e-3"),
+            ("deep_pairs = 4", "deep_pairs = 0"),
+        ],
+        &[("depth_m = [0.0, 13e-3]", "depth_m = [9.9e-3, 13e-3]")],
+    ];
+    for edits in cases {
+        let scenario = brain_with(|t| {
+            edits
+                .iter()
+                .fold(t.to_string(), |t, (from, to)| t.replacen(from, to, 1))
+        });
+        assert!(scenario.is_ok(), "{edits:?}: {:?}", scenario.err());
+    }
 }
 
 #[test]
