@@ -32,12 +32,12 @@ pub const SHIPPED: [(&str, &str); 5] = [
 mod sections;
 pub use sections::*;
 
-/// A value refused by its key.
 /// How far outside the record (m) a generated vessel tree's axes may lie before the scenario is
 /// refused: its largest vessels (the pial and basal ones) are a few hundred µm across, so a tree
 /// this far outside has no lumen in the record.
 const OUTSIDE_MARGIN_M: f64 = 1e-3;
 
+/// A value refused by its key.
 fn refuse(key: &str, value: impl std::fmt::Display, why: &str) -> anyhow::Error {
     anyhow::anyhow!("{key} = {value}: {why}")
 }
