@@ -399,6 +399,7 @@ impl Scenario {
                     // in it: a unit slip (millimetres written as metres) more likely than a wish.
                     // Depths here are the vessels' axes: a margin far wider than any lumen.
                     let record_end = self.receive.depth_m[1];
+                    let cortex_floor = v.surface_depth_m + v.cortex_thickness_m;
                     if v.surface_depth_m >= record_end + OUTSIDE_MARGIN_M {
                         return Err(refuse(
                             "[vessels].surface_depth_m",
@@ -464,7 +465,6 @@ impl Scenario {
                             v.deep_venule_diameter_m,
                             true,
                         )?;
-                        let cortex_floor = v.surface_depth_m + v.cortex_thickness_m;
                         if v.deep_depth_m - v.deep_reach_m <= cortex_floor {
                             return Err(refuse(
                                 "[vessels].deep_reach_m",
@@ -488,7 +488,6 @@ impl Scenario {
                         }
                     }
                     // And wholly above it, where a record starts deeper than the tree reaches.
-                    let cortex_floor = v.surface_depth_m + v.cortex_thickness_m;
                     let deepest = if v.deep_pairs > 0 {
                         v.deep_depth_m.max(cortex_floor)
                     } else {
